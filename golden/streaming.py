@@ -1,0 +1,292 @@
+"""Streaming architectural model: the executable spec of the detection gateware.
+
+It consumes pixels in raster order, one at a time, with the structures the gateware uses:
+
+* **threshold unit** -- fixed/global levels latched per frame; in local mode a running window
+  sum over a delay line of the row (the window reaches ahead, so the gateware delays the
+  pixel stream by ``L`` pixels);
+* **label row buffer** -- one label per column: the labels of row ``y - 1`` right of the scan
+  position and of row ``y`` left of it (the *wavefront*);
+* **merge table** -- ``parent[label]``; a root is its own parent.  When a pixel joins the run
+  to its left (label ``rl``, always a root) and the blob above (root ``ru``) the table records
+  ``parent[ru] = rl``: the current run's label never changes inside a run;
+* **feature table** -- per root: the contract features plus ``last`` (raster index of the
+  blob's newest pixel) and ``tracked``; merged on union (sums saturate, min/max combine);
+* **completion** -- after the pixel at ``(x, y)``, the blob that owned ``(x, y - 1)`` is
+  complete iff its newest pixel is ``(x, y - 1)``: it got no pixel in row ``y`` up to ``x``,
+  and no pixel further right can reach it.  A virtual dark row after the last one completes
+  the rest.  So records leave in the raster order of each blob's last pixel;
+* **label reuse** -- a label returns to the free list when no row-buffer entry and no child
+  in the merge table refers to it (reference counts);
+* **capacities** -- ``cfg.labels`` tracked blobs open at once (more start *untracked*),
+  ``cfg.record_capacity`` records per frame.
+
+Dark pixels below a dark row-buffer entry change no state, so the model visits only the
+columns that are lit or below a labelled pixel; results do not depend on that shortcut.
+``peak_labels`` reports how many labels were alive at once (the depth the gateware's merge
+table needs) and ``peak_open`` how many tracked blobs were open at once (the feature table).
+"""
+
+import numpy as np
+
+from lodestar import contract as C
+
+from .frame import FrameStats, frame_levels
+from .result import DetectionResult
+
+# feature-table slots
+_N, _NSAT, _S0, _SX, _SY, _SXX, _SYY, _SXY, _XMIN, _XMAX, _YMIN, _YMAX, _PEAK, _SAT, \
+    _LAST, _TRACKED = range(16)
+
+
+class StreamingModel:
+    """Detects frames pixel by pixel.  ``run(frame, prev_stats) -> (result, stats)``."""
+
+    def __init__(self, cfg):
+        self.cfg = cfg
+        self.fs = C.full_scale(cfg.pixel_bits)
+        lim = C.moment_max(cfg.pixel_bits)
+        self.lim = [lim[name] for name in C.MOMENTS]
+        self.peak_labels = 0
+        self.peak_open = 0
+
+    # -- merge table and label pool ----------------------------------------------------
+    def _new_label(self):
+        if self.free:
+            lab = self.free.pop()
+        else:
+            self.parent.append(0)
+            self.refs.append(0)
+            self.feat.append(None)
+            lab = len(self.parent) - 1
+        self.parent[lab] = lab
+        self.refs[lab] = 0
+        self.alive += 1
+        if self.alive > self.peak_labels:
+            self.peak_labels = self.alive
+        return lab
+
+    def _find(self, lab):
+        parent = self.parent
+        while parent[lab] != lab:
+            lab = parent[lab]
+        return lab
+
+    def _release(self, lab):
+        """Drop one reference to ``lab``; free it (and its ancestors) when none is left."""
+        refs = self.refs
+        parent = self.parent
+        while True:
+            refs[lab] -= 1
+            if refs[lab]:
+                return
+            up = parent[lab]
+            if up == lab:
+                if self.feat[lab] is not None:
+                    raise AssertionError("streaming model: freed the root of an open blob")
+                self.free.append(lab)
+                self.alive -= 1
+                return
+            self.free.append(lab)
+            self.alive -= 1
+            lab = up
+
+    # -- feature table -----------------------------------------------------------------
+    def _start(self, x, y, p, w, raster):
+        lab = self._new_label()
+        if self.open_tracked < self.cfg.labels:
+            self.open_tracked += 1
+            if self.open_tracked > self.peak_open:
+                self.peak_open = self.open_tracked
+            f = [0] * 16
+            f[_XMIN] = f[_XMAX] = x
+            f[_YMIN] = f[_YMAX] = y
+            f[_TRACKED] = True
+        else:
+            f = [0] * 16
+            f[_TRACKED] = False
+        self.feat[lab] = f
+        self._add(f, x, y, p, w, raster)
+        return lab
+
+    def _add(self, f, x, y, p, w, raster):
+        f[_LAST] = raster
+        if not f[_TRACKED]:
+            return
+        f[_N] += 1
+        if p == self.fs:
+            f[_NSAT] += 1
+        if p > f[_PEAK]:
+            f[_PEAK] = p
+        if x < f[_XMIN]:
+            f[_XMIN] = x
+        if x > f[_XMAX]:
+            f[_XMAX] = x
+        f[_YMAX] = y
+        if w:
+            lim = self.lim
+            terms = (w, w * x, w * y, w * x * x, w * y * y, w * x * y)
+            for k in range(6):
+                v = f[_S0 + k] + terms[k]
+                if v > lim[k]:
+                    v = lim[k]
+                    f[_SAT] = True
+                f[_S0 + k] = v
+
+    def _union(self, keep, gone):
+        """Merge root ``gone`` into root ``keep`` (``parent[gone] = keep``)."""
+        fk = self.feat[keep]
+        fg = self.feat[gone]
+        self.parent[gone] = keep
+        self.refs[keep] += 1
+        self.feat[gone] = None
+        if fk[_LAST] < fg[_LAST]:
+            fk[_LAST] = fg[_LAST]
+        if not (fk[_TRACKED] and fg[_TRACKED]):
+            if fk[_TRACKED] or fg[_TRACKED]:
+                self.open_tracked -= 1
+            fk[_TRACKED] = False
+            return
+        self.open_tracked -= 1
+        fk[_N] += fg[_N]
+        fk[_NSAT] += fg[_NSAT]
+        lim = self.lim
+        for k in range(6):
+            v = fk[_S0 + k] + fg[_S0 + k]
+            if v > lim[k]:
+                v = lim[k]
+                fk[_SAT] = True
+            fk[_S0 + k] = v
+        fk[_SAT] = fk[_SAT] or fg[_SAT]
+        fk[_XMIN] = min(fk[_XMIN], fg[_XMIN])
+        fk[_XMAX] = max(fk[_XMAX], fg[_XMAX])
+        fk[_YMIN] = min(fk[_YMIN], fg[_YMIN])
+        fk[_YMAX] = max(fk[_YMAX], fg[_YMAX])
+        fk[_PEAK] = max(fk[_PEAK], fg[_PEAK])
+
+    def _complete(self, root):
+        f = self.feat[root]
+        self.feat[root] = None
+        if not f[_TRACKED]:
+            self.dropped_labels += 1
+            return
+        self.open_tracked -= 1
+        self.n_blobs += 1
+        cfg = self.cfg
+        if not C.passes_filters(f[_N], f[_S0], cfg.min_pixels, cfg.min_sum, cfg.max_pixels_reg):
+            self.n_filtered += 1
+        elif len(self.records) < cfg.record_capacity:
+            self.records.append(C.BlobRecord(
+                f[_N], f[_NSAT], f[_S0], f[_SX], f[_SY], f[_SXX], f[_SYY], f[_SXY],
+                f[_XMIN], f[_XMAX], f[_YMIN], f[_YMAX], f[_PEAK],
+                C.BLOB_MOMENTS_SATURATED if f[_SAT] else 0))
+        else:
+            self.dropped_records += 1
+
+    # -- threshold unit ----------------------------------------------------------------
+    def _local_row(self, row):
+        """Per-pixel (T, B) of one row by a running window sum, as the gateware computes."""
+        cfg = self.cfg
+        lg = cfg.local_log2_window
+        win = 1 << lg
+        w = len(row)
+        # window [s, s + win] inclusive; s advances by at most one column per pixel
+        s = C.local_window_start(0, w, lg)
+        acc = 0
+        for c in range(s, s + win + 1):
+            acc += row[c]
+        ts, bs = [0] * w, [0] * w
+        for x in range(w):
+            ns = C.local_window_start(x, w, lg)
+            if ns != s:
+                acc += row[ns + win] - row[s]
+                s = ns
+            m = (acc - row[x]) >> lg
+            bs[x] = m
+            t = m + cfg.local_offset
+            ts[x] = t if t < self.fs else self.fs
+        return ts, bs
+
+    # -- one frame -----------------------------------------------------------------------
+    def run(self, frame, prev_stats):
+        cfg = self.cfg
+        width, height = cfg.width, cfg.height
+        # label 0 means "no label"; real labels start at 1
+        self.parent, self.refs, self.feat, self.free = [0], [0], [None], []
+        self.alive = 0
+        self.open_tracked = 0
+        self.records = []
+        self.n_blobs = self.n_filtered = self.dropped_records = self.dropped_labels = 0
+        t_frame, b_frame, flags = frame_levels(cfg, prev_stats)
+        local = cfg.threshold_mode == "local"
+
+        rowbuf = [0] * width
+        s1 = s2 = 0
+        for y in range(height + 1):
+            if y < height:
+                row_np = frame[y]
+                row = row_np.tolist()
+                r64 = row_np.astype(np.int64)
+                s1 += int(r64.sum())
+                s2 += int((r64 * r64).sum())
+                if local:
+                    ts, bs = self._local_row(row)
+                    lit_cols = [x for x in range(width) if row[x] > ts[x]]
+                else:
+                    lit_cols = np.flatnonzero(row_np > t_frame).tolist()
+            else:  # virtual dark row: completes the blobs of the last row
+                lit_cols = []
+            lit_set = set(lit_cols)
+            cols = sorted(lit_set.union(x for x in range(width) if rowbuf[x]))
+            cur = 0
+            prev_x = -2
+            for x in cols:
+                if x != prev_x + 1:
+                    cur = 0
+                prev_x = x
+                u = rowbuf[x]
+                if x in lit_set:
+                    p = row[x]
+                    b = bs[x] if local else b_frame
+                    w = p - b if p > b else 0
+                    raster = y * width + x
+                    ru = self._find(u) if u else 0
+                    if cur and ru and ru != cur:
+                        self._union(cur, ru)
+                        r = cur
+                    else:
+                        r = cur or ru
+                    if r:
+                        self._add(self.feat[r], x, y, p, w, raster)
+                    else:
+                        r = self._start(x, y, p, w, raster)
+                    cur = r
+                    self.refs[r] += 1
+                    rowbuf[x] = r
+                else:
+                    cur = 0
+                    rowbuf[x] = 0
+                if u:
+                    root = self._find(u)
+                    if self.feat[root] is not None and \
+                            self.feat[root][_LAST] == (y - 1) * width + x:
+                        self._complete(root)
+                    self._release(u)
+        if self.alive:
+            raise AssertionError("streaming model: labels still alive at frame end")
+
+        if self.dropped_records:
+            flags |= C.FRAME_RECORD_OVERFLOW
+        if self.dropped_labels:
+            flags |= C.FRAME_LABEL_OVERFLOW
+        result = DetectionResult(
+            blobs=self.records, mode=cfg.mode, threshold=t_frame, background=b_frame,
+            n_blobs=self.n_blobs, n_filtered=self.n_filtered,
+            dropped_records=self.dropped_records, dropped_labels=self.dropped_labels,
+            flags=flags, width=width, height=height, pixel_bits=cfg.pixel_bits)
+        return result, FrameStats(width * height, s1, s2)
+
+
+def detect(frame, cfg, prev_stats):
+    """Detect one checked ``uint16`` frame.  Returns ``(DetectionResult, FrameStats)``."""
+    return StreamingModel(cfg).run(frame, prev_stats)
