@@ -59,10 +59,10 @@ table, feature table, completion detection, label free list; see ``golden/stream
     A zig-zag line (4-connected strokes) with peaks on row 0 and valleys on the last row: one
     blob per peak until the last row merges each pair of neighbouring peaks, in one row.
 ``sawtooth``
-    Ramp-shaped teeth rising to the right, standing on a full-width bar in the last row.  Each
-    row of a tooth starts a new label that merges into the tooth at its right end (one merge
-    per tooth per row, labels recycled every row), and the bar's single run merges every
-    tooth at once.
+    Ramp-shaped teeth rising to the right, standing on a full-width bar in the last row.  In
+    every row where a ramp steps down, the tooth's run starts with a new label that merges
+    into the tooth at the step (the run's label becomes the root, the old root a child), and
+    the bar's single run merges every tooth at once.
 """
 
 import numpy as np
@@ -281,9 +281,9 @@ def edges_and_corners(height, width):
     """Single pixels in the four corners, and on each edge a single pixel and a small blob.
 
     Needs ``height >= 9`` and ``width >= 9``.  The pieces are separated by dark pixels:
-    4 corner pixels, top edge: a 1x2 bar and a pixel, bottom edge: a 2x2 square and a pixel,
-    left edge: a 2x1 bar and a 2x2 square (wait: see below), right edge: a 2x2 square and a
-    pixel.  Exactly 12 blobs, every one touching an edge.
+    the 4 corner pixels; top edge: a 1x2 bar and a pixel; bottom edge: a 2x2 square and a
+    pixel; left edge: a 2x1 bar and a 1x2 bar; right edge: a 2x2 square and a pixel.
+    Exactly 12 blobs, every one touching an edge.
     """
     _check_size(height, width, 9, 9)
     m = np.zeros((height, width), dtype=bool)
@@ -314,8 +314,7 @@ def serpentine(height, width, along="rows"):
     if along not in ("rows", "columns"):
         raise ValueError(f"along must be 'rows' or 'columns', got {along!r}")
     if along == "columns":
-        return np.ascontiguousarray(serpentine(width, height, "rows").T[:, ::-1]
-                                    if False else _serpentine_columns(height, width))
+        return _serpentine_columns(height, width)
     m = np.zeros((height, width), dtype=bool)
     m[::2, :] = True
     for y in range(1, height, 2):
@@ -332,25 +331,34 @@ def _serpentine_columns(height, width):
     return m
 
 
-def w_shape(height, width):
-    """A zig-zag line of 4-connected strokes with peaks on row 0 and valleys on the last row.
+def w_shape(height, width, half_period=3):
+    """A zig-zag line with peaks on row 0 and valleys on the last row (a row of W's).
 
-    Each stroke descends ``height - 1`` rows moving one column every row (a stair), peaks
-    and valleys alternate every ``height - 1`` columns.  One blob, but one per peak until the
-    last row, where every valley merges two of them.
+    The line's row is a triangle wave of ``x``: 0 at ``x = 0, 2*half_period, ...``, the last
+    row at ``x = half_period, 3*half_period, ...``.  Each step between columns is drawn as a
+    vertical segment in the column further from the valley, so a valley column is lit only
+    on the last row and the two strokes beside it meet only there.  One blob, but one open
+    blob per peak until the last row, where every valley merges two of them.
     """
     _check_size(height, width, 2, 1)
-    m = np.zeros((height, width), dtype=bool)
+    _check_positive("half_period", half_period)
     span = height - 1
-    # column position along the zig-zag: x in [0, width); row(x) = triangle wave
+
+    def row(x):
+        phase = x % (2 * half_period)
+        if phase > half_period:
+            phase = 2 * half_period - phase
+        return (phase * span) // half_period
+
+    m = np.zeros((height, width), dtype=bool)
     for x in range(width):
-        phase = x % (2 * span)
-        row = phase if phase <= span else 2 * span - phase
-        m[row, x] = True
-        if x + 1 < width:  # stair: the next column's row, drawn in this column too
-            nphase = (x + 1) % (2 * span)
-            nrow = nphase if nphase <= span else 2 * span - nphase
-            m[min(row, nrow):max(row, nrow) + 1, x] = True
+        m[row(x), x] = True
+    for x in range(width - 1):
+        r0, r1 = row(x), row(x + 1)
+        if r1 > r0:      # descending: segment in column x
+            m[r0:r1 + 1, x] = True
+        elif r1 < r0:    # ascending: segment in column x + 1
+            m[r1:r0 + 1, x + 1] = True
     return m
 
 
@@ -396,7 +404,6 @@ def _registry():
     h, w = DEFAULT_SHAPE
     reg = {
         "spiral": lambda: spiral(h, w),
-        "spiral_square": lambda: spiral(w, w),
         "comb_down": lambda: comb_down(h, w),
         "comb_down_pitch3": lambda: comb_down(h, w, pitch=3),
         "comb_up": lambda: comb_up(h, w),
@@ -417,7 +424,7 @@ def _registry():
         "serpentine_rows": lambda: serpentine(h, w, "rows"),
         "serpentine_columns": lambda: serpentine(h, w, "columns"),
         "w_shape": lambda: w_shape(h, w),
-        "w_shape_flat": lambda: w_shape(5, w),
+        "w_shape_wide": lambda: w_shape(h, w, half_period=8),
         "sawtooth": lambda: sawtooth(h, w),
     }
     for i, density in enumerate((0.3, 0.5, PERCOLATION_THRESHOLD, 0.7, 0.8)):

@@ -33,14 +33,17 @@ first failed check, in this order:
    ("truncated" or "trailing bytes"); CRC mismatch (both CRCs in hex);
 2. header semantics: mode not an index of ``contract.MODE_NAMES``; pixel_bits not in
    ``contract.PIXEL_BITS``; width/height outside ``1 .. contract.MAX_WIDTH/MAX_HEIGHT``;
-   frame flag bits outside ``contract.FRAME_FLAGS_DEFINED``;
+   threshold/background above full scale; frame flag bits outside
+   ``contract.FRAME_FLAGS_DEFINED``;
    ``n_records != n_blobs - n_filtered - dropped_records``; ``FRAME_RECORD_OVERFLOW`` not set
    exactly when ``dropped_records > 0``, ``FRAME_LABEL_OVERFLOW`` exactly when
    ``dropped_labels > 0``;
 3. record semantics, per record ("record <index>: ..."): blob flag bits outside
    ``contract.BLOB_FLAGS_DEFINED``; ``xmin > xmax`` or ``ymin > ymax``; bounding box beyond
-   the frame; ``peak`` above ``contract.full_scale(pixel_bits)``; ``nsat > n``; ``n == 0``;
-   ``n`` above the bounding-box area; a moment above ``contract.moment_max(pixel_bits)``.
+   the frame; ``peak`` above ``contract.full_scale(pixel_bits)``; ``nsat > n``; ``nsat > 0`` with
+   ``peak`` below full scale; ``n == 0``; ``n`` above the bounding-box area; a moment above
+   ``contract.moment_max(pixel_bits)``; ``BLOB_MOMENTS_SATURATED`` with no moment at its
+   maximum.
 
 Only ``bitstring.pack``, ``bitstring.Bits(bytes)``, ``unpack`` and ``tobytes`` are used, which
 behave alike in bitstring 4.2+ and 5.x.
@@ -189,6 +192,11 @@ def _check_header(header):
     for name, limit in (("width", C.MAX_WIDTH), ("height", C.MAX_HEIGHT)):
         if not 1 <= header[name] <= limit:
             raise PacketError("{} {} is out of range 1..{}".format(name, header[name], limit))
+    full_scale = C.full_scale(header["pixel_bits"])
+    for name in ("threshold", "background"):
+        if header[name] > full_scale:
+            raise PacketError("{} {} is above full scale {} of {}-bit pixels".format(
+                name, header[name], full_scale, header["pixel_bits"]))
     undefined = header["flags"] & ~C.FRAME_FLAGS_DEFINED
     if undefined:
         raise PacketError("undefined frame flag bits 0x{:02X} set (defined: 0x{:02X})".format(
@@ -230,6 +238,8 @@ def _record_problem(rec, header, moment_limits):
             rec.peak, full_scale, header["pixel_bits"])
     if rec.nsat > rec.n:
         return "nsat={} > n={}".format(rec.nsat, rec.n)
+    if rec.nsat and rec.peak != full_scale:
+        return "nsat={} but peak={} is below full scale {}".format(rec.nsat, rec.peak, full_scale)
     if rec.n == 0:
         return "n=0: a blob has at least one pixel"
     area = (rec.xmax - rec.xmin + 1) * (rec.ymax - rec.ymin + 1)
@@ -239,6 +249,9 @@ def _record_problem(rec, header, moment_limits):
         if getattr(rec, name) > moment_limits[name]:
             return "moment {}={} is above its maximum {} for {}-bit pixels".format(
                 name, getattr(rec, name), moment_limits[name], header["pixel_bits"])
+    if rec.flags & C.BLOB_MOMENTS_SATURATED and \
+            not any(getattr(rec, name) == moment_limits[name] for name in C.MOMENTS):
+        return "BLOB_MOMENTS_SATURATED is set but no moment is at its maximum"
     return None
 
 

@@ -199,9 +199,14 @@ def records(draw, width, height, pixel_bits):
     n = draw(st.integers(1, (xmax - xmin + 1) * (ymax - ymin + 1)))
     limits = C.moment_max(pixel_bits)
     moments = [draw(st.integers(0, limits[name])) for name in C.MOMENTS]
-    return C.BlobRecord(n, draw(st.integers(0, n)), *moments, xmin, xmax, ymin, ymax,
-                        draw(st.integers(0, C.full_scale(pixel_bits))),
-                        draw(st.integers(0, C.BLOB_FLAGS_DEFINED)) & C.BLOB_FLAGS_DEFINED)
+    flags = draw(st.integers(0, C.BLOB_FLAGS_DEFINED)) & C.BLOB_FLAGS_DEFINED
+    if flags & C.BLOB_MOMENTS_SATURATED:       # a saturated blob has a moment at its limit
+        k = draw(st.integers(0, len(C.MOMENTS) - 1))
+        moments[k] = limits[C.MOMENTS[k]]
+    nsat = draw(st.integers(0, n))
+    fs = C.full_scale(pixel_bits)
+    peak = fs if nsat else draw(st.integers(0, fs))
+    return C.BlobRecord(n, nsat, *moments, xmin, xmax, ymin, ymax, peak, flags)
 
 
 @st.composite
@@ -287,8 +292,8 @@ def test_framing_messages(base_packet):
     with pytest.raises(PacketError, match="truncated: {} bytes, a packet needs at least {}$"
                        .format(minimum - 1, minimum)):
         decode(base_packet[:minimum - 1])
-    with pytest.raises(PacketError, match="bad magic 0x4C54, expected 0x{:04X}".format(
-            C.PACKET_MAGIC)):
+    with pytest.raises(PacketError, match="bad magic 0x{:04X}, expected 0x{:04X}".format(
+            C.PACKET_MAGIC + 1, C.PACKET_MAGIC)):
         decode(patch(base_packet, [("magic", C.PACKET_MAGIC + 1, None)]))
     with pytest.raises(PacketError, match="unsupported version {}".format(C.PACKET_VERSION + 1)):
         decode(patch(base_packet, [("version", C.PACKET_VERSION + 1, None)]))
@@ -305,43 +310,51 @@ def test_framing_messages(base_packet):
         decode(base_packet[:-C.CRC_BYTES] + bad_crc)
 
 
-def _break_crc(data):
+def _broken_crc(data):
+    """``data`` with the last CRC bit flipped."""
     return data[:-1] + bytes([data[-1] ^ 1])
 
 
 def test_check_order(base_packet):
-    """Each check runs before the next one in the documented order."""
-    bad_magic = patch(base_packet, [("magic", 0, None)])
-    with pytest.raises(PacketError, match="truncated: .* at least"):
-        decode(bad_magic[:C.packet_bytes(0) - 1])
-    with pytest.raises(PacketError, match="bad magic"):
-        decode(_break_crc(patch(bad_magic, [("version", 0, None)]))[:-1])
-    bad_version = patch(base_packet, [("version", 0, None)])
-    with pytest.raises(PacketError, match="unsupported version"):
-        decode(_break_crc(bad_version)[:-1])
-    with pytest.raises(PacketError, match="truncated: .* 3 records"):
-        decode(_break_crc(base_packet)[:-1])
-    bad_mode = patch(base_packet, [("mode", 255, None), ("xmin", 63, 0)])
-    with pytest.raises(PacketError, match="CRC mismatch"):
-        decode(_break_crc(bad_mode))
-    with pytest.raises(PacketError, match="^mode 255"):
-        decode(bad_mode)
-    with pytest.raises(PacketError, match="^record 0: xmin=63"):
-        decode(patch(bad_mode, [("mode", C.MODE_FIXED, None)]))
+    """A packet with several faults reports the first in the documented order; fixing the
+    faults one at a time walks through the checks."""
+    faults = [("magic", 0, None), ("version", 0, None), ("mode", 255, None), ("xmin", 63, 0)]
+    fixes = [("magic", C.PACKET_MAGIC, None), ("version", C.PACKET_VERSION, None),
+             ("mode", C.MODE_GLOBAL, None)]
+
+    def fixed(count):
+        return patch(base_packet, faults + fixes[:count])
+
+    steps = [
+        (fixed(0)[:C.packet_bytes(0) - 1], "^truncated: .* at least"),
+        (_broken_crc(fixed(0)) + b"\x00", "^bad magic"),
+        (_broken_crc(fixed(1)) + b"\x00", "^unsupported version"),
+        (_broken_crc(fixed(2)) + b"\x00", "^trailing bytes"),
+        (_broken_crc(fixed(2)), "^CRC mismatch"),
+        (fixed(2), "^mode 255 "),
+        (fixed(3), "^record 0: xmin=63 "),
+    ]
+    for data, message in steps:
+        with pytest.raises(PacketError, match=message):
+            decode(data)
+
+
+_FRAME_HEADER_NAMES = [name for name in C.HEADER_NAMES
+                       if name not in ("magic", "version", "n_records")]
+"""Header fields that describe the frame (the others frame the packet)."""
 
 
 @HYPOTHESIS
 @given(data=st.data())
-def test_accepted_packets_re_encode_identically(base_packet, data):
+def test_accepted_packets_re_encode_identically(data):
     """Any field value (correct CRC) is either rejected or decoded to a result that encodes
     back to the same bytes: the decoder never accepts what it cannot represent."""
     record = data.draw(st.sampled_from([None, 0, 1, 2]))
     fields = C.HEADER_FIELDS if record is None else C.RECORD_FIELDS
-    name = data.draw(st.sampled_from([name for name, _ in fields]))
-    if name in ("magic", "version", "n_records"):
-        return
+    names = _FRAME_HEADER_NAMES if record is None else C.RECORD_NAMES
+    name = data.draw(st.sampled_from(names))
     value = data.draw(st.integers(0, field_max(fields, name)))
-    modified = patch(base_packet, [(name, value, record)])
+    modified = patch(encode(base_result()), [(name, value, record)])
     try:
         result = decode(modified)
     except PacketError:
@@ -403,14 +416,22 @@ SEMANTIC_CASES = [
      "^record 1: bounding box beyond the frame: xmax=64 but the frame width is 64$"),
     ("ymax-beyond-height", [("ymax", 48, 1)],
      "^record 1: bounding box beyond the frame: ymax=48 but the frame height is 48$"),
-    ("bbox-beyond-narrowed-frame", [("width", 11, None)],
-     "^record 2: bounding box beyond the frame: xmax=62 but the frame width is 11$"),
+    ("bbox-beyond-narrowed-frame", [("width", 12, None)],
+     "^record 2: bounding box beyond the frame: xmax=62 but the frame width is 12$"),
     ("peak", [("peak", _FS12 + 1, 1)],
      "^record 1: peak={} is above full scale {} of 12-bit pixels$".format(_FS12 + 1, _FS12)),
     ("peak-narrower-pixels", [("pixel_bits", 10, None)],
      "^record 1: peak={} is above full scale {} of 10-bit pixels$".format(
          _FS12, C.full_scale(10))),
     ("nsat>n", [("nsat", 5, 1)], "^record 1: nsat=5 > n=4$"),
+    ("nsat-without-full-scale-peak", [("peak", _FS12 - 1, 1)],
+     "^record 1: nsat=1 but peak={} is below full scale {}$".format(_FS12 - 1, _FS12)),
+    ("threshold-above-full-scale", [("threshold", _FS12 + 1, None)],
+     "^threshold {} is above full scale {} of 12-bit pixels$".format(_FS12 + 1, _FS12)),
+    ("background-above-full-scale", [("background", _FS12 + 1, None)],
+     "^background {} is above full scale".format(_FS12 + 1)),
+    ("saturated-flag-without-saturated-moment", [("flags", C.BLOB_MOMENTS_SATURATED, 1)],
+     "^record 1: BLOB_MOMENTS_SATURATED is set but no moment is at its maximum$"),
     ("n=0", [("n", 0, 1), ("nsat", 0, 1)], "^record 1: n=0"),
     ("n>area", [("n", 5, 1)], "^record 1: n=5 exceeds the bounding box area 4$"),
 ] + [
@@ -435,7 +456,8 @@ BOUNDARY_CASES = [
     [("flags", C.FRAME_FLAGS_DEFINED, None), ("dropped_labels", 1, None)],
     [("xmax", 63, 1), ("ymax", 47, 1)],
     [("nsat", 4, 1)],
-    [("flags", C.BLOB_FLAGS_DEFINED, 1)],
+    [("flags", C.BLOB_FLAGS_DEFINED, 1), ("sxy", _MOMENT_MAX12["sxy"], 1)],
+    [("threshold", _FS12, None), ("background", _FS12, None)],
     [(name, _MOMENT_MAX12[name], 1) for name in C.MOMENTS],
 ]
 
@@ -473,8 +495,7 @@ def test_encode_rejects_negative_and_non_integer():
         encode(_with_record_field("s0", 1.5))
 
 
-@pytest.mark.parametrize("name", [n for n in C.HEADER_NAMES if n not in ("magic", "version",
-                                                                        "n_records")])
+@pytest.mark.parametrize("name", _FRAME_HEADER_NAMES)
 def test_encode_rejects_header_value_too_wide(name):
     bits = dict(C.HEADER_FIELDS)[name]
     result = base_result()

@@ -1,0 +1,54 @@
+"""The ``lodestar`` command: the detect run prints a table, rejects bad input clearly."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from lodestar.cli import main
+
+
+def test_detect_table_on_builtin_frame(capsys):
+    assert main(["detect", "--width", "320", "--height", "240", "--stars", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "frame: 320x240x12" in out and "truth dist px" in out
+    rows = [line for line in out.splitlines() if line.strip()[:1].isdigit()]
+    assert len(rows) >= 6
+
+
+def test_detect_json_global_mode_and_streaming_engine(capsys):
+    argv = ["detect", "--width", "160", "--height", "120", "--stars", "5", "--mode", "global",
+            "--frames", "2", "--engine", "streaming", "--json"]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["summary"]["mode"] == "global" and report["summary"]["flags"] == 0
+    assert report["summary"]["records"] == len(report["blobs"]) >= 3
+    assert all(b["truth_px"] < 0.5 for b in report["blobs"])
+
+
+def test_detect_npy_frame(tmp_path, capsys):
+    frame = np.zeros((10, 12), np.uint16)
+    frame[4:7, 5:8] = 900
+    path = tmp_path / "f.npy"
+    np.save(path, frame)
+    assert main(["detect", "--frame", str(path), "--min-pixels", "1", "--min-sum", "0",
+                 "--json"]) == 0
+    (blob,) = json.loads(capsys.readouterr().out)["blobs"]
+    assert (blob["n"], blob["x"], blob["y"]) == (9, 6.0, 5.0)
+
+
+def test_bad_input_exits_2_with_message(tmp_path, capsys):
+    path = tmp_path / "f.npy"
+    np.save(path, np.full((4, 4), 5000, np.uint16))
+    assert main(["detect", "--frame", str(path)]) == 2
+    assert "exceeds full scale 4095" in capsys.readouterr().err
+    assert main(["detect", "--width", "5000"]) == 2
+    assert "width=5000 is out of range" in capsys.readouterr().err
+
+
+def test_python_dash_m():
+    proc = subprocess.run([sys.executable, "-m", "lodestar", "detect", "--width", "64",
+                           "--height", "48", "--stars", "2", "--json"],
+                          capture_output=True, text=True, check=True)
+    assert json.loads(proc.stdout)["summary"]["frame"] == "64x48x12"
