@@ -10,10 +10,18 @@ What each shape stresses in a streaming single-pass labeller (row buffer of labe
 table, feature table, completion detection, label free list; see ``golden/streaming.py``):
 
 ``spiral``
-    One 4-connected simple path that winds inward.  In raster order every ring's top edge and
-    both of its vertical sides start as separate blobs, and they only meet further down, so
-    the scan builds and resolves a long chain of merges (parent pointers several levels deep)
-    and keeps about one open blob per ring for most of the frame.
+    One 4-connected simple path (no two pixels touch unless consecutive on it) winding
+    clockwise inward.  In raster order the inner rings' top edges start as blobs of their
+    own that join the path only near the bottom of the frame, nested one inside the other:
+    about one open blob and one merge per ring, merges resolved innermost first, and a
+    blob whose single chain of pixels passes through every row many times.
+``merge_chain``
+    A spine on row 0, then alternating rows of short pieces and runs offset by one column:
+    every run of the offset rows starts under a dark pixel (a new label) and merges into the
+    one blob at its end.  The blob's root changes once per run while the row buffer to the
+    right still holds the old labels, so the parent chain grows by one per run: finds walk
+    chains of about ``width / 4`` labels on every other row (a merge table without path
+    compression needs that many steps), and labels are recycled every row.
 ``comb_down``
     Teeth hanging from the top row (every ``pitch``-th column) that are joined only by a spine
     on the **last** row: ``width / pitch`` blobs stay open for the whole frame and are all
@@ -27,9 +35,11 @@ table, feature table, completion detection, label free list; see ``golden/stream
     bottom row merges them; inner U's merge (and complete) before outer ones, so merges and
     completions interleave at many depths.
 ``staircase``
-    Parallel 4-connected stairs (each step shares a column with the next row's step).  Every
-    row's run continues the blob above it at its end (down-right) or start (down-left).
-    Neighbouring stairs are separated by dark pixels, so the count is one blob per stair.
+    Parallel 4-connected stairs (each step shares a column with the next row's step),
+    separated by dark pixels, so the count is one blob per stair.  Descending to the right,
+    every row's run continues the stair from its first pixel; descending to the left, every
+    row's run starts a new label and merges into the stair at its last pixel (one merge per
+    stair per row; the stair's root changes every row).
 ``diagonal_staircase``
     Square cells along diagonals that touch **only at corners**.  Under 4-connectivity
     diagonal contact must not connect: every cell is its own blob.  A labeller that looks at
@@ -39,7 +49,8 @@ table, feature table, completion detection, label free list; see ``golden/stream
     completed and freed every other pixel (label reuse at full rate).
 ``vertical_stripes``
     Every ``period``-th column lit over the full height: ``width / period`` blobs open at
-    once for the whole frame (the open-label count reaches ``max_open_blobs(width) - 1``).
+    once for the whole frame (with period 2: ``ceil(width / 2)``, within one of the bound
+    ``max_open_blobs(width)``).
 ``random_mask``
     Uniform random masks; near the site-percolation threshold (density 0.5927) clusters are
     fractal, with merges at every scale, deep merge chains and mixed small and huge blobs.
@@ -52,9 +63,11 @@ table, feature table, completion detection, label free list; see ``golden/stream
 ``empty``
     No pixel lit: no blob, no label ever allocated.
 ``serpentine``
-    A boustrophedon path (rows or columns back and forth).  Along rows, each row's run starts
-    a new blob at the left end and merges into the path at the right end on every other turn;
-    along columns, every other turn is a merge on the last row, chained through all columns.
+    A boustrophedon path (rows or columns back and forth).  Along rows, after each turn at
+    the right end the next full row starts as a new blob at column 0 and merges into the path
+    at its right end (turns at the left end just continue the path); along columns, the
+    column pairs joined on row 0 are separate blobs until the turns on the last row merge
+    them, one after the other, through all columns.
 ``w_shape``
     A zig-zag line (4-connected strokes) with peaks on row 0 and valleys on the last row: one
     blob per peak until the last row merges each pair of neighbouring peaks, in one row.
@@ -70,7 +83,7 @@ import numpy as np
 __all__ = [
     "spiral", "comb_down", "comb_up", "nested_u", "staircase", "diagonal_staircase",
     "checkerboard", "vertical_stripes", "random_mask", "edges_and_corners", "full", "empty",
-    "serpentine", "w_shape", "sawtooth", "to_frame", "ADVERSARIAL", "PERCOLATION_THRESHOLD",
+    "serpentine", "w_shape", "sawtooth", "merge_chain", "to_frame", "ADVERSARIAL", "PERCOLATION_THRESHOLD",
     "DEFAULT_SHAPE",
 ]
 
@@ -139,6 +152,21 @@ def spiral(height, width):
         else:
             d = (d + 1) % 4
             turns_without_move += 1
+    return m
+
+
+def merge_chain(height, width):
+    """A spine on row 0; odd rows lit at columns ``4j+2, 4j+3``, even rows ``>= 2`` at
+    columns ``4j+1, 4j+2``.  One blob; each run of an even row starts under a dark pixel and
+    merges at its second pixel, so the blob's root changes ``~width/4`` times per even row."""
+    _check_size(height, width)
+    m = np.zeros((height, width), dtype=bool)
+    m[0, :] = True
+    x = np.arange(width)
+    odd = (x % 4 == 2) | (x % 4 == 3)
+    even = ((x % 4 == 1) & (x + 1 < width)) | (x % 4 == 2)  # no piece cut off at the edge
+    m[1::2, :] = odd
+    m[2::2, :] = even
     return m
 
 
@@ -394,9 +422,12 @@ def to_frame(mask, lit_value, dark_value=0, dtype=np.uint16):
     if mask.ndim != 2:
         raise ValueError(f"mask must be 2-D, got shape {mask.shape}")
     values = np.where(mask, np.asarray(lit_value), np.asarray(dark_value))
+    if not (np.issubdtype(values.dtype, np.integer) or values.dtype == np.bool_):
+        raise ValueError(f"pixel values must be integers, got dtype {values.dtype}")
     info = np.iinfo(dtype)
     if values.size and (values.min() < info.min or values.max() > info.max):
-        raise ValueError(f"pixel values {values.min()}..{values.max()} do not fit {np.dtype(dtype)}")
+        raise ValueError(f"pixel values {values.min()}..{values.max()} do not fit "
+                         f"{np.dtype(dtype)}")
     return np.ascontiguousarray(values.astype(dtype))
 
 
@@ -404,6 +435,7 @@ def _registry():
     h, w = DEFAULT_SHAPE
     reg = {
         "spiral": lambda: spiral(h, w),
+        "merge_chain": lambda: merge_chain(h, w),
         "comb_down": lambda: comb_down(h, w),
         "comb_down_pitch3": lambda: comb_down(h, w, pitch=3),
         "comb_up": lambda: comb_up(h, w),
