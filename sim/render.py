@@ -18,8 +18,12 @@ where ``P_k(c)`` is the mass of a unit 1-D Gaussian centred on ``c`` inside pixe
 Time quadrature.  The tracks are sampled on one uniform grid over ``[0, (H-1) t_row + t_e]``
 refined until no source near the frame moves more than ``max_step_px`` (default
 ``0.1 min(sigma, 1)`` px) between samples; the integrand is integrated as its piecewise-linear
-interpolant over each row's window (the trapezoid rule with exact partial end cells).  A
-frame whose sources do not move at all is rendered from a single sample, exactly.  Weights
+interpolant over each row's window (the trapezoid rule with exact partial end cells; its
+weights are positive, so images are never negative).  The error falls as the step squared; at
+the default step it is ~1e-4 of the peak pixel, ~5e-6 in in-frame fractions and ~2e-5 px in
+the centroid of a curved track, and the centroid of a straight constant-velocity track is
+exact (tests compare against 10x finer steps).  A frame whose sources do not move at all is
+rendered from a single sample, exactly.  Weights
 over the grid sum to ``t_e`` for every row, so a source that lies fully inside the frame
 deposits exactly ``electrons[i]`` (up to the Gaussian's tails beyond ``TAIL_SIGMAS``) -- with
 one physical exception: under a rolling shutter a star moving along the columns at ``v_y``
@@ -383,5 +387,6 @@ def add_cosmic_rays(image_e, rng, count, length_px=(1.0, 10.0), electrons=(500.0
         start = -0.5 - np.minimum(delta, 0.0) + rng.uniform(0.0, 1.0, 2) * (size - np.abs(delta))
         rows, cols, fractions = _streak_pixels(start, delta)
         np.add.at(image_e, (rows, cols), deposit * fractions)
-        rays.append(CosmicRay(tuple(start), tuple(start + delta), float(deposit)))
+        rays.append(CosmicRay(tuple(map(float, start)), tuple(map(float, start + delta)),
+                              float(deposit)))
     return rays

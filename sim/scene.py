@@ -171,15 +171,16 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
     return SimFrame(frame, truth)
 
 
-def detector_config(cam, **changes):
-    """Fixed-mode detector registers suited to a camera: ``B`` at the dark level and
+def detector_config(cam, exposure_s=None, **changes):
+    """Fixed-mode detector registers suited to a camera and exposure (s, default the
+    camera's): ``B`` at the mean dark level (offset, dark current and sky) and
     ``T = B + 5 sigma`` of the dark-frame noise (at least 1 ADU), ``min_pixels = 4``.
 
     ``changes`` override any ``DetectorConfig`` field.
     """
     from lodestar.golden import DetectorConfig
 
-    t = cam.exposure_s
+    t = cam.exposure_s if exposure_s is None else exposure_s
     dark_e = cam.dark_current_e_per_s * t + SKY_E_PER_PX_S * t
     background = int(round(cam.adc_offset_adu + cam.gain_adu_per_e * dark_e))
     sigma_adu = cam.gain_adu_per_e * float(np.sqrt(cam.read_noise_e ** 2 + dark_e))

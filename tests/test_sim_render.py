@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from lodestar.sim.render import (CosmicRay, add_cosmic_rays, dzamba_smeared_psf,
-                                 render_stars)
+from lodestar.sim.render import (CosmicRay, _streak_pixels, add_cosmic_rays,
+                                 dzamba_smeared_psf, render_stars)
 
 T_E = 0.1
 
@@ -199,17 +199,21 @@ def test_star_on_frame_edge_reports_half_and_truncated_mean():
 
 def test_partially_outside_moving_star_fraction():
     """A star sliding out through x = -1/2 at constant speed: the in-frame fraction is the
-    time average of Phi((x(t) + 1/2) / sigma), integrated here independently."""
+    time average of Phi((x(t) + 1/2) / sigma), integrated here independently.  The default
+    step (0.1 px) leaves a quadrature error of ~5e-6; 0.01 px brings it to ~5e-8."""
     x0, vx, sigma = 2.0, -60.0, 1.2
-    _, truth = render_stars(20, 24, linear([[x0, 10.0]], [[vx, 0.0]]), [1.0], sigma, T_E)
+    positions = linear([[x0, 10.0]], [[vx, 0.0]])
     t = np.linspace(0.0, T_E, 200001)
     expected = np.trapezoid(ndtr((x0 + vx * t + 0.5) / sigma), t) / T_E
-    assert truth.in_frame_fraction[0] == pytest.approx(expected, abs=1e-6)
     assert 0.2 < expected < 0.9
+    for step, tolerance in ((None, 1e-5), (0.01, 1e-7)):
+        image, truth = render_stars(20, 24, positions, [1.0], sigma, T_E, max_step_px=step)
+        assert truth.in_frame_fraction[0] == pytest.approx(expected, abs=tolerance)
+        assert image.sum() == pytest.approx(truth.electrons_in_frame[0], rel=1e-12)
 
 
 def test_star_outside_frame_lands_nothing():
-    image, truth = render_stars(20, 20, linear([[-40.0, 5.0], [5.0, 5.0]], [[0, 0], [0, 0]]),
+    image, truth = render_stars(20, 20, linear([[-40.0, 5.0], [10.0, 10.0]], [[0, 0], [0, 0]]),
                                 [100.0, 100.0], 1.0, T_E)
     assert truth.in_frame_fraction[0] == 0.0 and truth.electrons_in_frame[0] == 0.0
     assert np.all(np.isnan(truth.centroid[0]))
@@ -224,7 +228,7 @@ def test_star_outside_frame_lands_nothing():
 def test_dzamba_closed_form_matches_point_sampled_renderer():
     start, smear, sigma = (14.3, 20.6), (31.0, 9.5), 1.4
     image, _ = render_stars(48, 64, linear([start], [np.divide(smear, T_E)]), [3000.0], sigma,
-                            T_E, max_step_px=0.01, pixel_response="point")
+                            T_E, max_step_px=0.004, pixel_response="point")
     ys, xs = np.indices(image.shape)
     closed = dzamba_smeared_psf(xs, ys, *start, *smear, sigma, T_E, 3000.0)
     assert np.abs(image - closed).max() < 1e-6 * closed.max()
@@ -233,7 +237,7 @@ def test_dzamba_closed_form_matches_point_sampled_renderer():
 def test_dzamba_closed_form_integrated_over_pixels_matches_area_renderer():
     start, smear, sigma = (10.8, 22.1), (25.0, -14.0), 1.1
     image, _ = render_stars(40, 48, linear([start], [np.divide(smear, T_E)]), [3000.0], sigma,
-                            T_E, max_step_px=0.01)
+                            T_E, max_step_px=0.004)
     nodes, weights = np.polynomial.legendre.leggauss(10)
     ys, xs = np.indices(image.shape)
     area = sum(wa * wb * dzamba_smeared_psf(xs + a / 2, ys + b / 2, *start, *smear, sigma, T_E, 3000.0)
@@ -306,8 +310,6 @@ def test_cosmic_ray_is_sharp_and_shares_by_path_length():
     s = np.linspace(0, 1, 20001)[:, None]
     crossed = {tuple(p) for p in np.floor(start + s * (end - start) + 0.5).astype(int)}
     assert {(x, y) for x, y in zip(xs, ys)} == crossed
-
-    from lodestar.sim.render import _streak_pixels
     rows, cols, fractions = _streak_pixels(np.array([2.2, 5.0]), np.array([3.0, 0.0]))
     assert list(cols) == [2, 3, 4, 5] and set(rows) == {5}
     assert fractions == pytest.approx(np.array([0.3, 1.0, 1.0, 0.7]) / 3.0)
