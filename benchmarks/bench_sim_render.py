@@ -1,4 +1,6 @@
-"""Benchmark of the simulator's image formation (run: ``.venv/bin/python benchmarks/bench_sim_render.py``).
+"""Benchmark of the simulator's image formation (``render_stars`` and ``expose``).
+
+Run: ``.venv/bin/python benchmarks/bench_sim_render.py [--repeat N] [--json]``.
 
 A 2592 x 1944 frame (MT9P031) with 100 stars at random positions and directions, sigma
 1.5 px, t_e = 0.1 s, rendered with straight tracks of 0, 13, 25 and 63 px (rest, and about

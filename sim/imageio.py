@@ -30,7 +30,7 @@ def load_frame(path):
     return np.ascontiguousarray(data, dtype=np.uint16)
 
 
-def stretch(frame, low_pct=1.0, high_pct=99.9):
+def stretch(frame, low_pct=50.0, high_pct=99.95):
     """8-bit view of a frame for people: percentile stretch with a square-root curve."""
     lo, hi = np.percentile(frame, [low_pct, high_pct])
     scaled = np.clip((frame.astype(np.float64) - lo) / max(hi - lo, 1.0), 0.0, 1.0)

@@ -51,7 +51,8 @@ def photo_electrons(vmag, aperture_mm, exposure_s, qe, phi0=PHI0_V0):
     exposure = _checked("exposure_s", exposure_s, lambda a: a >= 0, ">= 0")
     efficiency = _checked("qe", qe, lambda a: (a > 0) & (a <= 1), "in (0, 1]")
     flux0 = _checked("phi0", phi0, lambda a: a > 0, "> 0")
-    signal = 0.25 * efficiency * exposure * np.pi * diameter_m**2 * flux0 * 10.0 ** (-0.4 * magnitude)
+    signal = (0.25 * efficiency * exposure * np.pi * diameter_m**2 * flux0
+              * 10.0 ** (-0.4 * magnitude))
     return _scalar_or_array(signal)
 
 

@@ -157,10 +157,12 @@ def _sample_tracks(positions, n_sources, span, max_step, pad, height, width):
             return times[:1], tracks[:, :1]
         if step <= max_step:
             return times, tracks
-        intervals = max(int(np.ceil(1.1 * intervals * step / max_step)), intervals + 1)
-        if intervals >= MAX_TIME_SAMPLES:
-            raise ValueError(f"tracks need more than {MAX_TIME_SAMPLES} time samples; "
-                             "raise max_step_px or shorten the exposure")
+        needed = max(int(np.ceil(1.1 * intervals * step / max_step)), intervals + 1)
+        if needed >= MAX_TIME_SAMPLES:
+            raise ValueError(f"tracks need more than {MAX_TIME_SAMPLES} time samples (a source "
+                             f"near the frame moves {step:.3g} px in 1/{intervals} of the "
+                             "span); positions must be continuous, or raise max_step_px")
+        intervals = needed
 
 
 def _hat_cdf(z):

@@ -77,7 +77,8 @@ def test_sources_add_linearly():
     starts, velocities = [[12.2, 14.6], [30.1, 20.4]], [[80.0, -20.0], [0.0, 0.0]]
     both, truth = render_stars(40, 48, linear(starts, velocities), [700.0, 300.0], 1.2, T_E)
     for i, e in enumerate((700.0, 300.0)):
-        one, alone = render_stars(40, 48, linear(starts[i:i + 1], velocities[i:i + 1]), [e], 1.2, T_E)
+        positions = linear(starts[i:i + 1], velocities[i:i + 1])
+        one, alone = render_stars(40, 48, positions, [e], 1.2, T_E)
         assert truth.centroid[i] == pytest.approx(alone.centroid[0], abs=1e-6)
         both = both - one
     assert np.abs(both).max() < 1e-6 * 700.0
@@ -185,8 +186,11 @@ def test_rolling_shutter_along_columns_stretches_exposure(vy):
 
 def test_star_on_frame_edge_reports_half_and_truncated_mean():
     sigma = 1.6
-    edge, edge_truth = render_stars(30, 30, linear([[-0.5, 14.2]], [[0, 0]]), [800.0], sigma, T_E)
-    corner, corner_truth = render_stars(30, 30, linear([[29.5, -0.5]], [[0, 0]]), [800.0], sigma, T_E)
+    def render_at(x, y):
+        return render_stars(30, 30, linear([[x, y]], [[0, 0]]), [800.0], sigma, T_E)
+
+    edge, edge_truth = render_at(-0.5, 14.2)
+    corner, corner_truth = render_at(29.5, -0.5)
     assert edge_truth.in_frame_fraction[0] == pytest.approx(0.5, abs=1e-12)
     assert corner_truth.in_frame_fraction[0] == pytest.approx(0.25, abs=1e-12)
     assert edge.sum() == pytest.approx(400.0, rel=1e-12)
@@ -240,7 +244,8 @@ def test_dzamba_closed_form_integrated_over_pixels_matches_area_renderer():
                             T_E, max_step_px=0.004)
     nodes, weights = np.polynomial.legendre.leggauss(10)
     ys, xs = np.indices(image.shape)
-    area = sum(wa * wb * dzamba_smeared_psf(xs + a / 2, ys + b / 2, *start, *smear, sigma, T_E, 3000.0)
+    area = sum(wa * wb * dzamba_smeared_psf(xs + a / 2, ys + b / 2, *start, *smear, sigma,
+                                            T_E, 3000.0)
                for a, wa in zip(nodes, weights) for b, wb in zip(nodes, weights)) / 4
     assert np.abs(image - area).max() < 1e-6 * area.max()
 
@@ -251,7 +256,8 @@ def test_dzamba_normalisation_and_static_limit():
     smeared = dzamba_smeared_psf(xs, ys, -10.0, 3.0, 20.0, -6.0, sigma, T_E, electrons)
     assert smeared.sum() == pytest.approx(electrons, rel=1e-9)       # divided by t_e
     static = dzamba_smeared_psf(xs, ys, 1.0, 2.0, 0.0, 0.0, sigma, T_E, electrons)
-    gaussian = electrons / (2 * np.pi * sigma**2) * np.exp(-((xs - 1) ** 2 + (ys - 2) ** 2) / (2 * sigma**2))
+    r2 = (xs - 1) ** 2 + (ys - 2) ** 2
+    gaussian = electrons / (2 * np.pi * sigma**2) * np.exp(-r2 / (2 * sigma**2))
     assert np.allclose(static, gaussian, rtol=1e-14, atol=0)
     for tiny in (1e-4, 1e-7):                      # both sides of the omega -> 0 switch
         nearly = dzamba_smeared_psf(xs, ys, 1.0, 2.0, tiny, tiny, sigma, T_E, electrons)

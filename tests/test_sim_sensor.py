@@ -74,8 +74,9 @@ def test_defects_deterministic_and_independent_of_noise_seed():
     # Same defects, different noise: different frames; same noise, different defects: too.
     image = np.full((64, 80), 500.0)
     kwargs = {"dark_current_e_per_s": 100.0, "read_noise_e": 2.0}
-    assert not np.array_equal(frame(image, 1, defects=a, **kwargs), frame(image, 2, defects=a, **kwargs))
-    assert not np.array_equal(frame(image, 1, defects=a, **kwargs), frame(image, 1, defects=c, **kwargs))
+    reference = frame(image, 1, defects=a, **kwargs)
+    assert not np.array_equal(reference, frame(image, 2, defects=a, **kwargs))
+    assert not np.array_equal(reference, frame(image, 1, defects=c, **kwargs))
     # A defects seed equal to a noise seed does not replay the noise stream.
     plain = np.random.default_rng(11).standard_normal((64, 80))
     assert abs(np.corrcoef(plain.ravel(), a.prnu_gain.ravel())[0, 1]) < 0.05
