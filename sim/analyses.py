@@ -4,8 +4,13 @@
   given pixel can take ``cluster_shapes_through_pixel(size)`` shapes (1296 for size 6: 216
   fixed hexominoes x 6 cells), so the chance that noise alone lights such a cluster is
   ``false_blob_probability(p, size)`` ~ 1296 p**6 for a per-pixel tail probability ``p``.
+* Sky availability (Dzamba 2013 L1632: > 99.9 % of attitudes see >= 3 stars of V <= 5.75
+  in a 7.5 deg half-angle field; Schumann 2019 L505: about 87 % see >= 3 stars of
+  V <= 4.5 in the ESTCube-2 field): ``availability`` samples random attitudes.
 """
 
+import numpy as np
+from scipy.spatial.transform import Rotation
 from scipy.stats import norm
 
 
@@ -50,3 +55,44 @@ def false_blob_probability(p, size=6):
 def gaussian_tail(k_sigma):
     """One-sided tail probability of a Gaussian beyond ``k_sigma`` standard deviations."""
     return float(norm.sf(k_sigma))
+
+
+def random_boresights(rng, count):
+    """``count`` directions uniform on the sphere, (count, 3)."""
+    v = rng.standard_normal((count, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def stars_in_view(star_vectors, boresights, half_fov_deg=None, camera=None, rolls=None):
+    """Number of stars (rows of ``star_vectors``) in view of each boresight.
+
+    Either a circular field of half-angle ``half_fov_deg`` (Dzamba's availability model), or
+    the rectangular frame of ``camera`` at roll angles ``rolls`` (deg) about each boresight.
+    """
+    if (half_fov_deg is None) == (camera is None):
+        raise ValueError("give exactly one of half_fov_deg and camera")
+    if camera is None:
+        cos_limit = np.cos(np.radians(half_fov_deg))
+        return ((boresights @ star_vectors.T) >= cos_limit).sum(axis=1)
+    from . import attitude
+
+    ra = np.degrees(np.arctan2(boresights[:, 1], boresights[:, 0])) % 360.0
+    dec = np.degrees(np.arcsin(np.clip(boresights[:, 2], -1.0, 1.0)))
+    radius = np.cos(np.radians(camera.boresight_radius_deg()))
+    counts = np.zeros(len(boresights), dtype=np.int64)
+    for i, (a, d, r) in enumerate(zip(ra, dec, rolls)):
+        near = star_vectors[star_vectors @ boresights[i] >= radius]
+        if len(near):
+            v_cam = Rotation.from_quat(attitude.from_radec_roll(a, d, r)).apply(near)
+            counts[i] = camera.project(v_cam)[2].sum()
+    return counts
+
+
+def availability(star_vectors, n_min, samples, rng, half_fov_deg=None, camera=None):
+    """Fraction of random attitudes with at least ``n_min`` stars in view, and its binomial
+    standard error: ``(fraction, sigma)``."""
+    boresights = random_boresights(rng, samples)
+    rolls = rng.uniform(0.0, 360.0, samples) if camera is not None else None
+    counts = stars_in_view(star_vectors, boresights, half_fov_deg, camera, rolls)
+    fraction = float(np.mean(counts >= n_min))
+    return fraction, float(np.sqrt(fraction * (1 - fraction) / samples))

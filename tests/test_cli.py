@@ -52,3 +52,25 @@ def test_python_dash_m():
                            "--height", "48", "--stars", "2", "--json"],
                           capture_output=True, text=True, check=True)
     assert json.loads(proc.stdout)["summary"]["frame"] == "64x48x12"
+
+
+def test_simulate_writes_frame_truth_and_preview(tmp_path, capsys):
+    out = tmp_path / "orion"
+    assert main(["simulate", "--preset", "lohmann", "--radec", "83.8", "-5.4", "10",
+                 "--rate", "0.5", "0", "0", "--cosmic-rays", "2", "--seed", "3",
+                 "-o", str(out)]) == 0
+    from lodestar.sim import imageio
+    frame = imageio.load_frame(f"{out}.png")
+    truth = json.loads((tmp_path / "orion.json").read_text())
+    assert frame.shape == (480, 752) and truth["preset"] == "lohmann"
+    assert truth["omega_deg_s"] == [0.5, 0.0, 0.0] and len(truth["cosmic_rays"]) == 2
+    assert {"Rigel", "Alnilam"} <= {s["name"] for s in truth["sources"]}
+    assert (tmp_path / "orion_preview.png").stat().st_size > 1000
+    assert "records" in capsys.readouterr().out
+
+
+def test_simulate_bad_input(tmp_path, capsys):
+    assert main(["simulate", "--quaternion", "0", "0", "0", "2", "-o", str(tmp_path / "x")]) == 2
+    assert "error" in capsys.readouterr().err
+    assert main(["simulate", "--exposure", "-1", "-o", str(tmp_path / "x")]) == 2
+    assert "exposure_s must be > 0" in capsys.readouterr().err
