@@ -1,0 +1,606 @@
+"""Wahba-problem attitude solvers for the MCU: QUEST, Davenport's q-method, ESOQ2 and TRIAD.
+
+Conventions
+-----------
+* ``b`` are **body** (camera-frame) unit vectors, ``r`` the matching **reference**
+  (inertial, ICRS) unit vectors and ``w`` positive weights (``None``: all equal).  Vectors are
+  normalised on entry, so any non-zero length is accepted; weights need not sum to 1 (the
+  solvers rescale them to ``sum(w) = 1``, which does not change the optimum).
+* Every solver returns our attitude quaternion ``q = [x, y, z, w]`` (scalar last, ``w >= 0``)
+  of the rotation taking inertial vectors into the camera frame, so that
+  ``quaternion.rotate(q, r_i) ~ b_i`` (see :mod:`lodestar.firmware.quaternion`).
+* Wahba's loss is ``J(A) = 1/2 sum a_i |b_i - A r_i|^2``.  Shuster's formulation is followed
+  literally inside the solvers: ``B = sum a_i b_i r_i^T``, ``S = B + B^T``, ``sigma = tr B``,
+  ``z = [B23 - B32, B31 - B13, B12 - B21]`` and Davenport's
+  ``K = [[S - sigma I, z], [z^T, sigma]]``, whose eigenvector ``qbar`` of the largest
+  eigenvalue is **Shuster's** quaternion (his ``A(qbar) = (q4^2 - |q|^2) I + 2 q q^T -
+  2 q4 [q x]``).  Our quaternion of the same ``A`` is its conjugate, so each solver returns
+  ``conjugate(qbar)``.
+* Frames of "sequential rotations": rotating the reference frame by 180 deg about axis ``k``
+  (``r' = R_k r``) negates two columns of ``B``; the solution ``q'`` of the rotated problem
+  (``b = A' r'``) gives ``A = A' R_k``, i.e. ``q = q' (x) e_k`` with ``e_k`` the unit
+  quaternion ``[1, 0, 0, 0]``, ``[0, 1, 0, 0]`` or ``[0, 0, 1, 0]``.
+
+Accuracy: :func:`quest` and :func:`esoq2` take ``lambda_max`` from QUEST's quartic and then
+(``refine=True``, the default) one Rayleigh-quotient update, which keeps them within ~1e-11
+rad of :func:`q_method` even for two stars a fraction of a degree apart; ``refine=False``
+gives the textbook algorithms, whose error grows as ``eps / gap^2``.
+
+Input errors (wrong lengths, NaN/inf, zero vectors, non-positive weights, fewer than two
+pairs, or all body or all reference vectors parallel so that the roll about them is not
+observable) raise ``ValueError`` with a message naming the offending element.
+
+Pure Python with ``math`` only: runs unchanged on CPython and MicroPython.
+"""
+
+import math
+
+from . import quaternion as _quat
+
+MIN_SEPARATION = 1e-6
+"""Smallest accepted ``sin`` of the largest angle between body (or reference) vectors."""
+
+NEWTON_TOLERANCE = max(1e-14, 16.0 * _quat.EPS)
+"""QUEST/ESOQ2 Newton-Raphson stops once a step is below this (``lambda_0 = sum w = 1``), or
+as soon as the steps stop shrinking (the rounding floor)."""
+
+NEWTON_MAX_ITERATIONS = 100
+"""Cap on Newton-Raphson steps (quadratic convergence normally needs 1 to 5)."""
+
+QUEST_GAMMA_MIN = 0.25
+"""QUEST keeps the unrotated frame while ``gamma >= QUEST_GAMMA_MIN psi'(lambda)``, i.e.
+``q4^2 >= 1/4`` (rotation angle up to 120 deg); otherwise it uses sequential rotations."""
+
+JACOBI_MAX_SWEEPS = 60
+"""Cap on cyclic Jacobi sweeps in the q-method (a 4x4 converges in about 5)."""
+
+_AXIS_QUATERNIONS = ([1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0])
+
+
+def _finite(x):
+    return x - x == 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Input validation
+# ---------------------------------------------------------------------------------------------
+
+def _length(seq, label):
+    try:
+        return len(seq)
+    except TypeError:
+        raise ValueError("%s must be a sequence, got %r" % (label, seq))
+
+
+def _unit(v, label):
+    k = _length(v, label)
+    if k != 3:
+        raise ValueError("%s must have 3 components, got %d" % (label, k))
+    try:
+        x, y, z = float(v[0]), float(v[1]), float(v[2])
+    except (TypeError, ValueError):
+        raise ValueError("%s must hold numbers, got %r" % (label, v))
+    n = math.sqrt(x * x + y * y + z * z)
+    if not _finite(n):
+        raise ValueError("%s is not finite: %r" % (label, [x, y, z]))
+    if n == 0.0:
+        raise ValueError("%s is a zero vector" % label)
+    return [x / n, y / n, z / n]
+
+
+def _check_spread(vs, name):
+    """``ValueError`` unless two of the unit vectors ``vs`` are neither parallel nor opposite."""
+    v0 = vs[0]
+    best = 0.0
+    for i in range(1, len(vs)):
+        c = _quat.cross(v0, vs[i])
+        s = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+        if s > best:
+            best = s
+    best = math.sqrt(best)
+    if best < MIN_SEPARATION:
+        raise ValueError("all %s vectors are parallel or opposite (largest sin of separation "
+                         "%.3g < %.3g): the rotation about them is unobservable"
+                         % (name, best, MIN_SEPARATION))
+
+
+def _positive(values, name, n):
+    m = _length(values, name)
+    if m != n:
+        raise ValueError("%s must have one entry per vector pair (%d), got %d" % (name, n, m))
+    out = []
+    for i in range(n):
+        try:
+            a = float(values[i])
+        except (TypeError, ValueError):
+            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i]))
+        if not _finite(a) or not a > 0.0:
+            raise ValueError("%s[%d] = %r must be positive and finite" % (name, i, a))
+        out.append(a)
+    return out
+
+
+def _prepare(b, r, w, wname="w", min_pairs=2):
+    """Validated ``(unit b, unit r, weights)`` as lists of floats (weights not rescaled)."""
+    n = _length(b, "b")
+    m = _length(r, "r")
+    if m != n:
+        raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
+    if n < min_pairs:
+        raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
+    bs = [_unit(b[i], "b[%d]" % i) for i in range(n)]
+    rs = [_unit(r[i], "r[%d]" % i) for i in range(n)]
+    if w is None:
+        ws = [1.0] * n
+    else:
+        ws = _positive(w, wname, n)
+    if min_pairs >= 2:
+        _check_spread(bs, "body (b)")
+        _check_spread(rs, "reference (r)")
+    return bs, rs, ws
+
+
+def _unit_weights(ws):
+    total = 0.0
+    for a in ws:
+        total += a
+    if not _finite(total):
+        raise ValueError("sum of weights is not finite")
+    return [a / total for a in ws]
+
+
+# ---------------------------------------------------------------------------------------------
+# Shuster's quantities (B is a flat list of 9: B[3*i + j] = sum a b_i r_j)
+# ---------------------------------------------------------------------------------------------
+
+def _profile(bs, rs, ws):
+    B = [0.0] * 9
+    for k in range(len(bs)):
+        bv, rv, a = bs[k], rs[k], ws[k]
+        for i in range(3):
+            ab = a * bv[i]
+            B[3 * i] += ab * rv[0]
+            B[3 * i + 1] += ab * rv[1]
+            B[3 * i + 2] += ab * rv[2]
+    return B
+
+
+def _flip(B, axis):
+    """``B R_axis``: the profile matrix after turning the reference frame 180 deg about axis."""
+    out = list(B)
+    for j in range(3):
+        if j != axis:
+            out[j] = -out[j]
+            out[3 + j] = -out[3 + j]
+            out[6 + j] = -out[6 + j]
+    return out
+
+
+def _parts(B):
+    """``(S, sigma, z)`` with ``S`` as ``[S00, S11, S22, S01, S02, S12]``."""
+    S = [2.0 * B[0], 2.0 * B[4], 2.0 * B[8], B[1] + B[3], B[2] + B[6], B[5] + B[7]]
+    sigma = B[0] + B[4] + B[8]
+    z = [B[5] - B[7], B[6] - B[2], B[1] - B[3]]
+    return S, sigma, z
+
+
+def _sym_mul(S, v):
+    s00, s11, s22, s01, s02, s12 = S
+    return [s00 * v[0] + s01 * v[1] + s02 * v[2],
+            s01 * v[0] + s11 * v[1] + s12 * v[2],
+            s02 * v[0] + s12 * v[1] + s22 * v[2]]
+
+
+def _adj_trace_det(S):
+    s00, s11, s22, s01, s02, s12 = S
+    c00 = s11 * s22 - s12 * s12
+    c11 = s00 * s22 - s02 * s02
+    c22 = s00 * s11 - s01 * s01
+    det = s00 * c00 + s01 * (s12 * s02 - s01 * s22) + s02 * (s01 * s12 - s11 * s02)
+    return c00 + c11 + c22, det
+
+
+def _coefficients(B):
+    """QUEST's ``(a, b, c, d, sigma)``: ``psi(l) = (l^2 - a)(l^2 - b) - c (l - sigma) - d``.
+
+    ``a = sigma^2 - tr adj S``, ``b = sigma^2 + z.z``, ``c = det S + z.S z``,
+    ``d = z.S^2 z`` (Shuster; Lohmann's digest section 2.8 with its typos corrected), so
+    ``psi(l) = det(l I - K) = l^4 - (a + b) l^2 - c l + (a b + c sigma - d)``.
+    """
+    S, sigma, z = _parts(B)
+    kappa, delta = _adj_trace_det(S)
+    Sz = _sym_mul(S, z)
+    s2 = sigma * sigma
+    return (s2 - kappa, s2 + _quat.dot(z, z), delta + _quat.dot(z, Sz), _quat.dot(Sz, Sz),
+            sigma)
+
+
+def _lambda_max(B, lam0):
+    """``(lambda_max, psi'(lambda_max))``: Newton-Raphson on ``psi`` from ``lam0 = sum a``.
+
+    ``psi`` has four real roots and ``lam0 >= lambda_max``, so the iteration decreases
+    monotonically onto ``lambda_max`` (``psi`` is increasing and convex to its right).
+    """
+    a, b, c, d, sigma = _coefficients(B)
+    lam = lam0
+    previous = None
+    for _ in range(NEWTON_MAX_ITERATIONS):
+        l2 = lam * lam
+        psi = (l2 - a) * (l2 - b) - c * (lam - sigma) - d
+        dpsi = 2.0 * lam * (2.0 * l2 - a - b) - c
+        if not dpsi > 0.0:
+            if psi == 0.0:
+                return lam, dpsi
+            raise ValueError("QUEST: psi'(lambda) = %r <= 0 at lambda = %r; the largest "
+                             "eigenvalue is not isolated (degenerate geometry)" % (dpsi, lam))
+        step = psi / dpsi
+        # In exact arithmetic the steps are positive and shrinking; a step that is tiny, or
+        # no smaller than the previous one, is rounding noise: we are at the root.
+        converged = abs(step) <= NEWTON_TOLERANCE * lam0 or (
+            previous is not None and abs(step) >= previous)
+        if not (converged and step < 0.0):
+            lam -= step
+        if converged:
+            l2 = lam * lam
+            return lam, 2.0 * lam * (2.0 * l2 - a - b) - c
+        previous = abs(step)
+    raise ValueError("QUEST: Newton-Raphson did not converge in %d steps (last lambda %r)"
+                     % (NEWTON_MAX_ITERATIONS, lam))
+
+
+def _quest_column(B, lam):
+    """Shuster's ``(x, gamma)`` for ``lambda``: ``x = [alpha I + (lambda - sigma) S + S^2] z``,
+    ``gamma = alpha (lambda + sigma) - det S``, ``alpha = lambda^2 - sigma^2 + tr adj S``.
+
+    ``[x; gamma]`` is the last column of ``adj(lambda I - K) = psi'(lambda) qbar qbar^T``,
+    i.e. ``psi' q4 qbar``; so ``|gamma| = psi' q4^2``, small near 180 deg rotations.
+    """
+    S, sigma, z = _parts(B)
+    kappa, delta = _adj_trace_det(S)
+    alpha = lam * lam - sigma * sigma + kappa
+    gamma = alpha * (lam + sigma) - delta
+    Sz = _sym_mul(S, z)
+    SSz = _sym_mul(S, Sz)
+    ls = lam - sigma
+    x = [alpha * z[i] + ls * Sz[i] + SSz[i] for i in range(3)]
+    return x, gamma
+
+
+def _ours(vec, scalar, axis):
+    """Our quaternion from Shuster's ``[vec; scalar]`` solved in the frame turned about axis."""
+    n = math.sqrt(vec[0] * vec[0] + vec[1] * vec[1] + vec[2] * vec[2] + scalar * scalar)
+    if not (n > 0.0 and _finite(n)):
+        raise ValueError("degenerate attitude solution (quaternion norm %r)" % n)
+    q = [-vec[0] / n, -vec[1] / n, -vec[2] / n, scalar / n]    # conjugate: Shuster -> ours
+    if axis >= 0:
+        q = _quat.multiply(q, _AXIS_QUATERNIONS[axis])           # A = A' R_axis
+    return _quat.canonical(q)
+
+
+# ---------------------------------------------------------------------------------------------
+# Public helpers
+# ---------------------------------------------------------------------------------------------
+
+def profile_matrix(b, r, w=None):
+    """Attitude profile matrix ``B = sum w_i b_i r_i^T`` (3 row lists; weights as given,
+    ``None``: all 1)."""
+    bs, rs, ws = _prepare(b, r, w, min_pairs=1)
+    B = _profile(bs, rs, ws)
+    return [B[0:3], B[3:6], B[6:9]]
+
+
+def davenport_k(b, r, w=None):
+    """Davenport's ``K = [[S - sigma I, z], [z^T, sigma]]`` (4 row lists; weights as given).
+
+    Its top eigenvector is Shuster's quaternion (the conjugate of ours).
+    """
+    bs, rs, ws = _prepare(b, r, w, min_pairs=1)
+    S, sigma, z = _parts(_profile(bs, rs, ws))
+    s00, s11, s22, s01, s02, s12 = S
+    return [[s00 - sigma, s01, s02, z[0]],
+            [s01, s11 - sigma, s12, z[1]],
+            [s02, s12, s22 - sigma, z[2]],
+            [z[0], z[1], z[2], sigma]]
+
+
+def quest_polynomial(b, r, w=None):
+    """Coefficients ``[1, 0, -(a + b), -c, a b + c sigma - d]`` of ``det(lambda I - K)``
+    (highest power first, as ``numpy.poly``) from QUEST's ``a, b, c, d`` (weights as given)."""
+    bs, rs, ws = _prepare(b, r, w, min_pairs=1)
+    a, bb, c, d, sigma = _coefficients(_profile(bs, rs, ws))
+    return [1.0, 0.0, -(a + bb), -c, a * bb + c * sigma - d]
+
+
+def loss(q, b, r, w=None):
+    """Wahba's loss ``1/2 sum w_i |b_i - A(q) r_i|^2`` (weights as given, ``None``: all 1;
+    vectors normalised).
+
+    ``q`` is our quaternion (normalised implicitly); a single pair is allowed here.
+    """
+    bs, rs, ws = _prepare(b, r, w, min_pairs=1)
+    A = _quat.to_matrix(q)
+    total = 0.0
+    for k in range(len(bs)):
+        bv, rv = bs[k], rs[k]
+        e = 0.0
+        for i in range(3):
+            row = A[i]
+            d = bv[i] - (row[0] * rv[0] + row[1] * rv[1] + row[2] * rv[2])
+            e += d * d
+        total += ws[k] * e
+    return 0.5 * total
+
+
+# ---------------------------------------------------------------------------------------------
+# Solvers
+# ---------------------------------------------------------------------------------------------
+
+def _rayleigh(B, vec, scalar):
+    """``qbar^T K qbar / |qbar|^2`` for Shuster's ``qbar = [vec; scalar]`` and ``K`` of ``B``."""
+    S, sigma, z = _parts(B)
+    Sv = _sym_mul(S, vec)
+    vv = _quat.dot(vec, vec)
+    num = (_quat.dot(vec, Sv) - sigma * vv + 2.0 * scalar * _quat.dot(z, vec)
+           + sigma * scalar * scalar)
+    return num / (vv + scalar * scalar)
+
+
+def quest(b, r, w=None, refine=True):
+    """Shuster's QUEST; returns our quaternion ``[x, y, z, w]`` (``rotate(q, r_i) ~ b_i``).
+
+    1. ``B``, ``S``, ``sigma``, ``z`` from the weights rescaled to ``sum a = 1``.
+    2. ``lambda_max`` by Newton-Raphson on ``psi(l) = (l^2 - a)(l^2 - b) - c (l - sigma) - d``
+       from ``lambda_0 = sum a = 1`` until a step is below :data:`NEWTON_TOLERANCE`.
+    3. ``x = [alpha I + (lambda - sigma) S + S^2] z``, ``gamma = alpha (lambda + sigma) -
+       det S``; Shuster's quaternion is ``[x; gamma] / |[x; gamma]|``.
+    4. Method of sequential rotations: ``[x; gamma] = psi'(lambda) q4 qbar``, so
+       ``gamma = psi' q4^2`` vanishes for 180 deg rotations, where ``[x; gamma]`` is lost in
+       rounding.  If ``gamma < QUEST_GAMMA_MIN psi'`` (``q4^2 < 1/4``; the test is against
+       ``psi'``, not against the rounded ``|[x; gamma]|``), the reference frame is turned
+       180 deg about x, y and z in turn (``lambda`` is frame-invariant) and the frame with
+       the largest ``|gamma|`` (largest ``q4'^2``, always ``>= 1/4``) is used; the turn is
+       undone afterwards (``q = q' (x) e_k``).
+    5. ``refine`` (default, not in Shuster's paper): the root of the quartic is
+       ill-conditioned, ``d lambda ~ eps / psi'(lambda)`` with ``psi'`` the product of the three
+       eigenvalue gaps, and step 3 amplifies it by ``1 / gap`` again, so with few, close stars
+       (tiny roll gap) plain QUEST loses digits (``eps / gap^2``; about 3e-9 rad for two stars
+       0.5 deg apart).  One Rayleigh quotient ``lambda = qbar^T K qbar`` (exact to rounding,
+       error quadratic in that of ``qbar``) and a second evaluation of step 3 bring it to the
+       q-method's ``eps / gap``.  ``refine=False`` gives textbook QUEST.
+    6. The result is conjugated into our convention and returned with ``w >= 0``.
+    """
+    bs, rs, ws = _prepare(b, r, w)
+    B = _profile(bs, rs, _unit_weights(ws))
+    lam, dpsi = _lambda_max(B, 1.0)
+    x, gamma = _quest_column(B, lam)
+    axis = -1
+    if not gamma >= QUEST_GAMMA_MIN * dpsi:
+        best = -1.0
+        for k in range(3):
+            xk, gk = _quest_column(_flip(B, k), lam)
+            if abs(gk) > best:
+                best, axis, x, gamma = abs(gk), k, xk, gk
+        B = _flip(B, axis)
+    if refine:
+        x, gamma = _quest_column(B, _rayleigh(B, x, gamma))
+    return _ours(x, gamma, axis)
+
+
+def _esoq2_solve(B, lam):
+    """Shuster's ``([(lambda - sigma) e], z.e)`` (unnormalised) from ``M e = 0``."""
+    S, sigma, z = _parts(B)
+    t = lam - sigma
+    u = lam + sigma
+    s00, s11, s22, s01, s02, s12 = S
+    m0 = [t * (s00 - u) + z[0] * z[0], t * s01 + z[0] * z[1], t * s02 + z[0] * z[2]]
+    m1 = [m0[1], t * (s11 - u) + z[1] * z[1], t * s12 + z[1] * z[2]]
+    m2 = [m0[2], m1[2], t * (s22 - u) + z[2] * z[2]]
+    e = None
+    best = -1.0
+    for c in (_quat.cross(m1, m2), _quat.cross(m2, m0), _quat.cross(m0, m1)):
+        n2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+        if n2 > best:
+            best, e = n2, c
+    if not (best > 0.0 and _finite(best)):
+        raise ValueError("ESOQ2: M has rank < 2 (degenerate geometry)")
+    n = math.sqrt(best)
+    e = [e[0] / n, e[1] / n, e[2] / n]
+    return [t * e[0], t * e[1], t * e[2]], _quat.dot(z, e)
+
+
+def esoq2(b, r, w=None, refine=True):
+    """Mortari's ESOQ2; returns our quaternion ``[x, y, z, w]`` (``rotate(q, r_i) ~ b_i``).
+
+    ``lambda_max`` comes from the same Newton-Raphson on QUEST's polynomial (more accurate in
+    floating point than the paper's closed-form quartic roots).  Writing Shuster's quaternion
+    as ``[e sin(phi/2); cos(phi/2)]`` and eliminating ``q4`` with the last row of
+    ``(K - lambda I) q = 0`` gives ``M e = 0`` with the symmetric rank-2 matrix
+    ``M = (lambda - sigma)(S - (lambda + sigma) I) + z z^T``; the axis ``e`` is the largest of
+    the cross products of the rows of ``M`` and then
+    ``qbar = [(lambda - sigma) e; z.e] / norm``.
+
+    Singularity: ``lambda - sigma = sum_j (lambda - lambda_j) v_j4^2 >= gap (1 - q4^2)``
+    vanishes (with ``z``) as the rotation angle goes to **zero**, where ``M -> 0``; near 180 deg
+    this formulation is at its best.  So the reference frame is always turned (by 0 or
+    180 deg about x, y or z, i.e. sequential rotations) to minimise ``sigma' = tr B'``
+    (``tr(B R_k) = 2 B_kk - tr B``).  The four candidate traces sum to zero, so the chosen
+    one is ``<= 0`` and ``lambda - sigma' >= lambda_max ~ 1``: the solved rotation is far
+    from zero whatever the true one (0, 180 deg or anything between).  The turn is undone
+    afterwards (``q = q' (x) e_k``).
+
+    ``refine`` (default): one Rayleigh-quotient update of ``lambda`` and a second solve, as in
+    :func:`quest` (the quartic's root error would otherwise be amplified for close stars).
+    """
+    bs, rs, ws = _prepare(b, r, w)
+    B = _profile(bs, rs, _unit_weights(ws))
+    lam = _lambda_max(B, 1.0)[0]
+    sigma0 = B[0] + B[4] + B[8]
+    axis, best = -1, sigma0
+    for k in range(3):
+        s = 2.0 * B[4 * k] - sigma0
+        if s < best:
+            axis, best = k, s
+    if axis >= 0:
+        B = _flip(B, axis)
+    vec, scalar = _esoq2_solve(B, lam)
+    if refine:
+        vec, scalar = _esoq2_solve(B, _rayleigh(B, vec, scalar))
+    return _ours(vec, scalar, axis)
+
+
+def _jacobi_top_eigenvector(K):
+    """Eigenvector (list of 4) of the largest eigenvalue of a symmetric 4x4 (cyclic Jacobi)."""
+    a = [list(row) for row in K]
+    v = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    scale = 0.0
+    for i in range(4):
+        for j in range(4):
+            scale += a[i][j] * a[i][j]
+    for _ in range(JACOBI_MAX_SWEEPS):
+        off = 0.0
+        for p in range(3):
+            for q in range(p + 1, 4):
+                off += a[p][q] * a[p][q]
+        if off <= 1e-4 * _quat.EPS * _quat.EPS * scale:
+            break
+        for p in range(3):
+            for q in range(p + 1, 4):
+                apq = a[p][q]
+                if apq == 0.0:
+                    continue
+                theta = (a[q][q] - a[p][p]) / (2.0 * apq)
+                if abs(theta) > 1e150:
+                    t = 0.5 / theta
+                else:
+                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    if theta < 0.0:
+                        t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(4):
+                    akp, akq = a[k][p], a[k][q]
+                    a[k][p] = c * akp - s * akq
+                    a[k][q] = s * akp + c * akq
+                for k in range(4):
+                    apk, aqk = a[p][k], a[q][k]
+                    a[p][k] = c * apk - s * aqk
+                    a[q][k] = s * apk + c * aqk
+                a[p][q] = 0.0
+                a[q][p] = 0.0
+                for k in range(4):
+                    vkp, vkq = v[k][p], v[k][q]
+                    v[k][p] = c * vkp - s * vkq
+                    v[k][q] = s * vkp + c * vkq
+    best = 0
+    for i in range(1, 4):
+        if a[i][i] > a[best][best]:
+            best = i
+    return [v[0][best], v[1][best], v[2][best], v[3][best]]
+
+
+def q_method(b, r, w=None):
+    """Davenport's q-method (the reference solver); returns our quaternion ``[x, y, z, w]``.
+
+    The eigenvector of the largest eigenvalue of ``K`` (weights rescaled to ``sum 1``) by a
+    cyclic Jacobi eigen-solver, which is accurate for every rotation angle; it is Shuster's
+    quaternion and is conjugated into ours.
+    """
+    bs, rs, ws = _prepare(b, r, w)
+    S, sigma, z = _parts(_profile(bs, rs, _unit_weights(ws)))
+    s00, s11, s22, s01, s02, s12 = S
+    K = [[s00 - sigma, s01, s02, z[0]],
+         [s01, s11 - sigma, s12, z[1]],
+         [s02, s12, s22 - sigma, z[2]],
+         [z[0], z[1], z[2], sigma]]
+    qbar = _jacobi_top_eigenvector(K)
+    return _ours(qbar[0:3], qbar[3], -1)
+
+
+def _triad_frame(u, v, name):
+    c = _quat.cross(u, v)
+    n = _quat.norm(c)
+    if n < MIN_SEPARATION:
+        raise ValueError("TRIAD: the two %s vectors are parallel or opposite (sin of "
+                         "separation %.3g < %.3g)" % (name, n, MIN_SEPARATION))
+    t2 = [c[0] / n, c[1] / n, c[2] / n]
+    return u, t2, _quat.cross(u, t2)
+
+
+def triad(b1, b2, r1, r2):
+    """TRIAD (Black 1964) with the first pair exact: ``rotate(q, r1) == b1`` to rounding.
+
+    Triads ``t1 = v1``, ``t2 = unit(v1 x v2)``, ``t3 = t1 x t2`` in both frames give
+    ``A = sum_k t_k^b (t_k^r)^T``; ``b2``/``r2`` only fix the roll about the first pair.
+    Returns our quaternion ``[x, y, z, w]`` with ``w >= 0``.
+    """
+    bu1, bu2 = _unit(b1, "b1"), _unit(b2, "b2")
+    ru1, ru2 = _unit(r1, "r1"), _unit(r2, "r2")
+    tb = _triad_frame(bu1, bu2, "body")
+    tr = _triad_frame(ru1, ru2, "reference")
+    A = [[tb[0][i] * tr[0][j] + tb[1][i] * tr[1][j] + tb[2][i] * tr[2][j] for j in range(3)]
+         for i in range(3)]
+    return _quat.from_matrix(A)
+
+
+# ---------------------------------------------------------------------------------------------
+# Covariance
+# ---------------------------------------------------------------------------------------------
+
+def covariance(b, r, sigmas):
+    """Shuster's QUEST measurement-model attitude covariance in the **body** frame, rad^2.
+
+    ``P = (sum_i sigma_i^-2 (I - b_i b_i^T))^-1`` (3 row lists), where ``sigma_i`` (rad) is
+    the per-axis standard deviation of the noise on ``b_i`` in each of the two directions
+    perpendicular to it.  ``P`` is the covariance of the small rotation vector ``dtheta`` with
+    ``A_est = exp([dtheta x]) A_true`` (rotation vector of ``A_est A_true^T``, camera axes)
+    when the solver uses weights ``a_i`` proportional to ``sigma_i^-2``.  ``r`` is only
+    validated (same count, finite, not all parallel): to first order the information depends
+    on the body directions alone.
+    """
+    bs, rs, ss = _prepare(b, r, sigmas, wname="sigmas")
+    f00 = f11 = f22 = f01 = f02 = f12 = 0.0
+    for k in range(len(bs)):
+        g = 1.0 / ss[k]
+        g *= g
+        if not _finite(g):
+            raise ValueError("sigmas[%d] = %r is too small" % (k, ss[k]))
+        x, y, z = bs[k]
+        f00 += g * (1.0 - x * x)
+        f11 += g * (1.0 - y * y)
+        f22 += g * (1.0 - z * z)
+        f01 -= g * x * y
+        f02 -= g * x * z
+        f12 -= g * y * z
+    c00 = f11 * f22 - f12 * f12
+    c01 = f02 * f12 - f01 * f22
+    c02 = f01 * f12 - f11 * f02
+    c11 = f00 * f22 - f02 * f02
+    c12 = f01 * f02 - f00 * f12
+    c22 = f00 * f11 - f01 * f01
+    det = f00 * c00 + f01 * c01 + f02 * c02
+    if not (det > 0.0 and _finite(det)):
+        raise ValueError("covariance: information matrix is singular (det %r)" % det)
+    return [[c00 / det, c01 / det, c02 / det],
+            [c01 / det, c11 / det, c12 / det],
+            [c02 / det, c12 / det, c22 / det]]
+
+
+def sigmas_cross_roll(P):
+    """``(sigma_cross_boresight, sigma_roll)`` in rad from a body-frame covariance ``P``.
+
+    The boresight is camera ``+z``.  ``sigma_roll = sqrt(Pzz)`` (rotation about ``+z``);
+    ``sigma_cross_boresight = sqrt((Pxx + Pyy) / 2)``, the RMS of the two cross-boresight
+    axes (a per-axis figure, not their root-sum-square: multiply by ``sqrt(2)`` for the RSS
+    total pointing error of the boresight).
+    """
+    if len(P) != 3:
+        raise ValueError("P must be 3x3, got %d rows" % len(P))
+    d = []
+    for i in range(3):
+        if len(P[i]) != 3:
+            raise ValueError("P row %d must have 3 elements, got %d" % (i, len(P[i])))
+        v = float(P[i][i])
+        if not _finite(v) or v < 0.0:
+            raise ValueError("P[%d][%d] = %r must be finite and >= 0" % (i, i, v))
+        d.append(v)
+    return math.sqrt(0.5 * (d[0] + d[1])), math.sqrt(d[2])
