@@ -1,0 +1,350 @@
+"""Camera model of the MCU: pixel <-> camera-frame unit vector, pinhole + Brown-Conrady.
+
+    from lodestar.firmware.camera import Camera
+    cam = Camera(752, 480, fx=1438.33, fy=1426.67, cx=375.5, cy=239.5,
+                 k1=-0.3686, k2=0.3148, p1=-0.0023, p2=0.0003)
+    cam = Camera.from_dict(preset_camera_block)        # sim/data/presets.json "camera" block
+    v = cam.pixel_to_vector(x, y)      # (X, Y, Z) unit tuple, or None
+    p = cam.vector_to_pixel(v)         # (x, y), or None
+
+The model is ``lodestar.sim.camera.Camera``'s (the tests hold the two together to 1e-6 rad):
+
+* camera frame: ``+z`` boresight, ``+x`` along increasing column ``x``, ``+y`` along
+  increasing row ``y``; pixel centres at integer indices (``lodestar.contract``);
+* a direction ``(X, Y, Z)``, ``Z > 0``, has normalised coordinates ``x = X/Z``, ``y = Y/Z``,
+  ``r^2 = x^2 + y^2``; Bouguet's distortion::
+
+      xd = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
+      yd = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
+
+  and the pixel is ``(cx + fx xd, cy + fy yd)``.
+
+:meth:`Camera.pixel_to_vector` inverts the distortion by 2-D Newton iteration with the
+analytic Jacobian, starting from the distorted point, and accepts the solution only if it
+reproduces the pixel (to ``1e-9`` px in double precision, a few float epsilons of the pixel
+scale in single precision), the Jacobian is positive there and the radius is inside
+:meth:`Camera.fold_radius` (beyond it the radial map folds back and pixels are not imaged
+uniquely).  Pure Python for CPython and MicroPython (single- or double-precision floats):
+no numpy, typing, dataclasses or itertools.  Invalid camera parameters raise ``ValueError``
+at construction (configuration time); pixel and vector calls never raise on numbers: they
+return None (``last_status`` then says why, a ``lodestar.firmware.status`` code).
+"""
+
+import math
+
+from lodestar import contract as C
+from lodestar.firmware import status as S
+
+
+def _float_eps():
+    """Machine epsilon of this port's float (2.2e-16 double, 1.2e-7 single precision)."""
+    eps = 1.0
+    while 1.0 + eps * 0.5 != 1.0:
+        eps *= 0.5
+    return eps
+
+
+FLOAT_EPS = _float_eps()
+_INF = float("inf")
+
+NEWTON_MAX_ITER = 50
+NEWTON_STEP_PX = 1e-11
+"""Newton stops when a step is below this many pixels (or the float resolution)."""
+NEWTON_RESIDUAL_PX = 1e-9
+"""A converged point reproduces its pixel to this many pixels (or the float resolution)."""
+BORDER_SAMPLES = 65
+"""Points per frame edge checked for invertibility at construction (as ``lodestar.sim``)."""
+
+_PARAMS = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p2")
+_ALIASES = {"fx_px": "fx", "fy_px": "fy"}
+
+
+def _finite(value):
+    return value == value and value - value == 0
+
+
+def _number(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite(value):
+        raise ValueError("{} must be a finite number, got {!r}".format(name, value))
+    return float(value)
+
+
+def _smallest_positive_root(c0, c1, c2, c3):
+    """Smallest ``s > 0`` with ``c0 + c1 s + c2 s^2 + c3 s^3 = 0`` given ``c0 > 0``, else None.
+
+    The derivative's roots split ``s > 0`` into monotone pieces; the first piece whose end
+    is not positive holds the root, found by bisection.
+    """
+    def p(s):
+        return c0 + s * (c1 + s * (c2 + s * c3))
+
+    # critical points: c1 + 2 c2 s + 3 c3 s^2 = 0
+    crit = []
+    a, b, c = 3.0 * c3, 2.0 * c2, c1
+    if a != 0:
+        disc = b * b - 4 * a * c
+        if disc >= 0:
+            r = math.sqrt(disc)
+            crit = [(-b - r) / (2 * a), (-b + r) / (2 * a)]
+    elif b != 0:
+        crit = [-c / b]
+    ends = sorted(s for s in crit if s > 0)
+    lo = 0.0
+    for hi in ends:
+        if p(hi) <= 0:
+            break
+        lo = hi
+    else:
+        # last piece [lo, inf): a root exists iff p eventually goes negative
+        lead = c3 if c3 != 0 else (c2 if c2 != 0 else c1)
+        if lead >= 0:
+            return None
+        hi = max(lo, 1.0)
+        while p(hi) > 0:
+            hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if p(mid) > 0:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+class Camera(object):
+    """Pinhole + Brown-Conrady (Bouguet) camera from plain numbers (see the module docstring).
+
+    ``width``, ``height`` in pixels; ``fx``, ``fy`` focal lengths in pixels; ``cx``, ``cy``
+    principal point (default: the geometric centre ``((W-1)/2, (H-1)/2)``); ``k1 k2 k3``
+    radial and ``p1 p2`` tangential coefficients.  Raises ``ValueError`` naming the parameter
+    for an invalid value, or when the distortion is not invertible over the frame.
+    """
+
+    def __init__(self, width, height, fx, fy, cx=None, cy=None, k1=0.0, k2=0.0, k3=0.0,
+                 p1=0.0, p2=0.0):
+        for name, value, limit in (("width", width, C.MAX_WIDTH),
+                                   ("height", height, C.MAX_HEIGHT)):
+            if isinstance(value, bool) or not isinstance(value, int) or not \
+                    1 <= value <= limit:
+                raise ValueError("{} must be an int in 1..{}, got {!r}".format(
+                    name, limit, value))
+        self.width = width
+        self.height = height
+        self.fx = _number("fx", fx)
+        self.fy = _number("fy", fy)
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError("fx and fy must be > 0, got {} and {}".format(fx, fy))
+        self.cx = (width - 1) / 2 if cx is None else _number("cx", cx)
+        self.cy = (height - 1) / 2 if cy is None else _number("cy", cy)
+        self.k1 = _number("k1", k1)
+        self.k2 = _number("k2", k2)
+        self.k3 = _number("k3", k3)
+        self.p1 = _number("p1", p1)
+        self.p2 = _number("p2", p2)
+        self.last_status = S.OK
+        s = _smallest_positive_root(1.0, 3 * self.k1, 5 * self.k2, 7 * self.k3)
+        self._fold = _INF if s is None else math.sqrt(s)
+        # float-resolution floors of the Newton tolerances (pixels)
+        scale = max(self.fx, self.fy)
+        self._step_px = max(NEWTON_STEP_PX, 4 * FLOAT_EPS * scale)
+        self._residual_px = max(NEWTON_RESIDUAL_PX, 64 * FLOAT_EPS * scale)
+        self._check_border()
+
+    @classmethod
+    def from_dict(cls, params):
+        """A camera from a dict: the constructor's names, or the ``lodestar.sim`` preset
+        names (``fx_px``, ``fy_px``); other keys are ignored, so a preset's whole ``camera``
+        block can be passed."""
+        kwargs = {}
+        for key in params:
+            name = _ALIASES.get(key, key)
+            if name in _PARAMS:
+                if name in kwargs:
+                    raise ValueError("{} given twice".format(name))
+                kwargs[name] = params[key]
+        for name in ("width", "height", "fx", "fy"):
+            if name not in kwargs:
+                raise ValueError("camera parameter {} is missing".format(name))
+        return cls(**kwargs)
+
+    def as_dict(self):
+        """The constructor's parameters as a dict (``from_dict(cam.as_dict())`` is ``cam``)."""
+        out = {}
+        for name in _PARAMS:
+            out[name] = getattr(self, name)
+        return out
+
+    def __repr__(self):
+        return "Camera({})".format(", ".join(
+            "{}={!r}".format(name, getattr(self, name)) for name in _PARAMS))
+
+    # ---- distortion ---------------------------------------------------------------------
+
+    def fold_radius(self):
+        """Normalised radius where ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` stops increasing
+        (``inf`` if it never does)."""
+        return self._fold
+
+    def distort(self, x, y):
+        """Distorted normalised coordinates ``(xd, yd)`` of ``(x, y) = (X/Z, Y/Z)``."""
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+        return xd, yd
+
+    def _distort_jacobian(self, x, y):
+        """``(xd, yd, dxd/dx, dxd/dy (= dyd/dx), dyd/dy)``."""
+        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)        # d radial / d r^2
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        jxx = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+        jxy = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+        jyy = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+        return xd, yd, jxx, jxy, jyy
+
+    def undistort(self, xd, yd):
+        """Normalised ``(x, y)`` whose distortion is ``(xd, yd)``, or None (``last_status``
+        is ``CAMERA_NOT_CONVERGED`` or ``BAD_INPUT``)."""
+        if not (_finite(xd) and _finite(yd)):
+            self.last_status = S.BAD_INPUT
+            return None
+        fx, fy = self.fx, self.fy
+        x, y = xd, yd
+        for _ in range(NEWTON_MAX_ITER):
+            ex_d, ey_d, jxx, jxy, jyy = self._distort_jacobian(x, y)
+            ex = ex_d - xd
+            ey = ey_d - yd
+            det = jxx * jyy - jxy * jxy
+            if not det > 0:              # also catches NaN
+                break
+            dx = (jyy * ex - jxy * ey) / det
+            dy = (jxx * ey - jxy * ex) / det
+            x -= dx
+            y -= dy
+            if not (abs(dx) * fx > self._step_px or abs(dy) * fy > self._step_px):
+                break                   # converged, or NaN (caught below)
+        ex_d, ey_d, jxx, jxy, jyy = self._distort_jacobian(x, y)
+        residual = max(abs(ex_d - xd) * fx, abs(ey_d - yd) * fy)
+        if not (residual <= self._residual_px and jxx * jyy - jxy * jxy > 0
+                and math.sqrt(x * x + y * y) < self._fold):
+            self.last_status = S.CAMERA_NOT_CONVERGED
+            return None
+        self.last_status = S.OK
+        return x, y
+
+    # ---- pixel <-> vector ---------------------------------------------------------------
+
+    def pixel_to_vector(self, x, y):
+        """Unit vector ``(X, Y, Z)`` (camera frame) of pixel ``(x, y)``, or None when the
+        undistortion fails (``last_status`` says why)."""
+        if not (_is_number(x) and _is_number(y)):
+            self.last_status = S.BAD_INPUT
+            return None
+        xy = self.undistort((x - self.cx) / self.fx, (y - self.cy) / self.fy)
+        if xy is None:
+            return None
+        xn, yn = xy
+        norm = math.sqrt(xn * xn + yn * yn + 1.0)
+        return xn / norm, yn / norm, 1.0 / norm
+
+    def vector_to_pixel(self, v):
+        """Pixel ``(x, y)`` of camera-frame direction ``v`` (any length), or None when it is
+        behind the camera (``Z <= 0``) or beyond the fold radius (``CAMERA_OUT_OF_VIEW``), or
+        not three finite numbers (``BAD_INPUT``).  The pixel may lie outside the frame:
+        see :meth:`in_frame`."""
+        try:
+            X, Y, Z = v[0], v[1], v[2]
+        except (TypeError, IndexError, KeyError):
+            self.last_status = S.BAD_INPUT
+            return None
+        if not (_is_number(X) and _is_number(Y) and _is_number(Z)):
+            self.last_status = S.BAD_INPUT
+            return None
+        if not Z > 0:
+            self.last_status = S.CAMERA_OUT_OF_VIEW
+            return None
+        xn = X / Z
+        yn = Y / Z
+        if not math.sqrt(xn * xn + yn * yn) < self._fold:
+            self.last_status = S.CAMERA_OUT_OF_VIEW
+            return None
+        xd, yd = self.distort(xn, yn)
+        self.last_status = S.OK
+        return self.cx + self.fx * xd, self.cy + self.fy * yd
+
+    def in_frame(self, x, y):
+        """True iff pixel ``(x, y)`` lies in the frame ``[-0.5, W-0.5) x [-0.5, H-0.5)``."""
+        return -0.5 <= x < self.width - 0.5 and -0.5 <= y < self.height - 0.5
+
+    def smear_px(self, x, y, omega, exposure_s):
+        """Expected smear ``(dx, dy)`` in pixels of a star centred at ``(x, y)``.
+
+        ``omega``: the camera's angular velocity ``(wx, wy, wz)`` in the camera frame, rad/s;
+        a fixed star moves as ``dv/dt = -omega x v`` (``lodestar.sim`` convention).  The
+        track runs from the direction at ``-exposure_s/2`` to ``+exposure_s/2`` about the
+        centroid's, rotated exactly (Rodrigues).  None (and ``last_status``) for non-numbers,
+        or when the pixel or either end leaves the model.
+        """
+        try:
+            wx, wy, wz = omega[0], omega[1], omega[2]
+        except (TypeError, IndexError, KeyError):
+            wx = wy = wz = None
+        if not (_is_number(wx) and _is_number(wy) and _is_number(wz)
+                and _is_number(exposure_s)):
+            self.last_status = S.BAD_INPUT
+            return None
+        v = self.pixel_to_vector(x, y)
+        if v is None:
+            return None
+        rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if not rate > 0:
+            return 0.0, 0.0
+        axis = (wx / rate, wy / rate, wz / rate)
+        half = 0.5 * rate * exposure_s
+        start = self.vector_to_pixel(_rotate(v, axis, half))      # earlier: rotated back
+        end = self.vector_to_pixel(_rotate(v, axis, -half))
+        if start is None or end is None:
+            return None
+        return end[0] - start[0], end[1] - start[1]
+
+    # ---- construction check ---------------------------------------------------------------
+
+    def _check_border(self):
+        """Every sampled point of the frame's outer edge must undistort (as lodestar.sim)."""
+        w, h = self.width, self.height
+        n = BORDER_SAMPLES
+        for i in range(n):
+            t = i / (n - 1)
+            xs = -0.5 + t * w
+            ys = -0.5 + t * h
+            for px, py in ((xs, -0.5), (xs, h - 0.5), (-0.5, ys), (w - 0.5, ys)):
+                if self.pixel_to_vector(px, py) is None:
+                    raise ValueError(
+                        "distortion k1={}, k2={}, k3={}, p1={}, p2={} is not invertible "
+                        "over the frame (pixel ({}, {}))".format(
+                            self.k1, self.k2, self.k3, self.p1, self.p2, px, py))
+        self.last_status = S.OK
+
+
+def _is_number(value):
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and _finite(value)
+
+
+def _rotate(v, axis, angle):
+    """``v`` rotated by ``angle`` (rad, right-handed) about unit ``axis`` (Rodrigues)."""
+    c = math.cos(angle)
+    s = math.sin(angle)
+    ax, ay, az = axis
+    vx, vy, vz = v
+    dot = ax * vx + ay * vy + az * vz
+    cx = ay * vz - az * vy
+    cy = az * vx - ax * vz
+    cz = ax * vy - ay * vx
+    k = dot * (1.0 - c)
+    return (vx * c + cx * s + ax * k, vy * c + cy * s + ay * k, vz * c + cz * s + az * k)

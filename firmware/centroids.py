@@ -1,0 +1,294 @@
+"""Star centroids and shapes from blob records, with a quality filter.
+
+    from lodestar.firmware import centroids
+    stars, rejected = centroids.extract(records)                  # contract.BlobRecord list
+    stars, rejected = centroids.extract(records, expected_smear_px=(dx, dy))   # known rate
+
+Per record (the contract's moments, weights ``w = max(p - B, 0)``):
+
+* centroid ``(x, y) = (sx / s0, sy / s0)`` in pixel coordinates (pixel centres at integer
+  indices, ``x`` column, ``y`` row: the ``lodestar.contract`` convention);
+* central second moments ``cxx = sxx/s0 - x^2``, ``cyy = syy/s0 - y^2``,
+  ``cxy = sxy/s0 - x y`` (px^2), computed *exactly* from the integer numerators
+  ``s0*sxx - sx^2`` etc. before the one division (no cancellation, even with single-precision
+  floats on the MCU);
+* the eigenvalues ``l1 >= l2`` of ``[[cxx, cxy], [cxy, cyy]]`` give ``sigma_major =
+  sqrt(l1)``, ``sigma_minor = sqrt(l2)`` (px), ``elongation = sigma_major / sigma_minor``
+  (``inf`` for a blob one pixel wide, 1 for a single pixel) and ``orientation`` = the angle
+  of the major axis from ``+x`` towards ``+y``, radians in ``(-pi/2, pi/2]``.
+
+Quality filter, in this order (the first failed test names the reason; ``rejected`` counts
+records per reason, every reason of ``REASONS`` present)::
+
+    "empty"         s0 is 0, negative, NaN or infinite: no centroid
+    "saturated"     contract.BLOB_MOMENTS_SATURATED: a moment hit its accumulator maximum
+    "inconsistent"  a moment is not finite, the centroid lies outside the bounding box or
+                    the second moments are not positive semi-definite (cannot happen for a
+                    true blob; guards against corrupted records with a valid CRC)
+    "hot_pixel"     n < min_pixels, or sigma_major < min_sigma_px (sharper than the
+                    optics' PSF in every direction)
+    "cosmic_ray"    elongation > max_elongation, unless consistent with the expected smear
+    "hot_pixel"     sigma_minor < min_sigma_px (sharper than the PSF across the blob)
+    "excess"        passed, but not among the max_stars brightest (largest s0)
+
+Smear: a body rate smears a star into a line of length ``L`` (px) along ``(dx, dy)``; a
+uniform line adds ``L^2/12`` to the variance along it, so ``l1 - l2 = L^2/12`` whatever the
+(isotropic) PSF.  An elongated blob is kept when ``expected_smear_px`` is given and the
+blob's major axis lies within ``smear_angle_tol`` of ``(dx, dy)`` and its measured smear
+length ``sqrt(12 (l1 - l2))`` is within a factor ``smear_length_ratio`` of ``L``.
+``expected_smear_px`` is ``None``, a pair ``(dx, dy)`` for the whole frame (a rate about
+the camera's x or y axis), or a function ``f(x, y) -> (dx, dy)`` for a smear that varies
+over the frame (roll; see ``lodestar.firmware.camera.Camera.smear_px``).  A rolling shutter
+shears the track slightly; the tolerances absorb it.
+
+Stars are returned brightest first (ties in record order).  Pure Python for CPython and
+MicroPython: no numpy, typing, dataclasses or itertools.
+"""
+
+import math
+
+from lodestar import contract as C
+
+DEFAULT_MAX_STARS = 32
+"""Stars kept per frame: enough for identification and attitude, few enough for the MCU."""
+DEFAULT_MIN_PIXELS = 3
+"""Blobs of fewer pixels are hot-pixel-like (a star's PSF lights a few pixels at least)."""
+DEFAULT_MIN_SIGMA_PX = 0.3
+"""Second-moment sigma below which a blob is sharper than any optics of the presets: the
+Lohmann lens' PSF sigma is 0.6 px, ESTCube-2's 2 px (thresholding narrows a blob, so the
+limit sits well below the sharpest PSF)."""
+DEFAULT_MAX_ELONGATION = 3.0
+"""sigma_major / sigma_minor above which a blob is a track (cosmic ray) unless the expected
+smear explains it.  A star at rest is round (about 1); ESTCube-2 (PSF sigma 2 px) reaches 3
+only for smears longer than about 20 px."""
+DEFAULT_SMEAR_ANGLE_TOL = 0.35
+"""Largest angle (radians, about 20 degrees) between a blob's major axis and the expected
+smear direction for the smear to explain the elongation."""
+DEFAULT_SMEAR_LENGTH_RATIO = 2.0
+"""The measured smear length may differ from the expected one by this factor either way
+(thresholding shortens a track by the PSF wings at its ends)."""
+
+REASONS = ("empty", "saturated", "inconsistent", "hot_pixel", "cosmic_ray", "excess")
+"""Rejection reasons, the keys of the ``rejected`` dict, in the order the tests apply."""
+
+_INF = float("inf")
+
+
+class Star(object):
+    """One accepted blob.
+
+    ``x``, ``y`` centroid (px), ``flux`` = s0 (weight sum, ADU above background),
+    ``sigma_major``, ``sigma_minor`` (px), ``elongation``, ``orientation`` (rad, major axis
+    from +x towards +y), ``n`` pixels, ``nsat`` saturated pixels, ``peak`` pixel value and
+    ``index`` of the record in the packet.
+    """
+
+    __slots__ = ("x", "y", "flux", "sigma_major", "sigma_minor", "elongation", "orientation",
+                 "n", "nsat", "peak", "index")
+
+    def __init__(self, x, y, flux, sigma_major, sigma_minor, elongation, orientation,
+                 n, nsat, peak, index):
+        self.x = x
+        self.y = y
+        self.flux = flux
+        self.sigma_major = sigma_major
+        self.sigma_minor = sigma_minor
+        self.elongation = elongation
+        self.orientation = orientation
+        self.n = n
+        self.nsat = nsat
+        self.peak = peak
+        self.index = index
+
+    def as_tuple(self):
+        """``(x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat, peak,
+        index)``."""
+        return (self.x, self.y, self.flux, self.sigma_major, self.sigma_minor, self.elongation,
+                self.orientation, self.n, self.nsat, self.peak, self.index)
+
+    def __repr__(self):
+        return ("Star(x={:.3f}, y={:.3f}, flux={}, sigma_major={:.3f}, sigma_minor={:.3f}, "
+                "elongation={:.3f}, orientation={:.3f}, n={}, nsat={}, peak={}, index={})"
+                ).format(*self.as_tuple())
+
+
+def _finite(value):
+    """True for an int or a finite float (MicroPython-safe)."""
+    return value == value and value - value == 0
+
+
+def _is_int(value):
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def moments(rec):
+    """``(x, y, cxx, cyy, cxy, det)`` of a record, or None when it has no valid centroid.
+
+    ``det = cxx*cyy - cxy^2``.  Integer records are computed from exact integer numerators;
+    float records (another source, or tests) with the float formulas.  None when ``s0`` is
+    not a positive finite number, a moment is not finite, the centroid lies outside the
+    bounding box, or the moment matrix is not positive semi-definite.
+    """
+    s0, sx, sy = rec.s0, rec.sx, rec.sy
+    sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
+    if not (_finite(s0) and s0 > 0):
+        return None
+    if _is_int(s0) and _is_int(sx) and _is_int(sy) and _is_int(sxx) and _is_int(syy) \
+            and _is_int(sxy):
+        nxx = s0 * sxx - sx * sx          # s0^2 cxx, exact
+        nyy = s0 * syy - sy * sy
+        nxy = s0 * sxy - sx * sy
+        if nxx < 0 or nyy < 0 or nxx * nyy < nxy * nxy:
+            return None
+        q, r = divmod(sx, s0)
+        x = q + r / s0
+        q, r = divmod(sy, s0)
+        y = q + r / s0
+        s02 = s0 * s0
+        cxx = nxx / s02
+        cyy = nyy / s02
+        cxy = nxy / s02
+        # det = (nxx nyy - nxy^2) / s0^4; dividing by s0^2 in integers first (quotient and
+        # remainder) keeps every float below 2**128 (single-precision MCU floats)
+        q, r = divmod(nxx * nyy - nxy * nxy, s02)
+        det = (q + r / s02) / s02
+    else:
+        for v in (sx, sy, sxx, syy, sxy):
+            if not _finite(v):
+                return None
+        x = sx / s0
+        y = sy / s0
+        cxx = sxx / s0 - x * x
+        cyy = syy / s0 - y * y
+        cxy = sxy / s0 - x * y
+        # float rounding: tolerate tiny negative values, clamp them
+        tol = 1e-9 * (abs(sxx / s0) + abs(syy / s0) + 1.0)
+        if cxx < -tol or cyy < -tol:
+            return None
+        cxx = max(cxx, 0.0)
+        cyy = max(cyy, 0.0)
+        det = cxx * cyy - cxy * cxy
+        if det < -tol * (cxx + cyy + 1.0):
+            return None
+        det = max(det, 0.0)
+        for v in (x, y, cxx, cyy, cxy, det):    # overflow of huge or tiny values
+            if not _finite(v):
+                return None
+    if not (rec.xmin <= x <= rec.xmax and rec.ymin <= y <= rec.ymax):
+        return None
+    return x, y, cxx, cyy, cxy, det
+
+
+def shape(cxx, cyy, cxy, det=None):
+    """``(sigma_major, sigma_minor, elongation, orientation)`` of central second moments.
+
+    ``det`` (``cxx*cyy - cxy^2``), when given exactly, makes the minor eigenvalue accurate
+    for very elongated blobs (``l2 = det / l1``, no cancellation).
+    """
+    half_trace = 0.5 * (cxx + cyy)
+    half_diff = 0.5 * (cxx - cyy)
+    root = math.sqrt(half_diff * half_diff + cxy * cxy)
+    l1 = half_trace + root
+    if det is None:
+        det = cxx * cyy - cxy * cxy
+    l2 = det / l1 if l1 > 0 else 0.0
+    if l2 < 0:
+        l2 = 0.0
+    sigma_major = math.sqrt(l1) if l1 > 0 else 0.0
+    sigma_minor = math.sqrt(l2)
+    if sigma_minor > 0:
+        elongation = sigma_major / sigma_minor
+    elif sigma_major > 0:
+        elongation = _INF
+    else:
+        elongation = 1.0
+    orientation = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)
+    return sigma_major, sigma_minor, elongation, orientation
+
+
+def smear_consistent(sigma_major, sigma_minor, orientation, smear,
+                     angle_tol=DEFAULT_SMEAR_ANGLE_TOL, length_ratio=DEFAULT_SMEAR_LENGTH_RATIO):
+    """True when a blob's elongation is explained by the expected smear ``(dx, dy)`` (px).
+
+    The major axis must lie within ``angle_tol`` radians of the smear direction (either
+    sense) and ``sqrt(12 (sigma_major^2 - sigma_minor^2))`` within a factor ``length_ratio``
+    of the smear length.
+    """
+    if smear is None:
+        return False
+    dx, dy = smear[0], smear[1]
+    if not (_finite(dx) and _finite(dy)):
+        return False
+    length = math.sqrt(dx * dx + dy * dy)
+    if length <= 0:
+        return False
+    diff = orientation - math.atan2(dy, dx)
+    diff = math.fmod(diff, math.pi)       # the axis has no sense: compare modulo pi
+    if diff > 0.5 * math.pi:
+        diff -= math.pi
+    elif diff < -0.5 * math.pi:
+        diff += math.pi
+    if abs(diff) > angle_tol:
+        return False
+    excess = sigma_major * sigma_major - sigma_minor * sigma_minor
+    measured = math.sqrt(12.0 * excess) if excess > 0 else 0.0
+    return length / length_ratio <= measured <= length * length_ratio
+
+
+def _sort_key(star):
+    return (-star.flux, star.index)
+
+
+def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
+            min_sigma_px=DEFAULT_MIN_SIGMA_PX, max_elongation=DEFAULT_MAX_ELONGATION,
+            expected_smear_px=None, smear_angle_tol=DEFAULT_SMEAR_ANGLE_TOL,
+            smear_length_ratio=DEFAULT_SMEAR_LENGTH_RATIO):
+    """Centroid, measure and filter blob records: ``(stars, rejected)``.
+
+    ``records``: ``contract.BlobRecord`` (or any objects with the same attributes).
+    ``stars``: at most ``max_stars`` :class:`Star`, brightest (largest s0) first, ties in
+    record order; ``max_stars=None`` keeps all.  ``rejected``: ``{reason: count}`` for every
+    reason in ``REASONS``; ``len(stars) + sum(rejected.values()) == len(records)``.  The
+    parameters and the order of the tests are described in the module docstring.  Never
+    raises on bad record values.
+    """
+    rejected = {}
+    for reason in REASONS:
+        rejected[reason] = 0
+    smear_fn = expected_smear_px if callable(expected_smear_px) else None
+    stars = []
+    index = -1
+    for rec in records:
+        index += 1
+        s0 = rec.s0
+        if not (_finite(s0) and s0 > 0):
+            rejected["empty"] += 1
+            continue
+        if _is_int(rec.flags) and rec.flags & C.BLOB_MOMENTS_SATURATED:
+            rejected["saturated"] += 1
+            continue
+        m = moments(rec)
+        if m is None:
+            rejected["inconsistent"] += 1
+            continue
+        x, y, cxx, cyy, cxy, det = m
+        sigma_major, sigma_minor, elongation, orientation = shape(cxx, cyy, cxy, det)
+        if rec.n < min_pixels or sigma_major < min_sigma_px:
+            rejected["hot_pixel"] += 1
+            continue
+        if elongation > max_elongation:
+            smear = smear_fn(x, y) if smear_fn is not None else expected_smear_px
+            if not smear_consistent(sigma_major, sigma_minor, orientation, smear,
+                                    smear_angle_tol, smear_length_ratio):
+                rejected["cosmic_ray"] += 1
+                continue
+        if sigma_minor < min_sigma_px:
+            rejected["hot_pixel"] += 1
+            continue
+        stars.append(Star(x, y, s0, sigma_major, sigma_minor, elongation, orientation,
+                          rec.n, rec.nsat, rec.peak, index))
+    stars.sort(key=_sort_key)
+    if max_stars is not None and len(stars) > max_stars:
+        rejected["excess"] += len(stars) - max_stars
+        stars = stars[:max_stars]
+    return stars, rejected

@@ -1,0 +1,329 @@
+"""MCU-side decoder of the FPGA->MCU blob packet; never raises on bad bytes.
+
+    from lodestar.firmware import packet, status
+    st, header, records, reason = packet.decode(data)
+    if st != status.OK:
+        log(status.name(st), reason)      # header is None, records is []
+
+The layout is ``lodestar.contract``'s (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES``),
+read with integer arithmetic: at import each field becomes a byte window (first and last
+byte, a mask for its first byte, a shift for its last) computed from the contract's widths,
+and decoding accumulates each window MSB first.  Unlike ``int.from_bytes`` of a whole record
+followed by shifts, no intermediate is larger than the field's value, so fields that fit a
+MicroPython small int (31 bits on a 32-bit MCU) never allocate a long int.  The checks
+and their order are those of the ground codec ``lodestar.packet`` (see its docstring); each
+failed check returns a status and the *same* message the ground codec raises:
+
+===============================  ======================================================
+status                           check
+===============================  ======================================================
+``BAD_INPUT``                    not bytes-like (bytes, bytearray, memoryview)
+``PACKET_TRUNCATED``             shorter than ``packet_bytes(0)``, or than
+                                 ``packet_bytes(n_records)``
+``PACKET_BAD_MAGIC``             magic is not ``contract.PACKET_MAGIC``
+``PACKET_BAD_VERSION``           version is not ``contract.PACKET_VERSION``
+``PACKET_BAD_LENGTH``            longer than ``packet_bytes(n_records)`` (trailing bytes)
+``PACKET_BAD_CRC``               CRC-32 trailer mismatch
+``PACKET_BAD_HEADER``            mode, pixel_bits, width/height, threshold/background,
+                                 frame flags, record count, overflow flags
+``PACKET_BAD_RECORD``            ``"record <i>: ..."``: blob flags, bounding box, peak,
+                                 nsat, n, moments, saturation flag
+===============================  ======================================================
+
+CRC-32 (zlib / ISO-HDLC) comes from ``binascii.crc32`` when the port has it (CPython, and
+MicroPython builds with ``MICROPY_PY_BINASCII_CRC32``), else from :func:`crc32_table`, a
+table-driven version whose loop keeps the running CRC in two 16-bit halves (no long-int
+allocation per byte on a 32-bit MCU).
+
+Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
+"""
+
+from lodestar import contract as C
+from lodestar.firmware import status as S
+
+try:
+    from binascii import crc32 as _binascii_crc32
+except ImportError:  # a MicroPython port without MICROPY_PY_BINASCII_CRC32
+    _binascii_crc32 = None
+
+
+# --------------------------------------------------------------------------------------
+# Layout: each field as a byte window, from the contract
+# --------------------------------------------------------------------------------------
+
+def _plan(fields):
+    """``(first, last, head_mask, tail_drop)`` per ``(name, bits)`` field of a section whose
+    fields are packed MSB first: the field occupies bytes ``first .. last`` (from the section
+    start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
+    ``tail_drop`` bits above the least significant bit of byte ``last``."""
+    out = []
+    offset = 0
+    for _name, bits in fields:
+        end = offset + bits - 1                 # the field's last bit
+        out.append((offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
+        offset += bits
+    return tuple(out)
+
+
+_HEADER_PLAN = _plan(C.HEADER_FIELDS)
+_RECORD_PLAN = _plan(C.RECORD_FIELDS)
+_N_RECORD_FIELDS = len(C.RECORD_FIELDS)
+_MIN_BYTES = C.packet_bytes(0)
+_CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
+_CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
+
+
+def _field(data, base, first, last, head_mask, tail_drop):
+    """One field of the section starting at byte ``base`` of ``data`` (see :func:`_plan`).
+
+    Bytes are accumulated MSB first with the neighbouring fields' bits removed before they
+    are shifted in, so no intermediate exceeds the field's value: a value that fits a
+    MicroPython small int is read without allocating a long int.
+    """
+    value = data[base + first] & head_mask
+    if first == last:
+        return value >> tail_drop
+    for i in range(base + first + 1, base + last):
+        value = (value << 8) | data[i]
+    return (value << (8 - tail_drop)) | (data[base + last] >> tail_drop)
+
+
+def _unpack_header(data):
+    """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
+    header = {}
+    i = 0
+    for first, last, head_mask, tail_drop in _HEADER_PLAN:
+        header[C.HEADER_NAMES[i]] = _field(data, 0, first, last, head_mask, tail_drop)
+        i += 1
+    return header
+
+
+def _unpack_record(data, index):
+    """Record ``index`` (0-based) of a framed packet as a ``contract.BlobRecord``."""
+    base = C.HEADER_BYTES + index * C.RECORD_BYTES
+    values = [0] * _N_RECORD_FIELDS
+    i = 0
+    for first, last, head_mask, tail_drop in _RECORD_PLAN:
+        values[i] = _field(data, base, first, last, head_mask, tail_drop)
+        i += 1
+    return C.BlobRecord(*values)
+
+
+# --------------------------------------------------------------------------------------
+# CRC-32 (zlib): binascii when available, else table-driven in 16-bit halves
+# --------------------------------------------------------------------------------------
+
+_TABLE_HI = None
+_TABLE_LO = None
+
+
+def _make_tables():
+    """The 256-entry CRC-32 table (reflected polynomial 0xEDB88320) split in 16-bit halves."""
+    hi = []
+    lo = []
+    for n in range(256):
+        c = n
+        for _ in range(8):
+            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+        hi.append(c >> 16)
+        lo.append(c & 0xFFFF)
+    return hi, lo
+
+
+def crc32_table(data, crc=0):
+    """CRC-32 of ``data`` (bytes-like), continuing from ``crc``: the value ``zlib.crc32`` and
+    ``binascii.crc32`` give, computed from a table with 16-bit intermediates only."""
+    global _TABLE_HI, _TABLE_LO
+    if _TABLE_HI is None:
+        _TABLE_HI, _TABLE_LO = _make_tables()
+    table_hi = _TABLE_HI
+    table_lo = _TABLE_LO
+    crc ^= 0xFFFFFFFF
+    hi = crc >> 16
+    lo = crc & 0xFFFF
+    for b in data:
+        i = (lo ^ b) & 0xFF
+        lo = table_lo[i] ^ (((hi & 0xFF) << 8) | (lo >> 8))
+        hi = table_hi[i] ^ (hi >> 8)
+    return ((hi << 16) | lo) ^ 0xFFFFFFFF
+
+
+def crc32(data, crc=0):
+    """CRC-32 of ``data`` (zlib / ISO-HDLC), unsigned; ``binascii.crc32`` if the port has it."""
+    if _crc32 is None:
+        return crc32_table(data, crc)
+    return _crc32(data, crc) & 0xFFFFFFFF
+
+
+_crc32 = _binascii_crc32
+"""The CRC implementation in use (``binascii.crc32`` or None for :func:`crc32_table`); tests
+set it to None to exercise the fallback."""
+
+
+# --------------------------------------------------------------------------------------
+# Checks (messages identical to lodestar.packet's PacketError messages)
+# --------------------------------------------------------------------------------------
+
+_MOMENT_LIMITS = {}
+
+
+def _moment_limits(pixel_bits):
+    """``contract.moment_max(pixel_bits)``, cached (pixel_bits already validated)."""
+    limits = _MOMENT_LIMITS.get(pixel_bits)
+    if limits is None:
+        limits = C.moment_max(pixel_bits)
+        _MOMENT_LIMITS[pixel_bits] = limits
+    return limits
+
+
+def _framing_problem(data, header):
+    """``(status, message)`` of the first failed framing check after the minimum length, or
+    None: magic, version, length, CRC."""
+    if header["magic"] != C.PACKET_MAGIC:
+        return S.PACKET_BAD_MAGIC, "bad magic 0x{:04X}, expected 0x{:04X}".format(
+            header["magic"], C.PACKET_MAGIC)
+    if header["version"] != C.PACKET_VERSION:
+        return S.PACKET_BAD_VERSION, \
+            "unsupported version {}: this decoder reads version {}".format(
+                header["version"], C.PACKET_VERSION)
+    expected = C.packet_bytes(header["n_records"])
+    if len(data) != expected:
+        if len(data) < expected:
+            code, what = S.PACKET_TRUNCATED, "truncated"
+        else:
+            code, what = S.PACKET_BAD_LENGTH, "trailing bytes"
+        return code, "{}: {} bytes, a packet with {} records is {} bytes".format(
+            what, len(data), header["n_records"], expected)
+    body_bytes = expected - C.CRC_BYTES
+    carried = int.from_bytes(data[body_bytes:], "big")
+    computed = crc32(memoryview(data)[:body_bytes]) & _CRC_MASK
+    if carried != computed:
+        return S.PACKET_BAD_CRC, \
+            "CRC mismatch: packet carries 0x{}, header and records give 0x{}".format(
+                _CRC_HEX.format(carried), _CRC_HEX.format(computed))
+    return None
+
+
+def _overflow_problem(header, flag, flag_name, count_name):
+    is_set = bool(header["flags"] & flag)
+    if is_set != (header[count_name] > 0):
+        return "{} is {} but {}={}: the flag is set iff {} > 0".format(
+            flag_name, "set" if is_set else "clear", count_name, header[count_name],
+            count_name)
+    return None
+
+
+def _header_problem(header):
+    """What is wrong with a CRC-verified header (None if nothing)."""
+    if header["mode"] >= len(C.MODE_NAMES):
+        return "mode {} is not a mode number (0..{}: {})".format(
+            header["mode"], len(C.MODE_NAMES) - 1, ", ".join(C.MODE_NAMES))
+    if header["pixel_bits"] not in C.PIXEL_BITS:
+        return "pixel_bits {} is not one of {}".format(header["pixel_bits"], C.PIXEL_BITS)
+    for name, limit in (("width", C.MAX_WIDTH), ("height", C.MAX_HEIGHT)):
+        if not 1 <= header[name] <= limit:
+            return "{} {} is out of range 1..{}".format(name, header[name], limit)
+    full_scale = C.full_scale(header["pixel_bits"])
+    for name in ("threshold", "background"):
+        if header[name] > full_scale:
+            return "{} {} is above full scale {} of {}-bit pixels".format(
+                name, header[name], full_scale, header["pixel_bits"])
+    undefined = header["flags"] & ~C.FRAME_FLAGS_DEFINED
+    if undefined:
+        return "undefined frame flag bits 0x{:02X} set (defined: 0x{:02X})".format(
+            undefined, C.FRAME_FLAGS_DEFINED)
+    emitted = header["n_blobs"] - header["n_filtered"] - header["dropped_records"]
+    if header["n_records"] != emitted:
+        return ("count mismatch: n_records={} but n_blobs - n_filtered - "
+                "dropped_records = {} - {} - {} = {}").format(
+                    header["n_records"], header["n_blobs"], header["n_filtered"],
+                    header["dropped_records"], emitted)
+    problem = _overflow_problem(header, C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW",
+                                "dropped_records")
+    if problem:
+        return problem
+    return _overflow_problem(header, C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW",
+                             "dropped_labels")
+
+
+def _record_problem(rec, header, limits):
+    """What is wrong with one record of the frame ``header`` describes (None if nothing)."""
+    undefined = rec.flags & ~C.BLOB_FLAGS_DEFINED
+    if undefined:
+        return "undefined blob flag bits 0x{:02X} set (defined: 0x{:02X})".format(
+            undefined, C.BLOB_FLAGS_DEFINED)
+    if rec.xmin > rec.xmax:
+        return "xmin={} > xmax={}".format(rec.xmin, rec.xmax)
+    if rec.ymin > rec.ymax:
+        return "ymin={} > ymax={}".format(rec.ymin, rec.ymax)
+    if rec.xmax >= header["width"]:
+        return "bounding box beyond the frame: xmax={} but the frame width is {}".format(
+            rec.xmax, header["width"])
+    if rec.ymax >= header["height"]:
+        return "bounding box beyond the frame: ymax={} but the frame height is {}".format(
+            rec.ymax, header["height"])
+    full_scale = C.full_scale(header["pixel_bits"])
+    if rec.peak > full_scale:
+        return "peak={} is above full scale {} of {}-bit pixels".format(
+            rec.peak, full_scale, header["pixel_bits"])
+    if rec.nsat > rec.n:
+        return "nsat={} > n={}".format(rec.nsat, rec.n)
+    if rec.nsat and rec.peak != full_scale:
+        return "nsat={} but peak={} is below full scale {}".format(rec.nsat, rec.peak,
+                                                                    full_scale)
+    if rec.n == 0:
+        return "n=0: a blob has at least one pixel"
+    area = (rec.xmax - rec.xmin + 1) * (rec.ymax - rec.ymin + 1)
+    if rec.n > area:
+        return "n={} exceeds the bounding box area {}".format(rec.n, area)
+    at_limit = False
+    for name in C.MOMENTS:
+        value = getattr(rec, name)
+        if value > limits[name]:
+            return "moment {}={} is above its maximum {} for {}-bit pixels".format(
+                name, value, limits[name], header["pixel_bits"])
+        if value == limits[name]:
+            at_limit = True
+    if rec.flags & C.BLOB_MOMENTS_SATURATED and not at_limit:
+        return "BLOB_MOMENTS_SATURATED is set but no moment is at its maximum"
+    return None
+
+
+# --------------------------------------------------------------------------------------
+# Public entry point
+# --------------------------------------------------------------------------------------
+
+def decode(data):
+    """Decode one packet: ``(status, header, records, reason)``; never raises on bad bytes.
+
+    On success ``status`` is ``status.OK``, ``header`` a dict of every
+    ``contract.HEADER_NAMES`` field (``magic``, ``version`` and ``n_records`` included),
+    ``records`` a list of ``contract.BlobRecord`` in packet order and ``reason`` ``""``.
+    On failure ``header`` is None, ``records`` is ``[]`` and ``reason`` names the first failed
+    check with the message ``lodestar.packet.decode`` raises for the same bytes.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        return S.BAD_INPUT, None, [], \
+            "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
+                type(data).__name__)
+    if isinstance(data, memoryview):
+        data = bytes(data)
+    if len(data) < _MIN_BYTES:
+        return S.PACKET_TRUNCATED, None, [], \
+            "truncated: {} bytes, a packet needs at least {}".format(len(data), _MIN_BYTES)
+    header = _unpack_header(data)
+    problem = _framing_problem(data, header)
+    if problem:
+        return problem[0], None, [], problem[1]
+    reason = _header_problem(header)
+    if reason:
+        return S.PACKET_BAD_HEADER, None, [], reason
+    limits = _moment_limits(header["pixel_bits"])
+    records = []
+    for index in range(header["n_records"]):
+        rec = _unpack_record(data, index)
+        reason = _record_problem(rec, header, limits)
+        if reason:
+            return S.PACKET_BAD_RECORD, None, [], "record {}: {}".format(index, reason)
+        records.append(rec)
+    return S.OK, header, records, ""

@@ -1,0 +1,94 @@
+"""Firmware status codes: small integers with a name and a one-line meaning.
+
+Every firmware function that can fail on data (bytes from the FPGA, a star list, the star
+database) returns one of these codes instead of raising; ``OK`` (0) is the only success.
+``name(code)`` and ``meaning(code)`` turn a code into text for telemetry and logs.
+
+Codes are grouped by decade so that modules can add theirs without renumbering::
+
+     0       OK
+     1 .. 19 packet decoding (``lodestar.firmware.packet``)
+    20 .. 29 centroiding and camera model
+    30 .. 39 star identification
+    40 .. 49 star database
+    50 .. 59 generic
+
+To add a code: define the constant below in its group and add a row to ``_TABLE``
+(``tests/test_firmware_packet.py`` checks that every constant has exactly one row and that
+codes are unique).  Pure Python, MicroPython-safe.
+"""
+
+OK = 0
+
+# --- packet decoding (lodestar.firmware.packet) -----------------------------------------
+PACKET_TRUNCATED = 1
+PACKET_BAD_MAGIC = 2
+PACKET_BAD_VERSION = 3
+PACKET_BAD_LENGTH = 4
+PACKET_BAD_CRC = 5
+PACKET_BAD_HEADER = 6
+PACKET_BAD_RECORD = 7
+
+# --- centroiding and camera model -------------------------------------------------------
+TOO_FEW_STARS = 20
+CAMERA_NOT_CONVERGED = 21
+CAMERA_OUT_OF_VIEW = 22
+
+# --- star identification ----------------------------------------------------------------
+NO_MATCH = 30
+AMBIGUOUS = 31
+
+# --- star database ----------------------------------------------------------------------
+DATABASE_CORRUPT = 40
+DATABASE_MISMATCH = 41
+
+# --- generic ----------------------------------------------------------------------------
+BAD_INPUT = 50
+
+_TABLE = (
+    (OK, "OK", "success"),
+    (PACKET_TRUNCATED, "PACKET_TRUNCATED",
+     "packet shorter than its header + CRC, or than its record count requires"),
+    (PACKET_BAD_MAGIC, "PACKET_BAD_MAGIC", "packet does not start with contract.PACKET_MAGIC"),
+    (PACKET_BAD_VERSION, "PACKET_BAD_VERSION", "packet version is not contract.PACKET_VERSION"),
+    (PACKET_BAD_LENGTH, "PACKET_BAD_LENGTH",
+     "packet longer than its record count requires (trailing bytes)"),
+    (PACKET_BAD_CRC, "PACKET_BAD_CRC", "packet CRC-32 trailer does not match its contents"),
+    (PACKET_BAD_HEADER, "PACKET_BAD_HEADER",
+     "packet header field out of range or inconsistent (CRC was correct)"),
+    (PACKET_BAD_RECORD, "PACKET_BAD_RECORD",
+     "blob record field out of range or inconsistent (CRC was correct)"),
+    (TOO_FEW_STARS, "TOO_FEW_STARS", "fewer usable stars than the algorithm needs"),
+    (CAMERA_NOT_CONVERGED, "CAMERA_NOT_CONVERGED",
+     "camera model: undistortion did not converge (pixel far outside the frame)"),
+    (CAMERA_OUT_OF_VIEW, "CAMERA_OUT_OF_VIEW",
+     "camera model: direction behind the camera or beyond the distortion fold radius"),
+    (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
+    (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
+    (DATABASE_CORRUPT, "DATABASE_CORRUPT", "star database failed its integrity check"),
+    (DATABASE_MISMATCH, "DATABASE_MISMATCH",
+     "star database built for another camera, layout or version"),
+    (BAD_INPUT, "BAD_INPUT", "argument of the wrong type or out of range"),
+)
+"""``(code, name, meaning)`` of every status, in code order."""
+
+
+def name(code):
+    """The name of a status code (``"UNKNOWN(<code>)"`` for a code not in the table)."""
+    for row in _TABLE:
+        if row[0] == code:
+            return row[1]
+    return "UNKNOWN({})".format(code)
+
+
+def meaning(code):
+    """One-line meaning of a status code (``"unknown status"`` for a code not in the table)."""
+    for row in _TABLE:
+        if row[0] == code:
+            return row[2]
+    return "unknown status"
+
+
+def codes():
+    """All defined codes, ascending."""
+    return tuple(row[0] for row in _TABLE)
