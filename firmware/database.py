@@ -1,0 +1,504 @@
+"""Star-identification database reader (flight side): one binary image, read by offset.
+
+The image is built on the ground by ``lodestar.ground.database`` (whose docstring documents
+the byte layout in full); this module holds the layout constants both sides use, validates
+an image and reads it **without loading it whole**:
+
+* ``Database(buffer)`` works over ``bytes``, ``bytearray`` or a ``memoryview`` (for example
+  a memory-mapped flash region): every access is a ``struct.unpack_from`` at an offset;
+* ``Database.open(path)`` works over a file: it reads the 160-byte header, streams the file
+  once in 512-byte chunks to check the CRC, and afterwards reads each record with a
+  ``seek`` + ``readinto`` into one preallocated 16-byte scratch buffer.
+
+Validation (in this order): length >= header, magic ``b"LSDB"``, format version, header size,
+header CRC-32, image size == buffer/file length, payload CRC-32, and the layout (every
+section inside the image, aligned, non-overlapping, of exactly the length its counts imply,
+the sections each advertised method needs present, and sane numbers).  A failure raises
+:class:`DatabaseError` with a short machine-readable ``status`` (one of :data:`STATUSES`)
+and a human-readable ``reason``.  **Error policy**: the reader raises; the flight API calls
+:func:`load` (or :func:`check`), which converts the exception into a ``(status, reason)``
+pair for telemetry, so no exception escapes to the flight loop.
+
+Pure Python for CPython and MicroPython 1.27 (``struct``, ``binascii``, ``math``,
+``array``); star and pair accessors allocate only their small result tuples.
+"""
+
+import math
+import struct
+from array import array
+
+try:
+    from binascii import crc32 as _crc32
+except ImportError:          # a MicroPython port built without binascii.crc32
+    _crc32 = None
+
+from . import kvector
+
+# --------------------------------------------------------------------------------------
+# Layout constants (the ground builder imports these; see its docstring for the table)
+# --------------------------------------------------------------------------------------
+
+MAGIC = b"LSDB"
+VERSION = 1
+HEADER_SIZE = 160
+
+# Fixed header fields before the section directory (88 bytes, little endian).
+HEADER_FORMAT = "<4sHHIIHHfffffIIIfffIffHHff"
+HEADER_FIELDS = ("magic", "version", "header_size", "image_size", "payload_crc",
+                 "methods", "star_record_size", "fov_h", "fov_v", "fov_diag", "mag_limit",
+                 "epoch", "n_stars", "n_pattern_stars", "n_pairs", "pair_min_angle",
+                 "pair_max_angle", "key_step", "kv_bins", "kv_m", "kv_q", "cells_per_face",
+                 "pattern_per_region", "cell_radius", "pattern_radius")
+DIRECTORY_OFFSET = 88        # N_SECTIONS entries of "<II" (offset, length) in bytes
+N_SECTIONS = 8
+RESERVED_OFFSET = 152        # "<I", zero
+HEADER_CRC_OFFSET = 156      # "<I": CRC-32 of header bytes [0, 156)
+SECTION_ALIGN = 4
+
+# Section ids (index into the directory).  Length 0 = absent.
+SEC_STARS = 0                # n_stars records of STAR_FORMAT
+SEC_CELLS = 1                # (6 * cells_per_face**2 + 1) x "<H": first star of each cell
+SEC_PAIRS = 2                # n_pairs records of PAIR_FORMAT, sorted by (key, a, b)
+SEC_KVECTOR = 3              # (kv_bins + 1) x "<I": the k-vector over the pair keys
+SEC_TRIANGLES = 4            # reserved for the 'triangle' method
+SEC_HASH = 5                 # reserved for the 'hashing' method
+SECTION_NAMES = ("stars", "cells", "pairs", "kvector", "triangles", "hash", "reserved6",
+                 "reserved7")
+
+STAR_FORMAT = "<fffHH"       # x, y, z (float32), hip low 16 bits, packed word (below)
+STAR_SIZE = 16
+PAIR_FORMAT = "<HHH"         # key (angle / key_step, rounded), star a, star b (a < b)
+PAIR_SIZE = 6
+CELL_FORMAT = "<H"
+KV_FORMAT = "<I"
+
+# Star packed word: bit 0 = HIP bit 16; bits 1-11 = magnitude code (V = code / 100 - 2);
+# bits 12-15 = flags.
+MAG_OFFSET = 2.0
+MAG_SCALE = 100
+STAR_FLAG_PATTERN = 1        # flag bit: the star is in the pair table (a pattern star)
+
+# Method bit mask and the sections each method needs.
+METHOD_PYRAMID = 1
+METHOD_TRIANGLE = 2
+METHOD_HASHING = 4
+METHOD_NAMES = {"pyramid": METHOD_PYRAMID, "triangle": METHOD_TRIANGLE,
+                "hashing": METHOD_HASHING}
+METHOD_SECTIONS = {METHOD_PYRAMID: (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
+                   METHOD_TRIANGLE: (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
+                   METHOD_HASHING: (SEC_STARS, SEC_CELLS, SEC_HASH)}
+SUPPORTED_METHODS = METHOD_PYRAMID       # what this reader can serve
+
+# Status codes of DatabaseError / check() / load().
+OK = "OK"
+STATUSES = ("OK", "BAD_LENGTH", "BAD_MAGIC", "BAD_VERSION", "BAD_HEADER", "BAD_CRC",
+            "BAD_LAYOUT", "UNSUPPORTED_METHOD", "FOV_MISMATCH", "IO_ERROR")
+
+_CHUNK = 512
+
+
+class DatabaseError(Exception):
+    """An image is corrupt or does not match: ``status`` (one of :data:`STATUSES`) and
+    ``reason`` (text)."""
+
+    def __init__(self, status, reason):
+        super().__init__(status + ": " + reason)
+        self.status = status
+        self.reason = reason
+
+
+# --------------------------------------------------------------------------------------
+# CRC-32 (binascii when available, else a table-driven fallback)
+# --------------------------------------------------------------------------------------
+
+_TABLE = None
+
+
+def _crc_table():
+    global _TABLE
+    if _TABLE is None:
+        t = array("I", [0] * 256)
+        for i in range(256):
+            c = i
+            for _ in range(8):
+                c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+            t[i] = c
+        _TABLE = t
+    return _TABLE
+
+
+def crc32(data, crc=0):
+    """CRC-32 (IEEE 802.3, as ``zlib.crc32``) of ``data``, continuing from ``crc``."""
+    if _crc32 is not None:
+        return _crc32(data, crc) & 0xFFFFFFFF
+    t = _crc_table()
+    c = crc ^ 0xFFFFFFFF
+    for b in data:
+        c = t[(c ^ b) & 0xFF] ^ (c >> 8)
+    return c ^ 0xFFFFFFFF
+
+
+# --------------------------------------------------------------------------------------
+# Sky cells: a gnomonic cube, cells_per_face**2 cells per face
+# --------------------------------------------------------------------------------------
+
+def cell_of(x, y, z, n):
+    """Cell index of the direction ``(x, y, z)`` (any non-zero length) on the ``n x n``
+    gnomonic cube: ``(face * n + iu) * n + iv``; face ``2a + (1 if negative)`` for major axis
+    ``a`` (0 = x, 1 = y, 2 = z); ``u, v`` = the next two axes (cyclically) over ``|major|``."""
+    ax, ay, az = abs(x), abs(y), abs(z)
+    if ax >= ay and ax >= az:
+        face, big, u, v = (0 if x >= 0 else 1), ax, y, z
+    elif ay >= az:
+        face, big, u, v = (2 if y >= 0 else 3), ay, z, x
+    else:
+        face, big, u, v = (4 if z >= 0 else 5), az, x, y
+    iu = int((u / big + 1.0) * 0.5 * n)
+    iv = int((v / big + 1.0) * 0.5 * n)
+    iu = 0 if iu < 0 else (n - 1 if iu >= n else iu)
+    iv = 0 if iv < 0 else (n - 1 if iv >= n else iv)
+    return (face * n + iu) * n + iv
+
+
+def cell_centre(c, n):
+    """Unit vector ``(x, y, z)`` of the centre of cell ``c`` (inverse of :func:`cell_of`)."""
+    face = c // (n * n)
+    rest = c - face * n * n
+    iu, iv = rest // n, rest % n
+    u = (iu + 0.5) * 2.0 / n - 1.0
+    v = (iv + 0.5) * 2.0 / n - 1.0
+    s = -1.0 if face & 1 else 1.0
+    a = face >> 1
+    norm = math.sqrt(1.0 + u * u + v * v)
+    if a == 0:
+        return s / norm, u / norm, v / norm
+    if a == 1:
+        return v / norm, s / norm, u / norm
+    return u / norm, v / norm, s / norm
+
+
+def n_cells(n):
+    """Number of cells of the ``n x n`` cube grid."""
+    return 6 * n * n
+
+
+# --------------------------------------------------------------------------------------
+# Byte sources: a buffer, or a file read by seek
+# --------------------------------------------------------------------------------------
+
+class _BufferSource:
+    def __init__(self, buf):
+        self.buf = buf if isinstance(buf, memoryview) else memoryview(buf)
+        self.size = len(self.buf)
+
+    def unpack(self, fmt, offset, size):
+        return struct.unpack_from(fmt, self.buf, offset)
+
+    def crc(self, start, stop):
+        return crc32(self.buf[start:stop])
+
+    def close(self):
+        pass
+
+
+class _FileSource:
+    def __init__(self, f):
+        self.f = f
+        f.seek(0, 2)
+        self.size = f.tell()
+        self.scratch = bytearray(HEADER_SIZE)
+        self.mv = memoryview(self.scratch)
+
+    def unpack(self, fmt, offset, size):
+        f, mv = self.f, self.mv
+        f.seek(offset)
+        if f.readinto(mv[:size]) != size:
+            raise DatabaseError("IO_ERROR", "short read at offset " + str(offset))
+        return struct.unpack_from(fmt, self.scratch, 0)
+
+    def crc(self, start, stop):
+        f = self.f
+        chunk = bytearray(_CHUNK)
+        mv = memoryview(chunk)
+        f.seek(start)
+        c = 0
+        left = stop - start
+        while left > 0:
+            want = _CHUNK if left > _CHUNK else left
+            got = f.readinto(mv[:want])
+            if not got:
+                raise DatabaseError("IO_ERROR", "file ended early")
+            c = crc32(mv[:got], c)
+            left -= got
+        return c
+
+    def close(self):
+        self.f.close()
+
+
+# --------------------------------------------------------------------------------------
+# The reader
+# --------------------------------------------------------------------------------------
+
+def _finite_positive(x):
+    return x == x and 0.0 < x < 1e30
+
+
+class Database:
+    """A validated star-identification database image.
+
+    ``Database(buffer)`` over bytes-like memory or :meth:`open` over a file; both raise
+    :class:`DatabaseError` on any corruption or mismatch.  ``expected_fov_h`` (rad), when
+    given, must match the image's horizontal FOV to ``fov_tolerance`` (relative), else
+    ``FOV_MISMATCH``.  Header values are attributes named as in :data:`HEADER_FIELDS`
+    (angles in radians); ``sections`` is the list of ``(offset, length)``.
+    """
+
+    def __init__(self, buffer=None, expected_fov_h=None, fov_tolerance=0.02, _source=None):
+        src = _source if _source is not None else _BufferSource(buffer)
+        self._src = src
+        try:
+            self._validate(expected_fov_h, fov_tolerance)
+        except DatabaseError:
+            raise
+        except Exception as exc:     # struct errors on a short or odd buffer
+            raise DatabaseError("BAD_LAYOUT", "unreadable image (" + repr(exc) + ")")
+        self._cells = self._cell_centres()
+
+    @classmethod
+    def open(cls, path, expected_fov_h=None, fov_tolerance=0.02):
+        """Open the image file ``path`` (kept open; call :meth:`close`)."""
+        try:
+            f = open(path, "rb")
+        except OSError as exc:
+            raise DatabaseError("IO_ERROR", "cannot open " + str(path) + " (" + repr(exc) + ")")
+        try:
+            return cls(expected_fov_h=expected_fov_h, fov_tolerance=fov_tolerance,
+                       _source=_FileSource(f))
+        except Exception:
+            f.close()
+            raise
+
+    def close(self):
+        """Release the file of :meth:`open` (no-op for buffers)."""
+        self._src.close()
+
+    # ---- validation ----------------------------------------------------------------
+
+    def _validate(self, expected_fov_h, fov_tolerance):
+        src = self._src
+        if src.size < HEADER_SIZE:
+            raise DatabaseError("BAD_LENGTH", "image of " + str(src.size) +
+                                " bytes is shorter than the header")
+        values = src.unpack(HEADER_FORMAT, 0, DIRECTORY_OFFSET)
+        for name, value in zip(HEADER_FIELDS, values):
+            setattr(self, name, value)
+        if self.magic != MAGIC:
+            raise DatabaseError("BAD_MAGIC", "magic " + repr(self.magic) + " is not " +
+                                repr(MAGIC))
+        if self.version != VERSION:
+            raise DatabaseError("BAD_VERSION", "format version " + str(self.version) +
+                                " (this reader reads " + str(VERSION) + ")")
+        if self.header_size != HEADER_SIZE:
+            raise DatabaseError("BAD_HEADER", "header size " + str(self.header_size))
+        if src.crc(0, HEADER_CRC_OFFSET) != src.unpack("<I", HEADER_CRC_OFFSET, 4)[0]:
+            raise DatabaseError("BAD_CRC", "header CRC-32 mismatch")
+        if self.image_size != src.size:
+            raise DatabaseError("BAD_LENGTH", "image is " + str(src.size) +
+                                " bytes, header says " + str(self.image_size))
+        if src.crc(HEADER_SIZE, src.size) != self.payload_crc:
+            raise DatabaseError("BAD_CRC", "payload CRC-32 mismatch")
+        self.sections = []
+        for i in range(N_SECTIONS):
+            self.sections.append(src.unpack("<II", DIRECTORY_OFFSET + 8 * i, 8))
+        self._check_layout()
+        if expected_fov_h is not None:
+            if abs(self.fov_h - expected_fov_h) > fov_tolerance * expected_fov_h:
+                raise DatabaseError("FOV_MISMATCH", "database horizontal FOV " +
+                                    str(self.fov_h) + " rad, camera " + str(expected_fov_h))
+
+    def _check_layout(self):
+        def bad(reason):
+            raise DatabaseError("BAD_LAYOUT", reason)
+
+        if self.methods == 0 or self.methods & ~(METHOD_PYRAMID | METHOD_TRIANGLE |
+                                                 METHOD_HASHING):
+            bad("unknown method mask " + str(self.methods))
+        if not self.methods & SUPPORTED_METHODS:
+            raise DatabaseError("UNSUPPORTED_METHOD", "method mask " + str(self.methods) +
+                                " has nothing this reader serves")
+        if self.star_record_size != STAR_SIZE:
+            bad("star record size " + str(self.star_record_size))
+        for name in ("fov_h", "fov_v", "fov_diag", "cell_radius"):
+            if not _finite_positive(getattr(self, name)) or getattr(self, name) > math.pi:
+                bad(name + " is not an angle in (0, pi]")
+        if not 0 < self.n_stars <= 65535 or self.n_pattern_stars > self.n_stars:
+            bad("star counts " + str(self.n_stars) + "/" + str(self.n_pattern_stars))
+        if not 1 <= self.cells_per_face <= 64:
+            bad("cells_per_face " + str(self.cells_per_face))
+        expected = {SEC_STARS: self.n_stars * STAR_SIZE,
+                    SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
+        if self.methods & METHOD_PYRAMID:
+            if self.n_pairs < 1 or self.kv_bins < 1:
+                bad("pyramid method without pairs or k-vector bins")
+            if not (_finite_positive(self.key_step) and _finite_positive(self.kv_m)) or \
+                    self.kv_q != self.kv_q:
+                bad("key step or k-vector line not finite and positive")
+            expected[SEC_PAIRS] = self.n_pairs * PAIR_SIZE
+            expected[SEC_KVECTOR] = (self.kv_bins + 1) * 4
+        required = []
+        for bit in (METHOD_PYRAMID, METHOD_TRIANGLE, METHOD_HASHING):
+            if self.methods & bit:
+                required.extend(METHOD_SECTIONS[bit])
+        spans = []
+        for sec in range(N_SECTIONS):
+            offset, length = self.sections[sec]
+            if length == 0:
+                if sec in required:
+                    bad("section " + SECTION_NAMES[sec] + " is missing")
+                continue
+            if offset < HEADER_SIZE or offset % SECTION_ALIGN or \
+                    offset + length > self.image_size:
+                bad("section " + SECTION_NAMES[sec] + " lies outside the image")
+            if sec in expected and length != expected[sec]:
+                bad("section " + SECTION_NAMES[sec] + " is " + str(length) +
+                    " bytes, expected " + str(expected[sec]))
+            spans.append((offset, offset + length))
+        spans.sort()
+        for i in range(1, len(spans)):
+            if spans[i][0] < spans[i - 1][1]:
+                bad("sections overlap")
+        self._stars_off = self.sections[SEC_STARS][0]
+        self._cells_off = self.sections[SEC_CELLS][0]
+        self._pairs_off = self.sections[SEC_PAIRS][0]
+        self._kv_off = self.sections[SEC_KVECTOR][0]
+        nc = n_cells(self.cells_per_face)
+        if self._cell_start(0) != 0 or self._cell_start(nc) != self.n_stars:
+            bad("cell index does not span the star table")
+
+    def _cell_centres(self):
+        n = self.cells_per_face
+        out = array("f", [0.0] * (3 * n_cells(n)))
+        for c in range(n_cells(n)):
+            x, y, z = cell_centre(c, n)
+            out[3 * c], out[3 * c + 1], out[3 * c + 2] = x, y, z
+        return out
+
+    # ---- stars -------------------------------------------------------------------------
+
+    def star_vector(self, i):
+        """Inertial unit vector ``(x, y, z)`` of star ``i`` (float32 precision)."""
+        r = self._src.unpack("<fff", self._stars_off + i * STAR_SIZE, 12)
+        return r[0], r[1], r[2]
+
+    def _star_word(self, i):
+        return self._src.unpack("<HH", self._stars_off + i * STAR_SIZE + 12, 4)
+
+    def star_hip(self, i):
+        """Hipparcos number of star ``i``."""
+        lo, word = self._star_word(i)
+        return lo | ((word & 1) << 16)
+
+    def star_mag(self, i):
+        """V magnitude of star ``i`` (0.01 mag resolution)."""
+        return ((self._star_word(i)[1] >> 1) & 0x7FF) / MAG_SCALE - MAG_OFFSET
+
+    def star_flags(self, i):
+        """Flag bits of star ``i`` (:data:`STAR_FLAG_PATTERN`)."""
+        return self._star_word(i)[1] >> 12
+
+    def star(self, i):
+        """``(x, y, z, hip, mag, flags)`` of star ``i``."""
+        x, y, z, lo, word = self._src.unpack(STAR_FORMAT, self._stars_off + i * STAR_SIZE,
+                                             STAR_SIZE)
+        return (x, y, z, lo | ((word & 1) << 16), ((word >> 1) & 0x7FF) / MAG_SCALE - MAG_OFFSET,
+                word >> 12)
+
+    def _cell_start(self, c):
+        return self._src.unpack(CELL_FORMAT, self._cells_off + 2 * c, 2)[0]
+
+    def cell_range(self, c):
+        """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
+        return self._cell_start(c), self._cell_start(c + 1)
+
+    def stars_in_cone(self, d, radius, out=None):
+        """Indices of the stars within ``radius`` (rad) of the unit vector ``d``, appended
+        to ``out`` (a new list when ``None``) in table order."""
+        if out is None:
+            out = []
+        dx, dy, dz = d
+        cos_r = math.cos(radius) if radius < math.pi else -2.0
+        reach = radius + self.cell_radius
+        cos_reach = math.cos(reach) if reach < math.pi else -2.0
+        cells = self._cells
+        for c in range(len(cells) // 3):
+            if cells[3 * c] * dx + cells[3 * c + 1] * dy + cells[3 * c + 2] * dz < cos_reach:
+                continue
+            a, b = self.cell_range(c)
+            for s in range(a, b):
+                x, y, z = self.star_vector(s)
+                if x * dx + y * dy + z * dz >= cos_r:
+                    out.append(s)
+        return out
+
+    # ---- pairs ----------------------------------------------------------------------
+
+    def pair(self, i):
+        """Star indices ``(a, b)``, ``a < b``, of pair ``i`` (pairs sorted by angle)."""
+        r = self._src.unpack(PAIR_FORMAT, self._pairs_off + i * PAIR_SIZE, PAIR_SIZE)
+        return r[1], r[2]
+
+    def pair_record(self, i):
+        """``(key, a, b)`` of pair ``i``: its angle is ``key * key_step`` rad."""
+        return self._src.unpack(PAIR_FORMAT, self._pairs_off + i * PAIR_SIZE, PAIR_SIZE)
+
+    def pair_key(self, i):
+        """Integer angle key of pair ``i`` (ascending with ``i``)."""
+        return self._src.unpack("<H", self._pairs_off + i * PAIR_SIZE, 2)[0]
+
+    def pair_angle(self, i):
+        """Inter-star angle of pair ``i`` as stored, rad (``key * key_step``)."""
+        return self.pair_key(i) * self.key_step
+
+    def _kv_at(self, j):
+        return self._src.unpack(KV_FORMAT, self._kv_off + 4 * j, 4)[0]
+
+    def pairs_in_range(self, lo, hi):
+        """``(start, stop)``: the pairs ``start <= i < stop`` are exactly those whose stored
+        angle key ``k`` satisfies ``lo / key_step <= k <= hi / key_step`` (angles in rad),
+        found through the k-vector (no scan)."""
+        s = self.key_step
+        return kvector.query(lo / s, hi / s, self.kv_m, self.kv_q, self.kv_bins,
+                             self._kv_at, self.pair_key, self.n_pairs)
+
+    def info(self):
+        """The header values as a dict (for telemetry and the ground tools)."""
+        out = {}
+        for name in HEADER_FIELDS:
+            out[name] = getattr(self, name)
+        out["sections"] = list(self.sections)
+        return out
+
+
+def check(buffer):
+    """Validate an image in memory: ``("OK", "")`` or ``(status, reason)``; never raises."""
+    try:
+        Database(buffer)
+    except DatabaseError as exc:
+        return exc.status, exc.reason
+    return OK, ""
+
+
+def load(source, expected_fov_h=None, fov_tolerance=0.02):
+    """Flight entry point: ``(database, "OK", "")`` or ``(None, status, reason)``.
+
+    ``source`` is a bytes-like image or a file path (``str``); never raises.
+    """
+    try:
+        if isinstance(source, str):
+            db = Database.open(source, expected_fov_h, fov_tolerance)
+        else:
+            db = Database(source, expected_fov_h, fov_tolerance)
+    except DatabaseError as exc:
+        return None, exc.status, exc.reason
+    return db, OK, ""

@@ -1,0 +1,291 @@
+"""Mortari's Pyramid lost-in-space star identification over the k-vector pair database.
+
+Mortari, Samaan, Bruccoleri & Junkins, "The Pyramid Star Identification Technique",
+Navigation 51(3), 2004.  Input: camera-frame unit vectors of the observed stars, **brightest
+first**; a :class:`lodestar.firmware.database.Database` with the pyramid sections.
+
+Algorithm
+---------
+1. **Pattern stars.** Only the first ``max_stars`` (default 16) observed stars form patterns
+   (all observed stars take part in the verification).  Fewer than 4 observed stars:
+   ``TOO_FEW_STARS``.
+2. **Enumeration** (Mortari's order, which does not get stuck on a false star: the start
+   index ``i`` varies fastest and the index gaps slowest, so consecutive triples move all
+   three stars and a false star is left behind at once)::
+
+       for dj in 1 .. n-2:
+         for dk in 1 .. n-dj-1:
+           for i in 0 .. n-dj-dk-1:
+             j = i + dj;  k = j + dk          # the triple (i, j, k)
+
+   Each triple counts as one *pattern* against the deterministic ``budget``.
+3. **Triangle candidates.** The three observed inter-star angles are looked up in the
+   k-vector with the pair tolerance ``pair_tol = sqrt(2) tolerance_rad + key_step``
+   (``tolerance_rad`` bounds one star's direction error).  A catalogue triangle
+   ``(I, J, K)`` is consistent when ``{I, J}`` is a candidate of side ``ij``, ``{I, K}`` of
+   ``ik`` and ``{J, K}`` of ``jk``.
+4. **Handedness.** ``(b_i x b_j) . b_k`` must have the sign of ``(r_I x r_J) . r_K``
+   (a rotation preserves it, a mirror image flips it).  The test is skipped when the
+   observed triple product is within its error bound
+   ``tolerance_rad (sin t_ij + sin t_jk + sin t_ki)`` of zero (a near-collinear triangle
+   has no reliable handedness; the fourth star and the verification still apply).
+5. **Pyramid.** A fourth observed star ``r`` confirms the triangle when a catalogue star
+   ``R`` matches its three angles to ``i, j, k`` (candidates from the k-vector for ``ri``,
+   the other two angles computed from the star table) with consistent handedness of
+   ``(i, j, r)``.  The first ``r`` found (lowest index) is used, as in Mortari.
+6. **Verification** (:func:`lodestar.firmware.verify.verify`): the q-method attitude of the
+   four stars, all catalogue stars predicted in the FOV, one-to-one matches within
+   ``tolerance_rad`` and the binomial probability of that many chance matches; accepted if
+   below ``max_mismatch_prob``.  All candidate pyramids of the first triple that yields an
+   accepted hypothesis are verified: if two accepted attitudes differ by more than
+   ``distinct_rad`` the result is ``AMBIGUOUS``.  The accepted hypothesis is refined
+   (q-method over all its matches, matched again, while the match set grows) and returned
+   with status ``OK``; its ``q`` is the q-method fit of exactly the reported matches.
+
+The search stops with ``NO_MATCH`` when all triples are exhausted, or
+``BUDGET_EXHAUSTED`` when ``budget`` triples were tried first.
+
+Pure Python for CPython and MicroPython (``math`` only); working memory is a few small
+dicts per triple (candidate partners of one side) and the observed-angle table.
+"""
+
+import math
+
+from . import verify as V
+
+SQRT2 = 1.4142135623730951
+
+
+def _observed_angles(b, n):
+    """Angles between the first ``n`` observed vectors, as a flat list ``[i * n + j]``."""
+    ang = [0.0] * (n * n)
+    for i in range(n):
+        for j in range(i + 1, n):
+            a = V.angle(b[i], b[j])
+            ang[i * n + j] = a
+            ang[j * n + i] = a
+    return ang
+
+
+def _handed(t_obs, t_cat, bound):
+    """False only when the observed triple product is reliably of the other sign."""
+    if t_obs > bound:
+        return t_cat > 0.0
+    if t_obs < -bound:
+        return t_cat < 0.0
+    return True
+
+
+class _Search:
+    def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad):
+        self.b = b
+        self.db = db
+        self.tol = tol
+        self.n = len(b) if len(b) < max_stars else max_stars
+        self.ang = _observed_angles(b, self.n)
+        self.ptol = SQRT2 * tol + db.key_step
+        self.max_prob = max_prob
+        self.distinct = distinct_rad
+        self.hypotheses = 0
+        self.best_rejected = 1.0
+
+    def candidates(self, i, j):
+        t = self.ang[i * self.n + j]
+        return self.db.pairs_in_range(t - self.ptol, t + self.ptol)
+
+    def bound(self, i, j, k):
+        a = self.ang
+        n = self.n
+        return self.tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) +
+                           math.sin(a[k * n + i]))
+
+    def triangles(self, i, j, k):
+        """Consistent catalogue triangles ``(I, J, K)`` of the observed triple."""
+        db = self.db
+        s_ij = self.candidates(i, j)
+        if s_ij[0] == s_ij[1]:
+            return []
+        s_ik = self.candidates(i, k)
+        if s_ik[0] == s_ik[1]:
+            return []
+        s_jk = self.candidates(j, k)
+        if s_jk[0] == s_jk[1]:
+            return []
+        ns = db.n_stars
+        partners = {}
+        for p in range(s_ik[0], s_ik[1]):
+            _, a, c = db.pair_record(p)
+            lst = partners.get(a)
+            if lst is None:
+                partners[a] = [c]
+            else:
+                lst.append(c)
+            lst = partners.get(c)
+            if lst is None:
+                partners[c] = [a]
+            else:
+                lst.append(a)
+        jk = {}
+        for p in range(s_jk[0], s_jk[1]):
+            _, a, c = db.pair_record(p)
+            jk[a * ns + c] = 1
+        out = []
+        for p in range(s_ij[0], s_ij[1]):
+            _, a, c = db.pair_record(p)
+            for ii, jj in ((a, c), (c, a)):
+                ks = partners.get(ii)
+                if ks is None:
+                    continue
+                for kk in ks:
+                    if kk == jj:
+                        continue
+                    code = jj * ns + kk if jj < kk else kk * ns + jj
+                    if code in jk:
+                        out.append((ii, jj, kk))
+        return out
+
+    def fourth_star(self, i, j, k, cat):
+        """``(r, R)``: the first observed star confirming the catalogue triangle, or None."""
+        db = self.db
+        b = self.b
+        n = self.n
+        ang = self.ang
+        ptol = self.ptol
+        ci, cj, ck = cat
+        vi, vj, vk = db.star_vector(ci), db.star_vector(cj), db.star_vector(ck)
+        for r in range(n):
+            if r == i or r == j or r == k:
+                continue
+            s = self.candidates(r, i)
+            t_rj = ang[r * n + j]
+            t_rk = ang[r * n + k]
+            bound = self.bound(i, j, r)
+            t_obs = V.triple(b[i], b[j], b[r])
+            for p in range(s[0], s[1]):
+                _, a, c = db.pair_record(p)
+                if a == ci:
+                    cr = c
+                elif c == ci:
+                    cr = a
+                else:
+                    continue
+                if cr == cj or cr == ck:
+                    continue
+                vr = db.star_vector(cr)
+                if abs(V.angle(vr, vj) - t_rj) > ptol or abs(V.angle(vr, vk) - t_rk) > ptol:
+                    continue
+                if not _handed(t_obs, V.triple(vi, vj, vr), bound):
+                    continue
+                return r, cr
+        return None
+
+    def hypothesis(self, obs_idx, cat_idx):
+        """Fit and verify; returns ``(q, Verification)``."""
+        db = self.db
+        obs = [self.b[o] for o in obs_idx]
+        ref = [db.star_vector(c) for c in cat_idx]
+        q = V.fit_attitude(obs, ref)
+        self.hypotheses += 1
+        return q, V.verify(self.b, db, q, self.tol)
+
+    def refine(self, ver, rounds=4):
+        """Attitude from all matches: refit and re-verify while the match set grows (up to
+        ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
+        ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
+        db = self.db
+        for _ in range(rounds):
+            obs = [self.b[o] for o, s in ver.pairs]
+            ref = [db.star_vector(s) for o, s in ver.pairs]
+            q = V.fit_attitude(obs, ref)
+            ver2 = V.verify(self.b, db, q, self.tol)
+            if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
+                    ver2.pairs == ver.pairs:
+                return q, ver
+            ver = ver2
+        obs = [self.b[o] for o, s in ver.pairs]
+        return V.fit_attitude(obs, [db.star_vector(s) for o, s in ver.pairs]), ver
+
+    def try_triple(self, i, j, k):
+        """Accepted ``[(q, Verification)]`` of the triple (empty if none)."""
+        accepted = []
+        bound = self.bound(i, j, k)
+        t_obs = V.triple(self.b[i], self.b[j], self.b[k])
+        db = self.db
+        for cat in self.triangles(i, j, k):
+            t_cat = V.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
+                             db.star_vector(cat[2]))
+            if not _handed(t_obs, t_cat, bound):
+                continue
+            fourth = self.fourth_star(i, j, k, cat)
+            if fourth is None:
+                continue
+            q, ver = self.hypothesis((i, j, k, fourth[0]), (cat[0], cat[1], cat[2], fourth[1]))
+            if ver.probability < self.max_prob:
+                accepted.append((q, ver))
+            elif ver.probability < self.best_rejected:
+                self.best_rejected = ver.probability
+        return accepted
+
+
+def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
+             max_mismatch_prob=1e-9, distinct_rad=None):
+    """Pyramid identification; returns a :class:`lodestar.firmware.verify.Solution`.
+
+    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
+    here).  ``tolerance_rad``: largest direction error of one observed star (the
+    verification match radius).  ``budget``: most triples tried.  ``max_stars``: observed
+    stars used for patterns.  ``distinct_rad``: attitudes further apart than this are
+    distinct solutions (default ``20 * tolerance_rad``).
+    """
+    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 4:
+        return V.Solution(V.BAD_INPUT)
+    if not database.methods & 1:
+        return V.Solution(V.BAD_DATABASE)
+    b = []
+    for v in vectors:
+        try:
+            u = V.normalize(v)
+        except (TypeError, ValueError, IndexError):
+            u = None
+        if u is None:
+            return V.Solution(V.BAD_INPUT)
+        b.append(u)
+    if len(b) < 4:
+        return V.Solution(V.TOO_FEW_STARS)
+    search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
+    n = search.n
+    tried = 0
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            for i in range(0, n - dj - dk):
+                if tried >= budget:
+                    return V.Solution(V.BUDGET_EXHAUSTED, patterns_tried=tried,
+                                      probability=search.best_rejected,
+                                      hypotheses=search.hypotheses)
+                tried += 1
+                j = i + dj
+                accepted = search.try_triple(i, j, j + dk)
+                if not accepted:
+                    continue
+                return _conclude(search, accepted, tried)
+    return V.Solution(V.NO_MATCH, patterns_tried=tried, probability=search.best_rejected,
+                      hypotheses=search.hypotheses)
+
+
+def _conclude(search, accepted, tried):
+    best = 0
+    for h in range(1, len(accepted)):
+        if accepted[h][1].probability < accepted[best][1].probability:
+            best = h
+    q, ver = accepted[best]
+    for h in range(len(accepted)):
+        if V.attitude_difference(accepted[h][0], q) > search.distinct:
+            return V.Solution(V.AMBIGUOUS, patterns_tried=tried,
+                              probability=ver.probability, hypotheses=search.hypotheses)
+    q, ver = search.refine(ver)
+    db = search.db
+    matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
+    return V.Solution(V.OK, q=q, matches=matches, patterns_tried=tried,
+                      probability=ver.probability, hypotheses=search.hypotheses,
+                      star_ids=list(ver.pairs))

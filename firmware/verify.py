@@ -1,0 +1,369 @@
+"""Shared star-identification verification, result type and small geometry helpers.
+
+Every identification method (Pyramid now; triangle and hashing later) ends the same way: a
+hypothesis ``(observed star -> catalogue star)`` gives an attitude, and :func:`verify`
+decides whether the whole field agrees with it:
+
+1. **Predict.** Rotate every catalogue star within the FOV's half-diagonal of the hypothesised
+   boresight into the camera frame and keep those inside the FOV rectangle
+   (``|x/z| <= tan(fov_h/2)``, ``|y/z| <= tan(fov_v/2)``): ``N_fov`` stars.
+2. **Match.** Pair observed and predicted stars closer than ``tolerance_rad`` (one to one,
+   closest pairs first; an observed star that could equally be an unclaimed second catalogue
+   star, or two observed stars whose names could be swapped, are left unnamed): ``k``
+   matches among the ``n`` observed stars.
+3. **Probability of a chance agreement** (as tetra3 / cedar-solve do it).  For a *wrong*
+   attitude the catalogue stars land at positions unrelated to the observed ones, so each
+   observed star matches one of them by chance with probability
+
+       p = N_fov * (pi * tolerance_rad**2) / Omega_fov,
+       Omega_fov = 4 asin(sin(fov_h/2) sin(fov_v/2))        (solid angle of the FOV),
+
+   independently, and the number of chance matches is binomial.  The two stars that define
+   the hypothesis' attitude (``free_matches = 2``, tetra3's "minus two degrees of freedom")
+   are not evidence, so
+
+       probability = P(X >= k - 2),  X ~ Binomial(n - 2, p).
+
+   A hypothesis is **accepted** when ``probability < max_mismatch_prob`` (default ``1e-9``).
+   This is a per-hypothesis false-match probability: over a search that verifies ``H``
+   hypotheses the chance of accepting any wrong one is at most ``H * max_mismatch_prob``
+   (e.g. 1e-6 for 1000 hypotheses), which :class:`Solution` reports through
+   ``hypotheses``.
+
+The attitude fit is Davenport's q-method solved by inverse iteration on ``K - (sum w) I``
+(a 4x4 Gaussian elimination, no SVD), self-contained so that this module does not depend on
+``lodestar.firmware.attitude``.
+
+Conventions (``lodestar.sim``): ``q = (x, y, z, w)``, scalar last, rotating inertial vectors
+into the camera frame, ``v_cam = R(q) v_inertial``; the q-method's (Shuster) quaternion of
+the same matrix is the conjugate and is converted here.
+
+Pure Python for CPython and MicroPython (``math`` only).
+"""
+
+import math
+
+# --------------------------------------------------------------------------------------
+# Status codes and the result type shared by all identification methods
+# --------------------------------------------------------------------------------------
+
+OK = 0                  # identified and verified
+NO_MATCH = 1            # every pattern tried, nothing verified
+TOO_FEW_STARS = 2       # fewer observed stars than the method needs
+AMBIGUOUS = 3           # two distinct attitudes both verified
+BUDGET_EXHAUSTED = 4    # the pattern budget ran out before a verified solution
+BAD_INPUT = 5           # NaN / zero vectors, bad parameters
+BAD_DATABASE = 6        # the database does not serve the method
+STATUS_NAMES = ("OK", "NO_MATCH", "TOO_FEW_STARS", "AMBIGUOUS", "BUDGET_EXHAUSTED",
+                "BAD_INPUT", "BAD_DATABASE")
+
+
+def status_name(code):
+    """Text name of a status code."""
+    if 0 <= code < len(STATUS_NAMES):
+        return STATUS_NAMES[code]
+    return "UNKNOWN"
+
+
+class Solution:
+    """Result of an identification.
+
+    ``status``: a status code (:data:`STATUS_NAMES`); ``q``: attitude ``(x, y, z, w)`` or
+    ``None``; ``matches``: list of ``(observed_index, hip)``, sorted by observed index;
+    ``patterns_tried``: observed patterns (star triples for Pyramid) examined;
+    ``probability``: the binomial false-match probability of the accepted hypothesis (or of
+    the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
+    verified; ``star_ids``: ``(observed_index, database star index)`` pairs.
+    """
+
+    def __init__(self, status, q=None, matches=None, patterns_tried=0, probability=1.0,
+                 hypotheses=0, star_ids=None):
+        self.status = status
+        self.q = q
+        self.matches = matches if matches is not None else []
+        self.patterns_tried = patterns_tried
+        self.probability = probability
+        self.hypotheses = hypotheses
+        self.star_ids = star_ids if star_ids is not None else []
+
+    @property
+    def ok(self):
+        return self.status == OK
+
+    def __repr__(self):
+        return ("Solution(" + status_name(self.status) + ", q=" + repr(self.q) +
+                ", matches=" + str(len(self.matches)) + ", patterns_tried=" +
+                str(self.patterns_tried) + ", probability=" + repr(self.probability) + ")")
+
+
+# --------------------------------------------------------------------------------------
+# Vector helpers (tuples of 3 floats)
+# --------------------------------------------------------------------------------------
+
+def normalize(v):
+    """Unit vector of ``v`` (a 3-sequence) as a tuple; ``None`` if zero or not finite."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    n = math.sqrt(x * x + y * y + z * z)
+    if not (n > 0.0) or n != n or n == float("inf"):
+        return None
+    return x / n, y / n, z / n
+
+
+def angle(a, b):
+    """Angle between unit vectors ``a`` and ``b`` (rad), accurate at small angles
+    (``2 asin(|a - b| / 2)``, good in single precision)."""
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    h = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)
+    return 2.0 * math.asin(h if h < 1.0 else 1.0)
+
+
+def triple(a, b, c):
+    """Triple product ``(a x b) . c``."""
+    return ((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1] +
+            (a[0] * b[1] - a[1] * b[0]) * c[2])
+
+
+def rotation_matrix(q):
+    """Row-major 3x3 (a 9-tuple) of ``q = (x, y, z, w)``: ``v_cam = R v_inertial``."""
+    x, y, z, w = q
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
+
+
+def rotate(m, v):
+    """``m v`` for a row-major 9-tuple ``m``."""
+    return (m[0] * v[0] + m[1] * v[1] + m[2] * v[2],
+            m[3] * v[0] + m[4] * v[1] + m[5] * v[2],
+            m[6] * v[0] + m[7] * v[1] + m[8] * v[2])
+
+
+def attitude_difference(q1, q2):
+    """Rotation angle (rad) between two attitudes."""
+    d = abs(q1[0] * q2[0] + q1[1] * q2[1] + q1[2] * q2[2] + q1[3] * q2[3])
+    return 2.0 * math.acos(d if d < 1.0 else 1.0)
+
+
+def _solve4(a, b):
+    """Solve the 4x4 system ``a x = b`` (``a`` a list of 4 lists, modified) by Gaussian
+    elimination with partial pivoting; a zero pivot is replaced by a tiny one (inverse
+    iteration wants the near-singular solve)."""
+    for col in range(4):
+        piv = col
+        for r in range(col + 1, 4):
+            if abs(a[r][col]) > abs(a[piv][col]):
+                piv = r
+        if piv != col:
+            a[col], a[piv] = a[piv], a[col]
+            b[col], b[piv] = b[piv], b[col]
+        p = a[col][col]
+        if abs(p) < 1e-30:
+            p = a[col][col] = 1e-30
+        for r in range(col + 1, 4):
+            f = a[r][col] / p
+            if f != 0.0:
+                row, prow = a[r], a[col]
+                for c in range(col, 4):
+                    row[c] -= f * prow[c]
+                b[r] -= f * b[col]
+    x = [0.0, 0.0, 0.0, 0.0]
+    for r in range(3, -1, -1):
+        s = b[r]
+        for c in range(r + 1, 4):
+            s -= a[r][c] * x[c]
+        x[r] = s / a[r][r]
+    return x
+
+
+def fit_attitude(observed, reference, weights=None):
+    """Least-squares attitude (Wahba) of camera-frame unit vectors ``observed`` and inertial
+    unit vectors ``reference`` (equal-length sequences of 3-sequences, at least 2 pairs not
+    parallel): ``q = (x, y, z, w)`` with ``w >= 0`` and ``observed ~ R(q) reference``.
+
+    Davenport's q-method: the eigenvector of the largest eigenvalue of ``K``, found by three
+    steps of inverse iteration with the shift ``sum(w)`` (an upper bound of that eigenvalue,
+    so it is the nearest one).
+    """
+    b11 = b12 = b13 = b21 = b22 = b23 = b31 = b32 = b33 = 0.0
+    total = 0.0
+    for i in range(len(observed)):
+        w = 1.0 if weights is None else weights[i]
+        o, r = observed[i], reference[i]
+        total += w
+        b11 += w * o[0] * r[0]
+        b12 += w * o[0] * r[1]
+        b13 += w * o[0] * r[2]
+        b21 += w * o[1] * r[0]
+        b22 += w * o[1] * r[1]
+        b23 += w * o[1] * r[2]
+        b31 += w * o[2] * r[0]
+        b32 += w * o[2] * r[1]
+        b33 += w * o[2] * r[2]
+    sigma = b11 + b22 + b33
+    zx, zy, zz = b23 - b32, b31 - b13, b12 - b21
+    k = ((2 * b11 - sigma, b12 + b21, b13 + b31, zx),
+         (b12 + b21, 2 * b22 - sigma, b23 + b32, zy),
+         (b13 + b31, b23 + b32, 2 * b33 - sigma, zz),
+         (zx, zy, zz, sigma))
+    shift = total * (1.0 + 1e-7)
+    x = [0.5, 0.5, 0.5, 0.5]
+    for _ in range(3):
+        a = [[k[r][c] - (shift if r == c else 0.0) for c in range(4)] for r in range(4)]
+        x = _solve4(a, x)
+        n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+        if not n > 0.0:
+            x = [0.0, 0.0, 0.0, 1.0]
+            break
+        x = [x[0] / n, x[1] / n, x[2] / n, x[3] / n]
+    # Shuster's quaternion (x[0..2], x[3]) is the conjugate of ours
+    qx, qy, qz, qw = -x[0], -x[1], -x[2], x[3]
+    if qw < 0:
+        qx, qy, qz, qw = -qx, -qy, -qz, -qw
+    return qx, qy, qz, qw
+
+
+# --------------------------------------------------------------------------------------
+# Probability
+# --------------------------------------------------------------------------------------
+
+def binomial_tail(n, k, p):
+    """``P(X >= k)`` for ``X ~ Binomial(n, p)`` (log-domain first term, no ``math.comb``)."""
+    if k <= 0:
+        return 1.0
+    if k > n or p <= 0.0:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    # log of the first term C(n, k) p^k (1-p)^(n-k)
+    log_t = k * math.log(p) + (n - k) * math.log(1.0 - p)
+    for i in range(1, k + 1):
+        log_t += math.log((n - k + i) / i)
+    ratio = p / (1.0 - p)
+    s = 1.0
+    t = 1.0
+    for i in range(k, n):
+        t *= (n - i) / (i + 1) * ratio
+        s += t
+        if t < 1e-12 * s:
+            break
+    if log_t < -700.0:
+        return 0.0
+    out = math.exp(log_t) * s
+    return out if out < 1.0 else 1.0
+
+
+def fov_solid_angle(fov_h, fov_v):
+    """Solid angle (sr) of a rectangular pinhole FOV of full angles ``fov_h``, ``fov_v``."""
+    return 4.0 * math.asin(math.sin(fov_h / 2) * math.sin(fov_v / 2))
+
+
+# --------------------------------------------------------------------------------------
+# Verification
+# --------------------------------------------------------------------------------------
+
+class Verification:
+    """Outcome of :func:`verify`: ``pairs`` (list of ``(observed_index, star_index)``),
+    ``n_fov`` (catalogue stars predicted in the FOV), ``p_single`` (chance-match probability
+    per observed star) and ``probability`` (binomial tail, see the module docstring)."""
+
+    def __init__(self, pairs, n_fov, p_single, probability):
+        self.pairs = pairs
+        self.n_fov = n_fov
+        self.p_single = p_single
+        self.probability = probability
+
+    @property
+    def n_matched(self):
+        return len(self.pairs)
+
+
+def predicted_stars(database, q, margin=0.0):
+    """Catalogue stars inside the FOV at attitude ``q``: list of ``(camera vector, index)``.
+
+    ``margin`` (rad) widens the FOV rectangle on every side."""
+    m = rotation_matrix(q)
+    boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
+    half_diag = 0.5 * database.fov_diag + margin
+    tan_h = math.tan(0.5 * database.fov_h + margin)
+    tan_v = math.tan(0.5 * database.fov_v + margin)
+    out = []
+    for s in database.stars_in_cone(boresight, half_diag):
+        c = rotate(m, database.star_vector(s))
+        if c[2] <= 0.0:
+            continue
+        if abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
+            out.append((c, s))
+    return out
+
+
+def match_stars(observed, predicted, tolerance_rad):
+    """One-to-one matches ``[(observed_index, star_index)]`` closer than ``tolerance_rad``,
+    closest first; ``predicted`` as returned by :func:`predicted_stars`.  An observed star
+    that is also within tolerance of a predicted star left unmatched is dropped (a close
+    double with one component unseen: either name could be right), and so are two observed
+    stars whose swapped assignment is also within tolerance."""
+    lim = 2.0 * math.sin(0.5 * tolerance_rad)
+    lim2 = lim * lim
+    cands = []
+    for o in range(len(observed)):
+        ox, oy, oz = observed[o]
+        for p in range(len(predicted)):
+            c = predicted[p][0]
+            dx = ox - c[0]
+            if dx > lim or -dx > lim:
+                continue
+            dy = oy - c[1]
+            if dy > lim or -dy > lim:
+                continue
+            dz = oz - c[2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= lim2:
+                cands.append((d2, o, p))
+    cands.sort()
+    used_o = {}
+    used_p = {}
+    for d2, o, p in cands:
+        if o in used_o or p in used_p:
+            continue
+        used_o[o] = p
+        used_p[p] = o
+    # An observed star that also lies within tolerance of a catalogue star nobody claimed
+    # (a close double with one component unseen) cannot be named reliably, nor can two
+    # observed stars whose swapped assignment is also within tolerance: drop them.
+    npred = len(predicted)
+    admissible = {}
+    for d2, o, p in cands:
+        admissible[o * npred + p] = 1
+    drop = []
+    for d2, o, p in cands:
+        q = used_o.get(o)
+        if q is None or q == p:
+            continue
+        o2 = used_p.get(p)
+        if o2 is None:
+            drop.append(o)
+        elif o2 != o and (o2 * npred + q) in admissible:
+            drop.append(o)
+            drop.append(o2)
+    for o in drop:
+        used_o[o] = None
+    pairs = []
+    for o in used_o:
+        if used_o[o] is not None:
+            pairs.append((o, predicted[used_o[o]][1]))
+    pairs.sort()
+    return pairs
+
+
+def verify(observed, database, q, tolerance_rad, free_matches=2):
+    """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors; returns a
+    :class:`Verification` (accept when ``probability < max_mismatch_prob``)."""
+    predicted = predicted_stars(database, q)
+    pairs = match_stars(observed, predicted, tolerance_rad)
+    n_fov = len(predicted)
+    omega = fov_solid_angle(database.fov_h, database.fov_v)
+    p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega
+    if p > 1.0:
+        p = 1.0
+    prob = binomial_tail(len(observed) - free_matches, len(pairs) - free_matches, p)
+    return Verification(pairs, n_fov, p, prob)

@@ -1,0 +1,389 @@
+r"""Ground-side builder of the star-identification database image (numpy).
+
+:func:`build_database` turns the Hipparcos catalogue (:mod:`lodestar.sim.catalogue`), a
+camera field of view and a limiting magnitude into **one** binary image (``bytes``) that the
+flight reader :class:`lodestar.firmware.database.Database` validates and reads by offset.
+The layout constants live in :mod:`lodestar.firmware.database` (single source); this
+docstring is the specification.
+
+Contents
+--------
+* **Star table**: every catalogue star with ``V <= mag_limit`` (5041 stars at V 6.0), used
+  for verification and as the targets of the pair table.  Stars are stored **grouped by sky
+  cell** (a gnomonic cube with ``cells_per_face**2`` cells per face, see
+  :func:`lodestar.firmware.database.cell_of`), brightest first inside a cell, so a cone
+  query reads only the cells near the boresight.
+* **Pattern stars** (flag bit ``STAR_FLAG_PATTERN``): the subset that appears in the pair
+  table.  They are chosen brightest first, keeping a star only while fewer than
+  ``pattern_per_region`` already-kept stars lie within ``pattern_radius`` of it (default:
+  half the vertical FOV, 6 stars), so dense regions (the Milky Way) do not flood the table
+  and sparse regions keep their faint stars: the brightest stars of any field of view are
+  pattern stars.  Close pairs (closer than ``blend_radius``, 0.02 deg) would merge into one
+  centroid: both stars are excluded, except the brighter one when it is at least 2 mag
+  brighter than its neighbour.
+* **Pair table**: every pair of pattern stars separated by ``min_pair_angle <= theta <=
+  max_pair_angle`` (default the FOV diagonal), sorted by the angle key
+  ``key = round(theta / key_step)`` (``key_step = max_pair_angle / 65535``, float32), then by
+  the star indices.
+* **k-vector** (Mortari) over the pair keys, in key units, ``kv_bins = n_pairs //
+  pairs_per_bin`` bins, margin 0.5 key units (:mod:`lodestar.firmware.kvector`).
+* Sections 4 (``triangles``) and 5 (``hash``) are reserved: a later 'triangle' or 'hashing'
+  method adds its section and sets its bit in ``methods``; version-1 readers serve the
+  pyramid bit and ignore the rest.
+
+Byte layout (version 1; all integers and floats little endian; floats IEEE float32)
+----------------------------------------------------------------------------------
+Header, 160 bytes::
+
+    offset  struct  field
+         0  4s      magic               b"LSDB"
+         4  H       version             1
+         6  H       header_size         160
+         8  I       image_size          total bytes, header included
+        12  I       payload_crc         CRC-32 (zlib) of bytes [160, image_size)
+        16  H       methods             bit mask: 1 pyramid, 2 triangle, 4 hashing
+        18  H       star_record_size    16
+        20  f       fov_h               horizontal (width) FOV, rad
+        24  f       fov_v               vertical FOV, rad
+        28  f       fov_diag            diagonal FOV, rad
+        32  f       mag_limit           V limit of the star table
+        36  f       epoch               catalogue epoch, Julian years
+        40  I       n_stars
+        44  I       n_pattern_stars
+        48  I       n_pairs
+        52  f       pair_min_angle      rad
+        56  f       pair_max_angle      rad
+        60  f       key_step            rad per pair-key unit
+        64  I       kv_bins             k-vector bins (the table has kv_bins + 1 entries)
+        68  f       kv_m                k-vector line slope, key units per bin
+        72  f       kv_q                k-vector line intercept, key units
+        76  H       cells_per_face      n (6 n^2 sky cells)
+        78  H       pattern_per_region  thinning parameter (informative)
+        80  f       cell_radius         largest centre-to-corner angle of a cell, rad
+        84  f       pattern_radius      thinning radius, rad (informative)
+        88  8 x II  directory           (offset, length) of sections 0..7; length 0 = absent
+       152  I       reserved            0
+       156  I       header_crc          CRC-32 of bytes [0, 156)
+
+Header struct for bytes 0-87: ``"<4sHHIIHHfffffIIIfffIffHHff"``.
+
+Sections (each starts at a multiple of 4 bytes; zero padding between them)::
+
+    id  name      record                      count
+     0  stars     "<fffHH" (16 B)             n_stars
+                  x, y, z: ICRS unit vector; hip_lo = HIP & 0xFFFF;
+                  word: bit 0 = HIP >> 16, bits 1-11 = round((V + 2) * 100),
+                        bits 12-15 = flags (1 = pattern star)
+     1  cells     "<H"                        6 n^2 + 1: first star index of each cell,
+                                              then n_stars
+     2  pairs     "<HHH" (6 B)                n_pairs: key, a, b (star indices, a < b)
+     3  kvector   "<I"                        kv_bins + 1: K[j] = #{key <= kv_q + kv_m j}
+     4  triangles (reserved)
+     5  hash      (reserved)
+
+Size for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the defaults
+(``python -m lodestar.ground.database``; asserted <= 512 KiB in the tests): 519,700 bytes
+(507.5 KiB) = header 160 + stars 80,656 (5041 stars) + cells 770 (8 x 8 per face) + pairs
+429,168 (71,528 pairs of 1748 pattern stars) + k-vector 8,944 (2235 bins).
+"""
+
+import argparse
+import math
+import struct
+import sys
+import zlib
+
+import numpy as np
+
+from lodestar.firmware import database as L
+from lodestar.firmware import kvector
+
+METHODS = ("pyramid",)
+"""Methods this builder can produce (``"triangle"`` and ``"hashing"`` have reserved
+sections and method bits but no builder yet)."""
+
+BLEND_MAG_DIFF = 2.0
+"""Of two stars closer than ``blend_radius``, the brighter stays a pattern star only if it
+is at least this many magnitudes brighter; the fainter never does."""
+
+
+# --------------------------------------------------------------------------------------
+# Field of view
+# --------------------------------------------------------------------------------------
+
+def fov_from_horizontal(fov_h_deg, aspect=None, fov_v_deg=None):
+    """``(h, v, diag)`` in degrees of a pinhole camera with horizontal FOV ``fov_h_deg`` and
+    either a vertical FOV or an ``aspect`` ratio (width / height, in the image plane)."""
+    th = math.tan(math.radians(fov_h_deg) / 2)
+    if fov_v_deg is None:
+        if aspect is None:
+            raise ValueError("give aspect or fov_v_deg with fov_h_deg")
+        fov_v_deg = math.degrees(2 * math.atan(th / aspect))
+    tv = math.tan(math.radians(fov_v_deg) / 2)
+    return float(fov_h_deg), float(fov_v_deg), math.degrees(2 * math.atan(math.hypot(th, tv)))
+
+
+def resolve_fov(camera=None, fov_h_deg=None, aspect=None, fov_v_deg=None):
+    """FOV ``(h, v, diag)`` in degrees from a :class:`lodestar.sim.camera.Camera` or numbers."""
+    if camera is not None:
+        if fov_h_deg is not None:
+            raise ValueError("give either camera or fov_h_deg, not both")
+        return tuple(float(a) for a in camera.fov_deg())
+    if fov_h_deg is None:
+        raise ValueError("give camera or fov_h_deg")
+    return fov_from_horizontal(fov_h_deg, aspect, fov_v_deg)
+
+
+# --------------------------------------------------------------------------------------
+# Building blocks
+# --------------------------------------------------------------------------------------
+
+def select_pattern_stars(vectors, vmag, radius_rad, per_region, blend_radius_rad=0.0):
+    """Boolean mask of pattern stars (brightest first, at most ``per_region`` kept within
+    ``radius_rad`` of each kept star at the time it is kept; blends excluded)."""
+    n = len(vectors)
+    order = np.lexsort((np.arange(n), vmag))
+    blended = np.zeros(n, dtype=bool)
+    if blend_radius_rad > 0:
+        from scipy.spatial import cKDTree
+        tree = cKDTree(vectors)
+        chord = 2 * math.sin(blend_radius_rad / 2)
+        for a, b in tree.query_pairs(chord):
+            if abs(float(vmag[a]) - float(vmag[b])) < BLEND_MAG_DIFF:
+                blended[a] = blended[b] = True
+            elif vmag[a] > vmag[b]:
+                blended[a] = True
+            else:
+                blended[b] = True
+    kept = np.zeros((n, 3))
+    n_kept = 0
+    mask = np.zeros(n, dtype=bool)
+    cos_r = math.cos(radius_rad)
+    for i in order:
+        if blended[i]:
+            continue
+        if n_kept and np.count_nonzero(kept[:n_kept] @ vectors[i] >= cos_r) >= per_region:
+            continue
+        kept[n_kept] = vectors[i]
+        n_kept += 1
+        mask[i] = True
+    return mask
+
+
+def cell_radius(n):
+    """Largest angle (rad) between a cell centre and its corners on the ``n x n`` cube."""
+    worst = 0.0
+    for c in range(L.n_cells(n)):
+        centre = np.array(L.cell_centre(c, n))
+        face, rest = divmod(c, n * n)
+        iu, iv = divmod(rest, n)
+        a, s = face >> 1, (-1.0 if face & 1 else 1.0)
+        for du in (0, 1):
+            for dv in (0, 1):
+                u = (iu + du) * 2.0 / n - 1.0
+                v = (iv + dv) * 2.0 / n - 1.0
+                corner = np.zeros(3)
+                corner[a], corner[(a + 1) % 3], corner[(a + 2) % 3] = s, u, v
+                corner /= np.linalg.norm(corner)
+                worst = max(worst, math.atan2(np.linalg.norm(np.cross(centre, corner)),
+                                              float(centre @ corner)))
+    return worst
+
+
+def pair_table(vectors, min_angle, max_angle, key_step):
+    """Sorted ``(keys, a, b)`` arrays of all pairs of ``vectors`` (float64 copies of the
+    stored float32 vectors) with ``min_angle <= angle <= max_angle`` (rad)."""
+    from scipy.spatial import cKDTree
+    tree = cKDTree(vectors)
+    pairs = np.array(sorted(tree.query_pairs(2 * math.sin(max_angle / 2) * (1 + 1e-9))),
+                     dtype=np.int64).reshape(-1, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    va, vb = vectors[a], vectors[b]
+    angle = np.arctan2(np.linalg.norm(np.cross(va, vb), axis=1), np.sum(va * vb, axis=1))
+    keep = (angle >= min_angle) & (angle <= max_angle)
+    a, b, angle = a[keep], b[keep], angle[keep]
+    keys = np.rint(angle / key_step).astype(np.int64)
+    if keys.size and keys.max() > 0xFFFF:
+        raise AssertionError("pair key overflow")
+    order = np.lexsort((b, a, keys))
+    return keys[order], a[order], b[order]
+
+
+def kvector_numpy(keys, n_bins, margin=0.5):
+    """The k-vector of sorted integer ``keys`` with float32 line parameters: ``(m, q,
+    table)``, equal to :func:`lodestar.firmware.kvector.build` with the same ``(m, q)``."""
+    m, q = kvector.line(float(keys[0]), float(keys[-1]), n_bins, margin)
+    m, q = float(np.float32(m)), float(np.float32(q))
+    z = q + m * np.arange(n_bins + 1, dtype=np.float64)
+    table = np.searchsorted(keys, z, side="right").astype(np.int64)
+    table[-1] = len(keys)
+    return m, q, table
+
+
+def _f32(x):
+    return float(np.float32(x))
+
+
+# --------------------------------------------------------------------------------------
+# The builder
+# --------------------------------------------------------------------------------------
+
+def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
+                   fov_v_deg=None, mag_limit=6.0, method="pyramid", max_pair_angle_deg=None,
+                   min_pair_angle_deg=0.0, pattern_radius_deg=None, pattern_per_region=6,
+                   blend_radius_deg=0.02, cells_per_face=8, pairs_per_bin=32):
+    """Build a database image (``bytes``; layout in the module docstring).
+
+    ``catalogue``: a :class:`lodestar.sim.catalogue.Catalogue` (default: the shipped one).
+    FOV: ``camera`` (a sim ``Camera``; its ``fov_deg()`` is used) **or** ``fov_h_deg`` with
+    ``aspect`` (width/height) or ``fov_v_deg``.  ``mag_limit``: stars with ``V <= mag_limit``.
+    ``method``: ``"pyramid"`` (the only one built so far).  ``max_pair_angle_deg`` defaults
+    to the FOV diagonal, ``pattern_radius_deg`` to half the vertical FOV.
+    """
+    if method not in METHODS:
+        raise NotImplementedError(f"method {method!r}: only {METHODS} can be built "
+                                  "(the format reserves sections for 'triangle' and 'hashing')")
+    if catalogue is None:
+        from lodestar.sim.catalogue import load
+        catalogue = load()
+    fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
+    if not (0 < fov_h < 180 and 0 < fov_v < 180):
+        raise ValueError("FOV must be in (0, 180) degrees")
+    max_pair = math.radians(fov_d if max_pair_angle_deg is None else max_pair_angle_deg)
+    min_pair = math.radians(min_pair_angle_deg)
+    pattern_radius = math.radians(fov_v / 2 if pattern_radius_deg is None
+                                  else pattern_radius_deg)
+    if not 0 <= min_pair < max_pair <= math.pi:
+        raise ValueError("need 0 <= min_pair_angle < max_pair_angle <= 180 deg")
+    if not 1 <= cells_per_face <= 64:
+        raise ValueError("cells_per_face must be in 1..64")
+
+    sel = np.flatnonzero(catalogue.vmag <= mag_limit)
+    if not 4 <= len(sel) <= 0xFFFF:
+        raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: need 4..65535")
+    vectors64 = catalogue.unit_vectors()[sel]
+    vmag = np.asarray(catalogue.vmag[sel], dtype=np.float64)
+    hip = np.asarray(catalogue.hip[sel], dtype=np.int64)
+    if hip.max() >= 1 << 17:
+        raise ValueError("HIP number too large for the 17-bit field")
+    mag_code = np.rint((vmag + L.MAG_OFFSET) * L.MAG_SCALE).astype(np.int64)
+    if mag_code.min() < 0 or mag_code.max() > 0x7FF:
+        raise ValueError("magnitude out of the storable range [-2, 18.47]")
+
+    pattern = select_pattern_stars(vectors64, vmag, pattern_radius, pattern_per_region,
+                                   math.radians(blend_radius_deg))
+
+    # order the star table by (cell, magnitude, HIP) of the stored float32 vectors
+    v32 = vectors64.astype(np.float32)
+    cells = np.array([L.cell_of(float(x), float(y), float(z), cells_per_face)
+                      for x, y, z in v32], dtype=np.int64)
+    order = np.lexsort((hip, vmag, cells))
+    v32, vmag, hip, mag_code, pattern, cells = (arr[order] for arr in
+                                               (v32, vmag, hip, mag_code, pattern, cells))
+    n_stars = len(order)
+    nc = L.n_cells(cells_per_face)
+    cell_start = np.searchsorted(cells, np.arange(nc + 1), side="left")
+
+    # pairs of pattern stars (indices into the ordered star table)
+    key_step = _f32(max_pair / 0xFFFF)
+    if key_step * 0xFFFF < max_pair:
+        key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
+    pidx = np.flatnonzero(pattern)
+    keys, a, b = pair_table(v32[pidx].astype(np.float64), min_pair, max_pair, key_step)
+    a, b = pidx[a], pidx[b]
+    lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((hi_, lo_, keys))
+    keys, a, b = keys[order], lo_[order], hi_[order]
+    n_pairs = len(keys)
+    if n_pairs == 0:
+        raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
+    kv_bins = max(1, n_pairs // pairs_per_bin)
+    kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
+
+    # sections
+    word = (hip >> 16) | (mag_code << 1) | (np.where(pattern, L.STAR_FLAG_PATTERN, 0) << 12)
+    stars = np.zeros(n_stars, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                     ("hip_lo", "<u2"), ("word", "<u2")])
+    stars["x"], stars["y"], stars["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
+    stars["hip_lo"], stars["word"] = hip & 0xFFFF, word
+    pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
+    pairs["key"], pairs["a"], pairs["b"] = keys, a, b
+    sections = {L.SEC_STARS: stars.tobytes(),
+                L.SEC_CELLS: cell_start.astype("<u2").tobytes(),
+                L.SEC_PAIRS: pairs.tobytes(),
+                L.SEC_KVECTOR: kv_table.astype("<u4").tobytes()}
+
+    payload = bytearray()
+    directory = [(0, 0)] * L.N_SECTIONS
+    for sec in sorted(sections):
+        while (L.HEADER_SIZE + len(payload)) % L.SECTION_ALIGN:
+            payload.append(0)
+        directory[sec] = (L.HEADER_SIZE + len(payload), len(sections[sec]))
+        payload += sections[sec]
+    while len(payload) % L.SECTION_ALIGN:
+        payload.append(0)
+    image_size = L.HEADER_SIZE + len(payload)
+
+    values = {
+        "magic": L.MAGIC, "version": L.VERSION, "header_size": L.HEADER_SIZE,
+        "image_size": image_size, "payload_crc": zlib.crc32(payload) & 0xFFFFFFFF,
+        "methods": L.METHOD_PYRAMID, "star_record_size": L.STAR_SIZE,
+        "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
+        "fov_diag": math.radians(fov_d), "mag_limit": mag_limit, "epoch": catalogue.epoch,
+        "n_stars": n_stars, "n_pattern_stars": int(pattern.sum()), "n_pairs": n_pairs,
+        "pair_min_angle": min_pair, "pair_max_angle": max_pair, "key_step": key_step,
+        "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q, "cells_per_face": cells_per_face,
+        "pattern_per_region": pattern_per_region,
+        "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,
+    }
+    header = bytearray(L.HEADER_SIZE)
+    struct.pack_into(L.HEADER_FORMAT, header, 0, *(values[name] for name in L.HEADER_FIELDS))
+    for sec, (offset, length) in enumerate(directory):
+        struct.pack_into("<II", header, L.DIRECTORY_OFFSET + 8 * sec, offset, length)
+    struct.pack_into("<I", header, L.HEADER_CRC_OFFSET,
+                     zlib.crc32(bytes(header[:L.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
+    return bytes(header) + bytes(payload)
+
+
+def describe(image):
+    """Header values, section sizes (bytes) and total size of an image, as a dict."""
+    db = L.Database(image)
+    info = db.info()
+    info["section_bytes"] = {L.SECTION_NAMES[i]: length
+                             for i, (offset, length) in enumerate(db.sections) if length}
+    info["total_bytes"] = len(image)
+    return info
+
+
+def main(argv=None):
+    """``python -m lodestar.ground.database [--preset NAME | --fov-h DEG --aspect A]
+    [--mag V] [-o FILE]``: build an image and print its size."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="estcube2")
+    parser.add_argument("--fov-h", type=float, help="horizontal FOV, deg (instead of preset)")
+    parser.add_argument("--aspect", type=float, default=4 / 3)
+    parser.add_argument("--mag", type=float, default=6.0)
+    parser.add_argument("--per-region", type=int, default=6)
+    parser.add_argument("-o", "--output")
+    args = parser.parse_args(argv)
+    if args.fov_h is not None:
+        image = build_database(fov_h_deg=args.fov_h, aspect=args.aspect, mag_limit=args.mag,
+                               pattern_per_region=args.per_region)
+    else:
+        from lodestar.sim.presets import load_preset
+        image = build_database(camera=load_preset(args.preset), mag_limit=args.mag,
+                               pattern_per_region=args.per_region)
+    info = describe(image)
+    print(f"stars {info['n_stars']} (pattern {info['n_pattern_stars']}), "
+          f"pairs {info['n_pairs']}, k-vector bins {info['kv_bins']}")
+    for name, length in info["section_bytes"].items():
+        print(f"  {name:8s} {length:9d} B")
+    print(f"total {len(image)} B = {len(image) / 1024:.1f} KiB")
+    if args.output:
+        with open(args.output, "wb") as f:
+            f.write(image)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""Tests of ``lodestar.firmware.database``: buffer and file readers agree, every corrupted
+byte is refused with a clear status, mismatches (version, magic, method, FOV, layout) are
+named, cone queries equal brute force, and the module keeps to the firmware rules."""
+
+import functools
+import io
+import math
+import pathlib
+import re
+import struct
+import tokenize
+import zlib
+
+import numpy as np
+import pytest
+
+from lodestar.firmware import database as L
+from lodestar.firmware.database import Database, DatabaseError, check, load
+from lodestar.ground.database import build_database
+from lodestar.sim.presets import load_preset
+
+FIRMWARE = pathlib.Path(L.__file__).parent
+
+
+@functools.lru_cache(maxsize=None)
+def tiny_image():
+    """~8 KB image (V <= 3.0): small enough to corrupt every byte."""
+    return build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=3.0, cells_per_face=2)
+
+
+@functools.lru_cache(maxsize=None)
+def estcube2_image():
+    return build_database(camera=load_preset("estcube2"), mag_limit=6.0)
+
+
+def reseal(image, patch=None):
+    """Apply ``patch(bytearray)`` to the header and recompute the header CRC."""
+    b = bytearray(image)
+    if patch:
+        patch(b)
+    struct.pack_into("<I", b, L.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:L.HEADER_CRC_OFFSET])))
+    return bytes(b)
+
+
+def status_of(image, **kw):
+    with pytest.raises(DatabaseError) as info:
+        Database(image, **kw)
+    assert info.value.status in L.STATUSES and info.value.reason
+    assert str(info.value).startswith(info.value.status)
+    return info.value.status
+
+
+# --------------------------------------------------------------------------------------
+# Round trip
+# --------------------------------------------------------------------------------------
+
+def all_records(db):
+    return ([db.star(i) for i in range(db.n_stars)],
+            [db.pair_record(i) for i in range(db.n_pairs)],
+            [db.cell_range(c) for c in range(L.n_cells(db.cells_per_face))])
+
+
+@pytest.mark.parametrize("wrap", [bytes, bytearray, memoryview])
+def test_buffer_types(wrap):
+    image = tiny_image()
+    db = Database(wrap(image))
+    assert db.info()["image_size"] == len(image)
+    assert all_records(db) == all_records(Database(image))
+
+
+def test_file_reader_equals_buffer_reader(tmp_path):
+    image = tiny_image()
+    path = tmp_path / "db.bin"
+    path.write_bytes(image)
+    mem = Database(image)
+    f = Database.open(str(path))
+    try:
+        assert all_records(f) == all_records(mem)
+        assert f.info() == mem.info()
+        assert f.pairs_in_range(0.1, 0.12) == mem.pairs_in_range(0.1, 0.12)
+        assert f.stars_in_cone((0.0, 0.0, 1.0), 0.3) == mem.stars_in_cone((0.0, 0.0, 1.0), 0.3)
+    finally:
+        f.close()
+
+
+def test_header_values():
+    db = Database(estcube2_image())
+    h, v, d = (math.radians(a) for a in load_preset("estcube2").fov_deg())
+    assert math.isclose(db.fov_h, h, rel_tol=1e-6) and math.isclose(db.fov_v, v, rel_tol=1e-6)
+    assert math.isclose(db.fov_diag, d, rel_tol=1e-6)
+    assert math.isclose(db.pair_max_angle, d, rel_tol=1e-6)
+    assert db.key_step * 65535 >= db.pair_max_angle
+    assert db.mag_limit == 6.0 and db.version == 1 and db.methods == L.METHOD_PYRAMID
+    assert 0 < db.n_pattern_stars < db.n_stars
+    assert db.pair(0) == db.pair_record(0)[1:]
+    assert db.pair_angle(db.n_pairs - 1) <= db.pair_max_angle + db.key_step
+
+
+def test_stars_in_cone_equals_brute_force():
+    db = Database(estcube2_image())
+    vec = np.array([db.star_vector(i) for i in range(db.n_stars)])
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        radius = rng.uniform(0.01, 0.5)
+        got = sorted(db.stars_in_cone(tuple(d), radius))
+        expected = np.flatnonzero(vec @ d >= np.float64(math.cos(radius)))
+        assert got == expected.tolist()
+    assert len(db.stars_in_cone((0.0, 0.0, 1.0), 4.0)) == db.n_stars
+
+
+# --------------------------------------------------------------------------------------
+# Corruption and mismatch
+# --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("flip", [0x01, 0x80, 0xFF])
+def test_every_corrupted_byte_is_refused(flip):
+    image = tiny_image()
+    assert check(image) == ("OK", "")
+    for i in range(len(image)):
+        b = bytearray(image)
+        b[i] ^= flip
+        status, reason = check(b)
+        assert status != "OK" and reason, i
+        if i >= L.HEADER_SIZE:
+            assert status == "BAD_CRC"
+
+
+def test_corrupted_bytes_in_the_flight_image_are_refused():
+    image = estcube2_image()
+    rng = np.random.default_rng(11)
+    positions = list(range(L.HEADER_SIZE)) + rng.integers(0, len(image), 300).tolist()
+    for i in positions:
+        b = bytearray(image)
+        b[i] ^= int(rng.integers(1, 256))
+        assert check(b)[0] != "OK", i
+
+
+def test_length_errors():
+    image = tiny_image()
+    assert status_of(image[:-1]) == "BAD_LENGTH"
+    assert status_of(image + b"\0") == "BAD_LENGTH"
+    assert status_of(image[:100]) == "BAD_LENGTH"
+    assert status_of(b"") == "BAD_LENGTH"
+
+
+def test_named_mismatches():
+    image = tiny_image()
+    assert status_of(b"XXXX" + image[4:]) == "BAD_MAGIC"
+    assert status_of(reseal(image, lambda b: struct.pack_into("<H", b, 4, 2))) == "BAD_VERSION"
+    assert status_of(reseal(image, lambda b: struct.pack_into("<H", b, 6, 128))) == "BAD_HEADER"
+    assert status_of(reseal(image, lambda b: struct.pack_into("<H", b, 16, 2))) == \
+        "UNSUPPORTED_METHOD"
+    assert status_of(reseal(image, lambda b: struct.pack_into("<H", b, 16, 8))) == "BAD_LAYOUT"
+    n_pairs = struct.unpack_from("<I", image, 48)[0]
+    assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, 48, n_pairs + 1))) == \
+        "BAD_LAYOUT"
+    # a section pointing outside the image, and two overlapping sections
+    off = L.DIRECTORY_OFFSET + 8 * L.SEC_KVECTOR
+    assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, off, len(image)))) == \
+        "BAD_LAYOUT"
+    stars_off = struct.unpack_from("<I", image, L.DIRECTORY_OFFSET)[0]
+    assert status_of(reseal(image, lambda b: struct.pack_into(
+        "<I", b, L.DIRECTORY_OFFSET + 8 * L.SEC_CELLS, stars_off))) == "BAD_LAYOUT"
+    # a missing required section
+    assert status_of(reseal(image, lambda b: struct.pack_into(
+        "<II", b, L.DIRECTORY_OFFSET + 8 * L.SEC_PAIRS, 0, 0))) == "BAD_LAYOUT"
+    # a NaN field of view
+    assert status_of(reseal(image, lambda b: struct.pack_into("<f", b, 20, float("nan")))) == \
+        "BAD_LAYOUT"
+
+
+def test_fov_mismatch():
+    image = tiny_image()
+    fov_h = math.radians(20.0)
+    Database(image, expected_fov_h=fov_h)
+    assert status_of(image, expected_fov_h=fov_h * 1.1) == "FOV_MISMATCH"
+
+
+def test_load_never_raises(tmp_path):
+    image = tiny_image()
+    db, status, reason = load(image)
+    assert status == "OK" and db.n_stars > 0
+    assert load(image[:-3])[:2] == (None, "BAD_LENGTH")
+    assert load(str(tmp_path / "missing.bin"))[:2] == (None, "IO_ERROR")
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(image[:-8] + b"\0" * 8)
+    assert load(str(bad))[:2] == (None, "BAD_CRC")
+    good = tmp_path / "good.bin"
+    good.write_bytes(image)
+    db, status, _ = load(str(good))
+    assert status == "OK"
+    db.close()
+
+
+def test_crc_fallback_matches_zlib(monkeypatch):
+    data = tiny_image()[:3000]
+    expected = zlib.crc32(data)
+    assert L.crc32(data) == expected
+    monkeypatch.setattr(L, "_crc32", None)
+    assert L.crc32(data) == expected
+    assert L.crc32(data[1000:], L.crc32(data[:1000])) == expected
+
+
+# --------------------------------------------------------------------------------------
+# Firmware rules (MicroPython 1.27 subset) for the star-identification modules
+# --------------------------------------------------------------------------------------
+
+def has_fstring(source):
+    """True if ``source`` contains an f-string literal (tokenizer based)."""
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == getattr(tokenize, "FSTRING_START", None):
+            return True
+        if tok.type == tokenize.STRING:
+            prefix = re.match(r"[A-Za-z]*", tok.string).group(0)
+            if "f" in prefix.lower():
+                return True
+    return False
+
+
+@pytest.mark.parametrize("name", ["database", "kvector", "verify", "pyramid", "starid"])
+def test_firmware_rules(name):
+    source = (FIRMWARE / f"{name}.py").read_text()
+    for banned in ("numpy", "typing", "dataclasses", "itertools", "functools", "scipy"):
+        assert not re.search(rf"^\s*(import|from)\s+{banned}\b", source, re.M), banned
+    assert not has_fstring(source), "f-strings are avoided in firmware"
+    imports = re.findall(r"^\s*(?:import|from)\s+([\w.]+)", source, re.M)
+    assert {m for m in imports if not m.startswith(".")} <= {"math", "struct", "array",
+                                                              "binascii"}, imports
