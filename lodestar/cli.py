@@ -6,6 +6,8 @@
 ``simulate``   render a star-field frame of a camera preset: 16-bit PNG, truth JSON and a
                preview PNG with the stars marked.
 ``goldenset``  write a named golden image set (frames, truth, expected detection).
+``db``         build a star-identification database image for a camera (``db build``) or
+               describe one (``db info``).
 """
 
 import argparse
@@ -203,6 +205,74 @@ def _run_goldenset(args):
     return 0
 
 
+def _db_parser(sub):
+    from lodestar.sim.presets import DEFAULT_PRESET, PRESETS
+
+    p = sub.add_parser("db", help="build or describe a star-identification database",
+                       description="Star-identification database images for the firmware.")
+    dsub = p.add_subparsers(dest="db_command", required=True)
+    b = dsub.add_parser("build", help="build a database image for a camera")
+    src = b.add_mutually_exclusive_group()
+    src.add_argument("--preset", choices=PRESETS, default=None,
+                     help=f"camera preset (default {DEFAULT_PRESET})")
+    src.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view")
+    b.add_argument("--aspect", type=float, default=4 / 3,
+                   help="width/height with --fov (default 4/3)")
+    b.add_argument("--mag", type=float, default=6.0, help="limiting V magnitude")
+    b.add_argument("--method", default="pyramid", help="identification method")
+    b.add_argument("-o", "--out", required=True, help="output file")
+    b.set_defaults(func=_run_db_build)
+    i = dsub.add_parser("info", help="validate and describe a database image")
+    i.add_argument("file")
+    i.set_defaults(func=_run_db_info)
+
+
+def _print_db(info):
+    for key in ("n_stars", "n_pattern_stars", "n_pairs", "mag_limit", "epoch"):
+        if key in info:
+            print(f"{key:>16}: {info[key]}")
+    for key in ("fov_h", "fov_v"):
+        print(f"{key:>16}: {info[key] * 57.29577951308232:.3f} deg")
+    for name, length in info["section_bytes"].items():
+        print(f"{name:>16}: {length} B")
+    print(f"{'total':>16}: {info['total_bytes']} B = {info['total_bytes'] / 1024:.1f} KiB")
+
+
+def _run_db_build(args):
+    import math
+
+    from lodestar.ground.database import build_database, describe
+    from lodestar.sim.presets import DEFAULT_PRESET, load_preset
+
+    if args.fov is not None:
+        if not 0 < args.fov < 180 or not math.isfinite(args.fov):
+            raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+        image = build_database(fov_h_deg=args.fov, aspect=args.aspect, mag_limit=args.mag,
+                               method=args.method)
+    else:
+        image = build_database(camera=load_preset(args.preset or DEFAULT_PRESET),
+                               mag_limit=args.mag, method=args.method)
+    with open(args.out, "wb") as fh:
+        fh.write(image)
+    print(f"wrote {args.out}")
+    _print_db(describe(image))
+    return 0
+
+
+def _run_db_info(args):
+    from lodestar.firmware.database import DatabaseError
+    from lodestar.ground.database import describe
+
+    with open(args.file, "rb") as fh:
+        image = fh.read()
+    try:
+        info = describe(image)
+    except DatabaseError as exc:
+        raise ValueError(f"{args.file}: {exc}") from None
+    _print_db(info)
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="lodestar", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -210,6 +280,7 @@ def build_parser():
     _detect_parser(sub)
     _simulate_parser(sub)
     _goldenset_parser(sub)
+    _db_parser(sub)
     return parser
 
 
@@ -221,6 +292,6 @@ def main(argv=None):
     except BrokenPipeError:  # output piped into e.g. head
         sys.stderr.close()
         return 0
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, NotImplementedError) as exc:
         print(f"lodestar {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -74,3 +74,18 @@ def test_simulate_bad_input(tmp_path, capsys):
     assert "error" in capsys.readouterr().err
     assert main(["simulate", "--exposure", "-1", "-o", str(tmp_path / "x")]) == 2
     assert "exposure_s must be > 0" in capsys.readouterr().err
+
+
+def test_db_build_and_info(tmp_path, capsys):
+    out = tmp_path / "db.bin"
+    assert main(["db", "build", "--fov", "15", "--mag", "5.5", "-o", str(out)]) == 0
+    built = capsys.readouterr().out
+    assert "total" in built and out.stat().st_size < 1 << 20
+    assert main(["db", "info", str(out)]) == 0
+    assert "fov_h: 15.000 deg" in capsys.readouterr().out
+    data = bytearray(out.read_bytes())
+    data[500] ^= 1
+    (tmp_path / "bad.bin").write_bytes(bytes(data))
+    assert main(["db", "info", str(tmp_path / "bad.bin")]) == 2
+    assert "CRC" in capsys.readouterr().err
+    assert main(["db", "build", "--fov", "0", "-o", str(out)]) == 2
