@@ -167,7 +167,7 @@ set it to None to exercise the fallback."""
 _MOMENT_LIMITS = {}
 
 
-def _moment_limits(pixel_bits):
+def moment_limits(pixel_bits):
     """``contract.moment_max(pixel_bits)``, cached (pixel_bits already validated)."""
     limits = _MOMENT_LIMITS.get(pixel_bits)
     if limits is None:
@@ -176,7 +176,7 @@ def _moment_limits(pixel_bits):
     return limits
 
 
-def _framing_problem(data, header):
+def framing_problem(data, header):
     """``(status, message)`` of the first failed framing check after the minimum length, or
     None: magic, version, length, CRC."""
     if header["magic"] != C.PACKET_MAGIC:
@@ -213,7 +213,7 @@ def _overflow_problem(header, flag, flag_name, count_name):
     return None
 
 
-def _header_problem(header):
+def header_problem(header):
     """What is wrong with a CRC-verified header (None if nothing)."""
     if header["mode"] >= len(C.MODE_NAMES):
         return "mode {} is not a mode number (0..{}: {})".format(
@@ -246,7 +246,7 @@ def _header_problem(header):
                              "dropped_labels")
 
 
-def _record_problem(rec, header, limits):
+def record_problem(rec, header, limits):
     """What is wrong with one record of the frame ``header`` describes (None if nothing)."""
     undefined = rec.flags & ~C.BLOB_FLAGS_DEFINED
     if undefined:
@@ -312,17 +312,17 @@ def decode(data):
         return S.PACKET_TRUNCATED, None, [], \
             "truncated: {} bytes, a packet needs at least {}".format(len(data), _MIN_BYTES)
     header = _unpack_header(data)
-    problem = _framing_problem(data, header)
+    problem = framing_problem(data, header)
     if problem:
         return problem[0], None, [], problem[1]
-    reason = _header_problem(header)
+    reason = header_problem(header)
     if reason:
         return S.PACKET_BAD_HEADER, None, [], reason
-    limits = _moment_limits(header["pixel_bits"])
+    limits = moment_limits(header["pixel_bits"])
     records = []
     for index in range(header["n_records"]):
         rec = _unpack_record(data, index)
-        reason = _record_problem(rec, header, limits)
+        reason = record_problem(rec, header, limits)
         if reason:
             return S.PACKET_BAD_RECORD, None, [], "record {}: {}".format(index, reason)
         records.append(rec)

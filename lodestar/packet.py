@@ -26,7 +26,9 @@ Errors
 ``encode`` raises ``ValueError`` naming the field (and the record index), its value and its
 width when a value is not an integer that fits its field; it never truncates.  ``decode``
 raises ``PacketError`` (a ``ValueError``) for every invalid packet, with a message naming the
-first failed check, in this order:
+first failed check.  The checks are those of the flight decoder ``lodestar.firmware.packet``
+(the one home of the packet's rules, which returns statuses instead of raising), in this
+order:
 
 1. framing: not bytes-like; shorter than ``contract.packet_bytes(0)`` ("truncated"); bad
    magic; unsupported version; length other than ``contract.packet_bytes(n_records)``
@@ -55,6 +57,7 @@ import zlib
 import bitstring
 
 from lodestar import contract as C
+from lodestar.firmware import packet as rules
 from lodestar.golden.result import DetectionResult
 
 
@@ -153,106 +156,10 @@ def _unpack_header(data):
     return dict(zip(C.HEADER_NAMES, values))
 
 
-def _check_framing(data, header):
-    """Magic, version, length and CRC, in that order (the length is at least a header + CRC)."""
-    if header["magic"] != C.PACKET_MAGIC:
-        raise PacketError("bad magic 0x{:04X}, expected 0x{:04X}".format(
-            header["magic"], C.PACKET_MAGIC))
-    if header["version"] != C.PACKET_VERSION:
-        raise PacketError("unsupported version {}: this decoder reads version {}".format(
-            header["version"], C.PACKET_VERSION))
-    expected = C.packet_bytes(header["n_records"])
-    if len(data) != expected:
-        what = "truncated" if len(data) < expected else "trailing bytes"
-        raise PacketError("{}: {} bytes, a packet with {} records is {} bytes".format(
-            what, len(data), header["n_records"], expected))
-    body, carried = data[:-C.CRC_BYTES], data[-C.CRC_BYTES:]
-    computed = _crc(body)
-    if carried != computed:
-        raise PacketError("CRC mismatch: packet carries 0x{}, header and records give 0x{}".format(
-            carried.hex().upper(), computed.hex().upper()))
-
-
-def _check_overflow_flag(header, flag, flag_name, count_name):
-    """``flag`` must be set in the frame flags exactly when ``header[count_name] > 0``."""
-    is_set = bool(header["flags"] & flag)
-    if is_set != (header[count_name] > 0):
-        raise PacketError("{} is {} but {}={}: the flag is set iff {} > 0".format(
-            flag_name, "set" if is_set else "clear", count_name, header[count_name], count_name))
-
-
-def _check_header(header):
-    """Semantic checks of the (CRC-verified) header fields."""
-    if header["mode"] >= len(C.MODE_NAMES):
-        raise PacketError("mode {} is not a mode number (0..{}: {})".format(
-            header["mode"], len(C.MODE_NAMES) - 1, ", ".join(C.MODE_NAMES)))
-    if header["pixel_bits"] not in C.PIXEL_BITS:
-        raise PacketError("pixel_bits {} is not one of {}".format(
-            header["pixel_bits"], C.PIXEL_BITS))
-    for name, limit in (("width", C.MAX_WIDTH), ("height", C.MAX_HEIGHT)):
-        if not 1 <= header[name] <= limit:
-            raise PacketError("{} {} is out of range 1..{}".format(name, header[name], limit))
-    full_scale = C.full_scale(header["pixel_bits"])
-    for name in ("threshold", "background"):
-        if header[name] > full_scale:
-            raise PacketError("{} {} is above full scale {} of {}-bit pixels".format(
-                name, header[name], full_scale, header["pixel_bits"]))
-    undefined = header["flags"] & ~C.FRAME_FLAGS_DEFINED
-    if undefined:
-        raise PacketError("undefined frame flag bits 0x{:02X} set (defined: 0x{:02X})".format(
-            undefined, C.FRAME_FLAGS_DEFINED))
-    emitted = header["n_blobs"] - header["n_filtered"] - header["dropped_records"]
-    if header["n_records"] != emitted:
-        raise PacketError("count mismatch: n_records={} but n_blobs - n_filtered - "
-                          "dropped_records = {} - {} - {} = {}".format(
-                              header["n_records"], header["n_blobs"], header["n_filtered"],
-                              header["dropped_records"], emitted))
-    _check_overflow_flag(header, C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW",
-                         "dropped_records")
-    _check_overflow_flag(header, C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW",
-                         "dropped_labels")
-
-
 def _unpack_record(data, index):
     """Record ``index`` of a framed packet as a ``contract.BlobRecord``."""
     start = C.HEADER_BYTES + index * C.RECORD_BYTES
     return C.BlobRecord(*bitstring.Bits(data[start:start + C.RECORD_BYTES]).unpack(_RECORD_FORMAT))
-
-
-def _record_problem(rec, header, moment_limits):
-    """What is wrong with one record of a frame described by ``header`` (None if nothing)."""
-    undefined = rec.flags & ~C.BLOB_FLAGS_DEFINED
-    if undefined:
-        return "undefined blob flag bits 0x{:02X} set (defined: 0x{:02X})".format(
-            undefined, C.BLOB_FLAGS_DEFINED)
-    for lo, hi in (("xmin", "xmax"), ("ymin", "ymax")):
-        if getattr(rec, lo) > getattr(rec, hi):
-            return "{}={} > {}={}".format(lo, getattr(rec, lo), hi, getattr(rec, hi))
-    for hi, size in (("xmax", "width"), ("ymax", "height")):
-        if getattr(rec, hi) >= header[size]:
-            return "bounding box beyond the frame: {}={} but the frame {} is {}".format(
-                hi, getattr(rec, hi), size, header[size])
-    full_scale = C.full_scale(header["pixel_bits"])
-    if rec.peak > full_scale:
-        return "peak={} is above full scale {} of {}-bit pixels".format(
-            rec.peak, full_scale, header["pixel_bits"])
-    if rec.nsat > rec.n:
-        return "nsat={} > n={}".format(rec.nsat, rec.n)
-    if rec.nsat and rec.peak != full_scale:
-        return "nsat={} but peak={} is below full scale {}".format(rec.nsat, rec.peak, full_scale)
-    if rec.n == 0:
-        return "n=0: a blob has at least one pixel"
-    area = (rec.xmax - rec.xmin + 1) * (rec.ymax - rec.ymin + 1)
-    if rec.n > area:
-        return "n={} exceeds the bounding box area {}".format(rec.n, area)
-    for name in C.MOMENTS:
-        if getattr(rec, name) > moment_limits[name]:
-            return "moment {}={} is above its maximum {} for {}-bit pixels".format(
-                name, getattr(rec, name), moment_limits[name], header["pixel_bits"])
-    if rec.flags & C.BLOB_MOMENTS_SATURATED and \
-            not any(getattr(rec, name) == moment_limits[name] for name in C.MOMENTS):
-        return "BLOB_MOMENTS_SATURATED is set but no moment is at its maximum"
-    return None
 
 
 def decode(data):
@@ -268,15 +175,19 @@ def decode(data):
         raise PacketError("truncated: {} bytes, a packet needs at least {}".format(
             len(data), minimum))
     header = _unpack_header(data)
-    _check_framing(data, header)
-    _check_header(header)
-    moment_limits = C.moment_max(header["pixel_bits"])
+    problem = rules.framing_problem(data, header)
+    if problem:
+        raise PacketError(problem[1])
+    reason = rules.header_problem(header)
+    if reason:
+        raise PacketError(reason)
+    limits = rules.moment_limits(header["pixel_bits"])
     blobs = []
     for index in range(header["n_records"]):
         rec = _unpack_record(data, index)
-        problem = _record_problem(rec, header, moment_limits)
-        if problem:
-            raise PacketError("record {}: {}".format(index, problem))
+        reason = rules.record_problem(rec, header, limits)
+        if reason:
+            raise PacketError("record {}: {}".format(index, reason))
         blobs.append(rec)
     frame = {name: value for name, value in header.items() if name not in _PACKET_ONLY}
     return DetectionResult(blobs=blobs, **frame)
