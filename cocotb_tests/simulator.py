@@ -37,7 +37,8 @@ def run(component, name, test_module, build_dir, env=None):
     runner.build(sources=[source], hdl_toplevel=name, build_dir=build_dir,
                  build_args=["-Wno-fatal", "-O2"], timescale=("1ns", "1ps"))
     results = runner.test(test_module=test_module, hdl_toplevel=name, build_dir=build_dir,
-                          test_dir=HERE, extra_env={k: str(v) for k, v in (env or {}).items()})
+                          test_dir=HERE, results_xml=str(build_dir / "results.xml"),
+                          extra_env={k: str(v) for k, v in (env or {}).items()})
     from cocotb_tools.check_results import get_results
     total, failed = get_results(results)
     if failed:
