@@ -10,14 +10,25 @@ an image and reads it **without loading it whole**:
   once in 512-byte chunks to check the CRC, and afterwards reads each record with a
   ``seek`` + ``readinto`` into one preallocated 16-byte scratch buffer.
 
-Validation (in this order): length >= header, magic ``b"LSDB"``, format version, header size,
-header CRC-32, image size == buffer/file length, payload CRC-32, and the layout (every
-section inside the image, aligned, non-overlapping, of exactly the length its counts imply,
-the sections each advertised method needs present, and sane numbers).  A failure raises
-:class:`DatabaseError` with a short machine-readable ``status`` (one of :data:`STATUSES`)
-and a human-readable ``reason``.  **Error policy**: the reader raises; the flight API calls
+Validation (in this order), with the :mod:`lodestar.firmware.status` code of each failure:
+length >= header (``DATABASE_BAD_LENGTH``), magic ``b"LSDB"`` (``DATABASE_BAD_MAGIC``),
+format version and header size (``DATABASE_BAD_VERSION``), header CRC-32
+(``DATABASE_CORRUPT``), image size == buffer/file length (``DATABASE_BAD_LENGTH``), payload
+CRC-32 (``DATABASE_CORRUPT``), and the layout (``DATABASE_BAD_LAYOUT``: every section inside
+the image, aligned, non-overlapping, of exactly the length its counts imply, the sections
+each advertised method needs present, the triangle and hash section headers and k-vectors
+consistent, and sane numbers; a section format this reader does not know, such as a hash
+group size other than 3 or 4: ``DATABASE_UNSUPPORTED``); then the optional FOV check
+(``DATABASE_MISMATCH``).  File errors are ``DATABASE_IO``.  A failure raises
+:class:`DatabaseError` with the machine-readable ``status`` (one of :data:`STATUSES`) and a
+human-readable ``reason``.  **Error policy**: the reader raises; the flight API calls
 :func:`load` (or :func:`check`), which converts the exception into a ``(status, reason)``
 pair for telemetry, so no exception escapes to the flight loop.
+
+Methods served: all three bits (:data:`SUPPORTED_METHODS`): Pyramid reads the pair table
+and its k-vector (:meth:`Database.pairs_in_range`), Triangle the triangle table
+(:meth:`Database.triangles_in_range`, :meth:`Database.triangle_record`), Hashing the hash
+table (:meth:`Database.hash_bucket`, :meth:`Database.hash_record`).
 
 Pure Python for CPython and MicroPython 1.27 (``struct``, ``binascii``, ``math``,
 ``array``); star and pair accessors allocate only their small result tuples.
@@ -33,6 +44,7 @@ except ImportError:          # a MicroPython port built without binascii.crc32
     _crc32 = None
 
 from . import kvector
+from . import status as S
 
 # --------------------------------------------------------------------------------------
 # Layout constants (the ground builder imports these; see its docstring for the table)
@@ -60,8 +72,8 @@ SEC_STARS = 0                # n_stars records of STAR_FORMAT
 SEC_CELLS = 1                # (6 * cells_per_face**2 + 1) x "<H": first star of each cell
 SEC_PAIRS = 2                # n_pairs records of PAIR_FORMAT, sorted by (key, a, b)
 SEC_KVECTOR = 3              # (kv_bins + 1) x "<I": the k-vector over the pair keys
-SEC_TRIANGLES = 4            # reserved for the 'triangle' method
-SEC_HASH = 5                 # reserved for the 'hashing' method
+SEC_TRIANGLES = 4            # TRI_HEADER, n_triangles x TRI_RECORD, k-vector (triangle)
+SEC_HASH = 5                 # HASH_HEADER, n_groups x HASH_RECORD, k-vector (hashing)
 SECTION_NAMES = ("stars", "cells", "pairs", "kvector", "triangles", "hash", "reserved6",
                  "reserved7")
 
@@ -77,6 +89,8 @@ KV_FORMAT = "<I"
 MAG_OFFSET = 2.0
 MAG_SCALE = 100
 STAR_FLAG_PATTERN = 1        # flag bit: the star is in the pair table (a pattern star)
+STAR_FLAG_TRIANGLE = 2       # flag bit: the star is a vertex of a stored triangle
+STAR_FLAG_HASH = 4           # flag bit: the star is a member of a stored hash group
 
 # Method bit mask and the sections each method needs.
 METHOD_PYRAMID = 1
@@ -87,22 +101,49 @@ METHOD_NAMES = {"pyramid": METHOD_PYRAMID, "triangle": METHOD_TRIANGLE,
 METHOD_SECTIONS = {METHOD_PYRAMID: (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
                    METHOD_TRIANGLE: (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
                    METHOD_HASHING: (SEC_STARS, SEC_CELLS, SEC_HASH)}
-SUPPORTED_METHODS = METHOD_PYRAMID       # what this reader can serve
+SUPPORTED_METHODS = METHOD_PYRAMID | METHOD_TRIANGLE | METHOD_HASHING   # what this reader serves
 
-# Status codes of DatabaseError / check() / load().
-OK = "OK"
-STATUSES = ("OK", "BAD_LENGTH", "BAD_MAGIC", "BAD_VERSION", "BAD_HEADER", "BAD_CRC",
-            "BAD_LAYOUT", "UNSUPPORTED_METHOD", "FOV_MISMATCH", "IO_ERROR")
+# Section 4 (triangles): a 40-byte section header, the records sorted by
+# (area_key, moment_key, s0, s1, s2), zero padding to 4 bytes, then the k-vector over the area
+# keys ((tri_kv_bins + 1) x "<I").  Section header fields (attributes "tri_" + name):
+TRI_MAGIC = b"TRI1"
+TRI_HEADER_FORMAT = "<4sIIfffffHHf"
+TRI_HEADER_FIELDS = ("magic", "n", "kv_bins", "area_step", "moment_step", "max_side", "kv_m",
+                     "kv_q", "regions_per_face", "stars_per_region", "region_radius")
+TRI_HEADER_SIZE = 40
+TRI_RECORD_FORMAT = "<HHHHH"  # area key, moment key, s0, s1, s2 (s0 opposite the shortest side)
+TRI_RECORD_SIZE = 10
+
+# Section 5 (hash): a 56-byte section header, the records sorted by (code, stars), zero
+# padding to 4 bytes, then the k-vector over the codes.  Record: "<I" bucket code, then
+# hash_group_size x "<H" star indices in the canonical order A, B, C(, D).
+HASH_MAGIC = b"HSH1"
+HASH_HEADER_FORMAT = "<4sIIHHffHHfffffHHf"
+HASH_HEADER_FIELDS = ("magic", "n", "kv_bins", "group_size", "flags", "coord_lo",
+                      "coord_bucket", "coord_buckets", "dist_buckets", "dist_bucket",
+                      "min_diameter", "max_diameter", "kv_m", "kv_q", "regions_per_face",
+                      "stars_per_region", "region_radius")
+HASH_HEADER_SIZE = 56
+HASH_FLAG_DISTANCE = 1       # non-normalized hash: the code also keys the A-B angle
+HASH_GROUP_SIZES = (3, 4)
+HASH_MAX_CODE = 1 << 30      # codes stay MicroPython small ints
+
+# Status codes of DatabaseError / check() / load(): lodestar.firmware.status integers.
+OK = S.OK
+STATUSES = (S.OK, S.DATABASE_CORRUPT, S.DATABASE_MISMATCH, S.DATABASE_UNSUPPORTED,
+            S.DATABASE_IO, S.DATABASE_BAD_LENGTH, S.DATABASE_BAD_MAGIC, S.DATABASE_BAD_VERSION,
+            S.DATABASE_BAD_LAYOUT)
 
 _CHUNK = 512
 
 
 class DatabaseError(Exception):
-    """An image is corrupt or does not match: ``status`` (one of :data:`STATUSES`) and
-    ``reason`` (text)."""
+    """An image is corrupt or does not match: ``status`` (one of :data:`STATUSES`, a
+    :mod:`lodestar.firmware.status` code) and ``reason`` (text); ``str(exc)`` is
+    ``"<status name>: <reason>"``."""
 
     def __init__(self, status, reason):
-        super().__init__(status + ": " + reason)
+        super().__init__(S.name(status) + ": " + reason)
         self.status = status
         self.reason = reason
 
@@ -213,7 +254,7 @@ class _FileSource:
         f, mv = self.f, self.mv
         f.seek(offset)
         if f.readinto(mv[:size]) != size:
-            raise DatabaseError("IO_ERROR", "short read at offset " + str(offset))
+            raise DatabaseError(S.DATABASE_IO, "short read at offset " + str(offset))
         return struct.unpack_from(fmt, self.scratch, 0)
 
     def crc(self, start, stop):
@@ -227,7 +268,7 @@ class _FileSource:
             want = _CHUNK if left > _CHUNK else left
             got = f.readinto(mv[:want])
             if not got:
-                raise DatabaseError("IO_ERROR", "file ended early")
+                raise DatabaseError(S.DATABASE_IO, "file ended early")
             c = crc32(mv[:got], c)
             left -= got
         return c
@@ -262,7 +303,7 @@ class Database:
         except DatabaseError:
             raise
         except Exception as exc:     # struct errors on a short or odd buffer
-            raise DatabaseError("BAD_LAYOUT", "unreadable image (" + repr(exc) + ")")
+            raise DatabaseError(S.DATABASE_BAD_LAYOUT, "unreadable image (" + repr(exc) + ")")
         self._cells = self._cell_centres()
 
     @classmethod
@@ -271,7 +312,7 @@ class Database:
         try:
             f = open(path, "rb")
         except OSError as exc:
-            raise DatabaseError("IO_ERROR", "cannot open " + str(path) + " (" + repr(exc) + ")")
+            raise DatabaseError(S.DATABASE_IO, "cannot open " + str(path) + " (" + repr(exc) + ")")
         try:
             return cls(expected_fov_h=expected_fov_h, fov_tolerance=fov_tolerance,
                        _source=_FileSource(f))
@@ -288,44 +329,44 @@ class Database:
     def _validate(self, expected_fov_h, fov_tolerance):
         src = self._src
         if src.size < HEADER_SIZE:
-            raise DatabaseError("BAD_LENGTH", "image of " + str(src.size) +
+            raise DatabaseError(S.DATABASE_BAD_LENGTH, "image of " + str(src.size) +
                                 " bytes is shorter than the header")
         values = src.unpack(HEADER_FORMAT, 0, DIRECTORY_OFFSET)
         for name, value in zip(HEADER_FIELDS, values):
             setattr(self, name, value)
         if self.magic != MAGIC:
-            raise DatabaseError("BAD_MAGIC", "magic " + repr(self.magic) + " is not " +
+            raise DatabaseError(S.DATABASE_BAD_MAGIC, "magic " + repr(self.magic) + " is not " +
                                 repr(MAGIC))
         if self.version != VERSION:
-            raise DatabaseError("BAD_VERSION", "format version " + str(self.version) +
+            raise DatabaseError(S.DATABASE_BAD_VERSION, "format version " + str(self.version) +
                                 " (this reader reads " + str(VERSION) + ")")
         if self.header_size != HEADER_SIZE:
-            raise DatabaseError("BAD_HEADER", "header size " + str(self.header_size))
+            raise DatabaseError(S.DATABASE_BAD_VERSION, "header size " + str(self.header_size))
         if src.crc(0, HEADER_CRC_OFFSET) != src.unpack("<I", HEADER_CRC_OFFSET, 4)[0]:
-            raise DatabaseError("BAD_CRC", "header CRC-32 mismatch")
+            raise DatabaseError(S.DATABASE_CORRUPT, "header CRC-32 mismatch")
         if self.image_size != src.size:
-            raise DatabaseError("BAD_LENGTH", "image is " + str(src.size) +
+            raise DatabaseError(S.DATABASE_BAD_LENGTH, "image is " + str(src.size) +
                                 " bytes, header says " + str(self.image_size))
         if src.crc(HEADER_SIZE, src.size) != self.payload_crc:
-            raise DatabaseError("BAD_CRC", "payload CRC-32 mismatch")
+            raise DatabaseError(S.DATABASE_CORRUPT, "payload CRC-32 mismatch")
         self.sections = []
         for i in range(N_SECTIONS):
             self.sections.append(src.unpack("<II", DIRECTORY_OFFSET + 8 * i, 8))
         self._check_layout()
         if expected_fov_h is not None:
             if abs(self.fov_h - expected_fov_h) > fov_tolerance * expected_fov_h:
-                raise DatabaseError("FOV_MISMATCH", "database horizontal FOV " +
+                raise DatabaseError(S.DATABASE_MISMATCH, "database horizontal FOV " +
                                     str(self.fov_h) + " rad, camera " + str(expected_fov_h))
 
     def _check_layout(self):
         def bad(reason):
-            raise DatabaseError("BAD_LAYOUT", reason)
+            raise DatabaseError(S.DATABASE_BAD_LAYOUT, reason)
 
         if self.methods == 0 or self.methods & ~(METHOD_PYRAMID | METHOD_TRIANGLE |
                                                  METHOD_HASHING):
             bad("unknown method mask " + str(self.methods))
         if not self.methods & SUPPORTED_METHODS:
-            raise DatabaseError("UNSUPPORTED_METHOD", "method mask " + str(self.methods) +
+            raise DatabaseError(S.DATABASE_UNSUPPORTED, "method mask " + str(self.methods) +
                                 " has nothing this reader serves")
         if self.star_record_size != STAR_SIZE:
             bad("star record size " + str(self.star_record_size))
@@ -375,6 +416,86 @@ class Database:
         nc = n_cells(self.cells_per_face)
         if self._cell_start(0) != 0 or self._cell_start(nc) != self.n_stars:
             bad("cell index does not span the star table")
+        self.tri_n = self.hash_n = 0
+        if self.methods & METHOD_TRIANGLE:
+            self._check_triangles(bad)
+        if self.methods & METHOD_HASHING:
+            self._check_hash(bad)
+
+    def _section_header(self, sec, fmt, size, fields, prefix, magic, bad):
+        offset, length = self.sections[sec]
+        if length < size:
+            bad("section " + SECTION_NAMES[sec] + " is shorter than its header")
+        values = self._src.unpack(fmt, offset, size)
+        if values[0] != magic:
+            raise DatabaseError(S.DATABASE_UNSUPPORTED, "section " + SECTION_NAMES[sec] +
+                                " format " + repr(values[0]) + " is not " + repr(magic))
+        for name, value in zip(fields[1:], values[1:]):
+            setattr(self, prefix + name, value)
+        return offset, length
+
+    @staticmethod
+    def _tail_length(n, record_size, kv_bins):
+        body = n * record_size
+        return body + (-body) % SECTION_ALIGN + 4 * (kv_bins + 1)
+
+    def _check_kvector(self, kv_off, kv_bins, n, first_key, last_key, kv_m, kv_q, name, bad):
+        if not (_finite_positive(kv_m) and kv_q == kv_q and abs(kv_q) < 1e30):
+            bad(name + " k-vector line not finite")
+        if self._src.unpack(KV_FORMAT, kv_off, 4)[0] > n or \
+                self._src.unpack(KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
+            bad(name + " k-vector does not span its records")
+        if first_key > last_key:
+            bad(name + " records are not sorted")
+
+    def _check_triangles(self, bad):
+        offset, length = self._section_header(SEC_TRIANGLES, TRI_HEADER_FORMAT, TRI_HEADER_SIZE,
+                                              TRI_HEADER_FIELDS, "tri_", TRI_MAGIC, bad)
+        if self.tri_n < 1 or self.tri_kv_bins < 1:
+            bad("triangle method without triangles or k-vector bins")
+        for name in ("tri_area_step", "tri_moment_step", "tri_max_side"):
+            if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
+                bad(name + " not finite and positive")
+        if length != TRI_HEADER_SIZE + self._tail_length(self.tri_n, TRI_RECORD_SIZE,
+                                                         self.tri_kv_bins):
+            bad("section triangles is " + str(length) + " bytes, its header implies otherwise")
+        self._tri_off = offset + TRI_HEADER_SIZE
+        body = self.tri_n * TRI_RECORD_SIZE
+        self._tri_kv_off = self._tri_off + body + (-body) % SECTION_ALIGN
+        self._check_kvector(self._tri_kv_off, self.tri_kv_bins, self.tri_n,
+                            self.triangle_area_key(0), self.triangle_area_key(self.tri_n - 1),
+                            self.tri_kv_m, self.tri_kv_q, "triangle", bad)
+
+    def _check_hash(self, bad):
+        offset, length = self._section_header(SEC_HASH, HASH_HEADER_FORMAT, HASH_HEADER_SIZE,
+                                              HASH_HEADER_FIELDS, "hash_", HASH_MAGIC, bad)
+        g = self.hash_group_size
+        if g not in HASH_GROUP_SIZES or self.hash_flags & ~HASH_FLAG_DISTANCE:
+            raise DatabaseError(S.DATABASE_UNSUPPORTED, "hash group size " + str(g) +
+                                " or flags " + str(self.hash_flags) + " not served")
+        if self.hash_n < 1 or self.hash_kv_bins < 1:
+            bad("hashing method without groups or k-vector bins")
+        for name in ("hash_coord_bucket", "hash_dist_bucket", "hash_max_diameter"):
+            if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
+                bad(name + " not finite and positive")
+        if not (abs(self.hash_coord_lo) < 4.0 and 0.0 <= self.hash_min_diameter <
+                self.hash_max_diameter):
+            bad("hash coordinate grid or diameters out of range")
+        nd = self.hash_dist_buckets if self.hash_flags & HASH_FLAG_DISTANCE else 1
+        if self.hash_coord_buckets < 1 or nd < 1 or \
+                self.hash_coord_buckets ** (2 * (g - 2)) * nd > HASH_MAX_CODE:
+            bad("hash bucket grid too large")
+        self._hash_record_size = 4 + 2 * g
+        self._hash_format = "<I" + "H" * g
+        if length != HASH_HEADER_SIZE + self._tail_length(self.hash_n, self._hash_record_size,
+                                                          self.hash_kv_bins):
+            bad("section hash is " + str(length) + " bytes, its header implies otherwise")
+        self._hash_off = offset + HASH_HEADER_SIZE
+        body = self.hash_n * self._hash_record_size
+        self._hash_kv_off = self._hash_off + body + (-body) % SECTION_ALIGN
+        self._check_kvector(self._hash_kv_off, self.hash_kv_bins, self.hash_n,
+                            self.hash_code(0), self.hash_code(self.hash_n - 1),
+                            self.hash_kv_m, self.hash_kv_q, "hash", bad)
 
     def _cell_centres(self):
         n = self.cells_per_face
@@ -471,17 +592,70 @@ class Database:
         return kvector.query(lo / s, hi / s, self.kv_m, self.kv_q, self.kv_bins,
                              self._kv_at, self.pair_key, self.n_pairs)
 
+    # ---- triangles (method 'triangle') --------------------------------------------
+
+    def has_method(self, bit):
+        """True when the image advertises (and this reader validated) method ``bit``."""
+        return bool(self.methods & bit)
+
+    def triangle_record(self, i):
+        """``(area_key, moment_key, s0, s1, s2)`` of triangle ``i``: its (chord) area is
+        ``area_key * tri_area_step`` and polar moment ``moment_key * tri_moment_step``;
+        ``s0, s1, s2`` are the stars opposite its shortest, middle and longest side."""
+        return self._src.unpack(TRI_RECORD_FORMAT, self._tri_off + i * TRI_RECORD_SIZE,
+                                TRI_RECORD_SIZE)
+
+    def triangle_area_key(self, i):
+        """Integer area key of triangle ``i`` (ascending with ``i``)."""
+        return self._src.unpack("<H", self._tri_off + i * TRI_RECORD_SIZE, 2)[0]
+
+    def _tri_kv_at(self, j):
+        return self._src.unpack(KV_FORMAT, self._tri_kv_off + 4 * j, 4)[0]
+
+    def triangles_in_range(self, lo, hi):
+        """``(start, stop)``: exactly the triangles whose area key ``k`` satisfies
+        ``lo / tri_area_step <= k <= hi / tri_area_step`` (areas in rad^2), by k-vector."""
+        s = self.tri_area_step
+        return kvector.query(lo / s, hi / s, self.tri_kv_m, self.tri_kv_q, self.tri_kv_bins,
+                             self._tri_kv_at, self.triangle_area_key, self.tri_n)
+
+    # ---- hash groups (method 'hashing') ---------------------------------------------
+
+    def hash_record(self, i):
+        """``(code, A, B, C[, D])`` of hash group ``i`` (stars in canonical order)."""
+        return self._src.unpack(self._hash_format, self._hash_off + i * self._hash_record_size,
+                                self._hash_record_size)
+
+    def hash_code(self, i):
+        """Bucket code of hash group ``i`` (ascending with ``i``)."""
+        return self._src.unpack("<I", self._hash_off + i * self._hash_record_size, 4)[0]
+
+    def _hash_kv_at(self, j):
+        return self._src.unpack(KV_FORMAT, self._hash_kv_off + 4 * j, 4)[0]
+
+    def hash_bucket(self, code):
+        """``(start, stop)``: the hash groups of bucket ``code`` (by k-vector)."""
+        return kvector.query(code, code, self.hash_kv_m, self.hash_kv_q, self.hash_kv_bins,
+                             self._hash_kv_at, self.hash_code, self.hash_n)
+
     def info(self):
-        """The header values as a dict (for telemetry and the ground tools)."""
+        """The header values as a dict (for telemetry and the ground tools); the triangle
+        and hash section headers as dicts ``"triangles"`` and ``"hash"`` when served."""
         out = {}
         for name in HEADER_FIELDS:
             out[name] = getattr(self, name)
         out["sections"] = list(self.sections)
+        if self.methods & METHOD_TRIANGLE:
+            out["triangles"] = dict((name, getattr(self, "tri_" + name))
+                                    for name in TRI_HEADER_FIELDS[1:])
+        if self.methods & METHOD_HASHING:
+            out["hash"] = dict((name, getattr(self, "hash_" + name))
+                               for name in HASH_HEADER_FIELDS[1:])
         return out
 
 
 def check(buffer):
-    """Validate an image in memory: ``("OK", "")`` or ``(status, reason)``; never raises."""
+    """Validate an image in memory: ``(OK, "")`` or ``(status, reason)``; never raises."""
     try:
         Database(buffer)
     except DatabaseError as exc:
@@ -490,7 +664,8 @@ def check(buffer):
 
 
 def load(source, expected_fov_h=None, fov_tolerance=0.02):
-    """Flight entry point: ``(database, "OK", "")`` or ``(None, status, reason)``.
+    """Flight entry point: ``(database, OK, "")`` or ``(None, status, reason)`` (status codes
+    of :mod:`lodestar.firmware.status`).
 
     ``source`` is a bytes-like image or a file path (``str``); never raises.
     """

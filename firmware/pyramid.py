@@ -52,6 +52,7 @@ dicts per triple (candidate partners of one side) and the observed-angle table.
 import math
 
 from . import verify as V
+from .database import METHOD_PYRAMID
 
 SQRT2 = 1.4142135623730951
 
@@ -67,27 +68,15 @@ def _observed_angles(b, n):
     return ang
 
 
-def _handed(t_obs, t_cat, bound):
-    """False only when the observed triple product is reliably of the other sign."""
-    if t_obs > bound:
-        return t_cat > 0.0
-    if t_obs < -bound:
-        return t_cat < 0.0
-    return True
+_handed = V.handed
 
 
-class _Search:
+class _Search(V.Search):
     def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad):
-        self.b = b
-        self.db = db
-        self.tol = tol
+        V.Search.__init__(self, b, db, tol, max_prob, distinct_rad)
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol = SQRT2 * tol + db.key_step
-        self.max_prob = max_prob
-        self.distinct = distinct_rad
-        self.hypotheses = 0
-        self.best_rejected = 1.0
 
     def candidates(self, i, j):
         t = self.ang[i * self.n + j]
@@ -179,32 +168,6 @@ class _Search:
                 return r, cr
         return None
 
-    def hypothesis(self, obs_idx, cat_idx):
-        """Fit and verify; returns ``(q, Verification)``."""
-        db = self.db
-        obs = [self.b[o] for o in obs_idx]
-        ref = [db.star_vector(c) for c in cat_idx]
-        q = V.fit_attitude(obs, ref)
-        self.hypotheses += 1
-        return q, V.verify(self.b, db, q, self.tol)
-
-    def refine(self, ver, rounds=4):
-        """Attitude from all matches: refit and re-verify while the match set grows (up to
-        ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
-        ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
-        db = self.db
-        for _ in range(rounds):
-            obs = [self.b[o] for o, s in ver.pairs]
-            ref = [db.star_vector(s) for o, s in ver.pairs]
-            q = V.fit_attitude(obs, ref)
-            ver2 = V.verify(self.b, db, q, self.tol)
-            if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
-                    ver2.pairs == ver.pairs:
-                return q, ver
-            ver = ver2
-        obs = [self.b[o] for o, s in ver.pairs]
-        return V.fit_attitude(obs, [db.star_vector(s) for o, s in ver.pairs]), ver
-
     def try_triple(self, i, j, k):
         """Accepted ``[(q, Verification)]`` of the triple (empty if none)."""
         accepted = []
@@ -219,11 +182,7 @@ class _Search:
             fourth = self.fourth_star(i, j, k, cat)
             if fourth is None:
                 continue
-            q, ver = self.hypothesis((i, j, k, fourth[0]), (cat[0], cat[1], cat[2], fourth[1]))
-            if ver.probability < self.max_prob:
-                accepted.append((q, ver))
-            elif ver.probability < self.best_rejected:
-                self.best_rejected = ver.probability
+            self.test((i, j, k, fourth[0]), (cat[0], cat[1], cat[2], fourth[1]), accepted)
         return accepted
 
 
@@ -239,17 +198,11 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     """
     if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 4:
         return V.Solution(V.BAD_INPUT)
-    if not database.methods & 1:
+    if not database.methods & METHOD_PYRAMID:
         return V.Solution(V.BAD_DATABASE)
-    b = []
-    for v in vectors:
-        try:
-            u = V.normalize(v)
-        except (TypeError, ValueError, IndexError):
-            u = None
-        if u is None:
-            return V.Solution(V.BAD_INPUT)
-        b.append(u)
+    b = V.prepare(vectors)
+    if b is None:
+        return V.Solution(V.BAD_INPUT)
     if len(b) < 4:
         return V.Solution(V.TOO_FEW_STARS)
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
@@ -260,32 +213,10 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
         for dk in range(1, n - dj):
             for i in range(0, n - dj - dk):
                 if tried >= budget:
-                    return V.Solution(V.BUDGET_EXHAUSTED, patterns_tried=tried,
-                                      probability=search.best_rejected,
-                                      hypotheses=search.hypotheses)
+                    return search.fail(V.BUDGET_EXHAUSTED, tried)
                 tried += 1
                 j = i + dj
                 accepted = search.try_triple(i, j, j + dk)
-                if not accepted:
-                    continue
-                return _conclude(search, accepted, tried)
-    return V.Solution(V.NO_MATCH, patterns_tried=tried, probability=search.best_rejected,
-                      hypotheses=search.hypotheses)
-
-
-def _conclude(search, accepted, tried):
-    best = 0
-    for h in range(1, len(accepted)):
-        if accepted[h][1].probability < accepted[best][1].probability:
-            best = h
-    q, ver = accepted[best]
-    for h in range(len(accepted)):
-        if V.attitude_difference(accepted[h][0], q) > search.distinct:
-            return V.Solution(V.AMBIGUOUS, patterns_tried=tried,
-                              probability=ver.probability, hypotheses=search.hypotheses)
-    q, ver = search.refine(ver)
-    db = search.db
-    matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
-    return V.Solution(V.OK, q=q, matches=matches, patterns_tried=tried,
-                      probability=ver.probability, hypotheses=search.hypotheses,
-                      star_ids=list(ver.pairs))
+                if accepted:
+                    return search.conclude(accepted, tried)
+    return search.fail(V.NO_MATCH, tried)

@@ -9,8 +9,8 @@ Codes are grouped by decade so that modules can add theirs without renumbering::
      0       OK
      1 .. 19 packet decoding (``lodestar.firmware.packet``)
     20 .. 29 centroiding and camera model
-    30 .. 39 star identification
-    40 .. 49 star database
+    30 .. 39 star identification (``lodestar.firmware.verify``, ``starid`` and the methods)
+    40 .. 49 star database (``lodestar.firmware.database``)
     50 .. 59 generic
 
 To add a code: define the constant below in its group and add a row to ``_TABLE``
@@ -37,10 +37,17 @@ CAMERA_OUT_OF_VIEW = 22
 # --- star identification ----------------------------------------------------------------
 NO_MATCH = 30
 AMBIGUOUS = 31
+BUDGET_EXHAUSTED = 32
 
 # --- star database ----------------------------------------------------------------------
 DATABASE_CORRUPT = 40
 DATABASE_MISMATCH = 41
+DATABASE_UNSUPPORTED = 42
+DATABASE_IO = 43
+DATABASE_BAD_LENGTH = 44
+DATABASE_BAD_MAGIC = 45
+DATABASE_BAD_VERSION = 46
+DATABASE_BAD_LAYOUT = 47
 
 # --- generic ----------------------------------------------------------------------------
 BAD_INPUT = 50
@@ -65,9 +72,22 @@ _TABLE = (
      "camera model: direction behind the camera or beyond the distortion fold radius"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
-    (DATABASE_CORRUPT, "DATABASE_CORRUPT", "star database failed its integrity check"),
+    (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",
+     "the pattern budget ran out before a verified identification"),
+    (DATABASE_CORRUPT, "DATABASE_CORRUPT",
+     "star database failed its integrity check (header or payload CRC-32)"),
     (DATABASE_MISMATCH, "DATABASE_MISMATCH",
-     "star database built for another camera, layout or version"),
+     "star database built for another camera (field of view)"),
+    (DATABASE_UNSUPPORTED, "DATABASE_UNSUPPORTED",
+     "star database lacks what the reader or the requested method needs"),
+    (DATABASE_IO, "DATABASE_IO", "star database file cannot be opened or read"),
+    (DATABASE_BAD_LENGTH, "DATABASE_BAD_LENGTH",
+     "star database shorter than its header or not of the length its header says"),
+    (DATABASE_BAD_MAGIC, "DATABASE_BAD_MAGIC", "star database does not start with b'LSDB'"),
+    (DATABASE_BAD_VERSION, "DATABASE_BAD_VERSION",
+     "star database format version or header size is not the one this reader reads"),
+    (DATABASE_BAD_LAYOUT, "DATABASE_BAD_LAYOUT",
+     "star database sections or header values inconsistent (CRC was correct)"),
     (BAD_INPUT, "BAD_INPUT", "argument of the wrong type or out of range"),
 )
 """``(code, name, meaning)`` of every status, in code order."""

@@ -1,6 +1,6 @@
 """Shared star-identification verification, result type and small geometry helpers.
 
-Every identification method (Pyramid now; triangle and hashing later) ends the same way: a
+Every identification method (Pyramid, Triangle, Hashing) ends the same way: a
 hypothesis ``(observed star -> catalogue star)`` gives an attitude, and :func:`verify`
 decides whether the whole field agrees with it:
 
@@ -30,47 +30,55 @@ decides whether the whole field agrees with it:
    (e.g. 1e-6 for 1000 hypotheses), which :class:`Solution` reports through
    ``hypotheses``.
 
-The attitude fit is Davenport's q-method solved by inverse iteration on ``K - (sum w) I``
-(a 4x4 Gaussian elimination, no SVD), self-contained so that this module does not depend on
-``lodestar.firmware.attitude``.
+The methods share :class:`Search` (fit + verify a hypothesis, refine the accepted one over
+all its matches, decide ``OK`` / ``AMBIGUOUS`` among the accepted hypotheses of one pattern)
+and the handedness test :func:`handed`.  The attitude fit is Davenport's q-method of
+:mod:`lodestar.firmware.attitude` (:func:`fit_attitude`; it replaced a private inverse
+iteration that lost up to ~10 arcmin on two-star, sub-degree fits).  Status codes are those of :mod:`lodestar.firmware.status`,
+re-exported here under the names the identification methods use (``BAD_DATABASE`` is
+``DATABASE_UNSUPPORTED``).
 
 Conventions (``lodestar.sim``): ``q = (x, y, z, w)``, scalar last, rotating inertial vectors
-into the camera frame, ``v_cam = R(q) v_inertial``; the q-method's (Shuster) quaternion of
-the same matrix is the conjugate and is converted here.
+into the camera frame, ``v_cam = R(q) v_inertial``.
 
 Pure Python for CPython and MicroPython (``math`` only).
 """
 
 import math
 
+from . import attitude as _attitude
+from . import status as S
+
 # --------------------------------------------------------------------------------------
-# Status codes and the result type shared by all identification methods
+# Status codes (lodestar.firmware.status, re-exported) and the shared result type
 # --------------------------------------------------------------------------------------
 
-OK = 0                  # identified and verified
-NO_MATCH = 1            # every pattern tried, nothing verified
-TOO_FEW_STARS = 2       # fewer observed stars than the method needs
-AMBIGUOUS = 3           # two distinct attitudes both verified
-BUDGET_EXHAUSTED = 4    # the pattern budget ran out before a verified solution
-BAD_INPUT = 5           # NaN / zero vectors, bad parameters
-BAD_DATABASE = 6        # the database does not serve the method
-STATUS_NAMES = ("OK", "NO_MATCH", "TOO_FEW_STARS", "AMBIGUOUS", "BUDGET_EXHAUSTED",
-                "BAD_INPUT", "BAD_DATABASE")
+OK = S.OK                               # identified and verified
+NO_MATCH = S.NO_MATCH                   # every pattern tried, nothing verified
+TOO_FEW_STARS = S.TOO_FEW_STARS         # fewer observed stars than the method needs
+AMBIGUOUS = S.AMBIGUOUS                 # two distinct attitudes both verified
+BUDGET_EXHAUSTED = S.BUDGET_EXHAUSTED   # the pattern budget ran out first
+BAD_INPUT = S.BAD_INPUT                 # NaN / zero vectors, bad parameters
+BAD_DATABASE = S.DATABASE_UNSUPPORTED   # the database does not serve the method
+STATUS_NAMES = {}
+"""``{code: name}`` of the statuses an identification returns."""
+for _code in (OK, NO_MATCH, TOO_FEW_STARS, AMBIGUOUS, BUDGET_EXHAUSTED, BAD_INPUT,
+              BAD_DATABASE):
+    STATUS_NAMES[_code] = S.name(_code)
 
 
 def status_name(code):
-    """Text name of a status code."""
-    if 0 <= code < len(STATUS_NAMES):
-        return STATUS_NAMES[code]
-    return "UNKNOWN"
+    """Text name of a status code (:func:`lodestar.firmware.status.name`)."""
+    return S.name(code)
 
 
 class Solution:
     """Result of an identification.
 
-    ``status``: a status code (:data:`STATUS_NAMES`); ``q``: attitude ``(x, y, z, w)`` or
-    ``None``; ``matches``: list of ``(observed_index, hip)``, sorted by observed index;
-    ``patterns_tried``: observed patterns (star triples for Pyramid) examined;
+    ``status``: a :mod:`lodestar.firmware.status` code (:data:`STATUS_NAMES`); ``q``:
+    attitude ``(x, y, z, w)`` or ``None``; ``matches``: list of ``(observed_index, hip)``,
+    sorted by observed index; ``patterns_tried``: observed patterns examined (star triples
+    for Pyramid and Triangle, star groups for Hashing);
     ``probability``: the binomial false-match probability of the accepted hypothesis (or of
     the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
     verified; ``star_ids``: ``(observed_index, database star index)`` pairs.
@@ -144,82 +152,20 @@ def attitude_difference(q1, q2):
     return 2.0 * math.acos(d if d < 1.0 else 1.0)
 
 
-def _solve4(a, b):
-    """Solve the 4x4 system ``a x = b`` (``a`` a list of 4 lists, modified) by Gaussian
-    elimination with partial pivoting; a zero pivot is replaced by a tiny one (inverse
-    iteration wants the near-singular solve)."""
-    for col in range(4):
-        piv = col
-        for r in range(col + 1, 4):
-            if abs(a[r][col]) > abs(a[piv][col]):
-                piv = r
-        if piv != col:
-            a[col], a[piv] = a[piv], a[col]
-            b[col], b[piv] = b[piv], b[col]
-        p = a[col][col]
-        if abs(p) < 1e-30:
-            p = a[col][col] = 1e-30
-        for r in range(col + 1, 4):
-            f = a[r][col] / p
-            if f != 0.0:
-                row, prow = a[r], a[col]
-                for c in range(col, 4):
-                    row[c] -= f * prow[c]
-                b[r] -= f * b[col]
-    x = [0.0, 0.0, 0.0, 0.0]
-    for r in range(3, -1, -1):
-        s = b[r]
-        for c in range(r + 1, 4):
-            s -= a[r][c] * x[c]
-        x[r] = s / a[r][r]
-    return x
-
-
 def fit_attitude(observed, reference, weights=None):
     """Least-squares attitude (Wahba) of camera-frame unit vectors ``observed`` and inertial
     unit vectors ``reference`` (equal-length sequences of 3-sequences, at least 2 pairs not
-    parallel): ``q = (x, y, z, w)`` with ``w >= 0`` and ``observed ~ R(q) reference``.
+    parallel): ``q = (x, y, z, w)`` with ``w >= 0`` and ``observed ~ R(q) reference``;
+    ``None`` when the geometry is degenerate (all vectors parallel) or an input is bad.
 
-    Davenport's q-method: the eigenvector of the largest eigenvalue of ``K``, found by three
-    steps of inverse iteration with the shift ``sum(w)`` (an upper bound of that eigenvalue,
-    so it is the nearest one).
+    Davenport's q-method of :mod:`lodestar.firmware.attitude` (:func:`~lodestar.firmware.
+    attitude.q_method`, a Jacobi eigen-solver: accurate for every rotation angle).
     """
-    b11 = b12 = b13 = b21 = b22 = b23 = b31 = b32 = b33 = 0.0
-    total = 0.0
-    for i in range(len(observed)):
-        w = 1.0 if weights is None else weights[i]
-        o, r = observed[i], reference[i]
-        total += w
-        b11 += w * o[0] * r[0]
-        b12 += w * o[0] * r[1]
-        b13 += w * o[0] * r[2]
-        b21 += w * o[1] * r[0]
-        b22 += w * o[1] * r[1]
-        b23 += w * o[1] * r[2]
-        b31 += w * o[2] * r[0]
-        b32 += w * o[2] * r[1]
-        b33 += w * o[2] * r[2]
-    sigma = b11 + b22 + b33
-    zx, zy, zz = b23 - b32, b31 - b13, b12 - b21
-    k = ((2 * b11 - sigma, b12 + b21, b13 + b31, zx),
-         (b12 + b21, 2 * b22 - sigma, b23 + b32, zy),
-         (b13 + b31, b23 + b32, 2 * b33 - sigma, zz),
-         (zx, zy, zz, sigma))
-    shift = total * (1.0 + 1e-7)
-    x = [0.5, 0.5, 0.5, 0.5]
-    for _ in range(3):
-        a = [[k[r][c] - (shift if r == c else 0.0) for c in range(4)] for r in range(4)]
-        x = _solve4(a, x)
-        n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
-        if not n > 0.0:
-            x = [0.0, 0.0, 0.0, 1.0]
-            break
-        x = [x[0] / n, x[1] / n, x[2] / n, x[3] / n]
-    # Shuster's quaternion (x[0..2], x[3]) is the conjugate of ours
-    qx, qy, qz, qw = -x[0], -x[1], -x[2], x[3]
-    if qw < 0:
-        qx, qy, qz, qw = -qx, -qy, -qz, -qw
-    return qx, qy, qz, qw
+    try:
+        q = _attitude.q_method(observed, reference, weights)
+    except ValueError:
+        return None
+    return q[0], q[1], q[2], q[3]
 
 
 # --------------------------------------------------------------------------------------
@@ -367,3 +313,130 @@ def verify(observed, database, q, tolerance_rad, free_matches=2):
         p = 1.0
     prob = binomial_tail(len(observed) - free_matches, len(pairs) - free_matches, p)
     return Verification(pairs, n_fov, p, prob)
+
+
+# --------------------------------------------------------------------------------------
+# Search bookkeeping shared by the identification methods
+# --------------------------------------------------------------------------------------
+
+def prepare(vectors):
+    """Unit-vector tuples of the observed ``vectors``, or ``None`` if any is not a finite,
+    non-zero 3-vector (the methods then return ``BAD_INPUT``)."""
+    b = []
+    for v in vectors:
+        try:
+            u = normalize(v)
+        except (TypeError, ValueError, IndexError):
+            u = None
+        if u is None:
+            return None
+        b.append(u)
+    return b
+
+
+class Search:
+    """Hypothesis testing, refinement and the final decision, common to every method.
+
+    ``b``: observed unit vectors (brightest first); ``db``: the database; ``tol``: the
+    direction tolerance (rad); ``max_prob``: acceptance threshold of the binomial
+    probability; ``distinct``: attitudes further apart (rad) are distinct solutions.
+    ``hypotheses`` counts verified hypotheses, ``best_rejected`` is the smallest
+    probability of a rejected one.
+    """
+
+    def __init__(self, b, db, tol, max_prob, distinct):
+        self.b = b
+        self.db = db
+        self.tol = tol
+        self.max_prob = max_prob
+        self.distinct = distinct
+        self.hypotheses = 0
+        self.best_rejected = 1.0
+
+    def hypothesis(self, obs_idx, cat_idx):
+        """Fit (q-method) and verify observed stars ``obs_idx`` as catalogue stars
+        ``cat_idx``; returns ``(q, Verification)`` or ``(None, None)`` (degenerate)."""
+        db = self.db
+        q = fit_attitude([self.b[o] for o in obs_idx], [db.star_vector(c) for c in cat_idx])
+        if q is None:
+            return None, None
+        self.hypotheses += 1
+        return q, verify(self.b, db, q, self.tol)
+
+    def test(self, obs_idx, cat_idx, accepted):
+        """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
+        when it is accepted (probability below ``max_prob``)."""
+        q, ver = self.hypothesis(obs_idx, cat_idx)
+        if ver is None:
+            return False
+        if ver.probability < self.max_prob:
+            accepted.append((q, ver))
+            return True
+        if ver.probability < self.best_rejected:
+            self.best_rejected = ver.probability
+        return False
+
+    def refine(self, ver, rounds=4):
+        """Attitude from all matches: refit and re-verify while the match set grows (up to
+        ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
+        ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
+        db = self.db
+        for _ in range(rounds):
+            obs = [self.b[o] for o, s in ver.pairs]
+            ref = [db.star_vector(s) for o, s in ver.pairs]
+            q = fit_attitude(obs, ref)
+            if q is None:
+                break
+            ver2 = verify(self.b, db, q, self.tol)
+            if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
+                    ver2.pairs == ver.pairs:
+                return q, ver
+            ver = ver2
+        obs = [self.b[o] for o, s in ver.pairs]
+        return fit_attitude(obs, [db.star_vector(s) for o, s in ver.pairs]), ver
+
+    def conclude(self, accepted, tried):
+        """The :class:`Solution` of the accepted hypotheses of one pattern: ``AMBIGUOUS`` if
+        two of them are more than ``distinct`` apart, else the most probable one refined
+        (status ``OK``)."""
+        best = 0
+        for h in range(1, len(accepted)):
+            if accepted[h][1].probability < accepted[best][1].probability:
+                best = h
+        q, ver = accepted[best]
+        for h in range(len(accepted)):
+            if attitude_difference(accepted[h][0], q) > self.distinct:
+                return Solution(AMBIGUOUS, patterns_tried=tried, probability=ver.probability,
+                                hypotheses=self.hypotheses)
+        q, ver = self.refine(ver)
+        db = self.db
+        matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
+        return Solution(OK, q=q, matches=matches, patterns_tried=tried,
+                        probability=ver.probability, hypotheses=self.hypotheses,
+                        star_ids=list(ver.pairs))
+
+    def fail(self, status, tried):
+        """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
+        return Solution(status, patterns_tried=tried, probability=self.best_rejected,
+                        hypotheses=self.hypotheses)
+
+
+def handed(t_obs, t_cat, bound):
+    """Handedness test: False only when the observed triple product ``t_obs`` is reliably
+    (beyond ``bound``) of the other sign than the catalogue's ``t_cat`` (a mirror image)."""
+    if t_obs > bound:
+        return t_cat > 0.0
+    if t_obs < -bound:
+        return t_cat < 0.0
+    return True
+
+
+def triple_bound(b1, b2, b3, tol):
+    """Error bound of the triple product ``(b1 x b2) . b3`` of unit vectors each known to
+    ``tol`` rad: ``tol (|b1 - b2| + |b2 - b3| + |b3 - b1|)`` (first order, with margin)."""
+    return tol * (_chord(b1, b2) + _chord(b2, b3) + _chord(b3, b1))
+
+
+def _chord(a, b):
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)

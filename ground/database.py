@@ -27,9 +27,31 @@ Contents
   the star indices.
 * **k-vector** (Mortari) over the pair keys, in key units, ``kv_bins = n_pairs //
   pairs_per_bin`` bins, margin 0.5 key units (:mod:`lodestar.firmware.kvector`).
-* Sections 4 (``triangles``) and 5 (``hash``) are reserved: a later 'triangle' or 'hashing'
-  method adds its section and sets its bit in ``methods``; version-1 readers serve the
-  pyramid bit and ignore the rest.
+* **Triangles** (method ``"triangle"``, Lohmann's area + polar moment; section 4): triangles
+  of pattern stars spread evenly over the sky (:func:`regional_groups`): for every cell of a
+  finer gnomonic cube (``regions_per_face`` = 16, i.e. 1536 regions) the
+  ``stars_per_region`` (5) brightest pattern stars within ``region_radius`` (half the
+  vertical FOV) of the cell centre, and every triangle of them whose longest side is at
+  most ``max_side`` (the FOV diagonal); duplicates once.  Area and polar moment are those
+  of the planar triangle of the chords (:mod:`lodestar.firmware.triangle`), stored as
+  16-bit keys (``area_step``, ``moment_step`` chosen so the largest fits), sorted by area
+  key with a k-vector over it (``per_bin`` = 4 triangles per bin).  Not *all* triangles:
+  the 1748 pattern stars form 1,125,134 triangles with every side within the FOV diagonal
+  (11 MB at 10 B each); the regional limit keeps the brightest ones, which are the ones a
+  brightest-first search meets.
+* **Hash groups** (method ``"hashing"``, Astrometry.net's quad hash as in Schumann; section
+  5): groups of ``group_size`` (4, or 3) stars per region, as for the triangles but over
+  every non-blended star (``stars_per_region`` = 6 brightest within half the vertical FOV of
+  each of the 1536 cell centres; group diameter between a quarter of the vertical FOV and
+  the FOV diagonal).  Each group is stored in its canonical labelling ``A, B, C(, D)`` under
+  the bucket code of its hash (:mod:`lodestar.firmware.hashing`: coordinates on a grid of
+  ``coord_bucket`` = 0.075 from ``coord_lo`` = -1, 40 buckets per coordinate; unless
+  ``normalized``, the A-B angle on 0.25 deg buckets as a last digit), sorted by code with a
+  k-vector over the codes.
+* Images serve any combination of methods (``methods=``); the header's ``methods`` bits
+  say which, and a method's sections are present exactly when its bit is set.  The
+  triangle and hash groups are computed by the firmware's own functions on the stored
+  float32 vectors, so flight and ground agree bit for bit.
 
 Byte layout (version 1; all integers and floats little endian; floats IEEE float32)
 ----------------------------------------------------------------------------------
@@ -65,7 +87,8 @@ Header, 160 bytes::
        152  I       reserved            0
        156  I       header_crc          CRC-32 of bytes [0, 156)
 
-Header struct for bytes 0-87: ``"<4sHHIIHHfffffIIIfffIffHHff"``.
+Header struct for bytes 0-87: ``"<4sHHIIHHfffffIIIfffIffHHff"``.  Without the pyramid bit
+the pair fields (``n_pattern_stars`` to ``kv_q``) are 0.
 
 Sections (each starts at a multiple of 4 bytes; zero padding between them)::
 
@@ -73,18 +96,45 @@ Sections (each starts at a multiple of 4 bytes; zero padding between them)::
      0  stars     "<fffHH" (16 B)             n_stars
                   x, y, z: ICRS unit vector; hip_lo = HIP & 0xFFFF;
                   word: bit 0 = HIP >> 16, bits 1-11 = round((V + 2) * 100),
-                        bits 12-15 = flags (1 = pattern star)
+                        bits 12-15 = flags (1 = pattern star of the pair table,
+                        2 = vertex of a stored triangle, 4 = member of a hash group)
      1  cells     "<H"                        6 n^2 + 1: first star index of each cell,
                                               then n_stars
      2  pairs     "<HHH" (6 B)                n_pairs: key, a, b (star indices, a < b)
      3  kvector   "<I"                        kv_bins + 1: K[j] = #{key <= kv_q + kv_m j}
-     4  triangles (reserved)
-     5  hash      (reserved)
+     4  triangles 40-byte header "<4sIIfffffHHf":
+                    magic b"TRI1", n_triangles, kv_bins, area_step (rad^2 per key),
+                    moment_step (rad^4 per key), max_side (rad), kv_m, kv_q,
+                    regions_per_face, stars_per_region, region_radius (rad)
+                  then n_triangles x "<HHHHH" (10 B): area key, moment key, s0, s1, s2
+                    (stars opposite the shortest, middle, longest side), sorted by
+                    (area key, moment key, s0, s1, s2)
+                  then zero padding to 4 bytes and (kv_bins + 1) x "<I": the k-vector over
+                    the area keys
+     5  hash      56-byte header "<4sIIHHffHHfffffHHf":
+                    magic b"HSH1", n_groups, kv_bins, group_size (3 or 4), flags (bit 0:
+                    the code keys the A-B angle, i.e. non-normalized), coord_lo,
+                    coord_bucket, coord_buckets, dist_buckets, dist_bucket (rad),
+                    min_diameter, max_diameter (rad), kv_m, kv_q, regions_per_face,
+                    stars_per_region, region_radius (rad)
+                  then n_groups x "<I" + group_size x "<H" (12 B for 4 stars, 10 B for 3):
+                    bucket code = mixed-radix digits (x_C, y_C[, x_D, y_D]) base
+                    coord_buckets [, d base dist_buckets], then the stars A, B, C(, D);
+                    sorted by (code, stars)
+                  then zero padding to 4 bytes and (kv_bins + 1) x "<I": the k-vector over
+                    the codes
 
-Size for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the defaults
-(``python -m lodestar.ground.database``; asserted <= 512 KiB in the tests): 519,700 bytes
-(507.5 KiB) = header 160 + stars 80,656 (5041 stars) + cells 770 (8 x 8 per face) + pairs
-429,168 (71,528 pairs of 1748 pattern stars) + k-vector 8,944 (2235 bins).
+Sizes for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the defaults
+(``python -m lodestar.ground.database --methods ...``; asserted in the tests):
+
+* pyramid only (the default; <= 512 KiB): 519,700 bytes (507.5 KiB) = header 160 + stars
+  80,656 (5041 stars) + cells 770 (8 x 8 per face) + pairs 429,168 (71,528 pairs of 1748
+  pattern stars) + k-vector 8,944 (2235 bins);
+* triangle only: 208,672 bytes (203.8 KiB): triangles 127,084 (11,549 triangles of 1545
+  stars, 2887 k-vector bins);
+* hashing only: 344,468 bytes (336.4 KiB): hash 262,880 (20,217 groups of 4 of 1958 stars,
+  5054 bins); 3-star groups: 22,765 groups, 332,064 bytes;
+* all three in one image (<= 1 MiB): 909,664 bytes (888.3 KiB).
 """
 
 import argparse
@@ -98,9 +148,8 @@ import numpy as np
 from lodestar.firmware import database as L
 from lodestar.firmware import kvector
 
-METHODS = ("pyramid",)
-"""Methods this builder can produce (``"triangle"`` and ``"hashing"`` have reserved
-sections and method bits but no builder yet)."""
+METHODS = ("pyramid", "triangle", "hashing")
+"""Methods this builder can produce (any combination in one image)."""
 
 BLEND_MAG_DIFF = 2.0
 """Of two stars closer than ``blend_radius``, the brighter stays a pattern star only if it
@@ -224,25 +273,172 @@ def _f32(x):
     return float(np.float32(x))
 
 
+def _step_for(max_value, n_keys=0xFFFF):
+    """float32 key step such that ``max_value / step`` rounds to at most ``n_keys``."""
+    step = _f32(max_value / n_keys) if max_value > 0 else _f32(1e-30)
+    while step * n_keys < max_value:
+        step = float(np.nextafter(np.float32(step), np.float32(np.inf)))
+    return step
+
+
+def regional_groups(vectors, vmag, candidates, regions_per_face, radius, per_region, size,
+                    max_diameter, min_diameter=0.0):
+    """Groups of ``size`` stars spread evenly over the sky: for every cell of the
+    ``regions_per_face`` gnomonic cube (:func:`lodestar.firmware.database.cell_centre`), the
+    ``per_region`` brightest ``candidates`` (a boolean mask) within ``radius`` (rad) of the
+    cell centre (ties by index), and every ``size``-subset of them whose largest pairwise
+    angle lies in ``[min_diameter, max_diameter]``.  Returns a sorted ``(n, size)`` int array
+    of unique ascending index tuples (into ``vectors``, float64 copies of the stored
+    float32 vectors)."""
+    from itertools import combinations
+
+    from scipy.spatial import cKDTree
+    idx = np.flatnonzero(candidates)
+    if len(idx) < size:
+        return np.zeros((0, size), dtype=np.int64)
+    tree = cKDTree(vectors[idx])
+    chord = 2 * math.sin(radius / 2)
+    cos_max, cos_min = math.cos(max_diameter), math.cos(min_diameter)
+    found = set()
+    for c in range(L.n_cells(regions_per_face)):
+        near = idx[tree.query_ball_point(np.array(L.cell_centre(c, regions_per_face)), chord)]
+        near = near[np.lexsort((near, vmag[near]))][:per_region]
+        if len(near) < size:
+            continue
+        near = np.sort(near)
+        dots = vectors[near] @ vectors[near].T
+        for comb in combinations(range(len(near)), size):
+            sub = dots[np.ix_(comb, comb)][np.triu_indices(size, 1)]
+            if sub.min() >= cos_max and sub.min() <= cos_min:
+                found.add(tuple(int(near[k]) for k in comb))
+    return np.array(sorted(found), dtype=np.int64).reshape(-1, size)
+
+
+def triangle_table(v32, groups, key_bits=16):
+    """Triangle records of the star triples ``groups`` (``(n, 3)`` indices into the float32
+    vectors ``v32``): ``(records, area_step, moment_step)`` with ``records`` a structured
+    array (area key, moment key, s0, s1, s2) sorted by ``(area key, moment key, s0, s1,
+    s2)``; ``s0, s1, s2`` are opposite the shortest, middle and longest side (firmware
+    :func:`lodestar.firmware.triangle.canonical_order`), area and moment computed by the
+    firmware's own :func:`~lodestar.firmware.triangle.area_moment` on the stored vectors."""
+    from lodestar.firmware import triangle as T
+    vec = v32.astype(np.float64).tolist()
+    n = len(groups)
+    area = np.zeros(n)
+    moment = np.zeros(n)
+    verts = np.zeros((n, 3), dtype=np.int64)
+    for r, (i, j, k) in enumerate(groups.tolist()):
+        tri = (i, j, k)
+        order, _ = T.canonical_order(vec[i], vec[j], vec[k])
+        verts[r] = [tri[order[0]], tri[order[1]], tri[order[2]]]
+        area[r], moment[r] = T.area_moment(vec[i], vec[j], vec[k])
+    n_keys = (1 << key_bits) - 1
+    area_step, moment_step = _step_for(area.max(), n_keys), _step_for(moment.max(), n_keys)
+    records = np.zeros(n, dtype=[("area", "<u2"), ("moment", "<u2"), ("s0", "<u2"),
+                                 ("s1", "<u2"), ("s2", "<u2")])
+    records["area"] = np.minimum(np.rint(area / area_step), n_keys)
+    records["moment"] = np.minimum(np.rint(moment / moment_step), n_keys)
+    records["s0"], records["s1"], records["s2"] = verts[:, 0], verts[:, 1], verts[:, 2]
+    records = records[np.lexsort((records["s2"], records["s1"], records["s0"],
+                                  records["moment"], records["area"]))]
+    return records, area_step, moment_step
+
+
+class _HashGrid:
+    """The bucket grid of a hash section (the attributes the firmware's
+    :func:`lodestar.firmware.hashing.bucket_code` reads from a database)."""
+
+    def __init__(self, coord_lo, coord_bucket, coord_buckets, flags, dist_bucket,
+                 dist_buckets):
+        self.hash_coord_lo = coord_lo
+        self.hash_coord_bucket = coord_bucket
+        self.hash_coord_buckets = coord_buckets
+        self.hash_flags = flags
+        self.hash_dist_bucket = dist_bucket
+        self.hash_dist_buckets = dist_buckets
+
+
+def hash_table(v32, groups, grid):
+    """Hash records of the star groups ``groups`` (``(n, g)`` indices into ``v32``): a
+    structured array (code, then the g stars in canonical order A, B, C(, D)) sorted by
+    ``(code, stars)``, hashed by the firmware's own
+    :func:`lodestar.firmware.hashing.group_hash` and
+    :func:`~lodestar.firmware.hashing.bucket_code`."""
+    from lodestar.firmware import hashing as H
+    vec = v32.astype(np.float64).tolist()
+    n, g = groups.shape
+    names = ("a", "b", "c", "d")[:g]
+    records = np.zeros(n, dtype=[("code", "<u4")] + [(name, "<u2") for name in names])
+    for r, grp in enumerate(groups.tolist()):
+        order, h, d = H.group_hash([vec[s] for s in grp])
+        records[r]["code"] = H.bucket_code(h, d, grid)
+        for name, o in zip(names, order):
+            records[r][name] = grp[o]
+    keys = [records[name] for name in reversed(names)] + [records["code"]]
+    return records[np.lexsort(keys)]
+
+
+def _kvector_tail(records, keys, per_bin):
+    """``(bytes, kv_bins, kv_m, kv_q)``: ``records`` + zero padding to 4 bytes + the k-vector
+    of their sorted integer ``keys``."""
+    kv_bins = max(1, len(keys) // per_bin)
+    kv_m, kv_q, kv_table = kvector_numpy(keys.astype(np.int64), kv_bins)
+    body = records.tobytes()
+    body += b"\0" * ((-len(body)) % L.SECTION_ALIGN)
+    return body + kv_table.astype("<u4").tobytes(), kv_bins, kv_m, kv_q
+
+
+TRIANGLE_DEFAULTS = {"regions_per_face": 16, "region_radius_deg": None, "stars_per_region": 5,
+                     "max_side_deg": None, "per_bin": 4}
+"""Triangle-section options (``triangle_options``): cube cells per face of the regions,
+region radius (default half the vertical FOV), the brightest pattern stars taken per region,
+the longest side (default the FOV diagonal) and triangles per k-vector bin."""
+
+HASH_DEFAULTS = {"group_size": 4, "normalized": False, "regions_per_face": 16,
+                 "region_radius_deg": None, "stars_per_region": 6, "max_diameter_deg": None,
+                 "min_diameter_deg": None, "coord_lo": -1.0, "coord_bucket": 0.075,
+                 "dist_bucket_deg": 0.25, "per_bin": 4}
+"""Hash-section options (``hash_options``): group size 3 or 4, normalized (no A-B angle in
+the code) or not, regions (cube cells per face, radius default half the vertical FOV, the
+brightest non-blended stars taken per region), group diameter range (default a quarter of
+the vertical FOV to the FOV diagonal), the coordinate grid (lower edge, bucket width; the
+grid spans [coord_lo, coord_lo + 3]), the A-B angle bucket and groups per k-vector bin."""
+
+
 # --------------------------------------------------------------------------------------
 # The builder
 # --------------------------------------------------------------------------------------
 
 def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
-                   fov_v_deg=None, mag_limit=6.0, method="pyramid", max_pair_angle_deg=None,
-                   min_pair_angle_deg=0.0, pattern_radius_deg=None, pattern_per_region=6,
-                   blend_radius_deg=0.02, cells_per_face=8, pairs_per_bin=32):
+                   fov_v_deg=None, mag_limit=6.0, method=None, methods=None,
+                   max_pair_angle_deg=None, min_pair_angle_deg=0.0, pattern_radius_deg=None,
+                   pattern_per_region=6, blend_radius_deg=0.02, cells_per_face=8,
+                   pairs_per_bin=32, triangle_options=None, hash_options=None):
     """Build a database image (``bytes``; layout in the module docstring).
 
     ``catalogue``: a :class:`lodestar.sim.catalogue.Catalogue` (default: the shipped one).
     FOV: ``camera`` (a sim ``Camera``; its ``fov_deg()`` is used) **or** ``fov_h_deg`` with
     ``aspect`` (width/height) or ``fov_v_deg``.  ``mag_limit``: stars with ``V <= mag_limit``.
-    ``method``: ``"pyramid"`` (the only one built so far).  ``max_pair_angle_deg`` defaults
-    to the FOV diagonal, ``pattern_radius_deg`` to half the vertical FOV.
+    ``methods``: the identification methods the image serves, any of :data:`METHODS`
+    (``("pyramid", "triangle", "hashing")`` gives one image with every section; default
+    ``("pyramid",)``); ``method``: a single name, the same as ``methods=(method,)``.
+    ``max_pair_angle_deg`` defaults to the FOV diagonal, ``pattern_radius_deg`` to half the
+    vertical FOV.  ``triangle_options`` / ``hash_options``: dicts overriding
+    :data:`TRIANGLE_DEFAULTS` / :data:`HASH_DEFAULTS`.
     """
-    if method not in METHODS:
-        raise NotImplementedError(f"method {method!r}: only {METHODS} can be built "
-                                  "(the format reserves sections for 'triangle' and 'hashing')")
+    if method is not None and methods is not None:
+        raise ValueError("give method or methods, not both")
+    if methods is None:
+        methods = ("pyramid",) if method is None else (method,)
+    if isinstance(methods, str):
+        methods = (methods,)
+    methods = tuple(methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise NotImplementedError(f"methods {unknown or methods!r}: only {METHODS} can be "
+                                  "built")
+    tri_opt = _options(TRIANGLE_DEFAULTS, triangle_options, "triangle_options")
+    hash_opt = _options(HASH_DEFAULTS, hash_options, "hash_options")
     if catalogue is None:
         from lodestar.sim.catalogue import load
         catalogue = load()
@@ -270,8 +466,10 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     if mag_code.min() < 0 or mag_code.max() > 0x7FF:
         raise ValueError("magnitude out of the storable range [-2, 18.47]")
 
-    pattern = select_pattern_stars(vectors64, vmag, pattern_radius, pattern_per_region,
-                                   math.radians(blend_radius_deg))
+    blend = math.radians(blend_radius_deg)
+    pattern = select_pattern_stars(vectors64, vmag, pattern_radius, pattern_per_region, blend)
+    unblended = select_pattern_stars(vectors64, vmag, pattern_radius, len(vmag) + 1, blend) \
+        if "hashing" in methods else None
 
     # order the star table by (cell, magnitude, HIP) of the stored float32 vectors
     v32 = vectors64.astype(np.float32)
@@ -280,38 +478,107 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     order = np.lexsort((hip, vmag, cells))
     v32, vmag, hip, mag_code, pattern, cells = (arr[order] for arr in
                                                (v32, vmag, hip, mag_code, pattern, cells))
+    if unblended is not None:
+        unblended = unblended[order]
     n_stars = len(order)
     nc = L.n_cells(cells_per_face)
     cell_start = np.searchsorted(cells, np.arange(nc + 1), side="left")
+    v64 = v32.astype(np.float64)
+    flags = np.zeros(n_stars, dtype=np.int64)
+    sections = {L.SEC_CELLS: cell_start.astype("<u2").tobytes()}
+    values = {"methods": 0, "n_pattern_stars": 0, "n_pairs": 0, "pair_min_angle": 0.0,
+              "pair_max_angle": 0.0, "key_step": 0.0, "kv_bins": 0, "kv_m": 0.0, "kv_q": 0.0}
 
-    # pairs of pattern stars (indices into the ordered star table)
-    key_step = _f32(max_pair / 0xFFFF)
-    if key_step * 0xFFFF < max_pair:
-        key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
-    pidx = np.flatnonzero(pattern)
-    keys, a, b = pair_table(v32[pidx].astype(np.float64), min_pair, max_pair, key_step)
-    a, b = pidx[a], pidx[b]
-    lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
-    order = np.lexsort((hi_, lo_, keys))
-    keys, a, b = keys[order], lo_[order], hi_[order]
-    n_pairs = len(keys)
-    if n_pairs == 0:
-        raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
-    kv_bins = max(1, n_pairs // pairs_per_bin)
-    kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
+    if "pyramid" in methods:
+        # pairs of pattern stars (indices into the ordered star table)
+        key_step = _f32(max_pair / 0xFFFF)
+        if key_step * 0xFFFF < max_pair:
+            key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
+        pidx = np.flatnonzero(pattern)
+        keys, a, b = pair_table(v64[pidx], min_pair, max_pair, key_step)
+        a, b = pidx[a], pidx[b]
+        lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
+        order = np.lexsort((hi_, lo_, keys))
+        keys, a, b = keys[order], lo_[order], hi_[order]
+        n_pairs = len(keys)
+        if n_pairs == 0:
+            raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
+        kv_bins = max(1, n_pairs // pairs_per_bin)
+        kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
+        pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
+        pairs["key"], pairs["a"], pairs["b"] = keys, a, b
+        sections[L.SEC_PAIRS] = pairs.tobytes()
+        sections[L.SEC_KVECTOR] = kv_table.astype("<u4").tobytes()
+        flags |= np.where(pattern, L.STAR_FLAG_PATTERN, 0)
+        values.update(methods=values["methods"] | L.METHOD_PYRAMID,
+                      n_pattern_stars=int(pattern.sum()), n_pairs=n_pairs,
+                      pair_min_angle=min_pair, pair_max_angle=max_pair, key_step=key_step,
+                      kv_bins=kv_bins, kv_m=kv_m, kv_q=kv_q)
 
-    # sections
-    word = (hip >> 16) | (mag_code << 1) | (np.where(pattern, L.STAR_FLAG_PATTERN, 0) << 12)
+    if "triangle" in methods:
+        radius = math.radians(fov_v / 2 if tri_opt["region_radius_deg"] is None
+                              else tri_opt["region_radius_deg"])
+        max_side = math.radians(fov_d if tri_opt["max_side_deg"] is None
+                                else tri_opt["max_side_deg"])
+        groups = regional_groups(v64, vmag, pattern, tri_opt["regions_per_face"], radius,
+                                 tri_opt["stars_per_region"], 3, max_side)
+        if len(groups) == 0:
+            raise ValueError("no triangles: FOV too small or magnitude limit too bright")
+        records, area_step, moment_step = triangle_table(v32, groups)
+        tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["area"],
+                                                  tri_opt["per_bin"])
+        header = struct.pack(L.TRI_HEADER_FORMAT, L.TRI_MAGIC, len(records), kv_bins,
+                             area_step, moment_step, max_side, kv_m, kv_q,
+                             tri_opt["regions_per_face"], tri_opt["stars_per_region"], radius)
+        sections[L.SEC_TRIANGLES] = header + tail
+        used = np.zeros(n_stars, dtype=bool)
+        used[groups.ravel()] = True
+        flags |= np.where(used, L.STAR_FLAG_TRIANGLE, 0)
+        values["methods"] |= L.METHOD_TRIANGLE
+
+    if "hashing" in methods:
+        g = int(hash_opt["group_size"])
+        if g not in L.HASH_GROUP_SIZES:
+            raise ValueError(f"hash group size {g}: must be one of {L.HASH_GROUP_SIZES}")
+        radius = math.radians(fov_v / 2 if hash_opt["region_radius_deg"] is None
+                              else hash_opt["region_radius_deg"])
+        max_diam = math.radians(fov_d if hash_opt["max_diameter_deg"] is None
+                                else hash_opt["max_diameter_deg"])
+        min_diam = math.radians(fov_v / 4 if hash_opt["min_diameter_deg"] is None
+                                else hash_opt["min_diameter_deg"])
+        flags_h = 0 if hash_opt["normalized"] else L.HASH_FLAG_DISTANCE
+        coord_lo, coord_bucket = _f32(hash_opt["coord_lo"]), _f32(hash_opt["coord_bucket"])
+        coord_buckets = int(math.ceil(3.0 / coord_bucket))
+        dist_bucket = _f32(math.radians(hash_opt["dist_bucket_deg"]))
+        dist_buckets = int(math.floor(max_diam / dist_bucket)) + 2
+        if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > L.HASH_MAX_CODE:
+            raise ValueError("hash bucket grid too fine: codes would exceed 2**30")
+        grid = _HashGrid(coord_lo, coord_bucket, coord_buckets, flags_h, dist_bucket,
+                         dist_buckets)
+        groups = regional_groups(v64, vmag, unblended, hash_opt["regions_per_face"], radius,
+                                 hash_opt["stars_per_region"], g, max_diam, min_diam)
+        if len(groups) == 0:
+            raise ValueError("no hash groups: FOV too small or magnitude limit too bright")
+        records = hash_table(v32, groups, grid)
+        tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["code"],
+                                                  hash_opt["per_bin"])
+        header = struct.pack(L.HASH_HEADER_FORMAT, L.HASH_MAGIC, len(records), kv_bins, g,
+                             flags_h, coord_lo, coord_bucket, coord_buckets, dist_buckets,
+                             dist_bucket, min_diam, max_diam, kv_m, kv_q,
+                             hash_opt["regions_per_face"], hash_opt["stars_per_region"], radius)
+        sections[L.SEC_HASH] = header + tail
+        used = np.zeros(n_stars, dtype=bool)
+        used[groups.ravel()] = True
+        flags |= np.where(used, L.STAR_FLAG_HASH, 0)
+        values["methods"] |= L.METHOD_HASHING
+
+    # the star table (flags known now)
+    word = (hip >> 16) | (mag_code << 1) | (flags << 12)
     stars = np.zeros(n_stars, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                                      ("hip_lo", "<u2"), ("word", "<u2")])
     stars["x"], stars["y"], stars["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
     stars["hip_lo"], stars["word"] = hip & 0xFFFF, word
-    pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
-    pairs["key"], pairs["a"], pairs["b"] = keys, a, b
-    sections = {L.SEC_STARS: stars.tobytes(),
-                L.SEC_CELLS: cell_start.astype("<u2").tobytes(),
-                L.SEC_PAIRS: pairs.tobytes(),
-                L.SEC_KVECTOR: kv_table.astype("<u4").tobytes()}
+    sections[L.SEC_STARS] = stars.tobytes()
 
     payload = bytearray()
     directory = [(0, 0)] * L.N_SECTIONS
@@ -324,18 +591,16 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
         payload.append(0)
     image_size = L.HEADER_SIZE + len(payload)
 
-    values = {
+    values.update({
         "magic": L.MAGIC, "version": L.VERSION, "header_size": L.HEADER_SIZE,
         "image_size": image_size, "payload_crc": zlib.crc32(payload) & 0xFFFFFFFF,
-        "methods": L.METHOD_PYRAMID, "star_record_size": L.STAR_SIZE,
+        "star_record_size": L.STAR_SIZE,
         "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
         "fov_diag": math.radians(fov_d), "mag_limit": mag_limit, "epoch": catalogue.epoch,
-        "n_stars": n_stars, "n_pattern_stars": int(pattern.sum()), "n_pairs": n_pairs,
-        "pair_min_angle": min_pair, "pair_max_angle": max_pair, "key_step": key_step,
-        "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q, "cells_per_face": cells_per_face,
+        "n_stars": n_stars, "cells_per_face": cells_per_face,
         "pattern_per_region": pattern_per_region,
         "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,
-    }
+    })
     header = bytearray(L.HEADER_SIZE)
     struct.pack_into(L.HEADER_FORMAT, header, 0, *(values[name] for name in L.HEADER_FIELDS))
     for sec, (offset, length) in enumerate(directory):
@@ -343,6 +608,19 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     struct.pack_into("<I", header, L.HEADER_CRC_OFFSET,
                      zlib.crc32(bytes(header[:L.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
     return bytes(header) + bytes(payload)
+
+
+build = build_database
+"""Alias: ``build(catalogue, camera, methods=("pyramid", "triangle", "hashing"), ...)``."""
+
+
+def _options(defaults, given, name):
+    out = dict(defaults)
+    for key, value in (given or {}).items():
+        if key not in defaults:
+            raise ValueError(f"{name}: unknown option {key!r} (known: {sorted(defaults)})")
+        out[key] = value
+    return out
 
 
 def describe(image):
@@ -357,25 +635,31 @@ def describe(image):
 
 def main(argv=None):
     """``python -m lodestar.ground.database [--preset NAME | --fov-h DEG --aspect A]
-    [--mag V] [-o FILE]``: build an image and print its size."""
+    [--mag V] [--methods pyramid,triangle,hashing] [-o FILE]``: build an image and print its
+    size."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="estcube2")
     parser.add_argument("--fov-h", type=float, help="horizontal FOV, deg (instead of preset)")
     parser.add_argument("--aspect", type=float, default=4 / 3)
     parser.add_argument("--mag", type=float, default=6.0)
     parser.add_argument("--per-region", type=int, default=6)
+    parser.add_argument("--methods", default="pyramid",
+                        help="comma-separated subset of " + ",".join(METHODS))
     parser.add_argument("-o", "--output")
     args = parser.parse_args(argv)
+    methods = tuple(args.methods.split(","))
     if args.fov_h is not None:
         image = build_database(fov_h_deg=args.fov_h, aspect=args.aspect, mag_limit=args.mag,
-                               pattern_per_region=args.per_region)
+                               pattern_per_region=args.per_region, methods=methods)
     else:
         from lodestar.sim.presets import load_preset
         image = build_database(camera=load_preset(args.preset), mag_limit=args.mag,
-                               pattern_per_region=args.per_region)
+                               pattern_per_region=args.per_region, methods=methods)
     info = describe(image)
     print(f"stars {info['n_stars']} (pattern {info['n_pattern_stars']}), "
-          f"pairs {info['n_pairs']}, k-vector bins {info['kv_bins']}")
+          f"pairs {info['n_pairs']}, k-vector bins {info['kv_bins']}, "
+          f"triangles {info.get('triangles', {}).get('n', 0)}, "
+          f"hash groups {info.get('hash', {}).get('n', 0)}")
     for name, length in info["section_bytes"].items():
         print(f"  {name:8s} {length:9d} B")
     print(f"total {len(image)} B = {len(image) / 1024:.1f} KiB")

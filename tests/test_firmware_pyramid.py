@@ -240,7 +240,7 @@ MICROPYTHON_STARID = r'''
 import binascii
 import gc
 import sys
-from lodestar.firmware import database, starid
+from lodestar.firmware import database, starid, status
 print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
 with open("/db.bin", "wb") as f:
     f.write(binascii.a2b_base64(IMAGE_B64))
@@ -248,8 +248,8 @@ IMAGE_B64 = None
 #@split
 gc.collect()
 base = gc.mem_alloc()
-db, status, reason = database.load("/db.bin")
-assert status == "OK", reason
+db, code, reason = database.load("/db.bin")
+assert code == status.OK, reason
 #@split
 gc.collect()
 print("DBMEM", gc.mem_alloc() - base)
@@ -266,11 +266,12 @@ db.close()
 with open("/db.bin", "rb") as f:
     bad = bytearray(f.read())
 bad[len(bad) // 2] ^= 1
-print("CORRUPT", database.check(bad)[0], database.check(bytes(bad[:200]))[0])
+print("CORRUPT", status.name(database.check(bad)[0]),
+      status.name(database.check(bytes(bad[:200]))[0]))
 try:
     database.Database(bytes(bad[:100]))
 except database.DatabaseError as exc:
-    print("RAISED", exc.status, str(exc).startswith("BAD_LENGTH: "))
+    print("RAISED", status.name(exc.status), str(exc).startswith("DATABASE_BAD_LENGTH: "))
 print("DONE")
 '''
 
@@ -305,5 +306,5 @@ def test_identification_under_micropython():
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out
-    assert "SOLVED 6" in out and "CORRUPT BAD_CRC BAD_LENGTH" in out
-    assert "RAISED BAD_LENGTH True" in out and "DONE" in out
+    assert "SOLVED 6" in out and "CORRUPT DATABASE_CORRUPT DATABASE_BAD_LENGTH" in out
+    assert "RAISED DATABASE_BAD_LENGTH True" in out and "DONE" in out

@@ -44,8 +44,47 @@ def test_estcube2_size_budget(record_property):
                         rel_tol=1e-6)
 
 
+@functools.lru_cache(maxsize=None)
+def estcube2_all_methods():
+    return G.build_database(load(), load_preset("estcube2"), mag_limit=6.0,
+                            methods=("pyramid", "triangle", "hashing"))
+
+
+def test_estcube2_all_methods_size_budget(record_property):
+    """One image serving Pyramid, Triangle and Hashing stays within 1 MiB; the pyramid
+    sections are byte-identical to those of the pyramid-only image."""
+    image = estcube2_all_methods()
+    info = G.describe(image)
+    record_property("database_all_methods_bytes", len(image))
+    print(f"\nestcube2 V<=6.0 pyramid+triangle+hashing: {len(image)} B "
+          f"({len(image) / 1024:.1f} KiB); {info['triangles']['n']} triangles, "
+          f"{info['hash']['n']} hash groups; sections {info['section_bytes']}")
+    assert len(image) <= MB
+    assert info["methods"] == L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
+    assert info["section_bytes"]["triangles"] <= 160 * 1024
+    assert info["section_bytes"]["hash"] <= 320 * 1024
+    single = L.Database(estcube2_image())
+    db = L.Database(image)
+    for sec in (L.SEC_PAIRS, L.SEC_KVECTOR, L.SEC_CELLS):
+        (o1, n1), (o2, n2) = single.sections[sec], db.sections[sec]
+        assert estcube2_image()[o1:o1 + n1] == image[o2:o2 + n2]
+    for i in range(0, db.n_stars, 97):      # same stars, flags extended
+        a, b = single.star(i), db.star(i)
+        assert a[:5] == b[:5] and b[5] & L.STAR_FLAG_PATTERN == a[5]
+    # per-method images hold only their sections
+    for name, bit, sec in (("triangle", L.METHOD_TRIANGLE, L.SEC_TRIANGLES),
+                           ("hashing", L.METHOD_HASHING, L.SEC_HASH)):
+        one = L.Database(G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
+                                          methods=(name,)))
+        assert one.methods == bit and one.n_pairs == 0 and one.n_pattern_stars == 0
+        assert [i for i, (o, n) in enumerate(one.sections) if n] == [L.SEC_STARS, L.SEC_CELLS,
+                                                                     sec]
+
+
 def test_deterministic():
     assert G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5) == small_image()
+    kw = dict(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5, methods=G.METHODS)
+    assert G.build_database(**kw) == G.build(**kw)
 
 
 def test_star_table_round_trip():
@@ -150,9 +189,17 @@ def test_fov_inputs():
 
 def test_bad_requests():
     with pytest.raises(NotImplementedError):
-        G.build_database(fov_h_deg=20, aspect=1, method="triangle")
+        G.build_database(fov_h_deg=20, aspect=1, method="voting")
     with pytest.raises(NotImplementedError):
-        G.build_database(fov_h_deg=20, aspect=1, method="hashing")
+        G.build_database(fov_h_deg=20, aspect=1, methods=("pyramid", "voting"))
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, method="pyramid", methods=("pyramid",))
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, methods=("hashing",),
+                         hash_options={"group_size": 5})
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, methods=("triangle",),
+                         triangle_options={"no_such_option": 1})
     with pytest.raises(ValueError):
         G.build_database(fov_h_deg=20, aspect=1, mag_limit=-2.0)
     with pytest.raises(ValueError):
@@ -166,8 +213,16 @@ def test_header_layout_matches_docstring():
     assert L.DIRECTORY_OFFSET + 8 * L.N_SECTIONS == L.RESERVED_OFFSET
     assert image[:4] == b"LSDB"
     assert struct.unpack_from("<HHI", image, 4) == (1, 160, len(image))
-    for token in ('"<4sHHIIHHfffffIIIfffIffHHff"', '"<fffHH"', '"<HHH"'):
-        assert token in G.__doc__
+    for token in ('"<4sHHIIHHfffffIIIfffIffHHff"', '"<fffHH"', '"<HHH"', L.TRI_HEADER_FORMAT,
+                  L.TRI_RECORD_FORMAT, L.HASH_HEADER_FORMAT, "b\"TRI1\"", "b\"HSH1\""):
+        assert token in G.__doc__, token
+    assert struct.calcsize(L.TRI_HEADER_FORMAT) == L.TRI_HEADER_SIZE
+    assert struct.calcsize(L.TRI_RECORD_FORMAT) == L.TRI_RECORD_SIZE
+    assert struct.calcsize(L.HASH_HEADER_FORMAT) == L.HASH_HEADER_SIZE
+    assert len(L.TRI_HEADER_FIELDS) == len(struct.unpack(L.TRI_HEADER_FORMAT,
+                                                          bytes(L.TRI_HEADER_SIZE)))
+    assert len(L.HASH_HEADER_FIELDS) == len(struct.unpack(L.HASH_HEADER_FORMAT,
+                                                           bytes(L.HASH_HEADER_SIZE)))
     info = G.describe(image)
     assert info["section_bytes"]["stars"] == 16 * info["n_stars"]
     assert info["section_bytes"]["pairs"] == 6 * info["n_pairs"]

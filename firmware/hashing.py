@@ -1,0 +1,337 @@
+"""Geometric-hashing star identification (Astrometry.net's quad hash, as in Schumann 2019).
+
+Lang et al. (2010), "Astrometry.net: blind astrometric calibration of arbitrary astronomical
+images"; Schumann (2019), "Using Star Identification Algorithms on ESTCube-2 Star Tracker"
+(digest section 6).  Input: camera-frame unit vectors of the observed stars, **brightest
+first**; a :class:`lodestar.firmware.database.Database` with the ``hash`` section (built by
+``lodestar.ground.database`` with ``"hashing"`` in ``methods``).
+
+The hash of a group of 3 or 4 stars (:func:`group_hash`)
+---------------------------------------------------------
+* ``A``, ``B``: the two most distant stars of the group (largest chord).
+* All stars are projected gnomonically onto the plane tangent to the sky at
+  ``m = (A + B) / |A + B|`` with the right-handed basis ``e1`` (along ``B - A``),
+  ``e2 = m x e1``: ``P' = (P.e1, P.e2) / P.m``.  The camera frame is right-handed too, so the
+  hash keeps the parity: a mirror image hashes differently (no mirror invariance).
+* Astrometry.net's similarity frame ``A = (0, 0)``, ``B = (1, 1)``: as complex numbers
+  ``z = (P' - A') (1 + i) / (B' - A')`` (:func:`frame_coords`); the hash is ``(x_C, y_C)``
+  for 3 stars and ``(x_C, y_C, x_D, y_D)`` for 4 (the *normalized* hash, invariant to
+  rotation and scale).
+* Symmetry breaking: swapping ``A`` and ``B`` maps ``(x, y)`` to ``(1 - x, 1 - y)``; the
+  canonical labelling has ``x_C + x_D <= 1`` and ``x_C <= x_D`` (4 stars) or ``x_C <= 1/2``
+  (3 stars).
+* The *non-normalized* hash also keys the angle ``d = angle(A, B)`` (the FOV is known), which
+  Schumann found to give far fewer false matches.
+
+Database (section 5): groups of stars of each sky region (the gnomonic-cube cells of
+:func:`lodestar.firmware.database.cell_of` with ``hash_regions_per_face`` per face: the
+``hash_stars_per_region`` brightest stars within ``hash_region_radius`` of the cell centre,
+every group of them with a diameter in ``[hash_min_diameter, hash_max_diameter]``), stored in
+canonical order under a **bucket code**: each hash coordinate quantised on the grid
+``hash_coord_lo + hash_coord_bucket * k`` (``k < hash_coord_buckets``, clamped), the angle
+``d`` on ``hash_dist_bucket`` steps (``k < hash_dist_buckets``) for the non-normalized hash,
+combined as mixed-radix digits ``((x_C, y_C[, x_D, y_D])[, d])``.  Records are sorted by code
+with a k-vector over the codes, so a bucket is found without a scan (:func:`bucket_code`).
+
+Tolerances: with each star known to ``eps``, ``z`` moves by at most
+``sqrt(2) eps' (1 + |1 - w| + |w|) / |B' - A'|`` with ``w = z / (1 + i)`` (the derivative of
+the complex formula in the three points) and ``eps' = eps (1 + r^2)`` the tangent-plane
+error at radius ``r``, times :data:`BOUND_MARGIN`; ``d`` moves by at most ``2 eps``.  The
+query visits every bucket the tolerance box overlaps, under every labelling that the
+tolerance allows (near-equal diameters, ``x_C ~ x_D``, ``x_C + x_D ~ 1``).
+
+Algorithm
+---------
+1. Only the first ``max_stars`` (default 16) observed stars form groups.  Fewer stars than
+   the group size: ``TOO_FEW_STARS``.
+2. Groups brightest first (every group whose faintest star is ``k`` before any with a
+   fainter one); each counts as one *pattern* against the deterministic ``budget``.
+   Groups whose diameter is outside the database's range (+ tolerance), and labellings
+   whose coordinate tolerance exceeds :data:`MAX_TOL_BUCKETS` buckets, are skipped.
+3. For each admissible labelling: the buckets of the tolerance box; each stored group in
+   them has its hash recomputed from the star table and must agree component by component
+   (and in ``d`` for the non-normalized hash); the handedness ``(A x B) . C`` must match.
+4. Each candidate (observed labels -> stored stars) is a hypothesis verified by
+   :func:`lodestar.firmware.verify.verify`; all hypotheses of the first group with an
+   accepted one are verified, ``AMBIGUOUS`` if they disagree, else the best is refined and
+   returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+
+Pure Python for CPython and MicroPython (``math`` only).
+"""
+
+import math
+
+from . import verify as V
+from .database import HASH_FLAG_DISTANCE, METHOD_HASHING
+
+BOUND_MARGIN = 1.1
+"""Factor on the first-order hash tolerance (covers the projection's curvature terms)."""
+
+SQRT2 = 1.4142135623730951
+
+MAX_TOL_BUCKETS = 2.0
+"""A labelling whose coordinate tolerance exceeds this many buckets is skipped (it would
+visit up to ``(2 * MAX_TOL_BUCKETS + 1) ** (2 * (g - 2))`` buckets)."""
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _chord2(a, b):
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return dx * dx + dy * dy + dz * dz
+
+
+def tangent_frame(a, b):
+    """``(m, e1, e2)``: the tangent point ``m = (a + b)/|a + b|`` and the right-handed basis
+    ``e1`` (along ``b - a``, orthogonal to ``m``), ``e2 = m x e1``."""
+    m = V.normalize((a[0] + b[0], a[1] + b[1], a[2] + b[2]))
+    d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+    k = _dot(d, m)
+    e1 = V.normalize((d[0] - k * m[0], d[1] - k * m[1], d[2] - k * m[2]))
+    e2 = (m[1] * e1[2] - m[2] * e1[1], m[2] * e1[0] - m[0] * e1[2],
+          m[0] * e1[1] - m[1] * e1[0])
+    return m, e1, e2
+
+
+def project(frame, p):
+    """Gnomonic coordinates ``(u, v)`` of the unit vector ``p`` in ``frame``."""
+    m, e1, e2 = frame
+    w = _dot(p, m)
+    return _dot(p, e1) / w, _dot(p, e2) / w
+
+
+def frame_coords(pa, pb, pp):
+    """Astrometry.net's ``(x, y)`` of plane point ``pp`` in the frame of ``pa = (0, 0)``,
+    ``pb = (1, 1)``: ``z = (pp - pa)(1 + i) / (pb - pa)``."""
+    dx, dy = pb[0] - pa[0], pb[1] - pa[1]
+    ux, uy = pp[0] - pa[0], pp[1] - pa[1]
+    nr, ni = ux - uy, ux + uy              # (u)(1 + i)
+    den = dx * dx + dy * dy
+    return (nr * dx + ni * dy) / den, (ni * dx - nr * dy) / den
+
+
+def coords(a, b, others):
+    """Hash coordinates ``[x_C, y_C, (x_D, y_D)]`` of the unit vectors ``others`` with
+    ``A = a``, ``B = b`` (no canonicalisation)."""
+    fr = tangent_frame(a, b)
+    pa, pb = project(fr, a), project(fr, b)
+    out = []
+    for p in others:
+        x, y = frame_coords(pa, pb, project(fr, p))
+        out.append(x)
+        out.append(y)
+    return out
+
+
+def _diameter_pairs(vs, slack):
+    """Index pairs ``(i, j)`` whose chord is within ``slack`` of the largest (largest first,
+    ties by index)."""
+    n = len(vs)
+    pairs = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            pairs.append((_chord2(vs[i], vs[j]), i, j))
+    best = max(p[0] for p in pairs)
+    if slack > 0.0:
+        lim = math.sqrt(best) - slack
+        lim2 = lim * lim if lim > 0.0 else 0.0
+    else:
+        lim2 = best
+    out = [(-c, i, j) for c, i, j in pairs if c >= lim2]
+    out.sort()
+    return [(i, j) for c, i, j in out]
+
+
+def labellings(vs, slack=0.0, tol=None):
+    """Labellings ``(order, hash)`` of the group ``vs`` (3 or 4 unit vectors): ``order`` lists
+    the indices of ``A, B, C(, D)``, ``hash`` the coordinates.  ``slack == 0`` and ``tol is
+    None``: the single canonical labelling (exact rules, ties by index).  Otherwise every
+    labelling admissible within a chord ``slack`` on the diameter and ``tol`` (a function
+    of the hash coordinates) on the symmetry-breaking inequalities."""
+    g = len(vs)
+    out = []
+    for i, j in _diameter_pairs(vs, slack):
+        rest = [k for k in range(g) if k != i and k != j]
+        for a, b in ((i, j), (j, i)):
+            if g == 3:
+                h = coords(vs[a], vs[b], [vs[rest[0]]])
+                t = 0.0 if tol is None else tol(h)
+                if h[0] <= 0.5 + t:
+                    out.append(((a, b, rest[0]), h))
+                continue
+            for c, d in ((rest[0], rest[1]), (rest[1], rest[0])):
+                h = coords(vs[a], vs[b], [vs[c], vs[d]])
+                t = 0.0 if tol is None else tol(h)
+                if h[0] <= h[2] + 2.0 * t and h[0] + h[2] <= 1.0 + 2.0 * t:
+                    out.append(((a, b, c, d), h))
+            if tol is None and out:
+                break
+        if tol is None and out:
+            break
+    return out
+
+
+def group_hash(vs):
+    """Canonical ``(order, hash, d)`` of a group of 3 or 4 unit vectors: ``order`` the
+    indices of ``A, B, C(, D)``, ``hash`` the normalized coordinates, ``d`` the angle
+    ``A``-``B`` (rad)."""
+    order, h = labellings(vs)[0]
+    return order, h, V.angle(vs[order[0]], vs[order[1]])
+
+
+def coord_tolerance(h, d, eps):
+    """Largest change of any hash coordinate ``h`` when each star moves by at most ``eps``
+    (rad), for a group of diameter ``d`` (the A-B angle, rad).
+
+    ``z = (P' - A')(1 + i)/(B' - A')`` changes by ``sqrt(2)/|B' - A'| (|dP| + |1 - w| |dA| +
+    |w| |dB|)``, ``w = z / (1 + i)``; in the tangent plane ``|B' - A'| = 2 tan(d / 2)`` and a
+    direction error ``eps`` is at most ``eps (1 + tan^2 r)`` with ``r <= (sqrt(3) / 2) d``
+    (every star lies in the lens of radius ``d`` around ``A`` and ``B``).
+    """
+    worst = 0.0
+    for k in range(0, len(h), 2):
+        wx, wy = 0.5 * (h[k] + h[k + 1]), 0.5 * (h[k + 1] - h[k])
+        f = 1.0 + math.sqrt((1.0 - wx) * (1.0 - wx) + wy * wy) + math.sqrt(wx * wx + wy * wy)
+        if f > worst:
+            worst = f
+    t = math.tan(0.8660254037844386 * d)
+    return BOUND_MARGIN * SQRT2 * eps * (1.0 + t * t) * worst / (2.0 * math.tan(0.5 * d))
+
+
+def bucket(value, lo, width, count):
+    """Bucket index of ``value`` on the grid ``lo + width * k``, clamped to ``[0, count)``."""
+    k = int(math.floor((value - lo) / width))
+    if k < 0:
+        return 0
+    if k >= count:
+        return count - 1
+    return k
+
+
+def bucket_code(h, d, db):
+    """Bucket code of hash coordinates ``h`` and A-B angle ``d`` (rad) in ``db``'s grid."""
+    lo, w, nb = db.hash_coord_lo, db.hash_coord_bucket, db.hash_coord_buckets
+    code = 0
+    for x in h:
+        code = code * nb + bucket(x, lo, w, nb)
+    if db.hash_flags & HASH_FLAG_DISTANCE:
+        code = code * db.hash_dist_buckets + bucket(d, 0.0, db.hash_dist_bucket,
+                                                    db.hash_dist_buckets)
+    return code
+
+
+def box_codes(h, tol, d, d_tol, db):
+    """All bucket codes that the box ``h +- tol`` (and ``d +- d_tol``) overlaps."""
+    lo, w, nb = db.hash_coord_lo, db.hash_coord_bucket, db.hash_coord_buckets
+    codes = [0]
+    for x in h:
+        k0, k1 = bucket(x - tol, lo, w, nb), bucket(x + tol, lo, w, nb)
+        codes = [c * nb + k for c in codes for k in range(k0, k1 + 1)]
+    if db.hash_flags & HASH_FLAG_DISTANCE:
+        nd, wd = db.hash_dist_buckets, db.hash_dist_bucket
+        k0, k1 = bucket(d - d_tol, 0.0, wd, nd), bucket(d + d_tol, 0.0, wd, nd)
+        codes = [c * nd + k for c in codes for k in range(k0, k1 + 1)]
+    return codes
+
+
+class _Search(V.Search):
+    def __init__(self, b, db, tol, max_prob, distinct):
+        V.Search.__init__(self, b, db, tol, max_prob, distinct)
+        self.g = db.hash_group_size
+        self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
+        self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
+        self.min_d = db.hash_min_diameter - self.d_tol
+        self.max_d = db.hash_max_diameter + self.d_tol
+
+    def try_group(self, idx):
+        """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (a tuple)."""
+        b = self.b
+        db = self.db
+        vs = [b[i] for i in idx]
+        pairs = _diameter_pairs(vs, 0.0)
+        d = V.angle(vs[pairs[0][0]], vs[pairs[0][1]])
+        if d < self.min_d or d > self.max_d:
+            return []
+        eps = self.tol
+        d_low = d - self.d_tol      # the smallest diameter consistent with the observation
+        if d_low <= 0.0:
+            return []
+
+        def tol_of(h):
+            return coord_tolerance(h, d_low, eps)
+
+        slack = 4.0 * eps * BOUND_MARGIN
+        accepted = []
+        seen = {}
+        for order, h in labellings(vs, slack, tol_of):
+            d_obs = V.angle(vs[order[0]], vs[order[1]])
+            t = tol_of(h)
+            if t > MAX_TOL_BUCKETS * db.hash_coord_bucket:
+                continue            # too small a group for this grid: a huge box, no use
+            t_bound = V.triple_bound(vs[order[0]], vs[order[1]], vs[order[2]], eps)
+            t_obs = V.triple(vs[order[0]], vs[order[1]], vs[order[2]])
+            for code in box_codes(h, t, d_obs, self.d_tol, db):
+                start, stop = db.hash_bucket(code)
+                for r in range(start, stop):
+                    rec = db.hash_record(r)
+                    stars = rec[1:]
+                    cat = [db.star_vector(s) for s in stars]
+                    if self.use_d and abs(V.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
+                        continue
+                    hc = coords(cat[0], cat[1], cat[2:])
+                    ok = True
+                    for k in range(len(h)):
+                        if abs(hc[k] - h[k]) > t:
+                            ok = False
+                            break
+                    if not ok or not V.handed(t_obs, V.triple(cat[0], cat[1], cat[2]), t_bound):
+                        continue
+                    obs_idx = tuple(idx[o] for o in order)
+                    key = (obs_idx, stars)
+                    if key in seen:
+                        continue
+                    seen[key] = 1
+                    self.test(obs_idx, stars, accepted)
+        return accepted
+
+
+def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
+             max_mismatch_prob=1e-9, distinct_rad=None):
+    """Geometric-hashing identification; returns a :class:`lodestar.firmware.verify.Solution`.
+
+    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
+    here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
+    most groups tried.  ``max_stars``: observed stars used for groups.  ``distinct_rad``:
+    attitudes further apart are distinct (default ``20 * tolerance_rad``).
+    """
+    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
+        return V.Solution(V.BAD_INPUT)
+    if not database.methods & METHOD_HASHING:
+        return V.Solution(V.BAD_DATABASE)
+    b = V.prepare(vectors)
+    if b is None:
+        return V.Solution(V.BAD_INPUT)
+    g = database.hash_group_size
+    if len(b) < g or max_stars < g:
+        return V.Solution(V.TOO_FEW_STARS if len(b) < g else V.BAD_INPUT)
+    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
+    n = len(b) if len(b) < max_stars else max_stars
+    tried = 0
+    for k in range(g - 1, n):
+        for j in range(g - 2, k):
+            for i in range(g - 3, j):
+                if g == 3:
+                    groups = ((i, j, k),)
+                else:
+                    groups = [(h, i, j, k) for h in range(i)]
+                for idx in groups:
+                    if tried >= budget:
+                        return search.fail(V.BUDGET_EXHAUSTED, tried)
+                    tried += 1
+                    accepted = search.try_group(idx)
+                    if accepted:
+                        return search.conclude(accepted, tried)
+    return search.fail(V.NO_MATCH, tried)

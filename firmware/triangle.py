@@ -1,0 +1,226 @@
+"""Lohmann's planar-triangle star identification: area and polar moment over a k-vector.
+
+Lohmann (2017), "Star Imager for Nanosatellite Applications", section 2.6 of the digest
+(with the errata of its section 8); tolerances after Cole & Crassidis (2006), "Fast star
+pattern recognition using planar triangles".  Input: camera-frame unit vectors of the
+observed stars, **brightest first**; a :class:`lodestar.firmware.database.Database` with the
+``triangles`` section (built by ``lodestar.ground.database`` with ``"triangle"`` in
+``methods``).
+
+Geometry (unit vectors ``v1, v2, v3``; the triangle is the *planar* one of their chords)
+------------------------------------------------------------------------------------
+* Sides (corrected formulas): ``a = |v1 - v2|``, ``b = |v2 - v3|``, ``c = |v1 - v3|``
+  (:func:`sides`).
+* Area by Heron, ``A = sqrt(s (s - a)(s - b)(s - c))``, ``s = (a + b + c) / 2``, evaluated in
+  Kahan's cancellation-free order (:func:`area`).
+* Polar moment ``J = A (a^2 + b^2 + c^2) / 36`` (:func:`moment`).
+* Both are invariant under rotation *and* reflection and under vertex permutations; the
+  vertex correspondence comes from the side lengths and the reflection from the handedness.
+
+Database (section 4, ``lodestar.ground.database``): triangles of pattern stars, each stored
+as ``(area_key, moment_key, s0, s1, s2)`` with ``s0, s1, s2`` the stars **opposite the
+shortest, middle and longest side** (the canonical vertex order), sorted by area key, with a
+k-vector over the area keys.
+
+Tolerances (:func:`bounds`, Cole & Crassidis' Jacobian, as a worst case instead of a
+k-sigma): a direction error ``|d v_i| <= eps`` moves the area by at most
+``|grad_i A| eps`` per star with ``|grad_i A| = (side opposite v_i) / 2``, so
+``dA <= eps (a + b + c) / 2``; the moment's gradient is
+``grad_i J = (S2 / 36) grad_i A + (A / 18)(2 v_i - v_j - v_k)`` (``S2 = a^2 + b^2 + c^2``),
+bounded by the triangle inequality.  A second-order term and half a key step (the stored
+keys are rounded) are added.  Sides match to ``2 eps``.
+
+Algorithm
+---------
+1. Only the first ``max_stars`` (default 16) observed stars form triangles; all take part
+   in the verification.  Fewer than 3: ``TOO_FEW_STARS``.
+2. Triples brightest first: ``for k in 2..n-1: for j in 1..k-1: for i in 0..j-1`` (every
+   triple whose faintest star is ``k`` before any triple with a fainter one).  Each counts
+   as one *pattern* against the deterministic ``budget``; triples with a side longer than
+   the database's ``tri_max_side`` (+ tolerance) are skipped after counting.
+3. Candidates: the k-vector range of the area, then the moment filter, then the side
+   lengths: every vertex correspondence (permutation) whose three opposite sides agree to
+   ``2 eps``; then the handedness ``(b1 x b2) . b3`` against the catalogue's (mirror images
+   are rejected; skipped within its error bound for a near-collinear triangle).
+4. Each surviving correspondence is a hypothesis verified by
+   :func:`lodestar.firmware.verify.verify` (q-method attitude of the three stars, binomial
+   false-match probability over the whole field, accepted below ``max_mismatch_prob``).
+   All hypotheses of the first triple that yields an accepted one are verified;
+   attitudes more than ``distinct_rad`` apart give ``AMBIGUOUS``; else the best is refined
+   and returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+
+``NO_MATCH`` when the triples run out, ``BUDGET_EXHAUSTED`` when ``budget`` triples were
+tried first.  Pure Python for CPython and MicroPython (``math`` only).
+"""
+
+import math
+
+from . import verify as V
+from .database import METHOD_TRIANGLE
+
+BOUND_MARGIN = 1.05
+"""Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""
+
+
+def _sub(a, b):
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+def _norm(a):
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def chord(u, v):
+    """``|u - v|``: the planar side between two unit vectors."""
+    return _norm(_sub(u, v))
+
+
+def sides(v1, v2, v3):
+    """Lohmann's (corrected) sides ``(a, b, c) = (|v1 - v2|, |v2 - v3|, |v1 - v3|)``."""
+    return chord(v1, v2), chord(v2, v3), chord(v1, v3)
+
+
+def area(a, b, c):
+    """Heron's area of the triangle of sides ``a, b, c`` (Kahan's stable evaluation of
+    ``sqrt(s (s - a)(s - b)(s - c))``); 0 for a degenerate or impossible triangle."""
+    if a < b:
+        a, b = b, a
+    if b < c:
+        b, c = c, b
+    if a < b:
+        a, b = b, a
+    p = (a + (b + c)) * (c - (a - b)) * (c + (a - b)) * (a + (b - c))
+    return 0.25 * math.sqrt(p) if p > 0.0 else 0.0
+
+
+def moment(a, b, c, area_=None):
+    """Polar moment ``A (a^2 + b^2 + c^2) / 36`` (``area_``: ``A`` if already known)."""
+    if area_ is None:
+        area_ = area(a, b, c)
+    return area_ * (a * a + b * b + c * c) / 36.0
+
+
+def area_moment(v1, v2, v3):
+    """``(area, moment)`` of the planar triangle of three unit vectors."""
+    a, b, c = sides(v1, v2, v3)
+    ar = area(a, b, c)
+    return ar, moment(a, b, c, ar)
+
+
+def bounds(v1, v2, v3, eps):
+    """``(dA, dJ)``: bounds on the change of area and polar moment when each vertex moves by
+    at most ``eps`` (rad); first order (Cole & Crassidis' Jacobian, worst case) times
+    :data:`BOUND_MARGIN`, plus second-order terms."""
+    a, b, c = sides(v1, v2, v3)
+    ar = area(a, b, c)
+    s2 = a * a + b * b + c * c
+    # |grad_i A| = opposite side / 2; |2 v_i - v_j - v_k| = 3 |v_i - centroid|
+    m1 = _norm(_sub(_sub(v1, v2), _sub(v3, v1)))
+    m2 = _norm(_sub(_sub(v2, v3), _sub(v1, v2)))
+    m3 = _norm(_sub(_sub(v3, v1), _sub(v2, v3)))
+    half = 0.5 * (a + b + c)
+    d_area = eps * half
+    d_moment = eps * (s2 / 36.0 * half + ar / 18.0 * (m1 + m2 + m3))
+    e2 = eps * eps
+    return (BOUND_MARGIN * d_area + 3.0 * e2,
+            BOUND_MARGIN * d_moment + e2 * (s2 / 6.0 + 4.0 * ar + half * half))
+
+
+def canonical_order(v1, v2, v3):
+    """Vertex order ``(i0, i1, i2)`` (indices 0..2) opposite the shortest, middle and
+    longest side (ties by index) and those sides ``(t0, t1, t2)``."""
+    opp = (chord(v2, v3), chord(v1, v3), chord(v1, v2))
+    order = [0, 1, 2]
+    order.sort(key=lambda i: (opp[i], i))
+    return (order[0], order[1], order[2]), (opp[order[0]], opp[order[1]], opp[order[2]])
+
+
+_PERMUTATIONS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
+
+
+def correspondences(obs_opp, cat_opp, tol):
+    """Vertex permutations ``p`` (catalogue vertex ``m`` -> observed vertex ``p[m]``) whose
+    opposite sides agree: ``|obs_opp[p[m]] - cat_opp[m]| <= tol`` for ``m = 0, 1, 2``."""
+    out = []
+    for p in _PERMUTATIONS:
+        if abs(obs_opp[p[0]] - cat_opp[0]) <= tol and \
+                abs(obs_opp[p[1]] - cat_opp[1]) <= tol and \
+                abs(obs_opp[p[2]] - cat_opp[2]) <= tol:
+            out.append(p)
+    return out
+
+
+class _Search(V.Search):
+    def __init__(self, b, db, tol, max_prob, distinct):
+        V.Search.__init__(self, b, db, tol, max_prob, distinct)
+        self.side_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
+        self.max_side = 2.0 * math.sin(0.5 * db.tri_max_side) + 2.0 * tol
+
+    def try_triple(self, i, j, k):
+        """Accepted ``[(q, Verification)]`` of observed triple ``(i, j, k)``."""
+        b = self.b
+        db = self.db
+        tri = (i, j, k)
+        v = (b[i], b[j], b[k])
+        opp = (chord(v[1], v[2]), chord(v[0], v[2]), chord(v[0], v[1]))
+        if opp[0] > self.max_side or opp[1] > self.max_side or opp[2] > self.max_side:
+            return []
+        ar = area(opp[0], opp[1], opp[2])
+        mo = moment(opp[0], opp[1], opp[2], ar)
+        d_area, d_moment = bounds(v[0], v[1], v[2], self.tol)
+        d_area += 0.5 * db.tri_area_step
+        d_moment += 0.5 * db.tri_moment_step
+        mstep = db.tri_moment_step
+        start, stop = db.triangles_in_range(ar - d_area, ar + d_area)
+        t_bound = V.triple_bound(v[0], v[1], v[2], self.tol)
+        accepted = []
+        for r in range(start, stop):
+            _, mkey, c0, c1, c2 = db.triangle_record(r)
+            if abs(mkey * mstep - mo) > d_moment:
+                continue
+            r0, r1, r2 = db.star_vector(c0), db.star_vector(c1), db.star_vector(c2)
+            cat_opp = (chord(r1, r2), chord(r0, r2), chord(r0, r1))
+            perms = correspondences(opp, cat_opp, self.side_tol)
+            if not perms:
+                continue
+            t_cat = V.triple(r0, r1, r2)
+            for p in perms:
+                t_obs = V.triple(v[p[0]], v[p[1]], v[p[2]])
+                if not V.handed(t_obs, t_cat, t_bound):
+                    continue
+                self.test((tri[p[0]], tri[p[1]], tri[p[2]]), (c0, c1, c2), accepted)
+        return accepted
+
+
+def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
+             max_mismatch_prob=1e-9, distinct_rad=None):
+    """Planar-triangle identification; returns a :class:`lodestar.firmware.verify.Solution`.
+
+    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
+    here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
+    most triples tried.  ``max_stars``: observed stars used for triangles.
+    ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
+    """
+    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
+        return V.Solution(V.BAD_INPUT)
+    if not database.methods & METHOD_TRIANGLE:
+        return V.Solution(V.BAD_DATABASE)
+    b = V.prepare(vectors)
+    if b is None:
+        return V.Solution(V.BAD_INPUT)
+    if len(b) < 3:
+        return V.Solution(V.TOO_FEW_STARS)
+    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
+    n = len(b) if len(b) < max_stars else max_stars
+    tried = 0
+    for k in range(2, n):
+        for j in range(1, k):
+            for i in range(j):
+                if tried >= budget:
+                    return search.fail(V.BUDGET_EXHAUSTED, tried)
+                tried += 1
+                accepted = search.try_triple(i, j, k)
+                if accepted:
+                    return search.conclude(accepted, tried)
+    return search.fail(V.NO_MATCH, tried)

@@ -1,0 +1,392 @@
+"""Tests of Lohmann's planar-triangle identification (``lodestar.firmware.triangle``) and
+the database's triangle section: the area and polar-moment formulas against hand-computed
+values, the tolerance bounds against worst-case perturbations, vertex correspondence from
+side lengths, mirror rejection by handedness, 200 estcube2 scenes (>= 90 % correct, none
+wrong), refusal of a corrupt or inconsistent section, and the same results under
+MicroPython 1.27.  Larger campaigns: ``benchmarks/bench_starid.py``.
+"""
+
+import functools
+import math
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lodestar.firmware import database as L
+from lodestar.firmware import starid
+from lodestar.firmware import status as S
+from lodestar.firmware import triangle as T
+from lodestar.firmware import verify as V
+from lodestar.firmware.database import Database, DatabaseError
+from lodestar.ground.database import build_database
+from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+from lodestar.sim.presets import load_preset
+
+TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
+MAX_ERR_DEG = 0.05
+
+
+@functools.lru_cache(maxsize=None)
+def setup():
+    cam = load_preset("estcube2")
+    cat = load()
+    image = build_database(cat, cam, mag_limit=6.0, methods=("triangle",))
+    return cam, cat, image, Database(image)
+
+
+def outcome(sol, scene):
+    """``"correct"``, ``"wrong"`` or ``"no-solve"``."""
+    if sol.status != starid.OK:
+        return "no-solve"
+    if attitude_error_deg(sol.q, scene.q) > MAX_ERR_DEG:
+        return "wrong"
+    if any(hip not in scene.components[o] for o, hip in sol.matches):
+        return "wrong"
+    return "correct"
+
+
+def unit(v):
+    v = np.asarray(v, dtype=float)
+    return tuple(v / np.linalg.norm(v))
+
+
+# --------------------------------------------------------------------------------------
+# Formulas (hand-checked values)
+# --------------------------------------------------------------------------------------
+
+def test_area_and_moment_of_hand_checked_triangles():
+    # 3-4-5 right triangle: area 6, moment 6 * (9 + 16 + 25) / 36 = 25/3
+    for a, b, c in ((3.0, 4.0, 5.0), (5.0, 3.0, 4.0), (4.0, 5.0, 3.0)):
+        assert T.area(a, b, c) == 6.0
+        assert T.moment(a, b, c) == pytest.approx(25.0 / 3.0, rel=1e-15)
+    # equilateral of side 2: area sqrt(3), moment sqrt(3) * 12 / 36
+    assert T.area(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0), rel=1e-15)
+    assert T.moment(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0) / 3.0, rel=1e-15)
+    # degenerate and impossible triangles have no area
+    assert T.area(1.0, 2.0, 3.0) == 0.0 and T.area(1.0, 1.0, 3.0) == 0.0
+    # Kahan's Heron keeps a needle triangle accurate: sides 1, 1, 1e-8
+    c = 1e-8
+    assert T.area(1.0, 1.0, c) == pytest.approx(0.5 * c * math.sqrt(1 - c * c / 4), rel=1e-12)
+
+
+def test_sides_use_the_corrected_formula_on_unit_vectors():
+    """Lohmann's a = |V1| - |V2| is zero for unit vectors; the corrected a = |V1 - V2|."""
+    x, y, z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+    assert T.sides(x, y, z) == pytest.approx((math.sqrt(2),) * 3, rel=1e-15)
+    # equilateral of side sqrt(2): area sqrt(3)/2, moment (sqrt(3)/2) * 6 / 36 = sqrt(3)/12
+    ar, mo = T.area_moment(x, y, z)
+    assert ar == pytest.approx(math.sqrt(3) / 2, rel=1e-15)
+    assert mo == pytest.approx(math.sqrt(3) / 12, rel=1e-15)
+    v1, v2, v3 = (1.0, 0.0, 0.0), unit([1.0, 0.1, 0.0]), unit([1.0, 0.0, 0.2])
+    a, b, c = T.sides(v1, v2, v3)
+    assert a == pytest.approx(np.linalg.norm(np.subtract(v1, v2)), rel=1e-15)
+    assert b == pytest.approx(np.linalg.norm(np.subtract(v2, v3)), rel=1e-15)
+    assert c == pytest.approx(np.linalg.norm(np.subtract(v1, v3)), rel=1e-15)
+
+
+def test_area_moment_are_invariant_and_equal_the_planar_triangle():
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        d = rng.normal(0, 0.1, (3, 3)) + [0, 0, 1]
+        v = d / np.linalg.norm(d, axis=1, keepdims=True)
+        ar, mo = T.area_moment(*map(tuple, v))
+        cross = 0.5 * np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0]))
+        assert ar == pytest.approx(cross, rel=1e-9)
+        assert mo == pytest.approx(cross * sum(np.sum((v[i] - v[j]) ** 2)
+                                               for i, j in ((0, 1), (1, 2), (0, 2))) / 36,
+                                   rel=1e-9)
+        rot = Rotation.random(random_state=rng).apply(v)
+        mirror = v * [-1, 1, 1]
+        for w in (rot, mirror, v[[2, 0, 1]], v[[1, 0, 2]]):
+            assert T.area_moment(*map(tuple, w)) == pytest.approx((ar, mo), rel=1e-9)
+
+
+def test_bounds_hold_for_worst_case_perturbations():
+    """Moving every vertex by ``eps`` along the gradient (the worst case to first order)
+    changes area and moment by at most the bounds, and reaches most of them."""
+    rng = np.random.default_rng(2)
+    worst = [0.0, 0.0]
+    for _ in range(150):
+        eps = 10 ** rng.uniform(-5, -3)
+        d = rng.normal(0, rng.uniform(0.02, 0.15), (3, 3)) + [0, 0, 1]
+        v = d / np.linalg.norm(d, axis=1, keepdims=True)
+        base = T.area_moment(*map(tuple, v))
+        bound = T.bounds(*map(tuple, v), eps)
+        for which in (0, 1):
+            for sign in (1.0, -1.0):
+                moved = []
+                for i in range(3):
+                    grad = np.zeros(3)
+                    for ax in range(3):
+                        h = np.zeros((3, 3))
+                        h[i, ax] = 1e-7
+                        grad[ax] = (T.area_moment(*map(tuple, v + h))[which] -
+                                    T.area_moment(*map(tuple, v - h))[which]) / 2e-7
+                    grad -= (grad @ v[i]) * v[i]
+                    n = np.linalg.norm(grad)
+                    step = sign * grad / n if n > 0 else np.zeros(3)
+                    moved.append(tuple(v[i] * math.cos(eps) + step * math.sin(eps)))
+                ratio = abs(T.area_moment(*moved)[which] - base[which]) / bound[which]
+                worst[which] = max(worst[which], ratio)
+    assert max(worst) <= 1.0
+    assert min(worst) > 0.8          # the bounds are not loose
+
+
+# --------------------------------------------------------------------------------------
+# Vertex correspondence and handedness
+# --------------------------------------------------------------------------------------
+
+def test_canonical_order_and_correspondence_from_side_lengths():
+    v = [(1.0, 0.0, 0.0), unit([1.0, 0.05, 0.0]), unit([1.0, 0.0, 0.12])]
+    # sides opposite: v0 -> |v1 - v2| (longest), v1 -> |v0 - v2| (middle), v2 -> shortest
+    order, opp = T.canonical_order(*v)
+    assert order == (2, 1, 0)
+    assert opp[0] < opp[1] < opp[2]
+    cat_opp = opp
+    for perm in ((0, 1, 2), (2, 0, 1), (1, 2, 0), (2, 1, 0)):
+        obs = [v[order[p]] for p in perm]           # observed vertices in another order
+        obs_opp = (T.chord(obs[1], obs[2]), T.chord(obs[0], obs[2]), T.chord(obs[0], obs[1]))
+        found = T.correspondences(obs_opp, cat_opp, 1e-6)
+        # catalogue vertex m (order[m]) is observed vertex perm.index(m)
+        assert found == [tuple(perm.index(m) for m in range(3))]
+    # an isosceles triangle has two correspondences; handedness picks the right one
+    iso = [(1.0, 0.0, 0.0), unit([1.0, 0.1, 0.0]), unit([1.0, 0.05, 0.3])]
+    _, iso_opp = T.canonical_order(*iso)
+    assert abs(iso_opp[1] - iso_opp[2]) < 2e-3
+    assert len(T.correspondences(iso_opp, iso_opp, 2e-3)) == 2
+
+
+def test_database_triangles_are_canonical_exact_and_sorted():
+    _, _, _, db = setup()
+    assert db.methods == L.METHOD_TRIANGLE and db.tri_n > 10000
+    recs = [db.triangle_record(i) for i in range(db.tri_n)]
+    assert recs == sorted(recs)
+    rng = np.random.default_rng(3)
+    chord_max = 2 * math.sin(db.tri_max_side / 2) * (1 + 1e-6)
+    for i in rng.integers(0, db.tri_n, 400).tolist():
+        akey, mkey, s0, s1, s2 = recs[i]
+        v = [db.star_vector(s) for s in (s0, s1, s2)]
+        ar, mo = T.area_moment(*v)
+        assert akey == round(ar / db.tri_area_step)
+        assert mkey == round(mo / db.tri_moment_step)
+        opp = (T.chord(v[1], v[2]), T.chord(v[0], v[2]), T.chord(v[0], v[1]))
+        assert opp[0] <= opp[1] <= opp[2] <= chord_max
+        for s in (s0, s1, s2):
+            assert db.star_flags(s) & L.STAR_FLAG_TRIANGLE
+    keys = np.array([r[0] for r in recs])
+    for lo, hi in ((0.0, 1e-4), (1e-3, 1.2e-3), (0.02, 0.021), (-1.0, 0.0), (0.5, 1.0)):
+        start, stop = db.triangles_in_range(lo, hi)
+        inside = np.flatnonzero((keys >= lo / db.tri_area_step) & (keys <= hi / db.tri_area_step))
+        assert (start, stop) == ((inside[0], inside[-1] + 1) if len(inside) else (start, start))
+
+
+def test_mirror_images_are_rejected_by_handedness(monkeypatch):
+    """Mirrored fields never solve; the handedness test removes most mirrored candidates
+    before any verification."""
+    cam, cat, _, db = setup()
+    rng = np.random.default_rng(9)
+    mirrored = []
+    for _ in range(15):
+        scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3, max_stars=30)
+        mirrored.append((scene.vectors * [-1.0, 1.0, 1.0]).tolist())
+    with_check = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
+    assert all(sol.status != starid.OK for sol in with_check)
+    monkeypatch.setattr(V, "handed", lambda t_obs, t_cat, bound: True)
+    without = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
+    assert all(sol.status != starid.OK for sol in without)     # verification catches them
+    hyp_with = sum(s.hypotheses for s in with_check)
+    hyp_without = sum(s.hypotheses for s in without)
+    assert hyp_without > 20 and hyp_with < 0.2 * hyp_without
+
+
+# --------------------------------------------------------------------------------------
+# Scenes
+# --------------------------------------------------------------------------------------
+
+def test_monte_carlo_200_scenes():
+    cam, cat, _, db = setup()
+    rng = np.random.default_rng(2024)
+    counts = {"correct": 0, "wrong": 0, "no-solve": 0}
+    for _ in range(200):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, cat, noise_px=rng.uniform(0.1, 0.5),
+                               n_false=int(rng.integers(0, 6)), drop_fraction=0.1,
+                               max_stars=30)
+        sol = starid.identify(scene.vectors.tolist(), db, method="triangle", tolerance_rad=TOL)
+        counts[outcome(sol, scene)] += 1
+        if sol.status == starid.OK:
+            assert sol.probability < 1e-9 and len(sol.matches) >= 4
+    print("\ntriangle, 200 estcube2 scenes:", counts)
+    assert counts["wrong"] == 0
+    assert counts["correct"] >= 180
+
+
+def test_false_stars_only_and_bad_input():
+    cam, cat, _, db = setup()
+    rng = np.random.default_rng(10)
+    for _ in range(10):
+        n = int(rng.integers(3, 25))
+        v = cam.unproject(rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n))
+        sol = starid.identify(v.tolist(), db, method="triangle", tolerance_rad=TOL)
+        assert sol.status in (starid.NO_MATCH, starid.BUDGET_EXHAUSTED)
+        assert sol.q is None and sol.matches == []
+    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
+    vec = scene.vectors.tolist()
+    for n in range(3):
+        assert starid.identify(vec[:n], db, method="triangle").status == starid.TOO_FEW_STARS
+    bad = list(vec)
+    bad[1] = [float("nan"), 0.0, 1.0]
+    assert starid.identify(bad, db, method="triangle").status == starid.BAD_INPUT
+    assert starid.identify(vec, db, method="triangle", tolerance_rad=0.0).status == \
+        starid.BAD_INPUT
+    # a database without the triangle section
+    pyramid_only = Database(build_database(cat, cam, mag_limit=6.0))
+    sol = starid.identify(vec, pyramid_only, method="triangle")
+    assert sol.status == starid.BAD_DATABASE == S.DATABASE_UNSUPPORTED
+    assert S.name(sol.status) == "DATABASE_UNSUPPORTED"
+
+
+def test_budget_is_deterministic():
+    cam, cat, _, db = setup()
+    rng = np.random.default_rng(13)
+    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
+    false = cam.unproject(rng.uniform(0, cam.width - 1, 4), rng.uniform(0, cam.height - 1, 4))
+    vectors = np.concatenate([false, scene.vectors]).tolist()
+    sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL, budget=3)
+    assert sol.status == starid.BUDGET_EXHAUSTED and sol.patterns_tried == 3
+    full = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
+    again = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
+    assert full.status == starid.OK and full.patterns_tried > 3
+    assert (full.q, full.matches, full.patterns_tried) == (again.q, again.matches,
+                                                           again.patterns_tried)
+    assert all(o >= 4 for o, _ in full.matches)
+
+
+def test_combined_image_serves_every_method():
+    cam, cat, _, _ = setup()
+    db = Database(build_database(cat, cam, mag_limit=6.0,
+                                 methods=("pyramid", "triangle", "hashing")))
+    assert db.methods == L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
+    rng = np.random.default_rng(17)
+    for _ in range(5):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, cat, noise_px=0.3, n_false=2, max_stars=30)
+        for method in starid.METHODS:
+            sol = starid.identify(scene.vectors.tolist(), db, method=method, tolerance_rad=TOL)
+            assert outcome(sol, scene) == "correct", method
+
+
+# --------------------------------------------------------------------------------------
+# Corruption
+# --------------------------------------------------------------------------------------
+
+def reseal(image, patch):
+    """Apply ``patch(bytearray)`` and recompute both CRCs (so only the layout is wrong)."""
+    b = bytearray(image)
+    patch(b)
+    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[L.HEADER_SIZE:])))
+    struct.pack_into("<I", b, L.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:L.HEADER_CRC_OFFSET])))
+    return bytes(b)
+
+
+def status_of(image):
+    with pytest.raises(DatabaseError) as info:
+        Database(image)
+    assert str(info.value).startswith(S.name(info.value.status) + ": ")
+    return info.value.status
+
+
+def test_corrupt_triangle_section_is_refused():
+    _, _, image, _ = setup()
+    off, length = struct.unpack_from("<II", image, L.DIRECTORY_OFFSET + 8 * L.SEC_TRIANGLES)
+    rng = np.random.default_rng(4)
+    for i in [off, off + 5, off + L.TRI_HEADER_SIZE + 3, off + length - 1] + \
+            rng.integers(off, off + length, 20).tolist():
+        b = bytearray(image)
+        b[i] ^= 0x10
+        assert L.check(b)[0] == S.DATABASE_CORRUPT
+    # CRC-consistent but inconsistent section headers
+    assert status_of(reseal(image, lambda b: b.__setitem__(slice(off, off + 4), b"TRI9"))) == \
+        S.DATABASE_UNSUPPORTED
+    n = struct.unpack_from("<I", image, off + 4)[0]
+    assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, off + 4, n + 1))) == \
+        S.DATABASE_BAD_LAYOUT
+    assert status_of(reseal(image, lambda b: struct.pack_into("<f", b, off + 12, -1.0))) == \
+        S.DATABASE_BAD_LAYOUT
+    kv_end = off + length - 4                       # the last k-vector entry must be n
+    assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, kv_end, n - 1))) == \
+        S.DATABASE_BAD_LAYOUT
+    assert status_of(reseal(image, lambda b: struct.pack_into(
+        "<II", b, L.DIRECTORY_OFFSET + 8 * L.SEC_TRIANGLES, 0, 0))) == S.DATABASE_BAD_LAYOUT
+
+
+# --------------------------------------------------------------------------------------
+# MicroPython 1.27 (WebAssembly port in Node)
+# --------------------------------------------------------------------------------------
+
+MICROPYTHON_TRIANGLE = r'''
+import binascii
+import gc
+import sys
+from lodestar.firmware import database, starid, status, triangle
+print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
+assert triangle.area(3.0, 4.0, 5.0) == 6.0
+with open("/db.bin", "wb") as f:
+    f.write(binascii.a2b_base64(IMAGE_B64))
+IMAGE_B64 = None
+#@split
+gc.collect()
+db, code, reason = database.load("/db.bin")
+assert code == status.OK, reason
+for scene, expected in zip(SCENES, EXPECTED):
+    sol = starid.identify(scene, db, method="triangle", tolerance_rad=TOL)
+    got = (sol.status, sol.matches, sol.patterns_tried)
+    assert got == expected[:3], (got, expected)
+    if sol.q is not None:
+        d = max(abs(a - b) for a, b in zip(sol.q, expected[3]))
+        assert d < 1e-9, d
+print("SOLVED", len(SCENES))
+db.close()
+with open("/db.bin", "rb") as f:
+    bad = bytearray(f.read())
+bad[len(bad) - 100] ^= 1
+print("CORRUPT", status.name(database.check(bad)[0]))
+print("DONE")
+'''
+
+
+def test_triangle_under_micropython():
+    """File-backed triangle database and identification under MicroPython give the CPython
+    solutions (a mirror image included)."""
+    import base64
+
+    from micropython_support import run_micropython
+    from test_firmware_micropython import lit
+
+    cam, cat, image, db = setup()
+    rng = np.random.default_rng(31)
+    scenes, expected = [], []
+    for k in range(5):
+        scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3,
+                               n_false=k % 4, drop_fraction=0.1, max_stars=20)
+        vectors = [tuple(v) for v in scene.vectors.tolist()]
+        if k == 4:
+            vectors = [(-x, y, z) for x, y, z in vectors]
+        sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
+        scenes.append(vectors)
+        expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
+    assert [e[0] for e in expected[:4]] == [starid.OK] * 4 and expected[4][0] != starid.OK
+    script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
+                        "EXPECTED = " + lit(expected),
+                        "IMAGE_B64 = " + lit(base64.b64encode(image))])
+    code, out = run_micropython(script + "\n" + MICROPYTHON_TRIANGLE, heapsize=16 << 20,
+                                timeout=600)
+    print(out)
+    assert code == 0, out
+    assert "IMPLEMENTATION micropython (1, 27" in out
+    assert "SOLVED 5" in out and "CORRUPT DATABASE_CORRUPT" in out and "DONE" in out
