@@ -22,6 +22,7 @@ from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.result import DetectionResult
 from lodestar.golden.starfield import star_frame
+from packet_samples import base_result, spot_results
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
 
@@ -120,54 +121,10 @@ def crc_path(request, monkeypatch):
 # Golden results
 # --------------------------------------------------------------------------------------
 
-def base_result():
-    """A valid 64x48 12-bit frame with 3 records, one dropped record and one filtered blob
-    (record 1: box x 10..11, y 20..21, n=4, nsat=1, peak at full scale)."""
-    fs = C.full_scale(12)
-    blobs = [
-        C.BlobRecord(1, 0, 100, 300, 200, 900, 400, 600, 3, 3, 2, 2, 240, 0),
-        C.BlobRecord(4, 1, 9000, 94500, 184500, 992250, 3782250, 1937250, 10, 11, 20, 21, fs, 0),
-        C.BlobRecord(3, 0, 500, 30500, 23500, 1860500, 1104500, 1433500, 60, 62, 47, 47, 400, 0),
-    ]
-    return DetectionResult(blobs=blobs, mode=C.MODE_GLOBAL, threshold=200, background=40,
-                           n_blobs=5, n_filtered=1, dropped_records=1, dropped_labels=0,
-                           flags=C.FRAME_RECORD_OVERFLOW, frame_counter=7, width=64, height=48,
-                           pixel_bits=12)
-
-
-def _spots(rng, cfg, n_spots):
-    fs = C.full_scale(cfg.pixel_bits)
-    frame = rng.integers(0, max(cfg.threshold // 2, 1), (cfg.height, cfg.width))
-    for _ in range(n_spots):
-        size = int(rng.integers(1, 4))
-        y, x = int(rng.integers(0, cfg.height)), int(rng.integers(0, cfg.width))
-        frame[y:y + size, x:x + size] = rng.integers(cfg.threshold + 1, fs + 1)
-    frame[rng.integers(0, cfg.height), rng.integers(0, cfg.width)] = fs
-    return frame.astype(np.uint16)
-
-
-CONFIGS = [
-    dict(width=24, height=16, pixel_bits=8, threshold=100, record_capacity=2),
-    dict(width=24, height=16, pixel_bits=10, threshold_mode="global", threshold=300,
-         ksigma=1.5, min_pixels=2),
-    dict(width=32, height=12, pixel_bits=12, threshold_mode="local", local_log2_window=3,
-         local_offset=600, threshold=1000, record_capacity=3),
-    dict(width=20, height=20, pixel_bits=16, threshold=20000, label_capacity=1,
-         record_capacity=4),
-    dict(width=24, height=16, pixel_bits=12, threshold=1500, min_sum=5000, max_pixels=6,
-         record_capacity=0),
-]
-
-
 def golden_results():
     """Golden-detector results: random spot frames of every configuration (3 frames each,
     global mode learning), star fields, a saturated blob and an empty frame."""
-    rng = np.random.default_rng(7)
-    results = [base_result()]
-    for kwargs in CONFIGS:
-        detector = Detector(DetectorConfig(**kwargs))
-        for _ in range(3):
-            results.append(detector.process(_spots(rng, detector.cfg, 12)))
+    results = [base_result()] + spot_results(7)
     for seed, pixel_bits in ((1, 12), (2, 10), (3, 16)):
         frame, _ = star_frame(width=160, height=120, pixel_bits=pixel_bits, n_stars=40,
                               seed=seed)

@@ -17,6 +17,7 @@ from lodestar import packet
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.result import DetectionResult
 from lodestar.packet import PacketError, decode, encode
+from packet_samples import base_result, spot_results
 
 HYPOTHESIS = settings(max_examples=100, deadline=None)
 
@@ -80,24 +81,6 @@ def patch(data, changes):
     return with_crc(word.to_bytes(len(body), "big"))
 
 
-def base_result():
-    """A valid 64x48 12-bit frame with 3 records, one dropped record and one filtered blob.
-
-    Record 1 has the bounding box x 10..11, y 20..21 (area 4), n=4, nsat=1, peak at full
-    scale; the semantic tests corrupt one field at a time.
-    """
-    fs = C.full_scale(12)
-    blobs = [
-        C.BlobRecord(1, 0, 100, 300, 200, 900, 400, 600, 3, 3, 2, 2, 240, 0),
-        C.BlobRecord(4, 1, 9000, 94500, 184500, 992250, 3782250, 1937250, 10, 11, 20, 21, fs, 0),
-        C.BlobRecord(3, 0, 500, 30500, 23500, 1860500, 1104500, 1433500, 60, 62, 47, 47, 400, 0),
-    ]
-    return DetectionResult(blobs=blobs, mode=C.MODE_GLOBAL, threshold=200, background=40,
-                           n_blobs=5, n_filtered=1, dropped_records=1, dropped_labels=0,
-                           flags=C.FRAME_RECORD_OVERFLOW, frame_counter=7, width=64, height=48,
-                           pixel_bits=12)
-
-
 @pytest.fixture
 def base_packet():
     return encode(base_result())
@@ -128,41 +111,9 @@ def assert_round_trip(result):
 # --------------------------------------------------------------------------------------
 
 
-def _star_frame(rng, cfg, n_spots):
-    """Noise below the threshold plus ``n_spots`` bright 1..3 px squares (some at full scale)."""
-    fs = C.full_scale(cfg.pixel_bits)
-    frame = rng.integers(0, max(cfg.threshold // 2, 1), (cfg.height, cfg.width))
-    for _ in range(n_spots):
-        size = int(rng.integers(1, 4))
-        y, x = int(rng.integers(0, cfg.height)), int(rng.integers(0, cfg.width))
-        frame[y:y + size, x:x + size] = rng.integers(cfg.threshold + 1, fs + 1)
-    frame[rng.integers(0, cfg.height), rng.integers(0, cfg.width)] = fs
-    return frame.astype(np.uint16)
-
-
-GOLDEN_CONFIGS = [
-    dict(width=24, height=16, pixel_bits=8, threshold=100, record_capacity=2),
-    dict(width=24, height=16, pixel_bits=10, threshold_mode="global", threshold=300,
-         ksigma=1.5, min_pixels=2),
-    dict(width=32, height=12, pixel_bits=12, threshold_mode="local", local_log2_window=3,
-         local_offset=600, threshold=1000, record_capacity=3),
-    dict(width=20, height=20, pixel_bits=16, threshold=20000, label_capacity=1,
-         record_capacity=4),
-    dict(width=24, height=16, pixel_bits=12, threshold=1500, min_sum=5000, max_pixels=6,
-         record_capacity=0),
-]
-
-
 def golden_results():
     """Results of the golden detector on seeded random frames, 3 frames per configuration."""
-    rng = np.random.default_rng(20240611)
-    results = []
-    for kwargs in GOLDEN_CONFIGS:
-        cfg = DetectorConfig(**kwargs)
-        detector = Detector(cfg)
-        for _ in range(3):
-            results.append(detector.process(_star_frame(rng, cfg, n_spots=12)))
-    return results
+    return spot_results(20240611)
 
 
 def saturated_result():
