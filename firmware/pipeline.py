@@ -1,0 +1,638 @@
+"""The flight API: one FPGA packet in, one attitude (or a status) out; never raises.
+
+    from lodestar.firmware.pipeline import StarTracker
+    tracker = StarTracker("/flash/stars.lsdb", camera_dict, method="pyramid",
+                          exposure_s=0.1, row_time_s=4.39e-5)
+    result = tracker.process(packet_bytes)                        # lost in space
+    result = tracker.process(packet_bytes, prior=result.q,        # tracking
+                             omega=gyro_rad_s, dt=frame_period_s)
+    if result.status == status.OK:
+        use(result.q, result.sigma_cross_arcsec, result.sigma_roll_arcsec)
+    else:
+        log(status.name(result.status), result.reason)
+
+Stages of :meth:`StarTracker.process`:
+
+1. **Decode** the packet (:func:`lodestar.firmware.packet.decode`); a bad packet returns its
+   ``PACKET_*`` status.  A frame whose width or height differs from the camera's is
+   ``BAD_INPUT``.
+2. **Centroids** (:func:`lodestar.firmware.centroids.extract`): the ``max_stars`` brightest
+   blobs passing the quality filter; when the body rate ``omega`` and the exposure are
+   known the expected smear of each star (:meth:`Camera.smear_px`) lets elongated tracks
+   through the cosmic-ray test.  With ``drop_border`` (default) blobs whose bounding box
+   touches the frame edge are dropped (``rejected["border"]``): part of the star lies
+   outside the frame, so the centroid is pulled inwards by up to a PSF width.
+3. **Directions**: :meth:`Camera.pixel_to_vector` of each centroid.  With ``omega`` given,
+   each direction is rotated back to the attitude **epoch** (below): a star of row ``y``
+   was seen on average at ``t = exposure_s / 2 + y * row_time_s`` after the start of row 0's
+   exposure, and moved as ``dv/dt = -omega x v`` meanwhile.  Without ``omega`` nothing is
+   compensated (at rest the epoch does not matter).
+4. **Identification**: with a ``prior`` attitude, tracking
+   (:func:`lodestar.firmware.tracking.track`, the prior propagated by ``omega * dt``); when
+   there is no prior, or tracking fails and ``fallback`` is true, lost-in-space
+   identification (:func:`lodestar.firmware.starid.identify` with ``method``).  With
+   ``refine`` (default) a lost-in-space solution is then tracked from its own attitude and
+   the larger verified match set kept: every observed star that agrees joins the fit, and an
+   identification whose attitude was fitted to a few clustered stars (off by a fraction of a
+   degree, the other stars outside the match tolerance) is repaired.
+5. **Attitude**: QUEST (:func:`lodestar.firmware.attitude.quest`) over all matched stars
+   with weights ``w_i = sigma_i**-2`` (relative), and Shuster's covariance
+   (:func:`lodestar.firmware.attitude.covariance`).  Star ``i``'s per-axis direction noise
+   is ``sigma_i = s / sqrt(w_i)`` rad: with ``flux_weighting`` (default) the relative
+   weights are ``w_i = sqrt(flux_i / median flux)`` (brighter blobs centroid better; on
+   simulated estcube2 frames these weights cut the attitude error by about a quarter against
+   equal weights), else 1.  ``s``, the noise of a star of median flux, is
+   ``centroid_sigma_px / f`` (``f = sqrt(fx fy)`` px) when ``centroid_sigma_px`` is given,
+   else estimated from the fit residuals (``s^2 = sum w_i |b_i - A r_i|^2 / (2n - 3)``,
+   ``n`` matches, at least ``min_sigma_px / f``), so the covariance follows the frame's
+   actual centroid quality; ``result.centroid_sigma_px`` reports ``s`` in pixels.
+
+Units and conventions (``lodestar.sim``): pixels as ``lodestar.contract`` (centre of pixel
+``(x, y)`` at the integer point; ``x`` column, ``y`` row); camera frame ``+z`` boresight,
+``+x`` along ``x``, ``+y`` along ``y``; attitude ``q = [x, y, z, w]`` (scalar last) with
+``v_cam = A(q) v_inertial`` (ICRS); ``omega`` the camera's angular velocity in the camera
+frame, rad/s; times in seconds; the result's sigmas in arcseconds (``sigma_cross`` is the
+per-axis RMS of the two cross-boresight axes, ``sigma_roll`` about the boresight).
+**Epoch**: ``result.q`` is the attitude at ``epoch_s`` seconds after the start of the
+exposure of row 0 (default 0, the instant ``lodestar.sim`` reports as truth) when ``omega``
+is given; ``prior`` is the attitude at the previous frame's epoch and ``dt`` the time from
+it to this frame's epoch.
+
+:class:`Result` fields: ``status`` (a :mod:`lodestar.firmware.status` code), ``reason``
+(text, "" on success; also notes ignored inputs), ``mode`` (``"tracking"``,
+``"lost_in_space"`` or None), ``q``, ``matches`` (``[(record index, x, y, HIP)]``: the
+blob's index in the packet, its centroid in pixels, the catalogue star), ``n_stars``
+(usable stars), ``n_records``, ``sigma_cross_arcsec``, ``sigma_roll_arcsec``,
+``centroid_sigma_px`` (the noise ``s`` behind the sigmas),
+``patterns_tried``, ``probability`` (chance-agreement probability of the accepted
+identification), ``rejected`` (centroid rejections by reason) and ``timings`` (stage ->
+elapsed clock units, only when a ``clock`` function is given; no decision depends on it).
+
+Statuses: the packet's (``PACKET_*``, ``BAD_INPUT`` for non-bytes); configuration problems
+found at construction (``DATABASE_CORRUPT``, ``DATABASE_MISMATCH`` for a database of
+another FOV, ``DATABASE_UNSUPPORTED`` without the method, the reader's ``DATABASE_*``
+codes for a file it rejects, ``BAD_INPUT`` for a bad camera or parameter) are
+returned by every call; ``TOO_FEW_STARS``; ``NO_MATCH``/``AMBIGUOUS`` and the other
+identification statuses.  Malformed optional inputs (``prior``, ``omega``, ``dt``,
+``exposure_s``) are ignored with a note in ``reason``: the flight loop still gets a
+lost-in-space attitude when the gyro or the previous solution is corrupt.  Any unexpected
+exception (including ``MemoryError``) becomes ``INTERNAL_ERROR`` when ``status`` defines it,
+else ``BAD_INPUT``, with the exception in ``reason``.
+
+Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
+"""
+
+import math
+
+from . import attitude as _att
+from . import camera as _camera
+from . import centroids as _centroids
+from . import database as _database
+from . import packet as _packet
+from . import starid as _starid
+from . import status as S
+from . import tracking as _tracking
+
+RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
+
+DEFAULT_TOLERANCE_PX = 2.5
+"""Largest centroid error (calibration included) of one star, px: the match tolerance."""
+DEFAULT_MAX_STARS = 32
+"""Brightest stars used per frame (identification patterns use the first 16)."""
+DEFAULT_MIN_SIGMA_PX = 0.02
+"""Floor of the residual-based centroid noise estimate, px."""
+DEFAULT_BUDGET = 2000
+"""Lost-in-space pattern budget (deterministic cap on the search)."""
+DEFAULT_TRACK_SEARCH_DEG = 0.3
+"""Largest expected error of the propagated prior, deg."""
+FOV_TOLERANCE = 0.02
+"""Largest relative difference between the camera's and the database's horizontal FOV."""
+
+_INTERNAL_ERROR = getattr(S, "INTERNAL_ERROR", S.BAD_INPUT)
+
+
+def _finite(x):
+    return x - x == 0.0
+
+
+def _number(x):
+    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
+
+
+class Result:
+    """Outcome of :meth:`StarTracker.process` (fields in the module docstring)."""
+
+    __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
+                 "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
+                 "patterns_tried", "probability", "rejected", "timings")
+
+    def __init__(self, status, reason=""):
+        self.status = status
+        self.reason = reason
+        self.mode = None
+        self.q = None
+        self.matches = []
+        self.n_stars = 0
+        self.n_records = 0
+        self.sigma_cross_arcsec = None
+        self.sigma_roll_arcsec = None
+        self.centroid_sigma_px = None
+        self.patterns_tried = 0
+        self.probability = 1.0
+        self.rejected = None
+        self.timings = {}
+
+    @property
+    def ok(self):
+        return self.status == S.OK
+
+    @property
+    def status_name(self):
+        return S.name(self.status)
+
+    def as_dict(self):
+        out = {}
+        for name in Result.__slots__:
+            out[name] = getattr(self, name)
+        out["status_name"] = S.name(self.status)
+        return out
+
+    def __repr__(self):
+        return ("Result(" + S.name(self.status) + ", mode=" + repr(self.mode) + ", q=" +
+                repr(self.q) + ", matches=" + str(len(self.matches)) + ", n_stars=" +
+                str(self.n_stars) + ", sigma_cross_arcsec=" + repr(self.sigma_cross_arcsec) +
+                ", sigma_roll_arcsec=" + repr(self.sigma_roll_arcsec) + ")")
+
+
+def identification_status(code):
+    """A :mod:`lodestar.firmware.status` code for an identification ``Solution.status``.
+
+    The identification's ``status_name`` gives the name, looked up in ``status``
+    (``BAD_DATABASE``: ``DATABASE_MISMATCH``; a name ``status`` lacks, such as
+    ``BUDGET_EXHAUSTED`` before it is added there: ``NO_MATCH``).  This serves both the
+    older ``verify`` numbering and identification modules that return ``status`` codes."""
+    if code == S.OK:
+        return S.OK
+    namer = getattr(_starid, "status_name", None)
+    name = None
+    if namer is not None:
+        try:
+            name = namer(code)
+        except Exception:
+            name = None
+    else:
+        name = S.name(code)
+    if name == "BAD_DATABASE":
+        return S.DATABASE_MISMATCH
+    value = getattr(S, name, None) if isinstance(name, str) else None
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    return S.NO_MATCH
+
+
+def _rotate(v, axis, angle):
+    """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues)."""
+    c = math.cos(angle)
+    s = math.sin(angle)
+    ax, ay, az = axis
+    vx, vy, vz = v
+    dot = ax * vx + ay * vy + az * vz
+    k = dot * (1.0 - c)
+    return (vx * c + (ay * vz - az * vy) * s + ax * k,
+            vy * c + (az * vx - ax * vz) * s + ay * k,
+            vz * c + (ax * vy - ay * vx) * s + az * k)
+
+
+class StarTracker:
+    """The flight star tracker: a star database, a camera model and the settings.
+
+    ``database``: a :class:`lodestar.firmware.database.Database`, a bytes-like image or a
+    file path (opened with :func:`lodestar.firmware.database.load`, read by offset).
+    ``camera``: a :class:`lodestar.firmware.camera.Camera` or a dict for
+    :meth:`Camera.from_dict` (a ``lodestar.sim`` preset's camera block).
+    ``method``: lost-in-space method name (``"pyramid"``; ``"triangle"``, ``"hashing"`` when
+    the identification and the database serve them).
+    ``max_stars``: brightest stars kept per frame.  ``tolerance_px``: match tolerance, px.
+    ``centroid_sigma_px``: per-axis centroid noise of a star of median flux for the
+    covariance, px (None: estimated from each frame's fit residuals, at least
+    ``min_sigma_px``).  ``flux_weighting``: weight stars by ``sqrt(flux)``.
+    ``budget``: lost-in-space pattern budget.
+    ``exposure_s``, ``row_time_s``: exposure and rolling-shutter line time, s (for smear and
+    rate compensation; ``process(exposure_s=...)`` overrides the exposure per frame).
+    ``epoch_s``: the instant the attitude refers to, s after the start of row 0's exposure.
+    ``track_search_deg``: error of the propagated prior tracking must absorb, deg.
+    ``track_min_matches``, ``track_max_prob``: tracking acceptance.  ``fallback``: run
+    lost-in-space when tracking fails.  ``drop_border``: ignore blobs touching the frame
+    edge.  ``refine``: grow a lost-in-space match set by tracking from its attitude.
+    ``extract_options``: extra keyword arguments of :func:`centroids.extract`
+    (``min_pixels``, ``max_elongation``...).  ``id_options``:
+    extra keyword arguments of the identification (Pyramid: ``max_stars``,
+    ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
+    number (e.g. ``time.ticks_ms``) for ``result.timings``.
+
+    Never raises: a configuration problem sets ``status``/``reason`` and every
+    :meth:`process` returns it.
+    """
+
+    def __init__(self, database, camera, method="pyramid", max_stars=DEFAULT_MAX_STARS,
+                 tolerance_px=DEFAULT_TOLERANCE_PX, centroid_sigma_px=None,
+                 min_sigma_px=DEFAULT_MIN_SIGMA_PX, flux_weighting=True,
+                 budget=DEFAULT_BUDGET, exposure_s=None, row_time_s=0.0, epoch_s=0.0,
+                 track_search_deg=DEFAULT_TRACK_SEARCH_DEG,
+                 track_min_matches=_tracking.DEFAULT_MIN_MATCHES,
+                 track_max_prob=_tracking.DEFAULT_MAX_MISMATCH_PROB, fallback=True,
+                 drop_border=True, refine=True,
+                 extract_options=None, id_options=None, clock=None):
+        self.status = S.OK
+        self.reason = ""
+        self.database = None
+        self.camera = None
+        self.method = method
+        self.max_stars = max_stars
+        self.budget = budget
+        self.exposure_s = exposure_s
+        self.row_time_s = row_time_s
+        self.epoch_s = epoch_s
+        self.track_search_rad = 0.0
+        self.track_min_matches = track_min_matches
+        self.track_max_prob = track_max_prob
+        self.fallback = fallback
+        self.drop_border = drop_border
+        self.refine = refine
+        self.extract_options = extract_options if extract_options is not None else {}
+        self.id_options = id_options if id_options is not None else {}
+        self.clock = clock
+        self.flux_weighting = flux_weighting
+        self.tolerance_rad = 0.0
+        self.sigma_rad = None
+        self.min_sigma_rad = 0.0
+        self.focal_px = 1.0
+        try:
+            self._configure(database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
+                            track_search_deg)
+        except Exception as exc:
+            self._fail(_INTERNAL_ERROR, "configuration: " + repr(exc))
+
+    def _fail(self, code, reason):
+        if self.status == S.OK:
+            self.status = code
+            self.reason = reason
+
+    def _configure(self, database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
+                   track_search_deg):
+        # camera
+        if isinstance(camera, _camera.Camera):
+            self.camera = camera
+        elif isinstance(camera, dict):
+            try:
+                self.camera = _camera.Camera.from_dict(camera)
+            except (ValueError, TypeError) as exc:
+                self._fail(S.BAD_INPUT, "camera: " + str(exc))
+                return
+        else:
+            self._fail(S.BAD_INPUT, "camera must be a firmware Camera or a dict")
+            return
+        cam = self.camera
+        focal = math.sqrt(cam.fx * cam.fy)
+        # parameters
+        if not (_number(tolerance_px) and tolerance_px > 0):
+            self._fail(S.BAD_INPUT, "tolerance_px must be a positive number")
+            return
+        if centroid_sigma_px is not None and not (_number(centroid_sigma_px) and
+                                                  centroid_sigma_px > 0):
+            self._fail(S.BAD_INPUT, "centroid_sigma_px must be a positive number or None")
+            return
+        if not (_number(min_sigma_px) and min_sigma_px > 0):
+            self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
+            return
+        if not (isinstance(self.max_stars, int) and self.max_stars >= 4):
+            self._fail(S.BAD_INPUT, "max_stars must be an int >= 4")
+            return
+        if not (isinstance(self.budget, int) and self.budget >= 1):
+            self._fail(S.BAD_INPUT, "budget must be an int >= 1")
+            return
+        if not (_number(track_search_deg) and track_search_deg >= 0):
+            self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
+            return
+        for name in ("row_time_s", "epoch_s"):
+            if not _number(getattr(self, name)):
+                self._fail(S.BAD_INPUT, name + " must be a finite number")
+                return
+        if self.exposure_s is not None and not (_number(self.exposure_s) and
+                                                self.exposure_s > 0):
+            self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
+            return
+        self.focal_px = focal
+        self.tolerance_rad = tolerance_px / focal
+        self.sigma_rad = None if centroid_sigma_px is None else centroid_sigma_px / focal
+        self.min_sigma_rad = min_sigma_px / focal
+        self.track_search_rad = math.radians(track_search_deg)
+        # database
+        if isinstance(database, _database.Database):
+            db = database
+        else:
+            db, code, reason = _database.load(database)
+            if db is None:
+                self._fail(_database_status(code), "database: " + str(code) + ": " +
+                           str(reason))
+                return
+        self.database = db
+        bit = _database.METHOD_NAMES.get(self.method)
+        if bit is None:
+            self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
+            return
+        if not db.methods & bit:
+            self._fail(getattr(S, "DATABASE_UNSUPPORTED", S.DATABASE_MISMATCH),
+                       "the database does not serve method " + repr(self.method))
+            return
+        fov_h = _camera_fov_h(cam)
+        if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
+            self._fail(S.DATABASE_MISMATCH, "database horizontal FOV " + str(db.fov_h) +
+                       " rad, camera " + str(fov_h))
+            return
+
+    # ---- stages ---------------------------------------------------------------------
+
+    def _tick(self, timings, name, start):
+        if self.clock is None:
+            return None
+        now = self.clock()
+        if start is not None:
+            timings[name] = now - start
+        return now
+
+    def directions(self, stars, omega=None, exposure_s=None):
+        """Camera-frame unit vectors of ``stars`` (objects with ``x``, ``y``) at the epoch:
+        ``(vectors, used)`` with ``used`` the indices into ``stars`` of the stars whose pixel
+        the camera model inverts (the others are dropped)."""
+        cam = self.camera
+        rate = 0.0
+        axis = None
+        if omega is not None:
+            rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+            if rate > 0:
+                axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
+        half = 0.5 * exposure_s if exposure_s is not None else 0.0
+        vectors = []
+        used = []
+        for i in range(len(stars)):
+            s = stars[i]
+            v = cam.pixel_to_vector(s.x, s.y)
+            if v is None:
+                continue
+            if axis is not None:
+                t = half + s.y * self.row_time_s - self.epoch_s
+                v = _rotate(v, axis, rate * t)
+            vectors.append(v)
+            used.append(i)
+        return vectors, used
+
+    def identify(self, vectors, prior=None, omega=None, dt=None):
+        """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
+        with ``fallback``) lost-in-space: ``(solution, mode)``."""
+        sol = None
+        mode = None
+        if prior is not None:
+            sol = _tracking.track(vectors, self.database, prior, omega, dt,
+                                  tolerance_rad=self.tolerance_rad,
+                                  search_rad=self.track_search_rad,
+                                  min_matches=self.track_min_matches,
+                                  max_mismatch_prob=self.track_max_prob)
+            mode = "tracking"
+            if sol.status == S.OK or not self.fallback:
+                return sol, mode
+        sol = _starid.identify(vectors, self.database, method=self.method,
+                               tolerance_rad=self.tolerance_rad, budget=self.budget,
+                               **self.id_options)
+        return sol, "lost_in_space"
+
+    def weights(self, fluxes):
+        """Relative QUEST weights of stars of the given fluxes: ``sqrt(flux / median)``
+        (1 for a missing, non-positive or non-finite flux; all 1 without
+        ``flux_weighting``)."""
+        n = len(fluxes)
+        if not self.flux_weighting:
+            return [1.0] * n
+        good = [f for f in fluxes if _number(f) and f > 0]
+        if not good:
+            return [1.0] * n
+        good.sort()
+        k = len(good)
+        median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
+        out = []
+        for f in fluxes:
+            out.append(math.sqrt(f / median) if _number(f) and f > 0 else 1.0)
+        return out
+
+    def attitude(self, vectors, star_ids, fluxes=None):
+        """QUEST over ``star_ids`` ``[(vector index, database star index)]`` and Shuster's
+        covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)`` (``s``: the per-axis
+        noise of a median-flux star); None when degenerate.  ``fluxes``: per vector (None:
+        equal weights)."""
+        n = len(star_ids)
+        b = [vectors[o] for o, s in star_ids]
+        r = [self.database.star_vector(s) for o, s in star_ids]
+        if fluxes is None:
+            w = [1.0] * n
+        else:
+            w = self.weights([fluxes[o] for o, s in star_ids])
+        try:
+            q = _att.quest(b, r, w)
+            s = self.sigma_rad
+            if s is None:
+                m = _tracking.matrix(q)
+                total = 0.0
+                for i in range(n):
+                    bi, ri = b[i], r[i]
+                    dx = bi[0] - (m[0] * ri[0] + m[1] * ri[1] + m[2] * ri[2])
+                    dy = bi[1] - (m[3] * ri[0] + m[4] * ri[1] + m[5] * ri[2])
+                    dz = bi[2] - (m[6] * ri[0] + m[7] * ri[1] + m[8] * ri[2])
+                    total += w[i] * (dx * dx + dy * dy + dz * dz)
+                s = math.sqrt(total / (2 * n - 3)) if n >= 2 else 0.0
+                if not s >= self.min_sigma_rad:
+                    s = self.min_sigma_rad
+            sigmas = [s / math.sqrt(wi) for wi in w]
+            cross, roll = _att.sigmas_cross_roll(_att.covariance(b, r, sigmas))
+        except (ValueError, ZeroDivisionError):
+            return None
+        return q, cross, roll, s
+
+    def solve_vectors(self, vectors, prior=None, omega=None, dt=None, fluxes=None,
+                      result=None):
+        """Identify and fit camera-frame unit ``vectors`` (brightest first, at the epoch;
+        ``fluxes``: one per vector for the weights, or None): a :class:`Result` whose
+        ``matches`` hold ``(vector index, None, None, HIP)``.  Never raises."""
+        try:
+            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None)
+        except Exception as exc:
+            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+
+    def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start):
+        res = result if result is not None else Result(S.OK)
+        if self.status != S.OK:
+            res.status = self.status
+            res.reason = self.reason
+            return res
+        timings = res.timings
+        if start is None:
+            start = self._tick(timings, None, None)
+        res.n_stars = len(vectors)
+        if prior is not None and _tracking.unit_quaternion(prior) is None:
+            _note(res, "prior ignored: not 4 finite numbers with a non-zero norm")
+            prior = None
+        if prior is not None and dt is not None and not _number(dt):
+            _note(res, "dt ignored: not a finite number")
+            dt = None
+        if len(vectors) < 3:
+            res.status = S.TOO_FEW_STARS
+            _note(res, str(len(vectors)) + " usable stars")
+            return res
+        sol, mode = self.identify(vectors, prior, omega, dt)
+        start = self._tick(timings, "identify", start)
+        res.mode = mode
+        res.patterns_tried = sol.patterns_tried
+        res.probability = sol.probability
+        code = identification_status(sol.status)
+        if code != S.OK:
+            res.status = code
+            _note(res, mode + ": " + S.name(code))
+            return res
+        star_ids = getattr(sol, "star_ids", None) or []
+        if mode == "lost_in_space" and self.refine:
+            # the identification's match set, grown to every observed star that agrees
+            # (tracking from the identified attitude: it also repairs an attitude fitted to
+            # a few clustered stars, which leaves the others outside the match tolerance)
+            ref = _tracking.track(vectors, self.database, sol.q,
+                                  tolerance_rad=self.tolerance_rad,
+                                  search_rad=self.track_search_rad,
+                                  min_matches=self.track_min_matches,
+                                  max_mismatch_prob=self.track_max_prob)
+            if ref.status == S.OK and len(ref.star_ids) > len(star_ids):
+                star_ids = ref.star_ids
+        if not star_ids:
+            predicted, n_fov = _tracking.predict(self.database, sol.q,
+                                                 2.0 * self.tolerance_rad)
+            star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad)
+        fitted = self.attitude(vectors, star_ids, fluxes) if len(star_ids) >= 2 else None
+        if fitted is None:
+            res.status = S.NO_MATCH
+            _note(res, "degenerate attitude fit")
+            return res
+        q, cross, roll, sigma = fitted
+        res.status = S.OK
+        res.centroid_sigma_px = sigma * self.focal_px
+        res.q = q
+        db = self.database
+        res.matches = [(o, None, None, db.star_hip(s)) for o, s in star_ids]
+        res.sigma_cross_arcsec = cross * RAD_TO_ARCSEC
+        res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
+        self._tick(timings, "attitude", start)
+        return res
+
+    # ---- the flight entry point --------------------------------------------------------
+
+    def process(self, packet_bytes, prior=None, omega=None, dt=None, exposure_s=None):
+        """One frame: ``packet_bytes`` (an FPGA packet, ``lodestar.contract`` layout) ->
+        :class:`Result`.  ``prior``: attitude at the previous epoch (enables tracking);
+        ``omega``: body rate, rad/s, camera frame; ``dt``: s from the prior's epoch to this
+        frame's; ``exposure_s``: this frame's exposure (default: the tracker's).  Never
+        raises."""
+        try:
+            return self._process(packet_bytes, prior, omega, dt, exposure_s)
+        except Exception as exc:
+            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+
+    def _process(self, packet_bytes, prior, omega, dt, exposure_s):
+        res = Result(S.OK)
+        if self.status != S.OK:
+            res.status = self.status
+            res.reason = self.reason
+            return res
+        timings = res.timings
+        start = first = self._tick(timings, None, None)
+        code, header, records, reason = _packet.decode(packet_bytes)
+        start = self._tick(timings, "decode", start)
+        if code != S.OK:
+            res.status = code
+            res.reason = reason
+            return res
+        res.n_records = len(records)
+        cam = self.camera
+        if header["width"] != cam.width or header["height"] != cam.height:
+            res.status = S.BAD_INPUT
+            res.reason = "frame is {}x{}, the camera {}x{}".format(
+                header["width"], header["height"], cam.width, cam.height)
+            return res
+        w = None
+        if omega is not None:
+            w = _tracking.vector3(omega)
+            if w is None:
+                _note(res, "omega ignored: not 3 finite numbers")
+        exposure = self.exposure_s
+        if exposure_s is not None:
+            if _number(exposure_s) and exposure_s > 0:
+                exposure = exposure_s
+            else:
+                _note(res, "exposure_s ignored: not a positive number")
+        smear = None
+        if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
+            def smear(x, y):
+                return cam.smear_px(x, y, w, exposure)
+        stars, rejected = _centroids.extract(records, max_stars=None,
+                                             expected_smear_px=smear, **self.extract_options)
+        if self.drop_border:
+            kept = []
+            xmax = cam.width - 1
+            ymax = cam.height - 1
+            for star in stars:
+                rec = records[star.index]
+                if rec.xmin > 0 and rec.ymin > 0 and rec.xmax < xmax and rec.ymax < ymax:
+                    kept.append(star)
+            rejected["border"] = len(stars) - len(kept)
+            stars = kept
+        if len(stars) > self.max_stars:
+            rejected["excess"] += len(stars) - self.max_stars
+            stars = stars[:self.max_stars]
+        res.rejected = rejected
+        start = self._tick(timings, "centroids", start)
+        vectors, used = self.directions(stars, w, exposure)
+        start = self._tick(timings, "directions", start)
+        if len(used) < len(stars):
+            _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
+        fluxes = [stars[i].flux for i in used]
+        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start)
+        if res.status == S.OK:
+            matches = []
+            for o, _x, _y, hip in res.matches:
+                s = stars[used[o]]
+                matches.append((s.index, s.x, s.y, hip))
+            res.matches = matches
+        self._tick(timings, "total", first)
+        return res
+
+
+def _note(res, text):
+    res.reason = text if not res.reason else res.reason + "; " + text
+
+
+def _database_status(code):
+    """A status code for a :func:`lodestar.firmware.database.load` failure (a status code,
+    or one of the reader's status names)."""
+    if isinstance(code, int) and not isinstance(code, bool):
+        return code
+    if code in ("FOV_MISMATCH", "UNSUPPORTED_METHOD", "BAD_VERSION"):
+        return S.DATABASE_MISMATCH
+    return S.DATABASE_CORRUPT
+
+
+def _camera_fov_h(cam):
+    """Horizontal FOV (rad) through the camera model, along the middle row (as
+    ``lodestar.sim.camera.Camera.fov_deg``); None if the model cannot invert the edges."""
+    ym = 0.5 * (cam.height - 1)
+    a = cam.pixel_to_vector(-0.5, ym)
+    b = cam.pixel_to_vector(cam.width - 0.5, ym)
+    if a is None or b is None:
+        return None
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    h = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)
+    return 2.0 * math.asin(h if h < 1.0 else 1.0)

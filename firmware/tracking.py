@@ -1,0 +1,479 @@
+"""Tracking mode: identify the observed stars from a prior attitude (no pattern search).
+
+    from lodestar.firmware import tracking
+    sol = tracking.track(vectors, database, q_prior, omega=(wx, wy, wz), dt=0.5,
+                         tolerance_rad=3.4e-4)
+    if sol.status == status.OK:
+        use(sol.q, sol.matches)          # else: the caller falls back to lost-in-space
+
+Conventions (``lodestar.sim``, as everywhere in the firmware): ``vectors`` are camera-frame
+unit vectors of the observed stars, **brightest first**; an attitude ``q = [x, y, z, w]``
+(scalar last) takes inertial vectors into the camera frame, ``v_cam = A(q) v_inertial``;
+``omega`` is the camera's angular velocity in the camera frame (rad/s), under which a fixed
+star moves as ``dv/dt = -omega x v``, so the attitude propagates as
+``q(t + dt) = R(-omega dt) (x) q(t)`` (:func:`propagate`).  Angles are radians.
+
+Algorithm
+---------
+1. **Propagate** the prior by ``omega * dt`` when both are given.
+2. **Predict**: the catalogue stars within the FOV's half-diagonal plus
+   ``2 (search_rad + tolerance_rad)`` of the predicted boresight (one
+   ``database.stars_in_cone`` query, whose star vectors every later prediction reuses),
+   rotated into the camera frame and kept inside the FOV rectangle widened by
+   ``search_rad``.
+3. **Coarse association** (robust to a prior off by up to ``search_rad``): every pair
+   (observed star ``o`` among the ``coarse_stars`` brightest, predicted star ``p``) closer than
+   ``search_rad`` is a candidate with displacement ``d = b_o - c_p``.  A prior error is,
+   to first order, the same small rotation for every star, so true candidates share nearly
+   the same displacement: the one agreeing (within ``2 tolerance_rad`` plus the spread a
+   roll error of ``search_rad`` causes across the field) with candidates of the most
+   distinct observed stars wins (ties: the brighter star), and for each observed star the
+   agreeing candidate closest to it is kept, each catalogue star used once.  At least two are
+   needed.
+4. **Fine matching**, repeated while the match set changes (at most ``iterations`` times):
+   QUEST over the current matches, predict again at the fitted attitude, then nearest
+   neighbour within ``tolerance_rad``, brightest observed star first, each catalogue star
+   used once; an observed star with a second unclaimed catalogue star within tolerance is
+   left unnamed (a close double: either name could be right).
+5. **Verify**: at least ``min_matches`` matches and the binomial probability that that many
+   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.verify`:
+   ``p = N_fov pi tolerance^2 / Omega_fov`` per star, two matches free) below
+   ``max_mismatch_prob``.  Every reported match lies within ``tolerance_rad`` of its
+   catalogue star at the returned attitude.
+
+Result: a :class:`TrackSolution` with the attributes of an identification ``Solution``
+(``status``, ``q``, ``matches`` = ``[(observed index, HIP)]``, ``star_ids`` =
+``[(observed index, database star index)]``, ``patterns_tried`` (0: no pattern search),
+``probability``, ``hypotheses``) plus ``q_predicted``, ``n_predicted`` and
+``residual_rad`` (RMS angle between matched observed and catalogue stars).  Status codes
+are :mod:`lodestar.firmware.status`'s: ``OK``, ``TOO_FEW_STARS`` (fewer than
+``min_matches`` observed stars), ``NO_MATCH`` (association or verification failed: the
+pipeline falls back to lost-in-space), ``BAD_INPUT`` (bad prior, vectors or parameters).
+Never raises for bad data.
+
+Pure Python for CPython and MicroPython: ``math`` only; memory is the predicted-star list
+(a few dozen entries) and the candidate list.
+"""
+
+import math
+
+from . import attitude as _att
+from . import status as S
+from .verify import binomial_tail, fov_solid_angle
+
+DEFAULT_SEARCH_RAD = 0.00524
+"""Largest expected error of the (propagated) prior, rad (0.3 deg)."""
+DEFAULT_TOLERANCE_RAD = 3.4e-4
+"""Fine match radius, rad (2.5 px of estcube2)."""
+DEFAULT_MIN_MATCHES = 4
+"""Fewest matched stars for an accepted solution."""
+DEFAULT_MAX_MISMATCH_PROB = 1e-6
+"""Largest accepted chance-agreement probability (one hypothesis: the prior)."""
+DEFAULT_COARSE_STARS = 16
+"""Brightest observed stars used by the coarse association."""
+DEFAULT_ITERATIONS = 4
+"""Most fit / predict / match rounds."""
+
+
+def _finite(x):
+    return x - x == 0.0
+
+
+def _number(x):
+    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
+
+
+class TrackSolution:
+    """Result of :func:`track` (see the module docstring)."""
+
+    def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
+                 q_predicted=None, n_predicted=0, residual_rad=None):
+        self.status = status
+        self.q = q
+        self.matches = matches if matches is not None else []
+        self.star_ids = star_ids if star_ids is not None else []
+        self.patterns_tried = 0
+        self.probability = probability
+        self.hypotheses = 1 if q_predicted is not None else 0
+        self.q_predicted = q_predicted
+        self.n_predicted = n_predicted
+        self.residual_rad = residual_rad
+
+    @property
+    def ok(self):
+        return self.status == S.OK
+
+    def __repr__(self):
+        return ("TrackSolution(" + S.name(self.status) + ", q=" + repr(self.q) +
+                ", matches=" + str(len(self.matches)) + ", probability=" +
+                repr(self.probability) + ")")
+
+
+# --------------------------------------------------------------------------------------
+# Attitude helpers
+# --------------------------------------------------------------------------------------
+
+def unit_quaternion(q):
+    """``q`` as a unit list ``[x, y, z, w]`` (``w >= 0``), or None when it is not four finite
+    numbers with a non-zero norm."""
+    try:
+        if len(q) != 4:
+            return None
+        x, y, z, w = q[0], q[1], q[2], q[3]
+    except (TypeError, IndexError, KeyError):
+        return None
+    if not (_number(x) and _number(y) and _number(z) and _number(w)):
+        return None
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not (n > 0.0 and _finite(n)):
+        return None
+    if w < 0:
+        n = -n
+    return [x / n, y / n, z / n, w / n]
+
+
+def vector3(v):
+    """``v`` as a tuple of three floats, or None when it is not three finite numbers."""
+    try:
+        if len(v) != 3:
+            return None
+        x, y, z = v[0], v[1], v[2]
+    except (TypeError, IndexError, KeyError):
+        return None
+    if not (_number(x) and _number(y) and _number(z)):
+        return None
+    return float(x), float(y), float(z)
+
+
+def multiply(p, q):
+    """Hamilton product ``p (x) q`` (scalar last): rotation ``q`` then ``p``."""
+    px, py, pz, pw = p[0], p[1], p[2], p[3]
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    return [pw * qx + qw * px + py * qz - pz * qy,
+            pw * qy + qw * py + pz * qx - px * qz,
+            pw * qz + qw * pz + px * qy - py * qx,
+            pw * qw - px * qx - py * qy - pz * qz]
+
+
+def rotation_quaternion(rotvec):
+    """Unit quaternion of the rotation vector ``rotvec`` (axis times angle, rad)."""
+    x, y, z = rotvec[0], rotvec[1], rotvec[2]
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return [0.5 * x, 0.5 * y, 0.5 * z, 1.0]
+    s = math.sin(0.5 * angle) / angle
+    return [x * s, y * s, z * s, math.cos(0.5 * angle)]
+
+
+def propagate(q, omega=None, dt=None):
+    """The attitude ``dt`` seconds after ``q`` at constant body rate ``omega`` (rad/s, camera
+    frame): ``R(-omega dt) (x) q``; ``q`` itself (normalised) when ``omega`` or ``dt`` is
+    None.  None when ``q``, ``omega`` or ``dt`` is malformed."""
+    q = unit_quaternion(q)
+    if q is None:
+        return None
+    if omega is None or dt is None:
+        return q
+    w = vector3(omega)
+    if w is None or not _number(dt):
+        return None
+    d = rotation_quaternion((-w[0] * dt, -w[1] * dt, -w[2] * dt))
+    return unit_quaternion(multiply(d, q))
+
+
+def matrix(q):
+    """Row-major 9-tuple of the attitude matrix ``A(q)`` of a unit quaternion."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
+
+
+def chord(angle):
+    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart."""
+    return 2.0 * math.sin(0.5 * angle)
+
+
+# --------------------------------------------------------------------------------------
+# Prediction and matching
+# --------------------------------------------------------------------------------------
+
+def candidates(database, q, margin_rad):
+    """``[(star index, inertial vector)]`` of the catalogue stars within the FOV's
+    half-diagonal plus ``margin_rad`` of the boresight of ``q``: the stars :func:`predict`
+    can find at any attitude within ``margin_rad`` of ``q`` (one cone query, reused)."""
+    m = matrix(q)
+    out = []
+    for s in database.stars_in_cone((m[6], m[7], m[8]), 0.5 * database.fov_diag + margin_rad):
+        out.append((s, database.star_vector(s)))
+    return out
+
+
+def predict(database, q, margin_rad=0.0, stars=None):
+    """Catalogue stars in the FOV at attitude ``q`` (a unit quaternion):
+    ``(predicted, n_fov)`` with ``predicted`` a list of ``(camera vector, star index)`` inside
+    the FOV rectangle widened by ``margin_rad`` on every side and ``n_fov`` the number of them
+    inside the plain rectangle.  ``stars``: the :func:`candidates` to consider (None: a cone
+    query around ``q``)."""
+    m = matrix(q)
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    tan_h = math.tan(0.5 * database.fov_h)
+    tan_v = math.tan(0.5 * database.fov_v)
+    tan_hm = math.tan(0.5 * database.fov_h + margin_rad)
+    tan_vm = math.tan(0.5 * database.fov_v + margin_rad)
+    if stars is None:
+        stars = candidates(database, q, margin_rad)
+    out = []
+    n_fov = 0
+    for s, r in stars:
+        z = m6 * r[0] + m7 * r[1] + m8 * r[2]
+        if z <= 0.0:
+            continue
+        x = m0 * r[0] + m1 * r[1] + m2 * r[2]
+        y = m3 * r[0] + m4 * r[1] + m5 * r[2]
+        if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
+            out.append(((x, y, z), s))
+            if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
+                n_fov += 1
+    return out, n_fov
+
+
+def match_nearest(observed, predicted, tolerance_rad):
+    """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
+    index) closer than ``tolerance_rad``: observed stars in order (brightest first) take the
+    nearest unclaimed predicted star; a star with a second unclaimed prediction within
+    tolerance is left unnamed."""
+    lim = chord(tolerance_rad)
+    lim2 = lim * lim
+    claimed = {}
+    pairs = []
+    for o in range(len(observed)):
+        ox, oy, oz = observed[o]
+        best = -1
+        best_d2 = lim2
+        second = False
+        for p in range(len(predicted)):
+            if p in claimed:
+                continue
+            c = predicted[p][0]
+            dx = ox - c[0]
+            if dx > lim or -dx > lim:
+                continue
+            dy = oy - c[1]
+            if dy > lim or -dy > lim:
+                continue
+            dz = oz - c[2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= lim2:
+                if best >= 0:
+                    second = True
+                if d2 <= best_d2:
+                    best = p
+                    best_d2 = d2
+        if best >= 0 and not second:
+            claimed[best] = o
+            pairs.append((o, predicted[best][1]))
+    return pairs
+
+
+def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
+    """Displacement-consensus association (step 3 of the module docstring):
+    ``[(observed index, star index)]``."""
+    lim = chord(search_rad)
+    lim2 = lim * lim
+    n = len(observed) if len(observed) < max_stars else max_stars
+    cands = []              # (o, p, dx, dy, dz)
+    for o in range(n):
+        ox, oy, oz = observed[o]
+        for p in range(len(predicted)):
+            c = predicted[p][0]
+            dx = ox - c[0]
+            if dx > lim or -dx > lim:
+                continue
+            dy = oy - c[1]
+            if dy > lim or -dy > lim:
+                continue
+            dz = oz - c[2]
+            if dx * dx + dy * dy + dz * dz <= lim2:
+                cands.append((o, p, dx, dy, dz))
+    if not cands:
+        return []
+    c2 = cluster_rad * cluster_rad
+    best = -1
+    best_count = 0
+    for i in range(len(cands)):
+        _, _, ax, ay, az = cands[i]
+        count = 0
+        last_o = -1
+        for j in range(len(cands)):
+            o, _, bx, by, bz = cands[j]
+            if o == last_o:
+                continue
+            dx = ax - bx
+            dy = ay - by
+            dz = az - bz
+            if dx * dx + dy * dy + dz * dz <= c2:
+                count += 1
+                last_o = o              # candidates are grouped by o: count o once
+        if count > best_count:
+            best = i
+            best_count = count
+    _, _, ax, ay, az = cands[best]
+    chosen = {}             # o -> (distance^2 to the consensus displacement, p)
+    for o, p, bx, by, bz in cands:
+        dx = ax - bx
+        dy = ay - by
+        dz = az - bz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 <= c2:
+            prev = chosen.get(o)
+            if prev is None or d2 < prev[0]:
+                chosen[o] = (d2, p)
+    used = {}
+    pairs = []
+    for o in range(n):
+        e = chosen.get(o)
+        if e is None or e[1] in used:
+            continue
+        used[e[1]] = o
+        pairs.append((o, predicted[e[1]][1]))
+    return pairs
+
+
+def fit(observed, database, pairs, weights=None, lookup=None):
+    """QUEST attitude of ``pairs`` ``[(observed index, star index)]``, or None when the
+    geometry is degenerate (fewer than two pairs, all parallel).  ``lookup``: a dict
+    star index -> catalogue vector (None, or a missing star: read from the database)."""
+    if len(pairs) < 2:
+        return None
+    b = [observed[o] for o, s in pairs]
+    if lookup is None:
+        r = [database.star_vector(s) for o, s in pairs]
+    else:
+        r = [lookup[s] if s in lookup else database.star_vector(s) for o, s in pairs]
+    w = None if weights is None else [weights[o] for o, s in pairs]
+    try:
+        return _att.quest(b, r, w)
+    except (ValueError, ZeroDivisionError):
+        return None
+
+
+def residual_rms(observed, database, q, pairs):
+    """RMS angle (rad) between matched observed stars and their catalogue stars at ``q``."""
+    if not pairs:
+        return None
+    m = matrix(q)
+    total = 0.0
+    for o, s in pairs:
+        r = database.star_vector(s)
+        b = observed[o]
+        dx = b[0] - (m[0] * r[0] + m[1] * r[1] + m[2] * r[2])
+        dy = b[1] - (m[3] * r[0] + m[4] * r[1] + m[5] * r[2])
+        dz = b[2] - (m[6] * r[0] + m[7] * r[1] + m[8] * r[2])
+        total += dx * dx + dy * dy + dz * dz
+    return math.sqrt(total / len(pairs))
+
+
+def _unit_vectors(vectors):
+    out = []
+    for v in vectors:
+        u = vector3(v)
+        if u is None:
+            return None
+        n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        if not (n > 0.0 and _finite(n)):
+            return None
+        out.append((u[0] / n, u[1] / n, u[2] / n))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Entry point
+# --------------------------------------------------------------------------------------
+
+def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT_TOLERANCE_RAD,
+          search_rad=DEFAULT_SEARCH_RAD, min_matches=DEFAULT_MIN_MATCHES,
+          max_mismatch_prob=DEFAULT_MAX_MISMATCH_PROB, coarse_stars=DEFAULT_COARSE_STARS,
+          iterations=DEFAULT_ITERATIONS, weights=None):
+    """Identify ``vectors`` (camera frame, brightest first) from the prior ``q_prior``
+    propagated by ``omega`` (rad/s) over ``dt`` (s); returns a :class:`TrackSolution`.
+
+    ``weights`` (one positive number per observed star, e.g. ``sigma**-2``) weight the QUEST
+    fits; None: equal.  See the module docstring for the algorithm and the statuses.
+    """
+    try:
+        return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,
+                      min_matches, max_mismatch_prob, coarse_stars, iterations, weights)
+    except Exception:       # a database read error or a bug must not reach the flight loop
+        return TrackSolution(getattr(S, "INTERNAL_ERROR", S.BAD_INPUT))
+
+
+def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,
+           coarse_stars, iterations, weights):
+    if not (_number(tol) and tol > 0 and _number(search) and search >= 0 and
+            _number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
+        return TrackSolution(S.BAD_INPUT)
+    q_pred = propagate(q_prior, omega, dt)
+    if q_pred is None:
+        return TrackSolution(S.BAD_INPUT)
+    b = _unit_vectors(vectors)
+    if b is None:
+        return TrackSolution(S.BAD_INPUT)
+    if weights is not None and len(weights) != len(b):
+        return TrackSolution(S.BAD_INPUT)
+    if len(b) < min_matches:
+        return TrackSolution(S.TOO_FEW_STARS, q_predicted=q_pred)
+
+    # coarse association around the prior; one cone query serves every prediction below
+    # (the fitted attitudes stay within the search radius of the prior)
+    stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol)
+    lookup = {}
+    for s, v in stars:
+        lookup[s] = v
+    predicted, n_fov = predict(database, q_pred, search, stars)
+    spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error across field
+    pairs = coarse_match(b, predicted, search, 2.0 * tol + spread, coarse_stars)
+    if len(pairs) < 2:
+        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
+    q = fit(b, database, pairs, weights, lookup)
+    if q is None:
+        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
+
+    # fine matching at the fitted attitude, refit while the match set changes
+    pairs = None
+    for _ in range(iterations):
+        predicted, n_fov = predict(database, q, 2.0 * tol, stars)
+        new = match_nearest(b, predicted, tol)
+        if new == pairs:
+            break
+        q_new = fit(b, database, new, weights, lookup)
+        if q_new is None:
+            break
+        pairs = new
+        q = q_new
+    if pairs is None or len(pairs) < 2:
+        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
+    # the reported matches must hold at the returned attitude
+    predicted, n_fov = predict(database, q, 2.0 * tol, stars)
+    final = match_nearest(b, predicted, tol)
+    if final != pairs:
+        keep = {}
+        for pair in final:
+            keep[pair] = 1
+        pairs = [pair for pair in pairs if pair in keep]
+        q2 = fit(b, database, pairs, weights, lookup)
+        if q2 is None:
+            return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
+        q = q2
+    omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
+    p = n_fov * math.pi * tol * tol / omega_fov
+    if p > 1.0:
+        p = 1.0
+    prob = binomial_tail(len(b) - 2, len(pairs) - 2, p)
+    matches = [(o, database.star_hip(s)) for o, s in pairs]
+    rms = residual_rms(b, database, q, pairs)
+    status = S.OK if len(pairs) >= min_matches and prob < max_prob else S.NO_MATCH
+    return TrackSolution(status, q=q if status == S.OK else None,
+                         matches=matches if status == S.OK else [],
+                         star_ids=list(pairs) if status == S.OK else [], probability=prob,
+                         q_predicted=q_pred, n_predicted=n_fov, residual_rad=rms)

@@ -1,0 +1,289 @@
+"""Tests of the tracking mode (``lodestar.firmware.tracking``): propagation against scipy,
+recovery of the attitude from a prior off by 0.2 deg on synthetic centroid scenes and on
+simulated images through the flight pipeline, rejection (never a wrong attitude) of priors
+that are far off, the fall-back to lost-in-space, the matching rules and bad inputs.
+"""
+
+import functools
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lodestar.firmware import status as S
+from lodestar.firmware import tracking
+from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+
+import sim_frames as SF
+
+TOL = 3.4e-4            # rad: 2.5 px of estcube2
+MAX_ERR_DEG = SF.MAX_ERR_DEG
+
+
+@functools.lru_cache(maxsize=None)
+def catalogue():
+    return load()
+
+
+def perturbed(q, angle_deg, rng, axis=None):
+    """``q`` turned by ``angle_deg`` about a random (or the given camera-frame) axis."""
+    if axis is None:
+        axis = rng.normal(size=3)
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    turn = Rotation.from_rotvec(axis * math.radians(angle_deg))
+    return (turn * Rotation.from_quat(q)).as_quat()
+
+
+def correct(sol, q_true, components=None):
+    if sol.status != S.OK:
+        return False
+    if attitude_error_deg(sol.q, q_true) > MAX_ERR_DEG:
+        return False
+    if components is not None:
+        return all(hip in components[o] for o, hip in sol.matches)
+    return True
+
+
+# --------------------------------------------------------------------------------------
+# Propagation and helpers
+# --------------------------------------------------------------------------------------
+
+def test_propagate_matches_scipy_and_the_star_motion():
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        q = random_attitude(rng)
+        omega = rng.normal(0, 0.05, 3)
+        dt = float(rng.uniform(-3, 3))
+        got = tracking.propagate(q.tolist(), omega.tolist(), dt)
+        want = (Rotation.from_rotvec(-omega * dt) * Rotation.from_quat(q)).as_quat()
+        assert attitude_error_deg(got, want) < 1e-9
+        assert got[3] >= 0 and abs(math.fsum(c * c for c in got) - 1) < 1e-12
+    # a fixed star moves as dv/dt = -omega x v in the camera frame
+    q = random_attitude(rng)
+    omega = np.array([0.01, -0.02, 0.03])
+    star = rng.normal(size=3)
+    star /= np.linalg.norm(star)
+    dt = 1e-4
+    v0 = Rotation.from_quat(q).apply(star)
+    v1 = Rotation.from_quat(tracking.propagate(q, omega, dt)).apply(star)
+    assert np.allclose((v1 - v0) / dt, -np.cross(omega, v0), atol=1e-5)
+    # no rate or no interval: the prior itself, normalised, w >= 0
+    assert tracking.propagate([0, 0, 0, -2.0]) == [0.0, 0.0, 0.0, 1.0]
+    assert tracking.propagate(q, None, 5.0) == pytest.approx(list(q))
+    assert tracking.propagate(q, omega, None) == pytest.approx(list(q))
+
+
+@pytest.mark.parametrize("bad", [None, [0, 0, 0, 0], [1, 0, 0], [float("nan"), 0, 0, 1],
+                                 [float("inf"), 0, 0, 1], "abcd", [True, 0, 0, 1], 5])
+def test_propagate_rejects_bad_quaternions(bad):
+    assert tracking.propagate(bad) is None
+
+
+def test_propagate_rejects_bad_rates():
+    q = [0, 0, 0, 1]
+    assert tracking.propagate(q, [0, 0, float("nan")], 1.0) is None
+    assert tracking.propagate(q, [0, 0], 1.0) is None
+    assert tracking.propagate(q, [0, 0, 0.1], float("inf")) is None
+    assert tracking.propagate(q, [0, 0, 0.1], "1") is None
+
+
+def test_match_nearest_rules():
+    # observed 0 is brightest: it takes the nearest prediction; observed 1 (near the same
+    # prediction) gets nothing; observed 2 lies between two predictions: unnamed
+    tol = 1e-3
+
+    def unit(x, y):
+        n = math.sqrt(x * x + y * y + 1)
+        return (x / n, y / n, 1 / n)
+
+    predicted = [(unit(0.0, 0.0), 10), (unit(0.01, 0.0), 11), (unit(0.0104, 0.0), 12),
+                 (unit(0.05, 0.05), 13)]
+    observed = [unit(0.0002, 0.0), unit(-0.0003, 0.0), unit(0.0102, 0.0), unit(0.05, 0.0504),
+                unit(0.2, 0.2)]
+    assert tracking.match_nearest(observed, predicted, tol) == [(0, 10), (3, 13)]
+    assert tracking.match_nearest([], predicted, tol) == []
+    assert tracking.match_nearest(observed, [], tol) == []
+
+
+def test_coarse_match_finds_the_consistent_displacement():
+    # six stars shifted by the same small rotation, plus distractors around them
+    rng = np.random.default_rng(3)
+    ref = rng.normal(0, 0.08, (6, 3)) + [0, 0, 1]
+    ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+    shift = Rotation.from_rotvec([0.003, -0.002, 0.001])
+    obs = shift.apply(ref)
+    decoys = ref + rng.normal(0, 0.002, ref.shape)          # within the search radius
+    decoys /= np.linalg.norm(decoys, axis=1, keepdims=True)
+    predicted = [(tuple(v), i) for i, v in enumerate(ref)] + \
+        [(tuple(v), 100 + i) for i, v in enumerate(decoys)]
+    pairs = tracking.coarse_match([tuple(v) for v in obs], predicted, search_rad=0.006,
+                                  cluster_rad=0.0015, max_stars=16)
+    assert pairs == [(i, i) for i in range(6)]
+
+
+# --------------------------------------------------------------------------------------
+# Tracking on synthetic centroid scenes
+# --------------------------------------------------------------------------------------
+
+def test_tracking_recovers_a_prior_off_by_0p2_deg():
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(7)
+    outcomes = {"correct": 0, "wrong": 0, "no-solve": 0}
+    errors = []
+    for _ in range(30):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, catalogue(), noise_px=0.3, n_false=3,
+                               drop_fraction=0.1, max_stars=32)
+        prior = perturbed(q, 0.2, rng)
+        sol = tracking.track(scene.vectors.tolist(), db, prior.tolist(), tolerance_rad=TOL)
+        if sol.status != S.OK:
+            outcomes["no-solve"] += 1
+            continue
+        assert sol.patterns_tried == 0 and sol.probability < 1e-6
+        assert len(sol.matches) >= tracking.DEFAULT_MIN_MATCHES
+        assert [o for o, s in sol.star_ids] == [o for o, h in sol.matches]
+        if correct(sol, q, scene.components):
+            outcomes["correct"] += 1
+            errors.append(attitude_error_deg(sol.q, q))
+        else:
+            outcomes["wrong"] += 1
+    print("\ntracking from a 0.2 deg prior:", outcomes,
+          "error p50 %.1f arcsec" % (np.median(errors) * 3600))
+    assert outcomes["wrong"] == 0
+    assert outcomes["correct"] >= 29
+    assert np.median(errors) * 3600 < 30
+
+
+@pytest.mark.parametrize("axis", [(0, 0, 1), (1, 0, 0), (0.6, 0.8, 0)])
+def test_tracking_absorbs_roll_and_cross_boresight_errors(axis):
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, catalogue(), noise_px=0.3, max_stars=32)
+        prior = perturbed(q, 0.28, rng, axis)
+        sol = tracking.track(scene.vectors.tolist(), db, prior, tolerance_rad=TOL)
+        assert correct(sol, q, scene.components), sol
+
+
+def test_propagation_brings_an_old_prior_into_reach():
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(5)
+    omega = np.radians([1.5, -1.0, 2.0])            # rad/s
+    dt = 0.8                                           # s: 2.1 deg since the prior
+    for _ in range(5):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, catalogue(), noise_px=0.3, max_stars=32)
+        earlier = (Rotation.from_rotvec(omega * dt) * Rotation.from_quat(q)).as_quat()
+        sol = tracking.track(scene.vectors.tolist(), db, earlier, omega.tolist(), dt,
+                             tolerance_rad=TOL)
+        assert correct(sol, q, scene.components), sol
+        assert attitude_error_deg(sol.q_predicted, q) < 1e-6
+        stale = tracking.track(scene.vectors.tolist(), db, earlier, tolerance_rad=TOL)
+        assert stale.status == S.NO_MATCH
+
+
+def test_far_off_priors_are_rejected_never_wrong():
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(13)
+    accepted = 0
+    for angle in (1.0, 3.0, 10.0, 45.0, 180.0):
+        for _ in range(6):
+            q = random_attitude(rng)
+            scene = centroid_scene(cam, q, rng, catalogue(), noise_px=0.3, n_false=3,
+                                   max_stars=32)
+            prior = perturbed(q, angle, rng)
+            sol = tracking.track(scene.vectors.tolist(), db, prior, tolerance_rad=TOL)
+            if sol.status == S.OK:
+                accepted += 1
+                assert correct(sol, q, scene.components), (angle, sol)
+            else:
+                assert sol.status == S.NO_MATCH and sol.q is None and sol.matches == []
+    assert accepted == 0
+
+
+def test_bad_inputs():
+    db = SF.flight_database()
+    good = [(0.0, 0.0, 1.0), (0.01, 0.0, 1.0), (0.0, 0.01, 1.0), (0.02, 0.02, 1.0)]
+    q = [0, 0, 0, 1]
+    for prior in (None, [0, 0, 0, 0], [1, 2, 3], [float("nan"), 0, 0, 1], "abcd"):
+        assert tracking.track(good, db, prior).status == S.BAD_INPUT
+    for vectors in ([(0, 0, 0)] + good, [(float("nan"), 0, 1)] + good, [(1, 2)] + good,
+                    [None] + good, 5):
+        assert tracking.track(vectors, db, q).status == S.BAD_INPUT
+    assert tracking.track(good, db, q, omega=[0, 0, float("nan")], dt=1.0).status == \
+        S.BAD_INPUT
+    assert tracking.track(good, db, q, tolerance_rad=-1.0).status == S.BAD_INPUT
+    assert tracking.track(good, db, q, tolerance_rad=float("nan")).status == S.BAD_INPUT
+    assert tracking.track(good, db, q, weights=[1.0]).status == S.BAD_INPUT
+    assert tracking.track([], db, q).status == S.TOO_FEW_STARS
+    assert tracking.track(good[:3], db, q).status == S.TOO_FEW_STARS
+    # vectors that match nothing: no solution, no exception
+    assert tracking.track(good, db, q).status == S.NO_MATCH
+
+
+def test_a_failing_database_gives_a_status():
+    class Broken:
+        fov_h = fov_v = 0.3
+        fov_diag = 0.4
+
+        def stars_in_cone(self, d, radius):
+            raise OSError("flash read error")
+
+    sol = tracking.track([(0, 0, 1)] * 5, Broken(), [0, 0, 0, 1])
+    assert sol.status != S.OK and sol.q is None
+
+
+# --------------------------------------------------------------------------------------
+# Tracking on simulated images through the flight pipeline
+# --------------------------------------------------------------------------------------
+
+def test_pipeline_tracks_simulated_frames_from_a_perturbed_prior():
+    tracker = SF.tracker()
+    rng = np.random.default_rng(17)
+    frames = SF.frames()
+    tracked = 0
+    for frame in frames:
+        omega = frame.omega if frame.moving else None
+        lis = tracker.process(frame.packet, omega=omega)
+        prior = perturbed(frame.q, 0.2, rng)
+        res = tracker.process(frame.packet, prior=prior.tolist(), omega=omega)
+        assert res.status == S.OK, res
+        assert attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
+        if res.mode == "tracking":
+            tracked += 1
+            assert res.patterns_tried == 0
+            # tracking and lost-in-space agree to a fraction of the error budget
+            assert attitude_error_deg(res.q, lis.q) < 0.01
+    assert tracked >= len(frames) - 1
+
+
+def test_pipeline_propagates_the_prior_with_the_gyro_rate():
+    tracker = SF.tracker()
+    moving = [f for f in SF.frames() if f.moving][:4]
+    for frame in moving:
+        omega = np.asarray(frame.omega)
+        dt = 0.5
+        earlier = (Rotation.from_rotvec(omega * dt) * Rotation.from_quat(frame.q)).as_quat()
+        res = tracker.process(frame.packet, prior=earlier.tolist(), omega=omega.tolist(),
+                              dt=dt)
+        assert res.status == S.OK and res.mode == "tracking", res
+        assert attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
+
+
+def test_pipeline_falls_back_to_lost_in_space():
+    frame = SF.frames()[0]
+    rng = np.random.default_rng(19)
+    far = perturbed(frame.q, 20.0, rng).tolist()
+    res = SF.tracker().process(frame.packet, prior=far)
+    assert res.status == S.OK and res.mode == "lost_in_space"
+    assert attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
+    res = SF.tracker(fallback=False).process(frame.packet, prior=far)
+    assert res.status == S.NO_MATCH and res.mode == "tracking" and res.q is None
