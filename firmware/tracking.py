@@ -58,6 +58,7 @@ Pure Python for CPython and MicroPython: ``math`` only; memory is the predicted-
 import math
 
 from . import attitude as _att
+from .quaternion import multiply
 from . import status as S
 from .verify import binomial_tail, fov_solid_angle
 
@@ -143,16 +144,6 @@ def vector3(v):
     if not (_number(x) and _number(y) and _number(z)):
         return None
     return float(x), float(y), float(z)
-
-
-def multiply(p, q):
-    """Hamilton product ``p (x) q`` (scalar last): rotation ``q`` then ``p``."""
-    px, py, pz, pw = p[0], p[1], p[2], p[3]
-    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
-    return [pw * qx + qw * px + py * qz - pz * qy,
-            pw * qy + qw * py + pz * qx - px * qz,
-            pw * qz + qw * pz + px * qy - py * qx,
-            pw * qw - px * qx - py * qy - pz * qz]
 
 
 def rotation_quaternion(rotvec):
