@@ -125,7 +125,7 @@ Sections (each starts at a multiple of 4 bytes; zero padding between them)::
                     the codes
 
 Sizes for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the defaults
-(``python -m lodestar.ground.database --methods ...``; asserted in the tests):
+(``lodestar db build --method ...``; asserted in the tests):
 
 * pyramid only (the default; <= 512 KiB): 519,700 bytes (507.5 KiB) = header 160 + stars
   80,656 (5041 stars) + cells 770 (8 x 8 per face) + pairs 429,168 (71,528 pairs of 1748
@@ -137,10 +137,8 @@ Sizes for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the def
 * all three in one image (<= 1 MiB): 909,664 bytes (888.3 KiB).
 """
 
-import argparse
 import math
 import struct
-import sys
 import zlib
 
 import numpy as np
@@ -631,43 +629,3 @@ def describe(image):
                              for i, (offset, length) in enumerate(db.sections) if length}
     info["total_bytes"] = len(image)
     return info
-
-
-def main(argv=None):
-    """``python -m lodestar.ground.database [--preset NAME | --fov-h DEG --aspect A]
-    [--mag V] [--methods pyramid,triangle,hashing] [-o FILE]``: build an image and print its
-    size."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="estcube2")
-    parser.add_argument("--fov-h", type=float, help="horizontal FOV, deg (instead of preset)")
-    parser.add_argument("--aspect", type=float, default=4 / 3)
-    parser.add_argument("--mag", type=float, default=6.0)
-    parser.add_argument("--per-region", type=int, default=6)
-    parser.add_argument("--methods", default="pyramid",
-                        help="comma-separated subset of " + ",".join(METHODS))
-    parser.add_argument("-o", "--output")
-    args = parser.parse_args(argv)
-    methods = tuple(args.methods.split(","))
-    if args.fov_h is not None:
-        image = build_database(fov_h_deg=args.fov_h, aspect=args.aspect, mag_limit=args.mag,
-                               pattern_per_region=args.per_region, methods=methods)
-    else:
-        from lodestar.sim.presets import load_preset
-        image = build_database(camera=load_preset(args.preset), mag_limit=args.mag,
-                               pattern_per_region=args.per_region, methods=methods)
-    info = describe(image)
-    print(f"stars {info['n_stars']} (pattern {info['n_pattern_stars']}), "
-          f"pairs {info['n_pairs']}, k-vector bins {info['kv_bins']}, "
-          f"triangles {info.get('triangles', {}).get('n', 0)}, "
-          f"hash groups {info.get('hash', {}).get('n', 0)}")
-    for name, length in info["section_bytes"].items():
-        print(f"  {name:8s} {length:9d} B")
-    print(f"total {len(image)} B = {len(image) / 1024:.1f} KiB")
-    if args.output:
-        with open(args.output, "wb") as f:
-            f.write(image)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -219,7 +219,9 @@ def _db_parser(sub):
     b.add_argument("--aspect", type=float, default=4 / 3,
                    help="width/height with --fov (default 4/3)")
     b.add_argument("--mag", type=float, default=6.0, help="limiting V magnitude")
-    b.add_argument("--method", default="pyramid", help="identification method")
+    b.add_argument("--method", nargs="+", default=["pyramid"],
+                   choices=("pyramid", "triangle", "hashing"),
+                   help="identification method(s) the image serves (default: pyramid)")
     b.add_argument("-o", "--out", required=True, help="output file")
     b.set_defaults(func=_run_db_build)
     i = dsub.add_parser("info", help="validate and describe a database image")
@@ -248,10 +250,10 @@ def _run_db_build(args):
         if not 0 < args.fov < 180 or not math.isfinite(args.fov):
             raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
         image = build_database(fov_h_deg=args.fov, aspect=args.aspect, mag_limit=args.mag,
-                               method=args.method)
+                               methods=tuple(args.method))
     else:
         image = build_database(camera=load_preset(args.preset or DEFAULT_PRESET),
-                               mag_limit=args.mag, method=args.method)
+                               mag_limit=args.mag, methods=tuple(args.method))
     with open(args.out, "wb") as fh:
         fh.write(image)
     print(f"wrote {args.out}")

@@ -83,6 +83,13 @@ def test_db_build_and_info(tmp_path, capsys):
     assert "total" in built and out.stat().st_size < 1 << 20
     assert main(["db", "info", str(out)]) == 0
     assert "fov_h: 15.000 deg" in capsys.readouterr().out
+    from lodestar.firmware.database import Database
+    from lodestar.sim.catalogue import load
+    db = Database(out.read_bytes())
+    assert db.n_stars == int((load().vmag <= 5.5).sum())
+    assert main(["db", "build", "--fov", "15", "--mag", "4.0", "--method", "pyramid",
+                 "triangle", "-o", str(tmp_path / "two.bin")]) == 0
+    assert Database((tmp_path / "two.bin").read_bytes()).methods == 3
     data = bytearray(out.read_bytes())
     data[500] ^= 1
     (tmp_path / "bad.bin").write_bytes(bytes(data))

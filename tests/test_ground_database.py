@@ -227,14 +227,3 @@ def test_header_layout_matches_docstring():
     assert info["section_bytes"]["stars"] == 16 * info["n_stars"]
     assert info["section_bytes"]["pairs"] == 6 * info["n_pairs"]
     assert info["methods"] == L.METHOD_PYRAMID
-
-
-def test_cli(tmp_path, capsys):
-    out = tmp_path / "db.bin"
-    assert G.main(["--fov-h", "20", "--aspect", "1.333", "--mag", "4.0", "-o", str(out)]) == 0
-    assert "total" in capsys.readouterr().out
-    db = L.Database.open(str(out))
-    try:
-        assert db.n_stars == int(np.sum(load().vmag <= 4.0))
-    finally:
-        db.close()
