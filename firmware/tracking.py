@@ -60,7 +60,7 @@ import math
 from . import attitude as _att
 from .quaternion import multiply
 from . import status as S
-from .verify import binomial_tail, fov_solid_angle
+from .verify import binomial_tail, fov_solid_angle, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -180,11 +180,6 @@ def matrix(q):
             2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
 
 
-def chord(angle):
-    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart."""
-    return 2.0 * math.sin(0.5 * angle)
-
-
 # --------------------------------------------------------------------------------------
 # Prediction and matching
 # --------------------------------------------------------------------------------------
@@ -234,59 +229,35 @@ def match_nearest(observed, predicted, tolerance_rad):
     index) closer than ``tolerance_rad``: observed stars in order (brightest first) take the
     nearest unclaimed predicted star; a star with a second unclaimed prediction within
     tolerance is left unnamed."""
-    lim = chord(tolerance_rad)
-    lim2 = lim * lim
     claimed = {}
     pairs = []
-    for o in range(len(observed)):
-        ox, oy, oz = observed[o]
-        best = -1
-        best_d2 = lim2
-        second = False
-        for p in range(len(predicted)):
-            if p in claimed:
-                continue
-            c = predicted[p][0]
-            dx = ox - c[0]
-            if dx > lim or -dx > lim:
-                continue
-            dy = oy - c[1]
-            if dy > lim or -dy > lim:
-                continue
-            dz = oz - c[2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 <= lim2:
-                if best >= 0:
-                    second = True
-                if d2 <= best_d2:
-                    best = p
-                    best_d2 = d2
+    best, best_d2, second, current = -1, 0.0, False, -1
+
+    def close(o):
         if best >= 0 and not second:
             claimed[best] = o
             pairs.append((o, predicted[best][1]))
+
+    for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad):
+        if o != current:
+            close(current)
+            best, second, current = -1, False, o
+        if p in claimed:
+            continue
+        d2 = dx * dx + dy * dy + dz * dz
+        if best >= 0:
+            second = True
+        if best < 0 or d2 <= best_d2:
+            best, best_d2 = p, d2
+    close(current)
     return pairs
 
 
 def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     """Displacement-consensus association (step 3 of the module docstring):
     ``[(observed index, star index)]``."""
-    lim = chord(search_rad)
-    lim2 = lim * lim
     n = len(observed) if len(observed) < max_stars else max_stars
-    cands = []              # (o, p, dx, dy, dz)
-    for o in range(n):
-        ox, oy, oz = observed[o]
-        for p in range(len(predicted)):
-            c = predicted[p][0]
-            dx = ox - c[0]
-            if dx > lim or -dx > lim:
-                continue
-            dy = oy - c[1]
-            if dy > lim or -dy > lim:
-                continue
-            dz = oz - c[2]
-            if dx * dx + dy * dy + dz * dz <= lim2:
-                cands.append((o, p, dx, dy, dz))
+    cands = list(near_pairs(observed, predicted, search_rad, n))    # (o, p, dx, dy, dz)
     if not cands:
         return []
     c2 = cluster_rad * cluster_rad

@@ -242,16 +242,19 @@ def predicted_stars(database, q, margin=0.0):
     return out
 
 
-def match_stars(observed, predicted, tolerance_rad):
-    """One-to-one matches ``[(observed_index, star_index)]`` closer than ``tolerance_rad``,
-    closest first; ``predicted`` as returned by :func:`predicted_stars`.  An observed star
-    that is also within tolerance of a predicted star left unmatched is dropped (a close
-    double with one component unseen: either name could be right), and so are two observed
-    stars whose swapped assignment is also within tolerance."""
-    lim = 2.0 * math.sin(0.5 * tolerance_rad)
+def chord(angle):
+    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart."""
+    return 2.0 * math.sin(0.5 * angle)
+
+
+def near_pairs(observed, predicted, radius_rad, n_observed=None):
+    """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
+    ``n_observed``) within ``radius_rad`` of a predicted star ``predicted[p][0]``, with
+    ``(dx, dy, dz) = observed[o] - predicted[p][0]``; in ``o`` then ``p`` order."""
+    lim = chord(radius_rad)
     lim2 = lim * lim
-    cands = []
-    for o in range(len(observed)):
+    n = len(observed) if n_observed is None else min(n_observed, len(observed))
+    for o in range(n):
         ox, oy, oz = observed[o]
         for p in range(len(predicted)):
             c = predicted[p][0]
@@ -262,9 +265,18 @@ def match_stars(observed, predicted, tolerance_rad):
             if dy > lim or -dy > lim:
                 continue
             dz = oz - c[2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 <= lim2:
-                cands.append((d2, o, p))
+            if dx * dx + dy * dy + dz * dz <= lim2:
+                yield o, p, dx, dy, dz
+
+
+def match_stars(observed, predicted, tolerance_rad):
+    """One-to-one matches ``[(observed_index, star_index)]`` closer than ``tolerance_rad``,
+    closest first; ``predicted`` as returned by :func:`predicted_stars`.  An observed star
+    that is also within tolerance of a predicted star left unmatched is dropped (a close
+    double with one component unseen: either name could be right), and so are two observed
+    stars whose swapped assignment is also within tolerance."""
+    cands = [(dx * dx + dy * dy + dz * dz, o, p)
+             for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad)]
     cands.sort()
     used_o = {}
     used_p = {}

@@ -20,16 +20,15 @@ from lodestar.firmware import database as L
 from lodestar.firmware import hashing as H
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.ground.scenes import centroid_scene
+from starid_support import outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
 
 TOL = 3.0e-4
-MAX_ERR_DEG = 0.05
 
 
 @functools.lru_cache(maxsize=None)
@@ -39,16 +38,6 @@ def setup(group_size=4, normalized=False):
     image = build_database(cat, cam, mag_limit=6.0, methods=("hashing",),
                            hash_options={"group_size": group_size, "normalized": normalized})
     return cam, cat, image, Database(image)
-
-
-def outcome(sol, scene):
-    if sol.status != starid.OK:
-        return "no-solve"
-    if attitude_error_deg(sol.q, scene.q) > MAX_ERR_DEG:
-        return "wrong"
-    if any(hip not in scene.components[o] for o, hip in sol.matches):
-        return "wrong"
-    return "correct"
 
 
 def about_y(angle):

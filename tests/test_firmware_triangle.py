@@ -22,13 +22,13 @@ from lodestar.firmware import triangle as T
 from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.ground.scenes import centroid_scene
+from starid_support import outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
-MAX_ERR_DEG = 0.05
 
 
 @functools.lru_cache(maxsize=None)
@@ -37,17 +37,6 @@ def setup():
     cat = load()
     image = build_database(cat, cam, mag_limit=6.0, methods=("triangle",))
     return cam, cat, image, Database(image)
-
-
-def outcome(sol, scene):
-    """``"correct"``, ``"wrong"`` or ``"no-solve"``."""
-    if sol.status != starid.OK:
-        return "no-solve"
-    if attitude_error_deg(sol.q, scene.q) > MAX_ERR_DEG:
-        return "wrong"
-    if any(hip not in scene.components[o] for o, hip in sol.matches):
-        return "wrong"
-    return "correct"
 
 
 def unit(v):
