@@ -1,0 +1,150 @@
+"""The detection gateware: pixels in, blob records and one trailer per frame out.
+
+``Detector(width, height, pixel_bits, label_capacity, record_capacity, record_depth)``
+chains the threshold unit (``hdl/threshold.py``), the labeller (``hdl/labeller.py``) and
+the feature engine (``hdl/features.py``), with the register bank (``hdl/registers.py``)
+and two output buffers:
+
+* ``pixels`` (in): one pixel per clock while ``valid``, ``sof`` on a frame's first pixel,
+  ``eol`` on each line's last; no backpressure.  Blanking: see ``hdl/labeller.py``
+  (``MIN_HBLANK``, ``vblank_cycles``) and, in global mode, ``hdl/threshold.py``.
+* ``records`` (out, valid/ready): blob records in the compact layout
+  (``hdl.layouts.record_layout``), in the contract's order, as blobs complete.  A buffer of
+  ``record_depth`` records (default ``record_capacity``) decouples the reader; a record that
+  finds it full is counted in ``dropped_records`` (``FRAME_RECORD_OVERFLOW``).
+* ``trailer`` (out, valid/ready): after each frame's last record, the header fields of
+  ``hdl.layouts.TRAILER_NAMES`` (a buffer of ``TRAILER_DEPTH``; ``trailer_lost`` counts
+  trailers that found it full).  A frame's records are the ``n_records`` records before its
+  trailer.
+* register writes (``reg_addr``, ``reg_data``, ``reg_en``) between frames; registers are
+  latched when a frame's first pixel enters.  ``reg_error`` flags a refused write.
+* status: ``busy`` (a frame is being processed), ``frame_counter`` (frames started since
+  reset; the trailer carries the frame's own number, from 0), ``fault`` (an internal bound
+  was exceeded: never expected).
+
+In ``local`` mode the trailer's ``threshold`` is the ``local_offset`` register and its
+``background`` 0, as the golden model reports them.
+"""
+
+from amaranth import Module, Mux, Signal
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFOBuffered
+from amaranth.lib.wiring import In, Out, connect
+
+from lodestar import contract as C
+
+from .features import FeatureEngine
+from .labeller import Labeller
+from .layouts import record_layout, trailer_layout
+from .registers import RegisterBank
+from .threshold import ThresholdUnit, pixel_layout
+
+TRAILER_DEPTH = 4
+"""Trailers buffered for the reader."""
+
+_FILTERS = ("min_pixels", "min_sum", "max_pixels")
+
+
+class Detector(wiring.Component):
+    """Threshold, labelling and features for ``width x height`` frames."""
+
+    def __init__(self, width, height, pixel_bits, label_capacity=None,
+                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None):
+        if pixel_bits not in C.PIXEL_BITS:
+            raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
+        if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
+            raise ValueError(f"frame {width}x{height} is outside the contract's "
+                             f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.label_capacity = label_capacity or C.max_open_blobs(width)
+        self.record_capacity = record_capacity
+        self.record_depth = record_depth or record_capacity
+        top = max(r.address for r in C.REGISTERS)
+        super().__init__({
+            "pixels": In(stream.Signature(pixel_layout(pixel_bits), always_ready=True)),
+            "records": Out(stream.Signature(record_layout(width, height, pixel_bits))),
+            "trailer": Out(stream.Signature(trailer_layout())),
+            "reg_addr": In(C.bits_for(top)),
+            "reg_data": In(C.REGISTER_WORD_BITS),
+            "reg_en": In(1),
+            "reg_error": Out(1),
+            "busy": Out(1),
+            "frame_counter": Out(dict(C.HEADER_FIELDS)["frame_counter"]),
+            "trailer_lost": Out(8),
+            "fault": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        W, H, pb = self.width, self.height, self.pixel_bits
+        m.submodules.regs = regs = RegisterBank(pb)
+        m.submodules.threshold = thr = ThresholdUnit(W, H, pb)
+        m.submodules.labeller = lab = Labeller(W, H, pb, self.label_capacity)
+        m.submodules.features = feat = FeatureEngine(W, H, pb, lab.slots, self.record_capacity)
+        rec_layout = record_layout(W, H, pb)
+        m.submodules.record_fifo = rfifo = SyncFIFOBuffered(
+            width=rec_layout.size, depth=self.record_depth)
+        tr_layout = trailer_layout()
+        m.submodules.trailer_fifo = tfifo = SyncFIFOBuffered(
+            width=tr_layout.size, depth=TRAILER_DEPTH)
+
+        m.d.comb += [regs.addr.eq(self.reg_addr), regs.data.eq(self.reg_data),
+                     regs.en.eq(self.reg_en), self.reg_error.eq(regs.error)]
+        connect(m, wiring.flipped(self.pixels), thr.pixels)
+        for name in ("mode", "threshold", "background", "ksigma",
+                     "local_log2_window", "local_offset"):
+            if name in thr.signature.members:
+                m.d.comb += getattr(thr, name).eq(getattr(regs, name))
+        connect(m, thr.out, lab.pixels)
+        connect(m, lab.ops, feat.ops)
+        m.d.comb += [feat.tag.eq(lab.tag), feat.clear.eq(lab.clear),
+                     lab.feat_busy.eq(feat.busy), self.fault.eq(lab.fault),
+                     self.busy.eq(lab.busy)]
+
+        # registers latched when a frame enters, then handed to the labeller's frame
+        entry = Signal(data.StructLayout({
+            "mode": 2, "local_offset": pb,
+            **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}))
+        frame = Signal.like(entry)
+        with m.If(self.pixels.valid & self.pixels.payload.sof):
+            m.d.sync += [entry.mode.eq(regs.mode), entry.local_offset.eq(regs.local_offset)]
+            m.d.sync += [entry[n].eq(getattr(regs, n)) for n in _FILTERS]
+        m.d.comb += [getattr(feat, n).eq(frame[n]) for n in _FILTERS]
+
+        # trailer of the frame: latched at the labeller's frame start, completed at done
+        head = Signal(tr_layout)
+        fallback = Signal()
+        with m.If(lab.frame_start):
+            local = entry.mode == C.MODE_LOCAL
+            m.d.sync += [
+                frame.eq(entry),
+                head.mode.eq(entry.mode),
+                head.frame_counter.eq(self.frame_counter),
+                head.threshold.eq(Mux(local, entry.local_offset, thr.frame_threshold)),
+                head.background.eq(Mux(local, 0, thr.frame_background)),
+                fallback.eq(thr.frame_fallback),
+                self.frame_counter.eq(self.frame_counter + 1),
+            ]
+        trailer = Signal(tr_layout)
+        flags = lab.done_flags | Mux(fallback, C.FRAME_GLOBAL_FALLBACK, 0) | \
+            Mux(lab.dropped_labels != 0, C.FRAME_LABEL_OVERFLOW, 0) | \
+            Mux(feat.dropped_records != 0, C.FRAME_RECORD_OVERFLOW, 0)
+        m.d.comb += [
+            trailer.eq(head), trailer.flags.eq(flags),
+            trailer.n_blobs.eq(feat.n_blobs), trailer.n_filtered.eq(feat.n_filtered),
+            trailer.dropped_records.eq(feat.dropped_records),
+            trailer.dropped_labels.eq(lab.dropped_labels),
+            trailer.n_records.eq(feat.n_records),
+        ]
+        m.d.comb += [tfifo.w_data.eq(trailer), tfifo.w_en.eq(lab.done)]
+        with m.If(lab.done & ~tfifo.w_rdy):
+            m.d.sync += self.trailer_lost.eq(self.trailer_lost + 1)
+
+        # output buffers
+        m.d.comb += [rfifo.w_data.eq(feat.records.payload), rfifo.w_en.eq(feat.records.valid),
+                     feat.records.ready.eq(rfifo.w_rdy),
+                     self.records.payload.eq(rfifo.r_data), self.records.valid.eq(rfifo.r_rdy),
+                     rfifo.r_en.eq(self.records.ready),
+                     self.trailer.payload.eq(tfifo.r_data), self.trailer.valid.eq(tfifo.r_rdy),
+                     tfifo.r_en.eq(self.trailer.ready)]
+        return m

@@ -1,0 +1,182 @@
+"""Feature engine: blob features per label slot, merged on union, emitted at completion.
+
+The labeller (``hdl/labeller.py``) sends one *op* per column it decides, at most one per
+clock.  An op says what happens to the accumulator of the *active* component (the one the
+current run belongs to) and to the feature table, a memory of ``slots`` entries holding
+each open tracked component's features in the compact record layout
+(``hdl.layouts.record_layout``; its ``flags`` bit is the moment-saturation flag):
+
+* ``pix``: the lit pixel ``(x, y, p, w)`` joins the active component;
+* ``base``: what the accumulator starts from before the pixel is added: ``KEEP`` (itself),
+  ``NEW`` (empty: a birth), ``LOAD`` (the slot read by this op: the run continues a
+  component of the previous row) or ``MERGE`` (itself plus the slot read: a union);
+* ``rd``/``rd_addr``: read a slot (for ``LOAD``, ``MERGE`` or ``complete``);
+* ``complete``: the slot read is a completed blob: count it, filter it (contract
+  ``passes_filters``) and emit its record if fewer than ``record_capacity`` records were
+  emitted this frame and the record stream takes it (otherwise ``dropped_records``);
+* ``wr``/``wr_addr``: the run ends; write the accumulator (with this op's pixel) to a slot.
+
+Sums saturate at the contract's moment widths and set the saturation flag; counts, the
+bounding box and the peak are exact (``lodestar.contract``).  Order of accumulation does not
+matter, so the result equals the golden model's whatever the merge order.
+
+Timing: the op enters at clock ``c``; pixel products and the slot read take two clocks; the
+accumulator, the slot write and the record are at ``c + 3``.  A slot written by an op is
+read back correctly by any op entering two or more clocks later (the read port is
+transparent for the write port); the labeller never reads a slot sooner.  Ops carry the
+frame ``tag``; an op whose tag differs from the ``tag`` input (the frame was aborted) has no
+effect.  ``clear`` resets the per-frame counters.
+"""
+
+from amaranth import Module, Mux, Signal
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+from lodestar import contract as C
+
+from .layouts import record_fields, record_layout
+
+KEEP, NEW, LOAD, MERGE = range(4)
+
+_HEADER_BITS = dict(C.HEADER_FIELDS)
+
+
+def op_layout(width, height, pixel_bits, slots):
+    """One labeller decision for the feature engine."""
+    sb = C.bits_for(slots - 1)
+    return data.StructLayout({
+        "tag": 2, "pix": 1, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
+        "p": pixel_bits, "w": pixel_bits, "base": 2,
+        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
+    })
+
+
+def _combine(m, a, b, fields, pixel_bits):
+    """``a (+) b`` of two feature records: saturating sums, exact counts, box and peak."""
+    out = Signal.like(a)
+    sat = a.flags | b.flags
+    for name, bits in fields:
+        if name in C.MOMENTS:
+            s = Signal(bits + 1, name=f"sum_{name}")
+            m.d.comb += s.eq(a[name] + b[name])
+            m.d.comb += out[name].eq(Mux(s[bits], (1 << bits) - 1, s[:bits]))
+            sat = sat | s[bits]
+        elif name in ("n", "nsat"):
+            m.d.comb += out[name].eq(a[name] + b[name])
+        elif name in ("xmin", "ymin"):
+            m.d.comb += out[name].eq(Mux(a[name] < b[name], a[name], b[name]))
+        elif name in ("xmax", "ymax", "peak"):
+            m.d.comb += out[name].eq(Mux(a[name] > b[name], a[name], b[name]))
+    m.d.comb += out.flags.eq(sat)
+    return out
+
+
+def empty_features(width, height):
+    """The identity of ``(+)``: no pixels, an inverted bounding box."""
+    return {"xmin": (1 << C.bits_for(width - 1)) - 1, "ymin": (1 << C.bits_for(height - 1)) - 1}
+
+
+class FeatureEngine(wiring.Component):
+    """Feature table, accumulator and record emission for ``width x height`` frames."""
+
+    def __init__(self, width, height, pixel_bits, slots, record_capacity):
+        if not 1 <= record_capacity <= C.MAX_RECORD_CAPACITY:
+            raise ValueError(f"record_capacity={record_capacity} is out of range "
+                             f"1..{C.MAX_RECORD_CAPACITY}")
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.slots, self.record_capacity = slots, record_capacity
+        reg = C.REGISTER_BY_NAME
+        super().__init__({
+            "ops": In(stream.Signature(op_layout(width, height, pixel_bits, slots),
+                                       always_ready=True)),
+            "tag": In(2),
+            "clear": In(1),
+            "min_pixels": In(reg["min_pixels"].bits),
+            "min_sum": In(reg["min_sum"].bits),
+            "max_pixels": In(reg["max_pixels"].bits),
+            "records": Out(stream.Signature(record_layout(width, height, pixel_bits))),
+            "n_blobs": Out(_HEADER_BITS["n_blobs"]),
+            "n_filtered": Out(_HEADER_BITS["n_filtered"]),
+            "dropped_records": Out(_HEADER_BITS["dropped_records"]),
+            "n_records": Out(_HEADER_BITS["n_records"]),
+            "busy": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        W, H, pb = self.width, self.height, self.pixel_bits
+        fields = record_fields(W, H, pb)
+        layout = record_layout(W, H, pb)
+        fs = C.full_scale(pb)
+
+        m.submodules.table = table = Memory(shape=layout, depth=self.slots, init=[])
+        wp = table.write_port()
+        rp = table.read_port(transparent_for=(wp,))
+
+        # ---- stage 1: op registered, slot read issued, first products --------------
+        op1 = Signal.like(self.ops.payload)
+        v1 = Signal()
+        m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
+        m.d.comb += [rp.addr.eq(op1.rd_addr), rp.en.eq(v1 & op1.rd)]
+        wx1 = Signal(pb + len(op1.x))
+        wy1 = Signal(pb + len(op1.y))
+        op2 = Signal.like(op1)
+        v2 = Signal()
+        m.d.sync += [op2.eq(op1), v2.eq(v1), wx1.eq(op1.w * op1.x), wy1.eq(op1.w * op1.y)]
+
+        # ---- stage 2: second products, slot data ------------------------------------
+        pixf = Signal(layout)
+        op3 = Signal.like(op1)
+        v3 = Signal()
+        rd3 = Signal(layout)
+        m.d.sync += [
+            op3.eq(op2), v3.eq(v2), rd3.eq(rp.data),
+            pixf.n.eq(1), pixf.nsat.eq(op2.p == fs),
+            pixf.s0.eq(op2.w), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
+            pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
+            pixf.xmin.eq(op2.x), pixf.xmax.eq(op2.x), pixf.ymin.eq(op2.y),
+            pixf.ymax.eq(op2.y), pixf.peak.eq(op2.p), pixf.flags.eq(0),
+        ]
+
+        # ---- stage 3: accumulator, slot write, completion ---------------------------
+        live = v3 & (op3.tag == self.tag)
+        acc = Signal(layout)
+        empty = Signal(layout, init=empty_features(W, H))
+        merged = _combine(m, acc, rd3, fields, pb)
+        base = Signal(layout)
+        with m.Switch(op3.base):
+            with m.Case(KEEP):
+                m.d.comb += base.eq(acc)
+            with m.Case(NEW):
+                m.d.comb += base.eq(empty)
+            with m.Case(LOAD):
+                m.d.comb += base.eq(rd3)
+            with m.Case(MERGE):
+                m.d.comb += base.eq(merged)
+        added = _combine(m, base, pixf, fields, pb)
+        acc_next = Signal(layout)
+        m.d.comb += acc_next.eq(Mux(op3.pix, added, base))
+        with m.If(live):
+            m.d.sync += acc.eq(acc_next)
+        m.d.comb += [wp.addr.eq(op3.wr_addr), wp.data.eq(acc_next),
+                     wp.en.eq(live & op3.wr)]
+
+        passes = (rd3.n >= self.min_pixels) & (rd3.n <= self.max_pixels) & \
+            (rd3.s0 >= self.min_sum)
+        room = self.n_records < self.record_capacity
+        emit = live & op3.complete & passes & room
+        m.d.comb += [self.records.payload.eq(rd3), self.records.valid.eq(emit)]
+        with m.If(self.clear):
+            m.d.sync += [self.n_blobs.eq(0), self.n_filtered.eq(0),
+                         self.dropped_records.eq(0), self.n_records.eq(0)]
+        with m.Elif(live & op3.complete):
+            m.d.sync += self.n_blobs.eq(self.n_blobs + 1)
+            with m.If(~passes):
+                m.d.sync += self.n_filtered.eq(self.n_filtered + 1)
+            with m.Elif(emit & self.records.ready):
+                m.d.sync += self.n_records.eq(self.n_records + 1)
+            with m.Else():
+                m.d.sync += self.dropped_records.eq(self.dropped_records + 1)
+        m.d.comb += self.busy.eq(v1 | v2 | v3)
+        return m

@@ -1,0 +1,92 @@
+"""Amaranth-simulator bench of the whole detector: stream frames in, collect records and
+trailers, convert them to the golden model's types (shared by the hdl unit tests)."""
+
+import numpy as np
+from amaranth.sim import Simulator
+
+from lodestar import contract as C
+from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
+
+
+def unpack(value, fields):
+    """``{name: int}`` of a packed struct value (first field in the low bits)."""
+    out = {}
+    for name, bits in fields:
+        out[name] = value & ((1 << bits) - 1)
+        value >>= bits
+    return out
+
+
+def to_record(fields):
+    """``contract.BlobRecord`` of an unpacked compact record."""
+    return C.BlobRecord(*(fields[name] for name in C.RECORD_NAMES))
+
+
+def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None,
+                  record_ready=lambda cycle: True):
+    """Run ``frames`` (uint16 arrays) through ``dut`` (a ``Detector``).
+
+    ``regs``: one ``{name: value}`` per frame, written before it.  ``hblank``/``vblank``:
+    idle clocks after each row / frame (``vblank`` defaults to what the detector needs).
+    ``stop_after``: ``{frame index: pixels}`` streams only that many pixels of a frame.
+    Returns ``(records, trailers, leftover)``: the ``BlobRecord`` list, the trailer dicts in
+    output order, each with its frame's records in ``["records"]`` (the ``n_records``
+    records before it in the record stream), and records no trailer claimed.
+    """
+    from lodestar.hdl.labeller import vblank_cycles
+    h, w = frames[0].shape
+    vblank = vblank_cycles(w) + 2 if vblank is None else vblank
+    rec_fields = record_fields(dut.width, dut.height, dut.pixel_bits)
+    tr_fields = trailer_fields()
+    out_records, trailers, pending = [], [], []
+    done = {"flag": False}
+
+    async def driver(ctx):
+        for i, frame in enumerate(frames):
+            for name, value in (regs[i] if regs else {}).items():
+                ctx.set(dut.reg_addr, C.REGISTER_BY_NAME[name].address)
+                ctx.set(dut.reg_data, value)
+                ctx.set(dut.reg_en, 1)
+                await ctx.tick()
+            ctx.set(dut.reg_en, 0)
+            limit = (stop_after or {}).get(i, h * w)
+            for k in range(limit):
+                y, x = divmod(k, w)
+                ctx.set(dut.pixels.valid, 1)
+                ctx.set(dut.pixels.payload.data, int(frame[y, x]))
+                ctx.set(dut.pixels.payload.sof, int(k == 0))
+                ctx.set(dut.pixels.payload.eol, int(x == w - 1))
+                await ctx.tick()
+                if x == w - 1 and hblank:
+                    ctx.set(dut.pixels.valid, 0)
+                    await ctx.tick().repeat(hblank)
+            ctx.set(dut.pixels.valid, 0)
+            await ctx.tick().repeat(vblank)
+        await ctx.tick().repeat(8)
+        done["flag"] = True
+
+    async def monitor(ctx):
+        cycle = 0
+        ctx.set(dut.trailer.ready, 1)
+        while True:
+            ready = record_ready(cycle)
+            ctx.set(dut.records.ready, ready)
+            if ready and ctx.get(dut.records.valid):
+                raw = ctx.get(dut.records.payload.as_value())
+                pending.append(to_record(unpack(raw, rec_fields)))
+            if ctx.get(dut.trailer.valid):
+                trailers.append(unpack(ctx.get(dut.trailer.payload.as_value()), tr_fields))
+            await ctx.tick()
+            cycle += 1
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(driver)
+    sim.add_testbench(monitor, background=True)
+    sim.run()
+    for t in trailers:       # a frame's records are the n_records before its trailer
+        n = t["n_records"]
+        t["records"] = pending[:n]
+        out_records.extend(pending[:n])
+        del pending[:n]
+    return out_records, trailers, pending

@@ -1,0 +1,104 @@
+"""The detection gateware in the Amaranth simulator against the golden model.
+
+The broad bit-exactness campaign runs on Verilator (``cocotb_tests/test_detector.py``); these
+are the block-level checks: random frames at random capacities, record order and trailer
+fields, a slow record reader, truncated frames and line errors, register refusal."""
+
+import numpy as np
+import pytest
+from hdl_bench import stream_frames
+
+from lodestar import contract as C
+from lodestar.golden import DetectorConfig, detect_frame
+from lodestar.hdl.detector import Detector
+
+
+def frame_of(mask, rng, bits=12):
+    fs = C.full_scale(bits)
+    return np.where(mask, rng.integers(51, fs + 1, size=mask.shape),
+                    rng.integers(0, 51, size=mask.shape)).astype(np.uint16)
+
+
+def golden_trailer(res, counter):
+    head = res.header()
+    head["frame_counter"] = counter
+    return {k: head[k] for k in ("mode", "frame_counter", "flags", "threshold", "background",
+                                 "n_blobs", "n_filtered", "dropped_records", "dropped_labels",
+                                 "n_records")}
+
+
+def trailer_fields(t):
+    return {k: v for k, v in t.items() if k != "records"}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_random_frames_random_capacities(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(5):
+        h, w = int(rng.integers(1, 9)), int(rng.integers(2, 10))
+        cap = int(rng.integers(1, C.max_open_blobs(w) + 1))
+        rcap = int(rng.integers(1, 8))
+        frames = [frame_of(rng.random((h, w)) < d, rng) for d in (0.2, 0.45, 0.6, 0.8)]
+        regs = [dict(threshold=50, background=40, min_pixels=int(rng.integers(1, 3)))] + \
+            [{}] * 3
+        cfg = DetectorConfig(width=w, height=h, threshold=50, background=40,
+                             min_pixels=regs[0]["min_pixels"], label_capacity=cap,
+                             record_capacity=rcap)
+        _, trailers, pending = stream_frames(Detector(w, h, 12, cap, rcap), frames, regs)
+        assert pending == [] and len(trailers) == len(frames)
+        for i, (frame, t) in enumerate(zip(frames, trailers)):
+            res = detect_frame(frame, cfg)
+            assert t["records"] == list(res.blobs)
+            assert trailer_fields(t) == golden_trailer(res, i)
+
+
+def test_slow_reader_loses_nothing_it_does_not_count():
+    rng = np.random.default_rng(7)
+    frames = [frame_of(rng.random((6, 8)) < 0.3, rng) for _ in range(3)]
+    regs = [dict(threshold=50, background=40)] + [{}] * 2
+    dut = Detector(8, 6, 12, record_capacity=16, record_depth=2)
+    _, trailers, pending = stream_frames(dut, frames, regs,
+                                         record_ready=lambda cycle: cycle % 7 == 0)
+    cfg = DetectorConfig(width=8, height=6, threshold=50, background=40)
+    lost = 0
+    for frame, t in zip(frames, trailers):
+        res = detect_frame(frame, cfg)
+        assert t["n_records"] + t["dropped_records"] == len(res.blobs)
+        assert bool(t["flags"] & C.FRAME_RECORD_OVERFLOW) == (t["dropped_records"] > 0)
+        assert all(r in res.blobs for r in t["records"])
+        lost += t["dropped_records"]
+    assert lost > 0 and pending == []
+
+
+def test_truncated_frame_and_line_error_recover_next_frame():
+    rng = np.random.default_rng(3)
+    h, w = 6, 7
+    frames = [frame_of(rng.random((h, w)) < 0.5, rng) for _ in range(4)]
+    regs = [dict(threshold=50, background=40)] + [{}] * 3
+    # frame 0 stops after 2.5 rows, frame 2 after 4 rows plus 3 pixels
+    _, trailers, _ = stream_frames(Detector(w, h, 12), frames, regs,
+                                   stop_after={0: 2 * w + 3, 2: 4 * w + 3})
+    cfg = DetectorConfig(width=w, height=h, threshold=50, background=40)
+    assert [t["flags"] & C.FRAME_TRUNCATED for t in trailers] == \
+        [C.FRAME_TRUNCATED, 0, C.FRAME_TRUNCATED, 0]
+    for i in (1, 3):
+        res = detect_frame(frames[i], cfg)
+        assert trailers[i]["records"] == list(res.blobs)
+        assert trailer_fields(trailers[i]) == golden_trailer(res, i)
+
+
+def test_short_horizontal_blanking_is_flagged():
+    rng = np.random.default_rng(4)
+    frames = [frame_of(rng.random((5, 6)) < 0.6, rng) for _ in range(2)]
+    regs = [dict(threshold=50, background=40), {}]
+    _, trailers, _ = stream_frames(Detector(6, 5, 12), frames, regs, hblank=0)
+    assert all(t["flags"] & C.FRAME_LINE_ERROR for t in trailers)
+
+
+def test_refused_register_write_keeps_value():
+    rng = np.random.default_rng(5)
+    frames = [frame_of(rng.random((4, 5)) < 0.5, rng, bits=10)]
+    # threshold above 10-bit full scale is refused: the reset threshold (120) stays
+    regs = [dict(threshold=4000, background=40)]
+    _, trailers, _ = stream_frames(Detector(5, 4, 10), frames, regs)
+    assert trailers[0]["threshold"] == C.REGISTER_BY_NAME["threshold"].reset
