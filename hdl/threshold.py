@@ -1,18 +1,23 @@
 """Threshold unit: pixel stream in, lit flag and weight out, at one pixel per clock.
 
-Implements the ``fixed`` and ``global`` modes of ``lodestar.contract`` bit-exactly (the
-``local`` mode's window unit is still to come: until then a frame started in local mode is
-processed with the fixed registers and flagged by ``frame_local_unsupported``).
+Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract``
+bit-exactly.
 
 Stream conventions: ``pixels`` carries one pixel per clock while ``valid`` (no backpressure,
 a sensor cannot be stalled) with ``sof`` on the first pixel of a frame and ``eol`` on the
-last pixel of each line.  The runtime registers are latched on the ``sof`` pixel.  ``out``
-follows one clock later with the pixel, its position, ``lit = p > T`` and
-``weight = max(p - B, 0)``, and ``eof`` on the frame's last pixel.
+last pixel of each line.  Positions count as the input arrives: ``sof`` is at (0, 0), ``x``
+returns to 0 after column ``W - 1`` or an ``eol`` and ``y`` advances with it; a frame ends on
+the pixel at ``(W - 1, H - 1)`` and is *complete* (for the statistics) if every line was
+``W`` long.  The runtime registers are latched on the ``sof`` pixel.  ``out`` carries one
+beat per pixel in raster order with the pixel, its position, ``lit = p > T`` and
+``weight = max(p - B, 0)``, and ``eof`` on the frame's last pixel.  The ``frame_*`` outputs
+are latched on each ``sof`` and describe that frame.
 
-Global mode: the unit accumulates ``S1 = sum(p)`` and ``S2 = sum(p*p)`` over every frame.
-When a frame completes (``W*H`` pixels, every line ``W`` long) a sequential unit computes
-the next frame's levels exactly as ``contract.global_levels``::
+Fixed and global mode: ``out`` follows the input one clock later.
+
+Global mode: the unit accumulates ``S1 = sum(p)`` and ``S2 = sum(p*p)`` over every frame
+(in every mode).  When a frame completes a sequential unit computes the next frame's
+levels exactly as ``contract.global_levels``::
 
     B = S1 // N;  V = N*S2 - S1**2;  r = isqrt(K*K*V);  T = min(B + r // (16 N), full_scale)
 
@@ -24,10 +29,55 @@ those of the ksigma in effect at the next frame's start provided the register wa
 at least ``ksigma_cycles`` clocks before it (and the frame's last pixel came at least
 ``global_cycles`` before).  A frame that starts earlier, or after an incomplete frame, uses
 the fixed registers and raises ``frame_fallback`` (``FRAME_GLOBAL_FALLBACK``).
+
+Local mode (``L = 2**local_log2_window``, ``half = L/2``): per pixel ``x`` of a row, with
+``s = contract.local_window_start(x, W, log2 L)``::
+
+    M = (sum(p[s .. s+L]) - p[x]) >> log2(L);   T = min(M + local_offset, full_scale);   B = M
+
+The window reaches up to ``L`` columns ahead of ``x``, so local-mode pixels go through a
+circular buffer of ``local_depth(W)`` entries (256 for ``L`` up to 128), in three copies in
+synchronous-read memories (one M9K each): one read at ``x``, with the pixel's ``eol`` bit,
+one at ``x + half`` and one at ``x - half - 1``.  The window sum is kept running: at
+``x = 0`` it is the row's first window ``p[0] + .. + p[L]``, added up on the input side as
+the row arrives and handed over in a register; at each ``x`` with
+``half < x <= W - 1 - half`` (where ``s`` advances by one) it gains ``p[x + half]`` and
+loses ``p[x - half - 1]``; elsewhere ``s`` is clamped and the sum stays.  A pixel is
+*ready* once ``L`` more pixels of the frame have come after it, or its row's last pixel has
+come; ready pixels are read one per clock, in order (every address read was written on an
+earlier clock: no read-during-write), and a pixel's beat follows its read 4 clocks later
+(window sum, ``M``, output register).
+
+* Latency: a pixel's beat comes ``LOCAL_LATENCY`` (5) clocks after the input pixel that
+  made it ready, or one clock after the previous beat if that is later; within a row
+  streaming without gaps, ``L + 5`` clocks after the pixel itself (fixed mode: 1).  The
+  last ``L`` pixels of a row follow the row's last pixel one per clock, during the
+  horizontal blanking or the next row's first pixels: any horizontal blanking, none
+  included, works.  After a frame's last pixel its remaining pixels drain by themselves;
+  the ``eof`` beat comes at most ``L + 5`` clocks after it.
+* Vertical blanking: after a local-mode frame, ``local_blanking(log2 L)`` = ``L + 4`` idle
+  clocks between its last pixel and the next ``sof`` (132 for ``L = 128``; a sensor's
+  vertical blanking, rows long, is more).  Before a local-mode frame none.  One frame at a
+  time is in the buffer: a ``sof`` that comes earlier, or that cuts a local-mode frame
+  short, discards the delayed pixels not yet out and raises ``frame_tail_dropped`` for the
+  new frame, which is processed normally (its pixels never mix with the previous frame's).
+  The pixels of a frame that stops mid-row wait in the buffer for the next ``sof``, which
+  discards them.
+* Frame geometry: the window must be narrower than the frame.  A frame started in local mode
+  with ``2**local_log2_window >= W`` (or ``local_log2_window`` outside
+  ``LOCAL_LOG2_WINDOW_MIN .. LOCAL_LOG2_WINDOW_MAX``) is processed with the fixed
+  registers, one clock later, and raises ``frame_local_fallback``.
+* Broken lines: in a local-mode frame with lines of the wrong length, positions are counted
+  as above and the levels come from whatever pixels the buffer holds at the window's
+  positions; every pixel still leaves once its row has ended.  Pixels that come after a
+  local-mode frame ended and before the next ``sof`` belong to no frame and are not output.
+* ``frame_threshold`` carries ``local_offset`` saturated to full scale (which leaves every
+  ``T`` unchanged) and ``frame_background`` 0, as ``golden.frame.frame_levels`` reports them.
 """
 
 from amaranth import Cat, Const, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
+from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
@@ -73,9 +123,45 @@ def global_cycles(width, height, pixel_bits):
     # DIV B, MUL S1*S1, MUL N*S2, SUB, then the k-dependent part
     return w["s1"] + w["s1"] + w["n"] + 1 + ksigma_cycles(width, height, pixel_bits)
 
+LOCAL_LATENCY = 5
+"""Local mode: clocks from the input pixel that makes a pixel ready to that pixel's beat."""
+
+
+def local_log2_window_max(width):
+    """Largest ``local_log2_window`` a frame ``width`` pixels wide admits (window narrower
+    than the frame), or ``None`` if none does."""
+    usable = [lg for lg in range(C.LOCAL_LOG2_WINDOW_MIN, C.LOCAL_LOG2_WINDOW_MAX + 1)
+              if (1 << lg) < width]
+    return max(usable) if usable else None
+
+
+def local_depth(width):
+    """Entries of the local-mode circular buffer for frames ``width`` pixels wide.
+
+    A pixel is read while at most ``L + 1`` pixels of the frame are unread (itself included)
+    and its window reads reach back ``L/2 + 1`` further, so ``3L/2 + 3`` entries suffice;
+    rounded up to a power of two (256 for ``L = 128``).
+    """
+    lg = local_log2_window_max(width) or C.LOCAL_LOG2_WINDOW_MIN
+    return 1 << C.bits_for(3 * (1 << lg) // 2 + 2)
+
+
+def local_blanking(log2_window):
+    """Idle clocks a local-mode frame needs between its last pixel and the next ``sof`` for
+    all its pixels to leave: the up to ``L + 1`` pixels unread after the last pixel are read
+    one per clock, the last of them ``LOCAL_LATENCY - 1`` clocks before its beat."""
+    return (1 << log2_window) + LOCAL_LATENCY - 1
+
 
 class ThresholdUnit(wiring.Component):
-    """Fixed and global thresholds for ``width x height`` frames of ``pixel_bits`` pixels."""
+    """Fixed, global and local thresholds for ``width x height`` frames of ``pixel_bits``
+    pixels (module docstring).  Status outputs, latched on each ``sof``:
+    ``frame_threshold``/``frame_background`` (the frame's T and B; in local mode the offset
+    and 0), ``frame_fallback`` (global mode without levels: fixed registers used),
+    ``frame_local_fallback`` (local mode with a window not narrower than the frame: fixed
+    registers used), ``frame_tail_dropped`` (this ``sof`` discarded local-mode pixels of the
+    previous frame that were not out yet).  ``stats_busy`` is high while the global levels
+    are being computed."""
 
     def __init__(self, width, height, pixel_bits):
         if pixel_bits not in C.PIXEL_BITS:
@@ -93,10 +179,13 @@ class ThresholdUnit(wiring.Component):
             "threshold": In(pixel_bits),
             "background": In(pixel_bits),
             "ksigma": In(reg["ksigma"].bits),
+            "local_log2_window": In(reg["local_log2_window"].bits),
+            "local_offset": In(reg["local_offset"].bits),
             "frame_threshold": Out(pixel_bits),
             "frame_background": Out(pixel_bits),
             "frame_fallback": Out(1),
-            "frame_local_unsupported": Out(1),
+            "frame_local_fallback": Out(1),
+            "frame_tail_dropped": Out(1),
             "stats_busy": Out(1),
         })
 
@@ -108,17 +197,18 @@ class ThresholdUnit(wiring.Component):
         wd = _widths(W, H, pb)
         inp, out = self.pixels, self.out
         p = inp.payload.data
+        sof = inp.payload.sof
 
         # ---- position and frame integrity -------------------------------------------
         x = Signal(range(W))
         y = Signal(range(H))
         in_frame = Signal()
         frame_ok = Signal()          # every line so far was exactly W long
-        cur_x = Mux(inp.payload.sof, 0, x)
-        cur_y = Mux(inp.payload.sof, 0, y)
+        cur_x = Mux(sof, 0, x)
+        cur_y = Mux(sof, 0, y)
         last_col = cur_x == W - 1
         line_error = inp.payload.eol != last_col
-        frame_end = inp.valid & last_col & (cur_y == H - 1) & (in_frame | inp.payload.sof)
+        frame_end = inp.valid & last_col & (cur_y == H - 1) & (in_frame | sof)
 
         # ---- levels latched at the start of each frame -------------------------------
         next_t = Signal(pb)
@@ -132,44 +222,147 @@ class ThresholdUnit(wiring.Component):
             (kreg == self.ksigma)
         t_new = Mux(use_global, next_t, self.threshold)
         b_new = Mux(use_global, next_b, self.background)
-        t_eff = Mux(inp.payload.sof, t_new, t_frame)
-        b_eff = Mux(inp.payload.sof, b_new, b_frame)
+        t_eff = Mux(sof, t_new, t_frame)
+        b_eff = Mux(sof, b_new, b_frame)
+
+        lg_reg = self.local_log2_window
+        window_ok = ((lg_reg >= C.LOCAL_LOG2_WINDOW_MIN) & (lg_reg <= C.LOCAL_LOG2_WINDOW_MAX)
+                     & ((Const(1, 1) << lg_reg) < W))
+        local_new = (self.mode == C.MODE_LOCAL) & window_ok
+        offset_sat = Mux(self.local_offset > fs, fs, self.local_offset)[:pb]
+        local_frame = Signal()       # the current frame is processed in local mode
+        lg = Signal.like(lg_reg)     # its log2(L) and offset
+        offset = Signal(pb)
+        local_pix = Mux(sof, local_new, local_frame)
+
+        # ---- local mode: input side --------------------------------------------------
+        depth = local_depth(W)
+        win_max = 1 << (local_log2_window_max(W) or C.LOCAL_LOG2_WINDOW_MIN)
+        sum_bits = C.bits_for((win_max + 1) * fs)
+        entry = data.StructLayout({"data": pb, "eol": 1})
+        m.submodules.px_mem = px_mem = Memory(shape=entry, depth=depth, init=[])
+        m.submodules.add_mem = add_mem = Memory(shape=pb, depth=depth, init=[])
+        m.submodules.sub_mem = sub_mem = Memory(shape=pb, depth=depth, init=[])
+        px_rd, add_rd, sub_rd = px_mem.read_port(), add_mem.read_port(), sub_mem.read_port()
+        wr = inp.valid & local_pix & (sof | in_frame)    # a pixel of a local-mode frame
+        drop = inp.valid & sof       # a new frame: discard what is left of the last one
+        wp = Signal(range(depth))    # buffer address of the next pixel written
+        for mem in (px_mem, add_mem, sub_mem):
+            port = mem.write_port()
+            m.d.comb += [port.addr.eq(wp), port.en.eq(wr)]
+            m.d.comb += port.data.eq(Cat(p, inp.payload.eol) if mem is px_mem else p)
+        row_sum = Signal(sum_bits)   # p[0] + .. + p[x] (wraps after column L, unused then)
+        first_sum = Signal(sum_bits)  # the row's first window p[0] + .. + p[L]
+        row_sum_new = Mux(cur_x == 0, 0, row_sum) + p
+        win = Const(1, 1) << lg      # L of the current frame
+        half = win >> 1
+        with m.If(wr):
+            m.d.sync += [wp.eq(wp + 1), row_sum.eq(row_sum_new)]
+            with m.If(cur_x == win):
+                m.d.sync += first_sum.eq(row_sum_new)
+
+        # ---- local mode: reads, one ready pixel per clock ----------------------------
+        lag = Signal(range(depth))   # pixels written and not yet read
+        since_end = Signal(range(depth), init=depth - 1)  # written since a row's last pixel
+        ra = Signal(range(depth))    # buffer address of the oldest unread pixel
+        ready = (lag > win) | (since_end < lag)
+        rd = ready & ~drop
+        m.d.comb += [px_rd.addr.eq(ra), add_rd.addr.eq(ra + half),
+                     sub_rd.addr.eq(ra - half - 1)]
+        with m.If(drop):
+            m.d.sync += [ra.eq(wp), lag.eq(wr)]
+        with m.Else():
+            m.d.sync += [ra.eq(ra + rd), lag.eq(lag + wr - rd)]
+        since_base = Mux(drop, depth - 1, since_end)
+        with m.If(wr):
+            m.d.sync += since_end.eq(Mux(last_col | inp.payload.eol, 0,
+                                         Mux(since_base == depth - 1, since_base,
+                                             since_base + 1)))
+        with m.Elif(drop):
+            m.d.sync += since_end.eq(depth - 1)
+
+        # stage 1: position (counted as on the input side) and running window sum
+        st1_valid = Signal()
+        xo = Signal(range(W))
+        yo = Signal(range(H))
+        acc = Signal(sum_bits)       # sum(p[s .. s+L]) of the pixel in stage 2
+        step = (xo > half) & (xo <= W - 1 - half)
+        beat = data.StructLayout({"data": pb, "x": range(W), "y": range(H), "eof": 1})
+        st2 = Signal(beat)
+        st2_valid = Signal()
+        m.d.sync += [st1_valid.eq(rd), st2_valid.eq(st1_valid & ~drop),
+                     st2.data.eq(px_rd.data.data), st2.x.eq(xo), st2.y.eq(yo),
+                     st2.eof.eq((xo == W - 1) & (yo == H - 1))]
+        with m.If(drop):
+            m.d.sync += [xo.eq(0), yo.eq(0)]
+        with m.Elif(st1_valid):
+            with m.If((xo == W - 1) | px_rd.data.eol):
+                m.d.sync += [xo.eq(0), yo.eq(Mux(yo == H - 1, 0, yo + 1))]
+            with m.Else():
+                m.d.sync += xo.eq(xo + 1)
+            m.d.sync += acc.eq(Mux(xo == 0, first_sum, acc)
+                               + Mux(step, add_rd.data, 0) - Mux(step, sub_rd.data, 0))
+
+        # stage 2: the window mean M
+        st3 = Signal(beat)
+        mean = Signal(pb)            # M of the pixel in stage 3 (<= full scale)
+        st3_valid = Signal()
+        m.d.sync += [st3_valid.eq(st2_valid & ~drop), st3.eq(st2),
+                     mean.eq((acc - st2.data)[:sum_bits] >> lg)]
+        # stage 3 (into the output register): T, lit and weight
+        level = mean + offset
+        t_local = Mux(level > fs, fs, level)
+        local_valid = st3_valid & ~drop
+        fixed_valid = inp.valid & ~local_pix
 
         with m.If(inp.valid):
-            with m.If(inp.payload.sof):
+            with m.If(sof):
                 m.d.sync += [
                     t_frame.eq(t_new), b_frame.eq(b_new),
-                    self.frame_threshold.eq(t_new), self.frame_background.eq(b_new),
+                    self.frame_threshold.eq(Mux(local_new, offset_sat, t_new)),
+                    self.frame_background.eq(Mux(local_new, 0, b_new)),
                     self.frame_fallback.eq((self.mode == C.MODE_GLOBAL) & ~use_global),
-                    self.frame_local_unsupported.eq(self.mode == C.MODE_LOCAL),
+                    self.frame_local_fallback.eq((self.mode == C.MODE_LOCAL) & ~window_ok),
+                    self.frame_tail_dropped.eq((lag != 0) | st1_valid | st2_valid | st3_valid),
+                    local_frame.eq(local_new), lg.eq(lg_reg), offset.eq(offset_sat),
                     in_frame.eq(1),
                 ]
             with m.If(last_col | inp.payload.eol):
                 m.d.sync += [x.eq(0), y.eq(Mux(cur_y == H - 1, 0, cur_y + 1))]
             with m.Else():
-                m.d.sync += x.eq(cur_x + 1)
-            m.d.sync += frame_ok.eq(Mux(inp.payload.sof, 1, frame_ok) & ~line_error)
+                m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y)]
+            m.d.sync += frame_ok.eq(Mux(sof, 1, frame_ok) & ~line_error)
             with m.If(frame_end):
                 m.d.sync += in_frame.eq(0)
 
-        # ---- output (one register stage) --------------------------------------------
-        m.d.sync += [
-            out.valid.eq(inp.valid),
-            out.payload.data.eq(p),
-            out.payload.x.eq(cur_x),
-            out.payload.y.eq(cur_y),
-            out.payload.lit.eq(p > t_eff),
-            out.payload.weight.eq(Mux(p > b_eff, p - b_eff, 0)),
-            out.payload.eof.eq(frame_end),
-        ]
+        # ---- output register: the input pixel (fixed, global) or stage 3 (local) ------
+        m.d.sync += out.valid.eq(fixed_valid | local_valid)
+        with m.If(local_valid):
+            m.d.sync += [
+                out.payload.data.eq(st3.data),
+                out.payload.x.eq(st3.x),
+                out.payload.y.eq(st3.y),
+                out.payload.lit.eq(st3.data > t_local),
+                out.payload.weight.eq(Mux(st3.data > mean, st3.data - mean, 0)),
+                out.payload.eof.eq(st3.eof),
+            ]
+        with m.Else():
+            m.d.sync += [
+                out.payload.data.eq(p),
+                out.payload.x.eq(cur_x),
+                out.payload.y.eq(cur_y),
+                out.payload.lit.eq(p > t_eff),
+                out.payload.weight.eq(Mux(p > b_eff, p - b_eff, 0)),
+                out.payload.eof.eq(frame_end),
+            ]
 
         # ---- statistics of the frame -------------------------------------------------
         s1 = Signal(wd["s1"])
         s2 = Signal(wd["s2"])
         with m.If(inp.valid):
-            m.d.sync += [s1.eq(Mux(inp.payload.sof, 0, s1) + p),
-                         s2.eq(Mux(inp.payload.sof, 0, s2) + p * p)]
-        complete = frame_end & Mux(inp.payload.sof, 1, frame_ok) & ~line_error
+            m.d.sync += [s1.eq(Mux(sof, 0, s1) + p),
+                         s2.eq(Mux(sof, 0, s2) + p * p)]
+        complete = frame_end & Mux(sof, 1, frame_ok) & ~line_error
 
         # ---- sequential global-levels unit -------------------------------------------
         a1 = Signal(wd["s1"])        # S1 snapshot
