@@ -8,9 +8,14 @@
 ``goldenset``  write a named golden image set (frames, truth, expected detection).
 ``db``         build a star-identification database image for a camera (``db build``) or
                describe one (``db info``).
+``demo``       simulate a frame, detect it, solve it with the flight firmware and check the
+               attitude against the truth (``lodestar.demo``).
+``solve``      detect, identify and solve a real sky image: PNG, TIFF or FITS
+               (``lodestar.imagesolve``).
 """
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -275,6 +280,11 @@ def _run_db_info(args):
     return 0
 
 
+COMMAND_MODULES = ("lodestar.demo", "lodestar.imagesolve")
+"""Modules that each provide one subcommand: ``add_parser(subparsers)`` registers it and
+sets ``func`` (``run(args)`` -> exit code).  A new command is a module added here."""
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="lodestar", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -283,6 +293,8 @@ def build_parser():
     _simulate_parser(sub)
     _goldenset_parser(sub)
     _db_parser(sub)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).add_parser(sub)
     return parser
 
 

