@@ -1,0 +1,291 @@
+"""SPI slave for the MCU link: a byte layer (:class:`SPIByteSlave`) and the command layer on top
+(:class:`SPISlave`), both in the ``sync`` domain.
+
+Electrical protocol
+-------------------
+SPI mode 0 (CPOL = 0, CPHA = 0: SCK idles low, both sides sample on the rising edge), MSB first,
+CS active low.  SCK, MOSI and CS_N are asynchronous to the system clock and each pass through a
+2-flop synchronizer (``amaranth.lib.cdc.FFSynchronizer``); an SCK rising edge is found by
+comparing the synchronized SCK with its previous value.  MISO is driven from a register
+(``miso_oe`` is high while CS is asserted, for a shared bus).  The slave presents the next bit
+on MISO as soon as it has seen the rising edge that sampled the previous one (the master does
+not look at MISO before its next rising edge), which is what makes a 4x clock ratio possible.
+
+Timing requirements, with ``T`` the system clock period, ``T_sck`` the SCK period and ``t_out``
+MISO's clock-to-output + board delay + the master's setup time:
+
+* ``T_sck >= 4 T + t_out``: an SCK rising edge is acted on 2 to 4 ``T`` after it happens (first
+  sample within ``T``, one more if that sample goes metastable and resolves late, the second
+  synchronizer flop, the shift register), and MISO must then settle before the master's next
+  rising edge.  MISO changes no earlier than ``2 T`` after the rising edge (the master's hold).
+  So the system clock must be at least 4x SCK plus the I/O margin: at 50 MHz, SCK <= 10 MHz
+  leaves 15 ns of ``t_out``.
+* SCK high and low each at least ``2 T`` (each level is then sampled cleanly at least once).
+  MOSI, which the master changes on the falling edge, is sampled within ``T`` of the rising edge
+  (the two synchronizers may resolve one clock apart), so ``T_sck / 2 >= 2 T`` covers it.
+* CS_N falling to the first SCK rising edge at least ``4 T`` (the first MISO bit is loaded and
+  the byte counter armed); the last SCK rising edge to CS_N rising at least ``2 T``; CS_N high
+  between transactions at least ``3 T`` (a shorter pulse may be missed and the transactions
+  merge).
+
+Byte layer (:class:`SPIByteSlave`)
+----------------------------------
+Received bytes leave as an always-ready stream ``rx`` (one beat per byte, on its 8th rising
+edge).  Bytes to send come from the stream ``tx``: at each byte boundary (CS falling, or the
+8th rising edge of the previous byte) the slave *peeks* ``tx.payload`` into its shift register
+and consumes it (``tx.ready``) only on that byte's first rising edge, when the master commits
+to clocking it; a transaction that ends first leaves the byte in the stream.  If ``tx.valid``
+is low at the boundary the slave shifts out ``FILLER`` instead and, if the master clocks it,
+pulses ``underrun``.  A partial byte at the end of a transaction is discarded.
+
+Command layer (:class:`SPISlave`): one command per transaction (CS low .. CS high)
+-------------------------------------------------------------------------------
+Byte 0 on MOSI is the opcode; every read has one turnaround byte (byte 1) while the slave
+prepares the reply.  MISO carries ``FILLER`` wherever no reply byte is defined.
+
+==================  ======================================  =================================
+command             MOSI                                    MISO
+==================  ======================================  =================================
+``OP_WRITE_REG``    opcode, address, value (4 bytes, big     filler
+                    endian)
+``OP_READ_STATUS``  opcode, then any ``1 + STATUS_BYTES``   filler, filler, the status word
+                                                            (``STATUS_BYTES``, big endian)
+``OP_READ_STREAM``  opcode, then any bytes until CS rises   filler, filler, the packet bytes
+==================  ======================================  =================================
+
+* ``WRITE_REG``: ``address`` is the word address of ``lodestar.contract.REGISTERS``; the value
+  is the 32-bit register word (``contract.REGISTER_WORD_BITS``).  On the 6th byte the write
+  port (``reg_addr``, ``reg_data``, ``reg_strobe`` for one clock) fires if the address exists
+  and the value fits the register's field (``Register.bits``); otherwise the write is ignored
+  and counted as an error.  A transaction that ends before the 6th byte is counted as an error
+  and writes nothing.  Bytes after the 6th are ignored.
+* ``READ_STATUS``: the status word (``STATUS_FIELDS``, MSB first) is captured when the opcode
+  byte completes and sent from byte 2 on; ``status_read`` pulses at that moment, and the
+  ``errors`` and ``underruns`` counts restart from zero (they count events since the previous
+  status read).  The top level may use ``status_read`` to clear its sticky overflow flags.
+* ``READ_STREAM``: from byte 2 on, each byte is taken from the ``packet`` stream (valid/ready)
+  when the master clocks its first bit; bytes not clocked stay in the stream, so a read may end
+  anywhere and the next one continues.  A byte clocked while the stream is empty is
+  ``FILLER`` and counted in ``underruns``; the MCU learns of it from the status word.
+* An unknown opcode is counted as an error and the transaction is ignored.
+
+Errors (``errors``: unknown opcode, unknown register address, value wider than its register,
+aborted write) and ``underruns`` saturate at their maximum.
+"""
+
+from amaranth import Cat, Const, Module, Mux, Signal
+from amaranth.lib import stream, wiring
+from amaranth.lib.cdc import FFSynchronizer
+from amaranth.lib.wiring import In, Out
+
+from lodestar import contract as C
+
+OP_WRITE_REG = 0x57
+"""``'W'``: write one runtime register."""
+OP_READ_STATUS = 0x53
+"""``'S'``: read the status word."""
+OP_READ_STREAM = 0x52
+"""``'R'``: read packet bytes until CS rises."""
+OPCODES = (OP_WRITE_REG, OP_READ_STATUS, OP_READ_STREAM)
+FILLER = 0x00
+"""MISO byte wherever no reply byte is defined, and in place of missing packet bytes."""
+TURNAROUND_BYTES = 1
+"""Bytes between a read's opcode and its first reply byte."""
+
+ADDRESS_BYTES = 1
+"""Register address bytes of ``WRITE_REG``."""
+VALUE_BYTES = C.REGISTER_WORD_BITS // 8
+"""Register value bytes of ``WRITE_REG`` (big endian)."""
+WRITE_REG_BYTES = 1 + ADDRESS_BYTES + VALUE_BYTES
+REG_ADDR_BITS = C.bits_for(max(r.address for r in C.REGISTERS))
+"""Width of the write port's address: the contract's largest word address."""
+if max(r.address for r in C.REGISTERS) >> (8 * ADDRESS_BYTES):
+    raise ValueError("a register address does not fit the SPI address byte")
+
+COUNT_BITS = 8
+"""Width of the saturating ``errors`` and ``underruns`` counts of the status word."""
+OVERFLOW_BITS = 7
+"""Overflow flags in the status word (inputs of the slave; the top level assigns them, the
+pixel FIFO overflow of the sensor front end first; unassigned flags read 0)."""
+FRAME_COUNTER_BITS = dict(C.HEADER_FIELDS)["frame_counter"]
+
+STATUS_FIELDS = (
+    ("frame_counter", FRAME_COUNTER_BITS),
+    ("errors", COUNT_BITS),
+    ("underruns", COUNT_BITS),
+    ("overflow", OVERFLOW_BITS),
+    ("busy", 1),
+)
+"""The status word, MSB first: ``(field, bits)``; sent big endian."""
+STATUS_BITS = sum(bits for _, bits in STATUS_FIELDS)
+STATUS_BYTES = STATUS_BITS // 8
+if STATUS_BITS % 8:
+    raise ValueError("the status word must be a whole number of bytes")
+
+
+def decode_status(data):
+    """The fields of a status word given as ``STATUS_BYTES`` bytes (MSB first), as a dict."""
+    if len(data) != STATUS_BYTES:
+        raise ValueError(f"a status word is {STATUS_BYTES} bytes, got {len(data)}")
+    value = int.from_bytes(bytes(data), "big")
+    out = {}
+    for name, bits in reversed(STATUS_FIELDS):
+        out[name] = value & ((1 << bits) - 1)
+        value >>= bits
+    return out
+
+
+class SPIByteSlave(wiring.Component):
+    """SPI mode 0 byte layer: pins (asynchronous) in, ``rx``/``tx`` byte streams, ``selected``
+    (synchronized CS) and ``underrun`` pulses in ``sync``.  See the module docstring."""
+
+    def __init__(self):
+        super().__init__({
+            "sck": In(1),
+            "mosi": In(1),
+            "cs_n": In(1, init=1),
+            "miso": Out(1),
+            "miso_oe": Out(1),
+            "rx": Out(stream.Signature(8, always_ready=True)),
+            "tx": In(stream.Signature(8)),
+            "selected": Out(1),
+            "underrun": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        sck = Signal()
+        mosi = Signal()
+        cs_n = Signal(init=1)
+        m.submodules.sck_cdc = FFSynchronizer(self.sck, sck)
+        m.submodules.mosi_cdc = FFSynchronizer(self.mosi, mosi)
+        m.submodules.cs_cdc = FFSynchronizer(self.cs_n, cs_n, init=1)
+        sck_prev = Signal()
+        sel_prev = Signal()
+        sel = ~cs_n
+        m.d.sync += [sck_prev.eq(sck), sel_prev.eq(sel)]
+        start = sel & ~sel_prev
+        rise = sel & ~start & sck & ~sck_prev
+
+        count = Signal(range(8))     # bits of the current byte already sampled
+        rx_bits = Signal(7)
+        tx_bits = Signal(8)
+        first = Signal()             # the next rising edge is the byte's first
+        peeked = Signal()            # tx_bits came from the tx stream (not FILLER)
+        last = rise & (count == 7)
+        m.d.comb += [
+            self.selected.eq(sel),
+            self.miso.eq(tx_bits[7]),
+            self.miso_oe.eq(sel),
+            self.rx.valid.eq(last),
+            self.rx.payload.eq(Cat(mosi, rx_bits)),
+            self.tx.ready.eq(rise & first & peeked),
+            self.underrun.eq(rise & first & ~peeked),
+        ]
+        with m.If(rise):
+            m.d.sync += [rx_bits.eq(Cat(mosi, rx_bits[:6])), count.eq(count + 1),
+                         tx_bits.eq(tx_bits << 1), first.eq(0)]
+        with m.If(start | last):
+            m.d.sync += [tx_bits.eq(Mux(self.tx.valid, self.tx.payload, FILLER)),
+                         peeked.eq(self.tx.valid), first.eq(1), count.eq(0)]
+        with m.If(~sel):
+            m.d.sync += count.eq(0)
+        return m
+
+
+class SPISlave(wiring.Component):
+    """SPI command slave: pins, the register write port, the status inputs and the packet byte
+    stream.  See the module docstring for the protocol and the timing requirements."""
+
+    def __init__(self):
+        super().__init__({
+            "sck": In(1),
+            "mosi": In(1),
+            "cs_n": In(1, init=1),
+            "miso": Out(1),
+            "miso_oe": Out(1),
+            "reg_addr": Out(REG_ADDR_BITS),
+            "reg_data": Out(C.REGISTER_WORD_BITS),
+            "reg_strobe": Out(1),
+            "busy": In(1),
+            "overflow": In(OVERFLOW_BITS),
+            "frame_counter": In(FRAME_COUNTER_BITS),
+            "status_read": Out(1),
+            "packet": In(stream.Signature(8)),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.byte = byte = SPIByteSlave()
+        m.d.comb += [byte.sck.eq(self.sck), byte.mosi.eq(self.mosi), byte.cs_n.eq(self.cs_n),
+                     self.miso.eq(byte.miso), self.miso_oe.eq(byte.miso_oe)]
+        rx, tx = byte.rx, byte.tx
+        # bytes received in this transaction, saturating past the longest fixed-length reply
+        index_max = max(WRITE_REG_BYTES, 1 + TURNAROUND_BYTES + STATUS_BYTES)
+        index = Signal(range(index_max + 1))
+        opcode = Signal(8)
+        address = Signal(8 * ADDRESS_BYTES)
+        value = Signal(C.REGISTER_WORD_BITS)
+        status = Signal(STATUS_BITS)
+        errors = Signal(COUNT_BITS)
+        underruns = Signal(COUNT_BITS)
+        first_reply = 1 + TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
+
+        # ---- status word and read-to-clear counters -----------------------------------
+        snapshot = rx.valid & (index == 0) & (rx.payload == OP_READ_STATUS)
+        fields = {"frame_counter": self.frame_counter, "errors": errors,
+                  "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
+        live = Cat(*[fields[name] for name, _ in reversed(STATUS_FIELDS)])
+        m.d.comb += self.status_read.eq(snapshot)
+        with m.If(snapshot):
+            m.d.sync += status.eq(live)
+
+        def count(counter, event):
+            base = Mux(snapshot, 0, counter)
+            full = base == (1 << COUNT_BITS) - 1
+            m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
+
+        # ---- commands ------------------------------------------------------------------
+        word = Cat(rx.payload, value[:C.REGISTER_WORD_BITS - 8])   # value with this byte
+        known = Const(0, 1)
+        for r in C.REGISTERS:
+            fits = 1 if r.bits >= C.REGISTER_WORD_BITS else word[r.bits:] == 0
+            known = known | ((address == r.address) & fits)
+        write_done = rx.valid & (opcode == OP_WRITE_REG) & (index == WRITE_REG_BYTES - 1)
+        unknown_op = rx.valid & (index == 0) & \
+            ~Cat(*[rx.payload == op for op in OPCODES]).any()
+        aborted = ~byte.selected & (opcode == OP_WRITE_REG) & (index >= 1) & \
+            (index < WRITE_REG_BYTES)
+        count(errors, unknown_op | (write_done & ~known) | aborted)
+        count(underruns, byte.underrun)
+
+        m.d.sync += self.reg_strobe.eq(write_done & known)
+        with m.If(write_done & known):
+            m.d.sync += [self.reg_addr.eq(address), self.reg_data.eq(word)]
+        with m.If(rx.valid):
+            m.d.sync += index.eq(Mux(index == index_max, index, index + 1))
+            with m.If(index == 0):
+                m.d.sync += opcode.eq(rx.payload)
+            with m.Elif(index <= ADDRESS_BYTES):
+                m.d.sync += address.eq(Cat(rx.payload, address[:-8]))
+            with m.Else():
+                m.d.sync += value.eq(word)
+        with m.If(~byte.selected):
+            m.d.sync += [index.eq(0), opcode.eq(0)]
+
+        # ---- reply bytes ---------------------------------------------------------------
+        # The byte being loaded at a boundary is number index + 1; a reply byte loaded with
+        # index == first_reply - 1 + k is reply byte k, and has index == first_reply + k when
+        # the master clocks its first bit (that is when a packet byte is consumed).
+        with m.If((opcode == OP_READ_STREAM) & (index >= first_reply - 1)):
+            m.d.comb += [tx.valid.eq(self.packet.valid), tx.payload.eq(self.packet.payload),
+                         self.packet.ready.eq(tx.ready & (index >= first_reply))]
+        with m.Else():
+            m.d.comb += [tx.valid.eq(1), tx.payload.eq(FILLER)]
+            with m.If(opcode == OP_READ_STATUS):
+                with m.Switch(index):
+                    for k in range(STATUS_BYTES):
+                        with m.Case(first_reply - 1 + k):
+                            m.d.comb += tx.payload.eq(
+                                status.word_select(STATUS_BYTES - 1 - k, 8))
+        return m

@@ -1,0 +1,182 @@
+"""The MT9P031 parallel front end in the Amaranth simulator: a sensor model drives whole frames
+with line and frame blanking on its own PIXCLK; the sync-side stream must equal the frames
+exactly (pixels, sof, eol), at several clock ratios; a too-slow sync clock raises the sticky
+overflow flag, the broken frame is delivered only as a clean prefix, the next frame is exact."""
+
+import gc
+import warnings
+
+import numpy as np
+import pytest
+from amaranth import ClockDomain, Module
+from amaranth.hdl import UnusedElaboratable
+from amaranth.sim import Simulator
+
+from lodestar import contract as C
+from lodestar.hdl.mt9p031 import PIXEL_BITS, MT9P031Frontend
+
+NS = 1e-9
+
+
+def frame_samples(lines, hblank, vblank, fv_lead, fv_lag):
+    """PIXCLK samples ``(d, line_valid, frame_valid)`` of one frame: ``vblank`` blank lines,
+    FRAME_VALID up ``fv_lead`` clocks before the first line, lines separated by ``hblank``
+    clocks with LINE_VALID low, FRAME_VALID down ``fv_lag`` clocks after the last line.  The
+    data bus carries junk outside the valid pixels (the front end must ignore it)."""
+    line_len = max(len(line) for line in lines)
+    out = [(0xABC, 0, 0)] * (vblank * (line_len + hblank))
+    out += [(0x123, 0, 1)] * fv_lead
+    for k, line in enumerate(lines):
+        if k:
+            out += [(0x456, 0, 1)] * hblank
+        out += [(int(p), 1, 1) for p in line]
+    out += [(0x789, 0, 1)] * fv_lag
+    return out
+
+
+def expected_beats(lines):
+    """The stream beats ``(data, sof, eol)`` a frame of ``lines`` must produce."""
+    beats = []
+    for k, line in enumerate(lines):
+        for j, p in enumerate(line):
+            beats.append((int(p), int(k == 0 and j == 0), int(j == len(line) - 1)))
+    return beats
+
+
+def split_frames(beats):
+    """Beats grouped into frames at each sof (beats before the first sof form no frame)."""
+    frames = []
+    for b in beats:
+        if b[1]:
+            frames.append([])
+        assert frames, f"beat {b} before any sof"
+        frames[-1].append(b)
+    return frames
+
+
+def run(dut, segments, sync_period, tail=200, clear_at=None):
+    """Drive ``segments`` = [(samples, pix_period_s)] on a testbench-made PIXCLK (pins change
+    on the falling edge, sampled on the rising edge; after each segment PIXCLK keeps running
+    with the pins idle) with ``sync`` at ``sync_period``.
+    Returns the sync-side beats, the overflow flag after each segment, the final overflow
+    flag and the peak FIFO level.  ``clear_at``: strobe overflow_clear after that segment."""
+    top = Module()
+    top.domains.pix = pix = ClockDomain("pix")
+    top.domains.sync = ClockDomain("sync")
+    top.submodules.dut = dut
+    pixclk = pix.clk
+    beats, flags, peak = [], [], [0]
+
+    async def sensor(ctx):
+        for n, (samples, period) in enumerate(segments):
+            # PIXCLK runs on with the pins idle, long enough for the FIFO to drain
+            idle = [(0, 0, 0)] * (2 + int(20 * sync_period / period))
+            for d, lv, fv in samples + idle:
+                ctx.set(dut.d, d)
+                ctx.set(dut.line_valid, lv)
+                ctx.set(dut.frame_valid, fv)
+                await ctx.delay(period / 2)
+                ctx.set(pixclk, 1)
+                await ctx.delay(period / 2)
+                peak[0] = max(peak[0], ctx.get(dut.fifo_level))
+                ctx.set(pixclk, 0)
+            flags.append(ctx.get(dut.overflow))
+            if clear_at == n:
+                ctx.set(dut.overflow_clear, 1)
+                await ctx.delay(sync_period)
+                ctx.set(dut.overflow_clear, 0)
+        await ctx.delay(tail * sync_period)
+        flags.append(ctx.get(dut.overflow))
+
+    async def collect(ctx):
+        while True:
+            await ctx.tick()
+            if ctx.get(dut.out.valid):
+                o = dut.out.payload
+                beats.append((ctx.get(o.data), ctx.get(o.sof), ctx.get(o.eol)))
+
+    sim = Simulator(top)
+    sim.add_clock(sync_period, phase=0.37 * sync_period)
+    sim.add_testbench(sensor)
+    sim.add_testbench(collect, background=True)
+    sim.run()
+    return beats, flags, peak[0]
+
+
+def random_lines(rng, width, height):
+    fs = C.full_scale(PIXEL_BITS)
+    frame = rng.integers(0, fs + 1, (height, width))
+    frame[0, :2] = (0, fs)                             # extremes on the bus
+    return [list(row) for row in frame]
+
+
+@pytest.mark.parametrize("pix_ns,sync_ns", [(10, 10), (10, 7), (25, 10), (10.3, 10)])
+def test_frames_exact_at_clock_ratios(pix_ns, sync_ns):
+    w, h = 9, 5
+    rng = np.random.default_rng(int(pix_ns * 10 + sync_ns))
+    frames = [random_lines(rng, w, h) for _ in range(3)]
+    frames[1][2] = frames[1][2][:6]                    # a short line passes through as it is
+    segments = [(frame_samples(f, hblank=3, vblank=2, fv_lead=2, fv_lag=3), pix_ns * NS)
+                for f in frames]
+    dut = MT9P031Frontend(w, h)
+    beats, flags, peak = run(dut, segments, sync_ns * NS)
+    assert split_frames(beats) == [expected_beats(f) for f in frames]
+    assert flags == [0, 0, 0, 0]
+    assert peak <= 6                                   # the bound of the module docstring
+
+
+def test_back_to_back_lines_and_frames():
+    """Minimal blanking: one clock of LINE_VALID low between lines, FRAME_VALID low for one
+    clock between frames, LINE_VALID high in the very first clock of FRAME_VALID."""
+    w, h = 6, 3
+    rng = np.random.default_rng(5)
+    frames = [random_lines(rng, w, h) for _ in range(3)]
+    samples = [(0, 0, 0)]                             # FRAME_VALID seen low once after reset
+    for f in frames:
+        samples += frame_samples(f, hblank=1, vblank=0, fv_lead=0, fv_lag=0) + [(0, 0, 0)]
+    beats, flags, _ = run(MT9P031Frontend(w, h), [(samples, 10 * NS)], 10 * NS)
+    assert split_frames(beats) == [expected_beats(f) for f in frames]
+    assert flags == [0, 0]
+
+
+def test_start_mid_frame_waits_for_frame_start():
+    """Capture starting inside a frame (FRAME_VALID already high) delivers nothing of that
+    frame: its beginning was missed, so the first beat is the next frame's sof."""
+    w, h = 7, 4
+    rng = np.random.default_rng(7)
+    frames = [random_lines(rng, w, h) for _ in range(2)]
+    first = frame_samples(frames[0], hblank=2, vblank=1, fv_lead=1, fv_lag=1)
+    first = first[len(first) // 2:]                   # join in the middle of frame 0
+    second = frame_samples(frames[1], hblank=2, vblank=1, fv_lead=1, fv_lag=1)
+    beats, _, _ = run(MT9P031Frontend(w, h), [(first + second, 10 * NS)], 10 * NS)
+    assert beats[0][1] == 1
+    assert split_frames(beats) == [expected_beats(frames[1])]
+
+
+def test_overflow_breaks_frame_and_recovers():
+    """Frame 1 arrives with PIXCLK twice the sync clock: the FIFO overflows, the flag sticks,
+    frame 1 is delivered only as a prefix (never shifted), frames 0 and 2 are exact; the
+    flag stays up until the clear strobe."""
+    w, h = 24, 3
+    rng = np.random.default_rng(11)
+    frames = [random_lines(rng, w, h) for _ in range(4)]
+    seg = [(frame_samples(f, hblank=4, vblank=1, fv_lead=2, fv_lag=2), p * NS)
+           for f, p in zip(frames, (10, 5, 10, 10))]
+    beats, flags, _ = run(MT9P031Frontend(w, h), seg, 10 * NS, clear_at=2)
+    got = split_frames(beats)
+    assert flags == [0, 1, 1, 0, 0]                    # set in frame 1, cleared after frame 2
+    assert len(got) == 4
+    assert got[0] == expected_beats(frames[0])
+    want1 = expected_beats(frames[1])
+    assert 0 < len(got[1]) < len(want1) and got[1] == want1[:len(got[1])]
+    assert got[2] == expected_beats(frames[2])
+    assert got[3] == expected_beats(frames[3])
+
+
+def test_geometry_outside_contract():
+    with warnings.catch_warnings():       # the half-built component is never elaborated
+        warnings.simplefilter("ignore", UnusedElaboratable)
+        for w, h in ((C.MAX_WIDTH + 1, 10), (10, 0)):
+            with pytest.raises(ValueError, match="outside the contract"):
+                MT9P031Frontend(w, h)
+        gc.collect()
