@@ -23,7 +23,13 @@ and two output buffers:
   was exceeded: never expected).
 
 In ``local`` mode the trailer's ``threshold`` is the ``local_offset`` register and its
-``background`` 0, as the golden model reports them.
+``background`` 0, as the golden model reports them.  ``FRAME_GLOBAL_FALLBACK`` marks any
+frame whose levels fell back to the fixed registers: global mode without statistics, or
+local mode with a window not narrower than the frame (``hdl/threshold.py``).
+
+Blanking: rows need ``MIN_HBLANK`` idle clocks in fixed and global mode (the local-mode
+delay line inserts them itself); frames need ``min_vblank(...)`` idle clocks after their
+last pixel.
 """
 
 from amaranth import Module, Mux, Signal
@@ -34,13 +40,25 @@ from amaranth.lib.wiring import In, Out, connect
 from lodestar import contract as C
 
 from .features import FeatureEngine
-from .labeller import Labeller
+from .labeller import Labeller, vblank_cycles
 from .layouts import record_layout, trailer_layout
 from .registers import RegisterBank
-from .threshold import ThresholdUnit, pixel_layout
+from .threshold import ThresholdUnit, global_cycles, local_blanking, pixel_layout
 
 TRAILER_DEPTH = 4
 """Trailers buffered for the reader."""
+
+
+def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_MAX):
+    """Idle clocks a frame in ``mode`` (a ``contract.MODE_*``) needs after its last pixel:
+    the labeller's virtual row and drain, after the local delay line's drain, and not less
+    than the global-levels computation."""
+    need = vblank_cycles(width)
+    if mode == C.MODE_LOCAL:
+        need += local_blanking(log2_window) + 1
+    if mode == C.MODE_GLOBAL:
+        need = max(need, global_cycles(width, height, pixel_bits) + 1)
+    return need
 
 _FILTERS = ("min_pixels", "min_sum", "max_pixels")
 
@@ -93,8 +111,7 @@ class Detector(wiring.Component):
         connect(m, wiring.flipped(self.pixels), thr.pixels)
         for name in ("mode", "threshold", "background", "ksigma",
                      "local_log2_window", "local_offset"):
-            if name in thr.signature.members:
-                m.d.comb += getattr(thr, name).eq(getattr(regs, name))
+            m.d.comb += getattr(thr, name).eq(getattr(regs, name))
         connect(m, thr.out, lab.pixels)
         connect(m, lab.ops, feat.ops)
         m.d.comb += [feat.tag.eq(lab.tag), feat.clear.eq(lab.clear),
@@ -103,11 +120,11 @@ class Detector(wiring.Component):
 
         # registers latched when a frame enters, then handed to the labeller's frame
         entry = Signal(data.StructLayout({
-            "mode": 2, "local_offset": pb,
+            "mode": C.REGISTER_BY_NAME["mode"].bits,
             **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}))
         frame = Signal.like(entry)
         with m.If(self.pixels.valid & self.pixels.payload.sof):
-            m.d.sync += [entry.mode.eq(regs.mode), entry.local_offset.eq(regs.local_offset)]
+            m.d.sync += entry.mode.eq(regs.mode)
             m.d.sync += [entry[n].eq(getattr(regs, n)) for n in _FILTERS]
         m.d.comb += [getattr(feat, n).eq(frame[n]) for n in _FILTERS]
 
@@ -115,14 +132,13 @@ class Detector(wiring.Component):
         head = Signal(tr_layout)
         fallback = Signal()
         with m.If(lab.frame_start):
-            local = entry.mode == C.MODE_LOCAL
             m.d.sync += [
                 frame.eq(entry),
                 head.mode.eq(entry.mode),
                 head.frame_counter.eq(self.frame_counter),
-                head.threshold.eq(Mux(local, entry.local_offset, thr.frame_threshold)),
-                head.background.eq(Mux(local, 0, thr.frame_background)),
-                fallback.eq(thr.frame_fallback),
+                head.threshold.eq(thr.frame_threshold),
+                head.background.eq(thr.frame_background),
+                fallback.eq(thr.frame_fallback | thr.frame_local_fallback),
                 self.frame_counter.eq(self.frame_counter + 1),
             ]
         trailer = Signal(tr_layout)

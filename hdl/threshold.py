@@ -218,8 +218,10 @@ class ThresholdUnit(wiring.Component):
         have_v = Signal()            # the last frame was complete and V is computed
         t_frame = Signal(pb)
         b_frame = Signal(pb)
+        # a sof while in_frame: the previous frame never ended, so its statistics are
+        # missing and this frame falls back, as after an incomplete frame
         use_global = (self.mode == C.MODE_GLOBAL) & stats_valid & ~self.stats_busy & \
-            (kreg == self.ksigma)
+            (kreg == self.ksigma) & ~in_frame
         t_new = Mux(use_global, next_t, self.threshold)
         b_new = Mux(use_global, next_b, self.background)
         t_eff = Mux(sof, t_new, t_frame)
@@ -384,8 +386,8 @@ class ThresholdUnit(wiring.Component):
                     m.d.sync += [a1.eq(s1 + p), a2.eq(s2 + p * p), stats_valid.eq(0),
                                  bq.eq(0), rem.eq(0), i.eq(wd["s1"] - 1)]
                     m.next = "DIV_B"
-                with m.Elif(frame_end):       # incomplete frame: no statistics
-                    m.d.sync += [stats_valid.eq(0), have_v.eq(0)]
+                with m.Elif(frame_end | (inp.valid & sof & in_frame)):
+                    m.d.sync += [stats_valid.eq(0), have_v.eq(0)]   # incomplete frame
                 with m.Elif(have_v & (self.ksigma != kreg)):
                     # ksigma was rewritten between frames: redo the k-dependent part
                     m.d.sync += [stats_valid.eq(0), k2.eq(0), i.eq(0)]

@@ -1,0 +1,86 @@
+// Co-simulation harness of the lodestar detector (Verilator).
+//
+// Plays a stimulus file into the detector one word per clock, so that no Python runs per
+// pixel, and writes every record and trailer the detector emits to an output file.  The
+// files are named by the plusargs +stim=PATH and +out=PATH; playback starts on the first
+// rising clock edge with `start` high and `done` rises after the last word.
+//
+// Stimulus: one hexadecimal word per line, one line per clock, fields (LSB first) as
+// lodestar/cosim.py writes them: data[15:0], eol[16], sof[17], valid[18], records
+// ready[19], register write enable[20], reset[21], register address[27:24],
+// register data[63:32].  Output: "R <hex>" per record and "T <hex>" per trailer, the
+// packed payloads of hdl/layouts.py, in the order they leave the detector, and "X 0" for
+// every clock of a reset (records of the interrupted frame have no trailer).
+module cosim_harness #(
+    parameter PB = 12,
+    parameter REC_W = 345,
+    parameter TR_W = 224,
+    parameter ADDR_W = 4
+) (
+    input clk,
+    input start,
+    output reg done
+);
+    reg [63:0] word;
+    reg running;
+    integer fd_in;
+    integer fd_out;
+    integer got;
+    reg [63:0] next_word;
+    string stim_path;
+    string out_path;
+
+    wire [REC_W-1:0] rec_payload;
+    wire rec_valid;
+    wire [TR_W-1:0] tr_payload;
+    wire tr_valid;
+    wire rst = word[21] | ~running;
+
+    detector dut (
+        .clk(clk),
+        .rst(rst),
+        .pixels__valid(word[18]),
+        .pixels__payload({word[16], word[17], word[PB-1:0]}),
+        .records__ready(word[19]),
+        .records__valid(rec_valid),
+        .records__payload(rec_payload),
+        .trailer__ready(1'b1),
+        .trailer__valid(tr_valid),
+        .trailer__payload(tr_payload),
+        .reg_addr(word[24 +: ADDR_W]),
+        .reg_data(word[63:32]),
+        .reg_en(word[20])
+    );
+
+    initial begin
+        done = 0;
+        running = 0;
+        word = 64'h0000_0000_0020_0000;
+    end
+
+    always @(posedge clk) begin
+        if (!running && !done && start) begin
+            if (!$value$plusargs("stim=%s", stim_path)) $fatal(1, "cosim_harness: +stim= missing");
+            if (!$value$plusargs("out=%s", out_path)) $fatal(1, "cosim_harness: +out= missing");
+            fd_in = $fopen(stim_path, "r");
+            fd_out = $fopen(out_path, "w");
+            if (fd_in == 0) $fatal(1, "cosim_harness: cannot open the stimulus");
+            if (fd_out == 0) $fatal(1, "cosim_harness: cannot open the output");
+            running <= 1;
+        end
+        if (running) begin
+            if (word[21]) $fwrite(fd_out, "X 0\n");
+            if (rec_valid && word[19]) $fwrite(fd_out, "R %h\n", rec_payload);
+            if (tr_valid) $fwrite(fd_out, "T %h\n", tr_payload);
+            got = $fscanf(fd_in, "%h\n", next_word);
+            if (got == 1) begin
+                word <= next_word;
+            end else begin
+                $fclose(fd_in);
+                $fclose(fd_out);
+                running <= 0;
+                done <= 1;
+            end
+        end
+    end
+endmodule
