@@ -49,7 +49,12 @@ module cosim_harness #(
         .trailer__payload(tr_payload),
         .reg_addr(word[24 +: ADDR_W]),
         .reg_data(word[63:32]),
-        .reg_en(word[20])
+        .reg_en(word[20]),
+        .reg_error(),
+        .busy(),
+        .frame_counter(),
+        .trailer_lost(),
+        .fault()
     );
 
     initial begin

@@ -90,6 +90,7 @@ class WavefrontLabeller:
 
     # ---- events --------------------------------------------------------------------
     def _merge(self, b):
+        self._ev("merge")
         a = self.act
         if a["tracked"] or b.tracked:
             self.count -= 1
@@ -151,6 +152,7 @@ class WavefrontLabeller:
         elif e.tracked:
             self.count -= 1
             self._ev("feat_read")
+            self._ev("complete")
             self._complete(self.slot[e.lab])
             self._free(e.lab)
         else:
@@ -218,11 +220,13 @@ class WavefrontLabeller:
                         self.act = dict(lab=t.lab, tracked=t.tracked, has_slot=t.tracked,
                                         has_cur=t.has_cur, first_addr=t.first_addr,
                                         last_addr=t.last_addr, group=True)
+                        self._ev("continue")
                         self.acc = f
                         if t.tracked:
                             self._ev("feat_read")
                             self.acc = _combine(self.slot[t.lab], f, self.lim)
                     elif not left:                       # birth
+                        self._ev("birth")
                         tracked = self.count < self.cap
                         self.count += tracked
                         self.act = dict(lab=None, tracked=tracked, has_slot=False,

@@ -1,0 +1,102 @@
+"""The labeller block in the Amaranth simulator, column by column against its algorithm
+(``tests/wavefront_model.py``): the op it sends for every column (birth, continuation,
+merge, slot read, slot write, completion) and the dropped-label count."""
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+from wavefront_model import WavefrontLabeller
+
+from lodestar import contract as C
+from lodestar.hdl.features import KEEP, LOAD, MERGE, NEW
+from lodestar.hdl.labeller import Labeller, max_nodes, max_stack, vblank_cycles
+
+
+def hardware_ops(mask, cap, hblank=1):
+    """``(ops per column in decision order, dropped_labels at done, fault)``."""
+    h, w = mask.shape
+    dut = Labeller(w, h, 12, cap)
+    ops, end = [], {}
+
+    async def bench(ctx):
+        ctx.set(dut.feat_busy, 0)
+        p = dut.pixels.payload
+        for y in range(h):
+            for x in range(w):
+                ctx.set(dut.pixels.valid, 1)
+                ctx.set(p.x, x)
+                ctx.set(p.y, y)
+                ctx.set(p.lit, int(mask[y, x]))
+                await ctx.tick()
+            ctx.set(dut.pixels.valid, 0)
+            await ctx.tick().repeat(hblank)
+        ctx.set(dut.pixels.valid, 0)
+        await ctx.tick().repeat(vblank_cycles(w) + 2)
+
+    async def watch(ctx):
+        o = dut.ops.payload
+        while True:
+            if ctx.get(dut.ops.valid):
+                ops.append((ctx.get(o.base), ctx.get(o.rd), ctx.get(o.wr),
+                            ctx.get(o.complete)))
+            if ctx.get(dut.done):
+                end["dropped"] = ctx.get(dut.dropped_labels)
+            end["fault"] = ctx.get(dut.fault)
+            await ctx.tick()
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.add_testbench(watch, background=True)
+    sim.run()
+    return ops, end.get("dropped"), end["fault"]
+
+
+def model_ops(mask, cap):
+    h, w = mask.shape
+    frame = np.where(mask, 100, 0).astype(np.uint16)
+    model = WavefrontLabeller(w, h, 12, cap, 1 << 16).run(mask, frame, frame)
+    per = {}
+    for t, kind in model.events:
+        per.setdefault(t, set()).add(kind)
+    ops = []
+    for y in range(h + 1):
+        for x in range(w):
+            k = per.get(y * (w + 1) + x, set())
+            if "merge" in k:
+                base = MERGE
+            elif "continue" in k:
+                base = LOAD if "feat_read" in k else NEW
+            elif "birth" in k:
+                base = NEW
+            else:
+                base = KEEP
+            ops.append((base, int("feat_read" in k), int("feat_write" in k),
+                        int("complete" in k)))
+    return ops, model.dropped_labels
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_ops_column_by_column(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(6):
+        h, w = int(rng.integers(1, 9)), int(rng.integers(2, 11))
+        mask = rng.random((h, w)) < rng.choice([0.3, 0.5, 0.6, 0.8])
+        cap = int(rng.integers(1, C.max_open_blobs(w) + 1))
+        got, dropped, fault = hardware_ops(mask, cap)
+        want, want_dropped = model_ops(mask, cap)
+        assert got == want, (mask.astype(int), cap)
+        assert dropped == want_dropped and fault == 0
+
+
+def test_memory_bounds():
+    assert max_nodes(2592) == 1296 and max_stack(2592) == 649
+    assert max_nodes(5) == 3 and max_stack(5) == 2
+
+
+@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
+def test_rejects_impossible_builds():
+    with pytest.raises(ValueError, match="at least 2 columns"):
+        Labeller(1, 4, 12, 1)
+    with pytest.raises(ValueError, match="label_capacity"):
+        Labeller(8, 4, 12, 0)
