@@ -5,7 +5,7 @@
 // files are named by the plusargs +stim=PATH and +out=PATH; playback starts on the first
 // rising clock edge with `start` high and `done` rises after the last word.
 //
-// Stimulus: one hexadecimal word per line, one line per clock, fields (LSB first) as
+// Stimulus: one 64-bit big-endian word per clock (binary), fields (LSB first) as
 // lodestar/cosim.py writes them: data[15:0], eol[16], sof[17], valid[18], records
 // ready[19], register write enable[20], reset[21], register address[27:24],
 // register data[63:32].  Output: "R <hex>" per record and "T <hex>" per trailer, the
@@ -17,10 +17,13 @@ module cosim_harness #(
     parameter TR_W = 224,
     parameter ADDR_W = 4
 ) (
-    input clk,
-    input start,
-    output reg done
+    input start /*verilator public_flat_rw*/,
+    output reg done /*verilator public_flat_rw*/
 );
+    // the clock runs inside the simulation (Verilator --timing): no Python per clock
+    reg clk = 0;
+    always #5 clk = ~clk;
+
     reg [63:0] word;
     reg running;
     integer fd_in;
@@ -67,7 +70,7 @@ module cosim_harness #(
         if (!running && !done && start) begin
             if (!$value$plusargs("stim=%s", stim_path)) $fatal(1, "cosim_harness: +stim= missing");
             if (!$value$plusargs("out=%s", out_path)) $fatal(1, "cosim_harness: +out= missing");
-            fd_in = $fopen(stim_path, "r");
+            fd_in = $fopen(stim_path, "rb");
             fd_out = $fopen(out_path, "w");
             if (fd_in == 0) $fatal(1, "cosim_harness: cannot open the stimulus");
             if (fd_out == 0) $fatal(1, "cosim_harness: cannot open the output");
@@ -77,8 +80,8 @@ module cosim_harness #(
             if (word[21]) $fwrite(fd_out, "X 0\n");
             if (rec_valid && word[19]) $fwrite(fd_out, "R %h\n", rec_payload);
             if (tr_valid) $fwrite(fd_out, "T %h\n", tr_payload);
-            got = $fscanf(fd_in, "%h\n", next_word);
-            if (got == 1) begin
+            got = $fread(next_word, fd_in);
+            if (got == 8) begin
                 word <= next_word;
             end else begin
                 $fclose(fd_in);
