@@ -1,6 +1,6 @@
 // Run a Python script under MicroPython (WebAssembly port) with the firmware importable.
 //
-//   node tools/micropython/run.mjs [--heapsize BYTES[k|m]] SCRIPT.py
+//   node tools/micropython/run.mjs [--heapsize BYTES[k|m]] [--copy HOST=TARGET]... SCRIPT.py
 //
 // Loads @micropython/micropython-webassembly-pyscript (pinned in package.json /
 // package-lock.json next to this file; install with `npm ci --prefix tools/micropython`),
@@ -9,11 +9,22 @@
 // sys.path, runs SCRIPT.py as __main__ and prints its output.  Exit status: 0 when the script
 // finished, 1 when it raised (the traceback goes to stderr), 2 for a usage error.
 //
+// --copy HOST=TARGET (repeatable) also copies the host file HOST (a path relative to the
+// current directory, or absolute) to the absolute path TARGET of the in-memory filesystem,
+// creating its folders: data files (a star database, recorded packets) or extra modules
+// (TARGET under /lib/lodestar/ to import them as lodestar.NAME).
+//
+// --heapsize sets the initial MicroPython heap (default 1 MiB).  It is not a cap: this
+// build (the "pyscript" variant, MICROPY_GC_SPLIT_HEAP_AUTO) adds heap areas on demand up
+// to the WebAssembly memory limit, so a script never gets MemoryError from a small
+// --heapsize; measure heap use with gc.mem_alloc() instead.
+//
 // A line that is exactly `#@split` cuts the script into parts run one after another by
-// separate mp.runPython calls sharing __main__'s globals.  This port's garbage collector
-// only frees objects allocated by *earlier* calls (gc.collect() during a call leaves that
-// call's garbage, which the conservative stack scan still sees), so a script that measures
-// live memory with gc.mem_alloc() must collect in a new part.
+// separate mp.runPython calls sharing __main__'s globals.  This port never collects during
+// a call: gc.collect() (like the automatic trigger) only requests a collection, which runs
+// at the start of the next mp.runPython call, where no object hides in WebAssembly locals.
+// So a script that measures live memory ends a part with gc.collect() and reads
+// gc.mem_alloc() at the start of the next part.
 
 import fs from "node:fs";
 import path from "node:path";
@@ -26,7 +37,8 @@ const repo = path.resolve(here, "..", "..");
 
 function usage(message) {
   process.stderr.write(`run.mjs: ${message}\n` +
-    "usage: node tools/micropython/run.mjs [--heapsize BYTES[k|m]] SCRIPT.py\n");
+    "usage: node tools/micropython/run.mjs [--heapsize BYTES[k|m]] [--copy HOST=TARGET]... " +
+    "SCRIPT.py\n");
   process.exit(2);
 }
 
@@ -37,12 +49,25 @@ function parseSize(text) {
   return Number(match[1]) * scale;
 }
 
+function parseCopy(text) {
+  const at = text.indexOf("=");
+  if (at <= 0 || !text.slice(at + 1).startsWith("/")) {
+    usage(`bad --copy ${JSON.stringify(text)}: expected HOST=/ABSOLUTE/TARGET`);
+  }
+  const host = text.slice(0, at);
+  if (!fs.existsSync(host) || !fs.statSync(host).isFile()) usage(`--copy: no file ${host}`);
+  return [host, text.slice(at + 1)];
+}
+
 let heapsize = 1024 * 1024;
 let script = null;
+const copies = [];
 const args = process.argv.slice(2);
 for (let i = 0; i < args.length; i++) {
   if (args[i] === "--heapsize" && i + 1 < args.length) {
     heapsize = parseSize(args[++i]);
+  } else if (args[i] === "--copy" && i + 1 < args.length) {
+    copies.push(parseCopy(args[++i]));
   } else if (script === null) {
     script = args[i];
   } else {
@@ -65,6 +90,11 @@ copy("lodestar/__init__.py", "/lib/lodestar/__init__.py");
 copy("lodestar/contract.py", "/lib/lodestar/contract.py");
 for (const name of fs.readdirSync(path.join(repo, "firmware")).sort()) {
   if (name.endsWith(".py")) copy(path.join("firmware", name), `/lib/lodestar/firmware/${name}`);
+}
+// Extra files (--copy), after the firmware so that they may add modules next to it.
+for (const [host, target] of copies) {
+  mp.FS.mkdirTree(path.posix.dirname(target));
+  mp.FS.writeFile(target, fs.readFileSync(host));
 }
 
 let status = 0;

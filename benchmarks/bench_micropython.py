@@ -1,0 +1,143 @@
+"""Solve time and heap of the flight firmware under MicroPython 1.27 (WebAssembly port in
+Node.js), per identification method, over the firmware regression set
+(``tests/data/regression``, ``lodestar regress``), with the CPython figures beside them.
+
+    .venv/bin/python benchmarks/bench_micropython.py [--repeats 5] [--set DIR]
+
+What is measured (``lodestar.regress_micropython`` explains the port's collector):
+
+* **time**: ``StarTracker.process`` of each recorded packet of a simulated frame (the
+  corrupted packets, which stop at the decoder, are left out), each method, ``--repeats``
+  times; p50/p95 over all those solves and over the solved ones, in ms of wall clock
+  (MicroPython: Node's ``performance.now()``; CPython: ``time.perf_counter``).  Node on
+  this machine, not an MCU: a Cortex-M4 at 168 MHz is one to two orders of magnitude slower.
+* **MicroPython heap**: ``gc.mem_alloc()`` after collection with the firmware imported, the
+  databases open (read by offset from files) and the trackers built; the largest live heap
+  between solves; the bytes one solve *allocates* (collector disabled: an upper bound of the
+  solve's peak, every boxed float counted).  This port cannot show the peak itself:
+  ``gc.collect()`` is deferred to the next top-level call and the heap grows instead of
+  collecting (``MICROPY_GC_SPLIT_HEAP_AUTO``), and ``loadMicroPython({heapsize})`` is the
+  *initial* heap, not a cap -- the probe below allocates 4 MB in a 64 KB heap.  So the
+  smallest heap a method solves in cannot be found on this port.
+* **CPython live peak**: ``tracemalloc`` peak during one warm solve (refcounting frees at
+  once, so this is the live peak), 64-bit CPython objects (a float is 24 B, 16 B on
+  MicroPython's heap; tuples and lists about twice MicroPython's 32-bit sizes): the closest
+  available estimate of the solve's live peak on an MCU, beside the allocation bound.
+"""
+
+import argparse
+import math
+import statistics
+import subprocess
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+from lodestar import regress, regress_micropython, regress_replay
+
+HEAP_PROBE = """
+import gc
+keep = []
+for i in range(64):
+    keep.append(bytearray(64 * 1024))
+gc.collect()
+print("PROBE", gc.mem_alloc())
+"""
+
+
+def percentile(values, p):
+    """The ``p``-th percentile (nearest rank) of a non-empty list."""
+    ordered = sorted(values)
+    return ordered[max(0, math.ceil(p / 100 * len(ordered)) - 1)]
+
+
+def heap_probe():
+    """What ``--heapsize 64k`` does to a script allocating 4 MB: the text to print."""
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "probe.py"
+        script.write_text(HEAP_PROBE)
+        proc = subprocess.run(["node", str(regress_micropython.RUNNER), "--heapsize", "64k",
+                               str(script)], capture_output=True, text=True, timeout=120)
+    for line in proc.stdout.splitlines():
+        if line.startswith("PROBE "):
+            return (f"--heapsize 64k is no cap: a script held 4 MB (gc.mem_alloc() "
+                    f"{int(line.split()[1]) / 1024:.0f} KB) without MemoryError")
+    return f"--heapsize 64k caps the heap: {(proc.stdout + proc.stderr).strip()[-200:]}"
+
+
+def cpython_figures(manifest, set_dir, db_files, cases, repeats):
+    """``{method: {"ms": [...], "ms_ok": [...], "peak": [...]}}`` on this interpreter."""
+    data = regress.packets(manifest, set_dir)
+    dbs = {name: regress_replay.open_database(str(path)) for name, path in db_files.items()}
+    out = {}
+    for method in manifest["methods"]:
+        fig = out[method] = {"ms": [], "ms_ok": [], "peak": []}
+        trackers = {cam: regress_replay.make_tracker(dbs[s["database"]], s, method)
+                    for cam, s in manifest["cameras"].items()}
+        for case in cases:
+            tracker = trackers[case["camera"]]
+            regress_replay.replay(tracker, data[case["name"]], case["inputs"])   # warm up
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                res = regress_replay.replay(tracker, data[case["name"]], case["inputs"])
+                ms = (time.perf_counter() - t0) * 1e3
+                fig["ms"].append(ms)
+                if res["status_name"] == "OK":
+                    fig["ms_ok"].append(ms)
+            tracemalloc.start()
+            base = tracemalloc.get_traced_memory()[0]
+            regress_replay.replay(tracker, data[case["name"]], case["inputs"])
+            fig["peak"].append(tracemalloc.get_traced_memory()[1] - base)
+            tracemalloc.stop()
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5, help="solves per packet and method")
+    ap.add_argument("--set", dest="set_dir", default=str(regress.DEFAULT_SET))
+    args = ap.parse_args()
+
+    manifest = regress.load_set(args.set_dir)
+    db_files = regress.database_files(manifest)
+    frames = [c for c in manifest["cases"] if c["truth"] is not None]
+    bench = dict(manifest, cases=frames)
+    t0 = time.perf_counter()
+    mp = regress_micropython.replay(bench, args.set_dir, db_files, manifest["methods"],
+                                    args.repeats)
+    wall = time.perf_counter() - t0
+    cp = cpython_figures(manifest, args.set_dir, db_files, frames, args.repeats)
+
+    n_ok = {m: sum(c["expected"][m]["status_name"] == "OK" for c in frames)
+            for m in manifest["methods"]}
+    print(f"{len(frames)} recorded frames x {args.repeats} repeats per method "
+          f"(MicroPython run: {wall:.0f} s of wall clock)")
+    print()
+    print(f"{'method':<9} {'solved':>6} | {'MicroPython ms p50':>18} {'p95':>7} "
+          f"{'solved p50':>10} {'p95':>7} {'alloc/solve KB p50':>18} {'max':>7} | "
+          f"{'CPython ms p50':>14} {'p95':>6} {'live peak KB p50':>16} {'max':>6}")
+    for method in manifest["methods"]:
+        rows = [r for r in mp["results"] if r["method"] == method]
+        ms = [r["ms"] for r in rows]
+        ms_ok = [r["ms"] for r in rows if r["out"]["status_name"] == "OK"]
+        alloc = [r["alloc"] / 1024 for r in rows]
+        c = cp[method]
+        peak = [p / 1024 for p in c["peak"]]
+        print(f"{method:<9} {n_ok[method]:>3}/{len(frames):<2} | "
+              f"{percentile(ms, 50):>18.1f} {percentile(ms, 95):>7.1f} "
+              f"{percentile(ms_ok, 50):>10.1f} {percentile(ms_ok, 95):>7.1f} "
+              f"{percentile(alloc, 50):>18.0f} {max(alloc):>7.0f} | "
+              f"{percentile(c['ms'], 50):>14.2f} {percentile(c['ms'], 95):>6.2f} "
+              f"{statistics.median(peak):>16.1f} {max(peak):>6.1f}")
+    print()
+    print(regress.format_resident(mp))
+    live = [r["live_before"] for r in mp["results"]]
+    print(f"MicroPython live heap between solves: first {live[0] / 1024:.1f} KB, last "
+          f"{mp['live_end'] / 1024:.1f} KB (growth across {len(live)} solves: "
+          f"{(mp['live_end'] - live[0]) / 1024:.1f} KB)")
+    print(heap_probe())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""The regression set replayed on MicroPython 1.27 (WebAssembly port under Node.js), with the
+time and heap of every solve.
+
+``tools/micropython/run.mjs`` (the npm package pinned in ``tools/micropython/package.json``;
+install with ``npm ci --prefix tools/micropython``) runs a generated script with the firmware
+under ``/lib/lodestar``; ``--copy`` puts :mod:`lodestar.regress_replay` next to it and the
+set's databases and packet files under ``/regress``, so MicroPython opens the database by
+offset and reads each packet from a file, as the MCU does.
+
+Measurements (:func:`replay`), per solve, in separate ``runPython`` calls (``#@split``):
+this port never collects during a call (``MICROPY_GC_SPLIT_HEAP_AUTO``: ``gc.collect()``
+only requests a collection, run at the start of the next top-level call, and the heap grows
+meanwhile; ``loadMicroPython({heapsize})`` sets the *initial* heap and is no cap), so every
+part ends with ``gc.collect()`` and the next part reads ``gc.mem_alloc()`` collected:
+
+* ``live_before``: ``gc.mem_alloc()`` at the start of the solve's call, before the packet
+  is read: everything resident between solves (firmware bytecode, open databases,
+  trackers, the script's own tables);
+* ``alloc``: bytes allocated by ``StarTracker.process`` (collector disabled, nothing freed):
+  an **upper bound** of the solve's peak heap above ``live_before`` plus the packet.  This
+  port boxes every float on the heap, so the figure counts every intermediate float;
+* ``ms``: wall time of the call by Node's ``performance.now()`` (through the port's ``js``
+  module: ``time.ticks_us`` only counts whole milliseconds here); WebAssembly on this
+  machine, not an MCU.
+
+``resident`` (one dict per run): the collected ``gc.mem_alloc()`` at the start, with the
+firmware imported (``code``), the databases open and the trackers built; ``live_end`` after
+the last solve.
+"""
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TOOL_DIR = REPO / "tools" / "micropython"
+RUNNER = TOOL_DIR / "run.mjs"
+PACKAGE = "@micropython/micropython-webassembly-pyscript"
+INSTALL_HINT = "npm ci --prefix tools/micropython"
+TARGET_DIR = "/regress"
+"""Folder of the copied databases and packets in MicroPython's filesystem."""
+
+
+class MicroPythonError(RuntimeError):
+    """MicroPython is unavailable, or the replay script failed (the message says which)."""
+
+
+def unavailable_reason():
+    """Why MicroPython cannot run here (a message with the fix), or None when it can."""
+    if shutil.which("node") is None:
+        return "node is not installed (MicroPython runs in Node.js, v18 or later)"
+    if not (TOOL_DIR / "node_modules" / PACKAGE / "package.json").is_file():
+        return f"{PACKAGE} is not installed: run `{INSTALL_HINT}` from the repository root"
+    return None
+
+
+def literal(value):
+    """MicroPython source text for a JSON-like ``value`` (None, bool, int, finite float, str,
+    list, tuple, dict)."""
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"no literal for the non-finite float {value!r}")
+        return repr(value)
+    if value is None or isinstance(value, (bool, int, str)):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(literal(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(literal(k) + ": " + literal(v) for k, v in value.items()) + "}"
+    raise TypeError(f"no literal for {value!r}")
+
+
+_PRELUDE = r'''
+import gc
+import json
+from js import performance
+RESIDENT = {"start": gc.mem_alloc()}
+from lodestar import regress_replay as R
+from lodestar.firmware import hashing, pyramid, tracking, triangle
+gc.collect()
+#@split
+RESIDENT["code"] = gc.mem_alloc()
+DBS = {}
+for _name in DB_PATHS:
+    DBS[_name] = R.open_database(DB_PATHS[_name])
+gc.collect()
+#@split
+RESIDENT["databases"] = gc.mem_alloc()
+TRACKERS = {}
+for _cam in CAMERAS:
+    for _m in METHODS:
+        TRACKERS[_cam + "/" + _m] = R.make_tracker(DBS[CAMERAS[_cam]["database"]],
+                                                   CAMERAS[_cam], _m)
+gc.collect()
+#@split
+RESIDENT["trackers"] = gc.mem_alloc()
+print("RESIDENT " + json.dumps(RESIDENT))
+gc.collect()
+'''
+
+_SOLVE = r'''
+#@split
+LIVE = gc.mem_alloc()
+_f = open({path}, "rb")
+PKT = _f.read()
+_f.close()
+_f = None
+gc.disable()
+T0 = performance.now()
+BASE = gc.mem_alloc()
+OUT = R.replay(TRACKERS[{tracker}], PKT, {inputs})
+ALLOC = gc.mem_alloc() - BASE
+MS = performance.now() - T0
+gc.enable()
+print("RESULT " + json.dumps({{"case": {case}, "method": {method}, "repeat": {repeat},
+                              "live_before": LIVE, "ms": MS, "alloc": ALLOC, "out": OUT}}))
+PKT = OUT = None
+gc.collect()
+'''
+
+_END = r'''
+#@split
+print("LIVE_END " + str(gc.mem_alloc()))
+print("DONE")
+'''
+
+
+def build_script(manifest, methods, repeats=1):
+    """The MicroPython script replaying every case of ``manifest`` (a loaded set, see
+    :mod:`lodestar.regress`) with each of ``methods``, ``repeats`` times."""
+    db_paths = {name: f"{TARGET_DIR}/{name}.lsdb" for name in manifest["databases"]}
+    parts = ["DB_PATHS = " + literal(db_paths),
+             "CAMERAS = " + literal(manifest["cameras"]),
+             "METHODS = " + literal(list(methods)),
+             _PRELUDE]
+    for case in manifest["cases"]:
+        for method in methods:
+            for repeat in range(repeats):
+                parts.append(_SOLVE.format(
+                    path=literal(f"{TARGET_DIR}/{case['packet']}"),
+                    tracker=literal(case["camera"] + "/" + method),
+                    inputs=literal(case["inputs"]), case=literal(case["name"]),
+                    method=literal(method), repeat=repeat))
+    parts.append(_END)
+    return "\n".join(parts)
+
+
+def replay(manifest, set_dir, database_files, methods, repeats=1, timeout=900):
+    """Run the set on MicroPython: ``{"results": [...], "resident": {...}, "live_end": n}``.
+
+    ``database_files``: ``{database name: host path}`` (the images the set's recipes
+    build).  Each result: ``case``, ``method``, ``repeat``, ``live_before``, ``alloc`` (bytes),
+    ``ms`` and ``out`` (:func:`lodestar.regress_replay.outcome`).  Raises
+    :class:`MicroPythonError` when MicroPython is unavailable or the script fails."""
+    reason = unavailable_reason()
+    if reason is not None:
+        raise MicroPythonError("MicroPython unavailable: " + reason)
+    set_dir = Path(set_dir)
+    copies = [(REPO / "lodestar" / "regress_replay.py", "/lib/lodestar/regress_replay.py")]
+    copies += [(Path(path), f"{TARGET_DIR}/{name}.lsdb")
+               for name, path in database_files.items()]
+    copies += [(set_dir / case["packet"], f"{TARGET_DIR}/{case['packet']}")
+               for case in manifest["cases"]]
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "regress.py"
+        script.write_text(build_script(manifest, methods, repeats), encoding="utf-8")
+        command = ["node", str(RUNNER)]
+        for host, target in copies:
+            command += ["--copy", f"{os.path.abspath(host)}={target}"]
+        command.append(str(script))
+        try:
+            proc = subprocess.run(command, cwd=str(REPO), capture_output=True, text=True,
+                                  timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise MicroPythonError(f"the MicroPython replay took more than {timeout} s") \
+                from None
+    return parse_output(proc.returncode, proc.stdout, proc.stderr)
+
+
+def parse_output(returncode, stdout, stderr):
+    """The :func:`replay` dict from the runner's exit status and output; raises
+    :class:`MicroPythonError` when the script did not finish."""
+    lines = stdout.splitlines()
+    if returncode != 0 or "DONE" not in lines:
+        tail = "\n".join((stdout + stderr).strip().splitlines()[-20:])
+        raise MicroPythonError(f"the MicroPython replay failed (exit status {returncode}):\n"
+                               f"{tail}")
+    out = {"results": [], "resident": None, "live_end": None}
+    for line in lines:
+        if line.startswith("RESULT "):
+            out["results"].append(json.loads(line[len("RESULT "):]))
+        elif line.startswith("RESIDENT "):
+            out["resident"] = json.loads(line[len("RESIDENT "):])
+        elif line.startswith("LIVE_END "):
+            out["live_end"] = int(line[len("LIVE_END "):])
+    return out
