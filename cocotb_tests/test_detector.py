@@ -147,3 +147,20 @@ def test_committed_golden_image_set(tmp_path, pattern):
     c = cfgs[0]
     build = Build(c.width, c.height, c.pixel_bits, c.label_capacity, c.record_capacity)
     play(build.ensure(), frames, cfgs, tmp_path)
+
+
+@pytest.mark.slow
+def test_full_size_estcube2_frames(tmp_path):
+    """Two full 2592 x 1944 x 12 frames of the default camera (opt in: --runslow)."""
+    from lodestar.sim.presets import load_preset
+    from lodestar.sim.scene import detector_config, simulate
+
+    cam = load_preset("estcube2")
+    cfg = detector_config(cam)
+    frames = []
+    for seed, q in ((1, [0.2, -0.4, 0.1, 0.88]), (2, [0.7, 0.1, -0.3, 0.6])):
+        q = np.array(q) / np.linalg.norm(q)
+        frames.append(simulate(cam, q, seed=seed).frame)
+    build = Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
+                  cfg.record_capacity)
+    play(build.ensure(), frames, [cfg, cfg], tmp_path)

@@ -443,6 +443,13 @@ class Labeller(wiring.Component):
         with m.If(start | abort):
             m.d.sync += tag.eq(tag + 1)
 
+        def restart_if_new_frame():
+            """A frame starting before this one finished: end it truncated, start anew."""
+            with m.If(self.pixels.valid & at_origin):
+                m.d.comb += [abort.eq(1), abort_flags.eq(C.FRAME_TRUNCATED),
+                             start.eq(1), take.eq(1)]
+                m.next = "RUN"
+
         with m.FSM():
             with m.State("IDLE"):
                 with m.If(self.pixels.valid & at_origin):
@@ -474,30 +481,21 @@ class Labeller(wiring.Component):
             with m.State("GAP"):              # one clock: the last row's first node
                 m.d.comb += self.busy.eq(1)
                 m.next = "VROW"
-                with m.If(self.pixels.valid & at_origin):
-                    m.d.comb += [abort.eq(1), abort_flags.eq(C.FRAME_TRUNCATED),
-                                 start.eq(1), take.eq(1)]
-                    m.next = "RUN"
+                restart_if_new_frame()
             with m.State("VROW"):
                 m.d.comb += [self.busy.eq(1), dv.eq(1), dx.eq(vx), dy.eq(H)]
                 m.d.sync += vx.eq(vx + 1)
                 with m.If(vx == W - 1):
                     m.d.sync += drain.eq(0)
                     m.next = "DRAIN"
-                with m.If(self.pixels.valid & at_origin):
-                    m.d.comb += [abort.eq(1), abort_flags.eq(C.FRAME_TRUNCATED),
-                                 start.eq(1), take.eq(1)]
-                    m.next = "RUN"
+                restart_if_new_frame()
             with m.State("DRAIN"):
                 m.d.comb += self.busy.eq(1)
                 m.d.sync += drain.eq(drain + 1)
-                with m.If(self.pixels.valid & at_origin):
-                    m.d.comb += [abort.eq(1), abort_flags.eq(C.FRAME_TRUNCATED),
-                                 start.eq(1), take.eq(1)]
-                    m.next = "RUN"
-                with m.Elif((drain >= _DRAIN - 1) & ~self.feat_busy):
+                with m.If((drain >= _DRAIN - 1) & ~self.feat_busy & ~self.pixels.valid):
                     m.d.comb += finished.eq(1)
                     m.next = "IDLE"
+                restart_if_new_frame()
             with m.State("SKIP"):
                 with m.If(self.pixels.valid & at_origin):
                     m.d.comb += [start.eq(1), take.eq(1)]

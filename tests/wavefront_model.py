@@ -109,11 +109,7 @@ class WavefrontLabeller:
                     self._free(a["lab"])
                 a["lab"], a["has_slot"] = b.lab, True
             else:
-                if a["has_slot"]:
-                    self._free(a["lab"])
-                if b.tracked:
-                    self._free(b.lab)
-                a["has_slot"] = False
+                self._free_untracked(a, b)
             a.update(has_cur=True, first_addr=b.first_addr, last_addr=last)
         else:                                            # case (ii): b has no node yet
             if tracked:
@@ -124,11 +120,7 @@ class WavefrontLabeller:
                 else:
                     a["lab"], a["has_slot"] = b.lab, True
             else:
-                if a["has_slot"]:
-                    self._free(a["lab"])
-                if b.tracked:
-                    self._free(b.lab)
-                a["has_slot"] = False
+                self._free_untracked(a, b)
             if a["group"]:
                 b.cont = True
         if not tracked and a["has_cur"]:
@@ -136,6 +128,14 @@ class WavefrontLabeller:
             self._ev("tracked_patch")
         a["tracked"] = tracked
         a["group"] = True
+
+    def _free_untracked(self, a, b):
+        """A merge untracks the component: free the one slot either side held."""
+        if a["has_slot"]:
+            self._free(a["lab"])
+        if b.tracked:
+            self._free(b.lab)
+        a["has_slot"] = False
 
     def _pop(self):
         self._ev("pop")
