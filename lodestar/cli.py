@@ -280,7 +280,8 @@ def _run_db_info(args):
     return 0
 
 
-COMMAND_MODULES = ("lodestar.demo", "lodestar.imagesolve", "lodestar.cosim", "lodestar.regress")
+COMMAND_MODULES = ("lodestar.demo", "lodestar.imagesolve", "lodestar.cosim", "lodestar.regress",
+                   "lodestar.campaign")
 """Modules that each provide one subcommand: ``add_parser(subparsers)`` registers it and
 sets ``func`` (``run(args)`` -> exit code).  A new command is a module added here."""
 
