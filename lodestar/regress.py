@@ -123,18 +123,12 @@ def cache_image(image, cache_dir=None):
     """Keep a database image in the cache (``cache_dir``, default
     :func:`lodestar.solve.default_cache_dir`), written atomically; returns its path (a
     temporary file when the cache is not writable)."""
+    from lodestar.solve import write_atomic
+
     directory = _cache_dir(cache_dir)
     target = _cache_path(directory, sha256(image))
     try:
-        directory.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=target.name, suffix=".tmp", dir=directory)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(image)
-            os.replace(tmp, target)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        write_atomic(target, image)
         return target
     except OSError:
         fd, tmp = tempfile.mkstemp(prefix="lodestar-regress-", suffix=".lsdb")

@@ -212,6 +212,21 @@ def cache_key(fov_h_deg, fov_v_deg, max_mag, method):
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def write_atomic(target, data):
+    """Write ``data`` to ``target`` (creating its folder) through a temporary file renamed
+    into place, so readers never see a partial file.  Raises ``OSError``."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=target.name, suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
 def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir=None):
     """``(Database, path)`` for the parameters: from memory, the cache file, or built (and
     written to ``cache_dir``; ``path`` is None when the cache cannot be written).  Raises
@@ -237,15 +252,7 @@ def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir
             raise ValueError(str(exc)) from None
         db = fwdatabase.Database(image)
         try:
-            directory.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=target.name, suffix=".tmp", dir=directory)
-            try:
-                with os.fdopen(fd, "wb") as f:
-                    f.write(image)
-                os.replace(tmp, target)
-            finally:
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
+            write_atomic(target, image)
             path = target
         except OSError:
             path = None            # read-only cache: keep the database in memory only

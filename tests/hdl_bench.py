@@ -1,20 +1,11 @@
 """Amaranth-simulator bench of the whole detector: stream frames in, collect records and
 trailers, convert them to the golden model's types (shared by the hdl unit tests)."""
 
-import numpy as np
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
-
-
-def unpack(value, fields):
-    """``{name: int}`` of a packed struct value (first field in the low bits)."""
-    out = {}
-    for name, bits in fields:
-        out[name] = value & ((1 << bits) - 1)
-        value >>= bits
-    return out
+from lodestar.cosim import unpack
+from lodestar.hdl.layouts import record_fields, trailer_fields
 
 
 def to_record(fields):
