@@ -25,8 +25,8 @@ Status word ``overflow`` bits (sticky until the next status read unless stated):
 =====================  ==================================================================
 ``OVF_PIXEL_FIFO``     a pixel found the clock-crossing FIFO full (its frame is truncated)
 ``OVF_TRAILER_LOST``   the detector lost a frame trailer (its trailer buffer was full)
-``OVF_REG_REFUSED``    the register bank refused a write (detector ``reg_error``; the
-                       detector keeps it set, it is not cleared by a status read)
+``OVF_REG_REFUSED``    the register bank refused a write (detector ``reg_error``,
+                       cleared through the detector's ``reg_error_clear`` by the read)
 ``OVF_FAULT``          the detector's internal-bound ``fault`` (never expected)
 ``OVF_LINK_DOWN``      LVDS front end: not word-locked (live, not sticky); parallel: 0
 ``OVF_LINK_ERROR``     LVDS front end: framing errors since the last status read
@@ -132,7 +132,7 @@ class StarTracker(wiring.Component):
             det.reg_addr.eq(spi.reg_addr), det.reg_data.eq(spi.reg_data),
             det.reg_en.eq(spi.reg_strobe),
             spi.busy.eq(det.busy), spi.frame_counter.eq(det.frame_counter),
-            fe.overflow_clear.eq(spi.status_read),
+            fe.overflow_clear.eq(spi.status_read), det.reg_error_clear.eq(spi.status_read),
             self.irq.eq(pkt.busy),
         ]
 
@@ -256,7 +256,7 @@ BOARDS = {
         "de0-nano", device="EP4CE22", package="F17", speed="C6", les=22320, m9k=66,
         multipliers=66, osc_hz=50e6, osc_pin="R8", sync_hz=100e6, sensor="mt9p031",
         width=2592, height=1944, pixel_hz=96e6, sensor_clk_hz=25e6,
-        label_capacity=254, record_capacity=256, record_depth=256, pins=_MT9P031_PINS,
+        label_capacity=254, record_capacity=256, record_depth=128, pins=_MT9P031_PINS,
         io_standard=_LVCMOS,
         notes=("Terasic DE0-Nano, EP4CE22F17C6, CLOCK_50 on R8 (amaranth-boards "
                "DE0NanoPlatform).  A PLL makes sync = 100 MHz (>= the 96 MHz pixel rate, "
@@ -269,7 +269,7 @@ BOARDS = {
         "estcube2", device="EP4CE22", package="F17", speed="I7", les=22320, m9k=66,
         multipliers=66, osc_hz=50e6, osc_pin="R8", sync_hz=100e6, sensor="mt9p031",
         width=2592, height=1944, pixel_hz=96e6, sensor_clk_hz=25e6,
-        label_capacity=254, record_capacity=256, record_depth=256, pins=_MT9P031_PINS,
+        label_capacity=254, record_capacity=256, record_depth=128, pins=_MT9P031_PINS,
         io_standard=_LVCMOS,
         notes=("ESTCube-2 star tracker configuration (Schumann 2019): EP4CE22 with the "
                "MT9P031.  The flight board is custom: the package (F17), the industrial "

@@ -10,14 +10,24 @@ and two output buffers:
   (``MIN_HBLANK``, ``vblank_cycles``) and, in global mode, ``hdl/threshold.py``.
 * ``records`` (out, valid/ready): blob records in the compact layout
   (``hdl.layouts.record_layout``), in the contract's order, as blobs complete.  A buffer of
-  ``record_depth`` records (default ``record_capacity``) decouples the reader; a record that
-  finds it full is counted in ``dropped_records`` (``FRAME_RECORD_OVERFLOW``).
+  ``record_depth`` records (default ``record_capacity``; ``hdl.buffers.HalfWordFIFO``, two
+  half-width memory words per record) decouples the reader; a record that finds it full is
+  counted in ``dropped_records`` (``FRAME_RECORD_OVERFLOW``), so it is one of the records
+  the contract's ``record_capacity`` would also have let through, counted the same way.
 * ``trailer`` (out, valid/ready): after each frame's last record, the header fields of
-  ``hdl.layouts.TRAILER_NAMES`` (a buffer of ``TRAILER_DEPTH``; ``trailer_lost`` counts
-  trailers that found it full).  A frame's records are the ``n_records`` records before its
-  trailer.
+  ``hdl.layouts.TRAILER_NAMES``.  One trailer is held for the reader, in registers (the
+  packetizer holds the one whose packet it is sending).  A frame's records are the
+  ``n_records`` records before its trailer.
+* lost trailers: a frame that ends while the held trailer has not been taken loses its
+  trailer (``trailer_lost`` counts them, modulo 256; its ``frame_counter`` is missing from
+  the trailers that follow).  Its records, and any record not claimed by a trailer, are
+  *orphans*: before the next trailer is offered, the orphans still in the buffer are
+  discarded, so every later trailer is preceded by exactly its own ``n_records`` records.
+  This holds for a reader that takes a frame's records after its trailer (the packetizer);
+  a reader that takes records before their trailer has already consumed the orphans.
 * register writes (``reg_addr``, ``reg_data``, ``reg_en``) between frames; registers are
-  latched when a frame's first pixel enters.  ``reg_error`` flags a refused write.
+  latched when a frame's first pixel enters.  ``reg_error`` flags a refused write; it stays
+  set until ``reg_error_clear`` (the board top pulses it when the MCU reads the status).
 * status: ``busy`` (a frame is being processed), ``frame_counter`` (frames started since
   reset; the trailer carries the frame's own number, from 0), ``fault`` (an internal bound
   was exceeded: never expected).
@@ -34,20 +44,16 @@ last pixel.
 
 from amaranth import Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
-from amaranth.lib.fifo import SyncFIFOBuffered
 from amaranth.lib.wiring import In, Out, connect
 
 from lodestar import contract as C
 
+from .buffers import HalfWordFIFO
 from .features import FeatureEngine
 from .labeller import Labeller, vblank_cycles
 from .layouts import record_layout, trailer_layout
 from .registers import RegisterBank
 from .threshold import ThresholdUnit, global_cycles, local_blanking, pixel_layout
-
-TRAILER_DEPTH = 4
-"""Trailers buffered for the reader."""
-
 
 def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_MAX):
     """Idle clocks a frame in ``mode`` (a ``contract.MODE_*``) needs after its last pixel:
@@ -86,6 +92,7 @@ class Detector(wiring.Component):
             "reg_data": In(C.REGISTER_WORD_BITS),
             "reg_en": In(1),
             "reg_error": Out(1),
+            "reg_error_clear": In(1),
             "busy": Out(1),
             "frame_counter": Out(dict(C.HEADER_FIELDS)["frame_counter"]),
             "trailer_lost": Out(8),
@@ -100,14 +107,12 @@ class Detector(wiring.Component):
         m.submodules.labeller = lab = Labeller(W, H, pb, self.label_capacity)
         m.submodules.features = feat = FeatureEngine(W, H, pb, lab.slots, self.record_capacity)
         rec_layout = record_layout(W, H, pb)
-        m.submodules.record_fifo = rfifo = SyncFIFOBuffered(
-            width=rec_layout.size, depth=self.record_depth)
+        m.submodules.record_fifo = rfifo = HalfWordFIFO(rec_layout.size, self.record_depth)
         tr_layout = trailer_layout()
-        m.submodules.trailer_fifo = tfifo = SyncFIFOBuffered(
-            width=tr_layout.size, depth=TRAILER_DEPTH)
 
         m.d.comb += [regs.addr.eq(self.reg_addr), regs.data.eq(self.reg_data),
-                     regs.en.eq(self.reg_en), self.reg_error.eq(regs.error)]
+                     regs.en.eq(self.reg_en), self.reg_error.eq(regs.error),
+                     regs.error_clear.eq(self.reg_error_clear)]
         connect(m, wiring.flipped(self.pixels), thr.pixels)
         for name in ("mode", "threshold", "background", "ksigma",
                      "local_log2_window", "local_offset"):
@@ -152,15 +157,45 @@ class Detector(wiring.Component):
             trailer.dropped_labels.eq(lab.dropped_labels),
             trailer.n_records.eq(feat.n_records),
         ]
-        m.d.comb += [tfifo.w_data.eq(trailer), tfifo.w_en.eq(lab.done)]
-        with m.If(lab.done & ~tfifo.w_rdy):
+
+        # ---- output: the record buffer, the held trailer, orphan records ----------------
+        # Record sequence numbers (modulo 2**seq > 2 x record_depth): ``wseq`` counts records into
+        # the buffer, ``rseq`` records out of it (delivered or discarded); ``claimed`` is
+        # the number after the last record claimed by a taken trailer (or discarded).  The
+        # held trailer's records start at ``held_first``; records between ``claimed`` and
+        # ``held_first`` are orphans.
+        seq = C.bits_for(self.record_depth) + 1
+        wseq, rseq, claimed, held_first = (Signal(seq, name=n) for n in
+                                           ("wseq", "rseq", "claimed", "held_first"))
+        held = Signal(tr_layout)
+        held_valid = Signal()
+        taken = self.trailer.valid & self.trailer.ready
+        with m.If(lab.done & (~held_valid | taken)):
+            m.d.sync += [held.eq(trailer), held_valid.eq(1),
+                         held_first.eq(wseq - feat.n_records[:seq])]
+        with m.Elif(taken):
+            m.d.sync += held_valid.eq(0)
+        with m.If(lab.done & held_valid & ~taken):
             m.d.sync += self.trailer_lost.eq(self.trailer_lost + 1)
 
-        # output buffers
+        orphans = held_valid & (claimed != held_first)
+        at_claimed = rseq == claimed
+        behind = (rseq - claimed)[seq - 1]        # the reader still owes claimed records
+        discard = orphans & at_claimed & rfifo.r_rdy
+        with m.If(taken):
+            m.d.sync += claimed.eq(held_first + held.n_records[:seq])
+        with m.Elif(discard):
+            m.d.sync += claimed.eq(claimed + 1)
+        with m.Elif(orphans & ~at_claimed & ~behind):   # the reader took them already
+            m.d.sync += claimed.eq(held_first)
         m.d.comb += [rfifo.w_data.eq(feat.records.payload), rfifo.w_en.eq(feat.records.valid),
                      feat.records.ready.eq(rfifo.w_rdy),
-                     self.records.payload.eq(rfifo.r_data), self.records.valid.eq(rfifo.r_rdy),
-                     rfifo.r_en.eq(self.records.ready),
-                     self.trailer.payload.eq(tfifo.r_data), self.trailer.valid.eq(tfifo.r_rdy),
-                     tfifo.r_en.eq(self.trailer.ready)]
+                     self.records.payload.eq(rfifo.r_data),
+                     self.records.valid.eq(rfifo.r_rdy & ~(orphans & at_claimed)),
+                     rfifo.r_en.eq(self.records.valid & self.records.ready | discard),
+                     self.trailer.payload.eq(held), self.trailer.valid.eq(held_valid & ~orphans)]
+        with m.If(rfifo.w_en & rfifo.w_rdy):
+            m.d.sync += wseq.eq(wseq + 1)
+        with m.If(rfifo.r_en & rfifo.r_rdy):
+            m.d.sync += rseq.eq(rseq + 1)
         return m

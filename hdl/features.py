@@ -25,7 +25,9 @@ accumulator, the slot write and the record are at ``c + 3``.  A slot written by 
 read back correctly by any op entering two or more clocks later (the read port is
 transparent for the write port); the labeller never reads a slot sooner.  Ops carry the
 frame ``tag``; an op whose tag differs from the ``tag`` input (the frame was aborted) has no
-effect.  ``clear`` resets the per-frame counters.
+effect.  ``clear`` resets the per-frame counters.  The pipeline's data registers and the
+accumulator have no reset (only the valid bits do): they are read only under a valid op, and
+every component starts from ``NEW`` or ``LOAD``.
 """
 
 from amaranth import Module, Mux, Signal
@@ -115,21 +117,21 @@ class FeatureEngine(wiring.Component):
         rp = table.read_port(transparent_for=(wp,))
 
         # ---- stage 1: op registered, slot read issued, first products --------------
-        op1 = Signal.like(self.ops.payload)
+        op1 = Signal.like(self.ops.payload, reset_less=True)
         v1 = Signal()
         m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
         m.d.comb += [rp.addr.eq(op1.rd_addr), rp.en.eq(v1 & op1.rd)]
-        wx1 = Signal(pb + len(op1.x))
-        wy1 = Signal(pb + len(op1.y))
-        op2 = Signal.like(op1)
+        wx1 = Signal(pb + len(op1.x), reset_less=True)
+        wy1 = Signal(pb + len(op1.y), reset_less=True)
+        op2 = Signal.like(op1, reset_less=True)
         v2 = Signal()
         m.d.sync += [op2.eq(op1), v2.eq(v1), wx1.eq(op1.w * op1.x), wy1.eq(op1.w * op1.y)]
 
         # ---- stage 2: second products, slot data ------------------------------------
-        pixf = Signal(layout)
-        op3 = Signal.like(op1)
+        pixf = Signal(layout, reset_less=True)
+        op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
-        rd3 = Signal(layout)
+        rd3 = Signal(layout, reset_less=True)
         m.d.sync += [
             op3.eq(op2), v3.eq(v2), rd3.eq(rp.data),
             pixf.n.eq(1), pixf.nsat.eq(op2.p == fs),
@@ -141,11 +143,12 @@ class FeatureEngine(wiring.Component):
 
         # ---- stage 3: accumulator, slot write, completion ---------------------------
         live = v3 & (op3.tag == self.tag)
-        acc = Signal(layout)
+        acc = Signal(layout, reset_less=True)
         empty = Signal(layout, init=empty_features(W, H))
         merged = _combine(m, acc, rd3, fields, pb)
         base = Signal(layout)
-        with m.Switch(op3.base):
+        # without a live op the accumulator keeps itself (KEEP, no pixel): no enable logic
+        with m.Switch(Mux(live, op3.base, KEEP)):
             with m.Case(KEEP):
                 m.d.comb += base.eq(acc)
             with m.Case(NEW):
@@ -156,9 +159,8 @@ class FeatureEngine(wiring.Component):
                 m.d.comb += base.eq(merged)
         added = _combine(m, base, pixf, fields, pb)
         acc_next = Signal(layout)
-        m.d.comb += acc_next.eq(Mux(op3.pix, added, base))
-        with m.If(live):
-            m.d.sync += acc.eq(acc_next)
+        m.d.comb += acc_next.eq(Mux(live & op3.pix, added, base))
+        m.d.sync += acc.eq(acc_next)
         m.d.comb += [wp.addr.eq(op3.wr_addr), wp.data.eq(acc_next),
                      wp.en.eq(live & op3.wr)]
 

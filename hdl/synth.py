@@ -29,6 +29,13 @@ What is counted, and how (all of it is an **estimate**; Quartus' fit report is a
   faster per bit than a LUT level plus routing) and memories and multipliers start and end
   paths (Cyclone IV M9K and multiplier blocks are used with registered ports here).
 
+**Timing** (:func:`path_delay_ns`): the deepest path of each unit is also priced in ns with
+assumed Cyclone IV E C7/I7 figures (``LUT_NS`` per LUT with local routing, ``CARRY_NS_PER_BIT``
+per carry bit, ``REGISTER_NS`` per path).  Routing between LABs and the fan-out of a carry
+chain's last bit (a saturation select driving a whole word) are not priced and add roughly
+0.5-1.5 ns per such hop; paths that start at a memory add its clock-to-output (about 2-3 ns
+without output register).  Quartus' timing analysis is authoritative.
+
 Why the boxing: in this sandbox a flat ``synth_intel -nobram`` of the full design turns
 every memory into flip-flops (1.1 M AIG nodes for 2592 columns) and does not finish in
 15 minutes; ``synth_intel``'s own M9K mapping aborts (``Can't find object for defparam
@@ -63,6 +70,15 @@ ARITH_CELLS = ("$alu", "$macc_v2", "$add", "$sub", "$neg", "$lt", "$le", "$gt", 
 ``$macc_v2`` cells with products are multipliers instead."""
 CARRY_BITS_PER_LEVEL = 8
 """Carry-chain bits counted as one LUT level of delay in :func:`logic_depth`."""
+LUT_NS = 0.5
+"""Assumed delay of one Cyclone IV E LUT with local routing, C7/I7 (0.4-0.6 ns)."""
+CARRY_NS_PER_BIT = 0.06
+"""Assumed carry-chain delay per bit, C7/I7 (0.05-0.07 ns)."""
+REGISTER_NS = 0.6
+"""Assumed clock-to-output + set-up + clock uncertainty of a register-to-register path."""
+ROUTING_MARGIN_NS = 3.0
+"""Unpriced routing a path must leave room for to be called fitting: about three hops
+between LABs or out of a carry chain's last bit (module docstring)."""
 YOSYS_TIMEOUT_S = 1800
 
 
@@ -221,13 +237,26 @@ def analyse(netlist, top):
         for port in _OUTPUTS.get(kind, ("Y",)):
             for bit in cell["connections"].get(port, []):
                 driver[bit] = name
-    depth, depth_by_unit, critical = logic_depth(cells, driver)
+    depth, depth_by_unit, critical, paths = logic_depth(cells, driver)
     for unit in by_unit.values():
         unit["les"] = unit["luts"] + unit["arith_les"]
     return {"luts": totals["luts"], "ffs": totals["ffs"], "arith_les": totals["arith_les"],
             "les": totals["luts"] + totals["arith_les"], "multipliers": mults,
             "by_unit": by_unit, "depth": depth, "depth_by_unit": depth_by_unit,
-            "critical_unit": critical}
+            "critical_unit": critical,
+            "paths": {unit: {"levels": depth_by_unit[unit],
+                             "ns": round(path_delay_ns(cells, path), 2),
+                             "cells": [_short(cells, name) for name in path]}
+                      for unit, path in paths.items()}}
+
+
+def _short(cells, name):
+    """``name (type[, bits])`` of a path cell, without Yosys' flatten/techmap prefixes."""
+    cell = cells[name]
+    short = re.sub(r"^\\?(\$(flatten|techmap)\\)+", "", name)
+    if cell["type"] == "lodestar_arith":
+        return f"{short} (carry chain, {len(cell['connections']['Y'])} bits)"
+    return short
 
 
 def _param(value):
@@ -253,7 +282,8 @@ def _products(p):
 
 def logic_depth(cells, driver):
     """Longest combinational path in LUT levels (module docstring), overall and per unit of
-    the path's end cell; returns ``(depth, {unit: depth}, unit of the deepest path)``."""
+    the path's end cell; returns ``(depth, {unit: depth}, unit of the deepest path,
+    {unit: deepest path})``, a path being its cells' names from start to end."""
     def cost(cell):
         if cell["type"] == "lodestar_arith":
             chain = 1 + math.ceil(len(cell["connections"]["Y"]) / CARRY_BITS_PER_LEVEL)
@@ -280,24 +310,47 @@ def logic_depth(cells, driver):
     # Kahn's order: a cell's level is known once all of its combinational drivers are
     waiting = {name: len(fanin[name]) for name in comb}
     ready = [name for name in comb if waiting[name] == 0]
-    level = {}
+    level, via = {}, {}
     while ready:
         name = ready.pop()
-        level[name] = cost(cells[name]) + max((level[s] for s in fanin[name]), default=0)
+        via[name] = max(fanin[name], key=level.get, default=None)
+        level[name] = cost(cells[name]) + (level[via[name]] if via[name] else 0)
         for nxt in fanout[name]:
             waiting[nxt] -= 1
             if waiting[nxt] == 0:
                 ready.append(nxt)
     if len(level) != len(comb):
         raise ToolchainError("the mapped netlist has a combinational loop")
-    by_unit = {}
+    by_unit, end = {}, {}
     for name, d in level.items():
         unit = _unit(name)
-        by_unit[unit] = max(by_unit.get(unit, 0), d)
+        if d > by_unit.get(unit, 0):
+            by_unit[unit], end[unit] = d, name
     if not by_unit:
-        return 0, {}, None
+        return 0, {}, None, {}
+    paths = {}
+    for unit, name in end.items():
+        path = []
+        while name is not None:
+            path.append(name)
+            name = via[name]
+        paths[unit] = path[::-1]
     critical = max(by_unit, key=by_unit.get)
-    return by_unit[critical], by_unit, critical
+    return by_unit[critical], by_unit, critical, paths
+
+
+def path_delay_ns(cells, path):
+    """Estimated delay of a register-to-register ``path`` (cell names) on Cyclone IV E at
+    C7/I7: ``REGISTER_NS`` + ``LUT_NS`` per LUT + (``LUT_NS`` + ``CARRY_NS_PER_BIT`` x bits)
+    per carry chain (module docstring, *Timing*)."""
+    ns = REGISTER_NS
+    for name in path:
+        cell = cells[name]
+        ns += LUT_NS
+        if cell["type"] == "lodestar_arith":
+            ns += CARRY_NS_PER_BIT * len(cell["connections"]["Y"]) * \
+                math.ceil(math.log2(_addends(cell)))
+    return ns
 
 
 _SEQUENTIAL = ("dffeas", "lodestar_mem", "lodestar_mul")
@@ -319,8 +372,12 @@ ESTIMATE_NOTES = (
     "subtractor and comparator (Quartus' carry chains); Quartus packs flip-flops into the "
     "same LEs, so total LEs are about max(LEs, FFs) and usually a little more.",
     "Logic depth in LUT levels, carry chains counted as one level plus one per "
-    f"{CARRY_BITS_PER_LEVEL} bits; at Cyclone IV speed grades 6-8 one level with routing is "
-    "roughly 0.8-1.2 ns, so about 8 levels fit a 10 ns (100 MHz) clock.",
+    f"{CARRY_BITS_PER_LEVEL} bits.  Each unit's deepest path is also priced with assumed "
+    f"Cyclone IV E C7/I7 delays: {LUT_NS} ns per LUT with local routing, {CARRY_NS_PER_BIT} "
+    f"ns per carry bit, {REGISTER_NS} ns of register overhead; routing between LABs and "
+    "carry-out fan-out (about 0.5-1.5 ns per hop) come on top, so a path priced within "
+    f"{ROUTING_MARGIN_NS} ns of the period is called marginal: only Quartus' timing "
+    "analysis can settle it.",
 )
 
 
@@ -380,8 +437,10 @@ def board_report(board, component, *, yosys=True, workdir=None):
     if report["multipliers"]["9x9_equivalent"] > report["multipliers"]["available_9x9"]:
         report["notes"].append("more multiplier elements than the part has: Quartus would "
                                "build the rest in LEs")
+    deepest = sorted(logic["paths"].items(), key=lambda kv: -kv[1]["levels"])[:3]
     report["depth"] = {"levels": logic["depth"], "critical_unit": logic["critical_unit"],
-                       "by_unit": logic["depth_by_unit"]}
+                       "by_unit": logic["depth_by_unit"], "clock_ns": round(1e9 / board.sync_hz, 2),
+                       "paths": dict(deepest)}
     return report
 
 
@@ -413,6 +472,14 @@ def format_report(report):
         lines.append(f"  depth      {d['levels']} LUT levels (deepest in {d['critical_unit']}); "
                      "by unit: " + ", ".join(f"{k} {v}" for k, v in
                                              sorted(d["by_unit"].items(), key=lambda kv: -kv[1])))
+        for unit, path in d["paths"].items():
+            verdict = ("fits" if path["ns"] + ROUTING_MARGIN_NS <= d["clock_ns"] else
+                       "is marginal for" if path["ns"] <= d["clock_ns"] else "exceeds")
+            chains = [c for c in path["cells"] if "carry chain" in c]
+            lines.append(f"    {unit}: {path['levels']} levels, about {path['ns']} ns before "
+                         f"inter-LAB routing ({verdict} the {d['clock_ns']} ns sync period); "
+                         f"{len(path['cells'])} cells, {len(chains)} carry chains; from "
+                         f"{path['cells'][0]} to {path['cells'][-1]}")
     if "quartus" in report:
         lines.append("  Quartus    " + json.dumps(report["quartus"]))
     lines += ["  notes"] + [f"    - {n}" for n in report["notes"]]

@@ -14,12 +14,16 @@ def to_record(fields):
 
 
 def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None,
-                  record_ready=lambda cycle: True):
+                  record_ready=lambda cycle: True, trailer_ready=lambda cycle: True,
+                  trailer_first=False, status=None):
     """Run ``frames`` (uint16 arrays) through ``dut`` (a ``Detector``).
 
     ``regs``: one ``{name: value}`` per frame, written before it.  ``hblank``/``vblank``:
     idle clocks after each row / frame (``vblank`` defaults to what the detector needs).
     ``stop_after``: ``{frame index: pixels}`` streams only that many pixels of a frame.
+    ``record_ready``/``trailer_ready``: when the reader is ready, by clock.  ``trailer_first``:
+    read as the packetizer does, a trailer first and then its ``n_records`` records.
+    ``status``: a dict that receives the detector's final ``trailer_lost``.
     Returns ``(records, trailers, leftover)``: the ``BlobRecord`` list, the trailer dicts in
     output order, each with its frame's records in ``["records"]`` (the ``n_records``
     records before it in the record stream), and records no trailer claimed.
@@ -53,20 +57,26 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
                     await ctx.tick().repeat(hblank)
             ctx.set(dut.pixels.valid, 0)
             await ctx.tick().repeat(vblank)
-        await ctx.tick().repeat(8)
+        await ctx.tick().repeat(64 if trailer_first else 8)   # records follow the trailer
         done["flag"] = True
 
     async def monitor(ctx):
         cycle = 0
-        ctx.set(dut.trailer.ready, 1)
+        owed = 0                  # trailer_first: records of the last trailer still to read
         while True:
-            ready = record_ready(cycle)
+            t_ready = trailer_ready(cycle) and not (trailer_first and owed)
+            ready = record_ready(cycle) and (owed > 0 or not trailer_first)
+            ctx.set(dut.trailer.ready, t_ready)
             ctx.set(dut.records.ready, ready)
             if ready and ctx.get(dut.records.valid):
                 raw = ctx.get(dut.records.payload.as_value())
                 pending.append(to_record(unpack(raw, rec_fields)))
-            if ctx.get(dut.trailer.valid):
+                owed -= trailer_first
+            if t_ready and ctx.get(dut.trailer.valid):
                 trailers.append(unpack(ctx.get(dut.trailer.payload.as_value()), tr_fields))
+                owed += trailers[-1]["n_records"] if trailer_first else 0
+            if status is not None:
+                status["trailer_lost"] = ctx.get(dut.trailer_lost)
             await ctx.tick()
             cycle += 1
 

@@ -5,6 +5,7 @@ one real Yosys run on a small build."""
 import pytest
 
 from lodestar.hdl.boards import BOARDS, StarTracker
+from lodestar.hdl.layouts import record_layout
 from lodestar.hdl.synth import (analyse, board_report, format_report, m9k_blocks, memories,
                                 multiplier_elements)
 
@@ -12,7 +13,7 @@ from lodestar.hdl.synth import (analyse, board_report, format_report, m9k_blocks
 @pytest.mark.parametrize("depth,width,r,w,blocks", [
     (8192, 1, 1, 1, 1), (8193, 1, 1, 1, 2), (256, 36, 1, 1, 1), (256, 37, 1, 1, 2),
     (256, 345, 1, 1, 10), (1296, 9, 1, 2, 2), (512, 36, 1, 2, 2), (512, 36, 1, 1, 2),
-    (2592, 1, 2, 1, 2), (3, 224, 1, 1, 7), (0, 8, 1, 1, 0)])
+    (2592, 1, 2, 1, 2), (3, 224, 1, 1, 7), (256, 173, 1, 1, 5), (0, 8, 1, 1, 0)])
 def test_m9k_blocks(depth, width, r, w, blocks):
     assert m9k_blocks(depth, width, r, w) == blocks
 
@@ -27,7 +28,8 @@ def test_memories_of_a_design():
     mems = {m["name"]: m for m in memories(StarTracker("mt9p031", 64, 16, record_capacity=8))}
     bitmap = mems["detector.labeller.bitmap"]
     assert (bitmap["depth"], bitmap["width"], bitmap["bits"]) == (64, 1, 64)
-    assert mems["detector.record_fifo.storage"]["depth"] == 7
+    rec = mems["detector.record_fifo.storage"]        # 8 records as 16 half-words
+    assert (rec["depth"], rec["width"]) == (16, (record_layout(64, 16, 12).size + 1) // 2)
     assert mems["detector.labeller.flags0"]["write_ports"] == 2
     assert "frontend.crossing.fifo.storage" in mems
 
@@ -55,6 +57,10 @@ def test_analyse_counts_and_depth():
     assert out["multipliers"] == [(12, 4)]
     assert out["depth"] == 5 and out["critical_unit"] == "a.b"
     assert out["depth_by_unit"] == {"a": 1, "a.b": 5, "c": 1}
+    path = out["paths"]["a.b"]
+    assert path["cells"][0] == "a.x_$lut" and path["cells"][-1] == "a.b.y_$lut"
+    assert path["cells"][1] == "a.b.$add$f.py:1$7 (carry chain, 16 bits)"
+    assert path["ns"] == pytest.approx(0.6 + 3 * 0.5 + 16 * 0.06)
     assert out["by_unit"]["a.b"]["les"] == 17
 
 
@@ -78,3 +84,14 @@ def test_frame_beyond_the_part_is_refused():
     top = StarTracker("mt9p031", 4096, 4096, label_capacity=2049, record_capacity=4096)
     with pytest.raises(ValueError, match=r"needs \d+ M9K blocks, the part has 66.*--width"):
         board_report(board, top, yosys=False)
+
+
+def test_estcube2_memory_budget():
+    """The issue's goal: at most half of the EP4CE22's 66 M9K for 2592 x 1944 x 12."""
+    from lodestar.hdl.synth import memory_budget
+
+    mems, m9k, _ = memory_budget(BOARDS["estcube2"].star_tracker())
+    assert m9k <= 33
+    by_name = {m["name"]: m for m in mems}
+    assert by_name["detector.record_fifo.storage"]["m9k"] == 5
+    assert not any("trailer" in name for name in by_name)      # the trailer is in registers

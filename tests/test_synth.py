@@ -22,6 +22,7 @@ def test_default_board_project_and_memory_report(tmp_path, capsys):
     assert report["frame"] == "2592x1944x12" and report["part"].startswith("EP4CE22")
     assert report["m9k"]["used"] == sum(m["m9k"] for m in report["memories"])
     assert report["m9k"]["available"] == 66
+    assert report["m9k"]["used"] <= 33               # the goal: at most half the M9K
     assert any("quartus_sh is not on PATH" in n for n in report["notes"])
     assert (out / "report.txt").read_text().strip() == text.strip()
 
@@ -97,4 +98,8 @@ def test_default_board_yosys_report(tmp_path, capsys):
     assert main(["synth", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["logic"]["les"] > 1000 and report["logic"]["available_les"] == 22320
+    assert report["logic"]["percent"] <= 25          # the goal: at most a quarter
+    assert report["m9k"]["used"] <= 33
     assert report["depth"]["levels"] > 0 and report["multipliers"]["18x18"] > 0
+    deepest = report["depth"]["paths"][report["depth"]["critical_unit"]]
+    assert deepest["levels"] == report["depth"]["levels"] and deepest["ns"] > 0
