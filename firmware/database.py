@@ -7,8 +7,9 @@ an image and reads it **without loading it whole**:
 * ``Database(buffer)`` works over ``bytes``, ``bytearray`` or a ``memoryview`` (for example
   a memory-mapped flash region): every access is a ``struct.unpack_from`` at an offset;
 * ``Database.open(path)`` works over a file: it reads the 160-byte header, streams the file
-  once in 512-byte chunks to check the CRC, and afterwards reads each record with a
-  ``seek`` + ``readinto`` into one preallocated 16-byte scratch buffer.
+  once in 512-byte chunks to check the CRC, and afterwards reads each record (or block of
+  :data:`PAIR_BLOCK` pair records) with a ``seek`` + ``readinto`` into one preallocated
+  192-byte scratch buffer.
 
 Validation (in this order), with the :mod:`lodestar.firmware.status` code of each failure:
 length >= header (``DATABASE_BAD_LENGTH``), magic ``b"LSDB"`` (``DATABASE_BAD_MAGIC``),
@@ -136,6 +137,10 @@ STATUSES = (S.OK, S.DATABASE_CORRUPT, S.DATABASE_MISMATCH, S.DATABASE_UNSUPPORTE
 
 _CHUNK = 512
 
+PAIR_BLOCK = 32
+"""Most pair records one :meth:`Database.pair_stars` read returns."""
+_PAIR_STARS_FORMAT = "<" + "2x2H" * PAIR_BLOCK
+
 
 class DatabaseError(Exception):
     """An image is corrupt or does not match: ``status`` (one of :data:`STATUSES`, a
@@ -247,7 +252,7 @@ class _FileSource:
         self.f = f
         f.seek(0, 2)
         self.size = f.tell()
-        self.scratch = bytearray(HEADER_SIZE)
+        self.scratch = bytearray(max(HEADER_SIZE, PAIR_BLOCK * PAIR_SIZE))
         self.mv = memoryview(self.scratch)
 
     def unpack(self, fmt, offset, size):
@@ -572,6 +577,12 @@ class Database:
     def pair_record(self, i):
         """``(key, a, b)`` of pair ``i``: its angle is ``key * key_step`` rad."""
         return self._src.unpack(PAIR_FORMAT, self._pairs_off + i * PAIR_SIZE, PAIR_SIZE)
+
+    def pair_stars(self, start, n):
+        """Star indices of the ``n`` pairs ``start .. start + n - 1`` (``1 <= n <=
+        PAIR_BLOCK``) as one flat tuple ``(a, b, a, b, ...)``: one read instead of ``n``."""
+        fmt = _PAIR_STARS_FORMAT if n == PAIR_BLOCK else "<" + "2x2H" * n
+        return self._src.unpack(fmt, self._pairs_off + start * PAIR_SIZE, n * PAIR_SIZE)
 
     def pair_key(self, i):
         """Integer angle key of pair ``i`` (ascending with ``i``)."""

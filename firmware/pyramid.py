@@ -45,16 +45,37 @@ Algorithm
 The search stops with ``NO_MATCH`` when all triples are exhausted, or
 ``BUDGET_EXHAUSTED`` when ``budget`` triples were tried first.
 
-Pure Python for CPython and MicroPython (``math`` only); working memory is a few small
-dicts per triple (candidate partners of one side) and the observed-angle table.
+Pure Python for CPython and MicroPython (``math`` and ``array``).  Working memory: the
+observed-angle table, the k-vector range of each observed pair (queried once per search),
+and per triple two candidate sides indexed by star in ``array('H')`` chains (16 bytes a pair
+at most, :data:`CHUNK` pairs a side at a time), the third side streamed from the database in
+blocks of :data:`lodestar.firmware.database.PAIR_BLOCK` records.
 """
 
 import math
+from array import array
 
 from . import verify as V
-from .database import METHOD_PYRAMID
+from .database import METHOD_PYRAMID, PAIR_BLOCK
 
 SQRT2 = 1.4142135623730951
+
+NONE = 0xFFFF
+"""End of a chain in the ``array('H')`` pair index of :meth:`_Search._index`."""
+
+CHUNK = 1024
+"""Most candidate pairs of one side indexed at once (:meth:`_Search._index`: at most
+``16 * CHUNK`` bytes a side; entry numbers stay below :data:`NONE`)."""
+
+
+def _none_array(n):
+    """``array('H')`` of at least ``n`` entries, all :data:`NONE` (filled block by block:
+    MicroPython's ``array`` has no repetition)."""
+    block = array("H", [NONE] * 256)
+    out = array("H")
+    for _ in range((n + 255) >> 8):
+        out.extend(block)
+    return out
 
 
 def _observed_angles(b, n):
@@ -77,10 +98,18 @@ class _Search(V.Search):
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol = SQRT2 * tol + db.key_step
+        self.ranges = array("i", [-1] * (2 * self.n * self.n))
 
     def candidates(self, i, j):
-        t = self.ang[i * self.n + j]
-        return self.db.pairs_in_range(t - self.ptol, t + self.ptol)
+        """``(start, stop)``: the database pairs within ``ptol`` of the observed angle
+        ``i``-``j`` (k-vector query, remembered per observed pair for the whole search)."""
+        n = self.n
+        c = 2 * (i * n + j if i < j else j * n + i)
+        r = self.ranges
+        if r[c] < 0:
+            t = self.ang[i * n + j]
+            r[c], r[c + 1] = self.db.pairs_in_range(t - self.ptol, t + self.ptol)
+        return r[c], r[c + 1]
 
     def bound(self, i, j, k):
         a = self.ang
@@ -88,9 +117,37 @@ class _Search(V.Search):
         return self.tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) +
                            math.sin(a[k * n + i]))
 
-    def triangles(self, i, j, k):
-        """Consistent catalogue triangles ``(I, J, K)`` of the observed triple."""
+    def _index(self, start, stop):
+        """Index the pairs ``start <= p < stop`` by star: ``(head, st, nxt)``.
+
+        ``st`` lists the pairs' stars ``a, b, a, b, ...``: entry ``e`` is filed under star
+        ``st[e]`` with partner ``st[e ^ 1]``.  ``head[star & mask]`` (``mask = len(head) -
+        1``) starts a chain through ``nxt`` (ended by :data:`NONE`) holding the entries of
+        every star with those low bits; a reader skips the entries of other stars."""
         db = self.db
+        n = 2 * (stop - start)
+        size = 256
+        while size < n:
+            size <<= 1
+        mask = size - 1
+        head = _none_array(size)
+        st = array("H")
+        for p in range(start, stop, PAIR_BLOCK):
+            st.extend(db.pair_stars(p, PAIR_BLOCK if p + PAIR_BLOCK < stop else stop - p))
+        nxt = array("H", st)        # sized like st; every entry is set below
+        for e in range(n):
+            h = st[e] & mask
+            nxt[e] = head[h]
+            head[h] = e
+        return head, st, nxt
+
+    def triangles(self, i, j, k):
+        """Consistent catalogue triangles ``(I, J, K)`` of the observed triple, in the order
+        of the ``ij`` candidates (``(a, b)`` before ``(b, a)``), then of the ``ik`` ones.
+
+        Memory: the ``ij`` and ``jk`` candidates indexed by star (:meth:`_index`, at most
+        :data:`CHUNK` pairs of a side at once: longer ranges are joined chunk by chunk) and
+        the triangles found; the ``ik`` candidates are streamed from the database."""
         s_ij = self.candidates(i, j)
         if s_ij[0] == s_ij[1]:
             return []
@@ -100,38 +157,46 @@ class _Search(V.Search):
         s_jk = self.candidates(j, k)
         if s_jk[0] == s_jk[1]:
             return []
-        ns = db.n_stars
-        partners = {}
-        for p in range(s_ik[0], s_ik[1]):
-            _, a, c = db.pair_record(p)
-            lst = partners.get(a)
-            if lst is None:
-                partners[a] = [c]
-            else:
-                lst.append(c)
-            lst = partners.get(c)
-            if lst is None:
-                partners[c] = [a]
-            else:
-                lst.append(a)
-        jk = {}
-        for p in range(s_jk[0], s_jk[1]):
-            _, a, c = db.pair_record(p)
-            jk[a * ns + c] = 1
-        out = []
-        for p in range(s_ij[0], s_ij[1]):
-            _, a, c = db.pair_record(p)
-            for ii, jj in ((a, c), (c, a)):
-                ks = partners.get(ii)
-                if ks is None:
-                    continue
-                for kk in ks:
-                    if kk == jj:
-                        continue
-                    code = jj * ns + kk if jj < kk else kk * ns + jj
-                    if code in jk:
-                        out.append((ii, jj, kk))
-        return out
+        found = []
+        for lo in range(s_ij[0], s_ij[1], CHUNK):
+            ij = self._index(lo, lo + CHUNK if lo + CHUNK < s_ij[1] else s_ij[1])
+            for lo2 in range(s_jk[0], s_jk[1], CHUNK):
+                jk = self._index(lo2, lo2 + CHUNK if lo2 + CHUNK < s_jk[1] else s_jk[1])
+                self._join(ij, jk, s_ik, (lo - s_ij[0]) << 1, found)
+        found.sort()
+        return [t[1:] for t in found]
+
+    def _join(self, ij, jk, s_ik, e0, found):
+        """Append ``(order, I, J, K)`` to ``found`` for every ``ik`` pair ``{I, K}`` closing a
+        triangle with an indexed ``ij`` entry ``(I, J)`` and ``jk`` entry ``(J, K)``;
+        ``order`` sorts them as :meth:`triangles` returns them (``e0``: the ``ij`` chunk's
+        first entry number)."""
+        db = self.db
+        ij_head, ij_st, ij_nxt = ij
+        jk_head, jk_st, jk_nxt = jk
+        ij_mask = len(ij_head) - 1
+        jk_mask = len(jk_head) - 1
+        start, stop = s_ik
+        n_ik = stop - start
+        for p0 in range(start, stop, PAIR_BLOCK):
+            rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < stop else stop - p0)
+            for t in range(0, len(rec), 2):
+                a = rec[t]
+                c = rec[t + 1]
+                for ii, kk in ((a, c), (c, a)):
+                    e = ij_head[ii & ij_mask]
+                    while e != NONE:
+                        if ij_st[e] == ii:
+                            jj = ij_st[e ^ 1]
+                            if jj != kk:
+                                f = jk_head[jj & jk_mask]
+                                while f != NONE:
+                                    if jk_st[f] == jj and jk_st[f ^ 1] == kk:
+                                        found.append(((e0 + e) * n_ik + p0 - start + (t >> 1),
+                                                      ii, jj, kk))
+                                        break
+                                    f = jk_nxt[f]
+                        e = ij_nxt[e]
 
     def fourth_star(self, i, j, k, cat):
         """``(r, R)``: the first observed star confirming the catalogue triangle, or None."""
@@ -150,22 +215,26 @@ class _Search(V.Search):
             t_rk = ang[r * n + k]
             bound = self.bound(i, j, r)
             t_obs = V.triple(b[i], b[j], b[r])
-            for p in range(s[0], s[1]):
-                _, a, c = db.pair_record(p)
-                if a == ci:
-                    cr = c
-                elif c == ci:
-                    cr = a
-                else:
-                    continue
-                if cr == cj or cr == ck:
-                    continue
-                vr = db.star_vector(cr)
-                if abs(V.angle(vr, vj) - t_rj) > ptol or abs(V.angle(vr, vk) - t_rk) > ptol:
-                    continue
-                if not _handed(t_obs, V.triple(vi, vj, vr), bound):
-                    continue
-                return r, cr
+            for p0 in range(s[0], s[1], PAIR_BLOCK):
+                rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < s[1] else s[1] - p0)
+                for t in range(0, len(rec), 2):
+                    a = rec[t]
+                    c = rec[t + 1]
+                    if a == ci:
+                        cr = c
+                    elif c == ci:
+                        cr = a
+                    else:
+                        continue
+                    if cr == cj or cr == ck:
+                        continue
+                    vr = db.star_vector(cr)
+                    if abs(V.angle(vr, vj) - t_rj) > ptol or \
+                            abs(V.angle(vr, vk) - t_rk) > ptol:
+                        continue
+                    if not _handed(t_obs, V.triple(vi, vj, vr), bound):
+                        continue
+                    return r, cr
         return None
 
     def try_triple(self, i, j, k):

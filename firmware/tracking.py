@@ -51,11 +51,13 @@ are :mod:`lodestar.firmware.status`'s: ``OK``, ``TOO_FEW_STARS`` (fewer than
 pipeline falls back to lost-in-space), ``BAD_INPUT`` (bad prior, vectors or parameters).
 Never raises for bad data.
 
-Pure Python for CPython and MicroPython: ``math`` only; memory is the predicted-star list
-(a few dozen entries) and the candidate list.
+Pure Python for CPython and MicroPython: ``math`` and ``array``; memory is the cone's stars
+as arrays (14 bytes a star), the predicted-star list (a few dozen entries) and the candidate
+list.
 """
 
 import math
+from array import array
 
 from . import attitude as _att
 from .quaternion import multiply
@@ -185,14 +187,34 @@ def matrix(q):
 # --------------------------------------------------------------------------------------
 
 def candidates(database, q, margin_rad):
-    """``[(star index, inertial vector)]`` of the catalogue stars within the FOV's
-    half-diagonal plus ``margin_rad`` of the boresight of ``q``: the stars :func:`predict`
-    can find at any attitude within ``margin_rad`` of ``q`` (one cone query, reused)."""
+    """``(ids, vecs)``: the catalogue stars within the FOV's half-diagonal plus
+    ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict` can find at any
+    attitude within ``margin_rad`` of ``q``; one cone query, reused), as ``array('H')``
+    star indices (ascending) and ``array('f')`` inertial vectors ``x, y, z`` per star (the
+    database's float32 values, exactly)."""
     m = matrix(q)
-    out = []
-    for s in database.stars_in_cone((m[6], m[7], m[8]), 0.5 * database.fov_diag + margin_rad):
-        out.append((s, database.star_vector(s)))
-    return out
+    ids = array("H", database.stars_in_cone((m[6], m[7], m[8]),
+                                            0.5 * database.fov_diag + margin_rad))
+    vecs = array("f")
+    for s in ids:
+        vecs.extend(database.star_vector(s))
+    return ids, vecs
+
+
+def star_vector(database, stars, s):
+    """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`, found by binary
+    search) when it holds it, else read from the database."""
+    ids, vecs = stars
+    lo, hi = 0, len(ids)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if ids[mid] < s:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < len(ids) and ids[lo] == s:
+        return vecs[3 * lo], vecs[3 * lo + 1], vecs[3 * lo + 2]
+    return database.star_vector(s)
 
 
 def predict(database, q, margin_rad=0.0, stars=None):
@@ -209,16 +231,18 @@ def predict(database, q, margin_rad=0.0, stars=None):
     tan_vm = math.tan(0.5 * database.fov_v + margin_rad)
     if stars is None:
         stars = candidates(database, q, margin_rad)
+    ids, vecs = stars
     out = []
     n_fov = 0
-    for s, r in stars:
-        z = m6 * r[0] + m7 * r[1] + m8 * r[2]
+    for c in range(len(ids)):
+        r0, r1, r2 = vecs[3 * c], vecs[3 * c + 1], vecs[3 * c + 2]
+        z = m6 * r0 + m7 * r1 + m8 * r2
         if z <= 0.0:
             continue
-        x = m0 * r[0] + m1 * r[1] + m2 * r[2]
-        y = m3 * r[0] + m4 * r[1] + m5 * r[2]
+        x = m0 * r0 + m1 * r1 + m2 * r2
+        y = m3 * r0 + m4 * r1 + m5 * r2
         if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
-            out.append(((x, y, z), s))
+            out.append(((x, y, z), ids[c]))
             if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
                 n_fov += 1
     return out, n_fov
@@ -302,17 +326,18 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     return pairs
 
 
-def fit(observed, database, pairs, weights=None, lookup=None):
+def fit(observed, database, pairs, weights=None, stars=None):
     """QUEST attitude of ``pairs`` ``[(observed index, star index)]``, or None when the
-    geometry is degenerate (fewer than two pairs, all parallel).  ``lookup``: a dict
-    star index -> catalogue vector (None, or a missing star: read from the database)."""
+    geometry is degenerate (fewer than two pairs, all parallel).  ``stars``: the
+    :func:`candidates` to take catalogue vectors from (None, or a star not among them: read
+    from the database)."""
     if len(pairs) < 2:
         return None
     b = [observed[o] for o, s in pairs]
-    if lookup is None:
+    if stars is None:
         r = [database.star_vector(s) for o, s in pairs]
     else:
-        r = [lookup[s] if s in lookup else database.star_vector(s) for o, s in pairs]
+        r = [star_vector(database, stars, s) for o, s in pairs]
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
         return _att.quest(b, r, w)
@@ -389,15 +414,12 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     # coarse association around the prior; one cone query serves every prediction below
     # (the fitted attitudes stay within the search radius of the prior)
     stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol)
-    lookup = {}
-    for s, v in stars:
-        lookup[s] = v
     predicted, n_fov = predict(database, q_pred, search, stars)
     spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error across field
     pairs = coarse_match(b, predicted, search, 2.0 * tol + spread, coarse_stars)
     if len(pairs) < 2:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-    q = fit(b, database, pairs, weights, lookup)
+    q = fit(b, database, pairs, weights, stars)
     if q is None:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
 
@@ -408,7 +430,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         new = match_nearest(b, predicted, tol)
         if new == pairs:
             break
-        q_new = fit(b, database, new, weights, lookup)
+        q_new = fit(b, database, new, weights, stars)
         if q_new is None:
             break
         pairs = new
@@ -423,7 +445,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         for pair in final:
             keep[pair] = 1
         pairs = [pair for pair in pairs if pair in keep]
-        q2 = fit(b, database, pairs, weights, lookup)
+        q2 = fit(b, database, pairs, weights, stars)
         if q2 is None:
             return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
         q = q2

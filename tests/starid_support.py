@@ -1,7 +1,14 @@
-"""Scoring shared by the star-identification tests."""
+"""Scoring, hard scenes and the heap-budget measurement shared by the star-identification
+tests."""
+
+import tracemalloc
+
+import numpy as np
 
 from lodestar.firmware import starid
-from lodestar.ground.scenes import attitude_error_deg
+from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
+from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.sim.attitude import random_attitude
 
 MAX_ERR_DEG = 0.05
 """An accepted attitude further than this from the truth is a wrong solution."""
@@ -16,3 +23,37 @@ def outcome(sol, scene):
     if any(hip not in scene.components[o] for o, hip in sol.matches):
         return "wrong"
     return "correct"
+
+
+HEAP_BUDGET = 96 * 1024
+"""Issue budget, bytes: the peak heap of one solve under MicroPython.  The MicroPython
+WebAssembly port cannot show a peak (it collects only between top-level calls), so the tests
+bound it by the CPython ``tracemalloc`` live peak of the same call: every CPython object is
+larger than its 32-bit MicroPython counterpart (a float 24 B against 16 B, a tuple
+56 + 8 n B against about 8 + 4 n, lists and dicts alike)."""
+
+
+def live_peak(call):
+    """``tracemalloc`` live peak (bytes above the start) of one ``call()``, after a first
+    call that warms up imports and first-use allocations."""
+    call()
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        call()
+        return tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+
+
+def hard_scenes(camera, catalogue, n, seed):
+    """``n`` hard centroid scenes: 30 observed stars of which 10 are false, 1 px centroid
+    noise, 10 % of the stars dropped."""
+    rng = np.random.default_rng(seed)
+    return [centroid_scene(camera, random_attitude(rng), rng, catalogue, noise_px=1.0,
+                           n_false=10, drop_fraction=0.1, max_stars=30) for _ in range(n)]
+
+
+def pipeline_tolerance_rad(camera):
+    """The flight pipeline's default match tolerance for ``camera`` (rad)."""
+    return DEFAULT_TOLERANCE_PX / camera.fx_px

@@ -23,7 +23,8 @@ from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
-from starid_support import outcome
+from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, outcome,
+                            pipeline_tolerance_rad)
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -396,3 +397,15 @@ def test_hashing_under_micropython():
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out
     assert "SOLVED 5" in out and "DONE" in out
+
+
+def test_live_peak_of_a_hard_solve_is_within_the_heap_budget():
+    """30 stars of which 10 false, 1 px noise, the pipeline's tolerance: the CPython live
+    peak of one identification (a bound of MicroPython's) stays within the 96 KB budget."""
+    cam, cat, _, db = setup()
+    tol = pipeline_tolerance_rad(cam)
+    for scene in hard_scenes(cam, cat, 3, seed=3):
+        v = scene.vectors.tolist()
+        assert starid.identify(v, db, method="hashing", tolerance_rad=tol).status == starid.OK
+        peak = live_peak(lambda: starid.identify(v, db, method="hashing", tolerance_rad=tol))
+        assert peak < HEAP_BUDGET, peak

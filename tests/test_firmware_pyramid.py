@@ -21,7 +21,8 @@ from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import attitude_error_deg, centroid_scene
-from starid_support import outcome
+from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, outcome,
+                            pipeline_tolerance_rad)
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import Catalogue, load
 from lodestar.sim.goldenset import window_camera
@@ -297,3 +298,20 @@ def test_identification_under_micropython():
     assert "IMPLEMENTATION micropython (1, 27" in out
     assert "SOLVED 6" in out and "CORRUPT DATABASE_CORRUPT DATABASE_BAD_LENGTH" in out
     assert "RAISED DATABASE_BAD_LENGTH True" in out and "DONE" in out
+
+
+@pytest.mark.parametrize("preset", ["estcube2", "lohmann"])
+def test_live_peak_of_a_hard_solve_is_within_the_heap_budget(preset):
+    """30 stars of which 10 false, 1 px noise, the pipeline's tolerance: the CPython live
+    peak of one identification (a bound of MicroPython's) stays within the 96 KB budget.
+    The wide lohmann field has the longest pair-candidate ranges (materialised as dicts of
+    lists they took about 200 KB)."""
+    _, cat, _ = setup()
+    cam = load_preset(preset)
+    db = Database(build_database(cat, cam, mag_limit=6.0))
+    tol = pipeline_tolerance_rad(cam)
+    for scene in hard_scenes(cam, cat, 3, seed=3):
+        v = scene.vectors.tolist()
+        assert starid.identify(v, db, tolerance_rad=tol).status == starid.OK
+        peak = live_peak(lambda: starid.identify(v, db, tolerance_rad=tol))
+        assert peak < HEAP_BUDGET, (preset, peak)
