@@ -29,6 +29,8 @@ records per reason, every reason of ``REASONS`` present)::
                     optics' PSF in every direction)
     "cosmic_ray"    elongation > max_elongation, unless consistent with the expected smear
     "hot_pixel"     sigma_minor < min_sigma_px (sharper than the PSF across the blob)
+    "fragment"      a piece of a smeared star's broken track, joined to the star (below):
+                    its light is kept, it is just not a star of its own
     "excess"        passed, but not among the max_stars brightest (largest s0)
 
 Smear: a body rate smears a star into a line of length ``L`` (px) along ``(dx, dy)``; a
@@ -40,6 +42,16 @@ length ``sqrt(12 (l1 - l2))`` is within a factor ``smear_length_ratio`` of ``L``
 the camera's x or y axis), or a function ``f(x, y) -> (dx, dy)`` for a smear that varies
 over the frame (roll; see ``lodestar.firmware.camera.Camera.smear_px``).  A rolling shutter
 shears the track slightly; the tolerances absorb it.
+
+Broken tracks: a threshold near the smeared star's surface brightness cuts its track into
+pieces, and the centroid of one piece lies up to ``L/2`` from the star's mean position.
+With a known smear, stars that passed the filter are **joined** (:func:`join_fragments`)
+when their centroids lie on one line along the smear, closer than ``L + 1`` px along it
+and than ``join_across_px + sigma_minor_a + sigma_minor_b`` across it; a joined star has
+the moments of the union of its pieces (``s0`` summed, centroid and central second
+moments by the parallel-axis rule), so its centroid is that of the light the detector saw
+of the whole track.  Its ``index`` is its brightest piece's record, ``parts`` lists all
+of them (``None`` for a star of one record).
 
 Stars are returned brightest first (ties in record order).  Pure Python for CPython and
 MicroPython: no numpy, typing, dataclasses or itertools.
@@ -67,8 +79,13 @@ smear direction for the smear to explain the elongation."""
 DEFAULT_SMEAR_LENGTH_RATIO = 2.0
 """The measured smear length may differ from the expected one by this factor either way
 (thresholding shortens a track by the PSF wings at its ends)."""
+DEFAULT_JOIN_ACROSS_PX = 1.0
+"""Pieces of one broken track are joined when their centroids lie within this many pixels
+plus their two ``sigma_minor`` of one line along the smear (rolling-shutter shear and
+centroid noise included)."""
 
-REASONS = ("empty", "saturated", "inconsistent", "hot_pixel", "cosmic_ray", "excess")
+REASONS = ("empty", "saturated", "inconsistent", "hot_pixel", "cosmic_ray", "fragment",
+           "excess")
 """Rejection reasons, the keys of the ``rejected`` dict, in the order the tests apply."""
 
 _INF = float("inf")
@@ -80,14 +97,15 @@ class Star(object):
     ``x``, ``y`` centroid (px), ``flux`` = s0 (weight sum, ADU above background),
     ``sigma_major``, ``sigma_minor`` (px), ``elongation``, ``orientation`` (rad, major axis
     from +x towards +y), ``n`` pixels, ``nsat`` saturated pixels, ``peak`` pixel value and
-    ``index`` of the record in the packet.
+    ``index`` of the record in the packet; ``parts``: the record indices of a star joined
+    from the pieces of a broken track (``index`` is the brightest), else None.
     """
 
     __slots__ = ("x", "y", "flux", "sigma_major", "sigma_minor", "elongation", "orientation",
-                 "n", "nsat", "peak", "index")
+                 "n", "nsat", "peak", "index", "parts")
 
     def __init__(self, x, y, flux, sigma_major, sigma_minor, elongation, orientation,
-                 n, nsat, peak, index):
+                 n, nsat, peak, index, parts=None):
         self.x = x
         self.y = y
         self.flux = flux
@@ -99,6 +117,7 @@ class Star(object):
         self.nsat = nsat
         self.peak = peak
         self.index = index
+        self.parts = parts
 
     def as_tuple(self):
         """``(x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat, peak,
@@ -235,6 +254,100 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
     return length / length_ratio <= measured <= length * length_ratio
 
 
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
+    """Join the pieces of broken smeared tracks (module docstring): returns the list of
+    stars with each group of pieces replaced by one joined :class:`Star` (at the place of
+    its first piece).  ``central``: per star, its central second moments ``(cxx, cyy,
+    cxy)`` (px^2); ``smear``: the expected smear ``(dx, dy)`` or a function of ``(x, y)``."""
+    n = len(stars)
+    parent = list(range(n))
+    joined = False
+    for i in range(n):
+        a = stars[i]
+        sm = smear(a.x, a.y) if callable(smear) else smear
+        if sm is None:
+            continue
+        dx, dy = sm[0], sm[1]
+        length = math.sqrt(dx * dx + dy * dy) if _finite(dx) and _finite(dy) else 0.0
+        if not length > 0:
+            continue
+        ux = dx / length
+        uy = dy / length
+        reach = length + 1.0
+        for j in range(i + 1, n):
+            b = stars[j]
+            ex = b.x - a.x
+            ey = b.y - a.y
+            if abs(ex * ux + ey * uy) > reach:
+                continue
+            if abs(ex * uy - ey * ux) > across_px + a.sigma_minor + b.sigma_minor:
+                continue
+            ri = _root(parent, i)
+            rj = _root(parent, j)
+            if ri != rj:
+                parent[rj] = ri
+                joined = True
+    if not joined:
+        return stars
+    groups = {}
+    order = []
+    for i in range(n):
+        r = _root(parent, i)
+        if r not in groups:
+            groups[r] = []
+            order.append(r)
+        groups[r].append(i)
+    out = []
+    for r in order:
+        members = groups[r]
+        if len(members) == 1:
+            out.append(stars[members[0]])
+            continue
+        out.append(_joined(stars, central, members))
+    return out
+
+
+def _joined(stars, central, members):
+    """One :class:`Star` with the moments of the union of ``members``' pieces."""
+    f = 0.0
+    fx = 0.0
+    fy = 0.0
+    best = members[0]
+    for i in members:
+        s = stars[i]
+        f += s.flux
+        fx += s.flux * s.x
+        fy += s.flux * s.y
+        if _sort_key(s) < _sort_key(stars[best]):
+            best = i
+    x = fx / f
+    y = fy / f
+    cxx = cyy = cxy = 0.0
+    n = nsat = peak = 0
+    for i in members:
+        s = stars[i]
+        c = central[i]
+        w = s.flux / f
+        cxx += w * (c[0] + (s.x - x) * (s.x - x))
+        cyy += w * (c[1] + (s.y - y) * (s.y - y))
+        cxy += w * (c[2] + (s.x - x) * (s.y - y))
+        n += s.n
+        nsat += s.nsat
+        if s.peak > peak:
+            peak = s.peak
+    sigma_major, sigma_minor, elongation, orientation = shape(cxx, cyy, cxy)
+    parts = sorted(stars[i].index for i in members)
+    return Star(x, y, f, sigma_major, sigma_minor, elongation, orientation, n, nsat, peak,
+                stars[best].index, parts)
+
+
 def _sort_key(star):
     return (-star.flux, star.index)
 
@@ -242,7 +355,7 @@ def _sort_key(star):
 def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
             min_sigma_px=DEFAULT_MIN_SIGMA_PX, max_elongation=DEFAULT_MAX_ELONGATION,
             expected_smear_px=None, smear_angle_tol=DEFAULT_SMEAR_ANGLE_TOL,
-            smear_length_ratio=DEFAULT_SMEAR_LENGTH_RATIO):
+            smear_length_ratio=DEFAULT_SMEAR_LENGTH_RATIO, join_across_px=DEFAULT_JOIN_ACROSS_PX):
     """Centroid, measure and filter blob records: ``(stars, rejected)``.
 
     ``records``: ``contract.BlobRecord`` (or any objects with the same attributes).
@@ -257,6 +370,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         rejected[reason] = 0
     smear_fn = expected_smear_px if callable(expected_smear_px) else None
     stars = []
+    central = []
     index = -1
     for rec in records:
         index += 1
@@ -287,6 +401,11 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
             continue
         stars.append(Star(x, y, s0, sigma_major, sigma_minor, elongation, orientation,
                           rec.n, rec.nsat, rec.peak, index))
+        central.append((cxx, cyy, cxy))
+    if expected_smear_px is not None and len(stars) > 1:
+        n_before = len(stars)
+        stars = join_fragments(stars, central, expected_smear_px, join_across_px)
+        rejected["fragment"] = n_before - len(stars)
     stars.sort(key=_sort_key)
     if max_stars is not None and len(stars) > max_stars:
         rejected["excess"] += len(stars) - max_stars

@@ -19,7 +19,8 @@ Stages of :meth:`StarTracker.process`:
 2. **Centroids** (:func:`lodestar.firmware.centroids.extract`): the ``max_stars`` brightest
    blobs passing the quality filter; when the body rate ``omega`` and the exposure are
    known the expected smear of each star (:meth:`Camera.smear_px`) lets elongated tracks
-   through the cosmic-ray test.  With ``drop_border`` (default) blobs whose bounding box
+   through the cosmic-ray test and joins the pieces of a broken track into one star
+   (``rejected["fragment"]``).  With ``drop_border`` (default) blobs whose bounding box
    touches the frame edge are dropped (``rejected["border"]``): part of the star lies
    outside the frame, so the centroid is pulled inwards by up to a PSF width.
 3. **Directions**: :meth:`Camera.pixel_to_vector` of each centroid.  With ``omega`` given,
@@ -585,8 +586,13 @@ class StarTracker:
             xmax = cam.width - 1
             ymax = cam.height - 1
             for star in stars:
-                rec = records[star.index]
-                if rec.xmin > 0 and rec.ymin > 0 and rec.xmax < xmax and rec.ymax < ymax:
+                inside = True
+                for i in (star.parts or (star.index,)):
+                    rec = records[i]
+                    if not (rec.xmin > 0 and rec.ymin > 0 and rec.xmax < xmax and
+                            rec.ymax < ymax):
+                        inside = False
+                if inside:
                     kept.append(star)
             rejected["border"] = len(stars) - len(kept)
             stars = kept

@@ -50,8 +50,9 @@ import os
 import sys
 import time
 
-from lodestar import campaign_plots, campaign_tables
+from lodestar import campaign_plots, campaign_tables, campaign_truth
 from lodestar import campaign_trials as T
+from lodestar.camera_settings import DEFAULT_SETTINGS, SETTINGS, camera_settings
 
 JOURNAL = "journal.jsonl"
 DEFAULT_TRIALS = {"rate": 500, "falsestars": 100, "limiting": 30, "accuracy": 300}
@@ -104,7 +105,7 @@ def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyrami
     return {"study": study, "seed": seed, "presets": list(presets),
             "levels": levels(study, rates, QUICK["false_stars"] if quick else T.FALSE_STARS),
             "axis": axis, "method": method, "settings": settings,
-            "camera": {p: T.camera_settings(p, settings) for p in presets}}
+            "camera": {p: camera_settings(p, settings) for p in presets}}
 
 
 def make_tasks(config, trials):
@@ -283,7 +284,8 @@ def write_outputs(config, tasks, results, out_dir):
     base = os.path.join(out_dir, f"campaign_{study}")
     trials = len(tasks) // max(1, len(config["presets"]) * len(config["levels"]))
     summary = {"campaign": config, "trials_per_level": trials,
-               "wrong_arcsec": T.WRONG_ARCSEC, "table": rows,
+               "wrong_arcsec": campaign_truth.WRONG_ARCSEC,
+               "wrong_sigmas": campaign_truth.WRONG_SIGMAS, "table": rows,
                "references": {"dzamba_table_4_1": {f"{k:g}": v for k, v in
                                                    campaign_tables.DZAMBA_TABLE_4_1.items()},
                               "schumann_5dps_sky_pct": campaign_tables.SCHUMANN_5DPS_PCT,
@@ -299,7 +301,8 @@ def write_outputs(config, tasks, results, out_dir):
 # ---- command line ----------------------------------------------------------------------
 
 COLUMNS = {
-    "rate": ("preset", "rate_deg_s", "trials", "right", "wrong", "failed", "availability_pct",
+    "rate": ("preset", "rate_deg_s", "trials", "right", "wrong", "failed", "imprecise",
+             "availability_pct",
              "cross_1sigma", "roll_1sigma", "sigma_cross_rms", "sigma_roll_rms",
              "dzamba_st16_n3_pct"),
     "falsestars": ("preset", "sweep", "level", "method", "trials", "right", "wrong", "failed",
@@ -351,9 +354,9 @@ def add_parser(sub):
                    help="rate axis: cross-boresight (default), random, roll")
     p.add_argument("--method", choices=T.METHODS, default="pyramid",
                    help="identification method of the rate and accuracy studies")
-    p.add_argument("--settings", choices=tuple(T.SETTINGS), default="tuned",
-                   help="camera settings: tuned (lohmann at 0.2 s, 3 sigma, 3 pixels) or "
-                        "each preset as is")
+    p.add_argument("--settings", choices=tuple(SETTINGS), default=DEFAULT_SETTINGS,
+                   help="camera settings (lodestar.camera_settings): tuned (3-sigma threshold; "
+                        "lohmann at 0.2 s, 3 pixels) or each preset as is")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: the CPU count)")
     p.add_argument("--dask", metavar="ADDRESS", help="run on this Dask scheduler instead")

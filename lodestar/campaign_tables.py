@@ -5,14 +5,15 @@ Every table is computed from the trials' results (:mod:`lodestar.campaign_trials
 order of the task list, never in completion order, so it is the same whatever ran the
 tasks.  Conventions of all tables:
 
-* ``trials`` = ``right + wrong + failed``: ``right`` solved within
-  :data:`lodestar.campaign_truth.WRONG_ARCSEC` of the truth, ``wrong`` solved further away
-  (a wrong attitude, counted apart), ``failed`` no attitude (any firmware status but OK).
-  ``wrong_matches`` counts solutions (right or wrong) that matched at least one record to
-  the wrong star: a ``wrong`` solution without one is a right identification whose
-  attitude the centroid noise pushed past the threshold (lohmann's pixel is 143 arcsec,
-  so at 2 px of added noise that is expected).  ``availability_pct`` (``success_pct``) = ``100 right / trials``, with the 95 %
-  Wilson interval ``ci_low_pct``..``ci_high_pct``.
+* ``trials`` = ``right + wrong + failed``: ``wrong`` solved but judged wrong by
+  :func:`lodestar.campaign_truth.judge` (a record named as the wrong star, or an error
+  beyond :data:`lodestar.campaign_truth.WRONG_ARCSEC` that the solution's own covariance
+  does not cover: counted apart), ``right`` every other solution, ``failed`` no attitude
+  (any firmware status but OK).  ``imprecise`` counts the right solutions more than
+  ``WRONG_ARCSEC`` off, within their covariance (few smeared stars, or lohmann's
+  143-arcsec pixel at 2 px of added noise); ``wrong_matches`` the solutions that matched
+  at least one record to the wrong star.  ``availability_pct`` (``success_pct``) =
+  ``100 right / trials``, with the 95 % Wilson interval ``ci_low_pct``..``ci_high_pct``.
 * Errors (arcsec, right solutions only): ``cross_1sigma`` = RMS of the two cross-boresight
   axes taken together (``sqrt(mean(x^2 + y^2) / 2)``, the per-axis 1-sigma of the goals),
   ``roll_1sigma`` = RMS of the roll error; ``cross_p50/p90/p99`` and ``roll_p50/p90/p99``
@@ -70,6 +71,7 @@ def outcome_stats(verdicts):
     wrong = sum(v["wrong"] for v in verdicts)
     low, high = wilson(len(right), n)
     row = {"trials": n, "right": len(right), "wrong": wrong, "failed": n - len(right) - wrong,
+           "imprecise": sum(bool(v.get("imprecise")) for v in right),
            "wrong_matches": sum(v["wrong_matches"] > 0 for v in verdicts),
            "availability_pct": 100 * len(right) / n if n else None,
            "ci_low_pct": low, "ci_high_pct": high}

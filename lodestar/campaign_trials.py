@@ -17,22 +17,13 @@ scatter).  The attitude is :func:`lodestar.sim.attitude.random_attitude` of
 ``numpy.random.default_rng(seed)`` (as ``lodestar demo --seed``), the rate axis is drawn
 next from the same generator, and the frame noise uses ``seed`` as well.
 
-Camera settings (:data:`SETTINGS`): ``preset`` runs each camera as its preset and
-:func:`lodestar.sim.scene.detector_config` give it (exposure, ``T = B + 5 sigma``,
-``min_pixels = 4``); ``tuned`` (the default) changes what a real configuration of the
-camera would change.  For ``lohmann`` the preset's 24.3 ms exposure leaves no detectable
-star (a 0.6 px PSF puts 35 % of the light on one pixel and 12 % on each arm of the "+", and
-a V = 3 star gives 150 e- in 24 ms against 25 e- of read noise), so ``tuned`` uses 0.2 s
-(MT9V022 R0x0B = 3950 rows of 50.6 us: the sensor stretches vertical blanking, 5 frames/s),
-Lohmann's own ``mu + 3 sigma`` threshold (Lohmann 2017 L578: 2 or 3 sigma) and
-``min_pixels = 3``, the firmware's hot-pixel filter (``firmware.centroids``
-``DEFAULT_MIN_PIXELS``): four pixels need three arms of the "+" above threshold, about
-three times the light.  ``estcube2`` is run as its preset in both.
+Camera settings: :mod:`lodestar.camera_settings` (``preset`` or ``tuned``, the default).
 
 Outcome of one solve (:func:`verdict`): ``solved`` (the firmware returned an attitude),
-``wrong`` (solved, but more than :data:`lodestar.campaign_truth.WRONG_ARCSEC` from the
-truth: counted apart from failures), ``wrong_matches`` (matched records whose star is not
-the one the simulator put there), ``status`` (``OK``, ``WRONG`` or the firmware's status
+``wrong`` and ``imprecise`` (solved, judged by :func:`lodestar.campaign_truth.judge`: a
+wrong match, or an error the solution's covariance does not cover; a wrong solution is
+counted apart from failures), ``wrong_matches`` (matched records whose star is not the one
+the simulator put there), ``status`` (``OK``, ``WRONG`` or the firmware's status
 name), the error ``[x, y, roll]`` in arcsec (camera frame, as
 :func:`lodestar.campaign_truth.attitude_error_arcsec`) and the firmware's 1-sigma
 ``[cross per axis, roll]`` in arcsec.
@@ -48,7 +39,8 @@ import math
 import numpy as np
 
 from lodestar import flightsolve
-from lodestar.campaign_truth import WRONG_ARCSEC, attitude_error_arcsec, match_rows
+from lodestar.camera_settings import detector_config
+from lodestar.campaign_truth import attitude_error_arcsec, judge, match_rows
 
 STUDIES = ("rate", "falsestars", "limiting", "accuracy")
 
@@ -87,15 +79,6 @@ LIMITING_MATCH_PX = 3.0
 LIMITING_EDGE_PX = 10.0
 """Stars closer than this to the frame edge are left out of the ``limiting`` histograms."""
 
-SETTINGS = {
-    "preset": {},
-    "tuned": {"lohmann": {"exposure_s": 0.2, "ksigma": 3.0, "min_pixels": 3}},
-}
-"""Camera settings per preset (module docstring): ``exposure_s`` (s), ``ksigma`` (the
-fixed threshold ``T = B + ceil(ksigma sigma)``) and ``min_pixels`` (the detector's
-register)."""
-
-
 def task_key(task):
     """``study/preset/level/trial`` of a task tuple."""
     return "/".join(str(part) for part in task)
@@ -106,36 +89,6 @@ def trial_seed(seed, study, preset, trial):
     digest = hashlib.sha256(f"{seed}/{study}/{preset}/{trial}".encode()).digest()
     return int.from_bytes(digest[:8], "little") >> 1
 
-
-def camera_settings(preset, settings):
-    """``{"exposure_s", "ksigma", "min_pixels"}`` of a preset under ``settings`` (a key of
-    :data:`SETTINGS`); None for a value the preset and ``detector_config`` decide."""
-    if settings not in SETTINGS:
-        raise ValueError(f"unknown settings {settings!r} (known: {', '.join(SETTINGS)})")
-    values = {"exposure_s": None, "ksigma": None, "min_pixels": None}
-    values.update(SETTINGS[settings].get(preset, {}))
-    return values
-
-
-def detector_config(cam, settings):
-    """The golden detector's registers for ``cam`` under ``settings`` (from
-    :func:`camera_settings`): :func:`lodestar.sim.scene.detector_config` with
-    ``min_pixels`` and, for ``ksigma``, ``T = B + max(ceil(ksigma sigma), 1)`` where sigma
-    is the dark-frame noise of that function's model (read noise, dark current and sky)."""
-    from lodestar import contract as C
-    from lodestar.sim import scene
-
-    t = settings["exposure_s"] or cam.exposure_s
-    changes = {}
-    if settings["min_pixels"] is not None:
-        changes["min_pixels"] = settings["min_pixels"]
-    cfg = scene.detector_config(cam, t, **changes)
-    if settings["ksigma"] is not None:
-        dark_e = (cam.dark_current_e_per_s + scene.SKY_E_PER_PX_S) * t
-        sigma_adu = cam.gain_adu_per_e * math.sqrt(cam.read_noise_e ** 2 + dark_e)
-        step = max(int(math.ceil(settings["ksigma"] * sigma_adu)), 1)
-        cfg = cfg.replace(threshold=min(cfg.background + step, C.full_scale(cam.pixel_bits)))
-    return cfg
 
 
 def rate_vector(rng, rate_deg_s, axis):
@@ -196,6 +149,7 @@ def verdict(res, records, frame):
     """The outcome of a firmware ``Result`` (module docstring) on ``frame``; ``records``
     are the records its ``matches`` index."""
     out = {"status": res.status_name, "solved": bool(res.ok), "wrong": False,
+           "imprecise": False,
            "wrong_matches": 0, "n_matches": 0, "n_records": len(records),
            "error_arcsec": None, "sigma_arcsec": None}
     if not res.ok:
@@ -204,7 +158,8 @@ def verdict(res, records, frame):
     rows = match_rows(res.matches, records, frame.truth["sources"])
     out["n_matches"] = len(rows)
     out["wrong_matches"] = sum(not r["right"] for r in rows)
-    out["wrong"] = error["total"] > WRONG_ARCSEC
+    out["wrong"], out["imprecise"] = judge(error, res.sigma_cross_arcsec,
+                                           res.sigma_roll_arcsec, out["wrong_matches"])
     out["status"] = "WRONG" if out["wrong"] else "OK"
     out["error_arcsec"] = [error["x"], error["y"], error["roll"]]
     out["sigma_arcsec"] = [res.sigma_cross_arcsec, res.sigma_roll_arcsec]

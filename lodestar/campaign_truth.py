@@ -5,21 +5,37 @@ and the campaigns (``lodestar campaign``).
   frame, in arcsec: ``x``, ``y`` (cross-boresight components; ``cross`` = their root sum
   square, the boresight's pointing error), ``roll`` (about the boresight) and ``total``
   (its norm).  Quaternions are scalar last with ``v_cam = A(q) v_icrs`` (``lodestar.sim``).
-* A solution is **wrong** when ``total`` exceeds :data:`WRONG_ARCSEC`.
-* A match ``(record index, x, y, HIP)`` is **right** when the simulator placed the star of
-  that HIP number inside the record's bounding box grown by :data:`MATCH_MARGIN_PX` pixels
-  (pixel coordinates as ``lodestar.contract``: ``x`` column, ``y`` row, pixel centres at
-  integer indices).
+* A solution is **wrong** (:func:`judge`) when it names a record's star wrongly (a wrong
+  match, below: a misidentification), or when its attitude is more than
+  :data:`WRONG_ARCSEC` off *and* further off than :data:`WRONG_SIGMAS` times its own
+  1-sigma on some axis (cross-boresight per axis, or roll): an attitude its covariance
+  does not cover.  A solution of right matches more than ``WRONG_ARCSEC`` off but within
+  its claimed uncertainty (a few smeared stars at high rate: a roll 1-sigma of minutes of
+  arc) is **imprecise**: right, and counted apart so that it is seen.
+* A match ``(record index, x, y, HIP)`` is **right** when the star of that HIP number was
+  seen inside the record's bounding box grown by :data:`MATCH_MARGIN_PX` pixels: its
+  visible track (``lodestar.sim.scene.visible_tracks``, the path it drew during the
+  exposure, rolling shutter included) passes through that box.  At rest the track is a
+  point; in a smeared frame a record can be one fragment of a broken streak, whose box
+  need not hold the streak's centroid.  Pixel coordinates as ``lodestar.contract``: ``x``
+  column, ``y`` row, pixel centres at integer indices.
 """
 
 import math
 
 WRONG_ARCSEC = 180.0
-"""A solution further than this (0.05 deg, the tests' criterion) from the truth is wrong."""
+"""A solution further than this (0.05 deg, the tests' criterion) from the truth is wrong
+unless its covariance covers the error (:func:`judge`)."""
+
+WRONG_SIGMAS = 5.0
+"""An error beyond this many of the solution's own 1-sigma on an axis is not covered."""
 
 MATCH_MARGIN_PX = 2
-"""A match is right when its star's true centroid lies inside the record's bounding box
+"""A match is right when its star's visible track passes through the record's bounding box
 grown by this many pixels."""
+
+TRACK_STEP_PX = 0.25
+"""Spacing of the points at which a track is tested against a box, px."""
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 
@@ -34,6 +50,38 @@ def attitude_error_arcsec(q_solution, q_truth):
     x, y, z = err.as_rotvec() * ARCSEC_PER_RAD
     return {"x": float(x), "y": float(y), "cross": float(math.hypot(x, y)),
             "roll": float(z), "total": float(math.sqrt(x * x + y * y + z * z))}
+
+
+def judge(error, sigma_cross, sigma_roll, wrong_matches):
+    """``(wrong, imprecise)`` of a solution (module docstring): ``error`` as
+    :func:`attitude_error_arcsec` returns it, ``sigma_cross`` (per axis) and ``sigma_roll``
+    the solution's 1-sigma in arcsec (None or not finite: no covariance, nothing covered),
+    ``wrong_matches`` the count of wrongly named records."""
+    if wrong_matches:
+        return True, False
+    if error["total"] <= WRONG_ARCSEC:
+        return False, False
+    covered = sigma_cross is not None and sigma_roll is not None and \
+        math.isfinite(sigma_cross) and math.isfinite(sigma_roll) and \
+        max(abs(error["x"]), abs(error["y"])) <= WRONG_SIGMAS * sigma_cross and \
+        abs(error["roll"]) <= WRONG_SIGMAS * sigma_roll
+    return not covered, covered
+
+
+def track_meets_box(track, box):
+    """Whether the polyline ``track`` (``[[x, y], ...]``, px) passes through the closed box
+    ``(x0, y0, x1, y1)``: its points and points every :data:`TRACK_STEP_PX` along each
+    segment are tested."""
+    x0, y0, x1, y1 = box
+    for i, (ax, ay) in enumerate(track):
+        bx, by = track[i + 1] if i + 1 < len(track) else (ax, ay)
+        steps = max(int(math.ceil(math.hypot(bx - ax, by - ay) / TRACK_STEP_PX)), 1)
+        for k in range(steps + 1):
+            x = ax + (bx - ax) * k / steps
+            y = ay + (by - ay) * k / steps
+            if x0 <= x <= x1 and y0 <= y <= y1:
+                return True
+    return False
 
 
 def match_rows(matches, records, sources):
@@ -52,8 +100,9 @@ def match_rows(matches, records, sources):
         rec = records[index]
         src = by_hip.get(hip)
         m = MATCH_MARGIN_PX
-        right = src is not None and rec.xmin - m <= src["x"] <= rec.xmax + m and \
-            rec.ymin - m <= src["y"] <= rec.ymax + m
+        box = (rec.xmin - m, rec.ymin - m, rec.xmax + m, rec.ymax + m)
+        right = src is not None and track_meets_box(src.get("track") or
+                                                    [[src["x"], src["y"]]], box)
         try:
             vmag = float(cat.vmag[cat.by_hip(hip)])
         except KeyError:

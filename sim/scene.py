@@ -82,6 +82,39 @@ def _track_function(cam, q, omega, v_inertial):
     return positions
 
 
+TRACK_POINTS = 5
+"""Points of a source's visible track in the truth (``track``)."""
+TRACK_SAMPLES = 129
+"""Times sampled over the frame's span to find each source's visible track."""
+
+
+def visible_tracks(positions, indices, height, exposure_s, row_time_s):
+    """Visible tracks of the sources ``indices`` of ``positions`` (``_track_function``):
+    a list of ``TRACK_POINTS`` ``[x, y]`` points each (px), evenly spaced in time from the
+    first to the last instant the source is seen: at time ``t`` (s from the start of row 0's
+    exposure) a source at row ``y`` is seen when ``y row_time_s <= t <= y row_time_s +
+    exposure_s`` (rolling shutter; ``row_time_s = 0`` is a global shutter).  A source
+    never seen on a sampled instant (it only grazes the frame) gets an empty list."""
+    if len(indices) == 0:
+        return []
+    span = (height - 1) * row_time_s + exposure_s
+    times = np.linspace(0.0, span, TRACK_SAMPLES)
+    tracks = positions(times)[indices]                      # (N, T, 2)
+    row = np.clip(np.rint(tracks[..., 1]), 0, height - 1)
+    start = row * row_time_s
+    seen = (start <= times + 1e-12) & (times <= start + exposure_s + 1e-12) & \
+        (tracks[..., 1] > -0.5) & (tracks[..., 1] < height - 0.5)
+    out = []
+    for i in range(len(indices)):
+        t_seen = times[seen[i]]
+        if len(t_seen) == 0:
+            out.append([])
+            continue
+        pts = positions(np.linspace(t_seen[0], t_seen[-1], TRACK_POINTS))[indices[i]]
+        out.append([[float(x), float(y)] for x, y in pts])
+    return out
+
+
 def _random_directions_in_view(cam, q, rng, count):
     """Inertial unit vectors of ``count`` random pixels of the frame (at t = 0)."""
     x = rng.uniform(-0.5, cam.width - 0.5, count)
@@ -97,7 +130,10 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
     ``q``: scalar-last quaternion (inertial -> camera).  ``omega_deg_s``: body rates, deg/s,
     camera frame.  ``exposure_s``: s (default ``cam.exposure_s``).  ``seed``: frame noise and
     extras.  ``defects``: ``sensor.SensorDefects`` of the camera's sensor (fixed pattern),
-    or None for an ideal sensor.  Returns a :class:`SimFrame`.
+    or None for an ideal sensor.  Returns a :class:`SimFrame`; its truth's ``sources`` give
+    per rendered source ``kind``, ``hip``, ``name``, ``vmag``, ``electrons``,
+    ``electrons_in_frame``, ``x``, ``y`` (the centroid of its smeared image, px) and
+    ``track`` (:func:`visible_tracks`: where it was seen during the exposure).
     """
     q = np.asarray(q, dtype=np.float64)
     attitude.boresight(q)                         # validates q (NaN, norm, shape)
@@ -136,9 +172,9 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
     electrons = photometry.photo_electrons(np.array(mags, dtype=np.float64), cam.aperture_mm,
                                            exposure, cam.qe)
     electrons = np.atleast_1d(np.asarray(electrons, dtype=np.float64))
-    image_e, rtruth = render.render_stars(cam.height, cam.width,
-                                          _track_function(cam, q, omega, v_inertial),
-                                          electrons, sigma, exposure, row_time)
+    positions = _track_function(cam, q, omega, v_inertial)
+    image_e, rtruth = render.render_stars(cam.height, cam.width, positions, electrons, sigma,
+                                          exposure, row_time)
     rays = render.add_cosmic_rays(image_e, extra_rng, extras.cosmic_rays)
     frame = sensor.expose(image_e, noise_rng, exposure, sky_e_per_px_s, cam.dark_current_e_per_s,
                           cam.read_noise_e, cam.gain_adu_per_e, cam.adc_offset_adu,
@@ -146,12 +182,15 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
                           reserved_low_codes=cam.meta.get("reserved_low_codes") or None)
 
     sources = []
-    for i in np.flatnonzero(rtruth.in_frame_fraction > 0):
+    shown = np.flatnonzero(rtruth.in_frame_fraction > 0)
+    tracks = visible_tracks(positions, shown, cam.height, exposure, row_time)
+    for i, track in zip(shown, tracks):
         sources.append({
             "kind": kinds[i], "hip": ids[i], "name": names[i], "vmag": round(mags[i], 4),
             "electrons": float(electrons[i]),
             "electrons_in_frame": float(rtruth.electrons_in_frame[i]),
             "x": float(rtruth.centroid[i, 0]), "y": float(rtruth.centroid[i, 1]),
+            "track": track,
         })
     ra, dec, roll = attitude.to_radec_roll(q)
     truth = {

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar import campaign_trials as T
+from lodestar.camera_settings import camera_settings
 from lodestar.campaign_truth import WRONG_ARCSEC
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import Result
@@ -33,22 +34,6 @@ def test_rate_axes():
         T.rate_vector(rng, 1.0, "diagonal")
 
 
-def test_settings_and_detector_registers():
-    cam = presets.load_preset("lohmann")
-    assert T.camera_settings("estcube2", "tuned") == {"exposure_s": None, "ksigma": None,
-                                                      "min_pixels": None}
-    tuned = T.camera_settings("lohmann", "tuned")
-    assert tuned == {"exposure_s": 0.2, "ksigma": 3.0, "min_pixels": 3}
-    plain = T.detector_config(cam, T.camera_settings("lohmann", "preset"))
-    assert plain == scene.detector_config(cam)
-    cfg = T.detector_config(cam, tuned)
-    sigma = cam.gain_adu_per_e * math.sqrt(cam.read_noise_e ** 2 + (740 + 5) * 0.2)
-    assert cfg.background == scene.detector_config(cam, 0.2).background
-    assert cfg.threshold == cfg.background + math.ceil(3 * sigma) and cfg.min_pixels == 3
-    with pytest.raises(ValueError, match="unknown settings"):
-        T.camera_settings("lohmann", "best")
-
-
 class FakeFrame:
     def __init__(self, q):
         self.q = q
@@ -62,18 +47,22 @@ def test_verdict_tells_wrong_from_failed():
     assert failed["status"] == "NO_MATCH" and not failed["solved"] and not failed["wrong"]
     res = Result(S.OK)
     res.sigma_cross_arcsec, res.sigma_roll_arcsec = 1.0, 10.0
-    for angle, wrong in ((WRONG_ARCSEC * 0.9, False), (WRONG_ARCSEC * 1.1, True)):
+    # beyond WRONG_ARCSEC a solution is wrong unless its covariance covers the error
+    for angle, sigma, wrong, imprecise in ((WRONG_ARCSEC * 0.9, 1.0, False, False),
+                                           (WRONG_ARCSEC * 1.1, 1.0, True, False),
+                                           (WRONG_ARCSEC * 1.1, WRONG_ARCSEC, False, True)):
+        res.sigma_cross_arcsec = sigma
         res.q = list((Rotation.from_rotvec([0, math.radians(angle / 3600), 0]) *
                       Rotation.from_quat(q)).as_quat())
         out = T.verdict(res, [], frame)
-        assert out["solved"] and out["wrong"] is wrong
+        assert out["solved"] and out["wrong"] is wrong and out["imprecise"] is imprecise
         assert out["status"] == ("WRONG" if wrong else "OK")
         assert out["error_arcsec"][1] == pytest.approx(angle, rel=1e-6)
-        assert out["sigma_arcsec"] == [1.0, 10.0]
+        assert out["sigma_arcsec"] == [sigma, 10.0]
 
 
 def test_noise_trial_identifies_at_small_noise():
-    config = {"camera": T.camera_settings("lohmann", "tuned"), "axis": "cross",
+    config = {"camera": camera_settings("lohmann", "tuned"), "axis": "cross",
               "method": "pyramid"}
     out = T.falsestars_trial("lohmann", "noise", 11, config)
     assert set(out) == set(T.METHODS)

@@ -286,6 +286,44 @@ def test_smeared_star_kept_only_with_expected_smear():
     assert (stars[0].x - 500 - 30, stars[0].y - 400 - 30) == pytest.approx((0, 0), abs=0.01)
 
 
+def test_broken_track_is_joined_into_one_star():
+    # a smeared star whose track a threshold cut in two: the joined star has the moments of
+    # the whole track, exactly (the pieces' sums add), and the brightest piece's index
+    dx, dy = 24.0, -10.0
+    w = smeared_star_weights(1.2, dx, dy)
+    whole = record_from_weights(w, 500, 400)
+    c = (w.shape[0] - 1) / 2
+    y, x = np.mgrid[0:w.shape[0], 0:w.shape[1]]
+    along = (x - c) * dx + (y - c) * dy
+    gap = np.abs(along) < 0.08 * (dx * dx + dy * dy)            # the cut across the middle
+    left = record_from_weights(np.where((along < 0) & ~gap, w, 0), 500, 400)
+    right = record_from_weights(np.where((along > 0) & ~gap, w, 0), 500, 400)
+    noise = record_from_weights(gaussian_weights(1.2, 1.2, 0.0, size=11), 800, 100)
+    stars, rejected = FC.extract([noise, left, right], expected_smear_px=(dx, dy))
+    assert len(stars) == 2 and rejected["fragment"] == 1 and total(rejected) == 1
+    joined = [s for s in stars if s.parts is not None][0]
+    assert joined.parts == [1, 2] and joined.flux == left.s0 + right.s0
+    assert joined.index == (1 if left.s0 >= right.s0 else 2)
+    assert joined.n == left.n + right.n
+    assert (joined.x, joined.y) == pytest.approx((500 + c, 400 + c), abs=0.05)
+    kept = whole.s0 - left.s0 - right.s0        # the gap's light is lost, the rest is exact
+    assert kept > 0
+    sx = left.sx + right.sx
+    assert joined.x == pytest.approx(sx / (left.s0 + right.s0), abs=1e-9)
+    _smaj, smin, _e, _orient = FC.shape(*FC.moments(whole)[2:])
+    assert joined.sigma_minor == pytest.approx(smin, rel=0.1)
+    assert math.tan(joined.orientation) == pytest.approx(dy / dx, abs=0.02)
+    # without a known smear, or across the smear, nothing is joined
+    stars, rejected = FC.extract([left, right])
+    assert rejected["fragment"] == 0 and all(s.parts is None for s in stars)
+    stars, rejected = FC.extract([left, right], expected_smear_px=(-dy, dx))
+    assert rejected["fragment"] == 0
+    # two stars further apart along the smear than its length stay apart
+    far = record_from_weights(np.where((along > 0) & ~gap, w, 0), 560, 375)
+    stars, rejected = FC.extract([left, far], expected_smear_px=(dx, dy))
+    assert rejected["fragment"] == 0 and len(stars) == 2
+
+
 def test_smear_consistent_tolerances():
     smaj, smin = math.sqrt(1 + 100 / 12), 1.0        # a 10 px smear on a 1 px PSF
     assert FC.smear_consistent(smaj, smin, 0.0, (10.0, 0.0))

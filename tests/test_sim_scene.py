@@ -94,3 +94,27 @@ def test_bad_input(kwargs, match):
 def test_unknown_preset():
     with pytest.raises(ValueError, match="unknown camera preset 'st16'"):
         presets.load_preset("st16")
+
+
+def test_visible_track_of_a_smeared_star():
+    # turning about camera y, every star moves along its row: a straight track through its
+    # centroid, as long as the rate times the exposure in pixels
+    cam = CAM
+    rate = 2.0
+    sim = scene.simulate(cam, Q, (0.0, rate, 0.0), 0.1, seed=3, mag_limit=7.0)
+    moved = [s for s in sim.truth["sources"] if s["kind"] == "star" and
+             20 < s["x"] < cam.width - 60 and 20 < s["y"] < cam.height - 20]
+    assert moved
+    length = np.radians(rate * 0.1) * cam.fx_px
+    for s in moved:
+        track = np.array(s["track"])
+        assert track.shape == (scene.TRACK_POINTS, 2)
+        mid = track[scene.TRACK_POINTS // 2]
+        assert np.hypot(mid[0] - s["x"], mid[1] - s["y"]) < 1.0
+        # rolling shutter: seen during its own row's exposure, so the track spans the
+        # exposure, not the readout
+        assert np.hypot(*(track[-1] - track[0])) == pytest.approx(length, rel=0.1)
+    rest = scene.simulate(cam, Q, (0.0, 0.0, 0.0), 0.1, seed=3, mag_limit=7.0)
+    for s in rest.truth["sources"]:
+        if s["track"]:
+            assert np.ptp(np.array(s["track"]), axis=0) == pytest.approx([0.0, 0.0], abs=1e-9)
