@@ -147,6 +147,15 @@ def test_result_fields_and_timings():
     assert fixed.q == res.q
 
 
+def test_weights_are_relative_inverse_variances():
+    tracker = SF.tracker()
+    # photon-limited centroid variance goes as 1 / flux: weight = flux / median flux
+    assert tracker.weights([100.0, 300.0, 200.0]) == [0.5, 1.5, 1.0]
+    assert tracker.weights([100, 200, 0, float("nan")]) == [100 / 150, 200 / 150, 1.0, 1.0]
+    assert tracker.weights([]) == [] and tracker.weights([-1.0]) == [1.0]
+    assert SF.tracker(flux_weighting=False).weights([100.0, 300.0]) == [1.0, 1.0]
+
+
 def test_flux_weighting_is_optional():
     frame = SF.frames()[1]
     a = SF.tracker().process(frame.packet)
