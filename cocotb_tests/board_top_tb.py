@@ -41,6 +41,7 @@ class Sensor:
 
     def __init__(self, dut, vblank):
         self.dut, self.vblank = dut, vblank
+        self.clock = dut.pix_clk
         self.frame, self.row = -1, -1
 
     async def idle(self, n):
@@ -80,16 +81,28 @@ async def read_packet(master, dut):
 
 async def frame_and_packet(master, sensor, index, image, during=None):
     """Stream one frame (``during``, if given, runs once the sensor is on its second row)
-    and read its packet."""
+    and read its packet.  ``sensor``: a model with ``send(index, image)``, the ``frame`` and
+    ``row`` it is on (-1 outside frames) and its ``clock``."""
     task = cocotb.start_soon(sensor.send(index, image))
     if during is not None:
         while not (sensor.frame == index and sensor.row >= 1):
-            await FallingEdge(sensor.dut.pix_clk)
+            await FallingEdge(sensor.clock)
         await during()
         assert sensor.frame == index, "the register write did not finish inside the frame"
     data = await read_packet(master, sensor.dut)
     await task
     return data
+
+
+async def check_idle(master, frames):
+    """After ``frames`` frames whose packets were all read: the status word is clean, no
+    packet is pending (a stream read gets filler and counts one underrun)."""
+    status = await master.read_status()
+    assert status == {"frame_counter": frames, "errors": 0, "underruns": 0,
+                      "overflow": 0, "busy": 0}, status
+    assert await master.read_stream(1) == [0], "no packet is pending"
+    status = await master.read_status()
+    assert status["underruns"] == 1, status
 
 
 @cocotb.test()
@@ -133,11 +146,6 @@ async def board_top_frames(dut):
     assert any(len(packet.decode(p).blobs) for p in packets)
     assert packet.decode(packets[2]).threshold == 200 and packet.decode(packets[1]).threshold == 50
 
-    status = await master.read_status()
-    assert status == {"frame_counter": len(frames), "errors": 0, "underruns": 0,
-                      "overflow": 0, "busy": 0}, status
-    assert await master.read_stream(1) == [0], "no packet is pending"
-    status = await master.read_status()
-    assert status["underruns"] == 1, status
+    await check_idle(master, len(frames))
     dut._log.info("board top: %d frames, %d records, all packets equal the golden results",
                   len(frames), sum(len(packet.decode(p).blobs) for p in packets))

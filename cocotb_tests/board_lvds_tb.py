@@ -1,0 +1,205 @@
+"""cocotb testbench of the board top level with the MT9V022 LVDS front end
+(``lodestar.hdl.boards.StarTracker("mt9v022", ...)``, Verilated): an LVDS sensor model
+serialises frames as the MT9V022 stand-alone LVDS stream does and feeds them as
+``lvds_bits``, ``LVDS_LANES`` bits per ``ser`` clock (what ALTLVDS_RX hands the fabric); the
+SPI master model of ``spi_slave_tb`` writes the registers, waits for ``irq`` and reads each
+frame's packet (``board_top_tb.frame_and_packet``), and every packet must equal, byte for
+byte, ``lodestar.packet.encode`` of the golden result of its frame (``lodestar.golden.Detector``,
+``detect_frame``'s stateful form: global mode needs the previous frame).
+
+The sensor model (facts from :mod:`lodestar.hdl.mt9v022`, imported): one 12-bit packet per
+word (``packet_bits``: start bit, 10 data bits LSB first, stop bit), earliest bit in the
+MSB of ``lvds_bits``; the link never stops: blanking words (``RESERVED_WORDS``, a raw 0 as
+the link carries it) between lines and frames; a frame is ``FULL, FRAME_START_MIDDLE, FULL``,
+then per line ``LINE_START``, the pixels, ``LINE_END``; ``FRAME_END`` follows the last line's
+``LINE_END`` on even frames and replaces it on odd ones (the datasheet order is unverified;
+the front end accepts both).  The stream starts a random number of bits into a packet, so
+the front end must find the word boundary (no framing error may be counted).
+
+Frames: random star fields (Gaussian spots, the brightest saturated) on a dark background
+whose raw values include 0 .. 3, plus a raw ``FULL, 0, FULL`` inside a line.  The sensor
+never sends 0 .. 3 as pixels: it puts 4 in their place (``link_frame``), which also makes the
+raw ``FULL, 0, FULL`` a harmless ``FULL, 4, FULL``; the golden model gets the frames as the
+link carries them.
+
+Registers: ``threshold`` written over SPI while frame 1 streams in applies from frame 2 (not
+to frame 1); ``mode`` = global, written between the packets of frames 3 and 4, applies from
+frame 4, whose levels come from frame 3's statistics over all its pixels (so every pixel
+value, the clamped ones included, must arrive exactly: the testbench checks that the golden
+packets of the unclamped frames differ).  The status word shows the link down
+(``OVF_LINK_DOWN``) before the sensor starts and a clean status (locked, no framing error,
+no overflow) after the last frame.
+
+Clocks: the DE2-115 ratios at twice its rates (Verilated time is free; the SPI master model
+assumes a 10 ns ``sync``): ``sync`` ``T_NS`` = 10 ns (board 50 MHz), ``ser`` = ``sync`` x
+(board sync / (board pixel clock x 12 / ``LVDS_LANES``)) = 9.374 ns (board 53.33 MHz, 2 x
+the 26.67 MHz pixel clock), asynchronous to ``sync``; SCK 5 x ``sync`` (board: 10 MHz).
+Parameters from the environment: ``TB_WIDTH``, ``TB_HEIGHT``, ``TB_SEED``,
+``TB_RECORD_CAPACITY``.
+"""
+
+import os
+from collections import deque
+
+import cocotb
+import numpy as np
+from board_top_tb import check_idle, frame_and_packet
+from cocotb.clock import Clock
+from cocotb.triggers import Event, FallingEdge, Timer
+from spi_slave_tb import T_NS, Master
+
+from lodestar import contract as C
+from lodestar import packet
+from lodestar.golden import Detector, DetectorConfig
+from lodestar.hdl.boards import BOARDS, LVDS_LANES, OVF_LINK_DOWN
+from lodestar.hdl.mt9v022 import (FRAME_END, FRAME_START_MIDDLE, FULL, LINE_END, LINE_START,
+                                  PACKET_BITS, PIXEL_BITS, RESERVED_WORDS, packet_bits)
+
+_DE2 = BOARDS["de2-115"]
+SER_PS = 2 * round(T_NS * 1000 * _DE2.sync_hz * LVDS_LANES
+                   / (_DE2.pixel_hz * PACKET_BITS) / 2)
+"""``ser`` period in ps (even, for a 50 % duty cycle at 1 ps resolution)."""
+SCK_NS = 5 * T_NS
+BLANK = RESERVED_WORDS
+"""The word between lines and frames (a raw 0 as the link carries it)."""
+HBLANK = 10
+"""Blanking words after each line's ``LINE_END``."""
+VBLANK = 12
+"""Blanking words before each frame's start sequence (more follow while the packet is read)."""
+BACKGROUND_ADU, NOISE_ADU = 6, 3
+"""Raw background level and its Gaussian noise: about a fifth of the raw background pixels
+are 0 .. 3."""
+
+
+def link_frame(raw):
+    """A raw frame as the sensor puts it on the link: the reserved codes 0 .. 3 become 4."""
+    return np.maximum(raw, RESERVED_WORDS)
+
+
+def star_field(rng, w, h, stars):
+    """A raw frame: ``stars`` Gaussian spots (peaks 60 .. 1500 ADU, clipped at ``FULL``) on a
+    background of ``BACKGROUND_ADU`` +- ``NOISE_ADU`` (so raw 0 .. 3 occur), and a raw
+    ``FULL, 0, FULL`` in a line when there are stars."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = rng.normal(BACKGROUND_ADU, NOISE_ADU, (h, w))
+    for _ in range(stars):
+        x0, y0, sigma = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(0.5, 1.5)
+        img += rng.uniform(60, 1500) * np.exp(-((xx - x0) ** 2 + (yy - y0) ** 2)
+                                              / (2 * sigma ** 2))
+    raw = np.clip(np.rint(img), 0, FULL).astype(np.uint16)
+    if stars:
+        y, x = int(rng.integers(0, h)), int(rng.integers(0, w - 2))
+        raw[y, x:x + 3] = (FULL, 0, FULL)
+    return raw
+
+
+class LvdsSensor:
+    """MT9V022 stand-alone LVDS model (module docstring) driving ``lvds_bits`` on the falling
+    edge of ``ser_clk``; ``frame``/``row`` say which frame and line the word on the link
+    belongs to (-1: blanking between frames)."""
+
+    def __init__(self, dut, slip):
+        self.dut, self.clock = dut, dut.ser_clk
+        self.frame, self.row = -1, -1
+        self.words = deque()                        # (word, frame, row)
+        self.sent = Event()
+        self.bits = deque(packet_bits(BLANK)[slip:])
+
+    async def drive(self):
+        while True:
+            await FallingEdge(self.clock)
+            while len(self.bits) < LVDS_LANES:
+                if self.words:
+                    word, self.frame, self.row = self.words.popleft()
+                    if not self.words:
+                        self.sent.set()
+                else:
+                    word, self.frame, self.row = BLANK, -1, -1
+                self.bits.extend(packet_bits(word))
+            self.dut.lvds_bits.value = sum(self.bits.popleft() << (LVDS_LANES - 1 - j)
+                                           for j in range(LVDS_LANES))
+
+    async def send(self, index, image):
+        """Serialise frame ``index`` (link values) and return once its last word is on the
+        link."""
+        words = [(BLANK, -1, -1)] * VBLANK
+        words += [(w, index, -1) for w in (FULL, FRAME_START_MIDDLE, FULL)]
+        for y, row in enumerate(image):
+            line = [LINE_START] + [int(p) for p in row] + [LINE_END]
+            if y == len(image) - 1:
+                line = line + [FRAME_END] if index % 2 == 0 else line[:-1] + [FRAME_END]
+            words += [(w, index, y) for w in line + [BLANK] * HBLANK]
+        self.sent.clear()
+        self.words.extend(words)
+        await self.sent.wait()
+
+
+def golden_packets(frames, configs):
+    """The golden model's packets of ``frames`` streamed in order from reset, frame ``i``
+    under ``configs[i]`` (state carried across frames as the gateware does)."""
+    detector = Detector(configs[0])
+    packets = []
+    for image, cfg in zip(frames, configs):
+        detector.configure(cfg)
+        packets.append(packet.encode(detector.process(image)))
+    return packets
+
+
+@cocotb.test(timeout_time=3, timeout_unit="ms")     # about 0.8 ms are needed
+async def board_lvds_frames(dut):
+    w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
+    rng = np.random.default_rng(int(os.environ["TB_SEED"]))
+    cap = int(os.environ["TB_RECORD_CAPACITY"])
+    slip = int(rng.integers(0, PACKET_BITS))
+    dut.rst.value, dut.ser_rst.value = 1, 1
+    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
+    dut.lvds_bits.value = 0
+    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
+    await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
+    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
+    await Timer(100, unit="ns")
+    await FallingEdge(dut.clk)
+    dut.rst.value = 0
+    await FallingEdge(dut.ser_clk)
+    dut.ser_rst.value = 0
+
+    master = Master(dut, SCK_NS)
+    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
+        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    status = await master.read_status()
+    assert status["overflow"] == 1 << OVF_LINK_DOWN, status
+
+    sensor = LvdsSensor(dut, slip)
+    cocotb.start_soon(sensor.drive())
+    raw = [star_field(rng, w, h, n) for n in (6, 9, 9, 0, 8, 7)]
+    frames = [link_frame(r) for r in raw]
+    thresholds = [40, 40, 150, 150, 150, 150]      # 150 is written during frame 1
+    modes = [C.MODE_FIXED] * 4 + [C.MODE_GLOBAL] * 2   # global written after frame 3's packet
+    configs = [DetectorConfig(width=w, height=h, pixel_bits=PIXEL_BITS,
+                              threshold_mode=C.MODE_NAMES[m], threshold=t, background=8,
+                              min_pixels=1, record_capacity=cap)
+               for m, t in zip(modes, thresholds)]
+    want = golden_packets(frames, configs)
+    assert golden_packets(raw, configs) != want, "the stimulus does not exercise the clamp"
+
+    async def write_threshold():
+        await master.write_reg(C.REGISTER_BY_NAME["threshold"].address, thresholds[2])
+
+    packets = []
+    for i, image in enumerate(frames):
+        if i and modes[i] != modes[i - 1]:
+            await master.write_reg(C.REGISTER_BY_NAME["mode"].address, modes[i])
+        packets.append(await frame_and_packet(master, sensor, i, image,
+                                              write_threshold if i == 1 else None))
+    for i, (data, expected) in enumerate(zip(packets, want)):
+        assert data == expected, (i, packet.decode(data), packet.decode(expected))
+    got = [packet.decode(p) for p in packets]
+    assert [g.mode for g in got] == modes
+    assert [g.threshold for g in got[:4]] == thresholds[:4]
+    assert not any(g.flags & C.FRAME_GLOBAL_FALLBACK for g in got[4:])
+    assert all(len(g.blobs) for k, g in enumerate(got) if k != 3) and not got[3].blobs
+
+    await check_idle(master, len(frames))
+    dut._log.info("board LVDS: stream %d bits into a packet, %d frames, %d records, all packets "
+                  "equal the golden results", slip, len(frames),
+                  sum(len(g.blobs) for g in got))
