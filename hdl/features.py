@@ -18,7 +18,9 @@ each open tracked component's features in the compact record layout
 
 Sums saturate at the contract's moment widths and set the saturation flag; counts, the
 bounding box and the peak are exact (``lodestar.contract``).  Order of accumulation does not
-matter, so the result equals the golden model's whatever the merge order.
+matter, so the result equals the golden model's whatever the merge order.  The accumulator
+adds its three terms (itself, the slot read, the pixel; each the empty record when the op
+leaves it out) in one step: a carry-save layer and one carry chain per sum, one saturation.
 
 Timing: the op enters at clock ``c``; pixel products and the slot read take two clocks; the
 accumulator, the slot write and the record are at ``c + 3``.  A slot written by an op is
@@ -30,7 +32,7 @@ accumulator have no reset (only the valid bits do): they are read only under a v
 every component starts from ``NEW`` or ``LOAD``.
 """
 
-from amaranth import Module, Mux, Signal
+from amaranth import Cat, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -54,22 +56,49 @@ def op_layout(width, height, pixel_bits, slots):
     })
 
 
-def _combine(m, a, b, fields, pixel_bits):
-    """``a (+) b`` of two feature records: saturating sums, exact counts, box and peak."""
-    out = Signal.like(a)
-    sat = a.flags | b.flags
+def _select(a, b, c, first):
+    """The operand of ``a``, ``b``, ``c`` that ``first(u, v)`` (``u < v`` or ``u > v``)
+    ranks first, from three comparisons made side by side (ties: any of the equal ones)."""
+    return Mux(first(a, b) & first(a, c), a, Mux(first(b, c), b, c))
+
+
+def _combine(m, a, b, c, fields):
+    """``a (+) b (+) c`` of three feature records (the empty record, :func:`empty_features`,
+    is the identity): saturating sums, exact counts, box and peak.
+
+    Each sum is one carry-save layer (a sum and a carry bit per bit) and one carry chain
+    instead of two chains in series.  Saturating once, ``min(a + b + c, max)``, equals
+    saturating after each of two additions because every term is non-negative; the
+    saturation flag is the OR of the records' flags and of every sum that saturates."""
+    out = Signal(a.shape())
+    sat = a.flags | b.flags | c.flags
     for name, bits in fields:
-        if name in C.MOMENTS:
-            s = Signal(bits + 1, name=f"sum_{name}")
-            m.d.comb += s.eq(a[name] + b[name])
-            m.d.comb += out[name].eq(Mux(s[bits], (1 << bits) - 1, s[:bits]))
-            sat = sat | s[bits]
-        elif name in ("n", "nsat"):
-            m.d.comb += out[name].eq(a[name] + b[name])
+        x, y, z = a[name], b[name], c[name]
+        if name in C.MOMENTS or name in ("n", "nsat"):
+            half = x ^ y ^ z                             # a + b + c = half + 2 carry
+            carry = (x & y) | (x & z) | (y & z)
+            # one chain adds half and carry from weight 2 up; its carry-out has weight
+            # 2**bits.  The top carry bit alone reaches 2**bits: for a moment it forces
+            # both operands so that the chain carries out, which makes the carry-out the
+            # saturation bit (the low bits do not matter then)
+            low, top = half[1:], carry[:bits - 1]
+            if name in C.MOMENTS:
+                force = carry[bits - 1]
+                low = low | force.replicate(bits - 1)
+                top = Cat(top[0] | force, top[1:])
+            high = Signal(bits, name=f"sum_{name}")
+            m.d.comb += high.eq(low + top)
+            total = Cat(half[0], high[:bits - 1])
+            if name in C.MOMENTS:
+                over = high[bits - 1]
+                m.d.comb += out[name].eq(Mux(over, (1 << bits) - 1, total))
+                sat = sat | over
+            else:                                        # counts never exceed their width
+                m.d.comb += out[name].eq(total)
         elif name in ("xmin", "ymin"):
-            m.d.comb += out[name].eq(Mux(a[name] < b[name], a[name], b[name]))
+            m.d.comb += out[name].eq(_select(x, y, z, lambda u, v: u < v))
         elif name in ("xmax", "ymax", "peak"):
-            m.d.comb += out[name].eq(Mux(a[name] > b[name], a[name], b[name]))
+            m.d.comb += out[name].eq(_select(x, y, z, lambda u, v: u > v))
     m.d.comb += out.flags.eq(sat)
     return out
 
@@ -117,49 +146,51 @@ class FeatureEngine(wiring.Component):
         rp = table.read_port(transparent_for=(wp,))
 
         # ---- stage 1: op registered, slot read issued, first products --------------
+        # a column without a pixel has weight 0: its products, and so its terms, are 0
         op1 = Signal.like(self.ops.payload, reset_less=True)
         v1 = Signal()
         m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
         m.d.comb += [rp.addr.eq(op1.rd_addr), rp.en.eq(v1 & op1.rd)]
+        w1 = Mux(op1.pix, op1.w, 0)
         wx1 = Signal(pb + len(op1.x), reset_less=True)
         wy1 = Signal(pb + len(op1.y), reset_less=True)
         op2 = Signal.like(op1, reset_less=True)
         v2 = Signal()
-        m.d.sync += [op2.eq(op1), v2.eq(v1), wx1.eq(op1.w * op1.x), wy1.eq(op1.w * op1.y)]
+        m.d.sync += [op2.eq(op1), v2.eq(v1), wx1.eq(w1 * op1.x), wy1.eq(w1 * op1.y)]
 
-        # ---- stage 2: second products, slot data ------------------------------------
+        # ---- stage 2: second products, slot data, the terms of the accumulator -------
+        # pixf is the pixel's record (empty without a pixel); slot3 the slot read if the op
+        # adds it (LOAD, MERGE), else empty; rd3 the slot read as it is, for completion
+        empty = layout.const(empty_features(W, H))
         pixf = Signal(layout, reset_less=True)
         op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
         rd3 = Signal(layout, reset_less=True)
+        slot3 = Signal(layout, reset_less=True)
+        keep3 = Signal(reset_less=True)
+        pix2 = op2.pix
         m.d.sync += [
             op3.eq(op2), v3.eq(v2), rd3.eq(rp.data),
-            pixf.n.eq(1), pixf.nsat.eq(op2.p == fs),
-            pixf.s0.eq(op2.w), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
+            slot3.eq(Mux((op2.base == LOAD) | (op2.base == MERGE), rp.data, empty)),
+            keep3.eq((op2.base == KEEP) | (op2.base == MERGE)),
+            pixf.n.eq(pix2), pixf.nsat.eq(pix2 & (op2.p == fs)),
+            pixf.s0.eq(Mux(pix2, op2.w, 0)), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
             pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
-            pixf.xmin.eq(op2.x), pixf.xmax.eq(op2.x), pixf.ymin.eq(op2.y),
-            pixf.ymax.eq(op2.y), pixf.peak.eq(op2.p), pixf.flags.eq(0),
+            pixf.xmin.eq(Mux(pix2, op2.x, empty.xmin)), pixf.xmax.eq(Mux(pix2, op2.x, 0)),
+            pixf.ymin.eq(Mux(pix2, op2.y, empty.ymin)), pixf.ymax.eq(Mux(pix2, op2.y, 0)),
+            pixf.peak.eq(Mux(pix2, op2.p, 0)), pixf.flags.eq(0),
         ]
 
         # ---- stage 3: accumulator, slot write, completion ---------------------------
+        # acc (+) slot3 (+) pixf, acc taken for KEEP and MERGE; without a live op the
+        # accumulator keeps itself (no enable logic on its registers)
         live = v3 & (op3.tag == self.tag)
         acc = Signal(layout, reset_less=True)
-        empty = Signal(layout, init=empty_features(W, H))
-        merged = _combine(m, acc, rd3, fields, pb)
-        base = Signal(layout)
-        # without a live op the accumulator keeps itself (KEEP, no pixel): no enable logic
-        with m.Switch(Mux(live, op3.base, KEEP)):
-            with m.Case(KEEP):
-                m.d.comb += base.eq(acc)
-            with m.Case(NEW):
-                m.d.comb += base.eq(empty)
-            with m.Case(LOAD):
-                m.d.comb += base.eq(rd3)
-            with m.Case(MERGE):
-                m.d.comb += base.eq(merged)
-        added = _combine(m, base, pixf, fields, pb)
+        kept = Signal(layout)
+        m.d.comb += kept.eq(Mux(keep3, acc, empty))
+        added = _combine(m, kept, slot3, pixf, fields)
         acc_next = Signal(layout)
-        m.d.comb += acc_next.eq(Mux(live & op3.pix, added, base))
+        m.d.comb += acc_next.eq(Mux(live, added, acc))
         m.d.sync += acc.eq(acc_next)
         m.d.comb += [wp.addr.eq(op3.wr_addr), wp.data.eq(acc_next),
                      wp.en.eq(live & op3.wr)]

