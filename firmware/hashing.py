@@ -48,13 +48,21 @@ Algorithm
    fainter one); each counts as one *pattern* against the deterministic ``budget``.
    Groups whose diameter is outside the database's range (+ tolerance), and labellings
    whose coordinate tolerance exceeds :data:`MAX_TOL_BUCKETS` buckets, are skipped.
-3. For each admissible labelling: the buckets of the tolerance box; each stored group in
-   them has its hash recomputed from the star table and must agree component by component
-   (and in ``d`` for the non-normalized hash); the handedness ``(A x B) . C`` must match.
+3. For each admissible labelling: the buckets of the tolerance box (:func:`box_codes`,
+   their groups by :func:`box_records`: one k-vector query per run of buckets with groups
+   between them, most buckets being empty); each stored group in them has its hash
+   recomputed from the star table and must agree component by component (and in ``d`` for
+   the non-normalized hash); the handedness ``(A x B) . C`` must match.
 4. Each candidate (observed labels -> stored stars) is a hypothesis verified by
    :func:`lodestar.firmware.verify.verify`; all hypotheses of the first group with an
    accepted one are verified, ``AMBIGUOUS`` if they disagree, else the best is refined and
    returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+
+Cost: the search's work is one group after another, almost all of them rejected by empty
+buckets, so the per-group path is kept lean without changing a single result: the chords and
+angles of the observed pairs are tabulated once, a diameter pair's tangent frame and
+projections serve both orientations and both ``C``/``D`` orders (:func:`_labellings`, bit
+for bit :func:`coords`), and a bucket below the next stored code needs no query.
 
 Pure Python for CPython and MicroPython (``math`` only).
 """
@@ -62,7 +70,7 @@ Pure Python for CPython and MicroPython (``math`` only).
 import math
 
 from . import verify as V
-from .database import HASH_FLAG_DISTANCE, METHOD_HASHING
+from .database import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
 
 BOUND_MARGIN = 1.1
 """Factor on the first-order hash tolerance (covers the projection's curvature terms)."""
@@ -125,60 +133,128 @@ def coords(a, b, others):
     return out
 
 
-def _diameter_pairs(vs, slack):
-    """Index pairs ``(i, j)`` whose chord is within ``slack`` of the largest (largest first,
-    ties by index)."""
-    n = len(vs)
-    pairs = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            pairs.append((_chord2(vs[i], vs[j]), i, j))
-    best = max(p[0] for p in pairs)
+_PAIRS = (None, None, None, ((0, 1), (0, 2), (1, 2)),
+          ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)))
+"""``_PAIRS[g]``: the index pairs ``(i, j)``, ``i < j``, of a group of ``g`` stars."""
+
+
+def _diameter_pairs(c2, g, slack):
+    """Index pairs ``(i, j)``, ``i < j``, of a group of ``g`` stars whose chord is within
+    ``slack`` of the largest (largest first, ties by index); ``c2``: the squared chords of
+    the pairs ``_PAIRS[g]``, in that order."""
+    best = max(c2)
     if slack > 0.0:
         lim = math.sqrt(best) - slack
         lim2 = lim * lim if lim > 0.0 else 0.0
     else:
         lim2 = best
-    out = [(-c, i, j) for c, i, j in pairs if c >= lim2]
-    out.sort()
+    pairs = _PAIRS[g]
+    out = [(-c2[k], pairs[k][0], pairs[k][1]) for k in range(len(c2)) if c2[k] >= lim2]
+    if len(out) > 1:
+        out.sort()
     return [(i, j) for c, i, j in out]
 
 
-def labellings(vs, slack=0.0, tol=None):
-    """Labellings ``(order, hash)`` of the group ``vs`` (3 or 4 unit vectors): ``order`` lists
-    the indices of ``A, B, C(, D)``, ``hash`` the coordinates.  ``slack == 0`` and ``tol is
-    None``: the single canonical labelling (exact rules, ties by index).  Otherwise every
-    labelling admissible within a chord ``slack`` on the diameter and ``tol`` (a function
-    of the hash coordinates) on the symmetry-breaking inequalities."""
+def _chords2(vs):
+    """Squared chords of the pairs ``_PAIRS[len(vs)]`` of ``vs``."""
+    return [_chord2(vs[i], vs[j]) for i, j in _PAIRS[len(vs)]]
+
+
+def _labellings(vs, i, j, scale=0.0, den=1.0, max_tol=None):
+    """Admissible labellings ``(order, hash, t)`` of the group ``vs`` (3 or 4 unit vectors)
+    with the diameter ``i``-``j``: ``order`` the indices of ``A, B, C(, D)``, ``hash`` its
+    coordinates (:func:`coords`, bit for bit), ``t = scale * worst / den`` the tolerance of
+    the coordinates (:func:`coord_tolerance` with ``(scale, den) = _tolerance_terms(d,
+    eps)``; 0 by default: the exact symmetry-breaking rules); labellings with ``t`` above
+    ``max_tol`` are left out.  Order: ``A-B = i-j`` then ``j-i``; ``C, D`` in index order
+    then swapped.
+
+    The tangent frame and the projections are computed once: ``tangent_frame(b, a)`` is
+    exactly ``(m, -e1, -e2)`` of ``tangent_frame(a, b)`` (every operation is sign-symmetric),
+    so swapping ``A`` and ``B`` negates every projected coordinate."""
     g = len(vs)
+    rest = [k for k in range(g) if k != i and k != j]
+    # tangent_frame(vs[i], vs[j]) and project(), inline: uv = [u_i, v_i, u_j, v_j, u, v, ...]
+    ax, ay, az = vs[i]
+    bx, by, bz = vs[j]
+    sx, sy, sz = ax + bx, ay + by, az + bz
+    nn = math.sqrt(sx * sx + sy * sy + sz * sz)
+    mx, my, mz = sx / nn, sy / nn, sz / nn
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    k = dx * mx + dy * my + dz * mz
+    ex, ey, ez = dx - k * mx, dy - k * my, dz - k * mz
+    nn = math.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / nn, ey / nn, ez / nn
+    fx, fy, fz = my * ez - mz * ey, mz * ex - mx * ez, mx * ey - my * ex
+    uv = []
+    for r in [i, j] + rest:
+        px, py, pz = vs[r]
+        w = px * mx + py * my + pz * mz
+        uv.append((px * ex + py * ey + pz * ez) / w)
+        uv.append((px * fx + py * fy + pz * fz) / w)
+    # x_C + x_D <= 1 + 2 t (x_C <= 1/2 + t for 3 stars) with t <= max_tol, else none
+    x_max = None if max_tol is None else (0.5 + max_tol if g == 3 else 1.0 + 2.0 * max_tol)
     out = []
-    for i, j in _diameter_pairs(vs, slack):
-        rest = [k for k in range(g) if k != i and k != j]
-        for a, b in ((i, j), (j, i)):
-            if g == 3:
-                h = coords(vs[a], vs[b], [vs[rest[0]]])
-                t = 0.0 if tol is None else tol(h)
-                if h[0] <= 0.5 + t:
-                    out.append(((a, b, rest[0]), h))
-                continue
-            for c, d in ((rest[0], rest[1]), (rest[1], rest[0])):
-                h = coords(vs[a], vs[b], [vs[c], vs[d]])
-                t = 0.0 if tol is None else tol(h)
-                if h[0] <= h[2] + 2.0 * t and h[0] + h[2] <= 1.0 + 2.0 * t:
-                    out.append(((a, b, c, d), h))
-            if tol is None and out:
-                break
-        if tol is None and out:
-            break
+    for a, b, s in ((i, j, 1.0), (j, i, -1.0)):
+        # frame_coords(pa, pb, p) of the rest, inline
+        if s > 0.0:
+            pau, pav, pbu, pbv = uv[0], uv[1], uv[2], uv[3]
+        else:
+            pau, pav, pbu, pbv = -uv[2], -uv[3], -uv[0], -uv[1]
+        qx, qy = pbu - pau, pbv - pav
+        q2 = qx * qx + qy * qy
+        h = []
+        for r in range(4, len(uv), 2):
+            ux, uy = s * uv[r] - pau, s * uv[r + 1] - pav
+            nr, ni = ux - uy, ux + uy
+            h.append((nr * qx + ni * qy) / q2)
+            h.append((ni * qx - nr * qy) / q2)
+        if x_max is not None and (h[0] if g == 3 else h[0] + h[2]) > x_max:
+            continue
+        t = scale * _worst_factor(h) / den
+        if max_tol is not None and t > max_tol:
+            continue
+        if g == 3:
+            if h[0] <= 0.5 + t:
+                out.append(((a, b, rest[0]), h, t))
+            continue
+        if h[0] <= h[2] + 2.0 * t and h[0] + h[2] <= 1.0 + 2.0 * t:
+            out.append(((a, b, rest[0], rest[1]), h, t))
+        h = [h[2], h[3], h[0], h[1]]
+        if h[0] <= h[2] + 2.0 * t and h[0] + h[2] <= 1.0 + 2.0 * t:
+            out.append(((a, b, rest[1], rest[0]), h, t))
     return out
 
 
 def group_hash(vs):
     """Canonical ``(order, hash, d)`` of a group of 3 or 4 unit vectors: ``order`` the
     indices of ``A, B, C(, D)``, ``hash`` the normalized coordinates, ``d`` the angle
-    ``A``-``B`` (rad)."""
-    order, h = labellings(vs)[0]
-    return order, h, V.angle(vs[order[0]], vs[order[1]])
+    ``A``-``B`` (rad).  The first labelling that keeps the symmetry-breaking rules exactly,
+    the diameters in :func:`_diameter_pairs` order (ties by index)."""
+    for i, j in _diameter_pairs(_chords2(vs), len(vs), 0.0):
+        found = _labellings(vs, i, j)
+        if found:
+            order, h, _ = found[0]
+            return order, h, V.angle(vs[order[0]], vs[order[1]])
+    raise ValueError("no canonical labelling")
+
+
+def _worst_factor(h):
+    """Largest ``1 + |1 - w| + |w|``, ``w = (x + i y) / (1 + i)``, over the points ``(x, y)``
+    of the hash coordinates ``h``."""
+    worst = 0.0
+    for k in range(0, len(h), 2):
+        wx, wy = 0.5 * (h[k] + h[k + 1]), 0.5 * (h[k + 1] - h[k])
+        f = 1.0 + math.sqrt((1.0 - wx) * (1.0 - wx) + wy * wy) + math.sqrt(wx * wx + wy * wy)
+        if f > worst:
+            worst = f
+    return worst
+
+
+def _tolerance_terms(d, eps):
+    """``(scale, den)`` with ``coord_tolerance(h, d, eps) = scale * worst / den``."""
+    t = math.tan(0.8660254037844386 * d)
+    return BOUND_MARGIN * SQRT2 * eps * (1.0 + t * t), 2.0 * math.tan(0.5 * d)
 
 
 def coord_tolerance(h, d, eps):
@@ -190,14 +266,8 @@ def coord_tolerance(h, d, eps):
     direction error ``eps`` is at most ``eps (1 + tan^2 r)`` with ``r <= (sqrt(3) / 2) d``
     (every star lies in the lens of radius ``d`` around ``A`` and ``B``).
     """
-    worst = 0.0
-    for k in range(0, len(h), 2):
-        wx, wy = 0.5 * (h[k] + h[k + 1]), 0.5 * (h[k + 1] - h[k])
-        f = 1.0 + math.sqrt((1.0 - wx) * (1.0 - wx) + wy * wy) + math.sqrt(wx * wx + wy * wy)
-        if f > worst:
-            worst = f
-    t = math.tan(0.8660254037844386 * d)
-    return BOUND_MARGIN * SQRT2 * eps * (1.0 + t * t) * worst / (2.0 * math.tan(0.5 * d))
+    scale, den = _tolerance_terms(d, eps)
+    return scale * _worst_factor(h) / den
 
 
 def bucket(value, lo, width, count):
@@ -223,78 +293,129 @@ def bucket_code(h, d, db):
 
 
 def box_codes(h, tol, d, d_tol, db):
-    """All bucket codes that the box ``h +- tol`` (and ``d +- d_tol``) overlaps."""
+    """All bucket codes that the box ``h +- tol`` (and ``d +- d_tol``) overlaps, ascending
+    (:func:`bucket` inline: this is the search's inner loop)."""
     lo, w, nb = db.hash_coord_lo, db.hash_coord_bucket, db.hash_coord_buckets
-    codes = [0]
-    for x in h:
-        k0, k1 = bucket(x - tol, lo, w, nb), bucket(x + tol, lo, w, nb)
-        codes = [c * nb + k for c in codes for k in range(k0, k1 + 1)]
+    digits = [(x - tol, x + tol, lo, w, nb) for x in h]
     if db.hash_flags & HASH_FLAG_DISTANCE:
-        nd, wd = db.hash_dist_buckets, db.hash_dist_bucket
-        k0, k1 = bucket(d - d_tol, 0.0, wd, nd), bucket(d + d_tol, 0.0, wd, nd)
-        codes = [c * nd + k for c in codes for k in range(k0, k1 + 1)]
-    return codes
+        digits.append((d - d_tol, d + d_tol, 0.0, db.hash_dist_bucket, db.hash_dist_buckets))
+    code = 0
+    codes = None                    # None while every digit so far has a single bucket
+    for v0, v1, lo, w, nb in digits:
+        k0 = int(math.floor((v0 - lo) / w))
+        k0 = 0 if k0 < 0 else (nb - 1 if k0 >= nb else k0)
+        k1 = int(math.floor((v1 - lo) / w))
+        k1 = 0 if k1 < 0 else (nb - 1 if k1 >= nb else k1)
+        if codes is not None:
+            codes = [c * nb + k for c in codes for k in range(k0, k1 + 1)]
+        elif k0 == k1:
+            code = code * nb + k0
+        else:
+            codes = [code * nb + k for k in range(k0, k1 + 1)]
+    return [code] if codes is None else codes
+
+
+def box_records(db, codes):
+    """Indices of the stored groups in the buckets ``codes`` (ascending, as
+    :func:`box_codes` gives them), in table order: the ranges ``db.hash_bucket(code)`` one
+    after the other.  The groups are sorted by code, so after one k-vector query the code
+    of the next group bounds the following buckets: a code below it is an empty bucket,
+    known without a query or a read."""
+    out = []
+    hn = db.hash_n
+    r = 0
+    nxt = -1                        # the code of group r (None: not read yet)
+    for code in codes:
+        if nxt is None:
+            nxt = db.hash_code(r) if r < hn else HASH_MAX_CODE
+        if nxt < code:
+            r, stop = db.hash_bucket(code)
+            nxt = code if stop > r else None
+        while nxt == code:
+            out.append(r)
+            r += 1
+            nxt = db.hash_code(r) if r < hn else HASH_MAX_CODE
+    return out
 
 
 class _Search(V.Search):
-    def __init__(self, b, db, tol, max_prob, distinct):
+    """The hash search over the first ``n`` observed stars: the squared chord and the angle
+    of each of their pairs are computed once (``n * n`` tables, index ``i * n + j``,
+    ``i < j``)."""
+
+    def __init__(self, b, db, tol, max_prob, distinct, n):
         V.Search.__init__(self, b, db, tol, max_prob, distinct)
-        self.g = db.hash_group_size
+        self.n = n
         self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
         self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
         self.min_d = db.hash_min_diameter - self.d_tol
         self.max_d = db.hash_max_diameter + self.d_tol
+        self.slack = 4.0 * tol * BOUND_MARGIN
+        self.max_tol = MAX_TOL_BUCKETS * db.hash_coord_bucket
+        self.chord2 = [0.0] * (n * n)
+        self.angle = [0.0] * (n * n)
+        for j in range(n):
+            for i in range(j):
+                self.chord2[i * n + j] = _chord2(b[i], b[j])
+                self.angle[i * n + j] = V.angle(b[i], b[j])
 
     def try_group(self, idx):
-        """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (a tuple)."""
-        b = self.b
-        db = self.db
-        vs = [b[i] for i in idx]
-        pairs = _diameter_pairs(vs, 0.0)
-        d = V.angle(vs[pairs[0][0]], vs[pairs[0][1]])
+        """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (ascending star
+        indices)."""
+        n = self.n
+        chord2 = self.chord2
+        g = len(idx)
+        c2 = [chord2[idx[i] * n + idx[j]] for i, j in _PAIRS[g]]
+        i, j = _PAIRS[g][c2.index(max(c2))]      # the diameter (ties: the first pair)
+        d = self.angle[idx[i] * n + idx[j]]
         if d < self.min_d or d > self.max_d:
             return []
-        eps = self.tol
         d_low = d - self.d_tol      # the smallest diameter consistent with the observation
         if d_low <= 0.0:
             return []
-
-        def tol_of(h):
-            return coord_tolerance(h, d_low, eps)
-
-        slack = 4.0 * eps * BOUND_MARGIN
+        scale, den = _tolerance_terms(d_low, self.tol)
+        vs = [self.b[k] for k in idx]
         accepted = []
         seen = {}
-        for order, h in labellings(vs, slack, tol_of):
-            d_obs = V.angle(vs[order[0]], vs[order[1]])
-            t = tol_of(h)
-            if t > MAX_TOL_BUCKETS * db.hash_coord_bucket:
-                continue            # too small a group for this grid: a huge box, no use
-            t_bound = V.triple_bound(vs[order[0]], vs[order[1]], vs[order[2]], eps)
-            t_obs = V.triple(vs[order[0]], vs[order[1]], vs[order[2]])
-            for code in box_codes(h, t, d_obs, self.d_tol, db):
-                start, stop = db.hash_bucket(code)
-                for r in range(start, stop):
-                    rec = db.hash_record(r)
-                    stars = rec[1:]
-                    cat = [db.star_vector(s) for s in stars]
-                    if self.use_d and abs(V.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
-                        continue
-                    hc = coords(cat[0], cat[1], cat[2:])
-                    ok = True
-                    for k in range(len(h)):
-                        if abs(hc[k] - h[k]) > t:
-                            ok = False
-                            break
-                    if not ok or not V.handed(t_obs, V.triple(cat[0], cat[1], cat[2]), t_bound):
-                        continue
-                    obs_idx = tuple(idx[o] for o in order)
-                    key = (obs_idx, stars)
-                    if key in seen:
-                        continue
-                    seen[key] = 1
-                    self.test(obs_idx, stars, accepted)
+        for i, j in _diameter_pairs(c2, g, self.slack):
+            d_obs = self.angle[idx[i] * n + idx[j]]
+            # a labelling whose tolerance exceeds max_tol buckets would be a huge box
+            for order, h, t in _labellings(vs, i, j, scale, den, self.max_tol):
+                self.look_up(idx, order, h, t, d_obs, accepted, seen)
         return accepted
+
+    def look_up(self, idx, order, h, t, d_obs, accepted, seen):
+        """Test every stored group in the buckets of the box ``h +- t`` (``d_obs +-
+        d_tol``) whose recomputed hash, angle and handedness agree with the labelling
+        ``order`` of the observed group ``idx``."""
+        db = self.db
+        t_obs = t_bound = None
+        for r in box_records(db, box_codes(h, t, d_obs, self.d_tol, db)):
+            stars = db.hash_record(r)[1:]
+            cat = [db.star_vector(s) for s in stars]
+            if self.use_d and abs(V.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
+                continue
+            hc = coords(cat[0], cat[1], cat[2:])
+            ok = True
+            for k in range(len(h)):
+                if abs(hc[k] - h[k]) > t:
+                    ok = False
+                    break
+            if not ok:
+                continue
+            if t_obs is None:
+                vs = self.b
+                a, b, c = vs[idx[order[0]]], vs[idx[order[1]]], vs[idx[order[2]]]
+                t_bound = V.triple_bound(a, b, c, self.tol)
+                t_obs = V.triple(a, b, c)
+            if not V.handed(t_obs, V.triple(cat[0], cat[1], cat[2]), t_bound):
+                continue
+            obs_idx = tuple(idx[o] for o in order)
+            key = (obs_idx, stars)
+            if key in seen:
+                continue
+            seen[key] = 1
+            self.test(obs_idx, stars, accepted)
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
@@ -316,9 +437,9 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     g = database.hash_group_size
     if len(b) < g or max_stars < g:
         return V.Solution(V.TOO_FEW_STARS if len(b) < g else V.BAD_INPUT)
-    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
     n = len(b) if len(b) < max_stars else max_stars
+    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n)
     tried = 0
     for k in range(g - 1, n):
         for j in range(g - 2, k):

@@ -1,7 +1,9 @@
 """Tests of geometric-hashing identification (``lodestar.firmware.hashing``, Astrometry.net's
 quad hash as in Schumann 2019) and the database's hash section: the frame and hash formulas
 against hand-computed values, canonical labelling and its invariances, the tolerance bound
-against worst-case perturbations, the bucket codes, mirror rejection, 200 estcube2 scenes
+against worst-case perturbations, the search's fast paths against the plain formulas (its
+labellings bit for bit, the reversed tangent frame exactly negated, its bucket walk equal to
+the bucket ranges), the bucket codes, mirror rejection, 200 estcube2 scenes
 (>= 90 % correct, none wrong) for the default 4-star non-normalized hash and smaller runs of
 the 3-star and normalized variants, refusal of a corrupt or inconsistent section, and the
 same results under MicroPython 1.27.
@@ -21,6 +23,7 @@ from lodestar.firmware import hashing as H
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError
+from lodestar.firmware.verify import angle
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
 from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, outcome,
@@ -156,6 +159,89 @@ def test_tolerance_bound_holds_for_worst_case_perturbations():
                         moved[i] = v[i] * math.cos(eps) + sign * grad / n * math.sin(eps)
                 worst = max(worst, abs(f(moved)[comp] - h[comp]) / tol)
     assert 0.7 < worst <= 1.0
+
+
+def test_reversed_tangent_frame_is_the_negated_one_exactly():
+    """``tangent_frame(b, a)`` is ``(m, -e1, -e2)`` of ``tangent_frame(a, b)`` bit for bit,
+    so the search negates projections instead of recomputing them."""
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        a, b = (tuple(x) for x in group_around(rng, 2, 10 ** rng.uniform(-3, -0.5)))
+        m, e1, e2 = H.tangent_frame(a, b)
+        m2, f1, f2 = H.tangent_frame(b, a)
+        assert m2 == m
+        assert f1 == tuple(-x for x in e1) and f2 == tuple(-x for x in e2)
+        p = tuple(group_around(rng, 1, 0.1)[0])
+        u, v = H.project((m, e1, e2), p)
+        assert H.project((m2, f1, f2), p) == (-u, -v)
+
+
+def reference_labellings(vs, i, j, d, eps, max_tol):
+    """The search's labellings of diameter ``i``-``j`` from the plain formulas: every order
+    with ``A-B = i-j`` then ``j-i``, ``coords`` and ``coord_tolerance`` of each."""
+    rest = [k for k in range(len(vs)) if k not in (i, j)]
+    out = []
+    for a, b in ((i, j), (j, i)):
+        for others in ([rest] if len(rest) == 1 else [rest, rest[::-1]]):
+            h = H.coords(vs[a], vs[b], [vs[k] for k in others])
+            t = H.coord_tolerance(h, d, eps)
+            if t > max_tol:
+                continue
+            if len(rest) == 1:
+                keep = h[0] <= 0.5 + t
+            else:
+                keep = h[0] <= h[2] + 2.0 * t and h[0] + h[2] <= 1.0 + 2.0 * t
+            if keep:
+                out.append(((a, b) + tuple(others), h, t))
+    return out
+
+
+def test_search_labellings_equal_the_plain_formulas_bit_for_bit():
+    """The search's labellings (one frame per diameter pair, both orientations and orders
+    from it) are exactly those of ``coords`` / ``coord_tolerance`` and the rules, in order,
+    the near-symmetric groups (two or more admitted) included."""
+    rng = np.random.default_rng(6)
+    several = 0
+    for trial in range(400):
+        g = 3 + trial % 2
+        v = group_around(rng, g, rng.uniform(0.01, 0.1))
+        if trial % 5 == 0:          # x_C ~ x_D or x_C + x_D ~ 1: several labellings admitted
+            v[g - 1] = v[0] + v[1] - v[g - 2] + rng.normal(0, 1e-4, 3)
+            v[g - 1] /= np.linalg.norm(v[g - 1])
+        vs = [tuple(x) for x in v.tolist()]
+        eps = 10 ** rng.uniform(-5, -3)
+        for i, j in H._diameter_pairs(H._chords2(vs), g, 4.0 * eps):
+            d = angle(vs[i], vs[j]) - 2.0 * eps
+            scale, den = H._tolerance_terms(d, eps)
+            got = H._labellings(vs, i, j, scale, den, 0.15)
+            assert got == reference_labellings(vs, i, j, d, eps, 0.15)
+            several += len(got) > 1
+    assert several > 20
+
+
+def test_box_records_are_the_bucket_ranges():
+    """``box_records`` (one k-vector query per run of buckets) returns exactly the groups
+    of ``hash_bucket`` over the box codes, in order: around stored groups and anywhere."""
+    _, _, _, db = setup()
+    rng = np.random.default_rng(8)
+    nonempty = 0
+    for trial in range(300):
+        if trial % 2:
+            _, *stars = db.hash_record(int(rng.integers(0, db.hash_n)))
+            vs = [db.star_vector(s) for s in stars]
+            h = H.coords(vs[0], vs[1], vs[2:])
+            d = angle(vs[0], vs[1])
+        else:
+            h = rng.uniform(-0.5, 1.5, 4).tolist()
+            d = float(rng.uniform(0.0, 0.5))
+        codes = H.box_codes(h, float(rng.uniform(0.0, 0.1)), d, 1e-3, db)
+        want = [r for c in codes for r in range(*db.hash_bucket(c))]
+        assert H.box_records(db, codes) == want
+        nonempty += bool(want)
+    assert nonempty > 100
+    last = db.hash_code(db.hash_n - 1)
+    assert H.box_records(db, [0, last, last + 1]) == \
+        list(range(*db.hash_bucket(0))) + list(range(*db.hash_bucket(last)))
 
 
 def test_bucket_codes_hand_checked():
