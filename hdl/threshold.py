@@ -21,8 +21,12 @@ levels exactly as ``contract.global_levels``::
 
     B = S1 // N;  V = N*S2 - S1**2;  r = isqrt(K*K*V);  T = min(B + r // (16 N), full_scale)
 
-with shift-add multipliers, restoring dividers and a digit-by-digit square root, one bit per
-clock: ``global_cycles(width, height, pixel_bits)`` clocks after the frame's last pixel.
+in shift registers, one bit per clock and no variable shift: shift-add multipliers (a
+product register shifting right, its LSB the next multiplier bit), restoring dividers (the
+dividend shifting into the remainder) and a digit-by-digit square root (the operand shifting
+out two bits a clock); ``B``, ``S1**2`` and ``N*S2`` are computed side by side.  The levels
+are ready ``global_cycles(width, height, pixel_bits)`` clocks after the frame's last pixel
+(188 for 2592 x 1944 x 12 bits).
 The ``ksigma`` register is read when the k-dependent part starts; if the MCU rewrites it
 between frames, that part (``ksigma_cycles(...)`` clocks) is redone.  So the levels are
 those of the ksigma in effect at the next frame's start provided the register was written
@@ -97,7 +101,7 @@ def lit_layout(width, height, pixel_bits):
 
 
 def _widths(width, height, pixel_bits):
-    """Bit widths of the global-mode arithmetic, from the contract's bounds."""
+    """Bit widths and clock counts of the global-mode arithmetic, from the contract's bounds."""
     n = width * height
     fs = C.full_scale(pixel_bits)
     kmax = (1 << C.KSIGMA_BITS) - 1
@@ -108,20 +112,53 @@ def _widths(width, height, pixel_bits):
     w["x"] += w["x"] & 1                                # even, for the square root
     w["r"] = w["x"] // 2
     w["k2"] = 2 * C.KSIGMA_BITS
+    w["b"] = w["s1"] - w["n"] + 1                       # quotient bits of S1 // N
+    w["d"] = w["r"] - C.bits_for(n << C.KSIGMA_FRAC_BITS) + 1   # of isqrt(K**2 V) // (16 N)
+    w["rem"] = max(w["r"] + 1, C.bits_for(n << C.KSIGMA_FRAC_BITS))  # root / D remainder
+    w["p"] = max(w["n"] + w["s2"], w["k2"] + w["v"], w["x"])  # product register
     return w
 
 
 def ksigma_cycles(width, height, pixel_bits):
     """Clocks of the k-dependent part: K*K, K*K*V, square root, division, done."""
     w = _widths(width, height, pixel_bits)
-    return C.KSIGMA_BITS + w["k2"] + w["r"] + w["r"] + 2
+    return C.KSIGMA_BITS + w["v"] + w["r"] + w["d"] + 2
 
 
 def global_cycles(width, height, pixel_bits):
     """Clocks the global-mode computation needs after a frame's last pixel."""
     w = _widths(width, height, pixel_bits)
-    # DIV B, MUL S1*S1, MUL N*S2, SUB, then the k-dependent part
-    return w["s1"] + w["s1"] + w["n"] + 1 + ksigma_cycles(width, height, pixel_bits)
+    # LOAD, then S1 // N, S1*S1 and N*S2 side by side, SUB, then the k-dependent part
+    return 1 + w["s2"] + 1 + ksigma_cycles(width, height, pixel_bits)
+
+
+def _mul_step(prod, multiplier_bits, multiplicand):
+    """One clock of a shift-add multiplier: the new value of the product register ``prod``.
+
+    The low ``multiplier_bits`` bits of ``prod`` hold the multiplier bits not used yet, LSB
+    first, and the bits above them the partial product: ``multiplicand`` (a fixed value) is
+    added above them if the LSB is set, then the register shifts right one bit.  Loaded with
+    the multiplier (upper bits 0), ``prod`` holds the product after ``multiplier_bits``
+    clocks; the adder is one bit wider than ``multiplicand``.
+    """
+    high = prod[multiplier_bits:multiplier_bits + len(multiplicand)]
+    return Cat(prod[1:multiplier_bits], high + Mux(prod[0], multiplicand, 0))
+
+
+def _div_step(rem, quo, divisor):
+    """One clock of a restoring divider: the new values of ``(rem, quo)``.
+
+    ``rem`` (the partial remainder, below ``divisor``) takes in the top bit of ``quo`` (the
+    dividend bits not used yet, MSB first); ``divisor`` is subtracted if it fits and the
+    quotient bit enters ``quo`` at the bottom.  Loaded with a dividend's top bits in ``rem``
+    (below ``divisor``) and the rest in ``quo``, ``quo`` holds the quotient and ``rem`` the
+    remainder after ``len(quo)`` clocks.
+    """
+    trial = Cat(quo[-1], rem)
+    diff = trial - divisor
+    fits = ~diff[-1]
+    return Mux(fits, diff, trial)[:len(rem)], Cat(fits, quo[:-1])
+
 
 LOCAL_LATENCY = 5
 """Local mode: clocks from the input pixel that makes a pixel ready to that pixel's beat."""
@@ -258,6 +295,7 @@ class ThresholdUnit(wiring.Component):
         row_sum_new = Mux(cur_x == 0, 0, row_sum) + p
         win = Const(1, 1) << lg      # L of the current frame
         half = win >> 1
+        step_last = Signal(range(W))  # W - 1 - half of the current frame (latched with lg)
         with m.If(wr):
             m.d.sync += [wp.eq(wp + 1), row_sum.eq(row_sum_new)]
             with m.If(cur_x == win):
@@ -288,7 +326,7 @@ class ThresholdUnit(wiring.Component):
         xo = Signal(range(W))
         yo = Signal(range(H))
         acc = Signal(sum_bits)       # sum(p[s .. s+L]) of the pixel in stage 2
-        step = (xo > half) & (xo <= W - 1 - half)
+        step = (xo > half) & (xo <= step_last)
         beat = data.StructLayout({"data": pb, "x": range(W), "y": range(H), "eof": 1})
         st2 = Signal(beat)
         st2_valid = Signal()
@@ -327,6 +365,7 @@ class ThresholdUnit(wiring.Component):
                     self.frame_local_fallback.eq((self.mode == C.MODE_LOCAL) & ~window_ok),
                     self.frame_tail_dropped.eq((lag != 0) | st1_valid | st2_valid | st3_valid),
                     local_frame.eq(local_new), lg.eq(lg_reg), offset.eq(offset_sat),
+                    step_last.eq(W - 1 - ((Const(1, 1) << lg_reg) >> 1)),
                     in_frame.eq(1),
                 ]
             with m.If(last_col | inp.payload.eol):
@@ -367,112 +406,94 @@ class ThresholdUnit(wiring.Component):
         complete = frame_end & Mux(sof, 1, frame_ok) & ~line_error
 
         # ---- sequential global-levels unit -------------------------------------------
-        a1 = Signal(wd["s1"])        # S1 snapshot
-        a2 = Signal(wd["s2"])        # S2 snapshot
+        # Shift registers only: every step is a fixed-width add or subtract (_mul_step,
+        # _div_step, the root step); no variable shift and no variable bit select.
+        a1 = Signal(wd["s1"])        # S1: the multiplicand of S1*S1
+        sq = Signal(wd["sq"])        # S1*S1 product register (multiplier: a copy of S1)
+        bq = Signal(wd["b"])         # S1 // N: dividend bits, then B
+        rem_b = Signal(wd["n"])      # its remainder
+        prod = Signal(wd["p"])       # N*S2, then K*K*V product register; root operand
         vreg = Signal(wd["v"])       # N*S2 - S1**2 of the last complete frame
-        bq = Signal(wd["s1"])        # B quotient
-        rem = Signal(wd["x"] + 2)    # divider remainder / root remainder
-        acc = Signal(wd["x"])        # multiplier accumulator / root operand
-        sq = Signal(wd["sq"])        # S1**2
-        k2 = Signal(wd["k2"])        # K**2
-        root = Signal(wd["x"] + 1)     # holds partial results up to the operand size
-        one = Signal(wd["x"] + 1)    # square-root bit (a power of four)
-        i = Signal(range(max(wd.values()) + 2))
+        k2 = Signal(wd["k2"])        # K*K product register (multiplier: a copy of K)
+        root = Signal(wd["r"])       # isqrt(K*K*V), then its dividend bits and D
+        rem = Signal(wd["rem"])      # root remainder, then D remainder
+        i = Signal(range(max(wd["s2"], C.KSIGMA_BITS, wd["v"], wd["r"], wd["d"])))  # clocks left
+        divisor = N << C.KSIGMA_FRAC_BITS
         m.d.comb += self.stats_busy.eq(0)
 
         with m.FSM():
             with m.State("IDLE"):
                 with m.If(complete):
-                    m.d.sync += [a1.eq(s1 + p), a2.eq(s2 + p * p), stats_valid.eq(0),
-                                 bq.eq(0), rem.eq(0), i.eq(wd["s1"] - 1)]
-                    m.next = "DIV_B"
+                    m.d.sync += stats_valid.eq(0)
+                    m.next = "LOAD"
                 with m.Elif(frame_end | (inp.valid & sof & in_frame)):
                     m.d.sync += [stats_valid.eq(0), have_v.eq(0)]   # incomplete frame
                 with m.Elif(have_v & (self.ksigma != kreg)):
                     # ksigma was rewritten between frames: redo the k-dependent part
-                    m.d.sync += [stats_valid.eq(0), k2.eq(0), i.eq(0)]
+                    m.d.sync += [stats_valid.eq(0), kreg.eq(self.ksigma), k2.eq(self.ksigma),
+                                 i.eq(C.KSIGMA_BITS - 1)]
                     m.next = "K2"
-            with m.State("DIV_B"):            # bq = a1 // N, restoring, MSB first
+            with m.State("LOAD"):             # s1, s2 now hold the complete frame's sums
                 m.d.comb += self.stats_busy.eq(1)
-                trial = Cat(a1.bit_select(i, 1), rem[:wd["s1"]])
-                with m.If(trial >= N):
-                    m.d.sync += [rem.eq(trial - N), bq.eq(bq | (1 << i))]
-                with m.Else():
-                    m.d.sync += rem.eq(trial)
+                m.d.sync += [a1.eq(s1), sq.eq(s1), bq.eq(s1[:wd["b"]]), rem_b.eq(s1[wd["b"]:]),
+                             prod.eq(s2), i.eq(wd["s2"] - 1)]
+                m.next = "STATS"
+            with m.State("STATS"):            # bq = S1 // N, sq = S1*S1, prod = N*S2
+                m.d.comb += self.stats_busy.eq(1)
+                with m.If(i >= wd["s2"] - wd["b"]):
+                    new_rem, new_quo = _div_step(rem_b, bq, N)
+                    m.d.sync += [rem_b.eq(new_rem), bq.eq(new_quo)]
+                with m.If(i >= wd["s2"] - wd["s1"]):
+                    m.d.sync += sq.eq(_mul_step(sq, wd["s1"], a1))
+                m.d.sync += [prod.eq(_mul_step(prod, wd["s2"], Const(N, wd["n"]))),
+                             i.eq(i - 1)]
                 with m.If(i == 0):
-                    m.d.sync += [acc.eq(0), sq.eq(0), i.eq(0)]
-                    m.next = "SQ"
-                with m.Else():
-                    m.d.sync += i.eq(i - 1)
-            with m.State("SQ"):               # sq = a1 * a1, shift-add, LSB first
-                m.d.comb += self.stats_busy.eq(1)
-                with m.If(a1.bit_select(i, 1)):
-                    m.d.sync += sq.eq(sq + (a1 << i))
-                with m.If(i == wd["s1"] - 1):
-                    m.d.sync += i.eq(0)
-                    m.next = "NS2"
-                with m.Else():
-                    m.d.sync += i.eq(i + 1)
-            with m.State("NS2"):              # acc = N * a2 (N constant), shift-add
-                m.d.comb += self.stats_busy.eq(1)
-                nbits = Const(N, wd["n"])
-                with m.If(nbits.bit_select(i, 1)):
-                    m.d.sync += acc.eq(acc + (a2 << i))
-                with m.If(i == wd["n"] - 1):
                     m.next = "SUB"
-                with m.Else():
-                    m.d.sync += i.eq(i + 1)
             with m.State("SUB"):              # vreg = V = N*S2 - S1**2 (>= 0)
                 m.d.comb += self.stats_busy.eq(1)
-                m.d.sync += [vreg.eq(acc - sq), have_v.eq(1), k2.eq(0), i.eq(0)]
+                m.d.sync += [vreg.eq(prod[:wd["v"]] - sq[:wd["v"]]), have_v.eq(1),
+                             kreg.eq(self.ksigma), k2.eq(self.ksigma),
+                             i.eq(C.KSIGMA_BITS - 1)]
                 m.next = "K2"
-            with m.State("K2"):               # k2 = K * K, K = the ksigma register now
+            with m.State("K2"):               # k2 = K*K, K = kreg (the ksigma register)
                 m.d.comb += self.stats_busy.eq(1)
-                with m.If(self.ksigma.bit_select(i, 1)):
-                    m.d.sync += k2.eq(k2 + (self.ksigma << i))
-                with m.If(i == C.KSIGMA_BITS - 1):
-                    m.d.sync += [i.eq(0), acc.eq(0), kreg.eq(self.ksigma)]
-                    m.next = "K2V"
-                with m.Else():
-                    m.d.sync += i.eq(i + 1)
-            with m.State("K2V"):              # acc = k2 * V
-                m.d.comb += self.stats_busy.eq(1)
-                with m.If(k2.bit_select(i, 1)):
-                    m.d.sync += acc.eq(acc + (vreg << i))
-                with m.If(i == wd["k2"] - 1):
-                    m.d.sync += [i.eq(wd["r"] - 1), root.eq(0),
-                                 one.eq(1 << (wd["x"] - 2))]
-                    m.next = "SQRT"
-                with m.Else():
-                    m.d.sync += i.eq(i + 1)
-            with m.State("SQRT"):             # root = isqrt(acc), digit by digit
-                m.d.comb += self.stats_busy.eq(1)
-                with m.If(acc >= root + one):
-                    m.d.sync += [acc.eq(acc - (root + one)), root.eq((root >> 1) + one)]
-                with m.Else():
-                    m.d.sync += root.eq(root >> 1)
-                m.d.sync += one.eq(one >> 2)
+                m.d.sync += [k2.eq(_mul_step(k2, C.KSIGMA_BITS, kreg)), i.eq(i - 1)]
                 with m.If(i == 0):
-                    m.d.sync += [i.eq(wd["r"] - 1), rem.eq(0), acc.eq(0)]
+                    m.d.sync += [prod.eq(vreg), i.eq(wd["v"] - 1)]
+                    m.next = "K2V"
+            with m.State("K2V"):              # prod = V * k2
+                m.d.comb += self.stats_busy.eq(1)
+                m.d.sync += [prod.eq(_mul_step(prod, wd["v"], k2)), i.eq(i - 1)]
+                with m.If(i == 0):
+                    m.d.sync += [root.eq(0), rem.eq(0), i.eq(wd["r"] - 1)]
+                    m.next = "SQRT"
+            with m.State("SQRT"):             # root = isqrt(prod), two operand bits a clock
+                m.d.comb += self.stats_busy.eq(1)
+                trial = Cat(prod[wd["x"] - 2:wd["x"]], rem[:wd["r"] + 1])
+                diff = trial - Cat(Const(1, 2), root)    # 4 * root + 1
+                fits = ~diff[-1]
+                new_root = Cat(fits, root[:-1])
+                m.d.sync += [prod.eq(Cat(Const(0, 2), prod[:wd["x"] - 2])), i.eq(i - 1)]
+                with m.If(i == 0):
+                    # D = root // (16 N): the top bits (below the divisor) go to rem
+                    m.d.sync += [root.eq(new_root[:wd["d"]]), rem.eq(new_root[wd["d"]:]),
+                                 i.eq(wd["d"] - 1)]
                     m.next = "DIV_D"
                 with m.Else():
-                    m.d.sync += i.eq(i - 1)
-            with m.State("DIV_D"):            # acc = root // (16 N)
+                    m.d.sync += [root.eq(new_root),
+                                 rem.eq(Mux(fits, diff, trial)[:wd["r"] + 1])]
+            with m.State("DIV_D"):            # root[:d] = D = isqrt(K*K*V) // (16 N)
                 m.d.comb += self.stats_busy.eq(1)
-                divisor = N << C.KSIGMA_FRAC_BITS
-                trial = Cat(root.bit_select(i, 1), rem[:wd["r"]])
-                with m.If(trial >= divisor):
-                    m.d.sync += [rem.eq(trial - divisor), acc.eq(acc | (1 << i))]
-                with m.Else():
-                    m.d.sync += rem.eq(trial)
+                rem_d = rem[:C.bits_for(divisor)]
+                new_rem, new_quo = _div_step(rem_d, root[:wd["d"]], divisor)
+                m.d.sync += [rem.eq(new_rem), root.eq(new_quo), i.eq(i - 1)]
                 with m.If(i == 0):
                     m.next = "DONE"
-                with m.Else():
-                    m.d.sync += i.eq(i - 1)
-            with m.State("DONE"):
+            with m.State("DONE"):             # T = min(B + D, fs); B <= fs fits pb bits
                 m.d.comb += self.stats_busy.eq(1)
-                level = bq + acc
-                m.d.sync += [next_b.eq(bq), next_t.eq(Mux(level > fs, fs, level)),
+                level = bq[:pb] + root[:pb]
+                big = root[pb:wd["d"]].any() | level[pb]
+                m.d.sync += [next_b.eq(bq), next_t.eq(Mux(big, fs, level[:pb])),
                              stats_valid.eq(kreg == self.ksigma)]
                 m.next = "IDLE"
         return m

@@ -90,6 +90,30 @@ def test_fixed_and_global_modes(pixel_bits):
         prev = frame
 
 
+@pytest.mark.parametrize("pixel_bits", [8, 16])
+def test_global_levels_at_the_arithmetic_bounds(pixel_bits):
+    """Frames at the ends of the statistics' ranges (full scale everywhere, the largest
+    variance, one lit pixel) with the largest ksigma, and a ksigma (240) for which D exceeds
+    full scale while ``B + D mod 2**pixel_bits`` does not (T must still saturate)."""
+    w, h = 5, 3
+    fs = C.full_scale(pixel_bits)
+    kmax = (1 << C.KSIGMA_BITS) - 1
+    checker = (np.indices((h, w)).sum(axis=0) % 2) * fs
+    one = np.zeros((h, w))
+    one[1, 2] = fs
+    frames = [np.full((h, w), fs), checker, one, 1 - checker // fs, checker, one]
+    frames = [f.astype(np.uint16) for f in frames]
+    ksigmas = [kmax] * 5 + [240]
+    regs = [dict(mode=C.MODE_GLOBAL, threshold=3, background=1, ksigma=k) for k in ksigmas]
+    results = run_frames(ThresholdUnit(w, h, pixel_bits), frames, regs,
+                         gap=global_cycles(w, h, pixel_bits))
+    for prev, reg, (_, levels) in zip(frames, regs[1:], results[1:]):
+        p64 = prev.astype(np.int64)
+        want = C.global_levels(p64.size, int(p64.sum()), int((p64 * p64).sum()),
+                               reg["ksigma"], pixel_bits)
+        assert levels == (*want, 0)
+
+
 def test_global_falls_back_without_time_or_after_a_broken_frame():
     w, h, pb = 6, 4, 12
     dut = ThresholdUnit(w, h, pb)
