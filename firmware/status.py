@@ -33,6 +33,7 @@ PACKET_BAD_RECORD = 7
 TOO_FEW_STARS = 20
 CAMERA_NOT_CONVERGED = 21
 CAMERA_OUT_OF_VIEW = 22
+SMEAR_TOO_LONG = 23
 
 # --- star identification ----------------------------------------------------------------
 NO_MATCH = 30
@@ -70,6 +71,8 @@ _TABLE = (
      "camera model: undistortion did not converge (pixel far outside the frame)"),
     (CAMERA_OUT_OF_VIEW, "CAMERA_OUT_OF_VIEW",
      "camera model: direction behind the camera or beyond the distortion fold radius"),
+    (SMEAR_TOO_LONG, "SMEAR_TOO_LONG",
+     "the body rate smears stars longer than the pipeline's max_smear_px: no attitude"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",

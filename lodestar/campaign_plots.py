@@ -38,8 +38,9 @@ def rate(rows, out_dir, title):
     for (preset,), group in _by(rows, "preset").items():
         r = [g["rate_deg_s"] for g in group]
         a = [g["availability_pct"] for g in group]
-        err = [[g["availability_pct"] - g["ci_low_pct"] for g in group],
-               [g["ci_high_pct"] - g["availability_pct"] for g in group]]
+        # (clipped at 0: at 0 % or 100 % the Wilson bound equals the rate up to rounding)
+        err = [[max(g["availability_pct"] - g["ci_low_pct"], 0.0) for g in group],
+               [max(g["ci_high_pct"] - g["availability_pct"], 0.0) for g in group]]
         ax1.errorbar(r, a, yerr=err, marker="o", capsize=3, label=f"lodestar {preset}")
         for key, style in (("cross_1sigma", "-o"), ("roll_1sigma", "--s")):
             pts = [(g["rate_deg_s"], g[key]) for g in group if g[key] is not None]

@@ -484,3 +484,21 @@ def test_pipeline_under_micropython(tmp_path):
     # the state that lives between the stages (database handle and tracker included) must
     # leave most of the 96 KB budget to the transient working memory of the stages
     assert mem["tracker"] + live < 32 * 1024
+
+
+def test_smear_beyond_the_limit_gets_no_attitude():
+    """A rate that smears stars beyond max_smear_px: SMEAR_TOO_LONG, never an attitude."""
+    frame = [f for f in SF.frames() if f.moving][0]
+    tracker = SF.tracker()
+    assert tracker.process(frame.packet, omega=frame.omega).ok
+    cam = tracker.camera
+    length = math.hypot(*cam.smear_px(cam.cx, cam.cy, frame.omega, tracker.exposure_s))
+    short = SF.tracker(max_smear_px=0.5 * length)
+    res = short.process(frame.packet, omega=frame.omega)
+    assert res.status == S.SMEAR_TOO_LONG and res.q is None and res.matches == []
+    assert "max_smear_px" in res.reason
+    assert short.process(frame.packet).ok                  # no rate given: nothing to judge
+    fast = [10.0 * w for w in frame.omega]
+    assert tracker.process(frame.packet, omega=fast).status == S.SMEAR_TOO_LONG
+    for bad in (0, -1.0, float("nan"), "50"):
+        assert SF.tracker(max_smear_px=bad).status == S.BAD_INPUT
