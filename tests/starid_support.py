@@ -57,3 +57,16 @@ def hard_scenes(camera, catalogue, n, seed):
 def pipeline_tolerance_rad(camera):
     """The flight pipeline's default match tolerance for ``camera`` (rad)."""
     return DEFAULT_TOLERANCE_PX / camera.fx_px
+
+
+def assert_identify_within_heap_budget(method, camera, catalogue, db):
+    """Three :func:`hard_scenes` solve with ``method`` at the pipeline's tolerance, each
+    within :data:`HEAP_BUDGET` of live peak (the bound of the MicroPython peak)."""
+    from lodestar.firmware import starid
+
+    tol = pipeline_tolerance_rad(camera)
+    for scene in hard_scenes(camera, catalogue, 3, seed=3):
+        v = scene.vectors.tolist()
+        assert starid.identify(v, db, method=method, tolerance_rad=tol).status == starid.OK
+        peak = live_peak(lambda: starid.identify(v, db, method=method, tolerance_rad=tol))
+        assert peak < HEAP_BUDGET, (method, camera.name, peak)

@@ -26,8 +26,7 @@ from lodestar.firmware.database import Database, DatabaseError
 from lodestar.firmware.verify import angle
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
-from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, outcome,
-                            pipeline_tolerance_rad)
+from starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -489,9 +488,4 @@ def test_live_peak_of_a_hard_solve_is_within_the_heap_budget():
     """30 stars of which 10 false, 1 px noise, the pipeline's tolerance: the CPython live
     peak of one identification (a bound of MicroPython's) stays within the 96 KB budget."""
     cam, cat, _, db = setup()
-    tol = pipeline_tolerance_rad(cam)
-    for scene in hard_scenes(cam, cat, 3, seed=3):
-        v = scene.vectors.tolist()
-        assert starid.identify(v, db, method="hashing", tolerance_rad=tol).status == starid.OK
-        peak = live_peak(lambda: starid.identify(v, db, method="hashing", tolerance_rad=tol))
-        assert peak < HEAP_BUDGET, peak
+    assert_identify_within_heap_budget("hashing", cam, cat, db)
