@@ -43,7 +43,7 @@ from collections import deque
 
 import cocotb
 import numpy as np
-from board_top_tb import check_idle, frame_and_packet
+from board_top_tb import check_idle, frame_and_packet, release_resets
 from cocotb.clock import Clock
 from cocotb.triggers import Event, FallingEdge, Timer
 from spi_slave_tb import T_NS, Master
@@ -157,11 +157,7 @@ async def board_lvds_frames(dut):
     cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
     await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
     cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
-    await Timer(100, unit="ns")
-    await FallingEdge(dut.clk)
-    dut.rst.value = 0
-    await FallingEdge(dut.ser_clk)
-    dut.ser_rst.value = 0
+    await release_resets(dut, dut.ser_clk, dut.ser_rst)
 
     master = Master(dut, SCK_NS)
     for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):

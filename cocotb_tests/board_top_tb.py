@@ -94,6 +94,16 @@ async def frame_and_packet(master, sensor, index, image, during=None):
     return data
 
 
+async def release_resets(dut, sensor_clock, sensor_reset):
+    """Hold both clock domains in reset for 100 ns, then release ``sync`` on a falling
+    ``clk`` edge and the sensor domain on a falling edge of its own clock."""
+    await Timer(100, unit="ns")
+    await FallingEdge(dut.clk)
+    dut.rst.value = 0
+    await FallingEdge(sensor_clock)
+    sensor_reset.value = 0
+
+
 async def check_idle(master, frames):
     """After ``frames`` frames whose packets were all read: the status word is clean, no
     packet is pending (a stream read gets filler and counts one underrun)."""
@@ -115,11 +125,7 @@ async def board_top_frames(dut):
     dut.rst.value, dut.pix_rst.value = 1, 1
     dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
     dut.line_valid.value, dut.frame_valid.value, dut.pix_d.value = 0, 0, 0
-    await Timer(100, unit="ns")
-    await FallingEdge(dut.clk)
-    dut.rst.value = 0
-    await FallingEdge(dut.pix_clk)
-    dut.pix_rst.value = 0
+    await release_resets(dut, dut.pix_clk, dut.pix_rst)
 
     master = Master(dut, SCK_NS)
     for name, value in (("threshold", 50), ("background", 40), ("min_pixels", 1)):
