@@ -58,11 +58,13 @@ class HalfWordFIFO(wiring.Component):
         hi_hold = Signal(self.width - lo, reset_less=True)
 
         def advance(ptr):
+            if self.depth & (self.depth - 1) == 0:
+                return ptr + 1                      # wraps by itself
             return Mux(ptr == self.depth - 1, 0, ptr + 1)
 
         # ---- write: low half now, high half next clock ---------------------------------
         take_in = self.w_en & self.w_rdy
-        m.d.comb += [self.w_rdy.eq(~second & (count < self.depth)),
+        m.d.comb += [self.w_rdy.eq(~second & (count != self.depth)),
                      wp.addr.eq(Cat(second, w_item)),
                      wp.data.eq(Mux(second, hi_hold, self.w_data[:lo])),
                      wp.en.eq(take_in | second)]
@@ -76,7 +78,8 @@ class HalfWordFIFO(wiring.Component):
         pop = self.r_en & self.r_rdy
         m.d.comb += self.r_data.eq(Cat(lo_reg, rp.data[:self.width - lo]))
         next_item = Mux(pop, advance(r_item), r_item)
-        start = ~fetch & (~self.r_rdy | pop) & (count - pop != 0)
+        more = (count != 0) & ~(pop & (count == 1))     # an item is left after this pop
+        start = ~fetch & (~self.r_rdy | pop) & more
         m.d.comb += [rp.addr.eq(Cat(fetch, next_item)), rp.en.eq(start | fetch)]
         m.d.sync += fetch.eq(start)
         with m.If(fetch):
@@ -85,5 +88,6 @@ class HalfWordFIFO(wiring.Component):
             m.d.sync += self.r_rdy.eq(0)
         with m.If(pop):
             m.d.sync += r_item.eq(next_item)
-        m.d.sync += count.eq(count + second - pop)
+        with m.If(second ^ pop):
+            m.d.sync += count.eq(count + Mux(pop, -1, 1))
         return m

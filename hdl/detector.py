@@ -126,16 +126,16 @@ class Detector(wiring.Component):
         # registers latched when a frame enters, then handed to the labeller's frame
         entry = Signal(data.StructLayout({
             "mode": C.REGISTER_BY_NAME["mode"].bits,
-            **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}))
-        frame = Signal.like(entry)
+            **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}), reset_less=True)
+        frame = Signal.like(entry, reset_less=True)
         with m.If(self.pixels.valid & self.pixels.payload.sof):
             m.d.sync += entry.mode.eq(regs.mode)
             m.d.sync += [entry[n].eq(getattr(regs, n)) for n in _FILTERS]
         m.d.comb += [getattr(feat, n).eq(frame[n]) for n in _FILTERS]
 
         # trailer of the frame: latched at the labeller's frame start, completed at done
-        head = Signal(tr_layout)
-        fallback = Signal()
+        head = Signal(tr_layout, reset_less=True)
+        fallback = Signal(reset_less=True)
         with m.If(lab.frame_start):
             m.d.sync += [
                 frame.eq(entry),
@@ -165,9 +165,9 @@ class Detector(wiring.Component):
         # held trailer's records start at ``held_first``; records between ``claimed`` and
         # ``held_first`` are orphans.
         seq = C.bits_for(self.record_depth) + 1
-        wseq, rseq, claimed, held_first = (Signal(seq, name=n) for n in
-                                           ("wseq", "rseq", "claimed", "held_first"))
-        held = Signal(tr_layout)
+        wseq, rseq, claimed = (Signal(seq, name=n) for n in ("wseq", "rseq", "claimed"))
+        held_first = Signal(seq, reset_less=True)
+        held = Signal(tr_layout, reset_less=True)
         held_valid = Signal()
         taken = self.trailer.valid & self.trailer.ready
         with m.If(lab.done & (~held_valid | taken)):
@@ -182,10 +182,11 @@ class Detector(wiring.Component):
         at_claimed = rseq == claimed
         behind = (rseq - claimed)[seq - 1]        # the reader still owes claimed records
         discard = orphans & at_claimed & rfifo.r_rdy
+        rseq_next = rseq + 1
         with m.If(taken):
             m.d.sync += claimed.eq(held_first + held.n_records[:seq])
         with m.Elif(discard):
-            m.d.sync += claimed.eq(claimed + 1)
+            m.d.sync += claimed.eq(rseq_next)            # claimed == rseq here
         with m.Elif(orphans & ~at_claimed & ~behind):   # the reader took them already
             m.d.sync += claimed.eq(held_first)
         m.d.comb += [rfifo.w_data.eq(feat.records.payload), rfifo.w_en.eq(feat.records.valid),
@@ -197,5 +198,5 @@ class Detector(wiring.Component):
         with m.If(rfifo.w_en & rfifo.w_rdy):
             m.d.sync += wseq.eq(wseq + 1)
         with m.If(rfifo.r_en & rfifo.r_rdy):
-            m.d.sync += rseq.eq(rseq + 1)
+            m.d.sync += rseq.eq(rseq_next)
         return m

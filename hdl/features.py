@@ -1,35 +1,44 @@
 """Feature engine: blob features per label slot, merged on union, emitted at completion.
 
 The labeller (``hdl/labeller.py``) sends one *op* per column it decides, at most one per
-clock.  An op says what happens to the accumulator of the *active* component (the one the
-current run belongs to) and to the feature table, a memory of ``slots`` entries holding
+clock, in raster order.  An op says what happens to the *accumulator*, the features of the
+current run's component, and to the feature table, a memory of ``slots`` entries holding
 each open tracked component's features in the compact record layout
 (``hdl.layouts.record_layout``; its ``flags`` bit is the moment-saturation flag):
 
-* ``pix``: the lit pixel ``(x, y, p, w)`` joins the active component;
-* ``base``: what the accumulator starts from before the pixel is added: ``KEEP`` (itself),
-  ``NEW`` (empty: a birth), ``LOAD`` (the slot read by this op: the run continues a
-  component of the previous row) or ``MERGE`` (itself plus the slot read: a union);
-* ``rd``/``rd_addr``: read a slot (for ``LOAD``, ``MERGE`` or ``complete``);
+* ``pix``: the lit pixel ``(x, y, p, w)`` joins the accumulator; an op without a pixel (a
+  dark column) empties it;
+* ``rd``/``rd_addr``: read a slot; an op with a pixel adds the slot read to the accumulator
+  (the run continues a component of the previous row, or merges with one: the slot holds
+  the pixel's upper neighbour);
 * ``complete``: the slot read is a completed blob: count it, filter it (contract
   ``passes_filters``) and emit its record if fewer than ``record_capacity`` records were
   emitted this frame and the record stream takes it (otherwise ``dropped_records``);
 * ``wr``/``wr_addr``: the run ends; write the accumulator (with this op's pixel) to a slot.
 
-Sums saturate at the contract's moment widths and set the saturation flag; counts, the
-bounding box and the peak are exact (``lodestar.contract``).  Order of accumulation does not
-matter, so the result equals the golden model's whatever the merge order.  The accumulator
-adds its three terms (itself, the slot read, the pixel; each the empty record when the op
-leaves it out) in one step: a carry-save layer and one carry chain per sum, one saturation.
+The accumulator is empty at the first pixel of every run: runs are separated by a dark
+column's op or by the end of a row (an op at column ``width - 1`` followed by a clock
+without an op, which the labeller's horizontal blanking guarantees), and ``clear`` (a frame
+start) empties it too.  So a run start needs no operand select: its accumulator adds
+nothing.  Sums saturate at the contract's moment widths and set the saturation flag;
+counts, the bounding box and the peak are exact (``lodestar.contract``).  Order of
+accumulation does not matter, so the result equals the golden model's whatever the merge
+order.  Each sum adds its three terms (accumulator, slot, pixel) in one step: a carry-save
+layer and one carry chain, one saturation (``min(a + b + c, max)`` equals two saturating
+adds because the terms are non-negative).  The peak compares the slot with the pixel a
+clock early, then the accumulator with the larger; the rest of the box needs one comparison
+with the accumulator: a slot added to a pixel holds its upper neighbour, so the slot's
+columns span the pixel's and its rows are above, and ``ymax`` is the pixel's row (pixels
+come in raster order).
 
 Timing: the op enters at clock ``c``; pixel products and the slot read take two clocks; the
 accumulator, the slot write and the record are at ``c + 3``.  A slot written by an op is
 read back correctly by any op entering two or more clocks later (the read port is
 transparent for the write port); the labeller never reads a slot sooner.  Ops carry the
-frame ``tag``; an op whose tag differs from the ``tag`` input (the frame was aborted) has no
-effect.  ``clear`` resets the per-frame counters.  The pipeline's data registers and the
-accumulator have no reset (only the valid bits do): they are read only under a valid op, and
-every component starts from ``NEW`` or ``LOAD``.
+frame ``tag``; an op whose tag differs from the ``tag`` input (the frame was aborted) only
+empties the accumulator.  ``clear`` resets the per-frame counters.  The pipeline's data
+registers and the accumulator have no reset (only the valid bits do): a clock without an
+op adds nothing, and every run starts from an empty accumulator.
 """
 
 from amaranth import Cat, Module, Mux, Signal
@@ -41,8 +50,6 @@ from lodestar import contract as C
 
 from .layouts import record_fields, record_layout
 
-KEEP, NEW, LOAD, MERGE = range(4)
-
 _HEADER_BITS = dict(C.HEADER_FIELDS)
 
 
@@ -51,56 +58,60 @@ def op_layout(width, height, pixel_bits, slots):
     sb = C.bits_for(slots - 1)
     return data.StructLayout({
         "tag": 2, "pix": 1, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
-        "p": pixel_bits, "w": pixel_bits, "base": 2,
+        "p": pixel_bits, "w": pixel_bits,
         "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
     })
 
 
-def _select(a, b, c, first):
-    """The operand of ``a``, ``b``, ``c`` that ``first(u, v)`` (``u < v`` or ``u > v``)
-    ranks first, from three comparisons made side by side (ties: any of the equal ones)."""
-    return Mux(first(a, b) & first(a, c), a, Mux(first(b, c), b, c))
+def _sums(m, acc, slot, use, pix, empties, fields):
+    """Counts and moments of ``acc (+) slot (+) pix``, the slot taken if ``use``, all zero
+    if ``empties``; returns ``({name: sum}, saturated)``.
 
-
-def _combine(m, a, b, c, fields):
-    """``a (+) b (+) c`` of three feature records (the empty record, :func:`empty_features`,
-    is the identity): saturating sums, exact counts, box and peak.
-
-    Each sum is one carry-save layer (a sum and a carry bit per bit) and one carry chain
-    instead of two chains in series.  Saturating once, ``min(a + b + c, max)``, equals
-    saturating after each of two additions because every term is non-negative; the
-    saturation flag is the OR of the records' flags and of every sum that saturates."""
-    out = Signal(a.shape())
-    sat = a.flags | b.flags | c.flags
+    Each sum is one carry-save layer (a sum and a carry bit per bit, the slot's gate folded
+    into them) and one carry chain.  A moment saturates once, ``min(a + b + c, max)``: the
+    chain's carry-out or the top carry bit (weight ``2**bits``) says the sum overflows, and
+    one gate per bit saturates and empties.  A count's pixel term is one bit, so its
+    carry-save gates have room to empty the terms instead (the chain then adds zeros).
+    ``saturated`` is the OR of the operands' flags and of every sum that saturates (0 if
+    ``empties``)."""
+    out = {}
+    keep = ~empties
+    sat = acc.flags | (use & slot.flags) | pix.flags
     for name, bits in fields:
-        x, y, z = a[name], b[name], c[name]
-        if name in C.MOMENTS or name in ("n", "nsat"):
-            half = x ^ y ^ z                             # a + b + c = half + 2 carry
-            carry = (x & y) | (x & z) | (y & z)
-            # one chain adds half and carry from weight 2 up; its carry-out has weight
-            # 2**bits.  The top carry bit alone reaches 2**bits: for a moment it forces
-            # both operands so that the chain carries out, which makes the carry-out the
-            # saturation bit (the low bits do not matter then)
-            low, top = half[1:], carry[:bits - 1]
-            if name in C.MOMENTS:
-                force = carry[bits - 1]
-                low = low | force.replicate(bits - 1)
-                top = Cat(top[0] | force, top[1:])
-            high = Signal(bits, name=f"sum_{name}")
-            m.d.comb += high.eq(low + top)
+        if not (name in C.MOMENTS or name in ("n", "nsat")):
+            continue
+        x, y, z = acc[name], slot[name] & use.replicate(bits), pix[name]
+        if name in ("n", "nsat"):
+            x, y, z = (t & keep.replicate(bits) for t in (x, y, z))
+        half = x ^ y ^ z                                 # a + b + c = half + 2 carry
+        carry = (x & y) | (x & z) | (y & z)
+        high = Signal(bits, name=f"sum_{name}")          # bits 1.. of the sum, carry-out
+        m.d.comb += high.eq(half[1:] + carry[:bits - 1])
+        if name in C.MOMENTS:
             total = Cat(half[0], high[:bits - 1])
-            if name in C.MOMENTS:
-                over = high[bits - 1]
-                m.d.comb += out[name].eq(Mux(over, (1 << bits) - 1, total))
-                sat = sat | over
-            else:                                        # counts never exceed their width
-                m.d.comb += out[name].eq(total)
-        elif name in ("xmin", "ymin"):
-            m.d.comb += out[name].eq(_select(x, y, z, lambda u, v: u < v))
-        elif name in ("xmax", "ymax", "peak"):
-            m.d.comb += out[name].eq(_select(x, y, z, lambda u, v: u > v))
-    m.d.comb += out.flags.eq(sat)
-    return out
+            over = high[bits - 1] | carry[bits - 1]
+            out[name] = (total | over.replicate(bits)) & keep.replicate(bits)
+            sat = sat | over
+        else:                                            # counts never exceed their width
+            out[name] = Cat(half[0], high[:bits - 1])
+    return out, sat & keep
+
+
+def _below(value, bound):
+    """``value < bound``, compared in ``value``'s width (``bound`` may be wider); strict
+    comparisons need only a carry chain's carry-out, no equality term."""
+    n = len(value)
+    if len(bound) <= n:
+        return value < bound
+    return (bound[n:] != 0) | (value < bound[:n])
+
+
+def _above(value, bound):
+    """``value > bound``, compared in ``value``'s width (``bound`` may be wider)."""
+    n = len(value)
+    if len(bound) <= n:
+        return value > bound
+    return (bound[n:] == 0) & (value > bound[:n])
 
 
 def empty_features(width, height):
@@ -140,76 +151,106 @@ class FeatureEngine(wiring.Component):
         fields = record_fields(W, H, pb)
         layout = record_layout(W, H, pb)
         fs = C.full_scale(pb)
+        empty = layout.const(empty_features(W, H))
 
         m.submodules.table = table = Memory(shape=layout, depth=self.slots, init=[])
         wp = table.write_port()
         rp = table.read_port(transparent_for=(wp,))
 
         # ---- stage 1: op registered, slot read issued, first products --------------
-        # a column without a pixel has weight 0: its products, and so its terms, are 0
+        # a clock without an op with a pixel has weight 0: its products, and so its terms,
+        # are 0
         op1 = Signal.like(self.ops.payload, reset_less=True)
         v1 = Signal()
         m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
         m.d.comb += [rp.addr.eq(op1.rd_addr), rp.en.eq(v1 & op1.rd)]
-        w1 = Mux(op1.pix, op1.w, 0)
+        w1 = Signal(pb)
+        m.d.comb += w1.eq(Mux(v1 & op1.pix, op1.w, 0))
+        w2 = Signal(pb, reset_less=True)
         wx1 = Signal(pb + len(op1.x), reset_less=True)
         wy1 = Signal(pb + len(op1.y), reset_less=True)
         op2 = Signal.like(op1, reset_less=True)
         v2 = Signal()
-        m.d.sync += [op2.eq(op1), v2.eq(v1), wx1.eq(w1 * op1.x), wy1.eq(w1 * op1.y)]
+        m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
+                     wy1.eq(w1 * op1.y)]
 
-        # ---- stage 2: second products, slot data, the terms of the accumulator -------
-        # pixf is the pixel's record (empty without a pixel); slot3 the slot read if the op
-        # adds it (LOAD, MERGE), else empty; rd3 the slot read as it is, for completion
-        empty = layout.const(empty_features(W, H))
+        # ---- stage 2: second products, slot data, the pixel's terms ------------------
+        # pixf: the pixel's record (empty without an op with a pixel); slot3: the slot read
+        # as it is (the completed record, or the term the accumulator adds if use3);
+        # best3: for the box and the peak, the better of the slot (if used) and the pixel
+        # (the slot's box, as it holds the pixel's upper neighbour)
+        slot2 = rp.data
+        pix2 = v2 & op2.pix
+        use2 = v2 & op2.rd
         pixf = Signal(layout, reset_less=True)
         op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
-        rd3 = Signal(layout, reset_less=True)
         slot3 = Signal(layout, reset_less=True)
-        keep3 = Signal(reset_less=True)
-        pix2 = op2.pix
+        use3 = Signal(reset_less=True)
+        best3 = Signal(layout, reset_less=True)
+        passes = Signal(reset_less=True)  # the slot read passes the filters
         m.d.sync += [
-            op3.eq(op2), v3.eq(v2), rd3.eq(rp.data),
-            slot3.eq(Mux((op2.base == LOAD) | (op2.base == MERGE), rp.data, empty)),
-            keep3.eq((op2.base == KEEP) | (op2.base == MERGE)),
+            op3.eq(op2), v3.eq(v2), slot3.eq(slot2), use3.eq(use2),
             pixf.n.eq(pix2), pixf.nsat.eq(pix2 & (op2.p == fs)),
-            pixf.s0.eq(Mux(pix2, op2.w, 0)), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
+            pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
             pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
-            pixf.xmin.eq(Mux(pix2, op2.x, empty.xmin)), pixf.xmax.eq(Mux(pix2, op2.x, 0)),
-            pixf.ymin.eq(Mux(pix2, op2.y, empty.ymin)), pixf.ymax.eq(Mux(pix2, op2.y, 0)),
-            pixf.peak.eq(Mux(pix2, op2.p, 0)), pixf.flags.eq(0),
+            pixf.flags.eq(0),
+            passes.eq(~_below(slot2.n, self.min_pixels) & ~_above(slot2.n, self.max_pixels) &
+                      ~_below(slot2.s0, self.min_sum)),
         ]
+        for name, value in (("xmin", op2.x), ("xmax", op2.x), ("ymin", op2.y)):
+            m.d.sync += best3[name].eq(Mux(use2, slot2[name], Mux(pix2, value, empty[name])))
+        better = slot2.peak > op2.p
+        m.d.sync += best3.peak.eq(Mux(use2 & better, slot2.peak, Mux(pix2, op2.p, 0)))
 
         # ---- stage 3: accumulator, slot write, completion ---------------------------
-        # acc (+) slot3 (+) pixf, acc taken for KEEP and MERGE; without a live op the
-        # accumulator keeps itself (no enable logic on its registers)
+        # acc (+) slot3 (+) pixf, slot3 taken if use3.  A dark op, a stale op, and a clock
+        # without an op after the row's last column or a clear empty the accumulator; any
+        # other clock without an op adds nothing to it (use3 = 0, pixf empty)
         live = v3 & (op3.tag == self.tag)
+        run_open = Signal()           # the last op was a pixel that may continue its run
+        with m.If(self.clear):
+            m.d.sync += run_open.eq(0)
+        with m.Elif(v3):
+            m.d.sync += run_open.eq(live & op3.pix & (op3.x != W - 1))
+        empties = Mux(v3, ~(live & op3.pix), ~run_open)
         acc = Signal(layout, reset_less=True)
-        kept = Signal(layout)
-        m.d.comb += kept.eq(Mux(keep3, acc, empty))
-        added = _combine(m, kept, slot3, pixf, fields)
         acc_next = Signal(layout)
-        m.d.comb += acc_next.eq(Mux(live, added, acc))
+        sums, sat = _sums(m, acc, slot3, use3, pixf, empties, fields)
+        for name, total in sums.items():
+            m.d.comb += acc_next[name].eq(total)
+        for name, smaller in (("xmin", True), ("xmax", False), ("ymin", True),
+                              ("peak", False)):
+            a, b = acc[name], best3[name]
+            m.d.comb += acc_next[name].eq(Mux(empties, empty[name],
+                                              Mux((a < b) if smaller else (a > b), a, b)))
+        m.d.comb += [acc_next.ymax.eq(Mux(empties, 0, Mux(v3, op3.y, acc.ymax))),
+                     acc_next.flags.eq(sat)]
         m.d.sync += acc.eq(acc_next)
         m.d.comb += [wp.addr.eq(op3.wr_addr), wp.data.eq(acc_next),
                      wp.en.eq(live & op3.wr)]
 
-        passes = (rd3.n >= self.min_pixels) & (rd3.n <= self.max_pixels) & \
-            (rd3.s0 >= self.min_sum)
-        room = self.n_records < self.record_capacity
-        emit = live & op3.complete & passes & room
-        m.d.comb += [self.records.payload.eq(rd3), self.records.valid.eq(emit)]
+        # ---- completion: filters, record, counters ------------------------------------
+        # counters as wide as the frame needs (at most one blob per two pixels), widened at
+        # the ports
+        blob_bits = C.bits_for((W * H + 1) // 2)
+        n_blobs = Signal(blob_bits)
+        n_filtered = Signal(blob_bits)
+        dropped = Signal(blob_bits)
+        n_records = Signal(range(self.record_capacity + 1))
+        room = n_records != self.record_capacity     # it never exceeds the capacity
+        done = live & op3.complete
+        emit = done & passes & room
+        taken = emit & self.records.ready
+        m.d.comb += [self.records.payload.eq(slot3), self.records.valid.eq(emit),
+                     self.n_blobs.eq(n_blobs), self.n_filtered.eq(n_filtered),
+                     self.dropped_records.eq(dropped), self.n_records.eq(n_records)]
         with m.If(self.clear):
-            m.d.sync += [self.n_blobs.eq(0), self.n_filtered.eq(0),
-                         self.dropped_records.eq(0), self.n_records.eq(0)]
-        with m.Elif(live & op3.complete):
-            m.d.sync += self.n_blobs.eq(self.n_blobs + 1)
-            with m.If(~passes):
-                m.d.sync += self.n_filtered.eq(self.n_filtered + 1)
-            with m.Elif(emit & self.records.ready):
-                m.d.sync += self.n_records.eq(self.n_records + 1)
-            with m.Else():
-                m.d.sync += self.dropped_records.eq(self.dropped_records + 1)
+            m.d.sync += [n_blobs.eq(0), n_filtered.eq(0), dropped.eq(0), n_records.eq(0)]
+        with m.Else():
+            m.d.sync += [n_blobs.eq(n_blobs + done),
+                         n_filtered.eq(n_filtered + (done & ~passes)),
+                         n_records.eq(n_records + taken),
+                         dropped.eq(dropped + (done & passes & ~taken))]
         m.d.comb += self.busy.eq(v1 | v2 | v3)
         return m

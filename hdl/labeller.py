@@ -44,20 +44,19 @@ Capacities: ``label_capacity`` tracked blobs open at once (contract semantics: a
 starting while that many are open is untracked, a merge with an untracked blob untracks
 it, an untracked blob is counted in ``dropped_labels`` when it completes).  The node and
 stack memories are sized for any image (``max_nodes``, ``max_stack``); the feature table
-has ``label_capacity + 2`` slots (a slot freed in the clock before an allocation may not
-be reusable yet).  ``fault`` (sticky, for verification) would flag an internal bound being
-exceeded; it cannot happen.
+has ``label_capacity + 2`` slots, allocated fresh until the free-slot FIFO offers one (a
+slot freed at a decision is on offer at the next).  ``fault`` (sticky, for verification)
+would flag an internal bound being exceeded; it cannot happen.
 """
 
-from amaranth import Module, Mux, ResetInserter, Signal
+from amaranth import Cat, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
-from amaranth.lib.fifo import SyncFIFOBuffered
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .features import KEEP, LOAD, MERGE, NEW, op_layout
+from .features import op_layout
 from .threshold import lit_layout
 
 MIN_HBLANK = 1
@@ -151,30 +150,27 @@ class Labeller(wiring.Component):
 
         # ---- input: held pixel, expected position, frame state -----------------------
         hv = Signal()                 # a pixel is held, waiting for its right neighbour
-        hx = Signal(xb)
+        hx = Signal(xb)               # its position (in the virtual row: the column decided)
         hy = Signal(yb)
         hlit = Signal()
         hp = Signal(pb)
         hw = Signal(pb)
-        ex = Signal(xb)               # position the next pixel must have
-        ey = Signal(yb)
-        vx = Signal(xb)               # column of the virtual row
+        hx1 = Signal(xb)              # hx + 1 and hy + 1, the next pixel's position
+        hy1 = Signal(yb)
         drain = Signal(range(_DRAIN + 2))
         tag = Signal(2)               # frame tag: ops of an aborted frame are ignored
         m.d.comb += self.tag.eq(tag)
         row_par = Signal()            # parity of the row decided next: its node bank
 
         at_origin = (beat.x == 0) & (beat.y == 0)
-        expected = (beat.x == ex) & (beat.y == ey)
-        row_end_held = hv & (hx == W - 1)
+        row_end = hx == W - 1         # the next pixel must start the next row
+        same_row = beat.y == hy
+        expected = Mux(row_end, (beat.x == 0) & (beat.y == hy1), (beat.x == hx1) & same_row)
+        row_end_held = hv & row_end
 
-        dv = Signal()                 # a column decision this clock
-        dx = Signal(xb)
-        dy = Signal(yb)
-        dlit = Signal()
+        dv = Signal()                 # a column decision this clock: the held pixel's
+        dx, dy, dlit, dp, dw = hx, hy, hlit, hp, hw
         dla = Signal()                # lookahead: pixel x + 1 is lit
-        dp = Signal(pb)
-        dw = Signal(pb)
 
         start = Signal()              # this beat starts a frame
         abort = Signal()              # the frame in progress ends early
@@ -192,11 +188,11 @@ class Labeller(wiring.Component):
         pl0 = r_0 & ~first_row
         plm1 = r_m1 & ~first_row
         plp1 = bm_r.data & ~first_row & ~last_col
-        raddr = Signal(xb + 1)
-        m.d.comb += raddr.eq(dx + 2)
+        ahead = Signal(xb)            # dx + 2 unless that wraps to column 0 or 1
+        m.d.comb += ahead.eq(dx + 2)
         m.d.comb += [
             bm_w.addr.eq(dx), bm_w.data.eq(dlit), bm_w.en.eq(dv),
-            bm_r.addr.eq(Mux(raddr >= W, raddr - W, raddr)), bm_r.en.eq(dv),
+            bm_r.addr.eq(Mux(last_col | (dx == W - 2), last_col, ahead)), bm_r.en.eq(dv),
         ]
 
         # ---- node memories (two banks: the row being written, the row being read) -------
@@ -252,7 +248,8 @@ class Labeller(wiring.Component):
         # ---- stack: top and second in registers, the rest in memory ------------------
         top = Signal(entry_l)
         sec = Signal(entry_l)
-        sp = Signal(range(depth + 2))
+        below = Signal(range(-2, depth + 1))   # entries in the stack memory (entries - 2)
+        below_next = Signal.like(below)
         reload = Signal()             # sec comes from the stack memory this clock
         m.submodules.stack = stack = Memory(shape=entry_l, depth=max(depth - 2, 1), init=[])
         st_w = stack.write_port()
@@ -263,11 +260,24 @@ class Labeller(wiring.Component):
         count = Signal(range(self.label_capacity + 1))
         lit_prev = Signal()
         fresh = Signal(range(self.slots + 1))
-        freelist = SyncFIFOBuffered(width=sb, depth=self.slots)
-        m.submodules.freelist = ResetInserter(self.clear)(freelist)
+        # free slots: a FIFO in a memory (a power of two deep, so the pointers wrap by
+        # themselves); its head is on the read port, a slot freed at a decision is
+        # reusable at the next one
+        fl_depth = 1 << C.bits_for(self.slots - 1)
+        m.submodules.freelist = freelist = Memory(shape=sb, depth=fl_depth, init=[])
+        fl_w = freelist.write_port()
+        fl_r = freelist.read_port(transparent_for=(fl_w,))
+        fl_wp = Signal(range(2 * fl_depth))
+        fl_rp = Signal(range(2 * fl_depth))
+        fl_rdy = fl_wp != fl_rp
+        fl_pop = Signal()
+        fl_head = Signal.like(fl_rp)  # the head after this clock's pop
+        m.d.comb += [fl_head.eq(fl_rp + fl_pop), fl_r.addr.eq(fl_head), fl_r.en.eq(1)]
+        m.d.sync += fl_rp.eq(fl_head)
         fault = Signal()
         m.d.comb += self.fault.eq(fault)
-        dropped_labels = Signal.like(self.dropped_labels)
+        # at most one blob per two pixels: the count is that wide, widened at the port
+        dropped_labels = Signal(C.bits_for((W * H + 1) // 2))
         line_error = Signal()         # a row started before its first node was fetched
 
         # ==== the column decision ========================================================
@@ -297,22 +307,20 @@ class Labeller(wiring.Component):
         free_en = Signal()
         free_lab = Signal(sb)
         m.d.comb += [op.tag.eq(tag), op.pix.eq(dlit), op.x.eq(dx), op.y.eq(dy),
-                     op.p.eq(dp), op.w.eq(dw), op.base.eq(KEEP)]
+                     op.p.eq(dp), op.w.eq(dw)]
         b = t1
         trk = act.tracked & b.tracked
         with m.If(cstart):
             m.d.comb += [a2.lab.eq(b.lab), a2.tracked.eq(b.tracked), a2.has_slot.eq(b.tracked),
                          a2.has_cur.eq(b.has_cur), a2.fa.eq(b.fa), a2.la.eq(b.la),
-                         a2.group.eq(1),
-                         op.base.eq(Mux(b.tracked, LOAD, NEW)), op.rd.eq(b.tracked),
+                         a2.group.eq(1), op.rd.eq(b.tracked),
                          op.rd_addr.eq(b.lab)]
         with m.Elif(birth):
-            tracked_birth = count < self.label_capacity
-            m.d.comb += [a2.eq(0), a2.tracked.eq(tracked_birth), count_up.eq(tracked_birth),
-                         op.base.eq(NEW)]
+            tracked_birth = count != self.label_capacity  # it never exceeds it
+            m.d.comb += [a2.eq(0), a2.tracked.eq(tracked_birth), count_up.eq(tracked_birth)]
         with m.Elif(merge):
             m.d.comb += [merge_down.eq(act.tracked | b.tracked), a2.tracked.eq(trk),
-                         a2.group.eq(1), op.base.eq(MERGE), op.rd.eq(trk),
+                         a2.group.eq(1), op.rd.eq(trk),
                          op.rd_addr.eq(b.lab)]
             with m.If(b.has_cur):             # case (i): the active run nests inside b
                 m.d.comb += [fpatch_req.eq(act.has_cur), fpatch_addr.eq(act.fa),
@@ -371,13 +379,14 @@ class Labeller(wiring.Component):
         run_end = dlit & ~dla
         alloc = run_end & a3.tracked & ~a3.has_slot
         lab4 = Signal(sb)
-        m.d.comb += [freelist.r_en.eq(0), lab4.eq(a3.lab)]
+        m.d.comb += lab4.eq(a3.lab)
         with m.If(alloc):
-            with m.If(freelist.r_rdy):
-                m.d.comb += [lab4.eq(freelist.r_data), freelist.r_en.eq(dv)]
+            with m.If(fl_rdy):
+                m.d.comb += [lab4.eq(fl_r.data), fl_pop.eq(dv)]
             with m.Else():
                 m.d.comb += lab4.eq(fresh)
-        m.d.comb += [freelist.w_en.eq(dv & free_en), freelist.w_data.eq(free_lab)]
+        m.d.comb += [fl_w.addr.eq(fl_wp), fl_w.data.eq(free_lab), fl_w.en.eq(dv & free_en)]
+        m.d.sync += fl_wp.eq(fl_wp + fl_w.en)
         t4 = Signal(entry_l)
         m.d.comb += t4.eq(t3)
         with m.If(run_end):
@@ -391,30 +400,33 @@ class Labeller(wiring.Component):
         m.d.comb += self.ops.valid.eq(dv)
 
         # ---- state updates of a decision ----------------------------------------------
-        m.d.comb += [st_w.en.eq(0), st_r.en.eq(0)]
+        down = merge_down | pop_down
+        m.d.comb += [st_w.en.eq(0), st_r.en.eq(0),
+                     below_next.eq(below + Mux(push & ~pop, 1, Mux(pop & ~push, -1, 0)))]
         with m.If(reload):
             m.d.sync += [sec.eq(st_r.data), reload.eq(0)]
         with m.If(load):
             m.d.sync += load.eq(0)
         with m.If(dv):
             m.d.sync += [act.eq(a3), top.eq(t4),
-                         count.eq(count + count_up - merge_down - pop_down),
+                         # a birth, a merge and a completion exclude each other: +1 or -1
+                         count.eq(count + Cat(count_up | down, down.replicate(len(count) - 1))),
                          dropped_labels.eq(dropped_labels + drop_label),
                          lit_prev.eq(dlit & ~last_col),
                          r_m1.eq(Mux(last_col, 0, r_0)), r_0.eq(bm_r.data)]
-            with m.If(alloc & ~freelist.r_rdy):
+            with m.If(alloc & ~fl_rdy):
                 m.d.sync += fresh.eq(fresh + 1)
                 with m.If(fresh == self.slots):
                     m.d.sync += fault.eq(1)
+            m.d.sync += below.eq(below_next)
             with m.If(push & ~pop):
-                m.d.sync += [sec.eq(top), sp.eq(sp + 1)]
-                m.d.comb += [st_w.addr.eq(sp - 2), st_w.data.eq(sec), st_w.en.eq(sp >= 2)]
-                with m.If(sp == depth):
+                m.d.sync += sec.eq(top)
+                m.d.comb += [st_w.addr.eq(below), st_w.data.eq(sec), st_w.en.eq(~below[-1])]
+                with m.If(below == depth - 2):
                     m.d.sync += fault.eq(1)
-            with m.Elif(pop & ~push):
-                m.d.sync += sp.eq(sp - 1)
-                m.d.comb += [st_r.addr.eq(sp - 3), st_r.en.eq(sp >= 3)]
-                m.d.sync += reload.eq(sp >= 3)
+            with m.Elif(pop & ~push):      # the new sec is the memory's last entry
+                m.d.comb += [st_r.addr.eq(below_next), st_r.en.eq(~below_next[-1])]
+                m.d.sync += reload.eq(~below_next[-1])
             with m.If(ps):
                 m.d.sync += [cur_last.eq(nf.last), rptr.eq(rptr + 1), load.eq(1)]
                 with m.If(~loaded):
@@ -422,9 +434,10 @@ class Labeller(wiring.Component):
             with m.If(run_end):
                 m.d.sync += wptr.eq(wptr + 1)
             with m.If(last_col):
-                m.d.sync += [wptr.eq(0), rptr.eq(0), load.eq(1), sp.eq(0),
+                m.d.sync += [wptr.eq(0), rptr.eq(0), load.eq(1), below.eq(-2),
                              row_par.eq(~row_par)]
-                with m.If(sp + push != pop):      # the stack is empty at every row end
+                # the stack is empty at every row end (below_next == -2, from below itself)
+                with m.If(~(Mux(push == pop, below == -2, pop & (below == -1)))):
                     m.d.sync += fault.eq(1)
         with m.If(dv & (ps | last_col)):
             m.d.sync += loaded.eq(0)
@@ -435,8 +448,9 @@ class Labeller(wiring.Component):
         m.d.comb += [self.frame_start.eq(start), self.clear.eq(start),
                      self.dropped_labels.eq(dropped_labels)]
         with m.If(start):
-            m.d.sync += [count.eq(0), fresh.eq(0), dropped_labels.eq(0), row_par.eq(0),
-                         lit_prev.eq(0), sp.eq(0), wptr.eq(0), rptr.eq(0), load.eq(0),
+            m.d.sync += [count.eq(0), fresh.eq(0), fl_wp.eq(0), fl_rp.eq(0),
+                         dropped_labels.eq(0), row_par.eq(0),
+                         lit_prev.eq(0), below.eq(-2), wptr.eq(0), rptr.eq(0), load.eq(0),
                          loaded.eq(0), line_error.eq(0), reload.eq(0)]
         m.d.comb += self.done_flags.eq(abort_flags)
         finished = Signal()
@@ -457,10 +471,8 @@ class Labeller(wiring.Component):
                     m.next = "RUN"
             with m.State("RUN"):
                 m.d.comb += self.busy.eq(1)
-                right = self.pixels.valid & expected & (beat.y == hy) & hv
-                m.d.comb += [dv.eq(row_end_held | right), dx.eq(hx), dy.eq(hy),
-                             dlit.eq(hlit), dla.eq(~row_end_held & beat.lit),
-                             dp.eq(hp), dw.eq(hw)]
+                right = self.pixels.valid & expected & same_row & hv
+                m.d.comb += [dv.eq(row_end_held | right), dla.eq(~row_end_held & beat.lit)]
                 with m.If(self.pixels.valid & ~expected):
                     m.d.comb += abort.eq(1)
                     with m.If(at_origin):
@@ -476,16 +488,16 @@ class Labeller(wiring.Component):
                 with m.Else():
                     m.d.comb += take.eq(self.pixels.valid)
                     with m.If(row_end_held & (hy == H - 1)):
-                        m.d.sync += [vx.eq(0), hv.eq(0)]
+                        m.d.sync += [hx.eq(0), hy.eq(H), hlit.eq(0), hv.eq(0)]
                         m.next = "GAP"
             with m.State("GAP"):              # one clock: the last row's first node
                 m.d.comb += self.busy.eq(1)
                 m.next = "VROW"
                 restart_if_new_frame()
             with m.State("VROW"):
-                m.d.comb += [self.busy.eq(1), dv.eq(1), dx.eq(vx), dy.eq(H)]
-                m.d.sync += vx.eq(vx + 1)
-                with m.If(vx == W - 1):
+                m.d.comb += [self.busy.eq(1), dv.eq(1)]
+                m.d.sync += hx.eq(hx + 1)
+                with m.If(hx == W - 1):
                     m.d.sync += drain.eq(0)
                     m.next = "DRAIN"
                 restart_if_new_frame()
@@ -504,11 +516,8 @@ class Labeller(wiring.Component):
 
         with m.If(take):
             m.d.sync += [hv.eq(1), hx.eq(beat.x), hy.eq(beat.y), hlit.eq(beat.lit),
-                         hp.eq(beat.data), hw.eq(beat.weight)]
-            with m.If(beat.x == W - 1):
-                m.d.sync += [ex.eq(0), ey.eq(beat.y + 1)]
-            with m.Else():
-                m.d.sync += [ex.eq(beat.x + 1), ey.eq(beat.y)]
+                         hp.eq(beat.data), hw.eq(beat.weight),
+                         hx1.eq(beat.x + 1), hy1.eq(beat.y + 1)]
         with m.Elif(dv & ~(self.pixels.valid & expected)):
             m.d.sync += hv.eq(0)
         with m.If(abort & ~start):

@@ -14,18 +14,27 @@ Output: ``packet``, a byte stream (``lib.stream``, valid/ready) that the SPI sla
   ``0xFFFFFFFF``) over header and records, ``contract.CRC_BYTES`` big endian.
 
 The packet needs its header first, but the trailer comes after the records: the records stay
-in the detector's record buffer until their trailer arrives; then the header is sent and the
-records are pulled one at a time into the shift register (there is no second copy of them).
-The record buffer must therefore hold a frame's records until its packet is read (the
-detector's ``record_depth``; records that find it full are counted by the detector in
-``dropped_records``, so the packet stays consistent).
+in the detector's record buffer until their trailer arrives; then the trailer is copied (so the
+detector can hold the next frame's), the header is sent from the copy and the records are sent
+one at a time straight from the record stream's payload (there is no second copy of them):
+the payload must stay unchanged while ``valid`` is high and the record is not taken, as
+``lib.stream`` requires and the detector's record buffer does (it holds the record in a
+register and on its memory read port).  The record buffer must
+therefore hold a frame's records until its packet is read (the detector's ``record_depth``;
+records that find it full are counted by the detector in ``dropped_records``, so the packet
+stays consistent).
 
 Timing: one byte per clock at most (the SPI slave takes one per 8 SCK periods).  ``valid``
-falls for one clock after a trailer is taken and after each record's last byte, while the
-next record is loaded; the SPI slave peeks a byte only at byte boundaries, so the reader sees
-no gap.  ``busy`` is high from the trailer's acceptance until the CRC's last byte is taken.
-Cost: a shift register of ``max(HEADER_BITS, RECORD_BITS)`` flip-flops, the CRC register and
-an 8-bit CRC step (XOR trees), counters.
+is low while the next record is not yet on the record stream: a record is taken one clock
+after its last byte, and the buffer presents the next one a clock later, so ``valid`` falls
+for two clocks between records; the SPI slave peeks a byte only at byte boundaries, so the
+reader sees no gap.  ``busy`` is high from the trailer's acceptance until the CRC's last byte
+is taken.
+Cost: one byte multiplexer over every byte of the packet's sections (header from the copied
+trailer, the record, the CRC), selected by the byte position; the CRC register and an 8-bit
+CRC step (XOR trees); the trailer copy and the position are flip-flops with enables and no
+reset, so they cost no LUTs.  Constant header bytes and the zero bits of the widened record
+fields cost nothing in the multiplexer.
 """
 
 from amaranth import Cat, Const, Module, Signal, Value
@@ -94,58 +103,61 @@ class Packetizer(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        sr_bits = max(C.HEADER_BITS, C.RECORD_BITS)
-        sr = Signal(sr_bits)                    # the byte being sent is sr[-8:]
-        crc = Signal(C.CRC_BITS, init=CRC_INIT)
-        left = Signal(range(max(C.HEADER_BYTES, C.RECORD_BYTES, C.CRC_BYTES) + 1))
-        records_left = Signal(dict(C.HEADER_FIELDS)["n_records"])
+        # the trailer of the packet being sent (the header's source); its ``n_records``
+        # counts the records still to send once the header is out
+        tr = Signal(trailer_layout(), reset_less=True)
+        crc = Signal(C.CRC_BITS, reset_less=True)           # loaded with CRC_INIT per packet
 
-        trailer = self.trailer.payload
         values = dict(self.constants)
-        values.update({name: Value.cast(trailer[name]) for name in TRAILER_NAMES})
+        values.update({name: Value.cast(tr[name]) for name in TRAILER_NAMES})
         header = _msb_first([(Const(values[n], b) if isinstance(values[n], int) else values[n],
                               b) for n, b in C.HEADER_FIELDS])
         compact = dict(record_fields(self.width, self.height, self.pixel_bits))
         rec = self.records.payload
         record = _msb_first([(Value.cast(rec[n]) if n in compact else Const(0, b), b)
                              for n, b in C.RECORD_FIELDS])
+        sections = [header, record, crc ^ CRC_INIT]
+        # every byte of the packet's sections in sending order; ``pos`` is the byte sent
+        in_order = Cat(*[v.word_select(len(v) // 8 - 1 - k, 8)
+                         for v in sections for k in range(len(v) // 8)])
+        first_record = C.HEADER_BYTES
+        first_crc = first_record + C.RECORD_BYTES
+        end = first_crc + C.CRC_BYTES
+        pos = Signal(range(end), reset_less=True)
 
         out = self.packet
         take = out.valid & out.ready
         crc_next = crc32_byte(crc, out.payload)
-        m.d.comb += out.payload.eq(sr[-8:])
-        shifted = Cat(Const(0, 8), sr[:-8])
+        m.d.comb += out.payload.eq(in_order.word_select(pos, 8))
 
         with m.FSM():
             with m.State("IDLE"):
                 m.d.comb += self.trailer.ready.eq(1)
                 with m.If(self.trailer.valid):
-                    m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.HEADER_BITS), header)),
-                                 left.eq(C.HEADER_BYTES), crc.eq(CRC_INIT),
-                                 records_left.eq(trailer.n_records)]
+                    m.d.sync += [tr.eq(self.trailer.payload), pos.eq(0), crc.eq(CRC_INIT)]
                     m.next = "BODY"
-            with m.State("BODY"):              # header and records: bytes enter the CRC
-                m.d.comb += [out.valid.eq(1), self.busy.eq(1)]
+            with m.State("BODY"):              # header and record bytes: into the CRC
+                in_record = pos >= first_record
+                m.d.comb += [out.valid.eq(~in_record | self.records.valid), self.busy.eq(1)]
                 with m.If(take):
-                    m.d.sync += [crc.eq(crc_next), sr.eq(shifted), left.eq(left - 1)]
-                    with m.If(left == 1):
-                        with m.If(records_left != 0):
-                            m.next = "FETCH"
-                        with m.Else():
-                            m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.CRC_BITS),
-                                                   crc_next ^ CRC_INIT)),
-                                         left.eq(C.CRC_BYTES)]
-                            m.next = "CRC"
-            with m.State("FETCH"):             # pull the next record of this frame
+                    m.d.sync += [crc.eq(crc_next), pos.eq(pos + 1)]
+                    with m.If(pos == first_crc - 1):
+                        m.next = "POP"
+                    with m.Elif((pos == first_record - 1) & (tr.n_records == 0)):
+                        m.d.sync += pos.eq(first_crc)
+                        m.next = "CRC"
+            with m.State("POP"):               # the record is sent: take it from the stream
                 m.d.comb += [self.records.ready.eq(1), self.busy.eq(1)]
-                with m.If(self.records.valid):
-                    m.d.sync += [sr.eq(Cat(Const(0, sr_bits - C.RECORD_BITS), record)),
-                                 left.eq(C.RECORD_BYTES), records_left.eq(records_left - 1)]
+                m.d.sync += tr.n_records.eq(tr.n_records - 1)
+                with m.If(tr.n_records == 1):
+                    m.next = "CRC"
+                with m.Else():
+                    m.d.sync += pos.eq(first_record)
                     m.next = "BODY"
             with m.State("CRC"):
                 m.d.comb += [out.valid.eq(1), self.busy.eq(1)]
                 with m.If(take):
-                    m.d.sync += [sr.eq(shifted), left.eq(left - 1)]
-                    with m.If(left == 1):
+                    m.d.sync += pos.eq(pos + 1)
+                    with m.If(pos == end - 1):
                         m.next = "IDLE"
         return m

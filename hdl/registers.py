@@ -8,9 +8,17 @@ address is not a register, the value does not fit the register's field, ``mode``
 mode, ``local_log2_window`` is outside ``LOCAL_LOG2_WINDOW_MIN .. MAX``, or ``threshold``,
 ``background`` or ``local_offset`` exceed the pixel's full scale.  Reset values are the
 contract's.
+
+Cost: the registers' flip-flops (a register keeps only the bits its limit can set: a pixel
+register ``pixel_bits``, the others' upper bits are constant 0).  The domain's reset is
+written like a value (the flip-flops are ``reset_less`` and load the contract's reset value
+while ``ResetSignal()`` is high), so the select "reset value bit or data bit" is one LUT per
+data bit and reset value bit shared by all registers, not one per flip-flop.  Every limit
+but ``mode``'s is ``2**k - 1`` (``local_log2_window``'s also has a lower bound), so the
+range checks are "the bits above ``k`` are zero", not comparators.
 """
 
-from amaranth import Module, Signal
+from amaranth import Module, Mux, ResetSignal, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
@@ -34,6 +42,19 @@ def _lower(reg):
     return C.LOCAL_LOG2_WINDOW_MIN if reg.name == "local_log2_window" else 0
 
 
+def _in_range(data, low, high):
+    """``low <= data <= high`` for an unsigned ``data``, as bit tests: the bits above
+    ``high``'s are zero, and below them a comparison only where ``high`` is not all ones
+    or ``low`` is not zero."""
+    k = C.bits_for(high)
+    ok = data[k:] == 0 if k < len(data) else 1
+    if high != (1 << k) - 1:
+        ok = ok & (data[:k] <= high)
+    if low:
+        ok = ok & (data[:k] >= low)
+    return ok
+
+
 class RegisterBank(wiring.Component):
     """The register bank for ``pixel_bits``-bit pixels; one output port per register."""
 
@@ -53,18 +74,22 @@ class RegisterBank(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        known = Signal()
-        with m.If(self.error_clear):
+        refused = Signal()
+        m.d.comb += refused.eq(1)
+        reset = ResetSignal()
+        for reg in C.REGISTERS:
+            high = _limit(reg, self.pixel_bits)
+            value = Signal(C.bits_for(high), init=reg.reset, reset_less=True, name=reg.name)
+            m.d.comb += getattr(self, reg.name).eq(value)
+            hit = (self.addr == reg.address) & _in_range(self.data, _lower(reg), high)
+            with m.If(hit):
+                m.d.comb += refused.eq(0)
+            # the domain's reset taken as an ordinary write of the reset value: the data
+            # bit or reset bit select is then shared by every register, not one per bit
+            with m.If(reset | (self.en & hit)):
+                m.d.sync += value.eq(Mux(reset, reg.reset, self.data))
+        with m.If(self.en & refused):
+            m.d.sync += self.error.eq(1)
+        with m.Elif(self.error_clear):
             m.d.sync += self.error.eq(0)
-        with m.If(self.en):
-            for reg in C.REGISTERS:
-                with m.If(self.addr == reg.address):
-                    m.d.comb += known.eq(1)
-                    ok = (self.data >= _lower(reg)) & (self.data <= _limit(reg, self.pixel_bits))
-                    with m.If(ok):
-                        m.d.sync += getattr(self, reg.name).eq(self.data)
-                    with m.Else():
-                        m.d.sync += self.error.eq(1)
-            with m.If(~known):
-                m.d.sync += self.error.eq(1)
         return m

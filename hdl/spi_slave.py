@@ -58,7 +58,8 @@ command             MOSI                                    MISO
   port (``reg_addr``, ``reg_data``, ``reg_strobe`` for one clock) fires if the address exists
   and the value fits the register's field (``Register.bits``); otherwise the write is ignored
   and counted as an error.  A transaction that ends before the 6th byte is counted as an error
-  and writes nothing.  Bytes after the 6th are ignored.
+  and writes nothing.  Bytes after the 6th are ignored.  ``reg_addr`` and ``reg_data`` are
+  meaningful only while ``reg_strobe`` is high.
 * ``READ_STATUS``: the status word (``STATUS_FIELDS``, MSB first) is captured when the opcode
   byte completes and sent from byte 2 on; ``status_read`` pulses at that moment, and the
   ``errors`` and ``underruns`` counts restart from zero (they count events since the previous
@@ -168,8 +169,8 @@ class SPIByteSlave(wiring.Component):
         rise = sel & ~start & sck & ~sck_prev
 
         count = Signal(range(8))     # bits of the current byte already sampled
-        rx_bits = Signal(7)
-        tx_bits = Signal(8)
+        rx_bits = Signal(7, reset_less=True)   # data registers: read only under count/first
+        tx_bits = Signal(8, reset_less=True)
         first = Signal()             # the next rising edge is the byte's first
         peeked = Signal()            # tx_bits came from the tx stream (not FILLER)
         last = rise & (count == 7)
@@ -223,16 +224,19 @@ class SPISlave(wiring.Component):
         # bytes received in this transaction, saturating past the longest fixed-length reply
         index_max = max(WRITE_REG_BYTES, 1 + TURNAROUND_BYTES + STATUS_BYTES)
         index = Signal(range(index_max + 1))
-        opcode = Signal(8)
-        address = Signal(8 * ADDRESS_BYTES)
-        value = Signal(C.REGISTER_WORD_BITS)
-        status = Signal(STATUS_BITS)
+        # the opcode of this transaction, decoded (all 0: none yet, or unknown)
+        is_write, is_status, is_stream = Signal(), Signal(), Signal()
+        # data registers without reset: meaningful only under the flags and counts above
+        address = Signal(8 * ADDRESS_BYTES, reset_less=True)
+        value = Signal(C.REGISTER_WORD_BITS, reset_less=True)
+        status = Signal(STATUS_BITS, reset_less=True)
         errors = Signal(COUNT_BITS)
         underruns = Signal(COUNT_BITS)
         first_reply = 1 + TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
 
         # ---- status word and read-to-clear counters -----------------------------------
-        snapshot = rx.valid & (index == 0) & (rx.payload == OP_READ_STATUS)
+        opening = rx.valid & (index == 0)
+        snapshot = opening & (rx.payload == OP_READ_STATUS)
         fields = {"frame_counter": self.frame_counter, "errors": errors,
                   "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
         live = Cat(*[fields[name] for name, _ in reversed(STATUS_FIELDS)])
@@ -246,43 +250,45 @@ class SPISlave(wiring.Component):
             m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
 
         # ---- commands ------------------------------------------------------------------
+        # ``value`` shifts in every byte after the address; after the 6th byte of a write it
+        # is the register word, and the write port shows it with ``address`` while
+        # ``reg_strobe`` is high (the next byte, if any, comes 8 SCK periods later).
         word = Cat(rx.payload, value[:C.REGISTER_WORD_BITS - 8])   # value with this byte
         known = Const(0, 1)
         for r in C.REGISTERS:
             fits = 1 if r.bits >= C.REGISTER_WORD_BITS else word[r.bits:] == 0
             known = known | ((address == r.address) & fits)
-        write_done = rx.valid & (opcode == OP_WRITE_REG) & (index == WRITE_REG_BYTES - 1)
-        unknown_op = rx.valid & (index == 0) & \
-            ~Cat(*[rx.payload == op for op in OPCODES]).any()
-        aborted = ~byte.selected & (opcode == OP_WRITE_REG) & (index >= 1) & \
-            (index < WRITE_REG_BYTES)
+        write_done = rx.valid & is_write & (index == WRITE_REG_BYTES - 1)
+        unknown_op = opening & ~Cat(*[rx.payload == op for op in OPCODES]).any()
+        aborted = ~byte.selected & is_write & (index < WRITE_REG_BYTES)
         count(errors, unknown_op | (write_done & ~known) | aborted)
         count(underruns, byte.underrun)
 
+        m.d.comb += [self.reg_addr.eq(address), self.reg_data.eq(value)]
         m.d.sync += self.reg_strobe.eq(write_done & known)
-        with m.If(write_done & known):
-            m.d.sync += [self.reg_addr.eq(address), self.reg_data.eq(word)]
         with m.If(rx.valid):
             m.d.sync += index.eq(Mux(index == index_max, index, index + 1))
             with m.If(index == 0):
-                m.d.sync += opcode.eq(rx.payload)
+                m.d.sync += [is_write.eq(rx.payload == OP_WRITE_REG),
+                             is_status.eq(rx.payload == OP_READ_STATUS),
+                             is_stream.eq(rx.payload == OP_READ_STREAM)]
             with m.Elif(index <= ADDRESS_BYTES):
                 m.d.sync += address.eq(Cat(rx.payload, address[:-8]))
             with m.Else():
                 m.d.sync += value.eq(word)
         with m.If(~byte.selected):
-            m.d.sync += [index.eq(0), opcode.eq(0)]
+            m.d.sync += [index.eq(0), is_write.eq(0), is_status.eq(0), is_stream.eq(0)]
 
         # ---- reply bytes ---------------------------------------------------------------
         # The byte being loaded at a boundary is number index + 1; a reply byte loaded with
         # index == first_reply - 1 + k is reply byte k, and has index == first_reply + k when
         # the master clocks its first bit (that is when a packet byte is consumed).
-        with m.If((opcode == OP_READ_STREAM) & (index >= first_reply - 1)):
+        with m.If(is_stream & (index >= first_reply - 1)):
             m.d.comb += [tx.valid.eq(self.packet.valid), tx.payload.eq(self.packet.payload),
                          self.packet.ready.eq(tx.ready & (index >= first_reply))]
         with m.Else():
             m.d.comb += [tx.valid.eq(1), tx.payload.eq(FILLER)]
-            with m.If(opcode == OP_READ_STATUS):
+            with m.If(is_status):
                 with m.Switch(index):
                     for k in range(STATUS_BYTES):
                         with m.Case(first_reply - 1 + k):

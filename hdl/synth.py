@@ -13,10 +13,12 @@ What is counted, and how (all of it is an **estimate**; Quartus' fit report is a
   Quartus may still put tiny memories in registers or pack two small ones in one block.
 * **Multipliers** (:func:`multiplier_elements`): every ``$mul`` left after Yosys' coarse
   optimisation, as 9x9 or 18x18 elements of the Cyclone IV embedded multipliers (operands up
-  to 9 bits: one 9x9; up to 18: one 18x18; wider: ``ceil(a/18) * ceil(b/18)`` 18x18 plus the
-  adders Quartus builds in LEs, which are not counted).  Yosys does no DSP mapping for
-  Cyclone IV E; here the multipliers are kept out of the logic count, as Quartus keeps them
-  out of the LEs.
+  to 9 bits: one 9x9; up to 18: one 18x18; wider: ``ceil(a/18) * ceil(b/18)`` 18x18).  Yosys
+  does no DSP mapping for Cyclone IV E; here the multipliers are kept out of the logic count,
+  as Quartus keeps them out of the LEs, but the adders around them are LEs
+  (:func:`multiplier_les`: the Cyclone IV multiplier has no adder): one adder of ``a + b``
+  bits per extra 18x18 element of a wide product, and one of the result's width per extra
+  term of a multiply-accumulate (``s + p * p``, which Yosys merges into one cell).
 * **Logic**: memories, multipliers and carry-chain arithmetic (``ARITH_CELLS``: adders,
   subtractors, magnitude comparators) are boxed before technology mapping; the rest is mapped
   to 4-input LUTs by Yosys' ``abc9 -lut 4`` (the ``synth_intel`` flow).  Arithmetic is then
@@ -120,6 +122,19 @@ def m9k_blocks(depth, width, read_ports=1, write_ports=1):
         shapes = [(d, w) for d, w in M9K_SHAPES if w <= M9K_TRUE_DUAL_PORT_WIDTH]
     per_copy = min(math.ceil(depth / d) * math.ceil(width / w) for d, w in shapes)
     return per_copy * max(read_ports, 1) * max(write_ports - 1, 1)
+
+
+def multiplier_les(parameters, y_width):
+    """LEs of the adders a boxed multiplier cell needs around its embedded elements
+    (module docstring): ``(elements - 1) * (a + b)`` per product wider than 18 bits, plus
+    ``(terms - 1) * y_width`` for a multiply-accumulate of several products and addends."""
+    les = 0
+    for a, b in _products(parameters):
+        les += (math.ceil(a / 18) * math.ceil(b / 18) - 1) * (a + b)
+    if "NPRODUCTS" in parameters:
+        terms = _param(parameters["NPRODUCTS"]) + _param(parameters["NADDENDS"])
+        les += max(terms - 1, 0) * y_width
+    return les
 
 
 def multiplier_elements(a_width, b_width):
@@ -268,10 +283,12 @@ def analyse(netlist, top):
             key, n = "ffs", 1
         elif kind == "lodestar_arith":
             key, n = "arith_les", len(cell["connections"]["Y"]) * (_addends(cell) - 1)
+        elif kind == "lodestar_mul":
+            mults.extend(_products(cell["parameters"]))
+            key, n = "arith_les", multiplier_les(cell["parameters"],
+                                                 len(cell["connections"]["Y"]))
         else:
             key, n = None, 0
-            if kind == "lodestar_mul":
-                mults.extend(_products(cell["parameters"]))
         if key:
             unit[key] += n
             totals[key] += n
@@ -408,7 +425,8 @@ ESTIMATE_NOTES = (
     "put small memories (FIFOs of a few entries) in registers instead, or pack memories "
     "differently.",
     "Multipliers are counted as Cyclone IV embedded 9x9/18x18 elements and kept out of the "
-    "LE count: Yosys does no DSP mapping for Cyclone IV E, Quartus does.",
+    "LE count: Yosys does no DSP mapping for Cyclone IV E, Quartus does; the adders around "
+    "them (partial products of wide operands, multiply-accumulates) are counted as LEs.",
     "LEs = Yosys LUT4s of the random logic (abc9 -lut 4) + one LE per bit of each adder, "
     "subtractor and comparator (Quartus' carry chains); Quartus packs flip-flops into the "
     "same LEs, so total LEs are about max(LEs, FFs) and usually a little more.",

@@ -15,24 +15,31 @@ are latched on each ``sof`` and describe that frame.
 
 Fixed and global mode: ``out`` follows the input one clock later.
 
-Global mode: the unit accumulates ``S1 = sum(p)`` and ``S2 = sum(p*p)`` over every frame
-(in every mode).  When a frame completes a sequential unit computes the next frame's
-levels exactly as ``contract.global_levels``::
+Global mode: the unit accumulates ``S1 = sum(p)`` and ``S2 = sum(p*p)`` over the pixels of
+every frame (in every mode; a ``sof`` restarts them).  When a frame completes a sequential
+unit computes the next frame's levels exactly as ``contract.global_levels``::
 
-    B = S1 // N;  V = N*S2 - S1**2;  r = isqrt(K*K*V);  T = min(B + r // (16 N), full_scale)
+    B = S1 // N;  V = N*S2 - S1**2;  D = isqrt(K*K*V) // (16 N);  T = min(B + D, full_scale)
 
-in shift registers, one bit per clock and no variable shift: shift-add multipliers (a
-product register shifting right, its LSB the next multiplier bit), restoring dividers (the
-dividend shifting into the remainder) and a digit-by-digit square root (the operand shifting
-out two bits a clock); ``B``, ``S1**2`` and ``N*S2`` are computed side by side.  The levels
-are ready ``global_cycles(width, height, pixel_bits)`` clocks after the frame's last pixel
-(188 for 2592 x 1944 x 12 bits).
-The ``ksigma`` register is read when the k-dependent part starts; if the MCU rewrites it
-between frames, that part (``ksigma_cycles(...)`` clocks) is redone.  So the levels are
-those of the ksigma in effect at the next frame's start provided the register was written
-at least ``ksigma_cycles`` clocks before it (and the frame's last pixel came at least
-``global_cycles`` before).  A frame that starts earlier, or after an incomplete frame, uses
-the fixed registers and raises ``frame_fallback`` (``FRAME_GLOBAL_FALLBACK``).
+by searching ``B`` and then ``D`` bit by bit, MSB first (``D`` below ``2**pixel_bits``:
+``min(D, full_scale)`` gives the same ``T``): with ``c`` the bits found so far and the
+trial bit, a trial tests ``N*c <= S1`` (``B``) or ``256*N*N*c*c <= K*K*(N*S2 - S1*S1)``
+(``D``).  A trial streams both sides of its comparison LSB first, one bit per clock,
+through serial multipliers (a register of the partial product's upper bits and an adder
+one bit wider than the fixed factor: ``N``, ``S1``, ``K``, ``c``) and a serial subtraction
+whose last borrow decides the trial; ``S1`` and ``S2`` are read in place by rotating the
+accumulators once per trial, ``N`` and ``256*N*N`` come from constant tables.  Nothing
+wider than ``S1`` is stored.  The levels are ready ``global_cycles(width, height,
+pixel_bits)`` clocks after the frame's last pixel (1465 for 2592 x 1944 x 12 bits, 1041
+for 752 x 480 x 10: less than the labeller's own blanking at 2592 columns).
+The ``ksigma`` register is read when the ``D`` search starts; if the MCU rewrites it, the
+``D`` search is restarted at the end of the trial under way (or started again, between
+frames).  So the levels are those of the ksigma in effect at the next frame's start
+provided the register was written at least ``ksigma_cycles`` clocks before it (1079 for
+2592 x 1944 x 12) and the frame's last pixel came at least ``global_cycles`` before.  A
+frame that starts earlier, or after an incomplete frame, uses the fixed registers and
+raises ``frame_fallback`` (``FRAME_GLOBAL_FALLBACK``); a ``sof`` abandons a computation
+under way.
 
 Local mode (``L = 2**local_log2_window``, ``half = L/2``): per pixel ``x`` of a row, with
 ``s = contract.local_window_start(x, W, log2 L)``::
@@ -40,27 +47,29 @@ Local mode (``L = 2**local_log2_window``, ``half = L/2``): per pixel ``x`` of a 
     M = (sum(p[s .. s+L]) - p[x]) >> log2(L);   T = min(M + local_offset, full_scale);   B = M
 
 The window reaches up to ``L`` columns ahead of ``x``, so local-mode pixels go through a
-circular buffer of ``local_depth(W)`` entries (256 for ``L`` up to 128), in three copies in
-synchronous-read memories (one M9K each): one read at ``x``, with the pixel's ``eol`` bit,
-one at ``x + half`` and one at ``x - half - 1``.  The window sum is kept running: at
-``x = 0`` it is the row's first window ``p[0] + .. + p[L]``, added up on the input side as
-the row arrives and handed over in a register; at each ``x`` with
-``half < x <= W - 1 - half`` (where ``s`` advances by one) it gains ``p[x + half]`` and
-loses ``p[x - half - 1]``; elsewhere ``s`` is clamped and the sum stays.  A pixel is
-*ready* once ``L`` more pixels of the frame have come after it, or its row's last pixel has
-come; ready pixels are read one per clock, in order (every address read was written on an
-earlier clock: no read-during-write), and a pixel's beat follows its read 4 clocks later
-(window sum, ``M``, output register).
+circular buffer of ``local_depth(W)`` entries (256 for ``L`` up to 128) in synchronous-read
+memories (one M9K each at 2592 x 1944 x 12): the pixel with its position and ``eof`` as the
+input counts them (read at ``x``), and two copies of the frame's running sum ``S1`` modulo
+``2**bits((L + 1) * full_scale)``, one after each pixel (read at the window's last pixel
+``s + L``) and one before it (read at its first, ``s``), so a window's sum is one
+difference.  The window moves (``s`` advances by one) at each ``x`` with ``half < x <= W -
+1 - half``; elsewhere the second copy's read port keeps its word, so no read reaches back
+more than ``half`` pixels before ``x``.  A pixel is *ready* once ``L`` more pixels of the
+frame have come after it, or its row's last pixel has come; ready pixels are read one per
+clock, in order (every address read was written on an earlier clock: no
+read-during-write), and a pixel's beat follows its read 5 clocks later (window addresses,
+window sum less the pixel, ``M`` (the shift by ``log2 L`` is a product with ``2**(7 - log2
+L)`` in an embedded multiplier), output register with lit and weight).
 
-* Latency: a pixel's beat comes ``LOCAL_LATENCY`` (5) clocks after the input pixel that
+* Latency: a pixel's beat comes ``LOCAL_LATENCY`` (6) clocks after the input pixel that
   made it ready, or one clock after the previous beat if that is later; within a row
-  streaming without gaps, ``L + 5`` clocks after the pixel itself (fixed mode: 1).  The
+  streaming without gaps, ``L + 6`` clocks after the pixel itself (fixed mode: 1).  The
   last ``L`` pixels of a row follow the row's last pixel one per clock, during the
   horizontal blanking or the next row's first pixels: any horizontal blanking, none
   included, works.  After a frame's last pixel its remaining pixels drain by themselves;
-  the ``eof`` beat comes at most ``L + 5`` clocks after it.
-* Vertical blanking: after a local-mode frame, ``local_blanking(log2 L)`` = ``L + 4`` idle
-  clocks between its last pixel and the next ``sof`` (132 for ``L = 128``; a sensor's
+  the ``eof`` beat comes at most ``L + 6`` clocks after it.
+* Vertical blanking: after a local-mode frame, ``local_blanking(log2 L)`` = ``L + 5`` idle
+  clocks between its last pixel and the next ``sof`` (133 for ``L = 128``; a sensor's
   vertical blanking, rows long, is more).  Before a local-mode frame none.  One frame at a
   time is in the buffer: a ``sof`` that comes earlier, or that cuts a local-mode frame
   short, discards the delayed pixels not yet out and raises ``frame_tail_dropped`` for the
@@ -100,67 +109,69 @@ def lit_layout(width, height, pixel_bits):
     })
 
 
-def _widths(width, height, pixel_bits):
-    """Bit widths and clock counts of the global-mode arithmetic, from the contract's bounds."""
-    n = width * height
-    fs = C.full_scale(pixel_bits)
+def _pass_bits(width, height, pixel_bits):
+    """Clocks of one trial of ``B`` and of ``D`` (bits of the numbers the trial compares)."""
+    nfs = width * height * C.full_scale(pixel_bits)
     kmax = (1 << C.KSIGMA_BITS) - 1
-    w = {"n": C.bits_for(n), "s1": C.bits_for(n * fs), "s2": C.bits_for(n * fs * fs)}
-    w["sq"] = 2 * w["s1"]                               # S1**2
-    w["v"] = C.bits_for(n * n * fs * fs)                # N*S2 - S1**2 <= N**2 fs**2
-    w["x"] = C.bits_for(kmax * kmax * n * n * fs * fs)  # K**2 V
-    w["x"] += w["x"] & 1                                # even, for the square root
-    w["r"] = w["x"] // 2
-    w["k2"] = 2 * C.KSIGMA_BITS
-    w["b"] = w["s1"] - w["n"] + 1                       # quotient bits of S1 // N
-    w["d"] = w["r"] - C.bits_for(n << C.KSIGMA_FRAC_BITS) + 1   # of isqrt(K**2 V) // (16 N)
-    w["rem"] = max(w["r"] + 1, C.bits_for(n << C.KSIGMA_FRAC_BITS))  # root / D remainder
-    w["p"] = max(w["n"] + w["s2"], w["k2"] + w["v"], w["x"])  # product register
-    return w
+    # B: S1 against N*c (c <= fs), and one clock more so that S1, which rotates while it
+    # is streamed, is in place in a trial's last clock (where the D search copies it).
+    # D: K*K*V (V <= (N fs)**2 / 4, Popoviciu) against 256*N*N*c*c; every partial product
+    # of the chain is below these bounds too.
+    return (C.bits_for(nfs) + 1,
+            C.bits_for(max(kmax * kmax * nfs * nfs // 4, (nfs << C.KSIGMA_FRAC_BITS) ** 2)))
 
 
 def ksigma_cycles(width, height, pixel_bits):
-    """Clocks of the k-dependent part: K*K, K*K*V, square root, division, done."""
-    w = _widths(width, height, pixel_bits)
-    return C.KSIGMA_BITS + w["v"] + w["r"] + w["d"] + 2
+    """Clocks from a ``ksigma`` write to levels computed with it: the ``D`` search (one
+    trial per bit of ``D``) and the rest of the trial under way when it was written."""
+    _, ld = _pass_bits(width, height, pixel_bits)
+    return (pixel_bits + 1) * ld
 
 
 def global_cycles(width, height, pixel_bits):
-    """Clocks the global-mode computation needs after a frame's last pixel."""
-    w = _widths(width, height, pixel_bits)
-    # LOAD, then S1 // N, S1*S1 and N*S2 side by side, SUB, then the k-dependent part
-    return 1 + w["s2"] + 1 + ksigma_cycles(width, height, pixel_bits)
+    """Clocks the global-mode computation needs after a frame's last pixel: the ``B``
+    search (a flush trial and one per bit), the ``D`` search and the clock that starts
+    it."""
+    lb, ld = _pass_bits(width, height, pixel_bits)
+    return (pixel_bits + 1) * lb + pixel_bits * ld + 1
 
 
-def _mul_step(prod, multiplier_bits, multiplicand):
-    """One clock of a shift-add multiplier: the new value of the product register ``prod``.
+def _serial_mul(m, bit, multiplicand):
+    """One bit of a serial (LSB first) product ``multiplicand * stream``: returns the output
+    bit of the clock in which the stream's bit is ``bit``.
 
-    The low ``multiplier_bits`` bits of ``prod`` hold the multiplier bits not used yet, LSB
-    first, and the bits above them the partial product: ``multiplicand`` (a fixed value) is
-    added above them if the LSB is set, then the register shifts right one bit.  Loaded with
-    the multiplier (upper bits 0), ``prod`` holds the product after ``multiplier_bits``
-    clocks; the adder is one bit wider than ``multiplicand``.
+    The register ``h`` holds the partial product's bits above the output: each clock
+    ``h + bit * multiplicand`` gives the output bit (its LSB) and the new ``h`` (the rest).
+    Streaming more clocks than the product has bits (with zero stream bits) leaves ``h``
+    at 0, so nothing needs clearing between products; the adder is one bit wider than the
+    multiplicand.
     """
-    high = prod[multiplier_bits:multiplier_bits + len(multiplicand)]
-    return Cat(prod[1:multiplier_bits], high + Mux(prod[0], multiplicand, 0))
+    h = Signal(len(multiplicand), reset_less=True)
+    total = h + Mux(bit, multiplicand, 0)
+    m.d.sync += h.eq(total[1:])
+    return h[0] ^ (bit & multiplicand[0])
 
 
-def _div_step(rem, quo, divisor):
-    """One clock of a restoring divider: the new values of ``(rem, quo)``.
-
-    ``rem`` (the partial remainder, below ``divisor``) takes in the top bit of ``quo`` (the
-    dividend bits not used yet, MSB first); ``divisor`` is subtracted if it fits and the
-    quotient bit enters ``quo`` at the bottom.  Loaded with a dividend's top bits in ``rem``
-    (below ``divisor``) and the rest in ``quo``, ``quo`` holds the quotient and ``rem`` the
-    remainder after ``len(quo)`` clocks.
-    """
-    trial = Cat(quo[-1], rem)
-    diff = trial - divisor
-    fits = ~diff[-1]
-    return Mux(fits, diff, trial)[:len(rem)], Cat(fits, quo[:-1])
+def _below(value, bound):
+    """``value < bound`` for a constant ``bound``, as logic rather than a carry chain."""
+    if bound >> len(value):
+        return Const(1)
+    result = Const(0)
+    for i, bit in enumerate(value):              # decided by the highest differing bit
+        result = (~bit | result) if (bound >> i) & 1 else (~bit & result)
+    return result
 
 
-LOCAL_LATENCY = 5
+def _serial_sub(m, a, b, keep):
+    """One bit of a serial (LSB first) difference ``a - b``: returns the difference bit and
+    the borrow out; the borrow is kept for the next clock while ``keep``, else cleared."""
+    borrow = Signal(reset_less=True)
+    out = (~a & b) | (~a & borrow) | (b & borrow)
+    m.d.sync += borrow.eq(out & keep)
+    return a ^ b ^ borrow, out
+
+
+LOCAL_LATENCY = 6
 """Local mode: clocks from the input pixel that makes a pixel ready to that pixel's beat."""
 
 
@@ -231,14 +242,13 @@ class ThresholdUnit(wiring.Component):
         W, H, pb = self.width, self.height, self.pixel_bits
         N = W * H
         fs = C.full_scale(pb)
-        wd = _widths(W, H, pb)
         inp, out = self.pixels, self.out
         p = inp.payload.data
         sof = inp.payload.sof
 
         # ---- position and frame integrity -------------------------------------------
-        x = Signal(range(W))
-        y = Signal(range(H))
+        x = Signal(range(W), reset_less=True)
+        y = Signal(range(H), reset_less=True)
         in_frame = Signal()
         frame_ok = Signal()          # every line so far was exactly W long
         cur_x = Mux(sof, 0, x)
@@ -248,124 +258,153 @@ class ThresholdUnit(wiring.Component):
         frame_end = inp.valid & last_col & (cur_y == H - 1) & (in_frame | sof)
 
         # ---- levels latched at the start of each frame -------------------------------
-        next_t = Signal(pb)
-        next_b = Signal(pb)
+        next_t = Signal(pb, reset_less=True)
+        next_b = Signal(pb, reset_less=True)
         stats_valid = Signal()       # next_t/next_b hold the levels for ksigma == kreg
-        kreg = Signal(C.KSIGMA_BITS)  # the ksigma the levels are computed for
-        have_v = Signal()            # the last frame was complete and V is computed
-        t_frame = Signal(pb)
-        b_frame = Signal(pb)
+        kreg = Signal(C.KSIGMA_BITS, reset_less=True)  # the ksigma the levels are computed for
+        have_v = Signal()            # S1, S2 hold a complete frame and next_b its B
+        t_frame = Signal(pb, reset_less=True)
+        b_frame = Signal(pb, reset_less=True)
         # a sof while in_frame: the previous frame never ended, so its statistics are
-        # missing and this frame falls back, as after an incomplete frame
-        use_global = (self.mode == C.MODE_GLOBAL) & stats_valid & ~self.stats_busy & \
-            (kreg == self.ksigma) & ~in_frame
-        t_new = Mux(use_global, next_t, self.threshold)
-        b_new = Mux(use_global, next_b, self.background)
-        t_eff = Mux(sof, t_new, t_frame)
-        b_eff = Mux(sof, b_new, b_frame)
+        # missing and this frame falls back, as after an incomplete frame.  (stats_valid is
+        # 0 while the levels are being computed.)
+        k_same = kreg == self.ksigma
+        use_global = (self.mode == C.MODE_GLOBAL) & stats_valid & k_same & ~in_frame
 
         lg_reg = self.local_log2_window
-        window_ok = ((lg_reg >= C.LOCAL_LOG2_WINDOW_MIN) & (lg_reg <= C.LOCAL_LOG2_WINDOW_MAX)
-                     & ((Const(1, 1) << lg_reg) < W))
+        lg_max = local_log2_window_max(W)    # window narrower than the frame
+        lg_table = range(C.LOCAL_LOG2_WINDOW_MIN, (lg_max or C.LOCAL_LOG2_WINDOW_MIN - 1) + 1)
+        window_ok = Const(0)
+        for k in lg_table:
+            window_ok |= lg_reg == k
         local_new = (self.mode == C.MODE_LOCAL) & window_ok
-        offset_sat = Mux(self.local_offset > fs, fs, self.local_offset)[:pb]
+        offset_sat = Mux(self.local_offset[pb:].any(), fs, self.local_offset[:pb])
         local_frame = Signal()       # the current frame is processed in local mode
-        lg = Signal.like(lg_reg)     # its log2(L) and offset
-        offset = Signal(pb)
+        lg = Signal.like(lg_reg, reset_less=True)  # its log2(L)
         local_pix = Mux(sof, local_new, local_frame)
+        # the frame's T and B (local mode: the offset and 0), latched on the sof pixel
+        sof_v = inp.valid & sof
+        t_new = Mux(use_global, next_t, self.threshold)
+        b_new = Mux(use_global, next_b, self.background)
+        t_eff = Mux(sof_v, Mux(local_new, offset_sat, t_new), t_frame)
+        b_eff = Mux(sof_v, Mux(local_new, 0, b_new), b_frame)
+        m.d.sync += [t_frame.eq(t_eff), b_frame.eq(b_eff)]
+        m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
+
+        # ---- statistics of the frame -------------------------------------------------
+        # Pixels of a frame only (a stray pixel between frames leaves them alone); a sof
+        # restarts them.  The global-levels unit reads them in place by rotating them right
+        # (exactly once per trial, so they are back in place after it).  S1 after each pixel
+        # is also local mode's prefix sum.
+        s1 = Signal(C.bits_for(N * fs), reset_less=True)
+        s2 = Signal(C.bits_for(N * fs * fs), reset_less=True)
+        p_frame = Mux(inp.valid & (sof | in_frame), p, 0)
+        rot1 = Signal()
+        rot2 = Signal()
+        s1_base = Mux(sof_v, 0, Mux(rot1, s1.rotate_right(1), s1))
+        s1_new = s1_base + p_frame
+        m.d.sync += [
+            s1.eq(s1_new),
+            s2.eq(Mux(sof_v, 0, Mux(rot2, s2.rotate_right(1), s2)) + p_frame * p_frame),
+        ]
 
         # ---- local mode: input side --------------------------------------------------
+        # Each pixel is stored with its position and eof as the input counts them, and with
+        # its frame's running sum (S1 modulo 2**sum_bits) after it (end copy) and before it
+        # (start copy): a window's sum is the end copy at its last pixel minus the start
+        # copy at its first.
         depth = local_depth(W)
-        win_max = 1 << (local_log2_window_max(W) or C.LOCAL_LOG2_WINDOW_MIN)
+        win_max = 1 << (lg_max or C.LOCAL_LOG2_WINDOW_MIN)
         sum_bits = C.bits_for((win_max + 1) * fs)
-        entry = data.StructLayout({"data": pb, "eol": 1})
+        entry = data.StructLayout({"data": pb, "x": range(W), "y": range(H), "eof": 1})
         m.submodules.px_mem = px_mem = Memory(shape=entry, depth=depth, init=[])
-        m.submodules.add_mem = add_mem = Memory(shape=pb, depth=depth, init=[])
-        m.submodules.sub_mem = sub_mem = Memory(shape=pb, depth=depth, init=[])
-        px_rd, add_rd, sub_rd = px_mem.read_port(), add_mem.read_port(), sub_mem.read_port()
+        m.submodules.end_mem = end_mem = Memory(shape=sum_bits, depth=depth, init=[])
+        m.submodules.start_mem = start_mem = Memory(shape=sum_bits, depth=depth, init=[])
+        px_rd, end_rd, start_rd = px_mem.read_port(), end_mem.read_port(), start_mem.read_port()
         wr = inp.valid & local_pix & (sof | in_frame)    # a pixel of a local-mode frame
         drop = inp.valid & sof       # a new frame: discard what is left of the last one
-        wp = Signal(range(depth))    # buffer address of the next pixel written
-        for mem in (px_mem, add_mem, sub_mem):
-            port = mem.write_port()
+        wp = Signal(range(depth), reset_less=True)  # buffer address of the next pixel written
+        px_wr, end_wr, start_wr = px_mem.write_port(), end_mem.write_port(), start_mem.write_port()
+        for port in (px_wr, end_wr, start_wr):
             m.d.comb += [port.addr.eq(wp), port.en.eq(wr)]
-            m.d.comb += port.data.eq(Cat(p, inp.payload.eol) if mem is px_mem else p)
-        row_sum = Signal(sum_bits)   # p[0] + .. + p[x] (wraps after column L, unused then)
-        first_sum = Signal(sum_bits)  # the row's first window p[0] + .. + p[L]
-        row_sum_new = Mux(cur_x == 0, 0, row_sum) + p
+        m.d.comb += [px_wr.data.eq(Cat(p, cur_x, cur_y, frame_end)),
+                     end_wr.data.eq(s1_new[:sum_bits]), start_wr.data.eq(s1_base[:sum_bits])]
         win = Const(1, 1) << lg      # L of the current frame
-        half = win >> 1
-        step_last = Signal(range(W))  # W - 1 - half of the current frame (latched with lg)
         with m.If(wr):
-            m.d.sync += [wp.eq(wp + 1), row_sum.eq(row_sum_new)]
-            with m.If(cur_x == win):
-                m.d.sync += first_sum.eq(row_sum_new)
+            m.d.sync += wp.eq(wp + 1)
 
         # ---- local mode: reads, one ready pixel per clock ----------------------------
         lag = Signal(range(depth))   # pixels written and not yet read
-        since_end = Signal(range(depth), init=depth - 1)  # written since a row's last pixel
-        ra = Signal(range(depth))    # buffer address of the oldest unread pixel
-        ready = (lag > win) | (since_end < lag)
-        rd = ready & ~drop
-        m.d.comb += [px_rd.addr.eq(ra), add_rd.addr.eq(ra + half),
-                     sub_rd.addr.eq(ra - half - 1)]
+        ended = Signal(range(depth))  # of them, those up to the last row end written
+        ra = Signal(range(depth), reset_less=True)  # buffer address of the oldest unread pixel
+        rd = ((lag > win) | (ended != 0)) & ~drop
+        lag_new = lag + Cat(wr ^ rd, (rd & ~wr).replicate(len(lag) - 1))
+        row_end = wr & (last_col | inp.payload.eol)
+        m.d.comb += px_rd.addr.eq(ra)
         with m.If(drop):
-            m.d.sync += [ra.eq(wp), lag.eq(wr)]
+            m.d.sync += [ra.eq(wp), lag.eq(wr), ended.eq(row_end)]
         with m.Else():
-            m.d.sync += [ra.eq(ra + rd), lag.eq(lag + wr - rd)]
-        since_base = Mux(drop, depth - 1, since_end)
-        with m.If(wr):
-            m.d.sync += since_end.eq(Mux(last_col | inp.payload.eol, 0,
-                                         Mux(since_base == depth - 1, since_base,
-                                             since_base + 1)))
-        with m.Elif(drop):
-            m.d.sync += since_end.eq(depth - 1)
+            m.d.sync += [ra.eq(ra + rd), lag.eq(lag_new),
+                         ended.eq(Mux(row_end, lag_new, ended - (rd & (ended != 0))))]
 
-        # stage 1: position (counted as on the input side) and running window sum
+        # stage 1: the pixel's window, from its column x: its last pixel s + L (an address
+        # of the end copy) and its first s (of the start copy).  The window moves (s
+        # advances by one) at each x with half < x <= W - 1 - half; elsewhere the start
+        # copy's read port keeps its last word, so no read reaches back more than half
+        # pixels before the pixel.
         st1_valid = Signal()
-        xo = Signal(range(W))
-        yo = Signal(range(H))
-        acc = Signal(sum_bits)       # sum(p[s .. s+L]) of the pixel in stage 2
-        step = (xo > half) & (xo <= step_last)
-        beat = data.StructLayout({"data": pb, "x": range(W), "y": range(H), "eof": 1})
-        st2 = Signal(beat)
+        ra1 = Signal(range(depth), reset_less=True)  # buffer address of the stage-1 pixel
+        last_end = Signal(range(depth), reset_less=True)  # window end of the last pixel
+        x1 = px_rd.data.x
+        row_start = x1 == 0
+        moving = Signal(reset_less=True)  # the window moved at the row's previous pixel
+        # x runs 0, 1, 2, .. along a row: the window moves from x = half + 1 up to, not
+        # including, x = W - half
+        move_first = Const(0, range(W + 1))
+        move_end = Const(0, range(W + 1))
+        for k in lg_table:
+            move_first = Mux(lg == k, (1 << (k - 1)) + 1, move_first)
+            move_end = Mux(lg == k, W - (1 << (k - 1)), move_end)
+        step = ((x1 == move_first) | moving) & (x1 != move_end) & ~row_start
+        end_addr = Mux(row_start, ra1 + win, last_end + step)
+        m.d.comb += [end_rd.addr.eq(end_addr), start_rd.addr.eq(end_addr - win),
+                     start_rd.en.eq(row_start | step)]
+        st2 = Signal(entry, reset_less=True)
         st2_valid = Signal()
-        m.d.sync += [st1_valid.eq(rd), st2_valid.eq(st1_valid & ~drop),
-                     st2.data.eq(px_rd.data.data), st2.x.eq(xo), st2.y.eq(yo),
-                     st2.eof.eq((xo == W - 1) & (yo == H - 1))]
-        with m.If(drop):
-            m.d.sync += [xo.eq(0), yo.eq(0)]
-        with m.Elif(st1_valid):
-            with m.If((xo == W - 1) | px_rd.data.eol):
-                m.d.sync += [xo.eq(0), yo.eq(Mux(yo == H - 1, 0, yo + 1))]
-            with m.Else():
-                m.d.sync += xo.eq(xo + 1)
-            m.d.sync += acc.eq(Mux(xo == 0, first_sum, acc)
-                               + Mux(step, add_rd.data, 0) - Mux(step, sub_rd.data, 0))
+        m.d.sync += [st1_valid.eq(rd), st2_valid.eq(st1_valid & ~drop), ra1.eq(ra),
+                     st2.eq(px_rd.data)]
+        with m.If(st1_valid):
+            m.d.sync += [last_end.eq(end_addr), moving.eq(step)]
 
-        # stage 2: the window mean M
-        st3 = Signal(beat)
-        mean = Signal(pb)            # M of the pixel in stage 3 (<= full scale)
+        # stage 2: the sum of the window's other L pixels
+        st3 = Signal(entry, reset_less=True)
         st3_valid = Signal()
-        m.d.sync += [st3_valid.eq(st2_valid & ~drop), st3.eq(st2),
-                     mean.eq((acc - st2.data)[:sum_bits] >> lg)]
-        # stage 3 (into the output register): T, lit and weight
-        level = mean + offset
-        t_local = Mux(level > fs, fs, level)
-        local_valid = st3_valid & ~drop
+        others = Signal(sum_bits, reset_less=True)
+        m.d.sync += [others.eq(end_rd.data - start_rd.data - st2.data),
+                     st3_valid.eq(st2_valid & ~drop), st3.eq(st2)]
+        # stage 3: the window mean M
+        st4 = Signal(entry, reset_less=True)
+        st4_valid = Signal()
+        mean = Signal(pb, reset_less=True)
+        # others >> log2(L) as a product (an embedded multiplier instead of a shifter)
+        scale = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
+        for k in lg_table:
+            scale = Mux(lg == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k), scale)
+        mean_now = (others * scale)[C.LOCAL_LOG2_WINDOW_MAX:][:pb]
+        m.d.sync += [st4_valid.eq(st3_valid & ~drop), st4.eq(st3), mean.eq(mean_now)]
+        # stage 4 (into the output register): lit and weight.  p > min(M + offset, fs) is
+        # p - M > offset for p <= fs; t_eff is the frame's offset in a local frame.
+        local_valid = st4_valid & ~drop
         fixed_valid = inp.valid & ~local_pix
 
         with m.If(inp.valid):
             with m.If(sof):
                 m.d.sync += [
-                    t_frame.eq(t_new), b_frame.eq(b_new),
-                    self.frame_threshold.eq(Mux(local_new, offset_sat, t_new)),
-                    self.frame_background.eq(Mux(local_new, 0, b_new)),
                     self.frame_fallback.eq((self.mode == C.MODE_GLOBAL) & ~use_global),
                     self.frame_local_fallback.eq((self.mode == C.MODE_LOCAL) & ~window_ok),
-                    self.frame_tail_dropped.eq((lag != 0) | st1_valid | st2_valid | st3_valid),
-                    local_frame.eq(local_new), lg.eq(lg_reg), offset.eq(offset_sat),
-                    step_last.eq(W - 1 - ((Const(1, 1) << lg_reg) >> 1)),
+                    self.frame_tail_dropped.eq((lag != 0) | st1_valid | st2_valid | st3_valid
+                                               | st4_valid),
+                    local_frame.eq(local_new), lg.eq(lg_reg),
                     in_frame.eq(1),
                 ]
             with m.If(last_col | inp.payload.eol):
@@ -376,124 +415,90 @@ class ThresholdUnit(wiring.Component):
             with m.If(frame_end):
                 m.d.sync += in_frame.eq(0)
 
-        # ---- output register: the input pixel (fixed, global) or stage 3 (local) ------
-        m.d.sync += out.valid.eq(fixed_valid | local_valid)
-        with m.If(local_valid):
-            m.d.sync += [
-                out.payload.data.eq(st3.data),
-                out.payload.x.eq(st3.x),
-                out.payload.y.eq(st3.y),
-                out.payload.lit.eq(st3.data > t_local),
-                out.payload.weight.eq(Mux(st3.data > mean, st3.data - mean, 0)),
-                out.payload.eof.eq(st3.eof),
-            ]
-        with m.Else():
-            m.d.sync += [
-                out.payload.data.eq(p),
-                out.payload.x.eq(cur_x),
-                out.payload.y.eq(cur_y),
-                out.payload.lit.eq(p > t_eff),
-                out.payload.weight.eq(Mux(p > b_eff, p - b_eff, 0)),
-                out.payload.eof.eq(frame_end),
-            ]
+        # ---- output register: the input pixel (fixed, global) or stage 4 (local) ------
+        beat_out = Signal.like(out.payload, reset_less=True)
+        m.d.comb += out.payload.eq(beat_out)
+        value = Mux(local_valid, st4.data, p)
+        above_local = st4.data - mean
+        above = Mux(local_valid, above_local, p - b_eff)           # weight, if not < 0
+        below = t_eff - Mux(local_valid, above_local, p)           # < 0: lit
+        m.d.sync += [
+            out.valid.eq(fixed_valid | local_valid),
+            beat_out.data.eq(value),
+            beat_out.x.eq(Mux(local_valid, st4.x, cur_x)),
+            beat_out.y.eq(Mux(local_valid, st4.y, cur_y)),
+            beat_out.lit.eq(below[-1]),
+            beat_out.weight.eq(Mux(above[-1], 0, above[:pb])),
+            beat_out.eof.eq(Mux(local_valid, st4.eof, frame_end)),
+        ]
 
-        # ---- statistics of the frame -------------------------------------------------
-        s1 = Signal(wd["s1"])
-        s2 = Signal(wd["s2"])
-        with m.If(inp.valid):
-            m.d.sync += [s1.eq(Mux(sof, 0, s1) + p),
-                         s2.eq(Mux(sof, 0, s2) + p * p)]
         complete = frame_end & Mux(sof, 1, frame_ok) & ~line_error
 
         # ---- sequential global-levels unit -------------------------------------------
-        # Shift registers only: every step is a fixed-width add or subtract (_mul_step,
-        # _div_step, the root step); no variable shift and no variable bit select.
-        a1 = Signal(wd["s1"])        # S1: the multiplicand of S1*S1
-        sq = Signal(wd["sq"])        # S1*S1 product register (multiplier: a copy of S1)
-        bq = Signal(wd["b"])         # S1 // N: dividend bits, then B
-        rem_b = Signal(wd["n"])      # its remainder
-        prod = Signal(wd["p"])       # N*S2, then K*K*V product register; root operand
-        vreg = Signal(wd["v"])       # N*S2 - S1**2 of the last complete frame
-        k2 = Signal(wd["k2"])        # K*K product register (multiplier: a copy of K)
-        root = Signal(wd["r"])       # isqrt(K*K*V), then its dividend bits and D
-        rem = Signal(wd["rem"])      # root remainder, then D remainder
-        i = Signal(range(max(wd["s2"], C.KSIGMA_BITS, wd["v"], wd["r"], wd["d"])))  # clocks left
-        divisor = N << C.KSIGMA_FRAC_BITS
-        m.d.comb += self.stats_busy.eq(0)
+        # B = S1 // N and D = isqrt(K*K*V) // (16 N) are searched bit by bit, MSB first
+        # (c is the value found so far with the trial bit set):
+        #   B: N*c <= S1;   D: 256*N*N*c*c <= K*K*(N*S2 - S1*S1)
+        # (D is searched below 2**pb: D' = min(D, fs) gives the same T).  Each trial streams
+        # both sides LSB first through serial multipliers and compares them serially: a
+        # trial passes if the difference has no borrow out.  Nothing wide is stored:
+        # S1 and S2 are read in place, one bit per clock.  B's first trial only flushes
+        # what an abandoned computation left in the multipliers of c (its c is 0); the
+        # other multipliers get zeros during B's trials.
+        lb, ld = _pass_bits(W, H, pb)
+        run = Signal()               # a trial is under way
+        dphase = Signal()            # searching D (else B)
+        tbit = Signal(range(max(lb, ld)), reset_less=True)  # bit of the trial in this clock
+        trial = Signal(pb + 1, reset_less=True)  # the trial bit, one-hot (pb: B's flush trial)
+        found = Signal(pb, reset_less=True)  # the bits of B or D found so far
+        last = tbit == Mux(dphase, ld - 1, lb - 1)
+        c = found | trial[:pb]
 
-        with m.FSM():
-            with m.State("IDLE"):
-                with m.If(complete):
-                    m.d.sync += stats_valid.eq(0)
-                    m.next = "LOAD"
-                with m.Elif(frame_end | (inp.valid & sof & in_frame)):
-                    m.d.sync += [stats_valid.eq(0), have_v.eq(0)]   # incomplete frame
-                with m.Elif(have_v & (self.ksigma != kreg)):
-                    # ksigma was rewritten between frames: redo the k-dependent part
-                    m.d.sync += [stats_valid.eq(0), kreg.eq(self.ksigma), k2.eq(self.ksigma),
-                                 i.eq(C.KSIGMA_BITS - 1)]
-                    m.next = "K2"
-            with m.State("LOAD"):             # s1, s2 now hold the complete frame's sums
-                m.d.comb += self.stats_busy.eq(1)
-                m.d.sync += [a1.eq(s1), sq.eq(s1), bq.eq(s1[:wd["b"]]), rem_b.eq(s1[wd["b"]:]),
-                             prod.eq(s2), i.eq(wd["s2"] - 1)]
-                m.next = "STATS"
-            with m.State("STATS"):            # bq = S1 // N, sq = S1*S1, prod = N*S2
-                m.d.comb += self.stats_busy.eq(1)
-                with m.If(i >= wd["s2"] - wd["b"]):
-                    new_rem, new_quo = _div_step(rem_b, bq, N)
-                    m.d.sync += [rem_b.eq(new_rem), bq.eq(new_quo)]
-                with m.If(i >= wd["s2"] - wd["s1"]):
-                    m.d.sync += sq.eq(_mul_step(sq, wd["s1"], a1))
-                m.d.sync += [prod.eq(_mul_step(prod, wd["s2"], Const(N, wd["n"]))),
-                             i.eq(i - 1)]
-                with m.If(i == 0):
-                    m.next = "SUB"
-            with m.State("SUB"):              # vreg = V = N*S2 - S1**2 (>= 0)
-                m.d.comb += self.stats_busy.eq(1)
-                m.d.sync += [vreg.eq(prod[:wd["v"]] - sq[:wd["v"]]), have_v.eq(1),
-                             kreg.eq(self.ksigma), k2.eq(self.ksigma),
-                             i.eq(C.KSIGMA_BITS - 1)]
-                m.next = "K2"
-            with m.State("K2"):               # k2 = K*K, K = kreg (the ksigma register)
-                m.d.comb += self.stats_busy.eq(1)
-                m.d.sync += [k2.eq(_mul_step(k2, C.KSIGMA_BITS, kreg)), i.eq(i - 1)]
-                with m.If(i == 0):
-                    m.d.sync += [prod.eq(vreg), i.eq(wd["v"] - 1)]
-                    m.next = "K2V"
-            with m.State("K2V"):              # prod = V * k2
-                m.d.comb += self.stats_busy.eq(1)
-                m.d.sync += [prod.eq(_mul_step(prod, wd["v"], k2)), i.eq(i - 1)]
-                with m.If(i == 0):
-                    m.d.sync += [root.eq(0), rem.eq(0), i.eq(wd["r"] - 1)]
-                    m.next = "SQRT"
-            with m.State("SQRT"):             # root = isqrt(prod), two operand bits a clock
-                m.d.comb += self.stats_busy.eq(1)
-                trial = Cat(prod[wd["x"] - 2:wd["x"]], rem[:wd["r"] + 1])
-                diff = trial - Cat(Const(1, 2), root)    # 4 * root + 1
-                fits = ~diff[-1]
-                new_root = Cat(fits, root[:-1])
-                m.d.sync += [prod.eq(Cat(Const(0, 2), prod[:wd["x"] - 2])), i.eq(i - 1)]
-                with m.If(i == 0):
-                    # D = root // (16 N): the top bits (below the divisor) go to rem
-                    m.d.sync += [root.eq(new_root[:wd["d"]]), rem.eq(new_root[wd["d"]:]),
-                                 i.eq(wd["d"] - 1)]
-                    m.next = "DIV_D"
-                with m.Else():
-                    m.d.sync += [root.eq(new_root),
-                                 rem.eq(Mux(fits, diff, trial)[:wd["r"] + 1])]
-            with m.State("DIV_D"):            # root[:d] = D = isqrt(K*K*V) // (16 N)
-                m.d.comb += self.stats_busy.eq(1)
-                rem_d = rem[:C.bits_for(divisor)]
-                new_rem, new_quo = _div_step(rem_d, root[:wd["d"]], divisor)
-                m.d.sync += [rem.eq(new_rem), root.eq(new_quo), i.eq(i - 1)]
-                with m.If(i == 0):
-                    m.next = "DONE"
-            with m.State("DONE"):             # T = min(B + D, fs); B <= fs fits pb bits
-                m.d.comb += self.stats_busy.eq(1)
-                level = bq[:pb] + root[:pb]
-                big = root[pb:wd["d"]].any() | level[pb]
-                m.d.sync += [next_b.eq(bq), next_t.eq(Mux(big, fs, level[:pb])),
-                             stats_valid.eq(kreg == self.ksigma)]
-                m.next = "IDLE"
+        def stream(value):
+            """Bit ``tbit`` of the constant ``value`` while a trial runs, else 0."""
+            padded = Cat(value, Const(0, (1 << len(tbit)) - len(value)))
+            return padded.bit_select(tbit, 1) & run
+
+        s1c = Signal.like(s1)        # S1, the multiplicand of S1*S1 (s1 rotates)
+        m.d.comb += [rot1.eq(run & _below(tbit, len(s1))),
+                     rot2.eq(run & dphase & _below(tbit, len(s2)))]
+        s1_bit = s1[0] & rot1
+        lhs_v, _ = _serial_sub(m, _serial_mul(m, s2[0] & rot2, Const(N)),
+                               _serial_mul(m, s1_bit & dphase, s1c), run & ~last)
+        lhs_d = _serial_mul(m, _serial_mul(m, lhs_v, kreg), kreg)
+        ref = Mux(dphase, stream(Const((N << C.KSIGMA_FRAC_BITS) ** 2)),
+                  stream(Const(N)))
+        rhs_b = _serial_mul(m, ref, c)
+        rhs_d = _serial_mul(m, rhs_b & dphase, c)
+        _, borrow = _serial_sub(m, Mux(dphase, lhs_d, s1_bit), Mux(dphase, rhs_d, rhs_b),
+                                run & ~last)
+        passed = ~borrow             # at the trial's last bit
+
+        def start_d():
+            return [dphase.eq(1), kreg.eq(self.ksigma), trial.eq(1 << (pb - 1)),
+                    found.eq(0), tbit.eq(0), s1c.eq(s1)]
+
+        m.d.comb += self.stats_busy.eq(run)
+        found_now = Mux(passed, c, found)    # at a trial's last bit
+        level = next_b + found_now
+        with m.If(complete):
+            m.d.sync += [stats_valid.eq(0), have_v.eq(0), run.eq(1), dphase.eq(0),
+                         trial.eq(1 << pb), found.eq(0), tbit.eq(0)]
+        with m.Elif(frame_end | sof_v):      # S1, S2 restart, or the frame was broken
+            m.d.sync += [have_v.eq(0), run.eq(0)]
+            with m.If(frame_end | in_frame | run):
+                m.d.sync += stats_valid.eq(0)
+        with m.Elif(~run):
+            with m.If(have_v & ~k_same):     # ksigma was rewritten: search D again
+                m.d.sync += [stats_valid.eq(0), run.eq(1)] + start_d()
+        with m.Else():
+            m.d.sync += tbit.eq(tbit + 1)
+            with m.If(last):
+                m.d.sync += [tbit.eq(0), trial.eq(trial >> 1), found.eq(found_now)]
+                with m.If(dphase & ~k_same):
+                    m.d.sync += start_d()                 # rewritten meanwhile: restart
+                with m.Elif(trial[0] & ~dphase):
+                    m.d.sync += [have_v.eq(1), next_b.eq(found_now)] + start_d()
+                with m.Elif(trial[0]):                    # T = min(B + D', fs)
+                    m.d.sync += [run.eq(0), stats_valid.eq(1),
+                                 next_t.eq(Mux(level[pb], fs, level[:pb]))]
         return m

@@ -6,8 +6,7 @@ from amaranth import Module, Signal
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.hdl.features import (KEEP, LOAD, MERGE, NEW, FeatureEngine, _combine,
-                                   empty_features)
+from lodestar.hdl.features import FeatureEngine, _sums
 from lodestar.hdl.layouts import record_fields, record_layout
 
 W, H, PB = 64, 32, 12
@@ -66,87 +65,100 @@ def run(ops, min_pixels=1, min_sum=0, max_pixels=C.MAX_PIXELS_UNLIMITED, capacit
 
 
 def px(x, y, p, w, **op):
-    """An op adding pixel ``(x, y)`` of value ``p`` and weight ``w``; ``{}`` is a dark column."""
+    """An op adding pixel ``(x, y)`` of value ``p`` and weight ``w``."""
     return dict(pix=1, x=x, y=y, p=p, w=w, **op)
+
+
+def row(ops):
+    """A row as the labeller sends it: ``ops`` by column, a dark op in every other column,
+    then the clock of horizontal blanking (no op)."""
+    return [ops.get(x, {}) for x in range(W)] + [None]
 
 
 def test_runs_merge_and_complete():
     a = [(3, 1, 900, 500), (4, 1, 4095, 3000)]
     b = [(7, 1, 1200, 800)]
     c = [(4, 2, 2000, 1000), (5, 2, 100, 0), (6, 2, 700, 300), (7, 2, 50, 0)]
-    ops = [px(*a[0], base=NEW), px(*a[1], base=KEEP, wr=1, wr_addr=0),
-           px(*b[0], base=NEW, wr=1, wr_addr=1),
-           px(*c[0], base=LOAD, rd=1, rd_addr=0), px(*c[1]), px(*c[2]),
-           px(*c[3], base=MERGE, rd=1, rd_addr=1, wr=1, wr_addr=0),
-           {}, dict(complete=1, rd=1, rd_addr=0)]      # a slot is read back 2 clocks later
+    ops = row({}) + row({3: px(*a[0]), 4: px(*a[1], wr=1, wr_addr=0),
+                         7: px(*b[0], wr=1, wr_addr=1)}) + \
+        row({4: px(*c[0], rd=1, rd_addr=0), 5: px(*c[1]), 6: px(*c[2]),
+             7: px(*c[3], rd=1, rd_addr=1, wr=1, wr_addr=0),
+             9: dict(complete=1, rd=1, rd_addr=0)})     # a slot is read back 2 clocks later
     records, counts = run(ops)
     assert records == [features(a + b + c)]
     assert counts == {"n_blobs": 1, "n_filtered": 0, "dropped_records": 0, "n_records": 1}
 
 
-def test_filters_capacity_and_stale_tag():
-    single = [px(2, 3, 500, 100, base=NEW, wr=1, wr_addr=2), {},
-              dict(complete=1, rd=1, rd_addr=2)]
-    _, counts = run(single, min_sum=101)
-    assert counts["n_filtered"] == 1 and counts["n_records"] == 0
-    _, counts = run(single, min_pixels=2)
-    assert counts["n_filtered"] == 1
-    records, counts = run(single + single + single, capacity=2)
-    assert len(records) == 2 and counts["dropped_records"] == 1 and counts["n_blobs"] == 3
-    records, counts = run([dict(op, tag=1) if op else op for op in single], tag=0)
-    assert records == [] and counts["n_blobs"] == 0
+def test_runs_across_row_ends_and_gaps():
+    """A run ending at the last column is not carried into a run starting the next row;
+    clocks without an op inside a run add nothing, and a run starting after a completion
+    starts empty."""
+    d = [(61, 0, 300, 30), (62, 0, 4095, 4000), (63, 0, 10, 1)]
+    e = [(0, 1, 20, 2), (1, 1, 40, 4)]
+    f = [(5, 1, 7, 3)]
+    first = row({61: px(*d[0]), 62: px(*d[1]), 63: px(*d[2], wr=1, wr_addr=2)})
+    first[62:62] = [None, None]                          # pixels 61 and 62 of d come late
+    second = row({0: px(*e[0]), 1: px(*e[1], wr=1, wr_addr=3),
+                  3: dict(complete=1, rd=1, rd_addr=2), 5: px(*f[0], wr=1, wr_addr=2),
+                  8: dict(complete=1, rd=1, rd_addr=3), 10: dict(complete=1, rd=1, rd_addr=2)})
+    records, counts = run(first + second)
+    assert records == [features(d), features(e), features(f)]
+    assert counts["n_blobs"] == 3
 
 
-def test_combine_saturates_and_keeps_counts_exact():
-    """Three records at once, as two chained saturating combines would give them: random
-    moments up to their maxima (sums that saturate, some by a carry from the lowest bits),
-    the empty record as any operand, and the saturation flag of an operand carried on."""
+def test_sums_saturate_and_keep_counts_exact():
+    """Counts and moments of three records at once, the second one taken or not, as two
+    chained saturating combines would give them: random moments up to their maxima (sums
+    that saturate, some by a carry from the lowest bits), the empty record as any operand,
+    and the saturation flag of an operand carried on (not that of a slot left out); all
+    zero when emptied."""
     layout = record_layout(W, H, PB)
     lim = C.moment_max(PB)
     m = Module()
     recs = [Signal(layout) for _ in range(3)]
-    out = _combine(m, *recs, record_fields(W, H, PB))
+    use, empties = Signal(), Signal()
+    sums, sat = _sums(m, recs[0], recs[1], use, recs[2], empties, record_fields(W, H, PB))
+    assert set(sums) == {"n", "nsat", *C.MOMENTS}
     rng = np.random.default_rng(1)
-    none = {**{k: 0 for k in C.MOMENTS}, "n": 0, "nsat": 0, "xmin": 63, "xmax": 0,
-            "ymin": 31, "ymax": 0, "peak": 0, "flags": 0}
-    assert empty_features(W, H) == {"xmin": 63, "ymin": 31}
+    none = {**{k: 0 for k in C.MOMENTS}, "n": 0, "nsat": 0, "flags": 0}
 
     def record(scale):
-        x0, y0 = (int(v) for v in rng.integers(0, [W, H]))
         return {**{k: int(rng.integers(0, lim[k] + 1)) // scale for k in C.MOMENTS},
                 "n": int(rng.integers(1, 1000)), "nsat": int(rng.integers(0, 10)),
-                "xmin": x0, "xmax": int(rng.integers(x0, W)), "ymin": y0,
-                "ymax": int(rng.integers(y0, H)), "peak": int(rng.integers(0, 4096)),
                 "flags": int(rng.random() < 0.1)}
 
-    cases = [[{**none, **{k: lim[k] for k in C.MOMENTS}}, {**none, **{k: 1 for k in C.MOMENTS}},
-              none]]
-    for i in range(60):
+    cases = [([{**none, **{k: lim[k] for k in C.MOMENTS}},
+               {**none, **{k: 1 for k in C.MOMENTS}}, none], 1)]
+    for i in range(90):
         trio = [record(int(rng.choice([1, 2, 1000, 1 << 20]))) for _ in range(3)]
         if i % 3:
             trio[int(rng.integers(0, 3))] = none
-        cases.append(trio)
-    cases.append([none, none, none])
+        cases.append((trio, int(rng.integers(0, 2))))
+    cases.append(([none, none, none], 1))
 
     def chained(u, v):                      # the contract's (+) of two records
         out = {k: min(u[k] + v[k], lim[k]) for k in C.MOMENTS}
         over = any(u[k] + v[k] > lim[k] for k in C.MOMENTS)
         out.update(n=u["n"] + v["n"], nsat=u["nsat"] + v["nsat"],
-                   xmin=min(u["xmin"], v["xmin"]), ymin=min(u["ymin"], v["ymin"]),
-                   xmax=max(u["xmax"], v["xmax"]), ymax=max(u["ymax"], v["ymax"]),
-                   peak=max(u["peak"], v["peak"]), flags=int(u["flags"] or v["flags"] or over))
+                   flags=int(u["flags"] or v["flags"] or over))
         return out
 
     async def bench(ctx):
-        saturated = 0
-        for trio in cases:
+        saturated = left_out = 0
+        for trio, taken in cases:
             for sig, values in zip(recs, trio):
                 for k, v in values.items():
                     ctx.set(sig[k], v)
-            want = chained(chained(trio[0], trio[1]), trio[2])
+            ctx.set(use, taken)
+            want = chained(chained(trio[0], trio[1] if taken else none), trio[2])
             saturated += want["flags"]
-            assert {k: ctx.get(out[k]) for k in want} == want
-        assert saturated >= 10
+            left_out += not taken and trio[1] != none
+            got = {k: ctx.get(v) for k, v in sums.items()}
+            assert {**got, "flags": ctx.get(sat)} == want
+            ctx.set(empties, 1)
+            assert not any(ctx.get(v) for v in [sat, *sums.values()])
+            ctx.set(empties, 0)
+        assert saturated >= 10 and left_out >= 15
 
     sim = Simulator(m)
     sim.add_testbench(bench)

@@ -1,6 +1,6 @@
 """The labeller block in the Amaranth simulator, column by column against its algorithm
-(``tests/wavefront_model.py``): the op it sends for every column (birth, continuation,
-merge, slot read, slot write, completion) and the dropped-label count."""
+(``tests/wavefront_model.py``): the op it sends for every column (slot read for a
+continuation or a merge, slot write, completion) and the dropped-label count."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,6 @@ from amaranth.sim import Simulator
 from wavefront_model import WavefrontLabeller
 
 from lodestar import contract as C
-from lodestar.hdl.features import KEEP, LOAD, MERGE, NEW
 from lodestar.hdl.labeller import Labeller, max_nodes, max_stack, vblank_cycles
 
 
@@ -37,8 +36,7 @@ def hardware_ops(mask, cap, hblank=1):
         o = dut.ops.payload
         while True:
             if ctx.get(dut.ops.valid):
-                ops.append((ctx.get(o.base), ctx.get(o.rd), ctx.get(o.wr),
-                            ctx.get(o.complete)))
+                ops.append((ctx.get(o.rd), ctx.get(o.wr), ctx.get(o.complete)))
             if ctx.get(dut.done):
                 end["dropped"] = ctx.get(dut.dropped_labels)
             end["fault"] = ctx.get(dut.fault)
@@ -63,16 +61,7 @@ def model_ops(mask, cap):
     for y in range(h + 1):
         for x in range(w):
             k = per.get(y * (w + 1) + x, set())
-            if "merge" in k:
-                base = MERGE
-            elif "continue" in k:
-                base = LOAD if "feat_read" in k else NEW
-            elif "birth" in k:
-                base = NEW
-            else:
-                base = KEEP
-            ops.append((base, int("feat_read" in k), int("feat_write" in k),
-                        int("complete" in k)))
+            ops.append((int("feat_read" in k), int("feat_write" in k), int("complete" in k)))
     return ops, model.dropped_labels
 
 

@@ -1,5 +1,6 @@
 """The register bank: contract reset values, accepted and refused writes."""
 
+from amaranth import ClockDomain, Module
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
@@ -54,3 +55,37 @@ def test_accepted_and_refused_writes():
     assert final["threshold"] == 300 and final["mode"] == C.MODE_LOCAL
     assert final["local_log2_window"] == 3 and final["max_pixels"] == 77
     assert final["min_sum"] == reg["min_sum"].reset
+
+
+def test_domain_reset_restores_the_contract_values():
+    """The bank loads the reset values itself while the domain's reset is high (its
+    flip-flops have no reset of their own): after writes, a reset brings every register
+    back; writes are refused while it is high."""
+    reg = C.REGISTER_BY_NAME
+    dut = RegisterBank(12)
+    m = Module()
+    m.domains.sync = sync = ClockDomain()
+    m.submodules.dut = dut
+    seen = {}
+
+    async def bench(ctx):
+        for r in C.REGISTERS:
+            ctx.set(dut.addr, r.address)
+            ctx.set(dut.data, r.reset ^ 1)
+            ctx.set(dut.en, 1)
+            await ctx.tick()
+        seen["written"] = {r.name: ctx.get(getattr(dut, r.name)) for r in C.REGISTERS}
+        ctx.set(dut.addr, reg["threshold"].address)
+        ctx.set(dut.data, 7)
+        ctx.set(sync.rst, 1)
+        await ctx.tick()
+        ctx.set(sync.rst, 0)
+        ctx.set(dut.en, 0)
+        seen["reset"] = {r.name: ctx.get(getattr(dut, r.name)) for r in C.REGISTERS}
+
+    sim = Simulator(m)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.run()
+    assert seen["written"] == {r.name: r.reset ^ 1 for r in C.REGISTERS}
+    assert seen["reset"] == {r.name: r.reset for r in C.REGISTERS}

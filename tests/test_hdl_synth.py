@@ -7,7 +7,7 @@ import pytest
 from lodestar.hdl.boards import BOARDS, StarTracker
 from lodestar.hdl.layouts import record_layout
 from lodestar.hdl.synth import (analyse, board_report, format_report, m9k_blocks, memories,
-                                multiplier_elements, run_yosys)
+                                multiplier_elements, multiplier_les, run_yosys)
 
 
 @pytest.mark.parametrize("depth,width,r,w,blocks", [
@@ -22,6 +22,18 @@ def test_multiplier_elements():
     assert multiplier_elements(9, 9) == (1, 0)
     assert multiplier_elements(12, 4) == (0, 1)
     assert multiplier_elements(24, 12) == (0, 2)
+
+
+def test_multiplier_les_count_the_adders_around_the_elements():
+    assert multiplier_les({"A_WIDTH": "1100", "B_WIDTH": "100"}, 16) == 0     # 12 x 4
+    assert multiplier_les({"A_WIDTH": "11000", "B_WIDTH": "1100"}, 36) == 36  # 24 x 12: 2
+    # s + p * p (Yosys' $macc_v2: one 12 x 12 product and one addend) into 47 bits
+    macc = {"NPRODUCTS": "1", "NADDENDS": "1", "A_WIDTHS": format(12, "016b"),
+            "B_WIDTHS": format(12, "016b")}
+    assert multiplier_les(macc, 47) == 47
+    two = {"NPRODUCTS": "10", "NADDENDS": "0", "A_WIDTHS": format(20, "016b") * 2,
+           "B_WIDTHS": format(8, "016b") * 2}                               # a*b + c*d
+    assert multiplier_les(two, 30) == 2 * 28 + 30
 
 
 def test_memories_of_a_design():

@@ -334,6 +334,32 @@ def test_mode_changes_between_frames():
     assert beats[w * h][0] == (1 + w * h) + (gc + 1)
 
 
+def test_ksigma_written_during_the_computation_is_used_after_ksigma_cycles():
+    """ksigma rewritten while B is searched, while D is searched (the search restarts), on
+    the computation's last clocks and after it: a frame starting global_cycles after the
+    last pixel and ksigma_cycles after the write gets the levels of the new ksigma."""
+    w, h, pb = 6, 4, 12
+    rng = np.random.default_rng(17)
+    frames = [rng.integers(0, 4096, (h, w)).astype(np.uint16) for _ in range(2)]
+    gc, kc = global_cycles(w, h, pb), ksigma_cycles(w, h, pb)
+    p64 = frames[0].astype(np.int64)
+    stats = (p64.size, int(p64.sum()), int((p64 * p64).sum()))
+    old, new = C.global_levels(*stats, 48, pb), C.global_levels(*stats, 20, pb)
+    assert old != new
+    regs = dict(mode=C.MODE_GLOBAL, threshold=100, background=0, ksigma=48)
+    for written in (1, 2, gc // 3, 2 * gc // 3, gc - 2, gc - 1, gc, gc + 3):
+        steps = frame_steps(frames[0], regs, 1)
+        last = len(steps) - 1                   # the first frame's last pixel
+        start = max(last + gc, last + written + kc)
+        steps += [(None, None)] * (start - len(steps))
+        steps[last + written] = (dict(ksigma=20), None)
+        steps += frame_steps(frames[1], {}, 0)
+        _, status = run_clocks(ThresholdUnit(w, h, pb), steps, 1)
+        got = (status[1]["frame_threshold"], status[1]["frame_background"],
+               status[1]["frame_fallback"])
+        assert got == (*new, 0), written
+
+
 def test_local_fixed_frame_right_after_local_frame_drops_the_tail_only():
     w, h, pb = 16, 2, 10
     rng = np.random.default_rng(13)

@@ -92,16 +92,15 @@ TNS   : 0.000
         {"type": "Slow 1200mV 85C Model Hold 'pll|clk[0]'", "slack": 0.351, "tns": 0.0}]
 
 
-@pytest.mark.slow
 def test_default_board_yosys_report(tmp_path, capsys):
-    """The full estimate of the default board (2592 x 1944 on the EP4CE22; Yosys ~0.5-1 min)."""
+    """The full estimate of the default board (2592 x 1944 on the EP4CE22; Yosys ~20 s) meets
+    the issue's goals: at most a quarter of the LEs and half of the M9K, and a pixel path
+    that fits the 10 ns system period (hdl/DESIGN.md: 12 levels, about 6.4 ns)."""
     assert main(["synth", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["logic"]["les"] > 1000 and report["logic"]["available_les"] == 22320
-    # the issue's goal is at most a quarter; the design is at about 43 % (hdl/DESIGN.md):
-    # this guards against growth while that is worked on
-    assert report["logic"]["percent"] <= 48
+    assert report["logic"]["percent"] <= 25
     assert report["m9k"]["used"] <= 33
-    assert report["depth"]["levels"] > 0 and report["multipliers"]["18x18"] > 0
+    assert 0 < report["depth"]["levels"] <= 14 and report["multipliers"]["18x18"] > 0
     deepest = report["depth"]["paths"][report["depth"]["critical_unit"]]
-    assert deepest["levels"] == report["depth"]["levels"] and deepest["ns"] > 0
+    assert deepest["levels"] == report["depth"]["levels"] and 0 < deepest["ns"] <= 7.5
