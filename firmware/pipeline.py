@@ -39,18 +39,28 @@ Stages of :meth:`StarTracker.process`:
 5. **Attitude**: QUEST (:func:`lodestar.firmware.attitude.quest`) over all matched stars
    with weights ``w_i = sigma_i**-2`` (relative), and Shuster's covariance
    (:func:`lodestar.firmware.attitude.covariance`).  Star ``i``'s per-axis direction noise
-   is ``sigma_i = s / sqrt(w_i)`` rad: with ``flux_weighting`` (default) the relative
-   weights are ``w_i = flux_i / median flux``, the inverse variance of a photon-limited
-   centroid (its variance is the PSF's over the photons counted).  On 60 simulated estcube2
-   frames at rest these weights gave 0.65" per cross-boresight axis and 5.5" in roll (RMS),
-   ``sqrt(flux)`` weights 0.80" and 6.9", equal weights 1.10" and 9.6"; the errors
-   over the reported 1-sigma had RMS 0.97 (cross) and 0.88 (roll); lohmann, 76 frames:
-   2.9" and 20" against 3.5" and 22", RMS ratios 0.87 and 0.86.  Without
+   is ``sigma_i = s / sqrt(w_i)`` rad.  With ``flux_weighting`` (default) the noise model
+   is a photon-limited term plus a floor: the relative variance of star ``i`` is
+   ``g_i = (1 - rho) u_i + rho`` with ``u_i = median flux / flux_i`` (a photon-limited
+   centroid's variance is the PSF's over the photons counted) and the floor share ``rho``
+   chosen per frame from :data:`FLOOR_SHARES` by maximum likelihood on the residuals of an
+   equal-weight fit (:meth:`StarTracker.noise_shares`; ``rho = 0`` below
+   :data:`MIN_STARS_NOISE_MODEL` matches and for frames smeared beyond
+   :data:`FLOOR_MAX_SMEAR_PX`), and ``w_i = 1 / g_i``.  Real frames are photon
+   limited (``rho`` near 0); centroids whose flux says nothing of their noise (a floor of
+   calibration error, a bright star's bias, synthetic lists) pull ``rho`` towards 1, equal
+   weights, so the reported sigma stays calibrated either way.  On 60 simulated estcube2
+   frames at rest pure flux weights gave 0.65" per cross-boresight axis and 5.5" in roll
+   (RMS), ``sqrt(flux)`` weights 0.80" and 6.9", equal weights 1.10" and 9.6".  Without
    ``flux_weighting`` every weight is 1.  ``s``, the noise of a star of median flux, is
    ``centroid_sigma_px / f`` (``f = sqrt(fx fy)`` px) when ``centroid_sigma_px`` is given,
-   else estimated from the fit residuals (``s^2 = sum w_i |b_i - A r_i|^2 / (2n - 3)``,
+   else estimated from the fit residuals (``s^2 = sum w_i |b_i - A r_i|^2 / (2n - 5)``,
    ``n`` matches, at least ``min_sigma_px / f``), so the covariance follows the frame's
-   actual centroid quality; ``result.centroid_sigma_px`` reports ``s`` in pixels.
+   actual centroid quality; ``result.centroid_sigma_px`` reports ``s`` in pixels.  The
+   residuals have ``2n - 3`` degrees of freedom, and an error over a sigma scaled by such an
+   estimate is Student-t distributed with variance ``(2n - 3) / (2n - 5)``: dividing by
+   ``2n - 5`` instead of ``2n - 3`` makes the reported sigma the error's RMS (``max(., 1)``
+   for ``n <= 3``).
 
 Units and conventions (``lodestar.sim``): pixels as ``lodestar.contract`` (centre of pixel
 ``(x, y)`` at the integer point; ``x`` column, ``y`` row); camera frame ``+z`` boresight,
@@ -107,6 +117,21 @@ DEFAULT_MAX_STARS = 32
 """Brightest stars used per frame (identification patterns use the first 16)."""
 DEFAULT_MIN_SIGMA_PX = 0.02
 """Floor of the residual-based centroid noise estimate, px."""
+FLOOR_SHARES = (0.0, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
+"""Candidate shares ``rho`` of the noise floor in a median-flux star's centroid variance
+(``0``: photon limited, ``1``: every star alike)."""
+MIN_STARS_NOISE_MODEL = 6
+"""Fewest matched stars whose residuals choose the floor share; fewer use ``rho = 0``."""
+FLOOR_MAX_SMEAR_PX = 2.0
+"""Longest expected smear (px) at which the residuals may choose a noise floor: smeared
+stars' residuals are dominated by along-track errors a floor does not describe, and
+weighting the faint stars up made the attitude worse (40 estcube2 frames at 2 deg/s: 4.3"
+per cross-boresight axis and 34" in roll, against 3.0" and 31" with the photon model
+alone)."""
+FLOOR_EVIDENCE = 1.92
+"""Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
+(``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
+halved)."""
 DEFAULT_MAX_SMEAR_PX = 50.0
 """Longest expected smear (px) the pipeline solves: beyond it a threshold breaks a star's
 track into pieces that the fragment joining cannot all recover, and their centroids carry
@@ -136,6 +161,20 @@ def _longest_smear(cam, smear):
         if not length <= longest:
             longest = length
     return longest
+
+
+def _residuals2(q, b, r):
+    """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
+    catalogue vectors ``r`` under attitude ``q``."""
+    m = _tracking.matrix(q)
+    out = []
+    for i in range(len(b)):
+        bi, ri = b[i], r[i]
+        dx = bi[0] - (m[0] * ri[0] + m[1] * ri[1] + m[2] * ri[2])
+        dy = bi[1] - (m[3] * ri[0] + m[4] * ri[1] + m[5] * ri[2])
+        dz = bi[2] - (m[6] * ri[0] + m[7] * ri[1] + m[8] * ri[2])
+        out.append(dx * dx + dy * dy + dz * dz)
+    return out
 
 
 def _finite(x):
@@ -457,31 +496,62 @@ class StarTracker:
             out.append(f / median if _number(f) and f > 0 else 1.0)
         return out
 
-    def attitude(self, vectors, star_ids, fluxes=None):
+    def noise_shares(self, b, r, photon):
+        """Relative centroid variances ``g_i = (1 - rho) / photon_i + rho`` of the stars
+        with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
+        ``photon`` (:meth:`weights`), with the floor share ``rho`` of
+        :data:`FLOOR_SHARES` that maximises the likelihood of the residuals ``e_i`` of an
+        equal-weight QUEST fit (per-axis Gaussian noise of variance ``s^2 g_i``, ``s``
+        profiled out: maximise ``-sum(log g_i) - n log(sum(e_i^2 / g_i))``); ``rho > 0``
+        must gain :data:`FLOOR_EVIDENCE` over ``rho = 0``.  Below
+        :data:`MIN_STARS_NOISE_MODEL` stars, ``rho = 0``.  Raises ``ValueError`` when the
+        fit is degenerate."""
+        n = len(b)
+        u = [1.0 / p for p in photon]
+        if n < MIN_STARS_NOISE_MODEL:
+            return u
+        e2 = _residuals2(_att.quest(b, r, [1.0] * n), b, r)
+        best, best_g = None, u
+        for rho in FLOOR_SHARES:
+            g = [(1.0 - rho) * ui + rho for ui in u]
+            total = 0.0
+            logs = 0.0
+            for i in range(n):
+                total += e2[i] / g[i]
+                logs += math.log(g[i])
+            if not total > 0:
+                return u
+            score = -logs - n * math.log(total) - (FLOOR_EVIDENCE if rho > 0 else 0.0)
+            if best is None or score > best:
+                best, best_g = score, g
+        return best_g
+
+    def attitude(self, vectors, star_ids, fluxes=None, floor=True):
         """QUEST over ``star_ids`` ``[(vector index, database star index)]`` and Shuster's
         covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)`` (``s``: the per-axis
         noise of a median-flux star); None when degenerate.  ``fluxes``: per vector (None:
-        equal weights)."""
+        equal weights); ``floor``: let the residuals choose a noise floor
+        (:meth:`noise_shares`; else the photon model alone)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
         r = [self.database.star_vector(s) for o, s in star_ids]
-        if fluxes is None:
-            w = [1.0] * n
-        else:
-            w = self.weights([fluxes[o] for o, s in star_ids])
         try:
+            if fluxes is None:
+                w = [1.0] * n
+            else:
+                w = self.weights([fluxes[o] for o, s in star_ids])
+                if floor:
+                    w = [1.0 / gi for gi in self.noise_shares(b, r, w)]
             q = _att.quest(b, r, w)
             s = self.sigma_rad
             if s is None:
-                m = _tracking.matrix(q)
+                e2 = _residuals2(q, b, r)
                 total = 0.0
                 for i in range(n):
-                    bi, ri = b[i], r[i]
-                    dx = bi[0] - (m[0] * ri[0] + m[1] * ri[1] + m[2] * ri[2])
-                    dy = bi[1] - (m[3] * ri[0] + m[4] * ri[1] + m[5] * ri[2])
-                    dz = bi[2] - (m[6] * ri[0] + m[7] * ri[1] + m[8] * ri[2])
-                    total += w[i] * (dx * dx + dy * dy + dz * dz)
-                s = math.sqrt(total / (2 * n - 3)) if n >= 2 else 0.0
+                    total += w[i] * e2[i]
+                # s^2 from 2n - 3 residual degrees of freedom: the error over the sigma
+                # it scales is Student-t distributed, of variance dof / (dof - 2)
+                s = math.sqrt(total / max(2 * n - 5, 1)) if n >= 2 else 0.0
                 if not s >= self.min_sigma_rad:
                     s = self.min_sigma_rad
             sigmas = [s / math.sqrt(wi) for wi in w]
@@ -496,11 +566,11 @@ class StarTracker:
         ``fluxes``: one per vector for the weights, or None): a :class:`Result` whose
         ``matches`` hold ``(vector index, None, None, HIP)``.  Never raises."""
         try:
-            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None)
+            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0)
         except Exception as exc:
             return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
 
-    def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start):
+    def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px):
         res = result if result is not None else Result(S.OK)
         if self.status != S.OK:
             res.status = self.status
@@ -546,7 +616,8 @@ class StarTracker:
             predicted, n_fov = _tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
             star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad)
-        fitted = self.attitude(vectors, star_ids, fluxes) if len(star_ids) >= 2 else None
+        fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX) \
+            if len(star_ids) >= 2 else None
         if fitted is None:
             res.status = S.NO_MATCH
             _note(res, "degenerate attitude fit")
@@ -608,6 +679,7 @@ class StarTracker:
             else:
                 _note(res, "exposure_s ignored: not a positive number")
         smear = None
+        longest = 0.0
         if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
             def smear(x, y):
                 return cam.smear_px(x, y, w, exposure)
@@ -645,7 +717,7 @@ class StarTracker:
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         fluxes = [stars[i].flux for i in used]
-        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start)
+        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest)
         if res.status == S.OK:
             matches = []
             for o, _x, _y, hip in res.matches:

@@ -156,6 +156,55 @@ def test_weights_are_relative_inverse_variances():
     assert SF.tracker(flux_weighting=False).weights([100.0, 300.0]) == [1.0, 1.0]
 
 
+def _noisy_pairs(rng, sigmas):
+    """Catalogue vectors in a 10-degree field and their images under a random attitude,
+    each displaced by Gaussian noise of ``sigmas[i]`` rad per axis: ``(b, r)`` lists."""
+    rot = Rotation.random(random_state=rng)
+    r, b = [], []
+    for sigma in sigmas:
+        v = np.array([*rng.uniform(-0.09, 0.09, 2), 1.0])
+        v /= np.linalg.norm(v)
+        w = rot.apply(v) + rng.normal(0.0, sigma, 3)
+        r.append([float(c) for c in v])
+        b.append([float(c) for c in w / np.linalg.norm(w)])
+    return b, r
+
+
+def test_noise_model_chooses_the_floor_from_the_residuals():
+    tracker = SF.tracker()
+    rng = np.random.default_rng(5)
+    flux = np.geomspace(20.0, 1.0, 30)
+    photon = tracker.weights([float(f) for f in flux])
+    u = [1.0 / p for p in photon]
+    # photon-limited centroids (variance as 1 / flux): the photon model, rho = 0
+    b, r = _noisy_pairs(rng, [1e-5 * math.sqrt(ui) for ui in u])
+    assert tracker.noise_shares(b, r, photon) == pytest.approx(u)
+    # the same noise on every star whatever its flux: equal variances, rho = 1
+    b, r = _noisy_pairs(rng, [1e-5] * len(u))
+    assert tracker.noise_shares(b, r, photon) == pytest.approx([1.0] * len(u))
+    # too few stars to tell: the photon model
+    assert tracker.noise_shares(b[:5], r[:5], photon[:5]) == pytest.approx(u[:5])
+    # attitude() with the floor turned off keeps the photon weights: another fit
+    fluxes = [float(f) for f in flux]
+    ids = [(i, i) for i in range(len(b))]
+    tracker.database = _VectorDatabase(r)
+    with_floor = tracker.attitude(b, ids, fluxes)
+    photon_only = tracker.attitude(b, ids, fluxes, floor=False)
+    truth = tracker.attitude(b, ids, None)               # equal weights: right for this noise
+    assert with_floor[0] == pytest.approx(truth[0], abs=1e-12)
+    assert photon_only[0] != pytest.approx(truth[0], abs=1e-9)
+
+
+class _VectorDatabase:
+    """Stand-in for a star database: ``star_vector(i)`` is ``vectors[i]``."""
+
+    def __init__(self, vectors):
+        self.vectors = vectors
+
+    def star_vector(self, i):
+        return self.vectors[i]
+
+
 def test_flux_weighting_is_optional():
     frame = SF.frames()[1]
     a = SF.tracker().process(frame.packet)
