@@ -50,7 +50,7 @@ from .detector import Detector
 from .mt9p031 import MT9P031Frontend
 from .mt9v022 import MT9V022Frontend
 from .packetizer import Packetizer
-from .spi_slave import OVERFLOW_BITS, SPISlave
+from .spi_slave import OVERFLOW_BITS, SPI_PINS, SPISlave
 
 OVF_PIXEL_FIFO = 0
 OVF_TRAILER_LOST = 1
@@ -104,11 +104,7 @@ class StarTracker(wiring.Component):
         self.spi = SPISlave()
         super().__init__({
             **pins,
-            "sck": In(1),
-            "mosi": In(1),
-            "cs_n": In(1, init=1),
-            "miso": Out(1),
-            "miso_oe": Out(1),
+            **SPI_PINS,
             "irq": Out(1),
         })
 

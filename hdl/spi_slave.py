@@ -124,6 +124,12 @@ if STATUS_BITS % 8:
     raise ValueError("the status word must be a whole number of bytes")
 
 
+SPI_PINS = {"sck": In(1), "mosi": In(1), "cs_n": In(1, init=1), "miso": Out(1),
+            "miso_oe": Out(1)}
+"""The SPI pins of a slave's signature: clock, data in, chip select (idle high), data out
+and its output enable."""
+
+
 def decode_status(data):
     """The fields of a status word given as ``STATUS_BYTES`` bytes (MSB first), as a dict."""
     if len(data) != STATUS_BYTES:
@@ -142,11 +148,7 @@ class SPIByteSlave(wiring.Component):
 
     def __init__(self):
         super().__init__({
-            "sck": In(1),
-            "mosi": In(1),
-            "cs_n": In(1, init=1),
-            "miso": Out(1),
-            "miso_oe": Out(1),
+            **SPI_PINS,
             "rx": Out(stream.Signature(8, always_ready=True)),
             "tx": In(stream.Signature(8)),
             "selected": Out(1),
@@ -200,11 +202,7 @@ class SPISlave(wiring.Component):
 
     def __init__(self):
         super().__init__({
-            "sck": In(1),
-            "mosi": In(1),
-            "cs_n": In(1, init=1),
-            "miso": Out(1),
-            "miso_oe": Out(1),
+            **SPI_PINS,
             "reg_addr": Out(REG_ADDR_BITS),
             "reg_data": Out(C.REGISTER_WORD_BITS),
             "reg_strobe": Out(1),
