@@ -53,6 +53,14 @@ moments by the parallel-axis rule), so its centroid is that of the light the det
 of the whole track.  Its ``index`` is its brightest piece's record, ``parts`` lists all
 of them (``None`` for a star of one record).
 
+Unseen track: the detector may see only part of a smeared star's track (a faint track
+dips below the threshold), and the star's mean position then lies anywhere along the track
+within ``unseen = max(0, (L - l) / 2)`` px of the centroid, ``l = sqrt(12 (c_uu - c_vv))``
+the length measured along the smear direction ``u`` (``c_uu``, ``c_vv``: the central second
+moments along and across it).  With a known smear every star carries its ``unseen`` (0
+without one), and the firmware widens that star's match region along the smear by it
+(``lodestar.firmware.verify``).
+
 Stars are returned brightest first (ties in record order).  Pure Python for CPython and
 MicroPython: no numpy, typing, dataclasses or itertools.
 """
@@ -98,11 +106,14 @@ class Star(object):
     ``sigma_major``, ``sigma_minor`` (px), ``elongation``, ``orientation`` (rad, major axis
     from +x towards +y), ``n`` pixels, ``nsat`` saturated pixels, ``peak`` pixel value and
     ``index`` of the record in the packet; ``parts``: the record indices of a star joined
-    from the pieces of a broken track (``index`` is the brightest), else None.
+    from the pieces of a broken track (``index`` is the brightest), else None; ``unseen``:
+    how far (px) the star's mean position may lie from the centroid along the expected
+    smear, the half of the track the detector did not see (module docstring; 0 without a
+    smear).
     """
 
     __slots__ = ("x", "y", "flux", "sigma_major", "sigma_minor", "elongation", "orientation",
-                 "n", "nsat", "peak", "index", "parts")
+                 "n", "nsat", "peak", "index", "parts", "unseen")
 
     def __init__(self, x, y, flux, sigma_major, sigma_minor, elongation, orientation,
                  n, nsat, peak, index, parts=None):
@@ -118,6 +129,7 @@ class Star(object):
         self.peak = peak
         self.index = index
         self.parts = parts
+        self.unseen = 0.0
 
     def as_tuple(self):
         """``(x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat, peak,
@@ -252,6 +264,26 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
     excess = sigma_major * sigma_major - sigma_minor * sigma_minor
     measured = math.sqrt(12.0 * excess) if excess > 0 else 0.0
     return length / length_ratio <= measured <= length * length_ratio
+
+
+def unseen_px(sigma_major, sigma_minor, orientation, smear):
+    """Half the expected track (px) a blob of this shape did not show: ``max(0, (L - l) /
+    2)`` with ``L`` the length of the expected smear ``(dx, dy)`` (px) and ``l =
+    sqrt(12 (c_uu - c_vv))`` the length measured along it (module docstring); 0 without a
+    smear."""
+    if smear is None:
+        return 0.0
+    dx, dy = smear[0], smear[1]
+    if not (_finite(dx) and _finite(dy)):
+        return 0.0
+    length = math.sqrt(dx * dx + dy * dy)
+    if not length > 0:
+        return 0.0
+    c = math.cos(orientation - math.atan2(dy, dx))
+    c2 = c * c
+    excess = (sigma_major * sigma_major - sigma_minor * sigma_minor) * (2.0 * c2 - 1.0)
+    seen = math.sqrt(12.0 * excess) if excess > 0 else 0.0
+    return 0.5 * (length - seen) if seen < length else 0.0
 
 
 def _root(parent, i):
@@ -406,6 +438,11 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         n_before = len(stars)
         stars = join_fragments(stars, central, expected_smear_px, join_across_px)
         rejected["fragment"] = n_before - len(stars)
+    if expected_smear_px is not None:
+        for star in stars:
+            smear = smear_fn(star.x, star.y) if smear_fn is not None else expected_smear_px
+            star.unseen = unseen_px(star.sigma_major, star.sigma_minor, star.orientation,
+                                    smear)
     stars.sort(key=_sort_key)
     if max_stars is not None and len(stars) > max_stars:
         rejected["excess"] += len(stars) - max_stars

@@ -343,8 +343,8 @@ class _Search(V.Search):
     of each of their pairs are computed once (``n * n`` tables, index ``i * n + j``,
     ``i < j``)."""
 
-    def __init__(self, b, db, tol, max_prob, distinct, n):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct)
+    def __init__(self, b, db, tol, max_prob, distinct, n, streaks):
+        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
         self.n = n
         self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
         self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
@@ -419,15 +419,20 @@ class _Search(V.Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
     """Geometric-hashing identification; returns a :class:`lodestar.firmware.verify.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most groups tried.  ``max_stars``: observed stars used for groups.  ``distinct_rad``:
-    attitudes further apart are distinct (default ``20 * tolerance_rad``).
+    attitudes further apart are distinct (default ``20 * tolerance_rad``).  ``streaks``: per
+    star None or its partly seen track (:mod:`lodestar.firmware.verify`); the verification
+    matches such a star over its stretched region, the hash boxes stay those of
+    ``tolerance_rad`` (a group holding a streak's star may be missed).
     """
     if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
+        return V.Solution(V.BAD_INPUT)
+    if not V.streaks_valid(streaks, len(vectors)):
         return V.Solution(V.BAD_INPUT)
     if not database.methods & METHOD_HASHING:
         return V.Solution(V.BAD_DATABASE)
@@ -439,7 +444,8 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
         return V.Solution(V.TOO_FEW_STARS if len(b) < g else V.BAD_INPUT)
     n = len(b) if len(b) < max_stars else max_stars
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n)
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
+                     streaks)
     tried = 0
     for k in range(g - 1, n):
         for j in range(g - 2, k):

@@ -177,6 +177,39 @@ def _residuals2(q, b, r):
     return out
 
 
+def _noise_scale(e2, g, extra, dof):
+    """``s`` (rad) with ``sum e2_i / (s^2 g_i + extra_i) = dof`` (bisection on ``s^2``; the
+    sum falls as ``s`` grows): the photon-noise scale of stars with relative variances
+    ``g`` beside the known variances ``extra`` (rad^2 per axis), from their squared
+    residuals ``e2``.  0 when the known variances alone explain the residuals."""
+    lo = 0.0
+    hi = 0.0
+    for i in range(len(e2)):
+        hi += e2[i] / g[i]
+    hi /= dof
+    if not hi > 0:
+        return 0.0
+    for i in range(len(e2)):      # at s = 0 the sum is largest: below dof, no photon term
+        if extra[i] <= 0:
+            break
+    else:
+        total = 0.0
+        for i in range(len(e2)):
+            total += e2[i] / extra[i]
+        if total <= dof:
+            return 0.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        total = 0.0
+        for i in range(len(e2)):
+            total += e2[i] / (mid * g[i] + extra[i])
+        if total > dof:
+            lo = mid
+        else:
+            hi = mid
+    return math.sqrt(0.5 * (lo + hi))
+
+
 def _finite(x):
     return x - x == 0.0
 
@@ -459,9 +492,46 @@ class StarTracker:
             used.append(i)
         return vectors, used
 
-    def identify(self, vectors, prior=None, omega=None, dt=None):
+    def streaks(self, stars, used, smear, omega=None, exposure_s=None):
+        """Per direction of :meth:`directions` (``used``), the partly seen track of its star
+        for the identification (:mod:`lodestar.firmware.verify`): None, or ``(ux, uy, uz,
+        half)`` with ``u`` the camera-frame unit tangent along the expected smear
+        (``smear(x, y) -> (dx, dy)`` px) and ``half`` the star's ``unseen`` track in rad;
+        None instead of the list when no star has an unseen track.  ``omega``, ``exposure_s``
+        as for :meth:`directions` (the tangent turns with its direction)."""
+        cam = self.camera
+        half_exposure = 0.5 * exposure_s if exposure_s is not None else 0.0
+        rate = 0.0
+        if omega is not None:
+            rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+        out = []
+        found = False
+        for i in used:
+            s = stars[i]
+            streak = None
+            d = smear(s.x, s.y) if s.unseen > 0 else None
+            length = math.sqrt(d[0] * d[0] + d[1] * d[1]) if d is not None else 0.0
+            if length > 0:
+                v0 = cam.pixel_to_vector(s.x, s.y)
+                v1 = cam.pixel_to_vector(s.x + d[0] / length, s.y + d[1] / length)
+                if v0 is not None and v1 is not None:
+                    t = (v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2])
+                    per_px = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+                    if per_px > 0:
+                        u = (t[0] / per_px, t[1] / per_px, t[2] / per_px)
+                        if rate > 0:
+                            axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
+                            when = half_exposure + s.y * self.row_time_s - self.epoch_s
+                            u = _rotate(u, axis, rate * when)
+                        streak = (u[0], u[1], u[2], s.unseen * per_px)
+                        found = True
+            out.append(streak)
+        return out if found else None
+
+    def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
-        with ``fallback``) lost-in-space: ``(solution, mode)``."""
+        with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector
+        None or its partly seen track (:meth:`streaks`), or None."""
         sol = None
         mode = None
         if prior is not None:
@@ -475,7 +545,7 @@ class StarTracker:
                 return sol, mode
         sol = _starid.identify(vectors, self.database, method=self.method,
                                tolerance_rad=self.tolerance_rad, budget=self.budget,
-                               **self.id_options)
+                               streaks=streaks, **self.id_options)
         return sol, "lost_in_space"
 
     def weights(self, fluxes):
@@ -526,35 +596,60 @@ class StarTracker:
                 best, best_g = score, g
         return best_g
 
-    def attitude(self, vectors, star_ids, fluxes=None, floor=True):
+    def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None):
         """QUEST over ``star_ids`` ``[(vector index, database star index)]`` and Shuster's
         covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)`` (``s``: the per-axis
         noise of a median-flux star); None when degenerate.  ``fluxes``: per vector (None:
         equal weights); ``floor``: let the residuals choose a noise floor
-        (:meth:`noise_shares`; else the photon model alone)."""
+        (:meth:`noise_shares`; else the photon model alone); ``streaks``: per vector None
+        or its partly seen track (:meth:`streaks`): the star's variance gains
+        ``half^2 / 6`` per axis (a uniform offset over ``+-half`` along one axis), and ``s``
+        solves ``sum e_i^2 / (s^2 g_i + half_i^2 / 6) = 2n - 5`` (:func:`_noise_scale`)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
         r = [self.database.star_vector(s) for o, s in star_ids]
+        extra = [0.0] * n
+        if streaks is not None:
+            for i in range(n):
+                streak = streaks[star_ids[i][0]]
+                if streak is not None:
+                    extra[i] = streak[3] * streak[3] / 6.0
+        tracks = max(extra) > 0 if n else False
         try:
             if fluxes is None:
                 w = [1.0] * n
             else:
                 w = self.weights([fluxes[o] for o, s in star_ids])
-                if floor:
+                if floor and not tracks:
                     w = [1.0 / gi for gi in self.noise_shares(b, r, w)]
-            q = _att.quest(b, r, w)
             s = self.sigma_rad
-            if s is None:
-                e2 = _residuals2(q, b, r)
-                total = 0.0
-                for i in range(n):
-                    total += w[i] * e2[i]
-                # s^2 from 2n - 3 residual degrees of freedom: the error over the sigma
-                # it scales is Student-t distributed, of variance dof / (dof - 2)
-                s = math.sqrt(total / max(2 * n - 5, 1)) if n >= 2 else 0.0
-                if not s >= self.min_sigma_rad:
-                    s = self.min_sigma_rad
-            sigmas = [s / math.sqrt(wi) for wi in w]
+            dof = max(2 * n - 5, 1)
+            if not tracks:
+                q = _att.quest(b, r, w)
+                if s is None:
+                    e2 = _residuals2(q, b, r)
+                    total = 0.0
+                    for i in range(n):
+                        total += w[i] * e2[i]
+                    # s^2 from 2n - 3 residual degrees of freedom: the error over the sigma
+                    # it scales is Student-t distributed, of variance dof / (dof - 2)
+                    s = math.sqrt(total / dof) if n >= 2 else 0.0
+                    if not s >= self.min_sigma_rad:
+                        s = self.min_sigma_rad
+                sigmas = [s / math.sqrt(wi) for wi in w]
+            else:
+                # the track terms are absolute: iterate the scale of the photon terms
+                g = [1.0 / wi for wi in w]
+                estimate = s is None
+                if estimate:
+                    s = self.tolerance_rad / 3.0
+                for _ in range(3 if estimate else 1):
+                    q = _att.quest(b, r, [1.0 / (s * s * g[i] + extra[i]) for i in range(n)])
+                    if estimate:
+                        s = _noise_scale(_residuals2(q, b, r), g, extra, dof)
+                        if not s >= self.min_sigma_rad:
+                            s = self.min_sigma_rad
+                sigmas = [math.sqrt(s * s * g[i] + extra[i]) for i in range(n)]
             cross, roll = _att.sigmas_cross_roll(_att.covariance(b, r, sigmas))
         except (ValueError, ZeroDivisionError):
             return None
@@ -566,11 +661,13 @@ class StarTracker:
         ``fluxes``: one per vector for the weights, or None): a :class:`Result` whose
         ``matches`` hold ``(vector index, None, None, HIP)``.  Never raises."""
         try:
-            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0)
+            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0,
+                                       None)
         except Exception as exc:
             return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
 
-    def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px):
+    def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
+                       streaks):
         res = result if result is not None else Result(S.OK)
         if self.status != S.OK:
             res.status = self.status
@@ -590,7 +687,7 @@ class StarTracker:
             res.status = S.TOO_FEW_STARS
             _note(res, str(len(vectors)) + " usable stars")
             return res
-        sol, mode = self.identify(vectors, prior, omega, dt)
+        sol, mode = self.identify(vectors, prior, omega, dt, streaks)
         start = self._tick(timings, "identify", start)
         res.mode = mode
         res.patterns_tried = sol.patterns_tried
@@ -616,8 +713,8 @@ class StarTracker:
             predicted, n_fov = _tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
             star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad)
-        fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX) \
-            if len(star_ids) >= 2 else None
+        fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
+                               streaks) if len(star_ids) >= 2 else None
         if fitted is None:
             res.status = S.NO_MATCH
             _note(res, "degenerate attitude fit")
@@ -713,11 +810,13 @@ class StarTracker:
         res.rejected = rejected
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
+        streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         fluxes = [stars[i].flux for i in used]
-        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest)
+        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
+                                  streaks)
         if res.status == S.OK:
             matches = []
             for o, _x, _y, hip in res.matches:

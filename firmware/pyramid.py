@@ -21,14 +21,16 @@ Algorithm
    Each triple counts as one *pattern* against the deterministic ``budget``.
 3. **Triangle candidates.** The three observed inter-star angles are looked up in the
    k-vector with the pair tolerance ``pair_tol = sqrt(2) tolerance_rad + key_step``
-   (``tolerance_rad`` bounds one star's direction error).  A catalogue triangle
+   (``tolerance_rad`` bounds one star's direction error; a streak, below, adds its ``half``
+   to every side it belongs to).  A catalogue triangle
    ``(I, J, K)`` is consistent when ``{I, J}`` is a candidate of side ``ij``, ``{I, K}`` of
    ``ik`` and ``{J, K}`` of ``jk``.
 4. **Handedness.** ``(b_i x b_j) . b_k`` must have the sign of ``(r_I x r_J) . r_K``
    (a rotation preserves it, a mirror image flips it).  The test is skipped when the
    observed triple product is within its error bound
    ``tolerance_rad (sin t_ij + sin t_jk + sin t_ki)`` of zero (a near-collinear triangle
-   has no reliable handedness; the fourth star and the verification still apply).
+   has no reliable handedness; the fourth star and the verification still apply); a streak
+   raises ``tolerance_rad`` there by the largest ``half`` of the three stars.
 5. **Pyramid.** A fourth observed star ``r`` confirms the triangle when a catalogue star
    ``R`` matches its three angles to ``i, j, k`` (candidates from the k-vector for ``ri``,
    the other two angles computed from the star table) with consistent handedness of
@@ -41,6 +43,11 @@ Algorithm
    ``distinct_rad`` the result is ``AMBIGUOUS``.  The accepted hypothesis is refined
    (q-method over all its matches, matched again, while the match set grows) and returned
    with status ``OK``; its ``q`` is the q-method fit of exactly the reported matches.
+
+Streaks (``streaks``, :mod:`lodestar.firmware.verify`): a smeared star seen only in part is
+known to ``tolerance_rad`` across its track and to ``tolerance_rad + half`` along it; its
+pair tolerances and handedness bounds widen by ``half`` (an angle to it can be off by the
+whole offset along the track) and the verification matches it over its stretched region.
 
 The search stops with ``NO_MATCH`` when all triples are exhausted, or
 ``BUDGET_EXHAUSTED`` when ``budget`` triples were tried first.
@@ -93,12 +100,16 @@ _handed = V.handed
 
 
 class _Search(V.Search):
-    def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct_rad)
+    def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad, streaks):
+        V.Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
-        self.ptol = SQRT2 * tol + db.key_step
+        self.ptol0 = SQRT2 * tol + db.key_step
         self.ranges = array("i", [-1] * (2 * self.n * self.n))
+
+    def ptol(self, i, j):
+        """Tolerance (rad) of the observed angle between stars ``i`` and ``j``."""
+        return self.ptol0 + self.half[i] + self.half[j]
 
     def candidates(self, i, j):
         """``(start, stop)``: the database pairs within ``ptol`` of the observed angle
@@ -108,14 +119,16 @@ class _Search(V.Search):
         r = self.ranges
         if r[c] < 0:
             t = self.ang[i * n + j]
-            r[c], r[c + 1] = self.db.pairs_in_range(t - self.ptol, t + self.ptol)
+            tol = self.ptol(i, j)
+            r[c], r[c + 1] = self.db.pairs_in_range(t - tol, t + tol)
         return r[c], r[c + 1]
 
     def bound(self, i, j, k):
         a = self.ang
         n = self.n
-        return self.tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) +
-                           math.sin(a[k * n + i]))
+        h = self.half
+        tol = self.tol + max(h[i], h[j], h[k])
+        return tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) + math.sin(a[k * n + i]))
 
     def _index(self, start, stop):
         """Index the pairs ``start <= p < stop`` by star: ``(head, st, nxt)``.
@@ -204,7 +217,6 @@ class _Search(V.Search):
         b = self.b
         n = self.n
         ang = self.ang
-        ptol = self.ptol
         ci, cj, ck = cat
         vi, vj, vk = db.star_vector(ci), db.star_vector(cj), db.star_vector(ck)
         for r in range(n):
@@ -213,6 +225,8 @@ class _Search(V.Search):
             s = self.candidates(r, i)
             t_rj = ang[r * n + j]
             t_rk = ang[r * n + k]
+            tol_rj = self.ptol(r, j)
+            tol_rk = self.ptol(r, k)
             bound = self.bound(i, j, r)
             t_obs = V.triple(b[i], b[j], b[r])
             for p0 in range(s[0], s[1], PAIR_BLOCK):
@@ -229,8 +243,8 @@ class _Search(V.Search):
                     if cr == cj or cr == ck:
                         continue
                     vr = db.star_vector(cr)
-                    if abs(V.angle(vr, vj) - t_rj) > ptol or \
-                            abs(V.angle(vr, vk) - t_rk) > ptol:
+                    if abs(V.angle(vr, vj) - t_rj) > tol_rj or \
+                            abs(V.angle(vr, vk) - t_rk) > tol_rk:
                         continue
                     if not _handed(t_obs, V.triple(vi, vj, vr), bound):
                         continue
@@ -256,16 +270,19 @@ class _Search(V.Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
     """Pyramid identification; returns a :class:`lodestar.firmware.verify.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star (the
     verification match radius).  ``budget``: most triples tried.  ``max_stars``: observed
     stars used for patterns.  ``distinct_rad``: attitudes further apart than this are
-    distinct solutions (default ``20 * tolerance_rad``).
+    distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
+    partly seen track (module docstring), or None.
     """
     if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 4:
+        return V.Solution(V.BAD_INPUT)
+    if not V.streaks_valid(streaks, len(vectors)):
         return V.Solution(V.BAD_INPUT)
     if not database.methods & METHOD_PYRAMID:
         return V.Solution(V.BAD_DATABASE)
@@ -275,7 +292,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     if len(b) < 4:
         return V.Solution(V.TOO_FEW_STARS)
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
     n = search.n
     tried = 0
     for dj in range(1, n - 1):

@@ -151,10 +151,9 @@ def correspondences(obs_opp, cat_opp, tol):
 
 
 class _Search(V.Search):
-    def __init__(self, b, db, tol, max_prob, distinct):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct)
-        self.side_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
-        self.max_side = 2.0 * math.sin(0.5 * db.tri_max_side) + 2.0 * tol
+    def __init__(self, b, db, tol, max_prob, distinct, streaks):
+        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+        self.max_side0 = 2.0 * math.sin(0.5 * db.tri_max_side)
 
     def try_triple(self, i, j, k):
         """Accepted ``[(q, Verification)]`` of observed triple ``(i, j, k)``."""
@@ -162,17 +161,21 @@ class _Search(V.Search):
         db = self.db
         tri = (i, j, k)
         v = (b[i], b[j], b[k])
+        h = self.half
+        tol = self.tol + max(h[i], h[j], h[k])     # a streak: off by up to half along it
+        side_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
+        max_side = self.max_side0 + 2.0 * tol
         opp = (chord(v[1], v[2]), chord(v[0], v[2]), chord(v[0], v[1]))
-        if opp[0] > self.max_side or opp[1] > self.max_side or opp[2] > self.max_side:
+        if opp[0] > max_side or opp[1] > max_side or opp[2] > max_side:
             return []
         ar = area(opp[0], opp[1], opp[2])
         mo = moment(opp[0], opp[1], opp[2], ar)
-        d_area, d_moment = bounds(v[0], v[1], v[2], self.tol)
+        d_area, d_moment = bounds(v[0], v[1], v[2], tol)
         d_area += 0.5 * db.tri_area_step
         d_moment += 0.5 * db.tri_moment_step
         mstep = db.tri_moment_step
         start, stop = db.triangles_in_range(ar - d_area, ar + d_area)
-        t_bound = V.triple_bound(v[0], v[1], v[2], self.tol)
+        t_bound = V.triple_bound(v[0], v[1], v[2], tol)
         accepted = []
         for r in range(start, stop):
             _, mkey, c0, c1, c2 = db.triangle_record(r)
@@ -180,7 +183,7 @@ class _Search(V.Search):
                 continue
             r0, r1, r2 = db.star_vector(c0), db.star_vector(c1), db.star_vector(c2)
             cat_opp = (chord(r1, r2), chord(r0, r2), chord(r0, r1))
-            perms = correspondences(opp, cat_opp, self.side_tol)
+            perms = correspondences(opp, cat_opp, side_tol)
             if not perms:
                 continue
             t_cat = V.triple(r0, r1, r2)
@@ -193,15 +196,19 @@ class _Search(V.Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
     """Planar-triangle identification; returns a :class:`lodestar.firmware.verify.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most triples tried.  ``max_stars``: observed stars used for triangles.
     ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
+    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.verify`):
+    a triangle's tolerances widen by the largest ``half`` of its stars.
     """
     if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
+        return V.Solution(V.BAD_INPUT)
+    if not V.streaks_valid(streaks, len(vectors)):
         return V.Solution(V.BAD_INPUT)
     if not database.methods & METHOD_TRIANGLE:
         return V.Solution(V.BAD_DATABASE)
@@ -211,7 +218,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     if len(b) < 3:
         return V.Solution(V.TOO_FEW_STARS)
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad)
+                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
     n = len(b) if len(b) < max_stars else max_stars
     tried = 0
     for k in range(2, n):

@@ -24,6 +24,18 @@ decides whether the whole field agrees with it:
 
        probability = P(X >= k - 2),  X ~ Binomial(n - 2, p).
 
+   **Streaks.**  A star smeared by a known rate whose track the detector saw only in part
+   lies up to ``half`` rad from its centroid along the track direction ``u`` (the unseen
+   half of the track, ``lodestar.firmware.centroids``).  ``streaks[o]`` is then
+   ``(ux, uy, uz, half)`` (``u`` a camera-frame unit tangent at the star; None for a star
+   known to ``tolerance_rad`` all round): its match region is the stadium of points within
+   ``tolerance_rad`` of the segment ``+-half`` along ``u`` (:func:`in_region`), of area
+   ``pi tolerance_rad**2 + 4 tolerance_rad half``, and each observed star gets its own
+   ``p_o = N_fov * area_o / Omega_fov``.  The number of chance matches is then
+   Poisson-binomial; the ``free_matches`` stars taken as free are those of the smallest
+   ``p_o`` (the bound stays conservative) and ``probability = P(X >= k - 2)`` over the
+   others (:func:`poisson_binomial_tail`).
+
    A hypothesis is **accepted** when ``probability < max_mismatch_prob`` (default ``1e-9``).
    This is a per-hypothesis false-match probability: over a search that verifies ``H``
    hypotheses the chance of accepting any wrong one is at most ``H * max_mismatch_prob``
@@ -198,6 +210,28 @@ def binomial_tail(n, k, p):
     return out if out < 1.0 else 1.0
 
 
+def poisson_binomial_tail(ps, k):
+    """``P(X >= k)`` for ``X`` the number of successes of independent trials of success
+    probabilities ``ps`` (a recursion over the count distribution, every term positive: no
+    cancellation)."""
+    n = len(ps)
+    if k <= 0:
+        return 1.0
+    if k > n:
+        return 0.0
+    dist = [1.0] + [0.0] * n          # dist[j] = P(j successes so far)
+    for t in range(n):
+        p = ps[t]
+        q = 1.0 - p
+        for j in range(t + 1, 0, -1):
+            dist[j] = dist[j] * q + dist[j - 1] * p
+        dist[0] *= q
+    out = 0.0
+    for j in range(k, n + 1):
+        out += dist[j]
+    return out if out < 1.0 else 1.0
+
+
 def fov_solid_angle(fov_h, fov_v):
     """Solid angle (sr) of a rectangular pinhole FOV of full angles ``fov_h``, ``fov_v``."""
     return 4.0 * math.asin(math.sin(fov_h / 2) * math.sin(fov_v / 2))
@@ -247,36 +281,55 @@ def chord(angle):
     return 2.0 * math.sin(0.5 * angle)
 
 
-def near_pairs(observed, predicted, radius_rad, n_observed=None):
+def in_region(dx, dy, dz, streak, lim):
+    """True when the offset ``(dx, dy, dz)`` of an observed unit vector from a predicted one
+    lies in the observed star's match region: within the chord ``lim`` of the predicted
+    star, widened along a ``streak`` ``(ux, uy, uz, half)`` to the stadium of points within
+    ``lim`` of the segment ``+-chord(half)`` along ``u`` (module docstring; None: a disc)."""
+    d2 = dx * dx + dy * dy + dz * dz
+    if streak is None:
+        return d2 <= lim * lim
+    a = abs(dx * streak[0] + dy * streak[1] + dz * streak[2])    # along the track
+    beyond = a - chord(streak[3])                                  # past the segment's end
+    if beyond < 0.0:
+        beyond = 0.0
+    return d2 - a * a + beyond * beyond <= lim * lim
+
+
+def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
     """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
-    ``n_observed``) within ``radius_rad`` of a predicted star ``predicted[p][0]``, with
-    ``(dx, dy, dz) = observed[o] - predicted[p][0]``; in ``o`` then ``p`` order."""
+    ``n_observed``) within ``radius_rad`` of a predicted star ``predicted[p][0]`` (of the
+    stretch ``streaks[o]`` along its track, :func:`in_region`), with ``(dx, dy, dz) =
+    observed[o] - predicted[p][0]``; in ``o`` then ``p`` order."""
     lim = chord(radius_rad)
-    lim2 = lim * lim
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     for o in range(n):
         ox, oy, oz = observed[o]
+        streak = streaks[o] if streaks is not None else None
+        reach = lim if streak is None else lim + chord(streak[3])
         for p in range(len(predicted)):
             c = predicted[p][0]
             dx = ox - c[0]
-            if dx > lim or -dx > lim:
+            if dx > reach or -dx > reach:
                 continue
             dy = oy - c[1]
-            if dy > lim or -dy > lim:
+            if dy > reach or -dy > reach:
                 continue
             dz = oz - c[2]
-            if dx * dx + dy * dy + dz * dz <= lim2:
+            if in_region(dx, dy, dz, streak, lim):
                 yield o, p, dx, dy, dz
 
 
-def match_stars(observed, predicted, tolerance_rad):
-    """One-to-one matches ``[(observed_index, star_index)]`` closer than ``tolerance_rad``,
+def match_stars(observed, predicted, tolerance_rad, streaks=None):
+    """One-to-one matches ``[(observed_index, star_index)]`` within each observed star's
+    match region (``tolerance_rad``, stretched along ``streaks``: :func:`in_region`),
     closest first; ``predicted`` as returned by :func:`predicted_stars`.  An observed star
     that is also within tolerance of a predicted star left unmatched is dropped (a close
     double with one component unseen: either name could be right), and so are two observed
     stars whose swapped assignment is also within tolerance."""
     cands = [(dx * dx + dy * dy + dz * dz, o, p)
-             for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad)]
+             for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad,
+                                                streaks=streaks)]
     cands.sort()
     used_o = {}
     used_p = {}
@@ -313,17 +366,38 @@ def match_stars(observed, predicted, tolerance_rad):
     return pairs
 
 
-def verify(observed, database, q, tolerance_rad, free_matches=2):
-    """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors; returns a
-    :class:`Verification` (accept when ``probability < max_mismatch_prob``)."""
+def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
+    """Per observed star, the probability that one of ``n_fov`` stars scattered over the
+    solid angle ``omega`` falls in its match region (module docstring)."""
+    disc = math.pi * tolerance_rad * tolerance_rad
+    out = []
+    for o in range(n):
+        streak = streaks[o] if streaks is not None else None
+        area = disc if streak is None else disc + 4.0 * tolerance_rad * streak[3]
+        p = n_fov * area / omega
+        out.append(p if p < 1.0 else 1.0)
+    return out
+
+
+def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
+    """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors (their
+    match regions stretched along ``streaks``); returns a :class:`Verification` (accept
+    when ``probability < max_mismatch_prob``; ``p_single``: the largest per-star chance
+    probability)."""
     predicted = predicted_stars(database, q)
-    pairs = match_stars(observed, predicted, tolerance_rad)
+    pairs = match_stars(observed, predicted, tolerance_rad, streaks)
     n_fov = len(predicted)
     omega = fov_solid_angle(database.fov_h, database.fov_v)
-    p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega
-    if p > 1.0:
-        p = 1.0
-    prob = binomial_tail(len(observed) - free_matches, len(pairs) - free_matches, p)
+    if streaks is None or not any(streaks):
+        p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega
+        if p > 1.0:
+            p = 1.0
+        prob = binomial_tail(len(observed) - free_matches, len(pairs) - free_matches, p)
+    else:
+        ps = chance_probabilities(n_fov, omega, tolerance_rad, streaks, len(observed))
+        ps.sort()
+        p = ps[-1]
+        prob = poisson_binomial_tail(ps[free_matches:], len(pairs) - free_matches)
     return Verification(pairs, n_fov, p, prob)
 
 
@@ -346,17 +420,44 @@ def prepare(vectors):
     return b
 
 
+def streaks_valid(streaks, n):
+    """True when ``streaks`` is None or ``n`` entries, each None or ``(ux, uy, uz, half)``
+    of finite numbers with ``half >= 0`` (``u`` is used as given: a unit vector)."""
+    if streaks is None:
+        return True
+    try:
+        if len(streaks) != n:
+            return False
+        for s in streaks:
+            if s is None:
+                continue
+            if len(s) != 4:
+                return False
+            for v in s:
+                if not (v == v and v - v == 0):
+                    return False
+            if s[3] < 0:
+                return False
+    except TypeError:
+        return False
+    return True
+
+
 class Search:
     """Hypothesis testing, refinement and the final decision, common to every method.
 
     ``b``: observed unit vectors (brightest first); ``db``: the database; ``tol``: the
     direction tolerance (rad); ``max_prob``: acceptance threshold of the binomial
-    probability; ``distinct``: attitudes further apart (rad) are distinct solutions.
-    ``hypotheses`` counts verified hypotheses, ``best_rejected`` is the smallest
-    probability of a rejected one.
+    probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
+    ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (module
+    docstring), or None for none.  ``half`` lists each star's ``half`` (0 without a
+    streak) and ``weights`` the refinement's: ``1 / (1 + 1.5 (half / tol)^2)``, the
+    variance of a uniform position over ``+-half`` on one axis (``half^2 / 3``) shared by two
+    against ``(tol / 3)^2`` per axis.  ``hypotheses`` counts verified hypotheses,
+    ``best_rejected`` is the smallest probability of a rejected one.
     """
 
-    def __init__(self, b, db, tol, max_prob, distinct):
+    def __init__(self, b, db, tol, max_prob, distinct, streaks=None):
         self.b = b
         self.db = db
         self.tol = tol
@@ -364,16 +465,25 @@ class Search:
         self.distinct = distinct
         self.hypotheses = 0
         self.best_rejected = 1.0
+        self.streaks = streaks if streaks is not None and any(streaks) else None
+        self.half = [0.0] * len(b)
+        self.weights = None
+        if self.streaks is not None:
+            self.weights = [1.0] * len(b)
+            for o in range(len(b)):
+                if streaks[o] is not None:
+                    h = streaks[o][3]
+                    self.half[o] = h
+                    self.weights[o] = 1.0 / (1.0 + 1.5 * (h / tol) * (h / tol))
 
     def hypothesis(self, obs_idx, cat_idx):
-        """Fit (q-method) and verify observed stars ``obs_idx`` as catalogue stars
-        ``cat_idx``; returns ``(q, Verification)`` or ``(None, None)`` (degenerate)."""
-        db = self.db
-        q = fit_attitude([self.b[o] for o in obs_idx], [db.star_vector(c) for c in cat_idx])
+        """Fit (q-method, :meth:`fit`) and verify observed stars ``obs_idx`` as catalogue
+        stars ``cat_idx``; returns ``(q, Verification)`` or ``(None, None)`` (degenerate)."""
+        q = self.fit([(obs_idx[t], cat_idx[t]) for t in range(len(obs_idx))])
         if q is None:
             return None, None
         self.hypotheses += 1
-        return q, verify(self.b, db, q, self.tol)
+        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks)
 
     def test(self, obs_idx, cat_idx, accepted):
         """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
@@ -392,20 +502,25 @@ class Search:
         """Attitude from all matches: refit and re-verify while the match set grows (up to
         ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
         ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
-        db = self.db
         for _ in range(rounds):
-            obs = [self.b[o] for o, s in ver.pairs]
-            ref = [db.star_vector(s) for o, s in ver.pairs]
-            q = fit_attitude(obs, ref)
+            q = self.fit(ver.pairs)
             if q is None:
                 break
-            ver2 = verify(self.b, db, q, self.tol)
+            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
             if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
                     ver2.pairs == ver.pairs:
                 return q, ver
             ver = ver2
-        obs = [self.b[o] for o, s in ver.pairs]
-        return fit_attitude(obs, [db.star_vector(s) for o, s in ver.pairs]), ver
+        return self.fit(ver.pairs), ver
+
+    def fit(self, pairs):
+        """The q-method attitude of the matches ``pairs`` (observed, catalogue index),
+        weighted by :attr:`weights`; None when degenerate."""
+        db = self.db
+        obs = [self.b[o] for o, s in pairs]
+        ref = [db.star_vector(s) for o, s in pairs]
+        w = None if self.weights is None else [self.weights[o] for o, s in pairs]
+        return fit_attitude(obs, ref, w)
 
     def conclude(self, accepted, tried):
         """The :class:`Solution` of the accepted hypotheses of one pattern: ``AMBIGUOUS`` if

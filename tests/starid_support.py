@@ -70,3 +70,24 @@ def assert_identify_within_heap_budget(method, camera, catalogue, db):
         assert starid.identify(v, db, method=method, tolerance_rad=tol).status == starid.OK
         peak = live_peak(lambda: starid.identify(v, db, method=method, tolerance_rad=tol))
         assert peak < HEAP_BUDGET, (method, camera.name, peak)
+
+
+def streaked(vectors, rng, half_rad, every=1, keep_first=0):
+    """Observed directions seen as partial tracks: from star ``keep_first`` on, every
+    ``every``-th vector is moved along a random tangent ``u`` by a uniform offset within
+    ``+-half_rad`` pushed to at least ``half_rad / 2`` (beyond any point tolerance when
+    ``half_rad`` is large).  Returns ``(vectors, streaks)`` with ``streaks[o] = (ux, uy, uz,
+    half_rad)`` for a moved star, None for the others (``lodestar.firmware.verify``)."""
+    out, streaks = [], []
+    for o, v in enumerate(np.asarray(vectors, dtype=float)):
+        if o < keep_first or (o - keep_first) % every:
+            out.append(v.tolist())
+            streaks.append(None)
+            continue
+        t = np.cross(v, rng.normal(size=3))
+        u = t / np.linalg.norm(t)
+        shift = rng.uniform(0.5, 1.0) * half_rad * rng.choice([-1.0, 1.0])
+        w = v + shift * u
+        out.append((w / np.linalg.norm(w)).tolist())
+        streaks.append((float(u[0]), float(u[1]), float(u[2]), float(half_rad)))
+    return out, streaks

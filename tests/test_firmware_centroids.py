@@ -324,6 +324,41 @@ def test_broken_track_is_joined_into_one_star():
     assert rejected["fragment"] == 0 and len(stars) == 2
 
 
+def test_unseen_track_of_a_piece():
+    # the whole track: nothing unseen; 60 % of it: a fifth of the track each way
+    dx, dy = 24.0, -10.0
+    length = math.hypot(dx, dy)
+    w = smeared_star_weights(1.2, dx, dy)
+    c = (w.shape[0] - 1) / 2
+    y, x = np.mgrid[0:w.shape[0], 0:w.shape[1]]
+    along = ((x - c) * dx + (y - c) * dy) / length
+    whole = record_from_weights(w, 500, 400)
+    half = record_from_weights(np.where(along > -0.1 * length, w, 0), 700, 600)
+    dot = record_from_weights(gaussian_weights(1.2, 1.2, 0.0, size=11), 800, 100)
+    stars, _ = FC.extract([whole, half, dot], expected_smear_px=(dx, dy))
+    by_index = {s.index: s for s in stars}
+    assert by_index[0].unseen == pytest.approx(0.0, abs=0.3)
+    assert by_index[1].unseen == pytest.approx(length / 5, abs=0.6)
+    assert by_index[2].unseen == pytest.approx(length / 2, abs=0.3)     # a round piece
+    # the piece's centroid sits within its unseen track of the star's position
+    assert abs((by_index[1].x - 700 - c) * dx + (by_index[1].y - 600 - c) * dy) / length \
+        <= by_index[1].unseen + 0.5
+    # without a smear nothing is unseen
+    assert all(s.unseen == 0.0 for s in FC.extract([half, dot])[0])
+
+
+def test_unseen_px_formula():
+    # a line of length l on an isotropic PSF: sigma_major^2 - sigma_minor^2 = l^2 / 12
+    smaj = math.sqrt(1 + 16 / 12)                        # l = 4 px on a 1 px PSF
+    assert FC.unseen_px(smaj, 1.0, 0.0, (10.0, 0.0)) == pytest.approx(3.0)
+    assert FC.unseen_px(smaj, 1.0, math.pi, (-10.0, 0.0)) == pytest.approx(3.0)
+    # measured along the smear only: a piece across it shows none of the track
+    assert FC.unseen_px(smaj, 1.0, math.pi / 2, (10.0, 0.0)) == pytest.approx(5.0)
+    assert FC.unseen_px(smaj, 1.0, 0.0, (3.0, 0.0)) == 0.0           # longer than the smear
+    assert FC.unseen_px(smaj, 1.0, 0.0, None) == 0.0
+    assert FC.unseen_px(smaj, 1.0, 0.0, (float("nan"), 0.0)) == 0.0
+
+
 def test_smear_consistent_tolerances():
     smaj, smin = math.sqrt(1 + 100 / 12), 1.0        # a 10 px smear on a 1 px PSF
     assert FC.smear_consistent(smaj, smin, 0.0, (10.0, 0.0))
