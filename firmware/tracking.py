@@ -39,7 +39,10 @@ Algorithm
    of the observed stars agree by chance (the test of :mod:`lodestar.firmware.verify`:
    ``p = N_fov pi tolerance^2 / Omega_fov`` per star, two matches free) below
    ``max_mismatch_prob``.  Every reported match lies within ``tolerance_rad`` of its
-   catalogue star at the returned attitude.
+   catalogue star at the returned attitude.  With ``streaks`` (a smeared star seen only in
+   part) steps 4 and 5 use that star's region stretched along its track and the
+   Poisson-binomial probability of :mod:`lodestar.firmware.verify`, and its fits weigh it
+   less (:func:`lodestar.firmware.verify.streak_weights`).
 
 Result: a :class:`TrackSolution` with the attributes of an identification ``Solution``
 (``status``, ``q``, ``matches`` = ``[(observed index, HIP)]``, ``star_ids`` =
@@ -62,7 +65,8 @@ from array import array
 from . import attitude as _att
 from .quaternion import multiply
 from . import status as S
-from .verify import binomial_tail, fov_solid_angle, near_pairs
+from .verify import (chance_agreement, fov_solid_angle, near_pairs, streak_weights,
+                     streaks_valid)
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -248,9 +252,10 @@ def predict(database, q, margin_rad=0.0, stars=None):
     return out, n_fov
 
 
-def match_nearest(observed, predicted, tolerance_rad):
+def match_nearest(observed, predicted, tolerance_rad, streaks=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
-    index) closer than ``tolerance_rad``: observed stars in order (brightest first) take the
+    index) closer than ``tolerance_rad`` (or within the region stretched along a star's
+    track, ``streaks``: :func:`lodestar.firmware.verify.in_region`): observed stars in order (brightest first) take the
     nearest unclaimed predicted star; a star with a second unclaimed prediction within
     tolerance is left unnamed."""
     claimed = {}
@@ -262,7 +267,7 @@ def match_nearest(observed, predicted, tolerance_rad):
             claimed[best] = o
             pairs.append((o, predicted[best][1]))
 
-    for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad):
+    for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad, streaks=streaks):
         if o != current:
             close(current)
             best, second, current = -1, False, o
@@ -381,22 +386,26 @@ def _unit_vectors(vectors):
 def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT_TOLERANCE_RAD,
           search_rad=DEFAULT_SEARCH_RAD, min_matches=DEFAULT_MIN_MATCHES,
           max_mismatch_prob=DEFAULT_MAX_MISMATCH_PROB, coarse_stars=DEFAULT_COARSE_STARS,
-          iterations=DEFAULT_ITERATIONS, weights=None):
+          iterations=DEFAULT_ITERATIONS, weights=None, streaks=None):
     """Identify ``vectors`` (camera frame, brightest first) from the prior ``q_prior``
     propagated by ``omega`` (rad/s) over ``dt`` (s); returns a :class:`TrackSolution`.
 
     ``weights`` (one positive number per observed star, e.g. ``sigma**-2``) weight the QUEST
-    fits; None: equal.  See the module docstring for the algorithm and the statuses.
+    fits; None: equal (or :func:`lodestar.firmware.verify.streak_weights`).  ``streaks``:
+    per star None or its partly seen track (:mod:`lodestar.firmware.verify`): the fine
+    matching and the probability use its stretched region.  See the module docstring for
+    the algorithm and the statuses.
     """
     try:
         return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,
-                      min_matches, max_mismatch_prob, coarse_stars, iterations, weights)
+                      min_matches, max_mismatch_prob, coarse_stars, iterations, weights,
+                      streaks)
     except Exception:       # a database read error or a bug must not reach the flight loop
         return TrackSolution(getattr(S, "INTERNAL_ERROR", S.BAD_INPUT))
 
 
 def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,
-           coarse_stars, iterations, weights):
+           coarse_stars, iterations, weights, streaks):
     if not (_number(tol) and tol > 0 and _number(search) and search >= 0 and
             _number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
         return TrackSolution(S.BAD_INPUT)
@@ -408,6 +417,10 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         return TrackSolution(S.BAD_INPUT)
     if weights is not None and len(weights) != len(b):
         return TrackSolution(S.BAD_INPUT)
+    if not streaks_valid(streaks, len(b)):
+        return TrackSolution(S.BAD_INPUT)
+    if weights is None:
+        weights = streak_weights(streaks, tol)
     if len(b) < min_matches:
         return TrackSolution(S.TOO_FEW_STARS, q_predicted=q_pred)
 
@@ -427,7 +440,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     pairs = None
     for _ in range(iterations):
         predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-        new = match_nearest(b, predicted, tol)
+        new = match_nearest(b, predicted, tol, streaks)
         if new == pairs:
             break
         q_new = fit(b, database, new, weights, stars)
@@ -439,7 +452,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
     # the reported matches must hold at the returned attitude
     predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-    final = match_nearest(b, predicted, tol)
+    final = match_nearest(b, predicted, tol, streaks)
     if final != pairs:
         keep = {}
         for pair in final:
@@ -450,10 +463,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
             return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
         q = q2
     omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
-    p = n_fov * math.pi * tol * tol / omega_fov
-    if p > 1.0:
-        p = 1.0
-    prob = binomial_tail(len(b) - 2, len(pairs) - 2, p)
+    _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
     matches = [(o, database.star_hip(s)) for o, s in pairs]
     rms = residual_rms(b, database, q, pairs)
     status = S.OK if len(pairs) >= min_matches and prob < max_prob else S.NO_MATCH

@@ -388,17 +388,25 @@ def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
     pairs = match_stars(observed, predicted, tolerance_rad, streaks)
     n_fov = len(predicted)
     omega = fov_solid_angle(database.fov_h, database.fov_v)
+    p, prob = chance_agreement(n_fov, omega, tolerance_rad, len(observed), len(pairs),
+                               streaks, free_matches)
+    return Verification(pairs, n_fov, p, prob)
+
+
+def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks=None,
+                     free_matches=2):
+    """``(p_single, probability)``: the largest per-star chance-match probability and the
+    probability that ``n_matched`` of ``n_observed`` stars (``free_matches`` of them free)
+    agree by chance with ``n_fov`` stars over the solid angle ``omega`` (module docstring:
+    binomial, or Poisson-binomial with ``streaks``)."""
     if streaks is None or not any(streaks):
         p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega
         if p > 1.0:
             p = 1.0
-        prob = binomial_tail(len(observed) - free_matches, len(pairs) - free_matches, p)
-    else:
-        ps = chance_probabilities(n_fov, omega, tolerance_rad, streaks, len(observed))
-        ps.sort()
-        p = ps[-1]
-        prob = poisson_binomial_tail(ps[free_matches:], len(pairs) - free_matches)
-    return Verification(pairs, n_fov, p, prob)
+        return p, binomial_tail(n_observed - free_matches, n_matched - free_matches, p)
+    ps = chance_probabilities(n_fov, omega, tolerance_rad, streaks, n_observed)
+    ps.sort()
+    return ps[-1], poisson_binomial_tail(ps[free_matches:], n_matched - free_matches)
 
 
 # --------------------------------------------------------------------------------------
@@ -418,6 +426,23 @@ def prepare(vectors):
             return None
         b.append(u)
     return b
+
+
+def streak_weights(streaks, tolerance_rad):
+    """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
+    ``1 / (1 + 1.5 (half / tolerance_rad)^2)``, the variance of a uniform position over
+    ``+-half`` on one axis (``half^2 / 3``) shared by two, against ``(tolerance_rad / 3)^2``
+    per axis; 1 without a streak."""
+    if streaks is None or not any(streaks):
+        return None
+    out = []
+    for streak in streaks:
+        if streak is None:
+            out.append(1.0)
+        else:
+            h = streak[3] / tolerance_rad
+            out.append(1.0 / (1.0 + 1.5 * h * h))
+    return out
 
 
 def streaks_valid(streaks, n):
@@ -451,9 +476,7 @@ class Search:
     probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
     ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (module
     docstring), or None for none.  ``half`` lists each star's ``half`` (0 without a
-    streak) and ``weights`` the refinement's: ``1 / (1 + 1.5 (half / tol)^2)``, the
-    variance of a uniform position over ``+-half`` on one axis (``half^2 / 3``) shared by two
-    against ``(tol / 3)^2`` per axis.  ``hypotheses`` counts verified hypotheses,
+    streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts verified hypotheses,
     ``best_rejected`` is the smallest probability of a rejected one.
     """
 
@@ -467,14 +490,11 @@ class Search:
         self.best_rejected = 1.0
         self.streaks = streaks if streaks is not None and any(streaks) else None
         self.half = [0.0] * len(b)
-        self.weights = None
+        self.weights = streak_weights(self.streaks, tol)
         if self.streaks is not None:
-            self.weights = [1.0] * len(b)
             for o in range(len(b)):
                 if streaks[o] is not None:
-                    h = streaks[o][3]
-                    self.half[o] = h
-                    self.weights[o] = 1.0 / (1.0 + 1.5 * (h / tol) * (h / tol))
+                    self.half[o] = streaks[o][3]
 
     def hypothesis(self, obs_idx, cat_idx):
         """Fit (q-method, :meth:`fit`) and verify observed stars ``obs_idx`` as catalogue
