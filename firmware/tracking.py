@@ -255,9 +255,9 @@ def predict(database, q, margin_rad=0.0, stars=None):
 def match_nearest(observed, predicted, tolerance_rad, streaks=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
     index) closer than ``tolerance_rad`` (or within the region stretched along a star's
-    track, ``streaks``: :func:`lodestar.firmware.verify.in_region`): observed stars in order (brightest first) take the
-    nearest unclaimed predicted star; a star with a second unclaimed prediction within
-    tolerance is left unnamed."""
+    track, ``streaks``: :func:`lodestar.firmware.verify.in_region`): observed stars in
+    order (brightest first) take the nearest unclaimed predicted star; a star with a second
+    unclaimed prediction within tolerance is left unnamed."""
     claimed = {}
     pairs = []
     best, best_d2, second, current = -1, 0.0, False, -1

@@ -45,10 +45,11 @@ decides whether the whole field agrees with it:
 The methods share :class:`Search` (fit + verify a hypothesis, refine the accepted one over
 all its matches, decide ``OK`` / ``AMBIGUOUS`` among the accepted hypotheses of one pattern)
 and the handedness test :func:`handed`.  The attitude fit is Davenport's q-method of
-:mod:`lodestar.firmware.attitude` (:func:`fit_attitude`; it replaced a private inverse
-iteration that lost up to ~10 arcmin on two-star, sub-degree fits).  Status codes are those of :mod:`lodestar.firmware.status`,
-re-exported here under the names the identification methods use (``BAD_DATABASE`` is
-``DATABASE_UNSUPPORTED``).
+:mod:`lodestar.firmware.attitude` (:func:`fit_attitude`, weighted by
+:func:`streak_weights` when there are streaks; it replaced a private inverse iteration that
+lost up to ~10 arcmin on two-star, sub-degree fits).  Status codes are those of
+:mod:`lodestar.firmware.status`, re-exported here under the names the identification
+methods use (``BAD_DATABASE`` is ``DATABASE_UNSUPPORTED``).
 
 Conventions (``lodestar.sim``): ``q = (x, y, z, w)``, scalar last, rotating inertial vectors
 into the camera frame, ``v_cam = R(q) v_inertial``.
@@ -476,8 +477,8 @@ class Search:
     probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
     ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (module
     docstring), or None for none.  ``half`` lists each star's ``half`` (0 without a
-    streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts verified hypotheses,
-    ``best_rejected`` is the smallest probability of a rejected one.
+    streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
+    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
     """
 
     def __init__(self, b, db, tol, max_prob, distinct, streaks=None):
