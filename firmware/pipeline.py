@@ -115,6 +115,7 @@ from . import packet as _packet
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
+from . import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
@@ -440,18 +441,29 @@ class StarTracker:
             timings[name] = now - start
         return now
 
+    def _epoch_turn(self, omega, exposure_s):
+        """``turn(v, y)``: ``v`` seen on row ``y`` rotated back to the epoch (module
+        docstring, stage 3), or None without a rate."""
+        if omega is None:
+            return None
+        rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+        if not rate > 0:
+            return None
+        axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
+        half = 0.5 * exposure_s if exposure_s is not None else 0.0
+        row_time = self.row_time_s
+        epoch = self.epoch_s
+
+        def turn(v, y):
+            return _rotate(v, axis, rate * (half + y * row_time - epoch))
+        return turn
+
     def directions(self, stars, omega=None, exposure_s=None):
         """Camera-frame unit vectors of ``stars`` (objects with ``x``, ``y``) at the epoch:
         ``(vectors, used)`` with ``used`` the indices into ``stars`` of the stars whose pixel
         the camera model inverts (the others are dropped)."""
         cam = self.camera
-        rate = 0.0
-        axis = None
-        if omega is not None:
-            rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
-            if rate > 0:
-                axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
-        half = 0.5 * exposure_s if exposure_s is not None else 0.0
+        turn = self._epoch_turn(omega, exposure_s)
         vectors = []
         used = []
         for i in range(len(stars)):
@@ -459,9 +471,8 @@ class StarTracker:
             v = cam.pixel_to_vector(s.x, s.y)
             if v is None:
                 continue
-            if axis is not None:
-                t = half + s.y * self.row_time_s - self.epoch_s
-                v = _rotate(v, axis, rate * t)
+            if turn is not None:
+                v = turn(v, s.y)
             vectors.append(v)
             used.append(i)
         return vectors, used
@@ -474,10 +485,7 @@ class StarTracker:
         None instead of the list when no star has an unseen track.  ``omega``, ``exposure_s``
         as for :meth:`directions` (the tangent turns with its direction)."""
         cam = self.camera
-        half_exposure = 0.5 * exposure_s if exposure_s is not None else 0.0
-        rate = 0.0
-        if omega is not None:
-            rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+        turn = self._epoch_turn(omega, exposure_s)
         out = []
         found = False
         for i in used:
@@ -493,10 +501,8 @@ class StarTracker:
                     per_px = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
                     if per_px > 0:
                         u = (t[0] / per_px, t[1] / per_px, t[2] / per_px)
-                        if rate > 0:
-                            axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
-                            when = half_exposure + s.y * self.row_time_s - self.epoch_s
-                            u = _rotate(u, axis, rate * when)
+                        if turn is not None:
+                            u = turn(u, s.y)
                         streak = (u[0], u[1], u[2], s.unseen * per_px)
                         found = True
             out.append(streak)
@@ -586,9 +592,7 @@ class StarTracker:
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
-                streak = streaks[star_ids[i][0]]
-                if streak is not None:
-                    extra[i] = streak[3] * streak[3] / 6.0
+                extra[i] = _verify.streak_variance(streaks[star_ids[i][0]])
         tracks = max(extra) > 0 if n else False
         try:
             if fluxes is None:

@@ -429,21 +429,20 @@ def prepare(vectors):
     return b
 
 
+def streak_variance(streak):
+    """Per-axis variance (rad^2) a streak adds to its star's direction: a uniform offset over
+    ``+-half`` along one axis (``half^2 / 3``) shared by two, ``half^2 / 6``; 0 for None."""
+    return 0.0 if streak is None else streak[3] * streak[3] / 6.0
+
+
 def streak_weights(streaks, tolerance_rad):
     """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
-    ``1 / (1 + 1.5 (half / tolerance_rad)^2)``, the variance of a uniform position over
-    ``+-half`` on one axis (``half^2 / 3``) shared by two, against ``(tolerance_rad / 3)^2``
-    per axis; 1 without a streak."""
+    ``1 / (1 + streak_variance / (tolerance_rad / 3)^2)`` (:func:`streak_variance` against
+    a point tolerance of three sigma per axis); 1 without a streak."""
     if streaks is None or not any(streaks):
         return None
-    out = []
-    for streak in streaks:
-        if streak is None:
-            out.append(1.0)
-        else:
-            h = streak[3] / tolerance_rad
-            out.append(1.0 / (1.0 + 1.5 * h * h))
-    return out
+    s2 = tolerance_rad * tolerance_rad / 9.0
+    return [1.0 / (1.0 + streak_variance(streak) / s2) for streak in streaks]
 
 
 def streaks_valid(streaks, n):
