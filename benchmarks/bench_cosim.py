@@ -4,7 +4,7 @@
 
 For each geometry: the Verilator build (once; cached builds are reused, so the first run
 reports the real build time), then ``--frames`` simulated star frames through
-``lodestar.cosim.run_frames``, checked against the golden model.  Reports build seconds,
+``lodestar.cosim.runner.run_frames``, checked against the golden model.  Reports build seconds,
 run seconds (stimulus, simulation, output parsing) and pixels per second of the run, with
 the golden model's own speed on the same frames for comparison.
 """
@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from lodestar.cosim import Build, run_frames
+from lodestar.cosim.runner import Build, run_frames
 from lodestar.golden import Detector
 from lodestar.sim.presets import load_preset
 from lodestar.sim.scene import detector_config, simulate

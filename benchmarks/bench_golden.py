@@ -15,8 +15,7 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.golden import streaming, vectorized
+from lodestar.golden import DetectorConfig, detect_frame, streaming, vectorized
 from lodestar.golden.frame import check_frame
 from lodestar.golden.starfield import star_frame
 

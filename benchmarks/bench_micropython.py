@@ -1,10 +1,10 @@
 """Solve time and heap of the flight firmware under MicroPython 1.27 (WebAssembly port in
 Node.js), per identification method, over the firmware regression set
-(``tests/data/regression``, ``lodestar regress``), with the CPython figures beside them.
+(``lodestar/regress/data/regression``, ``lodestar regress``), with the CPython figures beside them.
 
     .venv/bin/python benchmarks/bench_micropython.py [--repeats 5] [--set DIR]
 
-What is measured (``lodestar.regress_micropython`` explains the port's collector):
+What is measured (``lodestar.regress.micropython`` explains the port's collector):
 
 * **time**: ``StarTracker.process`` of each recorded packet of a simulated frame (the
   corrupted packets, which stop at the decoder, are left out), each method, ``--repeats``
@@ -30,9 +30,6 @@ What is measured (``lodestar.regress_micropython`` explains the port's collector
 
 import argparse
 import math
-
-import numpy as np
-from scipy.spatial.transform import Rotation
 import statistics
 import subprocess
 import tempfile
@@ -40,11 +37,16 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from lodestar import regress, regress_micropython, regress_replay
+import numpy as np
+from scipy.spatial.transform import Rotation
+
 from lodestar.firmware import starid, tracking
-from lodestar.ground.scenes import centroid_scene
+from lodestar.regress import mcu as regress_replay
+from lodestar.regress import micropython as regress_micropython
+from lodestar.regress import replay as regress
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import centroid_scene
 from lodestar.sim.presets import load_preset
 
 HEAP_BUDGET = 96 * 1024

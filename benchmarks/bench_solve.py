@@ -1,8 +1,8 @@
-"""Monte Carlo benchmark of the star-tracker solve (``lodestar.solve.solve_centroids``: the
+"""Monte Carlo benchmark of the star-tracker solve (``lodestar.ground.solve.solve_centroids``: the
 flight identification, QUEST and Shuster covariance) on synthetic estcube2 centroid scenes,
 per identification method, optionally side by side with cedar-solve (tetra3).
 
-A scene (:func:`lodestar.ground.scenes.centroid_scene`, estcube2 optics 2592 x 1944, 20.2 x
+A scene (:func:`lodestar.sim.centroids.centroid_scene`, estcube2 optics 2592 x 1944, 20.2 x
 15.2 deg): a uniformly random attitude; every V <= 6.0 star in the frame (close doubles
 blended); each dropped with a probability uniform in [0, 0.3] (missing stars); Gaussian
 centroid noise with sigma uniform in [0.05, 1] px; 0 to 10 false stars uniform in the frame
@@ -14,7 +14,7 @@ jittered brightness order).
 error (*> 1 deg*: of those, the misidentifications; the rest are inaccurate fits of a right
 identification), except that a lodestar solution with every star rightly named and an error
 within 5 sigma of its own covariance is *imprecise* instead (the campaigns' rule,
-:func:`lodestar.campaign_truth.judge`; cedar-solve reports no covariance); *no-solve*: any
+:func:`lodestar.ground.truth.judge`; cedar-solve reports no covariance); *no-solve*: any
 other status.  *misnamed* (lodestar only, a subset of
 *correct*): the attitude is right but a reported HIP is not a component of its centroid --
 a false star that fell within the match tolerance of a catalogue star whose own image was
@@ -83,11 +83,11 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lodestar import solve as L
-from lodestar.campaign_truth import judge
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.ground import solve as L
+from lodestar.ground.truth import judge
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
 
 MAX_ERR_DEG = 0.05

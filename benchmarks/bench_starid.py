@@ -25,9 +25,9 @@ import numpy as np
 from lodestar.firmware import starid
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database, describe
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
 
 IFOV = 1.375e-4     # rad per pixel of estcube2 (2.2 um / 16 mm)

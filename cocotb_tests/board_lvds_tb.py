@@ -1,10 +1,10 @@
 """cocotb testbench of the board top level with the MT9V022 LVDS front end
-(``lodestar.hdl.boards.StarTracker("mt9v022", ...)``, Verilated): an LVDS sensor model
+(``lodestar.hdl.boards.GatewareTop("mt9v022", ...)``, Verilated): an LVDS sensor model
 serialises frames as the MT9V022 stand-alone LVDS stream does and feeds them as
 ``lvds_bits``, ``LVDS_LANES`` bits per ``ser`` clock (what ALTLVDS_RX hands the fabric); the
 SPI master model of ``spi_slave_tb`` writes the registers, waits for ``irq`` and reads each
 frame's packet (``board_top_tb.frame_and_packet``), and every packet must equal, byte for
-byte, ``lodestar.packet.encode`` of the golden result of its frame (``lodestar.golden.Detector``,
+byte, ``lodestar.ground.codec.encode`` of the golden result of its frame (``lodestar.golden.Detector``,
 ``detect_frame``'s stateful form: global mode needs the previous frame).
 
 The sensor model (facts from :mod:`lodestar.hdl.mt9v022`, imported): one 12-bit packet per
@@ -49,11 +49,21 @@ from cocotb.triggers import Event, FallingEdge, Timer
 from spi_slave_tb import T_NS, Master
 
 from lodestar import contract as C
-from lodestar import packet
+from lodestar.contract import OVF_LINK_DOWN
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.hdl.boards import BOARDS, LVDS_LANES, OVF_LINK_DOWN
-from lodestar.hdl.mt9v022 import (FRAME_END, FRAME_START_MIDDLE, FULL, LINE_END, LINE_START,
-                                  PACKET_BITS, PIXEL_BITS, RESERVED_WORDS, packet_bits)
+from lodestar.ground import codec as packet
+from lodestar.hdl.boards import BOARDS, LVDS_LANES
+from lodestar.hdl.mt9v022 import (
+    FRAME_END,
+    FRAME_START_MIDDLE,
+    FULL,
+    LINE_END,
+    LINE_START,
+    PACKET_BITS,
+    PIXEL_BITS,
+    RESERVED_WORDS,
+    packet_bits,
+)
 
 _DE2 = BOARDS["de2-115"]
 SER_PS = 2 * round(T_NS * 1000 * _DE2.sync_hz * LVDS_LANES

@@ -1,4 +1,4 @@
-"""cocotb testbench of the board top level (``lodestar.hdl.boards.StarTracker`` with the
+"""cocotb testbench of the board top level (``lodestar.hdl.boards.GatewareTop`` with the
 MT9P031 parallel front end, Verilated): a sensor model drives frames on PIXCLK (data launched
 on the falling edge, as the MT9P031 does), an SPI master model (``spi_slave_tb.Master``) writes
 the registers, waits for ``irq``, reads the status word and each frame's packet, and every
@@ -20,8 +20,8 @@ from cocotb.triggers import FallingEdge, RisingEdge, Timer
 from spi_slave_tb import Master
 
 from lodestar import contract as C
-from lodestar import packet
 from lodestar.golden import DetectorConfig, detect_frame
+from lodestar.ground import codec as packet
 
 PIX_NS = 13
 SCK_NS = 45

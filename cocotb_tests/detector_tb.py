@@ -19,7 +19,7 @@ import numpy as np
 from cocotb.triggers import RisingEdge
 
 from lodestar import contract as C
-from lodestar.cosim import group_frames, read_output
+from lodestar.cosim.runner import group_frames, read_output
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.hdl.detector import Detector as Gateware
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from cocotb_tools.runner import get_runner
 
-from lodestar.cosim import verilator_env
+from lodestar.cosim.runner import verilator_env
 from lodestar.hdl.export import to_verilog
 
 HERE = Path(__file__).parent

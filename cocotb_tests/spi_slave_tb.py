@@ -16,8 +16,15 @@ from cocotb.clock import Clock
 from cocotb.triggers import FallingEdge, Timer
 
 from lodestar import contract as C
-from lodestar.hdl.spi_slave import (FILLER, OP_READ_STATUS, OP_READ_STREAM, OP_WRITE_REG,
-                                    STATUS_BYTES, TURNAROUND_BYTES, decode_status)
+from lodestar.contract import (
+    FILLER,
+    OP_READ_STATUS,
+    OP_READ_STREAM,
+    OP_WRITE_REG,
+    STATUS_BYTES,
+    TURNAROUND_BYTES,
+    decode_status,
+)
 
 T_NS = 10
 REPLY = 1 + TURNAROUND_BYTES

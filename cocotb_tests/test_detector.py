@@ -1,6 +1,6 @@
 """The detection gateware, Verilated, bit-exact against the golden model (cocotb).
 
-Each test builds one geometry once (``lodestar.cosim.Build``, cached) and plays scenarios
+Each test builds one geometry once (``lodestar.cosim.runner.Build``, cached) and plays scenarios
 at the documented minimum blanking (``MIN_HBLANK`` per row, ``min_vblank`` per frame),
 back to back; ``detector_tb.py`` compares every frame with the golden model.
 """
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
-from lodestar.cosim import Build, Stimulus, frame_gap, scenario
+from lodestar.cosim.runner import Build, Stimulus, frame_gap, scenario
 from lodestar.golden import DetectorConfig, shapes
 from lodestar.hdl.labeller import MIN_HBLANK
 

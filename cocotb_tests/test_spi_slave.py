@@ -1,8 +1,8 @@
 """The SPI slave, Verilated, against a cocotb SPI master model (one build)."""
 
-from lodestar.hdl.spi_slave import SPISlave
-
 from simulator import run
+
+from lodestar.hdl.spi_slave import SPISlave
 
 
 def test_spi_slave_transactions(tmp_path):

@@ -1,11 +1,14 @@
 """The threshold unit, Verilated, against the golden model's levels (cocotb)."""
 
 import pytest
-
-from lodestar.hdl.threshold import (ThresholdUnit, global_cycles, local_blanking,
-                                    local_log2_window_max)
-
 from simulator import run
+
+from lodestar.hdl.threshold import (
+    ThresholdUnit,
+    global_cycles,
+    local_blanking,
+    local_log2_window_max,
+)
 
 
 @pytest.mark.parametrize("width,height,bits,frames", [(13, 7, 12, 40), (131, 3, 10, 24)])

@@ -18,7 +18,7 @@ from cocotb.clock import Clock
 from cocotb.triggers import FallingEdge
 
 from lodestar import contract as C
-from lodestar.cosim import unpack
+from lodestar.cosim.runner import unpack
 from lodestar.golden import DetectorConfig
 from lodestar.golden.frame import frame_levels
 from lodestar.golden.vectorized import frame_stats, local_levels

@@ -39,95 +39,14 @@ import math
 import struct
 from array import array
 
-try:
-    from binascii import crc32 as _crc32
-except ImportError:          # a MicroPython port built without binascii.crc32
-    _crc32 = None
+from lodestar.contract import stardb as L
+from lodestar.contract.packet import crc32
 
 from . import kvector
 from . import status as S
 
-# --------------------------------------------------------------------------------------
-# Layout constants (the ground builder imports these; see its docstring for the table)
-# --------------------------------------------------------------------------------------
-
-MAGIC = b"LSDB"
-VERSION = 1
-HEADER_SIZE = 160
-
-# Fixed header fields before the section directory (88 bytes, little endian).
-HEADER_FORMAT = "<4sHHIIHHfffffIIIfffIffHHff"
-HEADER_FIELDS = ("magic", "version", "header_size", "image_size", "payload_crc",
-                 "methods", "star_record_size", "fov_h", "fov_v", "fov_diag", "mag_limit",
-                 "epoch", "n_stars", "n_pattern_stars", "n_pairs", "pair_min_angle",
-                 "pair_max_angle", "key_step", "kv_bins", "kv_m", "kv_q", "cells_per_face",
-                 "pattern_per_region", "cell_radius", "pattern_radius")
-DIRECTORY_OFFSET = 88        # N_SECTIONS entries of "<II" (offset, length) in bytes
-N_SECTIONS = 8
-RESERVED_OFFSET = 152        # "<I", zero
-HEADER_CRC_OFFSET = 156      # "<I": CRC-32 of header bytes [0, 156)
-SECTION_ALIGN = 4
-
-# Section ids (index into the directory).  Length 0 = absent.
-SEC_STARS = 0                # n_stars records of STAR_FORMAT
-SEC_CELLS = 1                # (6 * cells_per_face**2 + 1) x "<H": first star of each cell
-SEC_PAIRS = 2                # n_pairs records of PAIR_FORMAT, sorted by (key, a, b)
-SEC_KVECTOR = 3              # (kv_bins + 1) x "<I": the k-vector over the pair keys
-SEC_TRIANGLES = 4            # TRI_HEADER, n_triangles x TRI_RECORD, k-vector (triangle)
-SEC_HASH = 5                 # HASH_HEADER, n_groups x HASH_RECORD, k-vector (hashing)
-SECTION_NAMES = ("stars", "cells", "pairs", "kvector", "triangles", "hash", "reserved6",
-                 "reserved7")
-
-STAR_FORMAT = "<fffHH"       # x, y, z (float32), hip low 16 bits, packed word (below)
-STAR_SIZE = 16
-PAIR_FORMAT = "<HHH"         # key (angle / key_step, rounded), star a, star b (a < b)
-PAIR_SIZE = 6
-CELL_FORMAT = "<H"
-KV_FORMAT = "<I"
-
-# Star packed word: bit 0 = HIP bit 16; bits 1-11 = magnitude code (V = code / 100 - 2);
-# bits 12-15 = flags.
-MAG_OFFSET = 2.0
-MAG_SCALE = 100
-STAR_FLAG_PATTERN = 1        # flag bit: the star is in the pair table (a pattern star)
-STAR_FLAG_TRIANGLE = 2       # flag bit: the star is a vertex of a stored triangle
-STAR_FLAG_HASH = 4           # flag bit: the star is a member of a stored hash group
-
-# Method bit mask and the sections each method needs.
-METHOD_PYRAMID = 1
-METHOD_TRIANGLE = 2
-METHOD_HASHING = 4
-METHOD_NAMES = {"pyramid": METHOD_PYRAMID, "triangle": METHOD_TRIANGLE,
-                "hashing": METHOD_HASHING}
-METHOD_SECTIONS = {METHOD_PYRAMID: (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
-                   METHOD_TRIANGLE: (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
-                   METHOD_HASHING: (SEC_STARS, SEC_CELLS, SEC_HASH)}
-SUPPORTED_METHODS = METHOD_PYRAMID | METHOD_TRIANGLE | METHOD_HASHING   # what this reader serves
-
-# Section 4 (triangles): a 40-byte section header, the records sorted by
-# (area_key, moment_key, s0, s1, s2), zero padding to 4 bytes, then the k-vector over the area
-# keys ((tri_kv_bins + 1) x "<I").  Section header fields (attributes "tri_" + name):
-TRI_MAGIC = b"TRI1"
-TRI_HEADER_FORMAT = "<4sIIfffffHHf"
-TRI_HEADER_FIELDS = ("magic", "n", "kv_bins", "area_step", "moment_step", "max_side", "kv_m",
-                     "kv_q", "regions_per_face", "stars_per_region", "region_radius")
-TRI_HEADER_SIZE = 40
-TRI_RECORD_FORMAT = "<HHHHH"  # area key, moment key, s0, s1, s2 (s0 opposite the shortest side)
-TRI_RECORD_SIZE = 10
-
-# Section 5 (hash): a 56-byte section header, the records sorted by (code, stars), zero
-# padding to 4 bytes, then the k-vector over the codes.  Record: "<I" bucket code, then
-# hash_group_size x "<H" star indices in the canonical order A, B, C(, D).
-HASH_MAGIC = b"HSH1"
-HASH_HEADER_FORMAT = "<4sIIHHffHHfffffHHf"
-HASH_HEADER_FIELDS = ("magic", "n", "kv_bins", "group_size", "flags", "coord_lo",
-                      "coord_bucket", "coord_buckets", "dist_buckets", "dist_bucket",
-                      "min_diameter", "max_diameter", "kv_m", "kv_q", "regions_per_face",
-                      "stars_per_region", "region_radius")
-HASH_HEADER_SIZE = 56
-HASH_FLAG_DISTANCE = 1       # non-normalized hash: the code also keys the A-B angle
-HASH_GROUP_SIZES = (3, 4)
-HASH_MAX_CODE = 1 << 30      # codes stay MicroPython small ints
+SUPPORTED_METHODS = L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
+"""The methods this reader serves."""
 
 # Status codes of DatabaseError / check() / load(): lodestar.firmware.status integers.
 OK = S.OK
@@ -151,37 +70,6 @@ class DatabaseError(Exception):
         super().__init__(S.name(status) + ": " + reason)
         self.status = status
         self.reason = reason
-
-
-# --------------------------------------------------------------------------------------
-# CRC-32 (binascii when available, else a table-driven fallback)
-# --------------------------------------------------------------------------------------
-
-_TABLE = None
-
-
-def _crc_table():
-    global _TABLE
-    if _TABLE is None:
-        t = array("I", [0] * 256)
-        for i in range(256):
-            c = i
-            for _ in range(8):
-                c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
-            t[i] = c
-        _TABLE = t
-    return _TABLE
-
-
-def crc32(data, crc=0):
-    """CRC-32 (IEEE 802.3, as ``zlib.crc32``) of ``data``, continuing from ``crc``."""
-    if _crc32 is not None:
-        return _crc32(data, crc) & 0xFFFFFFFF
-    t = _crc_table()
-    c = crc ^ 0xFFFFFFFF
-    for b in data:
-        c = t[(c ^ b) & 0xFF] ^ (c >> 8)
-    return c ^ 0xFFFFFFFF
 
 
 # --------------------------------------------------------------------------------------
@@ -252,7 +140,7 @@ class _FileSource:
         self.f = f
         f.seek(0, 2)
         self.size = f.tell()
-        self.scratch = bytearray(max(HEADER_SIZE, PAIR_BLOCK * PAIR_SIZE))
+        self.scratch = bytearray(max(L.HEADER_SIZE, PAIR_BLOCK * L.PAIR_SIZE))
         self.mv = memoryview(self.scratch)
 
     def unpack(self, fmt, offset, size):
@@ -296,7 +184,7 @@ class Database:
     ``Database(buffer)`` over bytes-like memory or :meth:`open` over a file; both raise
     :class:`DatabaseError` on any corruption or mismatch.  ``expected_fov_h`` (rad), when
     given, must match the image's horizontal FOV to ``fov_tolerance`` (relative), else
-    ``FOV_MISMATCH``.  Header values are attributes named as in :data:`HEADER_FIELDS`
+    ``FOV_MISMATCH``.  Header values are attributes named as in :data:`L.HEADER_FIELDS`
     (angles in radians); ``sections`` is the list of ``(offset, length)``.
     """
 
@@ -333,30 +221,30 @@ class Database:
 
     def _validate(self, expected_fov_h, fov_tolerance):
         src = self._src
-        if src.size < HEADER_SIZE:
+        if src.size < L.HEADER_SIZE:
             raise DatabaseError(S.DATABASE_BAD_LENGTH, "image of " + str(src.size) +
                                 " bytes is shorter than the header")
-        values = src.unpack(HEADER_FORMAT, 0, DIRECTORY_OFFSET)
-        for name, value in zip(HEADER_FIELDS, values):
+        values = src.unpack(L.HEADER_FORMAT, 0, L.DIRECTORY_OFFSET)
+        for name, value in zip(L.HEADER_FIELDS, values):
             setattr(self, name, value)
-        if self.magic != MAGIC:
+        if self.magic != L.MAGIC:
             raise DatabaseError(S.DATABASE_BAD_MAGIC, "magic " + repr(self.magic) + " is not " +
-                                repr(MAGIC))
-        if self.version != VERSION:
+                                repr(L.MAGIC))
+        if self.version != L.VERSION:
             raise DatabaseError(S.DATABASE_BAD_VERSION, "format version " + str(self.version) +
-                                " (this reader reads " + str(VERSION) + ")")
-        if self.header_size != HEADER_SIZE:
+                                " (this reader reads " + str(L.VERSION) + ")")
+        if self.header_size != L.HEADER_SIZE:
             raise DatabaseError(S.DATABASE_BAD_VERSION, "header size " + str(self.header_size))
-        if src.crc(0, HEADER_CRC_OFFSET) != src.unpack("<I", HEADER_CRC_OFFSET, 4)[0]:
+        if src.crc(0, L.HEADER_CRC_OFFSET) != src.unpack("<I", L.HEADER_CRC_OFFSET, 4)[0]:
             raise DatabaseError(S.DATABASE_CORRUPT, "header CRC-32 mismatch")
         if self.image_size != src.size:
             raise DatabaseError(S.DATABASE_BAD_LENGTH, "image is " + str(src.size) +
                                 " bytes, header says " + str(self.image_size))
-        if src.crc(HEADER_SIZE, src.size) != self.payload_crc:
+        if src.crc(L.HEADER_SIZE, src.size) != self.payload_crc:
             raise DatabaseError(S.DATABASE_CORRUPT, "payload CRC-32 mismatch")
         self.sections = []
-        for i in range(N_SECTIONS):
-            self.sections.append(src.unpack("<II", DIRECTORY_OFFSET + 8 * i, 8))
+        for i in range(L.N_SECTIONS):
+            self.sections.append(src.unpack("<II", L.DIRECTORY_OFFSET + 8 * i, 8))
         self._check_layout()
         if expected_fov_h is not None:
             if abs(self.fov_h - expected_fov_h) > fov_tolerance * expected_fov_h:
@@ -367,13 +255,13 @@ class Database:
         def bad(reason):
             raise DatabaseError(S.DATABASE_BAD_LAYOUT, reason)
 
-        if self.methods == 0 or self.methods & ~(METHOD_PYRAMID | METHOD_TRIANGLE |
-                                                 METHOD_HASHING):
+        if self.methods == 0 or self.methods & ~(L.METHOD_PYRAMID | L.METHOD_TRIANGLE |
+                                                 L.METHOD_HASHING):
             bad("unknown method mask " + str(self.methods))
         if not self.methods & SUPPORTED_METHODS:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "method mask " + str(self.methods) +
                                 " has nothing this reader serves")
-        if self.star_record_size != STAR_SIZE:
+        if self.star_record_size != L.STAR_SIZE:
             bad("star record size " + str(self.star_record_size))
         for name in ("fov_h", "fov_v", "fov_diag", "cell_radius"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > math.pi:
@@ -382,58 +270,58 @@ class Database:
             bad("star counts " + str(self.n_stars) + "/" + str(self.n_pattern_stars))
         if not 1 <= self.cells_per_face <= 64:
             bad("cells_per_face " + str(self.cells_per_face))
-        expected = {SEC_STARS: self.n_stars * STAR_SIZE,
-                    SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
-        if self.methods & METHOD_PYRAMID:
+        expected = {L.SEC_STARS: self.n_stars * L.STAR_SIZE,
+                    L.SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
+        if self.methods & L.METHOD_PYRAMID:
             if self.n_pairs < 1 or self.kv_bins < 1:
                 bad("pyramid method without pairs or k-vector bins")
             if not (_finite_positive(self.key_step) and _finite_positive(self.kv_m)) or \
                     self.kv_q != self.kv_q:
                 bad("key step or k-vector line not finite and positive")
-            expected[SEC_PAIRS] = self.n_pairs * PAIR_SIZE
-            expected[SEC_KVECTOR] = (self.kv_bins + 1) * 4
+            expected[L.SEC_PAIRS] = self.n_pairs * L.PAIR_SIZE
+            expected[L.SEC_KVECTOR] = (self.kv_bins + 1) * 4
         required = []
-        for bit in (METHOD_PYRAMID, METHOD_TRIANGLE, METHOD_HASHING):
+        for bit in (L.METHOD_PYRAMID, L.METHOD_TRIANGLE, L.METHOD_HASHING):
             if self.methods & bit:
-                required.extend(METHOD_SECTIONS[bit])
+                required.extend(L.METHOD_SECTIONS[bit])
         spans = []
-        for sec in range(N_SECTIONS):
+        for sec in range(L.N_SECTIONS):
             offset, length = self.sections[sec]
             if length == 0:
                 if sec in required:
-                    bad("section " + SECTION_NAMES[sec] + " is missing")
+                    bad("section " + L.SECTION_NAMES[sec] + " is missing")
                 continue
-            if offset < HEADER_SIZE or offset % SECTION_ALIGN or \
+            if offset < L.HEADER_SIZE or offset % L.SECTION_ALIGN or \
                     offset + length > self.image_size:
-                bad("section " + SECTION_NAMES[sec] + " lies outside the image")
+                bad("section " + L.SECTION_NAMES[sec] + " lies outside the image")
             if sec in expected and length != expected[sec]:
-                bad("section " + SECTION_NAMES[sec] + " is " + str(length) +
+                bad("section " + L.SECTION_NAMES[sec] + " is " + str(length) +
                     " bytes, expected " + str(expected[sec]))
             spans.append((offset, offset + length))
         spans.sort()
         for i in range(1, len(spans)):
             if spans[i][0] < spans[i - 1][1]:
                 bad("sections overlap")
-        self._stars_off = self.sections[SEC_STARS][0]
-        self._cells_off = self.sections[SEC_CELLS][0]
-        self._pairs_off = self.sections[SEC_PAIRS][0]
-        self._kv_off = self.sections[SEC_KVECTOR][0]
+        self._stars_off = self.sections[L.SEC_STARS][0]
+        self._cells_off = self.sections[L.SEC_CELLS][0]
+        self._pairs_off = self.sections[L.SEC_PAIRS][0]
+        self._kv_off = self.sections[L.SEC_KVECTOR][0]
         nc = n_cells(self.cells_per_face)
         if self._cell_start(0) != 0 or self._cell_start(nc) != self.n_stars:
             bad("cell index does not span the star table")
         self.tri_n = self.hash_n = 0
-        if self.methods & METHOD_TRIANGLE:
+        if self.methods & L.METHOD_TRIANGLE:
             self._check_triangles(bad)
-        if self.methods & METHOD_HASHING:
+        if self.methods & L.METHOD_HASHING:
             self._check_hash(bad)
 
     def _section_header(self, sec, fmt, size, fields, prefix, magic, bad):
         offset, length = self.sections[sec]
         if length < size:
-            bad("section " + SECTION_NAMES[sec] + " is shorter than its header")
+            bad("section " + L.SECTION_NAMES[sec] + " is shorter than its header")
         values = self._src.unpack(fmt, offset, size)
         if values[0] != magic:
-            raise DatabaseError(S.DATABASE_UNSUPPORTED, "section " + SECTION_NAMES[sec] +
+            raise DatabaseError(S.DATABASE_UNSUPPORTED, "section " + L.SECTION_NAMES[sec] +
                                 " format " + repr(values[0]) + " is not " + repr(magic))
         for name, value in zip(fields[1:], values[1:]):
             setattr(self, prefix + name, value)
@@ -442,40 +330,40 @@ class Database:
     @staticmethod
     def _tail_length(n, record_size, kv_bins):
         body = n * record_size
-        return body + (-body) % SECTION_ALIGN + 4 * (kv_bins + 1)
+        return body + (-body) % L.SECTION_ALIGN + 4 * (kv_bins + 1)
 
     def _check_kvector(self, kv_off, kv_bins, n, first_key, last_key, kv_m, kv_q, name, bad):
         if not (_finite_positive(kv_m) and kv_q == kv_q and abs(kv_q) < 1e30):
             bad(name + " k-vector line not finite")
-        if self._src.unpack(KV_FORMAT, kv_off, 4)[0] > n or \
-                self._src.unpack(KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
+        if self._src.unpack(L.KV_FORMAT, kv_off, 4)[0] > n or \
+                self._src.unpack(L.KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
             bad(name + " k-vector does not span its records")
         if first_key > last_key:
             bad(name + " records are not sorted")
 
     def _check_triangles(self, bad):
-        offset, length = self._section_header(SEC_TRIANGLES, TRI_HEADER_FORMAT, TRI_HEADER_SIZE,
-                                              TRI_HEADER_FIELDS, "tri_", TRI_MAGIC, bad)
+        offset, length = self._section_header(L.SEC_TRIANGLES, L.TRI_HEADER_FORMAT, L.TRI_HEADER_SIZE,
+                                              L.TRI_HEADER_FIELDS, "tri_", L.TRI_MAGIC, bad)
         if self.tri_n < 1 or self.tri_kv_bins < 1:
             bad("triangle method without triangles or k-vector bins")
         for name in ("tri_area_step", "tri_moment_step", "tri_max_side"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
                 bad(name + " not finite and positive")
-        if length != TRI_HEADER_SIZE + self._tail_length(self.tri_n, TRI_RECORD_SIZE,
+        if length != L.TRI_HEADER_SIZE + self._tail_length(self.tri_n, L.TRI_RECORD_SIZE,
                                                          self.tri_kv_bins):
             bad("section triangles is " + str(length) + " bytes, its header implies otherwise")
-        self._tri_off = offset + TRI_HEADER_SIZE
-        body = self.tri_n * TRI_RECORD_SIZE
-        self._tri_kv_off = self._tri_off + body + (-body) % SECTION_ALIGN
+        self._tri_off = offset + L.TRI_HEADER_SIZE
+        body = self.tri_n * L.TRI_RECORD_SIZE
+        self._tri_kv_off = self._tri_off + body + (-body) % L.SECTION_ALIGN
         self._check_kvector(self._tri_kv_off, self.tri_kv_bins, self.tri_n,
                             self.triangle_area_key(0), self.triangle_area_key(self.tri_n - 1),
                             self.tri_kv_m, self.tri_kv_q, "triangle", bad)
 
     def _check_hash(self, bad):
-        offset, length = self._section_header(SEC_HASH, HASH_HEADER_FORMAT, HASH_HEADER_SIZE,
-                                              HASH_HEADER_FIELDS, "hash_", HASH_MAGIC, bad)
+        offset, length = self._section_header(L.SEC_HASH, L.HASH_HEADER_FORMAT, L.HASH_HEADER_SIZE,
+                                              L.HASH_HEADER_FIELDS, "hash_", L.HASH_MAGIC, bad)
         g = self.hash_group_size
-        if g not in HASH_GROUP_SIZES or self.hash_flags & ~HASH_FLAG_DISTANCE:
+        if g not in L.HASH_GROUP_SIZES or self.hash_flags & ~L.HASH_FLAG_DISTANCE:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "hash group size " + str(g) +
                                 " or flags " + str(self.hash_flags) + " not served")
         if self.hash_n < 1 or self.hash_kv_bins < 1:
@@ -486,18 +374,18 @@ class Database:
         if not (abs(self.hash_coord_lo) < 4.0 and 0.0 <= self.hash_min_diameter <
                 self.hash_max_diameter):
             bad("hash coordinate grid or diameters out of range")
-        nd = self.hash_dist_buckets if self.hash_flags & HASH_FLAG_DISTANCE else 1
+        nd = self.hash_dist_buckets if self.hash_flags & L.HASH_FLAG_DISTANCE else 1
         if self.hash_coord_buckets < 1 or nd < 1 or \
-                self.hash_coord_buckets ** (2 * (g - 2)) * nd > HASH_MAX_CODE:
+                self.hash_coord_buckets ** (2 * (g - 2)) * nd > L.HASH_MAX_CODE:
             bad("hash bucket grid too large")
         self._hash_record_size = 4 + 2 * g
         self._hash_format = "<I" + "H" * g
-        if length != HASH_HEADER_SIZE + self._tail_length(self.hash_n, self._hash_record_size,
+        if length != L.HASH_HEADER_SIZE + self._tail_length(self.hash_n, self._hash_record_size,
                                                           self.hash_kv_bins):
             bad("section hash is " + str(length) + " bytes, its header implies otherwise")
-        self._hash_off = offset + HASH_HEADER_SIZE
+        self._hash_off = offset + L.HASH_HEADER_SIZE
         body = self.hash_n * self._hash_record_size
-        self._hash_kv_off = self._hash_off + body + (-body) % SECTION_ALIGN
+        self._hash_kv_off = self._hash_off + body + (-body) % L.SECTION_ALIGN
         self._check_kvector(self._hash_kv_off, self.hash_kv_bins, self.hash_n,
                             self.hash_code(0), self.hash_code(self.hash_n - 1),
                             self.hash_kv_m, self.hash_kv_q, "hash", bad)
@@ -514,11 +402,11 @@ class Database:
 
     def star_vector(self, i):
         """Inertial unit vector ``(x, y, z)`` of star ``i`` (float32 precision)."""
-        r = self._src.unpack("<fff", self._stars_off + i * STAR_SIZE, 12)
+        r = self._src.unpack("<fff", self._stars_off + i * L.STAR_SIZE, 12)
         return r[0], r[1], r[2]
 
     def _star_word(self, i):
-        return self._src.unpack("<HH", self._stars_off + i * STAR_SIZE + 12, 4)
+        return self._src.unpack("<HH", self._stars_off + i * L.STAR_SIZE + 12, 4)
 
     def star_hip(self, i):
         """Hipparcos number of star ``i``."""
@@ -527,21 +415,21 @@ class Database:
 
     def star_mag(self, i):
         """V magnitude of star ``i`` (0.01 mag resolution)."""
-        return ((self._star_word(i)[1] >> 1) & 0x7FF) / MAG_SCALE - MAG_OFFSET
+        return ((self._star_word(i)[1] >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET
 
     def star_flags(self, i):
-        """Flag bits of star ``i`` (:data:`STAR_FLAG_PATTERN`)."""
+        """Flag bits of star ``i`` (:data:`L.STAR_FLAG_PATTERN`)."""
         return self._star_word(i)[1] >> 12
 
     def star(self, i):
         """``(x, y, z, hip, mag, flags)`` of star ``i``."""
-        x, y, z, lo, word = self._src.unpack(STAR_FORMAT, self._stars_off + i * STAR_SIZE,
-                                             STAR_SIZE)
-        return (x, y, z, lo | ((word & 1) << 16), ((word >> 1) & 0x7FF) / MAG_SCALE - MAG_OFFSET,
+        x, y, z, lo, word = self._src.unpack(L.STAR_FORMAT, self._stars_off + i * L.STAR_SIZE,
+                                             L.STAR_SIZE)
+        return (x, y, z, lo | ((word & 1) << 16), ((word >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET,
                 word >> 12)
 
     def _cell_start(self, c):
-        return self._src.unpack(CELL_FORMAT, self._cells_off + 2 * c, 2)[0]
+        return self._src.unpack(L.CELL_FORMAT, self._cells_off + 2 * c, 2)[0]
 
     def cell_range(self, c):
         """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
@@ -571,29 +459,29 @@ class Database:
 
     def pair(self, i):
         """Star indices ``(a, b)``, ``a < b``, of pair ``i`` (pairs sorted by angle)."""
-        r = self._src.unpack(PAIR_FORMAT, self._pairs_off + i * PAIR_SIZE, PAIR_SIZE)
+        r = self._src.unpack(L.PAIR_FORMAT, self._pairs_off + i * L.PAIR_SIZE, L.PAIR_SIZE)
         return r[1], r[2]
 
     def pair_record(self, i):
         """``(key, a, b)`` of pair ``i``: its angle is ``key * key_step`` rad."""
-        return self._src.unpack(PAIR_FORMAT, self._pairs_off + i * PAIR_SIZE, PAIR_SIZE)
+        return self._src.unpack(L.PAIR_FORMAT, self._pairs_off + i * L.PAIR_SIZE, L.PAIR_SIZE)
 
     def pair_stars(self, start, n):
         """Star indices of the ``n`` pairs ``start .. start + n - 1`` (``1 <= n <=
         PAIR_BLOCK``) as one flat tuple ``(a, b, a, b, ...)``: one read instead of ``n``."""
         fmt = _PAIR_STARS_FORMAT if n == PAIR_BLOCK else "<" + "2x2H" * n
-        return self._src.unpack(fmt, self._pairs_off + start * PAIR_SIZE, n * PAIR_SIZE)
+        return self._src.unpack(fmt, self._pairs_off + start * L.PAIR_SIZE, n * L.PAIR_SIZE)
 
     def pair_key(self, i):
         """Integer angle key of pair ``i`` (ascending with ``i``)."""
-        return self._src.unpack("<H", self._pairs_off + i * PAIR_SIZE, 2)[0]
+        return self._src.unpack("<H", self._pairs_off + i * L.PAIR_SIZE, 2)[0]
 
     def pair_angle(self, i):
         """Inter-star angle of pair ``i`` as stored, rad (``key * key_step``)."""
         return self.pair_key(i) * self.key_step
 
     def _kv_at(self, j):
-        return self._src.unpack(KV_FORMAT, self._kv_off + 4 * j, 4)[0]
+        return self._src.unpack(L.KV_FORMAT, self._kv_off + 4 * j, 4)[0]
 
     def pairs_in_range(self, lo, hi):
         """``(start, stop)``: the pairs ``start <= i < stop`` are exactly those whose stored
@@ -613,15 +501,15 @@ class Database:
         """``(area_key, moment_key, s0, s1, s2)`` of triangle ``i``: its (chord) area is
         ``area_key * tri_area_step`` and polar moment ``moment_key * tri_moment_step``;
         ``s0, s1, s2`` are the stars opposite its shortest, middle and longest side."""
-        return self._src.unpack(TRI_RECORD_FORMAT, self._tri_off + i * TRI_RECORD_SIZE,
-                                TRI_RECORD_SIZE)
+        return self._src.unpack(L.TRI_RECORD_FORMAT, self._tri_off + i * L.TRI_RECORD_SIZE,
+                                L.TRI_RECORD_SIZE)
 
     def triangle_area_key(self, i):
         """Integer area key of triangle ``i`` (ascending with ``i``)."""
-        return self._src.unpack("<H", self._tri_off + i * TRI_RECORD_SIZE, 2)[0]
+        return self._src.unpack("<H", self._tri_off + i * L.TRI_RECORD_SIZE, 2)[0]
 
     def _tri_kv_at(self, j):
-        return self._src.unpack(KV_FORMAT, self._tri_kv_off + 4 * j, 4)[0]
+        return self._src.unpack(L.KV_FORMAT, self._tri_kv_off + 4 * j, 4)[0]
 
     def triangles_in_range(self, lo, hi):
         """``(start, stop)``: exactly the triangles whose area key ``k`` satisfies
@@ -642,7 +530,7 @@ class Database:
         return self._src.unpack("<I", self._hash_off + i * self._hash_record_size, 4)[0]
 
     def _hash_kv_at(self, j):
-        return self._src.unpack(KV_FORMAT, self._hash_kv_off + 4 * j, 4)[0]
+        return self._src.unpack(L.KV_FORMAT, self._hash_kv_off + 4 * j, 4)[0]
 
     def hash_bucket(self, code):
         """``(start, stop)``: the hash groups of bucket ``code`` (by k-vector)."""
@@ -653,15 +541,15 @@ class Database:
         """The header values as a dict (for telemetry and the ground tools); the triangle
         and hash section headers as dicts ``"triangles"`` and ``"hash"`` when served."""
         out = {}
-        for name in HEADER_FIELDS:
+        for name in L.HEADER_FIELDS:
             out[name] = getattr(self, name)
         out["sections"] = list(self.sections)
-        if self.methods & METHOD_TRIANGLE:
+        if self.methods & L.METHOD_TRIANGLE:
             out["triangles"] = dict((name, getattr(self, "tri_" + name))
-                                    for name in TRI_HEADER_FIELDS[1:])
-        if self.methods & METHOD_HASHING:
+                                    for name in L.TRI_HEADER_FIELDS[1:])
+        if self.methods & L.METHOD_HASHING:
             out["hash"] = dict((name, getattr(self, "hash_" + name))
-                               for name in HASH_HEADER_FIELDS[1:])
+                               for name in L.HASH_HEADER_FIELDS[1:])
         return out
 
 

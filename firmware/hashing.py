@@ -70,7 +70,7 @@ Pure Python for CPython and MicroPython (``math`` only).
 import math
 
 from . import verify as V
-from .database import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
+from lodestar.contract.stardb import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
 
 BOUND_MARGIN = 1.1
 """Factor on the first-order hash tolerance (covers the projection's curvature terms)."""

@@ -11,7 +11,7 @@ byte, a mask for its first byte, a shift for its last) computed from the contrac
 and decoding accumulates each window MSB first.  Unlike ``int.from_bytes`` of a whole record
 followed by shifts, no intermediate is larger than the field's value, so fields that fit a
 MicroPython small int (31 bits on a 32-bit MCU) never allocate a long int.  The checks
-and their order are those of the ground codec ``lodestar.packet`` (see its docstring); each
+and their order are those of the ground codec ``lodestar.ground.codec`` (see its docstring); each
 failed check returns a status and the *same* message the ground codec raises:
 
 ===============================  ======================================================
@@ -30,22 +30,13 @@ status                           check
                                  nsat, n, moments, saturation flag
 ===============================  ======================================================
 
-CRC-32 (zlib / ISO-HDLC) comes from ``binascii.crc32`` when the port has it (CPython, and
-MicroPython builds with ``MICROPY_PY_BINASCII_CRC32``), else from :func:`crc32_table`, a
-table-driven version whose loop keeps the running CRC in two 16-bit halves (no long-int
-allocation per byte on a 32-bit MCU).
+The CRC is the contract's :func:`lodestar.contract.packet.crc32`.
 
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
 from lodestar import contract as C
 from lodestar.firmware import status as S
-
-try:
-    from binascii import crc32 as _binascii_crc32
-except ImportError:  # a MicroPython port without MICROPY_PY_BINASCII_CRC32
-    _binascii_crc32 = None
-
 
 # --------------------------------------------------------------------------------------
 # Layout: each field as a byte window, from the contract
@@ -57,11 +48,9 @@ def _plan(fields):
     start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
     ``tail_drop`` bits above the least significant bit of byte ``last``."""
     out = []
-    offset = 0
-    for _name, bits in fields:
+    for _name, offset, bits in C.field_offsets(fields):
         end = offset + bits - 1                 # the field's last bit
         out.append((offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
-        offset += bits
     return tuple(out)
 
 
@@ -110,58 +99,7 @@ def _unpack_record(data, index):
 
 
 # --------------------------------------------------------------------------------------
-# CRC-32 (zlib): binascii when available, else table-driven in 16-bit halves
-# --------------------------------------------------------------------------------------
-
-_TABLE_HI = None
-_TABLE_LO = None
-
-
-def _make_tables():
-    """The 256-entry CRC-32 table (reflected polynomial 0xEDB88320) split in 16-bit halves."""
-    hi = []
-    lo = []
-    for n in range(256):
-        c = n
-        for _ in range(8):
-            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
-        hi.append(c >> 16)
-        lo.append(c & 0xFFFF)
-    return hi, lo
-
-
-def crc32_table(data, crc=0):
-    """CRC-32 of ``data`` (bytes-like), continuing from ``crc``: the value ``zlib.crc32`` and
-    ``binascii.crc32`` give, computed from a table with 16-bit intermediates only."""
-    global _TABLE_HI, _TABLE_LO
-    if _TABLE_HI is None:
-        _TABLE_HI, _TABLE_LO = _make_tables()
-    table_hi = _TABLE_HI
-    table_lo = _TABLE_LO
-    crc ^= 0xFFFFFFFF
-    hi = crc >> 16
-    lo = crc & 0xFFFF
-    for b in data:
-        i = (lo ^ b) & 0xFF
-        lo = table_lo[i] ^ (((hi & 0xFF) << 8) | (lo >> 8))
-        hi = table_hi[i] ^ (hi >> 8)
-    return ((hi << 16) | lo) ^ 0xFFFFFFFF
-
-
-def crc32(data, crc=0):
-    """CRC-32 of ``data`` (zlib / ISO-HDLC), unsigned; ``binascii.crc32`` if the port has it."""
-    if _crc32 is None:
-        return crc32_table(data, crc)
-    return _crc32(data, crc) & 0xFFFFFFFF
-
-
-_crc32 = _binascii_crc32
-"""The CRC implementation in use (``binascii.crc32`` or None for :func:`crc32_table`); tests
-set it to None to exercise the fallback."""
-
-
-# --------------------------------------------------------------------------------------
-# Checks (messages identical to lodestar.packet's PacketError messages)
+# Checks (messages identical to lodestar.ground.codec's PacketError messages)
 # --------------------------------------------------------------------------------------
 
 _MOMENT_LIMITS = {}
@@ -196,7 +134,7 @@ def framing_problem(data, header):
             what, len(data), header["n_records"], expected)
     body_bytes = expected - C.CRC_BYTES
     carried = int.from_bytes(data[body_bytes:], "big")
-    computed = crc32(memoryview(data)[:body_bytes]) & _CRC_MASK
+    computed = C.crc32(memoryview(data)[:body_bytes]) & _CRC_MASK
     if carried != computed:
         return S.PACKET_BAD_CRC, \
             "CRC mismatch: packet carries 0x{}, header and records give 0x{}".format(
@@ -300,7 +238,7 @@ def decode(data):
     ``contract.HEADER_NAMES`` field (``magic``, ``version`` and ``n_records`` included),
     ``records`` a list of ``contract.BlobRecord`` in packet order and ``reason`` ``""``.
     On failure ``header`` is None, ``records`` is ``[]`` and ``reason`` names the first failed
-    check with the message ``lodestar.packet.decode`` raises for the same bytes.
+    check with the message ``lodestar.ground.codec.decode`` raises for the same bytes.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
         return S.BAD_INPUT, None, [], \

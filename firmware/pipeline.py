@@ -107,6 +107,8 @@ Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or iterto
 
 import math
 
+from lodestar.contract import stardb as _stardb
+
 from . import attitude as _att
 from . import camera as _camera
 from . import centroids as _centroids
@@ -417,7 +419,7 @@ class StarTracker:
                            str(reason))
                 return
         self.database = db
-        bit = _database.METHOD_NAMES.get(self.method)
+        bit = _stardb.METHOD_NAMES.get(self.method)
         if bit is None:
             self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
             return

@@ -63,7 +63,9 @@ import math
 from array import array
 
 from . import verify as V
-from .database import METHOD_PYRAMID, PAIR_BLOCK
+from lodestar.contract.stardb import METHOD_PYRAMID
+
+from .database import PAIR_BLOCK
 
 SQRT2 = 1.4142135623730951
 

@@ -56,7 +56,7 @@ tried first.  Pure Python for CPython and MicroPython (``math`` only).
 import math
 
 from . import verify as V
-from .database import METHOD_TRIANGLE
+from lodestar.contract.stardb import METHOD_TRIANGLE
 
 BOUND_MARGIN = 1.05
 """Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""

@@ -11,8 +11,9 @@ Two independent implementations agree exactly: ``vectorized`` (numpy/scipy, fast
 ``streaming`` (pixel-by-pixel architectural model of the gateware).
 """
 
+from lodestar.contract import DetectionResult
+
 from .config import DetectorConfig
 from .detector import ENGINES, Detector, detect_frame
-from .result import DetectionResult
 
 __all__ = ["DetectorConfig", "Detector", "detect_frame", "DetectionResult", "ENGINES"]

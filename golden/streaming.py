@@ -30,9 +30,9 @@ table needs) and ``peak_open`` how many tracked blobs were open at once (the fea
 import numpy as np
 
 from lodestar import contract as C
+from lodestar.contract import DetectionResult
 
 from .frame import FrameStats, frame_levels
-from .result import DetectionResult
 
 # feature-table slots
 _N, _NSAT, _S0, _SX, _SY, _SXX, _SYY, _SXY, _XMIN, _XMAX, _YMIN, _YMAX, _PEAK, _SAT, \

@@ -18,9 +18,9 @@ import numpy as np
 from scipy import ndimage
 
 from lodestar import contract as C
+from lodestar.contract import DetectionResult
 
 from .frame import FrameStats, frame_levels
-from .result import DetectionResult
 
 _FOUR_CONNECTED = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=bool)
 

@@ -1,153 +1,24 @@
-r"""Ground-side builder of the star-identification database image (numpy).
-
-:func:`build_database` turns the Hipparcos catalogue (:mod:`lodestar.sim.catalogue`), a
-camera field of view and a limiting magnitude into **one** binary image (``bytes``) that the
-flight reader :class:`lodestar.firmware.database.Database` validates and reads by offset.
-The layout constants live in :mod:`lodestar.firmware.database` (single source); this
-docstring is the specification.
-
-Contents
---------
-* **Star table**: every catalogue star with ``V <= mag_limit`` (5041 stars at V 6.0), used
-  for verification and as the targets of the pair table.  Stars are stored **grouped by sky
-  cell** (a gnomonic cube with ``cells_per_face**2`` cells per face, see
-  :func:`lodestar.firmware.database.cell_of`), brightest first inside a cell, so a cone
-  query reads only the cells near the boresight.
-* **Pattern stars** (flag bit ``STAR_FLAG_PATTERN``): the subset that appears in the pair
-  table.  They are chosen brightest first, keeping a star only while fewer than
-  ``pattern_per_region`` already-kept stars lie within ``pattern_radius`` of it (default:
-  half the vertical FOV, 6 stars), so dense regions (the Milky Way) do not flood the table
-  and sparse regions keep their faint stars: the brightest stars of any field of view are
-  pattern stars.  Close pairs (closer than ``blend_radius``, 0.02 deg) would merge into one
-  centroid: both stars are excluded, except the brighter one when it is at least 2 mag
-  brighter than its neighbour.
-* **Pair table**: every pair of pattern stars separated by ``min_pair_angle <= theta <=
-  max_pair_angle`` (default the FOV diagonal), sorted by the angle key
-  ``key = round(theta / key_step)`` (``key_step = max_pair_angle / 65535``, float32), then by
-  the star indices.
-* **k-vector** (Mortari) over the pair keys, in key units, ``kv_bins = n_pairs //
-  pairs_per_bin`` bins, margin 0.5 key units (:mod:`lodestar.firmware.kvector`).
-* **Triangles** (method ``"triangle"``, Lohmann's area + polar moment; section 4): triangles
-  of pattern stars spread evenly over the sky (:func:`regional_groups`): for every cell of a
-  finer gnomonic cube (``regions_per_face`` = 16, i.e. 1536 regions) the
-  ``stars_per_region`` (5) brightest pattern stars within ``region_radius`` (half the
-  vertical FOV) of the cell centre, and every triangle of them whose longest side is at
-  most ``max_side`` (the FOV diagonal); duplicates once.  Area and polar moment are those
-  of the planar triangle of the chords (:mod:`lodestar.firmware.triangle`), stored as
-  16-bit keys (``area_step``, ``moment_step`` chosen so the largest fits), sorted by area
-  key with a k-vector over it (``per_bin`` = 4 triangles per bin).  Not *all* triangles:
-  the 1748 pattern stars form 1,125,134 triangles with every side within the FOV diagonal
-  (11 MB at 10 B each); the regional limit keeps the brightest ones, which are the ones a
-  brightest-first search meets.
-* **Hash groups** (method ``"hashing"``, Astrometry.net's quad hash as in Schumann; section
-  5): groups of ``group_size`` (4, or 3) stars per region, as for the triangles but over
-  every non-blended star (``stars_per_region`` = 6 brightest within half the vertical FOV of
-  each of the 1536 cell centres; group diameter between a quarter of the vertical FOV and
-  the FOV diagonal).  Each group is stored in its canonical labelling ``A, B, C(, D)`` under
-  the bucket code of its hash (:mod:`lodestar.firmware.hashing`: coordinates on a grid of
-  ``coord_bucket`` = 0.075 from ``coord_lo`` = -1, 40 buckets per coordinate; unless
-  ``normalized``, the A-B angle on 0.25 deg buckets as a last digit), sorted by code with a
-  k-vector over the codes.
-* Images serve any combination of methods (``methods=``); the header's ``methods`` bits
-  say which, and a method's sections are present exactly when its bit is set.  The
-  triangle and hash groups are computed by the firmware's own functions on the stored
-  float32 vectors, so flight and ground agree bit for bit.
-
-Byte layout (version 1; all integers and floats little endian; floats IEEE float32)
-----------------------------------------------------------------------------------
-Header, 160 bytes::
-
-    offset  struct  field
-         0  4s      magic               b"LSDB"
-         4  H       version             1
-         6  H       header_size         160
-         8  I       image_size          total bytes, header included
-        12  I       payload_crc         CRC-32 (zlib) of bytes [160, image_size)
-        16  H       methods             bit mask: 1 pyramid, 2 triangle, 4 hashing
-        18  H       star_record_size    16
-        20  f       fov_h               horizontal (width) FOV, rad
-        24  f       fov_v               vertical FOV, rad
-        28  f       fov_diag            diagonal FOV, rad
-        32  f       mag_limit           V limit of the star table
-        36  f       epoch               catalogue epoch, Julian years
-        40  I       n_stars
-        44  I       n_pattern_stars
-        48  I       n_pairs
-        52  f       pair_min_angle      rad
-        56  f       pair_max_angle      rad
-        60  f       key_step            rad per pair-key unit
-        64  I       kv_bins             k-vector bins (the table has kv_bins + 1 entries)
-        68  f       kv_m                k-vector line slope, key units per bin
-        72  f       kv_q                k-vector line intercept, key units
-        76  H       cells_per_face      n (6 n^2 sky cells)
-        78  H       pattern_per_region  thinning parameter (informative)
-        80  f       cell_radius         largest centre-to-corner angle of a cell, rad
-        84  f       pattern_radius      thinning radius, rad (informative)
-        88  8 x II  directory           (offset, length) of sections 0..7; length 0 = absent
-       152  I       reserved            0
-       156  I       header_crc          CRC-32 of bytes [0, 156)
-
-Header struct for bytes 0-87: ``"<4sHHIIHHfffffIIIfffIffHHff"``.  Without the pyramid bit
-the pair fields (``n_pattern_stars`` to ``kv_q``) are 0.
-
-Sections (each starts at a multiple of 4 bytes; zero padding between them)::
-
-    id  name      record                      count
-     0  stars     "<fffHH" (16 B)             n_stars
-                  x, y, z: ICRS unit vector; hip_lo = HIP & 0xFFFF;
-                  word: bit 0 = HIP >> 16, bits 1-11 = round((V + 2) * 100),
-                        bits 12-15 = flags (1 = pattern star of the pair table,
-                        2 = vertex of a stored triangle, 4 = member of a hash group)
-     1  cells     "<H"                        6 n^2 + 1: first star index of each cell,
-                                              then n_stars
-     2  pairs     "<HHH" (6 B)                n_pairs: key, a, b (star indices, a < b)
-     3  kvector   "<I"                        kv_bins + 1: K[j] = #{key <= kv_q + kv_m j}
-     4  triangles 40-byte header "<4sIIfffffHHf":
-                    magic b"TRI1", n_triangles, kv_bins, area_step (rad^2 per key),
-                    moment_step (rad^4 per key), max_side (rad), kv_m, kv_q,
-                    regions_per_face, stars_per_region, region_radius (rad)
-                  then n_triangles x "<HHHHH" (10 B): area key, moment key, s0, s1, s2
-                    (stars opposite the shortest, middle, longest side), sorted by
-                    (area key, moment key, s0, s1, s2)
-                  then zero padding to 4 bytes and (kv_bins + 1) x "<I": the k-vector over
-                    the area keys
-     5  hash      56-byte header "<4sIIHHffHHfffffHHf":
-                    magic b"HSH1", n_groups, kv_bins, group_size (3 or 4), flags (bit 0:
-                    the code keys the A-B angle, i.e. non-normalized), coord_lo,
-                    coord_bucket, coord_buckets, dist_buckets, dist_bucket (rad),
-                    min_diameter, max_diameter (rad), kv_m, kv_q, regions_per_face,
-                    stars_per_region, region_radius (rad)
-                  then n_groups x "<I" + group_size x "<H" (12 B for 4 stars, 10 B for 3):
-                    bucket code = mixed-radix digits (x_C, y_C[, x_D, y_D]) base
-                    coord_buckets [, d base dist_buckets], then the stars A, B, C(, D);
-                    sorted by (code, stars)
-                  then zero padding to 4 bytes and (kv_bins + 1) x "<I": the k-vector over
-                    the codes
-
-Sizes for estcube2 (20.2 x 15.2 deg, diagonal 25.1 deg) at V <= 6.0 with the defaults
-(``lodestar db build --method ...``; asserted in the tests):
-
-* pyramid only (the default; <= 512 KiB): 519,700 bytes (507.5 KiB) = header 160 + stars
-  80,656 (5041 stars) + cells 770 (8 x 8 per face) + pairs 429,168 (71,528 pairs of 1748
-  pattern stars) + k-vector 8,944 (2235 bins);
-* triangle only: 208,672 bytes (203.8 KiB): triangles 127,084 (11,549 triangles of 1545
-  stars, 2887 k-vector bins);
-* hashing only: 344,468 bytes (336.4 KiB): hash 262,880 (20,217 groups of 4 of 1958 stars,
-  5054 bins); 3-star groups: 22,765 groups, 332,064 bytes;
-* all three in one image (<= 1 MiB): 909,664 bytes (888.3 KiB).
-"""
+"""Ground-side builder of the star-identification database image (numpy): the Hipparcos
+catalogue (:mod:`lodestar.sim.catalogue`), a camera field of view and a limiting magnitude
+become one binary image (``bytes``) that the flight reader
+:class:`lodestar.firmware.database.Database` validates and reads by offset.  The layout's
+values are :mod:`lodestar.contract.stardb`; the format and the selection rules are specified
+in ``docs/stardb.md``."""
 
 import math
 import struct
 import zlib
+from itertools import combinations
 
 import numpy as np
 
-from lodestar.firmware import database as L
+from lodestar.contract import stardb as L
+from lodestar.contract.stardb import METHODS
+from lodestar.firmware import database as fwdb
+from lodestar.firmware import hashing as H
 from lodestar.firmware import kvector
-
-METHODS = ("pyramid", "triangle", "hashing")
-"""Methods this builder can produce (any combination in one image)."""
+from lodestar.firmware import triangle as T
+from lodestar.sim.catalogue import load
 
 BLEND_MAG_DIFF = 2.0
 """Of two stars closer than ``blend_radius``, the brighter stays a pattern star only if it
@@ -220,8 +91,8 @@ def select_pattern_stars(vectors, vmag, radius_rad, per_region, blend_radius_rad
 def cell_radius(n):
     """Largest angle (rad) between a cell centre and its corners on the ``n x n`` cube."""
     worst = 0.0
-    for c in range(L.n_cells(n)):
-        centre = np.array(L.cell_centre(c, n))
+    for c in range(fwdb.n_cells(n)):
+        centre = np.array(fwdb.cell_centre(c, n))
         face, rest = divmod(c, n * n)
         iu, iv = divmod(rest, n)
         a, s = face >> 1, (-1.0 if face & 1 else 1.0)
@@ -288,7 +159,6 @@ def regional_groups(vectors, vmag, candidates, regions_per_face, radius, per_reg
     angle lies in ``[min_diameter, max_diameter]``.  Returns a sorted ``(n, size)`` int array
     of unique ascending index tuples (into ``vectors``, float64 copies of the stored
     float32 vectors)."""
-    from itertools import combinations
 
     from scipy.spatial import cKDTree
     idx = np.flatnonzero(candidates)
@@ -298,8 +168,8 @@ def regional_groups(vectors, vmag, candidates, regions_per_face, radius, per_reg
     chord = 2 * math.sin(radius / 2)
     cos_max, cos_min = math.cos(max_diameter), math.cos(min_diameter)
     found = set()
-    for c in range(L.n_cells(regions_per_face)):
-        near = idx[tree.query_ball_point(np.array(L.cell_centre(c, regions_per_face)), chord)]
+    for c in range(fwdb.n_cells(regions_per_face)):
+        near = idx[tree.query_ball_point(np.array(fwdb.cell_centre(c, regions_per_face)), chord)]
         near = near[np.lexsort((near, vmag[near]))][:per_region]
         if len(near) < size:
             continue
@@ -319,7 +189,6 @@ def triangle_table(v32, groups, key_bits=16):
     s2)``; ``s0, s1, s2`` are opposite the shortest, middle and longest side (firmware
     :func:`lodestar.firmware.triangle.canonical_order`), area and moment computed by the
     firmware's own :func:`~lodestar.firmware.triangle.area_moment` on the stored vectors."""
-    from lodestar.firmware import triangle as T
     vec = v32.astype(np.float64).tolist()
     n = len(groups)
     area = np.zeros(n)
@@ -362,7 +231,6 @@ def hash_table(v32, groups, grid):
     ``(code, stars)``, hashed by the firmware's own
     :func:`lodestar.firmware.hashing.group_hash` and
     :func:`~lodestar.firmware.hashing.bucket_code`."""
-    from lodestar.firmware import hashing as H
     vec = v32.astype(np.float64).tolist()
     n, g = groups.shape
     names = ("a", "b", "c", "d")[:g]
@@ -438,7 +306,6 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     tri_opt = _options(TRIANGLE_DEFAULTS, triangle_options, "triangle_options")
     hash_opt = _options(HASH_DEFAULTS, hash_options, "hash_options")
     if catalogue is None:
-        from lodestar.sim.catalogue import load
         catalogue = load()
     fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
     if not (0 < fov_h < 180 and 0 < fov_v < 180):
@@ -471,7 +338,7 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
 
     # order the star table by (cell, magnitude, HIP) of the stored float32 vectors
     v32 = vectors64.astype(np.float32)
-    cells = np.array([L.cell_of(float(x), float(y), float(z), cells_per_face)
+    cells = np.array([fwdb.cell_of(float(x), float(y), float(z), cells_per_face)
                       for x, y, z in v32], dtype=np.int64)
     order = np.lexsort((hip, vmag, cells))
     v32, vmag, hip, mag_code, pattern, cells = (arr[order] for arr in
@@ -479,7 +346,7 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     if unblended is not None:
         unblended = unblended[order]
     n_stars = len(order)
-    nc = L.n_cells(cells_per_face)
+    nc = fwdb.n_cells(cells_per_face)
     cell_start = np.searchsorted(cells, np.arange(nc + 1), side="left")
     v64 = v32.astype(np.float64)
     flags = np.zeros(n_stars, dtype=np.int64)
@@ -623,7 +490,7 @@ def _options(defaults, given, name):
 
 def describe(image):
     """Header values, section sizes (bytes) and total size of an image, as a dict."""
-    db = L.Database(image)
+    db = fwdb.Database(image)
     info = db.info()
     info["section_bytes"] = {L.SECTION_NAMES[i]: length
                              for i, (offset, length) in enumerate(db.sections) if length}

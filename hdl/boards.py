@@ -2,13 +2,13 @@
 
 Two layers:
 
-* :class:`StarTracker` (a ``wiring.Component``) is the whole design with its pins as ports,
+* :class:`GatewareTop` (a ``wiring.Component``) is the whole design with its pins as ports,
   simulatable and synthesizable on its own (the cocotb test and the resource report use it):
   the sensor front end (:mod:`lodestar.hdl.mt9p031` parallel in the ``pix`` domain, or
   :mod:`lodestar.hdl.mt9v022` LVDS bits in the ``ser`` domain), the detector
   (:mod:`lodestar.hdl.detector`), the packetizer (:mod:`lodestar.hdl.packetizer`) and the SPI
   slave (:mod:`lodestar.hdl.spi_slave`) in ``sync``.
-* :class:`BoardTop` puts a :class:`StarTracker` on a board of :data:`BOARDS`: it requests the
+* :class:`BoardTop` puts a :class:`GatewareTop` on a board of :data:`BOARDS`: it requests the
   board's resources, makes ``sync`` (a PLL or the board oscillator), the sensor clock domain
   and the sensor's master clock, and hands the pins over.  ``board_platform(name)`` gives the
   Amaranth ``AlteraPlatform`` (Quartus toolchain) with the pins of :data:`BOARDS`.
@@ -20,24 +20,25 @@ packet's last CRC byte is read), so the MCU reads one packet per rising edge of 
 ``READ_STREAM`` until ``irq`` falls (or reads the length from the header).  Register writes
 take effect on the next frame (the detector latches them at a frame's first pixel).
 
-Status word ``overflow`` bits (sticky until the next status read unless stated):
-
-=====================  ==================================================================
-``OVF_PIXEL_FIFO``     a pixel found the clock-crossing FIFO full (its frame is truncated)
-``OVF_TRAILER_LOST``   the detector lost a frame trailer (its trailer buffer was full)
-``OVF_REG_REFUSED``    the register bank refused a write (detector ``reg_error``,
-                       cleared through the detector's ``reg_error_clear`` by the read)
-``OVF_FAULT``          the detector's internal-bound ``fault`` (never expected)
-``OVF_LINK_DOWN``      LVDS front end: not word-locked (live, not sticky); parallel: 0
-``OVF_LINK_ERROR``     LVDS front end: framing errors since the last status read
-=====================  ==================================================================
+The status word's ``overflow`` bits are the contract's ``OVF_*`` (:mod:`lodestar.contract.link`);
+``C.OVF_REG_REFUSED`` is the detector's ``reg_error``, cleared by the status read through its
+``reg_error_clear``.
 
 Pins and I/O standards of each board are in :data:`BOARDS` (and in the generated QSF); every
 pin marked *assumed* is on a custom header or board and must be checked against its
 schematic before the bitstream is loaded.
 """
 
-from amaranth import Cat, ClockDomain, ClockSignal, Const, Elaboratable, Instance, Module, Signal
+from amaranth import (
+    Cat,
+    ClockDomain,
+    ClockSignal,
+    Const,
+    Elaboratable,
+    Instance,
+    Module,
+    Signal,
+)
 from amaranth.build import Attrs, Clock, Pins, Resource, Subsignal
 from amaranth.lib import wiring
 from amaranth.lib.cdc import FFSynchronizer, ResetSynchronizer
@@ -50,33 +51,18 @@ from .detector import Detector
 from .mt9p031 import MT9P031Frontend
 from .mt9v022 import MT9V022Frontend
 from .packetizer import Packetizer
-from .spi_slave import OVERFLOW_BITS, SPI_PINS, SPISlave
+from .spi_slave import SPI_PINS, SPISlave
 
-OVF_PIXEL_FIFO = 0
-OVF_TRAILER_LOST = 1
-OVF_REG_REFUSED = 2
-OVF_FAULT = 3
-OVF_LINK_DOWN = 4
-OVF_LINK_ERROR = 5
-"""Bit numbers of the status word's ``overflow`` field (module docstring)."""
-
-SENSORS = ("mt9p031", "mt9v022")
-"""Sensor front ends: ``mt9p031`` parallel 12-bit, ``mt9v022`` stand-alone LVDS 10-bit."""
-SENSOR_PIXEL_BITS = {"mt9p031": 12, "mt9v022": 10}
 SENSOR_DOMAIN = {"mt9p031": "pix", "mt9v022": "ser"}
 """Clock domain of each front end's capture logic."""
 LVDS_LANES = 6
 """Bits per ``ser`` clock from the LVDS deserializer (ALTLVDS_RX, factor 6)."""
 
-for _sensor, _bits in SENSOR_PIXEL_BITS.items():
-    if _bits not in C.SENSOR_PIXEL_BITS:
-        raise ValueError(f"{_sensor}: {_bits}-bit pixels are not a contract sensor width")
 
-
-class StarTracker(wiring.Component):
+class GatewareTop(wiring.Component):
     """The star-tracker gateware for one sensor and frame geometry, pins as ports.
 
-    ``sensor``: one of :data:`SENSORS`.  ``width x height``: the frames the sensor is
+    ``sensor``: one of :data:`C.SENSORS`.  ``width x height``: the frames the sensor is
     programmed for.  ``label_capacity``, ``record_capacity``, ``record_depth``: the detector's
     (``record_depth`` records stay buffered until the MCU reads them; the packetizer sends a
     frame's records from there).  Sensor ports: ``pix_d``, ``line_valid``, ``frame_valid``
@@ -87,10 +73,10 @@ class StarTracker(wiring.Component):
 
     def __init__(self, sensor, width, height, *, label_capacity=None,
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None):
-        if sensor not in SENSORS:
-            raise ValueError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
+        if sensor not in C.SENSORS:
+            raise ValueError(f"unknown sensor {sensor!r}; choose one of {', '.join(C.SENSORS)}")
         self.sensor, self.width, self.height = sensor, width, height
-        self.pixel_bits = SENSOR_PIXEL_BITS[sensor]
+        self.pixel_bits = C.SENSOR_PIXEL_BITS[sensor]
         if sensor == "mt9p031":
             self.frontend = MT9P031Frontend(width, height, domain=SENSOR_DOMAIN[sensor])
             pins = {"pix_d": In(self.pixel_bits), "line_valid": In(1), "frame_valid": In(1)}
@@ -139,14 +125,14 @@ class StarTracker(wiring.Component):
                 m.d.sync += seen.eq(counter)
             return counter != seen
 
-        overflow = [Const(0, 1)] * OVERFLOW_BITS
-        overflow[OVF_PIXEL_FIFO] = fe.overflow
-        overflow[OVF_TRAILER_LOST] = since_read(det.trailer_lost, "trailer_lost")
-        overflow[OVF_REG_REFUSED] = det.reg_error
-        overflow[OVF_FAULT] = det.fault
+        overflow = [Const(0, 1)] * C.OVERFLOW_BITS
+        overflow[C.OVF_PIXEL_FIFO] = fe.overflow
+        overflow[C.OVF_TRAILER_LOST] = since_read(det.trailer_lost, "trailer_lost")
+        overflow[C.OVF_REG_REFUSED] = det.reg_error
+        overflow[C.OVF_FAULT] = det.fault
         if self.sensor == "mt9v022":
-            overflow[OVF_LINK_DOWN] = ~fe.locked
-            overflow[OVF_LINK_ERROR] = since_read(fe.framing_errors, "framing_errors")
+            overflow[C.OVF_LINK_DOWN] = ~fe.locked
+            overflow[C.OVF_LINK_ERROR] = since_read(fe.framing_errors, "framing_errors")
         m.d.comb += spi.overflow.eq(Cat(*overflow))
         return m
 
@@ -174,7 +160,7 @@ class Board:
         self.les, self.m9k, self.multipliers = les, m9k, multipliers
         self.osc_hz, self.osc_pin, self.sync_hz = osc_hz, osc_pin, sync_hz
         self.sensor, self.width, self.height = sensor, width, height
-        self.pixel_bits = SENSOR_PIXEL_BITS[sensor]
+        self.pixel_bits = C.SENSOR_PIXEL_BITS[sensor]
         self.pixel_hz, self.sensor_clk_hz = pixel_hz, sensor_clk_hz
         self.label_capacity, self.record_capacity = label_capacity, record_capacity
         self.record_depth = record_depth
@@ -185,8 +171,8 @@ class Board:
         return f"{self.device}{self.package}{self.speed}"
 
     def star_tracker(self, width=None, height=None):
-        """The board's :class:`StarTracker` (optionally for another frame geometry)."""
-        return StarTracker(self.sensor, width or self.width, height or self.height,
+        """The board's :class:`GatewareTop` (optionally for another frame geometry)."""
+        return GatewareTop(self.sensor, width or self.width, height or self.height,
                            label_capacity=self.label_capacity,
                            record_capacity=self.record_capacity, record_depth=self.record_depth)
 
@@ -337,7 +323,7 @@ def _ratio(out_hz, in_hz, limit=64):
 
 
 class BoardTop(Elaboratable):
-    """:class:`StarTracker` on a board (see :data:`BOARDS`): clocks, resets and pins.
+    """:class:`GatewareTop` on a board (see :data:`BOARDS`): clocks, resets and pins.
 
     ``board``: a name of :data:`BOARDS` or a :class:`Board` (e.g. a copy with another frame
     or other capacities)."""

@@ -1,7 +1,7 @@
 """Single-pass 4-connected labeller: one pixel per clock, any image content, no find.
 
 The algorithm is described in ``hdl/DESIGN.md`` and written out in plain Python in
-``tests/wavefront_model.py``; the two take the same decisions column by column.  In short:
+``golden/wavefront.py``; the two take the same decisions column by column.  In short:
 each row is a sequence of *nodes* (runs of lit pixels).  The previous row's nodes are read
 back in order with two flags, ``first``/``last`` (first/last node of its component in that
 row), and, on first nodes, the component's feature slot and tracked bit.  Components never

@@ -54,8 +54,8 @@ from amaranth.lib.wiring import In, Out
 from lodestar import contract as C
 from lodestar.hdl.threshold import pixel_layout
 
-PIXEL_BITS = C.SENSOR_PIXEL_BITS[1]
-"""MT9P031 pixel width (the contract's ``SENSOR_PIXEL_BITS``: MT9V022 10-bit, MT9P031 12-bit)."""
+PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9p031"]
+"""MT9P031 pixel width (the contract's ``SENSOR_PIXEL_BITS``)."""
 
 FIFO_DEPTH = 8
 """Entries of the pixel-clock -> sync FIFO when the sync clock is at least the pixel rate

@@ -90,8 +90,8 @@ from lodestar import contract as C
 from lodestar.hdl.mt9p031 import FIFO_DEPTH, PixelCrossing, check_geometry
 from lodestar.hdl.threshold import pixel_layout
 
-PIXEL_BITS = C.SENSOR_PIXEL_BITS[0]
-"""MT9V022 pixel width (the contract's ``SENSOR_PIXEL_BITS``: MT9V022 10-bit, MT9P031 12-bit)."""
+PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9v022"]
+"""MT9V022 pixel width (the contract's ``SENSOR_PIXEL_BITS``)."""
 PACKET_BITS = PIXEL_BITS + 2
 """Start bit, the pixel's bits LSB first, stop bit."""
 FULL = C.full_scale(PIXEL_BITS)

@@ -3,7 +3,7 @@
 Input: the detector's ``records`` and ``trailer`` streams (``hdl.layouts.record_layout`` and
 ``trailer_layout``; a frame's records are the ``n_records`` records before its trailer).
 Output: ``packet``, a byte stream (``lib.stream``, valid/ready) that the SPI slave's
-``READ_STREAM`` consumes, byte-exact with ``lodestar.packet.encode``:
+``READ_STREAM`` consumes, byte-exact with ``lodestar.ground.codec.encode``:
 
 * header, ``contract.HEADER_BYTES``: the fields of ``contract.HEADER_FIELDS`` MSB first;
   ``magic`` and ``version`` are the contract's constants, ``width``, ``height`` and

@@ -81,65 +81,10 @@ from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-OP_WRITE_REG = 0x57
-"""``'W'``: write one runtime register."""
-OP_READ_STATUS = 0x53
-"""``'S'``: read the status word."""
-OP_READ_STREAM = 0x52
-"""``'R'``: read packet bytes until CS rises."""
-OPCODES = (OP_WRITE_REG, OP_READ_STATUS, OP_READ_STREAM)
-FILLER = 0x00
-"""MISO byte wherever no reply byte is defined, and in place of missing packet bytes."""
-TURNAROUND_BYTES = 1
-"""Bytes between a read's opcode and its first reply byte."""
-
-ADDRESS_BYTES = 1
-"""Register address bytes of ``WRITE_REG``."""
-VALUE_BYTES = C.REGISTER_WORD_BITS // 8
-"""Register value bytes of ``WRITE_REG`` (big endian)."""
-WRITE_REG_BYTES = 1 + ADDRESS_BYTES + VALUE_BYTES
-REG_ADDR_BITS = C.bits_for(max(r.address for r in C.REGISTERS))
-"""Width of the write port's address: the contract's largest word address."""
-if max(r.address for r in C.REGISTERS) >> (8 * ADDRESS_BYTES):
-    raise ValueError("a register address does not fit the SPI address byte")
-
-COUNT_BITS = 8
-"""Width of the saturating ``errors`` and ``underruns`` counts of the status word."""
-OVERFLOW_BITS = 7
-"""Overflow flags in the status word (inputs of the slave; the top level assigns them, the
-pixel FIFO overflow of the sensor front end first; unassigned flags read 0)."""
-FRAME_COUNTER_BITS = dict(C.HEADER_FIELDS)["frame_counter"]
-
-STATUS_FIELDS = (
-    ("frame_counter", FRAME_COUNTER_BITS),
-    ("errors", COUNT_BITS),
-    ("underruns", COUNT_BITS),
-    ("overflow", OVERFLOW_BITS),
-    ("busy", 1),
-)
-"""The status word, MSB first: ``(field, bits)``; sent big endian."""
-STATUS_BITS = sum(bits for _, bits in STATUS_FIELDS)
-STATUS_BYTES = STATUS_BITS // 8
-if STATUS_BITS % 8:
-    raise ValueError("the status word must be a whole number of bytes")
-
-
 SPI_PINS = {"sck": In(1), "mosi": In(1), "cs_n": In(1, init=1), "miso": Out(1),
             "miso_oe": Out(1)}
 """The SPI pins of a slave's signature: clock, data in, chip select (idle high), data out
 and its output enable."""
-
-
-def decode_status(data):
-    """The fields of a status word given as ``STATUS_BYTES`` bytes (MSB first), as a dict."""
-    if len(data) != STATUS_BYTES:
-        raise ValueError(f"a status word is {STATUS_BYTES} bytes, got {len(data)}")
-    value = int.from_bytes(bytes(data), "big")
-    out = {}
-    for name, bits in reversed(STATUS_FIELDS):
-        out[name] = value & ((1 << bits) - 1)
-        value >>= bits
-    return out
 
 
 class SPIByteSlave(wiring.Component):
@@ -174,7 +119,7 @@ class SPIByteSlave(wiring.Component):
         rx_bits = Signal(7, reset_less=True)   # data registers: read only under count/first
         tx_bits = Signal(8, reset_less=True)
         first = Signal()             # the next rising edge is the byte's first
-        peeked = Signal()            # tx_bits came from the tx stream (not FILLER)
+        peeked = Signal()            # tx_bits came from the tx stream (not C.FILLER)
         last = rise & (count == 7)
         m.d.comb += [
             self.selected.eq(sel),
@@ -189,7 +134,7 @@ class SPIByteSlave(wiring.Component):
             m.d.sync += [rx_bits.eq(Cat(mosi, rx_bits[:6])), count.eq(count + 1),
                          tx_bits.eq(tx_bits << 1), first.eq(0)]
         with m.If(start | last):
-            m.d.sync += [tx_bits.eq(Mux(self.tx.valid, self.tx.payload, FILLER)),
+            m.d.sync += [tx_bits.eq(Mux(self.tx.valid, self.tx.payload, C.FILLER)),
                          peeked.eq(self.tx.valid), first.eq(1), count.eq(0)]
         with m.If(~sel):
             m.d.sync += count.eq(0)
@@ -203,12 +148,12 @@ class SPISlave(wiring.Component):
     def __init__(self):
         super().__init__({
             **SPI_PINS,
-            "reg_addr": Out(REG_ADDR_BITS),
+            "reg_addr": Out(C.REG_ADDR_BITS),
             "reg_data": Out(C.REGISTER_WORD_BITS),
             "reg_strobe": Out(1),
             "busy": In(1),
-            "overflow": In(OVERFLOW_BITS),
-            "frame_counter": In(FRAME_COUNTER_BITS),
+            "overflow": In(C.OVERFLOW_BITS),
+            "frame_counter": In(C.FRAME_COUNTER_BITS),
             "status_read": Out(1),
             "packet": In(stream.Signature(8)),
         })
@@ -220,31 +165,31 @@ class SPISlave(wiring.Component):
                      self.miso.eq(byte.miso), self.miso_oe.eq(byte.miso_oe)]
         rx, tx = byte.rx, byte.tx
         # bytes received in this transaction, saturating past the longest fixed-length reply
-        index_max = max(WRITE_REG_BYTES, 1 + TURNAROUND_BYTES + STATUS_BYTES)
+        index_max = max(C.WRITE_REG_BYTES, 1 + C.TURNAROUND_BYTES + C.STATUS_BYTES)
         index = Signal(range(index_max + 1))
         # the opcode of this transaction, decoded (all 0: none yet, or unknown)
         is_write, is_status, is_stream = Signal(), Signal(), Signal()
         # data registers without reset: meaningful only under the flags and counts above
-        address = Signal(8 * ADDRESS_BYTES, reset_less=True)
+        address = Signal(8 * C.ADDRESS_BYTES, reset_less=True)
         value = Signal(C.REGISTER_WORD_BITS, reset_less=True)
-        status = Signal(STATUS_BITS, reset_less=True)
-        errors = Signal(COUNT_BITS)
-        underruns = Signal(COUNT_BITS)
-        first_reply = 1 + TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
+        status = Signal(C.STATUS_BITS, reset_less=True)
+        errors = Signal(C.LINK_COUNT_BITS)
+        underruns = Signal(C.LINK_COUNT_BITS)
+        first_reply = 1 + C.TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
 
         # ---- status word and read-to-clear counters -----------------------------------
         opening = rx.valid & (index == 0)
-        snapshot = opening & (rx.payload == OP_READ_STATUS)
+        snapshot = opening & (rx.payload == C.OP_READ_STATUS)
         fields = {"frame_counter": self.frame_counter, "errors": errors,
                   "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
-        live = Cat(*[fields[name] for name, _ in reversed(STATUS_FIELDS)])
+        live = Cat(*[fields[name] for name, _ in reversed(C.STATUS_FIELDS)])
         m.d.comb += self.status_read.eq(snapshot)
         with m.If(snapshot):
             m.d.sync += status.eq(live)
 
         def count(counter, event):
             base = Mux(snapshot, 0, counter)
-            full = base == (1 << COUNT_BITS) - 1
+            full = base == (1 << C.LINK_COUNT_BITS) - 1
             m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
 
         # ---- commands ------------------------------------------------------------------
@@ -256,9 +201,9 @@ class SPISlave(wiring.Component):
         for r in C.REGISTERS:
             fits = 1 if r.bits >= C.REGISTER_WORD_BITS else word[r.bits:] == 0
             known = known | ((address == r.address) & fits)
-        write_done = rx.valid & is_write & (index == WRITE_REG_BYTES - 1)
-        unknown_op = opening & ~Cat(*[rx.payload == op for op in OPCODES]).any()
-        aborted = ~byte.selected & is_write & (index < WRITE_REG_BYTES)
+        write_done = rx.valid & is_write & (index == C.WRITE_REG_BYTES - 1)
+        unknown_op = opening & ~Cat(*[rx.payload == op for op in C.OPCODES]).any()
+        aborted = ~byte.selected & is_write & (index < C.WRITE_REG_BYTES)
         count(errors, unknown_op | (write_done & ~known) | aborted)
         count(underruns, byte.underrun)
 
@@ -267,10 +212,10 @@ class SPISlave(wiring.Component):
         with m.If(rx.valid):
             m.d.sync += index.eq(Mux(index == index_max, index, index + 1))
             with m.If(index == 0):
-                m.d.sync += [is_write.eq(rx.payload == OP_WRITE_REG),
-                             is_status.eq(rx.payload == OP_READ_STATUS),
-                             is_stream.eq(rx.payload == OP_READ_STREAM)]
-            with m.Elif(index <= ADDRESS_BYTES):
+                m.d.sync += [is_write.eq(rx.payload == C.OP_WRITE_REG),
+                             is_status.eq(rx.payload == C.OP_READ_STATUS),
+                             is_stream.eq(rx.payload == C.OP_READ_STREAM)]
+            with m.Elif(index <= C.ADDRESS_BYTES):
                 m.d.sync += address.eq(Cat(rx.payload, address[:-8]))
             with m.Else():
                 m.d.sync += value.eq(word)
@@ -285,11 +230,11 @@ class SPISlave(wiring.Component):
             m.d.comb += [tx.valid.eq(self.packet.valid), tx.payload.eq(self.packet.payload),
                          self.packet.ready.eq(tx.ready & (index >= first_reply))]
         with m.Else():
-            m.d.comb += [tx.valid.eq(1), tx.payload.eq(FILLER)]
+            m.d.comb += [tx.valid.eq(1), tx.payload.eq(C.FILLER)]
             with m.If(is_status):
                 with m.Switch(index):
-                    for k in range(STATUS_BYTES):
+                    for k in range(C.STATUS_BYTES):
                         with m.Case(first_reply - 1 + k):
                             m.d.comb += tx.payload.eq(
-                                status.word_select(STATUS_BYTES - 1 - k, 8))
+                                status.word_select(C.STATUS_BYTES - 1 - k, 8))
         return m

@@ -1,16 +1,5 @@
 """lodestar: star-detection gateware and flight software of a nanosatellite star tracker.
 
-Data flow and packages:
-``lodestar.contract`` (limits, widths, registers, record and packet layout; pure Python)
--> ``lodestar.golden`` (bit-exact reference detector) and ``lodestar.hdl`` (Amaranth gateware)
--> ``lodestar.packet`` (FPGA->MCU packets) -> ``lodestar.firmware`` (MCU code).
+This root and :mod:`lodestar.contract` are MicroPython-safe: the MCU image holds them with
+:mod:`lodestar.firmware`.  The README's layout table gives the packages in data-flow order.
 """
-
-
-def solve_centroids(*args, **kwargs):
-    """Ground-side star-field solve from centroids (tetra3 style); see
-    ``lodestar.solve.solve_centroids``.  Imported on first use so that this package stays
-    loadable on the MCU, where numpy does not exist."""
-    from lodestar.solve import solve_centroids as solve
-
-    return solve(*args, **kwargs)

@@ -4,7 +4,7 @@ trailers, convert them to the golden model's types (shared by the hdl unit tests
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.cosim import unpack
+from lodestar.cosim.runner import unpack
 from lodestar.hdl.layouts import record_fields, trailer_fields
 
 

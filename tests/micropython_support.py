@@ -16,29 +16,15 @@ case it *fails*, so a broken CI set-up cannot pass silently.
 """
 
 import os
-import shutil
-import subprocess
-import tempfile
-from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-TOOL_DIR = REPO / "tools" / "micropython"
-RUNNER = TOOL_DIR / "run.mjs"
-PACKAGE = "@micropython/micropython-webassembly-pyscript"
-PACKAGE_DIR = TOOL_DIR / "node_modules" / PACKAGE
-INSTALL_HINT = "npm ci --prefix tools/micropython"
+from lodestar.regress import micropython
+from tests import REPO
 
-
-def unavailable_reason():
-    """Why MicroPython cannot run here (a message), or None when it can."""
-    if shutil.which("node") is None:
-        return "node is not installed (MicroPython runs in Node.js, v18 or later)"
-    if not (PACKAGE_DIR / "package.json").is_file():
-        return "{} is not installed in {}: run `{}` from the repository root".format(
-            PACKAGE, TOOL_DIR.relative_to(REPO) / "node_modules", INSTALL_HINT)
-    return None
+os.environ.setdefault(micropython.TOOL_ENV,
+                      str(REPO / "tools" / "micropython"))
+unavailable_reason = micropython.unavailable_reason
 
 
 def require_micropython():
@@ -53,20 +39,9 @@ def require_micropython():
 
 
 def run_micropython(script_text, heapsize=None, timeout=120):
-    """Run ``script_text`` under MicroPython with the firmware on ``sys.path``.
-
-    Returns ``(returncode, output)``: 0 when the script finished, 1 when it raised (the
-    traceback is in ``output``, which merges stdout and stderr).  ``heapsize``: bytes of
-    MicroPython heap (``run.mjs`` default 1 MiB; the pyscript build can grow it).
-    """
+    """Run ``script_text`` under MicroPython with the MCU image on ``sys.path``: returns
+    ``(returncode, output)``, 0 when the script finished, 1 when it raised (the traceback is
+    in ``output``, stdout then stderr)."""
     require_micropython()
-    with tempfile.TemporaryDirectory() as tmp:
-        script = Path(tmp) / "script.py"
-        script.write_text(script_text, encoding="utf-8")
-        command = ["node", str(RUNNER)]
-        if heapsize is not None:
-            command += ["--heapsize", str(int(heapsize))]
-        command.append(str(script))
-        proc = subprocess.run(command, cwd=str(REPO), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, timeout=timeout)
-    return proc.returncode, proc.stdout.decode("utf-8", "replace")
+    proc = micropython.run(script_text, heapsize=heapsize, timeout=timeout)
+    return proc.returncode, proc.stdout + proc.stderr

@@ -1,6 +1,6 @@
 """Simulated estcube2 frames for the flight-pipeline tests: ``lodestar.sim.scene.simulate``
 (full 2592 x 1944 frames, the catalogue to V 8) -> the golden detector with
-``scene.detector_config`` -> ``lodestar.packet.encode``.  Cached per test session, so the
+``scene.detector_config`` -> ``lodestar.ground.codec.encode``.  Cached per test session, so the
 pipeline, tracking and solve tests share one set of frames and one flight database.
 """
 
@@ -9,10 +9,10 @@ import math
 
 import numpy as np
 
-from lodestar import packet
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.database import Database
 from lodestar.golden import detect_frame
+from lodestar.ground import codec as packet
 from lodestar.ground.database import build_database
 from lodestar.sim import attitude, scene
 from lodestar.sim.presets import load_preset

@@ -7,7 +7,7 @@ import numpy as np
 
 from lodestar.firmware import starid
 from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
 
 MAX_ERR_DEG = 0.05

@@ -14,6 +14,7 @@ import zlib
 import numpy as np
 import pytest
 
+from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError, check, load
@@ -39,7 +40,7 @@ def reseal(image, patch=None):
     b = bytearray(image)
     if patch:
         patch(b)
-    struct.pack_into("<I", b, L.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:L.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -91,7 +92,7 @@ def test_header_values():
     assert math.isclose(db.fov_diag, d, rel_tol=1e-6)
     assert math.isclose(db.pair_max_angle, d, rel_tol=1e-6)
     assert db.key_step * 65535 >= db.pair_max_angle
-    assert db.mag_limit == 6.0 and db.version == 1 and db.methods == L.METHOD_PYRAMID
+    assert db.mag_limit == 6.0 and db.version == 1 and db.methods == stardb.METHOD_PYRAMID
     assert 0 < db.n_pattern_stars < db.n_stars
     assert db.pair(0) == db.pair_record(0)[1:]
     assert db.pair_angle(db.n_pairs - 1) <= db.pair_max_angle + db.key_step
@@ -124,14 +125,14 @@ def test_every_corrupted_byte_is_refused(flip):
         b[i] ^= flip
         status, reason = check(b)
         assert status != S.OK and reason, i
-        if i >= L.HEADER_SIZE:
+        if i >= stardb.HEADER_SIZE:
             assert status == S.DATABASE_CORRUPT
 
 
 def test_corrupted_bytes_in_the_flight_image_are_refused():
     image = estcube2_image()
     rng = np.random.default_rng(11)
-    positions = list(range(L.HEADER_SIZE)) + rng.integers(0, len(image), 300).tolist()
+    positions = list(range(stardb.HEADER_SIZE)) + rng.integers(0, len(image), 300).tolist()
     for i in positions:
         b = bytearray(image)
         b[i] ^= int(rng.integers(1, 256))
@@ -162,15 +163,15 @@ def test_named_mismatches():
     assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, 48, n_pairs + 1))) == \
         S.DATABASE_BAD_LAYOUT
     # a section pointing outside the image, and two overlapping sections
-    off = L.DIRECTORY_OFFSET + 8 * L.SEC_KVECTOR
+    off = stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_KVECTOR
     assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, off, len(image)))) == \
         S.DATABASE_BAD_LAYOUT
-    stars_off = struct.unpack_from("<I", image, L.DIRECTORY_OFFSET)[0]
+    stars_off = struct.unpack_from("<I", image, stardb.DIRECTORY_OFFSET)[0]
     assert status_of(reseal(image, lambda b: struct.pack_into(
-        "<I", b, L.DIRECTORY_OFFSET + 8 * L.SEC_CELLS, stars_off))) == S.DATABASE_BAD_LAYOUT
+        "<I", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_CELLS, stars_off))) == S.DATABASE_BAD_LAYOUT
     # a missing required section
     assert status_of(reseal(image, lambda b: struct.pack_into(
-        "<II", b, L.DIRECTORY_OFFSET + 8 * L.SEC_PAIRS, 0, 0))) == S.DATABASE_BAD_LAYOUT
+        "<II", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_PAIRS, 0, 0))) == S.DATABASE_BAD_LAYOUT
     # a NaN field of view
     assert status_of(reseal(image, lambda b: struct.pack_into("<f", b, 20, float("nan")))) == \
         S.DATABASE_BAD_LAYOUT
@@ -199,15 +200,6 @@ def test_load_never_raises(tmp_path):
     db.close()
 
 
-def test_crc_fallback_matches_zlib(monkeypatch):
-    data = tiny_image()[:3000]
-    expected = zlib.crc32(data)
-    assert L.crc32(data) == expected
-    monkeypatch.setattr(L, "_crc32", None)
-    assert L.crc32(data) == expected
-    assert L.crc32(data[1000:], L.crc32(data[:1000])) == expected
-
-
 # --------------------------------------------------------------------------------------
 # Firmware rules (MicroPython 1.27 subset) for the star-identification modules
 # --------------------------------------------------------------------------------------
@@ -232,5 +224,5 @@ def test_firmware_rules(name):
         assert not re.search(rf"^\s*(import|from)\s+{banned}\b", source, re.M), banned
     assert not has_fstring(source), "f-strings are avoided in firmware"
     imports = re.findall(r"^\s*(?:import|from)\s+([\w.]+)", source, re.M)
-    assert {m for m in imports if not m.startswith(".")} <= {"math", "struct", "array",
-                                                              "binascii"}, imports
+    assert {m for m in imports if not m.startswith((".", "lodestar.contract"))} <= {
+        "math", "struct", "array", "binascii"}, imports

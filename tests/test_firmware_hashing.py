@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.firmware import hashing as H
 from lodestar.firmware import starid
@@ -25,8 +26,8 @@ from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.firmware.verify import angle
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
+from lodestar.sim.centroids import centroid_scene
+from tests.starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -254,7 +255,7 @@ def test_bucket_codes_hand_checked():
     # digits (2, 3) for (0.2, 0.6): 2 * 6 + 3
     assert H.bucket_code([0.2, 0.6], 0.33, grid) == 15
     assert H.bucket_code([0.2, 0.6, 1.9, -0.8], 0.33, grid) == ((2 * 6 + 3) * 6 + 5) * 6 + 0
-    grid.hash_flags = L.HASH_FLAG_DISTANCE
+    grid.hash_flags = stardb.HASH_FLAG_DISTANCE
     assert H.bucket_code([0.2, 0.6], 0.33, grid) == 15 * 5 + 3
     # the box -0.05 +- 0.1 spans buckets 1..2, 0.6 +- 0.1 bucket 3, d 0.33 +- 0.08 -> 2..4
     assert H.box_codes([-0.05, 0.6], 0.1, 0.33, 0.08, grid) == [
@@ -263,8 +264,8 @@ def test_bucket_codes_hand_checked():
 
 def test_database_groups_are_canonical_and_indexed():
     _, _, _, db = setup()
-    assert db.methods == L.METHOD_HASHING and db.hash_group_size == 4 and db.hash_n > 10000
-    assert db.hash_flags == L.HASH_FLAG_DISTANCE
+    assert db.methods == stardb.METHOD_HASHING and db.hash_group_size == 4 and db.hash_n > 10000
+    assert db.hash_flags == stardb.HASH_FLAG_DISTANCE
     recs = [db.hash_record(i) for i in range(db.hash_n)]
     assert recs == sorted(recs)
     rng = np.random.default_rng(3)
@@ -280,7 +281,7 @@ def test_database_groups_are_canonical_and_indexed():
         assert all(recs[k][0] == code for k in range(start, stop))
         assert (start == 0 or recs[start - 1][0] < code) and \
             (stop == db.hash_n or recs[stop][0] > code)
-        assert all(db.star_flags(s) & L.STAR_FLAG_HASH for s in stars)
+        assert all(db.star_flags(s) & stardb.STAR_FLAG_HASH for s in stars)
     assert db.hash_bucket(recs[-1][0] + 1) == (db.hash_n, db.hash_n)
     start, stop = db.hash_bucket(0)
     assert start == stop or recs[start][0] == 0
@@ -327,7 +328,7 @@ def test_monte_carlo_200_scenes():
 def test_variants(group_size, normalized):
     db = setup(group_size, normalized)[3]
     assert db.hash_group_size == group_size
-    assert bool(db.hash_flags & L.HASH_FLAG_DISTANCE) == (not normalized)
+    assert bool(db.hash_flags & stardb.HASH_FLAG_DISTANCE) == (not normalized)
     counts = run_scenes(db, 30, 7)
     print("\nhashing", group_size, "normalized" if normalized else "non-normalized", counts)
     assert counts["wrong"] == 0
@@ -377,8 +378,8 @@ def test_budget_is_deterministic():
 def reseal(image, patch):
     b = bytearray(image)
     patch(b)
-    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[L.HEADER_SIZE:])))
-    struct.pack_into("<I", b, L.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:L.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -390,9 +391,9 @@ def status_of(image):
 
 def test_corrupt_hash_section_is_refused():
     _, _, image, _ = setup()
-    off, length = struct.unpack_from("<II", image, L.DIRECTORY_OFFSET + 8 * L.SEC_HASH)
+    off, length = struct.unpack_from("<II", image, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_HASH)
     rng = np.random.default_rng(4)
-    for i in [off, off + 13, off + L.HASH_HEADER_SIZE, off + length - 2] + \
+    for i in [off, off + 13, off + stardb.HASH_HEADER_SIZE, off + length - 2] + \
             rng.integers(off, off + length, 20).tolist():
         b = bytearray(image)
         b[i] ^= 0x04

@@ -15,18 +15,18 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
-from lodestar import packet as ground
+from lodestar.ground import codec as ground
 from lodestar.firmware import camera as fwcamera
 from lodestar.firmware import centroids as fwcentroids
 from lodestar.firmware import packet as fwpacket
 from lodestar.firmware import status as fwstatus
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.golden.result import DetectionResult
+from lodestar.contract import DetectionResult
 from lodestar.golden.starfield import star_frame
 from lodestar.sim.presets import PRESETS, load_preset
 
-import micropython_support
-from micropython_support import run_micropython
+from tests import micropython_support
+from tests.micropython_support import run_micropython
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -102,7 +102,7 @@ def corrupt_cases(data):
         shift = body_bits - offset - bits
         patched = (word & ~(((1 << bits) - 1) << shift)) | (value << shift)
         body = patched.to_bytes(len(data) - C.CRC_BYTES, "big")
-        out.append(body + fwpacket.crc32(body).to_bytes(C.CRC_BYTES, "big"))
+        out.append(body + C.crc32(body).to_bytes(C.CRC_BYTES, "big"))
     return out
 
 
@@ -181,6 +181,7 @@ for n in names:
     __import__("lodestar.firmware." + n)
 
 from lodestar import contract as C
+from lodestar.contract import packet as contract_packet
 from lodestar.firmware import camera, centroids, packet, status
 
 checks = [0]
@@ -218,10 +219,10 @@ for code, name in STATUS_NAMES:
 
 # --- packets -----------------------------------------------------------------------------
 import binascii
-print("BINASCII_CRC32", hasattr(binascii, "crc32"), packet._crc32 is not None)
+print("BINASCII_CRC32", hasattr(binascii, "crc32"), contract_packet.crc32_native is not None)
 for crc_impl in ("binascii", "table"):
     if crc_impl == "table":
-        packet._crc32 = None
+        contract_packet.crc32_native = None
     for name, data, header, records, stars, rejected, stars_s, rejected_s in DECODED:
         where = "{} ({})".format(name, crc_impl)
         code, h, recs, reason = packet.decode(data)
@@ -244,9 +245,9 @@ for crc_impl in ("binascii", "table"):
         same(out, (code, None, [], reason), "corrupt ({})".format(crc_impl))
     for bad, expected in BAD_INPUTS:
         same(packet.decode(bad), expected, "bad input")
-    same(packet.crc32(b"123456789"), 0xCBF43926, "crc check value")
-packet._crc32 = binascii.crc32 if hasattr(binascii, "crc32") else None
-same(packet.crc32_table(b"123456789"), 0xCBF43926, "table crc check value")
+    same(C.crc32(b"123456789"), 0xCBF43926, "crc check value")
+contract_packet.crc32_native = binascii.crc32 if hasattr(binascii, "crc32") else None
+same(C.crc32_table(b"123456789"), 0xCBF43926, "table crc check value")
 
 # --- camera ------------------------------------------------------------------------------
 for params, pixels, vectors, directions, projected, omega, smears in CAMERAS:
@@ -334,15 +335,15 @@ def test_literals_round_trip():
 def test_missing_micropython_skips_or_fails(monkeypatch, tmp_path):
     """Without the npm package the tests skip with the install command, unless CI demands
     MicroPython (``LODESTAR_REQUIRE_MICROPYTHON``)."""
-    monkeypatch.setattr(micropython_support, "PACKAGE_DIR", tmp_path / "missing")
-    monkeypatch.setattr(micropython_support.shutil, "which", lambda name: "/usr/bin/" + name)
+    monkeypatch.setenv("LODESTAR_MICROPYTHON_TOOL", str(tmp_path / "missing"))
+    monkeypatch.setattr("shutil.which", lambda name: "/usr/bin/" + name)
     monkeypatch.delenv("LODESTAR_REQUIRE_MICROPYTHON", raising=False)
     with pytest.raises(pytest.skip.Exception, match="npm ci --prefix tools/micropython"):
         run_micropython("print(1)")
     monkeypatch.setenv("LODESTAR_REQUIRE_MICROPYTHON", "1")
     with pytest.raises(pytest.fail.Exception, match="MicroPython required"):
         run_micropython("print(1)")
-    monkeypatch.setattr(micropython_support.shutil, "which", lambda name: None)   # no node
+    monkeypatch.setattr("shutil.which", lambda name: None)   # no node
     assert "node is not installed" in micropython_support.unavailable_reason()
 
 

@@ -1,5 +1,5 @@
 """Tests of ``lodestar.firmware.packet`` (the MCU decoder) against the ground codec
-``lodestar.packet``, and of ``lodestar.firmware.status``.
+``lodestar.ground.codec``, and of ``lodestar.firmware.status``.
 
 The firmware decoder must return exactly what the ground codec decodes (records, header) and,
 for every packet the ground codec rejects, a non-OK status with the ground codec's message,
@@ -16,13 +16,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar import packet as ground
+from lodestar.contract import packet as contract_packet
+from lodestar.ground import codec as ground
 from lodestar.firmware import packet as fw
 from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.golden.result import DetectionResult
+from lodestar.contract import DetectionResult
 from lodestar.golden.starfield import star_frame
-from packet_samples import base_result, spot_results
+from tests.ground.packet_samples import base_result, spot_results
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
 
@@ -111,9 +112,9 @@ def agree(data):
 def crc_path(request, monkeypatch):
     """Run a test with ``binascii.crc32`` and again with the table-driven fallback."""
     if request.param == "table":
-        monkeypatch.setattr(fw, "_crc32", None)
+        monkeypatch.setattr(contract_packet, "crc32_native", None)
     else:
-        assert fw._crc32 is not None
+        assert contract_packet.crc32_native is not None
     return request.param
 
 
@@ -333,45 +334,6 @@ def test_random_byte_corruption_never_passes(edits):
         data[position] ^= xor
     if bytes(data) != ground.encode(base_result()):
         assert agree(bytes(data)) != S.OK
-
-
-# --------------------------------------------------------------------------------------
-# CRC paths
-# --------------------------------------------------------------------------------------
-
-@pytest.mark.parametrize("size", [0, 1, 2, 3, 4, 7, 36, 100, 1000])
-def test_crc_table_matches_zlib(size):
-    rng = np.random.default_rng(size)
-    data = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
-    assert fw.crc32_table(data) == zlib.crc32(data)
-    assert fw.crc32(data) == zlib.crc32(data)
-    cut = size // 3
-    assert fw.crc32_table(data[cut:], fw.crc32_table(data[:cut])) == zlib.crc32(data)
-    assert fw.crc32_table(bytearray(data)) == fw.crc32_table(memoryview(data))
-
-
-def test_crc_known_values():
-    assert fw.crc32_table(b"") == 0
-    assert fw.crc32_table(b"123456789") == 0xCBF43926      # CRC-32/ISO-HDLC check value
-    assert fw.crc32_table(b"\xff" * 64) == zlib.crc32(b"\xff" * 64)
-
-
-def test_fallback_selected_without_binascii(monkeypatch):
-    """Reloading the module where ``binascii`` cannot be imported selects the table CRC and
-    still decodes every golden packet."""
-    monkeypatch.setitem(sys.modules, "binascii", None)
-    try:
-        module = importlib.reload(fw)
-        assert module._crc32 is None
-        for result, data in zip(GOLDEN, GOLDEN_PACKETS):
-            code, _, recs, _ = module.decode(data)
-            assert code == S.OK and recs == result.blobs
-        corrupt = GOLDEN_PACKETS[1][:-1] + bytes([GOLDEN_PACKETS[1][-1] ^ 0x80])
-        assert module.decode(corrupt)[0] == S.PACKET_BAD_CRC
-    finally:
-        monkeypatch.undo()
-        importlib.reload(fw)
-    assert fw._crc32 is not None
 
 
 # --------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Tests of the flight API (``lodestar.firmware.pipeline.StarTracker``).
 
 * End to end on simulated images: ``lodestar.sim.scene.simulate`` (estcube2 full frames,
-  random attitudes, at rest and at 1 deg/s) -> the golden detector -> ``lodestar.packet``
+  random attitudes, at rest and at 1 deg/s) -> the golden detector -> ``lodestar.ground.codec``
   -> ``StarTracker.process``: >= 90 % correct, no wrong attitude, arcsecond cross-boresight
   accuracy at rest, a covariance of the right size.
 * Every bad packet, configuration problem and malformed optional input gives a status (and
@@ -21,16 +21,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar import contract as C
-from lodestar import packet as ground_packet
+from lodestar.ground import codec as ground_packet
 from lodestar.firmware import packet as fwpacket
 from lodestar.firmware import pipeline
 from lodestar.firmware import status as S
-from lodestar.golden.result import DetectionResult
+from lodestar.contract import DetectionResult
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import attitude_error_deg
+from lodestar.sim.centroids import attitude_error_deg
 
-import sim_frames as SF
-from micropython_support import run_micropython
+from tests import sim_frames as SF
+from tests.micropython_support import run_micropython
 
 MAX_ERR_DEG = SF.MAX_ERR_DEG
 
@@ -51,7 +51,7 @@ def packet_of(records, width=2592, height=1944, pixel_bits=12):
 
 
 def with_crc(body):
-    return body + fwpacket.crc32(body).to_bytes(C.CRC_BYTES, "big")
+    return body + C.crc32(body).to_bytes(C.CRC_BYTES, "big")
 
 
 # --------------------------------------------------------------------------------------

@@ -20,8 +20,8 @@ from lodestar.firmware import starid
 from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
+from tests.starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import Catalogue, load
 from lodestar.sim.goldenset import window_camera

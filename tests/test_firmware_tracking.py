@@ -15,13 +15,13 @@ from lodestar.firmware import status as S
 from lodestar.firmware import tracking
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import attitude_error_deg, centroid_scene
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
 
-import sim_frames as SF
-from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad,
+from tests import sim_frames as SF
+from tests.starid_support import (HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad,
                             streaked)
 
 TOL = 3.4e-4            # rad: 2.5 px of estcube2

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
@@ -22,8 +23,8 @@ from lodestar.firmware import triangle as T
 from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
+from lodestar.sim.centroids import centroid_scene
+from tests.starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -152,7 +153,7 @@ def test_canonical_order_and_correspondence_from_side_lengths():
 
 def test_database_triangles_are_canonical_exact_and_sorted():
     _, _, _, db = setup()
-    assert db.methods == L.METHOD_TRIANGLE and db.tri_n > 10000
+    assert db.methods == stardb.METHOD_TRIANGLE and db.tri_n > 10000
     recs = [db.triangle_record(i) for i in range(db.tri_n)]
     assert recs == sorted(recs)
     rng = np.random.default_rng(3)
@@ -166,7 +167,7 @@ def test_database_triangles_are_canonical_exact_and_sorted():
         opp = (T.chord(v[1], v[2]), T.chord(v[0], v[2]), T.chord(v[0], v[1]))
         assert opp[0] <= opp[1] <= opp[2] <= chord_max
         for s in (s0, s1, s2):
-            assert db.star_flags(s) & L.STAR_FLAG_TRIANGLE
+            assert db.star_flags(s) & stardb.STAR_FLAG_TRIANGLE
     keys = np.array([r[0] for r in recs])
     for lo, hi in ((0.0, 1e-4), (1e-3, 1.2e-3), (0.02, 0.021), (-1.0, 0.0), (0.5, 1.0)):
         start, stop = db.triangles_in_range(lo, hi)
@@ -260,7 +261,7 @@ def test_combined_image_serves_every_method():
     cam, cat, _, _ = setup()
     db = Database(build_database(cat, cam, mag_limit=6.0,
                                  methods=("pyramid", "triangle", "hashing")))
-    assert db.methods == L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
+    assert db.methods == stardb.METHOD_PYRAMID | stardb.METHOD_TRIANGLE | stardb.METHOD_HASHING
     rng = np.random.default_rng(17)
     for _ in range(5):
         q = random_attitude(rng)
@@ -278,8 +279,8 @@ def reseal(image, patch):
     """Apply ``patch(bytearray)`` and recompute both CRCs (so only the layout is wrong)."""
     b = bytearray(image)
     patch(b)
-    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[L.HEADER_SIZE:])))
-    struct.pack_into("<I", b, L.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:L.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -292,9 +293,9 @@ def status_of(image):
 
 def test_corrupt_triangle_section_is_refused():
     _, _, image, _ = setup()
-    off, length = struct.unpack_from("<II", image, L.DIRECTORY_OFFSET + 8 * L.SEC_TRIANGLES)
+    off, length = struct.unpack_from("<II", image, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES)
     rng = np.random.default_rng(4)
-    for i in [off, off + 5, off + L.TRI_HEADER_SIZE + 3, off + length - 1] + \
+    for i in [off, off + 5, off + stardb.TRI_HEADER_SIZE + 3, off + length - 1] + \
             rng.integers(off, off + length, 20).tolist():
         b = bytearray(image)
         b[i] ^= 0x10
@@ -311,7 +312,7 @@ def test_corrupt_triangle_section_is_refused():
     assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, kv_end, n - 1))) == \
         S.DATABASE_BAD_LAYOUT
     assert status_of(reseal(image, lambda b: struct.pack_into(
-        "<II", b, L.DIRECTORY_OFFSET + 8 * L.SEC_TRIANGLES, 0, 0))) == S.DATABASE_BAD_LAYOUT
+        "<II", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES, 0, 0))) == S.DATABASE_BAD_LAYOUT
 
 
 # --------------------------------------------------------------------------------------

@@ -15,9 +15,9 @@ from lodestar.firmware import starid
 from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database
-from lodestar.ground.scenes import centroid_scene
+from lodestar.sim.centroids import centroid_scene
 from lodestar.sim.attitude import random_attitude
-from starid_support import outcome, streaked
+from tests.starid_support import outcome, streaked
 from test_firmware_pyramid import TOL, setup
 
 

@@ -6,7 +6,7 @@ import random
 import numpy as np
 import pytest
 from amaranth.sim import Simulator
-from hdl_bench import stream_frames
+from tests.hdl_bench import stream_frames
 
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.buffers import HalfWordFIFO

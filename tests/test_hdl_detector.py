@@ -6,7 +6,7 @@ fields, a slow record reader, truncated frames and line errors, register refusal
 
 import numpy as np
 import pytest
-from hdl_bench import stream_frames
+from tests.hdl_bench import stream_frames
 
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame

@@ -1,4 +1,4 @@
-"""The packetizer in the Amaranth simulator: bytes equal ``lodestar.packet.encode`` of the same
+"""The packetizer in the Amaranth simulator: bytes equal ``lodestar.ground.codec.encode`` of the same
 trailer and records (random values at every compact width, a slow reader), and the detector
 followed by the packetizer produces packets that decode to the golden result."""
 
@@ -9,12 +9,12 @@ import pytest
 from amaranth import Module
 from amaranth.lib import wiring
 from amaranth.sim import Simulator
-from hdl_bench import to_record
+from tests.hdl_bench import to_record
 
 from lodestar import contract as C
-from lodestar import packet
+from lodestar.ground import codec as packet
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.golden.result import DetectionResult
+from lodestar.contract import DetectionResult
 from lodestar.hdl.detector import Detector
 from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields

@@ -4,15 +4,14 @@
 //
 // Loads @micropython/micropython-webassembly-pyscript (pinned in package.json /
 // package-lock.json next to this file; install with `npm ci --prefix tools/micropython`),
-// copies lodestar/__init__.py, lodestar/contract.py and every firmware/*.py of the repository
-// into the in-memory filesystem as /lib/lodestar/ and /lib/lodestar/firmware/, puts /lib on
-// sys.path, runs SCRIPT.py as __main__ and prints its output.  Exit status: 0 when the script
-// finished, 1 when it raised (the traceback goes to stderr), 2 for a usage error.
+// copies the --copy files into the in-memory filesystem, puts /lib on sys.path, runs
+// SCRIPT.py as __main__ and prints its output.  Exit status: 0 when the script finished, 1
+// when it raised (the traceback goes to stderr), 2 for a usage error.
 //
-// --copy HOST=TARGET (repeatable) also copies the host file HOST (a path relative to the
-// current directory, or absolute) to the absolute path TARGET of the in-memory filesystem,
-// creating its folders: data files (a star database, recorded packets) or extra modules
-// (TARGET under /lib/lodestar/ to import them as lodestar.NAME).
+// --copy HOST=TARGET (repeatable) copies the host file HOST (a path relative to the current
+// directory, or absolute) to the absolute path TARGET of the in-memory filesystem, creating
+// its folders: the MCU image (lodestar.regress.micropython.mcu_image lists it: modules under
+// /lib/lodestar/), star databases and recorded packets.
 //
 // --heapsize sets the initial MicroPython heap (default 1 MiB).  It is not a cap: this
 // build (the "pyscript" variant, MICROPY_GC_SPLIT_HEAP_AUTO) adds heap areas on demand up
@@ -28,12 +27,8 @@
 
 import fs from "node:fs";
 import path from "node:path";
-import { fileURLToPath } from "node:url";
 
 import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
-
-const here = path.dirname(fileURLToPath(import.meta.url));
-const repo = path.resolve(here, "..", "..");
 
 function usage(message) {
   process.stderr.write(`run.mjs: ${message}\n` +
@@ -81,17 +76,6 @@ const stdout = (line) => process.stdout.write(line + "\n");
 const stderr = (line) => process.stderr.write(line + "\n");
 const mp = await loadMicroPython({ heapsize, stdout, stderr, linebuffer: true });
 
-// The firmware package and the two lodestar files it imports.
-function copy(source, target) {
-  mp.FS.writeFile(target, fs.readFileSync(path.join(repo, source)));
-}
-mp.FS.mkdirTree("/lib/lodestar/firmware");
-copy("lodestar/__init__.py", "/lib/lodestar/__init__.py");
-copy("lodestar/contract.py", "/lib/lodestar/contract.py");
-for (const name of fs.readdirSync(path.join(repo, "firmware")).sort()) {
-  if (name.endsWith(".py")) copy(path.join("firmware", name), `/lib/lodestar/firmware/${name}`);
-}
-// Extra files (--copy), after the firmware so that they may add modules next to it.
 for (const [host, target] of copies) {
   mp.FS.mkdirTree(path.posix.dirname(target));
   mp.FS.writeFile(target, fs.readFileSync(host));

@@ -1,0 +1,101 @@
+"""The star-database cache of the ground tools: databases built for a field of view, kept on
+disk (``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else ``~/.cache/lodestar``)
+under a key of every input, and in memory; files are written atomically."""
+
+import hashlib
+import os
+import tempfile
+from importlib import resources
+from pathlib import Path
+
+from lodestar.contract import stardb
+from lodestar.firmware import database as fwdatabase
+from lodestar.ground.database import build_database
+from lodestar.sim import catalogue
+
+CACHE_SCHEMA = 1
+"""Bumped when the builder's output for the same parameters changes (invalidates caches)."""
+
+
+MEMORY_CACHE_SIZE = 8
+"""Databases kept in memory (the least recently built or read ones are dropped first)."""
+
+
+_MEMORY = {}          # cache file path -> (Database, path or None)
+
+
+def default_cache_dir():
+    """``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else
+    ``~/.cache/lodestar``."""
+    if os.environ.get("LODESTAR_CACHE_DIR"):
+        return Path(os.environ["LODESTAR_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "lodestar"
+
+
+_CATALOGUE_HASH = []
+
+
+def _catalogue_hash():
+    if not _CATALOGUE_HASH:
+        data = resources.files("lodestar.sim").joinpath("data/" + catalogue.DATA_FILE)
+        _CATALOGUE_HASH.append(hashlib.sha256(data.read_bytes()).hexdigest())
+    return _CATALOGUE_HASH[0]
+
+
+def cache_key(fov_h_deg, fov_v_deg, max_mag, method):
+    """The SHA-256 hex digest naming the database of these parameters."""
+    text = "|".join([f"schema={CACHE_SCHEMA}", f"format={stardb.VERSION}",
+                     f"fov_h={fov_h_deg:.4f}", f"fov_v={fov_v_deg:.4f}",
+                     f"mag={max_mag:.3f}", f"method={method}",
+                     f"catalogue={_catalogue_hash()}"])
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def write_atomic(target, data):
+    """Write ``data`` to ``target`` (creating its folder) through a temporary file renamed
+    into place, so readers never see a partial file.  Raises ``OSError``."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=target.name, suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir=None):
+    """``(Database, path)`` for the parameters: from memory, the cache file, or built (and
+    written to ``cache_dir``; ``path`` is None when the cache cannot be written).  Raises
+    ``ValueError`` when the database cannot be built for these parameters."""
+    key = cache_key(fov_h_deg, fov_v_deg, max_mag, method)
+    directory = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    target = directory / f"lodestar-{method}-{key[:16]}.lsdb"
+    hit = _MEMORY.get(str(target))
+    if hit is not None:
+        return hit
+    db = path = None
+    try:
+        db = fwdatabase.Database(target.read_bytes())
+        path = target
+    except Exception:            # missing, unreadable or corrupt: rebuild
+        db = None
+    if db is None:
+        try:
+            image = build_database(fov_h_deg=round(fov_h_deg, 4), fov_v_deg=round(fov_v_deg, 4),
+                                   mag_limit=float(max_mag), method=method)
+        except NotImplementedError as exc:
+            raise ValueError(str(exc)) from None
+        db = fwdatabase.Database(image)
+        try:
+            write_atomic(target, image)
+            path = target
+        except OSError:
+            path = None            # read-only cache: keep the database in memory only
+    _MEMORY[str(target)] = (db, path)
+    while len(_MEMORY) > MEMORY_CACHE_SIZE:
+        del _MEMORY[next(iter(_MEMORY))]
+    return db, path

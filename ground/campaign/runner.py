@@ -1,0 +1,289 @@
+"""Run a campaign: trials in parallel (local processes or Dask), journaled so a stopped
+campaign resumes, then its tables and plots.  Studies and outputs: ``docs/campaigns.md``."""
+
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+from lodestar.ground import flight as flightsolve
+from lodestar.ground import truth as campaign_truth
+from lodestar.ground.campaign import plots as campaign_plots
+from lodestar.ground.campaign import tables as campaign_tables
+from lodestar.ground.campaign import trials as T
+from lodestar.ground.flight import camera_settings
+from lodestar.sim import presets
+from lodestar.sim.presets import PRESETS
+
+JOURNAL = "journal.jsonl"
+DEFAULT_TRIALS = {"rate": 500, "falsestars": 100, "limiting": 30, "accuracy": 300}
+"""Monte-Carlo size per level by default: 500 attitudes per rate resolve availability to
+about +-1 % (95 %) near 95 %, and 0.2 % steps near 100 %."""
+QUICK = {"trials": 2, "rates": (0.0, 1.0), "false_stars": (0, 5)}
+"""``--quick``: a smoke-test campaign (seconds on lohmann)."""
+MAX_RATE_DEG_S = 30.0
+"""Largest rate accepted (a frame then smears over several degrees)."""
+
+
+def levels(study, rates=None, false_stars=T.FALSE_STARS):
+    """The swept levels of ``study`` as task text."""
+    if study == "rate":
+        return [f"{r:g}" for r in (T.RATES_DEG_S if rates is None else rates)]
+    if study == "limiting":
+        return [f"{r:g}" for r in (T.LIMITING_RATES_DEG_S if rates is None else rates)]
+    if study == "falsestars":
+        return [f"false={n}" for n in false_stars] + ["noise"]
+    if study == "accuracy":
+        return ["rest"]
+    raise ValueError(f"unknown study {study!r} (known: {', '.join(T.STUDIES)})")
+
+
+def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyramid",
+                settings="tuned", quick=False):
+    """The campaign settings (the journal's header; JSON-ready).  Raises ``ValueError``."""
+
+    if study not in T.STUDIES:
+        raise ValueError(f"unknown study {study!r} (known: {', '.join(T.STUDIES)})")
+    if not presets or any(p not in PRESETS for p in presets) or len(set(presets)) < len(presets):
+        raise ValueError(f"presets must be distinct names of {', '.join(PRESETS)}, "
+                         f"got {presets!r}")
+    if rates is not None:
+        if study not in ("rate", "limiting"):
+            raise ValueError(f"--rates applies to the rate and limiting studies, not {study}")
+        if not rates or any(not 0 <= r <= MAX_RATE_DEG_S for r in rates) or \
+                len(set(rates)) < len(rates):
+            raise ValueError(f"--rates must be distinct numbers in 0..{MAX_RATE_DEG_S:g} "
+                             f"deg/s, got {rates!r}")
+    if axis not in T.AXES:
+        raise ValueError(f"unknown rate axis {axis!r} (known: {', '.join(T.AXES)})")
+    if method not in T.METHODS:
+        raise ValueError(f"unknown method {method!r} (known: {', '.join(T.METHODS)})")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {seed!r}")
+    if quick and rates is None:
+        rates = QUICK["rates"]
+    return {"study": study, "seed": seed, "presets": list(presets),
+            "levels": levels(study, rates, QUICK["false_stars"] if quick else T.FALSE_STARS),
+            "axis": axis, "method": method, "settings": settings,
+            "camera": {p: camera_settings(p, settings) for p in presets}}
+
+
+def make_tasks(config, trials):
+    """The task list ``(study, preset, level, trial)`` in table order."""
+    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
+        raise ValueError(f"--trials must be a positive integer, got {trials!r}")
+    return [(config["study"], preset, level, trial) for preset in config["presets"]
+            for level in config["levels"] for trial in range(trials)]
+
+
+# ---- journal ---------------------------------------------------------------------------
+
+def read_journal(path):
+    """``(header, {key: result})`` of a journal; a last line cut short is dropped.  Raises
+    ``ValueError`` for a journal damaged elsewhere."""
+    with open(path) as fh:
+        lines = fh.read().split("\n")
+    header, results = None, {}
+    complete = [line for line in lines if line.strip()]
+    for i, line in enumerate(complete):
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            if i == len(complete) - 1:
+                break               # the write a kill interrupted
+            raise ValueError(f"{path}: line {i + 1} is not JSON; the journal is damaged "
+                             "(delete it to start again)") from None
+        if i == 0:
+            if "campaign" not in entry:
+                raise ValueError(f"{path}: the first line is not a campaign header")
+            header = entry["campaign"]
+        else:
+            results[entry["key"]] = entry["result"]
+    if header is None:
+        raise ValueError(f"{path}: empty journal (delete it to start again)")
+    return header, results
+
+
+def open_journal(out_dir, config, resume):
+    """``(file, {key: result})``: the journal opened for appending, with the results it
+    already holds.  Without ``resume`` an existing journal is an error (nothing is
+    overwritten); with it, its settings must equal ``config``."""
+    path = os.path.join(out_dir, JOURNAL)
+    done = {}
+    if os.path.exists(path):
+        if not resume:
+            raise ValueError(f"{path} exists: pass --resume to continue that campaign, or "
+                             "choose another --out")
+        header, done = read_journal(path)
+        if header != config:
+            changed = sorted(k for k in set(header) | set(config)
+                             if header.get(k) != config.get(k))
+            raise ValueError(f"{path} belongs to a campaign with other settings "
+                             f"({', '.join(changed)} differ); use the same options or "
+                             "another --out")
+        with open(path, "rb+") as fh:          # drop a last line cut short by a kill
+            data = fh.read()
+            keep = data[:data.rfind(b"\n") + 1] if not data.endswith(b"\n") else data
+            fh.seek(0)
+            fh.truncate()
+            fh.write(keep)
+        return open(path, "a"), done
+    os.makedirs(out_dir, exist_ok=True)
+    fh = open(path, "w")
+    fh.write(json.dumps({"campaign": config}) + "\n")
+    fh.flush()
+    return fh, done
+
+
+# ---- execution -------------------------------------------------------------------------
+
+def _run_local(tasks, config, workers, sink):
+    if workers == 1:
+        for task in tasks:
+            sink(*T.run_task(task, config))
+        return
+
+    pool = ProcessPoolExecutor(max_workers=workers)
+    try:
+        futures = [pool.submit(T.run_task, task, config) for task in tasks]
+        for future in as_completed(futures):
+            sink(*future.result())
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _run_dask(tasks, config, address, sink):
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise ValueError("--dask needs dask.distributed, the optional extra: pip install "
+                         "'lodestar[dask]'") from None
+    try:
+        client = Client(address, timeout="20s")
+    except OSError as exc:
+        raise ValueError(f"--dask: cannot reach the scheduler at {address}: {exc}") from None
+    try:
+        futures = client.map(T.run_task, tasks, config=config, pure=False)
+        for future in as_completed(futures):
+            sink(*future.result())
+    finally:
+        client.close()
+
+
+def run_campaign(config, trials, out_dir, workers=1, dask=None, resume=False,
+                 max_tasks=None, progress=True):
+    """Run the campaign's pending tasks (at most ``max_tasks``), journaling each result;
+    notes (resuming, stopped) go to stderr.  Returns ``(rows, paths)``: the table and the
+    files written, or ``(None, [])`` when tasks remain (stopped by ``max_tasks``).  Raises
+    ``ValueError`` for bad arguments."""
+    tasks = make_tasks(config, trials)
+    if dask is None and (isinstance(workers, bool) or not isinstance(workers, int) or
+                         workers < 1):
+        raise ValueError(f"--workers must be a positive integer, got {workers!r}")
+    if max_tasks is not None and (not isinstance(max_tasks, int) or max_tasks < 1):
+        raise ValueError(f"--max-tasks must be a positive integer, got {max_tasks!r}")
+    journal, results = open_journal(out_dir, config, resume)
+    keys = {T.task_key(t) for t in tasks}
+    pending = [t for t in tasks if T.task_key(t) not in results]
+    if results:
+        print(f"lodestar campaign: resuming: {len(keys & set(results))} of {len(tasks)} "
+              f"tasks already in {journal.name}", file=sys.stderr)
+    pending.sort(key=lambda t: t[3])        # trial by trial: balanced levels at any time
+    todo = pending if max_tasks is None else pending[:max_tasks]
+    bar = _progress(len(tasks), len(tasks) - len(pending), config["study"], progress)
+    try:
+        def sink(key, result):
+            results[key] = result
+            journal.write(json.dumps({"key": key, "result": result}) + "\n")
+            journal.flush()
+            bar.update(1)
+
+        if todo:
+            _prepare_databases(config)
+            if dask is not None:
+                _run_dask(todo, config, dask, sink)
+            else:
+                _run_local(todo, config, min(workers, len(todo)), sink)
+    finally:
+        bar.close()
+        journal.close()
+    if len(todo) < len(pending):
+        print(f"lodestar campaign: stopped after {len(todo)} tasks; "
+              f"{len(pending) - len(todo)} remain: run again with --resume", file=sys.stderr)
+        return None, []
+    return write_outputs(config, tasks, results, out_dir)
+
+
+def _progress(total, done, name, enabled):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=done, desc=f"campaign {name}", unit="frame",
+                disable=not enabled, file=sys.stderr, smoothing=0.05)
+
+
+def _prepare_databases(config):
+    """Build (or read) the star databases once before the workers start, so that parallel
+    workers do not all build the same cache file."""
+
+    methods = T.METHODS if config["study"] == "falsestars" else (config["method"],)
+    for preset in config["presets"]:
+        cam = flightsolve.firmware_camera(presets.load_preset(preset))
+        for method in methods:
+            flightsolve.star_database(cam, method=method)
+
+
+def write_outputs(config, tasks, results, out_dir):
+    """The table as JSON and CSV and the plot: ``(rows, paths)``."""
+    study = config["study"]
+    rows = campaign_tables.tables(study, tasks, results, config)
+    base = os.path.join(out_dir, f"campaign_{study}")
+    trials = len(tasks) // max(1, len(config["presets"]) * len(config["levels"]))
+    summary = {"campaign": config, "trials_per_level": trials,
+               "wrong_arcsec": campaign_truth.WRONG_ARCSEC,
+               "wrong_sigmas": campaign_truth.WRONG_SIGMAS, "table": rows,
+               "references": {"dzamba_table_4_1": {f"{k:g}": v for k, v in
+                                                   campaign_tables.DZAMBA_TABLE_4_1.items()},
+                              "schumann_5dps_sky_pct": campaign_tables.SCHUMANN_5DPS_PCT,
+                              "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
+    with open(base + ".json", "w") as fh:
+        json.dump(summary, fh, indent=1)
+    campaign_tables.write_csv(base + ".csv", rows)
+    title = f"{trials} trials/level, seed {config['seed']}"
+    pngs = campaign_plots.PLOTS[study](rows, out_dir, title)
+    return rows, [base + ".json", base + ".csv"] + pngs
+
+
+# ---- command line ----------------------------------------------------------------------
+
+COLUMNS = {
+    "rate": ("preset", "rate_deg_s", "trials", "right", "wrong", "failed", "imprecise",
+             "availability_pct",
+             "cross_1sigma", "roll_1sigma", "sigma_cross_rms", "sigma_roll_rms",
+             "dzamba_st16_n3_pct"),
+    "falsestars": ("preset", "sweep", "level", "method", "trials", "right", "wrong", "failed",
+                   "wrong_matches", "availability_pct"),
+    "limiting": ("preset", "rate_deg_s", "frames", "stars", "m50_sim", "eq57_m_t",
+                 "schumann_m_rot"),
+    "accuracy": ("preset", "stars_kept", "trials", "right", "wrong", "mean_matches",
+                 "cross_1sigma", "sigma_cross_rms", "ratio_cross", "roll_1sigma",
+                 "sigma_roll_rms", "ratio_roll"),
+}
+"""Columns printed on the terminal (the CSV has all)."""
+
+
+def format_table(study, rows):
+    """The table's main columns as aligned text."""
+    cols = COLUMNS[study]
+
+    def cell(v):
+        if v is None:
+            return "-"
+        return f"{v:.2f}" if isinstance(v, float) else str(v)
+
+    body = [[cell(r[c]) for c in cols] for r in rows]
+    widths = [max(len(c), *(len(b[i]) for b in body)) for i, c in enumerate(cols)]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(cols, widths))]
+    lines += ["  ".join(v.rjust(w) for v, w in zip(b, widths)) for b in body]
+    return "\n".join(lines)

@@ -1,0 +1,193 @@
+"""FPGA->MCU blob packet: ``encode`` a frame's ``DetectionResult`` to bytes, ``decode`` it back.
+
+Byte layout
+-----------
+Every field is an unsigned integer, MSB first (big-endian bit order), packed with no padding;
+the widths and order are those of ``lodestar.contract`` and nothing here restates them::
+
+    bytes 0 .. contract.HEADER_BYTES - 1      header: contract.HEADER_FIELDS, beginning with
+                                              magic (contract.PACKET_MAGIC) and version
+                                              (contract.PACKET_VERSION)
+    then n_records x contract.RECORD_BYTES    records: contract.RECORD_FIELDS each, in emission
+                                              order (n_records is the header's last field)
+    then contract.CRC_BYTES                   CRC trailer
+
+so a packet is ``contract.packet_bytes(n_records)`` bytes long.  ``HEADER_LAYOUT`` and
+``RECORD_LAYOUT`` list each field's bit offset within its section.
+
+CRC
+---
+The trailer is CRC-32 as ``zlib.crc32`` computes it (ISO-HDLC: reflected polynomial
+0xEDB88320, initial value and final XOR 0xFFFFFFFF) over the header and records, stored as an
+unsigned big-endian integer of ``contract.CRC_BYTES`` bytes.
+
+Errors
+------
+``encode`` raises ``ValueError`` naming the field (and the record index), its value and its
+width when a value is not an integer that fits its field; it never truncates.  ``decode``
+raises ``PacketError`` (a ``ValueError``) for every invalid packet, with a message naming the
+first failed check.  The checks are those of the flight decoder ``lodestar.firmware.packet``
+(the one home of the packet's rules, which returns statuses instead of raising), in this
+order:
+
+1. framing: not bytes-like; shorter than ``contract.packet_bytes(0)`` ("truncated"); bad
+   magic; unsupported version; length other than ``contract.packet_bytes(n_records)``
+   ("truncated" or "trailing bytes"); CRC mismatch (both CRCs in hex);
+2. header semantics: mode not an index of ``contract.MODE_NAMES``; pixel_bits not in
+   ``contract.PIXEL_BITS``; width/height outside ``1 .. contract.MAX_WIDTH/MAX_HEIGHT``;
+   threshold/background above full scale; frame flag bits outside
+   ``contract.FRAME_FLAGS_DEFINED``;
+   ``n_records != n_blobs - n_filtered - dropped_records``; ``FRAME_RECORD_OVERFLOW`` not set
+   exactly when ``dropped_records > 0``, ``FRAME_LABEL_OVERFLOW`` exactly when
+   ``dropped_labels > 0``;
+3. record semantics, per record ("record <index>: ..."): blob flag bits outside
+   ``contract.BLOB_FLAGS_DEFINED``; ``xmin > xmax`` or ``ymin > ymax``; bounding box beyond
+   the frame; ``peak`` above ``contract.full_scale(pixel_bits)``; ``nsat > n``; ``nsat > 0`` with
+   ``peak`` below full scale; ``n == 0``; ``n`` above the bounding-box area; a moment above
+   ``contract.moment_max(pixel_bits)``; ``BLOB_MOMENTS_SATURATED`` with no moment at its
+   maximum.
+
+Only ``bitstring.pack``, ``bitstring.Bits(bytes)``, ``unpack`` and ``tobytes`` are used, which
+behave alike in bitstring 4.2+ and 5.x.
+"""
+
+import operator
+import zlib
+
+import bitstring
+
+from lodestar import contract as C
+from lodestar.contract import DetectionResult
+from lodestar.firmware import packet as rules
+
+
+class PacketError(ValueError):
+    """The bytes are not a valid packet; the message names the failed check and the values."""
+
+
+def _layout(fields):
+    """``(name, bit_offset, bits)`` of each ``(name, bits)`` field, offsets from the section start."""
+    layout = []
+    offset = 0
+    for name, bits in fields:
+        layout.append((name, offset, bits))
+        offset += bits
+    return tuple(layout)
+
+
+def _format(fields):
+    """bitstring format string of ``(name, bits)`` fields: ``"uint:b0, uint:b1, ..."``."""
+    return ", ".join("uint:{}".format(bits) for _, bits in fields)
+
+
+HEADER_LAYOUT = _layout(C.HEADER_FIELDS)
+"""``(name, bit_offset, bits)`` of each header field; offsets from the packet start."""
+RECORD_LAYOUT = _layout(C.RECORD_FIELDS)
+"""``(name, bit_offset, bits)`` of each record field; offsets from the record start."""
+
+_HEADER_FORMAT = _format(C.HEADER_FIELDS)
+_RECORD_FORMAT = _format(C.RECORD_FIELDS)
+_PACKET_ONLY = ("magic", "version", "n_records")
+"""Header fields that describe the packet, not the frame (``n_records`` is ``len(blobs)``)."""
+
+
+def _crc(body):
+    """The CRC trailer of ``body`` (header and records): ``zlib.crc32``, big-endian."""
+    return zlib.crc32(body).to_bytes(C.CRC_BYTES, "big")
+
+
+# --------------------------------------------------------------------------------------
+# Encoding
+# --------------------------------------------------------------------------------------
+
+
+def _checked_values(where, fields, values):
+    """``values`` as ints after checking each fits its ``(name, bits)`` field, or ValueError.
+
+    ``where`` prefixes the message ("header" or "record <index>").
+    """
+    out = []
+    for (name, bits), value in zip(fields, values):
+        try:
+            number = operator.index(value)
+        except TypeError:
+            raise ValueError("{} field {}={!r} is not an integer".format(where, name, value))
+        if not 0 <= number < (1 << bits):
+            raise ValueError("{} field {}={} does not fit its {}-bit field (0..{})".format(
+                where, name, number, bits, (1 << bits) - 1))
+        out.append(number)
+    return out
+
+
+def encode(result):
+    """The packet (bytes) of a ``DetectionResult``: header, ``result.blobs`` records, CRC.
+
+    Header values come from ``result.header()`` plus the contract's magic and version.
+    Raises ``ValueError`` naming the field when a value does not fit its width.  No semantic
+    check is made here: ``decode`` is the gatekeeper.
+    """
+    header = dict(result.header(), magic=C.PACKET_MAGIC, version=C.PACKET_VERSION)
+    values = _checked_values("header", C.HEADER_FIELDS, [header[name] for name in C.HEADER_NAMES])
+    parts = [bitstring.pack(_HEADER_FORMAT, *values).tobytes()]
+    for index, blob in enumerate(result.blobs):
+        values = _checked_values("record {}".format(index), C.RECORD_FIELDS,
+                                 [getattr(blob, name) for name in C.RECORD_NAMES])
+        parts.append(bitstring.pack(_RECORD_FORMAT, *values).tobytes())
+    body = b"".join(parts)
+    return body + _crc(body)
+
+
+# --------------------------------------------------------------------------------------
+# Decoding: framing checks, then header and record semantics
+# --------------------------------------------------------------------------------------
+
+
+def _as_bytes(data):
+    """``data`` as ``bytes`` if it is bytes-like (bytes, bytearray, memoryview)."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise PacketError("packet must be bytes-like (bytes, bytearray or memoryview), "
+                          "got {}".format(type(data).__name__))
+    return bytes(data)
+
+
+def _unpack_header(data):
+    """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
+    values = bitstring.Bits(data[:C.HEADER_BYTES]).unpack(_HEADER_FORMAT)
+    return dict(zip(C.HEADER_NAMES, values))
+
+
+def _unpack_record(data, index):
+    """Record ``index`` of a framed packet as a ``contract.BlobRecord``."""
+    start = C.HEADER_BYTES + index * C.RECORD_BYTES
+    return C.BlobRecord(*bitstring.Bits(data[start:start + C.RECORD_BYTES]).unpack(_RECORD_FORMAT))
+
+
+def decode(data):
+    """The ``DetectionResult`` carried by a packet (bytes-like), or ``PacketError``.
+
+    Blobs are ``contract.BlobRecord``; ``width``, ``height`` and ``pixel_bits`` are restored
+    too, so ``decode(encode(r))`` equals ``r`` field for field.  The checks and their order
+    are listed in the module docstring.
+    """
+    data = _as_bytes(data)
+    minimum = C.packet_bytes(0)
+    if len(data) < minimum:
+        raise PacketError("truncated: {} bytes, a packet needs at least {}".format(
+            len(data), minimum))
+    header = _unpack_header(data)
+    problem = rules.framing_problem(data, header)
+    if problem:
+        raise PacketError(problem[1])
+    reason = rules.header_problem(header)
+    if reason:
+        raise PacketError(reason)
+    limits = rules.moment_limits(header["pixel_bits"])
+    blobs = []
+    for index in range(header["n_records"]):
+        rec = _unpack_record(data, index)
+        reason = rules.record_problem(rec, header, limits)
+        if reason:
+            raise PacketError("record {}: {}".format(index, reason))
+        blobs.append(rec)
+    frame = {name: value for name, value in header.items() if name not in _PACKET_ONLY}
+    return DetectionResult(blobs=blobs, **frame)

@@ -1,0 +1,440 @@
+"""Read a sky image (PNG, TIFF, FITS) into integer pixels, build its camera and detector
+settings, and solve it with the golden detector and the flight firmware (``lodestar solve``).
+Reading rules, settings and outputs: ``docs/image_solving.md``."""
+
+import math
+import time
+import warnings
+
+import numpy as np
+
+from lodestar import contract as C
+from lodestar.firmware.camera import Camera
+from lodestar.golden import DetectorConfig, detect_frame
+from lodestar.ground import annotate
+from lodestar.ground import flight as flightsolve
+from lodestar.ground import solve as ground_solve
+from lodestar.sim import presets
+from lodestar.sim.attitude import to_radec_roll
+from lodestar.sim.catalogue import load
+
+DEFAULT_KSIGMA = 5.0
+"""Local threshold offset in units of the estimated pixel noise."""
+DEFAULT_MIN_PIXELS = 3
+"""Smallest blob kept by the detector: drops hot pixels and pairs."""
+MIN_DISTINCT_VALUES = 32
+"""Fewer distinct values than this never count as evidence of left-aligned data."""
+MIN_SIZE_PX = 16
+"""Smallest accepted image width and height, px."""
+MAX_BIN = 16
+"""Largest ``--bin`` factor."""
+DATA_BITS_16 = tuple(sorted(set(C.SENSOR_PIXEL_BITS.values()) | {16}))
+"""Widths right-aligned data in a 16-bit file are read as: the sensors' (10, 12) and 16."""
+LUMA = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of R, G, B."""
+
+_MAGIC = ((b"\x89PNG\r\n\x1a\n", "PNG"), (b"II*\x00", "TIFF"), (b"MM\x00*", "TIFF"),
+          (b"II+\x00", "TIFF"), (b"MM\x00+", "TIFF"), (b"SIMPLE  =", "FITS"))
+
+
+class SkyImage:
+    """A frame ready for the detector: ``frame`` (``uint16`` ``[y, x]``), ``pixel_bits``,
+    ``format`` (``"PNG"``...), ``width``/``height`` of the file's image, ``bin`` (the frame is
+    that image binned ``bin x bin``), ``notes`` (what was converted or assumed)."""
+
+    def __init__(self, frame, pixel_bits, fmt, width, height, binning, notes):
+        self.frame = frame
+        self.pixel_bits = pixel_bits
+        self.format = fmt
+        self.width = width
+        self.height = height
+        self.bin = binning
+        self.notes = notes
+
+    def to_original(self, x, y):
+        """Original image pixel of binned pixel ``(x, y)``."""
+        n = self.bin
+        return n * x + (n - 1) / 2, n * y + (n - 1) / 2
+
+
+# --------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------
+
+def _sniff(path):
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    if not head:
+        raise ValueError(f"{path}: the file is empty")
+    for magic, fmt in _MAGIC:
+        if head.startswith(magic):
+            return fmt, head
+    raise ValueError(f"{path}: not a PNG, TIFF or FITS file (unrecognised first bytes)")
+
+
+def _read_png(path, head, notes):
+    from PIL import Image
+
+    depth, colour_type = head[24], head[25]      # IHDR: bit depth, colour type
+    with Image.open(path) as im:
+        im.load()
+        mode = im.mode
+        if mode == "P":
+            notes.append("palette image expanded to RGB")
+            im = im.convert("RGBA" if "transparency" in im.info else "RGB")
+            mode = im.mode
+        elif mode == "1":
+            notes.append("1-bit image read as 8-bit")
+            im = im.convert("L")
+            mode = "L"
+        data = np.asarray(im)
+    if depth == 16 and colour_type in (2, 6):
+        notes.append("16-bit colour PNG: Pillow reads it at 8 bits per channel")
+    if mode in ("LA", "La", "PA"):
+        data = data[..., 0]
+        notes.append("alpha channel dropped")
+    return data
+
+
+def _read_tiff(path, notes):
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        series = tif.series[0]
+        axes = series.axes
+        data = series.asarray()
+    if data.ndim == 3 and axes.startswith("S") and data.shape[0] in (3, 4):
+        data = np.moveaxis(data, 0, -1)                 # planar colour -> samples last
+        axes = axes[1:] + "S"
+    if data.ndim >= 3 and not axes.endswith("S"):
+        notes.append(f"{data.shape[0]} frames in the file ({axes}): the first is used")
+        data = data[0]
+        axes = axes[1:]
+    if data.ndim == 3 and data.shape[-1] == 2:          # grey + alpha
+        notes.append("alpha channel dropped")
+        data = data[..., 0]
+    return data
+
+
+def _read_fits(path, notes):
+    from astropy.io import fits
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            with fits.open(path, memmap=False) as hdus:
+                hdu = next((h for h in hdus if h.data is not None and
+                            getattr(h.data, "ndim", 0) >= 2), None)
+                if hdu is None:
+                    raise ValueError("no image data (no HDU with 2 or more axes)")
+                data = np.array(hdu.data)
+        except Exception as exc:
+            said = "; ".join(str(w.message) for w in caught)
+            raise ValueError(f"{exc}" + (f" ({said})" if said else "")) from None
+    notes.extend(f"FITS: {w.message}" for w in caught)
+    if data.ndim == 3 and data.shape[0] == 3:
+        data = np.moveaxis(data, 0, -1)
+    elif data.ndim >= 3:
+        notes.append(f"{data.shape[0]} planes in the cube: the first is used")
+        data = data.reshape((-1,) + data.shape[-2:])[0]
+    if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
+        bad = ~np.isfinite(data)
+        if bad.all():
+            raise ValueError("every pixel is blank (NaN)")
+        data = np.where(bad, np.median(data[~bad]), data)
+        notes.append(f"{int(bad.sum())} blank (NaN or inf) pixels set to the median")
+    return data
+
+
+def _luminance(data, notes):
+    if data.ndim == 2:
+        return data
+    if data.ndim != 3 or data.shape[-1] not in (3, 4):
+        raise ValueError(f"unsupported image shape {data.shape}")
+    if data.shape[-1] == 4:
+        notes.append("alpha channel dropped")
+    notes.append("colour image converted to luminance 0.2126 R + 0.7152 G + 0.0722 B")
+    rgb = data[..., :3].astype(np.float64)
+    lum = rgb @ np.asarray(LUMA)
+    if data.dtype.kind in "ui":
+        return np.rint(lum).astype(data.dtype)
+    return lum
+
+
+def _to_integers(data, notes):
+    """``(uint16 array, container bits)``: 8 for uint8 data, else 16."""
+    if data.dtype == np.uint8 or data.dtype == np.bool_:
+        return data.astype(np.uint16), 8
+    if data.dtype.kind in "ui":
+        lo, hi = int(data.min()), int(data.max())
+        if lo >= 0 and hi <= 0xFFFF:
+            return data.astype(np.uint16), 16
+    elif data.dtype.kind == "f":
+        lo, hi = float(data.min()), float(data.max())
+        if lo >= 0 and hi <= 0xFFFF and np.all(data == np.rint(data)):
+            return data.astype(np.uint16), 16
+    else:
+        raise ValueError(f"unsupported pixel type {data.dtype}")
+    notes.append(f"{data.dtype} data ({lo:g} .. {hi:g}) scaled linearly onto 0 .. 65535")
+    scaled = (data.astype(np.float64) - lo) * (65535.0 / (hi - lo))
+    return np.rint(scaled).astype(np.uint16), 16
+
+
+def _significant_bits(frame, container, bits, notes):
+    """``(frame, pixel_bits)`` by the rule of the module docstring."""
+    if container == 8:
+        if bits not in (None, 8):
+            raise ValueError(f"--bits {bits}: the file holds 8-bit data")
+        return frame, 8
+    hi = int(frame.max())
+    if bits is not None:
+        if hi <= C.full_scale(bits):
+            return frame, bits
+        shift = 16 - bits
+        if not np.any(frame & ((1 << shift) - 1)):
+            notes.append(f"{bits}-bit data left-aligned in 16 bits: shifted down by {shift}")
+            return frame >> shift, bits
+        raise ValueError(f"--bits {bits}: values up to {hi} neither fit {bits} bits nor are "
+                         f"left-aligned {bits}-bit data")
+    combined = int(np.bitwise_or.reduce(frame, axis=None))
+    shift = (combined & -combined).bit_length() - 1 if combined else 0
+    if shift >= 1 and len(np.unique(frame[::7, ::7])) >= MIN_DISTINCT_VALUES:
+        width = 16 - shift
+        pixel_bits = min(b for b in C.PIXEL_BITS if b >= width)
+        notes.append(f"the lowest {shift} bits of every pixel are zero: {width}-bit data "
+                     f"left-aligned in 16 bits, shifted down (--bits overrides)")
+        return frame >> shift, pixel_bits
+    pixel_bits = min(b for b in DATA_BITS_16 if hi <= C.full_scale(b))
+    if pixel_bits < 16:
+        widths = ", ".join(str(b) for b in DATA_BITS_16)
+        notes.append(f"16-bit file, largest value {hi}: read as {pixel_bits}-bit data (the "
+                     f"smallest of {widths} bits that holds it; --bits overrides)")
+    return frame, pixel_bits
+
+
+def _bin(frame, n, notes):
+    h, w = frame.shape
+    hb, wb = h // n, w // n
+    if hb < 1 or wb < 1:
+        raise ValueError(f"--bin {n} leaves no pixel of a {w}x{h} image")
+    if w % n or h % n:
+        notes.append(f"--bin {n}: the last {w % n} columns and {h % n} rows dropped")
+    blocks = frame[:hb * n, :wb * n].astype(np.uint32).reshape(hb, n, wb, n)
+    return (blocks.sum(axis=(1, 3)) // (n * n)).astype(np.uint16)
+
+
+def read_image(path, bits=None, binning=1):
+    """Read ``path`` into a :class:`SkyImage` (rules in the module docstring).  ``bits``:
+    significant bits of 16-bit data (None: detected); ``binning``: ``N`` of ``--bin``.
+    Raises ``ValueError`` (or ``OSError`` for a file that cannot be opened) with a message
+    naming the file and the problem."""
+    if bits is not None and bits not in C.PIXEL_BITS:
+        raise ValueError(f"--bits must be one of {C.PIXEL_BITS}, got {bits}")
+    if not isinstance(binning, int) or not 1 <= binning <= MAX_BIN:
+        raise ValueError(f"--bin must be an int in 1..{MAX_BIN}, got {binning!r}")
+    fmt, head = _sniff(path)
+    notes = []
+    try:
+        if fmt == "PNG":
+            data = _read_png(path, head, notes)
+        elif fmt == "TIFF":
+            data = _read_tiff(path, notes)
+        else:
+            data = _read_fits(path, notes)
+    except Exception as exc:    # every decoder error (truncated, corrupt, unsupported) alike
+        raise ValueError(f"{path}: cannot read the {fmt} image: {exc}") from None
+    try:
+        data = _luminance(np.asarray(data), notes)
+        if data.ndim != 2:
+            raise ValueError(f"unsupported image shape {data.shape}")
+        height, width = data.shape
+        if width < MIN_SIZE_PX or height < MIN_SIZE_PX:
+            raise ValueError(f"the image is {width}x{height}: too small for a star field (at "
+                             f"least {MIN_SIZE_PX}x{MIN_SIZE_PX})")
+        if data.min() == data.max():
+            raise ValueError(f"every pixel is {data.flat[0]}: a blank image")
+        frame, container = _to_integers(data, notes)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    frame, pixel_bits = _significant_bits(frame, container, bits, notes)
+    if binning > 1:
+        frame = _bin(frame, binning, notes)
+    hb, wb = frame.shape
+    if wb > C.MAX_WIDTH or hb > C.MAX_HEIGHT:
+        need = max(math.ceil(width / C.MAX_WIDTH), math.ceil(height / C.MAX_HEIGHT))
+        raise ValueError(f"{path}: the image is {width}x{height}; the detector takes at most "
+                         f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}: use --bin {need} (or crop it)")
+    return SkyImage(np.ascontiguousarray(frame), pixel_bits, fmt, width, height, binning, notes)
+
+
+# --------------------------------------------------------------------------------------
+# Camera and detector
+# --------------------------------------------------------------------------------------
+
+def image_camera(image, preset=None, fov_deg=None, distortion=None):
+    """``(firmware Camera of the detector's frame, description)`` for ``image``: the preset's
+    camera, or the ``fov_deg`` pinhole with ``distortion`` ``(k1, k2, k3, p1, p2)``, scaled
+    to the binned frame.  Raises ``ValueError`` for an absurd FOV, a distortion that cannot
+    be inverted over the frame, a size that differs from the preset's, or no camera."""
+
+    if fov_deg is not None:
+        if preset is not None:
+            raise ValueError("give --preset or --fov, not both")
+        if not (math.isfinite(fov_deg) and
+                ground_solve.MIN_FOV_DEG <= fov_deg <= ground_solve.MAX_FOV_DEG):
+            raise ValueError(f"--fov {fov_deg:g} is absurd: the horizontal field of view must "
+                             f"be in {ground_solve.MIN_FOV_DEG:g} .. "
+                             f"{ground_solve.MAX_FOV_DEG:g} degrees")
+        keys = ("k1", "k2", "k3", "p1", "p2")
+        dist = dict(zip(keys, distortion)) if distortion is not None else None
+        full = ground_solve.make_camera(image.width, image.height, float(fov_deg), dist)
+        what = f"--fov {fov_deg:g} deg" + (" with distortion" if dist else "")
+    else:
+        if distortion is not None:
+            raise ValueError("--distortion needs --fov (a preset has its own distortion)")
+        name = preset or presets.DEFAULT_PRESET
+        cam = presets.load_preset(name)
+        if (cam.width, cam.height) != (image.width, image.height):
+            hint = "" if preset else "; give --fov (horizontal field of view, deg)"
+            raise ValueError(f"the image is {image.width}x{image.height}, the {name} camera "
+                             f"{cam.width}x{cam.height}{hint}")
+        full = flightsolve.firmware_camera(cam)
+        what = f"preset {name}"
+    n = image.bin
+    if n == 1:
+        return full, what
+    return Camera(image.frame.shape[1], image.frame.shape[0], full.fx / n, full.fy / n,
+                  (full.cx + 0.5) / n - 0.5, (full.cy + 0.5) / n - 0.5, full.k1, full.k2,
+                  full.k3, full.p1, full.p2), what + f", binned {n}x{n}"
+
+
+def noise_sigma(frame):
+    """Pixel noise (ADU) of a frame: ``median |p[y, x+1] - p[y, x]| / (0.6745 sqrt 2)``, the
+    Gaussian standard deviation behind the median absolute difference of row neighbours
+    (smooth gradients and sparse stars barely move the median).  Every 4th row is used."""
+    rows = frame[::4].astype(np.int32)
+    diff = np.abs(np.diff(rows, axis=1))
+    return float(np.median(diff)) / (0.6745 * math.sqrt(2.0))
+
+
+def detector_config(image, ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS):
+    """``(DetectorConfig, sigma)`` for a :class:`SkyImage`: local mode as the module
+    docstring says (window ``min(128, the largest power of two below the width)``)."""
+
+    if not (math.isfinite(ksigma) and ksigma > 0):
+        raise ValueError(f"--ksigma must be a positive number, got {ksigma}")
+    frame = image.frame
+    sigma = noise_sigma(frame)
+    fs = C.full_scale(image.pixel_bits)
+    offset = min(fs, max(1, math.ceil(ksigma * sigma)))
+    log2_window = max(C.LOCAL_LOG2_WINDOW_MIN,
+                      min(C.LOCAL_LOG2_WINDOW_MAX, (frame.shape[1] - 1).bit_length() - 1))
+    cfg = DetectorConfig(width=frame.shape[1], height=frame.shape[0],
+                         pixel_bits=image.pixel_bits, threshold_mode="local",
+                         local_log2_window=log2_window, local_offset=offset,
+                         min_pixels=min_pixels, min_sum=0,
+                         record_capacity=C.MAX_RECORD_CAPACITY)
+    return cfg, sigma
+
+
+# --------------------------------------------------------------------------------------
+# Solving
+# --------------------------------------------------------------------------------------
+
+def solve_image(image, camera, max_mag=flightsolve.DEFAULT_MAX_MAG, tolerance_px=None,
+                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None):
+    """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame:
+    ``(report dict, DetectionResult, pipeline Result)`` (report fields in the module
+    docstring).  ``log``: text stream for the database notes (None: silent)."""
+
+    timings = {}
+    cfg, sigma = detector_config(image, ksigma, min_pixels)
+    t = time.perf_counter()
+    det = detect_frame(image.frame, cfg)
+    timings["detect"] = (time.perf_counter() - t) * 1e3
+    fov_h, fov_v = ground_solve.camera_fov_deg(camera)
+    t = time.perf_counter()
+    db, db_path = flightsolve.star_database(camera, max_mag, log=log)
+    timings["database"] = (time.perf_counter() - t) * 1e3
+    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px)
+    timings["packet"] = stage["packet"]
+    timings["solve"] = stage["solve"]
+    report = {
+        "status": res.status_name, "reason": res.reason, "ra_deg": None, "dec_deg": None,
+        "roll_deg": None, "q": None, "fov_deg": fov_h, "fov_vertical_deg": fov_v,
+        "matches": [], "sigma_cross_arcsec": None, "sigma_roll_arcsec": None,
+        "n_stars": res.n_stars,
+        "image": {"format": image.format, "width": image.width, "height": image.height,
+                  "pixel_bits": image.pixel_bits, "bin": image.bin, "notes": image.notes},
+        "detector": {"mode": "local", "window_px": 1 << cfg.local_log2_window,
+                     "local_offset": cfg.local_offset, "noise_sigma_adu": sigma,
+                     "min_pixels": cfg.min_pixels, "records": len(det.blobs),
+                     "n_filtered": det.n_filtered, "dropped": det.dropped},
+        "database": None if db_path is None else str(db_path),
+        "timings_ms": timings,
+    }
+    if res.ok:
+        cat = load()
+        ra, dec, roll = to_radec_roll(np.asarray(res.q))
+        report.update(ra_deg=float(ra), dec_deg=float(dec), roll_deg=float(roll),
+                      q=[float(v) for v in res.q],
+                      sigma_cross_arcsec=res.sigma_cross_arcsec,
+                      sigma_roll_arcsec=res.sigma_roll_arcsec)
+        for _index, x, y, hip in res.matches:
+            xo, yo = image.to_original(x, y)
+            report["matches"].append({"x": xo, "y": yo, "hip": hip, "name": cat.name(hip),
+                                      "vmag": float(cat.vmag[cat.by_hip(hip)])})
+    elif not det.blobs:
+        report["reason"] = (f"no stars found: nothing above the local threshold (mean of "
+                            f"{1 << cfg.local_log2_window} row neighbours + "
+                            f"{cfg.local_offset} ADU)")
+    return report, det, res
+
+
+def write_annotated(path, image, camera, det, res, report, max_mag):
+    labels, markers = [], {}
+    legend = [f"lodestar solve: {report['image']['format']} {image.width}x{image.height}, "
+              f"{image.pixel_bits}-bit" + (f", binned {image.bin}x{image.bin}" if image.bin > 1
+                                           else "") +
+              f", FOV {report['fov_deg']:.3f} deg, {len(det.blobs)} records (yellow boxes)"]
+    if res.ok:
+        markers["solution"] = [(x, y) for x, y, _h, _v in
+                               annotate.predict_pixels(res.q, camera, max_mag)]
+        cat_names = {m["hip"]: m["name"] for m in report["matches"]}
+        for _index, x, y, hip in res.matches:
+            name = cat_names.get(hip)
+            labels.append((x, y, f"HIP {hip}" + (f" {name}" if name else ""), None))
+        legend.append(f"OK: RA {report['ra_deg']:.4f} Dec {report['dec_deg']:+.4f} roll "
+                      f"{report['roll_deg']:+.4f} deg, {len(res.matches)} stars (green)")
+        legend.append(f"magenta crosses: catalogue stars V <= {max_mag:g} predicted from the "
+                      "solution")
+    else:
+        legend.append(f"{report['status']}: {report['reason']}")
+    annotate.save_annotated(path, image.frame, records=det.blobs, labels=labels,
+                            markers=markers, legend=legend,
+                            identified=[index for index, _x, _y, _h in res.matches])
+
+
+def format_report(path, r, camera_what):
+    """The report as text for people."""
+    im, d = r["image"], r["detector"]
+    lines = [f"{path}: {im['format']} {im['width']}x{im['height']}, {im['pixel_bits']}-bit"
+             + (f", binned {im['bin']}x{im['bin']}" if im["bin"] > 1 else "") +
+             f"; camera {camera_what}: FOV {r['fov_deg']:.3f} x {r['fov_vertical_deg']:.3f} deg",
+             f"  detector   local mode, {d['window_px']}-px window, offset "
+             f"{d['local_offset']} ADU (noise {d['noise_sigma_adu']:.2f} ADU), min "
+             f"{d['min_pixels']} px: {d['records']} records"]
+    if r["status"] == "OK":
+        lines.append(f"  solution   RA {r['ra_deg']:.5f}  Dec {r['dec_deg']:+.5f}  roll "
+                     f"{r['roll_deg']:+.5f} deg; 1-sigma cross-boresight "
+                     f"{r['sigma_cross_arcsec']:.2f}\" per axis, roll "
+                     f"{r['sigma_roll_arcsec']:.2f}\"; {len(r['matches'])} stars matched")
+        lines.append(f"  {'x':>9} {'y':>9} {'HIP':>7}  {'name':<16} {'V':>5}")
+        for m in r["matches"]:
+            lines.append(f"  {m['x']:>9.2f} {m['y']:>9.2f} {m['hip']:>7}  "
+                         f"{m['name'] or '':<16} {m['vmag']:>5.2f}")
+    tm = r["timings_ms"]
+    lines.append("  timings    ms: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()))
+    lines.append(f"  status     {r['status']}" +
+                 ("" if r["status"] == "OK" else f": not solved ({r['reason']})"))
+    return "\n".join(lines)

@@ -1,0 +1,258 @@
+"""Ground-side star-field solve from centroids (tetra3 style) with the flight firmware, over a
+star database built and cached for the field of view (:mod:`lodestar.ground.cache`).
+Inputs, outputs and statuses: ``docs/solve_centroids.md``."""
+
+import math
+import time
+
+import numpy as np
+
+from lodestar.contract import stardb
+from lodestar.firmware import status as fwstatus
+from lodestar.firmware.camera import Camera
+from lodestar.firmware.pipeline import StarTracker
+from lodestar.ground.cache import load_database
+from lodestar.sim.attitude import to_radec_roll
+
+MIN_FOV_DEG = 1.0
+MAX_FOV_DEG = 90.0
+MIN_STARS = 4
+DEFAULT_DUPLICATE_PX = 0.5
+
+
+class SolveResult:
+    """Outcome of :func:`solve_centroids` (fields in the module docstring)."""
+
+    FIELDS = ("status", "reason", "ra_deg", "dec_deg", "roll_deg", "q", "matches",
+              "sigma_cross_arcsec", "sigma_roll_arcsec", "patterns_tried", "probability",
+              "n_centroids", "n_used", "n_duplicates", "n_outside", "centroid_sigma_px",
+              "fov_deg",
+              "database", "solve_ms")
+
+    def __init__(self, status, reason="", **fields):
+        self.status = status
+        self.reason = reason
+        self.ra_deg = self.dec_deg = self.roll_deg = self.q = None
+        self.matches = {}
+        self.sigma_cross_arcsec = self.sigma_roll_arcsec = None
+        self.patterns_tried = 0
+        self.probability = 1.0
+        self.n_centroids = self.n_used = self.n_duplicates = self.n_outside = 0
+        self.centroid_sigma_px = None
+        self.fov_deg = None
+        self.database = None
+        self.solve_ms = 0.0
+        for name, value in fields.items():
+            if name not in self.FIELDS:
+                raise TypeError(f"unknown field {name!r}")
+            setattr(self, name, value)
+
+    @property
+    def ok(self):
+        return self.status == "OK"
+
+    def __getitem__(self, name):
+        if name not in self.FIELDS:
+            raise KeyError(name)
+        return getattr(self, name)
+
+    def keys(self):
+        return self.FIELDS
+
+    def as_dict(self):
+        return {name: getattr(self, name) for name in self.FIELDS}
+
+    def __repr__(self):
+        if not self.ok:
+            return f"SolveResult({self.status}, reason={self.reason!r})"
+        return (f"SolveResult(OK, ra={self.ra_deg:.5f}, dec={self.dec_deg:.5f}, "
+                f"roll={self.roll_deg:.4f} deg, matches={len(self.matches)}, "
+                f"sigma_cross={self.sigma_cross_arcsec:.2f}\", "
+                f"sigma_roll={self.sigma_roll_arcsec:.2f}\")")
+
+
+# --------------------------------------------------------------------------------------
+# Camera and database
+# --------------------------------------------------------------------------------------
+
+DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2", "cx", "cy")
+
+
+def make_camera(width, height, fov_deg, distortion=None):
+    """The firmware camera of the module docstring (raises ``ValueError``)."""
+    f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    kwargs = {}
+    for key, value in (distortion or {}).items():
+        if key not in DISTORTION_KEYS:
+            raise ValueError(f"unknown distortion key {key!r} (known: {DISTORTION_KEYS})")
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
+                                                              np.integer)):
+            raise ValueError(f"distortion {key} must be a number, got {value!r}")
+        kwargs[key] = float(value)
+    return Camera(width, height, f, f, **kwargs)
+
+
+def camera_fov_deg(cam):
+    """``(horizontal, vertical)`` FOV in degrees through the camera model (edges along the
+    middle row and column, as ``lodestar.sim.camera.Camera.fov_deg``)."""
+    w, h = cam.width, cam.height
+    xm, ym = (w - 1) / 2, (h - 1) / 2
+
+    def angle(a, b):
+        return math.degrees(2 * math.asin(min(1.0, 0.5 * math.dist(a, b))))
+
+    return (angle(cam.pixel_to_vector(-0.5, ym), cam.pixel_to_vector(w - 0.5, ym)),
+            angle(cam.pixel_to_vector(xm, -0.5), cam.pixel_to_vector(xm, h - 0.5)))
+
+
+# --------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------
+
+def _is_int(value):
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_number(value):
+    return isinstance(value, (int, float, np.integer, np.floating)) and \
+        not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+
+
+def _centroid_array(centroids):
+    """``(N, 2 or 3)`` float array, or a reason string."""
+    try:
+        arr = np.asarray(centroids, dtype=np.float64)
+    except (TypeError, ValueError):
+        return "centroids must be a sequence of (x, y) or (x, y, flux) numbers"
+    if arr.size == 0:
+        return np.zeros((0, 2))
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3):
+        return f"centroids must have shape (N, 2) or (N, 3), got {arr.shape}"
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
+        return f"centroid {bad} is not finite: {arr[bad].tolist()}"
+    return arr
+
+
+# --------------------------------------------------------------------------------------
+# The solver
+# --------------------------------------------------------------------------------------
+
+def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag=6.0,
+                    distortion=None, cache_dir=None, tolerance_px=None, max_stars=32,
+                    budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX):
+    """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
+    for bad input (see the module docstring).
+
+    ``width``, ``height``: frame size, px.  ``fov_deg``: horizontal FOV, deg.  ``method``:
+    the lost-in-space method (``"pyramid"``, ``"triangle"`` or ``"hashing"``, as far as
+    :mod:`lodestar.ground.database` builds and :mod:`lodestar.firmware.starid` serves it).
+    ``max_mag``: faintest catalogue star of the database.  ``distortion``: Brown-Conrady
+    dict.  ``cache_dir``: database cache.
+    ``tolerance_px``: match tolerance (default ``max(2 px, fov/1000)``).  ``max_stars``:
+    brightest centroids used.  ``budget``: pattern budget.  ``centroid_sigma_px``: fixed
+    centroid noise for the covariance (default: estimated from the residuals).
+    ``duplicate_px``: centroids closer than this are one star.
+    """
+    n_in = len(centroids) if hasattr(centroids, "__len__") else 0
+
+    def bad(reason, status="BAD_INPUT", **fields):
+        return SolveResult(status, reason, n_centroids=n_in, **fields)
+
+    # ---- parameters -------------------------------------------------------------------
+    for name, value in (("width", width), ("height", height)):
+        if not _is_int(value) or not 1 <= value <= 4096:
+            return bad(f"{name} must be an int in 1..4096, got {value!r}")
+    if not _is_number(fov_deg) or not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG:
+        return bad(f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
+                   f"got {fov_deg!r}")
+    if not _is_number(max_mag) or not -2.0 < max_mag <= 18.0:
+        return bad(f"max_mag must be a finite magnitude, got {max_mag!r}")
+    if method not in stardb.METHOD_NAMES:
+        return bad(f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})")
+    if distortion is not None and not isinstance(distortion, dict):
+        return bad("distortion must be a dict of k1, k2, k3, p1, p2 (and cx, cy)")
+    if tolerance_px is not None and not (_is_number(tolerance_px) and tolerance_px > 0):
+        return bad(f"tolerance_px must be a positive number, got {tolerance_px!r}")
+    if not _is_int(max_stars) or max_stars < MIN_STARS:
+        return bad(f"max_stars must be an int >= {MIN_STARS}")
+    if not _is_int(budget) or budget < 1:
+        return bad("budget must be a positive int")
+    if not _is_number(duplicate_px) or duplicate_px < 0:
+        return bad(f"duplicate_px must be a number >= 0, got {duplicate_px!r}")
+    try:
+        cam = make_camera(int(width), int(height), float(fov_deg), distortion)
+        fov = camera_fov_deg(cam)
+    except (ValueError, TypeError) as exc:
+        return bad(f"camera: {exc}")
+
+    # ---- centroids --------------------------------------------------------------------
+    arr = _centroid_array(centroids)
+    if isinstance(arr, str):
+        return bad(arr, fov_deg=fov)
+    n_in = len(arr)
+    xs, ys = arr[:, 0], arr[:, 1]
+    inside = (xs >= -0.5) & (xs < width - 0.5) & (ys >= -0.5) & (ys < height - 0.5)
+    n_outside = int(n_in - np.count_nonzero(inside))
+    if arr.shape[1] == 3:
+        order = np.argsort(-arr[:, 2], kind="stable")
+        fluxes = arr[order, 2]
+    else:
+        order = np.arange(n_in)
+        fluxes = None
+    order = [i for i in order if inside[i]]
+    kept = []                              # indices into the input, brightest first
+    n_dup = 0
+    for i in order:
+        if len(kept) == max_stars:
+            break
+        if all(math.hypot(xs[i] - xs[j], ys[i] - ys[j]) >= duplicate_px for j in kept):
+            kept.append(int(i))
+        else:
+            n_dup += 1
+    info = dict(n_centroids=n_in, n_used=len(kept), n_duplicates=n_dup, n_outside=n_outside,
+                fov_deg=fov)
+    note = f"{n_outside} centroids outside the {width}x{height} frame ignored" \
+        if n_outside else ""
+    if len(kept) < MIN_STARS:
+        return SolveResult("TOO_FEW_STARS", f"{len(kept)} distinct centroids in the frame, "
+                           f"at least {MIN_STARS} needed" + ("; " + note if note else ""),
+                           **info)
+    vectors = [cam.pixel_to_vector(float(xs[i]), float(ys[i])) for i in kept]
+    if any(v is None for v in vectors):
+        return SolveResult("BAD_INPUT", "a centroid is outside the camera model", **info)
+    flux_list = None
+    if fluxes is not None:
+        flux_list = [float(arr[i, 2]) for i in kept]
+
+    # ---- database and tracker ---------------------------------------------------------
+    try:
+        db, path = load_database(fov[0], fov[1], float(max_mag), method, cache_dir)
+    except ValueError as exc:
+        return SolveResult("BAD_INPUT", f"database: {exc}", **info)
+    except Exception as exc:              # the builder's output failed the reader
+        return SolveResult("DATABASE_CORRUPT", f"database: {exc!r}", **info)
+    info["database"] = None if path is None else str(path)
+    if tolerance_px is None:
+        tolerance_px = max(2.0, math.radians(fov[0]) / 1000.0 * cam.fx)
+    tracker = StarTracker(db, cam, method=method, max_stars=max_stars,
+                          tolerance_px=float(tolerance_px), budget=int(budget),
+                          centroid_sigma_px=centroid_sigma_px)
+    if tracker.status != fwstatus.OK:
+        return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
+    t0 = time.perf_counter()
+    res = tracker.solve_vectors(vectors, fluxes=flux_list)
+    info["solve_ms"] = (time.perf_counter() - t0) * 1e3
+    info["patterns_tried"] = res.patterns_tried
+    info["probability"] = res.probability
+    reason = "; ".join(r for r in (note, res.reason) if r)
+    if res.status != fwstatus.OK:
+        return SolveResult(fwstatus.name(res.status), reason, **info)
+    q = [float(v) for v in res.q]
+    ra, dec, roll = to_radec_roll(np.asarray(q))
+    return SolveResult("OK", reason, ra_deg=float(ra), dec_deg=float(dec),
+                       roll_deg=float(roll), q=q,
+                       matches={kept[o]: int(hip) for o, _x, _y, hip in res.matches},
+                       sigma_cross_arcsec=res.sigma_cross_arcsec,
+                       sigma_roll_arcsec=res.sigma_roll_arcsec,
+                       centroid_sigma_px=res.centroid_sigma_px, **info)

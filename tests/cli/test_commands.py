@@ -1,0 +1,125 @@
+"""The ``lodestar`` command: the detect run prints a table, rejects bad input clearly."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lodestar.cli import main
+
+
+def test_detect_table_on_builtin_frame(capsys):
+    assert main(["detect", "--width", "320", "--height", "240", "--stars", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "frame: 320x240x12" in out and "truth dist px" in out
+    rows = [line for line in out.splitlines() if line.strip()[:1].isdigit()]
+    assert len(rows) >= 6
+
+
+def test_detect_json_global_mode_and_streaming_engine(capsys):
+    argv = ["detect", "--width", "160", "--height", "120", "--stars", "5", "--mode", "global",
+            "--frames", "2", "--engine", "streaming", "--json"]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["summary"]["mode"] == "global" and report["summary"]["flags"] == 0
+    assert report["summary"]["records"] == len(report["blobs"]) >= 3
+    assert all(b["truth_px"] < 0.5 for b in report["blobs"])
+
+
+def test_detect_npy_frame(tmp_path, capsys):
+    frame = np.zeros((10, 12), np.uint16)
+    frame[4:7, 5:8] = 900
+    path = tmp_path / "f.npy"
+    np.save(path, frame)
+    assert main(["detect", "--frame", str(path), "--min-pixels", "1", "--min-sum", "0",
+                 "--json"]) == 0
+    (blob,) = json.loads(capsys.readouterr().out)["blobs"]
+    assert (blob["n"], blob["x"], blob["y"]) == (9, 6.0, 5.0)
+
+
+def test_bad_input_exits_2_with_message(tmp_path, capsys):
+    path = tmp_path / "f.npy"
+    np.save(path, np.full((4, 4), 5000, np.uint16))
+    assert main(["detect", "--frame", str(path)]) == 2
+    assert "exceeds full scale 4095" in capsys.readouterr().err
+    assert main(["detect", "--width", "5000"]) == 2
+    assert "width=5000 is out of range" in capsys.readouterr().err
+
+
+def test_python_dash_m():
+    proc = subprocess.run([sys.executable, "-m", "lodestar", "detect", "--width", "64",
+                           "--height", "48", "--stars", "2", "--json"],
+                          capture_output=True, text=True, check=True)
+    assert json.loads(proc.stdout)["summary"]["frame"] == "64x48x12"
+
+
+def test_simulate_writes_frame_truth_and_preview(tmp_path, capsys):
+    out = tmp_path / "orion"
+    assert main(["simulate", "--preset", "lohmann", "--radec", "83.8", "-5.4", "10",
+                 "--rate", "0.5", "0", "0", "--cosmic-rays", "2", "--seed", "3",
+                 "-o", str(out)]) == 0
+    from lodestar.sim import imageio
+    frame = imageio.load_frame(f"{out}.png")
+    truth = json.loads((tmp_path / "orion.json").read_text())
+    assert frame.shape == (480, 752) and truth["preset"] == "lohmann"
+    assert truth["omega_deg_s"] == [0.5, 0.0, 0.0] and len(truth["cosmic_rays"]) == 2
+    assert {"Rigel", "Alnilam"} <= {s["name"] for s in truth["sources"]}
+    assert (tmp_path / "orion_preview.png").stat().st_size > 1000
+    assert "records" in capsys.readouterr().out
+
+
+def test_simulate_bad_input(tmp_path, capsys):
+    assert main(["simulate", "--quaternion", "0", "0", "0", "2", "-o", str(tmp_path / "x")]) == 2
+    assert "error" in capsys.readouterr().err
+    assert main(["simulate", "--exposure", "-1", "-o", str(tmp_path / "x")]) == 2
+    assert "exposure_s must be > 0" in capsys.readouterr().err
+
+
+def test_db_build_and_info(tmp_path, capsys):
+    out = tmp_path / "db.bin"
+    assert main(["db", "build", "--fov", "15", "--mag", "5.5", "-o", str(out)]) == 0
+    built = capsys.readouterr().out
+    assert "total" in built and out.stat().st_size < 1 << 20
+    assert main(["db", "info", str(out)]) == 0
+    assert "fov_h: 15.000 deg" in capsys.readouterr().out
+    from lodestar.firmware.database import Database
+    from lodestar.sim.catalogue import load
+    db = Database(out.read_bytes())
+    assert db.n_stars == int((load().vmag <= 5.5).sum())
+    assert main(["db", "build", "--fov", "15", "--mag", "4.0", "--method", "pyramid",
+                 "triangle", "-o", str(tmp_path / "two.bin")]) == 0
+    assert Database((tmp_path / "two.bin").read_bytes()).methods == 3
+    data = bytearray(out.read_bytes())
+    data[500] ^= 1
+    (tmp_path / "bad.bin").write_bytes(bytes(data))
+    assert main(["db", "info", str(tmp_path / "bad.bin")]) == 2
+    assert "CRC" in capsys.readouterr().err
+    assert main(["db", "build", "--fov", "0", "-o", str(out)]) == 2
+
+
+def _minimal_args(command):
+    return {"goldenset": ["goldenset", "small", "--out", "x"], "db": ["db", "info", "x"],
+            "solve": ["solve", "x.png"], "cosim": ["cosim", "x.json"],
+            "campaign": ["campaign", "rate"]}.get(command, [command])
+
+
+def test_command_modules_register_their_subcommands(capsys):
+    import importlib
+
+    from lodestar.cli import COMMANDS, build_parser
+
+    parser = build_parser()
+    for name in COMMANDS:
+        module = importlib.import_module("lodestar.cli." + name)
+        assert callable(module.add_parser) and callable(module.run)
+        assert parser.parse_args(_minimal_args(name)).func.__module__ == module.__name__
+    args = parser.parse_args(["demo", "--seed", "4"])
+    assert args.func.__module__ == "lodestar.cli.demo" and args.seed == 4
+    args = parser.parse_args(["solve", "sky.fits", "--fov", "12"])
+    assert args.func.__module__ == "lodestar.cli.solve" and args.fov == 12.0
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "demo" in out and "solve" in out

@@ -1,0 +1,88 @@
+"""The packet layout, flags, CRC-32 and result types of the contract."""
+
+import importlib
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from lodestar import contract as C
+from lodestar.contract import packet as P
+
+
+def test_record_and_header_layout():
+    assert C.RECORD_BITS == sum(b for _, b in C.RECORD_FIELDS) == 8 * C.RECORD_BYTES
+    assert C.HEADER_BITS == 8 * C.HEADER_BYTES
+    assert len(set(C.RECORD_NAMES)) == len(C.RECORD_NAMES)
+    assert C.RECORD_NAMES[:2] == ("n", "nsat")
+    widths = dict(C.RECORD_FIELDS)
+    for name, bits in C.moment_widths(C.MAX_PIXEL_BITS).items():
+        assert widths[name] == bits
+    assert widths["n"] == C.COUNT_BITS and (1 << C.COUNT_BITS) > C.MAX_WIDTH * C.MAX_HEIGHT
+    assert (1 << widths["flags"]) > C.BLOB_FLAGS_DEFINED
+    assert (1 << dict(C.HEADER_FIELDS)["flags"]) > C.FRAME_FLAGS_DEFINED
+    assert (1 << dict(C.HEADER_FIELDS)["n_records"]) > C.MAX_RECORD_CAPACITY
+    assert C.packet_bytes(3) == C.HEADER_BYTES + 3 * C.RECORD_BYTES + C.CRC_BYTES
+
+
+def test_blob_record_is_a_value():
+    a = C.BlobRecord(*range(14))
+    b = C.BlobRecord(*range(14))
+    assert a == b and hash(a) == hash(b) and a != C.BlobRecord(*range(1, 15))
+    assert a.as_tuple() == tuple(range(14))
+
+
+@pytest.mark.parametrize("size", [0, 1, 2, 3, 4, 7, 36, 100, 1000])
+def test_crc_table_matches_zlib(size):
+    rng = np.random.default_rng(size)
+    data = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
+    assert P.crc32_table(data) == zlib.crc32(data)
+    assert P.crc32(data) == zlib.crc32(data)
+    cut = size // 3
+    assert P.crc32_table(data[cut:], P.crc32_table(data[:cut])) == zlib.crc32(data)
+    assert P.crc32_table(bytearray(data)) == P.crc32_table(memoryview(data))
+
+
+def test_crc_known_values():
+    assert P.crc32_table(b"") == 0
+    assert P.crc32_table(b"123456789") == 0xCBF43926      # CRC-32/ISO-HDLC check value
+    assert P.crc32_table(b"\xff" * 64) == zlib.crc32(b"\xff" * 64)
+
+
+def test_fallback_selected_without_binascii(monkeypatch):
+    """Reloading the module where ``binascii`` cannot be imported selects the table CRC."""
+    monkeypatch.setitem(sys.modules, "binascii", None)
+    try:
+        module = importlib.reload(P)
+        assert module.crc32_native is None
+        assert module.crc32(b"123456789") == 0xCBF43926
+    finally:
+        monkeypatch.undo()
+        importlib.reload(P)
+    assert P.crc32_native is not None
+
+
+def test_flag_widths_hold_every_defined_flag():
+    assert C.BLOB_FLAGS_DEFINED < (1 << C.BLOB_FLAGS_BITS)
+    assert C.FRAME_FLAGS_DEFINED < (1 << C.FRAME_FLAGS_BITS)
+    assert dict(C.RECORD_FIELDS)["flags"] == C.BLOB_FLAGS_BITS
+    assert dict(C.HEADER_FIELDS)["flags"] == C.FRAME_FLAGS_BITS
+
+
+def test_crc_constants_are_zlibs():
+    assert P.crc32_table(b"\x00") == zlib.crc32(b"\x00")
+    assert C.CRC_POLY == 0xEDB88320 and C.CRC_INIT == 0xFFFFFFFF
+
+
+def test_detection_result_equality_ignores_geometry_and_replace_copies():
+    rec = C.BlobRecord(1, 0, 5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 5, 0)
+    a = C.DetectionResult([rec], C.MODE_FIXED, 10, 2, 1, 0, 0, 0, 0, width=8, height=4,
+                          pixel_bits=12)
+    b = a.replace(width=16)
+    assert a == b and b.width == 16 and a.width == 8
+    assert a != a.replace(threshold=11)
+    assert a.dropped == 0 and a.mode_name == "fixed"
+    assert a.header()["n_records"] == 1 and list(a.header()) == list(C.HEADER_NAMES[2:])
+    with pytest.raises(TypeError):
+        a.replace(colour=1)

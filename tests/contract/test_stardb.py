@@ -1,0 +1,35 @@
+"""The star-database layout of the contract against its specification, docs/stardb.md."""
+
+import re
+import struct
+
+from lodestar.contract import stardb as L
+from tests import REPO
+
+SPEC = REPO / "docs" / "stardb.md"
+
+
+def test_formats_have_their_documented_sizes():
+    assert struct.calcsize(L.HEADER_FORMAT) == L.DIRECTORY_OFFSET
+    assert L.DIRECTORY_OFFSET + 8 * L.N_SECTIONS == L.RESERVED_OFFSET
+    assert L.RESERVED_OFFSET + 4 == L.HEADER_CRC_OFFSET and L.HEADER_CRC_OFFSET + 4 == L.HEADER_SIZE
+    assert struct.calcsize(L.STAR_FORMAT) == L.STAR_SIZE
+    assert struct.calcsize(L.PAIR_FORMAT) == L.PAIR_SIZE
+    assert struct.calcsize(L.TRI_HEADER_FORMAT) == L.TRI_HEADER_SIZE
+    assert struct.calcsize(L.TRI_RECORD_FORMAT) == L.TRI_RECORD_SIZE
+    assert struct.calcsize(L.HASH_HEADER_FORMAT) == L.HASH_HEADER_SIZE
+    assert len(L.SECTION_NAMES) == L.N_SECTIONS
+
+
+def test_methods_are_one_list_with_one_bit_each():
+    assert tuple(L.METHOD_NAMES) == L.METHODS
+    bits = [L.METHOD_NAMES[m] for m in L.METHODS]
+    assert all(b & (b - 1) == 0 for b in bits) and len(set(bits)) == len(bits)
+    assert set(L.METHOD_SECTIONS) == set(bits)
+
+
+def test_specification_names_the_layout_values():
+    text = SPEC.read_text()
+    assert re.search(r"\b{}\b".format(L.HEADER_SIZE), text)
+    for name in ("payload_crc", "cells_per_face", "kv_bins"):
+        assert name in text

@@ -1,0 +1,96 @@
+"""``lodestar.cosim``: stimulus, output parsing, ``run_frames`` and the ``lodestar cosim``
+command (the broad gateware verification is ``cocotb_tests/test_detector.py``)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from lodestar.cli import main
+from lodestar.cosim import runner as cosim
+from lodestar.golden import Detector, DetectorConfig
+
+GOLDEN = "tests/data/golden_small"
+
+
+def test_stimulus_words():
+    frame = np.array([[1, 2, 3], [4, 5, 6]], dtype=np.uint16)
+    words = cosim.Stimulus().reset(1).registers({"threshold": 9}) \
+        .frame(frame, 1, 2).words(reader=lambda clock: clock != 3)
+    valid = 1 << 18
+    assert len(words) == 1 + 1 + 2 * 4 + 2
+    assert words[0] & (1 << 21) and words[1] >> 32 == 9
+    pixels = [int(w) & 0xFFFF for w in words if w & valid]
+    assert pixels == [1, 2, 3, 4, 5, 6]
+    assert int(words[2]) & (1 << 17) and int(words[4]) & (1 << 16)      # sof, eol
+    assert not words[3] & (1 << 19) and words[2] & (1 << 19)            # reader
+    cut = cosim.Stimulus().frame(frame, 1, 0, pixels=4).words()
+    assert [int(w) & 0xFFFF for w in cut if w & valid] == [1, 2, 3, 4]
+
+
+def test_read_output_drops_records_of_a_reset_frame(tmp_path):
+    from lodestar.hdl.detector import Detector as Gateware
+    from lodestar.hdl.layouts import trailer_fields
+
+    gw = Gateware(8, 4, 12)
+    # a trailer claiming one record (n_records is the last field)
+    offset = sum(bits for name, bits in trailer_fields() if name != "n_records")
+    trailer = 1 << offset
+    (tmp_path / "out.txt").write_text(f"R 1\nT {trailer:x}\nR 2\nX 0\nR 3\n")
+    records, trailers = cosim.read_output(tmp_path / "out.txt", gw)
+    assert len(trailers) == 1 and trailers[0]["n_records"] == 1
+    assert [r["n"] for r in records] == [1, 3]
+    with pytest.raises(ValueError, match="after the last trailer"):
+        cosim.group_frames(records, trailers, 8, 4, 12)
+
+
+def test_run_frames_matches_golden_sequence():
+    rng = np.random.default_rng(5)
+    frames = [np.where(rng.random((24, 32)) < d, rng.integers(200, 4096, (24, 32)),
+                       rng.integers(0, 100, (24, 32))).astype(np.uint16) for d in (0.1, 0.5)]
+    cfg = DetectorConfig(width=32, height=24, threshold=150, background=60)
+    cfgs = [cfg, cfg.replace(threshold_mode="global", ksigma=1.0)]
+    got = cosim.run_frames(frames, cfg, cfgs=cfgs)
+    golden = Detector(cfg)
+    for frame, c, g in zip(frames, cfgs, got):
+        golden.configure(c)
+        assert g == golden.process(frame)
+
+
+def test_run_frames_refuses_mixed_capacities():
+    cfg = DetectorConfig(width=32, height=24)
+    frame = np.zeros((24, 32), np.uint16)
+    with pytest.raises(ValueError, match="elaboration parameters"):
+        cosim.run_frames([frame, frame], cfg, cfgs=[cfg, cfg.replace(label_capacity=3)])
+
+
+def test_cli_golden_frames_bit_exact(capsys):
+    assert main(["cosim", f"{GOLDEN}/shape_spiral.json", f"{GOLDEN}/shape_nested_u.json",
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [r["match"] for r in report] == [True, True]
+    assert report[0]["records"] >= 1
+
+
+def test_cli_reports_a_mismatch(monkeypatch, capsys):
+    real = cosim.run_frames
+
+    def broken(*args, **kwargs):
+        results = real(*args, **kwargs)
+        results[0].n_blobs += 1
+        return results
+
+    monkeypatch.setattr(cosim, "run_frames", broken)
+    assert main(["cosim", f"{GOLDEN}/shape_spiral.json"]) == 1
+    assert "MISMATCH in n_blobs" in capsys.readouterr().out
+
+
+def test_cli_bad_input(tmp_path, capsys):
+    assert main(["cosim", str(tmp_path / "missing.png")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    np.save(tmp_path / "f.npy", np.zeros((24, 32), np.uint16))
+    assert main(["cosim", str(tmp_path / "f.npy")]) == 2
+    assert "needs --preset or --config" in capsys.readouterr().err
+    (tmp_path / "cfg.json").write_text(json.dumps({"width": 16, "height": 8}))
+    assert main(["cosim", str(tmp_path / "f.npy"), "--config", str(tmp_path / "cfg.json")]) == 2
+    assert "does not match" in capsys.readouterr().err

@@ -1,0 +1,158 @@
+"""``lodestar campaign``: tiny campaigns on the lohmann preset (fast frames) check the
+determinism across worker counts, the journal and resume, the files written and the bad
+arguments."""
+
+import csv
+import json
+import os
+
+import pytest
+
+from lodestar.cli import main
+from lodestar.ground.campaign import runner as campaign
+from lodestar.ground.campaign import trials as T
+
+
+def rate_config(**changes):
+    config = campaign.make_config("rate", ["lohmann"], seed=3, rates=[0.0, 1.0])
+    config.update(changes)
+    return config
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """A complete two-rate, two-trial campaign run in this process."""
+    out = tmp_path_factory.mktemp("reference")
+    rows, paths = campaign.run_campaign(rate_config(), 2, str(out), workers=1, progress=False)
+    return out, rows, paths
+
+
+def journal_results(out):
+    return campaign.read_journal(os.path.join(out, campaign.JOURNAL))[1]
+
+
+def test_files_written(reference):
+    out, rows, paths = reference
+    assert sorted(os.path.basename(p) for p in paths) == [
+        "campaign_rate.csv", "campaign_rate.json", "campaign_rate.png"]
+    assert all(os.path.getsize(p) > 0 for p in paths)
+    with open(out / "campaign_rate.png", "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    with open(out / "campaign_rate.csv") as fh:
+        table = list(csv.DictReader(fh))
+    assert [(r["preset"], float(r["rate_deg_s"])) for r in table] == [("lohmann", 0.0),
+                                                                     ("lohmann", 1.0)]
+    summary = json.loads((out / "campaign_rate.json").read_text())
+    assert summary["table"] == json.loads(json.dumps(rows))
+    assert summary["trials_per_level"] == 2
+    assert summary["references"]["dzamba_table_4_1"]["1"] == [99.4, 96.8]
+    for row in rows:
+        assert row["trials"] == row["right"] + row["wrong"] + row["failed"] == 2
+    assert rows[1]["dzamba_st16_n3_pct"] == 96.8 and rows[0]["dzamba_st16_n3_pct"] is None
+    assert len(journal_results(out)) == 4
+
+
+def test_same_results_with_two_workers(reference, tmp_path):
+    out, rows, _paths = reference
+    rows2, _ = campaign.run_campaign(rate_config(), 2, str(tmp_path), workers=2,
+                                     progress=False)
+    assert rows2 == rows
+    assert journal_results(tmp_path) == journal_results(out)
+
+
+def test_resume_runs_only_the_missing_tasks(reference, tmp_path, monkeypatch, capsys):
+    out, rows, _paths = reference
+    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=3,
+                                 progress=False) == (None, [])
+    assert "3 tasks; 1 remain" in capsys.readouterr().err
+    assert len(journal_results(tmp_path)) == 3
+    with open(tmp_path / campaign.JOURNAL, "a") as fh:      # a write the kill cut short
+        fh.write('{"key": "rate/lohmann/1/1", "resu')
+    ran = []
+    real = T.run_task
+
+    def counting(task, config):
+        ran.append(T.task_key(task))
+        return real(task, config)
+
+    monkeypatch.setattr(T, "run_task", counting)
+    rows2, paths = campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+                                         progress=False)
+    assert len(ran) == 1 and rows2 == rows and paths
+    assert "resuming: 3 of 4 tasks" in capsys.readouterr().err
+    assert journal_results(tmp_path) == journal_results(out)
+
+
+def test_existing_journal_needs_resume_and_the_same_settings(reference, tmp_path):
+    out, _rows, _paths = reference
+    with pytest.raises(ValueError, match="pass --resume"):
+        campaign.run_campaign(rate_config(), 2, str(out), progress=False)
+    with pytest.raises(ValueError, match="seed differ"):
+        campaign.run_campaign(rate_config(seed=4), 2, str(out), resume=True, progress=False)
+    (tmp_path / campaign.JOURNAL).write_text('{"campaign": {}}\nnot json\n{"key": 1}\n')
+    with pytest.raises(ValueError, match="line 2 is not JSON"):
+        campaign.read_journal(str(tmp_path / campaign.JOURNAL))
+
+
+def test_every_study_writes_its_table(tmp_path):
+    """Each other study on one lohmann frame per level (the falsestars levels reduced)."""
+    for study, levels in (("accuracy", None), ("limiting", ["2"]), ("falsestars", ["false=3"])):
+        config = campaign.make_config(study, ["lohmann"], seed=1, quick=True)
+        if levels:
+            config["levels"] = levels
+        rows, paths = campaign.run_campaign(config, 1, str(tmp_path / study), progress=False)
+        assert all(os.path.getsize(p) > 0 for p in paths) and len(paths) == 3
+        assert rows and all(r["preset"] == "lohmann" for r in rows)
+        assert campaign.format_table(study, rows).count("\n") == len(rows)
+    assert {r["method"] for r in rows} == set(T.METHODS)
+
+
+def test_cli_quick_campaign(tmp_path, capsys):
+    out = tmp_path / "cli"
+    args = ["campaign", "rate", "--quick", "--presets", "lohmann", "--rates", "0",
+            "--out", str(out), "--workers", "1", "--no-progress"]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "availability_pct" in text and "campaign_rate.png" in text
+    assert main(args) == 2                                   # the journal exists
+    assert "pass --resume" in capsys.readouterr().err
+    assert main(args + ["--resume"]) == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["rate", "--trials", "0"], "--trials must be a positive integer"),
+    (["rate", "--rates", "-1"], "--rates must be distinct numbers"),
+    (["rate", "--rates", "1", "1"], "--rates must be distinct numbers"),
+    (["accuracy", "--rates", "1"], "--rates applies to the rate and limiting studies"),
+    (["rate", "--workers", "0"], "--workers must be a positive integer"),
+    (["rate", "--max-tasks", "0"], "--max-tasks must be a positive integer"),
+    (["rate", "--seed", "-2"], "--seed must be a non-negative integer"),
+])
+def test_bad_arguments(args, message, tmp_path, capsys):
+    assert main(["campaign"] + args + ["--out", str(tmp_path), "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_unknown_study_or_preset_is_an_argparse_error(capsys):
+    for args in (["campaign", "nope"], ["campaign", "rate", "--presets", "nope"]):
+        with pytest.raises(SystemExit) as exc:
+            main(args)
+        assert exc.value.code == 2
+    capsys.readouterr()
+
+
+def test_dask_missing_is_a_clear_message(tmp_path, monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "dask.distributed", None)
+    with pytest.raises(ValueError, match=r"pip install 'lodestar\[dask\]'"):
+        campaign.run_campaign(rate_config(), 1, str(tmp_path), dask="tcp://127.0.0.1:1",
+                              progress=False)
+
+
+def test_dask_cluster_gives_the_same_results(reference, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    out, rows, _paths = reference
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        rows2, _ = campaign.run_campaign(rate_config(), 2, str(tmp_path),
+                                         dask=cluster.scheduler_address, progress=False)
+    assert rows2 == rows

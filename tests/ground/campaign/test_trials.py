@@ -1,0 +1,72 @@
+"""Campaign trials: seeds, rate axes, detector settings and the verdict of a solution."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lodestar.firmware import status as S
+from lodestar.firmware.pipeline import Result
+from lodestar.ground.campaign import trials as T
+from lodestar.ground.flight import camera_settings
+from lodestar.ground.truth import WRONG_ARCSEC
+
+
+def test_seed_depends_on_campaign_study_preset_trial_not_level():
+    s = T.trial_seed(0, "rate", "estcube2", 5)
+    assert s == T.trial_seed(0, "rate", "estcube2", 5) and 0 <= s < 2 ** 63
+    others = {T.trial_seed(1, "rate", "estcube2", 5), T.trial_seed(0, "limiting", "estcube2", 5),
+              T.trial_seed(0, "rate", "lohmann", 5), T.trial_seed(0, "rate", "estcube2", 6)}
+    assert s not in others and len(others) == 4
+    assert T.task_key(("rate", "lohmann", "1.5", 7)) == "rate/lohmann/1.5/7"
+
+
+def test_rate_axes():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        w = T.rate_vector(rng, 2.0, "cross")
+        assert w[2] == 0 and np.linalg.norm(w) == pytest.approx(2.0)
+        assert np.linalg.norm(T.rate_vector(rng, 2.0, "random")) == pytest.approx(2.0)
+        assert abs(T.rate_vector(rng, 2.0, "roll")[2]) == 2.0
+    with pytest.raises(ValueError, match="unknown rate axis"):
+        T.rate_vector(rng, 1.0, "diagonal")
+
+
+class FakeFrame:
+    def __init__(self, q):
+        self.q = q
+        self.truth = {"sources": []}
+
+
+def test_verdict_tells_wrong_from_failed():
+    q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
+    frame = FakeFrame(q)
+    failed = T.verdict(Result(S.NO_MATCH), [], frame)
+    assert failed["status"] == "NO_MATCH" and not failed["solved"] and not failed["wrong"]
+    res = Result(S.OK)
+    res.sigma_cross_arcsec, res.sigma_roll_arcsec = 1.0, 10.0
+    # beyond WRONG_ARCSEC a solution is wrong unless its covariance covers the error
+    for angle, sigma, wrong, imprecise in ((WRONG_ARCSEC * 0.9, 1.0, False, False),
+                                           (WRONG_ARCSEC * 1.1, 1.0, True, False),
+                                           (WRONG_ARCSEC * 1.1, WRONG_ARCSEC, False, True)):
+        res.sigma_cross_arcsec = sigma
+        res.q = list((Rotation.from_rotvec([0, math.radians(angle / 3600), 0]) *
+                      Rotation.from_quat(q)).as_quat())
+        out = T.verdict(res, [], frame)
+        assert out["solved"] and out["wrong"] is wrong and out["imprecise"] is imprecise
+        assert out["status"] == ("WRONG" if wrong else "OK")
+        assert out["error_arcsec"][1] == pytest.approx(angle, rel=1e-6)
+        assert out["sigma_arcsec"] == [sigma, 10.0]
+
+
+def test_noise_trial_identifies_at_small_noise():
+    config = {"camera": camera_settings("lohmann", "tuned"), "axis": "cross",
+              "method": "pyramid"}
+    out = T.falsestars_trial("lohmann", "noise", 11, config)
+    assert set(out) == set(T.METHODS)
+    for method in T.METHODS:
+        assert set(out[method]) == {f"{s:g}" for s in T.NOISE_PX}
+        assert out[method]["0"]["status"] == "OK" and out[method]["0"]["wrong_matches"] == 0
+    with pytest.raises(ValueError, match="unknown falsestars level"):
+        T.falsestars_trial("lohmann", "other", 11, config)

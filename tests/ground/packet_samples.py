@@ -1,0 +1,63 @@
+"""Detection results shared by the ground and flight packet-codec tests."""
+
+import numpy as np
+
+from lodestar import contract as C
+from lodestar.contract import DetectionResult
+from lodestar.golden import Detector, DetectorConfig
+
+
+def base_result():
+    """A valid 64x48 12-bit frame with 3 records, one dropped record and one filtered blob.
+
+    Record 1 has the bounding box x 10..11, y 20..21 (area 4), n=4, nsat=1, peak at full
+    scale; the semantic tests corrupt one field at a time.
+    """
+    fs = C.full_scale(12)
+    blobs = [
+        C.BlobRecord(1, 0, 100, 300, 200, 900, 400, 600, 3, 3, 2, 2, 240, 0),
+        C.BlobRecord(4, 1, 9000, 94500, 184500, 992250, 3782250, 1937250, 10, 11, 20, 21, fs, 0),
+        C.BlobRecord(3, 0, 500, 30500, 23500, 1860500, 1104500, 1433500, 60, 62, 47, 47, 400, 0),
+    ]
+    return DetectionResult(blobs=blobs, mode=C.MODE_GLOBAL, threshold=200, background=40,
+                           n_blobs=5, n_filtered=1, dropped_records=1, dropped_labels=0,
+                           flags=C.FRAME_RECORD_OVERFLOW, frame_counter=7, width=64, height=48,
+                           pixel_bits=12)
+
+
+def spot_frame(rng, cfg, n_spots):
+    """Noise below the threshold plus ``n_spots`` bright 1..3 px squares (some at full scale)."""
+    fs = C.full_scale(cfg.pixel_bits)
+    frame = rng.integers(0, max(cfg.threshold // 2, 1), (cfg.height, cfg.width))
+    for _ in range(n_spots):
+        size = int(rng.integers(1, 4))
+        y, x = int(rng.integers(0, cfg.height)), int(rng.integers(0, cfg.width))
+        frame[y:y + size, x:x + size] = rng.integers(cfg.threshold + 1, fs + 1)
+    frame[rng.integers(0, cfg.height), rng.integers(0, cfg.width)] = fs
+    return frame.astype(np.uint16)
+
+
+CONFIGS = [
+    dict(width=24, height=16, pixel_bits=8, threshold=100, record_capacity=2),
+    dict(width=24, height=16, pixel_bits=10, threshold_mode="global", threshold=300,
+         ksigma=1.5, min_pixels=2),
+    dict(width=32, height=12, pixel_bits=12, threshold_mode="local", local_log2_window=3,
+         local_offset=600, threshold=1000, record_capacity=3),
+    dict(width=20, height=20, pixel_bits=16, threshold=20000, label_capacity=1,
+         record_capacity=4),
+    dict(width=24, height=16, pixel_bits=12, threshold=1500, min_sum=5000, max_pixels=6,
+         record_capacity=0),
+]
+"""Configurations covering every mode, pixel width and capacity overflow."""
+
+
+def spot_results(seed):
+    """Golden results of seeded spot frames: 3 frames per configuration (global mode learns
+    from the previous frame)."""
+    rng = np.random.default_rng(seed)
+    results = []
+    for kwargs in CONFIGS:
+        detector = Detector(DetectorConfig(**kwargs))
+        for _ in range(3):
+            results.append(detector.process(spot_frame(rng, detector.cfg, 12)))
+    return results

@@ -1,0 +1,234 @@
+"""Tests of ``lodestar.ground.database``: the estcube2 size budget, the content of the image
+(star table, pattern-star coverage, pair table, cells) against brute force on the catalogue,
+determinism, the FOV inputs and the CLI."""
+
+import functools
+import math
+import struct
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lodestar.contract import stardb
+from lodestar.firmware import database as L
+from lodestar.ground import database as G
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+from lodestar.sim.presets import load_preset
+from tests import REPO
+
+MB = 1 << 20
+
+
+@functools.lru_cache(maxsize=None)
+def estcube2_image():
+    return G.build_database(load(), load_preset("estcube2"), mag_limit=6.0)
+
+
+@functools.lru_cache(maxsize=None)
+def small_image():
+    return G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5)
+
+
+def test_estcube2_size_budget(record_property):
+    image = estcube2_image()
+    info = G.describe(image)
+    record_property("database_bytes", len(image))
+    print(f"\nestcube2 V<=6.0 database: {len(image)} B ({len(image) / 1024:.1f} KiB); "
+          f"{info['n_stars']} stars, {info['n_pattern_stars']} pattern stars, "
+          f"{info['n_pairs']} pairs, {info['kv_bins']} k-vector bins; "
+          f"sections {info['section_bytes']}")
+    assert len(image) <= MB                   # the budget
+    assert len(image) <= 512 * 1024           # the stretch goal
+    assert info["n_stars"] == int(np.sum(load().vmag <= 6.0))
+    assert math.isclose(info["fov_h"], math.radians(load_preset("estcube2").fov_deg()[0]),
+                        rel_tol=1e-6)
+
+
+@functools.lru_cache(maxsize=None)
+def estcube2_all_methods():
+    return G.build_database(load(), load_preset("estcube2"), mag_limit=6.0,
+                            methods=("pyramid", "triangle", "hashing"))
+
+
+def test_estcube2_all_methods_size_budget(record_property):
+    """One image serving Pyramid, Triangle and Hashing stays within 1 MiB; the pyramid
+    sections are byte-identical to those of the pyramid-only image."""
+    image = estcube2_all_methods()
+    info = G.describe(image)
+    record_property("database_all_methods_bytes", len(image))
+    print(f"\nestcube2 V<=6.0 pyramid+triangle+hashing: {len(image)} B "
+          f"({len(image) / 1024:.1f} KiB); {info['triangles']['n']} triangles, "
+          f"{info['hash']['n']} hash groups; sections {info['section_bytes']}")
+    assert len(image) <= MB
+    assert info["methods"] == stardb.METHOD_PYRAMID | stardb.METHOD_TRIANGLE | stardb.METHOD_HASHING
+    assert info["section_bytes"]["triangles"] <= 160 * 1024
+    assert info["section_bytes"]["hash"] <= 320 * 1024
+    single = L.Database(estcube2_image())
+    db = L.Database(image)
+    for sec in (stardb.SEC_PAIRS, stardb.SEC_KVECTOR, stardb.SEC_CELLS):
+        (o1, n1), (o2, n2) = single.sections[sec], db.sections[sec]
+        assert estcube2_image()[o1:o1 + n1] == image[o2:o2 + n2]
+    for i in range(0, db.n_stars, 97):      # same stars, flags extended
+        a, b = single.star(i), db.star(i)
+        assert a[:5] == b[:5] and b[5] & stardb.STAR_FLAG_PATTERN == a[5]
+    # per-method images hold only their sections
+    for name, bit, sec in (("triangle", stardb.METHOD_TRIANGLE, stardb.SEC_TRIANGLES),
+                           ("hashing", stardb.METHOD_HASHING, stardb.SEC_HASH)):
+        one = L.Database(G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
+                                          methods=(name,)))
+        assert one.methods == bit and one.n_pairs == 0 and one.n_pattern_stars == 0
+        assert [i for i, (o, n) in enumerate(one.sections) if n] == [stardb.SEC_STARS, stardb.SEC_CELLS,
+                                                                     sec]
+
+
+def test_deterministic():
+    assert G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5) == small_image()
+    kw = dict(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5, methods=G.METHODS)
+    assert G.build_database(**kw) == G.build(**kw)
+
+
+def test_star_table_round_trip():
+    cat = load()
+    db = L.Database(small_image())
+    sel = cat.vmag <= 4.5
+    truth = {int(h): (v, float(m)) for h, v, m in zip(cat.hip[sel], cat.unit_vectors()[sel],
+                                                       cat.vmag[sel])}
+    assert db.n_stars == len(truth)
+    seen = set()
+    for i in range(db.n_stars):
+        x, y, z, hip, mag, flags = db.star(i)
+        v, m = truth[hip]
+        assert np.allclose((x, y, z), v, atol=1e-7)
+        assert abs(mag - m) <= 0.005 + 1e-9
+        assert (db.star_vector(i), db.star_hip(i), db.star_flags(i)) == ((x, y, z), hip, flags)
+        assert abs(db.star_mag(i) - mag) < 1e-9
+        seen.add(hip)
+    assert seen == set(truth)
+    assert sum(db.star_flags(i) & stardb.STAR_FLAG_PATTERN for i in range(db.n_stars)) == \
+        db.n_pattern_stars
+
+
+def test_cells_group_the_stars():
+    db = L.Database(small_image())
+    n = db.cells_per_face
+    for c in range(L.n_cells(n)):
+        a, b = db.cell_range(c)
+        mags = [db.star_mag(i) for i in range(a, b)]
+        assert mags == sorted(mags)
+        for i in range(a, b):
+            assert L.cell_of(*db.star_vector(i), n) == c
+            centre = L.cell_centre(c, n)
+            cos = sum(p * q for p, q in zip(centre, db.star_vector(i)))
+            assert math.acos(min(1.0, cos)) <= db.cell_radius
+
+
+def test_cell_functions_invert():
+    for n in (1, 3, 8):
+        assert G.cell_radius(n) < math.pi / 2
+        for c in range(L.n_cells(n)):
+            assert L.cell_of(*L.cell_centre(c, n), n) == c
+
+
+def test_pair_table_is_complete_and_exact():
+    """Every pair of pattern stars within the diagonal, once, with the right key."""
+    db = L.Database(small_image())
+    pattern = np.array([i for i in range(db.n_stars)
+                        if db.star_flags(i) & stardb.STAR_FLAG_PATTERN])
+    vec = np.array([db.star_vector(i) for i in range(db.n_stars)], dtype=np.float64)
+
+    def angles(a, b):
+        return np.arctan2(np.linalg.norm(np.cross(vec[a], vec[b]), axis=-1),
+                          np.sum(vec[a] * vec[b], axis=-1))
+
+    ia, ib = np.triu_indices(len(pattern), 1)
+    a, b = pattern[ia], pattern[ib]
+    inside = angles(a, b) <= db.pair_max_angle
+    expected = set(zip(a[inside].tolist(), b[inside].tolist()))
+    got = np.array([db.pair_record(i) for i in range(db.n_pairs)], dtype=np.int64)
+    key, a, b = got[:, 0], got[:, 1], got[:, 2]
+    assert np.all(a < b)
+    assert np.all(np.abs(key * db.key_step - angles(a, b)) <= 0.5 * db.key_step * (1 + 1e-6))
+    assert [tuple(r) for r in got.tolist()] == sorted(tuple(r) for r in got.tolist())
+    assert set(zip(a.tolist(), b.tolist())) == expected
+    assert len(got) == len(expected)
+
+
+def test_pattern_stars_cover_every_field():
+    """The brightest stars of any estcube2 field include enough pattern stars for Pyramid."""
+    cat = load()
+    cam = load_preset("estcube2")
+    db = L.Database(estcube2_image())
+    pattern_hip = {db.star_hip(i) for i in range(db.n_stars)
+                   if db.star_flags(i) & stardb.STAR_FLAG_PATTERN}
+    sel = cat.vmag <= 6.0
+    vec, hip, vmag = cat.unit_vectors()[sel], cat.hip[sel], cat.vmag[sel]
+    rng = np.random.default_rng(7)
+    worst = 99
+    for q in random_attitude(rng, 300):
+        _, _, ok = cam.project(Rotation.from_quat(q).apply(vec))
+        idx = np.flatnonzero(ok)
+        idx = idx[np.argsort(vmag[idx], kind="stable")][:12]
+        worst = min(worst, sum(int(h) in pattern_hip for h in hip[idx]))
+    assert worst >= 5
+
+
+def test_fov_inputs():
+    cam = load_preset("estcube2")
+    h, v, d = cam.fov_deg()
+    assert np.allclose(G.fov_from_horizontal(h, aspect=cam.width / cam.height), (h, v, d),
+                       atol=0.02)
+    assert np.allclose(G.fov_from_horizontal(h, fov_v_deg=v), (h, v, d), atol=0.02)
+    assert G.resolve_fov(cam) == (h, v, d)
+    with pytest.raises(ValueError):
+        G.resolve_fov()
+    with pytest.raises(ValueError):
+        G.resolve_fov(cam, fov_h_deg=10.0)
+    with pytest.raises(ValueError):
+        G.fov_from_horizontal(10.0)
+
+
+def test_bad_requests():
+    with pytest.raises(NotImplementedError):
+        G.build_database(fov_h_deg=20, aspect=1, method="voting")
+    with pytest.raises(NotImplementedError):
+        G.build_database(fov_h_deg=20, aspect=1, methods=("pyramid", "voting"))
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, method="pyramid", methods=("pyramid",))
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, methods=("hashing",),
+                         hash_options={"group_size": 5})
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, methods=("triangle",),
+                         triangle_options={"no_such_option": 1})
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, mag_limit=-2.0)
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, mag_limit=4.0, min_pair_angle_deg=30,
+                         max_pair_angle_deg=20)
+
+
+SPEC = (REPO / "docs" / "stardb.md").read_text()
+
+
+def test_header_layout_matches_docstring():
+    image = small_image()
+    assert struct.calcsize(stardb.HEADER_FORMAT) == stardb.DIRECTORY_OFFSET == 88
+    assert stardb.DIRECTORY_OFFSET + 8 * stardb.N_SECTIONS == stardb.RESERVED_OFFSET
+    assert image[:4] == b"LSDB"
+    assert struct.unpack_from("<HHI", image, 4) == (1, 160, len(image))
+    for token in ('"<4sHHIIHHfffffIIIfffIffHHff"', '"<fffHH"', '"<HHH"', stardb.TRI_HEADER_FORMAT,
+                  stardb.TRI_RECORD_FORMAT, stardb.HASH_HEADER_FORMAT, "b\"TRI1\"", "b\"HSH1\""):
+        assert token in SPEC, token
+    assert struct.calcsize(stardb.TRI_HEADER_FORMAT) == stardb.TRI_HEADER_SIZE
+    assert struct.calcsize(stardb.TRI_RECORD_FORMAT) == stardb.TRI_RECORD_SIZE
+    assert struct.calcsize(stardb.HASH_HEADER_FORMAT) == stardb.HASH_HEADER_SIZE
+    assert len(stardb.TRI_HEADER_FIELDS) == len(struct.unpack(stardb.TRI_HEADER_FORMAT,
+                                                          bytes(stardb.TRI_HEADER_SIZE)))
+    assert len(stardb.HASH_HEADER_FIELDS) == len(struct.unpack(stardb.HASH_HEADER_FORMAT,
+                                                           bytes(stardb.HASH_HEADER_SIZE)))
+    info = G.describe(image)
+    assert info["section_bytes"]["stars"] == 16 * info["n_stars"]
+    assert info["section_bytes"]["pairs"] == 6 * info["n_pairs"]
+    assert info["methods"] == stardb.METHOD_PYRAMID

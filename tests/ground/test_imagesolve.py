@@ -1,0 +1,257 @@
+"""``lodestar solve IMAGE``: a simulated estcube2 frame written as PNG, TIFF and FITS in 8, 12
+and 16 bits, in colour, with a sky gradient and hot pixels, binned, solves to the truth;
+images that cannot solve say so; bad input is refused with a message."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import tifffile
+from astropy.io import fits
+from PIL import Image
+
+from lodestar.cli import main
+from lodestar.cli.demo import attitude_error_arcsec
+from lodestar.ground import imagesolve
+from lodestar.sim import attitude, imageio, scene
+from lodestar.sim.presets import load_preset
+
+SEED = 5
+FOV = 20.208093365747143        # estcube2's horizontal FOV (the preset's pinhole)
+
+
+@pytest.fixture(autouse=True)
+def cache_dir(tmp_path_factory, monkeypatch):
+    path = tmp_path_factory.getbasetemp() / "imagesolve-cache"
+    monkeypatch.setenv("LODESTAR_CACHE_DIR", str(path))
+    return path
+
+
+def _png(path, frame):
+    """A PNG as ``lodestar simulate`` writes it (16-bit greyscale, or 8-bit), compressed fast."""
+    Image.fromarray(frame).save(path, compress_level=1)
+
+
+@pytest.fixture(scope="module")
+def sky(tmp_path_factory):
+    """``(folder, frame, truth)``: one simulated estcube2 frame and its files."""
+    cam = load_preset("estcube2")
+    q = attitude.random_attitude(np.random.default_rng(SEED))
+    sim = scene.simulate(cam, q, seed=SEED)
+    d = tmp_path_factory.mktemp("sky")
+    f = sim.frame
+    _png(d / "frame.png", f)
+    tifffile.imwrite(d / "frame.tif", f)
+    tifffile.imwrite(d / "left.tif", (f << 4).astype(np.uint16))
+    tifffile.imwrite(d / "rgb16.tif", np.stack([f, f, f], -1), photometric="rgb")
+    fits.PrimaryHDU(f.astype(np.int16)).writeto(d / "int16.fits")
+    fits.PrimaryHDU(f).writeto(d / "uint16.fits")                  # BZERO = 32768
+    fits.PrimaryHDU(f.astype(np.float32) / 4096).writeto(d / "float.fits")
+    f8 = np.clip((f.astype(np.int32) - 150) // 2, 0, 255).astype(np.uint8)
+    _png(d / "frame8.png", f8)
+    _png(d / "rgb.png", np.stack([f8, f8 // 2, f8], -1))
+    rng = np.random.default_rng(1)
+    g = f.astype(np.int32) + np.linspace(0, 600, f.shape[1]).astype(np.int32)[None, :] + \
+        np.linspace(0, 300, f.shape[0]).astype(np.int32)[:, None]
+    g.flat[rng.integers(0, f.size, 2000)] = 4095                    # hot pixels
+    _png(d / "gradient.png", np.clip(g, 0, 4095).astype(np.uint16))
+    return d, f, sim.truth
+
+
+def _solve(capsys, *argv):
+    code = main(["solve", *map(str, argv), "--json"])
+    captured = capsys.readouterr()
+    return code, (json.loads(captured.out) if captured.out else None), captured.err
+
+
+def _check_right(report, truth, cross_arcsec=10.0, roll_arcsec=60.0):
+    assert report["status"] == "OK", report["reason"]
+    q = attitude.from_radec_roll(report["ra_deg"], report["dec_deg"], report["roll_deg"])
+    err = attitude_error_arcsec(q, truth["quaternion_xyzw"])
+    assert err["cross"] < cross_arcsec and abs(err["roll"]) < roll_arcsec, err
+    by_hip = {s["hip"]: s for s in truth["sources"]}
+    assert len(report["matches"]) >= 10
+    for m in report["matches"]:
+        s = by_hip[m["hip"]]
+        assert math.hypot(m["x"] - s["x"], m["y"] - s["y"]) < 1.5, m
+
+
+def test_png_solves_with_every_field(sky, capsys):
+    d, _f, truth = sky
+    code, r, err = _solve(capsys, d / "frame.png")
+    assert code == 0
+    _check_right(r, truth, cross_arcsec=3.0, roll_arcsec=30.0)
+    assert {"status", "ra_deg", "dec_deg", "roll_deg", "fov_deg", "matches",
+            "sigma_cross_arcsec", "sigma_roll_arcsec"} <= set(r)
+    assert r["fov_deg"] == pytest.approx(FOV, abs=1e-6)
+    assert {"x", "y", "hip"} <= set(r["matches"][0])
+    assert 0 < r["sigma_cross_arcsec"] < 3 and 0 < r["sigma_roll_arcsec"] < 30
+    assert r["image"]["pixel_bits"] == 12 and r["detector"]["mode"] == "local"
+    assert r["detector"]["noise_sigma_adu"] == pytest.approx(27.4, rel=0.05)
+    assert "read as 12-bit data" in err
+
+
+@pytest.mark.parametrize("name, bits, note", [
+    ("frame.tif", 12, "smallest of 10, 12, 16 bits"),
+    ("left.tif", 12, "the lowest 4 bits of every pixel are zero"),
+    ("rgb16.tif", 12, "converted to luminance"),
+    ("int16.fits", 12, "smallest of 10, 12, 16 bits"),
+    ("uint16.fits", 12, "smallest of 10, 12, 16 bits"),
+    ("float.fits", 16, "scaled linearly onto 0 .. 65535"),
+    ("frame8.png", 8, ""),
+    ("rgb.png", 8, "colour image converted to luminance"),
+])
+def test_formats_and_depths_solve_alike(sky, capsys, name, bits, note):
+    d, _f, truth = sky
+    code, r, err = _solve(capsys, d / name, "--fov", FOV)
+    assert code == 0
+    _check_right(r, truth)
+    assert r["image"]["pixel_bits"] == bits and note in err
+
+
+def test_gradient_and_hot_pixels(sky, capsys):
+    d, _f, truth = sky
+    code, r, _err = _solve(capsys, d / "gradient.png")
+    assert code == 0
+    _check_right(r, truth)
+
+
+def test_binning_reports_original_pixels(sky, tmp_path, capsys):
+    d, _f, truth = sky
+    out = tmp_path / "solved.png"
+    code, r, _err = _solve(capsys, d / "frame.png", "--bin", "2", "--fov", FOV,
+                           "--annotate", out)
+    assert code == 0 and r["image"]["bin"] == 2
+    _check_right(r, truth, cross_arcsec=15.0, roll_arcsec=120.0)
+    with Image.open(out) as im:
+        assert im.size == (1296, 972)
+
+
+def test_wrong_fov_claims_no_attitude(sky, capsys):
+    d, _f, truth = sky
+    for fov in (19.0, 21.5, 30.0):
+        code, r, err = _solve(capsys, d / "frame.png", "--fov", fov)
+        if r["status"] == "OK":                   # allowed only if right
+            _check_right(r, truth)
+            continue
+        assert code == 1 and r["ra_deg"] is None and r["matches"] == []
+        assert "not solved" in err
+
+
+def test_no_stars(tmp_path, capsys):
+    rng = np.random.default_rng(2)
+    path = tmp_path / "noise.png"
+    imageio.save_frame(path, rng.normal(200, 20, (480, 640)).astype(np.uint16))
+    code, r, err = _solve(capsys, path, "--fov", 10)
+    assert code == 1 and r["status"] == "TOO_FEW_STARS" and r["ra_deg"] is None
+    assert "no stars found" in err
+
+
+def test_significant_bits_rules(tmp_path):
+    def read(array, **kw):
+        path = tmp_path / "b.tif"
+        tifffile.imwrite(path, array)
+        return imagesolve.read_image(path, **kw)
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(100, 900, (64, 64)).astype(np.uint16)
+    assert read(base).pixel_bits == 10
+    assert read(base * 4 + 1).pixel_bits == 12
+    assert read(base * 40 + 1).pixel_bits == 16
+    assert read(base * 4).pixel_bits == 16      # lowest 2 bits zero: left-aligned 14-bit
+    left = read(base << 6)                                   # 10-bit left-aligned
+    assert left.pixel_bits == 10 and np.array_equal(left.frame, base)
+    assert read(base, bits=16).pixel_bits == 16
+    forced = read(base << 4, bits=12)
+    assert forced.pixel_bits == 12 and np.array_equal(forced.frame, base)
+    with pytest.raises(ValueError, match="neither fit 12 bits nor are left-aligned"):
+        read(base * 40 + 1, bits=12)
+    assert read(base.astype(np.uint8) | 1).pixel_bits == 8
+    with pytest.raises(ValueError, match="holds 8-bit data"):
+        read(base.astype(np.uint8) | 1, bits=12)
+
+
+def test_colour_cubes_stacks_and_alpha(tmp_path):
+    rng = np.random.default_rng(3)
+    plane = rng.integers(100, 3000, (40, 50)).astype(np.uint16)
+    path = tmp_path / "cube.fits"
+    fits.PrimaryHDU(np.stack([plane, plane, plane])).writeto(path)
+    image = imagesolve.read_image(path)
+    assert np.array_equal(image.frame, plane) and image.pixel_bits == 12
+    assert any("luminance" in n for n in image.notes)
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, np.stack([plane, plane // 2, plane // 3, plane // 4]),
+                     photometric="minisblack")
+    image = imagesolve.read_image(path)
+    assert np.array_equal(image.frame, plane) and "4 frames in the file" in image.notes[0]
+    path = tmp_path / "rgba.png"
+    rgba = np.dstack([plane.astype(np.uint8)] * 3 + [np.full_like(plane, 255, np.uint8)])
+    Image.fromarray(rgba, "RGBA").save(path)
+    image = imagesolve.read_image(path)
+    assert np.array_equal(image.frame, plane.astype(np.uint8)) and image.pixel_bits == 8
+    assert "alpha channel dropped" in image.notes
+    path = tmp_path / "nan.fits"
+    data = plane.astype(np.float32)
+    data[5, 5] = np.nan
+    fits.PrimaryHDU(data).writeto(path)
+    image = imagesolve.read_image(path)
+    assert "1 blank (NaN or inf) pixels set to the median" in image.notes
+    assert image.frame[5, 5] == int(np.median(plane[~np.isnan(data)]))
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "the file is empty"),
+    (b"not an image at all", "not a PNG, TIFF or FITS file"),
+])
+def test_unreadable_files(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.png"
+    path.write_bytes(content)
+    assert main(["solve", str(path)]) == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["frame.png", "frame.tif", "uint16.fits"])
+def test_truncated_files(sky, tmp_path, capsys, name):
+    d, _f, _t = sky
+    data = (d / name).read_bytes()
+    path = tmp_path / name
+    path.write_bytes(data[:len(data) // 2])
+    assert main(["solve", str(path), "--fov", str(FOV)]) == 2
+    assert f"{path}: cannot read the" in capsys.readouterr().err
+
+
+def test_bad_input_exits_2(sky, tmp_path, capsys):
+    d, _f, _t = sky
+    png = str(d / "frame.png")
+    cases = [
+        (["--fov", "0.1"], "--fov 0.1 is absurd"),
+        (["--fov", "200"], "--fov 200 is absurd"),
+        (["--fov", "nan"], "--fov nan is absurd"),
+        (["--preset", "lohmann"], "the lohmann camera 752x480"),
+        (["--distortion", "0", "0", "0", "0", "0"], "--distortion needs --fov"),
+        (["--fov", "20", "--distortion", "-5", "0", "0", "0", "0"], "error"),
+        (["--fov", "20", "--bin", "0"], "--bin must be an int"),
+        (["--fov", "20", "--tolerance", "-1"], "--tolerance must be a positive"),
+        (["--fov", "20", "--ksigma", "0"], "--ksigma must be a positive"),
+    ]
+    for extra, message in cases:
+        assert main(["solve", png, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
+    blank = tmp_path / "blank.png"
+    imageio.save_frame(blank, np.full((100, 100), 7, np.uint16))
+    assert main(["solve", str(blank), "--fov", "10"]) == 2
+    assert "every pixel is 7: a blank image" in capsys.readouterr().err
+    tiny = tmp_path / "tiny.png"
+    imageio.save_frame(tiny, np.arange(80, dtype=np.uint16).reshape(8, 10))
+    assert main(["solve", str(tiny), "--fov", "10"]) == 2
+    assert "too small" in capsys.readouterr().err
+    wide = tmp_path / "wide.png"
+    Image.fromarray(np.arange(5000 * 20, dtype=np.uint32).reshape(20, 5000).astype(np.uint8)
+                    ).save(wide)
+    assert main(["solve", str(wide), "--fov", "10"]) == 2
+    assert "use --bin 2" in capsys.readouterr().err
+    other = tmp_path / "other.png"
+    imageio.save_frame(other, np.arange(100 * 120, dtype=np.uint16).reshape(100, 120))
+    assert main(["solve", str(other)]) == 2
+    assert "give --fov" in capsys.readouterr().err

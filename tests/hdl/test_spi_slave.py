@@ -1,0 +1,234 @@
+"""The SPI slave in the Amaranth simulator, driven by an SPI master model (mode 0, MSB first)
+whose SCK is asynchronous to the system clock, at several SCK/sysclk ratios down to the
+documented 4x: register writes, status reads, packet streaming with underruns and partial
+reads, bad commands, and CS/SCK glitches that must not wedge the slave."""
+
+from collections import deque
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+
+from lodestar import contract as C
+from lodestar.contract import (
+    FILLER,
+    OP_READ_STATUS,
+    OP_READ_STREAM,
+    OP_WRITE_REG,
+    OVERFLOW_BITS,
+    STATUS_BYTES,
+    TURNAROUND_BYTES,
+    decode_status,
+)
+from lodestar.hdl.spi_slave import SPISlave
+
+NS = 1e-9
+REPLY = 1 + TURNAROUND_BYTES        # MISO bytes before a read's first reply byte
+
+
+class Master:
+    """SPI mode 0 master on the simulator's time line: ``T`` the sys clock period; CS lead,
+    lag and high time just above the documented minimums (4 T, 2 T, 3 T)."""
+
+    def __init__(self, ctx, dut, T, sck_period):
+        self.ctx, self.dut, self.T, self.half = ctx, dut, T, sck_period / 2
+
+    async def transfer(self, out, bits=None):
+        """Send the bytes ``out`` (stop after ``bits`` bits if given); return MISO bytes."""
+        ctx, dut = self.ctx, self.dut
+        ctx.set(dut.cs_n, 0)
+        await ctx.delay(4.1 * self.T)
+        got = []
+        n = 8 * len(out) if bits is None else bits
+        for k in range(n):
+            byte, bit = divmod(k, 8)
+            ctx.set(dut.mosi, (out[byte] >> (7 - bit)) & 1)
+            await ctx.delay(self.half)
+            if bit == 0:
+                got.append(0)
+            got[-1] |= ctx.get(dut.miso) << (7 - bit)   # sampled on the rising edge
+            ctx.set(dut.sck, 1)
+            await ctx.delay(self.half)
+            ctx.set(dut.sck, 0)
+        await ctx.delay(max(2.1 * self.T - self.half, 0))
+        ctx.set(dut.cs_n, 1)
+        await ctx.delay(3.1 * self.T)
+        return got
+
+    async def write_reg(self, address, value):
+        await self.transfer([OP_WRITE_REG, address] + list(value.to_bytes(4, "big")))
+
+    async def read_status(self):
+        got = await self.transfer([OP_READ_STATUS] + [0] * (TURNAROUND_BYTES + STATUS_BYTES))
+        assert got[:REPLY] == [FILLER] * REPLY
+        return decode_status(got[REPLY:])
+
+    async def read_stream(self, n):
+        got = await self.transfer([OP_READ_STREAM] + [0xFF] * (TURNAROUND_BYTES + n))
+        assert got[:REPLY] == [FILLER] * REPLY
+        return got[REPLY:]
+
+
+def simulate(script, T, sck_period, packet=()):
+    """Run ``script(master, state)`` against a fresh slave with a packet-byte source holding
+    ``packet``; ``state`` has ``writes`` [(addr, data)], ``queue`` (bytes not yet consumed,
+    the script may append), ``status_reads`` and ``set(name, value)`` for the inputs."""
+    dut = SPISlave()
+    state = {"writes": [], "queue": deque(packet), "status_reads": 0}
+
+    async def bench(ctx):
+        state["set"] = lambda name, value: ctx.set(getattr(dut, name), value)
+        await script(Master(ctx, dut, T, sck_period), state)
+
+    async def monitor(ctx):
+        while True:
+            _, _, strobe, addr, data, read = await ctx.tick().sample(
+                dut.reg_strobe, dut.reg_addr, dut.reg_data, dut.status_read)
+            if strobe:
+                state["writes"].append((addr, data))
+            state["status_reads"] += read
+
+    async def source(ctx):
+        q = state["queue"]
+        while True:
+            ctx.set(dut.packet.valid, bool(q))
+            if q:
+                ctx.set(dut.packet.payload, q[0])
+            _, _, valid, ready = await ctx.tick().sample(dut.packet.valid, dut.packet.ready)
+            if valid and ready:
+                q.popleft()
+
+    sim = Simulator(dut)
+    sim.add_clock(T, phase=0.43 * T)
+    sim.add_testbench(bench)
+    sim.add_testbench(monitor, background=True)
+    sim.add_testbench(source, background=True)
+    sim.run()
+    return state
+
+
+RATIOS = [(10, 40), (10, 53.7), (10, 97), (7, 160)]
+"""(sys clock period, SCK period) in ns: 4x (the documented minimum) up to 23x."""
+
+
+@pytest.mark.parametrize("T,sck", RATIOS)
+def test_registers_status_and_stream(T, sck):
+    rng = np.random.default_rng(int(sck))
+    values = {r.address: int(rng.integers(0, 1 << r.bits)) for r in C.REGISTERS}
+    packet = [int(b) for b in rng.integers(0, 256, 60)]
+    chunks = [7, 1, 13, 0, 19, 20]
+    result = {}
+
+    async def script(master, state):
+        for r in C.REGISTERS:
+            await master.write_reg(r.address, values[r.address])
+        state["set"]("busy", 1)
+        state["set"]("overflow", 0b1010011)
+        state["set"]("frame_counter", 0xDEADBEEF)
+        result["status"] = await master.read_status()
+        result["stream"] = [await master.read_stream(n) for n in chunks]
+        result["status2"] = await master.read_status()
+
+    state = simulate(script, T * NS, sck * NS, packet)
+    assert state["writes"] == [(r.address, values[r.address]) for r in C.REGISTERS]
+    assert result["status"] == {"frame_counter": 0xDEADBEEF, "errors": 0, "underruns": 0,
+                                "overflow": 0b1010011, "busy": 1}
+    assert sum(result["stream"], []) == packet     # in order, nothing lost or repeated
+    assert list(state["queue"]) == []
+    assert result["status2"]["underruns"] == 0
+    assert state["status_reads"] == 2
+
+
+def test_underruns_and_partial_reads():
+    """Reads past the end of the available bytes get FILLER and count underruns; bytes that
+    arrive later, and bytes a read did not clock, come out in order on the next read."""
+    result = {}
+
+    async def script(master, state):
+        q = state["queue"]
+        result["a"] = await master.read_stream(5)          # 3 available: 2 underruns
+        q.extend([0x10, 0x11, 0x12, 0x13])
+        result["b"] = await master.read_stream(2)          # leaves 0x12, 0x13
+        # a read cut after the turnaround byte clocks no packet bit: nothing consumed
+        await master.transfer([OP_READ_STREAM, 0, 0], bits=8 * REPLY)
+        result["c"] = await master.read_stream(3)          # 0x12 0x13 + 1 underrun
+        result["status"] = await master.read_status()
+        result["status2"] = await master.read_status()
+
+    state = simulate(script, 10 * NS, 53 * NS, packet=[0xA0, 0xA1, 0xA2])
+    assert result["a"] == [0xA0, 0xA1, 0xA2, FILLER, FILLER]
+    assert result["b"] == [0x10, 0x11]
+    assert result["c"] == [0x12, 0x13, FILLER]
+    assert result["status"]["underruns"] == 3
+    assert result["status2"]["underruns"] == 0      # counts since the previous status read
+    assert list(state["queue"]) == []
+
+
+def test_bad_commands_are_ignored_and_counted():
+    mode = C.REGISTER_BY_NAME["mode"]
+    thr = C.REGISTER_BY_NAME["threshold"]
+    unknown = max(r.address for r in C.REGISTERS) + 1
+    result = {}
+
+    async def script(master, state):
+        await master.write_reg(unknown, 5)                          # unknown address
+        await master.write_reg(mode.address, 1 << mode.bits)        # wider than the field
+        await master.transfer([OP_WRITE_REG, thr.address, 0, 0])    # aborted write
+        await master.transfer([0x00, 1, 2])                         # unknown opcode
+        await master.transfer([OP_WRITE_REG, thr.address, 0, 0, 0, 77, 99, 98])  # extra bytes
+        result["status"] = await master.read_status()
+        result["status2"] = await master.read_status()
+
+    state = simulate(script, 10 * NS, 41 * NS)
+    assert state["writes"] == [(thr.address, 77)]
+    assert result["status"]["errors"] == 4
+    assert result["status2"]["errors"] == 0
+
+
+def test_glitches_do_not_wedge():
+    """CS pulses too short to see, CS low without clocks, SCK toggling while deselected and a
+    transaction aborted mid-byte: afterwards writes, status and stream work normally."""
+    thr = C.REGISTER_BY_NAME["threshold"]
+    result = {}
+
+    async def script(master, state):
+        ctx, dut, T = master.ctx, master.dut, master.T
+        ctx.set(dut.cs_n, 0)                       # shorter than a sys clock
+        await ctx.delay(0.4 * T)
+        ctx.set(dut.cs_n, 1)
+        await ctx.delay(5 * T)
+        await master.transfer([], bits=0)          # CS low and high, no clocks
+        for _ in range(11):                        # SCK on the bus for another slave
+            ctx.set(dut.sck, 1)
+            ctx.set(dut.mosi, 1)
+            await ctx.delay(2.5 * T)
+            ctx.set(dut.sck, 0)
+            await ctx.delay(2.5 * T)
+        await master.transfer([OP_WRITE_REG, thr.address, 0, 0, 1, 2], bits=8 * 5 + 3)
+        await master.transfer([OP_READ_STREAM, 0, 0], bits=8 * REPLY + 5)   # byte 0 clocked
+        ctx.set(dut.cs_n, 0)                       # a transaction of three clocks only
+        await ctx.delay(4.1 * T)
+        for _ in range(3):
+            ctx.set(dut.sck, 1)
+            await ctx.delay(2.5 * T)
+            ctx.set(dut.sck, 0)
+            await ctx.delay(2.5 * T)
+        ctx.set(dut.cs_n, 1)
+        await ctx.delay(3.1 * T)
+        await master.write_reg(thr.address, 300)
+        result["status"] = await master.read_status()
+        result["stream"] = await master.read_stream(2)
+
+    state = simulate(script, 10 * NS, 45 * NS, packet=[1, 2, 3])
+    assert state["writes"] == [(thr.address, 300)]
+    assert result["status"]["errors"] == 1                      # the aborted write
+    assert result["stream"] == [2, 3]       # byte 1 went with the read cut inside it
+
+
+def test_status_layout_and_decode():
+    assert STATUS_BYTES * 8 == 32 + 8 + 8 + OVERFLOW_BITS + 1
+    word = bytes([0x12, 0x34, 0x56, 0x78, 0x05, 0x06, 0x83])
+    assert decode_status(word) == {"frame_counter": 0x12345678, "errors": 5, "underruns": 6,
+                                   "overflow": 0x41, "busy": 1}
+    with pytest.raises(ValueError, match="status word"):
+        decode_status(word[:-1])
