@@ -99,8 +99,7 @@ returned by every call; ``SMEAR_TOO_LONG`` (the rate smears stars beyond
 identification statuses.  Malformed optional inputs (``prior``, ``omega``, ``dt``,
 ``exposure_s``) are ignored with a note in ``reason``: the flight loop still gets a
 lost-in-space attitude when the gyro or the previous solution is corrupt.  Any unexpected
-exception (including ``MemoryError``) becomes ``INTERNAL_ERROR`` when ``status`` defines it,
-else ``BAD_INPUT``, with the exception in ``reason``.
+exception (including ``MemoryError``) becomes ``INTERNAL_ERROR``, with the exception in ``reason``.
 
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
@@ -152,9 +151,6 @@ DEFAULT_TRACK_SEARCH_DEG = 0.3
 """Largest expected error of the propagated prior, deg."""
 FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
-
-_INTERNAL_ERROR = getattr(S, "INTERNAL_ERROR", S.BAD_INPUT)
-
 
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
@@ -236,32 +232,6 @@ class Result:
                 repr(self.q) + ", matches=" + str(len(self.matches)) + ", n_stars=" +
                 str(self.n_stars) + ", sigma_cross_arcsec=" + repr(self.sigma_cross_arcsec) +
                 ", sigma_roll_arcsec=" + repr(self.sigma_roll_arcsec) + ")")
-
-
-def identification_status(code):
-    """A :mod:`lodestar.firmware.status` code for an identification ``Solution.status``.
-
-    The identification's ``status_name`` gives the name, looked up in ``status``
-    (``BAD_DATABASE``: ``DATABASE_MISMATCH``; a name ``status`` lacks, such as
-    ``BUDGET_EXHAUSTED`` before it is added there: ``NO_MATCH``).  This serves both the
-    older ``verify`` numbering and identification modules that return ``status`` codes."""
-    if code == S.OK:
-        return S.OK
-    namer = getattr(_starid, "status_name", None)
-    name = None
-    if namer is not None:
-        try:
-            name = namer(code)
-        except Exception:
-            name = None
-    else:
-        name = S.name(code)
-    if name == "BAD_DATABASE":
-        return S.DATABASE_MISMATCH
-    value = getattr(S, name, None) if isinstance(name, str) else None
-    if isinstance(value, int) and not isinstance(value, bool):
-        return value
-    return S.NO_MATCH
 
 
 def _rotate(v, axis, angle):
@@ -348,7 +318,7 @@ class StarTracker:
             self._configure(database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
                             track_search_deg)
         except Exception as exc:
-            self._fail(_INTERNAL_ERROR, "configuration: " + repr(exc))
+            self._fail(S.INTERNAL_ERROR, "configuration: " + repr(exc))
 
     def _fail(self, code, reason):
         if self.status == S.OK:
@@ -413,7 +383,7 @@ class StarTracker:
         else:
             db, code, reason = _database.load(database)
             if db is None:
-                self._fail(_database_status(code), "database: " + str(code) + ": " +
+                self._fail(code, "database: " + str(code) + ": " +
                            str(reason))
                 return
         self.database = db
@@ -422,7 +392,7 @@ class StarTracker:
             self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
             return
         if not db.methods & bit:
-            self._fail(getattr(S, "DATABASE_UNSUPPORTED", S.DATABASE_MISMATCH),
+            self._fail(S.DATABASE_UNSUPPORTED,
                        "the database does not serve method " + repr(self.method))
             return
         fov_h = _camera_fov_h(cam)
@@ -633,7 +603,7 @@ class StarTracker:
             return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0,
                                        None)
         except Exception as exc:
-            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+            return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
     def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
                        streaks):
@@ -661,7 +631,7 @@ class StarTracker:
         res.mode = mode
         res.patterns_tried = sol.patterns_tried
         res.probability = sol.probability
-        code = identification_status(sol.status)
+        code = sol.status
         if code != S.OK:
             res.status = code
             _note(res, mode + ": " + S.name(code))
@@ -710,7 +680,7 @@ class StarTracker:
         try:
             return self._process(packet_bytes, prior, omega, dt, exposure_s)
         except Exception as exc:
-            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+            return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
     def _process(self, packet_bytes, prior, omega, dt, exposure_s):
         res = Result(S.OK)
@@ -798,16 +768,6 @@ class StarTracker:
 
 def _note(res, text):
     res.reason = text if not res.reason else res.reason + "; " + text
-
-
-def _database_status(code):
-    """A status code for a :func:`lodestar.firmware.database.load` failure (a status code,
-    or one of the reader's status names)."""
-    if isinstance(code, int) and not isinstance(code, bool):
-        return code
-    if code in ("FOV_MISMATCH", "UNSUPPORTED_METHOD", "BAD_VERSION"):
-        return S.DATABASE_MISMATCH
-    return S.DATABASE_CORRUPT
 
 
 def _camera_fov_h(cam):

@@ -52,6 +52,7 @@ DATABASE_BAD_LAYOUT = 47
 
 # --- generic ----------------------------------------------------------------------------
 BAD_INPUT = 50
+INTERNAL_ERROR = 51
 
 _TABLE = (
     (OK, "OK", "success"),
@@ -92,6 +93,8 @@ _TABLE = (
     (DATABASE_BAD_LAYOUT, "DATABASE_BAD_LAYOUT",
      "star database sections or header values inconsistent (CRC was correct)"),
     (BAD_INPUT, "BAD_INPUT", "argument of the wrong type or out of range"),
+    (INTERNAL_ERROR, "INTERNAL_ERROR",
+     "unexpected exception inside the firmware (a bug, MemoryError or a read error)"),
 )
 """``(code, name, meaning)`` of every status, in code order."""
 

@@ -401,7 +401,7 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
                       min_matches, max_mismatch_prob, coarse_stars, iterations, weights,
                       streaks)
     except Exception:       # a database read error or a bug must not reach the flight loop
-        return TrackSolution(getattr(S, "INTERNAL_ERROR", S.BAD_INPUT))
+        return TrackSolution(S.INTERNAL_ERROR)
 
 
 def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,

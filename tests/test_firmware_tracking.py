@@ -273,7 +273,7 @@ def test_a_failing_database_gives_a_status():
             raise OSError("flash read error")
 
     sol = tracking.track([(0, 0, 1)] * 5, Broken(), [0, 0, 0, 1])
-    assert sol.status != S.OK and sol.q is None
+    assert sol.status == S.INTERNAL_ERROR and sol.q is None
 
 
 # --------------------------------------------------------------------------------------
