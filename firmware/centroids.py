@@ -67,6 +67,8 @@ MicroPython: no numpy, typing, dataclasses or itertools.
 
 import math
 
+from lodestar.firmware.geometry import finite
+
 from lodestar import contract as C
 
 DEFAULT_MAX_STARS = 32
@@ -143,11 +145,6 @@ class Star(object):
                 ).format(*self.as_tuple())
 
 
-def _finite(value):
-    """True for an int or a finite float (MicroPython-safe)."""
-    return value == value and value - value == 0
-
-
 def _is_int(value):
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -162,7 +159,7 @@ def moments(rec):
     """
     s0, sx, sy = rec.s0, rec.sx, rec.sy
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
-    if not (_finite(s0) and s0 > 0):
+    if not (finite(s0) and s0 > 0):
         return None
     if _is_int(s0) and _is_int(sx) and _is_int(sy) and _is_int(sxx) and _is_int(syy) \
             and _is_int(sxy):
@@ -185,7 +182,7 @@ def moments(rec):
         det = (q + r / s02) / s02
     else:
         for v in (sx, sy, sxx, syy, sxy):
-            if not _finite(v):
+            if not finite(v):
                 return None
         x = sx / s0
         y = sy / s0
@@ -203,7 +200,7 @@ def moments(rec):
             return None
         det = max(det, 0.0)
         for v in (x, y, cxx, cyy, cxy, det):    # overflow of huge or tiny values
-            if not _finite(v):
+            if not finite(v):
                 return None
     if not (rec.xmin <= x <= rec.xmax and rec.ymin <= y <= rec.ymax):
         return None
@@ -248,7 +245,7 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
     if smear is None:
         return False
     dx, dy = smear[0], smear[1]
-    if not (_finite(dx) and _finite(dy)):
+    if not (finite(dx) and finite(dy)):
         return False
     length = math.sqrt(dx * dx + dy * dy)
     if length <= 0:
@@ -274,7 +271,7 @@ def unseen_px(sigma_major, sigma_minor, orientation, smear):
     if smear is None:
         return 0.0
     dx, dy = smear[0], smear[1]
-    if not (_finite(dx) and _finite(dy)):
+    if not (finite(dx) and finite(dy)):
         return 0.0
     length = math.sqrt(dx * dx + dy * dy)
     if not length > 0:
@@ -307,7 +304,7 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
         if sm is None:
             continue
         dx, dy = sm[0], sm[1]
-        length = math.sqrt(dx * dx + dy * dy) if _finite(dx) and _finite(dy) else 0.0
+        length = math.sqrt(dx * dx + dy * dy) if finite(dx) and finite(dy) else 0.0
         if not length > 0:
             continue
         ux = dx / length
@@ -407,7 +404,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     for rec in records:
         index += 1
         s0 = rec.s0
-        if not (_finite(s0) and s0 > 0):
+        if not (finite(s0) and s0 > 0):
             rejected["empty"] += 1
             continue
         if _is_int(rec.flags) and rec.flags & C.BLOB_MOMENTS_SATURATED:

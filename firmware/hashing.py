@@ -69,6 +69,7 @@ Pure Python for CPython and MicroPython (``math`` only).
 
 import math
 
+from . import geometry as G
 from . import verify as V
 from .database import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
 
@@ -82,10 +83,6 @@ MAX_TOL_BUCKETS = 2.0
 visit up to ``(2 * MAX_TOL_BUCKETS + 1) ** (2 * (g - 2))`` buckets)."""
 
 
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def _chord2(a, b):
     dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     return dx * dx + dy * dy + dz * dz
@@ -94,20 +91,18 @@ def _chord2(a, b):
 def tangent_frame(a, b):
     """``(m, e1, e2)``: the tangent point ``m = (a + b)/|a + b|`` and the right-handed basis
     ``e1`` (along ``b - a``, orthogonal to ``m``), ``e2 = m x e1``."""
-    m = V.normalize((a[0] + b[0], a[1] + b[1], a[2] + b[2]))
+    m = G.unit((a[0] + b[0], a[1] + b[1], a[2] + b[2]))
     d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
-    k = _dot(d, m)
-    e1 = V.normalize((d[0] - k * m[0], d[1] - k * m[1], d[2] - k * m[2]))
-    e2 = (m[1] * e1[2] - m[2] * e1[1], m[2] * e1[0] - m[0] * e1[2],
-          m[0] * e1[1] - m[1] * e1[0])
-    return m, e1, e2
+    k = G.dot(d, m)
+    e1 = G.unit((d[0] - k * m[0], d[1] - k * m[1], d[2] - k * m[2]))
+    return m, e1, G.cross(m, e1)
 
 
 def project(frame, p):
     """Gnomonic coordinates ``(u, v)`` of the unit vector ``p`` in ``frame``."""
     m, e1, e2 = frame
-    w = _dot(p, m)
-    return _dot(p, e1) / w, _dot(p, e2) / w
+    w = G.dot(p, m)
+    return G.dot(p, e1) / w, G.dot(p, e2) / w
 
 
 def frame_coords(pa, pb, pp):
@@ -235,7 +230,7 @@ def group_hash(vs):
         found = _labellings(vs, i, j)
         if found:
             order, h, _ = found[0]
-            return order, h, V.angle(vs[order[0]], vs[order[1]])
+            return order, h, G.angle(vs[order[0]], vs[order[1]])
     raise ValueError("no canonical labelling")
 
 
@@ -357,7 +352,7 @@ class _Search(V.Search):
         for j in range(n):
             for i in range(j):
                 self.chord2[i * n + j] = _chord2(b[i], b[j])
-                self.angle[i * n + j] = V.angle(b[i], b[j])
+                self.angle[i * n + j] = G.angle(b[i], b[j])
 
     def try_group(self, idx):
         """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (ascending star
@@ -393,7 +388,7 @@ class _Search(V.Search):
         for r in box_records(db, box_codes(h, t, d_obs, self.d_tol, db)):
             stars = db.hash_record(r)[1:]
             cat = [db.star_vector(s) for s in stars]
-            if self.use_d and abs(V.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
+            if self.use_d and abs(G.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
                 continue
             hc = coords(cat[0], cat[1], cat[2:])
             ok = True
@@ -407,8 +402,8 @@ class _Search(V.Search):
                 vs = self.b
                 a, b, c = vs[idx[order[0]]], vs[idx[order[1]]], vs[idx[order[2]]]
                 t_bound = V.triple_bound(a, b, c, self.tol)
-                t_obs = V.triple(a, b, c)
-            if not V.handed(t_obs, V.triple(cat[0], cat[1], cat[2]), t_bound):
+                t_obs = G.triple(a, b, c)
+            if not V.handed(t_obs, G.triple(cat[0], cat[1], cat[2]), t_bound):
                 continue
             obs_idx = tuple(idx[o] for o in order)
             key = (obs_idx, stars)

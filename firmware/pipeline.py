@@ -110,7 +110,9 @@ from . import attitude as _att
 from . import camera as _camera
 from . import centroids as _centroids
 from . import database as _database
+from . import geometry as _geo
 from . import packet as _packet
+from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
@@ -170,23 +172,8 @@ def _longest_smear(cam, smear):
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
     catalogue vectors ``r`` under attitude ``q``."""
-    m = _tracking.matrix(q)
-    out = []
-    for i in range(len(b)):
-        bi, ri = b[i], r[i]
-        dx = bi[0] - (m[0] * ri[0] + m[1] * ri[1] + m[2] * ri[2])
-        dy = bi[1] - (m[3] * ri[0] + m[4] * ri[1] + m[5] * ri[2])
-        dz = bi[2] - (m[6] * ri[0] + m[7] * ri[1] + m[8] * ri[2])
-        out.append(dx * dx + dy * dy + dz * dz)
-    return out
-
-
-def _finite(x):
-    return x - x == 0.0
-
-
-def _number(x):
-    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
+    m = _quat.matrix(q)
+    return [_geo.residual2(m, b[i], r[i]) for i in range(len(b))]
 
 
 class Result:
@@ -232,19 +219,6 @@ class Result:
                 repr(self.q) + ", matches=" + str(len(self.matches)) + ", n_stars=" +
                 str(self.n_stars) + ", sigma_cross_arcsec=" + repr(self.sigma_cross_arcsec) +
                 ", sigma_roll_arcsec=" + repr(self.sigma_roll_arcsec) + ")")
-
-
-def _rotate(v, axis, angle):
-    """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues)."""
-    c = math.cos(angle)
-    s = math.sin(angle)
-    ax, ay, az = axis
-    vx, vy, vz = v
-    dot = ax * vx + ay * vy + az * vz
-    k = dot * (1.0 - c)
-    return (vx * c + (ay * vz - az * vy) * s + ax * k,
-            vy * c + (az * vx - ax * vz) * s + ay * k,
-            vz * c + (ax * vy - ay * vx) * s + az * k)
 
 
 class StarTracker:
@@ -342,14 +316,14 @@ class StarTracker:
         cam = self.camera
         focal = math.sqrt(cam.fx * cam.fy)
         # parameters
-        if not (_number(tolerance_px) and tolerance_px > 0):
+        if not (_geo.is_number(tolerance_px) and tolerance_px > 0):
             self._fail(S.BAD_INPUT, "tolerance_px must be a positive number")
             return
-        if centroid_sigma_px is not None and not (_number(centroid_sigma_px) and
+        if centroid_sigma_px is not None and not (_geo.is_number(centroid_sigma_px) and
                                                   centroid_sigma_px > 0):
             self._fail(S.BAD_INPUT, "centroid_sigma_px must be a positive number or None")
             return
-        if not (_number(min_sigma_px) and min_sigma_px > 0):
+        if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
             self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
             return
         if not (isinstance(self.max_stars, int) and self.max_stars >= 4):
@@ -358,17 +332,17 @@ class StarTracker:
         if not (isinstance(self.budget, int) and self.budget >= 1):
             self._fail(S.BAD_INPUT, "budget must be an int >= 1")
             return
-        if not (_number(self.max_smear_px) and self.max_smear_px > 0):
+        if not (_geo.is_number(self.max_smear_px) and self.max_smear_px > 0):
             self._fail(S.BAD_INPUT, "max_smear_px must be a positive number")
             return
-        if not (_number(track_search_deg) and track_search_deg >= 0):
+        if not (_geo.is_number(track_search_deg) and track_search_deg >= 0):
             self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
             return
         for name in ("row_time_s", "epoch_s"):
-            if not _number(getattr(self, name)):
+            if not _geo.is_number(getattr(self, name)):
                 self._fail(S.BAD_INPUT, name + " must be a finite number")
                 return
-        if self.exposure_s is not None and not (_number(self.exposure_s) and
+        if self.exposure_s is not None and not (_geo.is_number(self.exposure_s) and
                                                 self.exposure_s > 0):
             self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
             return
@@ -416,7 +390,7 @@ class StarTracker:
         docstring, stage 3), or None without a rate."""
         if omega is None:
             return None
-        rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+        rate = _geo.norm(omega)
         if not rate > 0:
             return None
         axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
@@ -425,7 +399,7 @@ class StarTracker:
         epoch = self.epoch_s
 
         def turn(v, y):
-            return _rotate(v, axis, rate * (half + y * row_time - epoch))
+            return _geo.rotate_about(v, axis, rate * (half + y * row_time - epoch))
         return turn
 
     def directions(self, stars, omega=None, exposure_s=None):
@@ -468,7 +442,7 @@ class StarTracker:
                 v1 = cam.pixel_to_vector(s.x + d[0] / length, s.y + d[1] / length)
                 if v0 is not None and v1 is not None:
                     t = (v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2])
-                    per_px = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+                    per_px = _geo.norm(t)
                     if per_px > 0:
                         u = (t[0] / per_px, t[1] / per_px, t[2] / per_px)
                         if turn is not None:
@@ -505,7 +479,7 @@ class StarTracker:
         n = len(fluxes)
         if not self.flux_weighting:
             return [1.0] * n
-        good = [f for f in fluxes if _number(f) and f > 0]
+        good = [f for f in fluxes if _geo.is_number(f) and f > 0]
         if not good:
             return [1.0] * n
         good.sort()
@@ -513,7 +487,7 @@ class StarTracker:
         median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
         out = []
         for f in fluxes:
-            out.append(f / median if _number(f) and f > 0 else 1.0)
+            out.append(f / median if _geo.is_number(f) and f > 0 else 1.0)
         return out
 
     def noise_shares(self, b, r, photon):
@@ -616,10 +590,10 @@ class StarTracker:
         if start is None:
             start = self._tick(timings, None, None)
         res.n_stars = len(vectors)
-        if prior is not None and _tracking.unit_quaternion(prior) is None:
+        if prior is not None and _quat.unit_quaternion(prior) is None:
             _note(res, "prior ignored: not 4 finite numbers with a non-zero norm")
             prior = None
-        if prior is not None and dt is not None and not _number(dt):
+        if prior is not None and dt is not None and not _geo.is_number(dt):
             _note(res, "dt ignored: not a finite number")
             dt = None
         if len(vectors) < 3:
@@ -705,12 +679,12 @@ class StarTracker:
             return res
         w = None
         if omega is not None:
-            w = _tracking.vector3(omega)
+            w = _geo.vector3(omega)
             if w is None:
                 _note(res, "omega ignored: not 3 finite numbers")
         exposure = self.exposure_s
         if exposure_s is not None:
-            if _number(exposure_s) and exposure_s > 0:
+            if _geo.is_number(exposure_s) and exposure_s > 0:
                 exposure = exposure_s
             else:
                 _note(res, "exposure_s ignored: not a positive number")
@@ -778,6 +752,4 @@ def _camera_fov_h(cam):
     b = cam.pixel_to_vector(cam.width - 0.5, ym)
     if a is None or b is None:
         return None
-    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
-    h = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)
-    return 2.0 * math.asin(h if h < 1.0 else 1.0)
+    return _geo.angle(a, b)

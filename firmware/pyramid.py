@@ -62,6 +62,7 @@ blocks of :data:`lodestar.firmware.database.PAIR_BLOCK` records.
 import math
 from array import array
 
+from . import geometry as G
 from . import verify as V
 from .database import METHOD_PYRAMID, PAIR_BLOCK
 
@@ -90,13 +91,11 @@ def _observed_angles(b, n):
     ang = [0.0] * (n * n)
     for i in range(n):
         for j in range(i + 1, n):
-            a = V.angle(b[i], b[j])
+            a = G.angle(b[i], b[j])
             ang[i * n + j] = a
             ang[j * n + i] = a
     return ang
 
-
-_handed = V.handed
 
 
 class _Search(V.Search):
@@ -228,7 +227,7 @@ class _Search(V.Search):
             tol_rj = self.ptol(r, j)
             tol_rk = self.ptol(r, k)
             bound = self.bound(i, j, r)
-            t_obs = V.triple(b[i], b[j], b[r])
+            t_obs = G.triple(b[i], b[j], b[r])
             for p0 in range(s[0], s[1], PAIR_BLOCK):
                 rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < s[1] else s[1] - p0)
                 for t in range(0, len(rec), 2):
@@ -243,10 +242,10 @@ class _Search(V.Search):
                     if cr == cj or cr == ck:
                         continue
                     vr = db.star_vector(cr)
-                    if abs(V.angle(vr, vj) - t_rj) > tol_rj or \
-                            abs(V.angle(vr, vk) - t_rk) > tol_rk:
+                    if abs(G.angle(vr, vj) - t_rj) > tol_rj or \
+                            abs(G.angle(vr, vk) - t_rk) > tol_rk:
                         continue
-                    if not _handed(t_obs, V.triple(vi, vj, vr), bound):
+                    if not V.handed(t_obs, G.triple(vi, vj, vr), bound):
                         continue
                     return r, cr
         return None
@@ -255,12 +254,12 @@ class _Search(V.Search):
         """Accepted ``[(q, Verification)]`` of the triple (empty if none)."""
         accepted = []
         bound = self.bound(i, j, k)
-        t_obs = V.triple(self.b[i], self.b[j], self.b[k])
+        t_obs = G.triple(self.b[i], self.b[j], self.b[k])
         db = self.db
         for cat in self.triangles(i, j, k):
-            t_cat = V.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
+            t_cat = G.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
                              db.star_vector(cat[2]))
-            if not _handed(t_obs, t_cat, bound):
+            if not V.handed(t_obs, t_cat, bound):
                 continue
             fourth = self.fourth_star(i, j, k, cat)
             if fourth is None:

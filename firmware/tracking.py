@@ -63,10 +63,10 @@ import math
 from array import array
 
 from . import attitude as _att
-from .quaternion import multiply
 from . import status as S
-from .verify import (chance_agreement, fov_solid_angle, near_pairs, streak_weights,
-                     streaks_valid)
+from .geometry import is_number, residual2, unit, vector3
+from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
+from .verify import chance_agreement, fov_solid_angle, near_pairs, streak_weights, streaks_valid
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -80,14 +80,6 @@ DEFAULT_COARSE_STARS = 16
 """Brightest observed stars used by the coarse association."""
 DEFAULT_ITERATIONS = 4
 """Most fit / predict / match rounds."""
-
-
-def _finite(x):
-    return x - x == 0.0
-
-
-def _number(x):
-    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
 
 
 class TrackSolution:
@@ -117,50 +109,8 @@ class TrackSolution:
 
 
 # --------------------------------------------------------------------------------------
-# Attitude helpers
+# Propagation
 # --------------------------------------------------------------------------------------
-
-def unit_quaternion(q):
-    """``q`` as a unit list ``[x, y, z, w]`` (``w >= 0``), or None when it is not four finite
-    numbers with a non-zero norm."""
-    try:
-        if len(q) != 4:
-            return None
-        x, y, z, w = q[0], q[1], q[2], q[3]
-    except (TypeError, IndexError, KeyError):
-        return None
-    if not (_number(x) and _number(y) and _number(z) and _number(w)):
-        return None
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not (n > 0.0 and _finite(n)):
-        return None
-    if w < 0:
-        n = -n
-    return [x / n, y / n, z / n, w / n]
-
-
-def vector3(v):
-    """``v`` as a tuple of three floats, or None when it is not three finite numbers."""
-    try:
-        if len(v) != 3:
-            return None
-        x, y, z = v[0], v[1], v[2]
-    except (TypeError, IndexError, KeyError):
-        return None
-    if not (_number(x) and _number(y) and _number(z)):
-        return None
-    return float(x), float(y), float(z)
-
-
-def rotation_quaternion(rotvec):
-    """Unit quaternion of the rotation vector ``rotvec`` (axis times angle, rad)."""
-    x, y, z = rotvec[0], rotvec[1], rotvec[2]
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return [0.5 * x, 0.5 * y, 0.5 * z, 1.0]
-    s = math.sin(0.5 * angle) / angle
-    return [x * s, y * s, z * s, math.cos(0.5 * angle)]
-
 
 def propagate(q, omega=None, dt=None):
     """The attitude ``dt`` seconds after ``q`` at constant body rate ``omega`` (rad/s, camera
@@ -172,18 +122,10 @@ def propagate(q, omega=None, dt=None):
     if omega is None or dt is None:
         return q
     w = vector3(omega)
-    if w is None or not _number(dt):
+    if w is None or not is_number(dt):
         return None
-    d = rotation_quaternion((-w[0] * dt, -w[1] * dt, -w[2] * dt))
+    d = from_rotation_vector((-w[0] * dt, -w[1] * dt, -w[2] * dt))
     return unit_quaternion(multiply(d, q))
-
-
-def matrix(q):
-    """Row-major 9-tuple of the attitude matrix ``A(q)`` of a unit quaternion."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
 
 
 # --------------------------------------------------------------------------------------
@@ -357,25 +299,23 @@ def residual_rms(observed, database, q, pairs):
     m = matrix(q)
     total = 0.0
     for o, s in pairs:
-        r = database.star_vector(s)
-        b = observed[o]
-        dx = b[0] - (m[0] * r[0] + m[1] * r[1] + m[2] * r[2])
-        dy = b[1] - (m[3] * r[0] + m[4] * r[1] + m[5] * r[2])
-        dz = b[2] - (m[6] * r[0] + m[7] * r[1] + m[8] * r[2])
-        total += dx * dx + dy * dy + dz * dz
+        total += residual2(m, observed[o], database.star_vector(s))
     return math.sqrt(total / len(pairs))
 
 
 def _unit_vectors(vectors):
+    """Unit tuples of ``vectors``, or None unless it is a sequence of finite, non-zero
+    3-vectors of numbers."""
     out = []
-    for v in vectors:
-        u = vector3(v)
-        if u is None:
-            return None
-        n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-        if not (n > 0.0 and _finite(n)):
-            return None
-        out.append((u[0] / n, u[1] / n, u[2] / n))
+    try:
+        for v in vectors:
+            u = vector3(v)
+            u = None if u is None else unit(u)
+            if u is None:
+                return None
+            out.append(u)
+    except TypeError:
+        return None
     return out
 
 
@@ -406,8 +346,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
 
 def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,
            coarse_stars, iterations, weights, streaks):
-    if not (_number(tol) and tol > 0 and _number(search) and search >= 0 and
-            _number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
+    if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
+            is_number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
         return TrackSolution(S.BAD_INPUT)
     q_pred = propagate(q_prior, omega, dt)
     if q_pred is None:

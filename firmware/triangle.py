@@ -57,22 +57,10 @@ import math
 
 from . import verify as V
 from .database import METHOD_TRIANGLE
+from .geometry import chord, norm, triple
 
 BOUND_MARGIN = 1.05
 """Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""
-
-
-def _sub(a, b):
-    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
-
-
-def _norm(a):
-    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-
-
-def chord(u, v):
-    """``|u - v|``: the planar side between two unit vectors."""
-    return _norm(_sub(u, v))
 
 
 def sides(v1, v2, v3):
@@ -107,6 +95,13 @@ def area_moment(v1, v2, v3):
     return ar, moment(a, b, c, ar)
 
 
+def _twice_minus(a, b, c):
+    """``(a - b) - (c - a)``, i.e. ``2 a - b - c`` (3 times ``a``'s offset from the
+    triangle's centroid)."""
+    return ((a[0] - b[0]) - (c[0] - a[0]), (a[1] - b[1]) - (c[1] - a[1]),
+            (a[2] - b[2]) - (c[2] - a[2]))
+
+
 def bounds(v1, v2, v3, eps):
     """``(dA, dJ)``: bounds on the change of area and polar moment when each vertex moves by
     at most ``eps`` (rad); first order (Cole & Crassidis' Jacobian, worst case) times
@@ -115,9 +110,9 @@ def bounds(v1, v2, v3, eps):
     ar = area(a, b, c)
     s2 = a * a + b * b + c * c
     # |grad_i A| = opposite side / 2; |2 v_i - v_j - v_k| = 3 |v_i - centroid|
-    m1 = _norm(_sub(_sub(v1, v2), _sub(v3, v1)))
-    m2 = _norm(_sub(_sub(v2, v3), _sub(v1, v2)))
-    m3 = _norm(_sub(_sub(v3, v1), _sub(v2, v3)))
+    m1 = norm(_twice_minus(v1, v2, v3))
+    m2 = norm(_twice_minus(v2, v3, v1))
+    m3 = norm(_twice_minus(v3, v1, v2))
     half = 0.5 * (a + b + c)
     d_area = eps * half
     d_moment = eps * (s2 / 36.0 * half + ar / 18.0 * (m1 + m2 + m3))
@@ -186,9 +181,9 @@ class _Search(V.Search):
             perms = correspondences(opp, cat_opp, side_tol)
             if not perms:
                 continue
-            t_cat = V.triple(r0, r1, r2)
+            t_cat = triple(r0, r1, r2)
             for p in perms:
-                t_obs = V.triple(v[p[0]], v[p[1]], v[p[2]])
+                t_obs = triple(v[p[0]], v[p[1]], v[p[2]])
                 if not V.handed(t_obs, t_cat, t_bound):
                     continue
                 self.test((tri[p[0]], tri[p[1]], tri[p[2]]), (c0, c1, c2), accepted)

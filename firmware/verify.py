@@ -60,7 +60,9 @@ Pure Python for CPython and MicroPython (``math`` only).
 import math
 
 from . import attitude as _attitude
+from . import geometry as G
 from . import status as S
+from .quaternion import angle_between, matrix
 
 # --------------------------------------------------------------------------------------
 # Status codes (lodestar.firmware.status, re-exported) and the shared result type
@@ -118,52 +120,8 @@ class Solution:
 
 
 # --------------------------------------------------------------------------------------
-# Vector helpers (tuples of 3 floats)
+# Attitude fit
 # --------------------------------------------------------------------------------------
-
-def normalize(v):
-    """Unit vector of ``v`` (a 3-sequence) as a tuple; ``None`` if zero or not finite."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    n = math.sqrt(x * x + y * y + z * z)
-    if not (n > 0.0) or n != n or n == float("inf"):
-        return None
-    return x / n, y / n, z / n
-
-
-def angle(a, b):
-    """Angle between unit vectors ``a`` and ``b`` (rad), accurate at small angles
-    (``2 asin(|a - b| / 2)``, good in single precision)."""
-    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
-    h = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)
-    return 2.0 * math.asin(h if h < 1.0 else 1.0)
-
-
-def triple(a, b, c):
-    """Triple product ``(a x b) . c``."""
-    return ((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1] +
-            (a[0] * b[1] - a[1] * b[0]) * c[2])
-
-
-def rotation_matrix(q):
-    """Row-major 3x3 (a 9-tuple) of ``q = (x, y, z, w)``: ``v_cam = R v_inertial``."""
-    x, y, z, w = q
-    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
-
-
-def rotate(m, v):
-    """``m v`` for a row-major 9-tuple ``m``."""
-    return (m[0] * v[0] + m[1] * v[1] + m[2] * v[2],
-            m[3] * v[0] + m[4] * v[1] + m[5] * v[2],
-            m[6] * v[0] + m[7] * v[1] + m[8] * v[2])
-
-
-def attitude_difference(q1, q2):
-    """Rotation angle (rad) between two attitudes."""
-    d = abs(q1[0] * q2[0] + q1[1] * q2[1] + q1[2] * q2[2] + q1[3] * q2[3])
-    return 2.0 * math.acos(d if d < 1.0 else 1.0)
-
 
 def fit_attitude(observed, reference, weights=None):
     """Least-squares attitude (Wahba) of camera-frame unit vectors ``observed`` and inertial
@@ -262,14 +220,14 @@ def predicted_stars(database, q, margin=0.0):
     """Catalogue stars inside the FOV at attitude ``q``: list of ``(camera vector, index)``.
 
     ``margin`` (rad) widens the FOV rectangle on every side."""
-    m = rotation_matrix(q)
+    m = matrix(q)
     boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
     half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
     out = []
     for s in database.stars_in_cone(boresight, half_diag):
-        c = rotate(m, database.star_vector(s))
+        c = G.mat_vec(m, database.star_vector(s))
         if c[2] <= 0.0:
             continue
         if abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
@@ -420,7 +378,7 @@ def prepare(vectors):
     b = []
     for v in vectors:
         try:
-            u = normalize(v)
+            u = G.unit(v)
         except (TypeError, ValueError, IndexError):
             u = None
         if u is None:
@@ -459,7 +417,7 @@ def streaks_valid(streaks, n):
             if len(s) != 4:
                 return False
             for v in s:
-                if not (v == v and v - v == 0):
+                if not G.finite(v):
                     return False
             if s[3] < 0:
                 return False
@@ -552,7 +510,7 @@ class Search:
                 best = h
         q, ver = accepted[best]
         for h in range(len(accepted)):
-            if attitude_difference(accepted[h][0], q) > self.distinct:
+            if angle_between(accepted[h][0], q) > self.distinct:
                 return Solution(AMBIGUOUS, patterns_tried=tried, probability=ver.probability,
                                 hypotheses=self.hypotheses)
         q, ver = self.refine(ver)
@@ -581,9 +539,4 @@ def handed(t_obs, t_cat, bound):
 def triple_bound(b1, b2, b3, tol):
     """Error bound of the triple product ``(b1 x b2) . b3`` of unit vectors each known to
     ``tol`` rad: ``tol (|b1 - b2| + |b2 - b3| + |b3 - b1|)`` (first order, with margin)."""
-    return tol * (_chord(b1, b2) + _chord(b2, b3) + _chord(b3, b1))
-
-
-def _chord(a, b):
-    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
+    return tol * (G.chord(b1, b2) + G.chord(b2, b3) + G.chord(b3, b1))

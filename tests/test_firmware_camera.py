@@ -10,13 +10,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from lodestar.firmware import camera as fwcam
+from lodestar.firmware import geometry
 from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
 from lodestar.sim.camera import Camera as SimCamera
 from lodestar.sim.presets import PRESETS, load_preset
+from scipy.spatial.transform import Rotation
 
 RAD_TOL = 1e-6      # required agreement (rad)
 PX_TOL = 1e-6       # round trips (px)
@@ -209,6 +209,6 @@ def test_smear_matches_rotating_the_direction(name):
 
 
 def test_float_epsilon_and_tolerance_floors():
-    assert fwcam.FLOAT_EPS == np.finfo(float).eps
+    assert geometry.EPS == np.finfo(float).eps
     cam = Camera(752, 480, 1000.0, 1000.0)
     assert cam._step_px == fwcam.NEWTON_STEP_PX and cam._residual_px == fwcam.NEWTON_RESIDUAL_PX

@@ -16,20 +16,19 @@ import zlib
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from lodestar.firmware import database as L
 from lodestar.firmware import hashing as H
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError
-from lodestar.firmware.verify import angle
+from lodestar.firmware.geometry import angle
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
+from scipy.spatial.transform import Rotation
+from starid_support import assert_identify_within_heap_budget, outcome
 
 TOL = 3.0e-4
 

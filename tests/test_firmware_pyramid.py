@@ -13,19 +13,18 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-from scipy.stats import binom
-
-from lodestar.firmware import starid
+from lodestar.firmware import quaternion, starid
 from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import attitude_error_deg, centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import Catalogue, load
 from lodestar.sim.goldenset import window_camera
 from lodestar.sim.presets import load_preset
+from scipy.spatial.transform import Rotation
+from scipy.stats import binom
+from starid_support import assert_identify_within_heap_budget, outcome
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
 
@@ -50,7 +49,7 @@ def test_fit_attitude_matches_scipy_convention():
         obs = Rotation.from_quat(q).apply(ref) + rng.normal(0, 1e-5, (6, 3))
         est = V.fit_attitude(obs.tolist(), ref.tolist())
         assert attitude_error_deg(est, q) < 0.01
-        assert np.allclose(np.array(V.rotation_matrix(q)).reshape(3, 3),
+        assert np.allclose(np.array(quaternion.matrix(q)).reshape(3, 3),
                            Rotation.from_quat(q).as_matrix(), atol=1e-12)
     # narrow field (all vectors within 10 deg of one direction), 180 deg rotations
     for q in ([1.0, 0, 0, 0], [0, 0, 1.0, 0], random_attitude(rng)):

@@ -13,9 +13,8 @@ import zlib
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from lodestar.firmware import database as L
+from lodestar.firmware import geometry as G
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware import triangle as T
@@ -23,10 +22,11 @@ from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
-from starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
+from scipy.spatial.transform import Rotation
+from starid_support import assert_identify_within_heap_budget, outcome
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
 
@@ -139,7 +139,7 @@ def test_canonical_order_and_correspondence_from_side_lengths():
     cat_opp = opp
     for perm in ((0, 1, 2), (2, 0, 1), (1, 2, 0), (2, 1, 0)):
         obs = [v[order[p]] for p in perm]           # observed vertices in another order
-        obs_opp = (T.chord(obs[1], obs[2]), T.chord(obs[0], obs[2]), T.chord(obs[0], obs[1]))
+        obs_opp = (G.chord(obs[1], obs[2]), G.chord(obs[0], obs[2]), G.chord(obs[0], obs[1]))
         found = T.correspondences(obs_opp, cat_opp, 1e-6)
         # catalogue vertex m (order[m]) is observed vertex perm.index(m)
         assert found == [tuple(perm.index(m) for m in range(3))]
@@ -163,7 +163,7 @@ def test_database_triangles_are_canonical_exact_and_sorted():
         ar, mo = T.area_moment(*v)
         assert akey == round(ar / db.tri_area_step)
         assert mkey == round(mo / db.tri_moment_step)
-        opp = (T.chord(v[1], v[2]), T.chord(v[0], v[2]), T.chord(v[0], v[1]))
+        opp = (G.chord(v[1], v[2]), G.chord(v[0], v[2]), G.chord(v[0], v[1]))
         assert opp[0] <= opp[1] <= opp[2] <= chord_max
         for s in (s0, s1, s2):
             assert db.star_flags(s) & L.STAR_FLAG_TRIANGLE
