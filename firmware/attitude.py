@@ -66,7 +66,7 @@ def _length(seq, label):
     try:
         return len(seq)
     except TypeError:
-        raise ValueError("%s must be a sequence, got %r" % (label, seq))
+        raise ValueError("%s must be a sequence, got %r" % (label, seq)) from None
 
 
 def _unit(v, label):
@@ -76,7 +76,7 @@ def _unit(v, label):
     try:
         x, y, z = float(v[0]), float(v[1]), float(v[2])
     except (TypeError, ValueError):
-        raise ValueError("%s must hold numbers, got %r" % (label, v))
+        raise ValueError("%s must hold numbers, got %r" % (label, v)) from None
     n = math.sqrt(x * x + y * y + z * z)
     if not _geo.finite(n):
         raise ValueError("%s is not finite: %r" % (label, [x, y, z]))
@@ -110,7 +110,7 @@ def _positive(values, name, n):
         try:
             a = float(values[i])
         except (TypeError, ValueError):
-            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i]))
+            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i])) from None
         if not _geo.finite(a) or not a > 0.0:
             raise ValueError("%s[%d] = %r must be positive and finite" % (name, i, a))
         out.append(a)

@@ -116,7 +116,7 @@ from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
-from . import verify as _verify
+from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
@@ -361,11 +361,11 @@ class StarTracker:
                            str(reason))
                 return
         self.database = db
-        bit = _database.METHOD_NAMES.get(self.method)
-        if bit is None:
+        module = _starid.method(self.method)
+        if module is None:
             self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
             return
-        if not db.methods & bit:
+        if not db.methods & module.DATABASE_BIT:
             self._fail(S.DATABASE_UNSUPPORTED,
                        "the database does not serve method " + repr(self.method))
             return

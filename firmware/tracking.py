@@ -66,7 +66,8 @@ from . import attitude as _att
 from . import status as S
 from .geometry import is_number, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
-from .verify import chance_agreement, fov_solid_angle, near_pairs, streak_weights, streaks_valid
+from .starid.search import streak_weights, streaks_valid
+from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""

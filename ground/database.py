@@ -319,7 +319,7 @@ def triangle_table(v32, groups, key_bits=16):
     s2)``; ``s0, s1, s2`` are opposite the shortest, middle and longest side (firmware
     :func:`lodestar.firmware.triangle.canonical_order`), area and moment computed by the
     firmware's own :func:`~lodestar.firmware.triangle.area_moment` on the stored vectors."""
-    from lodestar.firmware import triangle as T
+    from lodestar.firmware.starid import triangle as T
     vec = v32.astype(np.float64).tolist()
     n = len(groups)
     area = np.zeros(n)
@@ -362,7 +362,7 @@ def hash_table(v32, groups, grid):
     ``(code, stars)``, hashed by the firmware's own
     :func:`lodestar.firmware.hashing.group_hash` and
     :func:`~lodestar.firmware.hashing.bucket_code`."""
-    from lodestar.firmware import hashing as H
+    from lodestar.firmware.starid import hashing as H
     vec = v32.astype(np.float64).tolist()
     n, g = groups.shape
     names = ("a", "b", "c", "d")[:g]

@@ -80,7 +80,8 @@ import json
 from js import performance
 RESIDENT = {"start": gc.mem_alloc()}
 from lodestar import regress_replay as R
-from lodestar.firmware import hashing, pyramid, tracking, triangle
+from lodestar.firmware import tracking
+from lodestar.firmware.starid import hashing, pyramid, triangle
 gc.collect()
 #@split
 RESIDENT["code"] = gc.mem_alloc()

@@ -4,8 +4,8 @@ tests."""
 import tracemalloc
 
 import numpy as np
-
 from lodestar.firmware import starid
+from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
 from lodestar.ground.scenes import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
@@ -16,7 +16,7 @@ MAX_ERR_DEG = 0.05
 
 def outcome(sol, scene):
     """``"correct"``, ``"wrong"`` (attitude off or a star misnamed) or ``"no-solve"``."""
-    if sol.status != starid.OK:
+    if sol.status != S.OK:
         return "no-solve"
     if attitude_error_deg(sol.q, scene.q) > MAX_ERR_DEG:
         return "wrong"
@@ -62,12 +62,10 @@ def pipeline_tolerance_rad(camera):
 def assert_identify_within_heap_budget(method, camera, catalogue, db):
     """Three :func:`hard_scenes` solve with ``method`` at the pipeline's tolerance, each
     within :data:`HEAP_BUDGET` of live peak (the bound of the MicroPython peak)."""
-    from lodestar.firmware import starid
-
     tol = pipeline_tolerance_rad(camera)
     for scene in hard_scenes(camera, catalogue, 3, seed=3):
         v = scene.vectors.tolist()
-        assert starid.identify(v, db, method=method, tolerance_rad=tol).status == starid.OK
+        assert starid.identify(v, db, method=method, tolerance_rad=tol).status == S.OK
         peak = live_peak(lambda: starid.identify(v, db, method=method, tolerance_rad=tol))
         assert peak < HEAP_BUDGET, (method, camera.name, peak)
 

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from lodestar import contract as C
 from lodestar.firmware import centroids as FC
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.golden.starfield import star_frame
 from lodestar.sim import presets, render, sensor
 from lodestar.sim.goldenset import window_camera
+
+from lodestar import contract as C
 
 GOLDEN_SMALL = Path(__file__).parent / "data" / "golden_small"
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from lodestar.firmware import kvector
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database, kvector_numpy

@@ -11,11 +11,9 @@ import math
 import re
 from pathlib import Path
 
+import micropython_support
 import numpy as np
 import pytest
-
-from lodestar import contract as C
-from lodestar import packet as ground
 from lodestar.firmware import camera as fwcamera
 from lodestar.firmware import centroids as fwcentroids
 from lodestar.firmware import packet as fwpacket
@@ -24,9 +22,10 @@ from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.result import DetectionResult
 from lodestar.golden.starfield import star_frame
 from lodestar.sim.presets import PRESETS, load_preset
-
-import micropython_support
 from micropython_support import run_micropython
+
+from lodestar import contract as C
+from lodestar import packet as ground
 
 REPO = Path(__file__).resolve().parents[1]
 

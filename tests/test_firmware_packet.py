@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from lodestar import contract as C
-from lodestar import packet as ground
 from lodestar.firmware import packet as fw
 from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.result import DetectionResult
 from lodestar.golden.starfield import star_frame
 from packet_samples import base_result, spot_results
+
+from lodestar import contract as C
+from lodestar import packet as ground
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
 

@@ -12,25 +12,23 @@
 
 import ast
 import base64
-import dataclasses
 import math
 import re
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-from lodestar import contract as C
-from lodestar import packet as ground_packet
+import sim_frames as SF
 from lodestar.firmware import packet as fwpacket
 from lodestar.firmware import pipeline
 from lodestar.firmware import status as S
 from lodestar.golden.result import DetectionResult
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import attitude_error_deg
-
-import sim_frames as SF
 from micropython_support import run_micropython
+from scipy.spatial.transform import Rotation
+
+from lodestar import contract as C
+from lodestar import packet as ground_packet
 
 MAX_ERR_DEG = SF.MAX_ERR_DEG
 
@@ -75,7 +73,7 @@ def test_end_to_end_on_simulated_frames():
         good = attitude_error_deg(res.q, frame.q) <= MAX_ERR_DEG and \
             all(hip in hips for _i, _x, _y, hip in res.matches)
         outcome["correct" if good else "wrong"] += 1
-        for index, x, y, hip in res.matches:          # matches point back at the packet
+        for index, x, y, _hip in res.matches:         # matches point back at the packet
             rec = frame.records[index]
             # a star joined from the pieces of a broken track lies on the track, at most
             # the smear length from its brightest piece

@@ -9,8 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
+import sim_frames as SF
 from lodestar.firmware import status as S
 from lodestar.firmware import tracking
 from lodestar.firmware.database import Database
@@ -19,10 +18,8 @@ from lodestar.ground.scenes import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
-
-import sim_frames as SF
-from starid_support import (HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad,
-                            streaked)
+from scipy.spatial.transform import Rotation
+from starid_support import HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad, streaked
 
 TOL = 3.4e-4            # rad: 2.5 px of estcube2
 MAX_ERR_DEG = SF.MAX_ERR_DEG

@@ -17,9 +17,8 @@ from lodestar.firmware import database as L
 from lodestar.firmware import geometry as G
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware import triangle as T
-from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
+from lodestar.firmware.starid import triangle as T
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
 from lodestar.sim.attitude import random_attitude
@@ -184,10 +183,10 @@ def test_mirror_images_are_rejected_by_handedness(monkeypatch):
         scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3, max_stars=30)
         mirrored.append((scene.vectors * [-1.0, 1.0, 1.0]).tolist())
     with_check = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
-    assert all(sol.status != starid.OK for sol in with_check)
-    monkeypatch.setattr(V, "handed", lambda t_obs, t_cat, bound: True)
+    assert all(sol.status != S.OK for sol in with_check)
+    monkeypatch.setattr(T, "handed", lambda t_obs, t_cat, bound: True)
     without = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
-    assert all(sol.status != starid.OK for sol in without)     # verification catches them
+    assert all(sol.status != S.OK for sol in without)     # verification catches them
     hyp_with = sum(s.hypotheses for s in with_check)
     hyp_without = sum(s.hypotheses for s in without)
     assert hyp_without > 20 and hyp_with < 0.2 * hyp_without
@@ -208,7 +207,7 @@ def test_monte_carlo_200_scenes():
                                max_stars=30)
         sol = starid.identify(scene.vectors.tolist(), db, method="triangle", tolerance_rad=TOL)
         counts[outcome(sol, scene)] += 1
-        if sol.status == starid.OK:
+        if sol.status == S.OK:
             assert sol.probability < 1e-9 and len(sol.matches) >= 4
     print("\ntriangle, 200 estcube2 scenes:", counts)
     assert counts["wrong"] == 0
@@ -222,21 +221,21 @@ def test_false_stars_only_and_bad_input():
         n = int(rng.integers(3, 25))
         v = cam.unproject(rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n))
         sol = starid.identify(v.tolist(), db, method="triangle", tolerance_rad=TOL)
-        assert sol.status in (starid.NO_MATCH, starid.BUDGET_EXHAUSTED)
+        assert sol.status in (S.NO_MATCH, S.BUDGET_EXHAUSTED)
         assert sol.q is None and sol.matches == []
     scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
     vec = scene.vectors.tolist()
     for n in range(3):
-        assert starid.identify(vec[:n], db, method="triangle").status == starid.TOO_FEW_STARS
+        assert starid.identify(vec[:n], db, method="triangle").status == S.TOO_FEW_STARS
     bad = list(vec)
     bad[1] = [float("nan"), 0.0, 1.0]
-    assert starid.identify(bad, db, method="triangle").status == starid.BAD_INPUT
+    assert starid.identify(bad, db, method="triangle").status == S.BAD_INPUT
     assert starid.identify(vec, db, method="triangle", tolerance_rad=0.0).status == \
-        starid.BAD_INPUT
+        S.BAD_INPUT
     # a database without the triangle section
     pyramid_only = Database(build_database(cat, cam, mag_limit=6.0))
     sol = starid.identify(vec, pyramid_only, method="triangle")
-    assert sol.status == starid.BAD_DATABASE == S.DATABASE_UNSUPPORTED
+    assert sol.status == S.DATABASE_UNSUPPORTED == S.DATABASE_UNSUPPORTED
     assert S.name(sol.status) == "DATABASE_UNSUPPORTED"
 
 
@@ -247,10 +246,10 @@ def test_budget_is_deterministic():
     false = cam.unproject(rng.uniform(0, cam.width - 1, 4), rng.uniform(0, cam.height - 1, 4))
     vectors = np.concatenate([false, scene.vectors]).tolist()
     sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL, budget=3)
-    assert sol.status == starid.BUDGET_EXHAUSTED and sol.patterns_tried == 3
+    assert sol.status == S.BUDGET_EXHAUSTED and sol.patterns_tried == 3
     full = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
     again = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-    assert full.status == starid.OK and full.patterns_tried > 3
+    assert full.status == S.OK and full.patterns_tried > 3
     assert (full.q, full.matches, full.patterns_tried) == (again.q, again.matches,
                                                            again.patterns_tried)
     assert all(o >= 4 for o, _ in full.matches)
@@ -322,7 +321,8 @@ MICROPYTHON_TRIANGLE = r'''
 import binascii
 import gc
 import sys
-from lodestar.firmware import database, starid, status, triangle
+from lodestar.firmware import database, starid, status
+from lodestar.firmware.starid import triangle
 print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
 assert triangle.area(3.0, 4.0, 5.0) == 6.0
 with open("/db.bin", "wb") as f:
@@ -369,7 +369,7 @@ def test_triangle_under_micropython():
         sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
         scenes.append(vectors)
         expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
-    assert [e[0] for e in expected[:4]] == [starid.OK] * 4 and expected[4][0] != starid.OK
+    assert [e[0] for e in expected[:4]] == [S.OK] * 4 and expected[4][0] != S.OK
     script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
                         "EXPECTED = " + lit(expected),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])

@@ -10,10 +10,12 @@ import math
 
 import numpy as np
 import pytest
-
+from lodestar.firmware import geometry as G
 from lodestar.firmware import starid
-from lodestar.firmware import verify as V
+from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
+from lodestar.firmware.starid import search as SE
+from lodestar.firmware.starid import verify as V
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import centroid_scene
 from lodestar.sim.attitude import random_attitude
@@ -56,11 +58,11 @@ def test_poisson_binomial_tail():
 
 
 def test_streaks_are_checked():
-    assert V.streaks_valid(None, 3)
-    assert V.streaks_valid([None, (0.0, 1.0, 0.0, 1e-4), None], 3)
+    assert SE.streaks_valid(None, 3)
+    assert SE.streaks_valid([None, (0.0, 1.0, 0.0, 1e-4), None], 3)
     for bad in ([None, None], [None, (0.0, 1.0, 0.0), None], [None, (0, 1, 0, -1e-4), None],
                 [None, (0, 1, float("nan"), 1e-4), None], 5, [None, "abcd", None]):
-        assert not V.streaks_valid(bad, 3), bad
+        assert not SE.streaks_valid(bad, 3), bad
 
 
 def test_verification_names_stars_displaced_along_their_tracks():
@@ -69,7 +71,7 @@ def test_verification_names_stars_displaced_along_their_tracks():
     scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2, max_stars=20)
     half = 12 * TOL
     vectors, streaks = streaked(scene.vectors, rng, half, every=2)
-    b = V.prepare(vectors)
+    b = [G.unit(v) for v in vectors]
     plain = V.verify(b, db, scene.q, TOL)
     stretched = V.verify(b, db, scene.q, TOL, streaks=streaks)
     n = len(b)
@@ -143,4 +145,4 @@ def test_bad_streaks_are_bad_input(method):
     vectors = [[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.0, 0.01, 1.0], [0.01, 0.01, 1.0]]
     sol = starid.identify(vectors, db, method=method, tolerance_rad=TOL,
                           streaks=[None, None, (0.0, 1.0, 0.0, -1.0), None])
-    assert sol.status == starid.BAD_INPUT
+    assert sol.status == S.BAD_INPUT

@@ -69,9 +69,13 @@ Pure Python for CPython and MicroPython (``math`` only).
 
 import math
 
-from . import geometry as G
-from . import verify as V
-from .database import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
+from .. import geometry as G
+from .. import status as S
+from ..database import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
+from .search import Search, Solution, handed, observed, triple_bound
+
+DATABASE_BIT = METHOD_HASHING
+"""The database's ``methods`` bit this method reads."""
 
 BOUND_MARGIN = 1.1
 """Factor on the first-order hash tolerance (covers the projection's curvature terms)."""
@@ -333,13 +337,13 @@ def box_records(db, codes):
     return out
 
 
-class _Search(V.Search):
+class _Search(Search):
     """The hash search over the first ``n`` observed stars: the squared chord and the angle
     of each of their pairs are computed once (``n * n`` tables, index ``i * n + j``,
     ``i < j``)."""
 
     def __init__(self, b, db, tol, max_prob, distinct, n, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
         self.n = n
         self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
         self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
@@ -354,7 +358,7 @@ class _Search(V.Search):
                 self.chord2[i * n + j] = _chord2(b[i], b[j])
                 self.angle[i * n + j] = G.angle(b[i], b[j])
 
-    def try_group(self, idx):
+    def try_pattern(self, idx):
         """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (ascending star
         indices)."""
         n = self.n
@@ -401,9 +405,9 @@ class _Search(V.Search):
             if t_obs is None:
                 vs = self.b
                 a, b, c = vs[idx[order[0]]], vs[idx[order[1]]], vs[idx[order[2]]]
-                t_bound = V.triple_bound(a, b, c, self.tol)
+                t_bound = triple_bound(a, b, c, self.tol)
                 t_obs = G.triple(a, b, c)
-            if not V.handed(t_obs, G.triple(cat[0], cat[1], cat[2]), t_bound):
+            if not handed(t_obs, G.triple(cat[0], cat[1], cat[2]), t_bound):
                 continue
             obs_idx = tuple(idx[o] for o in order)
             key = (obs_idx, stars)
@@ -425,35 +429,28 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     matches such a star over its stretched region, the hash boxes stay those of
     ``tolerance_rad`` (a group holding a streak's star may be missed).
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_HASHING:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
+        return Solution(code)
     g = database.hash_group_size
     if len(b) < g or max_stars < g:
-        return V.Solution(V.TOO_FEW_STARS if len(b) < g else V.BAD_INPUT)
+        return Solution(S.TOO_FEW_STARS if len(b) < g else S.BAD_INPUT)
     n = len(b) if len(b) < max_stars else max_stars
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
                      streaks)
-    tried = 0
+    return search.run(_groups(g, n), budget)
+
+
+def _groups(g, n):
+    """Groups of ``g`` (3 or 4) of ``n`` stars, ascending indices, every one whose faintest
+    star is ``k`` before any with a fainter one (module docstring, step 2)."""
     for k in range(g - 1, n):
         for j in range(g - 2, k):
             for i in range(g - 3, j):
                 if g == 3:
-                    groups = ((i, j, k),)
+                    yield i, j, k
                 else:
-                    groups = [(h, i, j, k) for h in range(i)]
-                for idx in groups:
-                    if tried >= budget:
-                        return search.fail(V.BUDGET_EXHAUSTED, tried)
-                    tried += 1
-                    accepted = search.try_group(idx)
-                    if accepted:
-                        return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                    for h in range(i):
+                        yield h, i, j, k

@@ -62,9 +62,12 @@ blocks of :data:`lodestar.firmware.database.PAIR_BLOCK` records.
 import math
 from array import array
 
-from . import geometry as G
-from . import verify as V
-from .database import METHOD_PYRAMID, PAIR_BLOCK
+from .. import geometry as G
+from ..database import METHOD_PYRAMID, PAIR_BLOCK
+from .search import Search, Solution, handed, observed
+
+DATABASE_BIT = METHOD_PYRAMID
+"""The database's ``methods`` bit this method reads."""
 
 SQRT2 = 1.4142135623730951
 
@@ -98,9 +101,9 @@ def _observed_angles(b, n):
 
 
 
-class _Search(V.Search):
+class _Search(Search):
     def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
@@ -245,13 +248,14 @@ class _Search(V.Search):
                     if abs(G.angle(vr, vj) - t_rj) > tol_rj or \
                             abs(G.angle(vr, vk) - t_rk) > tol_rk:
                         continue
-                    if not V.handed(t_obs, G.triple(vi, vj, vr), bound):
+                    if not handed(t_obs, G.triple(vi, vj, vr), bound):
                         continue
                     return r, cr
         return None
 
-    def try_triple(self, i, j, k):
-        """Accepted ``[(q, Verification)]`` of the triple (empty if none)."""
+    def try_pattern(self, triple):
+        """Accepted ``[(q, Verification)]`` of the observed ``triple`` (empty if none)."""
+        i, j, k = triple
         accepted = []
         bound = self.bound(i, j, k)
         t_obs = G.triple(self.b[i], self.b[j], self.b[k])
@@ -259,7 +263,7 @@ class _Search(V.Search):
         for cat in self.triangles(i, j, k):
             t_cat = G.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
                              db.star_vector(cat[2]))
-            if not V.handed(t_obs, t_cat, bound):
+            if not handed(t_obs, t_cat, bound):
                 continue
             fourth = self.fourth_star(i, j, k, cat)
             if fourth is None:
@@ -279,29 +283,18 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
     partly seen track (module docstring), or None.
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 4:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_PYRAMID:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 4,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
-    if len(b) < 4:
-        return V.Solution(V.TOO_FEW_STARS)
+        return Solution(code)
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    n = search.n
-    tried = 0
+    return search.run(_triples(search.n), budget)
+
+
+def _triples(n):
+    """Mortari's triple order over ``n`` stars (module docstring, step 2)."""
     for dj in range(1, n - 1):
         for dk in range(1, n - dj):
             for i in range(0, n - dj - dk):
-                if tried >= budget:
-                    return search.fail(V.BUDGET_EXHAUSTED, tried)
-                tried += 1
-                j = i + dj
-                accepted = search.try_triple(i, j, j + dk)
-                if accepted:
-                    return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                yield i, i + dj, i + dj + dk

@@ -55,9 +55,12 @@ tried first.  Pure Python for CPython and MicroPython (``math`` only).
 
 import math
 
-from . import verify as V
-from .database import METHOD_TRIANGLE
-from .geometry import chord, norm, triple
+from ..database import METHOD_TRIANGLE
+from ..geometry import chord, norm, triple
+from .search import Search, Solution, handed, observed, triple_bound
+
+DATABASE_BIT = METHOD_TRIANGLE
+"""The database's ``methods`` bit this method reads."""
 
 BOUND_MARGIN = 1.05
 """Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""
@@ -145,16 +148,16 @@ def correspondences(obs_opp, cat_opp, tol):
     return out
 
 
-class _Search(V.Search):
+class _Search(Search):
     def __init__(self, b, db, tol, max_prob, distinct, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
         self.max_side0 = 2.0 * math.sin(0.5 * db.tri_max_side)
 
-    def try_triple(self, i, j, k):
-        """Accepted ``[(q, Verification)]`` of observed triple ``(i, j, k)``."""
+    def try_pattern(self, tri):
+        """Accepted ``[(q, Verification)]`` of the observed triple ``tri = (i, j, k)``."""
+        i, j, k = tri
         b = self.b
         db = self.db
-        tri = (i, j, k)
         v = (b[i], b[j], b[k])
         h = self.half
         tol = self.tol + max(h[i], h[j], h[k])     # a streak: off by up to half along it
@@ -170,7 +173,7 @@ class _Search(V.Search):
         d_moment += 0.5 * db.tri_moment_step
         mstep = db.tri_moment_step
         start, stop = db.triangles_in_range(ar - d_area, ar + d_area)
-        t_bound = V.triple_bound(v[0], v[1], v[2], tol)
+        t_bound = triple_bound(v[0], v[1], v[2], tol)
         accepted = []
         for r in range(start, stop):
             _, mkey, c0, c1, c2 = db.triangle_record(r)
@@ -184,7 +187,7 @@ class _Search(V.Search):
             t_cat = triple(r0, r1, r2)
             for p in perms:
                 t_obs = triple(v[p[0]], v[p[1]], v[p[2]])
-                if not V.handed(t_obs, t_cat, t_bound):
+                if not handed(t_obs, t_cat, t_bound):
                     continue
                 self.test((tri[p[0]], tri[p[1]], tri[p[2]]), (c0, c1, c2), accepted)
         return accepted
@@ -201,28 +204,19 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.verify`):
     a triangle's tolerances widen by the largest ``half`` of its stars.
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_TRIANGLE:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
-    if len(b) < 3:
-        return V.Solution(V.TOO_FEW_STARS)
+        return Solution(code)
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    n = len(b) if len(b) < max_stars else max_stars
-    tried = 0
+    return search.run(_triples(len(b) if len(b) < max_stars else max_stars), budget)
+
+
+def _triples(n):
+    """Triples of ``n`` stars, every one whose faintest star is ``k`` before any with a
+    fainter one (module docstring, step 2)."""
     for k in range(2, n):
         for j in range(1, k):
             for i in range(j):
-                if tried >= budget:
-                    return search.fail(V.BUDGET_EXHAUSTED, tried)
-                tried += 1
-                accepted = search.try_triple(i, j, k)
-                if accepted:
-                    return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                yield i, j, k

@@ -4,9 +4,10 @@
 //
 // Loads @micropython/micropython-webassembly-pyscript (pinned in package.json /
 // package-lock.json next to this file; install with `npm ci --prefix tools/micropython`),
-// copies lodestar/__init__.py, lodestar/contract.py and every firmware/*.py of the repository
-// into the in-memory filesystem as /lib/lodestar/ and /lib/lodestar/firmware/, puts /lib on
-// sys.path, runs SCRIPT.py as __main__ and prints its output.  Exit status: 0 when the script
+// copies lodestar/__init__.py, lodestar/contract.py and the firmware package (every .py of
+// firmware/ and of its subpackages) into the in-memory filesystem as /lib/lodestar/ and
+// /lib/lodestar/firmware/, puts /lib on sys.path, runs SCRIPT.py as __main__ and prints its
+// output.  Exit status: 0 when the script
 // finished, 1 when it raised (the traceback goes to stderr), 2 for a usage error.
 //
 // --copy HOST=TARGET (repeatable) also copies the host file HOST (a path relative to the
@@ -85,12 +86,21 @@ const mp = await loadMicroPython({ heapsize, stdout, stderr, linebuffer: true })
 function copy(source, target) {
   mp.FS.writeFile(target, fs.readFileSync(path.join(repo, source)));
 }
-mp.FS.mkdirTree("/lib/lodestar/firmware");
+mp.FS.mkdirTree("/lib/lodestar");
 copy("lodestar/__init__.py", "/lib/lodestar/__init__.py");
 copy("lodestar/contract.py", "/lib/lodestar/contract.py");
-for (const name of fs.readdirSync(path.join(repo, "firmware")).sort()) {
-  if (name.endsWith(".py")) copy(path.join("firmware", name), `/lib/lodestar/firmware/${name}`);
+function copyPackage(source, target) {
+  mp.FS.mkdirTree(target);
+  for (const entry of fs.readdirSync(path.join(repo, source), { withFileTypes: true })) {
+    const name = entry.name;
+    if (entry.isDirectory() && fs.existsSync(path.join(repo, source, name, "__init__.py"))) {
+      copyPackage(path.join(source, name), `${target}/${name}`);
+    } else if (entry.isFile() && name.endsWith(".py")) {
+      copy(path.join(source, name), `${target}/${name}`);
+    }
+  }
 }
+copyPackage("firmware", "/lib/lodestar/firmware");
 // Extra files (--copy), after the firmware so that they may add modules next to it.
 for (const [host, target] of copies) {
   mp.FS.mkdirTree(path.posix.dirname(target));
