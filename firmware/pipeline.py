@@ -1,8 +1,9 @@
 """The flight API: one FPGA packet in, one attitude (or a status) out; never raises.
 
     from lodestar.firmware.pipeline import StarTracker
-    tracker = StarTracker("/flash/stars.lsdb", camera_dict, method="pyramid",
-                          exposure_s=0.1, row_time_s=4.39e-5)
+    from lodestar.firmware.settings import Settings
+    tracker = StarTracker("/flash/stars.lsdb", camera_dict,
+                          Settings(method="pyramid", exposure_s=0.1, row_time_s=4.39e-5))
     result = tracker.process(packet_bytes)                        # lost in space
     result = tracker.process(packet_bytes, prior=result.q,        # tracking
                              omega=gyro_rad_s, dt=frame_period_s)
@@ -116,16 +117,11 @@ from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
+from .settings import Settings
 from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
-DEFAULT_TOLERANCE_PX = 2.5
-"""Largest centroid error (calibration included) of one star, px: the match tolerance."""
-DEFAULT_MAX_STARS = 32
-"""Brightest stars used per frame (identification patterns use the first 16)."""
-DEFAULT_MIN_SIGMA_PX = 0.02
-"""Floor of the residual-based centroid noise estimate, px."""
 FLOOR_SHARES = (0.0, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
 """Candidate shares ``rho`` of the noise floor in a median-flux star's centroid variance
 (``0``: photon limited, ``1``: every star alike)."""
@@ -141,16 +137,6 @@ FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
 halved)."""
-DEFAULT_MAX_SMEAR_PX = 50.0
-"""Longest expected smear (px) the pipeline solves: beyond it a threshold breaks a star's
-track into pieces that the fragment joining cannot all recover, and their centroids carry
-errors of a large fraction of the track that the covariance does not describe.  On the
-estcube2 rate campaign (100 trials per rate, cross-boresight rates) 3 deg/s (38 px) gave 56
-right and no wrong solutions, 5 deg/s (63 px) 7 right and 3 wrong ones."""
-DEFAULT_BUDGET = 2000
-"""Lost-in-space pattern budget (deterministic cap on the search)."""
-DEFAULT_TRACK_SEARCH_DEG = 0.3
-"""Largest expected error of the propagated prior, deg."""
 FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
 
@@ -228,69 +214,26 @@ class StarTracker:
     file path (opened with :func:`lodestar.firmware.database.load`, read by offset).
     ``camera``: a :class:`lodestar.firmware.camera.Camera` or a dict for
     :meth:`Camera.from_dict` (a ``lodestar.sim`` preset's camera block).
-    ``method``: lost-in-space method name (``"pyramid"``; ``"triangle"``, ``"hashing"`` when
-    the identification and the database serve them).
-    ``max_stars``: brightest stars kept per frame.  ``tolerance_px``: match tolerance, px.
-    ``centroid_sigma_px``: per-axis centroid noise of a star of median flux for the
-    covariance, px (None: estimated from each frame's fit residuals, at least
-    ``min_sigma_px``).  ``flux_weighting``: weight stars by their flux.
-    ``budget``: lost-in-space pattern budget.
-    ``exposure_s``, ``row_time_s``: exposure and rolling-shutter line time, s (for smear and
-    rate compensation; ``process(exposure_s=...)`` overrides the exposure per frame).
-    ``epoch_s``: the instant the attitude refers to, s after the start of row 0's exposure.
-    ``track_search_deg``: error of the propagated prior tracking must absorb, deg.
-    ``track_min_matches``, ``track_max_prob``: tracking acceptance.  ``fallback``: run
-    lost-in-space when tracking fails.  ``drop_border``: ignore blobs touching the frame
-    edge.  ``refine``: grow a lost-in-space match set by tracking from its attitude.
-    ``max_smear_px``: longest expected smear (px; :data:`DEFAULT_MAX_SMEAR_PX`) solved; a
-    frame whose rate and exposure smear stars longer gets ``SMEAR_TOO_LONG``.
-    ``extract_options``: extra keyword arguments of :func:`centroids.extract`
-    (``min_pixels``, ``max_elongation``...).  ``id_options``:
-    extra keyword arguments of the identification (Pyramid: ``max_stars``,
-    ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
-    number (e.g. ``time.ticks_ms``) for ``result.timings``.
+    ``settings``: a :class:`lodestar.firmware.settings.Settings` (None: the defaults),
+    validated here.
 
     Never raises: a configuration problem sets ``status``/``reason`` and every
     :meth:`process` returns it.
     """
 
-    def __init__(self, database, camera, method="pyramid", max_stars=DEFAULT_MAX_STARS,
-                 tolerance_px=DEFAULT_TOLERANCE_PX, centroid_sigma_px=None,
-                 min_sigma_px=DEFAULT_MIN_SIGMA_PX, flux_weighting=True,
-                 budget=DEFAULT_BUDGET, exposure_s=None, row_time_s=0.0, epoch_s=0.0,
-                 track_search_deg=DEFAULT_TRACK_SEARCH_DEG,
-                 track_min_matches=_tracking.DEFAULT_MIN_MATCHES,
-                 track_max_prob=_tracking.DEFAULT_MAX_MISMATCH_PROB, fallback=True,
-                 drop_border=True, refine=True, max_smear_px=DEFAULT_MAX_SMEAR_PX,
-                 extract_options=None, id_options=None, clock=None):
+    def __init__(self, database, camera, settings=None):
         self.status = S.OK
         self.reason = ""
         self.database = None
         self.camera = None
-        self.method = method
-        self.max_stars = max_stars
-        self.budget = budget
-        self.exposure_s = exposure_s
-        self.row_time_s = row_time_s
-        self.epoch_s = epoch_s
+        self.settings = settings if settings is not None else Settings()
         self.track_search_rad = 0.0
-        self.track_min_matches = track_min_matches
-        self.track_max_prob = track_max_prob
-        self.fallback = fallback
-        self.drop_border = drop_border
-        self.refine = refine
-        self.max_smear_px = max_smear_px
-        self.extract_options = extract_options if extract_options is not None else {}
-        self.id_options = id_options if id_options is not None else {}
-        self.clock = clock
-        self.flux_weighting = flux_weighting
         self.tolerance_rad = 0.0
         self.sigma_rad = None
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
         try:
-            self._configure(database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
-                            track_search_deg)
+            self._configure(database, camera)
         except Exception as exc:
             self._fail(S.INTERNAL_ERROR, "configuration: " + repr(exc))
 
@@ -299,8 +242,15 @@ class StarTracker:
             self.status = code
             self.reason = reason
 
-    def _configure(self, database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
-                   track_search_deg):
+    def _configure(self, database, camera):
+        st = self.settings
+        if not isinstance(st, Settings):
+            self._fail(S.BAD_INPUT, "settings must be a firmware Settings or None")
+            return
+        tolerance_px = st.tolerance_px
+        centroid_sigma_px = st.centroid_sigma_px
+        min_sigma_px = st.min_sigma_px
+        track_search_deg = st.track_search_deg
         # camera
         if isinstance(camera, _camera.Camera):
             self.camera = camera
@@ -326,24 +276,24 @@ class StarTracker:
         if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
             self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
             return
-        if not (isinstance(self.max_stars, int) and self.max_stars >= 4):
+        if not (isinstance(st.max_stars, int) and st.max_stars >= 4):
             self._fail(S.BAD_INPUT, "max_stars must be an int >= 4")
             return
-        if not (isinstance(self.budget, int) and self.budget >= 1):
+        if not (isinstance(st.budget, int) and st.budget >= 1):
             self._fail(S.BAD_INPUT, "budget must be an int >= 1")
             return
-        if not (_geo.is_number(self.max_smear_px) and self.max_smear_px > 0):
+        if not (_geo.is_number(st.max_smear_px) and st.max_smear_px > 0):
             self._fail(S.BAD_INPUT, "max_smear_px must be a positive number")
             return
         if not (_geo.is_number(track_search_deg) and track_search_deg >= 0):
             self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
             return
         for name in ("row_time_s", "epoch_s"):
-            if not _geo.is_number(getattr(self, name)):
+            if not _geo.is_number(getattr(st, name)):
                 self._fail(S.BAD_INPUT, name + " must be a finite number")
                 return
-        if self.exposure_s is not None and not (_geo.is_number(self.exposure_s) and
-                                                self.exposure_s > 0):
+        if st.exposure_s is not None and not (_geo.is_number(st.exposure_s) and
+                                              st.exposure_s > 0):
             self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
             return
         self.focal_px = focal
@@ -361,13 +311,13 @@ class StarTracker:
                            str(reason))
                 return
         self.database = db
-        module = _starid.method(self.method)
+        module = _starid.method(st.method)
         if module is None:
-            self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
+            self._fail(S.BAD_INPUT, "unknown method " + repr(st.method))
             return
         if not db.methods & module.DATABASE_BIT:
             self._fail(S.DATABASE_UNSUPPORTED,
-                       "the database does not serve method " + repr(self.method))
+                       "the database does not serve method " + repr(st.method))
             return
         fov_h = _camera_fov_h(cam)
         if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
@@ -378,9 +328,9 @@ class StarTracker:
     # ---- stages ---------------------------------------------------------------------
 
     def _tick(self, timings, name, start):
-        if self.clock is None:
+        if self.settings.clock is None:
             return None
-        now = self.clock()
+        now = self.settings.clock()
         if start is not None:
             timings[name] = now - start
         return now
@@ -395,8 +345,8 @@ class StarTracker:
             return None
         axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
         half = 0.5 * exposure_s if exposure_s is not None else 0.0
-        row_time = self.row_time_s
-        epoch = self.epoch_s
+        row_time = self.settings.row_time_s
+        epoch = self.settings.epoch_s
 
         def turn(v, y):
             return _geo.rotate_about(v, axis, rate * (half + y * row_time - epoch))
@@ -452,6 +402,14 @@ class StarTracker:
             out.append(streak)
         return out if found else None
 
+    def _track(self, vectors, prior, omega, dt, streaks):
+        st = self.settings
+        return _tracking.track(vectors, self.database, prior, omega, dt,
+                               tolerance_rad=self.tolerance_rad,
+                               search_rad=self.track_search_rad,
+                               min_matches=st.track_min_matches,
+                               max_mismatch_prob=st.track_max_prob, streaks=streaks)
+
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
         with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector
@@ -459,17 +417,13 @@ class StarTracker:
         sol = None
         mode = None
         if prior is not None:
-            sol = _tracking.track(vectors, self.database, prior, omega, dt,
-                                  tolerance_rad=self.tolerance_rad,
-                                  search_rad=self.track_search_rad,
-                                  min_matches=self.track_min_matches,
-                                  max_mismatch_prob=self.track_max_prob, streaks=streaks)
+            sol = self._track(vectors, prior, omega, dt, streaks)
             mode = "tracking"
-            if sol.status == S.OK or not self.fallback:
+            if sol.status == S.OK or not self.settings.fallback:
                 return sol, mode
-        sol = _starid.identify(vectors, self.database, method=self.method,
-                               tolerance_rad=self.tolerance_rad, budget=self.budget,
-                               streaks=streaks, **self.id_options)
+        sol = _starid.identify(vectors, self.database, method=self.settings.method,
+                               tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
+                               streaks=streaks, **self.settings.id_options)
         return sol, "lost_in_space"
 
     def weights(self, fluxes):
@@ -477,7 +431,7 @@ class StarTracker:
         (1 for a missing, non-positive or non-finite flux; all 1 without
         ``flux_weighting``)."""
         n = len(fluxes)
-        if not self.flux_weighting:
+        if not self.settings.flux_weighting:
             return [1.0] * n
         good = [f for f in fluxes if _geo.is_number(f) and f > 0]
         if not good:
@@ -611,15 +565,11 @@ class StarTracker:
             _note(res, mode + ": " + S.name(code))
             return res
         star_ids = getattr(sol, "star_ids", None) or []
-        if mode == "lost_in_space" and self.refine:
+        if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
             # (tracking from the identified attitude: it also repairs an attitude fitted to
             # a few clustered stars, which leaves the others outside the match tolerance)
-            ref = _tracking.track(vectors, self.database, sol.q,
-                                  tolerance_rad=self.tolerance_rad,
-                                  search_rad=self.track_search_rad,
-                                  min_matches=self.track_min_matches,
-                                  max_mismatch_prob=self.track_max_prob, streaks=streaks)
+            ref = self._track(vectors, sol.q, None, None, streaks)
             if ref.status == S.OK and len(ref.star_ids) > len(star_ids):
                 star_ids = ref.star_ids
         if not star_ids:
@@ -682,7 +632,7 @@ class StarTracker:
             w = _geo.vector3(omega)
             if w is None:
                 _note(res, "omega ignored: not 3 finite numbers")
-        exposure = self.exposure_s
+        exposure = self.settings.exposure_s
         if exposure_s is not None:
             if _geo.is_number(exposure_s) and exposure_s > 0:
                 exposure = exposure_s
@@ -695,14 +645,14 @@ class StarTracker:
                 return cam.smear_px(x, y, w, exposure)
 
             longest = _longest_smear(cam, smear)
-            if not longest <= self.max_smear_px:
+            if not longest <= self.settings.max_smear_px:
                 res.status = S.SMEAR_TOO_LONG
                 _note(res, "expected smear " + str(round(longest, 1)) + " px > max_smear_px " +
-                      str(self.max_smear_px))
+                      str(self.settings.max_smear_px))
                 return res
-        stars, rejected = _centroids.extract(records, max_stars=None,
-                                             expected_smear_px=smear, **self.extract_options)
-        if self.drop_border:
+        stars, rejected = _centroids.extract(records, max_stars=None, expected_smear_px=smear,
+                                             **self.settings.extract_options)
+        if self.settings.drop_border:
             kept = []
             xmax = cam.width - 1
             ymax = cam.height - 1
@@ -717,9 +667,9 @@ class StarTracker:
                     kept.append(star)
             rejected["border"] = len(stars) - len(kept)
             stars = kept
-        if len(stars) > self.max_stars:
-            rejected["excess"] += len(stars) - self.max_stars
-            stars = stars[:self.max_stars]
+        if len(stars) > self.settings.max_stars:
+            rejected["excess"] += len(stars) - self.settings.max_stars
+            stars = stars[:self.settings.max_stars]
         res.rejected = rejected
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)

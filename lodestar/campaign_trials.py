@@ -186,14 +186,15 @@ def falsestars_trial(preset, level, seed, config):
         raise ValueError(f"unknown falsestars level {level!r}")
     from lodestar.firmware import centroids
     from lodestar.firmware.pipeline import StarTracker
+    from lodestar.firmware.settings import Settings
 
     frame = Frame(preset, config["camera"], seed)
     stars, _rejected = centroids.extract(frame.det.blobs)
     unit = np.random.default_rng(seed).standard_normal((len(stars), 2))
     out = {}
     for method in METHODS:
-        tracker = StarTracker(frame.database(method), frame.fw_cam, method=method,
-                              tolerance_px=flightsolve.default_tolerance_px(frame.fw_cam))
+        tracker = StarTracker(frame.database(method), frame.fw_cam, Settings(method=method,
+                              tolerance_px=flightsolve.default_tolerance_px(frame.fw_cam)))
         out[method] = {}
         for sigma in NOISE_PX:
             vectors, used = [], []

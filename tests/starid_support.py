@@ -6,7 +6,7 @@ import tracemalloc
 import numpy as np
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
+from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX
 from lodestar.ground.scenes import attitude_error_deg, centroid_scene
 from lodestar.sim.attitude import random_attitude
 

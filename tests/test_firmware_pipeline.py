@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 import sim_frames as SF
 from lodestar.firmware import packet as fwpacket
-from lodestar.firmware import pipeline
+from lodestar.firmware import pipeline, settings
 from lodestar.firmware import status as S
+from lodestar.firmware.settings import Settings
 from lodestar.golden.result import DetectionResult
 from lodestar.ground.database import build_database
 from lodestar.ground.scenes import attitude_error_deg
@@ -77,7 +78,8 @@ def test_end_to_end_on_simulated_frames():
             rec = frame.records[index]
             # a star joined from the pieces of a broken track lies on the track, at most
             # the smear length from its brightest piece
-            grow = math.hypot(*tracker.camera.smear_px(x, y, frame.omega, tracker.exposure_s)) \
+            exposure = tracker.settings.exposure_s
+            grow = math.hypot(*tracker.camera.smear_px(x, y, frame.omega, exposure)) \
                 if frame.moving else 0.0
             assert rec.xmin - grow <= x <= rec.xmax + grow
             assert rec.ymin - grow <= y <= rec.ymax + grow
@@ -128,7 +130,7 @@ def test_result_fields_and_timings():
     frame = SF.frames()[0]
     res = tracker.process(frame.packet)
     assert res.ok and res.status_name == "OK" and res.reason == ""
-    assert res.n_records == len(frame.records) and res.n_stars <= pipeline.DEFAULT_MAX_STARS
+    assert res.n_records == len(frame.records) and res.n_stars <= settings.DEFAULT_MAX_STARS
     assert sum(res.rejected.values()) + res.n_stars == len(frame.records)
     assert set(res.timings) == {"decode", "centroids", "directions", "identify", "attitude",
                                 "total"}
@@ -343,16 +345,17 @@ def test_configuration_problems_are_reported_by_process():
         (pipeline.StarTracker(b"LSDB", cam), "DATABASE_"),
         (pipeline.StarTracker("/nonexistent/stars.lsdb", cam), "DATABASE_"),
         (pipeline.StarTracker(other_fov, cam), "DATABASE_MISMATCH"),
-        (pipeline.StarTracker(image, cam, method="triangle"), "DATABASE_"),
-        (pipeline.StarTracker(image, cam, method="nonsense"), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(method="triangle")), "DATABASE_"),
+        (pipeline.StarTracker(image, cam, Settings(method="nonsense")), "BAD_INPUT"),
         (pipeline.StarTracker(image, {"width": 2592}), "BAD_INPUT"),
         (pipeline.StarTracker(image, "estcube2"), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, tolerance_px=-1), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, centroid_sigma_px=float("nan")), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, max_stars=2), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, budget=0), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, exposure_s=0), "BAD_INPUT"),
-        (pipeline.StarTracker(image, cam, row_time_s=float("inf")), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(tolerance_px=-1)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(centroid_sigma_px=float("nan"))), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(max_stars=2)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(budget=0)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(exposure_s=0)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(row_time_s=float("inf"))), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, {"method": "pyramid"}), "BAD_INPUT"),
     ]
     for tracker, expected in cases:
         assert tracker.status != S.OK and tracker.reason
@@ -420,8 +423,9 @@ from lodestar.firmware import centroids, packet, pipeline, status
 gc.collect()
 MEM["imports"] = gc.mem_alloc() - MEM["base"]
 MEM["base"] = gc.mem_alloc()
-TRACKER = pipeline.StarTracker("/flash.lsdb", CAMERA, exposure_s=EXPOSURE,
-                               row_time_s=ROW_TIME)
+from lodestar.firmware.settings import Settings
+TRACKER = pipeline.StarTracker("/flash.lsdb", CAMERA, Settings(exposure_s=EXPOSURE,
+                                                              row_time_s=ROW_TIME))
 #@split
 gc.collect()
 MEM["tracker"] = gc.mem_alloc() - MEM["base"]
@@ -530,8 +534,8 @@ def test_pipeline_under_micropython(tmp_path):
     # the same packets on CPython, the database read from a file in the same way
     path = tmp_path / "flash.lsdb"
     path.write_bytes(image)
-    tracker = pipeline.StarTracker(str(path), SF.firmware_camera(), exposure_s=cam.exposure_s,
-                                   row_time_s=cam.row_time_s)
+    tracker = pipeline.StarTracker(str(path), SF.firmware_camera(),
+                                   Settings(exposure_s=cam.exposure_s, row_time_s=cam.row_time_s))
     results = dict((int(m.group(1)), ast.literal_eval(m.group(2)))
                    for m in re.finditer(r"^RESULT (\d+) (.*)$", out, re.M))
     assert sorted(results) == list(range(len(cases)))
@@ -575,7 +579,7 @@ def test_smear_beyond_the_limit_gets_no_attitude():
     tracker = SF.tracker()
     assert tracker.process(frame.packet, omega=frame.omega).ok
     cam = tracker.camera
-    length = math.hypot(*cam.smear_px(cam.cx, cam.cy, frame.omega, tracker.exposure_s))
+    length = math.hypot(*cam.smear_px(cam.cx, cam.cy, frame.omega, tracker.settings.exposure_s))
     short = SF.tracker(max_smear_px=0.5 * length)
     res = short.process(frame.packet, omega=frame.omega)
     assert res.status == S.SMEAR_TOO_LONG and res.q is None and res.matches == []

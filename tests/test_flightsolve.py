@@ -7,7 +7,7 @@ import math
 import pytest
 
 from lodestar import flightsolve, packet
-from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
+from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX
 from lodestar.golden import detect_frame
 from lodestar.sim import attitude, scene
 from lodestar.sim.presets import load_preset
