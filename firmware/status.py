@@ -14,8 +14,8 @@ Codes are grouped by decade so that modules can add theirs without renumbering::
     50 .. 59 generic
 
 To add a code: define the constant below in its group and add a row to ``_TABLE``
-(``tests/test_firmware_packet.py`` checks that every constant has exactly one row and that
-codes are unique).  Pure Python, MicroPython-safe.
+(``tests/firmware/test_status.py`` checks that every constant has exactly one row and
+that codes are unique).  Pure Python, MicroPython-safe.
 """
 
 OK = 0

@@ -19,7 +19,7 @@ from lodestar.sim.goldenset import window_camera
 
 from lodestar import contract as C
 
-GOLDEN_SMALL = Path(__file__).parent / "data" / "golden_small"
+GOLDEN_SMALL = Path(__file__).parents[1] / "data" / "golden_small"
 
 
 # --------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from micropython_support import run_micropython
 from lodestar import contract as C
 from lodestar import packet as ground
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # --------------------------------------------------------------------------------------

@@ -25,7 +25,6 @@ from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
 from scipy.spatial.transform import Rotation
-from starid_support import assert_identify_within_heap_budget, outcome
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
 
@@ -196,66 +195,7 @@ def test_mirror_images_are_rejected_by_handedness(monkeypatch):
 # Scenes
 # --------------------------------------------------------------------------------------
 
-def test_monte_carlo_200_scenes():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(2024)
-    counts = {"correct": 0, "wrong": 0, "no-solve": 0}
-    for _ in range(200):
-        q = random_attitude(rng)
-        scene = centroid_scene(cam, q, rng, cat, noise_px=rng.uniform(0.1, 0.5),
-                               n_false=int(rng.integers(0, 6)), drop_fraction=0.1,
-                               max_stars=30)
-        sol = starid.identify(scene.vectors.tolist(), db, method="triangle", tolerance_rad=TOL)
-        counts[outcome(sol, scene)] += 1
-        if sol.status == S.OK:
-            assert sol.probability < 1e-9 and len(sol.matches) >= 4
-    print("\ntriangle, 200 estcube2 scenes:", counts)
-    assert counts["wrong"] == 0
-    assert counts["correct"] >= 180
-
-
-def test_false_stars_only_and_bad_input():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(10)
-    for _ in range(10):
-        n = int(rng.integers(3, 25))
-        v = cam.unproject(rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n))
-        sol = starid.identify(v.tolist(), db, method="triangle", tolerance_rad=TOL)
-        assert sol.status in (S.NO_MATCH, S.BUDGET_EXHAUSTED)
-        assert sol.q is None and sol.matches == []
-    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
-    vec = scene.vectors.tolist()
-    for n in range(3):
-        assert starid.identify(vec[:n], db, method="triangle").status == S.TOO_FEW_STARS
-    bad = list(vec)
-    bad[1] = [float("nan"), 0.0, 1.0]
-    assert starid.identify(bad, db, method="triangle").status == S.BAD_INPUT
-    assert starid.identify(vec, db, method="triangle", tolerance_rad=0.0).status == \
-        S.BAD_INPUT
-    # a database without the triangle section
-    pyramid_only = Database(build_database(cat, cam, mag_limit=6.0))
-    sol = starid.identify(vec, pyramid_only, method="triangle")
-    assert sol.status == S.DATABASE_UNSUPPORTED == S.DATABASE_UNSUPPORTED
-    assert S.name(sol.status) == "DATABASE_UNSUPPORTED"
-
-
-def test_budget_is_deterministic():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(13)
-    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
-    false = cam.unproject(rng.uniform(0, cam.width - 1, 4), rng.uniform(0, cam.height - 1, 4))
-    vectors = np.concatenate([false, scene.vectors]).tolist()
-    sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL, budget=3)
-    assert sol.status == S.BUDGET_EXHAUSTED and sol.patterns_tried == 3
-    full = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-    again = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-    assert full.status == S.OK and full.patterns_tried > 3
-    assert (full.q, full.matches, full.patterns_tried) == (again.q, again.matches,
-                                                           again.patterns_tried)
-    assert all(o >= 4 for o, _ in full.matches)
-
-
-def test_combined_image_serves_every_method():
+def test_combined_image_serves_every_method(scene_outcome):
     cam, cat, _, _ = setup()
     db = Database(build_database(cat, cam, mag_limit=6.0,
                                  methods=("pyramid", "triangle", "hashing")))
@@ -266,7 +206,7 @@ def test_combined_image_serves_every_method():
         scene = centroid_scene(cam, q, rng, cat, noise_px=0.3, n_false=2, max_stars=30)
         for method in starid.METHODS:
             sol = starid.identify(scene.vectors.tolist(), db, method=method, tolerance_rad=TOL)
-            assert outcome(sol, scene) == "correct", method
+            assert scene_outcome(sol, scene) == "correct", method
 
 
 # --------------------------------------------------------------------------------------
@@ -355,7 +295,8 @@ def test_triangle_under_micropython():
     import base64
 
     from micropython_support import run_micropython
-    from test_firmware_micropython import lit
+
+    from ..test_micropython import lit
 
     cam, cat, image, db = setup()
     rng = np.random.default_rng(31)
@@ -381,8 +322,3 @@ def test_triangle_under_micropython():
     assert "SOLVED 5" in out and "CORRUPT DATABASE_CORRUPT" in out and "DONE" in out
 
 
-def test_live_peak_of_a_hard_solve_is_within_the_heap_budget():
-    """30 stars of which 10 false, 1 px noise, the pipeline's tolerance: the CPython live
-    peak of one identification (a bound of MicroPython's) stays within the 96 KB budget."""
-    cam, cat, _, db = setup()
-    assert_identify_within_heap_budget("triangle", cam, cat, db)

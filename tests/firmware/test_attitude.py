@@ -19,7 +19,7 @@ from lodestar.firmware import quaternion as Q
 from micropython_support import run_micropython
 from scipy.spatial.transform import Rotation
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE = REPO / "firmware"
 SOLVERS = [AT.quest, AT.q_method, AT.esoq2]
 SOLVER_IDS = ["quest", "q_method", "esoq2"]
