@@ -12,63 +12,13 @@
     else:
         log(status.name(result.status), result.reason)
 
-Stages of :meth:`StarTracker.process`:
-
-1. **Decode** the packet (:func:`lodestar.firmware.packet.decode`); a bad packet returns its
-   ``PACKET_*`` status.  A frame whose width or height differs from the camera's is
-   ``BAD_INPUT``.
-2. **Centroids** (:func:`lodestar.firmware.centroids.extract`): the ``max_stars`` brightest
-   blobs passing the quality filter; when the body rate ``omega`` and the exposure are
-   known the expected smear of each star (:meth:`Camera.smear_px`) lets elongated tracks
-   through the cosmic-ray test and joins the pieces of a broken track into one star
-   (``rejected["fragment"]``).  With ``drop_border`` (default) blobs whose bounding box
-   touches the frame edge are dropped (``rejected["border"]``): part of the star lies
-   outside the frame, so the centroid is pulled inwards by up to a PSF width.
-3. **Directions**: :meth:`Camera.pixel_to_vector` of each centroid.  With ``omega`` given,
-   each direction is rotated back to the attitude **epoch** (below): a star of row ``y``
-   was seen on average at ``t = exposure_s / 2 + y * row_time_s`` after the start of row 0's
-   exposure, and moved as ``dv/dt = -omega x v`` meanwhile.  Without ``omega`` nothing is
-   compensated (at rest the epoch does not matter).
-4. **Identification**: with a ``prior`` attitude, tracking
-   (:func:`lodestar.firmware.tracking.track`, the prior propagated by ``omega * dt``); when
-   there is no prior, or tracking fails and ``fallback`` is true, lost-in-space
-   identification (:func:`lodestar.firmware.starid.identify` with ``method``).  With
-   ``refine`` (default) a lost-in-space solution is then tracked from its own attitude and
-   the larger verified match set kept: every observed star that agrees joins the fit, and an
-   identification whose attitude was fitted to a few clustered stars (off by a fraction of a
-   degree, the other stars outside the match tolerance) is repaired.
-5. **Attitude**: QUEST (:func:`lodestar.firmware.attitude.quest`) over all matched stars
-   with weights ``w_i = sigma_i**-2`` (relative), and Shuster's covariance
-   (:func:`lodestar.firmware.attitude.covariance`).  Star ``i``'s per-axis direction noise
-   is ``sigma_i = s / sqrt(w_i)`` rad.  With ``flux_weighting`` (default) the noise model
-   is a photon-limited term plus a floor: the relative variance of star ``i`` is
-   ``g_i = (1 - rho) u_i + rho`` with ``u_i = median flux / flux_i`` (a photon-limited
-   centroid's variance is the PSF's over the photons counted) and the floor share ``rho``
-   chosen per frame from :data:`FLOOR_SHARES` by maximum likelihood on the residuals of an
-   equal-weight fit (:meth:`StarTracker.noise_shares`; ``rho = 0`` below
-   :data:`MIN_STARS_NOISE_MODEL` matches and for frames smeared beyond
-   :data:`FLOOR_MAX_SMEAR_PX`), and ``w_i = 1 / g_i``.  Real frames are photon
-   limited (``rho`` near 0); centroids whose flux says nothing of their noise (a floor of
-   calibration error, a bright star's bias, synthetic lists) pull ``rho`` towards 1, equal
-   weights, so the reported sigma stays calibrated either way.  On 60 simulated estcube2
-   frames at rest pure flux weights gave 0.65" per cross-boresight axis and 5.5" in roll
-   (RMS), ``sqrt(flux)`` weights 0.80" and 6.9", equal weights 1.10" and 9.6".  Without
-   ``flux_weighting`` every weight is 1.  ``s``, the noise of a star of median flux, is
-   ``centroid_sigma_px / f`` (``f = sqrt(fx fy)`` px) when ``centroid_sigma_px`` is given,
-   else estimated from the fit residuals (``s^2 = sum w_i |b_i - A r_i|^2 / (2n - 5)``,
-   ``n`` matches, at least ``min_sigma_px / f``), so the covariance follows the frame's
-   actual centroid quality; ``result.centroid_sigma_px`` reports ``s`` in pixels.  The
-   residuals have ``2n - 3`` degrees of freedom, and an error over a sigma scaled by such an
-   estimate is Student-t distributed with variance ``(2n - 3) / (2n - 5)``: dividing by
-   ``2n - 5`` instead of ``2n - 3`` makes the reported sigma the error's RMS (``max(., 1)``
-   for ``n <= 3``).  A star whose smeared track the detector saw only in part (its
-   ``unseen`` half-track, :mod:`lodestar.firmware.centroids`, ``half`` rad) may lie
-   anywhere along it: the identification matches it over a region stretched along the
-   track (``streaks``, :mod:`lodestar.firmware.verify`), and its relative variance gains
-   ``(half^2 / 6) / s0^2`` with ``s0`` the configured ``centroid_sigma_px`` or a third of
-   the match tolerance (no floor then).  At 2 deg/s (estcube2, a 25 px smear) this names
-   the faint stars whose pieces lie up to 12 px from their mean position: 376 -> 392 of 400
-   random attitudes solved.
+Stages of :meth:`StarTracker.process` (``docs/firmware.md`` describes each): decode the
+packet, centroids (brightest ``max_stars``, smear-aware filter, broken tracks joined, border
+blobs dropped), directions through the camera model turned back to the attitude epoch when
+``omega`` is given, identification (tracking from a ``prior``, else or on failure
+lost-in-space, then refined by tracking from its own attitude), attitude (weighted QUEST and
+Shuster's covariance, star weights from a photon-limited noise model with a floor chosen per
+frame from the residuals).
 
 Units and conventions (``lodestar.sim``): pixels as ``lodestar.contract`` (centre of pixel
 ``(x, y)`` at the integer point; ``x`` column, ``y`` row); camera frame ``+z`` boresight,
@@ -100,7 +50,8 @@ returned by every call; ``SMEAR_TOO_LONG`` (the rate smears stars beyond
 identification statuses.  Malformed optional inputs (``prior``, ``omega``, ``dt``,
 ``exposure_s``) are ignored with a note in ``reason``: the flight loop still gets a
 lost-in-space attitude when the gyro or the previous solution is corrupt.  Any unexpected
-exception (including ``MemoryError``) becomes ``INTERNAL_ERROR``, with the exception in ``reason``.
+exception (including ``MemoryError``) becomes ``INTERNAL_ERROR``, the exception in
+``reason``.
 
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
@@ -130,9 +81,7 @@ MIN_STARS_NOISE_MODEL = 6
 FLOOR_MAX_SMEAR_PX = 2.0
 """Longest expected smear (px) at which the residuals may choose a noise floor: smeared
 stars' residuals are dominated by along-track errors a floor does not describe, and
-weighting the faint stars up made the attitude worse (40 estcube2 frames at 2 deg/s: 4.3"
-per cross-boresight axis and 34" in roll, against 3.0" and 31" with the photon model
-alone)."""
+weighting the faint stars up makes the attitude worse (``docs/firmware.md``)."""
 FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,

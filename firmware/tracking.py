@@ -66,7 +66,7 @@ from . import attitude as _att
 from . import status as S
 from .geometry import is_number, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
-from .starid.search import streak_weights, streaks_valid
+from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
@@ -83,30 +83,18 @@ DEFAULT_ITERATIONS = 4
 """Most fit / predict / match rounds."""
 
 
-class TrackSolution:
-    """Result of :func:`track` (see the module docstring)."""
+class TrackSolution(Solution):
+    """Result of :func:`track`: a :class:`~lodestar.firmware.starid.search.Solution`
+    (``patterns_tried`` 0, one hypothesis: the prior) plus ``q_predicted``, ``n_predicted``
+    and ``residual_rad`` (module docstring)."""
 
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
                  q_predicted=None, n_predicted=0, residual_rad=None):
-        self.status = status
-        self.q = q
-        self.matches = matches if matches is not None else []
-        self.star_ids = star_ids if star_ids is not None else []
-        self.patterns_tried = 0
-        self.probability = probability
-        self.hypotheses = 1 if q_predicted is not None else 0
+        Solution.__init__(self, status, q=q, matches=matches, probability=probability,
+                          hypotheses=1 if q_predicted is not None else 0, star_ids=star_ids)
         self.q_predicted = q_predicted
         self.n_predicted = n_predicted
         self.residual_rad = residual_rad
-
-    @property
-    def ok(self):
-        return self.status == S.OK
-
-    def __repr__(self):
-        return ("TrackSolution(" + S.name(self.status) + ", q=" + repr(self.q) +
-                ", matches=" + str(len(self.matches)) + ", probability=" +
-                repr(self.probability) + ")")
 
 
 # --------------------------------------------------------------------------------------

@@ -46,7 +46,7 @@ class Solution:
         return self.status == S.OK
 
     def __repr__(self):
-        return ("Solution(" + S.name(self.status) + ", q=" + repr(self.q) +
+        return (type(self).__name__ + "(" + S.name(self.status) + ", q=" + repr(self.q) +
                 ", matches=" + str(len(self.matches)) + ", patterns_tried=" +
                 str(self.patterns_tried) + ", probability=" + repr(self.probability) + ")")
 
