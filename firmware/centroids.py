@@ -59,7 +59,7 @@ within ``unseen = max(0, (L - l) / 2)`` px of the centroid, ``l = sqrt(12 (c_uu 
 the length measured along the smear direction ``u`` (``c_uu``, ``c_vv``: the central second
 moments along and across it).  With a known smear every star carries its ``unseen`` (0
 without one), and the firmware widens that star's match region along the smear by it
-(``lodestar.firmware.verify``).
+(``lodestar.firmware.starid.verify``).
 
 Stars are returned brightest first (ties in record order).  Pure Python for CPython and
 MicroPython: no numpy, typing, dataclasses or itertools.

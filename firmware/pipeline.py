@@ -322,7 +322,7 @@ class StarTracker:
 
     def streaks(self, stars, used, smear, omega=None, exposure_s=None):
         """Per direction of :meth:`directions` (``used``), the partly seen track of its star
-        for the identification (:mod:`lodestar.firmware.verify`): None, or ``(ux, uy, uz,
+        for the identification (:mod:`lodestar.firmware.starid.verify`): None, or ``(ux, uy, uz,
         half)`` with ``u`` the camera-frame unit tangent along the expected smear
         (``smear(x, y) -> (dx, dy)`` px) and ``half`` the star's ``unseen`` track in rad;
         None instead of the list when no star has an unseen track.  ``omega``, ``exposure_s``

@@ -9,7 +9,7 @@ Codes are grouped by decade so that modules can add theirs without renumbering::
      0       OK
      1 .. 19 packet decoding (``lodestar.firmware.packet``)
     20 .. 29 centroiding and camera model
-    30 .. 39 star identification (``lodestar.firmware.verify``, ``starid`` and the methods)
+    30 .. 39 star identification (``lodestar.firmware.starid.verify``, ``starid`` and the methods)
     40 .. 49 star database (``lodestar.firmware.database``)
     50 .. 59 generic
 

@@ -36,13 +36,13 @@ Algorithm
    used once; an observed star with a second unclaimed catalogue star within tolerance is
    left unnamed (a close double: either name could be right).
 5. **Verify**: at least ``min_matches`` matches and the binomial probability that that many
-   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.verify`:
+   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.starid.verify`:
    ``p = N_fov pi tolerance^2 / Omega_fov`` per star, two matches free) below
    ``max_mismatch_prob``.  Every reported match lies within ``tolerance_rad`` of its
    catalogue star at the returned attitude.  With ``streaks`` (a smeared star seen only in
    part) steps 4 and 5 use that star's region stretched along its track and the
-   Poisson-binomial probability of :mod:`lodestar.firmware.verify`, and its fits weigh it
-   less (:func:`lodestar.firmware.verify.streak_weights`).
+   Poisson-binomial probability of :mod:`lodestar.firmware.starid.verify`, and its fits weigh it
+   less (:func:`lodestar.firmware.starid.search.streak_weights`).
 
 Result: a :class:`TrackSolution` with the attributes of an identification ``Solution``
 (``status``, ``q``, ``matches`` = ``[(observed index, HIP)]``, ``star_ids`` =
@@ -186,7 +186,7 @@ def predict(database, q, margin_rad=0.0, stars=None):
 def match_nearest(observed, predicted, tolerance_rad, streaks=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
     index) closer than ``tolerance_rad`` (or within the region stretched along a star's
-    track, ``streaks``: :func:`lodestar.firmware.verify.in_region`): observed stars in
+    track, ``streaks``: :func:`lodestar.firmware.starid.verify.in_region`): observed stars in
     order (brightest first) take the nearest unclaimed predicted star; a star with a second
     unclaimed prediction within tolerance is left unnamed."""
     claimed = {}
@@ -320,8 +320,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
     propagated by ``omega`` (rad/s) over ``dt`` (s); returns a :class:`TrackSolution`.
 
     ``weights`` (one positive number per observed star, e.g. ``sigma**-2``) weight the QUEST
-    fits; None: equal (or :func:`lodestar.firmware.verify.streak_weights`).  ``streaks``:
-    per star None or its partly seen track (:mod:`lodestar.firmware.verify`): the fine
+    fits; None: equal (or :func:`lodestar.firmware.starid.search.streak_weights`).  ``streaks``:
+    per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`): the fine
     matching and the probability use its stretched region.  See the module docstring for
     the algorithm and the statuses.
     """

@@ -54,9 +54,9 @@ Algorithm
    recomputed from the star table and must agree component by component (and in ``d`` for
    the non-normalized hash); the handedness ``(A x B) . C`` must match.
 4. Each candidate (observed labels -> stored stars) is a hypothesis verified by
-   :func:`lodestar.firmware.verify.verify`; all hypotheses of the first group with an
+   :func:`lodestar.firmware.starid.verify.verify`; all hypotheses of the first group with an
    accepted one are verified, ``AMBIGUOUS`` if they disagree, else the best is refined and
-   returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+   returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
 
 Cost: the search's work is one group after another, almost all of them rejected by empty
 buckets, so the per-group path is kept lean without changing a single result: the chords and
@@ -419,13 +419,13 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Geometric-hashing identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Geometric-hashing identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most groups tried.  ``max_stars``: observed stars used for groups.  ``distinct_rad``:
     attitudes further apart are distinct (default ``20 * tolerance_rad``).  ``streaks``: per
-    star None or its partly seen track (:mod:`lodestar.firmware.verify`); the verification
+    star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`); the verification
     matches such a star over its stretched region, the hash boxes stay those of
     ``tolerance_rad`` (a group holding a streak's star may be missed).
     """

@@ -35,7 +35,7 @@ Algorithm
    ``R`` matches its three angles to ``i, j, k`` (candidates from the k-vector for ``ri``,
    the other two angles computed from the star table) with consistent handedness of
    ``(i, j, r)``.  The first ``r`` found (lowest index) is used, as in Mortari.
-6. **Verification** (:func:`lodestar.firmware.verify.verify`): the q-method attitude of the
+6. **Verification** (:func:`lodestar.firmware.starid.verify.verify`): the q-method attitude of the
    four stars, all catalogue stars predicted in the FOV, one-to-one matches within
    ``tolerance_rad`` and the binomial probability of that many chance matches; accepted if
    below ``max_mismatch_prob``.  All candidate pyramids of the first triple that yields an
@@ -44,7 +44,7 @@ Algorithm
    (q-method over all its matches, matched again, while the match set grows) and returned
    with status ``OK``; its ``q`` is the q-method fit of exactly the reported matches.
 
-Streaks (``streaks``, :mod:`lodestar.firmware.verify`): a smeared star seen only in part is
+Streaks (``streaks``, :mod:`lodestar.firmware.starid.verify`): a smeared star seen only in part is
 known to ``tolerance_rad`` across its track and to ``tolerance_rad + half`` along it; its
 pair tolerances and handedness bounds widen by ``half`` (an angle to it can be off by the
 whole offset along the track) and the verification matches it over its stretched region.
@@ -274,7 +274,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Pyramid identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Pyramid identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star (the

@@ -43,11 +43,11 @@ Algorithm
    ``2 eps``; then the handedness ``(b1 x b2) . b3`` against the catalogue's (mirror images
    are rejected; skipped within its error bound for a near-collinear triangle).
 4. Each surviving correspondence is a hypothesis verified by
-   :func:`lodestar.firmware.verify.verify` (q-method attitude of the three stars, binomial
+   :func:`lodestar.firmware.starid.verify.verify` (q-method attitude of the three stars, binomial
    false-match probability over the whole field, accepted below ``max_mismatch_prob``).
    All hypotheses of the first triple that yields an accepted one are verified;
    attitudes more than ``distinct_rad`` apart give ``AMBIGUOUS``; else the best is refined
-   and returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+   and returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
 
 ``NO_MATCH`` when the triples run out, ``BUDGET_EXHAUSTED`` when ``budget`` triples were
 tried first.  Pure Python for CPython and MicroPython (``math`` only).
@@ -195,13 +195,13 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Planar-triangle identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Planar-triangle identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most triples tried.  ``max_stars``: observed stars used for triangles.
     ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
-    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.verify`):
+    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`):
     a triangle's tolerances widen by the largest ``half`` of its stars.
     """
     code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
