@@ -83,7 +83,7 @@ def _streaked(vectors, rng, half_rad, every=1, keep_first=0):
     ``every``-th vector is moved along a random tangent ``u`` by a uniform offset within
     ``+-half_rad`` pushed to at least ``half_rad / 2`` (beyond any point tolerance when
     ``half_rad`` is large).  Returns ``(vectors, streaks)`` with ``streaks[o] = (ux, uy, uz,
-    half_rad)`` for a moved star, None for the others (``lodestar.firmware.verify``)."""
+    half_rad)`` for a moved star, None for the others (:mod:`lodestar.firmware.starid.verify`)."""
     out, streaks = [], []
     for o, v in enumerate(np.asarray(vectors, dtype=float)):
         if o < keep_first or (o - keep_first) % every:

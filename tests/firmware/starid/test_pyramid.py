@@ -1,11 +1,8 @@
-"""Tests of the flight star identification (``lodestar.firmware.pyramid``, ``verify``,
-``starid``) on synthetic estcube2 centroid scenes: success rate, zero wrong solutions,
-mirror images, false stars, too few stars, ambiguity, budget; and the helpers (q-method
-attitude fit, binomial tail) against scipy.
-
-A scene is *correct* when it is accepted with an attitude error <= 0.05 deg and every
-reported HIP is a component of the observed star (close doubles blend into one centroid);
-*wrong* when it is accepted otherwise.  Larger campaigns: ``benchmarks/bench_starid.py``.
+"""What is Pyramid's own (``lodestar.firmware.starid.pyramid``): a windowed sensor with the
+default tolerance, a file-backed database, a repeated constellation (``AMBIGUOUS``), the
+wide lohmann field's heap peak, and the same results under MicroPython 1.27.  The checks
+every method shares are in ``test_methods.py``.  Larger campaigns:
+``benchmarks/bench_starid.py``.
 """
 
 import functools

@@ -1,9 +1,9 @@
-"""Tests of Lohmann's planar-triangle identification (``lodestar.firmware.triangle``) and
-the database's triangle section: the area and polar-moment formulas against hand-computed
+"""Lohmann's planar-triangle identification (``lodestar.firmware.starid.triangle``) and the
+database's triangle section: the area and polar-moment formulas against hand-computed
 values, the tolerance bounds against worst-case perturbations, vertex correspondence from
-side lengths, mirror rejection by handedness, 200 estcube2 scenes (>= 90 % correct, none
-wrong), refusal of a corrupt or inconsistent section, and the same results under
-MicroPython 1.27.  Larger campaigns: ``benchmarks/bench_starid.py``.
+side lengths, mirror rejection by handedness, a combined image serving every method,
+refusal of a corrupt or inconsistent section, and the same results under MicroPython 1.27.
+The checks every method shares are in ``test_methods.py``.
 """
 
 import functools
