@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from lodestar.firmware import starid
+from lodestar.firmware import starid, status
 from lodestar.firmware.database import Database
 from lodestar.ground.database import build_database, describe
 from lodestar.sim.attitude import random_attitude
@@ -57,7 +57,7 @@ def run(db, cam, cat, n, noise, n_false, drop, seed, mirror=False, method="pyram
                               tolerance_rad=tolerance(noise))
         times.append(time.perf_counter() - t0)
         tried.append(sol.patterns_tried)
-        if sol.status != starid.OK:
+        if sol.status != status.OK:
             counts["no-solve"] += 1
             continue
         err = attitude_error_deg(sol.q, q)

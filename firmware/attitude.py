@@ -35,12 +35,13 @@ Pure Python with ``math`` only: runs unchanged on CPython and MicroPython.
 
 import math
 
+from . import geometry as _geo
 from . import quaternion as _quat
 
 MIN_SEPARATION = 1e-6
 """Smallest accepted ``sin`` of the largest angle between body (or reference) vectors."""
 
-NEWTON_TOLERANCE = max(1e-14, 16.0 * _quat.EPS)
+NEWTON_TOLERANCE = max(1e-14, 16.0 * _geo.EPS)
 """QUEST/ESOQ2 Newton-Raphson stops once a step is below this (``lambda_0 = sum w = 1``), or
 as soon as the steps stop shrinking (the rounding floor)."""
 
@@ -57,10 +58,6 @@ JACOBI_MAX_SWEEPS = 60
 _AXIS_QUATERNIONS = ([1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0])
 
 
-def _finite(x):
-    return x - x == 0.0
-
-
 # ---------------------------------------------------------------------------------------------
 # Input validation
 # ---------------------------------------------------------------------------------------------
@@ -69,7 +66,7 @@ def _length(seq, label):
     try:
         return len(seq)
     except TypeError:
-        raise ValueError("%s must be a sequence, got %r" % (label, seq))
+        raise ValueError("%s must be a sequence, got %r" % (label, seq)) from None
 
 
 def _unit(v, label):
@@ -79,9 +76,9 @@ def _unit(v, label):
     try:
         x, y, z = float(v[0]), float(v[1]), float(v[2])
     except (TypeError, ValueError):
-        raise ValueError("%s must hold numbers, got %r" % (label, v))
+        raise ValueError("%s must hold numbers, got %r" % (label, v)) from None
     n = math.sqrt(x * x + y * y + z * z)
-    if not _finite(n):
+    if not _geo.finite(n):
         raise ValueError("%s is not finite: %r" % (label, [x, y, z]))
     if n == 0.0:
         raise ValueError("%s is a zero vector" % label)
@@ -93,7 +90,7 @@ def _check_spread(vs, name):
     v0 = vs[0]
     best = 0.0
     for i in range(1, len(vs)):
-        c = _quat.cross(v0, vs[i])
+        c = _geo.cross(v0, vs[i])
         s = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
         if s > best:
             best = s
@@ -113,8 +110,8 @@ def _positive(values, name, n):
         try:
             a = float(values[i])
         except (TypeError, ValueError):
-            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i]))
-        if not _finite(a) or not a > 0.0:
+            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i])) from None
+        if not _geo.finite(a) or not a > 0.0:
             raise ValueError("%s[%d] = %r must be positive and finite" % (name, i, a))
         out.append(a)
     return out
@@ -144,7 +141,7 @@ def _unit_weights(ws):
     total = 0.0
     for a in ws:
         total += a
-    if not _finite(total):
+    if not _geo.finite(total):
         raise ValueError("sum of weights is not finite")
     return [a / total for a in ws]
 
@@ -211,7 +208,7 @@ def _coefficients(B):
     kappa, delta = _adj_trace_det(S)
     Sz = _sym_mul(S, z)
     s2 = sigma * sigma
-    return (s2 - kappa, s2 + _quat.dot(z, z), delta + _quat.dot(z, Sz), _quat.dot(Sz, Sz),
+    return (s2 - kappa, s2 + _geo.dot(z, z), delta + _geo.dot(z, Sz), _geo.dot(Sz, Sz),
             sigma)
 
 
@@ -269,7 +266,7 @@ def _quest_column(B, lam):
 def _ours(vec, scalar, axis):
     """Our quaternion from Shuster's ``[vec; scalar]`` solved in the frame turned about axis."""
     n = math.sqrt(vec[0] * vec[0] + vec[1] * vec[1] + vec[2] * vec[2] + scalar * scalar)
-    if not (n > 0.0 and _finite(n)):
+    if not (n > 0.0 and _geo.finite(n)):
         raise ValueError("degenerate attitude solution (quaternion norm %r)" % n)
     q = [-vec[0] / n, -vec[1] / n, -vec[2] / n, scalar / n]    # conjugate: Shuster -> ours
     if axis >= 0:
@@ -339,8 +336,8 @@ def _rayleigh(B, vec, scalar):
     """``qbar^T K qbar / |qbar|^2`` for Shuster's ``qbar = [vec; scalar]`` and ``K`` of ``B``."""
     S, sigma, z = _parts(B)
     Sv = _sym_mul(S, vec)
-    vv = _quat.dot(vec, vec)
-    num = (_quat.dot(vec, Sv) - sigma * vv + 2.0 * scalar * _quat.dot(z, vec)
+    vv = _geo.dot(vec, vec)
+    num = (_geo.dot(vec, Sv) - sigma * vv + 2.0 * scalar * _geo.dot(z, vec)
            + sigma * scalar * scalar)
     return num / (vv + scalar * scalar)
 
@@ -397,15 +394,15 @@ def _esoq2_solve(B, lam):
     m2 = [m0[2], m1[2], t * (s22 - u) + z[2] * z[2]]
     e = None
     best = -1.0
-    for c in (_quat.cross(m1, m2), _quat.cross(m2, m0), _quat.cross(m0, m1)):
+    for c in (_geo.cross(m1, m2), _geo.cross(m2, m0), _geo.cross(m0, m1)):
         n2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
         if n2 > best:
             best, e = n2, c
-    if not (best > 0.0 and _finite(best)):
+    if not (best > 0.0 and _geo.finite(best)):
         raise ValueError("ESOQ2: M has rank < 2 (degenerate geometry)")
     n = math.sqrt(best)
     e = [e[0] / n, e[1] / n, e[2] / n]
-    return [t * e[0], t * e[1], t * e[2]], _quat.dot(z, e)
+    return [t * e[0], t * e[1], t * e[2]], _geo.dot(z, e)
 
 
 def esoq2(b, r, w=None, refine=True):
@@ -461,7 +458,7 @@ def _jacobi_top_eigenvector(K):
         for p in range(3):
             for q in range(p + 1, 4):
                 off += a[p][q] * a[p][q]
-        if off <= 1e-4 * _quat.EPS * _quat.EPS * scale:
+        if off <= 1e-4 * _geo.EPS * _geo.EPS * scale:
             break
         for p in range(3):
             for q in range(p + 1, 4):
@@ -517,13 +514,13 @@ def q_method(b, r, w=None):
 
 
 def _triad_frame(u, v, name):
-    c = _quat.cross(u, v)
-    n = _quat.norm(c)
+    c = _geo.cross(u, v)
+    n = _geo.norm(c)
     if n < MIN_SEPARATION:
         raise ValueError("TRIAD: the two %s vectors are parallel or opposite (sin of "
                          "separation %.3g < %.3g)" % (name, n, MIN_SEPARATION))
     t2 = [c[0] / n, c[1] / n, c[2] / n]
-    return u, t2, _quat.cross(u, t2)
+    return u, t2, _geo.cross(u, t2)
 
 
 def triad(b1, b2, r1, r2):
@@ -562,7 +559,7 @@ def covariance(b, r, sigmas):
     for k in range(len(bs)):
         g = 1.0 / ss[k]
         g *= g
-        if not _finite(g):
+        if not _geo.finite(g):
             raise ValueError("sigmas[%d] = %r is too small" % (k, ss[k]))
         x, y, z = bs[k]
         f00 += g * (1.0 - x * x)
@@ -578,7 +575,7 @@ def covariance(b, r, sigmas):
     c12 = f01 * f02 - f00 * f12
     c22 = f00 * f11 - f01 * f01
     det = f00 * c00 + f01 * c01 + f02 * c02
-    if not (det > 0.0 and _finite(det)):
+    if not (det > 0.0 and _geo.finite(det)):
         raise ValueError("covariance: information matrix is singular (det %r)" % det)
     return [[c00 / det, c01 / det, c02 / det],
             [c01 / det, c11 / det, c12 / det],
@@ -600,7 +597,7 @@ def sigmas_cross_roll(P):
         if len(P[i]) != 3:
             raise ValueError("P row %d must have 3 elements, got %d" % (i, len(P[i])))
         v = float(P[i][i])
-        if not _finite(v) or v < 0.0:
+        if not _geo.finite(v) or v < 0.0:
             raise ValueError("P[%d][%d] = %r must be finite and >= 0" % (i, i, v))
         d.append(v)
     return math.sqrt(0.5 * (d[0] + d[1])), math.sqrt(d[2])

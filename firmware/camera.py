@@ -34,17 +34,8 @@ import math
 
 from lodestar import contract as C
 from lodestar.firmware import status as S
+from lodestar.firmware.geometry import EPS, finite, is_number, norm, rotate_about
 
-
-def _float_eps():
-    """Machine epsilon of this port's float (2.2e-16 double, 1.2e-7 single precision)."""
-    eps = 1.0
-    while 1.0 + eps * 0.5 != 1.0:
-        eps *= 0.5
-    return eps
-
-
-FLOAT_EPS = _float_eps()
 _INF = float("inf")
 
 NEWTON_MAX_ITER = 50
@@ -59,12 +50,8 @@ _PARAMS = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p
 _ALIASES = {"fx_px": "fx", "fy_px": "fy"}
 
 
-def _finite(value):
-    return value == value and value - value == 0
-
-
 def _number(name, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite(value):
+    if not is_number(value):
         raise ValueError("{} must be a finite number, got {!r}".format(name, value))
     return float(value)
 
@@ -148,8 +135,8 @@ class Camera(object):
         self._fold = _INF if s is None else math.sqrt(s)
         # float-resolution floors of the Newton tolerances (pixels)
         scale = max(self.fx, self.fy)
-        self._step_px = max(NEWTON_STEP_PX, 4 * FLOAT_EPS * scale)
-        self._residual_px = max(NEWTON_RESIDUAL_PX, 64 * FLOAT_EPS * scale)
+        self._step_px = max(NEWTON_STEP_PX, 4 * EPS * scale)
+        self._residual_px = max(NEWTON_RESIDUAL_PX, 64 * EPS * scale)
         self._check_border()
 
     @classmethod
@@ -211,7 +198,7 @@ class Camera(object):
     def undistort(self, xd, yd):
         """Normalised ``(x, y)`` whose distortion is ``(xd, yd)``, or None (``last_status``
         is ``CAMERA_NOT_CONVERGED`` or ``BAD_INPUT``)."""
-        if not (_finite(xd) and _finite(yd)):
+        if not (finite(xd) and finite(yd)):
             self.last_status = S.BAD_INPUT
             return None
         fx, fy = self.fx, self.fy
@@ -243,7 +230,7 @@ class Camera(object):
     def pixel_to_vector(self, x, y):
         """Unit vector ``(X, Y, Z)`` (camera frame) of pixel ``(x, y)``, or None when the
         undistortion fails (``last_status`` says why)."""
-        if not (_is_number(x) and _is_number(y)):
+        if not (is_number(x) and is_number(y)):
             self.last_status = S.BAD_INPUT
             return None
         xy = self.undistort((x - self.cx) / self.fx, (y - self.cy) / self.fy)
@@ -263,7 +250,7 @@ class Camera(object):
         except (TypeError, IndexError, KeyError):
             self.last_status = S.BAD_INPUT
             return None
-        if not (_is_number(X) and _is_number(Y) and _is_number(Z)):
+        if not (is_number(X) and is_number(Y) and is_number(Z)):
             self.last_status = S.BAD_INPUT
             return None
         if not Z > 0:
@@ -295,20 +282,20 @@ class Camera(object):
             wx, wy, wz = omega[0], omega[1], omega[2]
         except (TypeError, IndexError, KeyError):
             wx = wy = wz = None
-        if not (_is_number(wx) and _is_number(wy) and _is_number(wz)
-                and _is_number(exposure_s)):
+        if not (is_number(wx) and is_number(wy) and is_number(wz)
+                and is_number(exposure_s)):
             self.last_status = S.BAD_INPUT
             return None
         v = self.pixel_to_vector(x, y)
         if v is None:
             return None
-        rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+        rate = norm((wx, wy, wz))
         if not rate > 0:
             return 0.0, 0.0
         axis = (wx / rate, wy / rate, wz / rate)
         half = 0.5 * rate * exposure_s
-        start = self.vector_to_pixel(_rotate(v, axis, half))      # earlier: rotated back
-        end = self.vector_to_pixel(_rotate(v, axis, -half))
+        start = self.vector_to_pixel(rotate_about(v, axis, half))      # earlier: rotated back
+        end = self.vector_to_pixel(rotate_about(v, axis, -half))
         if start is None or end is None:
             return None
         return end[0] - start[0], end[1] - start[1]
@@ -330,21 +317,3 @@ class Camera(object):
                         "over the frame (pixel ({}, {}))".format(
                             self.k1, self.k2, self.k3, self.p1, self.p2, px, py))
         self.last_status = S.OK
-
-
-def _is_number(value):
-    return not isinstance(value, bool) and isinstance(value, (int, float)) and _finite(value)
-
-
-def _rotate(v, axis, angle):
-    """``v`` rotated by ``angle`` (rad, right-handed) about unit ``axis`` (Rodrigues)."""
-    c = math.cos(angle)
-    s = math.sin(angle)
-    ax, ay, az = axis
-    vx, vy, vz = v
-    dot = ax * vx + ay * vy + az * vz
-    cx = ay * vz - az * vy
-    cy = az * vx - ax * vz
-    cz = ax * vy - ay * vx
-    k = dot * (1.0 - c)
-    return (vx * c + cx * s + ax * k, vy * c + cy * s + ay * k, vz * c + cz * s + az * k)

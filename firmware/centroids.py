@@ -59,7 +59,7 @@ within ``unseen = max(0, (L - l) / 2)`` px of the centroid, ``l = sqrt(12 (c_uu 
 the length measured along the smear direction ``u`` (``c_uu``, ``c_vv``: the central second
 moments along and across it).  With a known smear every star carries its ``unseen`` (0
 without one), and the firmware widens that star's match region along the smear by it
-(``lodestar.firmware.verify``).
+(``lodestar.firmware.starid.verify``).
 
 Stars are returned brightest first (ties in record order).  Pure Python for CPython and
 MicroPython: no numpy, typing, dataclasses or itertools.
@@ -68,6 +68,7 @@ MicroPython: no numpy, typing, dataclasses or itertools.
 import math
 
 from lodestar import contract as C
+from lodestar.firmware.geometry import finite
 
 DEFAULT_MAX_STARS = 32
 """Stars kept per frame: enough for identification and attitude, few enough for the MCU."""
@@ -143,11 +144,6 @@ class Star(object):
                 ).format(*self.as_tuple())
 
 
-def _finite(value):
-    """True for an int or a finite float (MicroPython-safe)."""
-    return value == value and value - value == 0
-
-
 def _is_int(value):
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -162,7 +158,7 @@ def moments(rec):
     """
     s0, sx, sy = rec.s0, rec.sx, rec.sy
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
-    if not (_finite(s0) and s0 > 0):
+    if not (finite(s0) and s0 > 0):
         return None
     if _is_int(s0) and _is_int(sx) and _is_int(sy) and _is_int(sxx) and _is_int(syy) \
             and _is_int(sxy):
@@ -185,7 +181,7 @@ def moments(rec):
         det = (q + r / s02) / s02
     else:
         for v in (sx, sy, sxx, syy, sxy):
-            if not _finite(v):
+            if not finite(v):
                 return None
         x = sx / s0
         y = sy / s0
@@ -203,7 +199,7 @@ def moments(rec):
             return None
         det = max(det, 0.0)
         for v in (x, y, cxx, cyy, cxy, det):    # overflow of huge or tiny values
-            if not _finite(v):
+            if not finite(v):
                 return None
     if not (rec.xmin <= x <= rec.xmax and rec.ymin <= y <= rec.ymax):
         return None
@@ -248,7 +244,7 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
     if smear is None:
         return False
     dx, dy = smear[0], smear[1]
-    if not (_finite(dx) and _finite(dy)):
+    if not (finite(dx) and finite(dy)):
         return False
     length = math.sqrt(dx * dx + dy * dy)
     if length <= 0:
@@ -274,7 +270,7 @@ def unseen_px(sigma_major, sigma_minor, orientation, smear):
     if smear is None:
         return 0.0
     dx, dy = smear[0], smear[1]
-    if not (_finite(dx) and _finite(dy)):
+    if not (finite(dx) and finite(dy)):
         return 0.0
     length = math.sqrt(dx * dx + dy * dy)
     if not length > 0:
@@ -307,7 +303,7 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
         if sm is None:
             continue
         dx, dy = sm[0], sm[1]
-        length = math.sqrt(dx * dx + dy * dy) if _finite(dx) and _finite(dy) else 0.0
+        length = math.sqrt(dx * dx + dy * dy) if finite(dx) and finite(dy) else 0.0
         if not length > 0:
             continue
         ux = dx / length
@@ -407,7 +403,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     for rec in records:
         index += 1
         s0 = rec.s0
-        if not (_finite(s0) and s0 > 0):
+        if not (finite(s0) and s0 > 0):
             rejected["empty"] += 1
             continue
         if _is_int(rec.flags) and rec.flags & C.BLOB_MOMENTS_SATURATED:

@@ -1,8 +1,9 @@
 """The flight API: one FPGA packet in, one attitude (or a status) out; never raises.
 
     from lodestar.firmware.pipeline import StarTracker
-    tracker = StarTracker("/flash/stars.lsdb", camera_dict, method="pyramid",
-                          exposure_s=0.1, row_time_s=4.39e-5)
+    from lodestar.firmware.settings import Settings
+    tracker = StarTracker("/flash/stars.lsdb", camera_dict,
+                          Settings(method="pyramid", exposure_s=0.1, row_time_s=4.39e-5))
     result = tracker.process(packet_bytes)                        # lost in space
     result = tracker.process(packet_bytes, prior=result.q,        # tracking
                              omega=gyro_rad_s, dt=frame_period_s)
@@ -11,63 +12,13 @@
     else:
         log(status.name(result.status), result.reason)
 
-Stages of :meth:`StarTracker.process`:
-
-1. **Decode** the packet (:func:`lodestar.firmware.packet.decode`); a bad packet returns its
-   ``PACKET_*`` status.  A frame whose width or height differs from the camera's is
-   ``BAD_INPUT``.
-2. **Centroids** (:func:`lodestar.firmware.centroids.extract`): the ``max_stars`` brightest
-   blobs passing the quality filter; when the body rate ``omega`` and the exposure are
-   known the expected smear of each star (:meth:`Camera.smear_px`) lets elongated tracks
-   through the cosmic-ray test and joins the pieces of a broken track into one star
-   (``rejected["fragment"]``).  With ``drop_border`` (default) blobs whose bounding box
-   touches the frame edge are dropped (``rejected["border"]``): part of the star lies
-   outside the frame, so the centroid is pulled inwards by up to a PSF width.
-3. **Directions**: :meth:`Camera.pixel_to_vector` of each centroid.  With ``omega`` given,
-   each direction is rotated back to the attitude **epoch** (below): a star of row ``y``
-   was seen on average at ``t = exposure_s / 2 + y * row_time_s`` after the start of row 0's
-   exposure, and moved as ``dv/dt = -omega x v`` meanwhile.  Without ``omega`` nothing is
-   compensated (at rest the epoch does not matter).
-4. **Identification**: with a ``prior`` attitude, tracking
-   (:func:`lodestar.firmware.tracking.track`, the prior propagated by ``omega * dt``); when
-   there is no prior, or tracking fails and ``fallback`` is true, lost-in-space
-   identification (:func:`lodestar.firmware.starid.identify` with ``method``).  With
-   ``refine`` (default) a lost-in-space solution is then tracked from its own attitude and
-   the larger verified match set kept: every observed star that agrees joins the fit, and an
-   identification whose attitude was fitted to a few clustered stars (off by a fraction of a
-   degree, the other stars outside the match tolerance) is repaired.
-5. **Attitude**: QUEST (:func:`lodestar.firmware.attitude.quest`) over all matched stars
-   with weights ``w_i = sigma_i**-2`` (relative), and Shuster's covariance
-   (:func:`lodestar.firmware.attitude.covariance`).  Star ``i``'s per-axis direction noise
-   is ``sigma_i = s / sqrt(w_i)`` rad.  With ``flux_weighting`` (default) the noise model
-   is a photon-limited term plus a floor: the relative variance of star ``i`` is
-   ``g_i = (1 - rho) u_i + rho`` with ``u_i = median flux / flux_i`` (a photon-limited
-   centroid's variance is the PSF's over the photons counted) and the floor share ``rho``
-   chosen per frame from :data:`FLOOR_SHARES` by maximum likelihood on the residuals of an
-   equal-weight fit (:meth:`StarTracker.noise_shares`; ``rho = 0`` below
-   :data:`MIN_STARS_NOISE_MODEL` matches and for frames smeared beyond
-   :data:`FLOOR_MAX_SMEAR_PX`), and ``w_i = 1 / g_i``.  Real frames are photon
-   limited (``rho`` near 0); centroids whose flux says nothing of their noise (a floor of
-   calibration error, a bright star's bias, synthetic lists) pull ``rho`` towards 1, equal
-   weights, so the reported sigma stays calibrated either way.  On 60 simulated estcube2
-   frames at rest pure flux weights gave 0.65" per cross-boresight axis and 5.5" in roll
-   (RMS), ``sqrt(flux)`` weights 0.80" and 6.9", equal weights 1.10" and 9.6".  Without
-   ``flux_weighting`` every weight is 1.  ``s``, the noise of a star of median flux, is
-   ``centroid_sigma_px / f`` (``f = sqrt(fx fy)`` px) when ``centroid_sigma_px`` is given,
-   else estimated from the fit residuals (``s^2 = sum w_i |b_i - A r_i|^2 / (2n - 5)``,
-   ``n`` matches, at least ``min_sigma_px / f``), so the covariance follows the frame's
-   actual centroid quality; ``result.centroid_sigma_px`` reports ``s`` in pixels.  The
-   residuals have ``2n - 3`` degrees of freedom, and an error over a sigma scaled by such an
-   estimate is Student-t distributed with variance ``(2n - 3) / (2n - 5)``: dividing by
-   ``2n - 5`` instead of ``2n - 3`` makes the reported sigma the error's RMS (``max(., 1)``
-   for ``n <= 3``).  A star whose smeared track the detector saw only in part (its
-   ``unseen`` half-track, :mod:`lodestar.firmware.centroids`, ``half`` rad) may lie
-   anywhere along it: the identification matches it over a region stretched along the
-   track (``streaks``, :mod:`lodestar.firmware.verify`), and its relative variance gains
-   ``(half^2 / 6) / s0^2`` with ``s0`` the configured ``centroid_sigma_px`` or a third of
-   the match tolerance (no floor then).  At 2 deg/s (estcube2, a 25 px smear) this names
-   the faint stars whose pieces lie up to 12 px from their mean position: 376 -> 392 of 400
-   random attitudes solved.
+Stages of :meth:`StarTracker.process` (``docs/firmware.md`` describes each): decode the
+packet, centroids (brightest ``max_stars``, smear-aware filter, broken tracks joined, border
+blobs dropped), directions through the camera model turned back to the attitude epoch when
+``omega`` is given, identification (tracking from a ``prior``, else or on failure
+lost-in-space, then refined by tracking from its own attitude), attitude (weighted QUEST and
+Shuster's covariance, star weights from a photon-limited noise model with a floor chosen per
+frame from the residuals).
 
 Units and conventions (``lodestar.sim``): pixels as ``lodestar.contract`` (centre of pixel
 ``(x, y)`` at the integer point; ``x`` column, ``y`` row); camera frame ``+z`` boresight,
@@ -99,34 +50,29 @@ returned by every call; ``SMEAR_TOO_LONG`` (the rate smears stars beyond
 identification statuses.  Malformed optional inputs (``prior``, ``omega``, ``dt``,
 ``exposure_s``) are ignored with a note in ``reason``: the flight loop still gets a
 lost-in-space attitude when the gyro or the previous solution is corrupt.  Any unexpected
-exception (including ``MemoryError``) becomes ``INTERNAL_ERROR`` when ``status`` defines it,
-else ``BAD_INPUT``, with the exception in ``reason``.
+exception (including ``MemoryError``) becomes ``INTERNAL_ERROR``, the exception in
+``reason``.
 
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
 import math
 
-from lodestar.contract import stardb as _stardb
-
 from . import attitude as _att
 from . import camera as _camera
 from . import centroids as _centroids
 from . import database as _database
+from . import geometry as _geo
 from . import packet as _packet
+from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
-from . import verify as _verify
+from .settings import Settings
+from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
-DEFAULT_TOLERANCE_PX = 2.5
-"""Largest centroid error (calibration included) of one star, px: the match tolerance."""
-DEFAULT_MAX_STARS = 32
-"""Brightest stars used per frame (identification patterns use the first 16)."""
-DEFAULT_MIN_SIGMA_PX = 0.02
-"""Floor of the residual-based centroid noise estimate, px."""
 FLOOR_SHARES = (0.0, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
 """Candidate shares ``rho`` of the noise floor in a median-flux star's centroid variance
 (``0``: photon limited, ``1``: every star alike)."""
@@ -135,28 +81,13 @@ MIN_STARS_NOISE_MODEL = 6
 FLOOR_MAX_SMEAR_PX = 2.0
 """Longest expected smear (px) at which the residuals may choose a noise floor: smeared
 stars' residuals are dominated by along-track errors a floor does not describe, and
-weighting the faint stars up made the attitude worse (40 estcube2 frames at 2 deg/s: 4.3"
-per cross-boresight axis and 34" in roll, against 3.0" and 31" with the photon model
-alone)."""
+weighting the faint stars up makes the attitude worse (``docs/firmware.md``)."""
 FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
 halved)."""
-DEFAULT_MAX_SMEAR_PX = 50.0
-"""Longest expected smear (px) the pipeline solves: beyond it a threshold breaks a star's
-track into pieces that the fragment joining cannot all recover, and their centroids carry
-errors of a large fraction of the track that the covariance does not describe.  On the
-estcube2 rate campaign (100 trials per rate, cross-boresight rates) 3 deg/s (38 px) gave 56
-right and no wrong solutions, 5 deg/s (63 px) 7 right and 3 wrong ones."""
-DEFAULT_BUDGET = 2000
-"""Lost-in-space pattern budget (deterministic cap on the search)."""
-DEFAULT_TRACK_SEARCH_DEG = 0.3
-"""Largest expected error of the propagated prior, deg."""
 FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
-
-_INTERNAL_ERROR = getattr(S, "INTERNAL_ERROR", S.BAD_INPUT)
-
 
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
@@ -176,23 +107,8 @@ def _longest_smear(cam, smear):
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
     catalogue vectors ``r`` under attitude ``q``."""
-    m = _tracking.matrix(q)
-    out = []
-    for i in range(len(b)):
-        bi, ri = b[i], r[i]
-        dx = bi[0] - (m[0] * ri[0] + m[1] * ri[1] + m[2] * ri[2])
-        dy = bi[1] - (m[3] * ri[0] + m[4] * ri[1] + m[5] * ri[2])
-        dz = bi[2] - (m[6] * ri[0] + m[7] * ri[1] + m[8] * ri[2])
-        out.append(dx * dx + dy * dy + dz * dz)
-    return out
-
-
-def _finite(x):
-    return x - x == 0.0
-
-
-def _number(x):
-    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
+    m = _quat.matrix(q)
+    return [_geo.residual2(m, b[i], r[i]) for i in range(len(b))]
 
 
 class Result:
@@ -240,45 +156,6 @@ class Result:
                 ", sigma_roll_arcsec=" + repr(self.sigma_roll_arcsec) + ")")
 
 
-def identification_status(code):
-    """A :mod:`lodestar.firmware.status` code for an identification ``Solution.status``.
-
-    The identification's ``status_name`` gives the name, looked up in ``status``
-    (``BAD_DATABASE``: ``DATABASE_MISMATCH``; a name ``status`` lacks, such as
-    ``BUDGET_EXHAUSTED`` before it is added there: ``NO_MATCH``).  This serves both the
-    older ``verify`` numbering and identification modules that return ``status`` codes."""
-    if code == S.OK:
-        return S.OK
-    namer = getattr(_starid, "status_name", None)
-    name = None
-    if namer is not None:
-        try:
-            name = namer(code)
-        except Exception:
-            name = None
-    else:
-        name = S.name(code)
-    if name == "BAD_DATABASE":
-        return S.DATABASE_MISMATCH
-    value = getattr(S, name, None) if isinstance(name, str) else None
-    if isinstance(value, int) and not isinstance(value, bool):
-        return value
-    return S.NO_MATCH
-
-
-def _rotate(v, axis, angle):
-    """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues)."""
-    c = math.cos(angle)
-    s = math.sin(angle)
-    ax, ay, az = axis
-    vx, vy, vz = v
-    dot = ax * vx + ay * vy + az * vz
-    k = dot * (1.0 - c)
-    return (vx * c + (ay * vz - az * vy) * s + ax * k,
-            vy * c + (az * vx - ax * vz) * s + ay * k,
-            vz * c + (ax * vy - ay * vx) * s + az * k)
-
-
 class StarTracker:
     """The flight star tracker: a star database, a camera model and the settings.
 
@@ -286,79 +163,43 @@ class StarTracker:
     file path (opened with :func:`lodestar.firmware.database.load`, read by offset).
     ``camera``: a :class:`lodestar.firmware.camera.Camera` or a dict for
     :meth:`Camera.from_dict` (a ``lodestar.sim`` preset's camera block).
-    ``method``: lost-in-space method name (``"pyramid"``; ``"triangle"``, ``"hashing"`` when
-    the identification and the database serve them).
-    ``max_stars``: brightest stars kept per frame.  ``tolerance_px``: match tolerance, px.
-    ``centroid_sigma_px``: per-axis centroid noise of a star of median flux for the
-    covariance, px (None: estimated from each frame's fit residuals, at least
-    ``min_sigma_px``).  ``flux_weighting``: weight stars by their flux.
-    ``budget``: lost-in-space pattern budget.
-    ``exposure_s``, ``row_time_s``: exposure and rolling-shutter line time, s (for smear and
-    rate compensation; ``process(exposure_s=...)`` overrides the exposure per frame).
-    ``epoch_s``: the instant the attitude refers to, s after the start of row 0's exposure.
-    ``track_search_deg``: error of the propagated prior tracking must absorb, deg.
-    ``track_min_matches``, ``track_max_prob``: tracking acceptance.  ``fallback``: run
-    lost-in-space when tracking fails.  ``drop_border``: ignore blobs touching the frame
-    edge.  ``refine``: grow a lost-in-space match set by tracking from its attitude.
-    ``max_smear_px``: longest expected smear (px; :data:`DEFAULT_MAX_SMEAR_PX`) solved; a
-    frame whose rate and exposure smear stars longer gets ``SMEAR_TOO_LONG``.
-    ``extract_options``: extra keyword arguments of :func:`centroids.extract`
-    (``min_pixels``, ``max_elongation``...).  ``id_options``:
-    extra keyword arguments of the identification (Pyramid: ``max_stars``,
-    ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
-    number (e.g. ``time.ticks_ms``) for ``result.timings``.
+    ``settings``: a :class:`lodestar.firmware.settings.Settings` (None: the defaults),
+    validated here.
 
     Never raises: a configuration problem sets ``status``/``reason`` and every
     :meth:`process` returns it.
     """
 
-    def __init__(self, database, camera, method="pyramid", max_stars=DEFAULT_MAX_STARS,
-                 tolerance_px=DEFAULT_TOLERANCE_PX, centroid_sigma_px=None,
-                 min_sigma_px=DEFAULT_MIN_SIGMA_PX, flux_weighting=True,
-                 budget=DEFAULT_BUDGET, exposure_s=None, row_time_s=0.0, epoch_s=0.0,
-                 track_search_deg=DEFAULT_TRACK_SEARCH_DEG,
-                 track_min_matches=_tracking.DEFAULT_MIN_MATCHES,
-                 track_max_prob=_tracking.DEFAULT_MAX_MISMATCH_PROB, fallback=True,
-                 drop_border=True, refine=True, max_smear_px=DEFAULT_MAX_SMEAR_PX,
-                 extract_options=None, id_options=None, clock=None):
+    def __init__(self, database, camera, settings=None):
         self.status = S.OK
         self.reason = ""
         self.database = None
         self.camera = None
-        self.method = method
-        self.max_stars = max_stars
-        self.budget = budget
-        self.exposure_s = exposure_s
-        self.row_time_s = row_time_s
-        self.epoch_s = epoch_s
+        self.settings = settings if settings is not None else Settings()
         self.track_search_rad = 0.0
-        self.track_min_matches = track_min_matches
-        self.track_max_prob = track_max_prob
-        self.fallback = fallback
-        self.drop_border = drop_border
-        self.refine = refine
-        self.max_smear_px = max_smear_px
-        self.extract_options = extract_options if extract_options is not None else {}
-        self.id_options = id_options if id_options is not None else {}
-        self.clock = clock
-        self.flux_weighting = flux_weighting
         self.tolerance_rad = 0.0
         self.sigma_rad = None
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
         try:
-            self._configure(database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
-                            track_search_deg)
+            self._configure(database, camera)
         except Exception as exc:
-            self._fail(_INTERNAL_ERROR, "configuration: " + repr(exc))
+            self._fail(S.INTERNAL_ERROR, "configuration: " + repr(exc))
 
     def _fail(self, code, reason):
         if self.status == S.OK:
             self.status = code
             self.reason = reason
 
-    def _configure(self, database, camera, tolerance_px, centroid_sigma_px, min_sigma_px,
-                   track_search_deg):
+    def _configure(self, database, camera):
+        st = self.settings
+        if not isinstance(st, Settings):
+            self._fail(S.BAD_INPUT, "settings must be a firmware Settings or None")
+            return
+        tolerance_px = st.tolerance_px
+        centroid_sigma_px = st.centroid_sigma_px
+        min_sigma_px = st.min_sigma_px
+        track_search_deg = st.track_search_deg
         # camera
         if isinstance(camera, _camera.Camera):
             self.camera = camera
@@ -374,34 +215,34 @@ class StarTracker:
         cam = self.camera
         focal = math.sqrt(cam.fx * cam.fy)
         # parameters
-        if not (_number(tolerance_px) and tolerance_px > 0):
+        if not (_geo.is_number(tolerance_px) and tolerance_px > 0):
             self._fail(S.BAD_INPUT, "tolerance_px must be a positive number")
             return
-        if centroid_sigma_px is not None and not (_number(centroid_sigma_px) and
+        if centroid_sigma_px is not None and not (_geo.is_number(centroid_sigma_px) and
                                                   centroid_sigma_px > 0):
             self._fail(S.BAD_INPUT, "centroid_sigma_px must be a positive number or None")
             return
-        if not (_number(min_sigma_px) and min_sigma_px > 0):
+        if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
             self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
             return
-        if not (isinstance(self.max_stars, int) and self.max_stars >= 4):
+        if not (isinstance(st.max_stars, int) and st.max_stars >= 4):
             self._fail(S.BAD_INPUT, "max_stars must be an int >= 4")
             return
-        if not (isinstance(self.budget, int) and self.budget >= 1):
+        if not (isinstance(st.budget, int) and st.budget >= 1):
             self._fail(S.BAD_INPUT, "budget must be an int >= 1")
             return
-        if not (_number(self.max_smear_px) and self.max_smear_px > 0):
+        if not (_geo.is_number(st.max_smear_px) and st.max_smear_px > 0):
             self._fail(S.BAD_INPUT, "max_smear_px must be a positive number")
             return
-        if not (_number(track_search_deg) and track_search_deg >= 0):
+        if not (_geo.is_number(track_search_deg) and track_search_deg >= 0):
             self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
             return
         for name in ("row_time_s", "epoch_s"):
-            if not _number(getattr(self, name)):
+            if not _geo.is_number(getattr(st, name)):
                 self._fail(S.BAD_INPUT, name + " must be a finite number")
                 return
-        if self.exposure_s is not None and not (_number(self.exposure_s) and
-                                                self.exposure_s > 0):
+        if st.exposure_s is not None and not (_geo.is_number(st.exposure_s) and
+                                              st.exposure_s > 0):
             self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
             return
         self.focal_px = focal
@@ -415,17 +256,17 @@ class StarTracker:
         else:
             db, code, reason = _database.load(database)
             if db is None:
-                self._fail(_database_status(code), "database: " + str(code) + ": " +
+                self._fail(code, "database: " + str(code) + ": " +
                            str(reason))
                 return
         self.database = db
-        bit = _stardb.METHOD_NAMES.get(self.method)
-        if bit is None:
-            self._fail(S.BAD_INPUT, "unknown method " + repr(self.method))
+        module = _starid.method(st.method)
+        if module is None:
+            self._fail(S.BAD_INPUT, "unknown method " + repr(st.method))
             return
-        if not db.methods & bit:
-            self._fail(getattr(S, "DATABASE_UNSUPPORTED", S.DATABASE_MISMATCH),
-                       "the database does not serve method " + repr(self.method))
+        if not db.methods & module.DATABASE_BIT:
+            self._fail(S.DATABASE_UNSUPPORTED,
+                       "the database does not serve method " + repr(st.method))
             return
         fov_h = _camera_fov_h(cam)
         if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
@@ -436,9 +277,9 @@ class StarTracker:
     # ---- stages ---------------------------------------------------------------------
 
     def _tick(self, timings, name, start):
-        if self.clock is None:
+        if self.settings.clock is None:
             return None
-        now = self.clock()
+        now = self.settings.clock()
         if start is not None:
             timings[name] = now - start
         return now
@@ -448,16 +289,16 @@ class StarTracker:
         docstring, stage 3), or None without a rate."""
         if omega is None:
             return None
-        rate = math.sqrt(omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
+        rate = _geo.norm(omega)
         if not rate > 0:
             return None
         axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
         half = 0.5 * exposure_s if exposure_s is not None else 0.0
-        row_time = self.row_time_s
-        epoch = self.epoch_s
+        row_time = self.settings.row_time_s
+        epoch = self.settings.epoch_s
 
         def turn(v, y):
-            return _rotate(v, axis, rate * (half + y * row_time - epoch))
+            return _geo.rotate_about(v, axis, rate * (half + y * row_time - epoch))
         return turn
 
     def directions(self, stars, omega=None, exposure_s=None):
@@ -481,7 +322,7 @@ class StarTracker:
 
     def streaks(self, stars, used, smear, omega=None, exposure_s=None):
         """Per direction of :meth:`directions` (``used``), the partly seen track of its star
-        for the identification (:mod:`lodestar.firmware.verify`): None, or ``(ux, uy, uz,
+        for the identification (:mod:`lodestar.firmware.starid.verify`): None, or ``(ux, uy, uz,
         half)`` with ``u`` the camera-frame unit tangent along the expected smear
         (``smear(x, y) -> (dx, dy)`` px) and ``half`` the star's ``unseen`` track in rad;
         None instead of the list when no star has an unseen track.  ``omega``, ``exposure_s``
@@ -500,7 +341,7 @@ class StarTracker:
                 v1 = cam.pixel_to_vector(s.x + d[0] / length, s.y + d[1] / length)
                 if v0 is not None and v1 is not None:
                     t = (v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2])
-                    per_px = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+                    per_px = _geo.norm(t)
                     if per_px > 0:
                         u = (t[0] / per_px, t[1] / per_px, t[2] / per_px)
                         if turn is not None:
@@ -510,6 +351,14 @@ class StarTracker:
             out.append(streak)
         return out if found else None
 
+    def _track(self, vectors, prior, omega, dt, streaks):
+        st = self.settings
+        return _tracking.track(vectors, self.database, prior, omega, dt,
+                               tolerance_rad=self.tolerance_rad,
+                               search_rad=self.track_search_rad,
+                               min_matches=st.track_min_matches,
+                               max_mismatch_prob=st.track_max_prob, streaks=streaks)
+
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
         with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector
@@ -517,17 +366,13 @@ class StarTracker:
         sol = None
         mode = None
         if prior is not None:
-            sol = _tracking.track(vectors, self.database, prior, omega, dt,
-                                  tolerance_rad=self.tolerance_rad,
-                                  search_rad=self.track_search_rad,
-                                  min_matches=self.track_min_matches,
-                                  max_mismatch_prob=self.track_max_prob, streaks=streaks)
+            sol = self._track(vectors, prior, omega, dt, streaks)
             mode = "tracking"
-            if sol.status == S.OK or not self.fallback:
+            if sol.status == S.OK or not self.settings.fallback:
                 return sol, mode
-        sol = _starid.identify(vectors, self.database, method=self.method,
-                               tolerance_rad=self.tolerance_rad, budget=self.budget,
-                               streaks=streaks, **self.id_options)
+        sol = _starid.identify(vectors, self.database, method=self.settings.method,
+                               tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
+                               streaks=streaks, **self.settings.id_options)
         return sol, "lost_in_space"
 
     def weights(self, fluxes):
@@ -535,9 +380,9 @@ class StarTracker:
         (1 for a missing, non-positive or non-finite flux; all 1 without
         ``flux_weighting``)."""
         n = len(fluxes)
-        if not self.flux_weighting:
+        if not self.settings.flux_weighting:
             return [1.0] * n
-        good = [f for f in fluxes if _number(f) and f > 0]
+        good = [f for f in fluxes if _geo.is_number(f) and f > 0]
         if not good:
             return [1.0] * n
         good.sort()
@@ -545,7 +390,7 @@ class StarTracker:
         median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
         out = []
         for f in fluxes:
-            out.append(f / median if _number(f) and f > 0 else 1.0)
+            out.append(f / median if _geo.is_number(f) and f > 0 else 1.0)
         return out
 
     def noise_shares(self, b, r, photon):
@@ -635,7 +480,7 @@ class StarTracker:
             return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0,
                                        None)
         except Exception as exc:
-            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+            return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
     def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
                        streaks):
@@ -648,10 +493,10 @@ class StarTracker:
         if start is None:
             start = self._tick(timings, None, None)
         res.n_stars = len(vectors)
-        if prior is not None and _tracking.unit_quaternion(prior) is None:
+        if prior is not None and _quat.unit_quaternion(prior) is None:
             _note(res, "prior ignored: not 4 finite numbers with a non-zero norm")
             prior = None
-        if prior is not None and dt is not None and not _number(dt):
+        if prior is not None and dt is not None and not _geo.is_number(dt):
             _note(res, "dt ignored: not a finite number")
             dt = None
         if len(vectors) < 3:
@@ -663,21 +508,17 @@ class StarTracker:
         res.mode = mode
         res.patterns_tried = sol.patterns_tried
         res.probability = sol.probability
-        code = identification_status(sol.status)
+        code = sol.status
         if code != S.OK:
             res.status = code
             _note(res, mode + ": " + S.name(code))
             return res
         star_ids = getattr(sol, "star_ids", None) or []
-        if mode == "lost_in_space" and self.refine:
+        if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
             # (tracking from the identified attitude: it also repairs an attitude fitted to
             # a few clustered stars, which leaves the others outside the match tolerance)
-            ref = _tracking.track(vectors, self.database, sol.q,
-                                  tolerance_rad=self.tolerance_rad,
-                                  search_rad=self.track_search_rad,
-                                  min_matches=self.track_min_matches,
-                                  max_mismatch_prob=self.track_max_prob, streaks=streaks)
+            ref = self._track(vectors, sol.q, None, None, streaks)
             if ref.status == S.OK and len(ref.star_ids) > len(star_ids):
                 star_ids = ref.star_ids
         if not star_ids:
@@ -712,7 +553,7 @@ class StarTracker:
         try:
             return self._process(packet_bytes, prior, omega, dt, exposure_s)
         except Exception as exc:
-            return Result(_INTERNAL_ERROR, "internal error: " + repr(exc))
+            return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
     def _process(self, packet_bytes, prior, omega, dt, exposure_s):
         res = Result(S.OK)
@@ -737,12 +578,12 @@ class StarTracker:
             return res
         w = None
         if omega is not None:
-            w = _tracking.vector3(omega)
+            w = _geo.vector3(omega)
             if w is None:
                 _note(res, "omega ignored: not 3 finite numbers")
-        exposure = self.exposure_s
+        exposure = self.settings.exposure_s
         if exposure_s is not None:
-            if _number(exposure_s) and exposure_s > 0:
+            if _geo.is_number(exposure_s) and exposure_s > 0:
                 exposure = exposure_s
             else:
                 _note(res, "exposure_s ignored: not a positive number")
@@ -753,14 +594,14 @@ class StarTracker:
                 return cam.smear_px(x, y, w, exposure)
 
             longest = _longest_smear(cam, smear)
-            if not longest <= self.max_smear_px:
+            if not longest <= self.settings.max_smear_px:
                 res.status = S.SMEAR_TOO_LONG
                 _note(res, "expected smear " + str(round(longest, 1)) + " px > max_smear_px " +
-                      str(self.max_smear_px))
+                      str(self.settings.max_smear_px))
                 return res
-        stars, rejected = _centroids.extract(records, max_stars=None,
-                                             expected_smear_px=smear, **self.extract_options)
-        if self.drop_border:
+        stars, rejected = _centroids.extract(records, max_stars=None, expected_smear_px=smear,
+                                             **self.settings.extract_options)
+        if self.settings.drop_border:
             kept = []
             xmax = cam.width - 1
             ymax = cam.height - 1
@@ -775,9 +616,9 @@ class StarTracker:
                     kept.append(star)
             rejected["border"] = len(stars) - len(kept)
             stars = kept
-        if len(stars) > self.max_stars:
-            rejected["excess"] += len(stars) - self.max_stars
-            stars = stars[:self.max_stars]
+        if len(stars) > self.settings.max_stars:
+            rejected["excess"] += len(stars) - self.settings.max_stars
+            stars = stars[:self.settings.max_stars]
         res.rejected = rejected
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
@@ -802,16 +643,6 @@ def _note(res, text):
     res.reason = text if not res.reason else res.reason + "; " + text
 
 
-def _database_status(code):
-    """A status code for a :func:`lodestar.firmware.database.load` failure (a status code,
-    or one of the reader's status names)."""
-    if isinstance(code, int) and not isinstance(code, bool):
-        return code
-    if code in ("FOV_MISMATCH", "UNSUPPORTED_METHOD", "BAD_VERSION"):
-        return S.DATABASE_MISMATCH
-    return S.DATABASE_CORRUPT
-
-
 def _camera_fov_h(cam):
     """Horizontal FOV (rad) through the camera model, along the middle row (as
     ``lodestar.sim.camera.Camera.fov_deg``); None if the model cannot invert the edges."""
@@ -820,6 +651,4 @@ def _camera_fov_h(cam):
     b = cam.pixel_to_vector(cam.width - 0.5, ym)
     if a is None or b is None:
         return None
-    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
-    h = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)
-    return 2.0 * math.asin(h if h < 1.0 else 1.0)
+    return _geo.angle(a, b)

@@ -1,4 +1,4 @@
-"""Quaternion and 3-vector helpers for the MCU (pure Python: ``math`` only).
+"""Quaternions for the MCU (pure Python: ``math`` only; 3-vectors: :mod:`.geometry`).
 
 Convention (shared with ``lodestar.sim``)
 -----------------------------------------
@@ -13,7 +13,8 @@ Convention (shared with ``lodestar.sim``)
 * ``multiply(p, q)`` is the Hamilton product, so rotating by ``multiply(p, q)`` is rotating by
   ``q`` first and then by ``p`` (scipy's ``Rotation(p) * Rotation(q)``).
 * ``q`` and ``-q`` are the same rotation; :func:`canonical` picks ``w >= 0``.
-* Angles are in radians.  Matrices are lists of three row lists.
+* Angles are in radians.  :func:`to_matrix` gives three row lists, :func:`matrix` the
+  row-major 9-tuple of the flight loops.
 
 Everything here runs unchanged on CPython and MicroPython: no numpy, typing or dataclasses.
 Inputs may be any indexable sequences of numbers (lists, tuples, numpy arrays on CPython).
@@ -21,64 +22,11 @@ Inputs may be any indexable sequences of numbers (lists, tuples, numpy arrays on
 
 import math
 
-
-def _machine_epsilon():
-    e = 1.0
-    while 1.0 + 0.5 * e != 1.0:
-        e *= 0.5
-    return e
-
-
-EPS = _machine_epsilon()
-"""Machine epsilon of this interpreter's float: 2.2e-16 for double, 1.2e-7 on MicroPython
-ports built with single-precision floats (tolerances below scale with it)."""
+from .geometry import EPS, finite, is_number, normalise_vector
 
 ORTHONORMAL_TOLERANCE = max(1e-6, 64.0 * EPS)
 """Largest accepted ``|A^T A - I|`` element (and ``|det A - 1|``) in :func:`from_matrix`."""
 
-
-def _finite(x):
-    # inf - inf and nan - nan are nan, and nan == 0 is False (no math.isfinite needed).
-    return x - x == 0.0
-
-
-# ---------------------------------------------------------------------------------------------
-# 3-vectors
-# ---------------------------------------------------------------------------------------------
-
-def dot(u, v):
-    """Dot product of two 3-vectors."""
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-def cross(u, v):
-    """Cross product ``u x v`` of two 3-vectors, as a list."""
-    return [u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0]]
-
-
-def norm(v):
-    """Euclidean length of a 3-vector (no overflow protection: star vectors are ~unit)."""
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-def normalise_vector(v):
-    """Unit 3-vector along ``v`` as a list; ``ValueError`` if ``v`` is zero or not finite."""
-    if len(v) != 3:
-        raise ValueError("vector must have 3 components, got %d" % len(v))
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    n = math.sqrt(x * x + y * y + z * z)
-    if not _finite(n):
-        raise ValueError("vector is not finite: %r" % ([x, y, z],))
-    if n == 0.0:
-        raise ValueError("cannot normalise a zero vector")
-    return [x / n, y / n, z / n]
-
-
-# ---------------------------------------------------------------------------------------------
-# Quaternions
-# ---------------------------------------------------------------------------------------------
 
 def _checked(q):
     """``q`` as 4 floats plus its squared norm; ``ValueError`` if not finite or zero."""
@@ -86,7 +34,7 @@ def _checked(q):
         raise ValueError("quaternion must have 4 components [x, y, z, w], got %d" % len(q))
     x, y, z, w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     n2 = x * x + y * y + z * z + w * w
-    if not _finite(n2):
+    if not finite(n2):
         raise ValueError("quaternion is not finite: %r" % ([x, y, z, w],))
     if n2 == 0.0:
         raise ValueError("quaternion is zero")
@@ -135,21 +83,23 @@ def multiply(p, q):
             pw * qw - px * qx - py * qy - pz * qz]
 
 
+def matrix(q):
+    """Attitude matrix ``A`` of a **unit** ``q`` as a row-major 9-tuple (``v_cam = A v_in``):
+    ``A = (w^2 - |v|^2) I + 2 v v^T + 2 w [v x]`` for ``q = [v, w]``, in the form the flight
+    loops use (no normalisation, no checks)."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
+
+
 def to_matrix(q):
     """Attitude matrix ``A`` (3 row lists) with ``v_cam = A v_in``; equals scipy's ``as_matrix``.
 
-    ``A = (w^2 - |v|^2) I + 2 v v^T + 2 w [v x]`` for a unit ``q = [v, w]``.  A non-unit ``q``
-    is normalised implicitly (divided by ``|q|^2``); zero or non-finite ``q`` raises
-    ``ValueError``.
+    :func:`matrix` of ``q`` normalised first; zero or non-finite ``q`` raises ``ValueError``.
     """
-    x, y, z, w, n2 = _checked(q)
-    s = 2.0 / n2
-    xx, yy, zz = s * x * x, s * y * y, s * z * z
-    xy, xz, yz = s * x * y, s * x * z, s * y * z
-    wx, wy, wz = s * w * x, s * w * y, s * w * z
-    return [[1.0 - yy - zz, xy - wz, xz + wy],
-            [xy + wz, 1.0 - xx - zz, yz - wx],
-            [xz - wy, yz + wx, 1.0 - xx - yy]]
+    m = matrix(normalise(q))
+    return [list(m[0:3]), list(m[3:6]), list(m[6:9])]
 
 
 def rotate(q, v):
@@ -187,7 +137,7 @@ def from_matrix(m, tol=ORTHONORMAL_TOLERANCE):
             raise ValueError("matrix row %d must have 3 elements, got %d" % (i, len(row)))
         for j in range(3):
             e = float(row[j])
-            if not _finite(e):
+            if not finite(e):
                 raise ValueError("matrix element [%d][%d] is not finite" % (i, j))
             a.append(e)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = a
@@ -242,7 +192,38 @@ def from_axis_angle(axis, angle):
     """Unit quaternion of a right-handed rotation by ``angle`` (rad) about ``axis``."""
     u = normalise_vector(axis)
     h = 0.5 * float(angle)
-    if not _finite(h):
+    if not finite(h):
         raise ValueError("angle is not finite")
     s = math.sin(h)
     return [u[0] * s, u[1] * s, u[2] * s, math.cos(h)]
+
+
+def from_rotation_vector(rotvec):
+    """Unit quaternion of the rotation vector ``rotvec`` (axis times angle, rad); below
+    1e-12 rad the first-order ``[rotvec / 2, 1]``."""
+    x, y, z = rotvec[0], rotvec[1], rotvec[2]
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return [0.5 * x, 0.5 * y, 0.5 * z, 1.0]
+    s = math.sin(0.5 * angle) / angle
+    return [x * s, y * s, z * s, math.cos(0.5 * angle)]
+
+
+def unit_quaternion(q):
+    """``q`` as a unit list ``[x, y, z, w]`` (``w >= 0``), or None when it is not four finite
+    numbers with a non-zero norm (the never-raising form of :func:`canonical` for inputs
+    from outside)."""
+    try:
+        if len(q) != 4:
+            return None
+        x, y, z, w = q[0], q[1], q[2], q[3]
+    except (TypeError, IndexError, KeyError):
+        return None
+    if not (is_number(x) and is_number(y) and is_number(z) and is_number(w)):
+        return None
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not (n > 0.0 and finite(n)):
+        return None
+    if w < 0:
+        n = -n
+    return [x / n, y / n, z / n, w / n]

@@ -9,13 +9,13 @@ Codes are grouped by decade so that modules can add theirs without renumbering::
      0       OK
      1 .. 19 packet decoding (``lodestar.firmware.packet``)
     20 .. 29 centroiding and camera model
-    30 .. 39 star identification (``lodestar.firmware.verify``, ``starid`` and the methods)
+    30 .. 39 star identification (``lodestar.firmware.starid.verify``, ``starid`` and the methods)
     40 .. 49 star database (``lodestar.firmware.database``)
     50 .. 59 generic
 
 To add a code: define the constant below in its group and add a row to ``_TABLE``
-(``tests/test_firmware_packet.py`` checks that every constant has exactly one row and that
-codes are unique).  Pure Python, MicroPython-safe.
+(``tests/firmware/test_status.py`` checks that every constant has exactly one row and
+that codes are unique).  Pure Python, MicroPython-safe.
 """
 
 OK = 0
@@ -52,6 +52,7 @@ DATABASE_BAD_LAYOUT = 47
 
 # --- generic ----------------------------------------------------------------------------
 BAD_INPUT = 50
+INTERNAL_ERROR = 51
 
 _TABLE = (
     (OK, "OK", "success"),
@@ -92,6 +93,8 @@ _TABLE = (
     (DATABASE_BAD_LAYOUT, "DATABASE_BAD_LAYOUT",
      "star database sections or header values inconsistent (CRC was correct)"),
     (BAD_INPUT, "BAD_INPUT", "argument of the wrong type or out of range"),
+    (INTERNAL_ERROR, "INTERNAL_ERROR",
+     "unexpected exception inside the firmware (a bug, MemoryError or a read error)"),
 )
 """``(code, name, meaning)`` of every status, in code order."""
 

@@ -36,13 +36,13 @@ Algorithm
    used once; an observed star with a second unclaimed catalogue star within tolerance is
    left unnamed (a close double: either name could be right).
 5. **Verify**: at least ``min_matches`` matches and the binomial probability that that many
-   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.verify`:
+   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.starid.verify`:
    ``p = N_fov pi tolerance^2 / Omega_fov`` per star, two matches free) below
    ``max_mismatch_prob``.  Every reported match lies within ``tolerance_rad`` of its
    catalogue star at the returned attitude.  With ``streaks`` (a smeared star seen only in
    part) steps 4 and 5 use that star's region stretched along its track and the
-   Poisson-binomial probability of :mod:`lodestar.firmware.verify`, and its fits weigh it
-   less (:func:`lodestar.firmware.verify.streak_weights`).
+   Poisson-binomial probability of :mod:`lodestar.firmware.starid.verify`, and its fits weigh it
+   less (:func:`lodestar.firmware.starid.search.streak_weights`).
 
 Result: a :class:`TrackSolution` with the attributes of an identification ``Solution``
 (``status``, ``q``, ``matches`` = ``[(observed index, HIP)]``, ``star_ids`` =
@@ -63,10 +63,11 @@ import math
 from array import array
 
 from . import attitude as _att
-from .quaternion import multiply
 from . import status as S
-from .verify import (chance_agreement, fov_solid_angle, near_pairs, streak_weights,
-                     streaks_valid)
+from .geometry import is_number, residual2, unit, vector3
+from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
+from .starid.search import Solution, streak_weights, streaks_valid
+from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -82,85 +83,23 @@ DEFAULT_ITERATIONS = 4
 """Most fit / predict / match rounds."""
 
 
-def _finite(x):
-    return x - x == 0.0
-
-
-def _number(x):
-    return not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x)
-
-
-class TrackSolution:
-    """Result of :func:`track` (see the module docstring)."""
+class TrackSolution(Solution):
+    """Result of :func:`track`: a :class:`~lodestar.firmware.starid.search.Solution`
+    (``patterns_tried`` 0, one hypothesis: the prior) plus ``q_predicted``, ``n_predicted``
+    and ``residual_rad`` (module docstring)."""
 
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
                  q_predicted=None, n_predicted=0, residual_rad=None):
-        self.status = status
-        self.q = q
-        self.matches = matches if matches is not None else []
-        self.star_ids = star_ids if star_ids is not None else []
-        self.patterns_tried = 0
-        self.probability = probability
-        self.hypotheses = 1 if q_predicted is not None else 0
+        Solution.__init__(self, status, q=q, matches=matches, probability=probability,
+                          hypotheses=1 if q_predicted is not None else 0, star_ids=star_ids)
         self.q_predicted = q_predicted
         self.n_predicted = n_predicted
         self.residual_rad = residual_rad
 
-    @property
-    def ok(self):
-        return self.status == S.OK
-
-    def __repr__(self):
-        return ("TrackSolution(" + S.name(self.status) + ", q=" + repr(self.q) +
-                ", matches=" + str(len(self.matches)) + ", probability=" +
-                repr(self.probability) + ")")
-
 
 # --------------------------------------------------------------------------------------
-# Attitude helpers
+# Propagation
 # --------------------------------------------------------------------------------------
-
-def unit_quaternion(q):
-    """``q`` as a unit list ``[x, y, z, w]`` (``w >= 0``), or None when it is not four finite
-    numbers with a non-zero norm."""
-    try:
-        if len(q) != 4:
-            return None
-        x, y, z, w = q[0], q[1], q[2], q[3]
-    except (TypeError, IndexError, KeyError):
-        return None
-    if not (_number(x) and _number(y) and _number(z) and _number(w)):
-        return None
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not (n > 0.0 and _finite(n)):
-        return None
-    if w < 0:
-        n = -n
-    return [x / n, y / n, z / n, w / n]
-
-
-def vector3(v):
-    """``v`` as a tuple of three floats, or None when it is not three finite numbers."""
-    try:
-        if len(v) != 3:
-            return None
-        x, y, z = v[0], v[1], v[2]
-    except (TypeError, IndexError, KeyError):
-        return None
-    if not (_number(x) and _number(y) and _number(z)):
-        return None
-    return float(x), float(y), float(z)
-
-
-def rotation_quaternion(rotvec):
-    """Unit quaternion of the rotation vector ``rotvec`` (axis times angle, rad)."""
-    x, y, z = rotvec[0], rotvec[1], rotvec[2]
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return [0.5 * x, 0.5 * y, 0.5 * z, 1.0]
-    s = math.sin(0.5 * angle) / angle
-    return [x * s, y * s, z * s, math.cos(0.5 * angle)]
-
 
 def propagate(q, omega=None, dt=None):
     """The attitude ``dt`` seconds after ``q`` at constant body rate ``omega`` (rad/s, camera
@@ -172,18 +111,10 @@ def propagate(q, omega=None, dt=None):
     if omega is None or dt is None:
         return q
     w = vector3(omega)
-    if w is None or not _number(dt):
+    if w is None or not is_number(dt):
         return None
-    d = rotation_quaternion((-w[0] * dt, -w[1] * dt, -w[2] * dt))
+    d = from_rotation_vector((-w[0] * dt, -w[1] * dt, -w[2] * dt))
     return unit_quaternion(multiply(d, q))
-
-
-def matrix(q):
-    """Row-major 9-tuple of the attitude matrix ``A(q)`` of a unit quaternion."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    return (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
 
 
 # --------------------------------------------------------------------------------------
@@ -255,7 +186,7 @@ def predict(database, q, margin_rad=0.0, stars=None):
 def match_nearest(observed, predicted, tolerance_rad, streaks=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
     index) closer than ``tolerance_rad`` (or within the region stretched along a star's
-    track, ``streaks``: :func:`lodestar.firmware.verify.in_region`): observed stars in
+    track, ``streaks``: :func:`lodestar.firmware.starid.verify.in_region`): observed stars in
     order (brightest first) take the nearest unclaimed predicted star; a star with a second
     unclaimed prediction within tolerance is left unnamed."""
     claimed = {}
@@ -357,25 +288,23 @@ def residual_rms(observed, database, q, pairs):
     m = matrix(q)
     total = 0.0
     for o, s in pairs:
-        r = database.star_vector(s)
-        b = observed[o]
-        dx = b[0] - (m[0] * r[0] + m[1] * r[1] + m[2] * r[2])
-        dy = b[1] - (m[3] * r[0] + m[4] * r[1] + m[5] * r[2])
-        dz = b[2] - (m[6] * r[0] + m[7] * r[1] + m[8] * r[2])
-        total += dx * dx + dy * dy + dz * dz
+        total += residual2(m, observed[o], database.star_vector(s))
     return math.sqrt(total / len(pairs))
 
 
 def _unit_vectors(vectors):
+    """Unit tuples of ``vectors``, or None unless it is a sequence of finite, non-zero
+    3-vectors of numbers."""
     out = []
-    for v in vectors:
-        u = vector3(v)
-        if u is None:
-            return None
-        n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-        if not (n > 0.0 and _finite(n)):
-            return None
-        out.append((u[0] / n, u[1] / n, u[2] / n))
+    try:
+        for v in vectors:
+            u = vector3(v)
+            u = None if u is None else unit(u)
+            if u is None:
+                return None
+            out.append(u)
+    except TypeError:
+        return None
     return out
 
 
@@ -391,8 +320,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
     propagated by ``omega`` (rad/s) over ``dt`` (s); returns a :class:`TrackSolution`.
 
     ``weights`` (one positive number per observed star, e.g. ``sigma**-2``) weight the QUEST
-    fits; None: equal (or :func:`lodestar.firmware.verify.streak_weights`).  ``streaks``:
-    per star None or its partly seen track (:mod:`lodestar.firmware.verify`): the fine
+    fits; None: equal (or :func:`lodestar.firmware.starid.search.streak_weights`).  ``streaks``:
+    per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`): the fine
     matching and the probability use its stretched region.  See the module docstring for
     the algorithm and the statuses.
     """
@@ -401,13 +330,13 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
                       min_matches, max_mismatch_prob, coarse_stars, iterations, weights,
                       streaks)
     except Exception:       # a database read error or a bug must not reach the flight loop
-        return TrackSolution(getattr(S, "INTERNAL_ERROR", S.BAD_INPUT))
+        return TrackSolution(S.INTERNAL_ERROR)
 
 
 def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,
            coarse_stars, iterations, weights, streaks):
-    if not (_number(tol) and tol > 0 and _number(search) and search >= 0 and
-            _number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
+    if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
+            is_number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
         return TrackSolution(S.BAD_INPUT)
     q_pred = propagate(q_prior, omega, dt)
     if q_pred is None:

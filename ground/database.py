@@ -15,9 +15,9 @@ import numpy as np
 from lodestar.contract import stardb as L
 from lodestar.contract.stardb import METHODS
 from lodestar.firmware import database as fwdb
-from lodestar.firmware import hashing as H
 from lodestar.firmware import kvector
-from lodestar.firmware import triangle as T
+from lodestar.firmware.starid import hashing as H
+from lodestar.firmware.starid import triangle as T
 from lodestar.sim.catalogue import load
 
 BLEND_MAG_DIFF = 2.0

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from lodestar import contract as C
 from lodestar.firmware.camera import Camera
-from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX, StarTracker
+from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX, Settings
 from lodestar.ground import cache
 from lodestar.ground import codec as packet
 from lodestar.ground import solve as ground_solve
@@ -86,10 +87,11 @@ def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.
     if packet.decode(data) != result:
         raise AssertionError("the packet round trip changed the detection result")
     t1 = time.perf_counter()
-    tracker = StarTracker(database, camera, method=method, exposure_s=exposure_s,
+    tracker = StarTracker(database, camera, Settings(
+                          method=method, exposure_s=exposure_s,
                           row_time_s=row_time_s, clock=time.perf_counter,
                           tolerance_px=(default_tolerance_px(camera) if tolerance_px is None
-                                        else tolerance_px))
+                                        else tolerance_px)))
     res = tracker.process(data, omega=omega)
     t2 = time.perf_counter()
     timings = {"packet": (t1 - t0) * 1e3, "solve": (t2 - t1) * 1e3,

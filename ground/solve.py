@@ -11,6 +11,7 @@ from lodestar.contract import stardb
 from lodestar.firmware import status as fwstatus
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import Settings
 from lodestar.ground.cache import load_database
 from lodestar.sim.attitude import to_radec_roll
 
@@ -235,9 +236,9 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     info["database"] = None if path is None else str(path)
     if tolerance_px is None:
         tolerance_px = max(2.0, math.radians(fov[0]) / 1000.0 * cam.fx)
-    tracker = StarTracker(db, cam, method=method, max_stars=max_stars,
+    tracker = StarTracker(db, cam, Settings(method=method, max_stars=max_stars,
                           tolerance_px=float(tolerance_px), budget=int(budget),
-                          centroid_sigma_px=centroid_sigma_px)
+                          centroid_sigma_px=centroid_sigma_px))
     if tracker.status != fwstatus.OK:
         return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
     t0 = time.perf_counter()

@@ -91,7 +91,8 @@ def frames(n_rest=N_REST, n_moving=N_MOVING, seed=SEED):
 def tracker(**kwargs):
     """A ``StarTracker`` for estcube2 over the flight database."""
     from lodestar.firmware.pipeline import StarTracker
+    from lodestar.firmware.settings import Settings
     cam = sim_camera()
     options = dict(exposure_s=cam.exposure_s, row_time_s=cam.row_time_s)
     options.update(kwargs)
-    return StarTracker(flight_database(), firmware_camera(), **options)
+    return StarTracker(flight_database(), firmware_camera(), Settings(**options))

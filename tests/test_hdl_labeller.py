@@ -5,9 +5,9 @@ continuation or a merge, slot write, completion) and the dropped-label count."""
 import numpy as np
 import pytest
 from amaranth.sim import Simulator
-from lodestar.golden.wavefront import WavefrontLabeller
 
 from lodestar import contract as C
+from lodestar.golden.wavefront import WavefrontLabeller
 from lodestar.hdl.labeller import Labeller, max_nodes, max_stack, vblank_cycles
 
 

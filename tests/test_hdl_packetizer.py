@@ -9,16 +9,16 @@ import pytest
 from amaranth import Module
 from amaranth.lib import wiring
 from amaranth.sim import Simulator
-from tests.hdl_bench import to_record
 
 from lodestar import contract as C
-from lodestar.ground import codec as packet
-from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.contract import DetectionResult
+from lodestar.golden import DetectorConfig, detect_frame
+from lodestar.ground import codec as packet
 from lodestar.hdl.detector import Detector
 from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
 from lodestar.hdl.packetizer import Packetizer, crc32_byte
+from tests.hdl_bench import to_record
 
 
 def pack(values, fields):

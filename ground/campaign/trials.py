@@ -40,6 +40,7 @@ import numpy as np
 from lodestar.contract.stardb import METHODS
 from lodestar.firmware import centroids
 from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import flight as flightsolve
 from lodestar.ground.flight import detector_config
@@ -190,8 +191,8 @@ def falsestars_trial(preset, level, seed, config):
     unit = np.random.default_rng(seed).standard_normal((len(stars), 2))
     out = {}
     for method in METHODS:
-        tracker = StarTracker(frame.database(method), frame.fw_cam, method=method,
-                              tolerance_px=flightsolve.default_tolerance_px(frame.fw_cam))
+        tracker = StarTracker(frame.database(method), frame.fw_cam, Settings(method=method,
+                              tolerance_px=flightsolve.default_tolerance_px(frame.fw_cam)))
         out[method] = {}
         for sigma in NOISE_PX:
             vectors, used = [], []

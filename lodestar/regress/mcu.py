@@ -26,6 +26,7 @@ per cross-boresight axis and about the boresight), ``centroid_sigma_px`` and
 
 from lodestar.firmware import database as _database
 from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import Settings
 
 
 def open_database(path):
@@ -37,9 +38,9 @@ def open_database(path):
 def make_tracker(database, settings, method):
     """A :class:`StarTracker` for lost-in-space ``method`` over ``database`` with the camera
     ``settings`` (module docstring)."""
-    return StarTracker(database, settings["camera"], method=method,
+    return StarTracker(database, settings["camera"], Settings(method=method,
                        exposure_s=settings["exposure_s"], row_time_s=settings["row_time_s"],
-                       tolerance_px=settings["tolerance_px"])
+                       tolerance_px=settings["tolerance_px"]))
 
 
 def outcome(result):

@@ -133,7 +133,8 @@ import json
 from js import performance
 RESIDENT = {"start": gc.mem_alloc()}
 from lodestar.regress import mcu as R
-from lodestar.firmware import hashing, pyramid, tracking, triangle
+from lodestar.firmware import tracking
+from lodestar.firmware.starid import hashing, pyramid, triangle
 gc.collect()
 #@split
 RESIDENT["code"] = gc.mem_alloc()

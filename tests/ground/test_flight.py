@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
+from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX
 from lodestar.golden import detect_frame
 from lodestar.ground import codec as packet
 from lodestar.ground import flight as flightsolve

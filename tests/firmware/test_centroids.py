@@ -19,7 +19,7 @@ from lodestar.golden.starfield import star_frame
 from lodestar.sim import presets, render, sensor
 from lodestar.sim.goldenset import window_camera
 
-GOLDEN_SMALL = Path(__file__).parent / "data" / "golden_small"
+GOLDEN_SMALL = Path(__file__).parents[1] / "data" / "golden_small"
 
 
 # --------------------------------------------------------------------------------------

@@ -43,11 +43,11 @@ Algorithm
    ``2 eps``; then the handedness ``(b1 x b2) . b3`` against the catalogue's (mirror images
    are rejected; skipped within its error bound for a near-collinear triangle).
 4. Each surviving correspondence is a hypothesis verified by
-   :func:`lodestar.firmware.verify.verify` (q-method attitude of the three stars, binomial
+   :func:`lodestar.firmware.starid.verify.verify` (q-method attitude of the three stars, binomial
    false-match probability over the whole field, accepted below ``max_mismatch_prob``).
    All hypotheses of the first triple that yields an accepted one are verified;
    attitudes more than ``distinct_rad`` apart give ``AMBIGUOUS``; else the best is refined
-   and returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+   and returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
 
 ``NO_MATCH`` when the triples run out, ``BUDGET_EXHAUSTED`` when ``budget`` triples were
 tried first.  Pure Python for CPython and MicroPython (``math`` only).
@@ -55,24 +55,16 @@ tried first.  Pure Python for CPython and MicroPython (``math`` only).
 
 import math
 
-from . import verify as V
 from lodestar.contract.stardb import METHOD_TRIANGLE
+
+from ..geometry import chord, norm, triple
+from .search import Search, Solution, handed, observed, triple_bound
+
+DATABASE_BIT = METHOD_TRIANGLE
+"""The database's ``methods`` bit this method reads."""
 
 BOUND_MARGIN = 1.05
 """Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""
-
-
-def _sub(a, b):
-    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
-
-
-def _norm(a):
-    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-
-
-def chord(u, v):
-    """``|u - v|``: the planar side between two unit vectors."""
-    return _norm(_sub(u, v))
 
 
 def sides(v1, v2, v3):
@@ -107,6 +99,13 @@ def area_moment(v1, v2, v3):
     return ar, moment(a, b, c, ar)
 
 
+def _twice_minus(a, b, c):
+    """``(a - b) - (c - a)``, i.e. ``2 a - b - c`` (3 times ``a``'s offset from the
+    triangle's centroid)."""
+    return ((a[0] - b[0]) - (c[0] - a[0]), (a[1] - b[1]) - (c[1] - a[1]),
+            (a[2] - b[2]) - (c[2] - a[2]))
+
+
 def bounds(v1, v2, v3, eps):
     """``(dA, dJ)``: bounds on the change of area and polar moment when each vertex moves by
     at most ``eps`` (rad); first order (Cole & Crassidis' Jacobian, worst case) times
@@ -115,9 +114,9 @@ def bounds(v1, v2, v3, eps):
     ar = area(a, b, c)
     s2 = a * a + b * b + c * c
     # |grad_i A| = opposite side / 2; |2 v_i - v_j - v_k| = 3 |v_i - centroid|
-    m1 = _norm(_sub(_sub(v1, v2), _sub(v3, v1)))
-    m2 = _norm(_sub(_sub(v2, v3), _sub(v1, v2)))
-    m3 = _norm(_sub(_sub(v3, v1), _sub(v2, v3)))
+    m1 = norm(_twice_minus(v1, v2, v3))
+    m2 = norm(_twice_minus(v2, v3, v1))
+    m3 = norm(_twice_minus(v3, v1, v2))
     half = 0.5 * (a + b + c)
     d_area = eps * half
     d_moment = eps * (s2 / 36.0 * half + ar / 18.0 * (m1 + m2 + m3))
@@ -150,16 +149,16 @@ def correspondences(obs_opp, cat_opp, tol):
     return out
 
 
-class _Search(V.Search):
+class _Search(Search):
     def __init__(self, b, db, tol, max_prob, distinct, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
         self.max_side0 = 2.0 * math.sin(0.5 * db.tri_max_side)
 
-    def try_triple(self, i, j, k):
-        """Accepted ``[(q, Verification)]`` of observed triple ``(i, j, k)``."""
+    def try_pattern(self, tri):
+        """Accepted ``[(q, Verification)]`` of the observed triple ``tri = (i, j, k)``."""
+        i, j, k = tri
         b = self.b
         db = self.db
-        tri = (i, j, k)
         v = (b[i], b[j], b[k])
         h = self.half
         tol = self.tol + max(h[i], h[j], h[k])     # a streak: off by up to half along it
@@ -175,7 +174,7 @@ class _Search(V.Search):
         d_moment += 0.5 * db.tri_moment_step
         mstep = db.tri_moment_step
         start, stop = db.triangles_in_range(ar - d_area, ar + d_area)
-        t_bound = V.triple_bound(v[0], v[1], v[2], tol)
+        t_bound = triple_bound(v[0], v[1], v[2], tol)
         accepted = []
         for r in range(start, stop):
             _, mkey, c0, c1, c2 = db.triangle_record(r)
@@ -186,10 +185,10 @@ class _Search(V.Search):
             perms = correspondences(opp, cat_opp, side_tol)
             if not perms:
                 continue
-            t_cat = V.triple(r0, r1, r2)
+            t_cat = triple(r0, r1, r2)
             for p in perms:
-                t_obs = V.triple(v[p[0]], v[p[1]], v[p[2]])
-                if not V.handed(t_obs, t_cat, t_bound):
+                t_obs = triple(v[p[0]], v[p[1]], v[p[2]])
+                if not handed(t_obs, t_cat, t_bound):
                     continue
                 self.test((tri[p[0]], tri[p[1]], tri[p[2]]), (c0, c1, c2), accepted)
         return accepted
@@ -197,37 +196,28 @@ class _Search(V.Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Planar-triangle identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Planar-triangle identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most triples tried.  ``max_stars``: observed stars used for triangles.
     ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
-    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.verify`):
+    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`):
     a triangle's tolerances widen by the largest ``half`` of its stars.
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_TRIANGLE:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
-    if len(b) < 3:
-        return V.Solution(V.TOO_FEW_STARS)
+        return Solution(code)
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    n = len(b) if len(b) < max_stars else max_stars
-    tried = 0
+    return search.run(_triples(len(b) if len(b) < max_stars else max_stars), budget)
+
+
+def _triples(n):
+    """Triples of ``n`` stars, every one whose faintest star is ``k`` before any with a
+    fainter one (module docstring, step 2)."""
     for k in range(2, n):
         for j in range(1, k):
             for i in range(j):
-                if tried >= budget:
-                    return search.fail(V.BUDGET_EXHAUSTED, tried)
-                tried += 1
-                accepted = search.try_triple(i, j, k)
-                if accepted:
-                    return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                yield i, j, k

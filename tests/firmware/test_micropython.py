@@ -15,20 +15,19 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
-from lodestar.ground import codec as ground
+from lodestar.contract import DetectionResult
 from lodestar.firmware import camera as fwcamera
 from lodestar.firmware import centroids as fwcentroids
 from lodestar.firmware import packet as fwpacket
 from lodestar.firmware import status as fwstatus
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.contract import DetectionResult
 from lodestar.golden.starfield import star_frame
+from lodestar.ground import codec as ground
 from lodestar.sim.presets import PRESETS, load_preset
-
 from tests import micropython_support
 from tests.micropython_support import run_micropython
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # --------------------------------------------------------------------------------------

@@ -1,9 +1,9 @@
-"""Tests of Lohmann's planar-triangle identification (``lodestar.firmware.triangle``) and
-the database's triangle section: the area and polar-moment formulas against hand-computed
+"""Lohmann's planar-triangle identification (``lodestar.firmware.starid.triangle``) and the
+database's triangle section: the area and polar-moment formulas against hand-computed
 values, the tolerance bounds against worst-case perturbations, vertex correspondence from
-side lengths, mirror rejection by handedness, 200 estcube2 scenes (>= 90 % correct, none
-wrong), refusal of a corrupt or inconsistent section, and the same results under
-MicroPython 1.27.  Larger campaigns: ``benchmarks/bench_starid.py``.
+side lengths, mirror rejection by handedness, a combined image serving every method,
+refusal of a corrupt or inconsistent section, and the same results under MicroPython 1.27.
+The checks every method shares are in ``test_methods.py``.
 """
 
 import functools
@@ -17,16 +17,15 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
 from lodestar.firmware import database as L
+from lodestar.firmware import geometry as G
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware import triangle as T
-from lodestar.firmware import verify as V
 from lodestar.firmware.database import Database, DatabaseError
+from lodestar.firmware.starid import triangle as T
 from lodestar.ground.database import build_database
-from lodestar.sim.centroids import centroid_scene
-from tests.starid_support import assert_identify_within_heap_budget, outcome
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import centroid_scene
 from lodestar.sim.presets import load_preset
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
@@ -140,7 +139,7 @@ def test_canonical_order_and_correspondence_from_side_lengths():
     cat_opp = opp
     for perm in ((0, 1, 2), (2, 0, 1), (1, 2, 0), (2, 1, 0)):
         obs = [v[order[p]] for p in perm]           # observed vertices in another order
-        obs_opp = (T.chord(obs[1], obs[2]), T.chord(obs[0], obs[2]), T.chord(obs[0], obs[1]))
+        obs_opp = (G.chord(obs[1], obs[2]), G.chord(obs[0], obs[2]), G.chord(obs[0], obs[1]))
         found = T.correspondences(obs_opp, cat_opp, 1e-6)
         # catalogue vertex m (order[m]) is observed vertex perm.index(m)
         assert found == [tuple(perm.index(m) for m in range(3))]
@@ -164,7 +163,7 @@ def test_database_triangles_are_canonical_exact_and_sorted():
         ar, mo = T.area_moment(*v)
         assert akey == round(ar / db.tri_area_step)
         assert mkey == round(mo / db.tri_moment_step)
-        opp = (T.chord(v[1], v[2]), T.chord(v[0], v[2]), T.chord(v[0], v[1]))
+        opp = (G.chord(v[1], v[2]), G.chord(v[0], v[2]), G.chord(v[0], v[1]))
         assert opp[0] <= opp[1] <= opp[2] <= chord_max
         for s in (s0, s1, s2):
             assert db.star_flags(s) & stardb.STAR_FLAG_TRIANGLE
@@ -185,10 +184,10 @@ def test_mirror_images_are_rejected_by_handedness(monkeypatch):
         scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3, max_stars=30)
         mirrored.append((scene.vectors * [-1.0, 1.0, 1.0]).tolist())
     with_check = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
-    assert all(sol.status != starid.OK for sol in with_check)
-    monkeypatch.setattr(V, "handed", lambda t_obs, t_cat, bound: True)
+    assert all(sol.status != S.OK for sol in with_check)
+    monkeypatch.setattr(T, "handed", lambda t_obs, t_cat, bound: True)
     without = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
-    assert all(sol.status != starid.OK for sol in without)     # verification catches them
+    assert all(sol.status != S.OK for sol in without)     # verification catches them
     hyp_with = sum(s.hypotheses for s in with_check)
     hyp_without = sum(s.hypotheses for s in without)
     assert hyp_without > 20 and hyp_with < 0.2 * hyp_without
@@ -198,66 +197,7 @@ def test_mirror_images_are_rejected_by_handedness(monkeypatch):
 # Scenes
 # --------------------------------------------------------------------------------------
 
-def test_monte_carlo_200_scenes():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(2024)
-    counts = {"correct": 0, "wrong": 0, "no-solve": 0}
-    for _ in range(200):
-        q = random_attitude(rng)
-        scene = centroid_scene(cam, q, rng, cat, noise_px=rng.uniform(0.1, 0.5),
-                               n_false=int(rng.integers(0, 6)), drop_fraction=0.1,
-                               max_stars=30)
-        sol = starid.identify(scene.vectors.tolist(), db, method="triangle", tolerance_rad=TOL)
-        counts[outcome(sol, scene)] += 1
-        if sol.status == starid.OK:
-            assert sol.probability < 1e-9 and len(sol.matches) >= 4
-    print("\ntriangle, 200 estcube2 scenes:", counts)
-    assert counts["wrong"] == 0
-    assert counts["correct"] >= 180
-
-
-def test_false_stars_only_and_bad_input():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(10)
-    for _ in range(10):
-        n = int(rng.integers(3, 25))
-        v = cam.unproject(rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n))
-        sol = starid.identify(v.tolist(), db, method="triangle", tolerance_rad=TOL)
-        assert sol.status in (starid.NO_MATCH, starid.BUDGET_EXHAUSTED)
-        assert sol.q is None and sol.matches == []
-    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
-    vec = scene.vectors.tolist()
-    for n in range(3):
-        assert starid.identify(vec[:n], db, method="triangle").status == starid.TOO_FEW_STARS
-    bad = list(vec)
-    bad[1] = [float("nan"), 0.0, 1.0]
-    assert starid.identify(bad, db, method="triangle").status == starid.BAD_INPUT
-    assert starid.identify(vec, db, method="triangle", tolerance_rad=0.0).status == \
-        starid.BAD_INPUT
-    # a database without the triangle section
-    pyramid_only = Database(build_database(cat, cam, mag_limit=6.0))
-    sol = starid.identify(vec, pyramid_only, method="triangle")
-    assert sol.status == starid.BAD_DATABASE == S.DATABASE_UNSUPPORTED
-    assert S.name(sol.status) == "DATABASE_UNSUPPORTED"
-
-
-def test_budget_is_deterministic():
-    cam, cat, _, db = setup()
-    rng = np.random.default_rng(13)
-    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2)
-    false = cam.unproject(rng.uniform(0, cam.width - 1, 4), rng.uniform(0, cam.height - 1, 4))
-    vectors = np.concatenate([false, scene.vectors]).tolist()
-    sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL, budget=3)
-    assert sol.status == starid.BUDGET_EXHAUSTED and sol.patterns_tried == 3
-    full = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-    again = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-    assert full.status == starid.OK and full.patterns_tried > 3
-    assert (full.q, full.matches, full.patterns_tried) == (again.q, again.matches,
-                                                           again.patterns_tried)
-    assert all(o >= 4 for o, _ in full.matches)
-
-
-def test_combined_image_serves_every_method():
+def test_combined_image_serves_every_method(scene_outcome):
     cam, cat, _, _ = setup()
     db = Database(build_database(cat, cam, mag_limit=6.0,
                                  methods=("pyramid", "triangle", "hashing")))
@@ -268,7 +208,7 @@ def test_combined_image_serves_every_method():
         scene = centroid_scene(cam, q, rng, cat, noise_px=0.3, n_false=2, max_stars=30)
         for method in starid.METHODS:
             sol = starid.identify(scene.vectors.tolist(), db, method=method, tolerance_rad=TOL)
-            assert outcome(sol, scene) == "correct", method
+            assert scene_outcome(sol, scene) == "correct", method
 
 
 # --------------------------------------------------------------------------------------
@@ -323,7 +263,8 @@ MICROPYTHON_TRIANGLE = r'''
 import binascii
 import gc
 import sys
-from lodestar.firmware import database, starid, status, triangle
+from lodestar.firmware import database, starid, status
+from lodestar.firmware.starid import triangle
 print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
 assert triangle.area(3.0, 4.0, 5.0) == 6.0
 with open("/db.bin", "wb") as f:
@@ -356,7 +297,8 @@ def test_triangle_under_micropython():
     import base64
 
     from micropython_support import run_micropython
-    from test_firmware_micropython import lit
+
+    from ..test_micropython import lit
 
     cam, cat, image, db = setup()
     rng = np.random.default_rng(31)
@@ -370,7 +312,7 @@ def test_triangle_under_micropython():
         sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
         scenes.append(vectors)
         expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
-    assert [e[0] for e in expected[:4]] == [starid.OK] * 4 and expected[4][0] != starid.OK
+    assert [e[0] for e in expected[:4]] == [S.OK] * 4 and expected[4][0] != S.OK
     script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
                         "EXPECTED = " + lit(expected),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
@@ -382,8 +324,3 @@ def test_triangle_under_micropython():
     assert "SOLVED 5" in out and "CORRUPT DATABASE_CORRUPT" in out and "DONE" in out
 
 
-def test_live_peak_of_a_hard_solve_is_within_the_heap_budget():
-    """30 stars of which 10 false, 1 px noise, the pipeline's tolerance: the CPython live
-    peak of one identification (a bound of MicroPython's) stays within the 96 KB budget."""
-    cam, cat, _, db = setup()
-    assert_identify_within_heap_budget("triangle", cam, cat, db)

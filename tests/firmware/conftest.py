@@ -1,14 +1,23 @@
-"""Scoring, hard scenes and the heap-budget measurement shared by the star-identification
-tests."""
+"""Fixtures of the firmware tests: the firmware camera, the star-identification set-up per
+method (``method`` runs a test once per :data:`lodestar.firmware.starid.METHODS`), scoring,
+hard scenes and the heap-budget measurement."""
 
+import functools
 import tracemalloc
 
 import numpy as np
+import pytest
 
 from lodestar.firmware import starid
-from lodestar.firmware.pipeline import DEFAULT_TOLERANCE_PX
-from lodestar.sim.centroids import attitude_error_deg, centroid_scene
+from lodestar.firmware import status as S
+from lodestar.firmware.database import Database
+from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX
+from lodestar.ground.database import build_database
 from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import attitude_error_deg, centroid_scene
+from lodestar.sim.presets import load_preset
+from tests import sim_frames as SF
 
 MAX_ERR_DEG = 0.05
 """An accepted attitude further than this from the truth is a wrong solution."""
@@ -16,7 +25,7 @@ MAX_ERR_DEG = 0.05
 
 def outcome(sol, scene):
     """``"correct"``, ``"wrong"`` (attitude off or a star misnamed) or ``"no-solve"``."""
-    if sol.status != starid.OK:
+    if sol.status != S.OK:
         return "no-solve"
     if attitude_error_deg(sol.q, scene.q) > MAX_ERR_DEG:
         return "wrong"
@@ -59,25 +68,23 @@ def pipeline_tolerance_rad(camera):
     return DEFAULT_TOLERANCE_PX / camera.fx_px
 
 
-def assert_identify_within_heap_budget(method, camera, catalogue, db):
+def _identify_within_heap_budget(method, camera, catalogue, db):
     """Three :func:`hard_scenes` solve with ``method`` at the pipeline's tolerance, each
     within :data:`HEAP_BUDGET` of live peak (the bound of the MicroPython peak)."""
-    from lodestar.firmware import starid
-
     tol = pipeline_tolerance_rad(camera)
     for scene in hard_scenes(camera, catalogue, 3, seed=3):
         v = scene.vectors.tolist()
-        assert starid.identify(v, db, method=method, tolerance_rad=tol).status == starid.OK
+        assert starid.identify(v, db, method=method, tolerance_rad=tol).status == S.OK
         peak = live_peak(lambda: starid.identify(v, db, method=method, tolerance_rad=tol))
         assert peak < HEAP_BUDGET, (method, camera.name, peak)
 
 
-def streaked(vectors, rng, half_rad, every=1, keep_first=0):
+def _streaked(vectors, rng, half_rad, every=1, keep_first=0):
     """Observed directions seen as partial tracks: from star ``keep_first`` on, every
     ``every``-th vector is moved along a random tangent ``u`` by a uniform offset within
     ``+-half_rad`` pushed to at least ``half_rad / 2`` (beyond any point tolerance when
     ``half_rad`` is large).  Returns ``(vectors, streaks)`` with ``streaks[o] = (ux, uy, uz,
-    half_rad)`` for a moved star, None for the others (``lodestar.firmware.verify``)."""
+    half_rad)`` for a moved star, None for the others (:mod:`lodestar.firmware.starid.verify`)."""
     out, streaks = [], []
     for o, v in enumerate(np.asarray(vectors, dtype=float)):
         if o < keep_first or (o - keep_first) % every:
@@ -91,3 +98,73 @@ def streaked(vectors, rng, half_rad, every=1, keep_first=0):
         out.append((w / np.linalg.norm(w)).tolist())
         streaks.append((float(u[0]), float(u[1]), float(u[2]), float(half_rad)))
     return out, streaks
+
+
+TOL = 3.0e-4
+"""Identification tolerance of the star-id tests, rad: about 2.2 px of estcube2 (28.4"/px),
+more than 4 sigma of 0.5 px centroid noise."""
+
+
+@functools.lru_cache(maxsize=None)
+def starid_database(method):
+    """``(camera, catalogue, Database)``: estcube2 with a V <= 6 database serving ``method``
+    alone."""
+    cam = load_preset("estcube2")
+    cat = load()
+    return cam, cat, Database(build_database(cat, cam, mag_limit=6.0, methods=(method,)))
+
+
+@pytest.fixture(params=starid.METHODS)
+def method(request):
+    """Each identification method of the registry in turn."""
+    return request.param
+
+
+@pytest.fixture
+def starid_setup(method):
+    """``(camera, catalogue, Database)`` of :func:`starid_database` for ``method``."""
+    return starid_database(method)
+
+
+@pytest.fixture(scope="session")
+def tol():
+    """:data:`TOL`."""
+    return TOL
+
+
+@pytest.fixture(scope="session")
+def starid_database_of():
+    """:func:`starid_database` (the set-up of any method)."""
+    return starid_database
+
+
+@pytest.fixture(scope="session")
+def firmware_camera():
+    """The estcube2 camera as the firmware models it (:class:`lodestar.firmware.camera`)."""
+    return SF.firmware_camera()
+
+
+@pytest.fixture(scope="session")
+def scene_outcome():
+    """:func:`outcome`: scores an identification against its scene."""
+    return outcome
+
+
+@pytest.fixture(scope="session")
+def heap_budget_check():
+    """``check(method, camera, catalogue, db)``: hard scenes solve within the heap budget."""
+    return _identify_within_heap_budget
+
+
+@pytest.fixture(scope="session")
+def streaked():
+    """``streaked(vectors, rng, half_rad, every=1, keep_first=0)``: stars seen as partial
+    tracks (``(vectors, streaks)``)."""
+    return _streaked
+
+
+@pytest.fixture(scope="session")
+def hard_scene_tools():
+    """``(HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad)`` for the tracking
+    tests."""
+    return HEAP_BUDGET, hard_scenes, live_peak, pipeline_tolerance_rad

@@ -54,9 +54,9 @@ Algorithm
    recomputed from the star table and must agree component by component (and in ``d`` for
    the non-normalized hash); the handedness ``(A x B) . C`` must match.
 4. Each candidate (observed labels -> stored stars) is a hypothesis verified by
-   :func:`lodestar.firmware.verify.verify`; all hypotheses of the first group with an
+   :func:`lodestar.firmware.starid.verify.verify`; all hypotheses of the first group with an
    accepted one are verified, ``AMBIGUOUS`` if they disagree, else the best is refined and
-   returned ``OK`` (:class:`lodestar.firmware.verify.Search`).
+   returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
 
 Cost: the search's work is one group after another, almost all of them rejected by empty
 buckets, so the per-group path is kept lean without changing a single result: the chords and
@@ -69,8 +69,14 @@ Pure Python for CPython and MicroPython (``math`` only).
 
 import math
 
-from . import verify as V
 from lodestar.contract.stardb import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_HASHING
+
+from .. import geometry as G
+from .. import status as S
+from .search import Search, Solution, handed, observed, triple_bound
+
+DATABASE_BIT = METHOD_HASHING
+"""The database's ``methods`` bit this method reads."""
 
 BOUND_MARGIN = 1.1
 """Factor on the first-order hash tolerance (covers the projection's curvature terms)."""
@@ -82,10 +88,6 @@ MAX_TOL_BUCKETS = 2.0
 visit up to ``(2 * MAX_TOL_BUCKETS + 1) ** (2 * (g - 2))`` buckets)."""
 
 
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def _chord2(a, b):
     dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     return dx * dx + dy * dy + dz * dz
@@ -94,20 +96,18 @@ def _chord2(a, b):
 def tangent_frame(a, b):
     """``(m, e1, e2)``: the tangent point ``m = (a + b)/|a + b|`` and the right-handed basis
     ``e1`` (along ``b - a``, orthogonal to ``m``), ``e2 = m x e1``."""
-    m = V.normalize((a[0] + b[0], a[1] + b[1], a[2] + b[2]))
+    m = G.unit((a[0] + b[0], a[1] + b[1], a[2] + b[2]))
     d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
-    k = _dot(d, m)
-    e1 = V.normalize((d[0] - k * m[0], d[1] - k * m[1], d[2] - k * m[2]))
-    e2 = (m[1] * e1[2] - m[2] * e1[1], m[2] * e1[0] - m[0] * e1[2],
-          m[0] * e1[1] - m[1] * e1[0])
-    return m, e1, e2
+    k = G.dot(d, m)
+    e1 = G.unit((d[0] - k * m[0], d[1] - k * m[1], d[2] - k * m[2]))
+    return m, e1, G.cross(m, e1)
 
 
 def project(frame, p):
     """Gnomonic coordinates ``(u, v)`` of the unit vector ``p`` in ``frame``."""
     m, e1, e2 = frame
-    w = _dot(p, m)
-    return _dot(p, e1) / w, _dot(p, e2) / w
+    w = G.dot(p, m)
+    return G.dot(p, e1) / w, G.dot(p, e2) / w
 
 
 def frame_coords(pa, pb, pp):
@@ -235,7 +235,7 @@ def group_hash(vs):
         found = _labellings(vs, i, j)
         if found:
             order, h, _ = found[0]
-            return order, h, V.angle(vs[order[0]], vs[order[1]])
+            return order, h, G.angle(vs[order[0]], vs[order[1]])
     raise ValueError("no canonical labelling")
 
 
@@ -338,13 +338,13 @@ def box_records(db, codes):
     return out
 
 
-class _Search(V.Search):
+class _Search(Search):
     """The hash search over the first ``n`` observed stars: the squared chord and the angle
     of each of their pairs are computed once (``n * n`` tables, index ``i * n + j``,
     ``i < j``)."""
 
     def __init__(self, b, db, tol, max_prob, distinct, n, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
         self.n = n
         self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
         self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
@@ -357,9 +357,9 @@ class _Search(V.Search):
         for j in range(n):
             for i in range(j):
                 self.chord2[i * n + j] = _chord2(b[i], b[j])
-                self.angle[i * n + j] = V.angle(b[i], b[j])
+                self.angle[i * n + j] = G.angle(b[i], b[j])
 
-    def try_group(self, idx):
+    def try_pattern(self, idx):
         """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (ascending star
         indices)."""
         n = self.n
@@ -393,7 +393,7 @@ class _Search(V.Search):
         for r in box_records(db, box_codes(h, t, d_obs, self.d_tol, db)):
             stars = db.hash_record(r)[1:]
             cat = [db.star_vector(s) for s in stars]
-            if self.use_d and abs(V.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
+            if self.use_d and abs(G.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
                 continue
             hc = coords(cat[0], cat[1], cat[2:])
             ok = True
@@ -406,9 +406,9 @@ class _Search(V.Search):
             if t_obs is None:
                 vs = self.b
                 a, b, c = vs[idx[order[0]]], vs[idx[order[1]]], vs[idx[order[2]]]
-                t_bound = V.triple_bound(a, b, c, self.tol)
-                t_obs = V.triple(a, b, c)
-            if not V.handed(t_obs, V.triple(cat[0], cat[1], cat[2]), t_bound):
+                t_bound = triple_bound(a, b, c, self.tol)
+                t_obs = G.triple(a, b, c)
+            if not handed(t_obs, G.triple(cat[0], cat[1], cat[2]), t_bound):
                 continue
             obs_idx = tuple(idx[o] for o in order)
             key = (obs_idx, stars)
@@ -420,45 +420,38 @@ class _Search(V.Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Geometric-hashing identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Geometric-hashing identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
     most groups tried.  ``max_stars``: observed stars used for groups.  ``distinct_rad``:
     attitudes further apart are distinct (default ``20 * tolerance_rad``).  ``streaks``: per
-    star None or its partly seen track (:mod:`lodestar.firmware.verify`); the verification
+    star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`); the verification
     matches such a star over its stretched region, the hash boxes stay those of
     ``tolerance_rad`` (a group holding a streak's star may be missed).
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 3:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_HASHING:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
+        return Solution(code)
     g = database.hash_group_size
     if len(b) < g or max_stars < g:
-        return V.Solution(V.TOO_FEW_STARS if len(b) < g else V.BAD_INPUT)
+        return Solution(S.TOO_FEW_STARS if len(b) < g else S.BAD_INPUT)
     n = len(b) if len(b) < max_stars else max_stars
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
                      streaks)
-    tried = 0
+    return search.run(_groups(g, n), budget)
+
+
+def _groups(g, n):
+    """Groups of ``g`` (3 or 4) of ``n`` stars, ascending indices, every one whose faintest
+    star is ``k`` before any with a fainter one (module docstring, step 2)."""
     for k in range(g - 1, n):
         for j in range(g - 2, k):
             for i in range(g - 3, j):
                 if g == 3:
-                    groups = ((i, j, k),)
+                    yield i, j, k
                 else:
-                    groups = [(h, i, j, k) for h in range(i)]
-                for idx in groups:
-                    if tried >= budget:
-                        return search.fail(V.BUDGET_EXHAUSTED, tried)
-                    tried += 1
-                    accepted = search.try_group(idx)
-                    if accepted:
-                        return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                    for h in range(i):
+                        yield h, i, j, k

@@ -208,24 +208,6 @@ def test_from_axis_angle_matches_scipy():
         Q.from_axis_angle([0, 0, 1], float("nan"))
 
 
-def test_vector_helpers():
-    u, v = [1.0, 2.0, 3.0], [-4.0, 0.5, 2.0]
-    assert Q.dot(u, v) == pytest.approx(np.dot(u, v))
-    assert Q.cross(u, v) == pytest.approx(list(np.cross(u, v)))
-    assert Q.norm(u) == pytest.approx(np.linalg.norm(u))
-    assert Q.normalise_vector(u) == pytest.approx(list(np.asarray(u) / np.linalg.norm(u)))
-    with pytest.raises(ValueError, match="zero vector"):
-        Q.normalise_vector([0, 0, 0])
-    with pytest.raises(ValueError, match="not finite"):
-        Q.normalise_vector([0, float("nan"), 1])
-    with pytest.raises(ValueError, match="3 components"):
-        Q.normalise_vector([0, 1])
-
-
-def test_eps_is_double_on_cpython():
-    assert Q.EPS == 2.0 ** -52
-
-
 @settings(deadline=None, max_examples=200)
 @given(st.tuples(finite, finite, finite, finite), st.tuples(finite, finite, finite))
 def test_property_rotate_matrix_and_round_trip(qt, v):

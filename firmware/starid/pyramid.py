@@ -35,7 +35,7 @@ Algorithm
    ``R`` matches its three angles to ``i, j, k`` (candidates from the k-vector for ``ri``,
    the other two angles computed from the star table) with consistent handedness of
    ``(i, j, r)``.  The first ``r`` found (lowest index) is used, as in Mortari.
-6. **Verification** (:func:`lodestar.firmware.verify.verify`): the q-method attitude of the
+6. **Verification** (:func:`lodestar.firmware.starid.verify.verify`): the q-method attitude of the
    four stars, all catalogue stars predicted in the FOV, one-to-one matches within
    ``tolerance_rad`` and the binomial probability of that many chance matches; accepted if
    below ``max_mismatch_prob``.  All candidate pyramids of the first triple that yields an
@@ -44,7 +44,7 @@ Algorithm
    (q-method over all its matches, matched again, while the match set grows) and returned
    with status ``OK``; its ``q`` is the q-method fit of exactly the reported matches.
 
-Streaks (``streaks``, :mod:`lodestar.firmware.verify`): a smeared star seen only in part is
+Streaks (``streaks``, :mod:`lodestar.firmware.starid.verify`): a smeared star seen only in part is
 known to ``tolerance_rad`` across its track and to ``tolerance_rad + half`` along it; its
 pair tolerances and handedness bounds widen by ``half`` (an angle to it can be off by the
 whole offset along the track) and the verification matches it over its stretched region.
@@ -62,10 +62,14 @@ blocks of :data:`lodestar.firmware.database.PAIR_BLOCK` records.
 import math
 from array import array
 
-from . import verify as V
 from lodestar.contract.stardb import METHOD_PYRAMID
 
-from .database import PAIR_BLOCK
+from .. import geometry as G
+from ..database import PAIR_BLOCK
+from .search import Search, Solution, handed, observed
+
+DATABASE_BIT = METHOD_PYRAMID
+"""The database's ``methods`` bit this method reads."""
 
 SQRT2 = 1.4142135623730951
 
@@ -92,18 +96,16 @@ def _observed_angles(b, n):
     ang = [0.0] * (n * n)
     for i in range(n):
         for j in range(i + 1, n):
-            a = V.angle(b[i], b[j])
+            a = G.angle(b[i], b[j])
             ang[i * n + j] = a
             ang[j * n + i] = a
     return ang
 
 
-_handed = V.handed
 
-
-class _Search(V.Search):
+class _Search(Search):
     def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad, streaks):
-        V.Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
+        Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
@@ -230,7 +232,7 @@ class _Search(V.Search):
             tol_rj = self.ptol(r, j)
             tol_rk = self.ptol(r, k)
             bound = self.bound(i, j, r)
-            t_obs = V.triple(b[i], b[j], b[r])
+            t_obs = G.triple(b[i], b[j], b[r])
             for p0 in range(s[0], s[1], PAIR_BLOCK):
                 rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < s[1] else s[1] - p0)
                 for t in range(0, len(rec), 2):
@@ -245,24 +247,25 @@ class _Search(V.Search):
                     if cr == cj or cr == ck:
                         continue
                     vr = db.star_vector(cr)
-                    if abs(V.angle(vr, vj) - t_rj) > tol_rj or \
-                            abs(V.angle(vr, vk) - t_rk) > tol_rk:
+                    if abs(G.angle(vr, vj) - t_rj) > tol_rj or \
+                            abs(G.angle(vr, vk) - t_rk) > tol_rk:
                         continue
-                    if not _handed(t_obs, V.triple(vi, vj, vr), bound):
+                    if not handed(t_obs, G.triple(vi, vj, vr), bound):
                         continue
                     return r, cr
         return None
 
-    def try_triple(self, i, j, k):
-        """Accepted ``[(q, Verification)]`` of the triple (empty if none)."""
+    def try_pattern(self, triple):
+        """Accepted ``[(q, Verification)]`` of the observed ``triple`` (empty if none)."""
+        i, j, k = triple
         accepted = []
         bound = self.bound(i, j, k)
-        t_obs = V.triple(self.b[i], self.b[j], self.b[k])
+        t_obs = G.triple(self.b[i], self.b[j], self.b[k])
         db = self.db
         for cat in self.triangles(i, j, k):
-            t_cat = V.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
+            t_cat = G.triple(db.star_vector(cat[0]), db.star_vector(cat[1]),
                              db.star_vector(cat[2]))
-            if not _handed(t_obs, t_cat, bound):
+            if not handed(t_obs, t_cat, bound):
                 continue
             fourth = self.fourth_star(i, j, k, cat)
             if fourth is None:
@@ -273,7 +276,7 @@ class _Search(V.Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
-    """Pyramid identification; returns a :class:`lodestar.firmware.verify.Solution`.
+    """Pyramid identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
     here).  ``tolerance_rad``: largest direction error of one observed star (the
@@ -282,29 +285,18 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
     partly seen track (module docstring), or None.
     """
-    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < 4:
-        return V.Solution(V.BAD_INPUT)
-    if not V.streaks_valid(streaks, len(vectors)):
-        return V.Solution(V.BAD_INPUT)
-    if not database.methods & METHOD_PYRAMID:
-        return V.Solution(V.BAD_DATABASE)
-    b = V.prepare(vectors)
+    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 4,
+                       streaks)
     if b is None:
-        return V.Solution(V.BAD_INPUT)
-    if len(b) < 4:
-        return V.Solution(V.TOO_FEW_STARS)
+        return Solution(code)
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    n = search.n
-    tried = 0
+    return search.run(_triples(search.n), budget)
+
+
+def _triples(n):
+    """Mortari's triple order over ``n`` stars (module docstring, step 2)."""
     for dj in range(1, n - 1):
         for dk in range(1, n - dj):
             for i in range(0, n - dj - dk):
-                if tried >= budget:
-                    return search.fail(V.BUDGET_EXHAUSTED, tried)
-                tried += 1
-                j = i + dj
-                accepted = search.try_triple(i, j, j + dk)
-                if accepted:
-                    return search.conclude(accepted, tried)
-    return search.fail(V.NO_MATCH, tried)
+                yield i, i + dj, i + dj + dk

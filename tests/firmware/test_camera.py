@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import camera as fwcam
+from lodestar.firmware import geometry
 from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
 from lodestar.sim.camera import Camera as SimCamera
@@ -209,6 +210,6 @@ def test_smear_matches_rotating_the_direction(name):
 
 
 def test_float_epsilon_and_tolerance_floors():
-    assert fwcam.FLOAT_EPS == np.finfo(float).eps
+    assert geometry.EPS == np.finfo(float).eps
     cam = Camera(752, 480, 1000.0, 1000.0)
     assert cam._step_px == fwcam.NEWTON_STEP_PX and cam._residual_px == fwcam.NEWTON_RESIDUAL_PX

@@ -1,0 +1,131 @@
+"""3-vector and rotation helpers shared by the firmware, and the finite-number test.
+
+Vectors are any indexable 3-sequences of numbers; functions return tuples.  A rotation
+matrix is a row-major 9-tuple (:func:`lodestar.firmware.quaternion.matrix`).  Angles are
+radians.  The small-angle forms (:func:`angle`, :func:`chord`) stay accurate in
+single precision, where ``acos`` of a dot product would not.  Pure Python (``math`` only).
+"""
+
+import math
+
+
+def _machine_epsilon():
+    e = 1.0
+    while 1.0 + 0.5 * e != 1.0:
+        e *= 0.5
+    return e
+
+
+EPS = _machine_epsilon()
+"""Machine epsilon of this interpreter's float: 2.2e-16 for double, 1.2e-7 on MicroPython
+ports built with single-precision floats (tolerances scale with it)."""
+
+
+def finite(x):
+    """True for a finite number: ``inf - inf`` and ``nan - nan`` are nan, and nan is not 0
+    (MicroPython has no ``math.isfinite`` on every port)."""
+    return x - x == 0
+
+
+def is_number(x):
+    """True for an int or float (not a bool) that is finite."""
+    return not isinstance(x, bool) and isinstance(x, (int, float)) and finite(x)
+
+
+def vector3(v):
+    """``v`` as a tuple of three floats, or None when it is not three finite numbers."""
+    try:
+        if len(v) != 3:
+            return None
+        x, y, z = v[0], v[1], v[2]
+    except (TypeError, IndexError, KeyError):
+        return None
+    if not (is_number(x) and is_number(y) and is_number(z)):
+        return None
+    return float(x), float(y), float(z)
+
+
+def dot(u, v):
+    """Dot product of two 3-vectors."""
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def cross(u, v):
+    """Cross product ``u x v`` of two 3-vectors."""
+    return (u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0])
+
+
+def norm(v):
+    """Euclidean length of a 3-vector (no overflow protection: star vectors are ~unit)."""
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def normalise_vector(v):
+    """Unit 3-vector along ``v`` as a list; ``ValueError`` if ``v`` is zero or not finite."""
+    if len(v) != 3:
+        raise ValueError("vector must have 3 components, got %d" % len(v))
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    n = math.sqrt(x * x + y * y + z * z)
+    if not finite(n):
+        raise ValueError("vector is not finite: %r" % ([x, y, z],))
+    if n == 0.0:
+        raise ValueError("cannot normalise a zero vector")
+    return [x / n, y / n, z / n]
+
+
+def unit(v):
+    """Unit vector of ``v`` (a 3-sequence) as a tuple; None if zero or not finite."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    n = math.sqrt(x * x + y * y + z * z)
+    if not (n > 0.0) or n != n or n == float("inf"):
+        return None
+    return x / n, y / n, z / n
+
+
+def chord(a, b):
+    """``|a - b|``: the chord between two unit vectors."""
+    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+def angle(a, b):
+    """Angle between unit vectors ``a`` and ``b`` (rad), ``2 asin(|a - b| / 2)``."""
+    h = 0.5 * chord(a, b)
+    return 2.0 * math.asin(h if h < 1.0 else 1.0)
+
+
+def triple(a, b, c):
+    """Triple product ``(a x b) . c``."""
+    return ((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1] +
+            (a[0] * b[1] - a[1] * b[0]) * c[2])
+
+
+def mat_vec(m, v):
+    """``m v`` for a row-major 9-tuple ``m``."""
+    return (m[0] * v[0] + m[1] * v[1] + m[2] * v[2],
+            m[3] * v[0] + m[4] * v[1] + m[5] * v[2],
+            m[6] * v[0] + m[7] * v[1] + m[8] * v[2])
+
+
+def residual2(m, b, r):
+    """``|b - m r|^2`` (rad^2 for unit vectors): a camera vector ``b`` against a catalogue
+    vector ``r`` under the attitude matrix ``m``."""
+    dx = b[0] - (m[0] * r[0] + m[1] * r[1] + m[2] * r[2])
+    dy = b[1] - (m[3] * r[0] + m[4] * r[1] + m[5] * r[2])
+    dz = b[2] - (m[6] * r[0] + m[7] * r[1] + m[8] * r[2])
+    return dx * dx + dy * dy + dz * dz
+
+
+def rotate_about(v, axis, angle):
+    """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues),
+    as a tuple."""
+    c = math.cos(angle)
+    s = math.sin(angle)
+    ax, ay, az = axis
+    vx, vy, vz = v
+    k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+    return (vx * c + (ay * vz - az * vy) * s + ax * k,
+            vy * c + (az * vx - ax * vz) * s + ay * k,
+            vz * c + (ax * vy - ay * vx) * s + az * k)

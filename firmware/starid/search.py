@@ -1,0 +1,256 @@
+"""The search shared by every identification method: hypotheses, refinement, decision.
+
+A method enumerates observed patterns (star triples, star groups) brightest first; each
+catalogue candidate of a pattern is a hypothesis ``(observed stars -> catalogue stars)``
+that :class:`Search` fits (Davenport's q-method, weighted down for partly seen tracks) and
+verifies (:func:`lodestar.firmware.starid.verify.verify`).  The first pattern with an
+accepted hypothesis ends the search: ``AMBIGUOUS`` if two accepted attitudes are more than
+``distinct`` apart, else the most probable one refined over all its matches (``OK``).
+Patterns count against a deterministic ``budget`` (``BUDGET_EXHAUSTED``); ``NO_MATCH`` when
+they run out.  Statuses are :mod:`lodestar.firmware.status` codes.
+
+Pure Python for CPython and MicroPython (``math`` only).
+"""
+
+from .. import attitude as _attitude
+from .. import geometry as G
+from .. import status as S
+from ..quaternion import angle_between
+from .verify import streak_variance, verify
+
+
+class Solution:
+    """Result of an identification.
+
+    ``status``: a :mod:`lodestar.firmware.status` code; ``q``:
+    attitude ``(x, y, z, w)`` or ``None``; ``matches``: list of ``(observed_index, hip)``,
+    sorted by observed index; ``patterns_tried``: observed patterns examined (star triples
+    for Pyramid and Triangle, star groups for Hashing);
+    ``probability``: the binomial false-match probability of the accepted hypothesis (or of
+    the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
+    verified; ``star_ids``: ``(observed_index, database star index)`` pairs.
+    """
+
+    def __init__(self, status, q=None, matches=None, patterns_tried=0, probability=1.0,
+                 hypotheses=0, star_ids=None):
+        self.status = status
+        self.q = q
+        self.matches = matches if matches is not None else []
+        self.patterns_tried = patterns_tried
+        self.probability = probability
+        self.hypotheses = hypotheses
+        self.star_ids = star_ids if star_ids is not None else []
+
+    @property
+    def ok(self):
+        return self.status == S.OK
+
+    def __repr__(self):
+        return (type(self).__name__ + "(" + S.name(self.status) + ", q=" + repr(self.q) +
+                ", matches=" + str(len(self.matches)) + ", patterns_tried=" +
+                str(self.patterns_tried) + ", probability=" + repr(self.probability) + ")")
+
+
+def fit_attitude(observed, reference, weights=None):
+    """Least-squares attitude (Wahba) of camera-frame unit vectors ``observed`` and inertial
+    unit vectors ``reference`` (equal-length sequences of 3-sequences, at least 2 pairs not
+    parallel): ``q = (x, y, z, w)`` with ``w >= 0`` and ``observed ~ R(q) reference``;
+    ``None`` when the geometry is degenerate (all vectors parallel) or an input is bad.
+
+    Davenport's q-method of :mod:`lodestar.firmware.attitude` (:func:`~lodestar.firmware.
+    attitude.q_method`, a Jacobi eigen-solver: accurate for every rotation angle).
+    """
+    try:
+        q = _attitude.q_method(observed, reference, weights)
+    except ValueError:
+        return None
+    return q[0], q[1], q[2], q[3]
+
+
+def observed(vectors, database, bit, tolerance_rad, budget, max_stars, min_stars, streaks):
+    """``(status, b)``: the observed ``vectors`` as unit tuples ``b`` (status ``OK``), or why
+    a method cannot search them (``b`` None): ``BAD_INPUT`` (``tolerance_rad`` not positive,
+    ``budget < 1``, ``max_stars < min_stars``, malformed ``streaks``, a vector that is not
+    a finite non-zero 3-vector), ``DATABASE_UNSUPPORTED`` (the database lacks the method's
+    ``bit``) or ``TOO_FEW_STARS`` (fewer than ``min_stars`` vectors)."""
+    if not (tolerance_rad > 0.0) or budget < 1 or max_stars < min_stars:
+        return S.BAD_INPUT, None
+    if not streaks_valid(streaks, len(vectors)):
+        return S.BAD_INPUT, None
+    if not database.methods & bit:
+        return S.DATABASE_UNSUPPORTED, None
+    b = []
+    for v in vectors:
+        try:
+            u = G.unit(v)
+        except (TypeError, ValueError, IndexError):
+            u = None
+        if u is None:
+            return S.BAD_INPUT, None
+        b.append(u)
+    if len(b) < min_stars:
+        return S.TOO_FEW_STARS, None
+    return S.OK, b
+
+
+def streak_weights(streaks, tolerance_rad):
+    """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
+    ``1 / (1 + streak_variance / (tolerance_rad / 3)^2)`` (:func:`streak_variance` against
+    a point tolerance of three sigma per axis); 1 without a streak."""
+    if streaks is None or not any(streaks):
+        return None
+    s2 = tolerance_rad * tolerance_rad / 9.0
+    return [1.0 / (1.0 + streak_variance(streak) / s2) for streak in streaks]
+
+
+def streaks_valid(streaks, n):
+    """True when ``streaks`` is None or ``n`` entries, each None or ``(ux, uy, uz, half)``
+    of finite numbers with ``half >= 0`` (``u`` is used as given: a unit vector)."""
+    if streaks is None:
+        return True
+    try:
+        if len(streaks) != n:
+            return False
+        for s in streaks:
+            if s is None:
+                continue
+            if len(s) != 4:
+                return False
+            for v in s:
+                if not G.finite(v):
+                    return False
+            if s[3] < 0:
+                return False
+    except TypeError:
+        return False
+    return True
+
+
+class Search:
+    """Hypothesis testing, refinement and the final decision, common to every method.
+
+    ``b``: observed unit vectors (brightest first); ``db``: the database; ``tol``: the
+    direction tolerance (rad); ``max_prob``: acceptance threshold of the binomial
+    probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
+    ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (module
+    docstring), or None for none.  ``half`` lists each star's ``half`` (0 without a
+    streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
+    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
+    """
+
+    def __init__(self, b, db, tol, max_prob, distinct, streaks=None):
+        self.b = b
+        self.db = db
+        self.tol = tol
+        self.max_prob = max_prob
+        self.distinct = distinct
+        self.hypotheses = 0
+        self.best_rejected = 1.0
+        self.streaks = streaks if streaks is not None and any(streaks) else None
+        self.half = [0.0] * len(b)
+        self.weights = streak_weights(self.streaks, tol)
+        if self.streaks is not None:
+            for o in range(len(b)):
+                if streaks[o] is not None:
+                    self.half[o] = streaks[o][3]
+
+    def hypothesis(self, obs_idx, cat_idx):
+        """Fit (q-method, :meth:`fit`) and verify observed stars ``obs_idx`` as catalogue
+        stars ``cat_idx``; returns ``(q, Verification)`` or ``(None, None)`` (degenerate)."""
+        q = self.fit([(obs_idx[t], cat_idx[t]) for t in range(len(obs_idx))])
+        if q is None:
+            return None, None
+        self.hypotheses += 1
+        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+
+    def test(self, obs_idx, cat_idx, accepted):
+        """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
+        when it is accepted (probability below ``max_prob``)."""
+        q, ver = self.hypothesis(obs_idx, cat_idx)
+        if ver is None:
+            return False
+        if ver.probability < self.max_prob:
+            accepted.append((q, ver))
+            return True
+        if ver.probability < self.best_rejected:
+            self.best_rejected = ver.probability
+        return False
+
+    def refine(self, ver, rounds=4):
+        """Attitude from all matches: refit and re-verify while the match set grows (up to
+        ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
+        ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
+        for _ in range(rounds):
+            q = self.fit(ver.pairs)
+            if q is None:
+                break
+            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+            if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
+                    ver2.pairs == ver.pairs:
+                return q, ver
+            ver = ver2
+        return self.fit(ver.pairs), ver
+
+    def fit(self, pairs):
+        """The q-method attitude of the matches ``pairs`` (observed, catalogue index),
+        weighted by :attr:`weights`; None when degenerate."""
+        db = self.db
+        obs = [self.b[o] for o, s in pairs]
+        ref = [db.star_vector(s) for o, s in pairs]
+        w = None if self.weights is None else [self.weights[o] for o, s in pairs]
+        return fit_attitude(obs, ref, w)
+
+    def conclude(self, accepted, tried):
+        """The :class:`Solution` of the accepted hypotheses of one pattern: ``AMBIGUOUS`` if
+        two of them are more than ``distinct`` apart, else the most probable one refined
+        (status ``OK``)."""
+        best = 0
+        for h in range(1, len(accepted)):
+            if accepted[h][1].probability < accepted[best][1].probability:
+                best = h
+        q, ver = accepted[best]
+        for h in range(len(accepted)):
+            if angle_between(accepted[h][0], q) > self.distinct:
+                return Solution(S.AMBIGUOUS, patterns_tried=tried, probability=ver.probability,
+                                hypotheses=self.hypotheses)
+        q, ver = self.refine(ver)
+        db = self.db
+        matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
+        return Solution(S.OK, q=q, matches=matches, patterns_tried=tried,
+                        probability=ver.probability, hypotheses=self.hypotheses,
+                        star_ids=list(ver.pairs))
+
+    def run(self, patterns, budget):
+        """Try ``patterns`` (observed-star index tuples, in search order) with the method's
+        ``try_pattern`` until one has accepted hypotheses (:meth:`conclude`), ``budget``
+        patterns were tried (``BUDGET_EXHAUSTED``) or none is left (``NO_MATCH``)."""
+        tried = 0
+        for pattern in patterns:
+            if tried >= budget:
+                return self.fail(S.BUDGET_EXHAUSTED, tried)
+            tried += 1
+            accepted = self.try_pattern(pattern)
+            if accepted:
+                return self.conclude(accepted, tried)
+        return self.fail(S.NO_MATCH, tried)
+
+    def fail(self, status, tried):
+        """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
+        return Solution(status, patterns_tried=tried, probability=self.best_rejected,
+                        hypotheses=self.hypotheses)
+
+
+def handed(t_obs, t_cat, bound):
+    """Handedness test: False only when the observed triple product ``t_obs`` is reliably
+    (beyond ``bound``) of the other sign than the catalogue's ``t_cat`` (a mirror image)."""
+    if t_obs > bound:
+        return t_cat > 0.0
+    if t_obs < -bound:
+        return t_cat < 0.0
+    return True
+
+
+def triple_bound(b1, b2, b3, tol):
+    """Error bound of the triple product ``(b1 x b2) . b3`` of unit vectors each known to
+    ``tol`` rad: ``tol (|b1 - b2| + |b2 - b3| + |b3 - b1|)`` (first order, with margin)."""
+    return tol * (G.chord(b1, b2) + G.chord(b2, b3) + G.chord(b3, b1))

@@ -1,0 +1,248 @@
+"""Verification of an identification hypothesis and its chance-agreement probability.
+
+:func:`verify` predicts the catalogue stars in the FOV at a hypothesised attitude, matches
+them one to one with the observed stars (within ``tolerance_rad``, or over the region a
+partly seen track stretches, :func:`in_region`) and gives the probability that that many
+matches happen by chance (binomial, Poisson-binomial with tracks).  A hypothesis is accepted
+when the probability is below the caller's ``max_mismatch_prob``.  The model and its
+derivation are in ``docs/firmware.md`` (star identification, verification).
+
+Conventions (``lodestar.sim``): ``q = (x, y, z, w)``, scalar last, ``v_cam = R(q)
+v_inertial``; angles in radians.  Pure Python for CPython and MicroPython (``math`` only).
+"""
+
+import math
+
+from .. import geometry as G
+from ..quaternion import matrix
+
+
+def binomial_tail(n, k, p):
+    """``P(X >= k)`` for ``X ~ Binomial(n, p)`` (log-domain first term, no ``math.comb``)."""
+    if k <= 0:
+        return 1.0
+    if k > n or p <= 0.0:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    # log of the first term C(n, k) p^k (1-p)^(n-k)
+    log_t = k * math.log(p) + (n - k) * math.log(1.0 - p)
+    for i in range(1, k + 1):
+        log_t += math.log((n - k + i) / i)
+    ratio = p / (1.0 - p)
+    s = 1.0
+    t = 1.0
+    for i in range(k, n):
+        t *= (n - i) / (i + 1) * ratio
+        s += t
+        if t < 1e-12 * s:
+            break
+    if log_t < -700.0:
+        return 0.0
+    out = math.exp(log_t) * s
+    return out if out < 1.0 else 1.0
+
+
+def poisson_binomial_tail(ps, k):
+    """``P(X >= k)`` for ``X`` the number of successes of independent trials of success
+    probabilities ``ps`` (a recursion over the count distribution, every term positive: no
+    cancellation)."""
+    n = len(ps)
+    if k <= 0:
+        return 1.0
+    if k > n:
+        return 0.0
+    dist = [1.0] + [0.0] * n          # dist[j] = P(j successes so far)
+    for t in range(n):
+        p = ps[t]
+        q = 1.0 - p
+        for j in range(t + 1, 0, -1):
+            dist[j] = dist[j] * q + dist[j - 1] * p
+        dist[0] *= q
+    out = 0.0
+    for j in range(k, n + 1):
+        out += dist[j]
+    return out if out < 1.0 else 1.0
+
+
+def fov_solid_angle(fov_h, fov_v):
+    """Solid angle (sr) of a rectangular pinhole FOV of full angles ``fov_h``, ``fov_v``."""
+    return 4.0 * math.asin(math.sin(fov_h / 2) * math.sin(fov_v / 2))
+
+
+# --------------------------------------------------------------------------------------
+# Verification
+# --------------------------------------------------------------------------------------
+
+class Verification:
+    """Outcome of :func:`verify`: ``pairs`` (list of ``(observed_index, star_index)``),
+    ``n_fov`` (catalogue stars predicted in the FOV), ``p_single`` (chance-match probability
+    per observed star) and ``probability`` (binomial tail, see the module docstring)."""
+
+    def __init__(self, pairs, n_fov, p_single, probability):
+        self.pairs = pairs
+        self.n_fov = n_fov
+        self.p_single = p_single
+        self.probability = probability
+
+    @property
+    def n_matched(self):
+        return len(self.pairs)
+
+
+def predicted_stars(database, q, margin=0.0):
+    """Catalogue stars inside the FOV at attitude ``q``: list of ``(camera vector, index)``.
+
+    ``margin`` (rad) widens the FOV rectangle on every side."""
+    m = matrix(q)
+    boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
+    half_diag = 0.5 * database.fov_diag + margin
+    tan_h = math.tan(0.5 * database.fov_h + margin)
+    tan_v = math.tan(0.5 * database.fov_v + margin)
+    out = []
+    for s in database.stars_in_cone(boresight, half_diag):
+        c = G.mat_vec(m, database.star_vector(s))
+        if c[2] <= 0.0:
+            continue
+        if abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
+            out.append((c, s))
+    return out
+
+
+def chord(angle):
+    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart."""
+    return 2.0 * math.sin(0.5 * angle)
+
+
+def in_region(dx, dy, dz, streak, lim):
+    """True when the offset ``(dx, dy, dz)`` of an observed unit vector from a predicted one
+    lies in the observed star's match region: within the chord ``lim`` of the predicted
+    star, widened along a ``streak`` ``(ux, uy, uz, half)`` to the stadium of points within
+    ``lim`` of the segment ``+-chord(half)`` along ``u`` (module docstring; None: a disc)."""
+    d2 = dx * dx + dy * dy + dz * dz
+    if streak is None:
+        return d2 <= lim * lim
+    a = abs(dx * streak[0] + dy * streak[1] + dz * streak[2])    # along the track
+    beyond = a - chord(streak[3])                                  # past the segment's end
+    if beyond < 0.0:
+        beyond = 0.0
+    return d2 - a * a + beyond * beyond <= lim * lim
+
+
+def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
+    """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
+    ``n_observed``) within ``radius_rad`` of a predicted star ``predicted[p][0]`` (of the
+    stretch ``streaks[o]`` along its track, :func:`in_region`), with ``(dx, dy, dz) =
+    observed[o] - predicted[p][0]``; in ``o`` then ``p`` order."""
+    lim = chord(radius_rad)
+    n = len(observed) if n_observed is None else min(n_observed, len(observed))
+    for o in range(n):
+        ox, oy, oz = observed[o]
+        streak = streaks[o] if streaks is not None else None
+        reach = lim if streak is None else lim + chord(streak[3])
+        for p in range(len(predicted)):
+            c = predicted[p][0]
+            dx = ox - c[0]
+            if dx > reach or -dx > reach:
+                continue
+            dy = oy - c[1]
+            if dy > reach or -dy > reach:
+                continue
+            dz = oz - c[2]
+            if in_region(dx, dy, dz, streak, lim):
+                yield o, p, dx, dy, dz
+
+
+def match_stars(observed, predicted, tolerance_rad, streaks=None):
+    """One-to-one matches ``[(observed_index, star_index)]`` within each observed star's
+    match region (``tolerance_rad``, stretched along ``streaks``: :func:`in_region`),
+    closest first; ``predicted`` as returned by :func:`predicted_stars`.  An observed star
+    that is also within tolerance of a predicted star left unmatched is dropped (a close
+    double with one component unseen: either name could be right), and so are two observed
+    stars whose swapped assignment is also within tolerance."""
+    cands = [(dx * dx + dy * dy + dz * dz, o, p)
+             for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad,
+                                                streaks=streaks)]
+    cands.sort()
+    used_o = {}
+    used_p = {}
+    for _d2, o, p in cands:
+        if o in used_o or p in used_p:
+            continue
+        used_o[o] = p
+        used_p[p] = o
+    # An observed star that also lies within tolerance of a catalogue star nobody claimed
+    # (a close double with one component unseen) cannot be named reliably, nor can two
+    # observed stars whose swapped assignment is also within tolerance: drop them.
+    npred = len(predicted)
+    admissible = {}
+    for _d2, o, p in cands:
+        admissible[o * npred + p] = 1
+    drop = []
+    for _d2, o, p in cands:
+        q = used_o.get(o)
+        if q is None or q == p:
+            continue
+        o2 = used_p.get(p)
+        if o2 is None:
+            drop.append(o)
+        elif o2 != o and (o2 * npred + q) in admissible:
+            drop.append(o)
+            drop.append(o2)
+    for o in drop:
+        used_o[o] = None
+    pairs = []
+    for o in used_o:
+        if used_o[o] is not None:
+            pairs.append((o, predicted[used_o[o]][1]))
+    pairs.sort()
+    return pairs
+
+
+def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
+    """Per observed star, the probability that one of ``n_fov`` stars scattered over the
+    solid angle ``omega`` falls in its match region (module docstring)."""
+    disc = math.pi * tolerance_rad * tolerance_rad
+    out = []
+    for o in range(n):
+        streak = streaks[o] if streaks is not None else None
+        area = disc if streak is None else disc + 4.0 * tolerance_rad * streak[3]
+        p = n_fov * area / omega
+        out.append(p if p < 1.0 else 1.0)
+    return out
+
+
+def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
+    """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors (their
+    match regions stretched along ``streaks``); returns a :class:`Verification` (accept
+    when ``probability < max_mismatch_prob``; ``p_single``: the largest per-star chance
+    probability)."""
+    predicted = predicted_stars(database, q)
+    pairs = match_stars(observed, predicted, tolerance_rad, streaks)
+    n_fov = len(predicted)
+    omega = fov_solid_angle(database.fov_h, database.fov_v)
+    p, prob = chance_agreement(n_fov, omega, tolerance_rad, len(observed), len(pairs),
+                               streaks, free_matches)
+    return Verification(pairs, n_fov, p, prob)
+
+
+def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks=None,
+                     free_matches=2):
+    """``(p_single, probability)``: the largest per-star chance-match probability and the
+    probability that ``n_matched`` of ``n_observed`` stars (``free_matches`` of them free)
+    agree by chance with ``n_fov`` stars over the solid angle ``omega`` (module docstring:
+    binomial, or Poisson-binomial with ``streaks``)."""
+    if streaks is None or not any(streaks):
+        p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega
+        if p > 1.0:
+            p = 1.0
+        return p, binomial_tail(n_observed - free_matches, n_matched - free_matches, p)
+    ps = chance_probabilities(n_fov, omega, tolerance_rad, streaks, n_observed)
+    ps.sort()
+    return ps[-1], poisson_binomial_tail(ps[free_matches:], n_matched - free_matches)
+
+
+def streak_variance(streak):
+    """Per-axis variance (rad^2) a streak adds to its star's direction: a uniform offset over
+    ``+-half`` along one axis (``half^2 / 3``) shared by two, ``half^2 / 6``; 0 for None."""
+    return 0.0 if streak is None else streak[3] * streak[3] / 6.0

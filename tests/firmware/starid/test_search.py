@@ -1,0 +1,37 @@
+"""lodestar.firmware.starid.search: the q-method fit and the streak checks shared by the
+methods (the search itself runs in every ``test_methods.py`` case)."""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lodestar.firmware import quaternion
+from lodestar.firmware.starid import search as SE
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.centroids import attitude_error_deg
+
+
+def test_fit_attitude_matches_scipy_convention():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = random_attitude(rng)
+        ref = rng.normal(size=(6, 3))
+        ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+        obs = Rotation.from_quat(q).apply(ref) + rng.normal(0, 1e-5, (6, 3))
+        est = SE.fit_attitude(obs.tolist(), ref.tolist())
+        assert attitude_error_deg(est, q) < 0.01
+        assert np.allclose(np.array(quaternion.matrix(q)).reshape(3, 3),
+                           Rotation.from_quat(q).as_matrix(), atol=1e-12)
+    # narrow field (all vectors within 10 deg of one direction), 180 deg rotations
+    for q in ([1.0, 0, 0, 0], [0, 0, 1.0, 0], random_attitude(rng)):
+        d = rng.normal(0, 0.1, (5, 3)) + [0, 0, 1]
+        ref = d / np.linalg.norm(d, axis=1, keepdims=True)
+        obs = Rotation.from_quat(q).apply(ref)
+        assert attitude_error_deg(SE.fit_attitude(obs.tolist(), ref.tolist()), q) < 1e-5
+
+
+def test_streaks_are_checked():
+    assert SE.streaks_valid(None, 3)
+    assert SE.streaks_valid([None, (0.0, 1.0, 0.0, 1e-4), None], 3)
+    for bad in ([None, None], [None, (0.0, 1.0, 0.0), None], [None, (0, 1, 0, -1e-4), None],
+                [None, (0, 1, float("nan"), 1e-4), None], 5, [None, "abcd", None]):
+        assert not SE.streaks_valid(bad, 3), bad

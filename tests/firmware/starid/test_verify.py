@@ -1,0 +1,94 @@
+"""lodestar.firmware.starid.verify: the stretched match region of a partly seen track, the
+binomial and Poisson-binomial chance probabilities, the FOV solid angle and a verification
+that names stars displaced along their tracks."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from lodestar.firmware import geometry as G
+from lodestar.firmware.starid import verify as V
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.centroids import centroid_scene
+
+
+def test_match_region_is_a_stadium_along_the_track():
+    u = (1.0, 0.0, 0.0)
+    streak = u + (5e-4,)
+    lim = V.chord(1e-4)
+    # along the track: out to half + tolerance
+    assert V.in_region(5.9e-4, 0.0, 0.0, streak, lim)
+    assert not V.in_region(6.1e-4, 0.0, 0.0, streak, lim)
+    assert V.in_region(-5.9e-4, 0.0, 0.0, streak, lim)
+    # across it: the point tolerance only
+    assert V.in_region(3e-4, 0.99e-4, 0.0, streak, lim)
+    assert not V.in_region(3e-4, 1.01e-4, 0.0, streak, lim)
+    # the rounded ends
+    assert V.in_region(5e-4 + 0.7e-4, 0.7e-4, 0.0, streak, lim)
+    assert not V.in_region(5e-4 + 0.72e-4, 0.72e-4, 0.0, streak, lim)
+    # no streak: a disc
+    assert V.in_region(0.0, 0.99e-4, 0.0, None, lim)
+    assert not V.in_region(1.01e-4, 0.0, 0.0, None, lim)
+
+
+def test_poisson_binomial_tail():
+    # equal probabilities: the binomial tail
+    for n, k, p in [(10, 3, 1e-3), (28, 5, 0.01), (6, 0, 0.5), (6, 7, 0.5), (12, 12, 0.2)]:
+        assert V.poisson_binomial_tail([p] * n, k) == pytest.approx(
+            V.binomial_tail(n, k, p), rel=1e-9, abs=1e-300)
+    # unequal ones: the sum over all outcomes
+    ps = [0.1, 0.02, 0.3, 0.05, 0.5]
+    for k in range(7):
+        exact = 0.0
+        for hits in itertools.product((0, 1), repeat=len(ps)):
+            if sum(hits) >= k:
+                exact += math.prod(p if h else 1 - p for p, h in zip(ps, hits))
+        assert V.poisson_binomial_tail(ps, k) == pytest.approx(exact, rel=1e-12, abs=1e-300)
+
+
+def test_verification_names_stars_displaced_along_their_tracks(starid_database_of, tol,
+                                                              streaked):
+    cam, cat, db = starid_database_of("pyramid")
+    TOL = tol
+    rng = np.random.default_rng(7)
+    scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.2, max_stars=20)
+    half = 12 * TOL
+    vectors, streaks = streaked(scene.vectors, rng, half, every=2)
+    b = [G.unit(v) for v in vectors]
+    plain = V.verify(b, db, scene.q, TOL)
+    stretched = V.verify(b, db, scene.q, TOL, streaks=streaks)
+    n = len(b)
+    n_streaks = sum(s is not None for s in streaks)
+    assert plain.n_matched <= n - n_streaks + 1
+    assert stretched.n_matched == n
+    for o, s in stretched.pairs:
+        assert db.star_hip(s) in scene.components[o]
+    # each stretched region is more likely hit by chance, and the bound says so
+    assert stretched.p_single > plain.p_single
+    assert stretched.probability < 1e-9
+    # an attitude off by more than a track reaches matches little
+    assert V.verify(b, db, _turned(scene.q, 3 * half), TOL, streaks=streaks).n_matched <= 2
+
+
+def _turned(q, angle):
+    """``q`` turned by ``angle`` rad about the camera x axis."""
+    from scipy.spatial.transform import Rotation
+
+    return (Rotation.from_rotvec([angle, 0.0, 0.0]) * Rotation.from_quat(q)).as_quat()
+
+
+def test_binomial_tail_matches_scipy():
+    for n, k, p in [(20, 5, 1e-4), (30, 10, 0.05), (10, 0, 0.3), (10, 11, 0.3), (50, 3, 0.2),
+                    (28, 26, 1e-4), (5, 5, 0.999), (12, 4, 0.0)]:
+        expected = binom.sf(k - 1, n, p)
+        got = V.binomial_tail(n, k, p)
+        assert got == pytest.approx(expected, rel=1e-9, abs=1e-300), (n, k, p)
+
+
+def test_solid_angle():
+    assert V.fov_solid_angle(math.pi, math.pi) == pytest.approx(2 * math.pi)
+    small = math.radians(1.0)
+    assert V.fov_solid_angle(small, small) == pytest.approx(small * small, rel=1e-4)
