@@ -43,7 +43,7 @@ last pixel.
 """
 
 from amaranth import Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out, connect
 
 from lodestar import contract as C
@@ -51,9 +51,9 @@ from lodestar import contract as C
 from .buffers import HalfWordFIFO
 from .features import FeatureEngine
 from .labeller import Labeller, vblank_cycles
-from .layouts import record_layout, trailer_layout
+from .layouts import frame_registers_layout, pixel_layout, record_layout, trailer_layout
 from .registers import RegisterBank
-from .threshold import ThresholdUnit, global_cycles, local_blanking, pixel_layout
+from .threshold import ThresholdUnit, global_cycles, local_blanking
 
 def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_MAX):
     """Idle clocks a frame in ``mode`` (a ``contract.MODE_*``) needs after its last pixel:
@@ -124,9 +124,7 @@ class Detector(wiring.Component):
                      self.busy.eq(lab.busy)]
 
         # registers latched when a frame enters, then handed to the labeller's frame
-        entry = Signal(data.StructLayout({
-            "mode": C.REGISTER_BY_NAME["mode"].bits,
-            **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}), reset_less=True)
+        entry = Signal(frame_registers_layout(("mode",) + _FILTERS), reset_less=True)
         frame = Signal.like(entry, reset_less=True)
         with m.If(self.pixels.valid & self.pixels.payload.sof):
             m.d.sync += entry.mode.eq(regs.mode)

@@ -42,25 +42,15 @@ op adds nothing, and every run starts from an empty accumulator.
 """
 
 from amaranth import Cat, Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .layouts import record_fields, record_layout
+from .layouts import FRAME_TAG_BITS, op_layout, record_fields, record_layout
 
 _HEADER_BITS = dict(C.HEADER_FIELDS)
-
-
-def op_layout(width, height, pixel_bits, slots):
-    """One labeller decision for the feature engine."""
-    sb = C.bits_for(slots - 1)
-    return data.StructLayout({
-        "tag": 2, "pix": 1, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
-        "p": pixel_bits, "w": pixel_bits,
-        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
-    })
 
 
 def _sums(m, acc, slot, use, pix, empties, fields):
@@ -132,7 +122,7 @@ class FeatureEngine(wiring.Component):
         super().__init__({
             "ops": In(stream.Signature(op_layout(width, height, pixel_bits, slots),
                                        always_ready=True)),
-            "tag": In(2),
+            "tag": In(FRAME_TAG_BITS),
             "clear": In(1),
             "min_pixels": In(reg["min_pixels"].bits),
             "min_sum": In(reg["min_sum"].bits),
