@@ -6,11 +6,11 @@ import random
 import numpy as np
 import pytest
 from amaranth.sim import Simulator
-from hdl_bench import stream_frames
 
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.buffers import HalfWordFIFO
 from lodestar.hdl.detector import Detector
+from tests.hdl.bench import stream_frames
 
 
 def run_fifo(width, depth, offers, ready):

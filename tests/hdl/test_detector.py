@@ -6,11 +6,11 @@ fields, a slow record reader, truncated frames and line errors, register refusal
 
 import numpy as np
 import pytest
-from hdl_bench import stream_frames
 
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.detector import Detector
+from tests.hdl.bench import stream_frames
 
 
 def frame_of(mask, rng, bits=12):
