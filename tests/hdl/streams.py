@@ -3,8 +3,8 @@
 A transfer happens at a clock edge where ``valid`` and ``ready`` are both high; streams
 built with ``always_ready`` have a constant ``ready``.  Back-to-back calls stream one beat
 per clock: ``valid`` (or ``ready``) drops and rises again in the same instant.  (The waits
-are plain ``tick()`` loops: a background testbench left inside ``tick().until()`` when the
-simulation ends raises a warning as it is closed.)
+are plain ``tick()`` loops: a background testbench left inside ``tick().until()`` or ``.repeat()``
+when the simulation ends raises a warning as it is closed.)
 """
 
 from amaranth import Value
@@ -40,8 +40,8 @@ async def stream_get(ctx, stream):
 async def stream_idle(ctx, stream, clocks):
     """Offer nothing on ``stream`` for ``clocks`` clocks."""
     ctx.set(stream.valid, 0)
-    if clocks:
-        await ctx.tick().repeat(clocks)
+    for _ in range(clocks):
+        await ctx.tick()
 
 
 def stream_collect(sim, stream, sink, convert=lambda payload: payload):
