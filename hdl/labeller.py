@@ -30,9 +30,18 @@ from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .layouts import (FRAME_FLAGS_BITS, FRAME_TAG_BITS, PixelAction, PopAction, active_layout,
-                      lit_layout, node_flags_layout, node_label_layout, op_layout,
-                      stack_entry_layout)
+from .layouts import (
+    FRAME_FLAGS_BITS,
+    FRAME_TAG_BITS,
+    PixelAction,
+    PopAction,
+    active_layout,
+    lit_layout,
+    node_flags_layout,
+    node_label_layout,
+    op_layout,
+    stack_entry_layout,
+)
 
 MIN_HBLANK = 1
 """Idle clocks the labeller needs between two rows."""

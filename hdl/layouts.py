@@ -50,6 +50,16 @@ class PopAction(enum.Enum, shape=3):
     DROP = 5        # an untracked blob is complete: counted in ``dropped_labels``
 
 
+def check_frame(width, height, pixel_bits):
+    """Raise ``ValueError`` unless ``width x height`` frames of ``pixel_bits`` pixels are
+    within the contract (the layouts' widths are derived from them)."""
+    if pixel_bits not in C.PIXEL_BITS:
+        raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
+    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
+        raise ValueError(f"frame {width}x{height} is outside the contract's "
+                         f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+
+
 def pixel_layout(pixel_bits):
     """Sensor pixel: ``sof`` on a frame's first pixel, ``eol`` on each line's last."""
     return data.StructLayout({"data": pixel_bits, "sof": 1, "eol": 1})

@@ -32,7 +32,8 @@ from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .layouts import ThresholdMode, delay_entry_layout, lit_layout, pixel_layout
+from .layouts import ThresholdMode, check_frame, delay_entry_layout, lit_layout, pixel_layout
+
 
 def _pass_bits(width, height, pixel_bits):
     """Clocks of one trial of ``B`` and of ``D`` (bits of the numbers the trial compares)."""
@@ -135,11 +136,7 @@ class ThresholdUnit(wiring.Component):
     high while the global levels are being computed."""
 
     def __init__(self, width, height, pixel_bits):
-        if pixel_bits not in C.PIXEL_BITS:
-            raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
-        if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-            raise ValueError(f"frame {width}x{height} exceeds the contract's "
-                             f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+        check_frame(width, height, pixel_bits)
         self.width, self.height, self.pixel_bits = width, height, pixel_bits
         reg = C.REGISTER_BY_NAME
         super().__init__({

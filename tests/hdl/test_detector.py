@@ -2,7 +2,8 @@
 
 The broad bit-exactness campaign runs on Verilator (``cocotb_tests/test_detector.py``); these
 are the block-level checks: random frames at random capacities, record order and trailer
-fields, a slow record reader, truncated frames and line errors, register refusal and its clearing, lost trailers."""
+fields, a slow record reader, truncated frames and line errors, register refusal and its
+clearing, lost trailers."""
 
 import numpy as np
 import pytest

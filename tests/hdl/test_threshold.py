@@ -5,8 +5,13 @@ import pytest
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.hdl.threshold import (LOCAL_LATENCY, ThresholdUnit, global_cycles, ksigma_cycles,
-                                   local_blanking)
+from lodestar.hdl.threshold import (
+    LOCAL_LATENCY,
+    ThresholdUnit,
+    global_cycles,
+    ksigma_cycles,
+    local_blanking,
+)
 from tests.hdl.streams import stream_collect, stream_idle, stream_put
 
 
