@@ -22,6 +22,7 @@ from lodestar.cosim.runner import unpack
 from lodestar.golden import DetectorConfig
 from lodestar.golden.frame import frame_levels
 from lodestar.golden.vectorized import frame_stats, local_levels
+from lodestar.hdl.layouts import lit_layout
 
 
 def _random_config(rng, w, h, pb, lg_max):
@@ -42,8 +43,7 @@ async def random_frames(dut):
     w, h, pb = (int(os.environ[k]) for k in ("TB_WIDTH", "TB_HEIGHT", "TB_BITS"))
     n_frames, gap = int(os.environ["TB_FRAMES"]), int(os.environ["TB_GAP"])
     rng = np.random.default_rng(int(os.environ["TB_SEED"]))
-    out_fields = [("data", pb), ("x", C.bits_for(w - 1)), ("y", C.bits_for(h - 1)),
-                  ("lit", 1), ("weight", pb), ("eof", 1)]
+    out_fields = [(name, field.width) for name, field in lit_layout(w, h, pb)]
     fs = C.full_scale(pb)
     lg_max, drain = int(os.environ["TB_LOG2_WINDOW_MAX"]), int(os.environ["TB_DRAIN"])
 

@@ -10,18 +10,13 @@ words, so 128 records of 345 bits need 5 blocks (256 x 173).
 
 * write: an item is taken when ``w_en & w_rdy``; its low half is written in that clock, its
   high half (held in a register) in the next, during which ``w_rdy`` is low.  So the buffer
-  takes at most one item per two clocks: the detector's records come at most once per two
-  clocks (a completion is a pop of a previous-row node at ``x`` whose pixel ``x + 1`` is
-  dark, so the next pop is at ``x + 2`` or later; rows and frames are separated by idle
-  clocks; ``tests/test_hdl_buffers.py`` checks it on the detector).
+  takes at most one item per two clocks, as fast as the detector's records come
+  (``hdl/DESIGN.md``, output buffers).
 * read: the head item's low half is read into a register, then its high half is read and
   held on the memory's read port; ``r_data`` is the two together and ``r_rdy`` rises two
   clocks after an item became available or the previous one was taken, so a reader that is
   always ready takes one item per two clocks.  An item is readable from the clock after its
   high half was written.
-
-Cost: the memory, ``ceil(width / 2)`` multiplexer LUTs on the write data, a register of
-each half (data registers without reset), and the pointers.
 """
 
 from amaranth import Cat, Module, Mux, Signal

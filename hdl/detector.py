@@ -19,12 +19,9 @@ and two output buffers:
   packetizer holds the one whose packet it is sending).  A frame's records are the
   ``n_records`` records before its trailer.
 * lost trailers: a frame that ends while the held trailer has not been taken loses its
-  trailer (``trailer_lost`` counts them, modulo 256; its ``frame_counter`` is missing from
-  the trailers that follow).  Its records, and any record not claimed by a trailer, are
-  *orphans*: before the next trailer is offered, the orphans still in the buffer are
-  discarded, so every later trailer is preceded by exactly its own ``n_records`` records.
-  This holds for a reader that takes a frame's records after its trailer (the packetizer);
-  a reader that takes records before their trailer has already consumed the orphans.
+  trailer (``trailer_lost`` counts them, modulo 256).  Records no trailer claims are
+  discarded before the next trailer is offered, so a reader that takes each trailer and
+  then its ``n_records`` records (the packetizer) stays in step (``hdl/DESIGN.md``).
 * register writes (``reg_addr``, ``reg_data``, ``reg_en``) between frames; registers are
   latched when a frame's first pixel enters.  ``reg_error`` flags a refused write; it stays
   set until ``reg_error_clear`` (the board top pulses it when the MCU reads the status).
@@ -43,7 +40,7 @@ last pixel.
 """
 
 from amaranth import Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out, connect
 
 from lodestar import contract as C
@@ -51,9 +48,16 @@ from lodestar import contract as C
 from .buffers import HalfWordFIFO
 from .features import FeatureEngine
 from .labeller import Labeller, vblank_cycles
-from .layouts import record_layout, trailer_layout
+from .layouts import (
+    check_frame,
+    frame_registers_layout,
+    pixel_layout,
+    record_layout,
+    trailer_layout,
+)
 from .registers import RegisterBank
-from .threshold import ThresholdUnit, global_cycles, local_blanking, pixel_layout
+from .threshold import ThresholdUnit, global_cycles, local_blanking
+
 
 def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_MAX):
     """Idle clocks a frame in ``mode`` (a ``contract.MODE_*``) needs after its last pixel:
@@ -74,11 +78,7 @@ class Detector(wiring.Component):
 
     def __init__(self, width, height, pixel_bits, label_capacity=None,
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None):
-        if pixel_bits not in C.PIXEL_BITS:
-            raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
-        if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-            raise ValueError(f"frame {width}x{height} is outside the contract's "
-                             f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+        check_frame(width, height, pixel_bits)
         self.width, self.height, self.pixel_bits = width, height, pixel_bits
         self.label_capacity = label_capacity or C.max_open_blobs(width)
         self.record_capacity = record_capacity
@@ -124,9 +124,7 @@ class Detector(wiring.Component):
                      self.busy.eq(lab.busy)]
 
         # registers latched when a frame enters, then handed to the labeller's frame
-        entry = Signal(data.StructLayout({
-            "mode": C.REGISTER_BY_NAME["mode"].bits,
-            **{n: C.REGISTER_BY_NAME[n].bits for n in _FILTERS}}), reset_less=True)
+        entry = Signal(frame_registers_layout(("mode",) + _FILTERS), reset_less=True)
         frame = Signal.like(entry, reset_less=True)
         with m.If(self.pixels.valid & self.pixels.payload.sof):
             m.d.sync += entry.mode.eq(regs.mode)

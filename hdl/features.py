@@ -16,20 +16,10 @@ each open tracked component's features in the compact record layout
   emitted this frame and the record stream takes it (otherwise ``dropped_records``);
 * ``wr``/``wr_addr``: the run ends; write the accumulator (with this op's pixel) to a slot.
 
-The accumulator is empty at the first pixel of every run: runs are separated by a dark
-column's op or by the end of a row (an op at column ``width - 1`` followed by a clock
-without an op, which the labeller's horizontal blanking guarantees), and ``clear`` (a frame
-start) empties it too.  So a run start needs no operand select: its accumulator adds
-nothing.  Sums saturate at the contract's moment widths and set the saturation flag;
-counts, the bounding box and the peak are exact (``lodestar.contract``).  Order of
-accumulation does not matter, so the result equals the golden model's whatever the merge
-order.  Each sum adds its three terms (accumulator, slot, pixel) in one step: a carry-save
-layer and one carry chain, one saturation (``min(a + b + c, max)`` equals two saturating
-adds because the terms are non-negative).  The peak compares the slot with the pixel a
-clock early, then the accumulator with the larger; the rest of the box needs one comparison
-with the accumulator: a slot added to a pixel holds its upper neighbour, so the slot's
-columns span the pixel's and its rows are above, and ``ymax`` is the pixel's row (pixels
-come in raster order).
+Sums saturate at the contract's moment widths and set the saturation flag; counts, box and
+peak are exact.  The accumulator is empty at every run start (a dark op, a row's end, a
+stale op or ``clear`` empties it), so the order of merges does not matter.  The arithmetic
+(one carry-save layer and one carry chain per sum) is described in ``hdl/DESIGN.md``.
 
 Timing: the op enters at clock ``c``; pixel products and the slot read take two clocks; the
 accumulator, the slot write and the record are at ``c + 3``.  A slot written by an op is
@@ -42,38 +32,23 @@ op adds nothing, and every run starts from an empty accumulator.
 """
 
 from amaranth import Cat, Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .layouts import record_fields, record_layout
+from .layouts import FRAME_TAG_BITS, op_layout, record_fields, record_layout
 
 _HEADER_BITS = dict(C.HEADER_FIELDS)
 
 
-def op_layout(width, height, pixel_bits, slots):
-    """One labeller decision for the feature engine."""
-    sb = C.bits_for(slots - 1)
-    return data.StructLayout({
-        "tag": 2, "pix": 1, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
-        "p": pixel_bits, "w": pixel_bits,
-        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
-    })
-
-
 def _sums(m, acc, slot, use, pix, empties, fields):
     """Counts and moments of ``acc (+) slot (+) pix``, the slot taken if ``use``, all zero
-    if ``empties``; returns ``({name: sum}, saturated)``.
-
-    Each sum is one carry-save layer (a sum and a carry bit per bit, the slot's gate folded
-    into them) and one carry chain.  A moment saturates once, ``min(a + b + c, max)``: the
-    chain's carry-out or the top carry bit (weight ``2**bits``) says the sum overflows, and
-    one gate per bit saturates and empties.  A count's pixel term is one bit, so its
-    carry-save gates have room to empty the terms instead (the chain then adds zeros).
-    ``saturated`` is the OR of the operands' flags and of every sum that saturates (0 if
-    ``empties``)."""
+    if ``empties``; returns ``({name: sum}, saturated)``.  Each sum is one carry-save layer
+    and one carry chain; a moment saturates once (``min(a + b + c, max)``: the chain's
+    carry-out or the top carry bit), a count never overflows.  ``saturated`` is the OR of
+    the operands' flags and of every saturating sum (0 if ``empties``)."""
     out = {}
     keep = ~empties
     sat = acc.flags | (use & slot.flags) | pix.flags
@@ -132,7 +107,7 @@ class FeatureEngine(wiring.Component):
         super().__init__({
             "ops": In(stream.Signature(op_layout(width, height, pixel_bits, slots),
                                        always_ready=True)),
-            "tag": In(2),
+            "tag": In(FRAME_TAG_BITS),
             "clear": In(1),
             "min_pixels": In(reg["min_pixels"].bits),
             "min_sum": In(reg["min_sum"].bits),

@@ -1,63 +1,47 @@
-"""Single-pass 4-connected labeller: one pixel per clock, any image content, no find.
+"""Single-pass 4-connected labeller: one pixel per clock, any image content.
 
-The algorithm is described in ``hdl/DESIGN.md`` and written out in plain Python in
-``golden/wavefront.py``; the two take the same decisions column by column.  In short:
-each row is a sequence of *nodes* (runs of lit pixels).  The previous row's nodes are read
-back in order with two flags, ``first``/``last`` (first/last node of its component in that
-row), and, on first nodes, the component's feature slot and tracked bit.  Components never
-cross, so the previous row's components that straddle the scan position form a stack
-(innermost on top); the current run's component is the *active* one.  Every column takes a
-constant number of register and memory operations: the push of a node starting here, the
-current pixel (birth, contact, or merge with a node starting under the run), the pop of a
-component's last node (completion: its record is emitted), and the end of the current run
-(its node written, its features stored).  Merges only relabel registers; flags that a merge
-makes stale are patched in the current row's node memory (at most one patch of each kind
-per two columns).  Features live in ``hdl/features.py``'s feature engine, driven by one op
-per column.
+The algorithm (a stack of the previous row's straddling components, no ``find``) is
+described in ``hdl/DESIGN.md``; its architectural model is ``golden/wavefront.py``, which
+takes the same decisions column by column.  ``elaborate`` builds the state (held pixel,
+previous-row bitmap, node memories, stack, free slots) and then the four stages of a column
+decision in the model's order: push, pixel, pop, run end.
 
-Input: the threshold unit's ``out`` stream (``x``, ``y``, ``lit``, ``data``, ``weight``), one
-pixel per beat in raster order, no backpressure.  The column decision for ``x`` is taken
-when pixel ``x + 1`` arrives (it needs to know whether the run ends), or in the clock after
-the row's last pixel.
+Input: the threshold unit's ``out`` stream, one pixel per beat in raster order, no
+backpressure.  The decision for column ``x`` is taken when pixel ``x + 1`` arrives (it needs
+to know whether the run ends), or in the clock after the row's last pixel.  Output: one op
+per decision to the feature engine (``hdl/features.py``).
 
-Blanking and latency (clocks of the labeller's input):
-
-* **horizontal**: at least ``MIN_HBLANK`` = 1 idle clock between the last pixel of a row
-  and the first of the next (the previous row's first node is fetched in that clock);
-* **vertical**: after the frame's last pixel, ``vblank_cycles(width)`` = ``width + 6``
-  clocks: a virtual dark row of ``width`` clocks completes the last row's blobs, then the
-  feature pipeline drains and ``done`` is raised;
-* a blob's record leaves the feature engine ``4`` clocks after the column decision of its
-  completion, which is the column of its last pixel in the row below (or the virtual row):
-  about ``width + 5`` clocks after its last pixel plus the horizontal blanking of a row.
-
-Frame integrity: pixels must arrive at the expected positions.  A pixel at ``(0, 0)``
-starts a frame; if the previous frame was not finished (it ended early, or the vertical
-blanking was too short) that frame ends with ``done`` and ``FRAME_TRUNCATED``.  A pixel
-at any other unexpected position, or a row started before the previous row's first node
-was fetched (horizontal blanking below the minimum), ends the frame with ``done`` and
-``FRAME_TRUNCATED | FRAME_LINE_ERROR``; pixels are then ignored until the next ``(0, 0)``.
-Records already emitted stay valid; the next frame is exact.  Pixels that arrive before
-any ``(0, 0)`` (after a reset in the middle of a frame) are ignored.
-
-Capacities: ``label_capacity`` tracked blobs open at once (contract semantics: a blob
-starting while that many are open is untracked, a merge with an untracked blob untracks
-it, an untracked blob is counted in ``dropped_labels`` when it completes).  The node and
-stack memories are sized for any image (``max_nodes``, ``max_stack``); the feature table
-has ``label_capacity + 2`` slots, allocated fresh until the free-slot FIFO offers one (a
-slot freed at a decision is on offer at the next).  ``fault`` (sticky, for verification)
-would flag an internal bound being exceeded; it cannot happen.
+* Blanking: ``MIN_HBLANK`` idle clocks between rows; ``vblank_cycles(width)`` after a
+  frame's last pixel (a virtual dark row completes the last row's blobs, then the feature
+  pipeline drains and ``done`` rises).
+* Faults: a pixel at ``(0, 0)`` starts a frame and ends an unfinished one with ``done`` and
+  ``FRAME_TRUNCATED``; any other unexpected position, or a row started before its first
+  previous-row node was fetched, ends it with ``FRAME_TRUNCATED | FRAME_LINE_ERROR`` and
+  pixels are ignored until the next ``(0, 0)``.  The next frame is exact.
+* Capacity: ``label_capacity`` tracked open blobs (contract semantics); untracked blobs are
+  counted in ``dropped_labels`` when they complete.  ``fault`` (sticky, for verification)
+  flags an internal bound being exceeded, which cannot happen.
 """
 
 from amaranth import Cat, Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .features import op_layout
-from .threshold import lit_layout
+from .layouts import (
+    FRAME_FLAGS_BITS,
+    FRAME_TAG_BITS,
+    PixelAction,
+    PopAction,
+    active_layout,
+    lit_layout,
+    node_flags_layout,
+    node_label_layout,
+    op_layout,
+    stack_entry_layout,
+)
 
 MIN_HBLANK = 1
 """Idle clocks the labeller needs between two rows."""
@@ -90,21 +74,120 @@ def slots_for(label_capacity):
     return label_capacity + 2
 
 
-def _entry_layout(sb, nb):
-    return data.StructLayout({"lab": sb, "tracked": 1, "has_cur": 1, "fa": nb, "la": nb,
-                              "cont": 1})
+class _Held:
+    """The input pixel held until its right neighbour arrives: the column decided next
+    (in the virtual row, ``x`` is the column decided)."""
+
+    def __init__(self, x_bits, y_bits, pixel_bits):
+        self.valid = Signal(name="held_valid")
+        self.x = Signal(x_bits, name="held_x")
+        self.y = Signal(y_bits, name="held_y")
+        self.lit = Signal(name="held_lit")
+        self.data = Signal(pixel_bits, name="held_data")
+        self.weight = Signal(pixel_bits, name="held_weight")
+        self.next_x = Signal(x_bits, name="held_next_x")     # x + 1 and y + 1
+        self.next_y = Signal(y_bits, name="held_next_y")
 
 
-def _active_layout(sb, nb):
-    return data.StructLayout({"lab": sb, "tracked": 1, "has_slot": 1, "has_cur": 1,
-                              "fa": nb, "la": nb, "group": 1})
+class _Stack:
+    """Previous-row components straddling the scan position: ``top`` and ``second`` in
+    registers, the rest (``spilled`` entries, -2 when the stack is empty) in a memory."""
+
+    def __init__(self, m, entry, depth):
+        self.top = Signal(entry, name="stack_top")
+        self.second = Signal(entry, name="stack_second")
+        self.spilled = Signal(range(-2, depth + 1), name="stack_spilled")
+        self.spilled_next = Signal.like(self.spilled, name="stack_spilled_next")
+        self.reload = Signal(name="stack_reload")  # second comes from the memory this clock
+        m.submodules.stack = memory = Memory(shape=entry, depth=max(depth - 2, 1), init=[])
+        self.spill = memory.write_port()
+        self.refill = memory.read_port()
 
 
-_FLAGS = data.StructLayout({"first": 1, "last": 1})
+class _FreeSlots:
+    """Feature slots freed by completions and merges: a FIFO in a memory (a power of two
+    deep, so the pointers wrap by themselves) whose head is on the read port.  A slot freed
+    at a decision is reusable at the next one.  ``fresh`` counts slots never used yet."""
+
+    def __init__(self, m, slots, slot_bits):
+        depth = 1 << C.bits_for(slots - 1)
+        m.submodules.freelist = memory = Memory(shape=slot_bits, depth=depth, init=[])
+        self.push = memory.write_port()
+        self.head = memory.read_port(transparent_for=(self.push,))
+        self.write_ptr = Signal(range(2 * depth), name="free_write_ptr")
+        self.read_ptr = Signal(range(2 * depth), name="free_read_ptr")
+        self.ready = self.write_ptr != self.read_ptr
+        self.pop = Signal(name="free_pop")
+        self.next_read_ptr = Signal.like(self.read_ptr, name="free_next_read_ptr")
+        self.fresh = Signal(range(slots + 1), name="fresh_slots")
+        self.free_en = Signal(name="free_en")       # free ``free_slot`` at this decision
+        self.free_slot = Signal(slot_bits, name="free_slot")
+        m.d.comb += [self.next_read_ptr.eq(self.read_ptr + self.pop),
+                     self.head.addr.eq(self.next_read_ptr), self.head.en.eq(1)]
+        m.d.sync += self.read_ptr.eq(self.next_read_ptr)
 
 
-def _label_layout(sb):
-    return data.StructLayout({"lab": sb, "tracked": 1})
+class _Nodes:
+    """Node memories, two banks (the row being written, the row being read), each with a
+    flags memory and a label memory: a sequential write port, a patch port and a prefetch
+    read port.  ``flags``/``label``: the previous-row node at ``read_ptr - 1``."""
+
+    def __init__(self, m, nodes, node_bits, label, bank_written):
+        flags = node_flags_layout()
+        self.write_ptr = Signal(range(nodes + 1), name="node_write_ptr")
+        self.read_ptr = Signal(range(nodes + 1), name="node_read_ptr")
+        self.fetch = Signal(name="node_fetch")       # read read_ptr this clock
+        self.fetched = Signal(name="node_fetched")   # the node at read_ptr - 1 is on the ports
+        self.flags = Signal(flags, name="prev_node_flags")
+        self.label = Signal(label, name="prev_node_label")
+        self.write_en = Signal(name="node_write_en")
+        self.write_flags = Signal(flags, name="node_write_flags")
+        self.write_label = Signal(label, name="node_write_label")
+        # a first/last patch (never both kinds in one clock) and an untracking patch
+        self.flags_patch_req = Signal(name="flags_patch_req")
+        self.flags_patch_en = Signal(name="flags_patch_en")
+        self.flags_patch_addr = Signal(node_bits, name="flags_patch_addr")
+        self.flags_patch = Signal(flags, name="flags_patch")
+        self.untrack_req = Signal(name="untrack_req")
+        self.untrack_en = Signal(name="untrack_en")
+        self.untrack_addr = Signal(node_bits, name="untrack_addr")
+        self.last_reg = Signal(name="prev_node_last")  # last flag of the node under the scan
+
+        banks = []
+        for b in range(2):
+            flag_mem = Memory(shape=flags, depth=nodes, init=[])
+            label_mem = Memory(shape=label, depth=nodes, init=[])
+            m.submodules[f"flags{b}"] = flag_mem
+            m.submodules[f"labels{b}"] = label_mem
+            ports = {"flags_seq": flag_mem.write_port(), "flags_patch": flag_mem.write_port(),
+                     "label_seq": label_mem.write_port(),
+                     "label_patch": label_mem.write_port(),
+                     "flags_read": flag_mem.read_port(), "label_read": label_mem.read_port()}
+            writing = bank_written == b
+            addr = Mux(writing, self.write_ptr, self.read_ptr)
+            m.d.comb += [ports[name].addr.eq(addr) for name in
+                         ("flags_seq", "label_seq", "flags_read", "label_read")]
+            m.d.comb += [ports["flags_read"].en.eq(self.fetch & ~writing),
+                         ports["label_read"].en.eq(self.fetch & ~writing)]
+            banks.append((writing, ports))
+        m.d.comb += [
+            self.flags.eq(Mux(bank_written, banks[0][1]["flags_read"].data,
+                              banks[1][1]["flags_read"].data)),
+            self.label.eq(Mux(bank_written, banks[0][1]["label_read"].data,
+                              banks[1][1]["label_read"].data))]
+        for writing, ports in banks:
+            m.d.comb += [
+                ports["flags_seq"].data.eq(self.write_flags),
+                ports["flags_seq"].en.eq(writing & self.write_en),
+                ports["label_seq"].data.eq(self.write_label),
+                ports["label_seq"].en.eq(writing & self.write_en),
+                ports["flags_patch"].addr.eq(self.flags_patch_addr),
+                ports["flags_patch"].data.eq(self.flags_patch),
+                ports["flags_patch"].en.eq(writing & self.flags_patch_en),
+                ports["label_patch"].addr.eq(self.untrack_addr),
+                ports["label_patch"].data.eq(0),
+                ports["label_patch"].en.eq(writing & self.untrack_en),
+            ]
 
 
 class Labeller(wiring.Component):
@@ -123,12 +206,12 @@ class Labeller(wiring.Component):
                                           always_ready=True)),
             "ops": Out(stream.Signature(op_layout(width, height, pixel_bits, self.slots),
                                         always_ready=True)),
-            "tag": Out(2),
+            "tag": Out(FRAME_TAG_BITS),
             "clear": Out(1),
             "feat_busy": In(1),
             "frame_start": Out(1),
             "done": Out(1),
-            "done_flags": Out(8),
+            "done_flags": Out(FRAME_FLAGS_BITS),
             "dropped_labels": Out(dict(C.HEADER_FIELDS)["dropped_labels"]),
             "busy": Out(1),
             "fault": Out(1),
@@ -136,390 +219,378 @@ class Labeller(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        W, H, pb = self.width, self.height, self.pixel_bits
-        sb = C.bits_for(self.slots - 1)
-        nodes = max_nodes(W)
-        nb = C.bits_for(nodes - 1)
-        depth = max_stack(W)
-        entry_l = _entry_layout(sb, nb)
-        active_l = _active_layout(sb, nb)
-        label_l = _label_layout(sb)
-        xb, yb = C.bits_for(W - 1), C.bits_for(H)
-        beat = self.pixels.payload
-        op = self.ops.payload
+        W, H = self.width, self.height
+        slot_bits = C.bits_for(self.slots - 1)
+        node_bits = C.bits_for(max_nodes(W) - 1)
+        entry = stack_entry_layout(slot_bits, node_bits)
 
-        # ---- input: held pixel, expected position, frame state -----------------------
-        hv = Signal()                 # a pixel is held, waiting for its right neighbour
-        hx = Signal(xb)               # its position (in the virtual row: the column decided)
-        hy = Signal(yb)
-        hlit = Signal()
-        hp = Signal(pb)
-        hw = Signal(pb)
-        hx1 = Signal(xb)              # hx + 1 and hy + 1, the next pixel's position
-        hy1 = Signal(yb)
-        drain = Signal(range(_DRAIN + 2))
-        tag = Signal(2)               # frame tag: ops of an aborted frame are ignored
-        m.d.comb += self.tag.eq(tag)
-        row_par = Signal()            # parity of the row decided next: its node bank
-
-        at_origin = (beat.x == 0) & (beat.y == 0)
-        row_end = hx == W - 1         # the next pixel must start the next row
-        same_row = beat.y == hy
-        expected = Mux(row_end, (beat.x == 0) & (beat.y == hy1), (beat.x == hx1) & same_row)
-        row_end_held = hv & row_end
-
-        dv = Signal()                 # a column decision this clock: the held pixel's
-        dx, dy, dlit, dp, dw = hx, hy, hlit, hp, hw
-        dla = Signal()                # lookahead: pixel x + 1 is lit
-
-        start = Signal()              # this beat starts a frame
-        abort = Signal()              # the frame in progress ends early
-        abort_flags = Signal(8)
-        take = Signal()               # this beat is held
-
-        # ---- previous-row bitmap ------------------------------------------------------
-        m.submodules.bitmap = bitmap = Memory(shape=1, depth=W, init=[])
-        bm_w = bitmap.write_port()
-        bm_r = bitmap.read_port(transparent_for=(bm_w,))
-        r_m1 = Signal()
-        r_0 = Signal()
-        first_row = dy == 0
-        last_col = dx == W - 1
-        pl0 = r_0 & ~first_row
-        plm1 = r_m1 & ~first_row
-        plp1 = bm_r.data & ~first_row & ~last_col
-        ahead = Signal(xb)            # dx + 2 unless that wraps to column 0 or 1
-        m.d.comb += ahead.eq(dx + 2)
-        m.d.comb += [
-            bm_w.addr.eq(dx), bm_w.data.eq(dlit), bm_w.en.eq(dv),
-            bm_r.addr.eq(Mux(last_col | (dx == W - 2), last_col, ahead)), bm_r.en.eq(dv),
-        ]
-
-        # ---- node memories (two banks: the row being written, the row being read) -------
-        wptr = Signal(range(nodes + 1))
-        rptr = Signal(range(nodes + 1))
-        load = Signal()               # read rptr this clock
-        loaded = Signal()             # the node at rptr - 1 is on the read ports
-        wbank = row_par
-        banks = []
-        for b in range(2):
-            f_mem = Memory(shape=_FLAGS, depth=nodes, init=[])
-            l_mem = Memory(shape=label_l, depth=nodes, init=[])
-            m.submodules[f"flags{b}"] = f_mem
-            m.submodules[f"labels{b}"] = l_mem
-            ports = {
-                "fa": f_mem.write_port(), "fb": f_mem.write_port(),
-                "la": l_mem.write_port(), "lb": l_mem.write_port(),
-            }
-            ports["fr"] = f_mem.read_port()
-            ports["lr"] = l_mem.read_port()
-            writing = wbank == b
-            addr_a = Mux(writing, wptr, rptr)
-            m.d.comb += [ports["fa"].addr.eq(addr_a), ports["la"].addr.eq(addr_a),
-                         ports["fr"].addr.eq(addr_a), ports["lr"].addr.eq(addr_a),
-                         ports["fr"].en.eq(load & ~writing),
-                         ports["lr"].en.eq(load & ~writing)]
-            banks.append((writing, ports))
-        nf = Signal(_FLAGS)
-        nl = Signal(label_l)
-        m.d.comb += [nf.eq(Mux(wbank, banks[0][1]["fr"].data, banks[1][1]["fr"].data)),
-                     nl.eq(Mux(wbank, banks[0][1]["lr"].data, banks[1][1]["lr"].data))]
-        seq_en = Signal()
-        seq_f = Signal(_FLAGS)
-        seq_l = Signal(label_l)
-        fpatch_req = Signal()         # first/last patch (never both kinds in one clock)
-        fpatch_en = Signal()
-        fpatch_addr = Signal(nb)
-        fpatch = Signal(_FLAGS)
-        lpatch_req = Signal()         # tracked patch
-        lpatch_en = Signal()
-        lpatch_addr = Signal(nb)
-        for writing, ports in banks:
-            m.d.comb += [
-                ports["fa"].data.eq(seq_f), ports["fa"].en.eq(writing & seq_en),
-                ports["la"].data.eq(seq_l), ports["la"].en.eq(writing & seq_en),
-                ports["fb"].addr.eq(fpatch_addr), ports["fb"].data.eq(fpatch),
-                ports["fb"].en.eq(writing & fpatch_en),
-                ports["lb"].addr.eq(lpatch_addr), ports["lb"].data.eq(0),
-                ports["lb"].en.eq(writing & lpatch_en),
-            ]
-        cur_last = Signal()           # last flag of the previous-row node under the scan
-
-        # ---- stack: top and second in registers, the rest in memory ------------------
-        top = Signal(entry_l)
-        sec = Signal(entry_l)
-        below = Signal(range(-2, depth + 1))   # entries in the stack memory (entries - 2)
-        below_next = Signal.like(below)
-        reload = Signal()             # sec comes from the stack memory this clock
-        m.submodules.stack = stack = Memory(shape=entry_l, depth=max(depth - 2, 1), init=[])
-        st_w = stack.write_port()
-        st_r = stack.read_port()
-
-        # ---- active component, label count, free slots --------------------------------
-        act = Signal(active_l)
-        count = Signal(range(self.label_capacity + 1))
-        lit_prev = Signal()
-        fresh = Signal(range(self.slots + 1))
-        # free slots: a FIFO in a memory (a power of two deep, so the pointers wrap by
-        # themselves); its head is on the read port, a slot freed at a decision is
-        # reusable at the next one
-        fl_depth = 1 << C.bits_for(self.slots - 1)
-        m.submodules.freelist = freelist = Memory(shape=sb, depth=fl_depth, init=[])
-        fl_w = freelist.write_port()
-        fl_r = freelist.read_port(transparent_for=(fl_w,))
-        fl_wp = Signal(range(2 * fl_depth))
-        fl_rp = Signal(range(2 * fl_depth))
-        fl_rdy = fl_wp != fl_rp
-        fl_pop = Signal()
-        fl_head = Signal.like(fl_rp)  # the head after this clock's pop
-        m.d.comb += [fl_head.eq(fl_rp + fl_pop), fl_r.addr.eq(fl_head), fl_r.en.eq(1)]
-        m.d.sync += fl_rp.eq(fl_head)
-        fault = Signal()
-        m.d.comb += self.fault.eq(fault)
+        self._held = _Held(C.bits_for(W - 1), C.bits_for(H), self.pixel_bits)
+        self._decide = Signal()             # a column decision this clock: the held pixel's
+        self._next_lit = Signal()           # lookahead: pixel x + 1 is lit
+        self._start = Signal()              # this beat starts a frame
+        self._row_parity = Signal()         # parity of the row decided next: its node bank
+        self._line_error = Signal()         # a row started before its first node was fetched
+        self._fault = Signal()
+        self._active = Signal(active_layout(slot_bits, node_bits), name="active")
+        self._prev_lit = Signal()           # the decided pixel's left neighbour was lit
+        self._open_tracked = Signal(range(self.label_capacity + 1))
         # at most one blob per two pixels: the count is that wide, widened at the port
-        dropped_labels = Signal(C.bits_for((W * H + 1) // 2))
-        line_error = Signal()         # a row started before its first node was fetched
+        self._dropped = Signal(C.bits_for((W * H + 1) // 2), name="dropped")
+        self._nodes = _Nodes(m, max_nodes(W), node_bits, node_label_layout(slot_bits),
+                             self._row_parity)
+        self._stack = _Stack(m, entry, max_stack(W))
+        self._free = _FreeSlots(m, self.slots, slot_bits)
+        m.d.comb += self.fault.eq(self._fault)
 
-        # ==== the column decision ========================================================
-        is_first = nf.first
-        node_last = Mux(pl0 & ~plm1, nf.last, cur_last)
-        ps = pl0 & ~plm1
-        pop = pl0 & ~plp1 & node_last
-        push = ps & is_first
-        new_entry = Signal(entry_l)
-        m.d.comb += [new_entry.lab.eq(nl.lab), new_entry.tracked.eq(nl.tracked)]
-        t1 = Signal(entry_l)
-        s1 = Signal(entry_l)
-        m.d.comb += [t1.eq(Mux(push, new_entry, top)), s1.eq(Mux(push, top, sec))]
+        above = self._previous_row(m)
+        top, second, push = self._push(m, above)
+        active, top = self._pixel(m, above, top)
+        active, top, pop = self._pop(m, above, active, top, second, push)
+        top, run_end, allocate = self._run_end(m, active, top)
+        self._update(m, above, active, top, push, pop, run_end, allocate)
+        self._frames(m)
+        return m
 
-        # step 2: the pixel
-        a2 = Signal(active_l)
-        t2 = Signal(entry_l)
-        m.d.comb += [a2.eq(act), t2.eq(t1)]
-        rs = dlit & ~lit_prev
-        cstart = rs & pl0
-        birth = rs & ~pl0
-        merge = dlit & ~rs & ps & ~(act.group & ~is_first)
-        count_up = Signal()
-        merge_down = Signal()
-        pop_down = Signal()
-        drop_label = Signal()
-        free_en = Signal()
-        free_lab = Signal(sb)
-        m.d.comb += [op.tag.eq(tag), op.pix.eq(dlit), op.x.eq(dx), op.y.eq(dy),
-                     op.p.eq(dp), op.w.eq(dw)]
-        b = t1
-        trk = act.tracked & b.tracked
-        with m.If(cstart):
-            m.d.comb += [a2.lab.eq(b.lab), a2.tracked.eq(b.tracked), a2.has_slot.eq(b.tracked),
-                         a2.has_cur.eq(b.has_cur), a2.fa.eq(b.fa), a2.la.eq(b.la),
-                         a2.group.eq(1), op.rd.eq(b.tracked),
-                         op.rd_addr.eq(b.lab)]
-        with m.Elif(birth):
-            tracked_birth = count != self.label_capacity  # it never exceeds it
-            m.d.comb += [a2.eq(0), a2.tracked.eq(tracked_birth), count_up.eq(tracked_birth)]
+    # ---- previous row ---------------------------------------------------------------
+    def _previous_row(self, m):
+        """The previous row's pixels around the decided column, from a bitmap read two
+        columns ahead: ``{"left", "here", "right", "node_starts", "last_col"}``."""
+        W, held = self.width, self._held
+        m.submodules.bitmap = bitmap = Memory(shape=1, depth=W, init=[])
+        write = bitmap.write_port()
+        read = bitmap.read_port(transparent_for=(write,))
+        left_reg, here_reg = Signal(name="above_left_reg"), Signal(name="above_reg")
+        first_row = held.y == 0
+        last_col = held.x == W - 1
+        here = here_reg & ~first_row
+        left = left_reg & ~first_row
+        ahead = Signal(C.bits_for(W - 1), name="ahead")  # x + 2 unless that wraps to 0 or 1
+        m.d.comb += ahead.eq(held.x + 2)
+        m.d.comb += [
+            write.addr.eq(held.x), write.data.eq(held.lit), write.en.eq(self._decide),
+            read.addr.eq(Mux(last_col | (held.x == W - 2), last_col, ahead)),
+            read.en.eq(self._decide),
+        ]
+        with m.If(self._decide):
+            m.d.sync += [left_reg.eq(Mux(last_col, 0, here_reg)), here_reg.eq(read.data)]
+        return {"left": left, "here": here, "right": read.data & ~first_row & ~last_col,
+                "node_starts": here & ~left, "last_col": last_col}
+
+    # ---- the four stages of a column decision ---------------------------------------
+    def _push(self, m, above):
+        """A previous-row node starting here that is its component's first is pushed:
+        returns the stack's ``(top, second)`` after the push, and ``push``."""
+        nodes, stack = self._nodes, self._stack
+        push = above["node_starts"] & nodes.flags.first
+        pushed = Signal.like(stack.top, name="pushed")
+        m.d.comb += [pushed.slot.eq(nodes.label.slot), pushed.tracked.eq(nodes.label.tracked)]
+        top = Signal.like(stack.top, name="top_after_push")
+        second = Signal.like(stack.top, name="second_after_push")
+        m.d.comb += [top.eq(Mux(push, pushed, stack.top)),
+                     second.eq(Mux(push, stack.top, stack.second))]
+        return top, second, push
+
+    def _pixel(self, m, above, under):
+        """The decided pixel: a run starting under a node continues its component (the
+        top entry ``under``), a run starting over dark pixels is a birth, a node of another
+        component starting under the run is a merge.  Returns the active component and the
+        top entry after it."""
+        held, act, nodes, free, op = (self._held, self._active, self._nodes, self._free,
+                                      self.ops.payload)
+        active = Signal.like(act, name="active_after_pixel")
+        top = Signal.like(under, name="top_after_pixel")
+        action = Signal(PixelAction, name="pixel_action")
+        m.d.comb += [active.eq(act), top.eq(under)]
+        run_starts = held.lit & ~self._prev_lit
+        self._tracked_birth = Signal()
+        self._merge_closes = Signal()       # a merge lowers the open-tracked count
+        m.d.comb += [op.tag.eq(self.tag), op.pix.eq(held.lit), op.x.eq(held.x),
+                     op.y.eq(held.y), op.p.eq(held.data), op.w.eq(held.weight)]
+        both_tracked = act.tracked & under.tracked
+        merge = held.lit & ~run_starts & above["node_starts"] & \
+            ~(act.on_stack & ~nodes.flags.first)
+        with m.If(run_starts & above["here"]):
+            m.d.comb += [active.slot.eq(under.slot), active.tracked.eq(under.tracked),
+                         active.has_slot.eq(under.tracked), active.in_row.eq(under.in_row),
+                         active.first_node.eq(under.first_node),
+                         active.last_node.eq(under.last_node), active.on_stack.eq(1),
+                         op.rd.eq(under.tracked), op.rd_addr.eq(under.slot),
+                         action.eq(PixelAction.CONTINUE)]
+        with m.Elif(run_starts):
+            tracked = self._open_tracked != self.label_capacity  # it never exceeds it
+            m.d.comb += [active.eq(0), active.tracked.eq(tracked),
+                         self._tracked_birth.eq(tracked), action.eq(PixelAction.BIRTH)]
         with m.Elif(merge):
-            m.d.comb += [merge_down.eq(act.tracked | b.tracked), a2.tracked.eq(trk),
-                         a2.group.eq(1), op.rd.eq(trk),
-                         op.rd_addr.eq(b.lab)]
-            with m.If(b.has_cur):             # case (i): the active run nests inside b
-                m.d.comb += [fpatch_req.eq(act.has_cur), fpatch_addr.eq(act.fa),
-                             fpatch.eq(0),
-                             a2.has_cur.eq(1), a2.fa.eq(b.fa),
-                             a2.la.eq(Mux(act.has_cur, act.la, b.la))]
-                with m.If(trk):
-                    m.d.comb += [a2.lab.eq(b.lab), a2.has_slot.eq(1),
-                                 free_en.eq(act.has_slot), free_lab.eq(act.lab)]
+            m.d.comb += [self._merge_closes.eq(act.tracked | under.tracked),
+                         active.tracked.eq(both_tracked), active.on_stack.eq(1),
+                         op.rd.eq(both_tracked), op.rd_addr.eq(under.slot),
+                         action.eq(PixelAction.MERGE)]
+            # the slot the survivor keeps is one a first node names already; the other is
+            # freed (both, when the merge untracks the survivor)
+            either_slot = Mux(act.has_slot, act.slot, under.slot)
+            with m.If(under.in_row):        # case (i): the active run nests inside ``under``
+                m.d.comb += [nodes.flags_patch_req.eq(act.in_row),
+                             nodes.flags_patch_addr.eq(act.first_node),
+                             nodes.flags_patch.eq(0),
+                             active.in_row.eq(1), active.first_node.eq(under.first_node),
+                             active.last_node.eq(Mux(act.in_row, act.last_node,
+                                                     under.last_node))]
+                with m.If(both_tracked):
+                    m.d.comb += [active.slot.eq(under.slot), active.has_slot.eq(1),
+                                 free.free_en.eq(act.has_slot), free.free_slot.eq(act.slot)]
                 with m.Else():
-                    m.d.comb += [a2.has_slot.eq(0),
-                                 free_en.eq(act.has_slot | b.tracked),
-                                 free_lab.eq(Mux(act.has_slot, act.lab, b.lab))]
-            with m.Else():                    # case (ii): b has no node in this row yet
-                m.d.comb += t2.cont.eq(act.group | t1.cont)
-                with m.If(trk):
-                    m.d.comb += [a2.lab.eq(Mux(act.has_slot, act.lab, b.lab)),
-                                 a2.has_slot.eq(1),
-                                 free_en.eq(act.has_slot), free_lab.eq(b.lab)]
+                    m.d.comb += [active.has_slot.eq(0),
+                                 free.free_en.eq(act.has_slot | under.tracked),
+                                 free.free_slot.eq(either_slot)]
+            with m.Else():                  # case (ii): ``under`` has no node in this row yet
+                m.d.comb += top.continues.eq(act.on_stack | under.continues)
+                with m.If(both_tracked):
+                    m.d.comb += [active.slot.eq(either_slot), active.has_slot.eq(1),
+                                 free.free_en.eq(act.has_slot), free.free_slot.eq(under.slot)]
                 with m.Else():
-                    m.d.comb += [a2.has_slot.eq(0),
-                                 free_en.eq(act.has_slot | b.tracked),
-                                 free_lab.eq(Mux(act.has_slot, act.lab, b.lab))]
-            with m.If(~trk & (b.has_cur | act.has_cur)):   # the survivor's first node
-                m.d.comb += [lpatch_req.eq(1),
-                             lpatch_addr.eq(Mux(b.has_cur, b.fa, act.fa))]
+                    m.d.comb += [active.has_slot.eq(0),
+                                 free.free_en.eq(act.has_slot | under.tracked),
+                                 free.free_slot.eq(either_slot)]
+            with m.If(~both_tracked & (under.in_row | act.in_row)):  # the survivor's first node
+                m.d.comb += [nodes.untrack_req.eq(1),
+                             nodes.untrack_addr.eq(Mux(under.in_row, under.first_node,
+                                                       act.first_node))]
+        return active, top
 
-        # step 3: the pop of a component's last node
-        a3 = Signal(active_l)
-        t3 = Signal(entry_l)
-        m.d.comb += a3.eq(a2)
-        e = t2
+    def _pop(self, m, above, active_in, popped, second, push):
+        """The component whose last previous-row node ends here is popped: the run carries
+        it on, its information moves to the entry below, its last node in this row is
+        patched, or it is complete.  Returns the active component, the top entry after the
+        pop, and ``pop``."""
+        held, nodes, free, op = self._held, self._nodes, self._free, self.ops.payload
+        node_last = Mux(above["node_starts"], nodes.flags.last, nodes.last_reg)
+        pop = above["here"] & ~above["right"] & node_last
+        active = Signal.like(active_in, name="active_after_pop")
+        top = Signal.like(popped, name="top_after_pop")
+        action = Signal(PopAction, name="pop_action")
+        self._completes = Signal()
+        self._drops = Signal()
+        m.d.comb += active.eq(active_in)
+        carried = held.lit & active_in.on_stack      # the current run belongs to it
         with m.If(pop):
-            with m.If(dlit & a2.group):
-                m.d.comb += a3.group.eq(e.cont)
-            with m.Elif(e.cont):
-                pass                          # the group's information moves down (below)
-            with m.Elif(e.has_cur):
-                m.d.comb += [fpatch_req.eq(1), fpatch_addr.eq(e.la),
-                             fpatch.first.eq(e.la == e.fa), fpatch.last.eq(1)]
-            with m.Elif(e.tracked):
-                m.d.comb += [pop_down.eq(1), op.complete.eq(1), op.rd.eq(1),
-                             op.rd_addr.eq(e.lab), free_en.eq(1), free_lab.eq(e.lab)]
+            with m.If(carried):
+                m.d.comb += [active.on_stack.eq(popped.continues),
+                             action.eq(PopAction.CARRY_ON)]
+            with m.Elif(popped.continues):
+                m.d.comb += action.eq(PopAction.MOVE_DOWN)          # see ``moved`` below
+            with m.Elif(popped.in_row):
+                m.d.comb += [nodes.flags_patch_req.eq(1),
+                             nodes.flags_patch_addr.eq(popped.last_node),
+                             nodes.flags_patch.first.eq(popped.last_node == popped.first_node),
+                             nodes.flags_patch.last.eq(1), action.eq(PopAction.PATCH_LAST)]
+            with m.Elif(popped.tracked):
+                m.d.comb += [self._completes.eq(1), op.complete.eq(1), op.rd.eq(1),
+                             op.rd_addr.eq(popped.slot), free.free_en.eq(1),
+                             free.free_slot.eq(popped.slot), action.eq(PopAction.COMPLETE)]
             with m.Else():
-                m.d.comb += drop_label.eq(1)
-        moved = Signal(entry_l)               # s1 with the popped entry's information
-        m.d.comb += [moved.eq(e), moved.cont.eq(s1.cont)]
+                m.d.comb += [self._drops.eq(1), action.eq(PopAction.DROP)]
+        moved = Signal.like(popped, name="moved")   # the entry below, with the popped information
+        m.d.comb += [moved.eq(popped), moved.continues.eq(second.continues)]
         with m.If(pop & push):
-            m.d.comb += t3.eq(top)
+            m.d.comb += top.eq(self._stack.top)
         with m.Elif(pop):
-            m.d.comb += t3.eq(Mux(e.cont & ~(dlit & a2.group), moved, s1))
+            m.d.comb += top.eq(Mux(popped.continues & ~carried, moved, second))
         with m.Else():
-            m.d.comb += t3.eq(t2)
+            m.d.comb += top.eq(popped)
+        return active, top, pop
 
-        # step 4: the end of the current run
-        run_end = dlit & ~dla
-        alloc = run_end & a3.tracked & ~a3.has_slot
-        lab4 = Signal(sb)
-        m.d.comb += lab4.eq(a3.lab)
-        with m.If(alloc):
-            with m.If(fl_rdy):
-                m.d.comb += [lab4.eq(fl_r.data), fl_pop.eq(dv)]
+    def _run_end(self, m, active, top_in):
+        """The current run ends (``x + 1`` dark or the row's last column): its node is
+        written, its slot allocated if it has none.  Returns the top entry after it,
+        ``run_end`` and ``allocate``."""
+        held, nodes, free, op = self._held, self._nodes, self._free, self.ops.payload
+        run_end = held.lit & ~self._next_lit
+        allocate = run_end & active.tracked & ~active.has_slot
+        slot = Signal.like(active.slot, name="run_slot")
+        m.d.comb += slot.eq(active.slot)
+        with m.If(allocate):
+            with m.If(free.ready):
+                m.d.comb += [slot.eq(free.head.data), free.pop.eq(self._decide)]
             with m.Else():
-                m.d.comb += lab4.eq(fresh)
-        m.d.comb += [fl_w.addr.eq(fl_wp), fl_w.data.eq(free_lab), fl_w.en.eq(dv & free_en)]
-        m.d.sync += fl_wp.eq(fl_wp + fl_w.en)
-        t4 = Signal(entry_l)
-        m.d.comb += t4.eq(t3)
+                m.d.comb += slot.eq(free.fresh)
+        m.d.comb += [free.push.addr.eq(free.write_ptr), free.push.data.eq(free.free_slot),
+                     free.push.en.eq(self._decide & free.free_en)]
+        m.d.sync += free.write_ptr.eq(free.write_ptr + free.push.en)
+        top = Signal.like(top_in, name="top_after_run")
+        m.d.comb += top.eq(top_in)
         with m.If(run_end):
-            m.d.comb += [seq_en.eq(dv), seq_f.first.eq(~a3.has_cur), seq_f.last.eq(~a3.group),
-                         seq_l.lab.eq(lab4), seq_l.tracked.eq(a3.tracked),
-                         op.wr.eq(a3.tracked), op.wr_addr.eq(lab4)]
-            with m.If(a3.group):
-                m.d.comb += [t4.lab.eq(lab4), t4.tracked.eq(a3.tracked), t4.has_cur.eq(1),
-                             t4.fa.eq(Mux(a3.has_cur, a3.fa, wptr)), t4.la.eq(wptr)]
-        m.d.comb += [fpatch_en.eq(fpatch_req & dv), lpatch_en.eq(lpatch_req & dv)]
-        m.d.comb += self.ops.valid.eq(dv)
+            m.d.comb += [nodes.write_en.eq(self._decide),
+                         nodes.write_flags.first.eq(~active.in_row),
+                         nodes.write_flags.last.eq(~active.on_stack),
+                         nodes.write_label.slot.eq(slot),
+                         nodes.write_label.tracked.eq(active.tracked),
+                         op.wr.eq(active.tracked), op.wr_addr.eq(slot)]
+            with m.If(active.on_stack):
+                m.d.comb += [top.slot.eq(slot), top.tracked.eq(active.tracked),
+                             top.in_row.eq(1),
+                             top.first_node.eq(Mux(active.in_row, active.first_node,
+                                                   nodes.write_ptr)),
+                             top.last_node.eq(nodes.write_ptr)]
+        m.d.comb += [nodes.flags_patch_en.eq(nodes.flags_patch_req & self._decide),
+                     nodes.untrack_en.eq(nodes.untrack_req & self._decide)]
+        m.d.comb += self.ops.valid.eq(self._decide)
+        return top, run_end, allocate
 
-        # ---- state updates of a decision ----------------------------------------------
-        down = merge_down | pop_down
-        m.d.comb += [st_w.en.eq(0), st_r.en.eq(0),
-                     below_next.eq(below + Mux(push & ~pop, 1, Mux(pop & ~push, -1, 0)))]
-        with m.If(reload):
-            m.d.sync += [sec.eq(st_r.data), reload.eq(0)]
-        with m.If(load):
-            m.d.sync += load.eq(0)
-        with m.If(dv):
-            m.d.sync += [act.eq(a3), top.eq(t4),
+    # ---- state updated by a decision -------------------------------------------------
+    def _update(self, m, above, active, top, push, pop, run_end, allocate):
+        """Registers, stack, node pointers and counts after a decision; their frame-start
+        values."""
+        nodes, stack, free, decide = self._nodes, self._stack, self._free, self._decide
+        last_col, count = above["last_col"], self._open_tracked
+        closes = self._merge_closes | self._completes
+        m.d.comb += [stack.spill.en.eq(0), stack.refill.en.eq(0),
+                     stack.spilled_next.eq(stack.spilled + Mux(push & ~pop, 1,
+                                                               Mux(pop & ~push, -1, 0)))]
+        with m.If(stack.reload):
+            m.d.sync += [stack.second.eq(stack.refill.data), stack.reload.eq(0)]
+        with m.If(nodes.fetch):
+            m.d.sync += nodes.fetch.eq(0)
+        with m.If(decide):
+            m.d.sync += [self._active.eq(active), stack.top.eq(top),
                          # a birth, a merge and a completion exclude each other: +1 or -1
-                         count.eq(count + Cat(count_up | down, down.replicate(len(count) - 1))),
-                         dropped_labels.eq(dropped_labels + drop_label),
-                         lit_prev.eq(dlit & ~last_col),
-                         r_m1.eq(Mux(last_col, 0, r_0)), r_0.eq(bm_r.data)]
-            with m.If(alloc & ~fl_rdy):
-                m.d.sync += fresh.eq(fresh + 1)
-                with m.If(fresh == self.slots):
-                    m.d.sync += fault.eq(1)
-            m.d.sync += below.eq(below_next)
+                         count.eq(count + Cat(self._tracked_birth | closes,
+                                              closes.replicate(len(count) - 1))),
+                         self._dropped.eq(self._dropped + self._drops),
+                         self._prev_lit.eq(self._held.lit & ~last_col)]
+            with m.If(allocate & ~free.ready):
+                m.d.sync += free.fresh.eq(free.fresh + 1)
+                with m.If(free.fresh == self.slots):
+                    m.d.sync += self._fault.eq(1)
+            m.d.sync += stack.spilled.eq(stack.spilled_next)
             with m.If(push & ~pop):
-                m.d.sync += sec.eq(top)
-                m.d.comb += [st_w.addr.eq(below), st_w.data.eq(sec), st_w.en.eq(~below[-1])]
-                with m.If(below == depth - 2):
-                    m.d.sync += fault.eq(1)
-            with m.Elif(pop & ~push):      # the new sec is the memory's last entry
-                m.d.comb += [st_r.addr.eq(below_next), st_r.en.eq(~below_next[-1])]
-                m.d.sync += reload.eq(~below_next[-1])
-            with m.If(ps):
-                m.d.sync += [cur_last.eq(nf.last), rptr.eq(rptr + 1), load.eq(1)]
-                with m.If(~loaded):
-                    m.d.sync += line_error.eq(1)
+                m.d.sync += stack.second.eq(stack.top)
+                m.d.comb += [stack.spill.addr.eq(stack.spilled),
+                             stack.spill.data.eq(stack.second),
+                             stack.spill.en.eq(~stack.spilled[-1])]
+                with m.If(stack.spilled == max_stack(self.width) - 2):
+                    m.d.sync += self._fault.eq(1)
+            with m.Elif(pop & ~push):       # the new second is the memory's last entry
+                m.d.comb += [stack.refill.addr.eq(stack.spilled_next),
+                             stack.refill.en.eq(~stack.spilled_next[-1])]
+                m.d.sync += stack.reload.eq(~stack.spilled_next[-1])
+            with m.If(above["node_starts"]):
+                m.d.sync += [nodes.last_reg.eq(nodes.flags.last),
+                             nodes.read_ptr.eq(nodes.read_ptr + 1), nodes.fetch.eq(1)]
+                with m.If(~nodes.fetched):
+                    m.d.sync += self._line_error.eq(1)
             with m.If(run_end):
-                m.d.sync += wptr.eq(wptr + 1)
+                m.d.sync += nodes.write_ptr.eq(nodes.write_ptr + 1)
             with m.If(last_col):
-                m.d.sync += [wptr.eq(0), rptr.eq(0), load.eq(1), below.eq(-2),
-                             row_par.eq(~row_par)]
-                # the stack is empty at every row end (below_next == -2, from below itself)
-                with m.If(~(Mux(push == pop, below == -2, pop & (below == -1)))):
-                    m.d.sync += fault.eq(1)
-        with m.If(dv & (ps | last_col)):
-            m.d.sync += loaded.eq(0)
-        with m.Elif(load):
-            m.d.sync += loaded.eq(1)
+                m.d.sync += [nodes.write_ptr.eq(0), nodes.read_ptr.eq(0), nodes.fetch.eq(1),
+                             stack.spilled.eq(-2), self._row_parity.eq(~self._row_parity)]
+                # the stack is empty at every row end (spilled_next == -2)
+                with m.If(~(Mux(push == pop, stack.spilled == -2,
+                                pop & (stack.spilled == -1)))):
+                    m.d.sync += self._fault.eq(1)
+        with m.If(decide & (above["node_starts"] | last_col)):
+            m.d.sync += nodes.fetched.eq(0)
+        with m.Elif(nodes.fetch):
+            m.d.sync += nodes.fetched.eq(1)
 
-        # ---- frame sequencing -----------------------------------------------------------
-        m.d.comb += [self.frame_start.eq(start), self.clear.eq(start),
-                     self.dropped_labels.eq(dropped_labels)]
-        with m.If(start):
-            m.d.sync += [count.eq(0), fresh.eq(0), fl_wp.eq(0), fl_rp.eq(0),
-                         dropped_labels.eq(0), row_par.eq(0),
-                         lit_prev.eq(0), below.eq(-2), wptr.eq(0), rptr.eq(0), load.eq(0),
-                         loaded.eq(0), line_error.eq(0), reload.eq(0)]
-        m.d.comb += self.done_flags.eq(abort_flags)
+        m.d.comb += self.dropped_labels.eq(self._dropped)
+        with m.If(self._start):
+            m.d.sync += [count.eq(0), free.fresh.eq(0), free.write_ptr.eq(0),
+                         free.read_ptr.eq(0), self._dropped.eq(0), self._row_parity.eq(0),
+                         self._prev_lit.eq(0), stack.spilled.eq(-2), nodes.write_ptr.eq(0),
+                         nodes.read_ptr.eq(0), nodes.fetch.eq(0), nodes.fetched.eq(0),
+                         self._line_error.eq(0), stack.reload.eq(0)]
+
+    # ---- frame sequencing --------------------------------------------------------------
+    def _frames(self, m):
+        """Frame state machine: takes pixels at their expected positions into the held
+        register, decides the virtual row, drains, and ends frames (done, faults)."""
+        W, H, held = self.width, self.height, self._held
+        beat, valid = self.pixels.payload, self.pixels.valid
+        start, decide = self._start, self._decide
+        drain = Signal(range(_DRAIN + 2))
+        tag = Signal(FRAME_TAG_BITS, name="frame_tag")
+        abort = Signal()              # the frame in progress ends early
+        abort_flags = Signal(FRAME_FLAGS_BITS)
+        take = Signal()               # this beat is held
         finished = Signal()
+        at_origin = (beat.x == 0) & (beat.y == 0)
+        same_row = beat.y == held.y
+        row_end_held = held.valid & (held.x == W - 1)  # the next pixel starts the next row
+        expected = Mux(held.x == W - 1, (beat.x == 0) & (beat.y == held.next_y),
+                       (beat.x == held.next_x) & same_row)
+        m.d.comb += [self.tag.eq(tag), self.frame_start.eq(start), self.clear.eq(start),
+                     self.done_flags.eq(abort_flags)]
         with m.If(start | abort):
             m.d.sync += tag.eq(tag + 1)
 
+        def start_frame(flags=None):
+            m.d.comb += [start.eq(1), take.eq(1)]
+            if flags is not None:
+                m.d.comb += [abort.eq(1), abort_flags.eq(flags)]
+
         def restart_if_new_frame():
             """A frame starting before this one finished: end it truncated, start anew."""
-            with m.If(self.pixels.valid & at_origin):
-                m.d.comb += [abort.eq(1), abort_flags.eq(C.FRAME_TRUNCATED),
-                             start.eq(1), take.eq(1)]
+            with m.If(valid & at_origin):
+                start_frame(C.FRAME_TRUNCATED)
                 m.next = "RUN"
 
         with m.FSM():
             with m.State("IDLE"):
-                with m.If(self.pixels.valid & at_origin):
-                    m.d.comb += [start.eq(1), take.eq(1)]
+                with m.If(valid & at_origin):
+                    start_frame()
                     m.next = "RUN"
             with m.State("RUN"):
                 m.d.comb += self.busy.eq(1)
-                right = self.pixels.valid & expected & same_row & hv
-                m.d.comb += [dv.eq(row_end_held | right), dla.eq(~row_end_held & beat.lit)]
-                with m.If(self.pixels.valid & ~expected):
+                right = valid & expected & same_row & held.valid
+                m.d.comb += [decide.eq(row_end_held | right),
+                             self._next_lit.eq(~row_end_held & beat.lit)]
+                with m.If(valid & ~expected):
                     m.d.comb += abort.eq(1)
                     with m.If(at_origin):
-                        m.d.comb += [abort_flags.eq(C.FRAME_TRUNCATED), start.eq(1),
-                                     take.eq(1)]
+                        start_frame(C.FRAME_TRUNCATED)
                     with m.Else():
                         m.d.comb += abort_flags.eq(C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR)
                         m.next = "SKIP"
-                with m.Elif(line_error):
+                with m.Elif(self._line_error):
                     m.d.comb += [abort.eq(1),
                                  abort_flags.eq(C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR)]
                     m.next = "SKIP"
                 with m.Else():
-                    m.d.comb += take.eq(self.pixels.valid)
-                    with m.If(row_end_held & (hy == H - 1)):
-                        m.d.sync += [hx.eq(0), hy.eq(H), hlit.eq(0), hv.eq(0)]
+                    m.d.comb += take.eq(valid)
+                    with m.If(row_end_held & (held.y == H - 1)):
+                        m.d.sync += [held.x.eq(0), held.y.eq(H), held.lit.eq(0),
+                                     held.valid.eq(0)]
                         m.next = "GAP"
             with m.State("GAP"):              # one clock: the last row's first node
                 m.d.comb += self.busy.eq(1)
                 m.next = "VROW"
                 restart_if_new_frame()
-            with m.State("VROW"):
-                m.d.comb += [self.busy.eq(1), dv.eq(1)]
-                m.d.sync += hx.eq(hx + 1)
-                with m.If(hx == W - 1):
+            with m.State("VROW"):             # the virtual dark row
+                m.d.comb += [self.busy.eq(1), decide.eq(1)]
+                m.d.sync += held.x.eq(held.x + 1)
+                with m.If(held.x == W - 1):
                     m.d.sync += drain.eq(0)
                     m.next = "DRAIN"
                 restart_if_new_frame()
             with m.State("DRAIN"):
                 m.d.comb += self.busy.eq(1)
                 m.d.sync += drain.eq(drain + 1)
-                with m.If((drain >= _DRAIN - 1) & ~self.feat_busy & ~self.pixels.valid):
+                with m.If((drain >= _DRAIN - 1) & ~self.feat_busy & ~valid):
                     m.d.comb += finished.eq(1)
                     m.next = "IDLE"
                 restart_if_new_frame()
             with m.State("SKIP"):
-                with m.If(self.pixels.valid & at_origin):
-                    m.d.comb += [start.eq(1), take.eq(1)]
+                with m.If(valid & at_origin):
+                    start_frame()
                     m.next = "RUN"
         m.d.comb += self.done.eq(finished | abort)
 
         with m.If(take):
-            m.d.sync += [hv.eq(1), hx.eq(beat.x), hy.eq(beat.y), hlit.eq(beat.lit),
-                         hp.eq(beat.data), hw.eq(beat.weight),
-                         hx1.eq(beat.x + 1), hy1.eq(beat.y + 1)]
-        with m.Elif(dv & ~(self.pixels.valid & expected)):
-            m.d.sync += hv.eq(0)
+            m.d.sync += [held.valid.eq(1), held.x.eq(beat.x), held.y.eq(beat.y),
+                         held.lit.eq(beat.lit), held.data.eq(beat.data),
+                         held.weight.eq(beat.weight), held.next_x.eq(beat.x + 1),
+                         held.next_y.eq(beat.y + 1)]
+        with m.Elif(decide & ~(valid & expected)):
+            m.d.sync += held.valid.eq(0)
         with m.If(abort & ~start):
-            m.d.sync += hv.eq(0)
-        return m
+            m.d.sync += held.valid.eq(0)

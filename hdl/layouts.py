@@ -1,23 +1,87 @@
-"""Record and trailer layouts of the gateware, derived from ``lodestar.contract``.
+"""Stream payloads, memory words and enums of the gateware, derived from ``lodestar.contract``.
 
-The gateware stores blob records compactly: the moments have the widths of the frame's
-pixel width (``contract.moment_widths(pixel_bits)``), the bounding box those of the frame's
-geometry.  The packetizer zero-extends them into the contract's packet record
-(``contract.RECORD_FIELDS``, 16-bit widths).  Field names are the contract's, so a record
-converts to ``contract.BlobRecord`` by name.
-
-The frame trailer carries the variable fields of the packet header
-(``contract.HEADER_FIELDS``, same names and widths); ``magic``, ``version``, ``width``,
+Stream payloads, in pipeline order: ``pixel_layout`` (sensor -> threshold unit),
+``lit_layout`` (threshold unit -> labeller), ``op_layout`` (labeller -> feature engine),
+``record_layout`` and ``trailer_layout`` (detector -> packetizer).  A compact record has the
+contract's field names with the frame's widths (``contract.moment_widths(pixel_bits)``, the
+geometry's for the box); the packetizer zero-extends it to ``contract.RECORD_FIELDS``.  The
+trailer carries the header fields a frame produces; ``magic``, ``version``, ``width``,
 ``height`` and ``pixel_bits`` are constants of the build.
 """
 
-from amaranth.lib import data
+from amaranth.lib import data, enum
 
 from lodestar import contract as C
 
 TRAILER_NAMES = ("mode", "frame_counter", "flags", "threshold", "background", "n_blobs",
                  "n_filtered", "dropped_records", "dropped_labels", "n_records")
 """Header fields the gateware produces per frame (the others are build constants)."""
+
+FRAME_FLAGS_BITS = dict(C.HEADER_FIELDS)["flags"]
+"""Width of a frame's status flags (``contract.FRAME_*``)."""
+
+FRAME_TAG_BITS = 2
+"""Width of the labeller's frame tag: ops of an aborted frame carry an old tag."""
+
+
+class ThresholdMode(enum.Enum, shape=C.REGISTER_BY_NAME["mode"].bits):
+    """The ``mode`` register (``contract.MODE_*``); any other value thresholds as fixed."""
+    FIXED = C.MODE_FIXED
+    GLOBAL = C.MODE_GLOBAL
+    LOCAL = C.MODE_LOCAL
+
+
+class PixelAction(enum.Enum, shape=2):
+    """What the labeller's pixel stage does with the column's pixel (for waveforms)."""
+    NONE = 0        # dark, or a run carrying on
+    CONTINUE = 1    # a run starts under a previous-row node: its component continues
+    BIRTH = 2       # a run starts over dark pixels: a new blob
+    MERGE = 3       # a previous-row node of another component starts under the run
+
+
+class PopAction(enum.Enum, shape=3):
+    """What the labeller's pop stage does with a component whose last previous-row node
+    ends at the column (for waveforms)."""
+    NONE = 0        # no pop
+    CARRY_ON = 1    # the current run belongs to it: it stays active
+    MOVE_DOWN = 2   # the entry below is the same component: its information moves down
+    PATCH_LAST = 3  # it has nodes in the current row: the last of them is marked last
+    COMPLETE = 4    # a tracked blob is complete: its record is emitted
+    DROP = 5        # an untracked blob is complete: counted in ``dropped_labels``
+
+
+def check_frame(width, height, pixel_bits):
+    """Raise ``ValueError`` unless ``width x height`` frames of ``pixel_bits`` pixels are
+    within the contract (the layouts' widths are derived from them)."""
+    if pixel_bits not in C.PIXEL_BITS:
+        raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
+    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
+        raise ValueError(f"frame {width}x{height} is outside the contract's "
+                         f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+
+
+def pixel_layout(pixel_bits):
+    """Sensor pixel: ``sof`` on a frame's first pixel, ``eol`` on each line's last."""
+    return data.StructLayout({"data": pixel_bits, "sof": 1, "eol": 1})
+
+
+def lit_layout(width, height, pixel_bits):
+    """Thresholded pixel: position, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on
+    the frame's last pixel."""
+    return data.StructLayout({
+        "data": pixel_bits, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
+        "lit": 1, "weight": pixel_bits, "eof": 1,
+    })
+
+
+def op_layout(width, height, pixel_bits, slots):
+    """One labeller column decision for the feature engine (``hdl/features.py``)."""
+    sb = C.bits_for(slots - 1)
+    return data.StructLayout({
+        "tag": FRAME_TAG_BITS, "pix": 1, "x": C.bits_for(width - 1),
+        "y": C.bits_for(height - 1), "p": pixel_bits, "w": pixel_bits,
+        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
+    })
 
 
 def record_fields(width, height, pixel_bits):
@@ -45,3 +109,43 @@ def trailer_fields():
 def trailer_layout():
     """Frame trailer as an Amaranth ``StructLayout``."""
     return data.StructLayout(dict(trailer_fields()))
+
+
+def frame_registers_layout(names):
+    """The registers ``names`` (``contract.REGISTERS``) latched for one frame."""
+    return data.StructLayout({n: C.REGISTER_BY_NAME[n].bits for n in names})
+
+
+# ---- memory words and registers internal to a unit ---------------------------------------
+
+def delay_entry_layout(width, height, pixel_bits):
+    """Threshold unit, local mode: a pixel waiting in the delay line for its window."""
+    return data.StructLayout({"data": pixel_bits, "x": range(width), "y": range(height),
+                              "eof": 1})
+
+
+def node_flags_layout():
+    """Labeller node: first/last node of its component in its row."""
+    return data.StructLayout({"first": 1, "last": 1})
+
+
+def node_label_layout(slot_bits):
+    """Labeller node, meaningful on a first node: its component's feature slot."""
+    return data.StructLayout({"slot": slot_bits, "tracked": 1})
+
+
+def stack_entry_layout(slot_bits, node_bits):
+    """Labeller stack entry: a previous-row component straddling the scan position.
+    ``in_row``: it has nodes in the current row, the first at ``first_node`` and the last
+    at ``last_node``; ``continues``: the entry below is the same component."""
+    return data.StructLayout({"slot": slot_bits, "tracked": 1, "in_row": 1,
+                              "first_node": node_bits, "last_node": node_bits,
+                              "continues": 1})
+
+
+def active_layout(slot_bits, node_bits):
+    """Labeller: the current run's component.  ``has_slot``: ``slot`` is allocated;
+    ``on_stack``: it is the top entry's component (previous-row nodes lie ahead)."""
+    return data.StructLayout({"slot": slot_bits, "tracked": 1, "has_slot": 1, "in_row": 1,
+                              "first_node": node_bits, "last_node": node_bits,
+                              "on_stack": 1})

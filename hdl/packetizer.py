@@ -13,16 +13,11 @@ Output: ``packet``, a byte stream (``lib.stream``, valid/ready) that the SPI sla
 * CRC-32 as ``zlib.crc32`` (reflected polynomial ``0xEDB88320``, initial value and final XOR
   ``0xFFFFFFFF``) over header and records, ``contract.CRC_BYTES`` big endian.
 
-The packet needs its header first, but the trailer comes after the records: the records stay
-in the detector's record buffer until their trailer arrives; then the trailer is copied (so the
-detector can hold the next frame's), the header is sent from the copy and the records are sent
-one at a time straight from the record stream's payload (there is no second copy of them):
-the payload must stay unchanged while ``valid`` is high and the record is not taken, as
-``lib.stream`` requires and the detector's record buffer does (it holds the record in a
-register and on its memory read port).  The record buffer must
-therefore hold a frame's records until its packet is read (the detector's ``record_depth``;
-records that find it full are counted by the detector in ``dropped_records``, so the packet
-stays consistent).
+The header needs the trailer, which comes after the records: the trailer is copied (the
+detector can then hold the next frame's), the header sent from the copy, and the records
+sent straight from the record stream's payload, which must stay unchanged until taken (as
+``lib.stream`` requires).  So the detector's record buffer holds a frame's records until its
+packet is read (``record_depth``; overflow is counted in ``dropped_records``).
 
 Timing: one byte per clock at most (the SPI slave takes one per 8 SCK periods).  ``valid``
 is low while the next record is not yet on the record stream: a record is taken one clock
@@ -30,11 +25,6 @@ after its last byte, and the buffer presents the next one a clock later, so ``va
 for two clocks between records; the SPI slave peeks a byte only at byte boundaries, so the
 reader sees no gap.  ``busy`` is high from the trailer's acceptance until the CRC's last byte
 is taken.
-Cost: one byte multiplexer over every byte of the packet's sections (header from the copied
-trailer, the record, the CRC), selected by the byte position; the CRC register and an 8-bit
-CRC step (XOR trees); the trailer copy and the position are flip-flops with enables and no
-reset, so they cost no LUTs.  Constant header bytes and the zero bits of the widened record
-fields cost nothing in the multiplexer.
 """
 
 from amaranth import Cat, Const, Module, Signal, Value

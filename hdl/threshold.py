@@ -1,112 +1,38 @@
-"""Threshold unit: pixel stream in, lit flag and weight out, at one pixel per clock.
+"""Threshold unit: pixel stream in, lit flag and weight out, one pixel per clock.
 
 Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract``
-bit-exactly.
+bit-exactly; ``hdl/DESIGN.md`` describes how (global levels searched bit by bit on serial
+arithmetic, local windows from running sums in a delay line).
 
-Stream conventions: ``pixels`` carries one pixel per clock while ``valid`` (no backpressure,
-a sensor cannot be stalled) with ``sof`` on the first pixel of a frame and ``eol`` on the
-last pixel of each line.  Positions count as the input arrives: ``sof`` is at (0, 0), ``x``
-returns to 0 after column ``W - 1`` or an ``eol`` and ``y`` advances with it; a frame ends on
-the pixel at ``(W - 1, H - 1)`` and is *complete* (for the statistics) if every line was
-``W`` long.  The runtime registers are latched on the ``sof`` pixel.  ``out`` carries one
-beat per pixel in raster order with the pixel, its position, ``lit = p > T`` and
-``weight = max(p - B, 0)``, and ``eof`` on the frame's last pixel.  The ``frame_*`` outputs
-are latched on each ``sof`` and describe that frame.
+``pixels``: one pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's
+first pixel, ``eol`` on each line's last.  Positions count as the input arrives; a frame
+ends at ``(W - 1, H - 1)`` and is *complete* (for the statistics) if every line was ``W``
+long.  The registers are latched on the ``sof`` pixel.  ``out``: one beat per pixel in
+raster order, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on the frame's last pixel.
 
-Fixed and global mode: ``out`` follows the input one clock later.
-
-Global mode: the unit accumulates ``S1 = sum(p)`` and ``S2 = sum(p*p)`` over the pixels of
-every frame (in every mode; a ``sof`` restarts them).  When a frame completes a sequential
-unit computes the next frame's levels exactly as ``contract.global_levels``::
-
-    B = S1 // N;  V = N*S2 - S1**2;  D = isqrt(K*K*V) // (16 N);  T = min(B + D, full_scale)
-
-by searching ``B`` and then ``D`` bit by bit, MSB first (``D`` below ``2**pixel_bits``:
-``min(D, full_scale)`` gives the same ``T``): with ``c`` the bits found so far and the
-trial bit, a trial tests ``N*c <= S1`` (``B``) or ``256*N*N*c*c <= K*K*(N*S2 - S1*S1)``
-(``D``).  A trial streams both sides of its comparison LSB first, one bit per clock,
-through serial multipliers (a register of the partial product's upper bits and an adder
-one bit wider than the fixed factor: ``N``, ``S1``, ``K``, ``c``) and a serial subtraction
-whose last borrow decides the trial; ``S1`` and ``S2`` are read in place by rotating the
-accumulators once per trial, ``N`` and ``256*N*N`` come from constant tables.  Nothing
-wider than ``S1`` is stored.  The levels are ready ``global_cycles(width, height,
-pixel_bits)`` clocks after the frame's last pixel (1465 for 2592 x 1944 x 12 bits, 1041
-for 752 x 480 x 10: less than the labeller's own blanking at 2592 columns).
-The ``ksigma`` register is read when the ``D`` search starts; if the MCU rewrites it, the
-``D`` search is restarted at the end of the trial under way (or started again, between
-frames).  So the levels are those of the ksigma in effect at the next frame's start
-provided the register was written at least ``ksigma_cycles`` clocks before it (1079 for
-2592 x 1944 x 12) and the frame's last pixel came at least ``global_cycles`` before.  A
-frame that starts earlier, or after an incomplete frame, uses the fixed registers and
-raises ``frame_fallback`` (``FRAME_GLOBAL_FALLBACK``); a ``sof`` abandons a computation
-under way.
-
-Local mode (``L = 2**local_log2_window``, ``half = L/2``): per pixel ``x`` of a row, with
-``s = contract.local_window_start(x, W, log2 L)``::
-
-    M = (sum(p[s .. s+L]) - p[x]) >> log2(L);   T = min(M + local_offset, full_scale);   B = M
-
-The window reaches up to ``L`` columns ahead of ``x``, so local-mode pixels go through a
-circular buffer of ``local_depth(W)`` entries (256 for ``L`` up to 128) in synchronous-read
-memories (one M9K each at 2592 x 1944 x 12): the pixel with its position and ``eof`` as the
-input counts them (read at ``x``), and two copies of the frame's running sum ``S1`` modulo
-``2**bits((L + 1) * full_scale)``, one after each pixel (read at the window's last pixel
-``s + L``) and one before it (read at its first, ``s``), so a window's sum is one
-difference.  The window moves (``s`` advances by one) at each ``x`` with ``half < x <= W -
-1 - half``; elsewhere the second copy's read port keeps its word, so no read reaches back
-more than ``half`` pixels before ``x``.  A pixel is *ready* once ``L`` more pixels of the
-frame have come after it, or its row's last pixel has come; ready pixels are read one per
-clock, in order (every address read was written on an earlier clock: no
-read-during-write), and a pixel's beat follows its read 5 clocks later (window addresses,
-window sum less the pixel, ``M`` (the shift by ``log2 L`` is a product with ``2**(7 - log2
-L)`` in an embedded multiplier), output register with lit and weight).
-
-* Latency: a pixel's beat comes ``LOCAL_LATENCY`` (6) clocks after the input pixel that
-  made it ready, or one clock after the previous beat if that is later; within a row
-  streaming without gaps, ``L + 6`` clocks after the pixel itself (fixed mode: 1).  The
-  last ``L`` pixels of a row follow the row's last pixel one per clock, during the
-  horizontal blanking or the next row's first pixels: any horizontal blanking, none
-  included, works.  After a frame's last pixel its remaining pixels drain by themselves;
-  the ``eof`` beat comes at most ``L + 6`` clocks after it.
-* Vertical blanking: after a local-mode frame, ``local_blanking(log2 L)`` = ``L + 5`` idle
-  clocks between its last pixel and the next ``sof`` (133 for ``L = 128``; a sensor's
-  vertical blanking, rows long, is more).  Before a local-mode frame none.  One frame at a
-  time is in the buffer: a ``sof`` that comes earlier, or that cuts a local-mode frame
-  short, discards the delayed pixels not yet out and raises ``frame_tail_dropped`` for the
-  new frame, which is processed normally (its pixels never mix with the previous frame's).
-  The pixels of a frame that stops mid-row wait in the buffer for the next ``sof``, which
-  discards them.
-* Frame geometry: the window must be narrower than the frame.  A frame started in local mode
-  with ``2**local_log2_window >= W`` (or ``local_log2_window`` outside
-  ``LOCAL_LOG2_WINDOW_MIN .. LOCAL_LOG2_WINDOW_MAX``) is processed with the fixed
-  registers, one clock later, and raises ``frame_local_fallback``.
-* Broken lines: in a local-mode frame with lines of the wrong length, positions are counted
-  as above and the levels come from whatever pixels the buffer holds at the window's
-  positions; every pixel still leaves once its row has ended.  Pixels that come after a
-  local-mode frame ended and before the next ``sof`` belong to no frame and are not output.
-* ``frame_threshold`` carries ``local_offset`` saturated to full scale (which leaves every
-  ``T`` unchanged) and ``frame_background`` 0, as ``golden.frame.frame_levels`` reports them.
+* Fixed and global mode: ``out`` follows the input one clock later.  Global levels are
+  ready ``global_cycles`` clocks after a complete frame's last pixel, and
+  ``ksigma_cycles`` after a ``ksigma`` write; a frame that starts earlier, or after an
+  incomplete frame, uses the fixed registers (``frame_fallback``).
+* Local mode: a pixel's beat comes ``LOCAL_LATENCY`` clocks after the input pixel that made
+  it ready (``L`` more pixels of the frame, or its row's end).  A local-mode frame needs
+  ``local_blanking(log2 L)`` idle clocks after its last pixel; an earlier ``sof`` discards
+  what is left (``frame_tail_dropped``).  A window not narrower than the frame uses the
+  fixed registers (``frame_local_fallback``).  ``frame_threshold`` then carries
+  ``local_offset`` saturated to full scale and ``frame_background`` 0, as
+  ``golden.frame.frame_levels`` reports them.
 """
 
+from types import SimpleNamespace
+
 from amaranth import Cat, Const, Module, Mux, Signal
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-
-def pixel_layout(pixel_bits):
-    """Input payload: the pixel and its frame/line markers."""
-    return data.StructLayout({"data": pixel_bits, "sof": 1, "eol": 1})
-
-
-def lit_layout(width, height, pixel_bits):
-    """Output payload: pixel, position, lit flag, weight and the end-of-frame marker."""
-    return data.StructLayout({
-        "data": pixel_bits, "x": C.bits_for(width - 1), "y": C.bits_for(height - 1),
-        "lit": 1, "weight": pixel_bits, "eof": 1,
-    })
+from .layouts import ThresholdMode, check_frame, delay_entry_layout, lit_layout, pixel_layout
 
 
 def _pass_bits(width, height, pixel_bits):
@@ -152,7 +78,7 @@ def _serial_mul(m, bit, multiplicand):
     return h[0] ^ (bit & multiplicand[0])
 
 
-def _below(value, bound):
+def _below_const(value, bound):
     """``value < bound`` for a constant ``bound``, as logic rather than a carry chain."""
     if bound >> len(value):
         return Const(1)
@@ -201,29 +127,23 @@ def local_blanking(log2_window):
     return (1 << log2_window) + LOCAL_LATENCY - 1
 
 
+
 class ThresholdUnit(wiring.Component):
     """Fixed, global and local thresholds for ``width x height`` frames of ``pixel_bits``
-    pixels (module docstring).  Status outputs, latched on each ``sof``:
-    ``frame_threshold``/``frame_background`` (the frame's T and B; in local mode the offset
-    and 0), ``frame_fallback`` (global mode without levels: fixed registers used),
-    ``frame_local_fallback`` (local mode with a window not narrower than the frame: fixed
-    registers used), ``frame_tail_dropped`` (this ``sof`` discarded local-mode pixels of the
-    previous frame that were not out yet).  ``stats_busy`` is high while the global levels
-    are being computed."""
+    pixels.  Status outputs, latched on each ``sof``: ``frame_threshold``/
+    ``frame_background`` (the frame's T and B), ``frame_fallback``,
+    ``frame_local_fallback``, ``frame_tail_dropped`` (module docstring).  ``stats_busy`` is
+    high while the global levels are being computed."""
 
     def __init__(self, width, height, pixel_bits):
-        if pixel_bits not in C.PIXEL_BITS:
-            raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
-        if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-            raise ValueError(f"frame {width}x{height} exceeds the contract's "
-                             f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+        check_frame(width, height, pixel_bits)
         self.width, self.height, self.pixel_bits = width, height, pixel_bits
         reg = C.REGISTER_BY_NAME
         super().__init__({
             "pixels": In(stream.Signature(pixel_layout(pixel_bits), always_ready=True)),
             "out": Out(stream.Signature(lit_layout(width, height, pixel_bits),
                                         always_ready=True)),
-            "mode": In(reg["mode"].bits),
+            "mode": In(ThresholdMode),
             "threshold": In(pixel_bits),
             "background": In(pixel_bits),
             "ksigma": In(reg["ksigma"].bits),
@@ -239,14 +159,21 @@ class ThresholdUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        W, H, pb = self.width, self.height, self.pixel_bits
-        N = W * H
-        fs = C.full_scale(pb)
-        inp, out = self.pixels, self.out
-        p = inp.payload.data
-        sof = inp.payload.sof
+        pos = self._position(m)
+        levels = self._global_levels_state()
+        mode = self._frame_mode(m, pos, levels)
+        sums = self._statistics(m, pos)
+        local = self._local_mode(m, pos, mode, sums)
+        self._frame_status(m, pos, mode, levels, local)
+        self._output(m, pos, mode, local)
+        self._global_mode(m, pos, levels, sums)
+        return m
 
-        # ---- position and frame integrity -------------------------------------------
+    # ---- shared: positions, frame mode and levels, statistics, output -------------------
+    def _position(self, m):
+        """Position of the input pixel and frame integrity, as the input counts them."""
+        W, H, inp = self.width, self.height, self.pixels
+        sof = inp.payload.sof
         x = Signal(range(W), reset_less=True)
         y = Signal(range(H), reset_less=True)
         in_frame = Signal()
@@ -256,249 +183,282 @@ class ThresholdUnit(wiring.Component):
         last_col = cur_x == W - 1
         line_error = inp.payload.eol != last_col
         frame_end = inp.valid & last_col & (cur_y == H - 1) & (in_frame | sof)
-
-        # ---- levels latched at the start of each frame -------------------------------
-        next_t = Signal(pb, reset_less=True)
-        next_b = Signal(pb, reset_less=True)
-        stats_valid = Signal()       # next_t/next_b hold the levels for ksigma == kreg
-        kreg = Signal(C.KSIGMA_BITS, reset_less=True)  # the ksigma the levels are computed for
-        have_v = Signal()            # S1, S2 hold a complete frame and next_b its B
-        t_frame = Signal(pb, reset_less=True)
-        b_frame = Signal(pb, reset_less=True)
-        # a sof while in_frame: the previous frame never ended, so its statistics are
-        # missing and this frame falls back, as after an incomplete frame.  (stats_valid is
-        # 0 while the levels are being computed.)
-        k_same = kreg == self.ksigma
-        use_global = (self.mode == C.MODE_GLOBAL) & stats_valid & k_same & ~in_frame
-
-        lg_reg = self.local_log2_window
-        lg_max = local_log2_window_max(W)    # window narrower than the frame
-        lg_table = range(C.LOCAL_LOG2_WINDOW_MIN, (lg_max or C.LOCAL_LOG2_WINDOW_MIN - 1) + 1)
-        window_ok = Const(0)
-        for k in lg_table:
-            window_ok |= lg_reg == k
-        local_new = (self.mode == C.MODE_LOCAL) & window_ok
-        offset_sat = Mux(self.local_offset[pb:].any(), fs, self.local_offset[:pb])
-        local_frame = Signal()       # the current frame is processed in local mode
-        lg = Signal.like(lg_reg, reset_less=True)  # its log2(L)
-        local_pix = Mux(sof, local_new, local_frame)
-        # the frame's T and B (local mode: the offset and 0), latched on the sof pixel
-        sof_v = inp.valid & sof
-        t_new = Mux(use_global, next_t, self.threshold)
-        b_new = Mux(use_global, next_b, self.background)
-        t_eff = Mux(sof_v, Mux(local_new, offset_sat, t_new), t_frame)
-        b_eff = Mux(sof_v, Mux(local_new, 0, b_new), b_frame)
-        m.d.sync += [t_frame.eq(t_eff), b_frame.eq(b_eff)]
-        m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
-
-        # ---- statistics of the frame -------------------------------------------------
-        # Pixels of a frame only (a stray pixel between frames leaves them alone); a sof
-        # restarts them.  The global-levels unit reads them in place by rotating them right
-        # (exactly once per trial, so they are back in place after it).  S1 after each pixel
-        # is also local mode's prefix sum.
-        s1 = Signal(C.bits_for(N * fs), reset_less=True)
-        s2 = Signal(C.bits_for(N * fs * fs), reset_less=True)
-        p_frame = Mux(inp.valid & (sof | in_frame), p, 0)
-        rot1 = Signal()
-        rot2 = Signal()
-        s1_base = Mux(sof_v, 0, Mux(rot1, s1.rotate_right(1), s1))
-        s1_new = s1_base + p_frame
-        m.d.sync += [
-            s1.eq(s1_new),
-            s2.eq(Mux(sof_v, 0, Mux(rot2, s2.rotate_right(1), s2)) + p_frame * p_frame),
-        ]
-
-        # ---- local mode: input side --------------------------------------------------
-        # Each pixel is stored with its position and eof as the input counts them, and with
-        # its frame's running sum (S1 modulo 2**sum_bits) after it (end copy) and before it
-        # (start copy): a window's sum is the end copy at its last pixel minus the start
-        # copy at its first.
-        depth = local_depth(W)
-        win_max = 1 << (lg_max or C.LOCAL_LOG2_WINDOW_MIN)
-        sum_bits = C.bits_for((win_max + 1) * fs)
-        entry = data.StructLayout({"data": pb, "x": range(W), "y": range(H), "eof": 1})
-        m.submodules.px_mem = px_mem = Memory(shape=entry, depth=depth, init=[])
-        m.submodules.end_mem = end_mem = Memory(shape=sum_bits, depth=depth, init=[])
-        m.submodules.start_mem = start_mem = Memory(shape=sum_bits, depth=depth, init=[])
-        px_rd, end_rd, start_rd = px_mem.read_port(), end_mem.read_port(), start_mem.read_port()
-        wr = inp.valid & local_pix & (sof | in_frame)    # a pixel of a local-mode frame
-        drop = inp.valid & sof       # a new frame: discard what is left of the last one
-        wp = Signal(range(depth), reset_less=True)  # buffer address of the next pixel written
-        px_wr, end_wr, start_wr = px_mem.write_port(), end_mem.write_port(), start_mem.write_port()
-        for port in (px_wr, end_wr, start_wr):
-            m.d.comb += [port.addr.eq(wp), port.en.eq(wr)]
-        m.d.comb += [px_wr.data.eq(Cat(p, cur_x, cur_y, frame_end)),
-                     end_wr.data.eq(s1_new[:sum_bits]), start_wr.data.eq(s1_base[:sum_bits])]
-        win = Const(1, 1) << lg      # L of the current frame
-        with m.If(wr):
-            m.d.sync += wp.eq(wp + 1)
-
-        # ---- local mode: reads, one ready pixel per clock ----------------------------
-        lag = Signal(range(depth))   # pixels written and not yet read
-        ended = Signal(range(depth))  # of them, those up to the last row end written
-        ra = Signal(range(depth), reset_less=True)  # buffer address of the oldest unread pixel
-        rd = ((lag > win) | (ended != 0)) & ~drop
-        lag_new = lag + Cat(wr ^ rd, (rd & ~wr).replicate(len(lag) - 1))
-        row_end = wr & (last_col | inp.payload.eol)
-        m.d.comb += px_rd.addr.eq(ra)
-        with m.If(drop):
-            m.d.sync += [ra.eq(wp), lag.eq(wr), ended.eq(row_end)]
-        with m.Else():
-            m.d.sync += [ra.eq(ra + rd), lag.eq(lag_new),
-                         ended.eq(Mux(row_end, lag_new, ended - (rd & (ended != 0))))]
-
-        # stage 1: the pixel's window, from its column x: its last pixel s + L (an address
-        # of the end copy) and its first s (of the start copy).  The window moves (s
-        # advances by one) at each x with half < x <= W - 1 - half; elsewhere the start
-        # copy's read port keeps its last word, so no read reaches back more than half
-        # pixels before the pixel.
-        st1_valid = Signal()
-        ra1 = Signal(range(depth), reset_less=True)  # buffer address of the stage-1 pixel
-        last_end = Signal(range(depth), reset_less=True)  # window end of the last pixel
-        x1 = px_rd.data.x
-        row_start = x1 == 0
-        moving = Signal(reset_less=True)  # the window moved at the row's previous pixel
-        # x runs 0, 1, 2, .. along a row: the window moves from x = half + 1 up to, not
-        # including, x = W - half
-        move_first = Const(0, range(W + 1))
-        move_end = Const(0, range(W + 1))
-        for k in lg_table:
-            move_first = Mux(lg == k, (1 << (k - 1)) + 1, move_first)
-            move_end = Mux(lg == k, W - (1 << (k - 1)), move_end)
-        step = ((x1 == move_first) | moving) & (x1 != move_end) & ~row_start
-        end_addr = Mux(row_start, ra1 + win, last_end + step)
-        m.d.comb += [end_rd.addr.eq(end_addr), start_rd.addr.eq(end_addr - win),
-                     start_rd.en.eq(row_start | step)]
-        st2 = Signal(entry, reset_less=True)
-        st2_valid = Signal()
-        m.d.sync += [st1_valid.eq(rd), st2_valid.eq(st1_valid & ~drop), ra1.eq(ra),
-                     st2.eq(px_rd.data)]
-        with m.If(st1_valid):
-            m.d.sync += [last_end.eq(end_addr), moving.eq(step)]
-
-        # stage 2: the sum of the window's other L pixels
-        st3 = Signal(entry, reset_less=True)
-        st3_valid = Signal()
-        others = Signal(sum_bits, reset_less=True)
-        m.d.sync += [others.eq(end_rd.data - start_rd.data - st2.data),
-                     st3_valid.eq(st2_valid & ~drop), st3.eq(st2)]
-        # stage 3: the window mean M
-        st4 = Signal(entry, reset_less=True)
-        st4_valid = Signal()
-        mean = Signal(pb, reset_less=True)
-        # others >> log2(L) as a product (an embedded multiplier instead of a shifter)
-        scale = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
-        for k in lg_table:
-            scale = Mux(lg == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k), scale)
-        mean_now = (others * scale)[C.LOCAL_LOG2_WINDOW_MAX:][:pb]
-        m.d.sync += [st4_valid.eq(st3_valid & ~drop), st4.eq(st3), mean.eq(mean_now)]
-        # stage 4 (into the output register): lit and weight.  p > min(M + offset, fs) is
-        # p - M > offset for p <= fs; t_eff is the frame's offset in a local frame.
-        local_valid = st4_valid & ~drop
-        fixed_valid = inp.valid & ~local_pix
-
         with m.If(inp.valid):
-            with m.If(sof):
-                m.d.sync += [
-                    self.frame_fallback.eq((self.mode == C.MODE_GLOBAL) & ~use_global),
-                    self.frame_local_fallback.eq((self.mode == C.MODE_LOCAL) & ~window_ok),
-                    self.frame_tail_dropped.eq((lag != 0) | st1_valid | st2_valid | st3_valid
-                                               | st4_valid),
-                    local_frame.eq(local_new), lg.eq(lg_reg),
-                    in_frame.eq(1),
-                ]
             with m.If(last_col | inp.payload.eol):
                 m.d.sync += [x.eq(0), y.eq(Mux(cur_y == H - 1, 0, cur_y + 1))]
             with m.Else():
                 m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y)]
             m.d.sync += frame_ok.eq(Mux(sof, 1, frame_ok) & ~line_error)
-            with m.If(frame_end):
-                m.d.sync += in_frame.eq(0)
+        return SimpleNamespace(
+            sof=sof, sof_valid=inp.valid & sof, pixel=inp.payload.data, x=cur_x, y=cur_y,
+            last_col=last_col, line_error=line_error, frame_end=frame_end, in_frame=in_frame,
+            # a frame that ends here with every line W long
+            complete=frame_end & Mux(sof, 1, frame_ok) & ~line_error)
 
-        # ---- output register: the input pixel (fixed, global) or stage 4 (local) ------
-        beat_out = Signal.like(out.payload, reset_less=True)
-        m.d.comb += out.payload.eq(beat_out)
-        value = Mux(local_valid, st4.data, p)
-        above_local = st4.data - mean
-        above = Mux(local_valid, above_local, p - b_eff)           # weight, if not < 0
-        below = t_eff - Mux(local_valid, above_local, p)           # < 0: lit
+    def _global_levels_state(self):
+        """Registers the global-levels search fills and the frame start reads."""
+        pb = self.pixel_bits
+        return SimpleNamespace(
+            threshold=Signal(pb, reset_less=True, name="next_threshold"),
+            background=Signal(pb, reset_less=True, name="next_background"),
+            valid=Signal(name="levels_valid"),   # they hold the levels for ``ksigma``
+            ksigma=Signal(C.KSIGMA_BITS, reset_less=True, name="levels_ksigma"),
+            have_sums=Signal(),   # S1, S2 hold a complete frame and ``background`` its B
+        )
+
+    def _frame_mode(self, m, pos, levels):
+        """The mode a frame starting now uses and its T and B (local mode: the offset and
+        0), latched on the ``sof`` pixel."""
+        W, pb, fs = self.width, self.pixel_bits, C.full_scale(self.pixel_bits)
+        # a sof while in_frame: the previous frame never ended, so its statistics are
+        # missing and this frame falls back, as after an incomplete frame.  (levels.valid
+        # is 0 while the levels are being computed.)
+        use_global = ((self.mode == ThresholdMode.GLOBAL) & levels.valid &
+                      (levels.ksigma == self.ksigma) & ~pos.in_frame)
+        log2_window_max = local_log2_window_max(W)    # window narrower than the frame
+        log2_windows = range(C.LOCAL_LOG2_WINDOW_MIN,
+                             (log2_window_max or C.LOCAL_LOG2_WINDOW_MIN - 1) + 1)
+        window_ok = Const(0)
+        for k in log2_windows:
+            window_ok |= self.local_log2_window == k
+        local_new = (self.mode == ThresholdMode.LOCAL) & window_ok
+        offset_sat = Mux(self.local_offset[pb:].any(), fs, self.local_offset[:pb])
+        local_frame = Signal()                     # the current frame is in local mode
+        t_frame = Signal(pb, reset_less=True)
+        b_frame = Signal(pb, reset_less=True)
+        t_new = Mux(use_global, levels.threshold, self.threshold)
+        b_new = Mux(use_global, levels.background, self.background)
+        threshold = Mux(pos.sof_valid, Mux(local_new, offset_sat, t_new), t_frame)
+        background = Mux(pos.sof_valid, Mux(local_new, 0, b_new), b_frame)
+        m.d.sync += [t_frame.eq(threshold), b_frame.eq(background)]
+        m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
+        return SimpleNamespace(
+            threshold=threshold, background=background, use_global=use_global,
+            window_ok=window_ok, local_new=local_new,
+            local_frame=local_frame, local=Mux(pos.sof, local_new, local_frame),
+            log2_window=Signal.like(self.local_log2_window, reset_less=True,
+                                    name="log2_window"),   # of the current frame
+            log2_windows=log2_windows, log2_window_max=log2_window_max)
+
+    def _statistics(self, m, pos):
+        """``S1 = sum(p)`` and ``S2 = sum(p*p)`` of the frame's pixels (a stray pixel
+        between frames leaves them alone; a sof restarts them).  The global-levels search
+        reads them in place by rotating them right (``rotate_s1``/``rotate_s2``, exactly
+        once per trial).  S1 after each pixel is also local mode's running sum."""
+        N, fs, inp = self.width * self.height, C.full_scale(self.pixel_bits), self.pixels
+        s1 = Signal(C.bits_for(N * fs), reset_less=True)
+        s2 = Signal(C.bits_for(N * fs * fs), reset_less=True)
+        p_frame = Mux(inp.valid & (pos.sof | pos.in_frame), pos.pixel, 0)
+        rotate_s1, rotate_s2 = Signal(), Signal()
+        s1_before = Mux(pos.sof_valid, 0, Mux(rotate_s1, s1.rotate_right(1), s1))
+        s1_after = s1_before + p_frame
         m.d.sync += [
-            out.valid.eq(fixed_valid | local_valid),
-            beat_out.data.eq(value),
-            beat_out.x.eq(Mux(local_valid, st4.x, cur_x)),
-            beat_out.y.eq(Mux(local_valid, st4.y, cur_y)),
-            beat_out.lit.eq(below[-1]),
-            beat_out.weight.eq(Mux(above[-1], 0, above[:pb])),
-            beat_out.eof.eq(Mux(local_valid, st4.eof, frame_end)),
+            s1.eq(s1_after),
+            s2.eq(Mux(pos.sof_valid, 0, Mux(rotate_s2, s2.rotate_right(1), s2)) +
+                  p_frame * p_frame),
+        ]
+        return SimpleNamespace(s1=s1, s2=s2, rotate_s1=rotate_s1, rotate_s2=rotate_s2,
+                               s1_before=s1_before, s1_after=s1_after)
+
+    def _frame_status(self, m, pos, mode, levels, local):
+        """Latched on each sof: the frame's mode, its fallbacks and dropped tail."""
+        with m.If(pos.sof_valid):
+            m.d.sync += [
+                self.frame_fallback.eq((self.mode == ThresholdMode.GLOBAL) & ~mode.use_global),
+                self.frame_local_fallback.eq((self.mode == ThresholdMode.LOCAL) &
+                                             ~mode.window_ok),
+                self.frame_tail_dropped.eq(local.pending),
+                mode.local_frame.eq(mode.local_new), mode.log2_window.eq(self.local_log2_window),
+                pos.in_frame.eq(1),
+            ]
+        with m.If(pos.frame_end):
+            m.d.sync += pos.in_frame.eq(0)
+
+    def _output(self, m, pos, mode, local):
+        """Output register: the input pixel (fixed, global) or the delay line's (local).
+        ``p > min(M + offset, fs)`` is ``p - M > offset`` for ``p <= fs``; ``mode.threshold``
+        is the offset in a local frame."""
+        pb, out = self.pixel_bits, self.out
+        fixed_valid = self.pixels.valid & ~mode.local
+        beat = Signal.like(out.payload, reset_less=True)
+        m.d.comb += out.payload.eq(beat)
+        value = Mux(local.valid, local.data, pos.pixel)
+        above_local = local.data - local.mean
+        above = Mux(local.valid, above_local, pos.pixel - mode.background)  # weight if >= 0
+        below = mode.threshold - Mux(local.valid, above_local, pos.pixel)   # < 0: lit
+        m.d.sync += [
+            out.valid.eq(fixed_valid | local.valid),
+            beat.data.eq(value),
+            beat.x.eq(Mux(local.valid, local.x, pos.x)),
+            beat.y.eq(Mux(local.valid, local.y, pos.y)),
+            beat.lit.eq(below[-1]),
+            beat.weight.eq(Mux(above[-1], 0, above[:pb])),
+            beat.eof.eq(Mux(local.valid, local.eof, pos.frame_end)),
         ]
 
-        complete = frame_end & Mux(sof, 1, frame_ok) & ~line_error
+    # ---- local mode ---------------------------------------------------------------------
+    def _local_mode(self, m, pos, mode, sums):
+        """Delay line and window mean.  Each pixel of a local-mode frame is stored with its
+        position and eof and with two copies of the frame's running S1 (after it and before
+        it), read back once ready, and goes through four stages: window addresses, window
+        sum less the pixel, mean, output register."""
+        W, H, pb = self.width, self.height, self.pixel_bits
+        fs, inp = C.full_scale(pb), self.pixels
+        depth = local_depth(W)
+        window_max = 1 << (mode.log2_window_max or C.LOCAL_LOG2_WINDOW_MIN)
+        sum_bits = C.bits_for((window_max + 1) * fs)
+        entry = delay_entry_layout(W, H, pb)
+        m.submodules.px_mem = px_mem = Memory(shape=entry, depth=depth, init=[])
+        m.submodules.end_mem = end_mem = Memory(shape=sum_bits, depth=depth, init=[])
+        m.submodules.start_mem = start_mem = Memory(shape=sum_bits, depth=depth, init=[])
+        px_read, end_read, start_read = (px_mem.read_port(), end_mem.read_port(),
+                                         start_mem.read_port())
+        write = inp.valid & mode.local & (pos.sof | pos.in_frame)  # a local-mode frame's pixel
+        drop = pos.sof_valid        # a new frame: discard what is left of the last one
+        write_addr = Signal(range(depth), reset_less=True)
+        px_write, end_write, start_write = (px_mem.write_port(), end_mem.write_port(),
+                                            start_mem.write_port())
+        for port in (px_write, end_write, start_write):
+            m.d.comb += [port.addr.eq(write_addr), port.en.eq(write)]
+        m.d.comb += [px_write.data.eq(Cat(pos.pixel, pos.x, pos.y, pos.frame_end)),
+                     end_write.data.eq(sums.s1_after[:sum_bits]),
+                     start_write.data.eq(sums.s1_before[:sum_bits])]
+        window = Const(1, 1) << mode.log2_window      # L of the current frame
+        with m.If(write):
+            m.d.sync += write_addr.eq(write_addr + 1)
 
-        # ---- sequential global-levels unit -------------------------------------------
-        # B = S1 // N and D = isqrt(K*K*V) // (16 N) are searched bit by bit, MSB first
-        # (c is the value found so far with the trial bit set):
-        #   B: N*c <= S1;   D: 256*N*N*c*c <= K*K*(N*S2 - S1*S1)
-        # (D is searched below 2**pb: D' = min(D, fs) gives the same T).  Each trial streams
-        # both sides LSB first through serial multipliers and compares them serially: a
-        # trial passes if the difference has no borrow out.  Nothing wide is stored:
-        # S1 and S2 are read in place, one bit per clock.  B's first trial only flushes
-        # what an abandoned computation left in the multipliers of c (its c is 0); the
-        # other multipliers get zeros during B's trials.
-        lb, ld = _pass_bits(W, H, pb)
-        run = Signal()               # a trial is under way
-        dphase = Signal()            # searching D (else B)
-        tbit = Signal(range(max(lb, ld)), reset_less=True)  # bit of the trial in this clock
-        trial = Signal(pb + 1, reset_less=True)  # the trial bit, one-hot (pb: B's flush trial)
+        # reads, one ready pixel per clock
+        unread = Signal(range(depth))         # pixels written and not yet read
+        row_ended = Signal(range(depth))      # of them, those up to the last row end written
+        read_addr = Signal(range(depth), reset_less=True)    # the oldest unread pixel
+        read = ((unread > window) | (row_ended != 0)) & ~drop
+        unread_next = unread + Cat(write ^ read, (read & ~write).replicate(len(unread) - 1))
+        row_end = write & (pos.last_col | inp.payload.eol)
+        m.d.comb += px_read.addr.eq(read_addr)
+        with m.If(drop):
+            m.d.sync += [read_addr.eq(write_addr), unread.eq(write), row_ended.eq(row_end)]
+        with m.Else():
+            m.d.sync += [read_addr.eq(read_addr + read), unread.eq(unread_next),
+                         row_ended.eq(Mux(row_end, unread_next,
+                                          row_ended - (read & (row_ended != 0))))]
+
+        # stage 1: the window of the pixel in column x: its last pixel s + L (an address of
+        # the end copy) and its first s (of the start copy).  The window moves (s advances
+        # by one) at each x with half < x <= W - 1 - half; elsewhere the start copy's read
+        # port keeps its last word, so no read reaches back more than half pixels.
+        stage1_valid = Signal()
+        stage1_addr = Signal(range(depth), reset_less=True)
+        last_end = Signal(range(depth), reset_less=True)  # window end of the last pixel
+        x1 = px_read.data.x
+        row_start = x1 == 0
+        moving = Signal(reset_less=True)  # the window moved at the row's previous pixel
+        move_first = Const(0, range(W + 1))   # the window moves from x = half + 1 up to,
+        move_end = Const(0, range(W + 1))     # not including, x = W - half
+        for k in mode.log2_windows:
+            move_first = Mux(mode.log2_window == k, (1 << (k - 1)) + 1, move_first)
+            move_end = Mux(mode.log2_window == k, W - (1 << (k - 1)), move_end)
+        step = ((x1 == move_first) | moving) & (x1 != move_end) & ~row_start
+        end_addr = Mux(row_start, stage1_addr + window, last_end + step)
+        m.d.comb += [end_read.addr.eq(end_addr), start_read.addr.eq(end_addr - window),
+                     start_read.en.eq(row_start | step)]
+        stage2 = Signal(entry, reset_less=True)
+        stage2_valid = Signal()
+        m.d.sync += [stage1_valid.eq(read), stage2_valid.eq(stage1_valid & ~drop),
+                     stage1_addr.eq(read_addr), stage2.eq(px_read.data)]
+        with m.If(stage1_valid):
+            m.d.sync += [last_end.eq(end_addr), moving.eq(step)]
+
+        # stage 2: the sum of the window's other L pixels
+        stage3 = Signal(entry, reset_less=True)
+        stage3_valid = Signal()
+        others = Signal(sum_bits, reset_less=True)
+        m.d.sync += [others.eq(end_read.data - start_read.data - stage2.data),
+                     stage3_valid.eq(stage2_valid & ~drop), stage3.eq(stage2)]
+        # stage 3: the window mean M; others >> log2(L) as a product (an embedded
+        # multiplier instead of a shifter)
+        stage4 = Signal(entry, reset_less=True)
+        stage4_valid = Signal()
+        mean = Signal(pb, reset_less=True)
+        scale = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
+        for k in mode.log2_windows:
+            scale = Mux(mode.log2_window == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k), scale)
+        mean_now = (others * scale)[C.LOCAL_LOG2_WINDOW_MAX:][:pb]
+        m.d.sync += [stage4_valid.eq(stage3_valid & ~drop), stage4.eq(stage3),
+                     mean.eq(mean_now)]
+        # stage 4 is the output register
+        return SimpleNamespace(
+            valid=stage4_valid & ~drop, data=stage4.data, x=stage4.x, y=stage4.y,
+            eof=stage4.eof, mean=mean,
+            pending=(unread != 0) | stage1_valid | stage2_valid | stage3_valid | stage4_valid)
+
+    # ---- global mode --------------------------------------------------------------------
+    def _global_mode(self, m, pos, levels, sums):
+        """Sequential global-levels search after each complete frame: ``B`` then ``D``,
+        bit by bit, MSB first (``c``: the bits found so far with the trial bit set):
+        ``B``: ``N*c <= S1``; ``D``: ``256*N*N*c*c <= K*K*(N*S2 - S1*S1)``.  Each trial
+        streams both sides LSB first through serial multipliers into a serial subtraction
+        whose last borrow decides it.  B's first trial only flushes what an abandoned
+        computation left in the multipliers of ``c``."""
+        W, H, pb = self.width, self.height, self.pixel_bits
+        N, fs = W * H, C.full_scale(pb)
+        s1, s2 = sums.s1, sums.s2
+        ksigma_same = levels.ksigma == self.ksigma
+        b_bits, d_bits = _pass_bits(W, H, pb)
+        run = Signal(name="search_run")      # a trial is under way
+        searching_d = Signal()               # else B
+        trial_clock = Signal(range(max(b_bits, d_bits)), reset_less=True)  # bit streamed
+        trial = Signal(pb + 1, reset_less=True)  # the trial bit, one-hot (pb: B's flush)
         found = Signal(pb, reset_less=True)  # the bits of B or D found so far
-        last = tbit == Mux(dphase, ld - 1, lb - 1)
+        last = trial_clock == Mux(searching_d, d_bits - 1, b_bits - 1)
         c = found | trial[:pb]
 
-        def stream(value):
-            """Bit ``tbit`` of the constant ``value`` while a trial runs, else 0."""
-            padded = Cat(value, Const(0, (1 << len(tbit)) - len(value)))
-            return padded.bit_select(tbit, 1) & run
+        def streamed(value):
+            """Bit ``trial_clock`` of the constant ``value`` while a trial runs, else 0."""
+            padded = Cat(value, Const(0, (1 << len(trial_clock)) - len(value)))
+            return padded.bit_select(trial_clock, 1) & run
 
-        s1c = Signal.like(s1)        # S1, the multiplicand of S1*S1 (s1 rotates)
-        m.d.comb += [rot1.eq(run & _below(tbit, len(s1))),
-                     rot2.eq(run & dphase & _below(tbit, len(s2)))]
-        s1_bit = s1[0] & rot1
-        lhs_v, _ = _serial_sub(m, _serial_mul(m, s2[0] & rot2, Const(N)),
-                               _serial_mul(m, s1_bit & dphase, s1c), run & ~last)
-        lhs_d = _serial_mul(m, _serial_mul(m, lhs_v, kreg), kreg)
-        ref = Mux(dphase, stream(Const((N << C.KSIGMA_FRAC_BITS) ** 2)),
-                  stream(Const(N)))
-        rhs_b = _serial_mul(m, ref, c)
-        rhs_d = _serial_mul(m, rhs_b & dphase, c)
-        _, borrow = _serial_sub(m, Mux(dphase, lhs_d, s1_bit), Mux(dphase, rhs_d, rhs_b),
-                                run & ~last)
+        s1_copy = Signal.like(s1, name="s1_copy")  # the multiplicand of S1*S1 (s1 rotates)
+        m.d.comb += [sums.rotate_s1.eq(run & _below_const(trial_clock, len(s1))),
+                     sums.rotate_s2.eq(run & searching_d & _below_const(trial_clock, len(s2)))]
+        s1_bit = s1[0] & sums.rotate_s1
+        variance_bit, _ = _serial_sub(
+            m, _serial_mul(m, s2[0] & sums.rotate_s2, Const(N)),
+            _serial_mul(m, s1_bit & searching_d, s1_copy), run & ~last)
+        lhs_d = _serial_mul(m, _serial_mul(m, variance_bit, levels.ksigma), levels.ksigma)
+        reference = Mux(searching_d, streamed(Const((N << C.KSIGMA_FRAC_BITS) ** 2)),
+                        streamed(Const(N)))
+        rhs_b = _serial_mul(m, reference, c)
+        rhs_d = _serial_mul(m, rhs_b & searching_d, c)
+        _, borrow = _serial_sub(m, Mux(searching_d, lhs_d, s1_bit),
+                                Mux(searching_d, rhs_d, rhs_b), run & ~last)
         passed = ~borrow             # at the trial's last bit
 
         def start_d():
-            return [dphase.eq(1), kreg.eq(self.ksigma), trial.eq(1 << (pb - 1)),
-                    found.eq(0), tbit.eq(0), s1c.eq(s1)]
+            return [searching_d.eq(1), levels.ksigma.eq(self.ksigma),
+                    trial.eq(1 << (pb - 1)), found.eq(0), trial_clock.eq(0), s1_copy.eq(s1)]
 
         m.d.comb += self.stats_busy.eq(run)
         found_now = Mux(passed, c, found)    # at a trial's last bit
-        level = next_b + found_now
-        with m.If(complete):
-            m.d.sync += [stats_valid.eq(0), have_v.eq(0), run.eq(1), dphase.eq(0),
-                         trial.eq(1 << pb), found.eq(0), tbit.eq(0)]
-        with m.Elif(frame_end | sof_v):      # S1, S2 restart, or the frame was broken
-            m.d.sync += [have_v.eq(0), run.eq(0)]
-            with m.If(frame_end | in_frame | run):
-                m.d.sync += stats_valid.eq(0)
+        level = levels.background + found_now
+        with m.If(pos.complete):
+            m.d.sync += [levels.valid.eq(0), levels.have_sums.eq(0), run.eq(1),
+                         searching_d.eq(0), trial.eq(1 << pb), found.eq(0), trial_clock.eq(0)]
+        with m.Elif(pos.frame_end | pos.sof_valid):   # S1, S2 restart, or a broken frame
+            m.d.sync += [levels.have_sums.eq(0), run.eq(0)]
+            with m.If(pos.frame_end | pos.in_frame | run):
+                m.d.sync += levels.valid.eq(0)
         with m.Elif(~run):
-            with m.If(have_v & ~k_same):     # ksigma was rewritten: search D again
-                m.d.sync += [stats_valid.eq(0), run.eq(1)] + start_d()
+            with m.If(levels.have_sums & ~ksigma_same):   # ksigma rewritten: search D anew
+                m.d.sync += [levels.valid.eq(0), run.eq(1)] + start_d()
         with m.Else():
-            m.d.sync += tbit.eq(tbit + 1)
+            m.d.sync += trial_clock.eq(trial_clock + 1)
             with m.If(last):
-                m.d.sync += [tbit.eq(0), trial.eq(trial >> 1), found.eq(found_now)]
-                with m.If(dphase & ~k_same):
+                m.d.sync += [trial_clock.eq(0), trial.eq(trial >> 1), found.eq(found_now)]
+                with m.If(searching_d & ~ksigma_same):
                     m.d.sync += start_d()                 # rewritten meanwhile: restart
-                with m.Elif(trial[0] & ~dphase):
-                    m.d.sync += [have_v.eq(1), next_b.eq(found_now)] + start_d()
+                with m.Elif(trial[0] & ~searching_d):
+                    m.d.sync += [levels.have_sums.eq(1),
+                                 levels.background.eq(found_now)] + start_d()
                 with m.Elif(trial[0]):                    # T = min(B + D', fs)
-                    m.d.sync += [run.eq(0), stats_valid.eq(1),
-                                 next_t.eq(Mux(level[pb], fs, level[:pb]))]
-        return m
+                    m.d.sync += [run.eq(0), levels.valid.eq(1),
+                                 levels.threshold.eq(Mux(level[pb], fs, level[:pb]))]

@@ -18,7 +18,6 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import attitude as AT
 from lodestar.firmware import quaternion as Q
-from tests.micropython_support import run_micropython
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE = REPO / "firmware"
@@ -531,6 +530,6 @@ print("MICROPYTHON-OK", G.EPS)
 """
 
 
-def test_modules_run_under_micropython():
-    code, out = run_micropython(SMOKE)
+def test_modules_run_under_micropython(micropython):
+    code, out = micropython(SMOKE)
     assert code == 0 and "MICROPYTHON-OK" in out, out

@@ -4,7 +4,7 @@ imports, and packet decoding, centroids and the camera model give the CPython re
 
 The CPython side builds the cases (packets from the golden detector, corrupted packets, the
 firmware's own CPython results) and embeds them as literals in one MicroPython script.
-Requires ``node`` and ``npm ci --prefix tools/micropython`` (see ``micropython_support``).
+Requires ``node`` and ``npm ci --prefix tools/micropython`` (see ``tests/conftest.py``).
 """
 
 import math
@@ -23,9 +23,8 @@ from lodestar.firmware import status as fwstatus
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
 from lodestar.ground import codec as ground
+from lodestar.regress import micropython as mp_runner
 from lodestar.sim.presets import PRESETS, load_preset
-from tests import micropython_support
-from tests.micropython_support import run_micropython
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -294,9 +293,9 @@ print("DONE")
 '''
 
 
-def test_firmware_under_micropython():
+def test_firmware_under_micropython(micropython):
     script = build_script()
-    code, out = run_micropython(script)
+    code, out = micropython(script)
     print(out)
     assert code == 0, out
     assert "DONE" in out
@@ -312,13 +311,13 @@ def test_firmware_under_micropython():
     assert 0 < retained <= allocated < 96 * 1024, out
 
 
-def test_runner_reports_errors():
-    code, out = run_micropython("print('before')\nraise ValueError('boom')\n")
+def test_runner_reports_errors(micropython):
+    code, out = micropython("print('before')\nraise ValueError('boom')\n")
     assert code == 1
     assert "before" in out and "ValueError: boom" in out
-    code, out = run_micropython("import lodestar.firmware.no_such_module\n")
+    code, out = micropython("import lodestar.firmware.no_such_module\n")
     assert code == 1 and "ImportError" in out
-    code, out = run_micropython("print('no newline', end='')")
+    code, out = micropython("print('no newline', end='')")
     assert code == 0 and "no newline" in out
 
 
@@ -331,19 +330,19 @@ def test_literals_round_trip():
         lit(object())
 
 
-def test_missing_micropython_skips_or_fails(monkeypatch, tmp_path):
+def test_missing_micropython_skips_or_fails(micropython, monkeypatch, tmp_path):
     """Without the npm package the tests skip with the install command, unless CI demands
     MicroPython (``LODESTAR_REQUIRE_MICROPYTHON``)."""
     monkeypatch.setenv("LODESTAR_MICROPYTHON_TOOL", str(tmp_path / "missing"))
     monkeypatch.setattr("shutil.which", lambda name: "/usr/bin/" + name)
     monkeypatch.delenv("LODESTAR_REQUIRE_MICROPYTHON", raising=False)
     with pytest.raises(pytest.skip.Exception, match="npm ci --prefix tools/micropython"):
-        run_micropython("print(1)")
+        micropython("print(1)")
     monkeypatch.setenv("LODESTAR_REQUIRE_MICROPYTHON", "1")
     with pytest.raises(pytest.fail.Exception, match="MicroPython required"):
-        run_micropython("print(1)")
+        micropython("print(1)")
     monkeypatch.setattr("shutil.which", lambda name: None)   # no node
-    assert "node is not installed" in micropython_support.unavailable_reason()
+    assert "node is not installed" in mp_runner.unavailable_reason()
 
 
 @pytest.mark.parametrize("name", ["status", "packet", "centroids", "camera"])

@@ -28,7 +28,6 @@ from lodestar.ground import codec as ground_packet
 from lodestar.ground.database import build_database
 from lodestar.sim.centroids import attitude_error_deg
 from tests import sim_frames as SF
-from tests.micropython_support import run_micropython
 
 MAX_ERR_DEG = SF.MAX_ERR_DEG
 
@@ -508,7 +507,7 @@ def micropython_cases():
             (moving.packet, prior, list(moving.omega))]
 
 
-def test_pipeline_under_micropython(tmp_path):
+def test_pipeline_under_micropython(micropython, tmp_path):
     cam = SF.sim_camera()
     cases = micropython_cases()
     image = SF.flight_image()
@@ -524,7 +523,7 @@ def test_pipeline_under_micropython(tmp_path):
         "STAGED = 0",
         "TRACKED = 2",
     ])
-    code, out = run_micropython(data + "\n" + MICROPYTHON_SCRIPT, timeout=300)
+    code, out = micropython(data + "\n" + MICROPYTHON_SCRIPT, timeout=300)
     print(out[-3000:])
     assert code == 0, out[-3000:]
     assert "DONE" in out and re.search(r"IMPLEMENTATION micropython \(1, 27", out)

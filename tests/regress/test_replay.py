@@ -3,7 +3,7 @@ MicroPython with the recorded outputs, and any difference, altered file or stale
 recipe is reported with exit status 1.
 
 MicroPython runs through ``tools/micropython/run.mjs`` (skipped without Node.js and the npm
-package unless ``LODESTAR_REQUIRE_MICROPYTHON`` is set, as ``micropython_support`` says).
+package unless ``LODESTAR_REQUIRE_MICROPYTHON`` is set, as ``tests/conftest.py`` says).
 """
 
 import json
@@ -19,7 +19,6 @@ from lodestar.regress import mcu as regress_replay
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
-from tests.micropython_support import require_micropython
 
 
 @pytest.fixture(autouse=True)
@@ -54,8 +53,7 @@ def _case(manifest, name):
 # The committed set
 # --------------------------------------------------------------------------------------
 
-def test_committed_set_replays_on_cpython_and_micropython(capsys):
-    require_micropython()
+def test_committed_set_replays_on_cpython_and_micropython(capsys, require_micropython):
     assert main(["regress"]) == 0
     out = capsys.readouterr().out
     manifest = _manifest(regress.DEFAULT_SET)
@@ -286,9 +284,8 @@ def test_micropython_script_and_output_parsing():
                       "live_end": 7}
 
 
-def test_runner_copies_files(tmp_path):
+def test_runner_copies_files(tmp_path, require_micropython):
     """``run.mjs --copy HOST=TARGET`` puts host files into MicroPython's filesystem."""
-    require_micropython()
     import subprocess
 
     data = tmp_path / "data.bin"

@@ -404,12 +404,10 @@ print("DONE")
 '''
 
 
-def test_hashing_under_micropython():
+def test_hashing_under_micropython(micropython):
     """Hash formulas, the file-backed hash database and identification under MicroPython
     give the CPython results (a mirror image included)."""
     import base64
-
-    from micropython_support import run_micropython
 
     from ..test_micropython import lit
 
@@ -434,7 +432,7 @@ def test_hashing_under_micropython():
     script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
                         "EXPECTED = " + lit(expected), "HASHES = " + lit(hashes),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = run_micropython(script + "\n" + MICROPYTHON_HASHING, heapsize=16 << 20,
+    code, out = micropython(script + "\n" + MICROPYTHON_HASHING, heapsize=16 << 20,
                                 timeout=600)
     print(out)
     assert code == 0, out

@@ -145,11 +145,9 @@ print("DONE")
 '''
 
 
-def test_identification_under_micropython():
+def test_identification_under_micropython(micropython):
     """File-backed database and Pyramid under MicroPython give the CPython solutions."""
     import base64
-
-    from micropython_support import run_micropython
 
     from ..test_micropython import lit
 
@@ -171,7 +169,7 @@ def test_identification_under_micropython():
     script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
                         "EXPECTED = " + lit(expected),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = run_micropython(script + "\n" + MICROPYTHON_STARID, heapsize=16 << 20,
+    code, out = micropython(script + "\n" + MICROPYTHON_STARID, heapsize=16 << 20,
                                 timeout=600)
     print(out)
     assert code == 0, out

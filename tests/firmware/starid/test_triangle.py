@@ -291,12 +291,10 @@ print("DONE")
 '''
 
 
-def test_triangle_under_micropython():
+def test_triangle_under_micropython(micropython):
     """File-backed triangle database and identification under MicroPython give the CPython
     solutions (a mirror image included)."""
     import base64
-
-    from micropython_support import run_micropython
 
     from ..test_micropython import lit
 
@@ -316,7 +314,7 @@ def test_triangle_under_micropython():
     script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
                         "EXPECTED = " + lit(expected),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = run_micropython(script + "\n" + MICROPYTHON_TRIANGLE, heapsize=16 << 20,
+    code, out = micropython(script + "\n" + MICROPYTHON_TRIANGLE, heapsize=16 << 20,
                                 timeout=600)
     print(out)
     assert code == 0, out

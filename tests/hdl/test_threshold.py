@@ -12,6 +12,7 @@ from lodestar.hdl.threshold import (
     ksigma_cycles,
     local_blanking,
 )
+from tests.hdl.streams import stream_collect, stream_idle, stream_put
 
 
 def run_frames(dut, frames, regs, gap, late_regs=()):
@@ -20,41 +21,38 @@ def run_frames(dut, frames, regs, gap, late_regs=()):
     between frames, except the names in ``late_regs``, written just before the frame.
     Returns per frame the output pixels as (x, y, lit, weight, eof) and the latched
     (T, B, fallback)."""
-    results = []
+    levels, beats = [], []
 
     async def bench(ctx):
         for frame, reg in zip(frames, regs):
             for name, value in reg.items():
                 if name not in late_regs:
                     ctx.set(getattr(dut, name), value)
-            for _ in range(gap):
-                await ctx.tick()
+            await stream_idle(ctx, dut.pixels, gap)
             for name in late_regs:
                 ctx.set(getattr(dut, name), reg[name])
-            pixels = []
             h, w = frame.shape
-            for k in range(h * w + 1):
-                if k < h * w:
-                    y, x = divmod(k, w)
-                    ctx.set(dut.pixels.valid, 1)
-                    ctx.set(dut.pixels.payload.data, int(frame[y, x]))
-                    ctx.set(dut.pixels.payload.sof, int(k == 0))
-                    ctx.set(dut.pixels.payload.eol, int(x == w - 1))
-                else:
-                    ctx.set(dut.pixels.valid, 0)
-                await ctx.tick()
-                if ctx.get(dut.out.valid):
-                    o = dut.out.payload
-                    pixels.append((ctx.get(o.x), ctx.get(o.y), ctx.get(o.lit),
-                                   ctx.get(o.weight), ctx.get(o.eof)))
-            levels = (ctx.get(dut.frame_threshold), ctx.get(dut.frame_background),
-                      ctx.get(dut.frame_fallback))
-            results.append((pixels, levels))
+            for k in range(h * w):
+                y, x = divmod(k, w)
+                await stream_put(ctx, dut.pixels, {"data": int(frame[y, x]), "sof": int(k == 0),
+                                                   "eol": int(x == w - 1)})
+            await stream_idle(ctx, dut.pixels, 1)
+            levels.append((ctx.get(dut.frame_threshold), ctx.get(dut.frame_background),
+                           ctx.get(dut.frame_fallback)))
+        await ctx.tick()                  # the last beat's transfer
 
     sim = Simulator(dut)
     sim.add_clock(1e-6)
     sim.add_testbench(bench)
+    stream_collect(sim, dut.out, beats,
+                   lambda o: (o.x, o.y, o.lit, o.weight, o.eof))
     sim.run()
+    # fixed and global mode: one beat per pixel
+    assert len(beats) == sum(frame.size for frame in frames)
+    results = []
+    for frame, frame_levels in zip(frames, levels):
+        results.append((beats[:frame.size], frame_levels))
+        del beats[:frame.size]
     return results
 
 
@@ -179,11 +177,10 @@ def run_clocks(dut, steps, tail):
         for k, (regs, px) in enumerate(steps + [(None, None)] * tail):
             for name, value in (regs or {}).items():
                 ctx.set(getattr(dut, name), value)
-            ctx.set(dut.pixels.valid, px is not None)
-            if px is not None:
-                for field, value in zip(("data", "sof", "eol"), px):
-                    ctx.set(getattr(dut.pixels.payload, field), value)
-            await ctx.tick()
+            if px is None:
+                await stream_idle(ctx, dut.pixels, 1)
+            else:
+                await stream_put(ctx, dut.pixels, dict(zip(("data", "sof", "eol"), px)))
             if ctx.get(dut.out.valid):
                 o = dut.out.payload
                 beats.append((k, ctx.get(o.x), ctx.get(o.y), ctx.get(o.data), ctx.get(o.lit),

@@ -2,7 +2,8 @@
 
 The broad bit-exactness campaign runs on Verilator (``cocotb_tests/test_detector.py``); these
 are the block-level checks: random frames at random capacities, record order and trailer
-fields, a slow record reader, truncated frames and line errors, register refusal and its clearing, lost trailers."""
+fields, a slow record reader, truncated frames and line errors, register refusal and its
+clearing, lost trailers."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import pytest
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.detector import Detector
-from tests.hdl_bench import stream_frames
+from tests.hdl.bench import stream_frames
 
 
 def frame_of(mask, rng, bits=12):

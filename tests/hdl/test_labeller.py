@@ -1,5 +1,5 @@
 """The labeller block in the Amaranth simulator, column by column against its algorithm
-(``tests/wavefront_model.py``): the op it sends for every column (slot read for a
+(the wavefront model): the op it sends for every column (slot read for a
 continuation or a merge, slot write, completion) and the dropped-label count."""
 
 import numpy as np
@@ -9,6 +9,7 @@ from amaranth.sim import Simulator
 from lodestar import contract as C
 from lodestar.golden.wavefront import WavefrontLabeller
 from lodestar.hdl.labeller import Labeller, max_nodes, max_stack, vblank_cycles
+from tests.hdl.streams import stream_collect, stream_idle, stream_put
 
 
 def hardware_ops(mask, cap, hblank=1):
@@ -19,24 +20,14 @@ def hardware_ops(mask, cap, hblank=1):
 
     async def bench(ctx):
         ctx.set(dut.feat_busy, 0)
-        p = dut.pixels.payload
         for y in range(h):
             for x in range(w):
-                ctx.set(dut.pixels.valid, 1)
-                ctx.set(p.x, x)
-                ctx.set(p.y, y)
-                ctx.set(p.lit, int(mask[y, x]))
-                await ctx.tick()
-            ctx.set(dut.pixels.valid, 0)
-            await ctx.tick().repeat(hblank)
-        ctx.set(dut.pixels.valid, 0)
-        await ctx.tick().repeat(vblank_cycles(w) + 2)
+                await stream_put(ctx, dut.pixels, {"x": x, "y": y, "lit": int(mask[y, x])})
+            await stream_idle(ctx, dut.pixels, hblank)
+        await stream_idle(ctx, dut.pixels, vblank_cycles(w) + 2)
 
     async def watch(ctx):
-        o = dut.ops.payload
         while True:
-            if ctx.get(dut.ops.valid):
-                ops.append((ctx.get(o.rd), ctx.get(o.wr), ctx.get(o.complete)))
             if ctx.get(dut.done):
                 end["dropped"] = ctx.get(dut.dropped_labels)
             end["fault"] = ctx.get(dut.fault)
@@ -46,6 +37,7 @@ def hardware_ops(mask, cap, hblank=1):
     sim.add_clock(1e-6)
     sim.add_testbench(bench)
     sim.add_testbench(watch, background=True)
+    stream_collect(sim, dut.ops, ops, lambda op: (op.rd, op.wr, op.complete))
     sim.run()
     return ops, end.get("dropped"), end["fault"]
 

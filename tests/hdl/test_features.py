@@ -8,6 +8,7 @@ from amaranth.sim import Simulator
 from lodestar import contract as C
 from lodestar.hdl.features import FeatureEngine, _sums
 from lodestar.hdl.layouts import record_fields, record_layout
+from tests.hdl.streams import stream_collect, stream_idle, stream_put
 
 W, H, PB = 64, 32, 12
 
@@ -33,35 +34,34 @@ def features(pixels, pixel_bits=PB):
 def run(ops, min_pixels=1, min_sum=0, max_pixels=C.MAX_PIXELS_UNLIMITED, capacity=8, tag=0):
     dut = FeatureEngine(W, H, PB, slots=4, record_capacity=capacity)
     fields = record_fields(W, H, PB)
-    records = []
+    records, counts = [], {}
 
     async def bench(ctx):
         ctx.set(dut.tag, tag)
         ctx.set(dut.min_pixels, min_pixels)
         ctx.set(dut.min_sum, min_sum)
         ctx.set(dut.max_pixels, max_pixels)
-        ctx.set(dut.records.ready, 1)
         for op in ops + [None] * 6:
-            ctx.set(dut.ops.valid, op is not None)
-            op = op or {}
-            ctx.set(dut.ops.payload.as_value(), 0)
-            for name, value in op.items():
-                ctx.set(getattr(dut.ops.payload, name), value)
-            await ctx.tick()
-            if ctx.get(dut.records.valid):
-                raw = ctx.get(dut.records.payload.as_value())
-                rec = {}
-                for name, bits in fields:
-                    rec[name], raw = raw & ((1 << bits) - 1), raw >> bits
-                records.append(rec)
-        records.append({k: ctx.get(getattr(dut, k)) for k in
-                        ("n_blobs", "n_filtered", "dropped_records", "n_records")})
+            if op is None:
+                await stream_idle(ctx, dut.ops, 1)
+            else:
+                await stream_put(ctx, dut.ops, op)
+        await ctx.tick()                  # the last record's transfer
+        counts.update({k: ctx.get(getattr(dut, k)) for k in
+                       ("n_blobs", "n_filtered", "dropped_records", "n_records")})
+
+    def unpack(payload):
+        raw, rec = int(payload.as_value().value), {}
+        for name, bits in fields:
+            rec[name], raw = raw & ((1 << bits) - 1), raw >> bits
+        return rec
 
     sim = Simulator(dut)
     sim.add_clock(1e-6)
     sim.add_testbench(bench)
+    stream_collect(sim, dut.records, records, unpack)
     sim.run()
-    return records[:-1], records[-1]
+    return records, counts
 
 
 def px(x, y, p, w, **op):

@@ -18,7 +18,8 @@ from lodestar.hdl.detector import Detector
 from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
 from lodestar.hdl.packetizer import Packetizer, crc32_byte
-from tests.hdl_bench import to_record
+from tests.hdl.bench import to_record
+from tests.hdl.streams import stream_idle, stream_put
 
 
 def pack(values, fields):
@@ -114,12 +115,11 @@ def test_bytes_equal_encode(geometry):
         (every record is buffered before its trailer: the packetizer fetches after it)."""
         async def serve(ctx):
             while True:
-                ctx.set(port.valid, bool(queue))
                 if queue:
-                    ctx.set(port.payload.as_value(), queue[0])
-                    if ctx.get(port.ready):
-                        queue.pop(0)
-                await ctx.tick()
+                    await stream_put(ctx, port, queue[0])
+                    queue.pop(0)
+                else:
+                    await stream_idle(ctx, port, 1)
         return serve
 
     async def wait(ctx):
@@ -195,14 +195,11 @@ def test_detector_packets_decode_to_golden():
                 await ctx.tick().repeat(6000)      # packets 0 and 1 are read by now
             for y in range(h):
                 for x in range(w):
-                    ctx.set(dut.pixels.valid, 1)
-                    ctx.set(dut.pixels.payload.data, int(frame[y, x]))
-                    ctx.set(dut.pixels.payload.sof, int(x == 0 and y == 0))
-                    ctx.set(dut.pixels.payload.eol, int(x == w - 1))
-                    await ctx.tick()
-                ctx.set(dut.pixels.valid, 0)
-                await ctx.tick()
-            await ctx.tick().repeat(vblank_cycles(w) + 2)
+                    await stream_put(ctx, dut.pixels, {"data": int(frame[y, x]),
+                                                       "sof": int(x == 0 and y == 0),
+                                                       "eol": int(x == w - 1)})
+                await stream_idle(ctx, dut.pixels, 1)
+            await stream_idle(ctx, dut.pixels, vblank_cycles(w) + 2)
         await ctx.tick().repeat(6000)
 
     got = collect(sim, dut, lambda c: c % 7 == 0)

@@ -5,7 +5,9 @@ from amaranth.sim import Simulator
 
 from lodestar import contract as C
 from lodestar.cosim.runner import unpack
+from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import record_fields, trailer_fields
+from tests.hdl.streams import stream_idle, stream_put
 
 
 def to_record(fields):
@@ -28,7 +30,6 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
     output order, each with its frame's records in ``["records"]`` (the ``n_records``
     records before it in the record stream), and records no trailer claimed.
     """
-    from lodestar.hdl.labeller import vblank_cycles
     h, w = frames[0].shape
     vblank = vblank_cycles(w) + 2 if vblank is None else vblank
     rec_fields = record_fields(dut.width, dut.height, dut.pixel_bits)
@@ -47,16 +48,11 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
             limit = (stop_after or {}).get(i, h * w)
             for k in range(limit):
                 y, x = divmod(k, w)
-                ctx.set(dut.pixels.valid, 1)
-                ctx.set(dut.pixels.payload.data, int(frame[y, x]))
-                ctx.set(dut.pixels.payload.sof, int(k == 0))
-                ctx.set(dut.pixels.payload.eol, int(x == w - 1))
-                await ctx.tick()
-                if x == w - 1 and hblank:
-                    ctx.set(dut.pixels.valid, 0)
-                    await ctx.tick().repeat(hblank)
-            ctx.set(dut.pixels.valid, 0)
-            await ctx.tick().repeat(vblank)
+                await stream_put(ctx, dut.pixels, {"data": int(frame[y, x]), "sof": int(k == 0),
+                                                   "eol": int(x == w - 1)})
+                if x == w - 1:
+                    await stream_idle(ctx, dut.pixels, hblank)
+            await stream_idle(ctx, dut.pixels, vblank)
         await ctx.tick().repeat(64 if trailer_first else 8)   # records follow the trailer
         done["flag"] = True
 

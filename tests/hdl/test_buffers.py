@@ -10,7 +10,7 @@ from amaranth.sim import Simulator
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.buffers import HalfWordFIFO
 from lodestar.hdl.detector import Detector
-from tests.hdl_bench import stream_frames
+from tests.hdl.bench import stream_frames
 
 
 def run_fifo(width, depth, offers, ready):
