@@ -31,17 +31,14 @@ What is measured (``lodestar.regress.micropython`` explains the port's collector
 import argparse
 import math
 import statistics
-import subprocess
-import tempfile
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import starid, tracking
-from lodestar.regress import mcu as regress_replay
+from lodestar.regress import mcu
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import replay as regress
 from lodestar.sim.attitude import random_attitude
@@ -70,11 +67,7 @@ def percentile(values, p):
 
 def heap_probe():
     """What ``--heapsize 64k`` does to a script allocating 4 MB: the text to print."""
-    with tempfile.TemporaryDirectory() as tmp:
-        script = Path(tmp) / "probe.py"
-        script.write_text(HEAP_PROBE)
-        proc = subprocess.run(["node", str(regress_micropython.RUNNER), "--heapsize", "64k",
-                               str(script)], capture_output=True, text=True, timeout=120)
+    proc = regress_micropython.run(HEAP_PROBE, heapsize=64 * 1024)
     for line in proc.stdout.splitlines():
         if line.startswith("PROBE "):
             return (f"--heapsize 64k is no cap: a script held 4 MB (gc.mem_alloc() "
@@ -85,25 +78,25 @@ def heap_probe():
 def cpython_figures(manifest, set_dir, db_files, cases, repeats):
     """``{method: {"ms": [...], "ms_ok": [...], "peak": [...]}}`` on this interpreter."""
     data = regress.packets(manifest, set_dir)
-    dbs = {name: regress_replay.open_database(str(path)) for name, path in db_files.items()}
+    dbs = {name: mcu.open_database(str(path)) for name, path in db_files.items()}
     out = {}
     for method in manifest["methods"]:
         fig = out[method] = {"ms": [], "ms_ok": [], "peak": []}
-        trackers = {cam: regress_replay.make_tracker(dbs[s["database"]], s, method)
+        trackers = {cam: mcu.make_tracker(dbs[s["database"]], s, method)
                     for cam, s in manifest["cameras"].items()}
         for case in cases:
             tracker = trackers[case["camera"]]
-            regress_replay.replay(tracker, data[case["name"]], case["inputs"])   # warm up
+            mcu.replay(tracker, data[case["name"]], case["inputs"])   # warm up
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                res = regress_replay.replay(tracker, data[case["name"]], case["inputs"])
+                res = mcu.replay(tracker, data[case["name"]], case["inputs"])
                 ms = (time.perf_counter() - t0) * 1e3
                 fig["ms"].append(ms)
                 if res["status_name"] == "OK":
                     fig["ms_ok"].append(ms)
             tracemalloc.start()
             base = tracemalloc.get_traced_memory()[0]
-            regress_replay.replay(tracker, data[case["name"]], case["inputs"])
+            mcu.replay(tracker, data[case["name"]], case["inputs"])
             fig["peak"].append(tracemalloc.get_traced_memory()[1] - base)
             tracemalloc.stop()
     return out
@@ -128,7 +121,7 @@ def hard_peaks(manifest, db_files, methods, n, seed=3):
     out = {}
     for cam_name, settings in manifest["cameras"].items():
         cam = load_preset(cam_name)
-        db = regress_replay.open_database(str(db_files[settings["database"]]))
+        db = mcu.open_database(str(db_files[settings["database"]]))
         tol = settings["tolerance_px"] / cam.fx_px
         rng = np.random.default_rng(seed)
         for _ in range(n):

@@ -16,7 +16,8 @@ from lodestar.sim import attitude, presets, scene, sensor
 def main():
     cam = presets.load_preset("estcube2")
     defects = sensor.SensorDefects.generate(cam.height, cam.width, seed=1)
-    cases = [("sparse, V<=6.5", (192.86, 27.13, 0.0), 6.5), ("Orion, V<=8", (83.8, -5.4, 10.0), 8.0)]
+    cases = [("sparse, V<=6.5", (192.86, 27.13, 0.0), 6.5),
+             ("Orion, V<=8", (83.8, -5.4, 10.0), 8.0)]
     print("estcube2 2592x1944x12, rolling shutter, with sensor defects; best of 3")
     for label, pointing, mag in cases:
         q = attitude.from_radec_roll(*pointing)

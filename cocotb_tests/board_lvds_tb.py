@@ -4,7 +4,8 @@ serialises frames as the MT9V022 stand-alone LVDS stream does and feeds them as
 ``lvds_bits``, ``LVDS_LANES`` bits per ``ser`` clock (what ALTLVDS_RX hands the fabric); the
 SPI master model of ``spi_slave_tb`` writes the registers, waits for ``irq`` and reads each
 frame's packet (``board_top_tb.frame_and_packet``), and every packet must equal, byte for
-byte, ``lodestar.ground.codec.encode`` of the golden result of its frame (``lodestar.golden.Detector``,
+byte, ``lodestar.ground.codec.encode`` of the golden result of its frame
+(``lodestar.golden.Detector``,
 ``detect_frame``'s stateful form: global mode needs the previous frame).
 
 The sensor model (facts from :mod:`lodestar.hdl.mt9v022`, imported): one 12-bit packet per

@@ -5,7 +5,7 @@ the registers, waits for ``irq``, reads the status word and each frame's packet,
 packet must decode to the golden result of its frame.  A threshold written over SPI while a
 frame streams in takes effect on the next frame, not on the one under way.  Frames are sent
 one at a time (each packet is read before the next frame starts; back-to-back packets are
-covered by ``tests/test_hdl_packetizer.py``), so ``irq`` must fall after each packet.
+covered by ``tests/hdl/test_packetizer.py``), so ``irq`` must fall after each packet.
 
 Clocks: ``clk`` (sync) 100 MHz, ``pix_clk`` 76.9 MHz (13 ns), asynchronous.  Parameters from
 the environment: ``TB_WIDTH``, ``TB_HEIGHT``, ``TB_SEED``, ``TB_RECORD_CAPACITY``.

@@ -1,6 +1,6 @@
 """cocotb check of the Verilated detector against the golden model.
 
-The harness (``lodestar/cosim_harness.sv``) plays the stimulus that ``test_detector.py``
+The harness (``lodestar/cosim/harness.sv``) plays the stimulus that ``test_detector.py``
 wrote and records every record and trailer.  This test clocks it, then replays the same
 scenario through the golden model (``lodestar.golden.Detector``, carrying global-mode state
 and the frame counter) and compares frame by frame: the records in order (hence also as a

@@ -1,36 +1,14 @@
 """Wahba-problem attitude solvers for the MCU: QUEST, Davenport's q-method, ESOQ2 and TRIAD.
 
-Conventions
------------
-* ``b`` are **body** (camera-frame) unit vectors, ``r`` the matching **reference**
-  (inertial, ICRS) unit vectors and ``w`` positive weights (``None``: all equal).  Vectors are
-  normalised on entry, so any non-zero length is accepted; weights need not sum to 1 (the
-  solvers rescale them to ``sum(w) = 1``, which does not change the optimum).
-* Every solver returns our attitude quaternion ``q = [x, y, z, w]`` (scalar last, ``w >= 0``)
-  of the rotation taking inertial vectors into the camera frame, so that
-  ``quaternion.rotate(q, r_i) ~ b_i`` (see :mod:`lodestar.firmware.quaternion`).
-* Wahba's loss is ``J(A) = 1/2 sum a_i |b_i - A r_i|^2``.  Shuster's formulation is followed
-  literally inside the solvers: ``B = sum a_i b_i r_i^T``, ``S = B + B^T``, ``sigma = tr B``,
-  ``z = [B23 - B32, B31 - B13, B12 - B21]`` and Davenport's
-  ``K = [[S - sigma I, z], [z^T, sigma]]``, whose eigenvector ``qbar`` of the largest
-  eigenvalue is **Shuster's** quaternion (his ``A(qbar) = (q4^2 - |q|^2) I + 2 q q^T -
-  2 q4 [q x]``).  Our quaternion of the same ``A`` is its conjugate, so each solver returns
-  ``conjugate(qbar)``.
-* Frames of "sequential rotations": rotating the reference frame by 180 deg about axis ``k``
-  (``r' = R_k r``) negates two columns of ``B``; the solution ``q'`` of the rotated problem
-  (``b = A' r'``) gives ``A = A' R_k``, i.e. ``q = q' (x) e_k`` with ``e_k`` the unit
-  quaternion ``[1, 0, 0, 0]``, ``[0, 1, 0, 0]`` or ``[0, 0, 1, 0]``.
-
-Accuracy: :func:`quest` and :func:`esoq2` take ``lambda_max`` from QUEST's quartic and then
-(``refine=True``, the default) one Rayleigh-quotient update, which keeps them within ~1e-11
-rad of :func:`q_method` even for two stars a fraction of a degree apart; ``refine=False``
-gives the textbook algorithms, whose error grows as ``eps / gap^2``.
-
-Input errors (wrong lengths, NaN/inf, zero vectors, non-positive weights, fewer than two
-pairs, or all body or all reference vectors parallel so that the roll about them is not
-observable) raise ``ValueError`` with a message naming the offending element.
-
-Pure Python with ``math`` only: runs unchanged on CPython and MicroPython.
+``b`` are body (camera-frame) unit vectors, ``r`` the matching reference (ICRS) unit vectors
+and ``w`` positive weights (``None``: all equal); vectors are normalised and weights rescaled
+to ``sum(w) = 1`` on entry.  Every solver returns our quaternion ``q = [x, y, z, w]`` (scalar
+last, ``w >= 0``) with ``quaternion.rotate(q, r_i) ~ b_i`` (``docs/conventions.md``); inside,
+Shuster's formulation is followed literally and the result conjugated.  With ``refine=True``
+(default) :func:`quest` and :func:`esoq2` match :func:`q_method`'s accuracy even for close
+stars.  Input errors (bad lengths, NaN/inf, zero vectors, non-positive weights, fewer than two
+pairs, unobservable roll) raise ``ValueError`` naming the element.  Pure Python, ``math`` only
+(CPython and MicroPython).  Formulation and accuracy: ``docs/centroids_and_tracking.md``.
 """
 
 import math
@@ -345,26 +323,14 @@ def _rayleigh(B, vec, scalar):
 def quest(b, r, w=None, refine=True):
     """Shuster's QUEST; returns our quaternion ``[x, y, z, w]`` (``rotate(q, r_i) ~ b_i``).
 
-    1. ``B``, ``S``, ``sigma``, ``z`` from the weights rescaled to ``sum a = 1``.
-    2. ``lambda_max`` by Newton-Raphson on ``psi(l) = (l^2 - a)(l^2 - b) - c (l - sigma) - d``
-       from ``lambda_0 = sum a = 1`` until a step is below :data:`NEWTON_TOLERANCE`.
-    3. ``x = [alpha I + (lambda - sigma) S + S^2] z``, ``gamma = alpha (lambda + sigma) -
-       det S``; Shuster's quaternion is ``[x; gamma] / |[x; gamma]|``.
-    4. Method of sequential rotations: ``[x; gamma] = psi'(lambda) q4 qbar``, so
-       ``gamma = psi' q4^2`` vanishes for 180 deg rotations, where ``[x; gamma]`` is lost in
-       rounding.  If ``gamma < QUEST_GAMMA_MIN psi'`` (``q4^2 < 1/4``; the test is against
-       ``psi'``, not against the rounded ``|[x; gamma]|``), the reference frame is turned
-       180 deg about x, y and z in turn (``lambda`` is frame-invariant) and the frame with
-       the largest ``|gamma|`` (largest ``q4'^2``, always ``>= 1/4``) is used; the turn is
-       undone afterwards (``q = q' (x) e_k``).
-    5. ``refine`` (default, not in Shuster's paper): the root of the quartic is
-       ill-conditioned, ``d lambda ~ eps / psi'(lambda)`` with ``psi'`` the product of the three
-       eigenvalue gaps, and step 3 amplifies it by ``1 / gap`` again, so with few, close stars
-       (tiny roll gap) plain QUEST loses digits (``eps / gap^2``; about 3e-9 rad for two stars
-       0.5 deg apart).  One Rayleigh quotient ``lambda = qbar^T K qbar`` (exact to rounding,
-       error quadratic in that of ``qbar``) and a second evaluation of step 3 bring it to the
-       q-method's ``eps / gap``.  ``refine=False`` gives textbook QUEST.
-    6. The result is conjugated into our convention and returned with ``w >= 0``.
+    ``lambda_max`` by Newton-Raphson on QUEST's quartic from ``lambda_0 = 1`` (until a step is
+    below :data:`NEWTON_TOLERANCE`), Shuster's ``[x; gamma]`` from it, and the method of
+    sequential rotations when ``gamma < QUEST_GAMMA_MIN psi'`` (``q4^2 < 1/4``: the reference
+    frame is turned 180 deg about the axis giving the largest ``|gamma|``, undone afterwards).
+    ``refine`` (default, not in Shuster's paper): one Rayleigh-quotient update of ``lambda``
+    and a second solve, which brings the error from ``eps / gap^2`` to the q-method's
+    ``eps / gap``; ``refine=False`` gives textbook QUEST.  The steps and the accuracy
+    argument: ``docs/centroids_and_tracking.md`` (Attitude solvers).
     """
     bs, rs, ws = _prepare(b, r, w)
     B = _profile(bs, rs, _unit_weights(ws))
@@ -408,25 +374,13 @@ def _esoq2_solve(B, lam):
 def esoq2(b, r, w=None, refine=True):
     """Mortari's ESOQ2; returns our quaternion ``[x, y, z, w]`` (``rotate(q, r_i) ~ b_i``).
 
-    ``lambda_max`` comes from the same Newton-Raphson on QUEST's polynomial (more accurate in
-    floating point than the paper's closed-form quartic roots).  Writing Shuster's quaternion
-    as ``[e sin(phi/2); cos(phi/2)]`` and eliminating ``q4`` with the last row of
-    ``(K - lambda I) q = 0`` gives ``M e = 0`` with the symmetric rank-2 matrix
-    ``M = (lambda - sigma)(S - (lambda + sigma) I) + z z^T``; the axis ``e`` is the largest of
-    the cross products of the rows of ``M`` and then
-    ``qbar = [(lambda - sigma) e; z.e] / norm``.
-
-    Singularity: ``lambda - sigma = sum_j (lambda - lambda_j) v_j4^2 >= gap (1 - q4^2)``
-    vanishes (with ``z``) as the rotation angle goes to **zero**, where ``M -> 0``; near 180 deg
-    this formulation is at its best.  So the reference frame is always turned (by 0 or
-    180 deg about x, y or z, i.e. sequential rotations) to minimise ``sigma' = tr B'``
-    (``tr(B R_k) = 2 B_kk - tr B``).  The four candidate traces sum to zero, so the chosen
-    one is ``<= 0`` and ``lambda - sigma' >= lambda_max ~ 1``: the solved rotation is far
-    from zero whatever the true one (0, 180 deg or anything between).  The turn is undone
-    afterwards (``q = q' (x) e_k``).
-
-    ``refine`` (default): one Rayleigh-quotient update of ``lambda`` and a second solve, as in
-    :func:`quest` (the quartic's root error would otherwise be amplified for close stars).
+    ``lambda_max`` from the same Newton-Raphson as :func:`quest`; the rotation axis ``e`` from
+    ``M e = 0`` with ``M = (lambda - sigma)(S - (lambda + sigma) I) + z z^T`` (the largest
+    cross product of its rows), ``qbar = [(lambda - sigma) e; z.e] / norm``.  ESOQ2 is singular
+    at rotation angle **zero**, so the reference frame is always turned (0 or 180 deg about x,
+    y or z) to minimise ``tr B'``, which keeps the solved rotation far from zero; the turn is
+    undone afterwards.  ``refine`` (default): one Rayleigh-quotient update and a second solve,
+    as in :func:`quest`.  Derivation: ``docs/centroids_and_tracking.md`` (Attitude solvers).
     """
     bs, rs, ws = _prepare(b, r, w)
     B = _profile(bs, rs, _unit_weights(ws))

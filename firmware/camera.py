@@ -1,33 +1,14 @@
 """Camera model of the MCU: pixel <-> camera-frame unit vector, pinhole + Brown-Conrady.
 
-    from lodestar.firmware.camera import Camera
-    cam = Camera(752, 480, fx=1438.33, fy=1426.67, cx=375.5, cy=239.5,
-                 k1=-0.3686, k2=0.3148, p1=-0.0023, p2=0.0003)
-    cam = Camera.from_dict(preset_camera_block)        # sim/data/presets.json "camera" block
-    v = cam.pixel_to_vector(x, y)      # (X, Y, Z) unit tuple, or None
-    p = cam.vector_to_pixel(v)         # (x, y), or None
-
-The model is ``lodestar.sim.camera.Camera``'s (the tests hold the two together to 1e-6 rad):
-
-* camera frame: ``+z`` boresight, ``+x`` along increasing column ``x``, ``+y`` along
-  increasing row ``y``; pixel centres at integer indices (``lodestar.contract``);
-* a direction ``(X, Y, Z)``, ``Z > 0``, has normalised coordinates ``x = X/Z``, ``y = Y/Z``,
-  ``r^2 = x^2 + y^2``; Bouguet's distortion::
-
-      xd = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
-      yd = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
-
-  and the pixel is ``(cx + fx xd, cy + fy yd)``.
-
-:meth:`Camera.pixel_to_vector` inverts the distortion by 2-D Newton iteration with the
-analytic Jacobian, starting from the distorted point, and accepts the solution only if it
-reproduces the pixel (to ``1e-9`` px in double precision, a few float epsilons of the pixel
-scale in single precision), the Jacobian is positive there and the radius is inside
-:meth:`Camera.fold_radius` (beyond it the radial map folds back and pixels are not imaged
-uniquely).  Pure Python for CPython and MicroPython (single- or double-precision floats):
-no numpy, typing, dataclasses or itertools.  Invalid camera parameters raise ``ValueError``
-at construction (configuration time); pixel and vector calls never raise on numbers: they
-return None (``last_status`` then says why, a ``lodestar.firmware.status`` code).
+:class:`Camera` (``pixel_to_vector``, ``vector_to_pixel``, ``smear_px``) is the model of
+``lodestar.sim.camera.Camera`` (the tests hold the two together to 1e-6 rad): Bouguet's
+distortion ``k1, k2, k3, p1, p2``, focal lengths and principal point in pixels, frames and
+pixel centres as in ``docs/conventions.md``.  The inverse is a Newton iteration accepted only
+if it reproduces the pixel inside :meth:`Camera.fold_radius`.  Invalid camera parameters raise
+``ValueError`` at construction (configuration time); pixel and vector calls never raise on
+numbers: they return None (``last_status`` then says why, a ``lodestar.firmware.status``
+code).  Formulas: ``docs/centroids_and_tracking.md`` (Camera model).  Pure Python for CPython
+and MicroPython, single- or double-precision floats.
 """
 
 import math
@@ -101,7 +82,8 @@ def _smallest_positive_root(c0, c1, c2, c3):
 
 
 class Camera(object):
-    """Pinhole + Brown-Conrady (Bouguet) camera from plain numbers (see the module docstring).
+    """Pinhole + Brown-Conrady (Bouguet) camera from plain numbers (model:
+    ``docs/centroids_and_tracking.md``).
 
     ``width``, ``height`` in pixels; ``fx``, ``fy`` focal lengths in pixels; ``cx``, ``cy``
     principal point (default: the geometric centre ``((W-1)/2, (H-1)/2)``); ``k1 k2 k3``

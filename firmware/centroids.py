@@ -1,68 +1,14 @@
 """Star centroids and shapes from blob records, with a quality filter.
 
-    from lodestar.firmware import centroids
-    stars, rejected = centroids.extract(records)                  # contract.BlobRecord list
-    stars, rejected = centroids.extract(records, expected_smear_px=(dx, dy))   # known rate
-
-Per record (the contract's moments, weights ``w = max(p - B, 0)``):
-
-* centroid ``(x, y) = (sx / s0, sy / s0)`` in pixel coordinates (pixel centres at integer
-  indices, ``x`` column, ``y`` row: the ``lodestar.contract`` convention);
-* central second moments ``cxx = sxx/s0 - x^2``, ``cyy = syy/s0 - y^2``,
-  ``cxy = sxy/s0 - x y`` (px^2), computed *exactly* from the integer numerators
-  ``s0*sxx - sx^2`` etc. before the one division (no cancellation, even with single-precision
-  floats on the MCU);
-* the eigenvalues ``l1 >= l2`` of ``[[cxx, cxy], [cxy, cyy]]`` give ``sigma_major =
-  sqrt(l1)``, ``sigma_minor = sqrt(l2)`` (px), ``elongation = sigma_major / sigma_minor``
-  (``inf`` for a blob one pixel wide, 1 for a single pixel) and ``orientation`` = the angle
-  of the major axis from ``+x`` towards ``+y``, radians in ``(-pi/2, pi/2]``.
-
-Quality filter, in this order (the first failed test names the reason; ``rejected`` counts
-records per reason, every reason of ``REASONS`` present)::
-
-    "empty"         s0 is 0, negative, NaN or infinite: no centroid
-    "saturated"     contract.BLOB_MOMENTS_SATURATED: a moment hit its accumulator maximum
-    "inconsistent"  a moment is not finite, the centroid lies outside the bounding box or
-                    the second moments are not positive semi-definite (cannot happen for a
-                    true blob; guards against corrupted records with a valid CRC)
-    "hot_pixel"     n < min_pixels, or sigma_major < min_sigma_px (sharper than the
-                    optics' PSF in every direction)
-    "cosmic_ray"    elongation > max_elongation, unless consistent with the expected smear
-    "hot_pixel"     sigma_minor < min_sigma_px (sharper than the PSF across the blob)
-    "fragment"      a piece of a smeared star's broken track, joined to the star (below):
-                    its light is kept, it is just not a star of its own
-    "excess"        passed, but not among the max_stars brightest (largest s0)
-
-Smear: a body rate smears a star into a line of length ``L`` (px) along ``(dx, dy)``; a
-uniform line adds ``L^2/12`` to the variance along it, so ``l1 - l2 = L^2/12`` whatever the
-(isotropic) PSF.  An elongated blob is kept when ``expected_smear_px`` is given and the
-blob's major axis lies within ``smear_angle_tol`` of ``(dx, dy)`` and its measured smear
-length ``sqrt(12 (l1 - l2))`` is within a factor ``smear_length_ratio`` of ``L``.
-``expected_smear_px`` is ``None``, a pair ``(dx, dy)`` for the whole frame (a rate about
-the camera's x or y axis), or a function ``f(x, y) -> (dx, dy)`` for a smear that varies
-over the frame (roll; see ``lodestar.firmware.camera.Camera.smear_px``).  A rolling shutter
-shears the track slightly; the tolerances absorb it.
-
-Broken tracks: a threshold near the smeared star's surface brightness cuts its track into
-pieces, and the centroid of one piece lies up to ``L/2`` from the star's mean position.
-With a known smear, stars that passed the filter are **joined** (:func:`join_fragments`)
-when their centroids lie on one line along the smear, closer than ``L + 1`` px along it
-and than ``join_across_px + sigma_minor_a + sigma_minor_b`` across it; a joined star has
-the moments of the union of its pieces (``s0`` summed, centroid and central second
-moments by the parallel-axis rule), so its centroid is that of the light the detector saw
-of the whole track.  Its ``index`` is its brightest piece's record, ``parts`` lists all
-of them (``None`` for a star of one record).
-
-Unseen track: the detector may see only part of a smeared star's track (a faint track
-dips below the threshold), and the star's mean position then lies anywhere along the track
-within ``unseen = max(0, (L - l) / 2)`` px of the centroid, ``l = sqrt(12 (c_uu - c_vv))``
-the length measured along the smear direction ``u`` (``c_uu``, ``c_vv``: the central second
-moments along and across it).  With a known smear every star carries its ``unseen`` (0
-without one), and the firmware widens that star's match region along the smear by it
-(``lodestar.firmware.starid.verify``).
-
-Stars are returned brightest first (ties in record order).  Pure Python for CPython and
-MicroPython: no numpy, typing, dataclasses or itertools.
+:func:`extract` turns blob records (``contract.BlobRecord``) into stars: centroid
+``(sx / s0, sy / s0)`` in pixels (``docs/conventions.md``), exact central second moments
+(px^2, from the integer numerators: no cancellation in single precision), ``sigma_major`` and
+``sigma_minor`` (px), ``elongation`` and ``orientation`` (rad); failing records are counted
+per reason of :data:`REASONS`.  With an ``expected_smear_px`` (a known body rate) elongated
+tracks pass the cosmic-ray test, pieces of a broken track are joined into one star and each
+star carries its ``unseen`` half-track (px).  Stars come brightest first (ties in record
+order).  Filter order, smear and joining rules: ``docs/centroids_and_tracking.md``.  Pure
+Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
 import math
@@ -109,8 +55,8 @@ class Star(object):
     ``index`` of the record in the packet; ``parts``: the record indices of a star joined
     from the pieces of a broken track (``index`` is the brightest), else None; ``unseen``:
     how far (px) the star's mean position may lie from the centroid along the expected
-    smear, the half of the track the detector did not see (module docstring; 0 without a
-    smear).
+    smear, the half of the track the detector did not see (``docs/centroids_and_tracking.md``; 0
+    without a smear).
     """
 
     __slots__ = ("x", "y", "flux", "sigma_major", "sigma_minor", "elongation", "orientation",
@@ -265,8 +211,8 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
 def unseen_px(sigma_major, sigma_minor, orientation, smear):
     """Half the expected track (px) a blob of this shape did not show: ``max(0, (L - l) /
     2)`` with ``L`` the length of the expected smear ``(dx, dy)`` (px) and ``l =
-    sqrt(12 (c_uu - c_vv))`` the length measured along it (module docstring); 0 without a
-    smear."""
+    sqrt(12 (c_uu - c_vv))`` the length measured along it (``docs/centroids_and_tracking.md``); 0
+    without a smear."""
     if smear is None:
         return 0.0
     dx, dy = smear[0], smear[1]
@@ -290,10 +236,11 @@ def _root(parent, i):
 
 
 def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
-    """Join the pieces of broken smeared tracks (module docstring): returns the list of
-    stars with each group of pieces replaced by one joined :class:`Star` (at the place of
-    its first piece).  ``central``: per star, its central second moments ``(cxx, cyy,
-    cxy)`` (px^2); ``smear``: the expected smear ``(dx, dy)`` or a function of ``(x, y)``."""
+    """Join the pieces of broken smeared tracks (``docs/centroids_and_tracking.md``):
+    returns the list of stars with each group of pieces replaced by one joined
+    :class:`Star` (at the place of its first piece).  ``central``: per star, its central
+    second moments ``(cxx, cyy, cxy)`` (px^2); ``smear``: the expected smear ``(dx, dy)`` or
+    a function of ``(x, y)``."""
     n = len(stars)
     parent = list(range(n))
     joined = False
@@ -390,8 +337,8 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     ``stars``: at most ``max_stars`` :class:`Star`, brightest (largest s0) first, ties in
     record order; ``max_stars=None`` keeps all.  ``rejected``: ``{reason: count}`` for every
     reason in ``REASONS``; ``len(stars) + sum(rejected.values()) == len(records)``.  The
-    parameters and the order of the tests are described in the module docstring.  Never
-    raises on bad record values.
+    parameters and the order of the tests are described in ``docs/centroids_and_tracking.md``.
+    Never raises on bad record values.
     """
     rejected = {}
     for reason in REASONS:

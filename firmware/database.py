@@ -196,7 +196,8 @@ class Database:
         except DatabaseError:
             raise
         except Exception as exc:     # struct errors on a short or odd buffer
-            raise DatabaseError(S.DATABASE_BAD_LAYOUT, "unreadable image (" + repr(exc) + ")")
+            raise DatabaseError(S.DATABASE_BAD_LAYOUT,
+                                "unreadable image (" + repr(exc) + ")") from None
         self._cells = self._cell_centres()
 
     @classmethod
@@ -205,7 +206,8 @@ class Database:
         try:
             f = open(path, "rb")
         except OSError as exc:
-            raise DatabaseError(S.DATABASE_IO, "cannot open " + str(path) + " (" + repr(exc) + ")")
+            raise DatabaseError(S.DATABASE_IO,
+                                "cannot open " + str(path) + " (" + repr(exc) + ")") from None
         try:
             return cls(expected_fov_h=expected_fov_h, fov_tolerance=fov_tolerance,
                        _source=_FileSource(f))
@@ -342,7 +344,8 @@ class Database:
             bad(name + " records are not sorted")
 
     def _check_triangles(self, bad):
-        offset, length = self._section_header(L.SEC_TRIANGLES, L.TRI_HEADER_FORMAT, L.TRI_HEADER_SIZE,
+        offset, length = self._section_header(L.SEC_TRIANGLES, L.TRI_HEADER_FORMAT,
+                                              L.TRI_HEADER_SIZE,
                                               L.TRI_HEADER_FIELDS, "tri_", L.TRI_MAGIC, bad)
         if self.tri_n < 1 or self.tri_kv_bins < 1:
             bad("triangle method without triangles or k-vector bins")
@@ -425,8 +428,8 @@ class Database:
         """``(x, y, z, hip, mag, flags)`` of star ``i``."""
         x, y, z, lo, word = self._src.unpack(L.STAR_FORMAT, self._stars_off + i * L.STAR_SIZE,
                                              L.STAR_SIZE)
-        return (x, y, z, lo | ((word & 1) << 16), ((word >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET,
-                word >> 12)
+        mag = ((word >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET
+        return (x, y, z, lo | ((word & 1) << 16), mag, word >> 12)
 
     def _cell_start(self, c):
         return self._src.unpack(L.CELL_FORMAT, self._cells_off + 2 * c, 2)[0]

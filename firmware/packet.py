@@ -11,8 +11,8 @@ byte, a mask for its first byte, a shift for its last) computed from the contrac
 and decoding accumulates each window MSB first.  Unlike ``int.from_bytes`` of a whole record
 followed by shifts, no intermediate is larger than the field's value, so fields that fit a
 MicroPython small int (31 bits on a 32-bit MCU) never allocate a long int.  The checks
-and their order are those of the ground codec ``lodestar.ground.codec`` (see its docstring); each
-failed check returns a status and the *same* message the ground codec raises:
+and their order are those of the ground codec ``lodestar.ground.codec`` (``docs/contract.md``,
+Packet checks); each failed check returns a status and the *same* message the ground codec raises:
 
 ===============================  ======================================================
 status                           check

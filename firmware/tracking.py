@@ -1,62 +1,14 @@
 """Tracking mode: identify the observed stars from a prior attitude (no pattern search).
 
-    from lodestar.firmware import tracking
-    sol = tracking.track(vectors, database, q_prior, omega=(wx, wy, wz), dt=0.5,
-                         tolerance_rad=3.4e-4)
-    if sol.status == status.OK:
-        use(sol.q, sol.matches)          # else: the caller falls back to lost-in-space
-
-Conventions (``lodestar.sim``, as everywhere in the firmware): ``vectors`` are camera-frame
-unit vectors of the observed stars, **brightest first**; an attitude ``q = [x, y, z, w]``
-(scalar last) takes inertial vectors into the camera frame, ``v_cam = A(q) v_inertial``;
-``omega`` is the camera's angular velocity in the camera frame (rad/s), under which a fixed
-star moves as ``dv/dt = -omega x v``, so the attitude propagates as
-``q(t + dt) = R(-omega dt) (x) q(t)`` (:func:`propagate`).  Angles are radians.
-
-Algorithm
----------
-1. **Propagate** the prior by ``omega * dt`` when both are given.
-2. **Predict**: the catalogue stars within the FOV's half-diagonal plus
-   ``2 (search_rad + tolerance_rad)`` of the predicted boresight (one
-   ``database.stars_in_cone`` query, whose star vectors every later prediction reuses),
-   rotated into the camera frame and kept inside the FOV rectangle widened by
-   ``search_rad``.
-3. **Coarse association** (robust to a prior off by up to ``search_rad``): every pair
-   (observed star ``o`` among the ``coarse_stars`` brightest, predicted star ``p``) closer than
-   ``search_rad`` is a candidate with displacement ``d = b_o - c_p``.  A prior error is,
-   to first order, the same small rotation for every star, so true candidates share nearly
-   the same displacement: the one agreeing (within ``2 tolerance_rad`` plus the spread a
-   roll error of ``search_rad`` causes across the field) with candidates of the most
-   distinct observed stars wins (ties: the brighter star), and for each observed star the
-   agreeing candidate closest to it is kept, each catalogue star used once.  At least two are
-   needed.
-4. **Fine matching**, repeated while the match set changes (at most ``iterations`` times):
-   QUEST over the current matches, predict again at the fitted attitude, then nearest
-   neighbour within ``tolerance_rad``, brightest observed star first, each catalogue star
-   used once; an observed star with a second unclaimed catalogue star within tolerance is
-   left unnamed (a close double: either name could be right).
-5. **Verify**: at least ``min_matches`` matches and the binomial probability that that many
-   of the observed stars agree by chance (the test of :mod:`lodestar.firmware.starid.verify`:
-   ``p = N_fov pi tolerance^2 / Omega_fov`` per star, two matches free) below
-   ``max_mismatch_prob``.  Every reported match lies within ``tolerance_rad`` of its
-   catalogue star at the returned attitude.  With ``streaks`` (a smeared star seen only in
-   part) steps 4 and 5 use that star's region stretched along its track and the
-   Poisson-binomial probability of :mod:`lodestar.firmware.starid.verify`, and its fits weigh it
-   less (:func:`lodestar.firmware.starid.search.streak_weights`).
-
-Result: a :class:`TrackSolution` with the attributes of an identification ``Solution``
-(``status``, ``q``, ``matches`` = ``[(observed index, HIP)]``, ``star_ids`` =
-``[(observed index, database star index)]``, ``patterns_tried`` (0: no pattern search),
-``probability``, ``hypotheses``) plus ``q_predicted``, ``n_predicted`` and
-``residual_rad`` (RMS angle between matched observed and catalogue stars).  Status codes
-are :mod:`lodestar.firmware.status`'s: ``OK``, ``TOO_FEW_STARS`` (fewer than
-``min_matches`` observed stars), ``NO_MATCH`` (association or verification failed: the
-pipeline falls back to lost-in-space), ``BAD_INPUT`` (bad prior, vectors or parameters).
-Never raises for bad data.
-
-Pure Python for CPython and MicroPython: ``math`` and ``array``; memory is the cone's stars
-as arrays (14 bytes a star), the predicted-star list (a few dozen entries) and the candidate
-list.
+:func:`track` takes camera-frame unit vectors of the observed stars, **brightest first**, a
+database and a prior ``q = [x, y, z, w]`` (``v_cam = A(q) v_inertial``), optionally propagated
+by ``omega`` (rad/s, camera frame) over ``dt`` (s) (:func:`propagate`); angles in radians
+(``docs/conventions.md``).  It predicts the catalogue stars, associates them by displacement
+consensus (robust to a prior off by up to ``search_rad``), refines by QUEST and nearest
+neighbour, and verifies as lost-in-space does.  Returns a :class:`TrackSolution`; ``NO_MATCH``
+tells the pipeline to fall back to lost-in-space.  Never raises for bad data.  Steps and the
+result's fields: ``docs/centroids_and_tracking.md`` (Tracking).  Pure Python for CPython and
+MicroPython (``math``, ``array``).
 """
 
 import math
@@ -86,7 +38,7 @@ DEFAULT_ITERATIONS = 4
 class TrackSolution(Solution):
     """Result of :func:`track`: a :class:`~lodestar.firmware.starid.search.Solution`
     (``patterns_tried`` 0, one hypothesis: the prior) plus ``q_predicted``, ``n_predicted``
-    and ``residual_rad`` (module docstring)."""
+    and ``residual_rad`` (``docs/centroids_and_tracking.md``)."""
 
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
                  q_predicted=None, n_predicted=0, residual_rad=None):
@@ -214,7 +166,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None):
 
 
 def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
-    """Displacement-consensus association (step 3 of the module docstring):
+    """Displacement-consensus association (step 3 of ``docs/centroids_and_tracking.md``):
     ``[(observed index, star index)]``."""
     n = len(observed) if len(observed) < max_stars else max_stars
     cands = list(near_pairs(observed, predicted, search_rad, n))    # (o, p, dx, dy, dz)
@@ -322,8 +274,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
     ``weights`` (one positive number per observed star, e.g. ``sigma**-2``) weight the QUEST
     fits; None: equal (or :func:`lodestar.firmware.starid.search.streak_weights`).  ``streaks``:
     per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`): the fine
-    matching and the probability use its stretched region.  See the module docstring for
-    the algorithm and the statuses.
+    matching and the probability use its stretched region.  See ``docs/centroids_and_tracking.md``
+    for the algorithm and the statuses.
     """
     try:
         return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,

@@ -4,78 +4,9 @@ Every generator is deterministic: it takes ``(height, width)`` plus shape parame
 returns a C-contiguous numpy ``bool`` array of shape ``(height, width)`` (``True`` = lit).
 :func:`to_frame` turns a mask into a pixel frame, and :data:`ADVERSARIAL` maps a name to a
 zero-argument callable returning that shape at a moderate default size (24 x 32), so tests
-and the gateware co-simulation can iterate over every shape.
-
-What each shape stresses in a streaming single-pass labeller (row buffer of labels, merge
-table, feature table, completion detection, label free list; see ``golden/streaming.py``):
-
-``spiral``
-    One 4-connected simple path (no two pixels touch unless consecutive on it) winding
-    clockwise inward.  In raster order the inner rings' top edges start as blobs of their
-    own that join the path only near the bottom of the frame, nested one inside the other:
-    about one open blob and one merge per ring, merges resolved innermost first, and a
-    blob whose single chain of pixels passes through every row many times.
-``merge_chain``
-    A spine on row 0, then alternating rows of short pieces and runs offset by one column:
-    every run of the offset rows starts under a dark pixel (a new label) and merges into the
-    one blob at its end.  The blob's root changes once per run while the row buffer to the
-    right still holds the old labels, so the parent chain grows by one per run: finds walk
-    chains of about ``width / 4`` labels on every other row (a merge table without path
-    compression needs that many steps), and labels are recycled every row.
-``comb_down``
-    Teeth hanging from the top row (every ``pitch``-th column) that are joined only by a spine
-    on the **last** row: ``width / pitch`` blobs stay open for the whole frame and are all
-    merged by the one run of the last row (maximum merges per run, completion at frame end).
-``comb_up``
-    The mirror image: a spine on the **first** row with teeth hanging down.  One blob from the
-    first row on, with many row-buffer entries pointing at the same label; no merges, but the
-    blob completes only when the last tooth ends.
-``nested_u``
-    Concentric U shapes, all arms starting on row 0.  Each U is two open blobs until its own
-    bottom row merges them; inner U's merge (and complete) before outer ones, so merges and
-    completions interleave at many depths.
-``staircase``
-    Parallel 4-connected stairs (each step shares a column with the next row's step),
-    separated by dark pixels, so the count is one blob per stair.  Descending to the right,
-    every row's run continues the stair from its first pixel; descending to the left, every
-    row's run starts a new label and merges into the stair at its last pixel (one merge per
-    stair per row; the stair's root changes every row).
-``diagonal_staircase``
-    Square cells along diagonals that touch **only at corners**.  Under 4-connectivity
-    diagonal contact must not connect: every cell is its own blob.  A labeller that looks at
-    the up-left/up-right neighbours merges them all.
-``checkerboard``
-    Every lit pixel is its own blob: the maximum number of labels per row, a label started,
-    completed and freed every other pixel (label reuse at full rate).
-``vertical_stripes``
-    Every ``period``-th column lit over the full height: ``width / period`` blobs open at
-    once for the whole frame (with period 2: ``ceil(width / 2)``, within one of the bound
-    ``max_open_blobs(width)``).
-``random_mask``
-    Uniform random masks; near the site-percolation threshold (density 0.5927) clusters are
-    fractal, with merges at every scale, deep merge chains and mixed small and huge blobs.
-``edges_and_corners``
-    Single pixels in all four corners and small blobs touching each of the four edges:
-    column 0 (no left neighbour), the last column, row 0 (no row above) and the last row
-    (completed by the end of frame, not by a row below).
-``full``
-    Every pixel lit: one blob of ``height * width`` pixels touching all edges.
-``empty``
-    No pixel lit: no blob, no label ever allocated.
-``serpentine``
-    A boustrophedon path (rows or columns back and forth).  Along rows, after each turn at
-    the right end the next full row starts as a new blob at column 0 and merges into the path
-    at its right end (turns at the left end just continue the path); along columns, the
-    column pairs joined on row 0 are separate blobs until the turns on the last row merge
-    them, one after the other, through all columns.
-``w_shape``
-    A zig-zag line (4-connected strokes) with peaks on row 0 and valleys on the last row: one
-    blob per peak until the last row merges each pair of neighbouring peaks, in one row.
-``sawtooth``
-    Ramp-shaped teeth rising to the right, standing on a full-width bar in the last row.  In
-    every row where a ramp steps down, the tooth's run starts with a new label that merges
-    into the tooth at the step (the run's label becomes the root, the old root a child), and
-    the bar's single run merges every tooth at once.
+and the gateware co-simulation can iterate over every shape.  Each shape stresses a part of a
+streaming single-pass labeller (row buffer, merge table, feature table, completion, label
+reuse; ``golden/streaming.py``); what each one stresses: ``docs/golden_models.md``.
 """
 
 import numpy as np
@@ -83,7 +14,8 @@ import numpy as np
 __all__ = [
     "spiral", "comb_down", "comb_up", "nested_u", "staircase", "diagonal_staircase",
     "checkerboard", "vertical_stripes", "random_mask", "edges_and_corners", "full", "empty",
-    "serpentine", "w_shape", "sawtooth", "merge_chain", "to_frame", "ADVERSARIAL", "PERCOLATION_THRESHOLD",
+    "serpentine", "w_shape", "sawtooth", "merge_chain", "to_frame", "ADVERSARIAL",
+    "PERCOLATION_THRESHOLD",
     "DEFAULT_SHAPE",
 ]
 

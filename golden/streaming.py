@@ -1,30 +1,12 @@
 """Streaming architectural model: the executable spec of the detection gateware.
 
-It consumes pixels in raster order, one at a time, with the structures the gateware uses:
-
-* **threshold unit** -- fixed/global levels latched per frame; in local mode a running window
-  sum over a delay line of the row (the window reaches ahead, so the gateware delays the
-  pixel stream by ``L`` pixels);
-* **label row buffer** -- one label per column: the labels of row ``y - 1`` right of the scan
-  position and of row ``y`` left of it (the *wavefront*);
-* **merge table** -- ``parent[label]``; a root is its own parent.  When a pixel joins the run
-  to its left (label ``rl``, always a root) and the blob above (root ``ru``) the table records
-  ``parent[ru] = rl``: the current run's label never changes inside a run;
-* **feature table** -- per root: the contract features plus ``last`` (raster index of the
-  blob's newest pixel) and ``tracked``; merged on union (sums saturate, min/max combine);
-* **completion** -- after the pixel at ``(x, y)``, the blob that owned ``(x, y - 1)`` is
-  complete iff its newest pixel is ``(x, y - 1)``: it got no pixel in row ``y`` up to ``x``,
-  and no pixel further right can reach it.  A virtual dark row after the last one completes
-  the rest.  So records leave in the raster order of each blob's last pixel;
-* **label reuse** -- a label returns to the free list when no row-buffer entry and no child
-  in the merge table refers to it (reference counts);
-* **capacities** -- ``cfg.labels`` tracked blobs open at once (more start *untracked*),
-  ``cfg.record_capacity`` records per frame.
-
-Dark pixels below a dark row-buffer entry change no state, so the model visits only the
-columns that are lit or below a labelled pixel; results do not depend on that shortcut.
-``peak_labels`` reports how many labels were alive at once (the depth the gateware's merge
-table needs) and ``peak_open`` how many tracked blobs were open at once (the feature table).
+It consumes pixels in raster order, one at a time (``docs/conventions.md``), with the
+structures the gateware uses: threshold unit, label row buffer, merge table, feature table,
+completion test and label reuse, with the gateware's capacities (``cfg.labels`` open blobs,
+``cfg.record_capacity`` records).  Its results are the contract's (``docs/contract.md``),
+capacity limits included; ``peak_labels`` and ``peak_open`` report the merge-table and
+feature-table depths a frame needed.  The structures and the completion rule:
+``docs/golden_models.md`` (Streaming model).
 """
 
 import numpy as np

@@ -1,17 +1,11 @@
 """Fast golden model: whole-frame numpy + ``scipy.ndimage`` implementation of the contract.
 
-It labels the lit mask at once, reduces each blob's features over its pixels with exact
-``uint64`` sums (a blob's moments stay below 2**64 for every frame the contract admits:
-at most 2**24 pixels x (2**16 - 1) x 4095**2), saturates them to the contract widths, and
-orders records by the raster index of each blob's last pixel.  It is the reference for large
-frames and campaigns.
-
-Label capacity is the one limit a whole-frame method cannot see directly (it depends on how
-many blobs are open at each moment of the scan).  ``detect`` therefore bounds that number
-from above: when a blob starts at (x, y) the open blobs are at most the runs of lit pixels in
-the wavefront (row y-1 right of x, row y left of x) plus the new one.  If the bound never
-exceeds the capacity, no blob is untracked and the result is exact; otherwise the frame is
-handed to the streaming model, the executable spec of capacity limits.
+It labels the lit mask at once with exact ``uint64`` moment sums saturated to the contract
+widths, and orders records by the raster index of each blob's last pixel: the reference for
+large frames and campaigns.  A whole-frame method cannot see label capacity directly, so
+``detect`` bounds the open blobs from above; a frame that could exceed the capacity is handed
+to the streaming model (:mod:`lodestar.golden.streaming`), so results always match it.  The
+bound: ``docs/golden_models.md`` (Vectorized model).
 """
 
 import numpy as np

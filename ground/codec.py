@@ -1,54 +1,13 @@
 """FPGA->MCU blob packet: ``encode`` a frame's ``DetectionResult`` to bytes, ``decode`` it back.
 
-Byte layout
------------
-Every field is an unsigned integer, MSB first (big-endian bit order), packed with no padding;
-the widths and order are those of ``lodestar.contract`` and nothing here restates them::
-
-    bytes 0 .. contract.HEADER_BYTES - 1      header: contract.HEADER_FIELDS, beginning with
-                                              magic (contract.PACKET_MAGIC) and version
-                                              (contract.PACKET_VERSION)
-    then n_records x contract.RECORD_BYTES    records: contract.RECORD_FIELDS each, in emission
-                                              order (n_records is the header's last field)
-    then contract.CRC_BYTES                   CRC trailer
-
-so a packet is ``contract.packet_bytes(n_records)`` bytes long.  ``HEADER_LAYOUT`` and
-``RECORD_LAYOUT`` list each field's bit offset within its section.
-
-CRC
----
-The trailer is CRC-32 as ``zlib.crc32`` computes it (ISO-HDLC: reflected polynomial
-0xEDB88320, initial value and final XOR 0xFFFFFFFF) over the header and records, stored as an
-unsigned big-endian integer of ``contract.CRC_BYTES`` bytes.
-
-Errors
-------
-``encode`` raises ``ValueError`` naming the field (and the record index), its value and its
-width when a value is not an integer that fits its field; it never truncates.  ``decode``
-raises ``PacketError`` (a ``ValueError``) for every invalid packet, with a message naming the
-first failed check.  The checks are those of the flight decoder ``lodestar.firmware.packet``
-(the one home of the packet's rules, which returns statuses instead of raising), in this
-order:
-
-1. framing: not bytes-like; shorter than ``contract.packet_bytes(0)`` ("truncated"); bad
-   magic; unsupported version; length other than ``contract.packet_bytes(n_records)``
-   ("truncated" or "trailing bytes"); CRC mismatch (both CRCs in hex);
-2. header semantics: mode not an index of ``contract.MODE_NAMES``; pixel_bits not in
-   ``contract.PIXEL_BITS``; width/height outside ``1 .. contract.MAX_WIDTH/MAX_HEIGHT``;
-   threshold/background above full scale; frame flag bits outside
-   ``contract.FRAME_FLAGS_DEFINED``;
-   ``n_records != n_blobs - n_filtered - dropped_records``; ``FRAME_RECORD_OVERFLOW`` not set
-   exactly when ``dropped_records > 0``, ``FRAME_LABEL_OVERFLOW`` exactly when
-   ``dropped_labels > 0``;
-3. record semantics, per record ("record <index>: ..."): blob flag bits outside
-   ``contract.BLOB_FLAGS_DEFINED``; ``xmin > xmax`` or ``ymin > ymax``; bounding box beyond
-   the frame; ``peak`` above ``contract.full_scale(pixel_bits)``; ``nsat > n``; ``nsat > 0`` with
-   ``peak`` below full scale; ``n == 0``; ``n`` above the bounding-box area; a moment above
-   ``contract.moment_max(pixel_bits)``; ``BLOB_MOMENTS_SATURATED`` with no moment at its
-   maximum.
-
-Only ``bitstring.pack``, ``bitstring.Bits(bytes)``, ``unpack`` and ``tobytes`` are used, which
-behave alike in bitstring 4.2+ and 5.x.
+The layout is ``lodestar.contract``'s and nothing here restates it: header, ``n_records``
+records and a CRC-32 (``zlib.crc32``) trailer, every field an unsigned integer, MSB first,
+no padding; ``HEADER_LAYOUT`` and ``RECORD_LAYOUT`` list each field's bit offset within its
+section.  ``encode`` raises ``ValueError`` naming the field when a value is not an integer that
+fits its field (it never truncates); ``decode`` raises :class:`PacketError` (a ``ValueError``)
+naming the first failed check.  The checks are the flight decoder's
+(``lodestar.firmware.packet``, the one home of the packet's rules), in the order listed in
+``docs/contract.md`` (Packet checks).  Uses only the bitstring API common to 4.2+ and 5.x.
 """
 
 import operator
@@ -65,24 +24,14 @@ class PacketError(ValueError):
     """The bytes are not a valid packet; the message names the failed check and the values."""
 
 
-def _layout(fields):
-    """``(name, bit_offset, bits)`` of each ``(name, bits)`` field, offsets from the section start."""
-    layout = []
-    offset = 0
-    for name, bits in fields:
-        layout.append((name, offset, bits))
-        offset += bits
-    return tuple(layout)
-
-
 def _format(fields):
     """bitstring format string of ``(name, bits)`` fields: ``"uint:b0, uint:b1, ..."``."""
     return ", ".join("uint:{}".format(bits) for _, bits in fields)
 
 
-HEADER_LAYOUT = _layout(C.HEADER_FIELDS)
+HEADER_LAYOUT = C.field_offsets(C.HEADER_FIELDS)
 """``(name, bit_offset, bits)`` of each header field; offsets from the packet start."""
-RECORD_LAYOUT = _layout(C.RECORD_FIELDS)
+RECORD_LAYOUT = C.field_offsets(C.RECORD_FIELDS)
 """``(name, bit_offset, bits)`` of each record field; offsets from the record start."""
 
 _HEADER_FORMAT = _format(C.HEADER_FIELDS)
@@ -111,7 +60,8 @@ def _checked_values(where, fields, values):
         try:
             number = operator.index(value)
         except TypeError:
-            raise ValueError("{} field {}={!r} is not an integer".format(where, name, value))
+            raise ValueError("{} field {}={!r} is not an integer".format(
+                where, name, value)) from None
         if not 0 <= number < (1 << bits):
             raise ValueError("{} field {}={} does not fit its {}-bit field (0..{})".format(
                 where, name, number, bits, (1 << bits) - 1))
@@ -167,7 +117,7 @@ def decode(data):
 
     Blobs are ``contract.BlobRecord``; ``width``, ``height`` and ``pixel_bits`` are restored
     too, so ``decode(encode(r))`` equals ``r`` field for field.  The checks and their order
-    are listed in the module docstring.
+    are listed in ``docs/contract.md`` (Packet checks).
     """
     data = _as_bytes(data)
     minimum = C.packet_bytes(0)

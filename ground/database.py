@@ -187,8 +187,8 @@ def triangle_table(v32, groups, key_bits=16):
     vectors ``v32``): ``(records, area_step, moment_step)`` with ``records`` a structured
     array (area key, moment key, s0, s1, s2) sorted by ``(area key, moment key, s0, s1,
     s2)``; ``s0, s1, s2`` are opposite the shortest, middle and longest side (firmware
-    :func:`lodestar.firmware.triangle.canonical_order`), area and moment computed by the
-    firmware's own :func:`~lodestar.firmware.triangle.area_moment` on the stored vectors."""
+    :func:`lodestar.firmware.starid.triangle.canonical_order`), area and moment computed by the
+    firmware's own :func:`~lodestar.firmware.starid.triangle.area_moment` on the stored vectors."""
     vec = v32.astype(np.float64).tolist()
     n = len(groups)
     area = np.zeros(n)
@@ -213,7 +213,7 @@ def triangle_table(v32, groups, key_bits=16):
 
 class _HashGrid:
     """The bucket grid of a hash section (the attributes the firmware's
-    :func:`lodestar.firmware.hashing.bucket_code` reads from a database)."""
+    :func:`lodestar.firmware.starid.hashing.bucket_code` reads from a database)."""
 
     def __init__(self, coord_lo, coord_bucket, coord_buckets, flags, dist_bucket,
                  dist_buckets):
@@ -229,8 +229,8 @@ def hash_table(v32, groups, grid):
     """Hash records of the star groups ``groups`` (``(n, g)`` indices into ``v32``): a
     structured array (code, then the g stars in canonical order A, B, C(, D)) sorted by
     ``(code, stars)``, hashed by the firmware's own
-    :func:`lodestar.firmware.hashing.group_hash` and
-    :func:`~lodestar.firmware.hashing.bucket_code`."""
+    :func:`lodestar.firmware.starid.hashing.group_hash` and
+    :func:`~lodestar.firmware.starid.hashing.bucket_code`."""
     vec = v32.astype(np.float64).tolist()
     n, g = groups.shape
     names = ("a", "b", "c", "d")[:g]

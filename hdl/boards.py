@@ -1,32 +1,14 @@
 """Board top levels: sensor front end, detector, packetizer and SPI slave, on Cyclone IV boards.
 
-Two layers:
-
-* :class:`GatewareTop` (a ``wiring.Component``) is the whole design with its pins as ports,
-  simulatable and synthesizable on its own (the cocotb test and the resource report use it):
-  the sensor front end (:mod:`lodestar.hdl.mt9p031` parallel in the ``pix`` domain, or
-  :mod:`lodestar.hdl.mt9v022` LVDS bits in the ``ser`` domain), the detector
-  (:mod:`lodestar.hdl.detector`), the packetizer (:mod:`lodestar.hdl.packetizer`) and the SPI
-  slave (:mod:`lodestar.hdl.spi_slave`) in ``sync``.
-* :class:`BoardTop` puts a :class:`GatewareTop` on a board of :data:`BOARDS`: it requests the
-  board's resources, makes ``sync`` (a PLL or the board oscillator), the sensor clock domain
-  and the sensor's master clock, and hands the pins over.  ``board_platform(name)`` gives the
-  Amaranth ``AlteraPlatform`` (Quartus toolchain) with the pins of :data:`BOARDS`.
-
-MCU interface (both layers): SPI mode 0 (``sck``, ``mosi``, ``cs_n``, ``miso``, tri-stated while
-CS is high) with the command set of :mod:`lodestar.hdl.spi_slave`; ``irq`` is high while a
-packet is being delivered (from the moment the packetizer takes a frame's trailer until the
-packet's last CRC byte is read), so the MCU reads one packet per rising edge of ``irq`` with
-``READ_STREAM`` until ``irq`` falls (or reads the length from the header).  Register writes
-take effect on the next frame (the detector latches them at a frame's first pixel).
-
-The status word's ``overflow`` bits are the contract's ``OVF_*`` (:mod:`lodestar.contract.link`);
-``C.OVF_REG_REFUSED`` is the detector's ``reg_error``, cleared by the status read through its
-``reg_error_clear``.
-
-Pins and I/O standards of each board are in :data:`BOARDS` (and in the generated QSF); every
-pin marked *assumed* is on a custom header or board and must be checked against its
-schematic before the bitstream is loaded.
+:class:`GatewareTop` is the whole design with its pins as ports (simulatable and synthesizable
+on its own); :class:`BoardTop` puts it on a board of :data:`BOARDS` (clocks, resources) and
+``board_platform(name)`` gives the Amaranth ``AlteraPlatform``.  MCU interface: SPI mode 0
+with the commands of :mod:`lodestar.hdl.spi_slave`; ``irq`` is high while a packet is being
+delivered (the MCU reads one packet per rising edge with ``READ_STREAM``); register writes
+take effect on the next frame.  The status word's ``overflow`` bits are the contract's
+``OVF_*``.  Every pin marked *assumed* in :data:`BOARDS` must be checked against the board's
+schematic before the bitstream is loaded.  Details: ``docs/sensors_and_link.md`` (Board top
+levels).
 """
 
 from amaranth import (

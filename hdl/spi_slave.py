@@ -1,77 +1,14 @@
 """SPI slave for the MCU link: a byte layer (:class:`SPIByteSlave`) and the command layer on top
 (:class:`SPISlave`), both in the ``sync`` domain.
 
-Electrical protocol
--------------------
-SPI mode 0 (CPOL = 0, CPHA = 0: SCK idles low, both sides sample on the rising edge), MSB first,
-CS active low.  SCK, MOSI and CS_N are asynchronous to the system clock and each pass through a
-2-flop synchronizer (``amaranth.lib.cdc.FFSynchronizer``); an SCK rising edge is found by
-comparing the synchronized SCK with its previous value.  MISO is driven from a register
-(``miso_oe`` is high while CS is asserted, for a shared bus).  The slave presents the next bit
-on MISO as soon as it has seen the rising edge that sampled the previous one (the master does
-not look at MISO before its next rising edge), which is what makes a 4x clock ratio possible.
-
-Timing requirements, with ``T`` the system clock period, ``T_sck`` the SCK period and ``t_out``
-MISO's clock-to-output + board delay + the master's setup time:
-
-* ``T_sck >= 4 T + t_out``: an SCK rising edge is acted on 2 to 4 ``T`` after it happens (first
-  sample within ``T``, one more if that sample goes metastable and resolves late, the second
-  synchronizer flop, the shift register), and MISO must then settle before the master's next
-  rising edge.  MISO changes no earlier than ``2 T`` after the rising edge (the master's hold).
-  So the system clock must be at least 4x SCK plus the I/O margin: at 50 MHz, SCK <= 10 MHz
-  leaves 15 ns of ``t_out``.
-* SCK high and low each at least ``2 T`` (each level is then sampled cleanly at least once).
-  MOSI, which the master changes on the falling edge, is sampled within ``T`` of the rising edge
-  (the two synchronizers may resolve one clock apart), so ``T_sck / 2 >= 2 T`` covers it.
-* CS_N falling to the first SCK rising edge at least ``4 T`` (the first MISO bit is loaded and
-  the byte counter armed); the last SCK rising edge to CS_N rising at least ``2 T``; CS_N high
-  between transactions at least ``3 T`` (a shorter pulse may be missed and the transactions
-  merge).
-
-Byte layer (:class:`SPIByteSlave`)
-----------------------------------
-Received bytes leave as an always-ready stream ``rx`` (one beat per byte, on its 8th rising
-edge).  Bytes to send come from the stream ``tx``: at each byte boundary (CS falling, or the
-8th rising edge of the previous byte) the slave *peeks* ``tx.payload`` into its shift register
-and consumes it (``tx.ready``) only on that byte's first rising edge, when the master commits
-to clocking it; a transaction that ends first leaves the byte in the stream.  If ``tx.valid``
-is low at the boundary the slave shifts out ``FILLER`` instead and, if the master clocks it,
-pulses ``underrun``.  A partial byte at the end of a transaction is discarded.
-
-Command layer (:class:`SPISlave`): one command per transaction (CS low .. CS high)
--------------------------------------------------------------------------------
-Byte 0 on MOSI is the opcode; every read has one turnaround byte (byte 1) while the slave
-prepares the reply.  MISO carries ``FILLER`` wherever no reply byte is defined.
-
-==================  ======================================  =================================
-command             MOSI                                    MISO
-==================  ======================================  =================================
-``OP_WRITE_REG``    opcode, address, value (4 bytes, big     filler
-                    endian)
-``OP_READ_STATUS``  opcode, then any ``1 + STATUS_BYTES``   filler, filler, the status word
-                                                            (``STATUS_BYTES``, big endian)
-``OP_READ_STREAM``  opcode, then any bytes until CS rises   filler, filler, the packet bytes
-==================  ======================================  =================================
-
-* ``WRITE_REG``: ``address`` is the word address of ``lodestar.contract.REGISTERS``; the value
-  is the 32-bit register word (``contract.REGISTER_WORD_BITS``).  On the 6th byte the write
-  port (``reg_addr``, ``reg_data``, ``reg_strobe`` for one clock) fires if the address exists
-  and the value fits the register's field (``Register.bits``); otherwise the write is ignored
-  and counted as an error.  A transaction that ends before the 6th byte is counted as an error
-  and writes nothing.  Bytes after the 6th are ignored.  ``reg_addr`` and ``reg_data`` are
-  meaningful only while ``reg_strobe`` is high.
-* ``READ_STATUS``: the status word (``STATUS_FIELDS``, MSB first) is captured when the opcode
-  byte completes and sent from byte 2 on; ``status_read`` pulses at that moment, and the
-  ``errors`` and ``underruns`` counts restart from zero (they count events since the previous
-  status read).  The top level may use ``status_read`` to clear its sticky overflow flags.
-* ``READ_STREAM``: from byte 2 on, each byte is taken from the ``packet`` stream (valid/ready)
-  when the master clocks its first bit; bytes not clocked stay in the stream, so a read may end
-  anywhere and the next one continues.  A byte clocked while the stream is empty is
-  ``FILLER`` and counted in ``underruns``; the MCU learns of it from the status word.
-* An unknown opcode is counted as an error and the transaction is ignored.
-
-Errors (``errors``: unknown opcode, unknown register address, value wider than its register,
-aborted write) and ``underruns`` saturate at their maximum.
+SPI mode 0 (CPOL = 0, CPHA = 0), MSB first, CS active low; SCK, MOSI and CS_N pass through
+2-flop synchronizers, so the system clock must be at least 4x SCK plus the I/O margin (SCK
+high and low each >= 2 clocks, CS_N setup >= 4, hold >= 2, high >= 3 clocks).  One command
+per transaction: byte 0 is the opcode (``OP_WRITE_REG``, ``OP_READ_STATUS``,
+``OP_READ_STREAM``), every read has one turnaround byte, MISO carries ``FILLER`` where no
+reply byte is defined.  ``errors`` (unknown opcode or register, value too wide, aborted
+write) and ``underruns`` saturate and restart at each status read.  Protocol table, byte
+layer and timing derivation: ``docs/sensors_and_link.md`` (SPI slave).
 """
 
 from amaranth import Cat, Const, Module, Mux, Signal
@@ -89,7 +26,7 @@ and its output enable."""
 
 class SPIByteSlave(wiring.Component):
     """SPI mode 0 byte layer: pins (asynchronous) in, ``rx``/``tx`` byte streams, ``selected``
-    (synchronized CS) and ``underrun`` pulses in ``sync``.  See the module docstring."""
+    (synchronized CS) and ``underrun`` pulses in ``sync``.  See ``docs/sensors_and_link.md``."""
 
     def __init__(self):
         super().__init__({
@@ -143,7 +80,7 @@ class SPIByteSlave(wiring.Component):
 
 class SPISlave(wiring.Component):
     """SPI command slave: pins, the register write port, the status inputs and the packet byte
-    stream.  See the module docstring for the protocol and the timing requirements."""
+    stream.  Protocol and timing requirements: ``docs/sensors_and_link.md``."""
 
     def __init__(self):
         super().__init__({

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lodestar import contract as C
+from lodestar.golden import DetectorConfig
 
 from . import attitude, catalogue, photometry, render, sensor
 
@@ -217,7 +218,6 @@ def detector_config(cam, exposure_s=None, **changes):
 
     ``changes`` override any ``DetectorConfig`` field.
     """
-    from lodestar.golden import DetectorConfig
 
     t = cam.exposure_s if exposure_s is None else exposure_s
     dark_e = cam.dark_current_e_per_s * t + SKY_E_PER_PX_S * t

@@ -13,7 +13,7 @@ returns a :class:`Solution` (``status``, ``q``, ``matches``, ``patterns_tried``,
 * ``budget``: deterministic cap on the patterns tried.
 * ``options``: ``max_stars``, ``max_mismatch_prob``, ``distinct_rad``, ``streaks``.
 
-:data:`METHODS` names the methods, the firmware's one list: ``'pyramid'`` (Mortari's
+:data:`METHODS` (the contract's one list) names the methods: ``'pyramid'`` (Mortari's
 Pyramid, :mod:`.pyramid`), ``'triangle'`` (Lohmann's planar triangles, :mod:`.triangle`),
 ``'hashing'`` (Astrometry.net's geometric hash, :mod:`.hashing`).  Statuses are
 :mod:`lodestar.firmware.status` codes: ``BAD_INPUT`` for an unknown method,
@@ -21,16 +21,16 @@ Pyramid, :mod:`.pyramid`), ``'triangle'`` (Lohmann's planar triangles, :mod:`.tr
 Pure Python for CPython and MicroPython.
 """
 
+from lodestar.contract.stardb import METHODS
+
 from .. import status as S
 from . import hashing, pyramid, triangle
 from .search import Solution
 
-_REGISTRY = (("pyramid", pyramid), ("triangle", triangle), ("hashing", hashing))
-
-METHODS = tuple(name for name, _module in _REGISTRY)
-"""Identification method names, in the order of preference."""
-
-_MODULES = dict(_REGISTRY)
+_MODULES = {"pyramid": pyramid, "triangle": triangle, "hashing": hashing}
+"""The registry: each of the contract's :data:`METHODS` -> its module."""
+if sorted(_MODULES) != sorted(METHODS):
+    raise ImportError("starid: the registry does not match contract.stardb.METHODS")
 
 
 def method(name):

@@ -1,70 +1,13 @@
 """Geometric-hashing star identification (Astrometry.net's quad hash, as in Schumann 2019).
 
-Lang et al. (2010), "Astrometry.net: blind astrometric calibration of arbitrary astronomical
-images"; Schumann (2019), "Using Star Identification Algorithms on ESTCube-2 Star Tracker"
-(digest section 6).  Input: camera-frame unit vectors of the observed stars, **brightest
-first**; a :class:`lodestar.firmware.database.Database` with the ``hash`` section (built by
-``lodestar.ground.database`` with ``"hashing"`` in ``methods``).
-
-The hash of a group of 3 or 4 stars (:func:`group_hash`)
----------------------------------------------------------
-* ``A``, ``B``: the two most distant stars of the group (largest chord).
-* All stars are projected gnomonically onto the plane tangent to the sky at
-  ``m = (A + B) / |A + B|`` with the right-handed basis ``e1`` (along ``B - A``),
-  ``e2 = m x e1``: ``P' = (P.e1, P.e2) / P.m``.  The camera frame is right-handed too, so the
-  hash keeps the parity: a mirror image hashes differently (no mirror invariance).
-* Astrometry.net's similarity frame ``A = (0, 0)``, ``B = (1, 1)``: as complex numbers
-  ``z = (P' - A') (1 + i) / (B' - A')`` (:func:`frame_coords`); the hash is ``(x_C, y_C)``
-  for 3 stars and ``(x_C, y_C, x_D, y_D)`` for 4 (the *normalized* hash, invariant to
-  rotation and scale).
-* Symmetry breaking: swapping ``A`` and ``B`` maps ``(x, y)`` to ``(1 - x, 1 - y)``; the
-  canonical labelling has ``x_C + x_D <= 1`` and ``x_C <= x_D`` (4 stars) or ``x_C <= 1/2``
-  (3 stars).
-* The *non-normalized* hash also keys the angle ``d = angle(A, B)`` (the FOV is known), which
-  Schumann found to give far fewer false matches.
-
-Database (section 5): groups of stars of each sky region (the gnomonic-cube cells of
-:func:`lodestar.firmware.database.cell_of` with ``hash_regions_per_face`` per face: the
-``hash_stars_per_region`` brightest stars within ``hash_region_radius`` of the cell centre,
-every group of them with a diameter in ``[hash_min_diameter, hash_max_diameter]``), stored in
-canonical order under a **bucket code**: each hash coordinate quantised on the grid
-``hash_coord_lo + hash_coord_bucket * k`` (``k < hash_coord_buckets``, clamped), the angle
-``d`` on ``hash_dist_bucket`` steps (``k < hash_dist_buckets``) for the non-normalized hash,
-combined as mixed-radix digits ``((x_C, y_C[, x_D, y_D])[, d])``.  Records are sorted by code
-with a k-vector over the codes, so a bucket is found without a scan (:func:`bucket_code`).
-
-Tolerances: with each star known to ``eps``, ``z`` moves by at most
-``sqrt(2) eps' (1 + |1 - w| + |w|) / |B' - A'|`` with ``w = z / (1 + i)`` (the derivative of
-the complex formula in the three points) and ``eps' = eps (1 + r^2)`` the tangent-plane
-error at radius ``r``, times :data:`BOUND_MARGIN`; ``d`` moves by at most ``2 eps``.  The
-query visits every bucket the tolerance box overlaps, under every labelling that the
-tolerance allows (near-equal diameters, ``x_C ~ x_D``, ``x_C + x_D ~ 1``).
-
-Algorithm
----------
-1. Only the first ``max_stars`` (default 16) observed stars form groups.  Fewer stars than
-   the group size: ``TOO_FEW_STARS``.
-2. Groups brightest first (every group whose faintest star is ``k`` before any with a
-   fainter one); each counts as one *pattern* against the deterministic ``budget``.
-   Groups whose diameter is outside the database's range (+ tolerance), and labellings
-   whose coordinate tolerance exceeds :data:`MAX_TOL_BUCKETS` buckets, are skipped.
-3. For each admissible labelling: the buckets of the tolerance box (:func:`box_codes`,
-   their groups by :func:`box_records`: one k-vector query per run of buckets with groups
-   between them, most buckets being empty); each stored group in them has its hash
-   recomputed from the star table and must agree component by component (and in ``d`` for
-   the non-normalized hash); the handedness ``(A x B) . C`` must match.
-4. Each candidate (observed labels -> stored stars) is a hypothesis verified by
-   :func:`lodestar.firmware.starid.verify.verify`; all hypotheses of the first group with an
-   accepted one are verified, ``AMBIGUOUS`` if they disagree, else the best is refined and
-   returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
-
-Cost: the search's work is one group after another, almost all of them rejected by empty
-buckets, so the per-group path is kept lean without changing a single result: the chords and
-angles of the observed pairs are tabulated once, a diameter pair's tangent frame and
-projections serve both orientations and both ``C``/``D`` orders (:func:`_labellings`, bit
-for bit :func:`coords`), and a bucket below the next stored code needs no query.
-
-Pure Python for CPython and MicroPython (``math`` only).
+Lang et al. (2010), Astrometry.net; Schumann (2019), "Using Star Identification Algorithms on
+ESTCube-2 Star Tracker".  :func:`identify` takes camera-frame unit vectors of the observed
+stars, **brightest first**, and a :class:`lodestar.firmware.database.Database` with the
+``hash`` section (``"hashing"`` in the ``methods`` of ``lodestar.ground.database``); statuses
+as the other methods.  :func:`group_hash` is the hash of 3 or 4 stars (parity kept: a mirror
+image hashes differently), :func:`bucket_code` its database key.  Hash, bucket codes,
+tolerances, algorithm and the lean per-group path: ``docs/starid.md`` (Hashing).  Pure Python
+for CPython and MicroPython (``math`` only).
 """
 
 import math
@@ -446,7 +389,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
 
 def _groups(g, n):
     """Groups of ``g`` (3 or 4) of ``n`` stars, ascending indices, every one whose faintest
-    star is ``k`` before any with a fainter one (module docstring, step 2)."""
+    star is ``k`` before any with a fainter one (``docs/starid.md``, Hashing step 2)."""
     for k in range(g - 1, n):
         for j in range(g - 2, k):
             for i in range(g - 3, j):

@@ -1,62 +1,13 @@
 """Mortari's Pyramid lost-in-space star identification over the k-vector pair database.
 
 Mortari, Samaan, Bruccoleri & Junkins, "The Pyramid Star Identification Technique",
-Navigation 51(3), 2004.  Input: camera-frame unit vectors of the observed stars, **brightest
-first**; a :class:`lodestar.firmware.database.Database` with the pyramid sections.
-
-Algorithm
----------
-1. **Pattern stars.** Only the first ``max_stars`` (default 16) observed stars form patterns
-   (all observed stars take part in the verification).  Fewer than 4 observed stars:
-   ``TOO_FEW_STARS``.
-2. **Enumeration** (Mortari's order, which does not get stuck on a false star: the start
-   index ``i`` varies fastest and the index gaps slowest, so consecutive triples move all
-   three stars and a false star is left behind at once)::
-
-       for dj in 1 .. n-2:
-         for dk in 1 .. n-dj-1:
-           for i in 0 .. n-dj-dk-1:
-             j = i + dj;  k = j + dk          # the triple (i, j, k)
-
-   Each triple counts as one *pattern* against the deterministic ``budget``.
-3. **Triangle candidates.** The three observed inter-star angles are looked up in the
-   k-vector with the pair tolerance ``pair_tol = sqrt(2) tolerance_rad + key_step``
-   (``tolerance_rad`` bounds one star's direction error; a streak, below, adds its ``half``
-   to every side it belongs to).  A catalogue triangle
-   ``(I, J, K)`` is consistent when ``{I, J}`` is a candidate of side ``ij``, ``{I, K}`` of
-   ``ik`` and ``{J, K}`` of ``jk``.
-4. **Handedness.** ``(b_i x b_j) . b_k`` must have the sign of ``(r_I x r_J) . r_K``
-   (a rotation preserves it, a mirror image flips it).  The test is skipped when the
-   observed triple product is within its error bound
-   ``tolerance_rad (sin t_ij + sin t_jk + sin t_ki)`` of zero (a near-collinear triangle
-   has no reliable handedness; the fourth star and the verification still apply); a streak
-   raises ``tolerance_rad`` there by the largest ``half`` of the three stars.
-5. **Pyramid.** A fourth observed star ``r`` confirms the triangle when a catalogue star
-   ``R`` matches its three angles to ``i, j, k`` (candidates from the k-vector for ``ri``,
-   the other two angles computed from the star table) with consistent handedness of
-   ``(i, j, r)``.  The first ``r`` found (lowest index) is used, as in Mortari.
-6. **Verification** (:func:`lodestar.firmware.starid.verify.verify`): the q-method attitude of the
-   four stars, all catalogue stars predicted in the FOV, one-to-one matches within
-   ``tolerance_rad`` and the binomial probability of that many chance matches; accepted if
-   below ``max_mismatch_prob``.  All candidate pyramids of the first triple that yields an
-   accepted hypothesis are verified: if two accepted attitudes differ by more than
-   ``distinct_rad`` the result is ``AMBIGUOUS``.  The accepted hypothesis is refined
-   (q-method over all its matches, matched again, while the match set grows) and returned
-   with status ``OK``; its ``q`` is the q-method fit of exactly the reported matches.
-
-Streaks (``streaks``, :mod:`lodestar.firmware.starid.verify`): a smeared star seen only in part is
-known to ``tolerance_rad`` across its track and to ``tolerance_rad + half`` along it; its
-pair tolerances and handedness bounds widen by ``half`` (an angle to it can be off by the
-whole offset along the track) and the verification matches it over its stretched region.
-
-The search stops with ``NO_MATCH`` when all triples are exhausted, or
-``BUDGET_EXHAUSTED`` when ``budget`` triples were tried first.
-
-Pure Python for CPython and MicroPython (``math`` and ``array``).  Working memory: the
-observed-angle table, the k-vector range of each observed pair (queried once per search),
-and per triple two candidate sides indexed by star in ``array('H')`` chains (16 bytes a pair
-at most, :data:`CHUNK` pairs a side at a time), the third side streamed from the database in
-blocks of :data:`lodestar.firmware.database.PAIR_BLOCK` records.
+Navigation 51(3), 2004.  :func:`identify` takes camera-frame unit vectors of the observed
+stars, **brightest first**, and a :class:`lodestar.firmware.database.Database` with the pyramid
+sections; it returns a :class:`lodestar.firmware.starid.search.Solution` (``OK``,
+``TOO_FEW_STARS`` below 4 stars, ``AMBIGUOUS``, ``NO_MATCH``, ``BUDGET_EXHAUSTED``).  Angles in
+radians (``docs/conventions.md``).  Triples are enumerated in Mortari's order, confirmed by a
+fourth star and verified by the shared search; the algorithm, tolerances and memory use are in
+``docs/starid.md`` (Pyramid).  Pure Python for CPython and MicroPython (``math``, ``array``).
 """
 
 import math
@@ -283,7 +234,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     verification match radius).  ``budget``: most triples tried.  ``max_stars``: observed
     stars used for patterns.  ``distinct_rad``: attitudes further apart than this are
     distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
-    partly seen track (module docstring), or None.
+    partly seen track (``docs/starid.md``, Search), or None.
     """
     code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 4,
                        streaks)
@@ -295,7 +246,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
 
 
 def _triples(n):
-    """Mortari's triple order over ``n`` stars (module docstring, step 2)."""
+    """Mortari's triple order over ``n`` stars (``docs/starid.md``, Pyramid step 2)."""
     for dj in range(1, n - 1):
         for dk in range(1, n - dj):
             for i in range(0, n - dj - dk):

@@ -1,15 +1,13 @@
 """The search shared by every identification method: hypotheses, refinement, decision.
 
-A method enumerates observed patterns (star triples, star groups) brightest first; each
-catalogue candidate of a pattern is a hypothesis ``(observed stars -> catalogue stars)``
-that :class:`Search` fits (Davenport's q-method, weighted down for partly seen tracks) and
-verifies (:func:`lodestar.firmware.starid.verify.verify`).  The first pattern with an
-accepted hypothesis ends the search: ``AMBIGUOUS`` if two accepted attitudes are more than
-``distinct`` apart, else the most probable one refined over all its matches (``OK``).
-Patterns count against a deterministic ``budget`` (``BUDGET_EXHAUSTED``); ``NO_MATCH`` when
-they run out.  Statuses are :mod:`lodestar.firmware.status` codes.
-
-Pure Python for CPython and MicroPython (``math`` only).
+A method enumerates observed patterns brightest first; each catalogue candidate of a pattern
+is a hypothesis ``(observed stars -> catalogue stars)`` that :class:`Search` fits (q-method,
+partly seen tracks weighted down) and verifies (:func:`lodestar.firmware.starid.verify.verify`).
+The first pattern with an accepted hypothesis ends the search: ``AMBIGUOUS`` if two accepted
+attitudes are more than ``distinct`` apart, else the best refined over all its matches
+(``OK``); ``BUDGET_EXHAUSTED`` / ``NO_MATCH`` otherwise (:mod:`lodestar.firmware.status`).
+Angles in radians (``docs/conventions.md``); details in ``docs/starid.md`` (Search).  Pure
+Python for CPython and MicroPython (``math`` only).
 """
 
 from .. import attitude as _attitude
@@ -132,8 +130,8 @@ class Search:
     ``b``: observed unit vectors (brightest first); ``db``: the database; ``tol``: the
     direction tolerance (rad); ``max_prob``: acceptance threshold of the binomial
     probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
-    ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (module
-    docstring), or None for none.  ``half`` lists each star's ``half`` (0 without a
+    ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (``docs/starid.md``,
+    Search), or None for none.  ``half`` lists each star's ``half`` (0 without a
     streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
     verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
     """

@@ -1,56 +1,13 @@
 """Lohmann's planar-triangle star identification: area and polar moment over a k-vector.
 
-Lohmann (2017), "Star Imager for Nanosatellite Applications", section 2.6 of the digest
-(with the errata of its section 8); tolerances after Cole & Crassidis (2006), "Fast star
-pattern recognition using planar triangles".  Input: camera-frame unit vectors of the
-observed stars, **brightest first**; a :class:`lodestar.firmware.database.Database` with the
-``triangles`` section (built by ``lodestar.ground.database`` with ``"triangle"`` in
-``methods``).
-
-Geometry (unit vectors ``v1, v2, v3``; the triangle is the *planar* one of their chords)
-------------------------------------------------------------------------------------
-* Sides (corrected formulas): ``a = |v1 - v2|``, ``b = |v2 - v3|``, ``c = |v1 - v3|``
-  (:func:`sides`).
-* Area by Heron, ``A = sqrt(s (s - a)(s - b)(s - c))``, ``s = (a + b + c) / 2``, evaluated in
-  Kahan's cancellation-free order (:func:`area`).
-* Polar moment ``J = A (a^2 + b^2 + c^2) / 36`` (:func:`moment`).
-* Both are invariant under rotation *and* reflection and under vertex permutations; the
-  vertex correspondence comes from the side lengths and the reflection from the handedness.
-
-Database (section 4, ``lodestar.ground.database``): triangles of pattern stars, each stored
-as ``(area_key, moment_key, s0, s1, s2)`` with ``s0, s1, s2`` the stars **opposite the
-shortest, middle and longest side** (the canonical vertex order), sorted by area key, with a
-k-vector over the area keys.
-
-Tolerances (:func:`bounds`, Cole & Crassidis' Jacobian, as a worst case instead of a
-k-sigma): a direction error ``|d v_i| <= eps`` moves the area by at most
-``|grad_i A| eps`` per star with ``|grad_i A| = (side opposite v_i) / 2``, so
-``dA <= eps (a + b + c) / 2``; the moment's gradient is
-``grad_i J = (S2 / 36) grad_i A + (A / 18)(2 v_i - v_j - v_k)`` (``S2 = a^2 + b^2 + c^2``),
-bounded by the triangle inequality.  A second-order term and half a key step (the stored
-keys are rounded) are added.  Sides match to ``2 eps``.
-
-Algorithm
----------
-1. Only the first ``max_stars`` (default 16) observed stars form triangles; all take part
-   in the verification.  Fewer than 3: ``TOO_FEW_STARS``.
-2. Triples brightest first: ``for k in 2..n-1: for j in 1..k-1: for i in 0..j-1`` (every
-   triple whose faintest star is ``k`` before any triple with a fainter one).  Each counts
-   as one *pattern* against the deterministic ``budget``; triples with a side longer than
-   the database's ``tri_max_side`` (+ tolerance) are skipped after counting.
-3. Candidates: the k-vector range of the area, then the moment filter, then the side
-   lengths: every vertex correspondence (permutation) whose three opposite sides agree to
-   ``2 eps``; then the handedness ``(b1 x b2) . b3`` against the catalogue's (mirror images
-   are rejected; skipped within its error bound for a near-collinear triangle).
-4. Each surviving correspondence is a hypothesis verified by
-   :func:`lodestar.firmware.starid.verify.verify` (q-method attitude of the three stars, binomial
-   false-match probability over the whole field, accepted below ``max_mismatch_prob``).
-   All hypotheses of the first triple that yields an accepted one are verified;
-   attitudes more than ``distinct_rad`` apart give ``AMBIGUOUS``; else the best is refined
-   and returned ``OK`` (:class:`lodestar.firmware.starid.search.Search`).
-
-``NO_MATCH`` when the triples run out, ``BUDGET_EXHAUSTED`` when ``budget`` triples were
-tried first.  Pure Python for CPython and MicroPython (``math`` only).
+Lohmann (2017), "Star Imager for Nanosatellite Applications"; tolerances after Cole &
+Crassidis (2006).  :func:`identify` takes camera-frame unit vectors of the observed stars,
+**brightest first**, and a :class:`lodestar.firmware.database.Database` with the ``triangles``
+section (``"triangle"`` in the ``methods`` of ``lodestar.ground.database``); statuses as the
+other methods (``TOO_FEW_STARS`` below 3 stars).  The geometry helpers (:func:`sides`,
+:func:`area`, :func:`moment`, :func:`bounds`) work on planar chord triangles of unit vectors.
+Geometry, database layout, tolerances and algorithm: ``docs/starid.md`` (Triangle).  Pure
+Python for CPython and MicroPython (``math`` only).
 """
 
 import math
@@ -216,7 +173,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
 
 def _triples(n):
     """Triples of ``n`` stars, every one whose faintest star is ``k`` before any with a
-    fainter one (module docstring, step 2)."""
+    fainter one (``docs/starid.md``, Triangle step 2)."""
     for k in range(2, n):
         for j in range(1, k):
             for i in range(j):

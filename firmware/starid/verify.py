@@ -4,10 +4,10 @@
 them one to one with the observed stars (within ``tolerance_rad``, or over the region a
 partly seen track stretches, :func:`in_region`) and gives the probability that that many
 matches happen by chance (binomial, Poisson-binomial with tracks).  A hypothesis is accepted
-when the probability is below the caller's ``max_mismatch_prob``.  The model and its
-derivation are in ``docs/firmware.md`` (star identification, verification).
+when the probability is below the caller's ``max_mismatch_prob``.  The model is in
+``docs/starid.md`` (Verification).
 
-Conventions (``lodestar.sim``): ``q = (x, y, z, w)``, scalar last, ``v_cam = R(q)
+Conventions (``docs/conventions.md``): ``q = (x, y, z, w)``, scalar last, ``v_cam = R(q)
 v_inertial``; angles in radians.  Pure Python for CPython and MicroPython (``math`` only).
 """
 
@@ -77,7 +77,7 @@ def fov_solid_angle(fov_h, fov_v):
 class Verification:
     """Outcome of :func:`verify`: ``pairs`` (list of ``(observed_index, star_index)``),
     ``n_fov`` (catalogue stars predicted in the FOV), ``p_single`` (chance-match probability
-    per observed star) and ``probability`` (binomial tail, see the module docstring)."""
+    per observed star) and ``probability`` (binomial tail, ``docs/starid.md``)."""
 
     def __init__(self, pairs, n_fov, p_single, probability):
         self.pairs = pairs
@@ -118,7 +118,7 @@ def in_region(dx, dy, dz, streak, lim):
     """True when the offset ``(dx, dy, dz)`` of an observed unit vector from a predicted one
     lies in the observed star's match region: within the chord ``lim`` of the predicted
     star, widened along a ``streak`` ``(ux, uy, uz, half)`` to the stadium of points within
-    ``lim`` of the segment ``+-chord(half)`` along ``u`` (module docstring; None: a disc)."""
+    ``lim`` of the segment ``+-chord(half)`` along ``u`` (``docs/starid.md``; None: a disc)."""
     d2 = dx * dx + dy * dy + dz * dz
     if streak is None:
         return d2 <= lim * lim
@@ -201,7 +201,7 @@ def match_stars(observed, predicted, tolerance_rad, streaks=None):
 
 def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     """Per observed star, the probability that one of ``n_fov`` stars scattered over the
-    solid angle ``omega`` falls in its match region (module docstring)."""
+    solid angle ``omega`` falls in its match region (``docs/starid.md``)."""
     disc = math.pi * tolerance_rad * tolerance_rad
     out = []
     for o in range(n):
@@ -230,7 +230,7 @@ def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks
                      free_matches=2):
     """``(p_single, probability)``: the largest per-star chance-match probability and the
     probability that ``n_matched`` of ``n_observed`` stars (``free_matches`` of them free)
-    agree by chance with ``n_fov`` stars over the solid angle ``omega`` (module docstring:
+    agree by chance with ``n_fov`` stars over the solid angle ``omega`` (``docs/starid.md``:
     binomial, or Poisson-binomial with ``streaks``)."""
     if streaks is None or not any(streaks):
         p = n_fov * math.pi * tolerance_rad * tolerance_rad / omega

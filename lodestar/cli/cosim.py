@@ -78,7 +78,7 @@ def run(args):
         override = _config_from_args(args)
         loaded = [(name, *_load(name, override)) for name in args.frames]
         cfg = loaded[0][2]
-        for name, frame, c in loaded:
+        for name, _frame, c in loaded:
             if (c.width, c.height, c.pixel_bits) != (cfg.width, cfg.height, cfg.pixel_bits):
                 raise ValueError(f"{name}: geometry {c.width}x{c.height}x{c.pixel_bits} differs "
                                  f"from the first frame's; run them separately")

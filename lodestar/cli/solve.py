@@ -25,7 +25,7 @@ def add_parser(sub):
     p = sub.add_parser("solve", help="detect, identify and solve a sky image (PNG/TIFF/FITS)",
                        description="Detect, identify and solve a real sky image with the "
                                    "golden detector (local threshold mode) and the flight "
-                                   "firmware.  See lodestar/imagesolve.py for the rules.")
+                                   "firmware.  See docs/image_solving.md for the rules.")
     p.add_argument("image", help="PNG, TIFF or FITS file")
     cam = p.add_argument_group("camera (one of)")
     cam.add_argument("--preset", choices=PRESETS, default=None,

@@ -49,10 +49,10 @@ STAR_FLAG_HASH = 4           # flag bit: the star is a member of a stored hash g
 METHOD_PYRAMID = 1
 METHOD_TRIANGLE = 2
 METHOD_HASHING = 4
-METHOD_NAMES = {"pyramid": METHOD_PYRAMID, "triangle": METHOD_TRIANGLE,
-                "hashing": METHOD_HASHING}
 METHODS = ("pyramid", "triangle", "hashing")
 """The identification methods, in the order of their bits: the one list of the project."""
+METHOD_NAMES = dict(zip(METHODS, (METHOD_PYRAMID, METHOD_TRIANGLE, METHOD_HASHING)))
+"""Method name -> its bit in the header's ``methods`` mask."""
 METHOD_SECTIONS = {METHOD_PYRAMID: (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
                    METHOD_TRIANGLE: (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
                    METHOD_HASHING: (SEC_STARS, SEC_CELLS, SEC_HASH)}

@@ -1,6 +1,6 @@
 """cocotb test module of ``lodestar.cosim``: clock the harness and let it play its stimulus.
 
-The harness (``cosim_harness.sv``) runs its own clock, reads the stimulus and writes the
+The harness (``harness.sv``) runs its own clock, reads the stimulus and writes the
 output itself; this test only raises ``start`` and waits for ``done``.  The harness stops at
 the end of the stimulus file, so the wait is bounded.
 """

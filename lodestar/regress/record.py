@@ -32,7 +32,7 @@ from lodestar.golden import detect_frame
 from lodestar.ground import codec as packet
 from lodestar.ground import flight as flightsolve
 from lodestar.ground import truth as campaign_truth
-from lodestar.regress import mcu as regress_replay
+from lodestar.regress import mcu
 from lodestar.regress import replay as regress
 from lodestar.sim import attitude, goldenset, presets
 from lodestar.sim.goldenset import DENSE, ORION
@@ -260,9 +260,9 @@ def record(set_dir, cache_dir=None, log=None):
     db_files = regress.database_files(manifest, cache_dir)
     trackers = {}
     for preset in presets_used:
-        db = regress_replay.open_database(str(db_files[preset]))
+        db = mcu.open_database(str(db_files[preset]))
         for method in regress.METHODS:
-            trackers[preset, method] = regress_replay.make_tracker(db, cameras[preset], method)
+            trackers[preset, method] = mcu.make_tracker(db, cameras[preset], method)
 
     frames, files, problems = {}, {}, []
     for case in CASES + DERIVED:
@@ -277,7 +277,7 @@ def record(set_dir, cache_dir=None, log=None):
             inputs = {"omega": None, "exposure_s": truth["exposure_s"], "prior": None,
                       "dt": None}
             truth_doc = None
-        outcomes = {m: regress_replay.replay(trackers[camera, m], data, inputs)
+        outcomes = {m: mcu.replay(trackers[camera, m], data, inputs)
                     for m in regress.METHODS}
         errors = {}
         for method, out in outcomes.items():

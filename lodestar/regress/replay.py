@@ -16,7 +16,7 @@ from lodestar.ground import solve as ground_solve
 from lodestar.ground.cache import write_atomic
 from lodestar.ground.database import build_database
 from lodestar.ground.flight import DEFAULT_MAX_MAG
-from lodestar.regress import mcu as regress_replay
+from lodestar.regress import mcu
 from lodestar.regress import micropython as regress_micropython
 
 SET_FORMAT = 1
@@ -155,15 +155,15 @@ def packets(manifest, set_dir):
 def replay_cpython(manifest, set_dir, db_files, methods=None):
     """``{(case, method): outcome}`` of every case on this interpreter."""
     methods = manifest["methods"] if methods is None else methods
-    databases = {name: regress_replay.open_database(str(path))
+    databases = {name: mcu.open_database(str(path))
                  for name, path in db_files.items()}
     trackers = {}
     for cam, settings in manifest["cameras"].items():
         for method in methods:
-            trackers[cam, method] = regress_replay.make_tracker(
+            trackers[cam, method] = mcu.make_tracker(
                 databases[settings["database"]], settings, method)
     data = packets(manifest, set_dir)
-    return {(case["name"], method): regress_replay.replay(trackers[case["camera"], method],
+    return {(case["name"], method): mcu.replay(trackers[case["camera"], method],
                                                           data[case["name"]], case["inputs"])
             for case in manifest["cases"] for method in methods}
 

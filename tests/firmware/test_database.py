@@ -37,7 +37,8 @@ def reseal(image, patch=None):
     b = bytearray(image)
     if patch:
         patch(b)
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
+                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -164,8 +165,9 @@ def test_named_mismatches():
     assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, off, len(image)))) == \
         S.DATABASE_BAD_LAYOUT
     stars_off = struct.unpack_from("<I", image, stardb.DIRECTORY_OFFSET)[0]
+    cells_entry = stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_CELLS
     assert status_of(reseal(image, lambda b: struct.pack_into(
-        "<I", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_CELLS, stars_off))) == S.DATABASE_BAD_LAYOUT
+        "<I", b, cells_entry, stars_off))) == S.DATABASE_BAD_LAYOUT
     # a missing required section
     assert status_of(reseal(image, lambda b: struct.pack_into(
         "<II", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_PAIRS, 0, 0))) == S.DATABASE_BAD_LAYOUT

@@ -1,4 +1,4 @@
-"""The labeller's algorithm (``tests/wavefront_model.py``) against the golden streaming model,
+"""The labeller's algorithm (``golden/wavefront.py``) against the golden streaming model,
 and the memory-access spacing the gateware relies on."""
 
 import numpy as np

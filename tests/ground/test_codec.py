@@ -1,5 +1,5 @@
-"""Tests of ``lodestar.ground.codec``: exact round trips, framing errors, semantic checks, encode limits
-and the byte layout, all against ``lodestar.contract``.
+"""Tests of ``lodestar.ground.codec``: exact round trips, framing errors, semantic checks,
+encode limits and the byte layout, all against ``lodestar.contract``.
 
 Field positions are computed here from ``contract.HEADER_FIELDS``/``RECORD_FIELDS`` with plain
 integer arithmetic (not bitstring), so the codec's packing is checked independently.

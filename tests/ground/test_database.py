@@ -79,8 +79,8 @@ def test_estcube2_all_methods_size_budget(record_property):
         one = L.Database(G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
                                           methods=(name,)))
         assert one.methods == bit and one.n_pairs == 0 and one.n_pattern_stars == 0
-        assert [i for i, (o, n) in enumerate(one.sections) if n] == [stardb.SEC_STARS, stardb.SEC_CELLS,
-                                                                     sec]
+        assert [i for i, (o, n) in enumerate(one.sections) if n] == [
+            stardb.SEC_STARS, stardb.SEC_CELLS, sec]
 
 
 def test_deterministic():

@@ -60,7 +60,7 @@ def test_solves_synthetic_centroid_scenes(cache, catalogue):
     fov = pinhole_fov_deg(cam)
     rng = np.random.default_rng(21)
     counts = {"correct": 0, "wrong": 0, "no-solve": 0}
-    for i in range(25):
+    for _ in range(25):
         q = random_attitude(rng)
         scene = centroid_scene(cam, q, rng, catalogue, noise_px=float(rng.uniform(0.05, 1.0)),
                                n_false=int(rng.integers(0, 6)), drop_fraction=0.1,

@@ -43,8 +43,8 @@ def test_project_files_pins_and_clocks(projects, name):
     located = dict(re.findall(r'set_location_assignment -to "([^"]+)" PIN_(\w+)', qsf))
     assert located.pop("clk_osc_0__io") == board.osc_pin
     expected = set()
-    for resource, signals in board.pins.items():
-        for sub, (pins, _direction, _assumed) in signals.items():
+    for signals in board.pins.values():
+        for pins, _direction, _assumed in signals.values():
             expected.update(pins.split())
     assert set(located.values()) == expected       # every board pin, nothing else
     assert qsf.count("io_standard") >= len(located)

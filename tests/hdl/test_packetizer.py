@@ -1,4 +1,5 @@
-"""The packetizer in the Amaranth simulator: bytes equal ``lodestar.ground.codec.encode`` of the same
+"""The packetizer in the Amaranth simulator: bytes equal ``lodestar.ground.codec.encode`` of the
+same
 trailer and records (random values at every compact width, a slow reader), and the detector
 followed by the packetizer produces packets that decode to the golden result."""
 

@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.cli import main
-from lodestar.regress import mcu as regress_replay
+from lodestar.regress import mcu
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
@@ -209,8 +209,8 @@ def test_database_cache_and_recipe(tmp_path):
 # --------------------------------------------------------------------------------------
 
 def _tracker(manifest, camera, method):
-    db = regress_replay.open_database(str(regress.database_files(manifest)[camera]))
-    return regress_replay.make_tracker(db, manifest["cameras"][camera], method)
+    db = mcu.open_database(str(regress.database_files(manifest)[camera]))
+    return mcu.make_tracker(db, manifest["cameras"][camera], method)
 
 
 def test_recorder_remakes_a_committed_packet_and_checks_truth():
@@ -222,7 +222,7 @@ def test_recorder_remakes_a_committed_packet_and_checks_truth():
     case = _case(manifest, spec.name)
     assert data == (regress.DEFAULT_SET / case["packet"]).read_bytes()
     assert inputs == case["inputs"] and truth_doc == case["truth"]
-    out = regress_replay.replay(_tracker(manifest, "lohmann", "pyramid"), data, inputs)
+    out = mcu.replay(_tracker(manifest, "lohmann", "pyramid"), data, inputs)
     assert regress.differences(case["expected"]["pyramid"], out, regress.TOLERANCES) == []
     error, problem = regress_record.check_truth(out, det, truth)
     assert problem is None and error == pytest.approx(case["error_arcsec"]["pyramid"])

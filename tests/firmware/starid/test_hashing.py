@@ -334,7 +334,8 @@ def reseal(image, patch):
     b = bytearray(image)
     patch(b)
     struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
+                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 

@@ -220,7 +220,8 @@ def reseal(image, patch):
     b = bytearray(image)
     patch(b)
     struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET, zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
+    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
+                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -233,7 +234,8 @@ def status_of(image):
 
 def test_corrupt_triangle_section_is_refused():
     _, _, image, _ = setup()
-    off, length = struct.unpack_from("<II", image, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES)
+    off, length = struct.unpack_from(
+        "<II", image, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES)
     rng = np.random.default_rng(4)
     for i in [off, off + 5, off + stardb.TRI_HEADER_SIZE + 3, off + length - 1] + \
             rng.integers(off, off + length, 20).tolist():
@@ -251,8 +253,9 @@ def test_corrupt_triangle_section_is_refused():
     kv_end = off + length - 4                       # the last k-vector entry must be n
     assert status_of(reseal(image, lambda b: struct.pack_into("<I", b, kv_end, n - 1))) == \
         S.DATABASE_BAD_LAYOUT
+    entry = stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES
     assert status_of(reseal(image, lambda b: struct.pack_into(
-        "<II", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_TRIANGLES, 0, 0))) == S.DATABASE_BAD_LAYOUT
+        "<II", b, entry, 0, 0))) == S.DATABASE_BAD_LAYOUT
 
 
 # --------------------------------------------------------------------------------------
