@@ -355,86 +355,20 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
               "pair_max_angle": 0.0, "key_step": 0.0, "kv_bins": 0, "kv_m": 0.0, "kv_q": 0.0}
 
     if "pyramid" in methods:
-        # pairs of pattern stars (indices into the ordered star table)
-        key_step = _f32(max_pair / 0xFFFF)
-        if key_step * 0xFFFF < max_pair:
-            key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
-        pidx = np.flatnonzero(pattern)
-        keys, a, b = pair_table(v64[pidx], min_pair, max_pair, key_step)
-        a, b = pidx[a], pidx[b]
-        lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
-        order = np.lexsort((hi_, lo_, keys))
-        keys, a, b = keys[order], lo_[order], hi_[order]
-        n_pairs = len(keys)
-        if n_pairs == 0:
-            raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
-        kv_bins = max(1, n_pairs // pairs_per_bin)
-        kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
-        pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
-        pairs["key"], pairs["a"], pairs["b"] = keys, a, b
-        sections[L.SEC_PAIRS] = pairs.tobytes()
-        sections[L.SEC_KVECTOR] = kv_table.astype("<u4").tobytes()
+        pairs, kvector, pyramid_values = _pyramid_sections(v64, pattern, min_pair, max_pair,
+                                                           pairs_per_bin)
+        sections[L.SEC_PAIRS], sections[L.SEC_KVECTOR] = pairs, kvector
         flags |= np.where(pattern, L.STAR_FLAG_PATTERN, 0)
-        values.update(methods=values["methods"] | L.METHOD_PYRAMID,
-                      n_pattern_stars=int(pattern.sum()), n_pairs=n_pairs,
-                      pair_min_angle=min_pair, pair_max_angle=max_pair, key_step=key_step,
-                      kv_bins=kv_bins, kv_m=kv_m, kv_q=kv_q)
-
+        values.update(pyramid_values, methods=values["methods"] | L.METHOD_PYRAMID)
     if "triangle" in methods:
-        radius = math.radians(fov_v / 2 if tri_opt["region_radius_deg"] is None
-                              else tri_opt["region_radius_deg"])
-        max_side = math.radians(fov_d if tri_opt["max_side_deg"] is None
-                                else tri_opt["max_side_deg"])
-        groups = regional_groups(v64, vmag, pattern, tri_opt["regions_per_face"], radius,
-                                 tri_opt["stars_per_region"], 3, max_side)
-        if len(groups) == 0:
-            raise ValueError("no triangles: FOV too small or magnitude limit too bright")
-        records, area_step, moment_step = triangle_table(v32, groups)
-        tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["area"],
-                                                  tri_opt["per_bin"])
-        header = struct.pack(L.TRI_HEADER_FORMAT, L.TRI_MAGIC, len(records), kv_bins,
-                             area_step, moment_step, max_side, kv_m, kv_q,
-                             tri_opt["regions_per_face"], tri_opt["stars_per_region"], radius)
-        sections[L.SEC_TRIANGLES] = header + tail
-        used = np.zeros(n_stars, dtype=bool)
-        used[groups.ravel()] = True
-        flags |= np.where(used, L.STAR_FLAG_TRIANGLE, 0)
+        sections[L.SEC_TRIANGLES], groups = _triangle_section(v32, v64, vmag, pattern, fov_v,
+                                                              fov_d, tri_opt)
+        flags |= _member_flags(n_stars, groups, L.STAR_FLAG_TRIANGLE)
         values["methods"] |= L.METHOD_TRIANGLE
-
     if "hashing" in methods:
-        g = int(hash_opt["group_size"])
-        if g not in L.HASH_GROUP_SIZES:
-            raise ValueError(f"hash group size {g}: must be one of {L.HASH_GROUP_SIZES}")
-        radius = math.radians(fov_v / 2 if hash_opt["region_radius_deg"] is None
-                              else hash_opt["region_radius_deg"])
-        max_diam = math.radians(fov_d if hash_opt["max_diameter_deg"] is None
-                                else hash_opt["max_diameter_deg"])
-        min_diam = math.radians(fov_v / 4 if hash_opt["min_diameter_deg"] is None
-                                else hash_opt["min_diameter_deg"])
-        flags_h = 0 if hash_opt["normalized"] else L.HASH_FLAG_DISTANCE
-        coord_lo, coord_bucket = _f32(hash_opt["coord_lo"]), _f32(hash_opt["coord_bucket"])
-        coord_buckets = int(math.ceil(3.0 / coord_bucket))
-        dist_bucket = _f32(math.radians(hash_opt["dist_bucket_deg"]))
-        dist_buckets = int(math.floor(max_diam / dist_bucket)) + 2
-        if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > L.HASH_MAX_CODE:
-            raise ValueError("hash bucket grid too fine: codes would exceed 2**30")
-        grid = _HashGrid(coord_lo, coord_bucket, coord_buckets, flags_h, dist_bucket,
-                         dist_buckets)
-        groups = regional_groups(v64, vmag, unblended, hash_opt["regions_per_face"], radius,
-                                 hash_opt["stars_per_region"], g, max_diam, min_diam)
-        if len(groups) == 0:
-            raise ValueError("no hash groups: FOV too small or magnitude limit too bright")
-        records = hash_table(v32, groups, grid)
-        tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["code"],
-                                                  hash_opt["per_bin"])
-        header = struct.pack(L.HASH_HEADER_FORMAT, L.HASH_MAGIC, len(records), kv_bins, g,
-                             flags_h, coord_lo, coord_bucket, coord_buckets, dist_buckets,
-                             dist_bucket, min_diam, max_diam, kv_m, kv_q,
-                             hash_opt["regions_per_face"], hash_opt["stars_per_region"], radius)
-        sections[L.SEC_HASH] = header + tail
-        used = np.zeros(n_stars, dtype=bool)
-        used[groups.ravel()] = True
-        flags |= np.where(used, L.STAR_FLAG_HASH, 0)
+        sections[L.SEC_HASH], groups = _hash_section(v32, v64, vmag, unblended, fov_v, fov_d,
+                                                     hash_opt)
+        flags |= _member_flags(n_stars, groups, L.STAR_FLAG_HASH)
         values["methods"] |= L.METHOD_HASHING
 
     # the star table (flags known now)
@@ -444,7 +378,101 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     stars["x"], stars["y"], stars["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
     stars["hip_lo"], stars["word"] = hip & 0xFFFF, word
     sections[L.SEC_STARS] = stars.tobytes()
+    values.update({
+        "star_record_size": L.STAR_SIZE,
+        "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
+        "fov_diag": math.radians(fov_d), "mag_limit": mag_limit, "epoch": catalogue.epoch,
+        "n_stars": n_stars, "cells_per_face": cells_per_face,
+        "pattern_per_region": pattern_per_region,
+        "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,
+    })
+    return _image(sections, values)
 
+
+def _pyramid_sections(v64, pattern, min_pair, max_pair, pairs_per_bin):
+    """``(pair table, k-vector, header values)`` of the pattern stars' pairs (indices into
+    the ordered star table)."""
+    key_step = _f32(max_pair / 0xFFFF)
+    if key_step * 0xFFFF < max_pair:
+        key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
+    pidx = np.flatnonzero(pattern)
+    keys, a, b = pair_table(v64[pidx], min_pair, max_pair, key_step)
+    a, b = pidx[a], pidx[b]
+    lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((hi_, lo_, keys))
+    keys, a, b = keys[order], lo_[order], hi_[order]
+    n_pairs = len(keys)
+    if n_pairs == 0:
+        raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
+    kv_bins = max(1, n_pairs // pairs_per_bin)
+    kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
+    pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
+    pairs["key"], pairs["a"], pairs["b"] = keys, a, b
+    values = {"n_pattern_stars": int(pattern.sum()), "n_pairs": n_pairs,
+              "pair_min_angle": min_pair, "pair_max_angle": max_pair, "key_step": key_step,
+              "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q}
+    return pairs.tobytes(), kv_table.astype("<u4").tobytes(), values
+
+
+def _radians(value_deg, default_deg):
+    return math.radians(default_deg if value_deg is None else value_deg)
+
+
+def _triangle_section(v32, v64, vmag, pattern, fov_v, fov_d, opt):
+    """``(section bytes, star groups)`` of the triangle method (``opt``: the options)."""
+    radius = _radians(opt["region_radius_deg"], fov_v / 2)
+    max_side = _radians(opt["max_side_deg"], fov_d)
+    groups = regional_groups(v64, vmag, pattern, opt["regions_per_face"], radius,
+                             opt["stars_per_region"], 3, max_side)
+    if len(groups) == 0:
+        raise ValueError("no triangles: FOV too small or magnitude limit too bright")
+    records, area_step, moment_step = triangle_table(v32, groups)
+    tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["area"], opt["per_bin"])
+    header = struct.pack(L.TRI_HEADER_FORMAT, L.TRI_MAGIC, len(records), kv_bins, area_step,
+                         moment_step, max_side, kv_m, kv_q, opt["regions_per_face"],
+                         opt["stars_per_region"], radius)
+    return header + tail, groups
+
+
+def _hash_section(v32, v64, vmag, unblended, fov_v, fov_d, opt):
+    """``(section bytes, star groups)`` of the geometric-hashing method."""
+    g = int(opt["group_size"])
+    if g not in L.HASH_GROUP_SIZES:
+        raise ValueError(f"hash group size {g}: must be one of {L.HASH_GROUP_SIZES}")
+    radius = _radians(opt["region_radius_deg"], fov_v / 2)
+    max_diam = _radians(opt["max_diameter_deg"], fov_d)
+    min_diam = _radians(opt["min_diameter_deg"], fov_v / 4)
+    flags_h = 0 if opt["normalized"] else L.HASH_FLAG_DISTANCE
+    coord_lo, coord_bucket = _f32(opt["coord_lo"]), _f32(opt["coord_bucket"])
+    coord_buckets = int(math.ceil(3.0 / coord_bucket))
+    dist_bucket = _f32(math.radians(opt["dist_bucket_deg"]))
+    dist_buckets = int(math.floor(max_diam / dist_bucket)) + 2
+    if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > L.HASH_MAX_CODE:
+        raise ValueError("hash bucket grid too fine: codes would exceed 2**30")
+    grid = _HashGrid(coord_lo, coord_bucket, coord_buckets, flags_h, dist_bucket, dist_buckets)
+    groups = regional_groups(v64, vmag, unblended, opt["regions_per_face"], radius,
+                             opt["stars_per_region"], g, max_diam, min_diam)
+    if len(groups) == 0:
+        raise ValueError("no hash groups: FOV too small or magnitude limit too bright")
+    records = hash_table(v32, groups, grid)
+    tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["code"], opt["per_bin"])
+    header = struct.pack(L.HASH_HEADER_FORMAT, L.HASH_MAGIC, len(records), kv_bins, g, flags_h,
+                         coord_lo, coord_bucket, coord_buckets, dist_buckets, dist_bucket,
+                         min_diam, max_diam, kv_m, kv_q, opt["regions_per_face"],
+                         opt["stars_per_region"], radius)
+    return header + tail, groups
+
+
+def _member_flags(n_stars, groups, flag):
+    """``flag`` on every star that belongs to one of ``groups``, else 0."""
+    used = np.zeros(n_stars, dtype=bool)
+    used[groups.ravel()] = True
+    return np.where(used, flag, 0)
+
+
+def _image(sections, values):
+    """The image: header (``values`` by field, the directory, the CRCs) and the sections,
+    each aligned to :data:`~lodestar.contract.stardb.SECTION_ALIGN`."""
     payload = bytearray()
     directory = [(0, 0)] * L.N_SECTIONS
     for sec in sorted(sections):
@@ -454,18 +482,9 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
         payload += sections[sec]
     while len(payload) % L.SECTION_ALIGN:
         payload.append(0)
-    image_size = L.HEADER_SIZE + len(payload)
-
-    values.update({
-        "magic": L.MAGIC, "version": L.VERSION, "header_size": L.HEADER_SIZE,
-        "image_size": image_size, "payload_crc": zlib.crc32(payload) & 0xFFFFFFFF,
-        "star_record_size": L.STAR_SIZE,
-        "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
-        "fov_diag": math.radians(fov_d), "mag_limit": mag_limit, "epoch": catalogue.epoch,
-        "n_stars": n_stars, "cells_per_face": cells_per_face,
-        "pattern_per_region": pattern_per_region,
-        "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,
-    })
+    values = dict(values, magic=L.MAGIC, version=L.VERSION, header_size=L.HEADER_SIZE,
+                  image_size=L.HEADER_SIZE + len(payload),
+                  payload_crc=zlib.crc32(payload) & 0xFFFFFFFF)
     header = bytearray(L.HEADER_SIZE)
     struct.pack_into(L.HEADER_FORMAT, header, 0, *(values[name] for name in L.HEADER_FIELDS))
     for sec, (offset, length) in enumerate(directory):
@@ -473,10 +492,6 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     struct.pack_into("<I", header, L.HEADER_CRC_OFFSET,
                      zlib.crc32(bytes(header[:L.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
     return bytes(header) + bytes(payload)
-
-
-build = build_database
-"""Alias: ``build(catalogue, camera, methods=("pyramid", "triangle", "hashing"), ...)``."""
 
 
 def _options(defaults, given, name):

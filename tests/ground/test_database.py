@@ -86,7 +86,7 @@ def test_estcube2_all_methods_size_budget(record_property):
 def test_deterministic():
     assert G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5) == small_image()
     kw = dict(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5, methods=G.METHODS)
-    assert G.build_database(**kw) == G.build(**kw)
+    assert G.build_database(**kw) == G.build_database(**kw)
 
 
 def test_star_table_round_trip():

@@ -59,8 +59,7 @@ def test_windowed_frame_and_default_tolerance(scene_outcome):
 def test_file_backed_database_gives_the_same_solution(tmp_path):
     cam, cat, db = setup()
     path = tmp_path / "db.bin"
-    from lodestar.ground.database import build_database as build
-    path.write_bytes(build(cat, cam, mag_limit=6.0))
+    path.write_bytes(build_database(cat, cam, mag_limit=6.0))
     fdb = Database.open(str(path))
     try:
         rng = np.random.default_rng(14)
