@@ -73,6 +73,11 @@ def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_
 _FILTERS = ("min_pixels", "min_sum", "max_pixels")
 
 
+TRAILER_LOST_BITS = 8
+"""Width of the wrapping count of lost trailers (the board compares it with its value at
+the last status read, so any width that cannot wrap between two reads will do)."""
+
+
 class Detector(wiring.Component):
     """Threshold, labelling and features for ``width x height`` frames."""
 
@@ -95,7 +100,7 @@ class Detector(wiring.Component):
             "reg_error_clear": In(1),
             "busy": Out(1),
             "frame_counter": Out(dict(C.HEADER_FIELDS)["frame_counter"]),
-            "trailer_lost": Out(8),
+            "trailer_lost": Out(TRAILER_LOST_BITS),
             "fault": Out(1),
         })
 

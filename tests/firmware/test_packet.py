@@ -21,7 +21,7 @@ from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
 from lodestar.ground import codec as ground
-from tests.ground.packet_samples import base_result, spot_results
+from tests.ground.packet_samples import HEADER_POS, RECORD_POS, base_result, spot_results
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
 
@@ -30,17 +30,6 @@ HYPOTHESIS = settings(max_examples=150, deadline=None)
 # Helpers
 # --------------------------------------------------------------------------------------
 
-def _positions(fields):
-    positions = {}
-    offset = 0
-    for name, bits in fields:
-        positions[name] = (offset, bits)
-        offset += bits
-    return positions
-
-
-HEADER_POS = _positions(C.HEADER_FIELDS)
-RECORD_POS = _positions(C.RECORD_FIELDS)
 
 
 def _span(name, record):

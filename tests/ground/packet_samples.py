@@ -6,6 +6,11 @@ from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.golden import Detector, DetectorConfig
 
+HEADER_POS = {name: (offset, bits) for name, offset, bits in C.field_offsets(C.HEADER_FIELDS)}
+"""``{name: (bit offset, bits)}`` of the header fields, from the packet start."""
+RECORD_POS = {name: (offset, bits) for name, offset, bits in C.field_offsets(C.RECORD_FIELDS)}
+"""``{name: (bit offset, bits)}`` of the record fields, from the record start."""
+
 
 def base_result():
     """A valid 64x48 12-bit frame with 3 records, one dropped record and one filtered blob.

@@ -17,7 +17,7 @@ from lodestar.contract import DetectionResult
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.ground import codec as packet
 from lodestar.ground.codec import PacketError, decode, encode
-from tests.ground.packet_samples import base_result, spot_results
+from tests.ground.packet_samples import HEADER_POS, RECORD_POS, base_result, spot_results
 
 HYPOTHESIS = settings(max_examples=100, deadline=None)
 
@@ -27,18 +27,6 @@ HYPOTHESIS = settings(max_examples=100, deadline=None)
 # --------------------------------------------------------------------------------------
 
 
-def _positions(fields):
-    """``{name: (bit_offset, bits)}`` of ``(name, bits)`` fields, MSB first and contiguous."""
-    positions = {}
-    offset = 0
-    for name, bits in fields:
-        positions[name] = (offset, bits)
-        offset += bits
-    return positions
-
-
-HEADER_POS = _positions(C.HEADER_FIELDS)
-RECORD_POS = _positions(C.RECORD_FIELDS)
 
 
 def field_max(fields, name):

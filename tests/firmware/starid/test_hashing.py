@@ -434,7 +434,7 @@ def test_hashing_under_micropython(micropython):
                         "EXPECTED = " + lit(expected), "HASHES = " + lit(hashes),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
     code, out = micropython(script + "\n" + MICROPYTHON_HASHING, heapsize=16 << 20,
-                                timeout=600)
+                            timeout=600)
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out

@@ -318,7 +318,7 @@ def test_triangle_under_micropython(micropython):
                         "EXPECTED = " + lit(expected),
                         "IMAGE_B64 = " + lit(base64.b64encode(image))])
     code, out = micropython(script + "\n" + MICROPYTHON_TRIANGLE, heapsize=16 << 20,
-                                timeout=600)
+                            timeout=600)
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out
