@@ -1,38 +1,14 @@
 """Star-identification database reader (flight side): one binary image, read by offset.
 
-The image is built on the ground by ``lodestar.ground.database`` (whose docstring documents
-the byte layout in full); this module holds the layout constants both sides use, validates
-an image and reads it **without loading it whole**:
-
-* ``Database(buffer)`` works over ``bytes``, ``bytearray`` or a ``memoryview`` (for example
-  a memory-mapped flash region): every access is a ``struct.unpack_from`` at an offset;
-* ``Database.open(path)`` works over a file: it reads the 160-byte header, streams the file
-  once in 512-byte chunks to check the CRC, and afterwards reads each record (or block of
-  :data:`PAIR_BLOCK` pair records) with a ``seek`` + ``readinto`` into one preallocated
-  192-byte scratch buffer.
-
-Validation (in this order), with the :mod:`lodestar.firmware.status` code of each failure:
-length >= header (``DATABASE_BAD_LENGTH``), magic ``b"LSDB"`` (``DATABASE_BAD_MAGIC``),
-format version and header size (``DATABASE_BAD_VERSION``), header CRC-32
-(``DATABASE_CORRUPT``), image size == buffer/file length (``DATABASE_BAD_LENGTH``), payload
-CRC-32 (``DATABASE_CORRUPT``), and the layout (``DATABASE_BAD_LAYOUT``: every section inside
-the image, aligned, non-overlapping, of exactly the length its counts imply, the sections
-each advertised method needs present, the triangle and hash section headers and k-vectors
-consistent, and sane numbers; a section format this reader does not know, such as a hash
-group size other than 3 or 4: ``DATABASE_UNSUPPORTED``); then the optional FOV check
-(``DATABASE_MISMATCH``).  File errors are ``DATABASE_IO``.  A failure raises
-:class:`DatabaseError` with the machine-readable ``status`` (one of :data:`STATUSES`) and a
-human-readable ``reason``.  **Error policy**: the reader raises; the flight API calls
-:func:`load` (or :func:`check`), which converts the exception into a ``(status, reason)``
-pair for telemetry, so no exception escapes to the flight loop.
-
-Methods served: all three bits (:data:`SUPPORTED_METHODS`): Pyramid reads the pair table
-and its k-vector (:meth:`Database.pairs_in_range`), Triangle the triangle table
-(:meth:`Database.triangles_in_range`, :meth:`Database.triangle_record`), Hashing the hash
-table (:meth:`Database.hash_bucket`, :meth:`Database.hash_record`).
-
-Pure Python for CPython and MicroPython 1.27 (``struct``, ``binascii``, ``math``,
-``array``); star and pair accessors allocate only their small result tuples.
+The layout is ``docs/stardb.md`` (built on the ground by ``lodestar.ground.database``).
+``Database(buffer)`` reads ``bytes``, ``bytearray`` or a ``memoryview`` (a memory-mapped flash
+region) with ``struct.unpack_from``; ``Database.open(path)`` reads a file by ``seek`` +
+``readinto`` into one preallocated scratch buffer, never whole.  The validation order and the
+``DATABASE_*`` status of each failure: ``docs/firmware.md``, Database reader.
+**Error policy**: the reader raises :class:`DatabaseError` (``status``, ``reason``); the flight
+API calls :func:`load` or :func:`check`, which return ``(status, reason)``, so no exception
+reaches the flight loop.  All three methods are served (:data:`SUPPORTED_METHODS`).
+Pure Python for CPython and MicroPython 1.27 (``struct``, ``binascii``, ``math``, ``array``).
 """
 
 import math

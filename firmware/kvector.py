@@ -1,33 +1,13 @@
-"""Mortari's k-vector: a search-less range query over a sorted array of keys.
+"""Mortari's k-vector (Mortari & Neta 2000): a search-less range query over sorted keys.
 
-Mortari & Neta (2000), "k-vector range searching techniques".  Given ``n`` keys sorted
-ascending, ``y[0] <= ... <= y[n-1]``, and a straight line
-
-    z(j) = q + m * j,        j = 0 .. n_bins,
-    z(0) = y[0] - eps,       z(n_bins) = y[n-1] + eps      (eps > 0 a small margin),
-
-the k-vector is the table ``K[j] = #{ i : y[i] <= z(j) }`` (so ``K[0] = 0`` and
-``K[n_bins] = n``).  Every key in ``[lo, hi]`` then lies in the index range
-``K[jb] <= i < K[jt]`` with ``jb = floor((lo - q)/m)`` and ``jt = ceil((hi - q)/m)``: two
-multiplications and two table reads, whatever ``n``.  Mortari uses ``n_bins = n`` (one table
-entry per key); fewer bins trade table size for a few extra keys at each end of the range.
-
-This implementation makes the answer **exact**, not a superset:
-
-* ``jb`` and ``jt`` are widened by one bin each, so that rounding in ``(lo - q)/m`` (single
-  precision floats on MicroPython, a float32 ``m``/``q`` stored in a database) can never push
-  a boundary key out of the candidate range (``z(jb) < lo`` and ``z(jt) > hi`` hold with a
-  margin of a whole bin);
-* the candidate range is trimmed by two binary searches on the keys themselves.
-
-:func:`query` therefore returns ``(start, stop)`` such that the keys ``y[start:stop]`` are
-exactly those with ``lo <= y <= hi`` (``start == stop`` when there are none), identical to a
-brute-force scan.  It reads the table and the keys through caller-supplied functions, so the
-same code serves Python lists, ``array``\\ s, and tables read by offset from a database image
-or a file (:mod:`lodestar.firmware.database`).
-
-Pure Python for CPython and MicroPython (only ``math``); :func:`build` is the reference
-builder (the ground tools have a numpy one that must agree with it).
+:func:`query` returns ``(start, stop)`` such that ``keys[start:stop]`` are exactly the keys
+with ``lo <= key <= hi`` (``start == stop`` when there are none), identical to a brute-force
+scan: the bin range is widened by one bin each side against float32 rounding, then trimmed
+by binary searches (``docs/firmware.md``, k-vector, gives the construction and ``eps``).
+Table and keys are read through caller-supplied functions, so lists, arrays and tables read
+by offset from a database (:mod:`lodestar.firmware.database`) share the code.  :func:`build`
+is the reference builder (the ground's numpy builder must agree with it).
+Pure Python for CPython and MicroPython (only ``math``).
 """
 
 import math
@@ -36,7 +16,7 @@ import math
 def build(keys, n_bins=None, margin=None):
     """Build the k-vector of ``keys`` (a sorted sequence of numbers, ascending).
 
-    ``n_bins`` defaults to ``len(keys)`` (Mortari's choice); ``margin`` (``eps`` above)
+    ``n_bins`` defaults to ``len(keys)`` (Mortari's choice); ``margin`` (``eps``)
     defaults to ``1e-9 * max(1, |y0|, |y_last|, span)``.  Returns ``(m, q, table)`` with
     ``table`` a list of ``n_bins + 1`` ints.  Raises ``ValueError`` for an empty or unsorted
     key list or ``n_bins < 1``.

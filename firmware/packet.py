@@ -1,37 +1,13 @@
 """MCU-side decoder of the FPGA->MCU blob packet; never raises on bad bytes.
 
-    from lodestar.firmware import packet, status
-    st, header, records, reason = packet.decode(data)
-    if st != status.OK:
-        log(status.name(st), reason)      # header is None, records is []
+    st, header, records, reason = packet.decode(data)   # header None, records [] on failure
 
-The layout is ``lodestar.contract``'s (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES``),
-read with integer arithmetic: at import each field becomes a byte window (first and last
-byte, a mask for its first byte, a shift for its last) computed from the contract's widths,
-and decoding accumulates each window MSB first.  Unlike ``int.from_bytes`` of a whole record
-followed by shifts, no intermediate is larger than the field's value, so fields that fit a
-MicroPython small int (31 bits on a 32-bit MCU) never allocate a long int.  The checks
-and their order are those of the ground codec ``lodestar.ground.codec`` (``docs/contract.md``,
-Packet checks); each failed check returns a status and the *same* message the ground codec raises:
-
-===============================  ======================================================
-status                           check
-===============================  ======================================================
-``BAD_INPUT``                    not bytes-like (bytes, bytearray, memoryview)
-``PACKET_TRUNCATED``             shorter than ``packet_bytes(0)``, or than
-                                 ``packet_bytes(n_records)``
-``PACKET_BAD_MAGIC``             magic is not ``contract.PACKET_MAGIC``
-``PACKET_BAD_VERSION``           version is not ``contract.PACKET_VERSION``
-``PACKET_BAD_LENGTH``            longer than ``packet_bytes(n_records)`` (trailing bytes)
-``PACKET_BAD_CRC``               CRC-32 trailer mismatch
-``PACKET_BAD_HEADER``            mode, pixel_bits, width/height, threshold/background,
-                                 frame flags, record count, overflow flags
-``PACKET_BAD_RECORD``            ``"record <i>: ..."``: blob flags, bounding box, peak,
-                                 nsat, n, moments, saturation flag
-===============================  ======================================================
-
-The CRC is the contract's :func:`lodestar.contract.packet.crc32`.
-
+Layout: ``lodestar.contract`` (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES``; CRC
+:func:`lodestar.contract.packet.crc32`).  The checks, their order and their messages are the
+ground codec's (``docs/contract.md``, Packet checks): a failure returns its ``PACKET_*``
+status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read MSB
+first through byte windows precomputed at import, so a field that fits a MicroPython small
+int never allocates a long int (``docs/firmware.md``, Packet decoder).
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 

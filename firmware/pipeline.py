@@ -1,58 +1,13 @@
 """The flight API: one FPGA packet in, one attitude (or a status) out; never raises.
 
-    from lodestar.firmware.pipeline import StarTracker
-    from lodestar.firmware.settings import Settings
-    tracker = StarTracker("/flash/stars.lsdb", camera_dict,
-                          Settings(method="pyramid", exposure_s=0.1, row_time_s=4.39e-5))
-    result = tracker.process(packet_bytes)                        # lost in space
-    result = tracker.process(packet_bytes, prior=result.q,        # tracking
-                             omega=gyro_rad_s, dt=frame_period_s)
-    if result.status == status.OK:
-        use(result.q, result.sigma_cross_arcsec, result.sigma_roll_arcsec)
-    else:
-        log(status.name(result.status), result.reason)
+    tracker = StarTracker("/flash/stars.lsdb", camera_dict, Settings(exposure_s=0.1))
+    result = tracker.process(packet_bytes, prior=None, omega=gyro_rad_s, dt=None)
 
-Stages of :meth:`StarTracker.process` (``docs/firmware.md`` describes each): decode the
-packet, centroids (brightest ``max_stars``, smear-aware filter, broken tracks joined, border
-blobs dropped), directions through the camera model turned back to the attitude epoch when
-``omega`` is given, identification (tracking from a ``prior``, else or on failure
-lost-in-space, then refined by tracking from its own attitude), attitude (weighted QUEST and
-Shuster's covariance, star weights from a photon-limited noise model with a floor chosen per
-frame from the residuals).
-
-Units and conventions (``lodestar.sim``): pixels as ``lodestar.contract`` (centre of pixel
-``(x, y)`` at the integer point; ``x`` column, ``y`` row); camera frame ``+z`` boresight,
-``+x`` along ``x``, ``+y`` along ``y``; attitude ``q = [x, y, z, w]`` (scalar last) with
-``v_cam = A(q) v_inertial`` (ICRS); ``omega`` the camera's angular velocity in the camera
-frame, rad/s; times in seconds; the result's sigmas in arcseconds (``sigma_cross`` is the
-per-axis RMS of the two cross-boresight axes, ``sigma_roll`` about the boresight).
-**Epoch**: ``result.q`` is the attitude at ``epoch_s`` seconds after the start of the
-exposure of row 0 (default 0, the instant ``lodestar.sim`` reports as truth) when ``omega``
-is given; ``prior`` is the attitude at the previous frame's epoch and ``dt`` the time from
-it to this frame's epoch.
-
-:class:`Result` fields: ``status`` (a :mod:`lodestar.firmware.status` code), ``reason``
-(text, "" on success; also notes ignored inputs), ``mode`` (``"tracking"``,
-``"lost_in_space"`` or None), ``q``, ``matches`` (``[(record index, x, y, HIP)]``: the
-blob's index in the packet, its centroid in pixels, the catalogue star), ``n_stars``
-(usable stars), ``n_records``, ``sigma_cross_arcsec``, ``sigma_roll_arcsec``,
-``centroid_sigma_px`` (the noise ``s`` behind the sigmas),
-``patterns_tried``, ``probability`` (chance-agreement probability of the accepted
-identification), ``rejected`` (centroid rejections by reason) and ``timings`` (stage ->
-elapsed clock units, only when a ``clock`` function is given; no decision depends on it).
-
-Statuses: the packet's (``PACKET_*``, ``BAD_INPUT`` for non-bytes); configuration problems
-found at construction (``DATABASE_CORRUPT``, ``DATABASE_MISMATCH`` for a database of
-another FOV, ``DATABASE_UNSUPPORTED`` without the method, the reader's ``DATABASE_*``
-codes for a file it rejects, ``BAD_INPUT`` for a bad camera or parameter) are
-returned by every call; ``SMEAR_TOO_LONG`` (the rate smears stars beyond
-``max_smear_px``); ``TOO_FEW_STARS``; ``NO_MATCH``/``AMBIGUOUS`` and the other
-identification statuses.  Malformed optional inputs (``prior``, ``omega``, ``dt``,
-``exposure_s``) are ignored with a note in ``reason``: the flight loop still gets a
-lost-in-space attitude when the gyro or the previous solution is corrupt.  Any unexpected
-exception (including ``MemoryError``) becomes ``INTERNAL_ERROR``, the exception in
-``reason``.
-
+Stages, :class:`Result` fields, statuses and the attitude epoch: ``docs/firmware.md``; units
+and frames: ``docs/conventions.md``.  Configuration errors found at construction are returned
+by every call; malformed optional inputs (``prior``, ``omega``, ``dt``, ``exposure_s``) are
+ignored with a note in ``reason``; any unexpected exception (``MemoryError`` included) becomes
+``INTERNAL_ERROR``, so the flight loop always gets a result.
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
@@ -112,7 +67,7 @@ def _residuals2(q, b, r):
 
 
 class Result:
-    """Outcome of :meth:`StarTracker.process` (fields in the module docstring)."""
+    """Outcome of :meth:`StarTracker.process` (fields in ``docs/firmware.md``)."""
 
     __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",

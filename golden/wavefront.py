@@ -1,27 +1,11 @@
 """The labeller algorithm of ``hdl/labeller.py`` in plain Python, column by column.
 
-This is the algorithm the gateware implements (``hdl/DESIGN.md``), written with Python lists
-instead of memories so that it can be checked exhaustively against the golden streaming
-model, and so that a gateware mismatch can be traced to the algorithm or to its
-transcription.  Per row it keeps:
-
-* ``prev``: the previous row's *nodes* (runs of lit pixels) in column order, each with the
-  flags ``first``/``last`` (first/last node of its component in the row) and, meaningful on
-  first nodes, the component's feature slot ``lab`` and ``tracked``;
-* ``new``: the nodes of the current row, written when a run ends; ``first`` and ``last``
-  may be patched later in the row (at most one patch of each kind per two columns);
-* a stack of the previous row's components that have nodes left and right of the scan
-  position, innermost on top (components never cross, so they nest); an entry's ``cont``
-  says that the entry below belongs to the same component (it merged in this row), and the
-  component's information lives in the top entry of its group;
-* the *active* run: the current row's run under the scan position and its component.
-
-Events per column ``x`` of row ``y``, in this order: the push of a previous-row node
-starting at ``x``; the current pixel (birth, contact with the node above, or merge with a
-node starting under the run); the pop of a previous-row node ending at ``x`` (completion
-when its component has no node left); the end of the current run if ``x + 1`` is dark or
-``x`` is the last column.  A virtual dark row after the last row completes the rest.
-``events`` lists ``(clock, kind)`` of every memory access, with one idle clock per row.
+The gateware's algorithm (``hdl/DESIGN.md``, The labeller) with Python lists instead of
+memories, so that it can be checked exhaustively against the golden streaming model and a
+gateware mismatch traced to the algorithm or to its transcription.  Per row it keeps the
+previous row's nodes (``prev``), the current row's (``new``), the stack of straddling
+components and the active run; ``events`` lists ``(clock, kind)`` of every memory access,
+with one idle clock per row, so tests can check the one-access-per-two-clocks bound.
 """
 
 from lodestar import contract as C

@@ -20,10 +20,12 @@ truth is known, red when the truth says it is wrong), marker sets drawn with
 on black in the top-left corner.  Written as an RGB PNG.
 """
 
+import io
 import math
 
 import numpy as np
 
+from lodestar.ground.files import write_atomic
 from lodestar.sim import attitude, catalogue
 from lodestar.sim.imageio import stretch
 
@@ -97,7 +99,6 @@ def save_annotated(path, frame, records=(), labels=(), markers=None, legend=(),
     when the file cannot be written."""
     from PIL import Image, ImageDraw
 
-
     frame = np.asarray(frame)
     if frame.ndim != 2 or frame.size == 0:
         raise ValueError(f"frame must be a non-empty 2-D array, got shape {frame.shape}")
@@ -142,4 +143,6 @@ def save_annotated(path, frame, records=(), labels=(), markers=None, legend=(),
             draw.text((size // 2, y), text, fill=COLOURS["legend"], font=font,
                       stroke_width=max(1, size // 10), stroke_fill=(0, 0, 0))
             y += step
-    img.save(path, format="PNG", compress_level=1)
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", compress_level=1)
+    write_atomic(path, buf.getvalue())

@@ -4,13 +4,13 @@ under a key of every input, and in memory; files are written atomically."""
 
 import hashlib
 import os
-import tempfile
 from importlib import resources
 from pathlib import Path
 
 from lodestar.contract import stardb
 from lodestar.firmware import database as fwdatabase
 from lodestar.ground.database import build_database
+from lodestar.ground.files import write_atomic
 from lodestar.sim import catalogue
 
 CACHE_SCHEMA = 1
@@ -50,21 +50,6 @@ def cache_key(fov_h_deg, fov_v_deg, max_mag, method):
                      f"mag={max_mag:.3f}", f"method={method}",
                      f"catalogue={_catalogue_hash()}"])
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def write_atomic(target, data):
-    """Write ``data`` to ``target`` (creating its folder) through a temporary file renamed
-    into place, so readers never see a partial file.  Raises ``OSError``."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=target.name, suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, target)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir=None):

@@ -29,13 +29,23 @@ is at least this many magnitudes brighter; the fainter never does."""
 # Field of view
 # --------------------------------------------------------------------------------------
 
+MIN_ASPECT, MAX_ASPECT = 0.01, 100.0
+"""Aspect ratios (width / height) a database is built for: any real sensor, and no field so
+thin that it holds no pattern."""
+
+
 def fov_from_horizontal(fov_h_deg, aspect=None, fov_v_deg=None):
     """``(h, v, diag)`` in degrees of a pinhole camera with horizontal FOV ``fov_h_deg`` and
     either a vertical FOV or an ``aspect`` ratio (width / height, in the image plane)."""
+    if not (isinstance(fov_h_deg, (int, float)) and 0 < fov_h_deg < 180):
+        raise ValueError(f"the horizontal FOV must be in (0, 180) degrees, got {fov_h_deg!r}")
     th = math.tan(math.radians(fov_h_deg) / 2)
     if fov_v_deg is None:
         if aspect is None:
             raise ValueError("give aspect or fov_v_deg with fov_h_deg")
+        if not (isinstance(aspect, (int, float)) and MIN_ASPECT <= aspect <= MAX_ASPECT):
+            raise ValueError(f"the aspect (width / height) must be in {MIN_ASPECT:g} .. "
+                             f"{MAX_ASPECT:g}, got {aspect!r}")
         fov_v_deg = math.degrees(2 * math.atan(th / aspect))
     tv = math.tan(math.radians(fov_v_deg) / 2)
     return float(fov_h_deg), float(fov_v_deg), math.degrees(2 * math.atan(math.hypot(th, tv)))
@@ -491,7 +501,12 @@ def _image(sections, values):
         struct.pack_into("<II", header, L.DIRECTORY_OFFSET + 8 * sec, offset, length)
     struct.pack_into("<I", header, L.HEADER_CRC_OFFSET,
                      zlib.crc32(bytes(header[:L.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
-    return bytes(header) + bytes(payload)
+    image = bytes(header) + bytes(payload)
+    status, reason = fwdb.check(image)
+    if status != fwdb.OK:       # parameters the flight reader refuses: never hand such a file out
+        raise ValueError(f"the database for these parameters would be unreadable in flight "
+                         f"({reason})")
+    return image
 
 
 def _options(defaults, given, name):

@@ -137,13 +137,19 @@ def _read_fits(path, notes):
     elif data.ndim >= 3:
         notes.append(f"{data.shape[0]} planes in the cube: the first is used")
         data = data.reshape((-1,) + data.shape[-2:])[0]
-    if data.dtype.kind == "f" and not np.all(np.isfinite(data)):
-        bad = ~np.isfinite(data)
-        if bad.all():
-            raise ValueError("every pixel is blank (NaN)")
-        data = np.where(bad, np.median(data[~bad]), data)
-        notes.append(f"{int(bad.sum())} blank (NaN or inf) pixels set to the median")
     return data
+
+
+def _fill_blanks(data, notes):
+    """Float data with NaN or infinite pixels (blank in FITS, TIFF or any float image): those
+    pixels become the median of the others, with a note."""
+    if data.dtype.kind != "f" or np.all(np.isfinite(data)):
+        return data
+    bad = ~np.isfinite(data)
+    if bad.all():
+        raise ValueError("every pixel is blank (NaN or infinite)")
+    notes.append(f"{int(bad.sum())} blank (NaN or infinite) pixels set to the median")
+    return np.where(bad, np.median(data[~bad]), data)
 
 
 def _luminance(data, notes):
@@ -244,7 +250,7 @@ def read_image(path, bits=None, binning=1):
     except Exception as exc:    # every decoder error (truncated, corrupt, unsupported) alike
         raise ValueError(f"{path}: cannot read the {fmt} image: {exc}") from None
     try:
-        data = _luminance(np.asarray(data), notes)
+        data = _fill_blanks(_luminance(np.asarray(data), notes), notes)
         if data.ndim != 2:
             raise ValueError(f"unsupported image shape {data.shape}")
         height, width = data.shape
@@ -286,8 +292,9 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None):
                              f"be in {ground_solve.MIN_FOV_DEG:g} .. "
                              f"{ground_solve.MAX_FOV_DEG:g} degrees")
         keys = ("k1", "k2", "k3", "p1", "p2")
-        dist = dict(zip(keys, distortion)) if distortion is not None else None
-        full = ground_solve.make_camera(image.width, image.height, float(fov_deg), dist)
+        dist = dict(zip(keys, distortion)) if distortion is not None else {}
+        f = (image.width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+        full = (f, f, (image.width - 1) / 2, (image.height - 1) / 2, dist)
         what = f"--fov {fov_deg:g} deg" + (" with distortion" if dist else "")
     else:
         if distortion is not None:
@@ -298,14 +305,17 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None):
             hint = "" if preset else "; give --fov (horizontal field of view, deg)"
             raise ValueError(f"the image is {image.width}x{image.height}, the {name} camera "
                              f"{cam.width}x{cam.height}{hint}")
-        full = flightsolve.firmware_camera(cam)
+        fw = flightsolve.firmware_camera(cam)
+        full = (fw.fx, fw.fy, fw.cx, fw.cy,
+                {"k1": fw.k1, "k2": fw.k2, "k3": fw.k3, "p1": fw.p1, "p2": fw.p2})
         what = f"preset {name}"
+    # the camera of the detector's (binned) frame: the original's scaled, so that an image
+    # wider than the detector solves with --bin
+    fx, fy, cx, cy, dist = full
     n = image.bin
-    if n == 1:
-        return full, what
-    return Camera(image.frame.shape[1], image.frame.shape[0], full.fx / n, full.fy / n,
-                  (full.cx + 0.5) / n - 0.5, (full.cy + 0.5) / n - 0.5, full.k1, full.k2,
-                  full.k3, full.p1, full.p2), what + f", binned {n}x{n}"
+    camera = Camera(image.frame.shape[1], image.frame.shape[0], fx / n, fy / n,
+                    (cx + 0.5) / n - 0.5, (cy + 0.5) / n - 0.5, **dist)
+    return camera, what + (f", binned {n}x{n}" if n > 1 else "")
 
 
 def noise_sigma(frame):

@@ -1,42 +1,14 @@
 """The detection gateware: pixels in, blob records and one trailer per frame out.
 
-``Detector(width, height, pixel_bits, label_capacity, record_capacity, record_depth)``
-chains the threshold unit (``hdl/threshold.py``), the labeller (``hdl/labeller.py``) and
-the feature engine (``hdl/features.py``), with the register bank (``hdl/registers.py``)
-and two output buffers:
-
-* ``pixels`` (in): one pixel per clock while ``valid``, ``sof`` on a frame's first pixel,
-  ``eol`` on each line's last; no backpressure.  Blanking: see ``hdl/labeller.py``
-  (``MIN_HBLANK``, ``vblank_cycles``) and, in global mode, ``hdl/threshold.py``.
-* ``records`` (out, valid/ready): blob records in the compact layout
-  (``hdl.layouts.record_layout``), in the contract's order, as blobs complete.  A buffer of
-  ``record_depth`` records (default ``record_capacity``; ``hdl.buffers.HalfWordFIFO``, two
-  half-width memory words per record) decouples the reader; a record that finds it full is
-  counted in ``dropped_records`` (``FRAME_RECORD_OVERFLOW``), so it is one of the records
-  the contract's ``record_capacity`` would also have let through, counted the same way.
-* ``trailer`` (out, valid/ready): after each frame's last record, the header fields of
-  ``hdl.layouts.TRAILER_NAMES``.  One trailer is held for the reader, in registers (the
-  packetizer holds the one whose packet it is sending).  A frame's records are the
-  ``n_records`` records before its trailer.
-* lost trailers: a frame that ends while the held trailer has not been taken loses its
-  trailer (``trailer_lost`` counts them, modulo 256).  Records no trailer claims are
-  discarded before the next trailer is offered, so a reader that takes each trailer and
-  then its ``n_records`` records (the packetizer) stays in step (``hdl/DESIGN.md``).
-* register writes (``reg_addr``, ``reg_data``, ``reg_en``) between frames; registers are
-  latched when a frame's first pixel enters.  ``reg_error`` flags a refused write; it stays
-  set until ``reg_error_clear`` (the board top pulses it when the MCU reads the status).
-* status: ``busy`` (a frame is being processed), ``frame_counter`` (frames started since
-  reset; the trailer carries the frame's own number, from 0), ``fault`` (an internal bound
-  was exceeded: never expected).
-
-In ``local`` mode the trailer's ``threshold`` is the ``local_offset`` register and its
-``background`` 0, as the golden model reports them.  ``FRAME_GLOBAL_FALLBACK`` marks any
-frame whose levels fell back to the fixed registers: global mode without statistics, or
-local mode with a window not narrower than the frame (``hdl/threshold.py``).
-
-Blanking: rows need ``MIN_HBLANK`` idle clocks in fixed and global mode (the local-mode
-delay line inserts them itself); frames need ``min_vblank(...)`` idle clocks after their
-last pixel.
+``Detector(width, height, pixel_bits, label_capacity, record_capacity, record_depth)`` chains
+the threshold unit, the labeller and the feature engine with the register bank and two output
+buffers.  ``pixels``: one pixel per clock while ``valid`` (no backpressure), ``sof`` on a
+frame's first pixel, ``eol`` on each line's last; rows need ``MIN_HBLANK`` idle clocks and
+frames :func:`min_vblank`.  ``records`` and ``trailer`` (valid/ready): compact records in the
+contract's order, then the frame's trailer (``hdl.layouts.TRAILER_NAMES``); a frame's records
+are the ``n_records`` before its trailer.  Registers written between frames are latched at a
+frame's first pixel.  Buffers, lost trailers, ``reg_error`` and the status outputs:
+``hdl/DESIGN.md``.
 """
 
 from amaranth import Module, Mux, Signal

@@ -1,34 +1,14 @@
 """Feature engine: blob features per label slot, merged on union, emitted at completion.
 
-The labeller (``hdl/labeller.py``) sends one *op* per column it decides, at most one per
-clock, in raster order.  An op says what happens to the *accumulator*, the features of the
-current run's component, and to the feature table, a memory of ``slots`` entries holding
-each open tracked component's features in the compact record layout
-(``hdl.layouts.record_layout``; its ``flags`` bit is the moment-saturation flag):
-
-* ``pix``: the lit pixel ``(x, y, p, w)`` joins the accumulator; an op without a pixel (a
-  dark column) empties it;
-* ``rd``/``rd_addr``: read a slot; an op with a pixel adds the slot read to the accumulator
-  (the run continues a component of the previous row, or merges with one: the slot holds
-  the pixel's upper neighbour);
-* ``complete``: the slot read is a completed blob: count it, filter it (contract
-  ``passes_filters``) and emit its record if fewer than ``record_capacity`` records were
-  emitted this frame and the record stream takes it (otherwise ``dropped_records``);
-* ``wr``/``wr_addr``: the run ends; write the accumulator (with this op's pixel) to a slot.
-
-Sums saturate at the contract's moment widths and set the saturation flag; counts, box and
-peak are exact.  The accumulator is empty at every run start (a dark op, a row's end, a
-stale op or ``clear`` empties it), so the order of merges does not matter.  The arithmetic
-(one carry-save layer and one carry chain per sum) is described in ``hdl/DESIGN.md``.
-
-Timing: the op enters at clock ``c``; pixel products and the slot read take two clocks; the
-accumulator, the slot write and the record are at ``c + 3``.  A slot written by an op is
-read back correctly by any op entering two or more clocks later (the read port is
-transparent for the write port); the labeller never reads a slot sooner.  Ops carry the
-frame ``tag``; an op whose tag differs from the ``tag`` input (the frame was aborted) only
-empties the accumulator.  ``clear`` resets the per-frame counters.  The pipeline's data
-registers and the accumulator have no reset (only the valid bits do): a clock without an
-op adds nothing, and every run starts from an empty accumulator.
+Takes the labeller's ops (one per decided column, at most one per clock, in raster order) and
+keeps each open tracked component's features in a table of ``slots`` entries in the compact
+record layout (``hdl.layouts.record_layout``; ``flags`` is the moment-saturation flag).  Sums
+saturate at the contract's moment widths; counts, box and peak are exact.  A completed blob is
+counted, filtered (contract ``passes_filters``) and emitted while fewer than
+``record_capacity`` records left this frame and the stream takes it, else counted in
+``dropped_records``.  An op entering at clock ``c`` writes its slot and record at ``c + 3``; a
+slot is read back correctly two or more clocks after its write.  The op fields, frame tags and
+the arithmetic: ``hdl/DESIGN.md``.
 """
 
 from amaranth import Cat, Module, Mux, Signal

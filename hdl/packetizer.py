@@ -1,30 +1,13 @@
 """Packetizer: a frame's trailer and records out as the contract's packet bytes.
 
-Input: the detector's ``records`` and ``trailer`` streams (``hdl.layouts.record_layout`` and
-``trailer_layout``; a frame's records are the ``n_records`` records before its trailer).
-Output: ``packet``, a byte stream (``lib.stream``, valid/ready) that the SPI slave's
-``READ_STREAM`` consumes, byte-exact with ``lodestar.ground.codec.encode``:
-
-* header, ``contract.HEADER_BYTES``: the fields of ``contract.HEADER_FIELDS`` MSB first;
-  ``magic`` and ``version`` are the contract's constants, ``width``, ``height`` and
-  ``pixel_bits`` those of the build, every other field comes from the trailer by name;
-* ``n_records`` records of ``contract.RECORD_BYTES``: each compact record zero-extended field
-  by field to ``contract.RECORD_FIELDS`` and sent MSB first;
-* CRC-32 as ``zlib.crc32`` (reflected polynomial ``0xEDB88320``, initial value and final XOR
-  ``0xFFFFFFFF``) over header and records, ``contract.CRC_BYTES`` big endian.
-
-The header needs the trailer, which comes after the records: the trailer is copied (the
-detector can then hold the next frame's), the header sent from the copy, and the records
-sent straight from the record stream's payload, which must stay unchanged until taken (as
-``lib.stream`` requires).  So the detector's record buffer holds a frame's records until its
-packet is read (``record_depth``; overflow is counted in ``dropped_records``).
-
-Timing: one byte per clock at most (the SPI slave takes one per 8 SCK periods).  ``valid``
-is low while the next record is not yet on the record stream: a record is taken one clock
-after its last byte, and the buffer presents the next one a clock later, so ``valid`` falls
-for two clocks between records; the SPI slave peeks a byte only at byte boundaries, so the
-reader sees no gap.  ``busy`` is high from the trailer's acceptance until the CRC's last byte
-is taken.
+Input: the detector's ``records`` and ``trailer`` streams (a frame's records are the
+``n_records`` before its trailer).  Output: ``packet``, a valid/ready byte stream
+(``lib.stream``) for the SPI slave's ``READ_STREAM``, byte-exact with
+``lodestar.ground.codec.encode`` (layout and CRC: ``docs/contract.md``).  At most one byte per
+clock; ``valid`` falls for two clocks between records, which the SPI reader never sees;
+``busy`` is high from the trailer's acceptance until the CRC's last byte is taken.  Records
+are sent from the record stream's payload, so the detector's record buffer holds a frame's
+records until its packet is read (``hdl/DESIGN.md``, Packetizer).
 """
 
 from amaranth import Cat, Const, Module, Signal, Value

@@ -1,26 +1,13 @@
 """Threshold unit: pixel stream in, lit flag and weight out, one pixel per clock.
 
-Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract``
-bit-exactly; ``hdl/DESIGN.md`` describes how (global levels searched bit by bit on serial
-arithmetic, local windows from running sums in a delay line).
-
-``pixels``: one pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's
-first pixel, ``eol`` on each line's last.  Positions count as the input arrives; a frame
-ends at ``(W - 1, H - 1)`` and is *complete* (for the statistics) if every line was ``W``
-long.  The registers are latched on the ``sof`` pixel.  ``out``: one beat per pixel in
-raster order, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on the frame's last pixel.
-
-* Fixed and global mode: ``out`` follows the input one clock later.  Global levels are
-  ready ``global_cycles`` clocks after a complete frame's last pixel, and
-  ``ksigma_cycles`` after a ``ksigma`` write; a frame that starts earlier, or after an
-  incomplete frame, uses the fixed registers (``frame_fallback``).
-* Local mode: a pixel's beat comes ``LOCAL_LATENCY`` clocks after the input pixel that made
-  it ready (``L`` more pixels of the frame, or its row's end).  A local-mode frame needs
-  ``local_blanking(log2 L)`` idle clocks after its last pixel; an earlier ``sof`` discards
-  what is left (``frame_tail_dropped``).  A window not narrower than the frame uses the
-  fixed registers (``frame_local_fallback``).  ``frame_threshold`` then carries
-  ``local_offset`` saturated to full scale and ``frame_background`` 0, as
-  ``golden.frame.frame_levels`` reports them.
+Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract`` bit-exactly
+(``hdl/DESIGN.md`` describes how, with each mode's latency and blanking).  ``pixels``: one
+pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's first pixel, ``eol``
+on each line's last; registers are latched on the ``sof`` pixel.  ``out``: one beat per pixel
+in raster order, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on the frame's last.
+Fixed and global mode answer one clock later, local mode ``LOCAL_LATENCY`` clocks after the
+pixel that made a beat ready.  A frame that cannot use its mode's levels uses the fixed
+registers and says so (``frame_fallback``, ``frame_local_fallback``, ``frame_tail_dropped``).
 """
 
 from types import SimpleNamespace
@@ -132,7 +119,7 @@ class ThresholdUnit(wiring.Component):
     """Fixed, global and local thresholds for ``width x height`` frames of ``pixel_bits``
     pixels.  Status outputs, latched on each ``sof``: ``frame_threshold``/
     ``frame_background`` (the frame's T and B), ``frame_fallback``,
-    ``frame_local_fallback``, ``frame_tail_dropped`` (module docstring).  ``stats_busy`` is
+    ``frame_local_fallback``, ``frame_tail_dropped`` (``hdl/DESIGN.md``).  ``stats_busy`` is
     high while the global levels are being computed."""
 
     def __init__(self, width, height, pixel_bits):

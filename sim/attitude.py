@@ -1,28 +1,11 @@
 """Attitude quaternions in the ``lodestar.sim`` convention, built on scipy's ``Rotation``.
 
-``q = [x, y, z, w]`` (scalar last) is the rotation taking inertial (ICRS) vectors into the
-camera frame: ``v_cam = Rotation.from_quat(q).apply(v_inertial)``.
-
-Pointing angles ``(ra, dec, roll)`` in degrees:
-
-* the boresight (camera ``+z``) points at right ascension ``ra``, declination ``dec``;
-* with the local sky axes at the boresight ``north = (-sin dec cos ra, -sin dec sin ra,
-  cos dec)`` and ``east = (-sin ra, cos ra, 0)``, **roll = 0** puts celestial north along
-  camera ``-y`` (image "up" when row 0 is displayed at the top) and east along ``-x``, so the
-  displayed image shows the sky as seen from the ground: north up, east left;
-* positive roll is a right-handed rotation of the camera about its boresight ``+z``; on a
-  display with row 0 at the top, north then appears rotated counter-clockwise from "up" by
-  ``roll``.  The camera axes in inertial coordinates are::
-
-      x_cam = -cos(roll) east - sin(roll) north
-      y_cam =  sin(roll) east - cos(roll) north
-      z_cam =  boresight
-
-At the celestial poles ``ra`` is undefined and only ``ra - roll`` (north pole) or
-``ra + roll`` (south pole) matters; :func:`to_radec_roll` then returns some consistent pair.
-
-Every function accepts one quaternion ``(4,)`` or a stack ``(N, 4)``; NaN, inf or
-non-unit quaternions (norm off by more than :data:`UNIT_TOLERANCE`) raise ``ValueError``.
+Quaternions and frames as ``docs/conventions.md``: ``q = [x, y, z, w]`` with
+``v_cam = Rotation.from_quat(q).apply(v_inertial)``.  Pointing angles ``(ra, dec, roll)`` in
+degrees: the boresight at ``(ra, dec)``, roll 0 showing north up and east left, positive roll
+a right-handed turn about ``+z`` (``docs/simulator.md`` gives the camera axes and the poles).
+Every function accepts one quaternion ``(4,)`` or a stack ``(N, 4)``; NaN, inf or non-unit
+quaternions (norm off by more than :data:`UNIT_TOLERANCE`) raise ``ValueError``.
 """
 
 import numpy as np

@@ -5,17 +5,32 @@ Frames are ``uint16`` arrays indexed ``[y, x]``; the significant bit depth trave
 truth JSON, not in the PNG.
 """
 
+import io
+
 import numpy as np
 from PIL import Image, ImageDraw
 
 
-def save_frame(path, frame):
-    """Write a ``uint16`` (or ``uint8``) frame as a greyscale PNG of the same depth."""
+def frame_png(frame):
+    """The bytes of a ``uint16`` (or ``uint8``) frame as a greyscale PNG of the same depth."""
     frame = np.asarray(frame)
     if frame.ndim != 2 or frame.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"frame must be a 2-D uint8/uint16 array, got {frame.dtype} "
                          f"{frame.shape}")
-    Image.fromarray(frame).save(path, format="PNG")
+    return _png(Image.fromarray(frame))
+
+
+def save_frame(path, frame):
+    """Write :func:`frame_png` of ``frame`` to ``path``."""
+    data = frame_png(frame)
+    with open(path, "wb") as fh:
+        fh.write(data)
+
+
+def _png(img, **options):
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", **options)
+    return buf.getvalue()
 
 
 def load_frame(path):
@@ -37,12 +52,13 @@ def stretch(frame, low_pct=50.0, high_pct=99.95):
     return (np.sqrt(scaled) * 255).astype(np.uint8)
 
 
-def save_preview(path, frame, marks=(), radius=8):
-    """Write a stretched RGB preview with a circle around each ``(x, y, label)`` in ``marks``."""
+def preview_png(frame, marks=(), radius=8):
+    """PNG bytes of a stretched RGB preview with a circle around each ``(x, y, label)`` in
+    ``marks``."""
     img = Image.fromarray(stretch(frame)).convert("RGB")
     draw = ImageDraw.Draw(img)
     for x, y, label in marks:
         draw.ellipse((x - radius, y - radius, x + radius, y + radius), outline=(255, 80, 80))
         if label:
             draw.text((x + radius + 2, y - radius), str(label), fill=(255, 200, 80))
-    img.save(path, format="PNG")
+    return _png(img)

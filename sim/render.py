@@ -1,36 +1,12 @@
 """Noise-free image formation in electrons: pixel-integrated Gaussian stars along their tracks.
 
-Conventions (``lodestar.sim``): pixel ``(x, y)`` has its centre at the integer point and
-covers ``[x - 1/2, x + 1/2] x [y - 1/2, y + 1/2]``; ``x`` is the column, ``y`` the row, and
-images are ``float64`` arrays indexed ``[y, x]`` holding electrons (e⁻).  Times are seconds
-from the start of the exposure of row 0.
-
-Image model.  Source ``i`` has a circular Gaussian PSF of standard deviation ``sigma_px``
-centred on its track ``p_i(t)`` and delivers ``electrons[i]`` over a nominal exposure
-``t_e``.  Row ``r`` integrates over ``[r t_row, r t_row + t_e]`` (``t_row = 0``: global
-shutter), so pixel ``(x, y = r)`` receives::
-
-    E_i / t_e * integral over row r's window of  P_r(y_i(t)) P_x(x_i(t)) dt
-
-where ``P_k(c)`` is the mass of a unit 1-D Gaussian centred on ``c`` inside pixel ``k``
-(a difference of error functions: the PSF is integrated over each pixel, separably).
-
-Time quadrature.  The tracks are sampled on one uniform grid over ``[0, (H-1) t_row + t_e]``
-refined until no source near the frame moves more than ``max_step_px`` (default
-``0.1 min(sigma, 1)`` px) between samples; the integrand is integrated as its piecewise-linear
-interpolant over each row's window (the trapezoid rule with exact partial end cells; its
-weights are positive, so images are never negative).  The error falls as the step squared; at
-the default step it is ~1e-4 of the peak pixel, ~5e-6 in in-frame fractions and ~2e-5 px in
-the centroid of a curved track, and the centroid of a straight constant-velocity track is
-exact (tests compare against 10x finer steps).  A frame whose sources do not move at all is
-rendered from a single sample, exactly.  Weights
-over the grid sum to ``t_e`` for every row, so a source that lies fully inside the frame
-deposits exactly ``electrons[i]`` (up to the Gaussian's tails beyond ``TAIL_SIGMAS``) -- with
-one physical exception: under a rolling shutter a star moving along the columns at ``v_y``
-px/s is exposed for ``t_e / (1 - v_y t_row)`` and deposits that much more (or less).
-
-Each source is rendered into small bounding-box stamps (one per stretch of its track) as a
-matrix product over the time samples; there are no per-pixel Python loops.
+Images are ``float64`` arrays indexed ``[y, x]`` holding electrons; pixel ``(x, y)`` covers
+``[x - 1/2, x + 1/2] x [y - 1/2, y + 1/2]`` (``docs/conventions.md``); times are seconds from
+the start of row 0's exposure.  Each source's circular Gaussian PSF (``sigma_px``) is
+integrated over every pixel along its track, under a global (``t_row = 0``) or rolling
+shutter; a source fully inside the frame deposits exactly its ``electrons`` (up to
+``TAIL_SIGMAS``), except for the rolling-shutter exposure stretch of one moving along the
+columns.  The image model, the time quadrature and its measured error: ``docs/simulator.md``.
 """
 
 from dataclasses import dataclass
@@ -62,7 +38,7 @@ class RenderTruth:
     over the detector area (NaN where nothing lands); ``electrons_in_frame``: e⁻ deposited
     in the frame; ``in_frame_fraction``: ``electrons_in_frame / electrons`` (the share of the
     nominal signal inside the frame; it exceeds 1 only through the rolling-shutter exposure
-    stretch described in the module docstring).
+    stretch, ``docs/simulator.md``).
     """
 
     centroid: np.ndarray

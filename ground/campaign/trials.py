@@ -2,34 +2,11 @@
 flight firmware, checked against the truth.  Runs in worker processes (local or Dask), so
 everything here is a plain function of its arguments and the results are JSON-ready.
 
-Tasks
------
-A task is ``(study, preset, level, trial)``: the study name (:data:`STUDIES`), the camera
-preset, the level of the swept parameter as text (a rate in deg/s, ``false=N``,
-``noise``, ``rest``) and the trial index.  Its **key** is the four joined with ``/``
-(``rate/estcube2/1.5/17``): the journal and the resume logic know tasks by it.
-
-Seeds (determinism regardless of parallelism): a trial's seed is the first 8 bytes of
-SHA-256 of ``"<campaign seed>/<study>/<preset>/<trial>"``, so it does not depend on the
-level: the same trial index sees the same attitude and the same sensor noise at every rate
-(common random numbers: differences between levels are not drowned in attitude-to-attitude
-scatter).  The attitude is :func:`lodestar.sim.attitude.random_attitude` of
-``numpy.random.default_rng(seed)`` (as ``lodestar demo --seed``), the rate axis is drawn
-next from the same generator, and the frame noise uses ``seed`` as well.
-
-Camera settings: :mod:`lodestar.ground.flight` (``preset`` or ``tuned``, the default).
-
-Outcome of one solve (:func:`verdict`): ``solved`` (the firmware returned an attitude),
-``wrong`` and ``imprecise`` (solved, judged by :func:`lodestar.ground.truth.judge`: a
-wrong match, or an error the solution's covariance does not cover; a wrong solution is
-counted apart from failures), ``wrong_matches`` (matched records whose star is not the one
-the simulator put there), ``status`` (``OK``, ``WRONG`` or the firmware's status
-name), the error ``[x, y, roll]`` in arcsec (camera frame, as
-:func:`lodestar.ground.truth.attitude_error_arcsec`) and the firmware's 1-sigma
-``[cross per axis, roll]`` in arcsec.
-
-Units: rates in deg/s on the task level and in the results, rad/s towards the firmware;
-pixels as ``lodestar.contract``; magnitudes Johnson V.
+A task is ``(study, preset, level, trial)``, keyed ``study/preset/level/trial``; its seed
+depends on the trial index, not on the level, so every level sees the same attitudes and
+noise (common random numbers).  :func:`verdict` judges one solve.  Seeds, camera settings and
+the verdict's fields: ``docs/campaigns.md``.  Units: rates in deg/s in tasks and results,
+rad/s towards the firmware; errors and sigmas in arcsec; magnitudes Johnson V.
 """
 
 import hashlib
@@ -88,7 +65,7 @@ def task_key(task):
 
 
 def trial_seed(seed, study, preset, trial):
-    """The trial's seed (module docstring): a non-negative int below 2**63."""
+    """The trial's seed (``docs/campaigns.md``): a non-negative int below 2**63."""
     digest = hashlib.sha256(f"{seed}/{study}/{preset}/{trial}".encode()).digest()
     return int.from_bytes(digest[:8], "little") >> 1
 
@@ -147,7 +124,7 @@ class Frame:
 
 
 def verdict(res, records, frame):
-    """The outcome of a firmware ``Result`` (module docstring) on ``frame``; ``records``
+    """The outcome of a firmware ``Result`` on ``frame``; ``records``
     are the records its ``matches`` index."""
     out = {"status": res.status_name, "solved": bool(res.ok), "wrong": False,
            "imprecise": False,

@@ -6,6 +6,7 @@ import math
 from lodestar.contract import stardb
 from lodestar.firmware.database import DatabaseError
 from lodestar.ground.database import build_database, describe
+from lodestar.ground.files import write_atomic
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
 
 
@@ -42,8 +43,6 @@ def _print_db(info):
 
 
 def _run_db_build(args):
-
-
     if args.fov is not None:
         if not 0 < args.fov < 180 or not math.isfinite(args.fov):
             raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
@@ -52,8 +51,7 @@ def _run_db_build(args):
     else:
         image = build_database(camera=load_preset(args.preset or DEFAULT_PRESET),
                                mag_limit=args.mag, methods=tuple(args.method))
-    with open(args.out, "wb") as fh:
-        fh.write(image)
+    write_atomic(args.out, image)
     print(f"wrote {args.out}")
     _print_db(describe(image))
     return 0

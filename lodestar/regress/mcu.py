@@ -1,27 +1,13 @@
 """The firmware side of the regression (``lodestar regress``): one recorded FPGA packet
 through the flight API, reduced to plain data.  Runs unchanged on CPython and MicroPython
-(``tools/micropython/run.mjs`` copies it to ``/lib/lodestar/``), so both interpreters
-execute the same calls.
+(``run.mjs`` copies it to ``/lib/lodestar/``), so both interpreters execute the same calls.
 
     db = open_database("/regress/estcube2.lsdb")
     tracker = make_tracker(db, camera_settings, "pyramid")
     out = replay(tracker, packet_bytes, case_inputs)
 
-``camera_settings`` (one per camera of the set): ``camera`` (a
-:meth:`lodestar.firmware.camera.Camera.from_dict` dict), ``exposure_s`` and ``row_time_s``
-(s), ``tolerance_px`` (the match tolerance, px).  ``case_inputs`` (one per recorded packet):
-``omega`` (the gyro, rad/s, camera frame, or None), ``exposure_s`` (s, this frame's),
-``prior`` (a scalar-last quaternion for tracking, or None) and ``dt`` (s from the prior's
-epoch, or None).  The tracker is built as ``lodestar.ground.flight.process`` builds it (the
-pipeline's defaults otherwise).
-
-:func:`outcome` fields (JSON-ready: ints, floats, strings, None and lists):
-``status`` (a :mod:`lodestar.firmware.status` code) and ``status_name``, ``reason``,
-``mode`` (``"lost_in_space"``, ``"tracking"`` or None), ``n_records``, ``n_stars``,
-``matches`` (``[record index, HIP]`` in the pipeline's order), ``q`` (``[x, y, z, w]``,
-``v_cam = A(q) v_icrs``, or None), ``sigma_cross_arcsec``, ``sigma_roll_arcsec`` (1 sigma,
-per cross-boresight axis and about the boresight), ``centroid_sigma_px`` and
-``patterns_tried``.
+The ``camera_settings`` and ``case_inputs`` fields and the JSON-ready :func:`outcome` fields:
+``docs/regression.md``, MCU-side replay; units as ``docs/conventions.md``.
 """
 
 from lodestar.firmware import database as _database
@@ -37,14 +23,14 @@ def open_database(path):
 
 def make_tracker(database, settings, method):
     """A :class:`StarTracker` for lost-in-space ``method`` over ``database`` with the camera
-    ``settings`` (module docstring)."""
+    ``settings`` (``docs/regression.md``)."""
     return StarTracker(database, settings["camera"], Settings(method=method,
                        exposure_s=settings["exposure_s"], row_time_s=settings["row_time_s"],
                        tolerance_px=settings["tolerance_px"]))
 
 
 def outcome(result):
-    """The comparable content of a pipeline ``Result`` (module docstring)."""
+    """The comparable content of a pipeline ``Result`` (``docs/regression.md``)."""
     matches = []
     for index, _x, _y, hip in result.matches:
         matches.append([index, hip])
@@ -62,7 +48,7 @@ def outcome(result):
 
 def replay(tracker, packet, inputs):
     """``tracker.process`` of one recorded ``packet`` (bytes) with the case ``inputs``
-    (module docstring); returns :func:`outcome` of the result."""
+    (``docs/regression.md``); returns :func:`outcome` of the result."""
     return outcome(tracker.process(packet, prior=inputs.get("prior"),
                                    omega=inputs.get("omega"), dt=inputs.get("dt"),
                                    exposure_s=inputs.get("exposure_s")))

@@ -2,33 +2,13 @@
 image (:func:`run`), and the regression set replayed on it with the time and heap of every
 solve (:func:`replay`).
 
-``run.mjs`` of the tool folder (``tools/micropython`` of the checkout: the npm package pinned
-in its ``package.json``, installed with ``npm ci --prefix tools/micropython``; another
-folder through ``LODESTAR_MICROPYTHON_TOOL``) runs a script with the files it is given:
-:func:`mcu_image` (the installed ``lodestar`` root, contract and firmware, under
-``/lib/lodestar``), and for a replay :mod:`lodestar.regress.mcu`, the set's databases and
-packet files under ``/regress``, so MicroPython opens the database by offset and reads each
-packet from a file, as the MCU does.
-
-Measurements (:func:`replay`), per solve, in separate ``runPython`` calls (``#@split``):
-this port never collects during a call (``MICROPY_GC_SPLIT_HEAP_AUTO``: ``gc.collect()``
-only requests a collection, run at the start of the next top-level call, and the heap grows
-meanwhile; ``loadMicroPython({heapsize})`` sets the *initial* heap and is no cap), so every
-part ends with ``gc.collect()`` and the next part reads ``gc.mem_alloc()`` collected:
-
-* ``live_before``: ``gc.mem_alloc()`` at the start of the solve's call, before the packet
-  is read: everything resident between solves (firmware bytecode, open databases,
-  trackers, the script's own tables);
-* ``alloc``: bytes allocated by ``StarTracker.process`` (collector disabled, nothing freed):
-  an **upper bound** of the solve's peak heap above ``live_before`` plus the packet.  This
-  port boxes every float on the heap, so the figure counts every intermediate float;
-* ``ms``: wall time of the call by Node's ``performance.now()`` (through the port's ``js``
-  module: ``time.ticks_us`` only counts whole milliseconds here); WebAssembly on this
-  machine, not an MCU.
-
-``resident`` (one dict per run): the collected ``gc.mem_alloc()`` at the start, with the
-firmware imported (``code``), the databases open and the trackers built; ``live_end`` after
-the last solve.
+The tool folder is ``tools/micropython`` of the checkout (``npm ci --prefix
+tools/micropython``) or ``$LODESTAR_MICROPYTHON_TOOL``; its ``run.mjs`` runs a script with
+:func:`mcu_image` under ``/lib/lodestar`` and, for a replay, :mod:`lodestar.regress.mcu`, the
+databases and the packet files under ``/regress``, read by offset and from files as on the
+MCU.  :func:`replay` reports per solve ``live_before``, ``alloc`` (an upper bound of the peak
+heap) and ``ms`` (WebAssembly wall time, not an MCU's), and the ``resident`` heap per run:
+``docs/regression.md`` says how each is measured.
 """
 
 import json

@@ -13,8 +13,8 @@ from pathlib import Path
 from lodestar.firmware.starid import METHODS
 from lodestar.ground import cache
 from lodestar.ground import solve as ground_solve
-from lodestar.ground.cache import write_atomic
 from lodestar.ground.database import build_database
+from lodestar.ground.files import write_atomic
 from lodestar.ground.flight import DEFAULT_MAX_MAG
 from lodestar.regress import mcu
 from lodestar.regress import micropython as regress_micropython

@@ -65,7 +65,7 @@ def _solve(capsys, *argv):
     return code, (json.loads(captured.out) if captured.out else None), captured.err
 
 
-def _check_right(report, truth, cross_arcsec=10.0, roll_arcsec=60.0):
+def _check_right(report, truth, cross_arcsec=10.0, roll_arcsec=60.0, match_px=1.5):
     assert report["status"] == "OK", report["reason"]
     q = attitude.from_radec_roll(report["ra_deg"], report["dec_deg"], report["roll_deg"])
     err = attitude_error_arcsec(q, truth["quaternion_xyzw"])
@@ -74,7 +74,7 @@ def _check_right(report, truth, cross_arcsec=10.0, roll_arcsec=60.0):
     assert len(report["matches"]) >= 10
     for m in report["matches"]:
         s = by_hip[m["hip"]]
-        assert math.hypot(m["x"] - s["x"], m["y"] - s["y"]) < 1.5, m
+        assert math.hypot(m["x"] - s["x"], m["y"] - s["y"]) < match_px, m
 
 
 def test_png_solves_with_every_field(sky, capsys):
@@ -126,6 +126,47 @@ def test_binning_reports_original_pixels(sky, tmp_path, capsys):
     _check_right(r, truth, cross_arcsec=15.0, roll_arcsec=120.0)
     with Image.open(out) as im:
         assert im.size == (1296, 972)
+
+
+def test_bin_solves_an_image_wider_than_the_detector(sky, tmp_path, capsys):
+    """A frame wider than the contract's 4096 px solves with ``--bin`` (issue 19, item 3):
+    each pixel of the simulated frame repeated 2 x 2 averages back to the frame itself."""
+    d, f, truth = sky
+    big = tmp_path / "big.tif"
+    tifffile.imwrite(big, np.repeat(np.repeat(f, 2, axis=0), 2, axis=1))
+    code, r, err = _solve(capsys, big, "--fov", FOV)
+    assert code == 2 and r is None and "use --bin 2" in err
+    code, r, _err = _solve(capsys, big, "--fov", FOV, "--bin", "2")
+    assert code == 0 and r["image"]["bin"] == 2
+    _check_right(r, {**truth, "sources": [dict(s, x=2 * s["x"] + 0.5, y=2 * s["y"] + 0.5)
+                                          for s in truth["sources"]]}, match_px=3.0)
+
+
+def test_annotate_never_overwrites_an_input_or_writes_another_format(sky, tmp_path, capsys):
+    """Issue 19, item 1: ``--annotate`` onto the input image, through a link to it, or with an
+    extension other than .png exits 2 before anything is written; the input is unchanged."""
+    d, _f, _truth = sky
+    image = tmp_path / "sky.png"
+    image.write_bytes((d / "frame.png").read_bytes())
+    before = image.read_bytes()
+    link = tmp_path / "link.png"
+    link.symlink_to(image)
+    for target in (image, link, tmp_path / "out.jpg", tmp_path / "out"):
+        code = main(["solve", str(image), "--annotate", str(target)])
+        assert code == 2 and "--annotate" in capsys.readouterr().err
+    assert image.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.png", "sky.png"]
+
+
+def test_annotate_failure_after_a_solve_prints_the_solution(sky, tmp_path, capsys):
+    """Issue 19, item 11: the solution is printed, then the failure, exit 2."""
+    d, _f, truth = sky
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    code, r, err = _solve(capsys, d / "frame.png", "--annotate", blocker / "out.png")
+    assert code == 2 and "--annotate" in err
+    _check_right(r, truth, cross_arcsec=3.0, roll_arcsec=30.0)
+    assert r["annotated"] is None
 
 
 def test_wrong_fov_claims_no_attitude(sky, capsys):
@@ -196,8 +237,24 @@ def test_colour_cubes_stacks_and_alpha(tmp_path):
     data[5, 5] = np.nan
     fits.PrimaryHDU(data).writeto(path)
     image = imagesolve.read_image(path)
-    assert "1 blank (NaN or inf) pixels set to the median" in image.notes
+    assert "1 blank (NaN or infinite) pixels set to the median" in image.notes
     assert image.frame[5, 5] == int(np.median(plane[~np.isnan(data)]))
+
+
+def test_blank_pixels_of_a_float_tiff_are_the_median_as_in_fits(sky, tmp_path, capsys):
+    """Issue 19, item 6: NaN and infinite pixels of a float TIFF no longer zero the frame;
+    they become the median, with the same note as FITS, and the frame solves."""
+    d, f, truth = sky
+    data = f.astype(np.float32) / 4096
+    data[100, 100:110] = np.nan
+    data[200, 300] = np.inf
+    data[201, 300] = -np.inf
+    path = tmp_path / "blank.tif"
+    tifffile.imwrite(path, data)
+    code, r, err = _solve(capsys, path, "--fov", FOV)
+    assert "12 blank (NaN or infinite) pixels set to the median" in err
+    assert code == 0
+    _check_right(r, truth)
 
 
 @pytest.mark.parametrize("content, message", [

@@ -1,0 +1,44 @@
+"""Files the ground tools write for a user: every output is written whole or not at all
+(a temporary file in the target's folder renamed into place, so a full disk or a crash
+never leaves a truncated file where a good one was), never onto one of the command's own
+inputs, and only with an extension the writer produces."""
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def write_atomic(target, data):
+    """Write ``data`` (bytes or str) to ``target``, creating its folder, through a temporary
+    file renamed into place.  Raises ``OSError`` (the target is then untouched)."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + target.name + ".", suffix=".tmp",
+                               dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def check_output(path, suffixes, inputs=(), what="output"):
+    """Raise ``ValueError`` unless ``path`` may be written as ``what``: its extension is one
+    of ``suffixes`` (lower case, with the dot) and it is none of ``inputs`` (paths the
+    command reads; compared as files, so a link or another spelling of an input is
+    refused too)."""
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {path}: the file must end in {' or '.join(suffixes)}")
+    for source in inputs:
+        source = Path(source)
+        same = path.resolve() == source.resolve()
+        if not same and path.exists() and source.exists():
+            same = os.path.samefile(path, source)
+        if same:
+            raise ValueError(f"{what} {path} is an input of this command; it is not "
+                             f"overwritten")
