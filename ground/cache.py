@@ -3,6 +3,7 @@ disk (``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else ``~/.cach
 under a key of every input, and in memory; files are written atomically."""
 
 import hashlib
+import math
 import os
 from importlib import resources
 from pathlib import Path
@@ -52,6 +53,15 @@ def cache_key(fov_h_deg, fov_v_deg, max_mag, method):
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _serves(db, fov_h_deg, fov_v_deg, max_mag, method):
+    """True when ``db`` is the database of these parameters (a file under the key's name
+    may still be another's: copied, or written by another version)."""
+    return (abs(db.fov_h - math.radians(round(fov_h_deg, 4))) < 1e-6
+            and abs(db.fov_v - math.radians(round(fov_v_deg, 4))) < 1e-6
+            and abs(db.mag_limit - float(max_mag)) < 1e-6
+            and bool(db.methods & stardb.METHOD_NAMES[method]))
+
+
 def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir=None):
     """``(Database, path)`` for the parameters: from memory, the cache file, or built (and
     written to ``cache_dir``; ``path`` is None when the cache cannot be written).  Raises
@@ -68,6 +78,8 @@ def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir
         path = target
     except Exception:            # missing, unreadable or corrupt: rebuild
         db = None
+    if db is not None and not _serves(db, fov_h_deg, fov_v_deg, max_mag, method):
+        db = None                # another camera's or catalogue depth's file: rebuild
     if db is None:
         try:
             image = build_database(fov_h_deg=round(fov_h_deg, 4), fov_v_deg=round(fov_v_deg, 4),

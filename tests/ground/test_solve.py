@@ -311,19 +311,3 @@ def test_database_cache(tmp_path, monkeypatch, catalogue):
     blocker.write_text("not a directory")
     res = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=blocker / "sub")
     assert res.ok and res.database is None
-
-
-def test_cache_key_and_default_directory(monkeypatch, tmp_path):
-    k = cache_module.cache_key(20.2, 15.2, 6.0, "pyramid")
-    assert k == cache_module.cache_key(20.20001, 15.2, 6.0, "pyramid")
-    assert k != cache_module.cache_key(20.3, 15.2, 6.0, "pyramid")
-    assert k != cache_module.cache_key(20.2, 15.2, 6.5, "pyramid")
-    assert k != cache_module.cache_key(20.2, 15.2, 6.0, "triangle")
-    monkeypatch.setenv("LODESTAR_CACHE_DIR", str(tmp_path / "x"))
-    assert cache_module.default_cache_dir() == tmp_path / "x"
-    monkeypatch.delenv("LODESTAR_CACHE_DIR")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert cache_module.default_cache_dir() == tmp_path / "xdg" / "lodestar"
-    monkeypatch.delenv("XDG_CACHE_HOME")
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    assert cache_module.default_cache_dir() == tmp_path / "home" / ".cache" / "lodestar"

@@ -1,0 +1,40 @@
+"""The ground star-database cache: keys, folders, and files that are not what their name
+says."""
+
+import math
+
+from lodestar.ground import cache as cache_module
+from lodestar.ground.database import build_database
+
+
+def test_cache_key_and_default_directory(monkeypatch, tmp_path):
+    k = cache_module.cache_key(20.2, 15.2, 6.0, "pyramid")
+    assert k == cache_module.cache_key(20.20001, 15.2, 6.0, "pyramid")
+    assert k != cache_module.cache_key(20.3, 15.2, 6.0, "pyramid")
+    assert k != cache_module.cache_key(20.2, 15.2, 6.5, "pyramid")
+    assert k != cache_module.cache_key(20.2, 15.2, 6.0, "triangle")
+    monkeypatch.setenv("LODESTAR_CACHE_DIR", str(tmp_path / "x"))
+    assert cache_module.default_cache_dir() == tmp_path / "x"
+    monkeypatch.delenv("LODESTAR_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_module.default_cache_dir() == tmp_path / "xdg" / "lodestar"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert cache_module.default_cache_dir() == tmp_path / "home" / ".cache" / "lodestar"
+
+
+def test_a_file_of_another_field_under_the_key_is_rebuilt(tmp_path, monkeypatch):
+    """Issue 19, item 8: a database of another FOV (or depth) in the cache under this key's
+    name is rebuilt and replaced, not reported as a mismatch forever."""
+    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    db, path = cache_module.load_database(20.0, 15.0, 4.5, cache_dir=tmp_path)
+    assert path is not None and path.is_file()
+    path.write_bytes(build_database(fov_h_deg=12.0, fov_v_deg=9.0, mag_limit=4.5))
+    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    db, again = cache_module.load_database(20.0, 15.0, 4.5, cache_dir=tmp_path)
+    assert again == path
+    assert math.isclose(db.fov_h, math.radians(20.0), rel_tol=1e-6)
+    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    db, _ = cache_module.load_database(20.0, 15.0, 4.5, cache_dir=tmp_path)
+    assert math.isclose(db.fov_h, math.radians(20.0), rel_tol=1e-6)   # the file was replaced
+    assert not list(tmp_path.glob("*.tmp"))
