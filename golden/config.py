@@ -5,7 +5,8 @@ pixel width, capacities) and as runtime registers (everything else), validated a
 contract.  Every invalid value raises ``ValueError`` naming the field and the reason.
 """
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import MISSING, dataclass, fields, replace
 
 from lodestar import contract as C
 
@@ -46,10 +47,28 @@ class DetectorConfig:
     label_capacity: int | None = None
     record_capacity: int = C.DEFAULT_RECORD_CAPACITY
 
+    @classmethod
+    def from_fields(cls, values):
+        """The config of ``values``, a dict of field names (a JSON object, say); raises
+        ``ValueError`` naming what is not a dict, an unknown field or a missing one."""
+        if not isinstance(values, dict):
+            raise ValueError(f"expected an object of DetectorConfig fields, got "
+                             f"{type(values).__name__}")
+        known = [f.name for f in fields(cls)]
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ValueError(f"unknown fields {', '.join(unknown)} (known: {', '.join(known)})")
+        missing = [f.name for f in fields(cls)
+                   if f.default is MISSING and f.name not in values]
+        if missing:
+            raise ValueError(f"missing fields {', '.join(missing)}")
+        return cls(**values)
+
     def __post_init__(self):
         _require_range("width", self.width, 1, C.MAX_WIDTH, " (contract MAX_WIDTH)")
         _require_range("height", self.height, 1, C.MAX_HEIGHT, " (contract MAX_HEIGHT)")
-        if self.pixel_bits not in C.PIXEL_BITS:
+        if isinstance(self.pixel_bits, bool) or not isinstance(self.pixel_bits, int) or \
+                self.pixel_bits not in C.PIXEL_BITS:
             raise ValueError(f"pixel_bits={self.pixel_bits!r} is not one of {C.PIXEL_BITS}")
         if self.threshold_mode not in C.MODE_NAMES:
             raise ValueError(
@@ -57,8 +76,9 @@ class DetectorConfig:
         fs = C.full_scale(self.pixel_bits)
         _require_range("threshold", self.threshold, 0, fs, f" ({self.pixel_bits}-bit pixels)")
         _require_range("background", self.background, 0, fs, f" ({self.pixel_bits}-bit pixels)")
-        if isinstance(self.ksigma, bool) or not isinstance(self.ksigma, (int, float)):
-            raise ValueError(f"ksigma must be a number, got {self.ksigma!r}")
+        if isinstance(self.ksigma, bool) or not isinstance(self.ksigma, (int, float)) or \
+                not math.isfinite(self.ksigma):
+            raise ValueError(f"ksigma must be a finite number, got {self.ksigma!r}")
         kreg = self.ksigma * (1 << C.KSIGMA_FRAC_BITS)
         if kreg != int(kreg):
             raise ValueError(f"ksigma={self.ksigma} is not a multiple of "

@@ -28,6 +28,8 @@ MIN_SIZE_PX = 16
 """Smallest accepted image width and height, px."""
 MAX_BIN = 16
 """Largest ``--bin`` factor."""
+MAX_PIXELS = 16384 * 16384
+"""Most pixels of an image that is decoded at all (about 1 GB of 32-bit pixels)."""
 DATA_BITS_16 = tuple(sorted(set(C.SENSOR_PIXEL_BITS.values()) | {16}))
 """Widths right-aligned data in a 16-bit file are read as: the sensors' (10, 12) and 16."""
 LUMA = (0.2126, 0.7152, 0.0722)
@@ -72,11 +74,30 @@ def _sniff(path):
     raise ValueError(f"{path}: not a PNG, TIFF or FITS file (unrecognised first bytes)")
 
 
-def _read_png(path, head, notes):
+def check_size(width, height, binning):
+    """Refuse, before its pixels are decoded, an image that even binned ``binning`` x
+    ``binning`` is larger than the detector's frame (a small file may hold a huge image)."""
+    if width * height > MAX_PIXELS:
+        raise SizeError(f"the image is {width}x{height}: more than {MAX_PIXELS} pixels")
+    if math.ceil(width / binning) > C.MAX_WIDTH or math.ceil(height / binning) > C.MAX_HEIGHT:
+        need = max(math.ceil(width / C.MAX_WIDTH), math.ceil(height / C.MAX_HEIGHT))
+        if need > MAX_BIN:
+            raise SizeError(f"the image is {width}x{height}: too large even binned {MAX_BIN} x "
+                            f"{MAX_BIN} (crop it)")
+        raise SizeError(f"the image is {width}x{height}; the detector takes at most "
+                        f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}: use --bin {need} (or crop it)")
+
+
+class SizeError(ValueError):
+    """The image is too large for the detector (found from its header)."""
+
+
+def _read_png(path, head, notes, binning):
     from PIL import Image
 
     depth, colour_type = head[24], head[25]      # IHDR: bit depth, colour type
     with Image.open(path) as im:
+        check_size(im.size[0], im.size[1], binning)
         im.load()
         mode = im.mode
         if mode == "P":
@@ -96,12 +117,14 @@ def _read_png(path, head, notes):
     return data
 
 
-def _read_tiff(path, notes):
+def _read_tiff(path, notes, binning):
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
         series = tif.series[0]
         axes = series.axes
+        if "X" in axes and "Y" in axes:
+            check_size(series.shape[axes.index("X")], series.shape[axes.index("Y")], binning)
         data = series.asarray()
     if data.ndim == 3 and axes.startswith("S") and data.shape[0] in (3, 4):
         data = np.moveaxis(data, 0, -1)                 # planar colour -> samples last
@@ -116,18 +139,23 @@ def _read_tiff(path, notes):
     return data
 
 
-def _read_fits(path, notes):
+def _read_fits(path, notes, binning):
     from astropy.io import fits
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             with fits.open(path, memmap=False) as hdus:
-                hdu = next((h for h in hdus if h.data is not None and
-                            getattr(h.data, "ndim", 0) >= 2), None)
+                hdu = next((h for h in hdus if h.header.get("NAXIS", 0) >= 2 and
+                            h.header.get("NAXIS1") and h.header.get("NAXIS2")), None)
                 if hdu is None:
                     raise ValueError("no image data (no HDU with 2 or more axes)")
+                check_size(int(hdu.header["NAXIS1"]), int(hdu.header["NAXIS2"]), binning)
+                if hdu.data is None:
+                    raise ValueError("no image data (no HDU with 2 or more axes)")
                 data = np.array(hdu.data)
+        except SizeError:
+            raise
         except Exception as exc:
             said = "; ".join(str(w.message) for w in caught)
             raise ValueError(f"{exc}" + (f" ({said})" if said else "")) from None
@@ -242,11 +270,13 @@ def read_image(path, bits=None, binning=1):
     notes = []
     try:
         if fmt == "PNG":
-            data = _read_png(path, head, notes)
+            data = _read_png(path, head, notes, binning)
         elif fmt == "TIFF":
-            data = _read_tiff(path, notes)
+            data = _read_tiff(path, notes, binning)
         else:
-            data = _read_fits(path, notes)
+            data = _read_fits(path, notes, binning)
+    except SizeError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     except Exception as exc:    # every decoder error (truncated, corrupt, unsupported) alike
         raise ValueError(f"{path}: cannot read the {fmt} image: {exc}") from None
     try:

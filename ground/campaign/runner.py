@@ -1,9 +1,14 @@
 """Run a campaign: trials in parallel (local processes or Dask), journaled so a stopped
 campaign resumes, then its tables and plots.  Studies and outputs: ``docs/campaigns.md``."""
 
+import ctypes
+import ctypes.util
 import json
 import os
+import signal
 import sys
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from lodestar.ground import flight as flightsolve
@@ -11,6 +16,7 @@ from lodestar.ground import truth as campaign_truth
 from lodestar.ground.campaign import plots as campaign_plots
 from lodestar.ground.campaign import tables as campaign_tables
 from lodestar.ground.campaign import trials as T
+from lodestar.ground.files import write_atomic
 from lodestar.ground.flight import camera_settings
 from lodestar.sim import presets
 from lodestar.sim.presets import PRESETS
@@ -78,30 +84,49 @@ def make_tasks(config, trials):
 
 # ---- journal ---------------------------------------------------------------------------
 
+def _journal_entry(line, first):
+    """The header (``first``) or ``(key, result)`` of a journal line, or None when the line
+    is not one."""
+    try:
+        entry = json.loads(line)
+    except ValueError:
+        return None
+    if not isinstance(entry, dict):
+        return None
+    if first:
+        return entry.get("campaign") if isinstance(entry.get("campaign"), dict) else None
+    if set(entry) != {"key", "result"} or not isinstance(entry["key"], str):
+        return None
+    return entry["key"], entry["result"]
+
+
 def read_journal(path):
-    """``(header, {key: result})`` of a journal; a last line cut short is dropped.  Raises
-    ``ValueError`` for a journal damaged elsewhere."""
-    with open(path) as fh:
-        lines = fh.read().split("\n")
-    header, results = None, {}
-    complete = [line for line in lines if line.strip()]
-    for i, line in enumerate(complete):
-        try:
-            entry = json.loads(line)
-        except json.JSONDecodeError:
-            if i == len(complete) - 1:
-                break               # the write a kill interrupted
-            raise ValueError(f"{path}: line {i + 1} is not JSON; the journal is damaged "
-                             "(delete it to start again)") from None
-        if i == 0:
-            if "campaign" not in entry:
-                raise ValueError(f"{path}: the first line is not a campaign header")
-            header = entry["campaign"]
+    """``(header, {key: result}, good)`` of a journal: ``good`` is its valid part (bytes).
+    A last line that is not a result (a write a kill cut short, or junk) is left out of
+    ``good``; a bad line before the last raises ``ValueError`` (the journal is damaged)."""
+    with open(path, "rb") as fh:
+        data = fh.read()
+    lines = data.split(b"\n")
+    header, results, good = None, {}, 0
+    numbered = [(i, line) for i, line in enumerate(lines) if line.strip()]
+    for n, (i, line) in enumerate(numbered):
+        entry = _journal_entry(line.decode("utf-8", "replace"), first=n == 0)
+        if entry is None:
+            if n == 0:
+                raise ValueError(f"{path}: the first line is not a campaign header (delete "
+                                 "the journal to start again)")
+            if n == len(numbered) - 1:
+                break
+            raise ValueError(f"{path}: line {i + 1} is not a result; the journal is damaged "
+                             "(delete it to start again)")
+        if n == 0:
+            header = entry
         else:
-            results[entry["key"]] = entry["result"]
+            results[entry[0]] = entry[1]
+        good = len(b"\n".join(lines[:i + 1])) + 1
     if header is None:
         raise ValueError(f"{path}: empty journal (delete it to start again)")
-    return header, results
+    return header, results, data[:good]
 
 
 def open_journal(out_dir, config, resume):
@@ -114,19 +139,15 @@ def open_journal(out_dir, config, resume):
         if not resume:
             raise ValueError(f"{path} exists: pass --resume to continue that campaign, or "
                              "choose another --out")
-        header, done = read_journal(path)
+        header, done, good = read_journal(path)
         if header != config:
             changed = sorted(k for k in set(header) | set(config)
                              if header.get(k) != config.get(k))
             raise ValueError(f"{path} belongs to a campaign with other settings "
                              f"({', '.join(changed)} differ); use the same options or "
                              "another --out")
-        with open(path, "rb+") as fh:          # drop a last line cut short by a kill
-            data = fh.read()
-            keep = data[:data.rfind(b"\n") + 1] if not data.endswith(b"\n") else data
-            fh.seek(0)
-            fh.truncate()
-            fh.write(keep)
+        if os.path.getsize(path) != len(good):   # repair: keep only the valid records
+            write_atomic(path, good)
         return open(path, "a"), done
     os.makedirs(out_dir, exist_ok=True)
     fh = open(path, "w")
@@ -137,13 +158,38 @@ def open_journal(out_dir, config, resume):
 
 # ---- execution -------------------------------------------------------------------------
 
+def _die_with_parent(parent):
+    """Worker initializer: end this worker when the campaign process ``parent`` ends, however
+    it ends (``kill -9`` included).  Linux delivers SIGKILL at the parent's death
+    (``PR_SET_PDEATHSIG``); elsewhere, and for a parent that died before the request, a
+    daemon thread polls the parent id once a second."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
+
+
+_PR_SET_PDEATHSIG = 1
+
+
 def _run_local(tasks, config, workers, sink):
     if workers == 1:
         for task in tasks:
             sink(*T.run_task(task, config))
         return
 
-    pool = ProcessPoolExecutor(max_workers=workers)
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent,
+                               initargs=(os.getpid(),))
     try:
         futures = [pool.submit(T.run_task, task, config) for task in tasks]
         for future in as_completed(futures):

@@ -3,6 +3,7 @@ packet, firmware, checked against the truth) and its tables and plots
 (:mod:`lodestar.ground.campaign`)."""
 
 import os
+import signal
 import sys
 import time
 
@@ -54,6 +55,10 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def run(args):
     """The ``campaign`` command: run, print the table and the files written."""
     config = make_config(args.name, args.presets, args.seed, args.rates, args.axis,
@@ -62,6 +67,7 @@ def run(args):
         QUICK["trials"] if args.quick else DEFAULT_TRIALS[args.name]
     out = args.out or os.path.join("out", f"campaign-{args.name}")
     t0 = time.perf_counter()
+    signal.signal(signal.SIGTERM, _interrupt)     # SIGTERM stops a campaign as Ctrl-C does
     try:
         rows, paths = run_campaign(config, trials, out, args.workers, args.dask, args.resume,
                                    args.max_tasks, progress=not args.no_progress)

@@ -36,16 +36,13 @@ def _load(path, cfg_override):
 
 
 def _config_from_args(args):
-
-
     if args.config:
         try:
             fields = json.loads(Path(args.config).read_text())
+            return DetectorConfig.from_fields(fields)
         except (OSError, ValueError) as exc:
             raise ValueError(f"--config {args.config}: {exc}") from None
-        return DetectorConfig(**fields)
     if args.preset:
-
         return detector_config(load_preset(args.preset))
     return None
 
@@ -85,7 +82,7 @@ def run(args):
         results = runner.run_frames([f for _, f, _ in loaded], cfg, cfgs=[c for _, _, c in loaded],
                              log=log)
     except ValueError as exc:
-        print(f"lodestar cosim: {exc}", file=sys.stderr)
+        print(f"lodestar cosim: error: {exc}", file=sys.stderr)
         return 2
     golden = Detector(cfg)
     report, bad = [], 0

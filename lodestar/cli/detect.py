@@ -46,12 +46,24 @@ def add_parser(sub):
 
 
 def _load_frame(args):
-
+    """``(frame, stars)``: the ``--frame`` array (stars None) or the built-in star frame."""
     if args.frame:
-        frame = np.load(args.frame, allow_pickle=False)
-        if frame.ndim != 2:
-            raise ValueError(f"{args.frame}: expected a 2-D frame, got shape {frame.shape}")
+        try:
+            frame = np.load(args.frame, allow_pickle=False)
+        except ValueError:
+            frame = None
+        if not isinstance(frame, np.ndarray):      # an .npz archive, pickled or other data
+            raise ValueError(f"--frame {args.frame}: not a .npy array file (numpy.save of "
+                             f"one 2-D array)")
+        if frame.ndim != 2 or frame.dtype.kind not in "ui":
+            raise ValueError(f"--frame {args.frame}: expected a 2-D unsigned integer frame, "
+                             f"got {frame.dtype} of shape {frame.shape}")
         return frame, None
+    for name, value, lo, hi in (("--width", args.width, 1, C.MAX_WIDTH),
+                                ("--height", args.height, 1, C.MAX_HEIGHT),
+                                ("--stars", args.stars, 0, 100000)):
+        if not lo <= value <= hi:
+            raise ValueError(f"{name} must be in {lo}..{hi}, got {value}")
     return star_frame(args.width, args.height, args.pixel_bits, n_stars=args.stars,
                       seed=args.seed)
 

@@ -45,7 +45,47 @@ def test_bad_input_exits_2_with_message(tmp_path, capsys):
     assert main(["detect", "--frame", str(path)]) == 2
     assert "exceeds full scale 4095" in capsys.readouterr().err
     assert main(["detect", "--width", "5000"]) == 2
-    assert "width=5000 is out of range" in capsys.readouterr().err
+    assert "--width must be in 1..4096, got 5000" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["detect", "--width", "0"], "--width must be in 1..4096, got 0"),
+    (["detect", "--height", "-5"], "--height must be in 1..4096, got -5"),
+    (["detect", "--stars", "-1"], "--stars must be in 0..100000"),
+    (["detect", "--ksigma", "nan"], "ksigma must be a finite number"),
+    (["detect", "--frame", "{npz}"], "not a .npy array file"),
+    (["detect", "--frame", "{json}"], "not a .npy array file"),
+    (["db", "build", "--fov", "20", "--aspect", "0", "-o", "{out}"], "aspect"),
+    (["db", "build", "--fov", "20", "--aspect", "1e-9", "-o", "{out}"], "aspect"),
+    (["cosim", "{png}", "--config", "{list}"], "expected an object of DetectorConfig"),
+    (["cosim", "{png}", "--config", "{unknown}"], "unknown fields colour"),
+    (["cosim", "{png}", "--config", "{partial}"], "missing fields height"),
+])
+def test_bad_arguments_name_themselves_and_exit_2(tmp_path, capsys, argv, message):
+    """Issue 19, item 9: one line naming the argument and its range, exit 2, no traceback,
+    and no output file."""
+    files = {"npz": tmp_path / "x.npz", "json": tmp_path / "x.json", "out": tmp_path / "db.bin",
+             "png": tmp_path / "f.png", "list": tmp_path / "list.json",
+             "unknown": tmp_path / "unknown.json", "partial": tmp_path / "partial.json"}
+    np.savez(files["npz"], a=np.zeros((4, 4), np.uint16))
+    files["json"].write_text('{"a": 1}')
+    np.save(tmp_path / "f.npy", np.zeros((8, 8), np.uint16))
+    files["png"] = tmp_path / "f.npy"
+    files["list"].write_text("[1, 2]")
+    files["unknown"].write_text('{"width": 8, "height": 8, "colour": 1}')
+    files["partial"].write_text('{"width": 8}')
+    code = main([a.format(**files) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not files["out"].exists()
+
+
+def test_detector_config_refuses_a_float_pixel_width():
+    from lodestar.golden import DetectorConfig
+
+    with pytest.raises(ValueError, match="pixel_bits=16.0 is not one of"):
+        DetectorConfig(width=8, height=8, pixel_bits=16.0)
 
 
 def test_python_dash_m():

@@ -142,6 +142,33 @@ def test_bin_solves_an_image_wider_than_the_detector(sky, tmp_path, capsys):
                                           for s in truth["sources"]]}, match_px=3.0)
 
 
+@pytest.mark.parametrize("name", ["huge.png", "huge.tif", "huge.fits"])
+def test_a_huge_image_is_refused_from_its_header(tmp_path, capsys, monkeypatch, name):
+    """Issue 19, item 10: a 12000 x 12000 image (a 140 KB PNG) is refused before its pixels
+    are decoded (decoding it took 1.3 GB), with the --bin that would fit it."""
+    path = tmp_path / name
+    if name.endswith(".png"):
+        Image.new("L", (12000, 12000)).save(path)
+        monkeypatch.setattr(Image.Image, "load", lambda self: pytest.fail("decoded"))
+    elif name.endswith(".tif"):
+        tifffile.imwrite(path, shape=(12000, 12000), dtype=np.uint8)
+        monkeypatch.setattr(tifffile.TiffPageSeries, "asarray",
+                            lambda *a, **k: pytest.fail("decoded"))
+    else:
+        header = fits.Header({"SIMPLE": True, "BITPIX": 8, "NAXIS": 2, "NAXIS1": 12000,
+                              "NAXIS2": 12000})
+        header.tofile(path)
+        with open(path, "ab") as fh:
+            fh.truncate(2880 + 12000 * 12000 + (-12000 * 12000) % 2880)
+        monkeypatch.setattr(fits.ImageHDU, "data", property(lambda self: pytest.fail("decoded")))
+        monkeypatch.setattr(fits.PrimaryHDU, "data",
+                            property(lambda self: pytest.fail("decoded")))
+    assert main(["solve", str(path), "--fov", "20"]) == 2
+    assert "the image is 12000x12000" in capsys.readouterr().err
+    assert main(["solve", str(path), "--fov", "20", "--bin", "2"]) == 2
+    assert "use --bin 3" in capsys.readouterr().err
+
+
 def test_annotate_never_overwrites_an_input_or_writes_another_format(sky, tmp_path, capsys):
     """Issue 19, item 1: ``--annotate`` onto the input image, through a link to it, or with an
     extension other than .png exits 2 before anything is written; the input is unchanged."""

@@ -5,6 +5,11 @@ arguments."""
 import csv
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -90,8 +95,30 @@ def test_existing_journal_needs_resume_and_the_same_settings(reference, tmp_path
     with pytest.raises(ValueError, match="seed differ"):
         campaign.run_campaign(rate_config(seed=4), 2, str(out), resume=True, progress=False)
     (tmp_path / campaign.JOURNAL).write_text('{"campaign": {}}\nnot json\n{"key": 1}\n')
-    with pytest.raises(ValueError, match="line 2 is not JSON"):
+    with pytest.raises(ValueError, match="line 2 is not a result"):
         campaign.read_journal(str(tmp_path / campaign.JOURNAL))
+
+
+@pytest.mark.parametrize("last", ["junk line\n", '{"key": "x"}\n', "[1, 2]\n", '"text"\n',
+                                  '{"key": "rate/lohmann/1/1", "resu'])
+def test_a_bad_last_line_is_repaired_and_resume_works_again(reference, tmp_path, last):
+    """Issue 19, item 7: a last line that is not a result (junk, valid JSON of another shape,
+    a write cut short) is cut from the journal on resume, so the next resume works too and
+    no result is lost."""
+    out, rows, _paths = reference
+    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=2,
+                                 progress=False) == (None, [])
+    journal = tmp_path / campaign.JOURNAL
+    good = journal.read_bytes()
+    with open(journal, "a") as fh:
+        fh.write(last)
+    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+                                 max_tasks=1, progress=False) == (None, [])
+    assert journal.read_bytes().startswith(good) and last not in journal.read_text()
+    rows2, paths = campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+                                         progress=False)
+    assert rows2 == rows and paths
+    assert journal_results(tmp_path) == journal_results(out)
 
 
 def test_every_study_writes_its_table(tmp_path):
@@ -156,3 +183,55 @@ def test_dask_cluster_gives_the_same_results(reference, tmp_path):
         rows2, _ = campaign.run_campaign(rate_config(), 2, str(tmp_path),
                                          dask=cluster.scheduler_address, progress=False)
     assert rows2 == rows
+
+
+def _children(pid):
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid):
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGTERM])
+def test_workers_end_with_the_campaign(tmp_path, how):
+    """Issue 19, item 4: ``kill -9`` or SIGTERM of a ``--workers 2`` campaign leaves no
+    worker behind; SIGTERM stops it as Ctrl-C does (exit 130, the journal kept)."""
+    out = tmp_path / "c"
+    proc = subprocess.Popen([sys.executable, "-m", "lodestar", "campaign", "rate", "--presets",
+                             "lohmann", "--trials", "50", "--out", str(out), "--workers", "2",
+                             "--no-progress"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        workers = []
+        while len(workers) < 2 and time.monotonic() < deadline:
+            time.sleep(0.5)
+            workers = [p for p in _children(proc.pid) if _alive(p)]
+        assert len(workers) >= 2, "the workers did not start"
+        proc.send_signal(how)
+        code = proc.wait(timeout=60)
+        if how == signal.SIGTERM:
+            assert code == 130 and "--resume" in proc.stderr.read()
+            assert (out / campaign.JOURNAL).is_file()
+        deadline = time.monotonic() + 15
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not [p for p in workers if _alive(p)]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
