@@ -1,0 +1,53 @@
+"""User outputs: written whole or not at all, never onto an input."""
+
+import errno
+import os
+
+import pytest
+
+from lodestar.cli import main
+from lodestar.ground import files
+
+
+def test_write_atomic_replaces_whole_or_leaves_the_old_file(tmp_path, monkeypatch):
+    target = tmp_path / "db.bin"
+    files.write_atomic(target, b"good" * 1000)
+    real_fsync = os.fsync
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        files.write_atomic(target, b"new" * 100000)
+    monkeypatch.setattr(os, "fsync", real_fsync)
+    assert target.read_bytes() == b"good" * 1000
+    assert [p.name for p in tmp_path.iterdir()] == ["db.bin"]        # no temporary left
+    files.write_atomic(tmp_path / "sub" / "t.txt", "text")
+    assert (tmp_path / "sub" / "t.txt").read_text() == "text"
+
+
+def test_db_build_on_a_full_disk_keeps_the_database_it_would_replace(tmp_path, monkeypatch,
+                                                                      capsys):
+    """Issue 19, item 5: ``db build -o`` over a valid database on a full disk exits 2 and
+    leaves that database whole (it was truncated to 204,800 of 519,700 bytes)."""
+    out = tmp_path / "db.bin"
+    assert main(["db", "build", "--fov", "20", "--mag", "4.5", "-o", str(out)]) == 0
+    before = out.read_bytes()
+    monkeypatch.setattr(os, "fsync", lambda fd: (_ for _ in ()).throw(
+        OSError(errno.ENOSPC, "No space left on device")))
+    capsys.readouterr()
+    assert main(["db", "build", "--fov", "21", "--mag", "4.5", "-o", str(out)]) == 2
+    assert "No space left" in capsys.readouterr().err
+    assert out.read_bytes() == before
+
+
+def test_check_output(tmp_path):
+    source = tmp_path / "in.png"
+    source.write_bytes(b"x")
+    files.check_output(tmp_path / "out.png", (".png",), inputs=[source])
+    files.check_output(tmp_path / "OUT.PNG", (".png",), inputs=[source])
+    with pytest.raises(ValueError, match="must end in .png"):
+        files.check_output(tmp_path / "out.tif", (".png",))
+    with pytest.raises(ValueError, match="is an input of this command"):
+        files.check_output(tmp_path / "." / "in.png", (".png",), inputs=[source])
