@@ -23,7 +23,7 @@ from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
-from .settings import Settings
+from .settings import MAX_STARS, Settings
 from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
@@ -180,8 +180,12 @@ class StarTracker:
         if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
             self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
             return
-        if not (isinstance(st.max_stars, int) and st.max_stars >= 4):
-            self._fail(S.BAD_INPUT, "max_stars must be an int >= 4")
+        if not (isinstance(st.max_stars, int) and 4 <= st.max_stars <= MAX_STARS):
+            self._fail(S.BAD_INPUT, "max_stars must be an int in 4.." + str(MAX_STARS))
+            return
+        if isinstance(st.max_work, bool) or not (isinstance(st.max_work, int) and
+                                                 st.max_work >= 1):
+            self._fail(S.BAD_INPUT, "max_work must be an int >= 1")
             return
         if not (isinstance(st.budget, int) and st.budget >= 1):
             self._fail(S.BAD_INPUT, "budget must be an int >= 1")
@@ -227,6 +231,11 @@ class StarTracker:
         if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
             self._fail(S.DATABASE_MISMATCH, "database horizontal FOV " + str(db.fov_h) +
                        " rad, camera " + str(fov_h))
+            return
+        widest = _starid.MAX_TOLERANCE_FRACTION * db.fov_h * focal
+        if self.tolerance_rad > _starid.MAX_TOLERANCE_FRACTION * db.fov_h:
+            self._fail(S.BAD_INPUT, "tolerance_px must be at most " + str(int(widest)) +
+                       " px (" + str(_starid.MAX_TOLERANCE_FRACTION) + " of the field)")
             return
 
     # ---- stages ---------------------------------------------------------------------
@@ -327,7 +336,8 @@ class StarTracker:
                 return sol, mode
         sol = _starid.identify(vectors, self.database, method=self.settings.method,
                                tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
-                               streaks=streaks, **self.settings.id_options)
+                               max_work=self.settings.max_work, streaks=streaks,
+                               **self.settings.id_options)
         return sol, "lost_in_space"
 
     def weights(self, fluxes):

@@ -9,6 +9,7 @@ validates them when it is built and reports a bad one as its ``BAD_INPUT`` statu
 raises).  Pure Python for CPython and MicroPython.
 """
 
+from .starid.search import DEFAULT_MAX_WORK
 from .tracking import DEFAULT_MAX_MISMATCH_PROB, DEFAULT_MIN_MATCHES
 
 DEFAULT_TOLERANCE_PX = 2.5
@@ -23,6 +24,8 @@ track into pieces the fragment joining cannot all recover, with centroid errors 
 covariance does not describe (``docs/firmware.md``)."""
 DEFAULT_BUDGET = 2000
 """Lost-in-space pattern budget (deterministic cap on the search)."""
+MAX_STARS = 256
+"""Most stars a frame may keep (``max_stars``): verification work grows with it."""
 DEFAULT_TRACK_SEARCH_DEG = 0.3
 """Largest expected error of the propagated prior, deg."""
 
@@ -46,7 +49,8 @@ class Settings:
     ``extract_options``: extra keywords of :func:`lodestar.firmware.centroids.extract`;
     ``id_options``: extra keywords of the identification (``max_stars``,
     ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
-    number (e.g. ``time.ticks_ms``) for ``result.timings``.
+    number (e.g. ``time.ticks_ms``) for ``result.timings``.  ``max_work``: work budget of a
+    lost-in-space identification (:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`).
     """
 
     def __init__(self, method="pyramid", max_stars=DEFAULT_MAX_STARS,
@@ -57,7 +61,8 @@ class Settings:
                  track_min_matches=DEFAULT_MIN_MATCHES,
                  track_max_prob=DEFAULT_MAX_MISMATCH_PROB, fallback=True,
                  drop_border=True, refine=True, max_smear_px=DEFAULT_MAX_SMEAR_PX,
-                 extract_options=None, id_options=None, clock=None):
+                 extract_options=None, id_options=None, clock=None,
+                 max_work=DEFAULT_MAX_WORK):
         self.method = method
         self.max_stars = max_stars
         self.tolerance_px = tolerance_px
@@ -78,3 +83,4 @@ class Settings:
         self.extract_options = extract_options if extract_options is not None else {}
         self.id_options = id_options if id_options is not None else {}
         self.clock = clock
+        self.max_work = max_work

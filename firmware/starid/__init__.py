@@ -25,7 +25,11 @@ from lodestar.contract.stardb import METHODS
 
 from .. import status as S
 from . import hashing, pyramid, triangle
-from .search import Solution
+from .search import DEFAULT_MAX_WORK, Solution
+
+MAX_TOLERANCE_FRACTION = 0.05
+"""Largest match tolerance as a fraction of the horizontal field (1 deg of a 20 deg field):
+beyond it a pattern matches too much of the sky to identify anything."""
 
 _MODULES = {"pyramid": pyramid, "triangle": triangle, "hashing": hashing}
 """The registry: each of the contract's :data:`METHODS` -> its module."""
@@ -39,12 +43,21 @@ def method(name):
     return _MODULES.get(name)
 
 
-def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=2000, **options):
+def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=2000,
+             max_work=DEFAULT_MAX_WORK, **options):
     """Identify the observed stars; returns a :class:`Solution` (bad input: ``BAD_INPUT``;
-    a method the database does not serve: ``DATABASE_UNSUPPORTED``)."""
-    if tolerance_rad is None:
-        tolerance_rad = database.fov_h / 1000.0
+    a method the database does not serve: ``DATABASE_UNSUPPORTED``; ``budget`` patterns or
+    ``max_work`` units of work spent: ``BUDGET_EXHAUSTED``).  A tolerance wider than
+    :data:`MAX_TOLERANCE_FRACTION` of the field is ``BAD_INPUT``: it would match anything."""
     module = _MODULES.get(method)
-    if module is None:
+    if module is None or isinstance(max_work, bool) or not isinstance(max_work, int) or \
+            max_work < 1:
         return Solution(S.BAD_INPUT)
-    return module.identify(vectors, database, tolerance_rad, budget, **options)
+    fov = getattr(database, "fov_h", None)      # None: the method reports the database
+    if tolerance_rad is None and fov is not None:
+        tolerance_rad = fov / 1000.0
+    elif fov is not None and isinstance(tolerance_rad, (int, float)) and \
+            tolerance_rad > MAX_TOLERANCE_FRACTION * fov:
+        return Solution(S.BAD_INPUT)
+    return module.identify(vectors, database, tolerance_rad, budget, max_work=max_work,
+                           **options)

@@ -16,7 +16,7 @@ from lodestar.contract.stardb import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_H
 
 from .. import geometry as G
 from .. import status as S
-from .search import Search, Solution, handed, observed, triple_bound
+from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, Solution, handed, observed, triple_bound
 
 DATABASE_BIT = METHOD_HASHING
 """The database's ``methods`` bit this method reads."""
@@ -334,6 +334,7 @@ class _Search(Search):
         db = self.db
         t_obs = t_bound = None
         for r in box_records(db, box_codes(h, t, d_obs, self.d_tol, db)):
+            self.spend(RECORD_WORK)
             stars = db.hash_record(r)[1:]
             cat = [db.star_vector(s) for s in stars]
             if self.use_d and abs(G.angle(cat[0], cat[1]) - d_obs) > self.d_tol:
@@ -362,7 +363,8 @@ class _Search(Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
+             max_work=DEFAULT_MAX_WORK):
     """Geometric-hashing identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -384,6 +386,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
                      streaks)
+    search.max_work = max_work
     return search.run(_groups(g, n), budget)
 
 

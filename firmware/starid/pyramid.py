@@ -17,7 +17,7 @@ from lodestar.contract.stardb import METHOD_PYRAMID
 
 from .. import geometry as G
 from ..database import PAIR_BLOCK
-from .search import Search, Solution, handed, observed
+from .search import DEFAULT_MAX_WORK, Search, Solution, handed, observed
 
 DATABASE_BIT = METHOD_PYRAMID
 """The database's ``methods`` bit this method reads."""
@@ -100,6 +100,7 @@ class _Search(Search):
         mask = size - 1
         head = _none_array(size)
         st = array("H")
+        self.spend(stop - start)
         for p in range(start, stop, PAIR_BLOCK):
             st.extend(db.pair_stars(p, PAIR_BLOCK if p + PAIR_BLOCK < stop else stop - p))
         nxt = array("H", st)        # sized like st; every entry is set below
@@ -148,6 +149,7 @@ class _Search(Search):
         n_ik = stop - start
         for p0 in range(start, stop, PAIR_BLOCK):
             rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < stop else stop - p0)
+            self.spend(len(rec))
             for t in range(0, len(rec), 2):
                 a = rec[t]
                 c = rec[t + 1]
@@ -186,6 +188,7 @@ class _Search(Search):
             t_obs = G.triple(b[i], b[j], b[r])
             for p0 in range(s[0], s[1], PAIR_BLOCK):
                 rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < s[1] else s[1] - p0)
+                self.spend(len(rec) >> 1)
                 for t in range(0, len(rec), 2):
                     a = rec[t]
                     c = rec[t + 1]
@@ -226,7 +229,8 @@ class _Search(Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
+             max_work=DEFAULT_MAX_WORK):
     """Pyramid identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -242,6 +246,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
         return Solution(code)
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
+    search.max_work = max_work
     return search.run(_triples(search.n), budget)
 
 

@@ -16,6 +16,22 @@ from .. import status as S
 from ..quaternion import angle_between
 from .verify import streak_variance, verify
 
+DEFAULT_MAX_WORK = 5000000
+"""Work budget of one identification, in units of one catalogue candidate examined (a
+verification costs :data:`VERIFY_WORK` plus one per observed star).  A search that spends
+it ends with ``BUDGET_EXHAUSTED`` whatever its input; measurements in ``docs/starid.md``
+(Work budget)."""
+VERIFY_WORK = 8192
+"""Work units of one hypothesis verification beyond its observed stars (a cone of the
+catalogue read and matched: about as long as 8,000 pair candidates)."""
+RECORD_WORK = 32
+"""Work units of one stored triangle or hash group examined (its stars read and compared:
+about as long as 32 pair candidates)."""
+
+
+class OutOfWork(Exception):
+    """The search spent its work budget (caught by :meth:`Search.run`)."""
+
 
 class Solution:
     """Result of an identification.
@@ -144,6 +160,8 @@ class Search:
         self.distinct = distinct
         self.hypotheses = 0
         self.best_rejected = 1.0
+        self.work = 0
+        self.max_work = DEFAULT_MAX_WORK
         self.streaks = streaks if streaks is not None and any(streaks) else None
         self.half = [0.0] * len(b)
         self.weights = streak_weights(self.streaks, tol)
@@ -152,9 +170,16 @@ class Search:
                 if streaks[o] is not None:
                     self.half[o] = streaks[o][3]
 
+    def spend(self, units):
+        """Count ``units`` of work; raises :class:`OutOfWork` past :attr:`max_work`."""
+        self.work += units
+        if self.work > self.max_work:
+            raise OutOfWork()
+
     def hypothesis(self, obs_idx, cat_idx):
         """Fit (q-method, :meth:`fit`) and verify observed stars ``obs_idx`` as catalogue
         stars ``cat_idx``; returns ``(q, Verification)`` or ``(None, None)`` (degenerate)."""
+        self.spend(VERIFY_WORK + len(self.b))
         q = self.fit([(obs_idx[t], cat_idx[t]) for t in range(len(obs_idx))])
         if q is None:
             return None, None
@@ -221,15 +246,19 @@ class Search:
     def run(self, patterns, budget):
         """Try ``patterns`` (observed-star index tuples, in search order) with the method's
         ``try_pattern`` until one has accepted hypotheses (:meth:`conclude`), ``budget``
-        patterns were tried (``BUDGET_EXHAUSTED``) or none is left (``NO_MATCH``)."""
+        patterns were tried or :attr:`max_work` units spent (``BUDGET_EXHAUSTED``) or none is
+        left (``NO_MATCH``)."""
         tried = 0
-        for pattern in patterns:
-            if tried >= budget:
-                return self.fail(S.BUDGET_EXHAUSTED, tried)
-            tried += 1
-            accepted = self.try_pattern(pattern)
-            if accepted:
-                return self.conclude(accepted, tried)
+        try:
+            for pattern in patterns:
+                if tried >= budget:
+                    return self.fail(S.BUDGET_EXHAUSTED, tried)
+                tried += 1
+                accepted = self.try_pattern(pattern)
+                if accepted:
+                    return self.conclude(accepted, tried)
+        except OutOfWork:
+            return self.fail(S.BUDGET_EXHAUSTED, tried)
         return self.fail(S.NO_MATCH, tried)
 
     def fail(self, status, tried):

@@ -15,7 +15,7 @@ import math
 from lodestar.contract.stardb import METHOD_TRIANGLE
 
 from ..geometry import chord, norm, triple
-from .search import Search, Solution, handed, observed, triple_bound
+from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, Solution, handed, observed, triple_bound
 
 DATABASE_BIT = METHOD_TRIANGLE
 """The database's ``methods`` bit this method reads."""
@@ -134,6 +134,7 @@ class _Search(Search):
         t_bound = triple_bound(v[0], v[1], v[2], tol)
         accepted = []
         for r in range(start, stop):
+            self.spend(RECORD_WORK)
             _, mkey, c0, c1, c2 = db.triangle_record(r)
             if abs(mkey * mstep - mo) > d_moment:
                 continue
@@ -152,7 +153,8 @@ class _Search(Search):
 
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
-             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None):
+             max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
+             max_work=DEFAULT_MAX_WORK):
     """Planar-triangle identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -168,6 +170,7 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
         return Solution(code)
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
+    search.max_work = max_work
     return search.run(_triples(len(b) if len(b) < max_stars else max_stars), budget)
 
 
