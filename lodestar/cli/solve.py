@@ -6,6 +6,7 @@ import math
 import sys
 
 from lodestar import contract as C
+from lodestar.firmware import starid
 from lodestar.ground import flight as flightsolve
 from lodestar.ground.files import check_output
 from lodestar.ground.imagesolve import (
@@ -63,10 +64,12 @@ def run(args):
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
     camera, what = image_camera(image, args.preset, args.fov, args.distortion)
+    widest = starid.MAX_TOLERANCE_FRACTION * 2 * math.atan(
+        (camera.width / 2) / camera.fx) * camera.fx
     if args.tolerance is not None and not (math.isfinite(args.tolerance) and
-                                           args.tolerance > 0):
-        raise ValueError(f"--tolerance must be a positive number of pixels, got "
-                         f"{args.tolerance}")
+                                           0 < args.tolerance <= widest):
+        raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
+                         f"of the field), got {args.tolerance}")
     report, det, res = solve_image(image, camera, args.mag, args.tolerance, args.ksigma,
                                    args.min_pixels, log=sys.stderr)
     report["camera"] = what

@@ -316,7 +316,9 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
         (["--distortion", "0", "0", "0", "0", "0"], "--distortion needs --fov"),
         (["--fov", "20", "--distortion", "-5", "0", "0", "0", "0"], "error"),
         (["--fov", "20", "--bin", "0"], "--bin must be an int"),
-        (["--fov", "20", "--tolerance", "-1"], "--tolerance must be a positive"),
+        (["--fov", "20", "--tolerance", "-1"], "--tolerance must be a number of pixels in"),
+        (["--fov", "20", "--tolerance", "1e9"], "(5 % of the field), got 1000000000.0"),
+        (["--fov", "20", "--tolerance", "200"], "in (0, 128]"),
         (["--fov", "20", "--ksigma", "0"], "--ksigma must be a positive"),
     ]
     for extra, message in cases:
