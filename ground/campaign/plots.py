@@ -2,10 +2,12 @@
 :mod:`lodestar.ground.campaign.tables` and returning the paths written.  Axes are labelled with
 their units (deg/s, arcsec, px, V mag, %)."""
 
+import io
 import os
 
 from lodestar.ground.campaign import tables
 from lodestar.ground.campaign import trials as T
+from lodestar.ground.files import write_atomic
 
 
 def _pyplot():
@@ -26,7 +28,9 @@ def _by(rows, *keys):
 
 def _save(fig, path):
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    write_atomic(path, buf.getvalue())
     return path
 
 

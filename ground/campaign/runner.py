@@ -293,8 +293,7 @@ def write_outputs(config, tasks, results, out_dir):
                                                    campaign_tables.DZAMBA_TABLE_4_1.items()},
                               "schumann_5dps_sky_pct": campaign_tables.SCHUMANN_5DPS_PCT,
                               "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
-    with open(base + ".json", "w") as fh:
-        json.dump(summary, fh, indent=1)
+    write_atomic(base + ".json", json.dumps(summary, indent=1))
     campaign_tables.write_csv(base + ".csv", rows)
     title = f"{trials} trials/level, seed {config['seed']}"
     pngs = campaign_plots.PLOTS[study](rows, out_dir, title)

@@ -23,11 +23,13 @@ tasks.  Conventions of all tables:
 """
 
 import csv
+import io
 import math
 
 import numpy as np
 
 from lodestar.ground.campaign import trials as T
+from lodestar.ground.files import write_atomic
 from lodestar.sim import photometry, presets, scene
 
 DZAMBA_TABLE_4_1 = {1.0: (99.4, 96.8), 1.5: (89.5, 73.6), 2.0: (79.2, 58.7), 3.0: (45.6, 21.0)}
@@ -238,12 +240,12 @@ def tables(study, tasks, results, config):
 
 def write_csv(path, rows):
     """Rows as CSV (columns of the first row; lists such as ``curve`` are left out)."""
-
     columns = [k for k, v in rows[0].items() if not isinstance(v, list)] if rows else []
-    with open(path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow(["" if row[c] is None else
-                             (f"{row[c]:.6g}" if isinstance(row[c], float) else row[c])
-                             for c in columns])
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow(["" if row[c] is None else
+                         (f"{row[c]:.6g}" if isinstance(row[c], float) else row[c])
+                         for c in columns])
+    write_atomic(path, text.getvalue())

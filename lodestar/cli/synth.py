@@ -16,6 +16,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from lodestar.ground.files import write_atomic
 from lodestar.hdl import estimate
 from lodestar.hdl.boards import BOARDS, BoardTop, board_platform, sdc_constraints
 
@@ -159,7 +160,7 @@ def run(args):
             "Prime Lite with Cyclone IV E support and put quartus_sh on PATH (then rerun), or "
             f"run {project}/build_{QUARTUS_NAME}.sh.")
     text = estimate.format_report(report)
-    (out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
-    (out / "report.txt").write_text(text + "\n")
+    write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
+    write_atomic(out / "report.txt", text + "\n")
     print(json.dumps(report, indent=1) if args.json else text)
     return 0
