@@ -1,4 +1,5 @@
-"""Shared fixtures: MicroPython (the firmware as the MCU runs it).
+"""Shared fixtures: MicroPython (the firmware as the MCU runs it) and the work record of
+the identification searches.
 
 ``micropython(script, heapsize=None, timeout=120)`` runs a script under MicroPython 1.27
 with the MCU image (:func:`lodestar.regress.micropython.run`) and returns ``(exit status,
@@ -12,6 +13,7 @@ import os
 
 import pytest
 
+from lodestar.firmware.starid import search as starid_search
 from lodestar.regress import micropython as runner
 from tests import REPO
 
@@ -46,3 +48,20 @@ def micropython(require_micropython):
         proc = runner.run(script_text, heapsize=heapsize, timeout=timeout)
         return proc.returncode, proc.stdout + proc.stderr
     return run
+
+
+@pytest.fixture
+def work_spent(monkeypatch):
+    """``[(work, max_work), ...]``: the work each identification search spent, in call order
+    (for calls that reach the search through the pipeline or the ground solve)."""
+    spent = []
+    run = starid_search.Search.run
+
+    def recording(self, patterns, budget):
+        try:
+            return run(self, patterns, budget)
+        finally:
+            spent.append((self.work, self.max_work))
+
+    monkeypatch.setattr(starid_search.Search, "run", recording)
+    return spent

@@ -42,11 +42,12 @@ class Solution:
     for Pyramid and Triangle, star groups for Hashing);
     ``probability``: the binomial false-match probability of the accepted hypothesis (or of
     the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
-    verified; ``star_ids``: ``(observed_index, database star index)`` pairs.
+    verified; ``star_ids``: ``(observed_index, database star index)`` pairs; ``work``: work
+    units spent (:data:`DEFAULT_MAX_WORK`).
     """
 
     def __init__(self, status, q=None, matches=None, patterns_tried=0, probability=1.0,
-                 hypotheses=0, star_ids=None):
+                 hypotheses=0, star_ids=None, work=0):
         self.status = status
         self.q = q
         self.matches = matches if matches is not None else []
@@ -54,6 +55,7 @@ class Solution:
         self.probability = probability
         self.hypotheses = hypotheses
         self.star_ids = star_ids if star_ids is not None else []
+        self.work = work
 
     @property
     def ok(self):
@@ -235,13 +237,13 @@ class Search:
         for h in range(len(accepted)):
             if angle_between(accepted[h][0], q) > self.distinct:
                 return Solution(S.AMBIGUOUS, patterns_tried=tried, probability=ver.probability,
-                                hypotheses=self.hypotheses)
+                                hypotheses=self.hypotheses, work=self.work)
         q, ver = self.refine(ver)
         db = self.db
         matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
         return Solution(S.OK, q=q, matches=matches, patterns_tried=tried,
                         probability=ver.probability, hypotheses=self.hypotheses,
-                        star_ids=list(ver.pairs))
+                        star_ids=list(ver.pairs), work=self.work)
 
     def run(self, patterns, budget):
         """Try ``patterns`` (observed-star index tuples, in search order) with the method's
@@ -264,7 +266,7 @@ class Search:
     def fail(self, status, tried):
         """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
         return Solution(status, patterns_tried=tried, probability=self.best_rejected,
-                        hypotheses=self.hypotheses)
+                        hypotheses=self.hypotheses, work=self.work)
 
 
 def handed(t_obs, t_cat, bound):

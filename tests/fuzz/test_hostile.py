@@ -19,7 +19,6 @@ from lodestar import contract as C
 from lodestar.cli import main
 from lodestar.firmware import database as fwdb
 from lodestar.firmware import status as S
-from lodestar.firmware.starid import search as SR
 from lodestar.ground.solve import solve_centroids
 from lodestar.ground.truth import attitude_error_arcsec
 from lodestar.regress import mcu
@@ -44,21 +43,6 @@ def flight():
                                "pyramid")
     packet = regress.packets(manifest, regress.DEFAULT_SET)[case["name"]]
     return tracker, packet, case
-
-
-@pytest.fixture
-def work_spent(monkeypatch):
-    spent = []
-    run = SR.Search.run
-
-    def recording(self, patterns, budget):
-        try:
-            return run(self, patterns, budget)
-        finally:
-            spent.append((self.work, self.max_work))
-
-    monkeypatch.setattr(SR.Search, "run", recording)
-    return spent
 
 
 def _reseal(data):

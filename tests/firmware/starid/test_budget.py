@@ -10,26 +10,9 @@ from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import MAX_STARS, Settings
-from lodestar.firmware.starid import search as SR
 from lodestar.ground.solve import solve_centroids
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import centroid_scene
-
-
-@pytest.fixture
-def work_spent(monkeypatch):
-    """The work each search spent (``Search.work``), in call order."""
-    spent = []
-    run = SR.Search.run
-
-    def recording(self, patterns, budget):
-        try:
-            return run(self, patterns, budget)
-        finally:
-            spent.append((self.work, self.max_work))
-
-    monkeypatch.setattr(SR.Search, "run", recording)
-    return spent
 
 
 def _scene(camera, catalogue, seed, **kw):
@@ -38,7 +21,7 @@ def _scene(camera, catalogue, seed, **kw):
     return [tuple(v) for v in scene.vectors.tolist()]
 
 
-def test_a_wide_tolerance_ends_within_the_work_budget(starid_setup, method, work_spent):
+def test_a_wide_tolerance_ends_within_the_work_budget(starid_setup, method):
     """A tolerance 40 times the pipeline's (100 px of estcube2: minutes before) ends with a
     status inside the budget: each step is charged before it is done, so only a search
     that ends ``BUDGET_EXHAUSTED`` has a count past its limit."""
@@ -48,9 +31,8 @@ def test_a_wide_tolerance_ends_within_the_work_budget(starid_setup, method, work
         sol = starid.identify(vectors, db, method=method, tolerance_rad=tolerance,
                               budget=10 ** 6, max_work=200000)
         assert sol.status in (S.BUDGET_EXHAUSTED, S.NO_MATCH, S.AMBIGUOUS, S.OK)
-        work, limit = work_spent[-1]
-        assert work <= limit or sol.status == S.BUDGET_EXHAUSTED
-    assert any(w > 0 for w, _ in work_spent)
+        assert sol.work <= 200000 or sol.status == S.BUDGET_EXHAUSTED
+        assert sol.work > 0 or sol.status == S.NO_MATCH
 
 
 def test_exhausting_the_work_budget_is_a_status(starid_setup, method):
