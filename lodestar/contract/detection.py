@@ -109,7 +109,7 @@ def max_open_blobs(width):
     An open blob has a pixel in the *wavefront*, the last ``width`` pixels in raster order.
     When a blob starts at column x, its left and upper neighbours are dark, so the wavefront
     holds at most ``ceil((x-1)/2) + ceil((width-x-1)/2) <= width/2`` other blobs (alternate
-    lit and dark pixels), plus the new one.  ``tests/test_contract.py`` checks this bound
+    lit and dark pixels), plus the new one.  ``tests/contract/test_detection.py`` checks this bound
     exhaustively on small frames against the streaming model.
     """
     return width // 2 + 1

@@ -16,11 +16,11 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from lodestar import firmware
 from lodestar.firmware import attitude as AT
 from lodestar.firmware import quaternion as Q
 
-REPO = pathlib.Path(__file__).resolve().parents[2]
-FIRMWARE = REPO / "firmware"
+FIRMWARE = pathlib.Path(firmware.__file__).parent
 SOLVERS = [AT.quest, AT.q_method, AT.esoq2]
 SOLVER_IDS = ["quest", "q_method", "esoq2"]
 

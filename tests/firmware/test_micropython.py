@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
+from lodestar import firmware
 from lodestar.contract import DetectionResult
 from lodestar.firmware import camera as fwcamera
 from lodestar.firmware import centroids as fwcentroids
@@ -26,7 +27,7 @@ from lodestar.ground import codec as ground
 from lodestar.regress import micropython as mp_runner
 from lodestar.sim.presets import PRESETS, load_preset
 
-REPO = Path(__file__).resolve().parents[2]
+FIRMWARE = Path(firmware.__file__).parent
 
 
 # --------------------------------------------------------------------------------------
@@ -149,7 +150,7 @@ def build_script():
         code, header, records, reason = fwpacket.decode(data)
         assert code != fwstatus.OK
         corrupt.append((data, code, reason))
-    firmware_modules = sorted(p.stem for p in (REPO / "firmware").glob("*.py")
+    firmware_modules = sorted(p.stem for p in (FIRMWARE).glob("*.py")
                               if p.name != "__init__.py")
     data_block = "\n".join([
         "MODULES_EXPECTED = " + lit(firmware_modules),
@@ -351,7 +352,7 @@ def test_firmware_rules(name):
     no f-strings, no layout numbers restated (the record/header widths come from the
     contract)."""
     import ast
-    source = (REPO / "firmware" / (name + ".py")).read_text()
+    source = (FIRMWARE / (name + ".py")).read_text()
     tree = ast.parse(source)
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
