@@ -420,7 +420,7 @@ def _jacobi_top_eigenvector(K):
                 if apq == 0.0:
                     continue
                 theta = (a[q][q] - a[p][p]) / (2.0 * apq)
-                if abs(theta) > 1e150:
+                if abs(theta) > 1e15:      # 1 / (2 theta) to every digit; a float32 literal
                     t = 0.5 / theta
                 else:
                     t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))

@@ -28,7 +28,7 @@ SUPPORTED_METHODS = L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
 OK = S.OK
 STATUSES = (S.OK, S.DATABASE_CORRUPT, S.DATABASE_MISMATCH, S.DATABASE_UNSUPPORTED,
             S.DATABASE_IO, S.DATABASE_BAD_LENGTH, S.DATABASE_BAD_MAGIC, S.DATABASE_BAD_VERSION,
-            S.DATABASE_BAD_LAYOUT)
+            S.DATABASE_BAD_LAYOUT, S.OUT_OF_MEMORY)
 
 _CHUNK = 512
 
@@ -169,12 +169,14 @@ class Database:
         self._src = src
         try:
             self._validate(expected_fov_h, fov_tolerance)
+            self._cells = self._cell_centres()
         except DatabaseError:
             raise
+        except MemoryError:
+            raise DatabaseError(S.OUT_OF_MEMORY, "out of heap opening the database") from None
         except Exception as exc:     # struct errors on a short or odd buffer
             raise DatabaseError(S.DATABASE_BAD_LAYOUT,
                                 "unreadable image (" + repr(exc) + ")") from None
-        self._cells = self._cell_centres()
 
     @classmethod
     def open(cls, path, expected_fov_h=None, fov_tolerance=0.02):

@@ -6,8 +6,8 @@
 Stages, :class:`Result` fields, statuses and the attitude epoch: ``docs/firmware.md``; units
 and frames: ``docs/conventions.md``.  Configuration errors found at construction are returned
 by every call; malformed optional inputs (``prior``, ``omega``, ``dt``, ``exposure_s``) are
-ignored with a note in ``reason``; any unexpected exception (``MemoryError`` included) becomes
-``INTERNAL_ERROR``, so the flight loop always gets a result.
+ignored with a note in ``reason``; a ``MemoryError`` becomes ``OUT_OF_MEMORY`` and any other
+unexpected exception ``INTERNAL_ERROR``, so the flight loop always gets a result.
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
@@ -138,6 +138,8 @@ class StarTracker:
         self.focal_px = 1.0
         try:
             self._configure(database, camera)
+        except MemoryError:
+            self._fail(S.OUT_OF_MEMORY, "configuration: out of heap")
         except Exception as exc:
             self._fail(S.INTERNAL_ERROR, "configuration: " + repr(exc))
 
@@ -444,6 +446,8 @@ class StarTracker:
         try:
             return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0,
                                        None)
+        except MemoryError:
+            return Result(S.OUT_OF_MEMORY, "out of heap")
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
@@ -517,6 +521,8 @@ class StarTracker:
         raises."""
         try:
             return self._process(packet_bytes, prior, omega, dt, exposure_s)
+        except MemoryError:
+            return Result(S.OUT_OF_MEMORY, "out of heap")
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 

@@ -53,6 +53,7 @@ DATABASE_BAD_LAYOUT = 47
 # --- generic ----------------------------------------------------------------------------
 BAD_INPUT = 50
 INTERNAL_ERROR = 51
+OUT_OF_MEMORY = 52
 
 _TABLE = (
     (OK, "OK", "success"),
@@ -94,7 +95,8 @@ _TABLE = (
      "star database sections or header values inconsistent (CRC was correct)"),
     (BAD_INPUT, "BAD_INPUT", "argument of the wrong type or out of range"),
     (INTERNAL_ERROR, "INTERNAL_ERROR",
-     "unexpected exception inside the firmware (a bug, MemoryError or a read error)"),
+     "unexpected exception inside the firmware (a bug or a read error)"),
+    (OUT_OF_MEMORY, "OUT_OF_MEMORY", "the heap could not hold what the call needed"),
 )
 """``(code, name, meaning)`` of every status, in code order."""
 

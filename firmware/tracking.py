@@ -281,6 +281,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
         return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,
                       min_matches, max_mismatch_prob, coarse_stars, iterations, weights,
                       streaks)
+    except MemoryError:
+        return TrackSolution(S.OUT_OF_MEMORY)
     except Exception:       # a database read error or a bug must not reach the flight loop
         return TrackSolution(S.INTERNAL_ERROR)
 

@@ -261,6 +261,8 @@ class Search:
                     return self.conclude(accepted, tried)
         except OutOfWork:
             return self.fail(S.BUDGET_EXHAUSTED, tried)
+        except MemoryError:
+            return self.fail(S.OUT_OF_MEMORY, tried)
         return self.fail(S.NO_MATCH, tried)
 
     def fail(self, status, tried):

@@ -199,3 +199,20 @@ def test_load_never_raises(tmp_path):
     db.close()
 
 
+
+
+def test_out_of_heap_while_opening_is_a_status(tmp_path, monkeypatch):
+    """``Database.open`` (and ``load``) report a ``MemoryError`` of the reader as
+    ``OUT_OF_MEMORY`` and close the file; it escaped as an exception before."""
+    path = tmp_path / "db.bin"
+    path.write_bytes(tiny_image())
+
+    def no_heap(self):
+        raise MemoryError
+
+    monkeypatch.setattr(Database, "_cell_centres", no_heap)
+    with pytest.raises(DatabaseError) as info:
+        Database.open(str(path))
+    assert info.value.status == S.OUT_OF_MEMORY
+    assert load(str(path))[:2] == (None, S.OUT_OF_MEMORY)
+    assert check(tiny_image())[0] == S.OUT_OF_MEMORY

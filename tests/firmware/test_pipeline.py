@@ -587,3 +587,22 @@ def test_smear_beyond_the_limit_gets_no_attitude():
     assert tracker.process(frame.packet, omega=fast).status == S.SMEAR_TOO_LONG
     for bad in (0, -1.0, float("nan"), "50"):
         assert SF.tracker(max_smear_px=bad).status == S.BAD_INPUT
+
+
+def test_out_of_heap_is_its_own_status(monkeypatch):
+    """A ``MemoryError`` anywhere (a stage, the tracking, the identification) is
+    ``OUT_OF_MEMORY``, distinct from a bug's ``INTERNAL_ERROR``, and never an exception."""
+    tracker = SF.tracker()
+    frame = SF.frames()[0]
+
+    def no_heap(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(pipeline._centroids, "extract", no_heap)
+    res = tracker.process(frame.packet)
+    assert res.status == S.OUT_OF_MEMORY and res.q is None and S.name(res.status) == \
+        "OUT_OF_MEMORY"
+    monkeypatch.undo()
+    monkeypatch.setattr(tracker.database, "star_vector", no_heap)
+    res = tracker.process(frame.packet)
+    assert res.status == S.OUT_OF_MEMORY and res.q is None
