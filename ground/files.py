@@ -20,10 +20,21 @@ def write_atomic(target, data):
             f.write(data.encode() if isinstance(data, str) else data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _mode(target))         # mkstemp's 0600 is not what a user expects
         os.replace(tmp, target)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _mode(target):
+    """The permissions of the file being replaced, else those a new file gets (umask)."""
+    try:
+        return os.stat(target).st_mode & 0o777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def check_output(path, suffixes, inputs=(), what="output"):

@@ -25,6 +25,15 @@ def test_write_atomic_replaces_whole_or_leaves_the_old_file(tmp_path, monkeypatc
     assert [p.name for p in tmp_path.iterdir()] == ["db.bin"]        # no temporary left
     files.write_atomic(tmp_path / "sub" / "t.txt", "text")
     assert (tmp_path / "sub" / "t.txt").read_text() == "text"
+    umask = os.umask(0o022)
+    try:
+        files.write_atomic(tmp_path / "new.bin", b"x")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "new.bin").stat().st_mode & 0o777 == 0o644     # not mkstemp's 0600
+    os.chmod(target, 0o640)
+    files.write_atomic(target, b"again")
+    assert target.stat().st_mode & 0o777 == 0o640                    # the replaced file's
 
 
 def test_db_build_on_a_full_disk_keeps_the_database_it_would_replace(tmp_path, monkeypatch,
