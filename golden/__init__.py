@@ -8,7 +8,7 @@
     det = Detector(cfg); det.process(frame)
 
 Two independent implementations agree exactly: ``vectorized`` (numpy/scipy, fast) and
-``streaming`` (pixel-by-pixel architectural model of the gateware).
+``streaming`` (pixel by pixel, union-find); ``wavefront`` is the gateware's algorithm.
 """
 
 from lodestar.contract import DetectionResult

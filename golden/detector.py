@@ -12,7 +12,7 @@ class Detector:
 
     The state is the frame counter (starts at 0) and, for global mode, the statistics of the
     previous frame.  ``engine`` picks the implementation: ``"vectorized"`` (fast, default)
-    or ``"streaming"`` (the architectural model of ``lodestar.hdl``).
+    or ``"streaming"`` (the pixel-by-pixel reference model).
     """
 
     def __init__(self, cfg, engine="vectorized"):

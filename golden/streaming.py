@@ -1,8 +1,8 @@
-"""Streaming architectural model: the executable spec of the detection gateware.
+"""Streaming reference model: a pixel-by-pixel executable spec of the detection contract.
 
-It consumes pixels in raster order, one at a time (``docs/conventions.md``), with the
-structures the gateware uses: threshold unit, label row buffer, merge table, feature table,
-completion test and label reuse, with the gateware's capacities (``cfg.labels`` open blobs,
+It consumes pixels in raster order, one at a time (``docs/conventions.md``), with a
+threshold unit, label row buffer, merge table, feature table, completion test and label
+reuse, with the gateware's capacities (``cfg.labels`` open blobs,
 ``cfg.record_capacity`` records).  Its results are the contract's (``docs/contract.md``),
 capacity limits included; ``peak_labels`` and ``peak_open`` report the merge-table and
 feature-table depths a frame needed.  The structures and the completion rule:
