@@ -218,3 +218,85 @@ def parse_output(returncode, stdout, stderr):
         elif line.startswith("LIVE_END "):
             out["live_end"] = int(line[len("LIVE_END "):])
     return out
+
+
+# ---- the unix port: a real 32-bit interpreter with the firmware frozen ------------------
+
+BUILD_ENV = "LODESTAR_MICROPYTHON_BUILD"
+"""Environment variable naming MicroPython's ``build.sh`` (unix port builds, see
+``docs/regression.md``)."""
+
+
+def stage_mcu_image(folder):
+    """Copy :func:`mcu_image` into ``folder`` as the tree ``lodestar/...`` that a freeze
+    manifest packages; returns ``folder``."""
+    folder = Path(folder)
+    for host, target in mcu_image():
+        dest = folder / target[len("/lib/"):]
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(host, dest)
+    return folder
+
+
+def build_unix(build_script, manifest, out_dir, variant="float32", timeout=1200):
+    """Build (incrementally) the unix-port interpreter ``variant`` (``float32`` or
+    ``double``) with the MCU image frozen by ``manifest`` (the repository's
+    ``manifest.py``), using MicroPython's ``build_script``; returns the binary's path.
+    Raises :class:`MicroPythonError` when the build fails."""
+    out_dir = Path(out_dir)
+    image = stage_mcu_image(out_dir / "mcu-image")
+    env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
+               LODESTAR_MCU_IMAGE=str(image.resolve()))
+    proc = subprocess.run(["bash", str(build_script), str(out_dir), variant], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines or not Path(lines[-1]).is_file():
+        raise MicroPythonError(f"the MicroPython build failed (exit status {proc.returncode}):"
+                               f"\n{(proc.stdout + proc.stderr).strip()[-2000:]}")
+    return Path(lines[-1])
+
+
+def replay_unix(binary, manifest, set_dir, database_files, methods, heapsize=4 << 20,
+                timeout=900):
+    """The regression set on a unix-port ``binary`` with the firmware frozen:
+    ``{(case, method): outcome}`` (:func:`lodestar.regress.mcu.outcome`).  The MCU-side
+    replay module is run from its source (it is not part of the frozen image); databases and
+    packets are read from the host's files."""
+    set_dir = Path(set_dir)
+    lines = ["import json",
+             "R = {}",
+             "exec(open(" + literal(str(Path(mcu.__file__).resolve())) + ").read(), R)",
+             "DBS = {}",
+             "for _n, _p in " + literal({n: str(Path(p).resolve())
+                                          for n, p in database_files.items()}) + ".items():",
+             "    DBS[_n] = R['open_database'](_p)",
+             "CAMERAS = " + literal(manifest["cameras"])]
+    for case in manifest["cases"]:
+        for method in methods:
+            lines += [
+                "_t = R['make_tracker'](DBS[CAMERAS[" + literal(case["camera"]) +
+                "]['database']], CAMERAS[" + literal(case["camera"]) + "], " +
+                literal(method) + ")",
+                "_f = open(" + literal(str((set_dir / case["packet"]).resolve())) +
+                ", 'rb')", "_p = _f.read()", "_f.close()",
+                "print('RESULT ' + json.dumps([" + literal(case["name"]) + ", " +
+                literal(method) + ", R['replay'](_t, _p, " + literal(case["inputs"]) + ")]))"]
+    lines.append("print('DONE')")
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "replay.py"
+        script.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        try:
+            proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
+                                  capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise MicroPythonError(f"the replay ran more than {timeout} s") from None
+    out = proc.stdout.splitlines()
+    if proc.returncode != 0 or "DONE" not in out:
+        raise MicroPythonError(f"the replay failed (exit status {proc.returncode}):\n"
+                               f"{(proc.stdout + proc.stderr).strip()[-2000:]}")
+    results = {}
+    for line in out:
+        if line.startswith("RESULT "):
+            case, method, outcome = json.loads(line[len("RESULT "):])
+            results[(case, method)] = outcome
+    return results
