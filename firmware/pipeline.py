@@ -234,9 +234,9 @@ class StarTracker:
             self._fail(S.DATABASE_MISMATCH, "database horizontal FOV " + str(db.fov_h) +
                        " rad, camera " + str(fov_h))
             return
-        widest = _starid.MAX_TOLERANCE_FRACTION * db.fov_h * focal
-        if self.tolerance_rad > _starid.MAX_TOLERANCE_FRACTION * db.fov_h:
-            self._fail(S.BAD_INPUT, "tolerance_px must be at most " + str(int(widest)) +
+        widest = _starid.max_tolerance_rad(db.fov_h)
+        if self.tolerance_rad > widest:
+            self._fail(S.BAD_INPUT, "tolerance_px must be at most " + str(int(widest * focal)) +
                        " px (" + str(_starid.MAX_TOLERANCE_FRACTION) + " of the field)")
             return
 

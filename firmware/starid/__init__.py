@@ -31,6 +31,11 @@ MAX_TOLERANCE_FRACTION = 0.05
 """Largest match tolerance as a fraction of the horizontal field (1 deg of a 20 deg field):
 beyond it a pattern matches too much of the sky to identify anything."""
 
+
+def max_tolerance_rad(fov_h):
+    """The widest match tolerance (rad) for a horizontal field of ``fov_h`` rad."""
+    return MAX_TOLERANCE_FRACTION * fov_h
+
 _MODULES = {"pyramid": pyramid, "triangle": triangle, "hashing": hashing}
 """The registry: each of the contract's :data:`METHODS` -> its module."""
 if sorted(_MODULES) != sorted(METHODS):
@@ -57,7 +62,7 @@ def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=200
     if tolerance_rad is None and fov is not None:
         tolerance_rad = fov / 1000.0
     elif fov is not None and isinstance(tolerance_rad, (int, float)) and \
-            tolerance_rad > MAX_TOLERANCE_FRACTION * fov:
+            tolerance_rad > max_tolerance_rad(fov):
         return Solution(S.BAD_INPUT)
     return module.identify(vectors, database, tolerance_rad, budget, max_work=max_work,
                            **options)

@@ -18,6 +18,7 @@ from lodestar.ground.imagesolve import (
     solve_image,
     write_annotated,
 )
+from lodestar.ground.solve import camera_fov_deg
 from lodestar.sim.presets import PRESETS
 
 
@@ -64,8 +65,8 @@ def run(args):
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
     camera, what = image_camera(image, args.preset, args.fov, args.distortion)
-    widest = starid.MAX_TOLERANCE_FRACTION * 2 * math.atan(
-        (camera.width / 2) / camera.fx) * camera.fx
+    fov_h = math.radians(camera_fov_deg(camera)[0])
+    widest = starid.max_tolerance_rad(fov_h) * math.sqrt(camera.fx * camera.fy)  # px
     if args.tolerance is not None and not (math.isfinite(args.tolerance) and
                                            0 < args.tolerance <= widest):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "

@@ -6,7 +6,6 @@ import functools
 import math
 import pathlib
 import struct
-import zlib
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError, check, load
 from lodestar.ground.database import build_database
 from lodestar.sim.presets import load_preset
+from tests.firmware.db_images import reseal, status_of
 
 FIRMWARE = pathlib.Path(L.__file__).parent
 
@@ -32,22 +32,6 @@ def estcube2_image():
     return build_database(camera=load_preset("estcube2"), mag_limit=6.0)
 
 
-def reseal(image, patch=None):
-    """Apply ``patch(bytearray)`` to the header and recompute the header CRC."""
-    b = bytearray(image)
-    if patch:
-        patch(b)
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
-                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
-    return bytes(b)
-
-
-def status_of(image, **kw):
-    with pytest.raises(DatabaseError) as info:
-        Database(image, **kw)
-    assert info.value.status in L.STATUSES and info.value.reason
-    assert str(info.value).startswith(S.name(info.value.status) + ": ")
-    return info.value.status
 
 
 # --------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from lodestar.golden.starfield import star_frame
 from lodestar.ground import codec as ground
 from lodestar.regress import micropython as mp_runner
 from lodestar.sim.presets import PRESETS, load_preset
+from tests.firmware.mpy import lit
 
 FIRMWARE = Path(firmware.__file__).parent
 
@@ -33,24 +34,6 @@ FIRMWARE = Path(firmware.__file__).parent
 # --------------------------------------------------------------------------------------
 # Literals MicroPython can parse (repr of inf/nan is not a literal)
 # --------------------------------------------------------------------------------------
-
-def lit(value):
-    """Python source for ``value`` (None, bool, int, float, str, bytes, tuple, list, dict)."""
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "float('nan')"
-        if math.isinf(value):
-            return "float('inf')" if value > 0 else "-float('inf')"
-        return repr(value)
-    if value is None or isinstance(value, (bool, int, str, bytes)):
-        return repr(value)
-    if isinstance(value, tuple):
-        return "(" + "".join(lit(v) + ", " for v in value) + ")"
-    if isinstance(value, list):
-        return "[" + ", ".join(lit(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(lit(k) + ": " + lit(v) for k, v in value.items()) + "}"
-    raise TypeError("no literal for {!r}".format(value))
 
 
 # --------------------------------------------------------------------------------------

@@ -14,14 +14,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar.contract import DetectionResult
 from lodestar.contract import packet as contract_packet
 from lodestar.firmware import packet as fw
 from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
 from lodestar.ground import codec as ground
-from tests.ground.packet_samples import HEADER_POS, RECORD_POS, base_result, spot_results
+from tests.ground.packet_samples import base_result, field_span, results, spot_results
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
 
@@ -31,16 +30,9 @@ HYPOTHESIS = settings(max_examples=150, deadline=None)
 # --------------------------------------------------------------------------------------
 
 
-
-def _span(name, record):
-    if record is None:
-        return HEADER_POS[name]
-    offset, bits = RECORD_POS[name]
-    return offset + 8 * (C.HEADER_BYTES + record * C.RECORD_BYTES), bits
-
-
-def field_max(name, record):
-    return (1 << _span(name, record)[1]) - 1
+def field_top(name, record):
+    """Largest value of a header field (``record`` None) or of a record's field."""
+    return (1 << field_span(name, record)[1]) - 1
 
 
 def patch(data, changes):
@@ -49,7 +41,7 @@ def patch(data, changes):
     body = data[:-C.CRC_BYTES]
     word = int.from_bytes(body, "big")
     for name, value, record in changes:
-        offset, bits = _span(name, record)
+        offset, bits = field_span(name, record)
         shift = 8 * len(body) - offset - bits
         word = (word & ~(((1 << bits) - 1) << shift)) | (value << shift)
     body = word.to_bytes(len(body), "big")
@@ -158,51 +150,8 @@ def test_decode_accepts_bytearray_and_memoryview():
     assert fw.decode(memoryview(b"xx" + data)[2:]) == expected
 
 
-@st.composite
-def records(draw, width, height, pixel_bits):
-    xmin = draw(st.integers(0, width - 1))
-    xmax = draw(st.integers(xmin, width - 1))
-    ymin = draw(st.integers(0, height - 1))
-    ymax = draw(st.integers(ymin, height - 1))
-    n = draw(st.integers(1, (xmax - xmin + 1) * (ymax - ymin + 1)))
-    limits = C.moment_max(pixel_bits)
-    moments = [draw(st.integers(0, limits[name])) for name in C.MOMENTS]
-    flags = draw(st.sampled_from([0, C.BLOB_MOMENTS_SATURATED]))
-    if flags:
-        k = draw(st.integers(0, len(C.MOMENTS) - 1))
-        moments[k] = limits[C.MOMENTS[k]]
-    nsat = draw(st.integers(0, n))
-    fs = C.full_scale(pixel_bits)
-    peak = fs if nsat else draw(st.integers(0, fs))
-    return C.BlobRecord(n, nsat, *moments, xmin, xmax, ymin, ymax, peak, flags)
-
-
-@st.composite
-def results(draw):
-    pixel_bits = draw(st.sampled_from(C.PIXEL_BITS))
-    width = draw(st.integers(1, C.MAX_WIDTH))
-    height = draw(st.integers(1, C.MAX_HEIGHT))
-    blobs = draw(st.lists(records(width, height, pixel_bits), max_size=5))
-    share = (field_max("n_blobs", None) - len(blobs)) // 2
-    n_filtered = draw(st.integers(0, share))
-    dropped_records = draw(st.integers(0, share))
-    dropped_labels = draw(st.integers(0, field_max("dropped_labels", None)))
-    overflow = C.FRAME_RECORD_OVERFLOW | C.FRAME_LABEL_OVERFLOW
-    flags = draw(st.integers(0, C.FRAME_FLAGS_DEFINED)) & C.FRAME_FLAGS_DEFINED & ~overflow
-    flags |= C.FRAME_RECORD_OVERFLOW if dropped_records else 0
-    flags |= C.FRAME_LABEL_OVERFLOW if dropped_labels else 0
-    fs = C.full_scale(pixel_bits)
-    return DetectionResult(
-        blobs=blobs, mode=draw(st.integers(0, len(C.MODE_NAMES) - 1)),
-        threshold=draw(st.integers(0, fs)), background=draw(st.integers(0, fs)),
-        n_blobs=len(blobs) + n_filtered + dropped_records, n_filtered=n_filtered,
-        dropped_records=dropped_records, dropped_labels=dropped_labels, flags=flags,
-        frame_counter=draw(st.integers(0, field_max("frame_counter", None))),
-        width=width, height=height, pixel_bits=pixel_bits)
-
-
 @HYPOTHESIS
-@given(results())
+@given(results(max_records=5))
 def test_decode_random_valid_results(result):
     data = ground.encode(result)
     code, header, recs, _ = fw.decode(data)
@@ -263,14 +212,14 @@ def test_framing_statuses():
 
 def _sweep_values(name, record, original):
     """Values worth trying for one field: edges of its width and of every semantic check."""
-    top = field_max(name, record)
+    top = field_top(name, record)
     values = {0, 1, 2, top, top - 1, original, original + 1, max(original - 1, 0)}
     values |= {C.MAX_WIDTH, C.MAX_WIDTH + 1, C.MAX_HEIGHT + 1, len(C.MODE_NAMES)}
     for bits in C.PIXEL_BITS:
         values |= {bits, bits + 1, C.full_scale(bits), C.full_scale(bits) + 1}
         for limit in C.moment_max(bits).values():
             values |= {limit, limit + 1}
-    values |= {1 << b for b in range(_span(name, record)[1])}
+    values |= {1 << b for b in range(field_span(name, record)[1])}
     return sorted(v for v in values if 0 <= v <= top)
 
 
@@ -300,7 +249,7 @@ def test_random_field_values_agree_with_ground(data):
     changes = []
     for _ in range(data.draw(st.integers(1, 3))):
         name = data.draw(st.sampled_from(names))
-        changes.append((name, data.draw(st.integers(0, field_max(name, record))), record))
+        changes.append((name, data.draw(st.integers(0, field_top(name, record))), record))
     agree(patch(ground.encode(base_result()), changes))
 
 

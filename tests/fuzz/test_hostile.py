@@ -8,8 +8,6 @@ property); a longer campaign: ``LODESTAR_FUZZ_EXAMPLES=2000 pytest tests/fuzz``.
 
 import math
 import os
-import struct
-import zlib
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -19,10 +17,12 @@ from lodestar import contract as C
 from lodestar.cli import main
 from lodestar.firmware import database as fwdb
 from lodestar.firmware import status as S
+from lodestar.ground import imagesolve
 from lodestar.ground.solve import solve_centroids
 from lodestar.ground.truth import attitude_error_arcsec
 from lodestar.regress import mcu
 from lodestar.regress import replay as regress
+from tests.firmware.db_images import reseal as reseal_database
 
 FUZZ = settings(max_examples=int(os.environ.get("LODESTAR_FUZZ_EXAMPLES", "20")),
                 deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -48,7 +48,7 @@ def flight():
 def _reseal(data):
     """``data`` with its CRC trailer recomputed (so the semantic checks are reached)."""
     body = data[:-C.CRC_BYTES]
-    return body + (zlib.crc32(body) & 0xFFFFFFFF).to_bytes(C.CRC_BYTES, "big")
+    return body + C.crc32(body).to_bytes(C.CRC_BYTES, "big")
 
 
 def _check_result(result, case, spent):
@@ -105,8 +105,8 @@ def test_centroid_lists(tmp_path_factory, work_spent, centroids, fov, width, hei
                for work, limit in work_spent)
 
 
-_HEADS = [b"\x89PNG\r\n\x1a\n", b"II*\x00", b"MM\x00*",
-          b"SIMPLE  =                    T" + b" " * 50]
+_HEADS = [magic for magic, _format in imagesolve._MAGIC]
+"""The first bytes by which ``lodestar solve`` recognises PNG, TIFF (also BigTIFF) and FITS."""
 
 
 @FUZZ
@@ -136,10 +136,8 @@ def test_corrupted_databases(database_image, edits, reseal, cut):
         data[pos % len(data)] = value
     if cut % 3 == 0:
         data = data[:cut % (len(data) + 1)]
-    elif reseal and len(data) >= 160:
-        payload_crc = zlib.crc32(bytes(data[160:])) & 0xFFFFFFFF
-        struct.pack_into("<I", data, 12, payload_crc)
-        struct.pack_into("<I", data, 156, zlib.crc32(bytes(data[:156])) & 0xFFFFFFFF)
+    elif reseal:
+        data = reseal_database(data)
     status, _reason = fwdb.check(bytes(data))
     assert status in STATUSES
 

@@ -1,6 +1,8 @@
-"""Detection results shared by the ground and flight packet-codec tests."""
+"""Detection results, field positions and hypothesis strategies shared by the ground and
+flight packet-codec tests."""
 
 import numpy as np
+from hypothesis import strategies as st
 
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
@@ -66,3 +68,62 @@ def spot_results(seed):
         for _ in range(3):
             results.append(detector.process(spot_frame(rng, detector.cfg, 12)))
     return results
+
+
+def field_max(fields, name):
+    """Largest value of field ``name`` of ``(name, bits)`` fields."""
+    return (1 << dict(fields)[name]) - 1
+
+
+def field_span(name, record=None):
+    """``(bit_offset, bits)`` from the packet start of a header field (``record=None``) or of
+    field ``name`` of record number ``record``."""
+    if record is None:
+        return HEADER_POS[name]
+    offset, bits = RECORD_POS[name]
+    return offset + 8 * (C.HEADER_BYTES + record * C.RECORD_BYTES), bits
+
+
+@st.composite
+def records(draw, width, height, pixel_bits):
+    """A valid ``BlobRecord`` inside a ``width x height`` frame of ``pixel_bits`` pixels."""
+    xmin = draw(st.integers(0, width - 1))
+    xmax = draw(st.integers(xmin, width - 1))
+    ymin = draw(st.integers(0, height - 1))
+    ymax = draw(st.integers(ymin, height - 1))
+    n = draw(st.integers(1, (xmax - xmin + 1) * (ymax - ymin + 1)))
+    limits = C.moment_max(pixel_bits)
+    moments = [draw(st.integers(0, limits[name])) for name in C.MOMENTS]
+    flags = draw(st.integers(0, C.BLOB_FLAGS_DEFINED)) & C.BLOB_FLAGS_DEFINED
+    if flags & C.BLOB_MOMENTS_SATURATED:       # a saturated blob has a moment at its limit
+        k = draw(st.integers(0, len(C.MOMENTS) - 1))
+        moments[k] = limits[C.MOMENTS[k]]
+    nsat = draw(st.integers(0, n))
+    fs = C.full_scale(pixel_bits)
+    peak = fs if nsat else draw(st.integers(0, fs))
+    return C.BlobRecord(n, nsat, *moments, xmin, xmax, ymin, ymax, peak, flags)
+
+
+@st.composite
+def results(draw, max_records=6):
+    """A valid ``DetectionResult`` with random in-range header fields and records."""
+    pixel_bits = draw(st.sampled_from(C.PIXEL_BITS))
+    width = draw(st.integers(1, C.MAX_WIDTH))
+    height = draw(st.integers(1, C.MAX_HEIGHT))
+    blobs = draw(st.lists(records(width, height, pixel_bits), max_size=max_records))
+    share = (field_max(C.HEADER_FIELDS, "n_blobs") - len(blobs)) // 2
+    n_filtered = draw(st.integers(0, share))
+    dropped_records = draw(st.integers(0, share))
+    dropped_labels = draw(st.integers(0, field_max(C.HEADER_FIELDS, "dropped_labels")))
+    overflow = C.FRAME_RECORD_OVERFLOW | C.FRAME_LABEL_OVERFLOW
+    flags = draw(st.integers(0, C.FRAME_FLAGS_DEFINED)) & C.FRAME_FLAGS_DEFINED & ~overflow
+    flags |= C.FRAME_RECORD_OVERFLOW if dropped_records else 0
+    flags |= C.FRAME_LABEL_OVERFLOW if dropped_labels else 0
+    fs = C.full_scale(pixel_bits)
+    return DetectionResult(
+        blobs=blobs, mode=draw(st.integers(0, len(C.MODE_NAMES) - 1)),
+        threshold=draw(st.integers(0, fs)), background=draw(st.integers(0, fs)),
+        n_blobs=len(blobs) + n_filtered + dropped_records, n_filtered=n_filtered,
+        dropped_records=dropped_records, dropped_labels=dropped_labels, flags=flags,
+        frame_counter=draw(st.integers(0, field_max(C.HEADER_FIELDS, "frame_counter"))),
+        width=width, height=height, pixel_bits=pixel_bits)

@@ -13,11 +13,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar.contract import DetectionResult
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.ground import codec as packet
 from lodestar.ground.codec import PacketError, decode, encode
-from tests.ground.packet_samples import HEADER_POS, RECORD_POS, base_result, spot_results
+from tests.ground.packet_samples import (
+    base_result,
+    field_max,
+    field_span,
+    results,
+    spot_results,
+)
 
 HYPOTHESIS = settings(max_examples=100, deadline=None)
 
@@ -27,24 +32,9 @@ HYPOTHESIS = settings(max_examples=100, deadline=None)
 # --------------------------------------------------------------------------------------
 
 
-
-
-def field_max(fields, name):
-    """Largest value of field ``name`` of ``(name, bits)`` fields."""
-    return (1 << dict(fields)[name]) - 1
-
-
-def _span(name, record):
-    """``(bit_offset, bits)`` of a header field (``record=None``) or of a record's field."""
-    if record is None:
-        return HEADER_POS[name]
-    offset, bits = RECORD_POS[name]
-    return offset + 8 * (C.HEADER_BYTES + record * C.RECORD_BYTES), bits
-
-
 def read_field(data, name, record=None):
     """Value of a field in packet ``data`` (bytes), read with integer shifts."""
-    offset, bits = _span(name, record)
+    offset, bits = field_span(name, record)
     shift = 8 * len(data) - offset - bits
     return (int.from_bytes(data, "big") >> shift) & ((1 << bits) - 1)
 
@@ -62,7 +52,7 @@ def patch(data, changes):
     body = data[:-C.CRC_BYTES]
     word = int.from_bytes(body, "big")
     for name, value, record in changes:
-        offset, bits = _span(name, record)
+        offset, bits = field_span(name, record)
         shift = 8 * len(body) - offset - bits
         mask = ((1 << bits) - 1) << shift
         word = (word & ~mask) | (value << shift)
@@ -126,51 +116,6 @@ def test_round_trip_golden_results():
     assert {r.pixel_bits for r in results} == set(C.PIXEL_BITS)
     assert max(len(r.blobs) for r in results) >= 3
     assert any(not r.blobs for r in results)
-
-
-@st.composite
-def records(draw, width, height, pixel_bits):
-    """A valid ``BlobRecord`` inside a ``width x height`` frame of ``pixel_bits`` pixels."""
-    xmin = draw(st.integers(0, width - 1))
-    xmax = draw(st.integers(xmin, width - 1))
-    ymin = draw(st.integers(0, height - 1))
-    ymax = draw(st.integers(ymin, height - 1))
-    n = draw(st.integers(1, (xmax - xmin + 1) * (ymax - ymin + 1)))
-    limits = C.moment_max(pixel_bits)
-    moments = [draw(st.integers(0, limits[name])) for name in C.MOMENTS]
-    flags = draw(st.integers(0, C.BLOB_FLAGS_DEFINED)) & C.BLOB_FLAGS_DEFINED
-    if flags & C.BLOB_MOMENTS_SATURATED:       # a saturated blob has a moment at its limit
-        k = draw(st.integers(0, len(C.MOMENTS) - 1))
-        moments[k] = limits[C.MOMENTS[k]]
-    nsat = draw(st.integers(0, n))
-    fs = C.full_scale(pixel_bits)
-    peak = fs if nsat else draw(st.integers(0, fs))
-    return C.BlobRecord(n, nsat, *moments, xmin, xmax, ymin, ymax, peak, flags)
-
-
-@st.composite
-def results(draw, max_records=6):
-    """A valid ``DetectionResult`` with random in-range header fields and records."""
-    pixel_bits = draw(st.sampled_from(C.PIXEL_BITS))
-    width = draw(st.integers(1, C.MAX_WIDTH))
-    height = draw(st.integers(1, C.MAX_HEIGHT))
-    blobs = draw(st.lists(records(width, height, pixel_bits), max_size=max_records))
-    share = (field_max(C.HEADER_FIELDS, "n_blobs") - len(blobs)) // 2
-    n_filtered = draw(st.integers(0, share))
-    dropped_records = draw(st.integers(0, share))
-    dropped_labels = draw(st.integers(0, field_max(C.HEADER_FIELDS, "dropped_labels")))
-    overflow = C.FRAME_RECORD_OVERFLOW | C.FRAME_LABEL_OVERFLOW
-    flags = draw(st.integers(0, C.FRAME_FLAGS_DEFINED)) & C.FRAME_FLAGS_DEFINED & ~overflow
-    flags |= C.FRAME_RECORD_OVERFLOW if dropped_records else 0
-    flags |= C.FRAME_LABEL_OVERFLOW if dropped_labels else 0
-    fs = C.full_scale(pixel_bits)
-    return DetectionResult(
-        blobs=blobs, mode=draw(st.integers(0, len(C.MODE_NAMES) - 1)),
-        threshold=draw(st.integers(0, fs)), background=draw(st.integers(0, fs)),
-        n_blobs=len(blobs) + n_filtered + dropped_records, n_filtered=n_filtered,
-        dropped_records=dropped_records, dropped_labels=dropped_labels, flags=flags,
-        frame_counter=draw(st.integers(0, field_max(C.HEADER_FIELDS, "frame_counter"))),
-        width=width, height=height, pixel_bits=pixel_bits)
 
 
 @HYPOTHESIS

@@ -11,7 +11,6 @@ The checks every method shares are in ``test_methods.py``.
 import functools
 import math
 import struct
-import zlib
 
 import numpy as np
 import pytest
@@ -21,7 +20,7 @@ from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware.database import Database, DatabaseError
+from lodestar.firmware.database import Database
 from lodestar.firmware.geometry import angle
 from lodestar.firmware.starid import hashing as H
 from lodestar.ground.database import build_database
@@ -29,6 +28,8 @@ from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import centroid_scene
 from lodestar.sim.presets import load_preset
+from tests.firmware.db_images import reseal, status_of
+from tests.firmware.mpy import identify_under_micropython, solved_scenes
 
 TOL = 3.0e-4
 
@@ -330,19 +331,6 @@ def test_variants(group_size, normalized, scene_outcome):
 # Corruption
 # --------------------------------------------------------------------------------------
 
-def reseal(image, patch):
-    b = bytearray(image)
-    patch(b)
-    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
-                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
-    return bytes(b)
-
-
-def status_of(image):
-    with pytest.raises(DatabaseError) as info:
-        Database(image)
-    return info.value.status
 
 
 def test_corrupt_hash_section_is_refused():
@@ -373,45 +361,19 @@ def test_corrupt_hash_section_is_refused():
 # MicroPython 1.27 (WebAssembly port in Node)
 # --------------------------------------------------------------------------------------
 
-MICROPYTHON_HASHING = r'''
-import binascii
-import gc
-import sys
-from lodestar.firmware import database, starid, status
+_HASH_CHECKS = r'''
 from lodestar.firmware.starid import hashing
-print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
 assert hashing.frame_coords((0.0, 0.0), (2.0, 0.0), (1.0, 1.0)) == (0.0, 1.0)
 for vs, order, h in HASHES:
     got = hashing.group_hash(vs)
     assert got[0] == order, (got, order)
     assert max(abs(a - b) for a, b in zip(got[1], h)) < 1e-12
-with open("/db.bin", "wb") as f:
-    f.write(binascii.a2b_base64(IMAGE_B64))
-IMAGE_B64 = None
-#@split
-gc.collect()
-db, code, reason = database.load("/db.bin")
-assert code == status.OK, reason
-for scene, expected in zip(SCENES, EXPECTED):
-    sol = starid.identify(scene, db, method="hashing", tolerance_rad=TOL, budget=300)
-    got = (sol.status, sol.matches, sol.patterns_tried)
-    assert got == expected[:3], (got, expected)
-    if sol.q is not None:
-        d = max(abs(a - b) for a, b in zip(sol.q, expected[3]))
-        assert d < 1e-9, d
-print("SOLVED", len(SCENES))
-db.close()
-print("DONE")
 '''
 
 
 def test_hashing_under_micropython(micropython):
     """Hash formulas, the file-backed hash database and identification under MicroPython
     give the CPython results (a mirror image included)."""
-    import base64
-
-    from ..test_micropython import lit
-
     cam, cat, image, db = setup()
     rng = np.random.default_rng(31)
     hashes = []
@@ -419,25 +381,12 @@ def test_hashing_under_micropython(micropython):
         vs = [tuple(x) for x in group_around(rng, g, 0.08).tolist()]
         order, h, _ = H.group_hash(vs)
         hashes.append((vs, order, h))
-    scenes, expected = [], []
-    for k in range(5):
-        scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3,
-                               n_false=k % 3, drop_fraction=0.1, max_stars=20)
-        vectors = [tuple(v) for v in scene.vectors.tolist()]
-        if k == 4:
-            vectors = [(-x, y, z) for x, y, z in vectors]
-        sol = starid.identify(vectors, db, method="hashing", tolerance_rad=TOL, budget=300)
-        scenes.append(vectors)
-        expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
+    scenes, expected = solved_scenes(cam, cat, db, "hashing", rng, 5, 3, TOL, 300)
     assert [e[0] for e in expected[:4]] == [S.OK] * 4 and expected[4][0] != S.OK
-    script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
-                        "EXPECTED = " + lit(expected), "HASHES = " + lit(hashes),
-                        "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = micropython(script + "\n" + MICROPYTHON_HASHING, heapsize=16 << 20,
-                            timeout=600)
+    code, out = identify_under_micropython(micropython, image, "hashing", scenes, expected,
+                                           TOL, 300, checks=_HASH_CHECKS,
+                                           data={"HASHES": hashes})
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out
     assert "SOLVED 5" in out and "DONE" in out
-
-

@@ -19,6 +19,7 @@ from lodestar.sim.catalogue import Catalogue, load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.goldenset import window_camera
 from lodestar.sim.presets import load_preset
+from tests.firmware.mpy import identify_under_micropython, solved_scenes
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
 
@@ -104,32 +105,7 @@ def test_repeated_constellation_is_ambiguous():
 # The same identification under MicroPython 1.27 (WebAssembly port in Node)
 # --------------------------------------------------------------------------------------
 
-MICROPYTHON_STARID = r'''
-import binascii
-import gc
-import sys
-from lodestar.firmware import database, starid, status
-print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
-with open("/db.bin", "wb") as f:
-    f.write(binascii.a2b_base64(IMAGE_B64))
-IMAGE_B64 = None
-#@split
-gc.collect()
-base = gc.mem_alloc()
-db, code, reason = database.load("/db.bin")
-assert code == status.OK, reason
-#@split
-gc.collect()
-print("DBMEM", gc.mem_alloc() - base)
-for scene, expected in zip(SCENES, EXPECTED):
-    sol = starid.identify(scene, db, tolerance_rad=TOL)
-    got = (sol.status, sol.matches, sol.patterns_tried)
-    assert got == expected[:3], (got, expected)
-    if sol.q is not None:
-        d = max(abs(a - b) for a, b in zip(sol.q, expected[3]))
-        assert d < 1e-9, d
-print("SOLVED", len(SCENES))
-db.close()
+_CORRUPT_CHECKS = r'''
 #@split
 with open("/db.bin", "rb") as f:
     bad = bytearray(f.read())
@@ -140,36 +116,18 @@ try:
     database.Database(bytes(bad[:100]))
 except database.DatabaseError as exc:
     print("RAISED", status.name(exc.status), str(exc).startswith("DATABASE_BAD_LENGTH: "))
-print("DONE")
 '''
 
 
 def test_identification_under_micropython(micropython):
     """File-backed database and Pyramid under MicroPython give the CPython solutions."""
-    import base64
-
-    from ..test_micropython import lit
-
     cam, cat, _ = setup()
     image = build_database(cat, cam, mag_limit=6.0)
-    db = Database(image)
-    rng = np.random.default_rng(31)
-    scenes, expected = [], []
-    for k in range(6):
-        scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3,
-                               n_false=k % 4, drop_fraction=0.1, max_stars=20)
-        vectors = [tuple(v) for v in scene.vectors.tolist()]
-        if k == 5:
-            vectors = [(-x, y, z) for x, y, z in vectors]          # a mirror image
-        sol = starid.identify(vectors, db, tolerance_rad=TOL)
-        scenes.append(vectors)
-        expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
+    scenes, expected = solved_scenes(cam, cat, Database(image), "pyramid",
+                                     np.random.default_rng(31), 6, 4, TOL, 2000)
     assert [e[0] for e in expected] == [S.OK] * 5 + [S.NO_MATCH]
-    script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
-                        "EXPECTED = " + lit(expected),
-                        "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = micropython(script + "\n" + MICROPYTHON_STARID, heapsize=16 << 20,
-                            timeout=600)
+    code, out = identify_under_micropython(micropython, image, "pyramid", scenes, expected,
+                                           TOL, 2000, epilogue=_CORRUPT_CHECKS)
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out

@@ -9,7 +9,6 @@ The checks every method shares are in ``test_methods.py``.
 import functools
 import math
 import struct
-import zlib
 
 import numpy as np
 import pytest
@@ -20,13 +19,15 @@ from lodestar.firmware import database as L
 from lodestar.firmware import geometry as G
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
-from lodestar.firmware.database import Database, DatabaseError
+from lodestar.firmware.database import Database
 from lodestar.firmware.starid import triangle as T
 from lodestar.ground.database import build_database
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import centroid_scene
 from lodestar.sim.presets import load_preset
+from tests.firmware.db_images import reseal, status_of
+from tests.firmware.mpy import identify_under_micropython, solved_scenes
 
 TOL = 3.0e-4          # rad: ~2.2 px of estcube2 (28.4"/px), > 4 sigma of 0.5 px noise
 
@@ -215,21 +216,6 @@ def test_combined_image_serves_every_method(scene_outcome):
 # Corruption
 # --------------------------------------------------------------------------------------
 
-def reseal(image, patch):
-    """Apply ``patch(bytearray)`` and recompute both CRCs (so only the layout is wrong)."""
-    b = bytearray(image)
-    patch(b)
-    struct.pack_into("<I", b, 12, zlib.crc32(bytes(b[stardb.HEADER_SIZE:])))
-    struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
-                     zlib.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
-    return bytes(b)
-
-
-def status_of(image):
-    with pytest.raises(DatabaseError) as info:
-        Database(image)
-    assert str(info.value).startswith(S.name(info.value.status) + ": ")
-    return info.value.status
 
 
 def test_corrupt_triangle_section_is_refused():
@@ -262,66 +248,30 @@ def test_corrupt_triangle_section_is_refused():
 # MicroPython 1.27 (WebAssembly port in Node)
 # --------------------------------------------------------------------------------------
 
-MICROPYTHON_TRIANGLE = r'''
-import binascii
-import gc
-import sys
-from lodestar.firmware import database, starid, status
+_AREA_CHECK = r'''
 from lodestar.firmware.starid import triangle
-print("IMPLEMENTATION", sys.implementation.name, sys.implementation.version)
 assert triangle.area(3.0, 4.0, 5.0) == 6.0
-with open("/db.bin", "wb") as f:
-    f.write(binascii.a2b_base64(IMAGE_B64))
-IMAGE_B64 = None
-#@split
-gc.collect()
-db, code, reason = database.load("/db.bin")
-assert code == status.OK, reason
-for scene, expected in zip(SCENES, EXPECTED):
-    sol = starid.identify(scene, db, method="triangle", tolerance_rad=TOL)
-    got = (sol.status, sol.matches, sol.patterns_tried)
-    assert got == expected[:3], (got, expected)
-    if sol.q is not None:
-        d = max(abs(a - b) for a, b in zip(sol.q, expected[3]))
-        assert d < 1e-9, d
-print("SOLVED", len(SCENES))
-db.close()
+'''
+
+_CORRUPT_CHECK = r'''
 with open("/db.bin", "rb") as f:
     bad = bytearray(f.read())
 bad[len(bad) - 100] ^= 1
 print("CORRUPT", status.name(database.check(bad)[0]))
-print("DONE")
 '''
 
 
 def test_triangle_under_micropython(micropython):
     """File-backed triangle database and identification under MicroPython give the CPython
     solutions (a mirror image included)."""
-    import base64
-
-    from ..test_micropython import lit
-
     cam, cat, image, db = setup()
-    rng = np.random.default_rng(31)
-    scenes, expected = [], []
-    for k in range(5):
-        scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3,
-                               n_false=k % 4, drop_fraction=0.1, max_stars=20)
-        vectors = [tuple(v) for v in scene.vectors.tolist()]
-        if k == 4:
-            vectors = [(-x, y, z) for x, y, z in vectors]
-        sol = starid.identify(vectors, db, method="triangle", tolerance_rad=TOL)
-        scenes.append(vectors)
-        expected.append((sol.status, sol.matches, sol.patterns_tried, sol.q))
+    scenes, expected = solved_scenes(cam, cat, db, "triangle", np.random.default_rng(31), 5,
+                                     4, TOL, 2000)
     assert [e[0] for e in expected[:4]] == [S.OK] * 4 and expected[4][0] != S.OK
-    script = "\n".join(["TOL = " + lit(TOL), "SCENES = " + lit(scenes),
-                        "EXPECTED = " + lit(expected),
-                        "IMAGE_B64 = " + lit(base64.b64encode(image))])
-    code, out = micropython(script + "\n" + MICROPYTHON_TRIANGLE, heapsize=16 << 20,
-                            timeout=600)
+    code, out = identify_under_micropython(micropython, image, "triangle", scenes, expected,
+                                           TOL, 2000, checks=_AREA_CHECK,
+                                           epilogue=_CORRUPT_CHECK)
     print(out)
     assert code == 0, out
     assert "IMPLEMENTATION micropython (1, 27" in out
     assert "SOLVED 5" in out and "CORRUPT DATABASE_CORRUPT" in out and "DONE" in out
-
-
