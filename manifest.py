@@ -1,7 +1,7 @@
 # MicroPython freeze manifest of the MCU image: the lodestar root, the contract and the
 # firmware, as bytecode in flash (upstream mpy-tool).  Freeze it with
 # FROZEN_MANIFEST=<this file> and LODESTAR_MCU_IMAGE=<a folder staged by
-# lodestar.regress.micropython.stage_mcu_image> (the firmware lives in firmware/ of the
+# lodestar.regress.unixport.stage_mcu_image> (the firmware lives in firmware/ of the
 # checkout but is lodestar.firmware on the MCU, so the image is staged first).
 import os
 

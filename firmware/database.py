@@ -373,7 +373,7 @@ class Database:
 
     def _cell_centres(self):
         n = self.cells_per_face
-        out = array("f", [0.0] * (3 * n_cells(n)))
+        out = array("f", range(3 * n_cells(n)))      # its final size (overwritten below)
         for c in range(n_cells(n)):
             x, y, z = cell_centre(c, n)
             out[3 * c], out[3 * c + 1], out[3 * c + 2] = x, y, z

@@ -3,10 +3,11 @@
 Vectors are any indexable 3-sequences of numbers; functions return tuples.  A rotation
 matrix is a row-major 9-tuple (:func:`lodestar.firmware.quaternion.matrix`).  Angles are
 radians.  The small-angle forms (:func:`angle`, :func:`chord`) stay accurate in
-single precision, where ``acos`` of a dot product would not.  Pure Python (``math`` only).
+single precision, where ``acos`` of a dot product would not.  Pure Python (``math``, ``array``).
 """
 
 import math
+from array import array
 
 
 def _machine_epsilon():
@@ -19,6 +20,22 @@ def _machine_epsilon():
 EPS = _machine_epsilon()
 """Machine epsilon of this interpreter's float: 2.2e-16 for double, 1.2e-7 on MicroPython
 ports built with single-precision floats (tolerances scale with it)."""
+
+FLOAT_CODE = "f" if EPS > 1e-10 else "d"
+"""``array`` typecode of this interpreter's float: buffers of computed values hold them
+unrounded (4 bytes each on a single-precision MCU, where a boxed float takes a 16-byte heap
+block)."""
+
+
+def zeros(n):
+    """``array(FLOAT_CODE)`` of ``n`` zeros, allocated once at its final size: MicroPython
+    grows an array 8 entries at a time (``append``) or exactly (``extend``) and each move
+    leaves a hole in the heap; built from a ``range`` (sized by its length, no temporary
+    buffer) and cleared."""
+    out = array(FLOAT_CODE, range(n))
+    for i in range(n):
+        out[i] = 0.0
+    return out
 
 
 def finite(x):

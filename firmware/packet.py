@@ -63,8 +63,9 @@ def _unpack_header(data):
     return header
 
 
-def _unpack_record(data, index):
-    """Record ``index`` (0-based) of a framed packet as a ``contract.BlobRecord``."""
+def record(data, index):
+    """Record ``index`` (0-based) of a packet :func:`check` accepted, as a
+    ``contract.BlobRecord`` (decoded on each call: the flight pipeline keeps no record list)."""
     base = C.HEADER_BYTES + index * C.RECORD_BYTES
     values = [0] * _N_RECORD_FIELDS
     i = 0
@@ -207,6 +208,34 @@ def record_problem(rec, header, limits):
 # Public entry point
 # --------------------------------------------------------------------------------------
 
+def check(data):
+    """Check one packet without keeping its records: ``(status, header, reason)``; never
+    raises on bad bytes.  The checks and results of :func:`decode`, one record on the heap at
+    a time; read the records of an accepted packet with :func:`record`."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        return S.BAD_INPUT, None, \
+            "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
+                type(data).__name__)
+    if isinstance(data, memoryview):
+        data = bytes(data)
+    if len(data) < _MIN_BYTES:
+        return S.PACKET_TRUNCATED, None, \
+            "truncated: {} bytes, a packet needs at least {}".format(len(data), _MIN_BYTES)
+    header = _unpack_header(data)
+    problem = framing_problem(data, header)
+    if problem:
+        return problem[0], None, problem[1]
+    reason = header_problem(header)
+    if reason:
+        return S.PACKET_BAD_HEADER, None, reason
+    limits = moment_limits(header["pixel_bits"])
+    for index in range(header["n_records"]):
+        reason = record_problem(record(data, index), header, limits)
+        if reason:
+            return S.PACKET_BAD_RECORD, None, "record {}: {}".format(index, reason)
+    return S.OK, header, ""
+
+
 def decode(data):
     """Decode one packet: ``(status, header, records, reason)``; never raises on bad bytes.
 
@@ -216,28 +245,7 @@ def decode(data):
     On failure ``header`` is None, ``records`` is ``[]`` and ``reason`` names the first failed
     check with the message ``lodestar.ground.codec.decode`` raises for the same bytes.
     """
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        return S.BAD_INPUT, None, [], \
-            "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
-                type(data).__name__)
-    if isinstance(data, memoryview):
-        data = bytes(data)
-    if len(data) < _MIN_BYTES:
-        return S.PACKET_TRUNCATED, None, [], \
-            "truncated: {} bytes, a packet needs at least {}".format(len(data), _MIN_BYTES)
-    header = _unpack_header(data)
-    problem = framing_problem(data, header)
-    if problem:
-        return problem[0], None, [], problem[1]
-    reason = header_problem(header)
-    if reason:
-        return S.PACKET_BAD_HEADER, None, [], reason
-    limits = moment_limits(header["pixel_bits"])
-    records = []
-    for index in range(header["n_records"]):
-        rec = _unpack_record(data, index)
-        reason = record_problem(rec, header, limits)
-        if reason:
-            return S.PACKET_BAD_RECORD, None, [], "record {}: {}".format(index, reason)
-        records.append(rec)
-    return S.OK, header, records, ""
+    code, header, reason = check(data)
+    if code != S.OK:
+        return code, None, [], reason
+    return S.OK, header, [record(data, i) for i in range(header["n_records"])], ""

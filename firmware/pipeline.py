@@ -11,7 +11,9 @@ unexpected exception ``INTERNAL_ERROR``, so the flight loop always gets a result
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
+import gc
 import math
+import sys
 
 from . import attitude as _att
 from . import camera as _camera
@@ -43,6 +45,20 @@ FLOOR_EVIDENCE = 1.92
 halved)."""
 FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
+COLLECT = sys.implementation.name == "micropython"
+"""On MicroPython a :class:`StarTracker` sets ``gc.threshold(GC_THRESHOLD)`` and collects
+at the stage boundaries of :meth:`StarTracker.process` (before the packet is checked, after
+the centroids, before the attitude fit): on an MCU's small heap this keeps temporaries from
+fragmenting it (``docs/firmware.md``, Memory); CPython's own collector needs no help."""
+GC_THRESHOLD = 8192
+"""Bytes allocated between two collections on MicroPython (measured on the regression set,
+``docs/firmware.md``: the smallest working heap falls from about 150 KB with MicroPython's
+default to about 75 KB)."""
+
+
+def _collect():
+    if COLLECT:
+        gc.collect()
 
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
@@ -136,6 +152,8 @@ class StarTracker:
         self.sigma_rad = None
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
+        if COLLECT:
+            gc.threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
         except MemoryError:
@@ -494,6 +512,8 @@ class StarTracker:
             predicted, n_fov = _tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
             star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad, streaks)
+        sol = ref = predicted = None     # only star_ids goes on to the fit
+        _collect()
         fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
                                streaks) if len(star_ids) >= 2 else None
         if fitted is None:
@@ -533,14 +553,15 @@ class StarTracker:
             res.reason = self.reason
             return res
         timings = res.timings
+        _collect()
         start = first = self._tick(timings, None, None)
-        code, header, records, reason = _packet.decode(packet_bytes)
+        code, header, reason = _packet.check(packet_bytes)
         start = self._tick(timings, "decode", start)
         if code != S.OK:
             res.status = code
             res.reason = reason
             return res
-        res.n_records = len(records)
+        res.n_records = header["n_records"]
         cam = self.camera
         if header["width"] != cam.width or header["height"] != cam.height:
             res.status = S.BAD_INPUT
@@ -570,7 +591,8 @@ class StarTracker:
                 _note(res, "expected smear " + str(round(longest, 1)) + " px > max_smear_px " +
                       str(self.settings.max_smear_px))
                 return res
-        stars, rejected = _centroids.extract(records, max_stars=None, expected_smear_px=smear,
+        stars, rejected = _centroids.extract(_records(packet_bytes, res.n_records),
+                                             max_stars=None, expected_smear_px=smear,
                                              **self.settings.extract_options)
         if self.settings.drop_border:
             kept = []
@@ -579,7 +601,7 @@ class StarTracker:
             for star in stars:
                 inside = True
                 for i in (star.parts or (star.index,)):
-                    rec = records[i]
+                    rec = _packet.record(packet_bytes, i)
                     if not (rec.xmin > 0 and rec.ymin > 0 and rec.xmax < xmax and
                             rec.ymax < ymax):
                         inside = False
@@ -587,6 +609,7 @@ class StarTracker:
                     kept.append(star)
             rejected["border"] = len(stars) - len(kept)
             stars = kept
+        _collect()
         if len(stars) > self.settings.max_stars:
             rejected["excess"] += len(stars) - self.settings.max_stars
             stars = stars[:self.settings.max_stars]
@@ -608,6 +631,12 @@ class StarTracker:
             res.matches = matches
         self._tick(timings, "total", first)
         return res
+
+
+def _records(packet_bytes, n):
+    """The ``n`` records of a checked packet one at a time (never a list of them)."""
+    for i in range(n):
+        yield _packet.record(packet_bytes, i)
 
 
 def _note(res, text):

@@ -16,7 +16,7 @@ from array import array
 
 from . import attitude as _att
 from . import status as S
-from .geometry import is_number, residual2, unit, vector3
+from .geometry import is_number, residual2, unit, vector3, zeros
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
@@ -82,9 +82,9 @@ def candidates(database, q, margin_rad):
     m = matrix(q)
     ids = array("H", database.stars_in_cone((m[6], m[7], m[8]),
                                             0.5 * database.fov_diag + margin_rad))
-    vecs = array("f")
-    for s in ids:
-        vecs.extend(database.star_vector(s))
+    vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
+    for i in range(len(ids)):
+        vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2] = database.star_vector(ids[i])
     return ids, vecs
 
 
@@ -106,8 +106,9 @@ def star_vector(database, stars, s):
 
 def predict(database, q, margin_rad=0.0, stars=None):
     """Catalogue stars in the FOV at attitude ``q`` (a unit quaternion):
-    ``(predicted, n_fov)`` with ``predicted`` a list of ``(camera vector, star index)`` inside
-    the FOV rectangle widened by ``margin_rad`` on every side and ``n_fov`` the number of them
+    ``(predicted, n_fov)`` with ``predicted`` the stars inside the FOV rectangle widened by
+    ``margin_rad`` on every side (``(ids, vecs)``, as
+    :func:`lodestar.firmware.starid.verify.predicted_stars`) and ``n_fov`` the number of them
     inside the plain rectangle.  ``stars``: the :func:`candidates` to consider (None: a cone
     query around ``q``)."""
     m = matrix(q)
@@ -119,20 +120,31 @@ def predict(database, q, margin_rad=0.0, stars=None):
     if stars is None:
         stars = candidates(database, q, margin_rad)
     ids, vecs = stars
-    out = []
-    n_fov = 0
-    for c in range(len(ids)):
-        r0, r1, r2 = vecs[3 * c], vecs[3 * c + 1], vecs[3 * c + 2]
-        z = m6 * r0 + m7 * r1 + m8 * r2
-        if z <= 0.0:
-            continue
-        x = m0 * r0 + m1 * r1 + m2 * r2
-        y = m3 * r0 + m4 * r1 + m5 * r2
-        if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
-            out.append(((x, y, z), ids[c]))
-            if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-                n_fov += 1
-    return out, n_fov
+    n_out = 0
+    for c in range(2):                      # count, then fill arrays of the final size
+        if c:
+            out_ids = array("H", range(n_out))     # sized by the range, then overwritten
+            out_vecs = zeros(3 * n_out)
+            n_out = 0
+        n_fov = 0
+        for i in range(len(ids)):
+            r0, r1, r2 = vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
+            z = m6 * r0 + m7 * r1 + m8 * r2
+            if z <= 0.0:
+                continue
+            x = m0 * r0 + m1 * r1 + m2 * r2
+            y = m3 * r0 + m4 * r1 + m5 * r2
+            if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
+                if c:
+                    out_ids[n_out] = ids[i]
+                    k = 3 * n_out
+                    out_vecs[k] = x
+                    out_vecs[k + 1] = y
+                    out_vecs[k + 2] = z
+                n_out += 1
+                if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
+                    n_fov += 1
+    return (out_ids, out_vecs), n_fov
 
 
 def match_nearest(observed, predicted, tolerance_rad, streaks=None):
@@ -148,7 +160,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None):
     def close(o):
         if best >= 0 and not second:
             claimed[best] = o
-            pairs.append((o, predicted[best][1]))
+            pairs.append((o, predicted[0][best]))
 
     for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad, streaks=streaks):
         if o != current:
@@ -210,7 +222,7 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
         if e is None or e[1] in used:
             continue
         used[e[1]] = o
-        pairs.append((o, predicted[e[1]][1]))
+        pairs.append((o, predicted[0][e[1]]))
     return pairs
 
 

@@ -24,7 +24,6 @@ Pure Python for CPython and MicroPython.
 from lodestar.contract.stardb import METHODS
 
 from .. import status as S
-from . import hashing, pyramid, triangle
 from .search import DEFAULT_MAX_WORK, Solution
 
 MAX_TOLERANCE_FRACTION = 0.05
@@ -36,16 +35,18 @@ def max_tolerance_rad(fov_h):
     """The widest match tolerance (rad) for a horizontal field of ``fov_h`` rad."""
     return MAX_TOLERANCE_FRACTION * fov_h
 
-_MODULES = {"pyramid": pyramid, "triangle": triangle, "hashing": hashing}
-"""The registry: each of the contract's :data:`METHODS` -> its module."""
-if sorted(_MODULES) != sorted(METHODS):
-    raise ImportError("starid: the registry does not match contract.stardb.METHODS")
+def _module_of(name):
+    if name not in METHODS:
+        return None
+    return __import__(__name__ + "." + name, None, None, ("identify",))
 
 
 def method(name):
     """The module of identification method ``name`` (``identify``, ``DATABASE_BIT``), or
-    None for a name not in :data:`METHODS`."""
-    return _MODULES.get(name)
+    None for a name not in :data:`METHODS`.  Each of the contract's :data:`METHODS` is the
+    module of that name in this package, imported on first use: a flight image running one
+    method keeps no other method's functions on its heap."""
+    return _module_of(name)
 
 
 def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=2000,
@@ -54,7 +55,7 @@ def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=200
     a method the database does not serve: ``DATABASE_UNSUPPORTED``; ``budget`` patterns or
     ``max_work`` units of work spent: ``BUDGET_EXHAUSTED``).  A tolerance wider than
     :data:`MAX_TOLERANCE_FRACTION` of the field is ``BAD_INPUT``: it would match anything."""
-    module = _MODULES.get(method)
+    module = _module_of(method)
     if module is None or isinstance(max_work, bool) or not isinstance(max_work, int) or \
             max_work < 1:
         return Solution(S.BAD_INPUT)

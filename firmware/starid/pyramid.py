@@ -27,24 +27,24 @@ SQRT2 = 1.4142135623730951
 NONE = 0xFFFF
 """End of a chain in the ``array('H')`` pair index of :meth:`_Search._index`."""
 
-CHUNK = 1024
-"""Most candidate pairs of one side indexed at once (:meth:`_Search._index`: at most
-``16 * CHUNK`` bytes a side; entry numbers stay below :data:`NONE`)."""
+CHUNK = 256
+"""Most candidate pairs of one side indexed at once (:meth:`_Search._index`; longer ranges are
+joined chunk by chunk); entry numbers stay below :data:`NONE`."""
+_HEAD = 512
+"""Chain heads of a side's index: a power of two, at least the ``2 * CHUNK`` entries."""
 
 
-def _none_array(n):
-    """``array('H')`` of at least ``n`` entries, all :data:`NONE` (filled block by block:
-    MicroPython's ``array`` has no repetition)."""
-    block = array("H", [NONE] * 256)
-    out = array("H")
-    for _ in range((n + 255) >> 8):
-        out.extend(block)
-    return out
+def _side():
+    """The buffers of one side's index, ``(head, st, nxt)`` (``array('H')``, 4 *
+    :data:`CHUNK` + 2 * :data:`_HEAD` bytes), allocated once per search and reused by every
+    :meth:`_Search._index`: an MCU heap keeps no hole of a freed index."""
+    return (array("H", range(_HEAD)), array("H", range(2 * CHUNK)),
+            array("H", range(2 * CHUNK)))          # sized by the ranges: no temporary
 
 
 def _observed_angles(b, n):
-    """Angles between the first ``n`` observed vectors, as a flat list ``[i * n + j]``."""
-    ang = [0.0] * (n * n)
+    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``."""
+    ang = G.zeros(n * n)
     for i in range(n):
         for j in range(i + 1, n):
             a = G.angle(b[i], b[j])
@@ -60,7 +60,10 @@ class _Search(Search):
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
-        self.ranges = array("i", [-1] * (2 * self.n * self.n))
+        self.ranges = array("i", range(2 * self.n * self.n))
+        for c in range(len(self.ranges)):
+            self.ranges[c] = -1                     # not queried yet
+        self.sides = (_side(), _side())
 
     def ptol(self, i, j):
         """Tolerance (rad) of the observed angle between stars ``i`` and ``j``."""
@@ -85,30 +88,30 @@ class _Search(Search):
         tol = self.tol + max(h[i], h[j], h[k])
         return tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) + math.sin(a[k * n + i]))
 
-    def _index(self, start, stop):
-        """Index the pairs ``start <= p < stop`` by star: ``(head, st, nxt)``.
+    def _index(self, start, stop, side):
+        """Index the pairs ``start <= p < stop`` (at most :data:`CHUNK`) by star in the
+        buffers ``side`` (:func:`_side`): returns them, ``(head, st, nxt)``.
 
         ``st`` lists the pairs' stars ``a, b, a, b, ...``: entry ``e`` is filed under star
-        ``st[e]`` with partner ``st[e ^ 1]``.  ``head[star & mask]`` (``mask = len(head) -
-        1``) starts a chain through ``nxt`` (ended by :data:`NONE`) holding the entries of
-        every star with those low bits; a reader skips the entries of other stars."""
+        ``st[e]`` with partner ``st[e ^ 1]``.  ``head[star & (_HEAD - 1)]`` starts a chain
+        through ``nxt`` (ended by :data:`NONE`) holding the entries of every star with
+        those low bits; a reader skips the entries of other stars."""
         db = self.db
-        n = 2 * (stop - start)
-        size = 256
-        while size < n:
-            size <<= 1
-        mask = size - 1
-        head = _none_array(size)
-        st = array("H")
+        head, st, nxt = side
+        for h in range(_HEAD):
+            head[h] = NONE
         self.spend(stop - start)
+        e = 0
         for p in range(start, stop, PAIR_BLOCK):
-            st.extend(db.pair_stars(p, PAIR_BLOCK if p + PAIR_BLOCK < stop else stop - p))
-        nxt = array("H", st)        # sized like st; every entry is set below
-        for e in range(n):
+            for star in db.pair_stars(p, PAIR_BLOCK if p + PAIR_BLOCK < stop else stop - p):
+                st[e] = star
+                e += 1
+        mask = _HEAD - 1
+        for e in range(2 * (stop - start)):
             h = st[e] & mask
             nxt[e] = head[h]
             head[h] = e
-        return head, st, nxt
+        return side
 
     def triangles(self, i, j, k):
         """Consistent catalogue triangles ``(I, J, K)`` of the observed triple, in the order
@@ -128,9 +131,11 @@ class _Search(Search):
             return []
         found = []
         for lo in range(s_ij[0], s_ij[1], CHUNK):
-            ij = self._index(lo, lo + CHUNK if lo + CHUNK < s_ij[1] else s_ij[1])
+            ij = self._index(lo, lo + CHUNK if lo + CHUNK < s_ij[1] else s_ij[1],
+                             self.sides[0])
             for lo2 in range(s_jk[0], s_jk[1], CHUNK):
-                jk = self._index(lo2, lo2 + CHUNK if lo2 + CHUNK < s_jk[1] else s_jk[1])
+                jk = self._index(lo2, lo2 + CHUNK if lo2 + CHUNK < s_jk[1] else s_jk[1],
+                                 self.sides[1])
                 self._join(ij, jk, s_ik, (lo - s_ij[0]) << 1, found)
         found.sort()
         return [t[1:] for t in found]
@@ -143,8 +148,7 @@ class _Search(Search):
         db = self.db
         ij_head, ij_st, ij_nxt = ij
         jk_head, jk_st, jk_nxt = jk
-        ij_mask = len(ij_head) - 1
-        jk_mask = len(jk_head) - 1
+        ij_mask = jk_mask = _HEAD - 1
         start, stop = s_ik
         n_ik = stop - start
         for p0 in range(start, stop, PAIR_BLOCK):

@@ -12,6 +12,7 @@ v_inertial``; angles in radians.  Pure Python for CPython and MicroPython (``mat
 """
 
 import math
+from array import array
 
 from .. import geometry as G
 from ..quaternion import matrix
@@ -91,22 +92,35 @@ class Verification:
 
 
 def predicted_stars(database, q, margin=0.0):
-    """Catalogue stars inside the FOV at attitude ``q``: list of ``(camera vector, index)``.
-
-    ``margin`` (rad) widens the FOV rectangle on every side."""
+    """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
+    vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
+    per star (compact: no object per star).  ``margin`` (rad) widens the FOV rectangle on
+    every side."""
     m = matrix(q)
     boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
     half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
-    out = []
-    for s in database.stars_in_cone(boresight, half_diag):
-        c = G.mat_vec(m, database.star_vector(s))
-        if c[2] <= 0.0:
-            continue
-        if abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
-            out.append((c, s))
-    return out
+    cone = database.stars_in_cone(boresight, half_diag)
+    inside = bytearray(len(cone))
+    n = 0
+    for i in range(len(cone)):
+        c = G.mat_vec(m, database.star_vector(cone[i]))
+        if c[2] > 0.0 and abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
+            inside[i] = 1
+            n += 1
+    ids = array("H", range(n))              # arrays of their final size (overwritten)
+    vecs = G.zeros(3 * n)
+    k = 0
+    for i in range(len(cone)):
+        if inside[i]:
+            c = G.mat_vec(m, database.star_vector(cone[i]))
+            ids[k] = cone[i]
+            vecs[3 * k] = c[0]
+            vecs[3 * k + 1] = c[1]
+            vecs[3 * k + 2] = c[2]
+            k += 1
+    return ids, vecs
 
 
 def chord(angle):
@@ -131,24 +145,27 @@ def in_region(dx, dy, dz, streak, lim):
 
 def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
     """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
-    ``n_observed``) within ``radius_rad`` of a predicted star ``predicted[p][0]`` (of the
-    stretch ``streaks[o]`` along its track, :func:`in_region`), with ``(dx, dy, dz) =
-    observed[o] - predicted[p][0]``; in ``o`` then ``p`` order."""
+    ``n_observed``) within ``radius_rad`` of predicted star ``p`` (of ``predicted``, as
+    :func:`predicted_stars`; of the stretch ``streaks[o]`` along its track,
+    :func:`in_region`), with ``(dx, dy, dz)`` the observed minus the predicted vector; in
+    ``o`` then ``p`` order."""
     lim = chord(radius_rad)
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
+    vecs = predicted[1]
+    n_pred = len(predicted[0])
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
         reach = lim if streak is None else lim + chord(streak[3])
-        for p in range(len(predicted)):
-            c = predicted[p][0]
-            dx = ox - c[0]
+        for p in range(n_pred):
+            k = 3 * p
+            dx = ox - vecs[k]
             if dx > reach or -dx > reach:
                 continue
-            dy = oy - c[1]
+            dy = oy - vecs[k + 1]
             if dy > reach or -dy > reach:
                 continue
-            dz = oz - c[2]
+            dz = oz - vecs[k + 2]
             if in_region(dx, dy, dz, streak, lim):
                 yield o, p, dx, dy, dz
 
@@ -174,7 +191,7 @@ def match_stars(observed, predicted, tolerance_rad, streaks=None):
     # An observed star that also lies within tolerance of a catalogue star nobody claimed
     # (a close double with one component unseen) cannot be named reliably, nor can two
     # observed stars whose swapped assignment is also within tolerance: drop them.
-    npred = len(predicted)
+    npred = len(predicted[0])
     admissible = {}
     for _d2, o, p in cands:
         admissible[o * npred + p] = 1
@@ -194,7 +211,7 @@ def match_stars(observed, predicted, tolerance_rad, streaks=None):
     pairs = []
     for o in used_o:
         if used_o[o] is not None:
-            pairs.append((o, predicted[used_o[o]][1]))
+            pairs.append((o, predicted[0][used_o[o]]))
     pairs.sort()
     return pairs
 
@@ -219,7 +236,7 @@ def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
     probability)."""
     predicted = predicted_stars(database, q)
     pairs = match_stars(observed, predicted, tolerance_rad, streaks)
-    n_fov = len(predicted)
+    n_fov = len(predicted[0])
     omega = fov_solid_angle(database.fov_h, database.fov_v)
     p, prob = chance_agreement(n_fov, omega, tolerance_rad, len(observed), len(pairs),
                                streaks, free_matches)

@@ -482,7 +482,7 @@ def test_firmware_source_is_micropython_subset(name):
                 assert alias.name.split(".")[0] not in FORBIDDEN_MODULES, alias.name
                 assert alias.name == "math", alias.name
         elif isinstance(node, ast.ImportFrom):
-            assert node.level == 1 or node.module == "math", ast.dump(node)
+            assert node.level == 1 or node.module in ("math", "array"), ast.dump(node)
         elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
                 and node.value.id == "math":
             assert node.attr not in ("isclose", "fsum", "prod", "dist", "isqrt", "comb"), node.attr

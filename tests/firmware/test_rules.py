@@ -42,6 +42,7 @@ def test_firmware_rules(name):
             imports += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0:
             imports.append(node.module)
+    # gc and sys: the pipeline's collector policy on MicroPython (docs/firmware.md, Memory)
     assert {m.split(".")[0] for m in imports} <= {"math", "struct", "array", "binascii",
-                                                   "lodestar"}, imports
+                                                   "gc", "sys", "lodestar"}, imports
     assert not has_fstring(source), "f-strings are avoided in firmware"

@@ -6,6 +6,7 @@ that are far off, the fall-back to lost-in-space, the matching rules and bad inp
 
 import functools
 import math
+from array import array
 
 import numpy as np
 import pytest
@@ -92,6 +93,12 @@ def test_propagate_rejects_bad_rates():
     assert tracking.propagate(q, [0, 0, 0.1], "1") is None
 
 
+def _predicted(items):
+    """Predicted stars (``verify.predicted_stars`` layout) of ``[(camera vector, index)]``."""
+    return (array("H", [i for _v, i in items]),
+            array("d", [float(c) for v, _i in items for c in v]))
+
+
 def test_match_nearest_rules():
     # observed 0 is brightest: it takes the nearest prediction; observed 1 (near the same
     # prediction) gets nothing; observed 2 lies between two predictions: unnamed
@@ -101,13 +108,13 @@ def test_match_nearest_rules():
         n = math.sqrt(x * x + y * y + 1)
         return (x / n, y / n, 1 / n)
 
-    predicted = [(unit(0.0, 0.0), 10), (unit(0.01, 0.0), 11), (unit(0.0104, 0.0), 12),
-                 (unit(0.05, 0.05), 13)]
+    predicted = _predicted([(unit(0.0, 0.0), 10), (unit(0.01, 0.0), 11),
+                            (unit(0.0104, 0.0), 12), (unit(0.05, 0.05), 13)])
     observed = [unit(0.0002, 0.0), unit(-0.0003, 0.0), unit(0.0102, 0.0), unit(0.05, 0.0504),
                 unit(0.2, 0.2)]
     assert tracking.match_nearest(observed, predicted, tol) == [(0, 10), (3, 13)]
     assert tracking.match_nearest([], predicted, tol) == []
-    assert tracking.match_nearest(observed, [], tol) == []
+    assert tracking.match_nearest(observed, _predicted([]), tol) == []
 
 
 def test_coarse_match_finds_the_consistent_displacement():
@@ -119,8 +126,8 @@ def test_coarse_match_finds_the_consistent_displacement():
     obs = shift.apply(ref)
     decoys = ref + rng.normal(0, 0.002, ref.shape)          # within the search radius
     decoys /= np.linalg.norm(decoys, axis=1, keepdims=True)
-    predicted = [(tuple(v), i) for i, v in enumerate(ref)] + \
-        [(tuple(v), 100 + i) for i, v in enumerate(decoys)]
+    predicted = _predicted([(tuple(v), i) for i, v in enumerate(ref)] +
+                           [(tuple(v), 100 + i) for i, v in enumerate(decoys)])
     pairs = tracking.coarse_match([tuple(v) for v in obs], predicted, search_rad=0.006,
                                   cluster_rad=0.0015, max_stars=16)
     assert pairs == [(i, i) for i in range(6)]

@@ -1,0 +1,188 @@
+"""MicroPython 1.27's unix port as the flight MCU runs it: built 32-bit with single-precision
+floats and the MCU image frozen (bytecode in "flash"), then the regression set replayed as
+a flight loop with a fixed heap.
+
+:func:`build` builds the interpreter with MicroPython's ``build.sh`` and the repository's
+``manifest.py``; :func:`flight_loop` replays cases one after another in one process, with
+only the current camera's database open, as the flight software would; :func:`min_heap`
+bisects the smallest heap with which a loop still gives the recorded results.  How each
+figure is measured: ``docs/regression.md``, "A real MicroPython".
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from lodestar.regress import mcu
+from lodestar.regress.micropython import MicroPythonError, literal, mcu_image
+
+BUILD_ENV = "LODESTAR_MICROPYTHON_BUILD"
+"""Environment variable naming MicroPython's ``build.sh`` (else ``../shared/micropython``
+beside the checkout)."""
+
+HEAP_STEP = 2048
+"""Resolution of :func:`min_heap`, bytes."""
+
+
+def build_script(repo):
+    """MicroPython's ``build.sh``: ``$LODESTAR_MICROPYTHON_BUILD``, else
+    ``../shared/micropython/build.sh`` beside the checkout ``repo``; None when absent."""
+    path = Path(os.environ.get(BUILD_ENV) or Path(repo).parent / "shared" / "micropython" /
+                "build.sh")
+    return path if path.is_file() else None
+
+
+def stage_mcu_image(folder):
+    """Copy :func:`lodestar.regress.micropython.mcu_image` into ``folder`` as the tree
+    ``lodestar/...`` that a freeze manifest packages; returns ``folder``."""
+    folder = Path(folder)
+    for host, target in mcu_image():
+        dest = folder / target[len("/lib/"):]
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(host, dest)
+    return folder
+
+
+def build(script, manifest, out_dir, variant="float32", timeout=1200):
+    """Build (incrementally) the unix-port interpreter ``variant`` (``float32`` or
+    ``double``) with the MCU image frozen by ``manifest`` (the repository's
+    ``manifest.py``) using MicroPython's build ``script``; returns the binary's path (its
+    name says 32- or 64-bit).  Raises :class:`MicroPythonError` when the build fails."""
+    out_dir = Path(out_dir)
+    image = stage_mcu_image(out_dir / "mcu-image")
+    env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
+               LODESTAR_MCU_IMAGE=str(image.resolve()))
+    proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines or not Path(lines[-1]).is_file():
+        raise MicroPythonError(f"the MicroPython build failed (exit status {proc.returncode}):"
+                               f"\n{(proc.stdout + proc.stderr).strip()[-2000:]}")
+    return Path(lines[-1])
+
+
+_LOOP = r'''
+import gc
+import json
+R = {}
+exec(open(MCU).read(), R)
+if PEAK:
+    gc.threshold(512)
+elif THRESHOLD:
+    gc.threshold(THRESHOLD)
+DB = None
+DB_NAME = None
+CASES = open(CASE_FILE)
+while True:
+    LINE = CASES.readline()
+    if not LINE:
+        break
+    CASE, METHOD, NAME, DB_PATH, CAMERA, PACKET, INPUTS = json.loads(LINE)
+    LINE = None
+    if NAME != DB_NAME:
+        DB = None
+        gc.collect()
+        DB = R["open_database"](DB_PATH)
+        DB_NAME = NAME
+        gc.collect()
+        print("RESIDENT " + json.dumps([NAME, gc.mem_alloc()]))
+    TRACKER = R["make_tracker"](DB, CAMERA, METHOD)
+    F = open(PACKET, "rb")
+    BYTES = F.read()
+    F.close()
+    F = CAMERA = None
+    if PEAK:
+        gc.collect()
+        BASE = gc.mem_alloc()
+        gc.live_peak(0)
+    OUT = R["replay"](TRACKER, BYTES, INPUTS)
+    PEAK_BYTES = gc.live_peak()[0] - BASE if PEAK else None
+    TRACKER = BYTES = INPUTS = None
+    print("RESULT " + json.dumps([CASE, METHOD, OUT, PEAK_BYTES]))
+    OUT = None
+print("DONE")
+'''
+
+
+def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=False,
+                threshold=None, timeout=900):
+    """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
+    ``binary`` process with a ``heapsize``-byte heap, a new tracker per run and only the
+    current camera's database open.  ``peak``: also measure each solve's live peak above
+    the heap before it (``gc.threshold(512)``; ``gc.live_peak()`` of MicroPython's
+    ``build.sh``), which overrides the firmware's collector setting.  ``threshold``: a
+    ``gc.threshold`` (bytes) the loop sets before its first run (None: the firmware's).
+
+    Returns ``{"finished": bool, "results": {(case name, method): (outcome, peak bytes or
+    None)}, "resident": {database: bytes live with it open}, "error": output tail}``; a run
+    that ran out of heap outside the firmware leaves ``finished`` false."""
+    set_dir = Path(set_dir)
+    with tempfile.TemporaryDirectory() as tmp:
+        case_file = Path(tmp) / "cases.jsonl"
+        with open(case_file, "w", encoding="utf-8") as f:
+            for case, method in runs:
+                name = manifest["cameras"][case["camera"]]["database"]
+                f.write(json.dumps([case["name"], method, name,
+                                    str(Path(database_files[name]).resolve()),
+                                    manifest["cameras"][case["camera"]],
+                                    str((set_dir / case["packet"]).resolve()),
+                                    case["inputs"]]) + "\n")
+        script = Path(tmp) / "loop.py"
+        script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
+                          f"CASE_FILE = {literal(str(case_file))}\n"
+                          f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n" + _LOOP, encoding="utf-8")
+        try:
+            proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
+                                  capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise MicroPythonError(f"the flight loop ran more than {timeout} s") from None
+    out = {"finished": False, "results": {}, "resident": {},
+           "error": (proc.stdout + proc.stderr).strip()[-2000:]}
+    for line in proc.stdout.splitlines():
+        if line.startswith("RESULT "):
+            case, method, outcome, peak_bytes = json.loads(line[len("RESULT "):])
+            out["results"][(case, method)] = (outcome, peak_bytes)
+        elif line.startswith("RESIDENT "):
+            name, live = json.loads(line[len("RESIDENT "):])
+            out["resident"][name] = live
+    out["finished"] = proc.returncode == 0 and "DONE" in proc.stdout.splitlines()
+    return out
+
+
+def disagreements(loop, runs):
+    """The ``(case name, method)`` of ``runs`` whose status or identified stars differ from
+    the recorded ones in a :func:`flight_loop` result (all of them if it did not finish)."""
+    bad = []
+    for case, method in runs:
+        got = loop["results"].get((case["name"], method))
+        want = case["expected"][method]
+        if not loop["finished"] or got is None or \
+                (got[0]["status"], got[0]["matches"]) != (want["status"], want["matches"]):
+            bad.append((case["name"], method))
+    return bad
+
+
+def min_heap(binary, manifest, set_dir, database_files, runs, threshold=None,
+             low=16 * 1024, high=256 * 1024):
+    """The smallest heap (a multiple of :data:`HEAP_STEP` in ``(low, high]``) with which
+    :func:`flight_loop` of ``runs`` (``threshold`` as there) finishes with the recorded
+    results, found by bisection;
+    None when ``high`` does not suffice.  Assumes that more heap never hurts."""
+    def fits(heap):
+        loop = flight_loop(binary, manifest, set_dir, database_files, runs, heap,
+                           threshold=threshold)
+        return not disagreements(loop, runs)
+
+    low, high = low // HEAP_STEP, high // HEAP_STEP
+    if not fits(high * HEAP_STEP):
+        return None
+    while high - low > 1:
+        mid = (low + high) // 2
+        if fits(mid * HEAP_STEP):
+            high = mid
+        else:
+            low = mid
+    return high * HEAP_STEP

@@ -1,0 +1,115 @@
+"""The regression set on a real MicroPython 1.27 (:mod:`lodestar.regress.unixport`): the unix
+port built 32-bit (when the C compiler can target -m32) with single-precision floats, as the
+STM32F401 runs it, with the MCU image frozen by the repository's ``manifest.py``.
+
+Needs MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD``, else
+``../shared/micropython/build.sh`` beside the checkout) and a C toolchain: skipped with the
+reason otherwise, failed instead under ``LODESTAR_REQUIRE_MICROPYTHON`` (CI).  The
+interpreter is built once into the cache folder and rebuilt incrementally."""
+
+import os
+import shutil
+
+import pytest
+
+from lodestar.ground.cache import default_cache_dir
+from lodestar.regress import replay as regress
+from lodestar.regress import unixport
+from tests import REPO
+
+FLOAT32_ARCSEC = 2.0
+"""Largest rotation between a float32 attitude and the recorded double one (measured: 1.09
+arcsec, the roll of a lohmann frame)."""
+
+HEAP_BUDGET = 86 * 1024
+"""Heap (bytes) within which every flight loop of the set runs on the 32-bit float32 build
+with the firmware's own collector setting (measured: at most 78 KiB, Pyramid on estcube2;
+``docs/firmware.md``, Memory).  The flight goal is 64 KiB."""
+
+
+def _build_script():
+    script = unixport.build_script(REPO)
+    reason = None
+    if script is None:
+        reason = (f"no MicroPython build script (set {unixport.BUILD_ENV} or put "
+                  "../shared/micropython beside the checkout)")
+    for tool in ("make", "cc", "patch", "tar"):
+        if reason is None and shutil.which(tool) is None:
+            reason = f"{tool} is not installed (needed to build MicroPython)"
+    if reason is not None:
+        if os.environ.get("LODESTAR_REQUIRE_MICROPYTHON"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return script
+
+
+@pytest.fixture(scope="module")
+def float32_frozen():
+    return unixport.build(_build_script(), REPO / "manifest.py",
+                          default_cache_dir() / "micropython", "float32")
+
+
+@pytest.fixture(scope="module")
+def regression_set():
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    return manifest, regress.database_files(manifest)
+
+
+def _runs(manifest, method, camera=None):
+    return [(case, method) for case in manifest["cases"]
+            if camera is None or case["camera"] == camera]
+
+
+def test_the_set_replays_on_float32_micropython_with_the_firmware_frozen(float32_frozen,
+                                                                          regression_set):
+    """Every case and method: the status and the identified stars of the recorded (double
+    precision) result, the attitude within :data:`FLOAT32_ARCSEC`."""
+    manifest, db_files = regression_set
+    runs = [run for method in manifest["methods"] for run in _runs(manifest, method)]
+    loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+                                4 << 20)
+    assert unixport.disagreements(loop, runs) == []
+    worst = 0.0
+    for case, method in runs:
+        want = case["expected"][method]["q"]
+        if want is not None:
+            worst = max(worst, regress.rotation_angle(loop["results"][(case["name"], method)]
+                                                      [0]["q"], want))
+    assert worst * 206264.806 < FLOAT32_ARCSEC
+
+
+@pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
+def test_every_flight_loop_runs_within_the_heap_budget(float32_frozen, regression_set, method):
+    """Each camera's packets one after another in one process, one database open, at
+    :data:`HEAP_BUDGET`: the recorded results, no ``OUT_OF_MEMORY``."""
+    manifest, db_files = regression_set
+    for camera in manifest["cameras"]:
+        runs = _runs(manifest, method, camera)
+        loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files,
+                                    runs, HEAP_BUDGET)
+        assert unixport.disagreements(loop, runs) == [], (camera, loop["error"])
+
+
+def test_min_heap_bisects_to_the_smallest_working_heap(float32_frozen, regression_set):
+    """The bisection's answer works and 2 KB less does not (on the worst rest frame)."""
+    manifest, db_files = regression_set
+    runs = [(case, "triangle") for case in manifest["cases"]
+            if case["name"] == "estcube2_rest_s0"]
+    heap = unixport.min_heap(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+                             high=HEAP_BUDGET)
+    assert heap is not None and heap <= HEAP_BUDGET
+    for size, fits in ((heap, True), (heap - unixport.HEAP_STEP, False)):
+        loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files,
+                                    runs, size)
+        assert (unixport.disagreements(loop, runs) == []) is fits, size
+
+
+def test_the_frozen_image_is_the_mcu_image(tmp_path):
+    """The staged tree holds exactly the MCU image: the root, the contract and the
+    firmware, nothing of the ground."""
+    staged = unixport.stage_mcu_image(tmp_path)
+    files = sorted(str(p.relative_to(staged)) for p in staged.rglob("*.py"))
+    assert "lodestar/__init__.py" in files and "lodestar/firmware/pipeline.py" in files
+    assert "lodestar/contract/packet.py" in files
+    assert all(f.startswith(("lodestar/firmware/", "lodestar/contract/")) or
+               f == "lodestar/__init__.py" for f in files)
