@@ -165,6 +165,7 @@ async def board_lvds_frames(dut):
     dut.rst.value, dut.ser_rst.value = 1, 1
     dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
     dut.lvds_bits.value = 0
+    dut.rx_locked.value = 1                        # the LVDS receiver PLL is locked
     cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
     await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
     cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
