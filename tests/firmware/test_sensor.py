@@ -218,3 +218,42 @@ def test_wrong_chip_bus_failure_and_lost_write():
     st, reason = sensor.Sensor(fake, "mt9v022").configure(mode="lvds")
     assert st == S.BAD_INPUT and "R0xB6 reads 0x0000 after writing 0x0001" in reason
     assert sensor.Sensor(fake, "ov7670").configure(gain=1)[0] == S.BAD_INPUT
+
+
+_MP_SCRIPT = """
+from lodestar.firmware import sensor
+
+class Bus:
+    def __init__(self, chip):
+        self.regs = {0: chip}
+        self.log = []
+    def writeto_mem(self, addr, reg, buf):
+        self.regs[reg] = (buf[0] << 8) | buf[1]
+        self.log.append((addr, reg, self.regs[reg]))
+    def readfrom_mem(self, addr, reg, n):
+        w = self.regs.get(reg, 0)
+        return bytes([w >> 8, w & 0xFF])
+
+for model, chip, settings in CASES:
+    bus = Bus(chip)
+    st, reason = sensor.Sensor(bus, model).configure(**settings)
+    print(repr((st, reason, bus.log)))
+"""
+
+
+def test_configure_runs_unchanged_on_micropython(micropython):
+    """The same writes and statuses on MicroPython 1.27 as on CPython (a bare bus that stores
+    what it is sent), for the typical settings and a refused one."""
+    cases = [("mt9p031", 0x1801, TYPICAL["mt9p031"]), ("mt9v022", 0x1313, TYPICAL["mt9v022"]),
+             ("mt9v022", 0x1313, {"gain": 65})]
+    script = "CASES = " + repr(cases) + "\n" + _MP_SCRIPT
+    code, out = micropython(script)
+    assert code == 0, out
+    expected = []
+    for model, chip, settings in cases:
+        ns = {}
+        exec(compile(_MP_SCRIPT.split("for model")[0], "bus", "exec"), ns)
+        bus = ns["Bus"](chip)
+        st, reason = sensor.Sensor(bus, model).configure(**settings)
+        expected.append(repr((st, reason, bus.log)))
+    assert out.split("\n")[:len(cases)] == expected
