@@ -22,7 +22,9 @@ reason says which).  Exposure and gain are manual (the MT9V022's AEC/AGC are swi
 PIXCLK is left on its default edge (data launched on the falling edge, which the
 MT9P031 front end samples on the rising one).  The frame the sensor sends must be the
 gateware's ``width x height`` and its vertical blanking at least the detector's
-``min_vblank`` clocks (``docs/sensors_and_link.md``, Sensor set-up).
+``min_vblank`` clocks (``docs/sensors_and_link.md``, Sensor set-up).  The board releases
+RESET_BAR once, when its PLL first locks; the MT9P031 answers on the bus 850,000 EXTCLK cycles
+later (34 ms at 25 MHz, the Linux driver's wait), the MT9V022 10 SYSCLK cycles later.
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or f-strings.
 """
 

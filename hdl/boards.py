@@ -328,16 +328,16 @@ BOARDS = {
                "from CLOCK_50 directly (50 MHz >= the 26.67 MHz pixel rate).  A PLL makes "
                "the sensor's 26.67 MHz SYSCLK (50 x 8 / 15).  MT9V022 LVDS (Lohmann's custom "
                "PCB) on the HSMC connector, pins from Terasic's System Builder QSF: the "
-               "returned LVDS clock on HSMC_CLKIN_P1/N1 (J27/J28), the data on the receiver "
-               "pair HSMC_RX_D_P/N[3] (G25/G26; 100 ohm termination on the PCB, Cyclone IV E "
-               "inputs have none on chip), SYSCLK and RESET_BAR single-ended on "
-               "HSMC_TX_D_P/N[0] (D27/D28) at 2.5 V, the HSMC bank's VCCIO set by JP7 (2.5 V "
+               "returned LVDS clock on HSMC_CLKIN_P1/N1, the data on the receiver pair "
+               "HSMC_RX_D_P/N[3] (100 ohm termination on the PCB, Cyclone IV E inputs have "
+               "none on chip), SYSCLK and RESET_BAR single-ended on HSMC_TX_D_P/N[0] at "
+               "2.5 V, the HSMC bank's VCCIO set by JP7 (2.5 V "
                "default, which the LVDS inputs also need); the 3.3-V sensor sees them through "
                "level translators on the PCB (assumed).  The ALTLVDS_RX receiver (factor 6, "
                "320 Mbit/s, inclock phase shifted half a bit so that an edge-aligned clock "
                "samples mid-bit) is instantiated as documented and must be checked in the "
                "Quartus MegaWizard.  MCU SPI and IRQ on GPIO header JP5 pins 1-5 "
-               "(GPIO[0..4] = AB22 AC15 AB21 Y17 AC21, Terasic QSF), 3.3-V LVTTL.")),
+               "(GPIO[0..4], Terasic QSF), 3.3-V LVTTL.")),
     "de0-nano": Board(
         "de0-nano", device="EP4CE22", package="F17", speed="C6", les=22320, m9k=66,
         multipliers=66, osc_hz=50e6, osc_pin="R8", sync_hz=100e6, sensor="mt9p031",
