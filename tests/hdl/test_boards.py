@@ -14,6 +14,7 @@ from amaranth import ClockDomain, Module
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
+from lodestar.firmware.sensor import SENSORS
 from lodestar.hdl.boards import (
     BOARDS,
     IO_STANDARD_VOLTS,
@@ -26,6 +27,7 @@ from lodestar.hdl.boards import (
     board_platform,
     sdc_constraints,
 )
+from lodestar.hdl.mt9p031 import STALL_TIMEOUT
 from lodestar.hdl.spi_slave import MISO_OUT_NS
 
 
@@ -279,3 +281,12 @@ def test_stalled_frame_times_out_flagged_and_clock_loss_is_flagged(rows_sent):
     assert trailers[1]["flags"] == 0 and trailers[1]["n_blobs"] == 1
     assert busy_after_stall == [0]
     assert [(o >> C.OVF_CLOCK_LOST) & 1 for o in overflow] == [0, 1]
+
+
+def test_default_stall_timeout_outlasts_any_row_blanking():
+    """The watchdog never fires inside a frame the sensor is still sending: its default
+    timeout is over 100 times the longest horizontal blanking the sensor can be programmed
+    for (the MCU set-up's limit), at each board's clocks."""
+    for board in BOARDS.values():
+        longest_gap_s = SENSORS[board.sensor]["hblank"][2] / board.pixel_hz
+        assert STALL_TIMEOUT / board.sync_hz > 100 * longest_gap_s, board.name
