@@ -31,6 +31,9 @@ packets of the unclamped frames differ).  The status word shows the link down
 (``OVF_LINK_DOWN``) before the sensor starts and a clean status (locked, no framing error,
 no overflow) after the last frame.
 
+A second test cuts the link inside a frame (``board_lvds_link_stops``): the frame watchdog
+completes the frame after its stall timeout and its packet is flagged ``FRAME_TIMEOUT``.
+
 Clocks: the DE2-115 ratios at twice its rates (Verilated time is free; the SPI master model
 assumes a 10 ns ``sync``): ``sync`` ``T_NS`` = 10 ns (board 50 MHz), ``ser`` = ``sync`` x
 (board sync / (board pixel clock x 12 / ``LVDS_LANES``)) = 9.374 ns (board 53.33 MHz, 2 x
@@ -44,13 +47,13 @@ from collections import deque
 
 import cocotb
 import numpy as np
-from board_top_tb import check_idle, frame_and_packet, release_resets
+from board_top_tb import check_idle, frame_and_packet, read_packet, release_resets
 from cocotb.clock import Clock
 from cocotb.triggers import Event, FallingEdge, Timer
 from spi_slave_tb import T_NS, Master
 
 from lodestar import contract as C
-from lodestar.contract import OVF_LINK_DOWN
+from lodestar.contract import OVF_LINK_DOWN, OVF_LINK_ERROR
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.ground import codec as packet
 from lodestar.hdl.boards import BOARDS, LVDS_LANES
@@ -115,6 +118,7 @@ class LvdsSensor:
         self.words = deque()                        # (word, frame, row)
         self.sent = Event()
         self.bits = deque(packet_bits(BLANK)[slip:])
+        self.dead = 0          # packets of all-zero bits (link down) after the queued words
 
     async def drive(self):
         while True:
@@ -124,6 +128,10 @@ class LvdsSensor:
                     word, self.frame, self.row = self.words.popleft()
                     if not self.words:
                         self.sent.set()
+                elif self.dead:
+                    self.dead -= 1
+                    self.bits.extend([0] * PACKET_BITS)
+                    continue
                 else:
                     word, self.frame, self.row = BLANK, -1, -1
                 self.bits.extend(packet_bits(word))
@@ -141,6 +149,20 @@ class LvdsSensor:
                 line = line + [FRAME_END] if index % 2 == 0 else line[:-1] + [FRAME_END]
             words += [(w, index, y) for w in line + [BLANK] * HBLANK]
         self.sent.clear()
+        self.words.extend(words)
+        await self.sent.wait()
+
+    async def send_cut(self, index, image, row, col, dead):
+        """Frame ``index`` up to pixel ``col - 1`` of ``row``; then the link carries ``dead``
+        packets of zero bits (no start bit: framing errors) and blanking after them."""
+        words = [(BLANK, -1, -1)] * VBLANK
+        words += [(w, index, -1) for w in (FULL, FRAME_START_MIDDLE, FULL)]
+        for y in range(row + 1):
+            line = [LINE_START] + [int(p) for p in image[y][:col if y == row else None]]
+            words += [(w, index, y) for w in line + ([] if y == row else
+                                                      [LINE_END] + [BLANK] * HBLANK)]
+        self.sent.clear()
+        self.dead = dead
         self.words.extend(words)
         await self.sent.wait()
 
@@ -165,6 +187,7 @@ async def board_lvds_frames(dut):
     dut.rst.value, dut.ser_rst.value = 1, 1
     dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
     dut.lvds_bits.value = 0
+    dut.rx_locked.value = 1                        # the LVDS receiver PLL is locked
     cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
     await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
     cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
@@ -210,3 +233,67 @@ async def board_lvds_frames(dut):
     dut._log.info("board LVDS: stream %d bits into a packet, %d frames, %d records, all packets "
                   "equal the golden results", slip, len(frames),
                   sum(len(g.blobs) for g in got))
+
+
+@cocotb.test(timeout_time=3, timeout_unit="ms")
+async def board_lvds_link_stops(dut):
+    """The link dies inside frame 1 (zero bits: framing errors, the front end abandons the
+    frame), then recovers.  The frame watchdog completes frame 1 with dark pixels after its
+    stall timeout: its packet equals the golden packet of the frame as it arrived (the
+    pixels before the cut; the last one sent is held by the front end for its ``eol`` and
+    dropped with the frame) with dark pixels after, flagged ``FRAME_TIMEOUT``.  The status
+    word shows the framing errors; ``rx_locked`` low shows as ``OVF_LINK_DOWN``.  Frames 0
+    and 2 are exact."""
+    w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
+    rng = np.random.default_rng(int(os.environ["TB_SEED"]) + 1)
+    cap = int(os.environ["TB_RECORD_CAPACITY"])
+    dut.rst.value, dut.ser_rst.value = 1, 1
+    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
+    dut.lvds_bits.value = 0
+    dut.rx_locked.value = 1
+    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
+    await Timer(int(rng.integers(1, SER_PS)), unit="ps")
+    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
+    await release_resets(dut, dut.ser_clk, dut.ser_rst)
+    master = Master(dut, SCK_NS)
+    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
+        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    await master.read_status()                     # clears the link-down of the start
+    sensor = LvdsSensor(dut, int(rng.integers(0, PACKET_BITS)))
+    cocotb.start_soon(sensor.drive())
+
+    frames = [link_frame(star_field(rng, w, h, n)) for n in (6, 9, 7)]
+    row, col = h // 2, w // 2
+    arrived = frames[1].copy()
+    arrived[row, col - 1:] = 0
+    arrived[row + 1:] = 0
+    cfg = DetectorConfig(width=w, height=h, pixel_bits=PIXEL_BITS, threshold_mode="fixed",
+                         threshold=40, background=8, min_pixels=1, record_capacity=cap)
+    detector = Detector(cfg)
+    want = []
+    for k, image in enumerate((frames[0], arrived, frames[2])):
+        result = detector.process(image)
+        if k == 1:
+            result = result.replace(flags=result.flags | C.FRAME_TIMEOUT)
+        want.append(packet.encode(result))
+
+    got = [await frame_and_packet(master, sensor, 0, frames[0])]
+    assert (await master.read_status())["overflow"] == 0
+    task = cocotb.start_soon(sensor.send_cut(1, frames[1], row, col, dead=40))
+    got.append(await read_packet(master, dut))
+    await task
+    status = await master.read_status()
+    assert status["overflow"] == 1 << OVF_LINK_ERROR, status     # relocked, errors counted
+    dut.rx_locked.value = 0
+    await Timer(100, unit="ns")
+    assert (await master.read_status())["overflow"] == 1 << OVF_LINK_DOWN
+    dut.rx_locked.value = 1
+    await Timer(100, unit="ns")
+    got.append(await frame_and_packet(master, sensor, 2, frames[2]))
+    for k, (data, expected) in enumerate(zip(got, want)):
+        assert data == expected, (k, packet.decode(data), packet.decode(expected))
+    assert packet.decode(got[1]).flags & C.FRAME_TIMEOUT
+    assert not any(packet.decode(g).flags for g in (got[0], got[2]))
+    await check_idle(master, 3)
+    dut._log.info("board LVDS link stops: frame 1 cut at (%d, %d), %d records after the "
+                  "timeout, frames 0 and 2 exact", col, row, len(packet.decode(got[1]).blobs))

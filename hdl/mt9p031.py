@@ -8,16 +8,19 @@ chooses (R0x0A[15]); ``width x height`` are checked, not enforced (the detector 
 frames).  :class:`PixelCrossing` (shared with the MT9V022) crosses into ``sync`` through an
 AsyncFIFO: with the sync clock at least the pixel rate the write side never counts more than
 6 entries (``FIFO_DEPTH = 8``); on overflow the sticky ``overflow`` rises and the frame is
-cut until the next ``sof``, never delivered shifted.  Derivation: ``docs/sensors_and_link.md``.
+cut until the next ``sof``, never delivered shifted.  :class:`FrameWatchdog` (in ``sync``, after
+either front end) completes a frame the sensor stops sending.  Derivation:
+``docs/sensors_and_link.md``.
 """
 
-from amaranth import Module, Signal
+from amaranth import Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.cdc import PulseSynchronizer
 from amaranth.lib.fifo import AsyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
+from lodestar.hdl.labeller import MIN_HBLANK
 from lodestar.hdl.threshold import pixel_layout
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9p031"]
@@ -92,6 +95,100 @@ class PixelCrossing(wiring.Component):
         return m
 
 
+STALL_TIMEOUT = 1 << 20
+"""Default clocks without a pixel inside a frame before :class:`FrameWatchdog` completes it:
+10.5 ms at 100 MHz, 21 ms at 50 MHz, over 200x the longest row blanking either sensor can
+be programmed for (MT9P031 R0x05 <= 4095, MT9V022 R0x05 <= 1023 pixel clocks; frame
+blanking lies outside a frame and is never timed)."""
+
+
+class FrameWatchdog(wiring.Component):
+    """Completes a frame the sensor stopped sending, so that the detector always ends it.
+
+    ``pixels`` in, ``out`` (one register later) to the detector, both always-ready streams of
+    ``pixel_layout(pixel_bits)`` in ``sync``.  Positions are counted as the threshold unit
+    counts them (a line ends at ``eol`` or at column ``width - 1``; the frame at its last
+    row's end).  When a frame has started and ``timeout`` clocks pass without a pixel, the
+    watchdog pulses ``stalled`` and sends dark pixels (0, never lit: ``lit = p > T``) for the
+    rest of the frame, one per clock with ``MIN_HBLANK`` idle clocks after each line; the
+    detector then ends the frame normally and the board top level flags its trailer
+    ``FRAME_TIMEOUT``.  Sensor pixels that arrive while it pads are dropped, except a
+    ``sof``, which ends the padding (the detector then ends the frame ``FRAME_TRUNCATED``).
+    ``padding`` is high while dark pixels are being sent.
+    """
+
+    def __init__(self, width, height, pixel_bits, timeout=STALL_TIMEOUT):
+        check_geometry(width, height)
+        if timeout < 1:
+            raise ValueError(f"stall timeout must be at least 1 clock, got {timeout}")
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.timeout = timeout
+        layout = pixel_layout(pixel_bits)
+        super().__init__({
+            "pixels": In(stream.Signature(layout, always_ready=True)),
+            "out": Out(stream.Signature(layout, always_ready=True)),
+            "stalled": Out(1),
+            "padding": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        W, H = self.width, self.height
+        p, out = self.pixels, self.out
+        x = Signal(range(W))                 # the next pixel's position
+        y = Signal(range(H))
+        in_frame = Signal()                  # a frame has started and not reached its end
+        idle = Signal(range(self.timeout))
+        gap = Signal(range(MIN_HBLANK + 1))  # idle clocks still owed after a padded line
+
+        # the pixel sent this clock (registered into ``out``): the sensor's or a dark one
+        send = Signal()
+        sof = Signal()
+        eol = Signal()
+        data = Signal(self.pixel_bits)
+        m.d.sync += [out.valid.eq(send), out.payload.sof.eq(sof), out.payload.eol.eq(eol),
+                     out.payload.data.eq(data)]
+        cur_x = Mux(sof, 0, x)
+        cur_y = Mux(sof, 0, y)
+        row_end = eol | (cur_x == W - 1)
+        with m.If(send):
+            with m.If(row_end):
+                m.d.sync += [x.eq(0), y.eq(Mux(cur_y == H - 1, 0, cur_y + 1))]
+            with m.Else():
+                m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y)]
+            m.d.sync += in_frame.eq(~(row_end & (cur_y == H - 1)))
+
+        with m.FSM():
+            with m.State("PASS"):
+                m.d.comb += [send.eq(p.valid), sof.eq(p.payload.sof), eol.eq(p.payload.eol),
+                             data.eq(p.payload.data)]
+                with m.If(p.valid | ~in_frame):
+                    m.d.sync += idle.eq(0)
+                with m.Elif(idle == self.timeout - 1):
+                    m.d.comb += self.stalled.eq(1)
+                    m.d.sync += gap.eq(0)
+                    m.next = "PAD"
+                with m.Else():
+                    m.d.sync += idle.eq(idle + 1)
+            with m.State("PAD"):
+                m.d.comb += self.padding.eq(1)
+                with m.If(p.valid & p.payload.sof):
+                    m.d.comb += [send.eq(1), sof.eq(1), eol.eq(p.payload.eol),
+                                 data.eq(p.payload.data)]
+                    m.d.sync += idle.eq(0)
+                    m.next = "PASS"
+                with m.Elif(gap != 0):
+                    m.d.sync += gap.eq(gap - 1)
+                with m.Else():
+                    m.d.comb += [send.eq(1), eol.eq(x == W - 1)]
+                    with m.If(x == W - 1):
+                        m.d.sync += gap.eq(MIN_HBLANK)
+                        with m.If(y == H - 1):
+                            m.d.sync += idle.eq(0)
+                            m.next = "PASS"
+        return m
+
+
 class MT9P031Frontend(wiring.Component):
     """MT9P031 parallel bus (``d``, ``line_valid``, ``frame_valid`` sampled in ``domain``) to
     the detector's pixel stream ``out`` in ``sync``; sticky ``overflow``/``overflow_clear`` in
@@ -119,10 +216,11 @@ class MT9P031Frontend(wiring.Component):
         m.d.comb += [cross.overflow_clear.eq(self.overflow_clear),
                      self.overflow.eq(cross.overflow), self.fifo_level.eq(cross.fifo_level)]
 
-        # ---- input registers (I/O cells) ----------------------------------------------
-        d = Signal(PIXEL_BITS)
-        lv = Signal()
-        fv = Signal(init=1)          # after reset, assume a frame is under way
+        # ---- input registers (I/O cells): no reset, so that each is a bare flip-flop the
+        # fitter can pack into the pin's I/O element (FAST_INPUT_REGISTER in the QSF) ------
+        d = Signal(PIXEL_BITS, reset_less=True)
+        lv = Signal(reset_less=True)
+        fv = Signal(init=1, reset_less=True)   # at configuration, assume a frame is under way
         m.d[pix] += [d.eq(self.d), lv.eq(self.line_valid), fv.eq(self.frame_valid)]
         valid = lv & fv
 

@@ -2,9 +2,10 @@
 (:class:`SPISlave`), both in the ``sync`` domain.
 
 SPI mode 0 (CPOL = 0, CPHA = 0), MSB first, CS active low; SCK, MOSI and CS_N pass through
-2-flop synchronizers, so the system clock must be at least 4x SCK plus the I/O margin (SCK
-high and low each >= 2 clocks, CS_N setup >= 4, hold >= 2, high >= 3 clocks).  One command
-per transaction: byte 0 is the opcode (``OP_WRITE_REG``, ``OP_READ_STATUS``,
+2-flop synchronizers, so the system clock must be at least 4x SCK plus the I/O margin
+(:func:`max_sck_hz`; SCK high and low each >= 2 clocks, CS_N setup >= 4, hold >= 2, high >= 3
+clocks).  ``miso_oe`` is high only while CS is low (the board tri-states MISO otherwise).
+One command per transaction: byte 0 is the opcode (``OP_WRITE_REG``, ``OP_READ_STATUS``,
 ``OP_READ_STREAM``), every read has one turnaround byte, MISO carries ``FILLER`` where no
 reply byte is defined.  ``errors`` (unknown opcode or register, value too wide, aborted
 write) and ``underruns`` saturate and restart at each status read.  Protocol table, byte
@@ -17,6 +18,20 @@ from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
+
+MISO_OUT_NS = 12.0
+"""Estimate, not measured: MISO's clock-to-pin from the I/O element's output register
+(``FAST_OUTPUT_REGISTER``; about 6 ns on a slow Cyclone IV corner), board delay (1 ns) and the
+master's input setup (STM32F4 SPI master: a few ns), rounded up.  Replace with the Timing
+Analyzer's figure and the MCU datasheet's after the first Quartus run."""
+
+
+def max_sck_hz(sync_hz, t_out_ns=MISO_OUT_NS):
+    """Highest SCK the slave's own rule allows: ``T_sck >= 4 T + t_out`` (an SCK edge is acted
+    on 2 to 4 ``T`` after it happens, then MISO must settle before the master's next rising
+    edge; ``docs/sensors_and_link.md``).  100 MHz: 19.2 MHz; 50 MHz: 10.9 MHz."""
+    return 1e9 / (4e9 / sync_hz + t_out_ns)
+
 
 SPI_PINS = {"sck": In(1), "mosi": In(1), "cs_n": In(1, init=1), "miso": Out(1),
             "miso_oe": Out(1)}

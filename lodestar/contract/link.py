@@ -43,9 +43,13 @@ OVF_REG_REFUSED = 2
 OVF_FAULT = 3
 """The detector's internal-bound fault (never expected)."""
 OVF_LINK_DOWN = 4
-"""LVDS front end: not word-locked (live, not sticky); parallel front end: 0."""
+"""LVDS front end: not word-locked or the LVDS receiver's PLL not locked (live, not sticky);
+parallel front end: 0."""
 OVF_LINK_ERROR = 5
 """LVDS front end: framing errors since the last status read."""
+OVF_CLOCK_LOST = 6
+"""The board's PLL lost lock since the last status read.  Registers keep their values (only
+power-up resets them); the frame under way may be truncated or timed out."""
 
 FRAME_COUNTER_BITS = dict(HEADER_FIELDS)["frame_counter"]
 """Width of the frame counter (the packet header's)."""

@@ -37,10 +37,13 @@ FRAME_TRUNCATED = 1 << 3
 """Gateware only: the frame ended (or was reset) before its last pixel; records are partial."""
 FRAME_LINE_ERROR = 1 << 4
 """Gateware only: a line arrived shorter or longer than the frame width."""
+FRAME_TIMEOUT = 1 << 5
+"""Gateware only: the sensor stopped sending inside the frame; the capture front end
+completed it with dark (0) pixels after its stall timeout, so records are partial."""
 FRAME_FLAGS_BITS = 8
 """Width of the header's ``flags`` field."""
 FRAME_FLAGS_DEFINED = (FRAME_LABEL_OVERFLOW | FRAME_RECORD_OVERFLOW | FRAME_GLOBAL_FALLBACK
-                       | FRAME_TRUNCATED | FRAME_LINE_ERROR)
+                       | FRAME_TRUNCATED | FRAME_LINE_ERROR | FRAME_TIMEOUT)
 
 
 # --------------------------------------------------------------------------------------

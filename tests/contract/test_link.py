@@ -10,7 +10,7 @@ def test_opcodes_are_distinct_bytes_and_the_status_word_is_whole_bytes():
     assert C.FILLER not in C.OPCODES
     assert C.STATUS_BITS == sum(bits for _, bits in C.STATUS_FIELDS) == 8 * C.STATUS_BYTES
     overflow_bits = [C.OVF_PIXEL_FIFO, C.OVF_TRAILER_LOST, C.OVF_REG_REFUSED, C.OVF_FAULT,
-                     C.OVF_LINK_DOWN, C.OVF_LINK_ERROR]
+                     C.OVF_LINK_DOWN, C.OVF_LINK_ERROR, C.OVF_CLOCK_LOST]
     assert len(set(overflow_bits)) == len(overflow_bits)
     assert max(overflow_bits) < C.OVERFLOW_BITS == dict(C.STATUS_FIELDS)["overflow"]
 

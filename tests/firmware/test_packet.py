@@ -142,6 +142,18 @@ def test_decode_golden_packets(crc_path):
         assert agree(data) == S.OK
 
 
+@pytest.mark.parametrize("flag", [C.FRAME_TRUNCATED, C.FRAME_LINE_ERROR, C.FRAME_TIMEOUT])
+def test_gateware_frame_flags_decode(flag):
+    """The gateware-only frame flags (FRAME_TIMEOUT: a frame the capture front end completed
+    after a stall) pass both decoders and come back as sent."""
+    base = base_result()
+    flags = base.flags | flag
+    data = ground.encode(base.replace(flags=flags))
+    code, header, _records, reason = fw.decode(data)
+    assert (code, reason) == (S.OK, "") and header["flags"] == flags
+    assert ground.decode(data).flags == flags and agree(data) == S.OK
+
+
 def test_decode_accepts_bytearray_and_memoryview():
     data = GOLDEN_PACKETS[0]
     expected = fw.decode(data)

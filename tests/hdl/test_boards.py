@@ -1,20 +1,34 @@
 """Board top levels: every board elaborates into a Quartus project with its pins, I/O
-standards, clocks and constraints; bad names are refused.  (The top level's behaviour is
-checked on Verilator in ``cocotb_tests/test_board_top.py``.)"""
+standards, clocks and constraints; bad names are refused.  The board fixes of issue 17 are
+checked here: fast I/O registers and MISO's output enable in the generated project, sensor
+I/O voltages, the DE2-115 LVDS pins against Terasic's QSF, the LVDS receiver's phase and lock,
+the SPI clock limit, the registered IRQ, power-up-only reset, and a stalled frame that times
+out flagged.  (The top level's behaviour is checked on Verilator in
+``cocotb_tests/test_board_top.py``.)"""
 
 import copy
 import re
 
 import pytest
+from amaranth import ClockDomain, Module
+from amaranth.sim import Simulator
 
 from lodestar import contract as C
+from lodestar.firmware.sensor import SENSORS
 from lodestar.hdl.boards import (
     BOARDS,
+    IO_STANDARD_VOLTS,
+    IRQ_MIN_CLOCKS,
+    SENSOR_IO_VOLTS,
     BoardTop,
+    ClockGuard,
     GatewareTop,
+    IrqLine,
     board_platform,
     sdc_constraints,
 )
+from lodestar.hdl.mt9p031 import STALL_TIMEOUT
+from lodestar.hdl.spi_slave import MISO_OUT_NS
 
 
 @pytest.fixture(scope="module")
@@ -72,3 +86,207 @@ def test_bad_names_are_refused():
         BoardTop("de1")
     with pytest.raises(ValueError, match="unknown sensor 'ov7670'"):
         GatewareTop("ov7670", 16, 8)
+
+
+# ---- board fixes that simulation or the generated project can show ------------------------
+
+@pytest.mark.parametrize("name", sorted(BOARDS))
+def test_fast_io_registers_and_miso_tristate(projects, name):
+    """Every sampled input has FAST_INPUT_REGISTER (the PIXCLK clock pin and the LVDS pins
+    excepted), MISO and IRQ FAST_OUTPUT_REGISTER; MISO's buffer has an output enable that
+    the SPI slave's ``miso_oe`` (CS low) drives."""
+    board, files = BOARDS[name], projects[name]
+    qsf, verilog = files["lodestar.qsf"], files["lodestar.v"]
+    fast_in = set(re.findall(r'-to "([^"]+?)__io(?:\\\[\d+\])?" -name FAST_INPUT_REGISTER "ON"',
+                             qsf))
+    fast_out = set(re.findall(r'-to "([^"]+?)__io" -name FAST_OUTPUT_REGISTER "ON"', qsf))
+    inputs = {f"{res}_0__{sub}" for res, signals in board.pins.items()
+              for sub, (_pins, direction, _a) in signals.items()
+              if direction == "i" and sub not in ("pixclk", "ser_clk", "ser_data")}
+    assert fast_in == inputs
+    assert fast_out == {"mcu_0__miso", "mcu_0__irq"}
+    miso_buf = re.search(r"module \\lodestar\.pin_mcu_0__miso\.buf .*?endmodule", verilog, re.S)
+    assert miso_buf and '.use_oe("TRUE")' in miso_buf.group(0)
+    assert re.search(r"assign miso_oe = ~ cs_n;", verilog)     # SPIByteSlave: selected
+
+
+def test_sensor_outputs_within_the_sensor_io_range():
+    """No FPGA output reaches a sensor input above the sensor's I/O supply unless a level
+    translator is declared for it; the sensor's I/O voltage is within its datasheet range."""
+    for board in BOARDS.values():
+        low, high = SENSOR_IO_VOLTS[board.sensor]
+        assert low <= board.sensor_io_volts <= high
+        for sub, (_pins, direction, _a) in board.pins[board.sensor].items():
+            if direction != "o":
+                continue
+            volts = IO_STANDARD_VOLTS[board.io_standard[board.sensor]]
+            assert volts <= high or sub in board.level_translated, (board.name, sub)
+    # the MT9P031 boards' 3.3-V GPIO bank is above the sensor's 3.1 V maximum
+    assert set(BOARDS["de0-nano"].level_translated) == {"extclk", "reset_n"}
+
+
+# DE2-115 HSMC pins from Terasic's System Builder QSF (independent reference: the LVDS data
+# must be on a receiver pair, the clock on a clock input).
+_DE2_115_HSMC = {"J27": "HSMC_CLKIN_P1", "J28": "HSMC_CLKIN_N1", "D27": "HSMC_TX_D_P[0]",
+                 "D28": "HSMC_TX_D_N[0]", "F24": "HSMC_RX_D_P[0]", "G27": "HSMC_TX_D_P[3]",
+                 "G28": "HSMC_TX_D_N[3]", "G25": "HSMC_RX_D_P[3]", "G26": "HSMC_RX_D_N[3]"}
+
+
+def test_de2_115_lvds_pins_and_standards():
+    board = BOARDS["de2-115"]
+    sensor = board.pins["mt9v022"]
+    assert _DE2_115_HSMC[sensor["ser_data"][0]].startswith("HSMC_RX_D_P")
+    assert _DE2_115_HSMC[sensor["ser_clk"][0]].startswith("HSMC_CLKIN_P")
+    # single-ended outputs in the HSMC bank use its VCCIO (2.5 V by JP7), not 3.3-V LVTTL
+    assert all(_DE2_115_HSMC[sensor[s][0]].startswith("HSMC") for s in ("sysclk", "reset_n"))
+    assert board.io_standard["mt9v022"] == "2.5 V"
+
+
+def test_lvds_receiver_centred_and_locked(projects):
+    verilog = projects["de2-115"]["lodestar.v"]
+    rx = re.search(r"altlvds_rx #\((.*?)\) \S+ \((.*?)\);", verilog, re.S)
+    params, ports = rx.group(1), rx.group(2)
+    assert ".inclock_phase_shift(32'd1562)" in params      # half of the 3125 ps bit
+    assert re.search(r"\.rx_locked\(\w+\)", ports)
+
+
+def test_spi_sck_limit_from_the_slave_rule():
+    assert BOARDS["de0-nano"].spi_sck_max_hz == pytest.approx(1e9 / (40 + MISO_OUT_NS))
+    assert 16e6 < BOARDS["de0-nano"].spi_sck_max_hz < 20e6
+    assert 10e6 < BOARDS["de2-115"].spi_sck_max_hz < 11e6
+
+
+def _sim(dut, bench, domains=("sync",)):
+    sim = Simulator(dut)
+    for d in domains:
+        sim.add_clock(10e-9, domain=d)
+    sim.add_testbench(bench)
+    sim.run()
+
+
+def test_irq_is_registered_with_minimum_pulses():
+    """Back-to-back packets (busy low for one clock) give one rising edge each and a low
+    pulse of IRQ_MIN_CLOCKS; irq changes only on a clock edge after busy did."""
+    dut = IrqLine()
+    busy = ([0] * 5 + [1] * 40 + [0] + [1] * 30 + [0] * 3 + [1] * 25 + [0] * 40)
+    trace = []
+
+    async def bench(ctx):
+        for b in busy:
+            ctx.set(dut.busy, b)
+            trace.append(ctx.get(dut.irq))     # before the edge: still the old level
+            await ctx.tick()
+
+    _sim(dut, bench)
+    rises = [t for t in range(1, len(trace)) if trace[t] and not trace[t - 1]]
+    assert len(rises) == 3                            # one rising edge per packet
+    assert rises[:2] == [6, 46 + IRQ_MIN_CLOCKS]      # the 1-clock low stretched
+    runs, t = [], 0
+    while t < len(trace):
+        u = t
+        while u < len(trace) and trace[u] == trace[t]:
+            u += 1
+        runs.append((trace[t], u - t))
+        t = u
+    assert all(n >= IRQ_MIN_CLOCKS for _, n in runs[1:-1])
+    assert trace[5] == 0 and trace[6] == 1            # one clock after busy rose
+
+
+def test_clock_guard_resets_at_power_up_only():
+    """``ever_locked`` rises after the first lock and stays up through a lock loss; each loss
+    steps the Gray count ``losses`` (one bit changes)."""
+    guard = ClockGuard()
+    top = Module()
+    top.domains.osc = ClockDomain("osc", reset_less=True)
+    top.submodules.guard = guard
+    seen = []
+
+    async def bench(ctx):
+        for locked in [0] * 4 + [1] * 6 + [0] * 5 + [1] * 5 + [0] * 5 + [1] * 5:
+            ctx.set(guard.locked, locked)
+            await ctx.tick("osc")
+            seen.append((ctx.get(guard.ever_locked), ctx.get(guard.losses)))
+
+    _sim(top, bench, domains=("osc",))
+    ever = [e for e, _ in seen]
+    assert ever[:4] == [0] * 4 and ever.index(1) < 8 and all(ever[ever.index(1):])
+    codes = [g for _, g in seen]
+    changes = [(a, b) for a, b in zip(codes, codes[1:]) if a != b]
+    assert changes == [(0, 1), (1, 3)]
+
+
+def _pix_frame(rows, cut=None, hblank=4):
+    """``(d, lv, fv)`` samples of a frame of ``rows``; with ``cut``, the sensor stops for good
+    after that many pixels (FRAME_VALID stays high, nothing more)."""
+    out = [(0, 0, 0)] * 6 + [(0, 0, 1)] * 2
+    sent = 0
+    for row in rows:
+        for p in row:
+            if cut is not None and sent == cut:
+                return out
+            out.append((p, 1, 1))
+            sent += 1
+        out += [(0, 0, 1)] * hblank
+    return out + [(0, 0, 0)] * 4
+
+
+@pytest.mark.parametrize("rows_sent", [2, 1.625])
+def test_stalled_frame_times_out_flagged_and_clock_loss_is_flagged(rows_sent):
+    """GatewareTop with a short stall timeout: the MT9P031 stops inside a frame (after its
+    second row, or inside it with LINE_VALID low: the front end then ends that row short);
+    the detector still ends the frame (busy falls) and its trailer has FRAME_TIMEOUT (and
+    FRAME_LINE_ERROR for the short row; else it counts the star it saw); the next frame's
+    trailer has no flag.  A PLL lock loss (``pll_losses`` step) raises OVF_CLOCK_LOST."""
+    w, h = 8, 4
+    top = GatewareTop("mt9p031", w, h, record_capacity=4, record_depth=4, stall_timeout=300)
+    star = [[0] * w for _ in range(h)]
+    star[1][2] = star[1][3] = 4000
+    samples = _pix_frame(star, cut=int(rows_sent * w)) + [(0, 0, 1)] * 2000 + _pix_frame(star)
+    samples += [(0, 0, 0)] * 400
+    trailers, busy_after_stall, overflow = [], [], []
+
+    async def sensor(ctx):
+        for d, lv, fv in samples:
+            ctx.set(top.pix_d, d)
+            ctx.set(top.line_valid, lv)
+            ctx.set(top.frame_valid, fv)
+            await ctx.tick("pix")
+        busy_after_stall.append(ctx.get(top.detector.busy))
+        overflow.append(ctx.get(top.spi.overflow))
+        ctx.set(top.pll_losses, 1)
+        await ctx.tick("pix").repeat(4)
+        overflow.append(ctx.get(top.spi.overflow))
+
+    async def packets(ctx):
+        tr = top.packetizer.trailer
+        while True:
+            await ctx.tick()
+            # nobody reads the packets: the first trailer is taken, the second stays offered
+            if ctx.get(tr.valid) and (not trailers or trailers[-1]["frame_counter"]
+                                      != ctx.get(tr.payload.frame_counter)):
+                trailers.append({k: ctx.get(getattr(tr.payload, k))
+                                 for k in ("flags", "n_blobs", "frame_counter")})
+
+    sim = Simulator(top)
+    sim.add_clock(10e-9)
+    sim.add_clock(10.4e-9, domain="pix")
+    sim.add_testbench(sensor)
+    sim.add_testbench(packets, background=True)
+    sim.run()
+    assert [t["frame_counter"] for t in trailers] == [0, 1]
+    if rows_sent == 2:
+        assert trailers[0]["flags"] == C.FRAME_TIMEOUT and trailers[0]["n_blobs"] == 1
+    else:
+        assert trailers[0]["flags"] == C.FRAME_TIMEOUT | C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR
+    assert trailers[1]["flags"] == 0 and trailers[1]["n_blobs"] == 1
+    assert busy_after_stall == [0]
+    assert [(o >> C.OVF_CLOCK_LOST) & 1 for o in overflow] == [0, 1]
+
+
+def test_default_stall_timeout_outlasts_any_row_blanking():
+    """The watchdog never fires inside a frame the sensor is still sending: its default
+    timeout is over 100 times the longest horizontal blanking the sensor can be programmed
+    for (the MCU set-up's limit), at each board's clocks."""
+    for board in BOARDS.values():
+        longest_gap_s = SENSORS[board.sensor]["hblank"][2] / board.pixel_hz
+        assert STALL_TIMEOUT / board.sync_hz > 100 * longest_gap_s, board.name

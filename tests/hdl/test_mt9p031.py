@@ -1,9 +1,12 @@
 """The MT9P031 parallel front end in the Amaranth simulator: a sensor model drives whole frames
 with line and frame blanking on its own PIXCLK; the sync-side stream must equal the frames
 exactly (pixels, sof, eol), at several clock ratios; a too-slow sync clock raises the sticky
-overflow flag, the broken frame is delivered only as a clean prefix, the next frame is exact."""
+overflow flag, the broken frame is delivered only as a clean prefix, the next frame is exact.
+The frame watchdog completes a frame the sensor stops sending; the capture registers have no
+reset."""
 
 import gc
+import re
 import warnings
 
 import numpy as np
@@ -13,7 +16,9 @@ from amaranth.hdl import UnusedElaboratable
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
-from lodestar.hdl.mt9p031 import PIXEL_BITS, MT9P031Frontend
+from lodestar.hdl.export import to_verilog
+from lodestar.hdl.labeller import MIN_HBLANK
+from lodestar.hdl.mt9p031 import PIXEL_BITS, FrameWatchdog, MT9P031Frontend
 
 NS = 1e-9
 
@@ -180,3 +185,103 @@ def test_geometry_outside_contract():
             with pytest.raises(ValueError, match="outside the contract"):
                 MT9P031Frontend(w, h)
         gc.collect()
+
+
+# ---- FrameWatchdog ------------------------------------------------------------------------
+
+def watchdog_run(w, h, beats, timeout):
+    """Drive ``FrameWatchdog(w, h, 12, timeout)`` in ``sync`` with ``beats`` (``None`` = an
+    idle clock, else ``(data, sof, eol)``) and then idle clocks until it has been quiet for
+    ``2 * timeout + 2 * w * h``.  Returns the out beats with the clock each came out on, and
+    the clocks at which ``stalled`` pulsed."""
+    dut = FrameWatchdog(w, h, PIXEL_BITS, timeout)
+    out, stalls = [], []
+    tail = 2 * timeout + 2 * w * h + 4
+
+    async def bench(ctx):
+        for t, beat in enumerate(list(beats) + [None] * tail):
+            ctx.set(dut.pixels.valid, beat is not None)
+            if beat is not None:
+                ctx.set(dut.pixels.payload, {"data": beat[0], "sof": beat[1], "eol": beat[2]})
+            if ctx.get(dut.stalled):
+                stalls.append(t)
+            await ctx.tick()
+            if ctx.get(dut.out.valid):
+                o = dut.out.payload
+                out.append((t, (ctx.get(o.data), ctx.get(o.sof), ctx.get(o.eol))))
+
+    sim = Simulator(dut)
+    sim.add_clock(10 * NS)
+    sim.add_testbench(bench)
+    sim.run()
+    return out, stalls
+
+
+def with_gaps(beats, hblank):
+    """Beats with ``hblank`` idle clocks after each eol."""
+    out = []
+    for b in beats:
+        out.append(b)
+        if b[2]:
+            out += [None] * hblank
+    return out
+
+
+def test_watchdog_passes_complete_frames_and_never_fires_between_frames():
+    w, h, timeout = 5, 3, 20
+    rng = np.random.default_rng(11)
+    frames = [random_lines(rng, w, h) for _ in range(2)]
+    beats = with_gaps(expected_beats(frames[0]), 3) + [None] * (5 * timeout)
+    beats += with_gaps(expected_beats(frames[1]), timeout - 1)   # row gaps just below it
+    out, stalls = watchdog_run(w, h, beats, timeout)
+    assert stalls == []
+    assert [b for _, b in out] == expected_beats(frames[0]) + expected_beats(frames[1])
+    sent = [t for t, b in enumerate(beats) if b is not None]
+    assert [t for t, _ in out] == sent                 # one register: no reordering, no gap
+
+
+def test_watchdog_completes_a_stalled_frame_with_dark_pixels():
+    """The sensor stops after 1.4 rows: after ``timeout`` idle clocks the frame is completed
+    with dark pixels (eol on each row's last, ``MIN_HBLANK`` idle after it); a pixel that
+    arrives while it pads is dropped; the next frame passes exactly."""
+    w, h, timeout = 5, 4, 12
+    rng = np.random.default_rng(3)
+    first, second = random_lines(rng, w, h), random_lines(rng, w, h)
+    sent = expected_beats(first)[:w + 2]
+    beats = with_gaps(sent, 2) + [None] * timeout + [None, (77, 0, 0)]
+    beats += [None] * (3 * w * h) + with_gaps(expected_beats(second), 2)
+    out, stalls = watchdog_run(w, h, beats, timeout)
+    assert len(stalls) == 1
+    padded = [(0, 0, int(x == w - 1)) for y in range(1, h) for x in range(w)][2:]
+    frames = split_frames([b for _, b in out])
+    assert frames == [sent + padded, expected_beats(second)]
+    pad_times = [t for t, b in out if t > stalls[0]][:len(padded)]
+    gaps = np.diff(pad_times)
+    assert set(gaps) <= {1, 1 + MIN_HBLANK} and sum(g > 1 for g in gaps) == h - 2
+    assert pad_times[0] == stalls[0] + 1 and stalls[0] == len(with_gaps(sent, 2)) + timeout - 1
+
+
+def test_watchdog_padding_ends_at_a_new_frame():
+    """A sof while the watchdog pads ends the padding and passes through (the detector then
+    ends the stalled frame FRAME_TRUNCATED)."""
+    w, h, timeout = 6, 5, 8
+    rng = np.random.default_rng(4)
+    first, second = random_lines(rng, w, h), random_lines(rng, w, h)
+    sent = expected_beats(first)[:3]
+    beats = sent + [None] * (timeout + 4) + with_gaps(expected_beats(second), 1)
+    out, stalls = watchdog_run(w, h, beats, timeout)
+    frames = split_frames([b for _, b in out])
+    assert len(stalls) == 1 and len(frames) == 2
+    assert frames[0][:3] == sent and 3 < len(frames[0]) < w * h
+    assert all(b[0] == 0 for b in frames[0][3:])
+    assert frames[1] == expected_beats(second)
+
+
+def test_capture_registers_have_no_reset():
+    """D, LINE_VALID and FRAME_VALID are sampled by flip-flops without reset, so that the
+    fitter can pack each into its pin's I/O element (FAST_INPUT_REGISTER): in the Verilog each
+    port is the whole next-state of a pix-clocked register (with a reset, a mux of the reset
+    value would come between)."""
+    text = to_verilog(MT9P031Frontend(8, 4), "frontend")
+    for port in ("d", "line_valid", "frame_valid"):
+        assert re.search(rf"always @\(posedge pix_clk\)\n\s*\S+\s*<= {port};", text), port

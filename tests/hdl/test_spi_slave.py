@@ -232,3 +232,40 @@ def test_status_layout_and_decode():
                                    "overflow": 0x41, "busy": 1}
     with pytest.raises(ValueError, match="status word"):
         decode_status(word[:-1])
+
+
+def test_miso_driven_only_while_selected():
+    """``miso_oe`` (the board's MISO output enable) is high only while CS is low, give or take
+    the CS synchronizer's 2-3 clocks, so MISO is tri-stated on a shared bus between
+    transactions; it is high through every bit the master samples."""
+    T = 10 * NS
+    dut = SPISlave()
+    trace = []                                 # per clock: (cs_n, miso_oe)
+    sampled_oe = []
+
+    async def bench(ctx):
+        master = Master(ctx, dut, T, 40 * NS)
+        await ctx.delay(5 * T)
+        for _ in range(3):
+            await master.read_status()
+            await ctx.delay(7 * T)
+
+    async def monitor(ctx):
+        while True:
+            _, _, cs_n, oe, sck = await ctx.tick().sample(dut.cs_n, dut.miso_oe, dut.sck)
+            trace.append((cs_n, oe))
+            if sck and not cs_n:
+                sampled_oe.append(oe)
+
+    sim = Simulator(dut)
+    sim.add_clock(T, phase=0.43 * T)
+    sim.add_testbench(bench)
+    sim.add_testbench(monitor, background=True)
+    sim.run()
+    lag = 3
+    for t in range(lag, len(trace)):
+        window = [cs for cs, _ in trace[t - lag:t + 1]]
+        if all(window):                      # CS high for the last `lag` clocks
+            assert trace[t][1] == 0, t
+    assert sampled_oe and all(sampled_oe)
+    assert sum(oe for _, oe in trace) > 0 and trace[-1] == (1, 0)
