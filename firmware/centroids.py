@@ -327,25 +327,38 @@ def _sort_key(star):
     return (-star.flux, star.index)
 
 
+def _on_border(rec, border):
+    return not (rec.xmin > 0 and rec.ymin > 0 and rec.xmax < border[0] - 1 and
+                rec.ymax < border[1] - 1)
+
+
 def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
             min_sigma_px=DEFAULT_MIN_SIGMA_PX, max_elongation=DEFAULT_MAX_ELONGATION,
             expected_smear_px=None, smear_angle_tol=DEFAULT_SMEAR_ANGLE_TOL,
-            smear_length_ratio=DEFAULT_SMEAR_LENGTH_RATIO, join_across_px=DEFAULT_JOIN_ACROSS_PX):
+            smear_length_ratio=DEFAULT_SMEAR_LENGTH_RATIO, join_across_px=DEFAULT_JOIN_ACROSS_PX,
+            border=None):
     """Centroid, measure and filter blob records: ``(stars, rejected)``.
 
-    ``records``: ``contract.BlobRecord`` (or any objects with the same attributes).
-    ``stars``: at most ``max_stars`` :class:`Star`, brightest (largest s0) first, ties in
-    record order; ``max_stars=None`` keeps all.  ``rejected``: ``{reason: count}`` for every
-    reason in ``REASONS``; ``len(stars) + sum(rejected.values()) == len(records)``.  The
-    parameters and the order of the tests are described in ``docs/centroids_and_tracking.md``.
-    Never raises on bad record values.
+    ``records``: ``contract.BlobRecord`` (or any objects with the same attributes), any
+    iterable.  ``stars``: at most ``max_stars`` :class:`Star`, brightest (largest s0) first,
+    ties in record order; ``max_stars=None`` keeps all.  ``border``: ``(width, height)`` of
+    the frame to reject stars any of whose records touch its edge (reason ``"border"``), or
+    None.  ``rejected``: ``{reason: count}`` for every reason in ``REASONS`` (and
+    ``"border"`` with a ``border``); ``len(stars) + sum(rejected.values())`` is the number of
+    records.  The parameters and the order of the tests are described in
+    ``docs/centroids_and_tracking.md``.  Memory: without an ``expected_smear_px`` at most
+    ``2 * max_stars`` stars are held at once.  Never raises on bad record values.
     """
     rejected = {}
     for reason in REASONS:
         rejected[reason] = 0
+    if border is not None:
+        rejected["border"] = 0
     smear_fn = expected_smear_px if callable(expected_smear_px) else None
+    joining = expected_smear_px is not None
     stars = []
-    central = []
+    central = [] if joining else None      # per star, for joining the pieces of tracks
+    edge = {} if joining and border is not None else None     # indices of edge records
     index = -1
     for rec in records:
         index += 1
@@ -374,20 +387,48 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         if sigma_minor < min_sigma_px:
             rejected["hot_pixel"] += 1
             continue
+        if border is not None and not joining and _on_border(rec, border):
+            rejected["border"] += 1
+            continue
         stars.append(Star(x, y, s0, sigma_major, sigma_minor, elongation, orientation,
                           rec.n, rec.nsat, rec.peak, index))
-        central.append((cxx, cyy, cxy))
-    if expected_smear_px is not None and len(stars) > 1:
+        if joining:
+            central.append((cxx, cyy, cxy))
+            if edge is not None and _on_border(rec, border):
+                edge[index] = True
+        elif max_stars is not None and len(stars) >= 2 * max_stars:
+            _keep_brightest(stars, max_stars, rejected)
+    if joining and len(stars) > 1:
         n_before = len(stars)
         stars = join_fragments(stars, central, expected_smear_px, join_across_px)
         rejected["fragment"] = n_before - len(stars)
-    if expected_smear_px is not None:
+    central = None
+    if edge:
+        # a joined star is on the border when any of its pieces is
+        kept = []
+        for star in stars:
+            for i in (star.parts or (star.index,)):
+                if i in edge:
+                    break
+            else:
+                kept.append(star)
+        rejected["border"] = len(stars) - len(kept)
+        stars = kept
+    if joining:
         for star in stars:
             smear = smear_fn(star.x, star.y) if smear_fn is not None else expected_smear_px
             star.unseen = unseen_px(star.sigma_major, star.sigma_minor, star.orientation,
                                     smear)
-    stars.sort(key=_sort_key)
-    if max_stars is not None and len(stars) > max_stars:
-        rejected["excess"] += len(stars) - max_stars
-        stars = stars[:max_stars]
+    if max_stars is not None:
+        _keep_brightest(stars, max_stars, rejected)
+    else:
+        stars.sort(key=_sort_key)
     return stars, rejected
+
+
+def _keep_brightest(stars, max_stars, rejected):
+    """Sort ``stars`` brightest first and drop all but ``max_stars`` (as ``"excess"``)."""
+    stars.sort(key=_sort_key)
+    if len(stars) > max_stars:
+        rejected["excess"] += len(stars) - max_stars
+        del stars[max_stars:]

@@ -32,6 +32,12 @@ STATUSES = (S.OK, S.DATABASE_CORRUPT, S.DATABASE_MISMATCH, S.DATABASE_UNSUPPORTE
 
 _CHUNK = 512
 
+_CELL_SCALE = 32767
+"""Cell centres are held as ``array('h')`` of ``round(component * _CELL_SCALE)``: half the
+heap of floats (the whole table is resident while the database is open)."""
+_CELL_ERROR = 1e-4
+"""Bound (rad) of the angle a rounded cell centre moves (``sqrt(3) / 2 / _CELL_SCALE`` = 2.6e-5,
+with margin), added to a cone query's reach so no cell is missed."""
 PAIR_BLOCK = 32
 """Most pair records one :meth:`Database.pair_stars` read returns."""
 _PAIR_STARS_FORMAT = "<" + "2x2H" * PAIR_BLOCK
@@ -373,10 +379,12 @@ class Database:
 
     def _cell_centres(self):
         n = self.cells_per_face
-        out = array("f", range(3 * n_cells(n)))      # its final size (overwritten below)
+        out = array("h", range(3 * n_cells(n)))      # its final size (overwritten below)
         for c in range(n_cells(n)):
             x, y, z = cell_centre(c, n)
-            out[3 * c], out[3 * c + 1], out[3 * c + 2] = x, y, z
+            out[3 * c] = int(round(x * _CELL_SCALE))
+            out[3 * c + 1] = int(round(y * _CELL_SCALE))
+            out[3 * c + 2] = int(round(z * _CELL_SCALE))
         return out
 
     # ---- stars -------------------------------------------------------------------------
@@ -423,8 +431,8 @@ class Database:
             out = []
         dx, dy, dz = d
         cos_r = math.cos(radius) if radius < math.pi else -2.0
-        reach = radius + self.cell_radius
-        cos_reach = math.cos(reach) if reach < math.pi else -2.0
+        reach = radius + self.cell_radius + _CELL_ERROR
+        cos_reach = _CELL_SCALE * math.cos(reach) if reach < math.pi else -2.0 * _CELL_SCALE
         cells = self._cells
         for c in range(len(cells) // 3):
             if cells[3 * c] * dx + cells[3 * c + 1] * dy + cells[3 * c + 2] * dz < cos_reach:

@@ -101,6 +101,17 @@ def unit(v):
     return x / n, y / n, z / n
 
 
+def is_unit_tuple(v):
+    """True when ``v`` is a tuple of three floats of unit norm (to a few ulp): such a vector
+    can be shared instead of normalised into a copy (an MCU heap then holds the observed
+    stars' vectors once)."""
+    if type(v) is not tuple or len(v) != 3:
+        return False
+    x, y, z = v
+    return type(x) is float and type(y) is float and type(z) is float and \
+        abs(x * x + y * y + z * z - 1.0) <= 4.0 * EPS
+
+
 def chord(a, b):
     """``|a - b|``: the chord between two unit vectors."""
     dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]

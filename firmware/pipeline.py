@@ -14,6 +14,7 @@ Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or iterto
 import gc
 import math
 import sys
+from array import array
 
 from . import attitude as _att
 from . import camera as _camera
@@ -48,12 +49,11 @@ FOV_TOLERANCE = 0.02
 COLLECT = sys.implementation.name == "micropython"
 """On MicroPython a :class:`StarTracker` sets ``gc.threshold(GC_THRESHOLD)`` and collects
 at the stage boundaries of :meth:`StarTracker.process` (before the packet is checked, after
-the centroids, before the attitude fit): on an MCU's small heap this keeps temporaries from
-fragmenting it (``docs/firmware.md``, Memory); CPython's own collector needs no help."""
+the centroids, before the identification and before the attitude fit): on an MCU's small
+heap this keeps temporaries from fragmenting it (``docs/firmware.md``, Memory); CPython's
+own collector needs no help."""
 GC_THRESHOLD = 8192
-"""Bytes allocated between two collections on MicroPython (measured on the regression set,
-``docs/firmware.md``: the smallest working heap falls from about 150 KB with MicroPython's
-default to about 75 KB)."""
+"""Bytes allocated between two collections on MicroPython (``docs/firmware.md``, Memory)."""
 
 
 def _collect():
@@ -591,28 +591,12 @@ class StarTracker:
                 _note(res, "expected smear " + str(round(longest, 1)) + " px > max_smear_px " +
                       str(self.settings.max_smear_px))
                 return res
+        border = (cam.width, cam.height) if self.settings.drop_border else None
         stars, rejected = _centroids.extract(_records(packet_bytes, res.n_records),
-                                             max_stars=None, expected_smear_px=smear,
+                                             max_stars=self.settings.max_stars,
+                                             expected_smear_px=smear, border=border,
                                              **self.settings.extract_options)
-        if self.settings.drop_border:
-            kept = []
-            xmax = cam.width - 1
-            ymax = cam.height - 1
-            for star in stars:
-                inside = True
-                for i in (star.parts or (star.index,)):
-                    rec = _packet.record(packet_bytes, i)
-                    if not (rec.xmin > 0 and rec.ymin > 0 and rec.xmax < xmax and
-                            rec.ymax < ymax):
-                        inside = False
-                if inside:
-                    kept.append(star)
-            rejected["border"] = len(stars) - len(kept)
-            stars = kept
         _collect()
-        if len(stars) > self.settings.max_stars:
-            rejected["excess"] += len(stars) - self.settings.max_stars
-            stars = stars[:self.settings.max_stars]
         res.rejected = rejected
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
@@ -620,14 +604,25 @@ class StarTracker:
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
+        # the result needs of each used star its record index and centroid only: the star
+        # objects are dropped before the identification (docs/firmware.md, Memory)
+        n = len(used)
         fluxes = [stars[i].flux for i in used]
+        index = array("H", range(n))
+        xy = _geo.zeros(2 * n)
+        for o in range(n):
+            s = stars[used[o]]
+            index[o] = s.index
+            xy[2 * o] = s.x
+            xy[2 * o + 1] = s.y
+        stars = used = None
+        _collect()
         res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
                                   streaks)
         if res.status == S.OK:
             matches = []
             for o, _x, _y, hip in res.matches:
-                s = stars[used[o]]
-                matches.append((s.index, s.x, s.y, hip))
+                matches.append((index[o], xy[2 * o], xy[2 * o + 1], hip))
             res.matches = matches
         self._tick(timings, "total", first)
         return res

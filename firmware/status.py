@@ -15,45 +15,52 @@ Codes are grouped by decade so that modules can add theirs without renumbering::
 
 To add a code: define the constant below in its group and add a row to ``_TABLE``
 (``tests/firmware/test_status.py`` checks that every constant has exactly one row and
-that codes are unique).  Pure Python, MicroPython-safe.
+that codes are unique).  The codes are `const()`: MicroPython folds them, and `_TABLE` with
+them, into constants that a frozen image keeps in flash.  Pure Python, MicroPython-safe.
 """
 
-OK = 0
+try:
+    from micropython import const
+except ImportError:         # CPython
+    def const(value):
+        return value
+
+OK = const(0)
 
 # --- packet decoding (lodestar.firmware.packet) -----------------------------------------
-PACKET_TRUNCATED = 1
-PACKET_BAD_MAGIC = 2
-PACKET_BAD_VERSION = 3
-PACKET_BAD_LENGTH = 4
-PACKET_BAD_CRC = 5
-PACKET_BAD_HEADER = 6
-PACKET_BAD_RECORD = 7
+PACKET_TRUNCATED = const(1)
+PACKET_BAD_MAGIC = const(2)
+PACKET_BAD_VERSION = const(3)
+PACKET_BAD_LENGTH = const(4)
+PACKET_BAD_CRC = const(5)
+PACKET_BAD_HEADER = const(6)
+PACKET_BAD_RECORD = const(7)
 
 # --- centroiding and camera model -------------------------------------------------------
-TOO_FEW_STARS = 20
-CAMERA_NOT_CONVERGED = 21
-CAMERA_OUT_OF_VIEW = 22
-SMEAR_TOO_LONG = 23
+TOO_FEW_STARS = const(20)
+CAMERA_NOT_CONVERGED = const(21)
+CAMERA_OUT_OF_VIEW = const(22)
+SMEAR_TOO_LONG = const(23)
 
 # --- star identification ----------------------------------------------------------------
-NO_MATCH = 30
-AMBIGUOUS = 31
-BUDGET_EXHAUSTED = 32
+NO_MATCH = const(30)
+AMBIGUOUS = const(31)
+BUDGET_EXHAUSTED = const(32)
 
 # --- star database ----------------------------------------------------------------------
-DATABASE_CORRUPT = 40
-DATABASE_MISMATCH = 41
-DATABASE_UNSUPPORTED = 42
-DATABASE_IO = 43
-DATABASE_BAD_LENGTH = 44
-DATABASE_BAD_MAGIC = 45
-DATABASE_BAD_VERSION = 46
-DATABASE_BAD_LAYOUT = 47
+DATABASE_CORRUPT = const(40)
+DATABASE_MISMATCH = const(41)
+DATABASE_UNSUPPORTED = const(42)
+DATABASE_IO = const(43)
+DATABASE_BAD_LENGTH = const(44)
+DATABASE_BAD_MAGIC = const(45)
+DATABASE_BAD_VERSION = const(46)
+DATABASE_BAD_LAYOUT = const(47)
 
 # --- generic ----------------------------------------------------------------------------
-BAD_INPUT = 50
-INTERNAL_ERROR = 51
-OUT_OF_MEMORY = 52
+BAD_INPUT = const(50)
+INTERNAL_ERROR = const(51)
+OUT_OF_MEMORY = const(52)
 
 _TABLE = (
     (OK, "OK", "success"),

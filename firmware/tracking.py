@@ -16,7 +16,7 @@ from array import array
 
 from . import attitude as _att
 from . import status as S
-from .geometry import is_number, residual2, unit, vector3, zeros
+from .geometry import is_number, is_unit_tuple, residual2, unit, vector3, zeros
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
@@ -257,13 +257,16 @@ def residual_rms(observed, database, q, pairs):
 
 
 def _unit_vectors(vectors):
-    """Unit tuples of ``vectors``, or None unless it is a sequence of finite, non-zero
-    3-vectors of numbers."""
+    """Unit tuples of ``vectors`` (a unit tuple is shared), or None unless
+    it is a sequence of finite, non-zero 3-vectors of numbers."""
     out = []
     try:
         for v in vectors:
-            u = vector3(v)
-            u = None if u is None else unit(u)
+            if is_unit_tuple(v):
+                u = v                       # shared, not copied
+            else:
+                u = vector3(v)
+                u = None if u is None else unit(u)
             if u is None:
                 return None
             out.append(u)

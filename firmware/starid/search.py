@@ -98,7 +98,7 @@ def observed(vectors, database, bit, tolerance_rad, budget, max_stars, min_stars
     b = []
     for v in vectors:
         try:
-            u = G.unit(v)
+            u = v if G.is_unit_tuple(v) else G.unit(v)
         except (TypeError, ValueError, IndexError):
             u = None
         if u is None:

@@ -196,8 +196,18 @@ def _run_local(tasks, config, workers, sink):
             sink(*future.result())
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
+        _kill_workers(pool)     # else the exit waits for the running trials to finish
         raise
     pool.shutdown()
+
+
+def _kill_workers(pool):
+    kill = getattr(pool, "kill_workers", None)      # Python 3.14
+    if kill is not None:
+        kill()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.kill()
 
 
 def _run_dask(tasks, config, address, sink):

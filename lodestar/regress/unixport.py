@@ -9,6 +9,8 @@ bisects the smallest heap with which a loop still gives the recorded results.  H
 figure is measured: ``docs/regression.md``, "A real MicroPython".
 """
 
+import fcntl
+import hashlib
 import json
 import os
 import shutil
@@ -49,19 +51,36 @@ def stage_mcu_image(folder):
 def build(script, manifest, out_dir, variant="float32", timeout=1200):
     """Build (incrementally) the unix-port interpreter ``variant`` (``float32`` or
     ``double``) with the MCU image frozen by ``manifest`` (the repository's
-    ``manifest.py``) using MicroPython's build ``script``; returns the binary's path (its
-    name says 32- or 64-bit).  Raises :class:`MicroPythonError` when the build fails."""
+    ``manifest.py``) using MicroPython's build ``script``; returns the path of a copy named
+    by its content (the build's own name plus a hash: it says 32- or 64-bit), which no
+    later build overwrites while it runs.  Builds into one ``out_dir`` take turns (a lock
+    file).  Raises :class:`MicroPythonError` when the build fails."""
     out_dir = Path(out_dir)
-    image = stage_mcu_image(out_dir / "mcu-image")
-    env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
-               LODESTAR_MCU_IMAGE=str(image.resolve()))
-    proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
-                          capture_output=True, text=True, timeout=timeout)
-    lines = proc.stdout.strip().splitlines()
-    if proc.returncode != 0 or not lines or not Path(lines[-1]).is_file():
-        raise MicroPythonError(f"the MicroPython build failed (exit status {proc.returncode}):"
-                               f"\n{(proc.stdout + proc.stderr).strip()[-2000:]}")
-    return Path(lines[-1])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / ".build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        image = stage_mcu_image(out_dir / "mcu-image")
+        env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
+                   LODESTAR_MCU_IMAGE=str(image.resolve()))
+        proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
+                              capture_output=True, text=True, timeout=timeout)
+        lines = proc.stdout.strip().splitlines()
+        if proc.returncode != 0 or not lines or not Path(lines[-1]).is_file():
+            raise MicroPythonError(f"the MicroPython build failed (exit status "
+                                   f"{proc.returncode}):\n"
+                                   f"{(proc.stdout + proc.stderr).strip()[-2000:]}")
+        built = Path(lines[-1])
+        data = built.read_bytes()
+        copy = built.with_name(f"{built.name}-{hashlib.sha256(data).hexdigest()[:12]}")
+        if not copy.is_file():
+            tmp = copy.with_name(copy.name + ".tmp")
+            tmp.write_bytes(data)
+            tmp.chmod(0o755)
+            os.replace(tmp, copy)
+        for old in built.parent.glob(built.name + "-*"):
+            if old != copy:
+                old.unlink(missing_ok=True)     # a running copy keeps its inode
+        return copy
 
 
 _LOOP = r'''

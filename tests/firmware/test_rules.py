@@ -1,6 +1,6 @@
 """MCU rules, statically, for every module of the firmware package: imports only from
-``math``, ``struct``, ``array``, ``binascii``, ``lodestar`` or the package itself (no numpy,
-typing, dataclasses, itertools...), no f-strings."""
+``math``, ``struct``, ``array``, ``binascii``, ``gc``, ``sys``, ``micropython``, ``lodestar``
+or the package itself (no numpy, typing, dataclasses, itertools...), no f-strings."""
 
 import ast
 import io
@@ -42,7 +42,9 @@ def test_firmware_rules(name):
             imports += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0:
             imports.append(node.module)
-    # gc and sys: the pipeline's collector policy on MicroPython (docs/firmware.md, Memory)
+    # gc and sys: the pipeline's collector policy on MicroPython; micropython: const()
+    # (docs/firmware.md, Memory)
     assert {m.split(".")[0] for m in imports} <= {"math", "struct", "array", "binascii",
-                                                   "gc", "sys", "lodestar"}, imports
+                                                   "gc", "sys", "micropython",
+                                                   "lodestar"}, imports
     assert not has_fstring(source), "f-strings are avoided in firmware"
