@@ -42,9 +42,14 @@ CARRY_NS_PER_BIT = 0.06
 """Assumed carry-chain delay per bit, C7/I7 (0.05-0.07 ns)."""
 REGISTER_NS = 0.6
 """Assumed clock-to-output + set-up + clock uncertainty of a register-to-register path."""
-ROUTING_MARGIN_NS = 3.0
-"""Unpriced routing a path must leave room for to be called fitting: about three hops
-between LABs or out of a carry chain's last bit (``docs/resource_estimate.md``)."""
+ROUTING_NS_PER_HOP = 0.9
+"""Routing of each net of a path (into each LUT or carry chain and into the end register),
+calibrated on the ECP5 place-and-route proxy (``hdl.pnr``; 0.85-1.1 ns per hop on the
+critical paths at speed 6, ``docs/resource_estimate.md``)."""
+BLOCK_RAM_CLK_TO_Q_NS = 5.7
+"""Clock-to-output of a block RAM without its output register, where a path starts at a
+memory's read data: ECP5 DP16KD at speed 6 as placed and routed (5.6-5.8 ns); the
+Cyclone IV M9K's is lower, so this prices the proxy, the pessimistic side."""
 YOSYS_TIMEOUT_S = 1800
 
 
@@ -259,15 +264,17 @@ def analyse(netlist, top):
         for port in _OUTPUTS.get(kind, ("Y",)):
             for bit in cell["connections"].get(port, []):
                 driver[bit] = name
-    depth, depth_by_unit, critical, paths = logic_depth(cells, driver)
+    depth, depth_by_unit, critical, _ = logic_depth(cells, driver)
+    paths = slowest_paths(cells, driver)
     for unit in by_unit.values():
         unit["les"] = unit["luts"] + unit["arith_les"]
     return {"luts": totals["luts"], "ffs": totals["ffs"], "arith_les": totals["arith_les"],
             "les": totals["luts"] + totals["arith_les"], "multipliers": mults,
             "by_unit": by_unit, "depth": depth, "depth_by_unit": depth_by_unit,
             "critical_unit": critical,
-            "paths": {unit: {"levels": depth_by_unit[unit],
-                             "ns": round(path_delay_ns(cells, path), 2),
+            "paths": {unit: {"levels": len(path),
+                             "ns": round(path_delay_ns(cells, path, driver), 2),
+                             "from_memory": _memory_fed(cells, driver, path[0]),
                              "cells": [_short(cells, name) for name in path]}
                       for unit, path in paths.items()}}
 
@@ -361,18 +368,83 @@ def logic_depth(cells, driver):
     return by_unit[critical], by_unit, critical, paths
 
 
-def path_delay_ns(cells, path):
-    """Estimated delay of a register-to-register ``path`` (cell names) on Cyclone IV E at
-    C7/I7: ``REGISTER_NS`` + ``LUT_NS`` per LUT + (``LUT_NS`` + ``CARRY_NS_PER_BIT`` x bits)
-    per carry chain (``docs/resource_estimate.md``, Timing)."""
-    ns = REGISTER_NS
-    for name in path:
-        cell = cells[name]
-        ns += LUT_NS
-        if cell["type"] == "lodestar_arith":
-            ns += CARRY_NS_PER_BIT * len(cell["connections"]["Y"]) * \
-                math.ceil(math.log2(_addends(cell)))
+def _cell_ns(cell):
+    """Delay of one path cell: ``LUT_NS``, plus ``CARRY_NS_PER_BIT`` x bits for a chain."""
+    ns = LUT_NS
+    if cell["type"] == "lodestar_arith":
+        ns += CARRY_NS_PER_BIT * len(cell["connections"]["Y"]) * \
+            math.ceil(math.log2(_addends(cell)))
     return ns
+
+
+def _memory_fed(cells, driver, name):
+    """Whether cell ``name`` takes an input from a memory's read data."""
+    cell = cells[name]
+    outputs = _OUTPUTS.get(cell["type"], ("Y",))
+    return any(cells[driver[bit]]["type"] == "lodestar_mem"
+               for port, bits in cell["connections"].items() if port not in outputs
+               for bit in bits if bit in driver)
+
+
+def path_delay_ns(cells, path, driver=None):
+    """Estimated delay of a register-to-register ``path`` (cell names): ``REGISTER_NS`` +
+    ``LUT_NS`` per LUT + (``LUT_NS`` + ``CARRY_NS_PER_BIT`` x bits) per carry chain +
+    ``ROUTING_NS_PER_HOP`` per net, + ``BLOCK_RAM_CLK_TO_Q_NS`` if it starts at a memory's
+    read data (``driver``: bit -> cell; ``docs/resource_estimate.md``, Timing)."""
+    ns = REGISTER_NS + ROUTING_NS_PER_HOP * (len(path) + 1)
+    ns += sum(_cell_ns(cells[name]) for name in path)
+    if path and driver is not None and _memory_fed(cells, driver, path[0]):
+        ns += BLOCK_RAM_CLK_TO_Q_NS
+    return ns
+
+
+def slowest_paths(cells, driver):
+    """Slowest register-to-register path of each unit by :func:`path_delay_ns` (so a short
+    path out of a memory can outweigh a deeper one): ``{unit: [cell names]}``."""
+    comb = [name for name, cell in cells.items() if cell["type"] not in _SEQUENTIAL]
+    fanin = {}
+    for name in comb:
+        cell = cells[name]
+        outputs = _OUTPUTS.get(cell["type"], ("Y",))
+        fanin[name] = {driver[bit] for port, bits in cell["connections"].items()
+                       if port not in outputs for bit in bits
+                       if bit in driver and driver[bit] != name
+                       and cells[driver[bit]]["type"] not in _SEQUENTIAL}
+    arrival, via = {}, {}
+
+    def visit(root):                     # iterative depth-first: arrival after each cell
+        stack = [root]
+        while stack:
+            name = stack[-1]
+            todo = [src for src in fanin[name] if src not in arrival]
+            if todo:
+                stack.extend(todo)
+                continue
+            stack.pop()
+            if name in arrival:
+                continue
+            best = max(fanin[name], key=arrival.get, default=None)
+            start = REGISTER_NS + ROUTING_NS_PER_HOP + \
+                (BLOCK_RAM_CLK_TO_Q_NS if _memory_fed(cells, driver, name) else 0)
+            before = max(arrival[best], start) if best else start
+            via[name] = best if best and arrival[best] >= start else None
+            arrival[name] = before + _cell_ns(cells[name]) + ROUTING_NS_PER_HOP
+
+    for name in comb:
+        visit(name)
+    worst = {}
+    for name, ns in arrival.items():
+        unit = _unit(name)
+        if ns > arrival.get(worst.get(unit), -1):
+            worst[unit] = name
+    paths = {}
+    for unit, name in worst.items():
+        path = []
+        while name is not None:
+            path.append(name)
+            name = via[name]
+        paths[unit] = path[::-1]
+    return paths
 
 
 _SEQUENTIAL = ("dffeas", "lodestar_mem", "lodestar_mul")
@@ -395,12 +467,12 @@ ESTIMATE_NOTES = (
     "subtractor and comparator (Quartus' carry chains); Quartus packs flip-flops into the "
     "same LEs, so total LEs are about max(LEs, FFs) and usually a little more.",
     "Logic depth in LUT levels, carry chains counted as one level plus one per "
-    f"{CARRY_BITS_PER_LEVEL} bits.  Each unit's deepest path is also priced with assumed "
-    f"Cyclone IV E C7/I7 delays: {LUT_NS} ns per LUT with local routing, {CARRY_NS_PER_BIT} "
-    f"ns per carry bit, {REGISTER_NS} ns of register overhead; routing between LABs and "
-    "carry-out fan-out (about 0.5-1.5 ns per hop) come on top, so a path priced within "
-    f"{ROUTING_MARGIN_NS} ns of the period is called marginal: only Quartus' timing "
-    "analysis can settle it.",
+    f"{CARRY_BITS_PER_LEVEL} bits.  Each unit's slowest path is priced with assumed "
+    f"Cyclone IV E C7/I7 cell delays ({LUT_NS} ns per LUT, {CARRY_NS_PER_BIT} ns per carry "
+    f"bit, {REGISTER_NS} ns of register overhead) and with terms calibrated on the ECP5 "
+    f"place-and-route proxy: {ROUTING_NS_PER_HOP} ns of routing per net and "
+    f"{BLOCK_RAM_CLK_TO_Q_NS} ns of block-RAM clock-to-output where a path starts at a "
+    "memory's read data (lodestar synth --pnr ecp5 measures the proxy itself).",
 )
 
 
@@ -460,7 +532,7 @@ def board_report(board, component, *, yosys=True, workdir=None):
     if report["multipliers"]["9x9_equivalent"] > report["multipliers"]["available_9x9"]:
         report["notes"].append("more multiplier elements than the part has: Quartus would "
                                "build the rest in LEs")
-    deepest = sorted(logic["paths"].items(), key=lambda kv: -kv[1]["levels"])[:3]
+    deepest = sorted(logic["paths"].items(), key=lambda kv: -kv[1]["ns"])[:3]
     report["depth"] = {"levels": logic["depth"], "critical_unit": logic["critical_unit"],
                        "by_unit": logic["depth_by_unit"], "clock_ns": round(1e9 / board.sync_hz, 2),
                        "paths": dict(deepest)}
@@ -496,13 +568,23 @@ def format_report(report):
                      "by unit: " + ", ".join(f"{k} {v}" for k, v in
                                              sorted(d["by_unit"].items(), key=lambda kv: -kv[1])))
         for unit, path in d["paths"].items():
-            verdict = ("fits" if path["ns"] + ROUTING_MARGIN_NS <= d["clock_ns"] else
-                       "is marginal for" if path["ns"] <= d["clock_ns"] else "exceeds")
+            verdict = "fits" if path["ns"] <= d["clock_ns"] else "exceeds"
             chains = [c for c in path["cells"] if "carry chain" in c]
-            lines.append(f"    {unit}: {path['levels']} levels, about {path['ns']} ns before "
-                         f"inter-LAB routing ({verdict} the {d['clock_ns']} ns sync period); "
+            start = "a memory's read data" if path.get("from_memory") else "a register"
+            lines.append(f"    {unit}: {path['levels']} cells from {start}, about {path['ns']} "
+                         f"ns with routing ({verdict} the {d['clock_ns']} ns sync period); "
                          f"{len(path['cells'])} cells, {len(chains)} carry chains; from "
                          f"{path['cells'][0]} to {path['cells'][-1]}")
+    if "pnr" in report:
+        r = report["pnr"]
+        lines.append(f"  P&R        {r['device']} speed {r['speed']} (nextpnr, the Cyclone IV "
+                     f"proxy): Fmax {r['fmax_mhz']} MHz post-route"
+                     f"{' (cached)' if r.get('cached') else ''}")
+        if "path_ns" in r:
+            lines.append(f"    critical path {r['path_ns']} ns = block-RAM clock-to-output "
+                         f"{r['bram_clk_to_q_ns']} + logic {r['logic_ns']} + routing "
+                         f"{r['routing_ns']} ns, {r['cells']} cells; from {r['from']} to "
+                         f"{r['to']}")
     if "quartus" in report:
         lines.append("  Quartus    " + json.dumps(report["quartus"]))
     lines += ["  notes"] + [f"    - {n}" for n in report["notes"]]

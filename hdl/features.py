@@ -6,8 +6,10 @@ record layout (``hdl.layouts.record_layout``; ``flags`` is the moment-saturation
 saturate at the contract's moment widths; counts, box and peak are exact.  A completed blob is
 counted, filtered (contract ``passes_filters``) and emitted while fewer than
 ``record_capacity`` records left this frame and the stream takes it, else counted in
-``dropped_records``.  An op entering at clock ``c`` writes its slot and record at ``c + 3``; a
-slot is read back correctly two or more clocks after its write.  The op fields, frame tags and
+``dropped_records``.  An op entering at clock ``c`` writes its slot and record at ``c + 4``; a
+slot is read back correctly two or more clocks after its write (the table's read is not
+transparent; its output goes into a register and the bypass is explicit, so that it maps to
+a synchronous-read block RAM and its output starts no long path).  The op fields, frame tags and
 the arithmetic: ``hdl/DESIGN.md``.
 """
 
@@ -110,7 +112,7 @@ class FeatureEngine(wiring.Component):
 
         m.submodules.table = table = Memory(shape=layout, depth=self.slots, init=[])
         wp = table.write_port()
-        rp = table.read_port(transparent_for=(wp,))
+        rp = table.read_port()          # not transparent: the bypass is written below
 
         # ---- stage 1: op registered, slot read issued, first products --------------
         # a clock without an op with a pixel has weight 0: its products, and so its terms,
@@ -128,62 +130,83 @@ class FeatureEngine(wiring.Component):
         v2 = Signal()
         m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
                      wy1.eq(w1 * op1.y)]
+        # read-during-write bypass (the memory is read at stage 1 and written at stage 4):
+        # a read sees the writes of its own clock (``hit_a``) and of the next (``hit_b``,
+        # the later one wins); ``bypass3`` holds the newest of them, registered from the
+        # written data (``acc_next``) or its register (``acc``)
+        hit_a2 = Signal(reset_less=True)
+        hit3 = Signal(reset_less=True)
+        bypass3 = Signal(layout, reset_less=True)
+        acc = Signal(layout, reset_less=True)
+        acc_next = Signal(layout)
+        m.d.sync += hit_a2.eq(wp.en & (wp.addr == op1.rd_addr))
+        hit_b2 = wp.en & (wp.addr == op2.rd_addr)
 
-        # ---- stage 2: second products, slot data, the pixel's terms ------------------
-        # pixf: the pixel's record (empty without an op with a pixel); slot3: the slot read
-        # as it is (the completed record, or the term the accumulator adds if use3);
-        # best3: for the box and the peak, the better of the slot (if used) and the pixel
-        # (the slot's box, as it holds the pixel's upper neighbour)
-        slot2 = rp.data
+        # ---- stage 2: second products, the pixel's terms, slot data registered -------
+        # pixf: the pixel's record (empty without an op with a pixel)
         pix2 = v2 & op2.pix
-        use2 = v2 & op2.rd
         pixf = Signal(layout, reset_less=True)
         op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
-        slot3 = Signal(layout, reset_less=True)
-        use3 = Signal(reset_less=True)
-        best3 = Signal(layout, reset_less=True)
-        passes = Signal(reset_less=True)  # the slot read passes the filters
+        raw3 = Signal(layout, reset_less=True)
         m.d.sync += [
-            op3.eq(op2), v3.eq(v2), slot3.eq(slot2), use3.eq(use2),
+            op3.eq(op2), v3.eq(v2), raw3.eq(rp.data),
+            hit3.eq(hit_a2 | hit_b2), bypass3.eq(Mux(hit_b2, acc_next, acc)),
             pixf.n.eq(pix2), pixf.nsat.eq(pix2 & (op2.p == fs)),
             pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
             pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
             pixf.flags.eq(0),
-            passes.eq(~_below(slot2.n, self.min_pixels) & ~_above(slot2.n, self.max_pixels) &
-                      ~_below(slot2.s0, self.min_sum)),
         ]
-        for name, value in (("xmin", op2.x), ("xmax", op2.x), ("ymin", op2.y)):
-            m.d.sync += best3[name].eq(Mux(use2, slot2[name], Mux(pix2, value, empty[name])))
-        better = slot2.peak > op2.p
-        m.d.sync += best3.peak.eq(Mux(use2 & better, slot2.peak, Mux(pix2, op2.p, 0)))
 
-        # ---- stage 3: accumulator, slot write, completion ---------------------------
-        # acc (+) slot3 (+) pixf, slot3 taken if use3.  A dark op, a stale op, and a clock
+        # ---- stage 3: slot data, filters, box and peak terms -------------------------
+        # slot4: the slot read as it is (the completed record, or the term the accumulator
+        # adds if use4); best4: for the box and the peak, the better of the slot (if used)
+        # and the pixel (the slot's box, as it holds the pixel's upper neighbour)
+        slot3 = Signal(layout)
+        m.d.comb += slot3.eq(Mux(hit3, bypass3, raw3))
+        pix3 = v3 & op3.pix
+        use3 = v3 & op3.rd
+        pix4 = Signal(layout, reset_less=True)
+        op4 = Signal.like(op1, reset_less=True)
+        v4 = Signal()
+        slot4 = Signal(layout, reset_less=True)
+        use4 = Signal(reset_less=True)
+        best4 = Signal(layout, reset_less=True)
+        passes = Signal(reset_less=True)  # the slot read passes the filters
+        m.d.sync += [
+            op4.eq(op3), v4.eq(v3), slot4.eq(slot3), use4.eq(use3), pix4.eq(pixf),
+            passes.eq(~_below(slot3.n, self.min_pixels) & ~_above(slot3.n, self.max_pixels) &
+                      ~_below(slot3.s0, self.min_sum)),
+        ]
+        for name, value in (("xmin", op3.x), ("xmax", op3.x), ("ymin", op3.y)):
+            m.d.sync += best4[name].eq(Mux(use3, slot3[name], Mux(pix3, value, empty[name])))
+        better = slot3.peak > op3.p
+        m.d.sync += best4.peak.eq(Mux(use3 & better, slot3.peak, Mux(pix3, op3.p, 0)))
+
+        # ---- stage 4: accumulator, slot write, completion ---------------------------
+        # acc (+) slot4 (+) pix4, slot4 taken if use4.  A dark op, a stale op, and a clock
         # without an op after the row's last column or a clear empty the accumulator; any
-        # other clock without an op adds nothing to it (use3 = 0, pixf empty)
-        live = v3 & (op3.tag == self.tag)
+        # other clock without an op adds nothing to it (use4 = 0, pix4 empty)
+        live = v4 & (op4.tag == self.tag)
         run_open = Signal()           # the last op was a pixel that may continue its run
         with m.If(self.clear):
             m.d.sync += run_open.eq(0)
-        with m.Elif(v3):
-            m.d.sync += run_open.eq(live & op3.pix & (op3.x != W - 1))
-        empties = Mux(v3, ~(live & op3.pix), ~run_open)
-        acc = Signal(layout, reset_less=True)
-        acc_next = Signal(layout)
-        sums, sat = _sums(m, acc, slot3, use3, pixf, empties, fields)
+        with m.Elif(v4):
+            m.d.sync += run_open.eq(live & op4.pix & (op4.x != W - 1))
+        empties = Mux(v4, ~(live & op4.pix), ~run_open)
+        sums, sat = _sums(m, acc, slot4, use4, pix4, empties, fields)
         for name, total in sums.items():
             m.d.comb += acc_next[name].eq(total)
         for name, smaller in (("xmin", True), ("xmax", False), ("ymin", True),
                               ("peak", False)):
-            a, b = acc[name], best3[name]
+            a, b = acc[name], best4[name]
             m.d.comb += acc_next[name].eq(Mux(empties, empty[name],
                                               Mux((a < b) if smaller else (a > b), a, b)))
-        m.d.comb += [acc_next.ymax.eq(Mux(empties, 0, Mux(v3, op3.y, acc.ymax))),
+        m.d.comb += [acc_next.ymax.eq(Mux(empties, 0, Mux(v4, op4.y, acc.ymax))),
                      acc_next.flags.eq(sat)]
         m.d.sync += acc.eq(acc_next)
-        m.d.comb += [wp.addr.eq(op3.wr_addr), wp.data.eq(acc_next),
-                     wp.en.eq(live & op3.wr)]
+        m.d.comb += [wp.addr.eq(op4.wr_addr), wp.data.eq(acc_next),
+                     wp.en.eq(live & op4.wr)]
 
         # ---- completion: filters, record, counters ------------------------------------
         # counters as wide as the frame needs (at most one blob per two pixels), widened at
@@ -194,10 +217,10 @@ class FeatureEngine(wiring.Component):
         dropped = Signal(blob_bits)
         n_records = Signal(range(self.record_capacity + 1))
         room = n_records != self.record_capacity     # it never exceeds the capacity
-        done = live & op3.complete
+        done = live & op4.complete
         emit = done & passes & room
         taken = emit & self.records.ready
-        m.d.comb += [self.records.payload.eq(slot3), self.records.valid.eq(emit),
+        m.d.comb += [self.records.payload.eq(slot4), self.records.valid.eq(emit),
                      self.n_blobs.eq(n_blobs), self.n_filtered.eq(n_filtered),
                      self.dropped_records.eq(dropped), self.n_records.eq(n_records)]
         with m.If(self.clear):
@@ -207,5 +230,5 @@ class FeatureEngine(wiring.Component):
                          n_filtered.eq(n_filtered + (done & ~passes)),
                          n_records.eq(n_records + taken),
                          dropped.eq(dropped + (done & passes & ~taken))]
-        m.d.comb += self.busy.eq(v1 | v2 | v3)
+        m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)
         return m

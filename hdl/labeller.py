@@ -49,7 +49,7 @@ MIN_HBLANK = 1
 MIN_WIDTH = 2
 """Narrowest frame the labeller is built for."""
 
-_DRAIN = 5
+_DRAIN = 6
 """Clocks from the virtual row's last decision until the feature engine is idle."""
 
 
@@ -105,26 +105,50 @@ class _Stack:
 
 
 class _FreeSlots:
-    """Feature slots freed by completions and merges: a FIFO in a memory (a power of two
-    deep, so the pointers wrap by themselves) whose head is on the read port.  A slot freed
-    at a decision is reusable at the next one.  ``fresh`` counts slots never used yet."""
+    """Feature slots freed by completions and merges: a stack whose top is in a register
+    (``head``) and whose entries, the top included, are in a memory.  A slot freed at a
+    decision is the head at the next one.  The memory is written a clock after the
+    decision and read at ``depth - 2`` on every clock into a register, so neither port
+    sits on the decision's path; after a pop (allocations are at least two clocks apart:
+    a run end is followed by a dark pixel or a row's end) the new head comes from that
+    register two clocks later.  ``fresh`` counts slots never used yet."""
 
     def __init__(self, m, slots, slot_bits):
         depth = 1 << C.bits_for(slots - 1)
         m.submodules.freelist = memory = Memory(shape=slot_bits, depth=depth, init=[])
-        self.push = memory.write_port()
-        self.head = memory.read_port(transparent_for=(self.push,))
-        self.write_ptr = Signal(range(2 * depth), name="free_write_ptr")
-        self.read_ptr = Signal(range(2 * depth), name="free_read_ptr")
-        self.ready = self.write_ptr != self.read_ptr
-        self.pop = Signal(name="free_pop")
-        self.next_read_ptr = Signal.like(self.read_ptr, name="free_next_read_ptr")
+        write, read = memory.write_port(), memory.read_port()
+        self.depth = Signal(range(depth + 1), name="free_depth")   # entries
+        self.ready = self.depth != 0
+        self.pop = Signal(name="free_pop")          # allocate ``head`` at this decision
         self.fresh = Signal(range(slots + 1), name="fresh_slots")
         self.free_en = Signal(name="free_en")       # free ``free_slot`` at this decision
         self.free_slot = Signal(slot_bits, name="free_slot")
-        m.d.comb += [self.next_read_ptr.eq(self.read_ptr + self.pop),
-                     self.head.addr.eq(self.next_read_ptr), self.head.en.eq(1)]
-        m.d.sync += self.read_ptr.eq(self.next_read_ptr)
+        self.push = Signal(name="free_push")        # free_en at a decision
+        self.start = Signal(name="free_start")      # a frame starts: empty
+        self.head = Signal(slot_bits, name="free_head")
+        head_reg = Signal(slot_bits, name="free_head_reg")
+        below = Signal(slot_bits, name="free_below")   # the entry below the top, read
+        refresh1 = Signal(name="free_refresh1")  # popped a clock ago (nothing pushed)
+        refresh2 = Signal(name="free_refresh2")  # popped two clocks ago, nothing pushed since
+        w_addr = Signal(range(depth), name="free_w_addr")
+        w_data = Signal(slot_bits, name="free_w_data")
+        w_en = Signal(name="free_w_en")
+        popped = self.pop & ~self.push
+        m.d.comb += [self.head.eq(Mux(refresh2, below, head_reg)),
+                     write.addr.eq(w_addr), write.data.eq(w_data), write.en.eq(w_en),
+                     read.addr.eq(self.depth - 2)]
+        m.d.sync += [below.eq(read.data), refresh1.eq(popped),
+                     refresh2.eq(refresh1 & ~self.push),
+                     head_reg.eq(Mux(self.push, self.free_slot, self.head)),
+                     # a push with a pop replaces the top entry
+                     w_addr.eq(self.depth - self.pop), w_data.eq(self.free_slot),
+                     w_en.eq(self.push)]
+        with m.If(self.start):
+            m.d.sync += [self.depth.eq(0), refresh1.eq(0), refresh2.eq(0), w_en.eq(0)]
+        with m.Elif(self.push & ~self.pop):
+            m.d.sync += self.depth.eq(self.depth + 1)
+        with m.Elif(popped):
+            m.d.sync += self.depth.eq(self.depth - 1)
 
 
 class _Nodes:
@@ -410,12 +434,10 @@ class Labeller(wiring.Component):
         m.d.comb += slot.eq(active.slot)
         with m.If(allocate):
             with m.If(free.ready):
-                m.d.comb += [slot.eq(free.head.data), free.pop.eq(self._decide)]
+                m.d.comb += [slot.eq(free.head), free.pop.eq(self._decide)]
             with m.Else():
                 m.d.comb += slot.eq(free.fresh)
-        m.d.comb += [free.push.addr.eq(free.write_ptr), free.push.data.eq(free.free_slot),
-                     free.push.en.eq(self._decide & free.free_en)]
-        m.d.sync += free.write_ptr.eq(free.write_ptr + free.push.en)
+        m.d.comb += free.push.eq(self._decide & free.free_en)
         top = Signal.like(top_in, name="top_after_run")
         m.d.comb += top.eq(top_in)
         with m.If(run_end):
@@ -494,8 +516,8 @@ class Labeller(wiring.Component):
 
         m.d.comb += self.dropped_labels.eq(self._dropped)
         with m.If(self._start):
-            m.d.sync += [count.eq(0), free.fresh.eq(0), free.write_ptr.eq(0),
-                         free.read_ptr.eq(0), self._dropped.eq(0), self._row_parity.eq(0),
+            m.d.comb += free.start.eq(1)
+            m.d.sync += [count.eq(0), free.fresh.eq(0), self._dropped.eq(0), self._row_parity.eq(0),
                          self._prev_lit.eq(0), stack.spilled.eq(-2), nodes.write_ptr.eq(0),
                          nodes.read_ptr.eq(0), nodes.fetch.eq(0), nodes.fetched.eq(0),
                          self._line_error.eq(0), stack.reload.eq(0)]

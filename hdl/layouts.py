@@ -119,9 +119,12 @@ def frame_registers_layout(names):
 # ---- memory words and registers internal to a unit ---------------------------------------
 
 def delay_entry_layout(width, height, pixel_bits):
-    """Threshold unit, local mode: a pixel waiting in the delay line for its window."""
+    """Threshold unit, local mode: a pixel waiting in the delay line for its window, with
+    its column's window flags (computed when it is written, so that the read side decides
+    the window's step from registers): ``row_start`` (x = 0), ``move_first`` and
+    ``move_end`` (the columns where the window starts and stops moving)."""
     return data.StructLayout({"data": pixel_bits, "x": range(width), "y": range(height),
-                              "eof": 1})
+                              "eof": 1, "row_start": 1, "move_first": 1, "move_end": 1})
 
 
 def node_flags_layout():

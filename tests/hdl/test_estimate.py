@@ -6,6 +6,8 @@ import pytest
 
 from lodestar.hdl.boards import BOARDS, GatewareTop
 from lodestar.hdl.estimate import (
+    BLOCK_RAM_CLK_TO_Q_NS,
+    ROUTING_NS_PER_HOP,
     analyse,
     board_report,
     format_report,
@@ -80,8 +82,28 @@ def test_analyse_counts_and_depth():
     path = out["paths"]["a.b"]
     assert path["cells"][0] == "a.x_$lut" and path["cells"][-1] == "a.b.y_$lut"
     assert path["cells"][1] == "a.b.$add$f.py:1$7 (carry chain, 16 bits)"
-    assert path["ns"] == pytest.approx(0.6 + 3 * 0.5 + 16 * 0.06)
+    assert path["ns"] == pytest.approx(0.6 + 3 * 0.5 + 16 * 0.06 + 4 * ROUTING_NS_PER_HOP)
+    assert not path["from_memory"]
     assert out["by_unit"]["a.b"]["les"] == 17
+
+
+def test_a_path_out_of_a_memory_outweighs_a_deeper_one():
+    """A memory's read data through one LUT costs the block RAM's clock-to-output: it is
+    the unit's slowest path although another one is three LUTs deep."""
+    cells = {
+        "u.r_dffeas": _cell("dffeas", {"d": [9], "q": [2]}),
+        "u.l1_$lut": _cell("cycloneive_lcell_comb", {"dataa": [2], "combout": [3]}),
+        "u.l2_$lut": _cell("cycloneive_lcell_comb", {"dataa": [3], "combout": [4]}),
+        "u.l3_$lut": _cell("cycloneive_lcell_comb", {"dataa": [4], "combout": [9]}),
+        "u.mem": _cell("lodestar_mem", {"RD_ADDR": [2], "RD_DATA": [5]}),
+        "u.m_$lut": _cell("cycloneive_lcell_comb", {"dataa": [5], "combout": [6]}),
+    }
+    out = analyse({"modules": {"t": {"cells": cells}}}, "t")
+    assert out["depth"] == 3
+    path = out["paths"]["u"]
+    assert path["cells"] == ["u.m_$lut"] and path["from_memory"]
+    assert path["ns"] == pytest.approx(0.6 + BLOCK_RAM_CLK_TO_Q_NS + 0.5 +
+                                       2 * ROUTING_NS_PER_HOP)
 
 
 def test_board_report_of_a_small_build(tmp_path):
