@@ -46,9 +46,13 @@ def outcome(result):
     }
 
 
-def replay(tracker, packet, inputs):
+def process(tracker, packet, inputs):
     """``tracker.process`` of one recorded ``packet`` (bytes) with the case ``inputs``
-    (``docs/regression.md``); returns :func:`outcome` of the result."""
-    return outcome(tracker.process(packet, prior=inputs.get("prior"),
-                                   omega=inputs.get("omega"), dt=inputs.get("dt"),
-                                   exposure_s=inputs.get("exposure_s")))
+    (``docs/regression.md``): the pipeline's ``Result``."""
+    return tracker.process(packet, prior=inputs.get("prior"), omega=inputs.get("omega"),
+                           dt=inputs.get("dt"), exposure_s=inputs.get("exposure_s"))
+
+
+def replay(tracker, packet, inputs):
+    """:func:`outcome` of :func:`process`."""
+    return outcome(process(tracker, packet, inputs))

@@ -37,29 +37,43 @@ def build_script(repo):
     return path if path.is_file() else None
 
 
-def stage_mcu_image(folder):
+def stage_mcu_image(folder, checkout=None):
     """Copy :func:`lodestar.regress.micropython.mcu_image` into ``folder`` as the tree
-    ``lodestar/...`` that a freeze manifest packages; returns ``folder``."""
+    ``lodestar/...`` that a freeze manifest packages; returns ``folder``.  ``checkout``: take
+    the image from another checkout of the repository instead (its ``lodestar/__init__.py``,
+    ``lodestar/contract`` and ``firmware``; a benchmark's baseline)."""
     folder = Path(folder)
-    for host, target in mcu_image():
-        dest = folder / target[len("/lib/"):]
+    if checkout is None:
+        pairs = [(host, target[len("/lib/"):]) for host, target in mcu_image()]
+    else:
+        checkout = Path(checkout)
+        pairs = [(checkout / "lodestar" / "__init__.py", "lodestar/__init__.py")]
+        for sub, target in (("lodestar/contract", "lodestar/contract"),
+                            ("firmware", "lodestar/firmware")):
+            pairs += [(p, target + "/" + p.relative_to(checkout / sub).as_posix())
+                      for p in sorted((checkout / sub).rglob("*.py"))]
+    if folder.exists():
+        shutil.rmtree(folder)
+    for host, target in pairs:
+        dest = folder / target
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(host, dest)
     return folder
 
 
-def build(script, manifest, out_dir, variant="float32", timeout=1200):
+def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1200):
     """Build (incrementally) the unix-port interpreter ``variant`` (``float32`` or
     ``double``) with the MCU image frozen by ``manifest`` (the repository's
     ``manifest.py``) using MicroPython's build ``script``; returns the path of a copy named
     by its content (the build's own name plus a hash: it says 32- or 64-bit), which no
     later build overwrites while it runs.  Builds into one ``out_dir`` take turns (a lock
-    file).  Raises :class:`MicroPythonError` when the build fails."""
+    file).  ``checkout``: freeze another checkout's image (:func:`stage_mcu_image`).
+    Raises :class:`MicroPythonError` when the build fails."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / ".build.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        image = stage_mcu_image(out_dir / "mcu-image")
+        image = stage_mcu_image(out_dir / "mcu-image", checkout)
         env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
                    LODESTAR_MCU_IMAGE=str(image.resolve()))
         proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
@@ -86,6 +100,7 @@ def build(script, manifest, out_dir, variant="float32", timeout=1200):
 _LOOP = r'''
 import gc
 import json
+import time
 R = {}
 exec(open(MCU).read(), R)
 if PEAK:
@@ -109,6 +124,8 @@ while True:
         gc.collect()
         print("RESIDENT " + json.dumps([NAME, gc.mem_alloc()]))
     TRACKER = R["make_tracker"](DB, CAMERA, METHOD)
+    if TIMING:
+        TRACKER.settings.clock = time.ticks_us
     F = open(PACKET, "rb")
     BYTES = F.read()
     F.close()
@@ -117,27 +134,38 @@ while True:
         gc.collect()
         BASE = gc.mem_alloc()
         gc.live_peak(0)
-    OUT = R["replay"](TRACKER, BYTES, INPUTS)
+    T0 = time.ticks_us()
+    RES = R["process"](TRACKER, BYTES, INPUTS)
+    T1 = time.ticks_us()
     PEAK_BYTES = gc.live_peak()[0] - BASE if PEAK else None
     TRACKER = BYTES = INPUTS = None
-    print("RESULT " + json.dumps([CASE, METHOD, OUT, PEAK_BYTES]))
-    OUT = None
+    OUT = R["outcome"](RES)
+    TIMES = None
+    if TIMING:
+        TIMES = {"process": time.ticks_diff(T1, T0)}
+        for K in RES.timings:
+            TIMES[K] = RES.timings[K] % 1073741824      # ticks_us wrap
+    RES = None
+    print("RESULT " + json.dumps([CASE, METHOD, OUT, PEAK_BYTES, TIMES]))
+    OUT = TIMES = None
 print("DONE")
 '''
 
 
 def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=False,
-                threshold=None, timeout=900):
+                threshold=None, timing=False, timeout=900):
     """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
     ``binary`` process with a ``heapsize``-byte heap, a new tracker per run and only the
     current camera's database open.  ``peak``: also measure each solve's live peak above
     the heap before it (``gc.threshold(512)``; ``gc.live_peak()`` of MicroPython's
     ``build.sh``), which overrides the firmware's collector setting.  ``threshold``: a
     ``gc.threshold`` (bytes) the loop sets before its first run (None: the firmware's).
+    ``timing``: also time each solve (``time.ticks_us``, the pipeline's stage ``timings``).
 
     Returns ``{"finished": bool, "results": {(case name, method): (outcome, peak bytes or
-    None)}, "resident": {database: bytes live with it open}, "error": output tail}``; a run
-    that ran out of heap outside the firmware leaves ``finished`` false."""
+    None)}, "times": {(case name, method): {"process": us, stage: us}}, "resident":
+    {database: bytes live with it open}, "error": output tail}``; a run that ran out of heap
+    outside the firmware leaves ``finished`` false."""
     set_dir = Path(set_dir)
     with tempfile.TemporaryDirectory() as tmp:
         case_file = Path(tmp) / "cases.jsonl"
@@ -152,18 +180,21 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
         script = Path(tmp) / "loop.py"
         script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
                           f"CASE_FILE = {literal(str(case_file))}\n"
-                          f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n" + _LOOP, encoding="utf-8")
+                          f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n"
+                          f"TIMING = {timing!r}\n" + _LOOP, encoding="utf-8")
         try:
             proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
                                   capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:
             raise MicroPythonError(f"the flight loop ran more than {timeout} s") from None
-    out = {"finished": False, "results": {}, "resident": {},
+    out = {"finished": False, "results": {}, "times": {}, "resident": {},
            "error": (proc.stdout + proc.stderr).strip()[-2000:]}
     for line in proc.stdout.splitlines():
         if line.startswith("RESULT "):
-            case, method, outcome, peak_bytes = json.loads(line[len("RESULT "):])
+            case, method, outcome, peak_bytes, times = json.loads(line[len("RESULT "):])
             out["results"][(case, method)] = (outcome, peak_bytes)
+            if times is not None:
+                out["times"][(case, method)] = times
         elif line.startswith("RESIDENT "):
             name, live = json.loads(line[len("RESIDENT "):])
             out["resident"][name] = live

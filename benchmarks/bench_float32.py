@@ -1,0 +1,120 @@
+"""Accuracy at rest of the single-precision MCU build against the double-precision one: the
+same simulated frames (a ``lodestar campaign rate`` at 0 deg/s) solved by the firmware on
+CPython (double) and on MicroPython 1.27's unix port built 32-bit with float32 and the
+firmware frozen (``lodestar.regress.unixport``, a 64 KiB heap), in one run.
+
+    .venv/bin/python benchmarks/bench_float32.py [--preset estcube2] [--trials 100]
+
+Prints per build the solved and wrong counts, the RMS cross-boresight and roll errors against
+the simulator's truth and their ratio float32 / double (the goal of issue 16: within 10 %),
+and the largest rotation between the two builds' attitudes of one frame.
+"""
+
+import argparse
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from lodestar.ground.cache import default_cache_dir
+from lodestar.ground.campaign import trials as T
+from lodestar.ground.flight import camera_settings, default_tolerance_px, process, star_database
+from lodestar.ground.truth import attitude_error_arcsec
+from lodestar.regress import replay as regress
+from lodestar.regress import unixport
+
+REPO = Path(__file__).resolve().parents[1]
+HEAP = 64 * 1024
+
+
+def rms(values):
+    return math.sqrt(sum(v * v for v in values) / len(values)) if values else float("nan")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="estcube2")
+    p.add_argument("--trials", type=int, default=100)
+    p.add_argument("--method", default="pyramid")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args()
+    settings = camera_settings(args.preset)
+    script = unixport.build_script(REPO)
+    binary = unixport.build(script, REPO / "manifest.py", default_cache_dir() / "micropython")
+    frames, double = [], []         # double: (verdict, q, [(record index, HIP)])
+    for trial in range(args.trials):
+        frame = T.Frame(args.preset, settings, T.trial_seed(args.seed, "rate", args.preset,
+                                                            trial))
+        db, _path = star_database(frame.fw_cam, method=args.method)
+        data, res, _ = process(frame.det, frame.fw_cam, db, omega=frame.omega_rad_s,
+                               exposure_s=frame.truth["exposure_s"],
+                               row_time_s=frame.truth["row_time_s"], method=args.method)
+        frames.append((frame, data))
+        double.append((T.verdict(res, frame.det.blobs, frame), res.q,
+                       [(m[0], m[3]) for m in res.matches]))
+    frame0 = frames[0][0]
+    _db, db_path = star_database(frame0.fw_cam, method=args.method)
+    cam = frame0.fw_cam
+    camera = {"camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
+                         "cx": cam.cx, "cy": cam.cy, "k1": cam.k1, "k2": cam.k2, "k3": cam.k3,
+                         "p1": cam.p1, "p2": cam.p2},
+              "exposure_s": frame0.truth["exposure_s"],
+              "row_time_s": frame0.truth["row_time_s"],
+              "tolerance_px": default_tolerance_px(cam), "database": "db"}
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = []
+        for i, (frame, data) in enumerate(frames):
+            (Path(tmp) / f"{i}.bin").write_bytes(data)
+            cases.append({"name": str(i), "camera": "cam", "packet": f"{i}.bin",
+                          "inputs": {"omega": frame.omega_rad_s,
+                                     "exposure_s": frame.truth["exposure_s"]}})
+        manifest = {"cameras": {"cam": camera}}
+        runs = [(c, args.method) for c in cases]
+        loops = {heap: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, runs, heap)
+                 for heap in (HEAP, 4 << 20)}
+    print(f"# bench_float32: {args.preset}, {args.trials} frames at rest, {args.method}; "
+          f"float32 build {binary.name}")
+    rows = {"double (CPython)": _errors(frames, double, None)}
+    for heap, loop in loops.items():
+        if not loop["finished"]:
+            raise SystemExit("bench_float32: the float32 loop failed:\n" + loop["error"])
+        rows[f"float32, {heap // 1024} KiB heap"] = _errors(frames, double, loop, args.method)
+    print("| build | right | failed (status: count) | same stars as double | RMS cross, "
+          "arcsec | RMS roll, arcsec | largest rotation from double, arcsec |")
+    print("|---|---|---|---|---|---|---|")
+    base = rows["double (CPython)"]
+    for name, r in rows.items():
+        fails = ", ".join(f"{k}: {v}" for k, v in sorted(r["failed"].items())) or "-"
+        print(f"| {name} | {r['right']} | {fails} | {r['same']} | {r['cross']:.3f} "
+              f"({r['cross'] / base['cross']:.3f}) | {r['roll']:.2f} "
+              f"({r['roll'] / base['roll']:.3f}) | {r['between']:.2f} |")
+
+
+def _errors(frames, double, loop, method=None):
+    """Errors against the truth of the frames the double build got right; ``loop``: a
+    float32 flight loop (None: the double build itself)."""
+    cross, roll, between, same, failed = [], [], [0.0], 0, {}
+    for i, (frame, _data) in enumerate(frames):
+        verdict, q_double, ids_double = double[i]
+        if not (verdict["solved"] and not verdict["wrong"]):
+            continue
+        if loop is None:
+            q, ids = q_double, ids_double
+        else:
+            out = loop["results"][(str(i), method)][0]
+            if out["status"] != 0:
+                failed[out["status_name"]] = failed.get(out["status_name"], 0) + 1
+                continue
+            q, ids = out["q"], [tuple(m) for m in out["matches"]]
+        same += ids == ids_double
+        e = attitude_error_arcsec(q, frame.q)
+        cross += [e["x"], e["y"]]
+        roll.append(e["roll"])
+        between.append(regress.rotation_angle(q, q_double) * 206264.806)
+    return {"right": len(roll), "failed": failed, "same": same, "cross": rms(cross),
+            "roll": rms(roll), "between": max(between)}
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()

@@ -1,0 +1,200 @@
+"""The flight firmware as the STM32F401 runs it: heap, time and flash, measured on MicroPython
+1.27's unix port built 32-bit with single-precision floats and the firmware frozen
+(``lodestar.regress.unixport``), against a baseline revision built the same way in the same run.
+
+    .venv/bin/python benchmarks/bench_mcu.py [--baseline REV] [--repeats 3]
+
+* **heap**: per method and camera, the smallest heap (2 KiB steps) with which the regression
+  packets, one after another in one process with the camera's database open, give the
+  recorded results; and the largest live peak of one solve per packet class (rest and moving
+  lost-in-space, tracking), baseline beside current.
+* **time**: per packet class and method, the wall time of ``StarTracker.process`` at a 64 KiB
+  heap (best of ``--repeats``; the collector's work included) and the stage times of the
+  slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz, scaled by
+  a published calibration: the Leibniz-series loop of "Float Speed: Espruino Pico vs
+  Pyboard" (Espruino forum, 23 December 2017: 1,000,000 iterations took 26 s on a pyboard,
+  STM32F405 at 168 MHz), run here on the same build, times 168/84 for the clock.  An
+  estimate: the pyboard ran a 2017 MicroPython (slower than 1.27, so the estimate errs high)
+  and the scaling by clock ignores flash wait states.
+* **flash**: the frozen firmware's bytecode (``mpy-cross`` of the build) and the estcube2
+  database of each method, with where each lives.
+
+Needs MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or ``../shared``) and git.
+"""
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from lodestar.ground.cache import default_cache_dir
+from lodestar.ground.database import build_database
+from lodestar.regress import replay as regress
+from lodestar.regress import unixport
+from lodestar.sim import presets
+
+REPO = Path(__file__).resolve().parents[1]
+BASELINE = "1118c7c"
+"""The firmware before the heap work of issue 16."""
+HEAP = 64 * 1024
+PYBOARD_CAL_S = 26.0
+PYBOARD_MHZ = 168.0
+F401_MHZ = 84.0
+CALIBRATION = """
+import time
+iterations = 1000000
+x = 1
+pi = 1
+t0 = time.ticks_us()
+for i in range(2, iterations + 2):
+    x = x * -1
+    pi = pi + (x / (2 * i - 1))
+pi = pi * 4
+print(time.ticks_diff(time.ticks_us(), t0), pi)
+"""
+
+
+def packet_class(case):
+    """``tracking`` (a prior given), ``bad packet`` (a decoder status), ``moving`` (a body
+    rate given) or ``rest``."""
+    if case["inputs"].get("prior") is not None:
+        return "tracking"
+    if 1 <= case["expected"]["pyramid"]["status"] <= 7:
+        return "bad packet"
+    omega = case["inputs"].get("omega")
+    return "moving" if omega and any(omega) else "rest"
+
+
+def build(checkout, out_dir):
+    script = unixport.build_script(REPO)
+    if script is None:
+        sys.exit(f"bench_mcu: no MicroPython build script (set {unixport.BUILD_ENV})")
+    return unixport.build(script, REPO / "manifest.py", out_dir, "float32", checkout=checkout)
+
+
+def heap_table(binaries, manifest, db_files):
+    print("\n## Heap (32-bit float32, frozen): smallest working heap and live peak, KiB")
+    print("| method | camera | smallest heap, baseline -> now | live peak rest / moving / "
+          "tracking, baseline -> now |")
+    print("|---|---|---|---|")
+    for method in manifest["methods"]:
+        for camera in manifest["cameras"]:
+            runs = [(c, method) for c in manifest["cases"] if c["camera"] == camera]
+            cells = []
+            for binary in binaries:
+                low = unixport.min_heap(binary, manifest, regress.DEFAULT_SET, db_files, runs)
+                loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
+                                            runs, 4 << 20, peak=True)
+                peaks = {}
+                for case, _ in runs:
+                    cls = packet_class(case)
+                    peaks[cls] = max(peaks.get(cls, 0),
+                                     loop["results"][(case["name"], method)][1])
+                cells.append((low, peaks))
+            (low0, p0), (low1, p1) = cells
+            peak_text = " / ".join(f"{p0[k] / 1024:.1f} -> {p1[k] / 1024:.1f}" if k in p1
+                                   else "-" for k in ("rest", "moving", "tracking"))
+            print(f"| {method} | {camera} | {low0 / 1024:.0f} -> {low1 / 1024:.0f} | "
+                  f"{peak_text} |")
+
+
+def calibrate(binary, repeats):
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "cal.py"
+        script.write_text(CALIBRATION)
+        best = None
+        for _ in range(repeats):
+            out = subprocess.run([str(binary), str(script)], capture_output=True, text=True,
+                                 check=True).stdout.split()
+            us = int(out[0])
+            best = us if best is None else min(best, us)
+    return best / 1e6
+
+
+def time_table(binary, manifest, db_files, repeats):
+    cal_s = calibrate(binary, repeats)
+    scale = PYBOARD_CAL_S / cal_s * PYBOARD_MHZ / F401_MHZ
+    print(f"\n## Time: calibration loop {cal_s:.3f} s here, {PYBOARD_CAL_S:.0f} s on a pyboard "
+          f"(168 MHz): F401 estimate = time here x {scale:.1f}")
+    print("| method | class | solves | here p50 / p95 / max, ms | F401 estimate p50 / p95 / "
+          "max, ms | slowest solve's stages here, ms |")
+    print("|---|---|---|---|---|---|")
+    for method in manifest["methods"]:
+        runs = [(c, method) for c in manifest["cases"]]
+        best = {}
+        for _ in range(repeats):
+            for camera in manifest["cameras"]:
+                part = [r for r in runs if r[0]["camera"] == camera]
+                loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
+                                            part, HEAP, timing=True)
+                for key, times in loop["times"].items():
+                    if key not in best or times["process"] < best[key]["process"]:
+                        best[key] = times
+        for cls in ("rest", "moving", "tracking"):
+            cases = [c for c, _ in runs if packet_class(c) == cls]
+            ms = sorted(best[(c["name"], method)]["process"] / 1000 for c in cases)
+            if not ms:
+                continue
+            p95 = ms[min(len(ms) - 1, int(round(0.95 * (len(ms) - 1))))]
+            slowest = max(cases, key=lambda c: best[(c["name"], method)]["process"])
+            stages = best[(slowest["name"], method)]
+            stage_text = ", ".join(f"{k} {v / 1000:.0f}" for k, v in stages.items()
+                                   if k not in ("process", "total"))
+            print(f"| {method} | {cls} | {len(ms)} | {statistics.median(ms):.0f} / {p95:.0f} / "
+                  f"{ms[-1]:.0f} | {statistics.median(ms) * scale:.0f} / {p95 * scale:.0f} / "
+                  f"{ms[-1] * scale:.0f} | {stage_text} |")
+
+
+def flash_table(out_dir):
+    mpy_cross = next(Path(out_dir).glob("micropython-*/mpy-cross/build/mpy-cross"))
+    image = Path(out_dir) / "mcu-image"
+    total = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for py in sorted(image.rglob("*.py")):
+            mpy = Path(tmp) / (py.stem + ".mpy")
+            subprocess.run([str(mpy_cross), "-march=armv7emsp", "-o", str(mpy), str(py)],
+                           check=True)
+            total += mpy.stat().st_size
+    print("\n## Flash")
+    print("| item | bytes | where |")
+    print("|---|---|---|")
+    print(f"| firmware + contract, frozen bytecode (mpy-cross, armv7emsp) | {total:,} | "
+          "MCU internal flash (512 KiB, with MicroPython itself) |")
+    camera = presets.load_preset("estcube2")
+    for method in ("pyramid", "triangle", "hashing"):
+        size = len(build_database(camera=camera, method=method))
+        print(f"| estcube2 database, {method} | {size:,} | F-RAM (512 KiB) behind the FPGA, "
+              "or internal flash when it fits beside the firmware |")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--baseline", default=BASELINE, help="git revision to compare with")
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    db_files = regress.database_files(manifest)
+    cache = default_cache_dir() / "micropython"
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        base_tree = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-q", "--detach",
+                        str(base_tree), args.baseline], check=True)
+        try:
+            baseline = build(base_tree, default_cache_dir() / "micropython-baseline")
+        finally:
+            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
+                            str(base_tree)], check=True)
+    current = build(None, cache)
+    print(f"# bench_mcu: baseline {args.baseline} -> working tree; builds "
+          f"{time.perf_counter() - t0:.0f} s")
+    heap_table((baseline, current), manifest, db_files)
+    time_table(current, manifest, db_files, args.repeats)
+    flash_table(cache)
+
+
+if __name__ == "__main__":
+    main()
