@@ -7,7 +7,6 @@ import sys
 
 from lodestar import contract as C
 from lodestar.firmware import starid
-from lodestar.ground import flight as flightsolve
 from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
@@ -18,7 +17,7 @@ from lodestar.ground.imagesolve import (
     solve_image,
     write_annotated,
 )
-from lodestar.ground.solve import camera_fov_deg
+from lodestar.ground.solve import DEFAULT_DENSITY, camera_fov_deg
 from lodestar.ground.wcs import header_bytes, wcs_header
 from lodestar.sim.presets import PRESETS
 
@@ -50,8 +49,10 @@ def add_parser(sub):
     det.add_argument("--ksigma", type=float, default=DEFAULT_KSIGMA,
                      help="local threshold offset in noise sigmas")
     det.add_argument("--min-pixels", type=int, default=DEFAULT_MIN_PIXELS)
-    det.add_argument("--mag", type=float, default=flightsolve.DEFAULT_MAX_MAG,
-                     help="faintest catalogue star (V) of the database")
+    det.add_argument("--mag", type=float, default=None,
+                     help="every catalogue star to this V in the database (default: about "
+                          f"{DEFAULT_DENSITY['verification_stars_per_fov']} stars per field, "
+                          "as deep as the field needs)")
     det.add_argument("--tolerance", type=float, default=None, metavar="PX",
                      help="match tolerance, px (default max(2.5, FOV/1000))")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
