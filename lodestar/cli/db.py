@@ -7,6 +7,7 @@ from lodestar.contract import stardb
 from lodestar.firmware.database import DatabaseError
 from lodestar.ground.database import build_database, describe
 from lodestar.ground.files import write_atomic
+from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
 
 
@@ -21,7 +22,16 @@ def add_parser(sub):
     src.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view")
     b.add_argument("--aspect", type=float, default=4 / 3,
                    help="width/height with --fov (default 4/3)")
-    b.add_argument("--mag", type=float, default=6.0, help="limiting V magnitude")
+    b.add_argument("--mag", type=_magnitude, default=None,
+                   help="limiting V magnitude (default 6, with --density none; 'none': the "
+                        "whole catalogue)")
+    depth = b.add_mutually_exclusive_group()
+    depth.add_argument("--density", nargs=2, type=float, metavar=("V", "P"),
+                       help="about V stars (star table) and P pattern stars per field, as "
+                            "deep as each region needs, instead of every star to --mag")
+    depth.add_argument("--flight", action="store_true",
+                       help="the flight database: V <= 6 at the flight density "
+                            "(lodestar.ground.flight.FLIGHT_DENSITY, docs/stardb.md)")
     b.add_argument("--method", nargs="+", default=["pyramid"],
                    choices=stardb.METHODS,
                    help="identification method(s) the image serves (default: pyramid)")
@@ -42,15 +52,37 @@ def _print_db(info):
     print(f"{'total':>16}: {info['total_bytes']} B = {info['total_bytes'] / 1024:.1f} KiB")
 
 
+def _magnitude(text):
+    """``--mag``: a finite number, or ``"none"``."""
+    if text.lower() == "none":
+        return "none"
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"--mag must be a finite magnitude or none, got {text}")
+    return value
+
+
 def _run_db_build(args):
+    mag = None if args.mag == "none" else args.mag
+    if args.flight:
+        if args.mag is not None:
+            raise ValueError("--flight has its own magnitude limit (V <= 6): drop --mag")
+        depth = dict(FLIGHT_DENSITY, mag_limit=DEFAULT_MAX_MAG)
+    elif args.density is not None:
+        depth = {"verification_stars_per_fov": args.density[0],
+                 "pattern_stars_per_fov": args.density[1], "mag_limit": mag}
+    elif args.mag == "none":
+        raise ValueError("--mag none needs --density (the whole catalogue in every field)")
+    else:
+        depth = {"mag_limit": 6.0 if mag is None else mag}
     if args.fov is not None:
         if not 0 < args.fov < 180 or not math.isfinite(args.fov):
             raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
-        image = build_database(fov_h_deg=args.fov, aspect=args.aspect, mag_limit=args.mag,
-                               methods=tuple(args.method))
+        image = build_database(fov_h_deg=args.fov, aspect=args.aspect,
+                               methods=tuple(args.method), **depth)
     else:
         image = build_database(camera=load_preset(args.preset or DEFAULT_PRESET),
-                               mag_limit=args.mag, methods=tuple(args.method))
+                               methods=tuple(args.method), **depth)
     write_atomic(args.out, image)
     print(f"wrote {args.out}")
     _print_db(describe(image))

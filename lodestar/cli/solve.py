@@ -7,8 +7,7 @@ import sys
 
 from lodestar import contract as C
 from lodestar.firmware import starid
-from lodestar.ground import flight as flightsolve
-from lodestar.ground.files import check_output
+from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
     DEFAULT_MIN_PIXELS,
@@ -18,8 +17,11 @@ from lodestar.ground.imagesolve import (
     solve_image,
     write_annotated,
 )
-from lodestar.ground.solve import camera_fov_deg
+from lodestar.ground.solve import DEFAULT_DENSITY, camera_fov_deg
+from lodestar.ground.wcs import header_bytes, wcs_header
 from lodestar.sim.presets import PRESETS
+
+WCS_SUFFIXES = (".wcs", ".fits", ".fit")
 
 
 def add_parser(sub):
@@ -47,20 +49,28 @@ def add_parser(sub):
     det.add_argument("--ksigma", type=float, default=DEFAULT_KSIGMA,
                      help="local threshold offset in noise sigmas")
     det.add_argument("--min-pixels", type=int, default=DEFAULT_MIN_PIXELS)
-    det.add_argument("--mag", type=float, default=flightsolve.DEFAULT_MAX_MAG,
-                     help="faintest catalogue star (V) of the database")
+    det.add_argument("--mag", type=float, default=None,
+                     help="every catalogue star to this V in the database (default: about "
+                          f"{DEFAULT_DENSITY['verification_stars_per_fov']} stars per field, "
+                          "as deep as the field needs)")
     det.add_argument("--tolerance", type=float, default=None, metavar="PX",
                      help="match tolerance, px (default max(2.5, FOV/1000))")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
+    p.add_argument("--wcs", metavar="FILE.wcs",
+                   help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
+                        ".wcs, .fits or .fit)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
 
 def run(args):
     """The ``solve`` command: 0 when solved, 1 when not (reason on stderr), 2 for bad input
-    or an annotated picture that cannot be written (after the solution is printed)."""
+    or an annotated picture or WCS file that cannot be written (after the solution is
+    printed).  No WCS file is written for a frame that is not solved."""
     if args.annotate:
         check_output(args.annotate, (".png",), inputs=[args.image], what="--annotate")
+    if args.wcs:
+        check_output(args.wcs, WCS_SUFFIXES, inputs=[args.image], what="--wcs")
     image = read_image(args.image, args.bits, args.bin)
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
@@ -82,6 +92,15 @@ def run(args):
         except OSError as exc:
             failure = f"--annotate {args.annotate}: {exc}"
             report["annotated"] = None
+    if args.wcs and res.ok:
+        try:
+            header, residual = wcs_header(res.q, camera, image.frame.shape[1],
+                                          image.frame.shape[0], image.bin)
+            write_atomic(args.wcs, header_bytes(header))
+            report["wcs"] = {"file": args.wcs, "sip_residual_px": residual}
+        except (OSError, ValueError) as exc:
+            failure = f"--wcs {args.wcs}: {exc}"
+            report["wcs"] = None
     if args.json:
         print(json.dumps(report, indent=1))
     else:

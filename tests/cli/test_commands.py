@@ -139,6 +139,30 @@ def test_db_build_and_info(tmp_path, capsys):
     assert main(["db", "build", "--fov", "0", "-o", str(out)]) == 2
 
 
+def test_db_build_by_density(tmp_path, capsys):
+    """``--density V P`` (as deep as each region needs with ``--mag none``) and ``--flight``
+    (the flight database, within the 256 KiB budget); ``--mag none`` alone or with
+    ``--flight`` is refused."""
+    from lodestar.firmware.database import Database
+    from lodestar.ground.flight import FLIGHT_DENSITY
+    out = tmp_path / "dense.bin"
+    assert main(["db", "build", "--fov", "30", "--density", "20", "8", "--mag", "none",
+                 "-o", str(out)]) == 0
+    db = Database(out.read_bytes())
+    assert db.mag_limit > 8.0                   # past the shipped catalogue where sparse
+    per_fov = db.n_stars * (30 * 22.6) / 41253      # the sky holds 41,253 square degrees
+    assert 16 < per_fov < 24, per_fov
+    flight = tmp_path / "flight.bin"
+    assert main(["db", "build", "--flight", "-o", str(flight)]) == 0
+    db = Database(flight.read_bytes())
+    assert flight.stat().st_size <= 256 * 1024 and db.mag_limit == 6.0
+    assert db.pattern_per_region == FLIGHT_DENSITY["pattern_stars_per_fov"]
+    capsys.readouterr()
+    assert main(["db", "build", "--fov", "20", "--mag", "none", "-o", str(out)]) == 2
+    assert "needs --density" in capsys.readouterr().err
+    assert main(["db", "build", "--flight", "--mag", "5", "-o", str(out)]) == 2
+
+
 def _minimal_args(command):
     return {"goldenset": ["goldenset", "small", "--out", "x"], "db": ["db", "info", "x"],
             "solve": ["solve", "x.png"], "cosim": ["cosim", "x.json"],

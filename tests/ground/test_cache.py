@@ -38,3 +38,22 @@ def test_a_file_of_another_field_under_the_key_is_rebuilt(tmp_path, monkeypatch)
     db, _ = cache_module.load_database(20.0, 15.0, 4.5, cache_dir=tmp_path)
     assert math.isclose(db.fov_h, math.radians(20.0), rel_tol=1e-6)   # the file was replaced
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_density_databases_have_their_own_key(tmp_path, monkeypatch):
+    """The density selection is part of the key; a cached file of another selection under
+    the key's name is rebuilt; ``max_mag`` None (the whole catalogue) has a key too."""
+    dense = {"verification_stars_per_fov": 20, "pattern_stars_per_fov": 6}
+    plain = cache_module.cache_key(20.0, 15.0, 6.0, "pyramid")
+    keyed = cache_module.cache_key(20.0, 15.0, 6.0, "pyramid", dense)
+    assert keyed != plain
+    assert keyed != cache_module.cache_key(20.0, 15.0, 6.0, "pyramid",
+                                           dict(dense, pattern_stars_per_fov=7))
+    assert cache_module.cache_key(20.0, 15.0, None, "pyramid", dense) != keyed
+    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    db, path = cache_module.load_database(20.0, 15.0, 6.0, cache_dir=tmp_path, density=dense)
+    assert db.pattern_per_region == 6 and db.n_stars < 5041
+    path.write_bytes(build_database(fov_h_deg=20.0, fov_v_deg=15.0, mag_limit=6.0))
+    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    again, _ = cache_module.load_database(20.0, 15.0, 6.0, cache_dir=tmp_path, density=dense)
+    assert again.pattern_per_region == 6 and again.n_stars == db.n_stars

