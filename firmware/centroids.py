@@ -44,6 +44,9 @@ REASONS = ("empty", "saturated", "inconsistent", "hot_pixel", "cosmic_ray", "fra
 """Rejection reasons, the keys of the ``rejected`` dict, in the order the tests apply."""
 
 _INF = float("inf")
+_PRUNE_SLACK = 8
+"""Stars beyond ``max_stars`` that :func:`extract` holds before it drops the faintest (a
+sort of ``max_stars + _PRUNE_SLACK`` stars every ``_PRUNE_SLACK`` accepted blobs)."""
 
 
 class Star(object):
@@ -347,7 +350,8 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     ``"border"`` with a ``border``); ``len(stars) + sum(rejected.values())`` is the number of
     records.  The parameters and the order of the tests are described in
     ``docs/centroids_and_tracking.md``.  Memory: without an ``expected_smear_px`` at most
-    ``2 * max_stars`` stars are held at once.  Never raises on bad record values.
+    ``max_stars + _PRUNE_SLACK`` stars are held at once.  Never raises on bad record
+    values.
     """
     rejected = {}
     for reason in REASONS:
@@ -396,7 +400,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
             central.append((cxx, cyy, cxy))
             if edge is not None and _on_border(rec, border):
                 edge[index] = True
-        elif max_stars is not None and len(stars) >= 2 * max_stars:
+        elif max_stars is not None and len(stars) >= max_stars + _PRUNE_SLACK:
             _keep_brightest(stars, max_stars, rejected)
     if joining and len(stars) > 1:
         n_before = len(stars)

@@ -63,10 +63,19 @@ def _unpack_header(data):
     return header
 
 
-def record(data, index):
+def record(data, index, into=None):
     """Record ``index`` (0-based) of a packet :func:`check` accepted, as a
-    ``contract.BlobRecord`` (decoded on each call: the flight pipeline keeps no record list)."""
+    ``contract.BlobRecord`` (decoded on each call: the flight pipeline keeps no record list).
+    ``into``: a ``BlobRecord`` to overwrite and return instead of a new one (reading record
+    after record into one object allocates nothing but large moments)."""
     base = C.HEADER_BYTES + index * C.RECORD_BYTES
+    if into is not None:
+        i = 0
+        for first, last, head_mask, tail_drop in _RECORD_PLAN:
+            setattr(into, C.RECORD_NAMES[i], _field(data, base, first, last, head_mask,
+                                                    tail_drop))
+            i += 1
+        return into
     values = [0] * _N_RECORD_FIELDS
     i = 0
     for first, last, head_mask, tail_drop in _RECORD_PLAN:
@@ -216,8 +225,6 @@ def check(data):
         return S.BAD_INPUT, None, \
             "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
                 type(data).__name__)
-    if isinstance(data, memoryview):
-        data = bytes(data)
     if len(data) < _MIN_BYTES:
         return S.PACKET_TRUNCATED, None, \
             "truncated: {} bytes, a packet needs at least {}".format(len(data), _MIN_BYTES)
@@ -229,8 +236,10 @@ def check(data):
     if reason:
         return S.PACKET_BAD_HEADER, None, reason
     limits = moment_limits(header["pixel_bits"])
+    rec = None
     for index in range(header["n_records"]):
-        reason = record_problem(record(data, index), header, limits)
+        rec = record(data, index, rec)
+        reason = record_problem(rec, header, limits)
         if reason:
             return S.PACKET_BAD_RECORD, None, "record {}: {}".format(index, reason)
     return S.OK, header, ""

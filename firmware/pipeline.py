@@ -247,6 +247,11 @@ class StarTracker:
             self._fail(S.DATABASE_UNSUPPORTED,
                        "the database does not serve method " + repr(st.method))
             return
+        # per-star buffers of process(), allocated with the tracker (before any frame has
+        # fragmented the heap) and reused: record index, centroid and flux of each star
+        self._index = array("H", range(st.max_stars))
+        self._xy = _geo.zeros(2 * st.max_stars)
+        self._flux = _geo.zeros(st.max_stars)
         fov_h = _camera_fov_h(cam)
         if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
             self._fail(S.DATABASE_MISMATCH, "database horizontal FOV " + str(db.fov_h) +
@@ -604,17 +609,15 @@ class StarTracker:
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
-        # the result needs of each used star its record index and centroid only: the star
+        # the rest needs of each used star its record index, centroid and flux only: the star
         # objects are dropped before the identification (docs/firmware.md, Memory)
-        n = len(used)
-        fluxes = [stars[i].flux for i in used]
-        index = array("H", range(n))
-        xy = _geo.zeros(2 * n)
-        for o in range(n):
+        index, xy, fluxes = self._index, self._xy, self._flux
+        for o in range(len(used)):
             s = stars[used[o]]
             index[o] = s.index
             xy[2 * o] = s.x
             xy[2 * o + 1] = s.y
+            fluxes[o] = s.flux
         stars = used = None
         _collect()
         res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
@@ -629,9 +632,12 @@ class StarTracker:
 
 
 def _records(packet_bytes, n):
-    """The ``n`` records of a checked packet one at a time (never a list of them)."""
+    """The ``n`` records of a checked packet one at a time, in one object overwritten for
+    each (the consumer keeps no record)."""
+    rec = None
     for i in range(n):
-        yield _packet.record(packet_bytes, i)
+        rec = _packet.record(packet_bytes, i, rec)
+        yield rec
 
 
 def _note(res, text):

@@ -36,15 +36,27 @@ _HEAD = 512
 
 def _side():
     """The buffers of one side's index, ``(head, st, nxt)`` (``array('H')``, 4 *
-    :data:`CHUNK` + 2 * :data:`_HEAD` bytes), allocated once per search and reused by every
-    :meth:`_Search._index`: an MCU heap keeps no hole of a freed index."""
+    :data:`CHUNK` + 2 * :data:`_HEAD` bytes)."""
     return (array("H", range(_HEAD)), array("H", range(2 * CHUNK)),
             array("H", range(2 * CHUNK)))          # sized by the ranges: no temporary
 
 
+DEFAULT_MAX_STARS = 16
+"""Observed stars a search uses for patterns by default (:func:`identify`)."""
+
+_SIDES = (_side(), _side())
+_ANGLES = G.zeros(DEFAULT_MAX_STARS * DEFAULT_MAX_STARS)
+_RANGES = array("i", range(2 * DEFAULT_MAX_STARS * DEFAULT_MAX_STARS))
+"""A search's buffers (the two sides' pair index, the observed angles, the pair ranges:
+6 KiB), allocated when the method is imported (when a tracker is made, before any frame)
+and reused by every search of at most :data:`DEFAULT_MAX_STARS` stars: a search then needs
+no large block of a heap its frames have fragmented."""
+
+
 def _observed_angles(b, n):
-    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``."""
-    ang = G.zeros(n * n)
+    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``
+    (:data:`_ANGLES` when it is large enough)."""
+    ang = _ANGLES if n <= DEFAULT_MAX_STARS else G.zeros(n * n)
     for i in range(n):
         for j in range(i + 1, n):
             a = G.angle(b[i], b[j])
@@ -60,10 +72,10 @@ class _Search(Search):
         self.n = len(b) if len(b) < max_stars else max_stars
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
-        self.ranges = array("i", range(2 * self.n * self.n))
-        for c in range(len(self.ranges)):
+        size = 2 * self.n * self.n
+        self.ranges = _RANGES if self.n <= DEFAULT_MAX_STARS else array("i", range(size))
+        for c in range(size):
             self.ranges[c] = -1                     # not queried yet
-        self.sides = (_side(), _side())
 
     def ptol(self, i, j):
         """Tolerance (rad) of the observed angle between stars ``i`` and ``j``."""
@@ -132,10 +144,10 @@ class _Search(Search):
         found = []
         for lo in range(s_ij[0], s_ij[1], CHUNK):
             ij = self._index(lo, lo + CHUNK if lo + CHUNK < s_ij[1] else s_ij[1],
-                             self.sides[0])
+                             _SIDES[0])
             for lo2 in range(s_jk[0], s_jk[1], CHUNK):
                 jk = self._index(lo2, lo2 + CHUNK if lo2 + CHUNK < s_jk[1] else s_jk[1],
-                                 self.sides[1])
+                                 _SIDES[1])
                 self._join(ij, jk, s_ik, (lo - s_ij[0]) << 1, found)
         found.sort()
         return [t[1:] for t in found]
@@ -232,7 +244,7 @@ class _Search(Search):
         return accepted
 
 
-def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
+def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MAX_STARS,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
              max_work=DEFAULT_MAX_WORK):
     """Pyramid identification; returns a :class:`.search.Solution`.

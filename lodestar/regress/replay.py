@@ -15,7 +15,7 @@ from lodestar.ground import cache
 from lodestar.ground import solve as ground_solve
 from lodestar.ground.database import build_database
 from lodestar.ground.files import write_atomic
-from lodestar.ground.flight import DEFAULT_MAX_MAG
+from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.regress import mcu
 from lodestar.regress import micropython as regress_micropython
 
@@ -47,18 +47,22 @@ def sha256(data):
 # --------------------------------------------------------------------------------------
 
 def database_recipe(fw_camera):
-    """The ``build_database`` arguments of the set's database for a firmware camera."""
+    """The ``build_database`` arguments of the set's database for a firmware camera: the
+    flight selection (:data:`lodestar.ground.flight.FLIGHT_DENSITY`) serving every method."""
 
     fov_h, fov_v = ground_solve.camera_fov_deg(fw_camera)
-    return {"fov_h_deg": round(fov_h, 4), "fov_v_deg": round(fov_v, 4),
-            "mag_limit": DEFAULT_MAX_MAG, "methods": list(METHODS)}
+    return dict({"fov_h_deg": round(fov_h, 4), "fov_v_deg": round(fov_v, 4),
+                 "mag_limit": DEFAULT_MAX_MAG, "methods": list(METHODS)}, **FLIGHT_DENSITY)
 
 
 def build_image(recipe):
-    """The database image (bytes) of a recipe."""
+    """The database image (bytes) of a recipe (a set recorded before the flight selection
+    has none: every star to the magnitude limit)."""
 
+    density = {k: recipe[k] for k in FLIGHT_DENSITY if k in recipe}
     return build_database(fov_h_deg=recipe["fov_h_deg"], fov_v_deg=recipe["fov_v_deg"],
-                          mag_limit=recipe["mag_limit"], methods=tuple(recipe["methods"]))
+                          mag_limit=recipe["mag_limit"], methods=tuple(recipe["methods"]),
+                          **density)
 
 
 def _cache_dir(cache_dir):

@@ -107,6 +107,7 @@ if PEAK:
     gc.threshold(512)
 elif THRESHOLD:
     gc.threshold(THRESHOLD)
+BUF = bytearray(PACKET_BYTES)           # one packet buffer, reused (as the SPI loop's)
 DB = None
 DB_NAME = None
 CASES = open(CASE_FILE)
@@ -127,7 +128,7 @@ while True:
     if TIMING:
         TRACKER.settings.clock = time.ticks_us
     F = open(PACKET, "rb")
-    BYTES = F.read()
+    BYTES = memoryview(BUF)[:F.readinto(BUF)]
     F.close()
     F = CAMERA = None
     if PEAK:
@@ -155,8 +156,9 @@ print("DONE")
 def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=False,
                 threshold=None, timing=False, timeout=900):
     """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
-    ``binary`` process with a ``heapsize``-byte heap, a new tracker per run and only the
-    current camera's database open.  ``peak``: also measure each solve's live peak above
+    ``binary`` process with a ``heapsize``-byte heap, a new tracker per run, only the current
+    camera's database open and one packet buffer (sized for the longest packet, read into
+    and passed as a ``memoryview``, as the flight SPI loop does).  ``peak``: also measure each solve's live peak above
     the heap before it (``gc.threshold(512)``; ``gc.live_peak()`` of MicroPython's
     ``build.sh``), which overrides the firmware's collector setting.  ``threshold``: a
     ``gc.threshold`` (bytes) the loop sets before its first run (None: the firmware's).
@@ -167,6 +169,7 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     {database: bytes live with it open}, "error": output tail}``; a run that ran out of heap
     outside the firmware leaves ``finished`` false."""
     set_dir = Path(set_dir)
+    longest = max([(set_dir / case["packet"]).stat().st_size for case, _ in runs] + [1])
     with tempfile.TemporaryDirectory() as tmp:
         case_file = Path(tmp) / "cases.jsonl"
         with open(case_file, "w", encoding="utf-8") as f:
@@ -181,10 +184,10 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
         script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
                           f"CASE_FILE = {literal(str(case_file))}\n"
                           f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n"
-                          f"TIMING = {timing!r}\n" + _LOOP, encoding="utf-8")
+                          f"TIMING = {timing!r}\nPACKET_BYTES = {longest}\n" + _LOOP, encoding="utf-8")
         try:
             proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
-                                  capture_output=True, text=True, timeout=timeout)
+                                  capture_output=True, text=True, timeout=timeout, cwd=tmp)
         except subprocess.TimeoutExpired:
             raise MicroPythonError(f"the flight loop ran more than {timeout} s") from None
     out = {"finished": False, "results": {}, "times": {}, "resident": {},
@@ -197,7 +200,7 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
                 out["times"][(case, method)] = times
         elif line.startswith("RESIDENT "):
             name, live = json.loads(line[len("RESIDENT "):])
-            out["resident"][name] = live
+            out["resident"].setdefault(name, live)      # at its first opening
     out["finished"] = proc.returncode == 0 and "DONE" in proc.stdout.splitlines()
     return out
 
