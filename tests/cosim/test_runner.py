@@ -134,3 +134,22 @@ def test_cli_bad_input(tmp_path, capsys):
     (tmp_path / "cfg.json").write_text(json.dumps({"width": 16, "height": 8}))
     assert main(["cosim", str(tmp_path / "f.npy"), "--config", str(tmp_path / "cfg.json")]) == 2
     assert "does not match" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_gate_level_golden_set_bit_exact(capsys):
+    """Every committed golden frame through the Yosys netlist (one build per geometry,
+    ~1.5 min each), back to back per geometry, bit-exact with the golden model."""
+    from pathlib import Path
+
+    from lodestar.sim.goldenset import load_frame_doc
+
+    by_geometry = {}
+    for path in sorted(Path(GOLDEN).glob("*.json")):
+        cfg = load_frame_doc(path)[2]
+        by_geometry.setdefault((cfg.width, cfg.height, cfg.pixel_bits), []).append(str(path))
+    assert len(by_geometry) >= 2
+    for paths in by_geometry.values():
+        assert main(["cosim", "--gate-level", *paths, "--json"]) == 0
+        report = json.loads(capsys.readouterr().out)
+        assert len(report) == len(paths) and all(r["match"] for r in report)
