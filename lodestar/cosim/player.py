@@ -1,11 +1,11 @@
 """cocotb test module of ``lodestar.cosim``: clock the harness and let it play its stimulus.
 
-The harness (``harness.sv``) runs its own clock, reads the stimulus and writes the
-output itself; this test only raises ``start`` and waits for ``done``.  It polls ``done``
-every ``POLL_NS`` of simulated time instead of awaiting its edge: a value-change callback
-is checked by Verilator's VPI after every time step, which costs more than a sixth of
-the playback.  The harness stops at the end of the stimulus file, so the wait is bounded;
-the poll adds at most ``POLL_NS`` (10,000 clocks) of the detector held in reset.
+The harness (``harness.sv``) runs its own clock, reads the stimulus and writes the output
+itself; this test only raises ``start`` and waits for ``done``. It polls ``done`` every
+``POLL_NS`` of simulated time instead of awaiting its edge: a value-change callback is
+compared by Verilator's VPI after every time step (~5 % of the playback in ``perf``). The
+harness stops at the end of the stimulus file, so the wait is bounded; the poll adds at most
+``POLL_NS`` (10,000 clocks) of the detector held in reset.
 """
 
 import cocotb
