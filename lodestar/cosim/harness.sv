@@ -29,9 +29,27 @@ module cosim_harness #(
     input start /*verilator public_flat_rw*/,
     output reg done /*verilator public_flat_rw*/
 );
-    // the clock runs inside the simulation (Verilator --timing): no Python per clock
+    // The clock runs inside the simulation (Verilator --timing): no Python per clock, and
+    // STEP_CLOCKS clocks per 10 ns time step, because cocotb's main loop runs Verilator's
+    // VPI bookkeeping on every time step (about 30 % of the playback at two steps per clock).
+    // A rising edge is followed, once the flip-flops have taken their values (`phase`
+    // changes in the NBA region), by the falling edge, then by the next rising edge after
+    // a zero delay (the inactive region, when all combinational logic has settled).
+    localparam STEP_CLOCKS = 1000;
     reg clk = 0;
-    always #5 clk = ~clk;
+    reg phase = 0;
+    always @(posedge clk) phase <= ~phase;
+    initial begin
+        forever begin
+            repeat (STEP_CLOCKS) begin
+                clk = 1;
+                @(phase);
+                clk = 0;
+                #0;
+            end
+            #10;
+        end
+    end
 
     reg [63:0] word;
     reg running;
