@@ -60,32 +60,37 @@ class Star(object):
     how far (px) the star's mean position may lie from the centroid along the expected
     smear, the half of the track the detector did not see (``docs/centroids_and_tracking.md``; 0
     without a smear).
+
+    The values are one tuple read through properties (``unseen`` alone is an attribute):
+    MicroPython then allocates a star in a few blocks of fixed size instead of growing a
+    13-entry attribute table, whose discarded tables fragment a small heap.
     """
 
-    __slots__ = ("x", "y", "flux", "sigma_major", "sigma_minor", "elongation", "orientation",
-                 "n", "nsat", "peak", "index", "parts", "unseen")
+    __slots__ = ("_v", "unseen")
 
     def __init__(self, x, y, flux, sigma_major, sigma_minor, elongation, orientation,
                  n, nsat, peak, index, parts=None):
-        self.x = x
-        self.y = y
-        self.flux = flux
-        self.sigma_major = sigma_major
-        self.sigma_minor = sigma_minor
-        self.elongation = elongation
-        self.orientation = orientation
-        self.n = n
-        self.nsat = nsat
-        self.peak = peak
-        self.index = index
-        self.parts = parts
+        self._v = (x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat,
+                   peak, index, parts)
         self.unseen = 0.0
+
+    x = property(lambda self: self._v[0])
+    y = property(lambda self: self._v[1])
+    flux = property(lambda self: self._v[2])
+    sigma_major = property(lambda self: self._v[3])
+    sigma_minor = property(lambda self: self._v[4])
+    elongation = property(lambda self: self._v[5])
+    orientation = property(lambda self: self._v[6])
+    n = property(lambda self: self._v[7])
+    nsat = property(lambda self: self._v[8])
+    peak = property(lambda self: self._v[9])
+    index = property(lambda self: self._v[10])
+    parts = property(lambda self: self._v[11])
 
     def as_tuple(self):
         """``(x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat, peak,
         index)``."""
-        return (self.x, self.y, self.flux, self.sigma_major, self.sigma_minor, self.elongation,
-                self.orientation, self.n, self.nsat, self.peak, self.index)
+        return self._v[:11]
 
     def __repr__(self):
         return ("Star(x={:.3f}, y={:.3f}, flux={}, sigma_major={:.3f}, sigma_minor={:.3f}, "

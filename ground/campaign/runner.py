@@ -195,13 +195,14 @@ def _run_local(tasks, config, workers, sink):
         for future in as_completed(futures):
             sink(*future.result())
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
         _kill_workers(pool)     # else the exit waits for the running trials to finish
+        pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown()
 
 
 def _kill_workers(pool):
+    """Kill the pool's worker processes (before ``shutdown``, which forgets them)."""
     kill = getattr(pool, "kill_workers", None)      # Python 3.14
     if kill is not None:
         kill()

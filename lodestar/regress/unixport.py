@@ -158,10 +158,11 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
     ``binary`` process with a ``heapsize``-byte heap, a new tracker per run, only the current
     camera's database open and one packet buffer (sized for the longest packet, read into
-    and passed as a ``memoryview``, as the flight SPI loop does).  ``peak``: also measure each solve's live peak above
-    the heap before it (``gc.threshold(512)``; ``gc.live_peak()`` of MicroPython's
-    ``build.sh``), which overrides the firmware's collector setting.  ``threshold``: a
-    ``gc.threshold`` (bytes) the loop sets before its first run (None: the firmware's).
+    and passed as a ``memoryview``, as the flight SPI loop does).  ``peak``: also measure
+    each solve's live peak above the heap before it (``gc.threshold(512)``;
+    ``gc.live_peak()`` of MicroPython's ``build.sh``), which overrides the firmware's
+    collector setting.  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
+    first run (None: the firmware's).
     ``timing``: also time each solve (``time.ticks_us``, the pipeline's stage ``timings``).
 
     Returns ``{"finished": bool, "results": {(case name, method): (outcome, peak bytes or
@@ -184,7 +185,8 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
         script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
                           f"CASE_FILE = {literal(str(case_file))}\n"
                           f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n"
-                          f"TIMING = {timing!r}\nPACKET_BYTES = {longest}\n" + _LOOP, encoding="utf-8")
+                          f"TIMING = {timing!r}\nPACKET_BYTES = {longest}\n" + _LOOP,
+                          encoding="utf-8")
         try:
             proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
                                   capture_output=True, text=True, timeout=timeout, cwd=tmp)

@@ -23,8 +23,8 @@ arcsec, the roll of a lohmann frame)."""
 
 HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the 32-bit float32 build
-with the firmware's own collector setting, the STM32F401's (measured: at most 64 KiB,
-Pyramid on estcube2; ``docs/firmware.md``, Memory)."""
+with the firmware's own collector setting, the STM32F401's (measured: at most 62 KiB,
+Pyramid and hashing on estcube2; ``docs/firmware.md``, Memory)."""
 
 
 def _build_script():
