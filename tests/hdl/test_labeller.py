@@ -61,7 +61,7 @@ def model_ops(mask, cap):
 def test_ops_column_by_column(seed):
     rng = np.random.default_rng(seed)
     for _ in range(6):
-        h, w = int(rng.integers(1, 9)), int(rng.integers(2, 11))
+        h, w = int(rng.integers(1, 9)), int(rng.integers(3, 11))
         mask = rng.random((h, w)) < rng.choice([0.3, 0.5, 0.6, 0.8])
         cap = int(rng.integers(1, C.max_open_blobs(w) + 1))
         got, dropped, fault = hardware_ops(mask, cap)
@@ -77,7 +77,7 @@ def test_memory_bounds():
 
 @pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
 def test_rejects_impossible_builds():
-    with pytest.raises(ValueError, match="at least 2 columns"):
-        Labeller(1, 4, 12, 1)
+    with pytest.raises(ValueError, match="at least 3 columns"):
+        Labeller(2, 4, 12, 1)
     with pytest.raises(ValueError, match="label_capacity"):
         Labeller(8, 4, 12, 0)
