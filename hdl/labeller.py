@@ -85,8 +85,6 @@ class _Held:
         self.lit = Signal(name="held_lit")
         self.data = Signal(pixel_bits, name="held_data")
         self.weight = Signal(pixel_bits, name="held_weight")
-        self.next_x = Signal(x_bits, name="held_next_x")     # x + 1 and y + 1
-        self.next_y = Signal(y_bits, name="held_next_y")
         self.first_row = Signal(name="held_first_row")       # y == 0, registered
         self.last_col = Signal(name="held_last_col")         # x == width - 1, registered
 
@@ -598,11 +596,35 @@ class Labeller(wiring.Component):
                          self._line_error.eq(0), stack.reload.eq(0)]
 
     # ---- frame sequencing --------------------------------------------------------------
+    def _input(self, m):
+        """The input beat, registered with its position checks (one clock of latency):
+        ``(beat, valid, at_origin, same_row, successor)``, the last two against the
+        previous valid beat (``successor``: the next position in raster order).  In
+        ``RUN`` every valid beat is held or ends the frame, so there the previous valid
+        beat is the held pixel, and the checks take no logic from the decision's clock."""
+        W, H = self.width, self.height
+        p, p_valid = self.pixels.payload, self.pixels.valid
+        beat = Signal(lit_layout(W, H, self.pixel_bits), name="in_beat")
+        valid, at_origin = Signal(name="in_valid"), Signal(name="in_origin")
+        same_row, successor = Signal(name="in_same_row"), Signal(name="in_successor")
+        prev_y = Signal.like(p.y, name="prev_y")
+        prev_next_x = Signal.like(p.x, name="prev_next_x")   # x + 1, y + 1
+        prev_next_y = Signal.like(p.y, name="prev_next_y")
+        prev_last = Signal(name="prev_last_col")
+        m.d.sync += [beat.eq(p), valid.eq(p_valid),
+                     at_origin.eq((p.x == 0) & (p.y == 0)), same_row.eq(p.y == prev_y),
+                     successor.eq(Mux(prev_last, (p.x == 0) & (p.y == prev_next_y),
+                                      (p.x == prev_next_x) & (p.y == prev_y)))]
+        with m.If(p_valid):
+            m.d.sync += [prev_y.eq(p.y), prev_next_x.eq(p.x + 1), prev_next_y.eq(p.y + 1),
+                         prev_last.eq(p.x == W - 1)]
+        return beat, valid, at_origin, same_row, successor
+
     def _frames(self, m):
         """Frame state machine: takes pixels at their expected positions into the held
         register, decides the virtual row, drains, and ends frames (done, faults)."""
         W, H, held = self.width, self.height, self._held
-        beat, valid = self.pixels.payload, self.pixels.valid
+        beat, valid, at_origin, same_row, expected = self._input(m)
         start, decide = self._start, self._decide
         drain = Signal(range(_DRAIN + 2))
         tag = Signal(FRAME_TAG_BITS, name="frame_tag")
@@ -610,11 +632,7 @@ class Labeller(wiring.Component):
         abort_flags = Signal(FRAME_FLAGS_BITS)
         take = Signal()               # this beat is held
         finished = Signal()
-        at_origin = (beat.x == 0) & (beat.y == 0)
-        same_row = beat.y == held.y
         row_end_held = held.valid & held.last_col  # the next pixel starts the next row
-        expected = Mux(held.last_col, (beat.x == 0) & (beat.y == held.next_y),
-                       (beat.x == held.next_x) & same_row)
         m.d.comb += [self.tag.eq(tag), self.frame_start.eq(start), self.clear.eq(start),
                      self.done_flags.eq(abort_flags),
                      # outside RUN no decision takes a lit pixel (the virtual row is dark)
@@ -687,8 +705,7 @@ class Labeller(wiring.Component):
         with m.If(take):
             m.d.sync += [held.valid.eq(1), held.x.eq(beat.x), held.y.eq(beat.y),
                          held.lit.eq(beat.lit), held.data.eq(beat.data),
-                         held.weight.eq(beat.weight), held.next_x.eq(beat.x + 1),
-                         held.next_y.eq(beat.y + 1), held.first_row.eq(beat.y == 0),
+                         held.weight.eq(beat.weight), held.first_row.eq(beat.y == 0),
                          held.last_col.eq(beat.x == W - 1)]
         with m.Elif(decide & ~(valid & expected)):
             m.d.sync += held.valid.eq(0)
