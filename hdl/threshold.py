@@ -230,8 +230,16 @@ class ThresholdUnit(wiring.Component):
         background = Mux(pos.sof_valid, Mux(local_new, 0, b_new), b_frame)
         m.d.sync += [t_frame.eq(threshold), b_frame.eq(background)]
         m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
+
+        def apply(f):
+            """``f(T, B)`` of this pixel's levels, computed for each candidate and selected
+            after (the sof's mode decision runs beside ``f``'s arithmetic: timing)."""
+            new = Mux(local_new, f(offset_sat, Const(0, pb)),
+                      Mux(use_global, f(levels.threshold, levels.background),
+                          f(self.threshold, self.background)))
+            return Mux(pos.sof_valid, new, f(t_frame, b_frame))
         return SimpleNamespace(
-            threshold=threshold, background=background, use_global=use_global,
+            threshold=threshold, use_global=use_global, apply=apply,
             window_ok=window_ok, local_new=local_new,
             local_frame=local_frame, local=Mux(pos.sof, local_new, local_frame),
             log2_window=Signal.like(self.local_log2_window, reset_less=True,
@@ -285,8 +293,10 @@ class ThresholdUnit(wiring.Component):
         m.d.comb += out.payload.eq(beat)
         value = Mux(local.valid, local.data, pos.pixel)
         above_local = local.data - local.mean
-        above = Mux(local.valid, above_local, pos.pixel - mode.background)  # weight if >= 0
-        below = mode.threshold - Mux(local.valid, above_local, pos.pixel)   # < 0: lit
+        above = Mux(local.valid, above_local,                    # weight if >= 0
+                    mode.apply(lambda t, b: pos.pixel - b))
+        below = Mux(local.valid, mode.threshold - above_local,   # < 0: lit
+                    mode.apply(lambda t, b: t - pos.pixel))
         m.d.sync += [
             out.valid.eq(fixed_valid | local.valid),
             beat.data.eq(value),
