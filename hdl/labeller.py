@@ -7,9 +7,11 @@ previous-row bitmap, node memories, stack, free slots) and then the four stages 
 decision in the model's order: push, pixel, pop, run end.
 
 Input: the threshold unit's ``out`` stream, one pixel per beat in raster order, no
-backpressure.  The decision for column ``x`` is taken when pixel ``x + 1`` arrives (it needs
-to know whether the run ends), or in the clock after the row's last pixel.  Output: one op
-per decision to the feature engine (``hdl/features.py``).
+backpressure, registered on the way in.  The decision for column ``x`` is taken when pixel
+``x + 1`` is out of that register (it needs to know whether the run ends), or in the clock
+after the row's last pixel.  No block-RAM read port drives a decision (node and stack reads
+prefetched into registers, bitmap read three columns ahead; ``hdl/DESIGN.md``).  Output:
+one op per decision to the feature engine (``hdl/features.py``).
 
 * Blanking: ``MIN_HBLANK`` idle clocks between rows; ``vblank_cycles(width)`` after a
   frame's last pixel (a virtual dark row completes the last row's blobs, then the feature
