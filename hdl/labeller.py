@@ -7,9 +7,11 @@ previous-row bitmap, node memories, stack, free slots) and then the four stages 
 decision in the model's order: push, pixel, pop, run end.
 
 Input: the threshold unit's ``out`` stream, one pixel per beat in raster order, no
-backpressure.  The decision for column ``x`` is taken when pixel ``x + 1`` arrives (it needs
-to know whether the run ends), or in the clock after the row's last pixel.  Output: one op
-per decision to the feature engine (``hdl/features.py``).
+backpressure, registered on the way in.  The decision for column ``x`` is taken when pixel
+``x + 1`` is out of that register (it needs to know whether the run ends), or in the clock
+after the row's last pixel.  No block-RAM read port drives a decision (node and stack reads
+prefetched into registers, bitmap read three columns ahead; ``hdl/DESIGN.md``).  Output:
+one op per decision to the feature engine (``hdl/features.py``).
 
 * Blanking: ``MIN_HBLANK`` idle clocks between rows; ``vblank_cycles(width)`` after a
   frame's last pixel (a virtual dark row completes the last row's blobs, then the feature
@@ -46,8 +48,8 @@ from .layouts import (
 MIN_HBLANK = 1
 """Idle clocks the labeller needs between two rows."""
 
-MIN_WIDTH = 2
-"""Narrowest frame the labeller is built for."""
+MIN_WIDTH = 3
+"""Narrowest frame the labeller is built for (the bitmap is read three columns ahead)."""
 
 _DRAIN = 6
 """Clocks from the virtual row's last decision until the feature engine is idle."""
@@ -85,13 +87,22 @@ class _Held:
         self.lit = Signal(name="held_lit")
         self.data = Signal(pixel_bits, name="held_data")
         self.weight = Signal(pixel_bits, name="held_weight")
-        self.next_x = Signal(x_bits, name="held_next_x")     # x + 1 and y + 1
-        self.next_y = Signal(y_bits, name="held_next_y")
+        self.first_row = Signal(name="held_first_row")       # y == 0, registered
+        self.last_col = Signal(name="held_last_col")         # x == width - 1, registered
 
 
 class _Stack:
     """Previous-row components straddling the scan position: ``top`` and ``second`` in
-    registers, the rest (``spilled`` entries, -2 when the stack is empty) in a memory."""
+    registers, the rest (``spilled`` entries, -2 when the stack is empty) in a memory.
+
+    Neither memory port is driven by the decision, and the read data goes straight into a
+    register: a spill (``spill_en``: ``second`` goes to entry ``spilled``) is written a
+    clock later from registers, and the memory's top entry (``spilled - 1``) is read on
+    every clock into ``read``.  In the clock after a pop (``reload``), ``refilled`` is the
+    new ``second``: ``read`` (read two clocks ago, before any stack change since: no stack
+    change follows a pop at once), unless a spill was decided one or two clocks before
+    the pop (not yet in the memory at the read), whose entry is then the memory's top
+    (explicit bypass)."""
 
     def __init__(self, m, entry, depth):
         self.top = Signal(entry, name="stack_top")
@@ -99,9 +110,22 @@ class _Stack:
         self.spilled = Signal(range(-2, depth + 1), name="stack_spilled")
         self.spilled_next = Signal.like(self.spilled, name="stack_spilled_next")
         self.reload = Signal(name="stack_reload")  # second comes from the memory this clock
+        self.spill_en = Signal(name="stack_spill")
+        self.refilled = Signal(entry, name="stack_refilled")
         m.submodules.stack = memory = Memory(shape=entry, depth=max(depth - 2, 1), init=[])
-        self.spill = memory.write_port()
-        self.refill = memory.read_port()
+        spill, refill = memory.write_port(), memory.read_port()
+        spill_addr = Signal.like(spill.addr, name="stack_spill_addr")
+        spill_data = Signal(entry, name="stack_spill_data")   # the latest spill's entry
+        spill_en = Signal(name="stack_spill_en")
+        recent = Signal(2, name="stack_spill_recent")  # spills decided 2 and 3 clocks ago
+        read = Signal(entry, name="stack_read")
+        with m.If(self.spill_en):
+            m.d.sync += [spill_addr.eq(self.spilled), spill_data.eq(self.second)]
+        m.d.sync += [spill_en.eq(self.spill_en), recent.eq(Cat(spill_en, recent[0])),
+                     read.eq(refill.data)]
+        m.d.comb += [spill.addr.eq(spill_addr), spill.data.eq(spill_data), spill.en.eq(spill_en),
+                     refill.addr.eq(self.spilled - 1),
+                     self.refilled.eq(Mux(recent.any(), spill_data, read))]
 
 
 class _FreeSlots:
@@ -153,21 +177,29 @@ class _FreeSlots:
 
 class _Nodes:
     """Node memories, two banks (the row being written, the row being read), each with a
-    flags memory and a label memory: a sequential write port, a patch port and a prefetch
-    read port.  ``flags``/``label``: the previous-row node at ``read_ptr - 1``."""
+    flags memory and a label memory: a sequential write port, a patch port and a read
+    port.  The previous row's nodes are prefetched into registers (``flags``/``label``:
+    the next node to start, ``fetched`` when it is there; one more behind it), so no read
+    port drives the decision.  A row's node 0 is also kept in registers as it is written
+    and patched, so it is there a clock after the row's last decision (one idle clock
+    between rows); nodes 1 on are read after the bank swap, when the bank is written no
+    more."""
 
     def __init__(self, m, nodes, node_bits, label, bank_written):
         flags = node_flags_layout()
         self.write_ptr = Signal(range(nodes + 1), name="node_write_ptr")
-        self.read_ptr = Signal(range(nodes + 1), name="node_read_ptr")
-        self.fetch = Signal(name="node_fetch")       # read read_ptr this clock
-        self.fetched = Signal(name="node_fetched")   # the node at read_ptr - 1 is on the ports
+        self.read_ptr = Signal(range(nodes + 1), name="node_read_ptr")  # next to read
+        self.consume = Signal(name="node_consume")   # a decision takes the head node
+        self.restart = Signal(name="node_restart")   # a row's last decision: swap banks
+        self.start = Signal(name="node_start")       # a frame starts: nothing to read
+        self.fetched = Signal(name="node_fetched")   # the head node is valid
         self.flags = Signal(flags, name="prev_node_flags")
         self.label = Signal(label, name="prev_node_label")
         self.write_en = Signal(name="node_write_en")
         self.write_flags = Signal(flags, name="node_write_flags")
         self.write_label = Signal(label, name="node_write_label")
-        # a first/last patch (never both kinds in one clock) and an untracking patch
+        # a first/last patch (never both kinds in one clock) and an untracking patch, both
+        # to nodes written before this clock, never to ``write_ptr``
         self.flags_patch_req = Signal(name="flags_patch_req")
         self.flags_patch_en = Signal(name="flags_patch_en")
         self.flags_patch_addr = Signal(node_bits, name="flags_patch_addr")
@@ -177,6 +209,7 @@ class _Nodes:
         self.untrack_addr = Signal(node_bits, name="untrack_addr")
         self.last_reg = Signal(name="prev_node_last")  # last flag of the node under the scan
 
+        issue = Signal(name="node_issue")           # read read_ptr this clock
         banks = []
         for b in range(2):
             flag_mem = Memory(shape=flags, depth=nodes, init=[])
@@ -188,17 +221,14 @@ class _Nodes:
                      "label_patch": label_mem.write_port(),
                      "flags_read": flag_mem.read_port(), "label_read": label_mem.read_port()}
             writing = bank_written == b
+            # the read port shares its address with the sequential write port (one
+            # block-RAM port each way): it reads only the bank not being written
             addr = Mux(writing, self.write_ptr, self.read_ptr)
             m.d.comb += [ports[name].addr.eq(addr) for name in
                          ("flags_seq", "label_seq", "flags_read", "label_read")]
-            m.d.comb += [ports["flags_read"].en.eq(self.fetch & ~writing),
-                         ports["label_read"].en.eq(self.fetch & ~writing)]
+            m.d.comb += [ports["flags_read"].en.eq(issue & ~writing),
+                         ports["label_read"].en.eq(issue & ~writing)]
             banks.append((writing, ports))
-        m.d.comb += [
-            self.flags.eq(Mux(bank_written, banks[0][1]["flags_read"].data,
-                              banks[1][1]["flags_read"].data)),
-            self.label.eq(Mux(bank_written, banks[0][1]["label_read"].data,
-                              banks[1][1]["label_read"].data))]
         for writing, ports in banks:
             m.d.comb += [
                 ports["flags_seq"].data.eq(self.write_flags),
@@ -212,6 +242,56 @@ class _Nodes:
                 ports["label_patch"].data.eq(0),
                 ports["label_patch"].en.eq(writing & self.untrack_en),
             ]
+        self._prefetch(m, nodes, flags, label, bank_written, banks, issue)
+
+    def _prefetch(self, m, nodes, flags, label, bank_written, banks, issue):
+        """Two node registers (head, behind it) fed by the read ports a clock after the
+        read; reads issued from registered state only (at most two nodes held or in
+        flight: a decision takes at most one node per two clocks)."""
+        in_flight = Signal(name="node_in_flight")
+        bypass = Signal(name="node_bypass")          # the node in flight is a row's node 0
+        behind = Signal(name="node_behind_valid")
+        behind_flags = Signal(flags, name="node_behind_flags")
+        behind_label = Signal(label, name="node_behind_label")
+        # node 0 of the row being written, kept in registers with every write to it
+        flags0 = Signal(flags, name="node0_flags")
+        label0 = Signal(label, name="node0_label")
+        with m.If(self.write_en & (self.write_ptr == 0)):
+            m.d.sync += [flags0.eq(self.write_flags), label0.eq(self.write_label)]
+        with m.If(self.flags_patch_en & (self.flags_patch_addr == 0)):
+            m.d.sync += flags0.eq(self.flags_patch)
+        with m.If(self.untrack_en & (self.untrack_addr == 0)):
+            m.d.sync += label0.eq(0)
+        read_flags = Mux(bank_written, banks[0][1]["flags_read"].data,
+                         banks[1][1]["flags_read"].data)
+        read_label = Mux(bank_written, banks[0][1]["label_read"].data,
+                         banks[1][1]["label_read"].data)
+        in_flags = Signal(flags, name="node_in_flags")
+        in_label = Signal(label, name="node_in_label")
+        m.d.comb += [in_flags.eq(Mux(bypass, flags0, read_flags)),
+                     in_label.eq(Mux(bypass, label0, read_label))]
+        # at most two nodes held or in flight (``behind`` implies ``fetched``)
+        m.d.comb += issue.eq(~(self.fetched & (behind | in_flight)) & (self.read_ptr != nodes))
+        m.d.sync += [in_flight.eq(issue), bypass.eq(0)]
+        with m.If(issue):
+            m.d.sync += self.read_ptr.eq(self.read_ptr + 1)
+        with m.If(self.consume):
+            m.d.sync += [self.flags.eq(Mux(behind, behind_flags, in_flags)),
+                         self.label.eq(Mux(behind, behind_label, in_label)),
+                         self.fetched.eq(behind | in_flight),
+                         behind_flags.eq(in_flags), behind_label.eq(in_label),
+                         behind.eq(behind & in_flight)]
+        with m.Elif(in_flight & self.fetched):
+            m.d.sync += [behind_flags.eq(in_flags), behind_label.eq(in_label), behind.eq(1)]
+        with m.Elif(in_flight):
+            m.d.sync += [self.flags.eq(in_flags), self.label.eq(in_label),
+                         self.fetched.eq(1)]
+        with m.If(self.restart):
+            m.d.sync += [self.read_ptr.eq(1), in_flight.eq(1), bypass.eq(1),
+                         self.fetched.eq(0), behind.eq(0)]
+        with m.If(self.start):
+            m.d.sync += [self.read_ptr.eq(nodes), in_flight.eq(0), bypass.eq(0),
+                         self.fetched.eq(0), behind.eq(0)]
 
 
 class Labeller(wiring.Component):
@@ -277,27 +357,30 @@ class Labeller(wiring.Component):
 
     # ---- previous row ---------------------------------------------------------------
     def _previous_row(self, m):
-        """The previous row's pixels around the decided column, from a bitmap read two
-        columns ahead: ``{"left", "here", "right", "node_starts", "last_col"}``."""
+        """The previous row's pixels around the decided column ``x``, all from registers:
+        ``{"left", "here", "right", "node_starts", "last_col"}``.  The bitmap is read at
+        column ``x + 3`` (wrapping into the next row: those columns of this row are
+        written, the read is transparent for ``W`` = 3) and its read data only shifts into
+        the registers at each decision."""
         W, held = self.width, self._held
         m.submodules.bitmap = bitmap = Memory(shape=1, depth=W, init=[])
         write = bitmap.write_port()
         read = bitmap.read_port(transparent_for=(write,))
         left_reg, here_reg = Signal(name="above_left_reg"), Signal(name="above_reg")
-        first_row = held.y == 0
-        last_col = held.x == W - 1
+        right_reg = Signal(name="above_right_reg")
+        first_row, last_col = held.first_row, held.last_col
         here = here_reg & ~first_row
         left = left_reg & ~first_row
-        ahead = Signal(C.bits_for(W - 1), name="ahead")  # x + 2 unless that wraps to 0 or 1
-        m.d.comb += ahead.eq(held.x + 2)
+        ahead = Signal(C.bits_for(W - 1), name="ahead")  # x + 3, wrapped into the row
+        m.d.comb += ahead.eq(Mux(held.x >= W - 3, held.x - (W - 3), held.x + 3))
         m.d.comb += [
             write.addr.eq(held.x), write.data.eq(held.lit), write.en.eq(self._decide),
-            read.addr.eq(Mux(last_col | (held.x == W - 2), last_col, ahead)),
-            read.en.eq(self._decide),
+            read.addr.eq(ahead), read.en.eq(self._decide),
         ]
         with m.If(self._decide):
-            m.d.sync += [left_reg.eq(Mux(last_col, 0, here_reg)), here_reg.eq(read.data)]
-        return {"left": left, "here": here, "right": read.data & ~first_row & ~last_col,
+            m.d.sync += [left_reg.eq(Mux(last_col, 0, here_reg)), here_reg.eq(right_reg),
+                         right_reg.eq(read.data)]
+        return {"left": left, "here": here, "right": right_reg & ~first_row & ~last_col,
                 "node_starts": here & ~left, "last_col": last_col}
 
     # ---- the four stages of a column decision ---------------------------------------
@@ -465,13 +548,13 @@ class Labeller(wiring.Component):
         nodes, stack, free, decide = self._nodes, self._stack, self._free, self._decide
         last_col, count = above["last_col"], self._open_tracked
         closes = self._merge_closes | self._completes
-        m.d.comb += [stack.spill.en.eq(0), stack.refill.en.eq(0),
+        # the refill port reads the entry below the memory's top on every clock, from
+        # registers only: after a pop it is the new second (no push follows a pop at once)
+        m.d.comb += [stack.spill_en.eq(0),
                      stack.spilled_next.eq(stack.spilled + Mux(push & ~pop, 1,
                                                                Mux(pop & ~push, -1, 0)))]
         with m.If(stack.reload):
-            m.d.sync += [stack.second.eq(stack.refill.data), stack.reload.eq(0)]
-        with m.If(nodes.fetch):
-            m.d.sync += nodes.fetch.eq(0)
+            m.d.sync += [stack.second.eq(stack.refilled), stack.reload.eq(0)]
         with m.If(decide):
             m.d.sync += [self._active.eq(active), stack.top.eq(top),
                          # a birth, a merge and a completion exclude each other: +1 or -1
@@ -486,48 +569,64 @@ class Labeller(wiring.Component):
             m.d.sync += stack.spilled.eq(stack.spilled_next)
             with m.If(push & ~pop):
                 m.d.sync += stack.second.eq(stack.top)
-                m.d.comb += [stack.spill.addr.eq(stack.spilled),
-                             stack.spill.data.eq(stack.second),
-                             stack.spill.en.eq(~stack.spilled[-1])]
+                m.d.comb += stack.spill_en.eq(~stack.spilled[-1])
                 with m.If(stack.spilled == max_stack(self.width) - 2):
                     m.d.sync += self._fault.eq(1)
             with m.Elif(pop & ~push):       # the new second is the memory's last entry
-                m.d.comb += [stack.refill.addr.eq(stack.spilled_next),
-                             stack.refill.en.eq(~stack.spilled_next[-1])]
                 m.d.sync += stack.reload.eq(~stack.spilled_next[-1])
             with m.If(above["node_starts"]):
-                m.d.sync += [nodes.last_reg.eq(nodes.flags.last),
-                             nodes.read_ptr.eq(nodes.read_ptr + 1), nodes.fetch.eq(1)]
+                m.d.sync += nodes.last_reg.eq(nodes.flags.last)
                 with m.If(~nodes.fetched):
                     m.d.sync += self._line_error.eq(1)
             with m.If(run_end):
                 m.d.sync += nodes.write_ptr.eq(nodes.write_ptr + 1)
             with m.If(last_col):
-                m.d.sync += [nodes.write_ptr.eq(0), nodes.read_ptr.eq(0), nodes.fetch.eq(1),
-                             stack.spilled.eq(-2), self._row_parity.eq(~self._row_parity)]
+                m.d.sync += [nodes.write_ptr.eq(0), stack.spilled.eq(-2),
+                             self._row_parity.eq(~self._row_parity)]
                 # the stack is empty at every row end (spilled_next == -2)
                 with m.If(~(Mux(push == pop, stack.spilled == -2,
                                 pop & (stack.spilled == -1)))):
                     m.d.sync += self._fault.eq(1)
-        with m.If(decide & (above["node_starts"] | last_col)):
-            m.d.sync += nodes.fetched.eq(0)
-        with m.Elif(nodes.fetch):
-            m.d.sync += nodes.fetched.eq(1)
+        m.d.comb += [nodes.consume.eq(decide & above["node_starts"]),
+                     nodes.restart.eq(decide & last_col), nodes.start.eq(self._start)]
 
         m.d.comb += self.dropped_labels.eq(self._dropped)
         with m.If(self._start):
             m.d.comb += free.start.eq(1)
             m.d.sync += [count.eq(0), free.fresh.eq(0), self._dropped.eq(0), self._row_parity.eq(0),
                          self._prev_lit.eq(0), stack.spilled.eq(-2), nodes.write_ptr.eq(0),
-                         nodes.read_ptr.eq(0), nodes.fetch.eq(0), nodes.fetched.eq(0),
                          self._line_error.eq(0), stack.reload.eq(0)]
 
     # ---- frame sequencing --------------------------------------------------------------
+    def _input(self, m):
+        """The input beat, registered with its position checks (one clock of latency):
+        ``(beat, valid, at_origin, same_row, successor)``, the last two against the
+        previous valid beat (``successor``: the next position in raster order).  In
+        ``RUN`` every valid beat is held or ends the frame, so there the previous valid
+        beat is the held pixel, and the checks take no logic from the decision's clock."""
+        W, H = self.width, self.height
+        p, p_valid = self.pixels.payload, self.pixels.valid
+        beat = Signal(lit_layout(W, H, self.pixel_bits), name="in_beat")
+        valid, at_origin = Signal(name="in_valid"), Signal(name="in_origin")
+        same_row, successor = Signal(name="in_same_row"), Signal(name="in_successor")
+        prev_y = Signal.like(p.y, name="prev_y")
+        prev_next_x = Signal.like(p.x, name="prev_next_x")   # x + 1, y + 1
+        prev_next_y = Signal.like(p.y, name="prev_next_y")
+        prev_last = Signal(name="prev_last_col")
+        m.d.sync += [beat.eq(p), valid.eq(p_valid),
+                     at_origin.eq((p.x == 0) & (p.y == 0)), same_row.eq(p.y == prev_y),
+                     successor.eq(Mux(prev_last, (p.x == 0) & (p.y == prev_next_y),
+                                      (p.x == prev_next_x) & (p.y == prev_y)))]
+        with m.If(p_valid):
+            m.d.sync += [prev_y.eq(p.y), prev_next_x.eq(p.x + 1), prev_next_y.eq(p.y + 1),
+                         prev_last.eq(p.x == W - 1)]
+        return beat, valid, at_origin, same_row, successor
+
     def _frames(self, m):
         """Frame state machine: takes pixels at their expected positions into the held
         register, decides the virtual row, drains, and ends frames (done, faults)."""
         W, H, held = self.width, self.height, self._held
-        beat, valid = self.pixels.payload, self.pixels.valid
+        beat, valid, at_origin, same_row, expected = self._input(m)
         start, decide = self._start, self._decide
         drain = Signal(range(_DRAIN + 2))
         tag = Signal(FRAME_TAG_BITS, name="frame_tag")
@@ -535,13 +634,11 @@ class Labeller(wiring.Component):
         abort_flags = Signal(FRAME_FLAGS_BITS)
         take = Signal()               # this beat is held
         finished = Signal()
-        at_origin = (beat.x == 0) & (beat.y == 0)
-        same_row = beat.y == held.y
-        row_end_held = held.valid & (held.x == W - 1)  # the next pixel starts the next row
-        expected = Mux(held.x == W - 1, (beat.x == 0) & (beat.y == held.next_y),
-                       (beat.x == held.next_x) & same_row)
+        row_end_held = held.valid & held.last_col  # the next pixel starts the next row
         m.d.comb += [self.tag.eq(tag), self.frame_start.eq(start), self.clear.eq(start),
-                     self.done_flags.eq(abort_flags)]
+                     self.done_flags.eq(abort_flags),
+                     # outside RUN no decision takes a lit pixel (the virtual row is dark)
+                     self._next_lit.eq(~row_end_held & beat.lit)]
         with m.If(start | abort):
             m.d.sync += tag.eq(tag + 1)
 
@@ -564,8 +661,7 @@ class Labeller(wiring.Component):
             with m.State("RUN"):
                 m.d.comb += self.busy.eq(1)
                 right = valid & expected & same_row & held.valid
-                m.d.comb += [decide.eq(row_end_held | right),
-                             self._next_lit.eq(~row_end_held & beat.lit)]
+                m.d.comb += decide.eq(row_end_held | right)
                 with m.If(valid & ~expected):
                     m.d.comb += abort.eq(1)
                     with m.If(at_origin):
@@ -581,7 +677,8 @@ class Labeller(wiring.Component):
                     m.d.comb += take.eq(valid)
                     with m.If(row_end_held & (held.y == H - 1)):
                         m.d.sync += [held.x.eq(0), held.y.eq(H), held.lit.eq(0),
-                                     held.valid.eq(0)]
+                                     held.valid.eq(0), held.first_row.eq(0),
+                                     held.last_col.eq(0)]
                         m.next = "GAP"
             with m.State("GAP"):              # one clock: the last row's first node
                 m.d.comb += self.busy.eq(1)
@@ -589,8 +686,8 @@ class Labeller(wiring.Component):
                 restart_if_new_frame()
             with m.State("VROW"):             # the virtual dark row
                 m.d.comb += [self.busy.eq(1), decide.eq(1)]
-                m.d.sync += held.x.eq(held.x + 1)
-                with m.If(held.x == W - 1):
+                m.d.sync += [held.x.eq(held.x + 1), held.last_col.eq(held.x == W - 2)]
+                with m.If(held.last_col):
                     m.d.sync += drain.eq(0)
                     m.next = "DRAIN"
                 restart_if_new_frame()
@@ -610,8 +707,8 @@ class Labeller(wiring.Component):
         with m.If(take):
             m.d.sync += [held.valid.eq(1), held.x.eq(beat.x), held.y.eq(beat.y),
                          held.lit.eq(beat.lit), held.data.eq(beat.data),
-                         held.weight.eq(beat.weight), held.next_x.eq(beat.x + 1),
-                         held.next_y.eq(beat.y + 1)]
+                         held.weight.eq(beat.weight), held.first_row.eq(beat.y == 0),
+                         held.last_col.eq(beat.x == W - 1)]
         with m.Elif(decide & ~(valid & expected)):
             m.d.sync += held.valid.eq(0)
         with m.If(abort & ~start):

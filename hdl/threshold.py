@@ -29,9 +29,12 @@ def _pass_bits(width, height, pixel_bits):
     # B: S1 against N*c (c <= fs), and one clock more so that S1, which rotates while it
     # is streamed, is in place in a trial's last clock (where the D search copies it).
     # D: K*K*V (V <= (N fs)**2 / 4, Popoviciu) against 256*N*N*c*c; every partial product
-    # of the chain is below these bounds too.
+    # of the chain is below these bounds too.  One clock more: the chain is cut by a
+    # register on each side (V's bit, 256*N*N*c*c's bit) for timing, so both reach the
+    # final subtraction a clock late.
     return (C.bits_for(nfs) + 1,
-            C.bits_for(max(kmax * kmax * nfs * nfs // 4, (nfs << C.KSIGMA_FRAC_BITS) ** 2)))
+            C.bits_for(max(kmax * kmax * nfs * nfs // 4, (nfs << C.KSIGMA_FRAC_BITS) ** 2))
+            + 1)
 
 
 def ksigma_cycles(width, height, pixel_bits):
@@ -227,8 +230,16 @@ class ThresholdUnit(wiring.Component):
         background = Mux(pos.sof_valid, Mux(local_new, 0, b_new), b_frame)
         m.d.sync += [t_frame.eq(threshold), b_frame.eq(background)]
         m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
+
+        def apply(f):
+            """``f(T, B)`` of this pixel's levels, computed for each candidate and selected
+            after (the sof's mode decision runs beside ``f``'s arithmetic: timing)."""
+            new = Mux(local_new, f(offset_sat, Const(0, pb)),
+                      Mux(use_global, f(levels.threshold, levels.background),
+                          f(self.threshold, self.background)))
+            return Mux(pos.sof_valid, new, f(t_frame, b_frame))
         return SimpleNamespace(
-            threshold=threshold, background=background, use_global=use_global,
+            threshold=threshold, use_global=use_global, apply=apply,
             window_ok=window_ok, local_new=local_new,
             local_frame=local_frame, local=Mux(pos.sof, local_new, local_frame),
             log2_window=Signal.like(self.local_log2_window, reset_less=True,
@@ -282,8 +293,10 @@ class ThresholdUnit(wiring.Component):
         m.d.comb += out.payload.eq(beat)
         value = Mux(local.valid, local.data, pos.pixel)
         above_local = local.data - local.mean
-        above = Mux(local.valid, above_local, pos.pixel - mode.background)  # weight if >= 0
-        below = mode.threshold - Mux(local.valid, above_local, pos.pixel)   # < 0: lit
+        above = Mux(local.valid, above_local,                    # weight if >= 0
+                    mode.apply(lambda t, b: pos.pixel - b))
+        below = Mux(local.valid, mode.threshold - above_local,   # < 0: lit
+                    mode.apply(lambda t, b: t - pos.pixel))
         m.d.sync += [
             out.valid.eq(fixed_valid | local.valid),
             beat.data.eq(value),
@@ -444,11 +457,10 @@ class ThresholdUnit(wiring.Component):
         found = Signal(pb, reset_less=True)  # the bits of B or D found so far
         last = trial_clock == Mux(searching_d, d_bits - 1, b_bits - 1)
         c = found | trial[:pb]
-
-        def streamed(value):
-            """Bit ``trial_clock`` of the constant ``value`` while a trial runs, else 0."""
-            padded = Cat(value, Const(0, (1 << len(trial_clock)) - len(value)))
-            return padded.bit_select(trial_clock, 1) & run
+        # the reference constant of a trial (N for B, (N << 8)**2 for D), streamed LSB
+        # first from a shift register loaded when the trial starts (no lookup by clock)
+        ref_b, ref_d = Const(N), Const((N << C.KSIGMA_FRAC_BITS) ** 2)
+        ref = Signal(max(len(ref_b), len(ref_d)), reset_less=True)
 
         s1_copy = Signal.like(s1, name="s1_copy")  # the multiplicand of S1*S1 (s1 rotates)
         m.d.comb += [sums.rotate_s1.eq(run & _below_const(trial_clock, len(s1))),
@@ -457,25 +469,36 @@ class ThresholdUnit(wiring.Component):
         variance_bit, _ = _serial_sub(
             m, _serial_mul(m, s2[0] & sums.rotate_s2, Const(N)),
             _serial_mul(m, s1_bit & searching_d, s1_copy), run & ~last)
-        lhs_d = _serial_mul(m, _serial_mul(m, variance_bit, levels.ksigma), levels.ksigma)
-        reference = Mux(searching_d, streamed(Const((N << C.KSIGMA_FRAC_BITS) ** 2)),
-                        streamed(Const(N)))
+        # D's two sides each delayed a clock by a register (the chain's timing cut)
+        variance = Signal(reset_less=True, name="variance_bit")
+        m.d.sync += variance.eq(variance_bit)
+        lhs_d = _serial_mul(m, _serial_mul(m, variance, levels.ksigma), levels.ksigma)
+        reference = ref[0] & run
         rhs_b = _serial_mul(m, reference, c)
-        rhs_d = _serial_mul(m, rhs_b & searching_d, c)
+        rhs_d = Signal(reset_less=True, name="rhs_d_bit")
+        m.d.sync += rhs_d.eq(_serial_mul(m, rhs_b & searching_d, c))
         _, borrow = _serial_sub(m, Mux(searching_d, lhs_d, s1_bit),
                                 Mux(searching_d, rhs_d, rhs_b), run & ~last)
         passed = ~borrow             # at the trial's last bit
 
         def start_d():
             return [searching_d.eq(1), levels.ksigma.eq(self.ksigma),
-                    trial.eq(1 << (pb - 1)), found.eq(0), trial_clock.eq(0), s1_copy.eq(s1)]
+                    trial.eq(1 << (pb - 1)), found.eq(0), trial_clock.eq(0), s1_copy.eq(s1),
+                    ref.eq(ref_d)]
 
         m.d.comb += self.stats_busy.eq(run)
         found_now = Mux(passed, c, found)    # at a trial's last bit
-        level = levels.background + found_now
+
+        def threshold(d):
+            """T = min(B + d, fs), from registers only."""
+            level = levels.background + d
+            return Mux(level[pb], fs, level[:pb])
+        # both outcomes of the last trial precomputed, so ``passed`` only selects
+        threshold_now = Mux(passed, threshold(c), threshold(found))
         with m.If(pos.complete):
             m.d.sync += [levels.valid.eq(0), levels.have_sums.eq(0), run.eq(1),
-                         searching_d.eq(0), trial.eq(1 << pb), found.eq(0), trial_clock.eq(0)]
+                         searching_d.eq(0), trial.eq(1 << pb), found.eq(0), trial_clock.eq(0),
+                         ref.eq(ref_b)]
         with m.Elif(pos.frame_end | pos.sof_valid):   # S1, S2 restart, or a broken frame
             m.d.sync += [levels.have_sums.eq(0), run.eq(0)]
             with m.If(pos.frame_end | pos.in_frame | run):
@@ -484,9 +507,10 @@ class ThresholdUnit(wiring.Component):
             with m.If(levels.have_sums & ~ksigma_same):   # ksigma rewritten: search D anew
                 m.d.sync += [levels.valid.eq(0), run.eq(1)] + start_d()
         with m.Else():
-            m.d.sync += trial_clock.eq(trial_clock + 1)
+            m.d.sync += [trial_clock.eq(trial_clock + 1), ref.eq(ref >> 1)]
             with m.If(last):
-                m.d.sync += [trial_clock.eq(0), trial.eq(trial >> 1), found.eq(found_now)]
+                m.d.sync += [trial_clock.eq(0), trial.eq(trial >> 1), found.eq(found_now),
+                             ref.eq(Mux(searching_d, ref_d, ref_b))]
                 with m.If(searching_d & ~ksigma_same):
                     m.d.sync += start_d()                 # rewritten meanwhile: restart
                 with m.Elif(trial[0] & ~searching_d):
@@ -494,4 +518,4 @@ class ThresholdUnit(wiring.Component):
                                  levels.background.eq(found_now)] + start_d()
                 with m.Elif(trial[0]):                    # T = min(B + D', fs)
                     m.d.sync += [run.eq(0), levels.valid.eq(1),
-                                 levels.threshold.eq(Mux(level[pb], fs, level[:pb]))]
+                                 levels.threshold.eq(threshold_now)]

@@ -36,7 +36,7 @@ def trailer_fields(t):
 def test_random_frames_random_capacities(seed):
     rng = np.random.default_rng(seed)
     for _ in range(5):
-        h, w = int(rng.integers(1, 9)), int(rng.integers(2, 10))
+        h, w = int(rng.integers(1, 9)), int(rng.integers(3, 10))
         cap = int(rng.integers(1, C.max_open_blobs(w) + 1))
         rcap = int(rng.integers(1, 8))
         frames = [frame_of(rng.random((h, w)) < d, rng) for d in (0.2, 0.45, 0.6, 0.8)]

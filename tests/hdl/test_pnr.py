@@ -84,11 +84,12 @@ def test_small_fifo_place_and_route_and_cache(tmp_path):
 @needs_nextpnr
 def test_detector_post_route_report(tmp_path, capsys):
     """``lodestar synth --pnr ecp5`` on the default board: the whole detector placed and
-    routed, its Fmax and critical path reported beside the estimate."""
+    routed, its Fmax (at least 100 MHz at speed 6, issue 17's goal) and critical path
+    reported beside the estimate."""
     from lodestar.cli import main
     assert main(["synth", "--out", str(tmp_path), "--pnr", "ecp5"]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     r = report["pnr"]
-    assert r["speed"] == 6 and r["fmax_mhz"] > 60 and r["path_ns"] > 0
+    assert r["speed"] == 6 and r["fmax_mhz"] >= 100 and r["path_ns"] > 0
     assert r["utilization"]["DP16KD"]["used"] >= 20
     assert "P&R" in capsys.readouterr().out
