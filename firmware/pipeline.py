@@ -60,6 +60,7 @@ def _collect():
     if COLLECT:
         gc.collect()
 
+
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike)."""
