@@ -98,8 +98,9 @@ def test_default_board_yosys_report(tmp_path, capsys):
     most 32 % of the LEs (over the 25 % of issue 9: the feature table's explicit
     read-during-write bypass, the price of a synchronous-read M9K and a registered read,
     about 700 LEs, the frame watchdog and registered IRQ, about 170, and the pipelining for
-    100 MHz of issue 17; measured 30.3 %) and half of the M9K; each unit's slowest path priced with routing, a path out
-    of a memory with the block RAM's clock-to-output (``docs/resource_estimate.md``)."""
+    100 MHz of issue 17; measured 30.3 %) and half of the M9K; each unit's slowest path
+    priced with routing, a path out of a memory with the block RAM's clock-to-output
+    (``docs/resource_estimate.md``)."""
     assert main(["synth", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["logic"]["les"] > 1000 and report["logic"]["available_les"] == 22320
