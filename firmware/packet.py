@@ -32,7 +32,7 @@ def _plan(fields):
 
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
 _RECORD_PLAN = _plan(C.RECORD_FIELDS)
-_N_RECORD_FIELDS = len(C.RECORD_FIELDS)
+_ZERO_RECORD = (0,) * len(C.RECORD_FIELDS)
 _MIN_BYTES = C.packet_bytes(0)
 _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
@@ -69,19 +69,13 @@ def record(data, index, into=None):
     ``into``: a ``BlobRecord`` to overwrite and return instead of a new one (reading record
     after record into one object allocates nothing but large moments)."""
     base = C.HEADER_BYTES + index * C.RECORD_BYTES
-    if into is not None:
-        i = 0
-        for first, last, head_mask, tail_drop in _RECORD_PLAN:
-            setattr(into, C.RECORD_NAMES[i], _field(data, base, first, last, head_mask,
-                                                    tail_drop))
-            i += 1
-        return into
-    values = [0] * _N_RECORD_FIELDS
+    if into is None:
+        into = C.BlobRecord(*_ZERO_RECORD)
     i = 0
     for first, last, head_mask, tail_drop in _RECORD_PLAN:
-        values[i] = _field(data, base, first, last, head_mask, tail_drop)
+        setattr(into, C.RECORD_NAMES[i], _field(data, base, first, last, head_mask, tail_drop))
         i += 1
-    return C.BlobRecord(*values)
+    return into
 
 
 # --------------------------------------------------------------------------------------
