@@ -10,12 +10,9 @@
   lost-in-space, tracking), baseline beside current.
 * **time**: per packet class and method, the wall time of ``StarTracker.process`` at a 64 KiB
   heap (best of ``--repeats``; the collector's work included) and the stage times of the
-  slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz, scaled by
-  a published calibration: the Leibniz-series loop of "Float Speed: Espruino Pico vs
-  Pyboard" (Espruino forum, 23 December 2017: 1,000,000 iterations took 26 s on a pyboard,
-  STM32F405 at 168 MHz), run here on the same build, times 168/84 for the clock.  An
-  estimate: the pyboard ran a 2017 MicroPython (slower than 1.27, so the estimate errs high)
-  and the scaling by clock ignores flash wait states.
+  slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz: the
+  time here times how much slower a NUCLEO-F401RE ran two of MicroPython's own benchmarks
+  (published figures, run here on the same build: :mod:`lodestar.regress.mcutime`).
 * **flash**: the frozen firmware's bytecode (``mpy-cross`` of the build) and the estcube2
   database of each method, with where each lives.
 
@@ -32,31 +29,14 @@ from pathlib import Path
 
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
+from lodestar.regress import mcutime, unixport
 from lodestar.regress import replay as regress
-from lodestar.regress import unixport
 from lodestar.sim import presets
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINE = "1118c7c"
 """The firmware before the heap work of issue 16."""
 HEAP = 64 * 1024
-PYBOARD_CAL_S = 26.0
-PYBOARD_MHZ = 168.0
-F401_MHZ = 84.0
-CALIBRATION = """
-import time
-iterations = 1000000
-x = 1
-pi = 1
-t0 = time.ticks_us()
-for i in range(2, iterations + 2):
-    x = x * -1
-    pi = pi + (x / (2 * i - 1))
-pi = pi * 4
-print(time.ticks_diff(time.ticks_us(), t0), pi)
-"""
-
-
 def packet_class(case):
     """``tracking`` (a prior given), ``bad packet`` (a decoder status), ``moving`` (a body
     rate given) or ``rest``."""
@@ -101,24 +81,13 @@ def heap_table(binaries, manifest, db_files):
                   f"{peak_text} |")
 
 
-def calibrate(binary, repeats):
-    with tempfile.TemporaryDirectory() as tmp:
-        script = Path(tmp) / "cal.py"
-        script.write_text(CALIBRATION)
-        best = None
-        for _ in range(repeats):
-            out = subprocess.run([str(binary), str(script)], capture_output=True, text=True,
-                                 check=True).stdout.split()
-            us = int(out[0])
-            best = us if best is None else min(best, us)
-    return best / 1e6
-
-
 def time_table(binary, manifest, db_files, repeats):
-    cal_s = calibrate(binary, repeats)
-    scale = PYBOARD_CAL_S / cal_s * PYBOARD_MHZ / F401_MHZ
-    print(f"\n## Time: calibration loop {cal_s:.3f} s here, {PYBOARD_CAL_S:.0f} s on a pyboard "
-          f"(168 MHz): F401 estimate = time here x {scale:.1f}")
+    cal = mcutime.calibrate(binary)
+    scale = cal["scale"]
+    ratios = ", ".join(f"{name} {mcutime.F401_US[name]:,.0f} us there / {min(us)} us here = "
+                       f"{cal['ratio'][name]:.0f}x" for name, us in cal["runs"].items())
+    print(f"\n## Time: F401 estimate = time here x {scale:.0f} (geometric mean of {ratios}; "
+          f"{mcutime.F401_SOURCE})")
     print("| method | class | solves | here p50 / p95 / max, ms | F401 estimate p50 / p95 / "
           "max, ms | slowest solve's stages here, ms |")
     print("|---|---|---|---|---|---|")

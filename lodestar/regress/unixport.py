@@ -13,7 +13,6 @@ import fcntl
 import hashlib
 import json
 import os
-import shutil
 import subprocess
 import tempfile
 from pathlib import Path
@@ -39,7 +38,9 @@ def build_script(repo):
 
 def stage_mcu_image(folder, checkout=None):
     """Copy :func:`lodestar.regress.micropython.mcu_image` into ``folder`` as the tree
-    ``lodestar/...`` that a freeze manifest packages; returns ``folder``.  ``checkout``: take
+    ``lodestar/...`` that a freeze manifest packages (only changed files are rewritten and
+    files no longer in the image removed, so an incremental build re-freezes only what
+    changed); returns ``folder``.  ``checkout``: take
     the image from another checkout of the repository instead (its ``lodestar/__init__.py``,
     ``lodestar/contract`` and ``firmware``; a benchmark's baseline)."""
     folder = Path(folder)
@@ -52,12 +53,18 @@ def stage_mcu_image(folder, checkout=None):
                             ("firmware", "lodestar/firmware")):
             pairs += [(p, target + "/" + p.relative_to(checkout / sub).as_posix())
                       for p in sorted((checkout / sub).rglob("*.py"))]
+    wanted = {folder / target: Path(host) for host, target in pairs}
     if folder.exists():
-        shutil.rmtree(folder)
-    for host, target in pairs:
-        dest = folder / target
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(host, dest)
+        for old in sorted(folder.rglob("*"), reverse=True):     # files before their folders
+            if old.is_file() and old not in wanted:
+                old.unlink()
+            elif old.is_dir() and not any(old.iterdir()):
+                old.rmdir()
+    for dest, host in wanted.items():
+        data = host.read_bytes()
+        if not dest.is_file() or dest.read_bytes() != data:   # unchanged files keep their
+            dest.parent.mkdir(parents=True, exist_ok=True)     # time: no re-freeze
+            dest.write_bytes(data)
     return folder
 
 
@@ -74,6 +81,12 @@ def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1
     with open(out_dir / ".build.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         image = stage_mcu_image(out_dir / "mcu-image", checkout)
+        key = _build_key(script, manifest, image, variant)
+        known = out_dir / f".{variant}-built"
+        if known.is_file():
+            last_key, _, last = known.read_text().partition(" ")
+            if last_key == key and Path(last).is_file():
+                return Path(last)        # build.sh rewrites its config header: a full rebuild
         env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
                    LODESTAR_MCU_IMAGE=str(image.resolve()))
         proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
@@ -94,7 +107,20 @@ def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1
         for old in built.parent.glob(built.name + "-*"):
             if old != copy:
                 old.unlink(missing_ok=True)     # a running copy keeps its inode
+        known.write_text(f"{key} {copy}")
         return copy
+
+
+def _build_key(script, manifest, image, variant):
+    """Hash of everything a build depends on: MicroPython's build folder (script, sources,
+    patch), the manifest, the staged image, the variant and the C compiler."""
+    h = hashlib.sha256(f"{variant}\0{os.environ.get('CC', 'cc')}\0".encode())
+    for path in sorted(Path(script).parent.iterdir()) + [Path(manifest)]:
+        if path.is_file():
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
+    for path in sorted(Path(image).rglob("*.py")):
+        h.update(path.relative_to(image).as_posix().encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
 
 
 _LOOP = r'''

@@ -2,20 +2,12 @@
 port built 32-bit (when the C compiler can target -m32) with single-precision floats, as the
 STM32F401 runs it, with the MCU image frozen by the repository's ``manifest.py``.
 
-Needs MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD``, else
-``../shared/micropython/build.sh`` beside the checkout) and a C toolchain: skipped with the
-reason otherwise, failed instead under ``LODESTAR_REQUIRE_MICROPYTHON`` (CI).  The
-interpreter is built once into the cache folder and rebuilt incrementally."""
-
-import os
-import shutil
+The build, and when its tests skip: ``tests/regress/conftest.py``."""
 
 import pytest
 
-from lodestar.ground.cache import default_cache_dir
 from lodestar.regress import replay as regress
 from lodestar.regress import unixport
-from tests import REPO
 
 FLOAT32_ARCSEC = 2.0
 """Largest rotation between a float32 attitude and the recorded double one (measured: 1.09
@@ -25,28 +17,6 @@ HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the 32-bit float32 build
 with the firmware's own collector setting, the STM32F401's (measured: at most 62 KiB,
 Pyramid and hashing on estcube2; ``docs/firmware.md``, Memory)."""
-
-
-def _build_script():
-    script = unixport.build_script(REPO)
-    reason = None
-    if script is None:
-        reason = (f"no MicroPython build script (set {unixport.BUILD_ENV} or put "
-                  "../shared/micropython beside the checkout)")
-    for tool in ("make", "cc", "patch", "tar"):
-        if reason is None and shutil.which(tool) is None:
-            reason = f"{tool} is not installed (needed to build MicroPython)"
-    if reason is not None:
-        if os.environ.get("LODESTAR_REQUIRE_MICROPYTHON"):
-            pytest.fail(reason)
-        pytest.skip(reason)
-    return script
-
-
-@pytest.fixture(scope="module")
-def float32_frozen():
-    return unixport.build(_build_script(), REPO / "manifest.py",
-                          default_cache_dir() / "micropython", "float32")
 
 
 @pytest.fixture
@@ -122,3 +92,20 @@ def test_the_frozen_image_is_the_mcu_image(tmp_path):
     assert "lodestar/contract/packet.py" in files
     assert all(f.startswith(("lodestar/firmware/", "lodestar/contract/")) or
                f == "lodestar/__init__.py" for f in files)
+
+
+def test_restaging_rewrites_only_what_changed(tmp_path):
+    """An unchanged file keeps its time (the incremental build does not re-freeze it), a
+    changed one is rewritten and a file no longer in the image is removed."""
+    staged = unixport.stage_mcu_image(tmp_path)
+    keep = staged / "lodestar/firmware/pipeline.py"
+    changed = staged / "lodestar/firmware/status.py"
+    stale = staged / "lodestar/firmware/gone/old.py"
+    stale.parent.mkdir()
+    stale.write_text("x = 1\n")
+    changed.write_text("edited\n")
+    before = keep.stat().st_mtime_ns
+    unixport.stage_mcu_image(tmp_path)
+    assert keep.stat().st_mtime_ns == before
+    assert changed.read_text() != "edited\n"
+    assert not stale.exists() and not stale.parent.exists()
