@@ -13,6 +13,9 @@
   slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz: the
   time here times how much slower a NUCLEO-F401RE ran two of MicroPython's own benchmarks
   (published figures, run here on the same build: :mod:`lodestar.regress.mcutime`).
+* **instructions**: per packet class and method, the instructions of ``process`` (valgrind's
+  count of the build's x86 instructions: the same under any load) and each stage's, scaled to
+  the F401 by the same benchmarks' microseconds per instruction (needs ``valgrind``).
 * **flash**: the frozen firmware's bytecode (``mpy-cross`` of the build) and the estcube2
   database of each method, with where each lives.
 
@@ -117,6 +120,45 @@ def time_table(binary, manifest, db_files, repeats):
                   f"{ms[-1] * scale:.0f} | {stage_text} |")
 
 
+def instruction_table(binary, manifest, db_files):
+    """Per method and packet class: the instructions of ``process`` (valgrind, the second
+    of two frames) and the F401 estimate from them; the slowest frame's stages."""
+    if mcutime.valgrind() is None:
+        print("\n## Instructions: skipped (valgrind is not installed)")
+        return
+    cal = mcutime.calibrate_instructions(binary)
+    per = ", ".join(f"{name} {cal['ir'][name] / 1e6:.2f} M instructions here, "
+                    f"{mcutime.F401_US[name]:,.0f} us there" for name in cal["ir"])
+    us_per = cal["us_per_ir_mean"]
+    print(f"\n## Instructions at a {HEAP // 1024} KiB heap: F401 estimate = instructions x "
+          f"{us_per * 1e3:.2f} ns ({per}; {mcutime.F401_SOURCE})")
+    print("| method | class | solves | instructions p50 / p95 / max, M | F401 estimate p50 / "
+          "p95 / max, ms | slowest frame's stages, F401 ms |")
+    print("|---|---|---|---|---|---|")
+    for method in manifest["methods"]:
+        stages = {}
+        for case in manifest["cases"]:
+            if packet_class(case) == "bad packet":
+                continue
+            camera = manifest["cameras"][case["camera"]]
+            _, stages[case["name"]] = mcutime.frame_instructions(
+                binary, case, method, db_files[camera["database"]], camera,
+                regress.DEFAULT_SET / case["packet"], HEAP)
+        for cls in ("rest", "moving", "tracking"):
+            names = [c["name"] for c in manifest["cases"] if packet_class(c) == cls]
+            ir = sorted(stages[n]["process"] for n in names)
+            if not ir:
+                continue
+            p95 = ir[min(len(ir) - 1, int(round(0.95 * (len(ir) - 1))))]
+            slowest = max(names, key=lambda n: stages[n]["process"])
+            split = ", ".join(f"{k} {v * us_per / 1e3:.0f}" for k, v in stages[slowest].items()
+                              if k != "process")
+            print(f"| {method} | {cls} | {len(ir)} | {statistics.median(ir) / 1e6:.1f} / "
+                  f"{p95 / 1e6:.1f} / {ir[-1] / 1e6:.1f} | "
+                  f"{statistics.median(ir) * us_per / 1e3:.0f} / {p95 * us_per / 1e3:.0f} / "
+                  f"{ir[-1] * us_per / 1e3:.0f} | {split} |")
+
+
 def flash_table(out_dir):
     mpy_cross = next(Path(out_dir).glob("micropython-*/mpy-cross/build/mpy-cross"))
     image = Path(out_dir) / "mcu-image"
@@ -162,6 +204,7 @@ def main():
           f"{time.perf_counter() - t0:.0f} s")
     heap_table((baseline, current), manifest, db_files)
     time_table(current, manifest, db_files, args.repeats)
+    instruction_table(current, manifest, db_files)
     flash_table(cache)
 
 

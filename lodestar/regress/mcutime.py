@@ -12,15 +12,26 @@ and attribute access) and ``bm_nqueens`` (integers, tuples, sets and generators)
 installed ``pyperformance`` wheel's sources (never restated here), on a given interpreter,
 each run in a fresh process as ``run-perfbench.py`` does, and returns the ratios.
 
-An estimate, and labelled so: the two machines' interpreters differ in build options (the
-unix port here is 32-bit x86, the F401's Thumb-2 with its flash accelerator), and the ratio
-differs between the two benchmarks; :func:`calibrate` reports both and their geometric mean.
+Two ways to scale: by wall time (:func:`calibrate`: the ratio differs between the two
+benchmarks and with the machine's load) or by instructions (:func:`calibrate_instructions`:
+the x86 instructions the build executes, counted by valgrind, are the same on any machine
+under any load, and the F401's microseconds per instruction agree within a few per cent
+between the two benchmarks).  :func:`frame_instructions` counts a pipeline frame's
+instructions stage by stage.  Either way an estimate, and labelled so: the F401 runs Thumb-2
+code of another compiler from flash.
 """
 
+import glob
+import json
 import math
+import re
+import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+
+from lodestar.regress import mcu
+from lodestar.regress.micropython import literal
 
 F401_SOURCE = ("micropython/micropython pull request #18069 (NUCLEO-F401RE, 84 MHz, "
                "run-perfbench.py N=84 M=80, 2025-09-14)")
@@ -33,6 +44,9 @@ _CALLS = {"bm_float": ("benchmark(150)", "<Point: x=0.89387"),
           "bm_nqueens": ("len(list(n_queens(6)))", "4")}
 """Per benchmark: the call the suite times at ``N=84 M=80``, and the start of its printed
 result (a check that the workload is the published one, in single or double precision)."""
+
+HEAP = "80K"
+"""The heap the calibration runs get: the ``M=80`` (kilobytes of heap) of the published run."""
 
 _HARNESS = """
 import time
@@ -78,7 +92,8 @@ def calibrate(binary, runs=7, timeout=120):
                               encoding="utf-8")
             times[name] = []
             for _ in range(runs):
-                proc = subprocess.run([str(binary), str(script)], capture_output=True,
+                proc = subprocess.run([str(binary), "-X", f"heapsize={HEAP}", str(script)],
+                                      capture_output=True,
                                       text=True, timeout=timeout, cwd=tmp)
                 out = proc.stdout.strip().split(" ", 1)
                 if proc.returncode != 0 or len(out) != 2 or not out[1].startswith(expect):
@@ -88,3 +103,110 @@ def calibrate(binary, runs=7, timeout=120):
     ratio = {name: F401_US[name] / min(us) for name, us in times.items()}
     scale = math.exp(sum(math.log(r) for r in ratio.values()) / len(ratio))
     return {"runs": times, "ratio": ratio, "scale": scale}
+
+
+def valgrind():
+    """The ``valgrind`` program, or None (Debian package ``valgrind``)."""
+    return shutil.which("valgrind")
+
+
+def _instructions(argv, cwd, dump_before=None, timeout=900):
+    """Instructions (x86, user space) of running ``argv`` under callgrind: ``[total]``, or
+    one count per part between entries into the C function ``dump_before``."""
+    tool = valgrind()
+    if tool is None:
+        raise CalibrationError("valgrind is not installed (Debian package valgrind)")
+    out = Path(cwd) / "callgrind.out"
+    cmd = [tool, "--tool=callgrind", f"--callgrind-out-file={out}"]
+    if dump_before:
+        cmd.append(f"--dump-before={dump_before}")
+    proc = subprocess.run(cmd + [str(a) for a in argv], capture_output=True, text=True,
+                          timeout=timeout, cwd=cwd)
+    if proc.returncode != 0:
+        raise CalibrationError(f"{argv[0]} under valgrind: {(proc.stdout + proc.stderr)[-300:]}")
+    if not dump_before:
+        return [int(re.search(r"Collected : (\d+)", proc.stderr).group(1))], proc.stdout
+    counts = []
+    for part in sorted(glob.glob(f"{out}.*"), key=lambda f: int(f.rsplit(".", 1)[1])):
+        with open(part, encoding="utf-8") as f:
+            counts.append(next(int(line.split()[1]) for line in f
+                               if line.startswith(("totals:", "summary:"))))
+    return counts, proc.stdout
+
+
+def calibrate_instructions(binary):
+    """``{"ir": {name: instructions of one run here}, "us_per_ir": {name: F401 us per
+    instruction}, "us_per_ir_mean": their geometric mean}``: an F401's time for a piece of
+    code is about its instruction count on ``binary`` times ``us_per_ir_mean``.  One run's
+    count is the difference between a process running it three times and once."""
+    ir = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, (call, expect) in _CALLS.items():
+            script = Path(tmp) / f"{name}.py"
+            script.write_text(benchmark_source(name) + "import sys\n"
+                              "for _ in range(int(sys.argv[1])):\n"
+                              f"    r = {call}\nprint(r)\n", encoding="utf-8")
+            once, out = _instructions([binary, "-X", f"heapsize={HEAP}", script, 1], tmp)
+            if not out.startswith(expect):
+                raise CalibrationError(f"{name} on {binary}: {out[-300:]}")
+            thrice, _ = _instructions([binary, "-X", f"heapsize={HEAP}", script, 3], tmp)
+            ir[name] = (thrice[0] - once[0]) / 2
+    per = {name: F401_US[name] / ir[name] for name in ir}
+    mean = math.exp(sum(math.log(v) for v in per.values()) / len(per))
+    return {"ir": ir, "us_per_ir": per, "us_per_ir_mean": mean}
+
+
+_FRAME = r'''
+import json
+import time
+R = {}
+exec(open(MCU).read(), R)
+CASE = json.loads(open(CASE_FILE).read())
+DB = R["open_database"](CASE["database"])
+TRACKER = R["make_tracker"](DB, CASE["camera"], CASE["method"])
+BUF = bytearray(PACKET_BYTES)
+F = open(CASE["packet"], "rb")
+PACKET = memoryview(BUF)[:F.readinto(BUF)]
+F.close()
+RES = R["process"](TRACKER, PACKET, CASE["inputs"])     # warm: the second frame is counted
+TICKS = [0]
+
+
+def clock():
+    time.ticks_us()                 # callgrind starts a new part on entering the C clock
+    TICKS[0] += 1
+    return 1 << TICKS[0]            # a stage's timing 2**(k-1) names its tick k
+
+
+TRACKER.settings.clock = clock
+RES = R["process"](TRACKER, PACKET, CASE["inputs"])
+print(json.dumps([RES.status, [[k, v] for k, v in RES.timings.items()]]))
+'''
+
+
+def frame_instructions(binary, case, method, database_file, camera, packet, heapsize):
+    """Instructions of one :meth:`StarTracker.process` of the regression ``case`` (a
+    manifest case, its ``camera`` settings, ``database_file`` and ``packet`` path) with
+    ``method`` on ``binary`` at ``heapsize`` bytes of heap, the second of two calls (the
+    first warms up): ``(status, {stage: instructions, "process": all stages})``, stages as
+    the pipeline's ``timings`` (``decode``, ``centroids``, ``directions``, ``identify``,
+    ``attitude``; fewer when the frame ends early)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "case.json").write_text(json.dumps({
+            "database": str(Path(database_file).resolve()), "camera": camera,
+            "method": method, "packet": str(Path(packet).resolve()),
+            "inputs": case["inputs"]}), encoding="utf-8")
+        script = Path(tmp) / "frame.py"
+        script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
+                          f"CASE_FILE = 'case.json'\n"
+                          f"PACKET_BYTES = {Path(packet).stat().st_size}\n" + _FRAME,
+                          encoding="utf-8")
+        parts, out = _instructions([binary, "-X", f"heapsize={int(heapsize)}", script], tmp,
+                                   dump_before="__clock_gettime64")
+    status, timings = json.loads(out.strip().splitlines()[-1])
+    stages = {}
+    for name, value in timings:
+        if name != "total":
+            stages[name] = parts[int(value).bit_length() - 1]   # the part ending at its tick
+    stages["process"] = sum(stages.values())
+    return status, stages

@@ -14,6 +14,7 @@ import shutil
 import pytest
 
 from lodestar.ground.cache import default_cache_dir
+from lodestar.regress import replay as regress
 from lodestar.regress import unixport
 from tests import REPO
 
@@ -40,3 +41,7 @@ def float32_frozen():
                           default_cache_dir() / "micropython", "float32")
 
 
+@pytest.fixture(scope="session")
+def regression_set():
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    return manifest, regress.database_files(manifest)

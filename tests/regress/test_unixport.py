@@ -28,12 +28,6 @@ def mcu_words(float32_frozen):
     return float32_frozen
 
 
-@pytest.fixture(scope="module")
-def regression_set():
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    return manifest, regress.database_files(manifest)
-
-
 def _runs(manifest, method, camera=None):
     return [(case, method) for case in manifest["cases"]
             if camera is None or case["camera"] == camera]
