@@ -31,6 +31,9 @@ INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "p1", "p2")
 """Camera parameters a calibration can fit, in the order of the parameter vector."""
 DEFAULT_FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 """Fitted by default; ``k3`` only on request (it trades off against ``k2`` over a frame)."""
+COARSE = ("fx", "fy", "k1")
+"""Parameters of the rounds before the last: the scale and the leading radial term, what a
+start without distortion misses most."""
 REJECT_SIGMA = 4.0
 """Pairs whose residual exceeds this many robust per-axis sigmas are outliers (a Gaussian
 pair does so with probability ``exp(-8) = 3e-4``)."""
@@ -100,8 +103,12 @@ def make_camera(width, height, params):
 # --------------------------------------------------------------------------------------
 
 def _records_xy(image, det):
-    """Centroids ``(N, 2)`` of every detected record, in whole-image pixels."""
-    xy = [image.to_original(b.sx / b.s0, b.sy / b.s0) for b in det.blobs if b.s0 > 0]
+    """Centroids ``(N, 2)`` of the detected records that do not touch the frame's edge (a
+    star cut by the edge has its centroid pulled inwards, where the distortion is
+    largest), in whole-image pixels."""
+    h, w = image.frame.shape
+    xy = [image.to_original(b.sx / b.s0, b.sy / b.s0) for b in det.blobs
+          if b.s0 > 0 and b.xmin > 0 and b.ymin > 0 and b.xmax < w - 1 and b.ymax < h - 1]
     return np.asarray(xy, dtype=np.float64).reshape(-1, 2)
 
 
@@ -190,9 +197,11 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
 
 class Fit:
     """A fitted camera: ``camera`` (firmware), ``params`` (:data:`INTRINSICS`), ``sigma``
-    (free parameter -> 1-sigma), ``free``, ``q`` per frame, ``inlier`` mask per pair,
-    ``residual_px`` ``(N, 2)``, ``n_pairs``, ``n_rejected``, ``scale_px`` (per-axis RMS
-    residual of the inliers, the ``s`` of the covariance)."""
+    (free parameter -> 1-sigma), ``free``, ``cov`` (covariance of the fitted parameters
+    named by ``cov_names``, :data:`INTRINSICS` order, no ``fy`` with ``one_focal``),
+    ``frames`` (those used), ``q`` per frame, ``inlier`` mask per pair, ``residual_px``
+    ``(N, 2)``, ``n_pairs``, ``n_rejected``, ``scale_px`` (per-axis RMS residual of the
+    inliers, the ``s`` of the covariance)."""
 
 
 def _stack(frames):
@@ -268,6 +277,8 @@ def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
     fit = Fit()
     fit.free = free + (("fy",) if one_focal and "fx" in free else ())
     fit.params = p
+    fit.cov = cov[:len(free), :len(free)]
+    fit.cov_names = free
     fit.sigma = {name: math.sqrt(max(cov[i, i], 0.0)) for i, name in enumerate(free)}
     if one_focal and "fx" in fit.sigma:
         fit.sigma["fy"] = fit.sigma["fx"]
@@ -344,13 +355,15 @@ def calibrate(images, camera0, rounds=2, free=DEFAULT_FREE, one_focal=False, mag
               log=None):
     """Calibrate from ``images`` (``[(name, SkyImage)]``, one camera) starting at firmware
     ``camera0`` (whole image): ``rounds`` times solve every frame with the current camera
-    and fit (:func:`fit_camera`).  Frames that do not solve in the first round raise
-    :class:`CalibrationError` naming them, unless ``skip_unsolved``.  ``log``: a text stream
-    for one progress line per round."""
-    if rounds < 1:
-        raise ValueError(f"--rounds must be >= 1, got {rounds}")
+    and fit (:func:`fit_camera`); the rounds before the last fit only the :data:`COARSE`
+    parameters among ``free``, which a far-off start can determine from few stars.  A frame
+    that solves in no round raises :class:`CalibrationError` naming it, unless
+    ``skip_unsolved``.  ``log``: a text stream for one progress line per round."""
+    if not isinstance(rounds, int) or rounds < 1:
+        raise ValueError(f"--rounds must be an int >= 1, got {rounds!r}")
     camera, fit, previous = camera0, None, {}
     for rnd in range(rounds):
+        final = rnd == rounds - 1
         frames, failed = [], []
         for name, image in images:
             got = frame_pairs(name, image, camera, mag, tolerance_px, ksigma, min_pixels,
@@ -359,17 +372,24 @@ def calibrate(images, camera0, rounds=2, free=DEFAULT_FREE, one_focal=False, mag
                 failed.append(f"{name} ({got[0]}: {got[1]})")
             else:
                 frames.append(got)
-        if failed and not skip_unsolved:
-            raise CalibrationError(f"{len(failed)} of {len(images)} frames do not solve with "
-                                   f"the starting camera: {'; '.join(failed)} (drop them or "
-                                   f"give --skip-unsolved)")
-        fit = fit_camera(frames, camera0 if fit is None else fit.camera, free, one_focal)
-        previous = {f.name: q for f, q in zip(fit.frames, fit.q)}
+        coarse = tuple(name for name in free if name in COARSE)
+        try:
+            fit = fit_camera(frames, camera, free if final or not coarse else coarse,
+                             one_focal)
+        except CalibrationError as exc:
+            if failed:
+                raise CalibrationError(f"{exc}; not solved: {'; '.join(failed)}") from None
+            raise
+        previous.update((f.name, q) for f, q in zip(fit.frames, fit.q))
         camera = fit.camera
         if log is not None:
             print(f"lodestar calibrate: round {rnd + 1}: {len(fit.frames)} frames, "
                   f"{fit.n_pairs} pairs ({fit.n_rejected} rejected), residual "
-                  f"{fit.scale_px:.3f} px per axis", file=log, flush=True)
+                  f"{fit.scale_px:.3f} px per axis; fitted {' '.join(fit.free)}",
+                  file=log, flush=True)
+    if failed and not skip_unsolved:
+        raise CalibrationError(f"{len(failed)} of {len(images)} frames do not solve: "
+                               f"{'; '.join(failed)} (drop them or give --skip-unsolved)")
     out = Calibration()
     out.camera, out.sigma, out.fit, out.rounds = fit.camera, fit.sigma, fit, rounds
     out.before = residual_stats(fit, camera0)
