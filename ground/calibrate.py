@@ -112,19 +112,22 @@ def _records_xy(image, det):
     return np.asarray(xy, dtype=np.float64).reshape(-1, 2)
 
 
-def match_records(xy, params, q, catalogue, width, height, radius_px):
+def match_records(xy, camera, q, catalogue, radius_px):
     """``(record index, catalogue index)`` pairs: each record whose nearest predicted
-    catalogue star (``catalogue`` projected at attitude ``q`` through ``params``) lies within
-    ``radius_px`` while the second nearest lies beyond ``2 radius_px``, one record per star."""
+    catalogue star (``catalogue`` projected at attitude ``q`` through the firmware
+    ``camera``) lies within ``radius_px`` while the second nearest lies beyond
+    ``2 radius_px``, one record per star.  Stars beyond the camera's fold radius are never
+    predicted (the distortion polynomial would bring them back into the frame)."""
     if len(xy) == 0:
         return []
     v_cam = Rotation.from_quat(q).apply(catalogue.unit_vectors())
-    fx, fy = params[0], params[1]
-    half_diag = math.hypot(width / fx, height / fy)      # generous: tan of the half diagonal
-    ahead = np.flatnonzero(v_cam[:, 2] > 1.0 / math.sqrt(1.0 + 4.0 * half_diag ** 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = np.hypot(v_cam[:, 0], v_cam[:, 1]) / v_cam[:, 2]
+    ahead = np.flatnonzero((v_cam[:, 2] > 0) & (radius < camera.fold_radius()))
     if len(ahead) == 0:
         return []
-    pix = project(params, v_cam[ahead])
+    width, height = camera.width, camera.height
+    pix = project(camera_params(camera), v_cam[ahead])
     keep = ((pix[:, 0] > -radius_px - 0.5) & (pix[:, 0] < width - 0.5 + radius_px) &
             (pix[:, 1] > -radius_px - 0.5) & (pix[:, 1] < height - 0.5 + radius_px))
     ahead, pix = ahead[keep], pix[keep]
@@ -165,7 +168,6 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     else:
         return report["status"], report["reason"]
     cat = default_catalogue(mag).brighter_than(report["mag_limit"] + 1e-6)
-    params = camera_params(camera)
     xy_all = _records_xy(image, det)
     xy, hips = [], []
     for m in report["matches"]:
@@ -176,8 +178,7 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
         radius_px = (tolerance_px if tolerance_px is not None else
                      imagesolve.flightsolve.default_tolerance_px(binned)) * image.bin
     taken = set(hips)
-    for i, star in match_records(xy_all, params, q, cat, camera.width, camera.height,
-                                 radius_px):
+    for i, star in match_records(xy_all, camera, q, cat, radius_px):
         hip = int(cat.hip[star])
         if hip in taken or any(math.hypot(xy_all[i, 0] - x, xy_all[i, 1] - y) < 1.0
                                for x, y in xy[:n_solver]):

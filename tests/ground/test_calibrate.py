@@ -105,15 +105,21 @@ def test_match_records_refuses_ambiguous_and_shared_stars():
             return self._v
 
     cam = lohmann_frames.truth_camera()
-    params = cal.camera_params(cam)
     pix = [(100.0, 100.0), (300.0, 200.0), (303.0, 200.0), (500.0, 300.0)]
     v = np.array([cam.pixel_to_vector(x, y) for x, y in pix])
     q = np.array([0.0, 0.0, 0.0, 1.0])
     records = np.array([(100.4, 99.8),            # star 0
                         (300.2, 200.0),           # star 1, but star 2 is 3 px away: ambiguous
                         (499.5, 300.0), (500.5, 300.0)])   # two records for star 3: neither
-    got = cal.match_records(records, params, q, Stars(v), cam.width, cam.height, 2.0)
+    got = cal.match_records(records, cam, q, Stars(v), 2.0)
     assert got == [(0, 0)]
+    # a star far outside the field (tan 1.4), where the polynomial folds back into the frame
+    cam = cal.make_camera(752, 480, [1438.0, 1427.0, 375.5, 239.5, -0.5, 0, 0, 0, 0])
+    far = np.array([[1.4, 0.0, 1.0]]) / np.linalg.norm([1.4, 0.0, 1.0])
+    assert cam.fold_radius() < 1.4 and cam.vector_to_pixel(far[0]) is None
+    folded = cal.project(cal.camera_params(cam), far)[0]
+    assert cam.in_frame(*folded)
+    assert cal.match_records(np.array([folded]), cam, q, Stars(far), 2.0) == []
 
 
 @pytest.fixture(scope="module")
