@@ -3,6 +3,7 @@ Brown-Conrady distortion to solved sky frames of one camera and write a camera f
 (:mod:`lodestar.ground.calibrate`, :mod:`lodestar.ground.camerafile`, ``docs/calibration.md``)."""
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -62,6 +63,10 @@ def add_parser(sub):
 def run(args):
     """The ``calibrate`` command: 0 when the camera file is written; 2 with one line for a
     bad file, frames that do not solve, too few matched stars or an existing ``--out``."""
+    if args.tolerance is not None and not (math.isfinite(args.tolerance) and
+                                           args.tolerance > 0):
+        raise ValueError(f"--tolerance must be a positive number of pixels, got "
+                         f"{args.tolerance}")
     inputs = list(args.frames) + ([args.camera] if args.camera else [])
     check_output(args.out, SUFFIXES, inputs=inputs, what="--out")
     if Path(args.out).exists() and not args.force:

@@ -99,6 +99,8 @@ def test_frames_that_do_not_solve_are_named(frames, fov, tmp_path, capsys):
     (["--fov", "30", "--camera", "{good}"], "give one camera"),
     (["--fov", "30", "-o", "{dir}/c.toml"], "must end in .json"),
     (["--fov", "30", "--rounds", "0"], "--rounds must be an int >= 1"),
+    (["--fov", "30", "--tolerance", "nan"], "--tolerance must be a positive number"),
+    (["--fov", "30", "--ksigma", "-1"], "--ksigma must be a positive number"),
     (["--preset", "estcube2"], "the estcube2 camera 2592x1944"),
 ])
 def test_bad_input_exits_2_with_one_line(frames, tmp_path, capsys, extra, message):
