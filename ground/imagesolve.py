@@ -308,13 +308,24 @@ def read_image(path, bits=None, binning=1):
 # Camera and detector
 # --------------------------------------------------------------------------------------
 
-def image_camera(image, preset=None, fov_deg=None, distortion=None):
+def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None):
     """``(firmware Camera of the detector's frame, description)`` for ``image``: the preset's
-    camera, or the ``fov_deg`` pinhole with ``distortion`` ``(k1, k2, k3, p1, p2)``, scaled
-    to the binned frame.  Raises ``ValueError`` for an absurd FOV, a distortion that cannot
-    be inverted over the frame, a size that differs from the preset's, or no camera."""
+    camera, or the ``fov_deg`` pinhole with ``distortion`` ``(k1, k2, k3, p1, p2)``, or
+    ``camera`` (a firmware Camera of the whole image, e.g. a camera file's), scaled to the
+    binned frame.  Raises ``ValueError`` for an absurd FOV, a distortion that cannot be
+    inverted over the frame, a size that differs from the preset's or the camera's, or no
+    camera."""
 
-    if fov_deg is not None:
+    if camera is not None:
+        if preset is not None or fov_deg is not None or distortion is not None:
+            raise ValueError("give one camera: --camera, --preset or --fov")
+        if (camera.width, camera.height) != (image.width, image.height):
+            raise ValueError(f"the image is {image.width}x{image.height}, the camera "
+                             f"{camera.width}x{camera.height}")
+        full = (camera.fx, camera.fy, camera.cx, camera.cy,
+                {k: getattr(camera, k) for k in ("k1", "k2", "k3", "p1", "p2")})
+        what = "camera file"
+    elif fov_deg is not None:
         if preset is not None:
             raise ValueError("give --preset or --fov, not both")
         if not (math.isfinite(fov_deg) and

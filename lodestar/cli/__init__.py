@@ -6,8 +6,8 @@ import argparse
 import importlib
 import sys
 
-COMMANDS = ("detect", "simulate", "goldenset", "db", "demo", "solve", "cosim", "regress",
-            "campaign", "synth")
+COMMANDS = ("detect", "simulate", "goldenset", "db", "demo", "solve", "calibrate", "cosim",
+            "regress", "campaign", "synth")
 """Subcommands, in help order; each is the module ``lodestar.cli.<name>``."""
 
 

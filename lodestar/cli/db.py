@@ -5,9 +5,11 @@ import math
 
 from lodestar.contract import stardb
 from lodestar.firmware.database import DatabaseError
+from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.database import build_database, describe
 from lodestar.ground.files import write_atomic
 from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+from lodestar.ground.solve import camera_fov_deg
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
 
 
@@ -20,6 +22,8 @@ def add_parser(sub):
     src.add_argument("--preset", choices=PRESETS, default=None,
                      help=f"camera preset (default {DEFAULT_PRESET})")
     src.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view")
+    src.add_argument("--camera", metavar="FILE",
+                     help="camera file (lodestar calibrate): its field of view")
     b.add_argument("--aspect", type=float, default=4 / 3,
                    help="width/height with --fov (default 4/3)")
     b.add_argument("--mag", type=_magnitude, default=None,
@@ -75,7 +79,11 @@ def _run_db_build(args):
         raise ValueError("--mag none needs --density (the whole catalogue in every field)")
     else:
         depth = {"mag_limit": 6.0 if mag is None else mag}
-    if args.fov is not None:
+    if args.camera is not None:
+        fov_h, fov_v = camera_fov_deg(read_camera_file(args.camera))
+        image = build_database(fov_h_deg=fov_h, fov_v_deg=fov_v, methods=tuple(args.method),
+                               **depth)
+    elif args.fov is not None:
         if not 0 < args.fov < 180 or not math.isfinite(args.fov):
             raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
         image = build_database(fov_h_deg=args.fov, aspect=args.aspect,

@@ -7,6 +7,7 @@ import sys
 
 from lodestar import contract as C
 from lodestar.firmware import starid
+from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
@@ -39,6 +40,8 @@ def add_parser(sub):
                      help="horizontal field of view edge to edge, degrees")
     cam.add_argument("--distortion", nargs=5, type=float, metavar=("K1", "K2", "K3", "P1", "P2"),
                      help="Brown-Conrady coefficients (with --fov)")
+    cam.add_argument("--camera", metavar="FILE",
+                     help="camera file (lodestar calibrate; docs/calibration.md)")
     data = p.add_argument_group("data")
     data.add_argument("--bits", type=int, choices=C.PIXEL_BITS, default=None,
                       help="significant bits of 16-bit data (default: detected)")
@@ -74,7 +77,11 @@ def run(args):
     image = read_image(args.image, args.bits, args.bin)
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
-    camera, what = image_camera(image, args.preset, args.fov, args.distortion)
+    given = read_camera_file(args.camera) if args.camera else None
+    camera, what = image_camera(image, args.preset, args.fov, args.distortion, camera=given)
+    if given is not None:
+        what = f"camera file {args.camera}" + (f", binned {image.bin}x{image.bin}"
+                                               if image.bin > 1 else "")
     fov_h = math.radians(camera_fov_deg(camera)[0])
     widest = starid.max_tolerance_rad(fov_h) * math.sqrt(camera.fx * camera.fy)  # px
     if args.tolerance is not None and not (math.isfinite(args.tolerance) and

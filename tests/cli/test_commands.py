@@ -166,6 +166,7 @@ def test_db_build_by_density(tmp_path, capsys):
 def _minimal_args(command):
     return {"goldenset": ["goldenset", "small", "--out", "x"], "db": ["db", "info", "x"],
             "solve": ["solve", "x.png"], "cosim": ["cosim", "x.json"],
+            "calibrate": ["calibrate", "x.png", "-o", "cam.json"],
             "campaign": ["campaign", "rate"]}.get(command, [command])
 
 
