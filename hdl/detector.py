@@ -7,8 +7,9 @@ frame's first pixel, ``eol`` on each line's last; rows need ``MIN_HBLANK`` idle 
 frames :func:`min_vblank`.  ``records`` and ``trailer`` (valid/ready): compact records in the
 contract's order, then the frame's trailer (``hdl.layouts.TRAILER_NAMES``); a frame's records
 are the ``n_records`` before its trailer.  Registers written between frames are latched at a
-frame's first pixel.  Buffers, lost trailers, ``reg_error`` and the status outputs:
-``hdl/DESIGN.md``.
+frame's first pixel.  The record buffer, the held trailer and lost trailers are the output
+stage's (:class:`lodestar.hdl.output.OutputStage`); these, ``reg_error`` and the status
+outputs are described in ``hdl/DESIGN.md``.
 """
 
 from amaranth import Module, Mux, Signal
