@@ -25,9 +25,9 @@ helper invariants on the stage's sequence numbers and the buffer's state
 
 Both bounds are tight: one clock less fails (BMC).
 
-Mutants: an output stage that forgets the orphans (takes ``held_first`` without subtracting
-``n_records``) breaks sequencing; one that never discards orphans breaks bounded response and
-return to idle.
+Mutants: an output stage that forgets the orphans (its held trailer's records start right
+after the last claimed one) breaks sequencing; one that never discards orphans breaks
+bounded response and return to idle.
 """
 
 from types import SimpleNamespace
@@ -200,7 +200,8 @@ class CheckedOutput(Elaboratable):
 
 
 class ForgetfulOutput(OutputStage):
-    """Mutant: the held trailer's records start at ``wseq`` (orphans are delivered)."""
+    """Mutant: the held trailer's records start right after the last claimed one, so
+    orphans are delivered as its records."""
 
     def elaborate(self, platform):
         m = super().elaborate(platform)
