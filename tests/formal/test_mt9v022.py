@@ -1,21 +1,22 @@
 """Formal: the MT9V022 word aligner (``hdl.mt9v022.MT9V022Frontend``) relocks, and delivers
 no pixel while unlocked.
 
-The link is driven by a packet generator: one 12-bit packet per clock (``lanes = 12``, one
-``ser`` clock per packet, the shortest trace per packet) at a free bit offset chosen once,
-each packet's 10-bit word free and, on a free ``corrupt`` input, its start bit flipped (a
-framing error when locked); reset may rise on any clock.  BMC from reset proves
-(``docs/formal.md``):
+The link is driven by a packet generator: 12-bit packets back to back, ``lanes`` bits per
+clock (12: one packet per clock, the shortest trace; 6: the DE2-115 build's; 4, opt-in) at a
+free bit offset chosen once, each packet's 10-bit word free and, on a free ``corrupt``
+input, its start bit flipped (a framing error when locked); reset may rise on any clock.
+BMC from reset proves (``docs/formal.md``):
 
-* **relock**: once the aligner has locked and lost lock, it locks again within
-  ``relock_bound()`` clocks of the last corrupted packet, whatever the words (the blanking
-  word 4, whose pattern also passes at a false alignment, included);
+* **relock**: once the aligner has locked on the packets' alignment and lost lock, it
+  locks again within ``relock_bound(lanes)`` clocks of the last corrupted packet (tight),
+  whatever the words (the blanking word 4, whose pattern also passes at a false
+  alignment, included);
 * **no pixel while unlocked**: a pixel is handed to the clock-domain crossing only while
-  locked, and after a loss of lock only once a frame start (1023, 0, 1023) has been decoded
-  since, so a frame is never resumed in the middle.
+  locked, and the first one after a loss of lock carries ``sof``, so a frame is never
+  resumed in the middle.
 
-The depth covers a lock from reset (``LOCK_PACKETS`` packets), a framing error and a full
-relock window.  Mutants: an aligner that does not prefer its previous alignment when
+The depth (``bmc_depth``) covers a lock from reset, a framing error and a full relock
+window.  Mutants (12 lanes): an aligner that does not prefer its previous alignment when
 relocking (relock fails with the blanking word) and one whose decoder keeps its frame across
 a framing error (delivers pixels after the loss without a new frame start).
 """
@@ -35,20 +36,23 @@ from .sby import available, internals, prove, submodule
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
-DEPTH = 26
-"""BMC depth: lock from reset (about ``LOCK_PACKETS + 2`` clocks), an error, the relock
-window and a clock to spare."""
 
 
-def relock_bound():
-    """Clocks from the last corrupted packet until lock is regained (one packet per clock):
-    ``LOCK_PACKETS`` good packets at the previous alignment, the clock that shifts the
-    corrupted packet out of the bit window, the lock register's clock."""
-    return LOCK_PACKETS + 2
+def relock_bound(lanes=PACKET_BITS):
+    """Clocks from the last corrupted packet until lock is regained: ``LOCK_PACKETS`` good
+    packets at the previous alignment, a packet period that shifts the corrupted packet out
+    of the bit window and one for the lock, ``12 / lanes`` clocks per packet period."""
+    return (LOCK_PACKETS + 2) * (PACKET_BITS // lanes)
+
+
+def bmc_depth(lanes):
+    """BMC depth: a lock from reset (about ``relock_bound`` clocks), an error, the relock
+    window and a few clocks to spare (26 clocks for 12 lanes)."""
+    return 2 * relock_bound(lanes) + 6
 
 
 class CheckedAligner(Elaboratable):
-    """``frontend`` (lanes = 12, ``domain="sync"``) fed by the packet generator, under
+    """``frontend`` (``domain="sync"``) fed by the packet generator, under
     ``check``: ``"relock"`` or ``"pixels"``; ``slack``: clocks added to the relock bound."""
 
     def __init__(self, frontend, check, slack=0):
@@ -66,33 +70,43 @@ class CheckedAligner(Elaboratable):
         s = internals(unit)
         locked = s["locked"]
 
-        # ---- packet generator: the packet of this clock at a constant bit offset ----------
+        # ---- packet generator: packets back to back at a constant bit offset -------------
+        lanes = fe.lanes
+        period = PACKET_BITS // lanes                              # clocks per packet
+        phase = Signal(range(period))
+        m.d.sync += phase.eq(Mux(phase == period - 1, 0, phase + 1))
+        load = phase == 0                                          # a new packet starts
         packet = Cat(~self.corrupt, self.word, 0)                  # start, LSB .. MSB, stop
-        previous = Signal(PACKET_BITS)
-        m.d.sync += previous.eq(packet)
+        current, previous = Signal(PACKET_BITS), Signal(PACKET_BITS)
+        with m.If(load):
+            m.d.sync += [current.eq(packet), previous.eq(current)]
         first = Signal(init=1)
         offset_d = Signal.like(self.offset)
         m.d.sync += [first.eq(0), offset_d.eq(self.offset)]
         m.d.comb += [Assume(self.offset < PACKET_BITS), Assume(first | (self.offset == offset_d))]
-        stream = Cat(previous, packet)                             # earliest bit first
-        chunk = Signal(PACKET_BITS)
-        with m.Switch(self.offset):
-            for r in range(PACKET_BITS):
-                with m.Case(r):
-                    m.d.comb += chunk.eq(stream[PACKET_BITS - r:2 * PACKET_BITS - r])
-        m.d.comb += fe.bits.eq(Cat(*[chunk[PACKET_BITS - 1 - j] for j in range(PACKET_BITS)]))
+        stream = Cat(Mux(load, current, previous), Mux(load, packet, current))  # earliest first
+        chunk = Signal(lanes)
+        with m.Switch(Cat(self.offset, phase)):
+            for g in range(period):
+                for r in range(PACKET_BITS):
+                    with m.Case(r | (g << len(self.offset))):
+                        start = PACKET_BITS + g * lanes - r
+                        m.d.comb += chunk.eq(stream[start:start + lanes])
+        m.d.comb += fe.bits.eq(Cat(*[chunk[lanes - 1 - j] for j in range(lanes)]))
+        corrupted = load & self.corrupt
 
         # ---- relock: clocks without lock since the last corrupted packet, after a loss -----
-        # of a lock on the packets' own alignment (the window's start bit of a packet is
-        # ``offset - 1`` bits in, the previous clock's; crafted words can also make a false
-        # alignment lock, which is not what relocking is about)
+        # of a lock on the packets' own alignment, ``offset + 11 + lanes`` modulo 12 (the
+        # aligner's and the generator's phase counters both start at reset; crafted words
+        # can also make a false alignment lock, which is not what relocking is about)
         had_lock = Signal()
         m.d.sync += had_lock.eq(had_lock | locked)
         true = Signal(range(PACKET_BITS))
-        m.d.comb += true.eq(Mux(self.offset == 0, PACKET_BITS - 1, self.offset - 1))
-        bound = relock_bound() + self.slack
+        m.d.comb += true.eq((self.offset + (PACKET_BITS - 1 + lanes) % PACKET_BITS)
+                            % PACKET_BITS)
+        bound = relock_bound(lanes) + self.slack
         waiting = Signal(range(bound + 2))
-        with m.If(self.corrupt | locked | ~had_lock | (s["lock_a"] != true)):
+        with m.If(corrupted | locked | ~had_lock | (s["lock_a"] != true)):
             m.d.sync += waiting.eq(0)
         with m.Elif(waiting <= bound):
             m.d.sync += waiting.eq(waiting + 1)
@@ -139,19 +153,24 @@ class ResumingAligner(MT9V022Frontend):
         return m
 
 
-def frontend(cls=MT9V022Frontend):
-    return cls(4, 2, lanes=PACKET_BITS, domain="sync")
+def frontend(cls=MT9V022Frontend, lanes=PACKET_BITS):
+    return cls(4, 2, lanes=lanes, domain="sync")
 
 
-def run(tmp_path, fe, check, depth=DEPTH, **options):
+def run(tmp_path, fe, check, **options):
     wrapper = CheckedAligner(fe, check, **options)
-    return prove(wrapper, "bmc", depth, tmp_path,
+    return prove(wrapper, "bmc", bmc_depth(fe.lanes), tmp_path,
                  ports=[wrapper.word, wrapper.corrupt, wrapper.offset])
 
 
+LANES = [12, 6, pytest.param(4, marks=pytest.mark.slow)]
+"""12: one packet per clock; 6: the DE2-115 build's; 4: 68 clocks, opt-in."""
+
+
+@pytest.mark.parametrize("lanes", LANES)
 @pytest.mark.parametrize("check", ["relock", "pixels"])
-def test_aligner(tmp_path, check):
-    result = run(tmp_path, frontend(), check)
+def test_aligner(tmp_path, check, lanes):
+    result = run(tmp_path, frontend(lanes=lanes), check)
     assert result.passed, result.log
 
 
@@ -165,7 +184,8 @@ def test_pixels_mutant_fails(tmp_path):
     assert result.failed, result.log
 
 
-def test_relock_bound_is_tight(tmp_path):
-    """One clock less than ``relock_bound()`` is not enough."""
-    result = run(tmp_path, frontend(), "relock", slack=-1)
+@pytest.mark.parametrize("lanes", LANES)
+def test_relock_bound_is_tight(tmp_path, lanes):
+    """One clock less than ``relock_bound(lanes)`` is not enough."""
+    result = run(tmp_path, frontend(lanes=lanes), "relock", slack=-1)
     assert result.failed, result.log
