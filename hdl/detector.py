@@ -7,8 +7,9 @@ frame's first pixel, ``eol`` on each line's last; rows need ``MIN_HBLANK`` idle 
 frames :func:`min_vblank`.  ``records`` and ``trailer`` (valid/ready): compact records in the
 contract's order, then the frame's trailer (``hdl.layouts.TRAILER_NAMES``); a frame's records
 are the ``n_records`` before its trailer.  Registers written between frames are latched at a
-frame's first pixel.  Buffers, lost trailers, ``reg_error`` and the status outputs:
-``hdl/DESIGN.md``.
+frame's first pixel.  The record buffer, the held trailer and lost trailers are the output
+stage's (:class:`lodestar.hdl.output.OutputStage`); these, ``reg_error`` and the status
+outputs are described in ``hdl/DESIGN.md``.
 """
 
 from amaranth import Module, Mux, Signal
@@ -17,7 +18,6 @@ from amaranth.lib.wiring import In, Out, connect
 
 from lodestar import contract as C
 
-from .buffers import HalfWordFIFO
 from .features import FeatureEngine
 from .labeller import Labeller, vblank_cycles
 from .layouts import (
@@ -27,6 +27,7 @@ from .layouts import (
     record_layout,
     trailer_layout,
 )
+from .output import TRAILER_LOST_BITS, OutputStage
 from .registers import RegisterBank
 from .threshold import ThresholdUnit, global_cycles, local_blanking
 
@@ -43,11 +44,6 @@ def min_vblank(width, height, pixel_bits, mode, log2_window=C.LOCAL_LOG2_WINDOW_
     return need
 
 _FILTERS = ("min_pixels", "min_sum", "max_pixels")
-
-
-TRAILER_LOST_BITS = 8
-"""Width of the wrapping count of lost trailers (the board compares it with its value at
-the last status read, so any width that cannot wrap between two reads will do)."""
 
 
 class Detector(wiring.Component):
@@ -84,7 +80,6 @@ class Detector(wiring.Component):
         m.submodules.labeller = lab = Labeller(W, H, pb, self.label_capacity)
         m.submodules.features = feat = FeatureEngine(W, H, pb, lab.slots, self.record_capacity)
         rec_layout = record_layout(W, H, pb)
-        m.submodules.record_fifo = rfifo = HalfWordFIFO(rec_layout.size, self.record_depth)
         tr_layout = trailer_layout()
 
         m.d.comb += [regs.addr.eq(self.reg_addr), regs.data.eq(self.reg_data),
@@ -134,44 +129,10 @@ class Detector(wiring.Component):
         ]
 
         # ---- output: the record buffer, the held trailer, orphan records ----------------
-        # Record sequence numbers (modulo 2**seq > 2 x record_depth): ``wseq`` counts records into
-        # the buffer, ``rseq`` records out of it (delivered or discarded); ``claimed`` is
-        # the number after the last record claimed by a taken trailer (or discarded).  The
-        # held trailer's records start at ``held_first``; records between ``claimed`` and
-        # ``held_first`` are orphans.
-        seq = C.bits_for(self.record_depth) + 1
-        wseq, rseq, claimed = (Signal(seq, name=n) for n in ("wseq", "rseq", "claimed"))
-        held_first = Signal(seq, reset_less=True)
-        held = Signal(tr_layout, reset_less=True)
-        held_valid = Signal()
-        taken = self.trailer.valid & self.trailer.ready
-        with m.If(lab.done & (~held_valid | taken)):
-            m.d.sync += [held.eq(trailer), held_valid.eq(1),
-                         held_first.eq(wseq - feat.n_records[:seq])]
-        with m.Elif(taken):
-            m.d.sync += held_valid.eq(0)
-        with m.If(lab.done & held_valid & ~taken):
-            m.d.sync += self.trailer_lost.eq(self.trailer_lost + 1)
-
-        orphans = held_valid & (claimed != held_first)
-        at_claimed = rseq == claimed
-        behind = (rseq - claimed)[seq - 1]        # the reader still owes claimed records
-        discard = orphans & at_claimed & rfifo.r_rdy
-        rseq_next = rseq + 1
-        with m.If(taken):
-            m.d.sync += claimed.eq(held_first + held.n_records[:seq])
-        with m.Elif(discard):
-            m.d.sync += claimed.eq(rseq_next)            # claimed == rseq here
-        with m.Elif(orphans & ~at_claimed & ~behind):   # the reader took them already
-            m.d.sync += claimed.eq(held_first)
-        m.d.comb += [rfifo.w_data.eq(feat.records.payload), rfifo.w_en.eq(feat.records.valid),
-                     feat.records.ready.eq(rfifo.w_rdy),
-                     self.records.payload.eq(rfifo.r_data),
-                     self.records.valid.eq(rfifo.r_rdy & ~(orphans & at_claimed)),
-                     rfifo.r_en.eq(self.records.valid & self.records.ready | discard),
-                     self.trailer.payload.eq(held), self.trailer.valid.eq(held_valid & ~orphans)]
-        with m.If(rfifo.w_en & rfifo.w_rdy):
-            m.d.sync += wseq.eq(wseq + 1)
-        with m.If(rfifo.r_en & rfifo.r_rdy):
-            m.d.sync += rseq.eq(rseq_next)
+        m.submodules.output = out = OutputStage(rec_layout, self.record_depth)
+        connect(m, feat.records, out.records_in)
+        connect(m, out.records, wiring.flipped(self.records))
+        connect(m, out.trailer, wiring.flipped(self.trailer))
+        m.d.comb += [out.done.eq(lab.done), out.trailer_in.eq(trailer),
+                     self.trailer_lost.eq(out.trailer_lost)]
         return m

@@ -60,6 +60,15 @@ def submodule(module, name):
     return module._named_submodules[name][0]
 
 
+def elaborate_submodule(module, name, platform):
+    """Elaborate the named submodule of an elaborated ``Module`` in place and return its
+    ``Module``, for properties on the internal state of a unit's own submodule."""
+    sub, src_loc = module._named_submodules[name]
+    elaborated = sub.elaborate(platform)
+    module._named_submodules[name] = (elaborated, src_loc)
+    return elaborated
+
+
 def prove(wrapper, mode, depth, workdir, *, ports=(), engine="smtbmc yices",
           multiclock=False, timeout=600):
     """Run SBY on ``wrapper``; returns a ``Result``."""

@@ -6,6 +6,11 @@ items held never exceed ``depth``, ``r_rdy`` never offers an item that is not he
 ``w_rdy`` refuses only in the clock after an item was taken or when ``depth`` items are
 held, and an item held is offered at most two clocks after the reader became free
 (``docs/formal.md``).  Mutation: a buffer whose ``w_rdy`` ignores fullness fails.
+
+Order, BMC: with each item's value its number (modulo ``2**width``), every item offered is
+the next one in write order, so items are neither lost, repeated nor reordered, nor torn
+between their two half-words (the output stage's proof, ``test_output.py``, counts on it).
+Mutation: a buffer that writes a stale high half fails.
 """
 
 import pytest
@@ -17,6 +22,10 @@ from lodestar.hdl.buffers import HalfWordFIFO
 from .sby import available, internals, prove
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
+
+ORDER_DEPTH = 16
+"""BMC depth of the order proof: 8 items in and out (numbers wrap at 4, the buffer fills
+and empties)."""
 
 
 class AccountedFIFO(Elaboratable):
@@ -66,6 +75,24 @@ class AccountedFIFO(Elaboratable):
         return m
 
 
+class OrderedFIFO(Elaboratable):
+    """``fifo`` fed its items' numbers: each item offered is the next in write order."""
+
+    def __init__(self, fifo):
+        self.fifo = fifo
+
+    def elaborate(self, platform):
+        m = Module()
+        f = self.fifo
+        m.submodules.fifo = f
+        written = Signal(f.width)
+        read = Signal(f.width)
+        m.d.sync += [written.eq(written + (f.w_en & f.w_rdy)),
+                     read.eq(read + (f.r_en & f.r_rdy))]
+        m.d.comb += [Assume(f.w_data == written), Assert(~f.r_rdy | (f.r_data == read))]
+        return m
+
+
 class UnboundedFIFO(HalfWordFIFO):
     """Mutant: ``w_rdy`` ignores fullness."""
 
@@ -84,6 +111,29 @@ def test_record_accounting(tmp_path, depth):
     fifo = HalfWordFIFO(5, depth)
     result = prove(AccountedFIFO(fifo), "prove", 10, tmp_path, ports=inputs(fifo))
     assert result.passed, result.log
+
+
+class StaleFIFO(HalfWordFIFO):
+    """Mutant: the high half is never taken from the item (it stays at its reset value)."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        hi_hold = internals(m)["hi_hold"]
+        m.d.sync += hi_hold.eq(hi_hold)
+        return m
+
+
+@pytest.mark.parametrize("depth", [3, 4])
+def test_order(tmp_path, depth):
+    fifo = HalfWordFIFO(2, depth)
+    result = prove(OrderedFIFO(fifo), "bmc", ORDER_DEPTH, tmp_path, ports=inputs(fifo))
+    assert result.passed, result.log
+
+
+def test_order_mutant_fails(tmp_path):
+    fifo = StaleFIFO(2, 3)
+    result = prove(OrderedFIFO(fifo), "bmc", ORDER_DEPTH, tmp_path, ports=inputs(fifo))
+    assert result.failed, result.log
 
 
 def test_record_accounting_mutant_fails(tmp_path):

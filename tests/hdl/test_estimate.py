@@ -50,7 +50,7 @@ def test_memories_of_a_design():
     mems = {m["name"]: m for m in memories(GatewareTop("mt9p031", 64, 16, record_capacity=8))}
     bitmap = mems["detector.labeller.bitmap"]
     assert (bitmap["depth"], bitmap["width"], bitmap["bits"]) == (64, 1, 64)
-    rec = mems["detector.record_fifo.storage"]        # 8 records as 16 half-words
+    rec = mems["detector.output.record_fifo.storage"]        # 8 records as 16 half-words
     assert (rec["depth"], rec["width"]) == (16, (record_layout(64, 16, 12).size + 1) // 2)
     assert mems["detector.labeller.flags0"]["write_ports"] == 2
     assert "frontend.crossing.fifo.storage" in mems
@@ -150,5 +150,5 @@ def test_estcube2_memory_budget():
     mems, m9k, _ = memory_budget(BOARDS["estcube2"].star_tracker())
     assert m9k <= 33
     by_name = {m["name"]: m for m in mems}
-    assert by_name["detector.record_fifo.storage"]["m9k"] == 5
+    assert by_name["detector.output.record_fifo.storage"]["m9k"] == 5
     assert not any("trailer" in name for name in by_name)      # the trailer is in registers

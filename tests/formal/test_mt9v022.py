@@ -1,0 +1,191 @@
+"""Formal: the MT9V022 word aligner (``hdl.mt9v022.MT9V022Frontend``) relocks, and delivers
+no pixel while unlocked.
+
+The link is driven by a packet generator: 12-bit packets back to back, ``lanes`` bits per
+clock (12: one packet per clock, the shortest trace; 6: the DE2-115 build's; 4, opt-in) at a
+free bit offset chosen once, each packet's 10-bit word free and, on a free ``corrupt``
+input, its start bit flipped (a framing error when locked); reset may rise on any clock.
+BMC from reset proves (``docs/formal.md``):
+
+* **relock**: once the aligner has locked on the packets' alignment and lost lock, it
+  locks again within ``relock_bound(lanes)`` clocks of the last corrupted packet (tight),
+  whatever the words (the blanking word 4, whose pattern also passes at a false
+  alignment, included);
+* **no pixel while unlocked**: a pixel is handed to the clock-domain crossing only while
+  locked, and the first one after a loss of lock carries ``sof``, so a frame is never
+  resumed in the middle.
+
+The depth (``bmc_depth``) covers a lock from reset, a framing error and a full relock
+window.  Mutants (12 lanes): an aligner that does not prefer its previous alignment when
+relocking (relock fails with the blanking word) and one whose decoder keeps its frame across
+a framing error (delivers pixels after the loss without a new frame start).
+"""
+
+import pytest
+from amaranth import Array, Cat, Elaboratable, Module, Mux, Signal
+from amaranth.hdl import Assert, Assume
+
+from lodestar.hdl.mt9v022 import (
+    LOCK_PACKETS,
+    PACKET_BITS,
+    PIXEL_BITS,
+    MT9V022Frontend,
+)
+
+from .sby import available, internals, prove, submodule
+
+pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
+
+
+
+def relock_bound(lanes=PACKET_BITS):
+    """Clocks from the last corrupted packet until lock is regained: ``LOCK_PACKETS`` good
+    packets at the previous alignment, a packet period that shifts the corrupted packet out
+    of the bit window and one for the lock, ``12 / lanes`` clocks per packet period."""
+    return (LOCK_PACKETS + 2) * (PACKET_BITS // lanes)
+
+
+def bmc_depth(lanes):
+    """BMC depth: a lock from reset (about ``relock_bound`` clocks), an error, the relock
+    window and a few clocks to spare (26 clocks for 12 lanes)."""
+    return 2 * relock_bound(lanes) + 6
+
+
+class CheckedAligner(Elaboratable):
+    """``frontend`` (``domain="sync"``) fed by the packet generator, under
+    ``check``: ``"relock"`` or ``"pixels"``; ``slack``: clocks added to the relock bound."""
+
+    def __init__(self, frontend, check, slack=0):
+        self.frontend, self.check, self.slack = frontend, check, slack
+        self.word = Signal(PIXEL_BITS)
+        self.corrupt = Signal()
+        self.offset = Signal(range(PACKET_BITS))
+
+    def elaborate(self, platform):
+        m = Module()
+        fe = self.frontend
+        m.submodules.frontend = unit = fe.elaborate(platform)
+        cross = submodule(unit, "crossing")
+        unit._named_submodules["crossing"] = (Module(), None)     # only its input is observed
+        s = internals(unit)
+        locked = s["locked"]
+
+        # ---- packet generator: packets back to back at a constant bit offset -------------
+        lanes = fe.lanes
+        period = PACKET_BITS // lanes                              # clocks per packet
+        phase = Signal(range(period))
+        m.d.sync += phase.eq(Mux(phase == period - 1, 0, phase + 1))
+        load = phase == 0                                          # a new packet starts
+        packet = Cat(~self.corrupt, self.word, 0)                  # start, LSB .. MSB, stop
+        current, previous = Signal(PACKET_BITS), Signal(PACKET_BITS)
+        with m.If(load):
+            m.d.sync += [current.eq(packet), previous.eq(current)]
+        first = Signal(init=1)
+        offset_d = Signal.like(self.offset)
+        m.d.sync += [first.eq(0), offset_d.eq(self.offset)]
+        m.d.comb += [Assume(self.offset < PACKET_BITS), Assume(first | (self.offset == offset_d))]
+        stream = Cat(Mux(load, current, previous), Mux(load, packet, current))  # earliest first
+        chunk = Signal(lanes)
+        with m.Switch(Cat(self.offset, phase)):
+            for g in range(period):
+                for r in range(PACKET_BITS):
+                    with m.Case(r | (g << len(self.offset))):
+                        start = PACKET_BITS + g * lanes - r
+                        m.d.comb += chunk.eq(stream[start:start + lanes])
+        m.d.comb += fe.bits.eq(Cat(*[chunk[lanes - 1 - j] for j in range(lanes)]))
+        corrupted = load & self.corrupt
+
+        # ---- relock: clocks without lock since the last corrupted packet, after a loss -----
+        # of a lock on the packets' own alignment, ``offset + 11 + lanes`` modulo 12 (the
+        # aligner's and the generator's phase counters both start at reset; crafted words
+        # can also make a false alignment lock, which is not what relocking is about)
+        had_lock = Signal()
+        m.d.sync += had_lock.eq(had_lock | locked)
+        true = Signal(range(PACKET_BITS))
+        m.d.comb += true.eq((self.offset + (PACKET_BITS - 1 + lanes) % PACKET_BITS)
+                            % PACKET_BITS)
+        bound = relock_bound(lanes) + self.slack
+        waiting = Signal(range(bound + 2))
+        with m.If(corrupted | locked | ~had_lock | (s["lock_a"] != true)):
+            m.d.sync += waiting.eq(0)
+        with m.Elif(waiting <= bound):
+            m.d.sync += waiting.eq(waiting + 1)
+
+        # ---- pixels: none while unlocked; after a loss, the first one starts a frame -----
+        pixels = cross.pixels
+        delivered = pixels.valid
+        was_locked = Signal()
+        resumed = Signal()                # a pixel was delivered since the last loss of lock
+        m.d.sync += was_locked.eq(locked)
+        with m.If(was_locked & ~locked):
+            m.d.sync += resumed.eq(0)
+        with m.Elif(delivered):
+            m.d.sync += resumed.eq(1)
+        m.d.comb += {
+            "relock": [Assert(waiting <= bound)],
+            "pixels": [Assert(~delivered | locked),
+                       Assert(~delivered | resumed | ~had_lock | pixels.payload.sof)],
+        }[self.check]
+        return m
+
+
+class FickleAligner(MT9V022Frontend):
+    """Mutant: relocking does not prefer the previous alignment (as at power-up)."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        relock = internals(m)["relock"]
+        m.d.sync += relock.eq(0)
+        return m
+
+
+class ResumingAligner(MT9V022Frontend):
+    """Mutant: the decoder keeps its line (and held pixel) across a framing error."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        s = internals(m)
+        sr, lock_a = s["sr"], s["lock_a"]
+        good = Array([sr[a] & ~sr[a + PACKET_BITS - 1] for a in range(PACKET_BITS)])
+        with m.If(s["locked"] & ~good[lock_a]):           # one packet per clock: lanes = 12
+            m.d.sync += [s["in_frame"].eq(s["in_frame"]), s["in_line"].eq(s["in_line"]),
+                         s["held_valid"].eq(s["held_valid"])]
+        return m
+
+
+def frontend(cls=MT9V022Frontend, lanes=PACKET_BITS):
+    return cls(4, 2, lanes=lanes, domain="sync")
+
+
+def run(tmp_path, fe, check, **options):
+    wrapper = CheckedAligner(fe, check, **options)
+    return prove(wrapper, "bmc", bmc_depth(fe.lanes), tmp_path,
+                 ports=[wrapper.word, wrapper.corrupt, wrapper.offset])
+
+
+LANES = [12, 6, pytest.param(4, marks=pytest.mark.slow)]
+"""12: one packet per clock; 6: the DE2-115 build's; 4: 68 clocks, opt-in."""
+
+
+@pytest.mark.parametrize("lanes", LANES)
+@pytest.mark.parametrize("check", ["relock", "pixels"])
+def test_aligner(tmp_path, check, lanes):
+    result = run(tmp_path, frontend(lanes=lanes), check)
+    assert result.passed, result.log
+
+
+def test_relock_mutant_fails(tmp_path):
+    result = run(tmp_path, frontend(FickleAligner), "relock")
+    assert result.failed, result.log
+
+
+def test_pixels_mutant_fails(tmp_path):
+    result = run(tmp_path, frontend(ResumingAligner), "pixels")
+    assert result.failed, result.log
+
+
+@pytest.mark.parametrize("lanes", LANES)
+def test_relock_bound_is_tight(tmp_path, lanes):
+    """One clock less than ``relock_bound(lanes)`` is not enough."""
+    result = run(tmp_path, frontend(lanes=lanes), "relock", slack=-1)
+    assert result.failed, result.log
