@@ -188,7 +188,7 @@ def main():
     args = p.parse_args()
     manifest = regress.load_set(regress.DEFAULT_SET)
     db_files = regress.database_files(manifest)
-    cache = default_cache_dir() / "micropython"
+    cache = default_cache_dir() / "micropython-bench"   # not replaced by a test run
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         base_tree = Path(tmp) / "baseline"

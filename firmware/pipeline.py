@@ -52,7 +52,7 @@ at the stage boundaries of :meth:`StarTracker.process` (before the packet is che
 the centroids, before the identification and before the attitude fit): on an MCU's small
 heap this keeps temporaries from fragmenting it (``docs/firmware.md``, Memory); CPython's
 own collector needs no help."""
-GC_THRESHOLD = 16384
+GC_THRESHOLD = 8192
 """Bytes allocated between two collections on MicroPython (``docs/firmware.md``, Memory)."""
 
 
