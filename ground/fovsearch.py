@@ -259,16 +259,21 @@ def fit_rotation(cam, ref, weights=None):
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
-def fit_focal(xy, ref, width, height, f_px, iterations=4):
+def fit_focal(xy, ref, width, height, f_px, max_iterations=50):
     """Least-squares ``(f_px, R)`` of pixels ``xy`` of catalogue unit vectors ``ref``:
     alternately the attitude (Kabsch) at ``f`` and the ``f`` minimising the pixel residuals
-    ``|(x - cx, y - cy) - f (X/Z, Y/Z)|^2`` at that attitude (linear in ``f``)."""
+    ``|(x - cx, y - cy) - f (X/Z, Y/Z)|^2`` at that attitude (linear in ``f``), until ``f``
+    moves by less than 1e-12 of itself (the alternation converges linearly)."""
     u = np.column_stack([xy[:, 0] - (width - 1) / 2, xy[:, 1] - (height - 1) / 2])
-    for _ in range(iterations):
+    for _ in range(max_iterations):
         rot = fit_rotation(pixel_vectors(xy, width, height, f_px), ref)
         p = ref @ rot.T
         t = p[:, :2] / p[:, 2:3]
-        f_px = float((u * t).sum() / (t * t).sum())
+        f_new = float((u * t).sum() / (t * t).sum())
+        done = abs(f_new / f_px - 1) < 1e-12
+        f_px = f_new
+        if done:
+            break
     return f_px, fit_rotation(pixel_vectors(xy, width, height, f_px), ref)
 
 

@@ -383,19 +383,20 @@ def _blind_solve(frame, band):
                            fov_search=search, solve_ms=search["ms"], **frame.info)
     f_px = est.f_px
     res = None
-    for _ in range(2):                     # the estimate, then the fitted scale
+    for attempt in range(2):               # the estimate, then the fitted scale
         fov_h = fovsearch.fov_of_f(frame.width, f_px)
-        cam = make_camera(frame.width, frame.height, fov_h)
-        res = _firmware_solve(frame, cam, database_fov(fov_h))
+        res = _firmware_solve(frame, make_camera(frame.width, frame.height, fov_h),
+                              database_fov(fov_h))
         res.fov_search = search
         res.solve_ms += search["ms"]
-        if not res.ok:
-            return res
+        search["fitted_deg"] = fov_h if attempt else None
+        if not res.ok or attempt:
+            break
         idx = sorted(res.matches)
         f_new = refit_focal(arr[idx, :2], [res.matches[i] for i in idx], frame.width,
                             frame.height, f_px)
-        search["fitted_deg"] = fovsearch.fov_of_f(frame.width, f_new)
         if abs(f_new / f_px - 1) < 1e-6:
+            search["fitted_deg"] = fov_h
             break
         f_px = f_new
     return res
