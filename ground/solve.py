@@ -249,13 +249,16 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
     order = [i for i in order if inside[i]]
     kept = []                              # indices into the input, brightest first
     n_dup = 0
+    # a blind solve's quad search looks at more stars than the identification uses
+    wanted = max_stars if band is None else max(max_stars, fovsearch.IMAGE_STARS)
     for i in order:
-        if len(kept) == max_stars:
+        if len(kept) == wanted:
             break
         if all(math.hypot(xs[i] - xs[j], ys[i] - ys[j]) >= duplicate_px for j in kept):
             kept.append(int(i))
-        else:
+        elif len(kept) < max_stars:
             n_dup += 1
+    searched, kept = kept, kept[:max_stars]
     info = dict(n_centroids=n_in, n_used=len(kept), n_duplicates=n_dup, n_outside=n_outside,
                 fov_deg=fov)
     note = f"{n_outside} centroids outside the {width}x{height} frame ignored" \
@@ -264,7 +267,7 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
         return SolveResult("TOO_FEW_STARS", f"{len(kept)} distinct centroids in the frame, "
                            f"at least {MIN_STARS} needed" + ("; " + note if note else ""),
                            **info)
-    frame = _Frame(arr, kept, width, height, note, info,
+    frame = _Frame(arr, kept, searched, width, height, note, info,
                    dict(method=method, max_mag=max_mag, cache_dir=cache_dir,
                         tolerance_px=tolerance_px, max_stars=max_stars, budget=budget,
                         centroid_sigma_px=centroid_sigma_px, max_work=max_work))
@@ -275,12 +278,13 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
 
 class _Frame:
     """The checked centroids of one solve: ``arr`` (the input rows), ``kept`` (indices,
-    brightest first), the frame size, the outside-frame ``note``, the result ``info`` and
-    the firmware ``options``."""
+    brightest first), ``searched`` (as many for the quad search), the frame size, the
+    outside-frame ``note``, the result ``info`` and the firmware ``options``."""
 
-    def __init__(self, arr, kept, width, height, note, info, options):
+    def __init__(self, arr, kept, searched, width, height, note, info, options):
         self.arr = arr
         self.kept = kept
+        self.searched = searched
         self.width = width
         self.height = height
         self.note = note
@@ -366,11 +370,11 @@ def _blind_solve(frame, band):
     :mod:`lodestar.ground.fovsearch` finds the focal length, the firmware identifies at it,
     the focal length is fitted to the matched stars by least squares and the firmware
     verifies again at the fitted scale (``docs/solve_centroids.md``, Unknown FOV)."""
-    arr, kept = frame.arr, frame.kept
+    arr = frame.arr
     opt = frame.options
     t0 = time.perf_counter()
     try:
-        est = fovsearch.search_fov(arr[kept, :2], frame.width, frame.height, band,
+        est = fovsearch.search_fov(arr[frame.searched, :2], frame.width, frame.height, band,
                                    opt["tolerance_px"] or 2.0, opt["cache_dir"])
     except ValueError as exc:              # no deep catalogue for the index
         return SolveResult("BAD_INPUT", f"FOV search: {exc}", **frame.info)
