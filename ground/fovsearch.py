@@ -376,7 +376,9 @@ def search_fov(xy, width, height, fov_range_deg=FOV_RANGE_DEG, tolerance_px=2.0,
         subsets = image_quads(v, math.radians(QUAD_RADIUS * level.fov_deg))
         if not len(subsets):
             continue
-        codes, labels = quad_codes(_plane(v[subsets]), canonical=False)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            codes, labels = quad_codes(_plane(v[subsets]), canonical=False)
+        codes = np.where(np.isfinite(codes), codes, 1e9)   # coincident stars match nothing
         hits = level.code_tree.query_ball_point(codes.reshape(-1, 4), CODE_TOL)
         for flat, found in enumerate(hits):
             if not found:

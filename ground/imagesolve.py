@@ -511,7 +511,8 @@ def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind):
         db_camera, max_mag, log=log,
         density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
-    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px)
+    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px,
+                                            max_work=ground_solve.GROUND_MAX_WORK)
     for key in ("packet", "solve"):
         timings[key] = timings.get(key, 0.0) + stage[key]
     return db, db_path, res, stage

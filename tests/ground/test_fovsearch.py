@@ -119,6 +119,14 @@ def test_random_centroids_at_unknown_fov_do_not_solve(cache):
         assert 0 < res.fov_search["candidates"] <= F.MAX_CANDIDATES
 
 
+def test_degenerate_centroids_at_unknown_fov_end_with_a_status(cache):
+    same = [(100.0, 100.0, 5.0)] * 10 + [(300.0, 200.0, 4.0)] * 10
+    line = [(10.0 * k, 20.0 * k, 100.0 - k) for k in range(30)]
+    for rows in (same, line):
+        res = L.solve_centroids(rows, W, H, duplicate_px=0.0, cache_dir=cache)
+        assert res.status in ("NO_MATCH", "TOO_FEW_STARS") and res.q is None
+
+
 # --------------------------------------------------------------------------------------
 # Failures fast
 # --------------------------------------------------------------------------------------
