@@ -197,11 +197,12 @@ def _index_key():
 _INDEX = {}
 
 
-def load_index(cache_dir=None):
+def load_index(cache_dir=None, log=None):
     """The multiscale quad index (a list of :class:`Level`, finest first): from memory, the
     cache file ``lodestar-quads-<hash16>.npz`` (:func:`lodestar.ground.cache.default_cache_dir`
-    unless ``cache_dir``), or built from the whole Hipparcos (about a minute) and written
-    atomically.  Raises ``ValueError`` when the deep catalogue is not installed."""
+    unless ``cache_dir``), or built from the whole Hipparcos (15 to 40 s) and written
+    atomically; ``log``: a text stream told when it is built (None: silent).  Raises
+    ``ValueError`` when the deep catalogue is not installed."""
     from pathlib import Path
 
     from lodestar.ground import cache
@@ -220,6 +221,9 @@ def load_index(cache_dir=None):
     except Exception:              # missing, unreadable or another build's: rebuild
         arrays = None
     if arrays is None:
+        if log is not None:
+            print("lodestar: building the multiscale quad index of the FOV search (first run "
+                  "only) ...", file=log, flush=True)
         catalogue = default_catalogue(None)
         arrays = {"key": np.array(key)}
         for k, fov in enumerate(LEVELS_DEG):
@@ -230,8 +234,11 @@ def load_index(cache_dir=None):
         np.savez(buf, **arrays)
         try:
             write_atomic(target, buf.getvalue())
-        except OSError:
-            pass                   # read-only cache: keep the index in memory only
+            where = f"cached in {target}"
+        except OSError:            # read-only cache: keep the index in memory only
+            where = "not cached (cache directory not writable)"
+        if log is not None:
+            print(f"lodestar: built the quad index; {where}", file=log, flush=True)
     levels = [Level(fov, float(arrays[f"separation{k}"]), arrays[f"vectors{k}"],
                     arrays[f"hip{k}"], arrays[f"quads{k}"], arrays[f"codes{k}"])
               for k, fov in enumerate(LEVELS_DEG)]
@@ -353,11 +360,11 @@ def _verify_level(levels, width, f_px):
 
 
 def search_fov(xy, width, height, fov_range_deg=FOV_RANGE_DEG, tolerance_px=2.0,
-               cache_dir=None, max_candidates=MAX_CANDIDATES):
+               cache_dir=None, max_candidates=MAX_CANDIDATES, log=None):
     """Blind search of the focal length of a centred pinhole ``width x height`` px whose
     horizontal FOV lies in ``fov_range_deg`` from pixels ``xy`` ``(n, 2)``, brightest
     first.  Returns a :class:`FovEstimate` (``f_px`` None when no candidate verified within
-    ``max_candidates``)."""
+    ``max_candidates``).  ``cache_dir``, ``log``: of :func:`load_index`."""
     xy = np.asarray(xy, dtype=np.float64)[:, :2]
     lo, hi = fov_range_deg
     f_lo, f_hi = f_of_fov(width, hi), f_of_fov(width, lo)
@@ -365,7 +372,7 @@ def search_fov(xy, width, height, fov_range_deg=FOV_RANGE_DEG, tolerance_px=2.0,
         return FovEstimate()
     xy_img = xy[:IMAGE_STARS]
     verify_xy = xy[:VERIFY_STARS]
-    levels = load_index(cache_dir)
+    levels = load_index(cache_dir, log)
     span = math.sqrt(LEVEL_RATIO)
     usable = [k for k, lv in enumerate(levels) if lo / span <= lv.fov_deg <= hi * span]
     tried = 0

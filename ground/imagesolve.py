@@ -435,7 +435,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     if camera is None:
         t = time.perf_counter()
         camera, search = blind_camera(image, det, fov_band or fovsearch.FOV_RANGE_DEG,
-                                      tolerance_px)
+                                      tolerance_px, log)
         timings["fov_search"] = (time.perf_counter() - t) * 1e3
     res = db = db_path = None
     if camera is not None:
@@ -518,16 +518,16 @@ def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind):
     return db, db_path, res, stage
 
 
-def blind_camera(image, det, band, tolerance_px=None):
+def blind_camera(image, det, band, tolerance_px=None, log=None):
     """``(camera or None, search dict)``: the centred pinhole of the detector's frame whose
     focal length the quad search (:func:`lodestar.ground.fovsearch.search_fov`) finds from
     the firmware's centroids of ``det`` (brightest first, border stars dropped) with the
-    horizontal FOV in ``band`` (deg)."""
+    horizontal FOV in ``band`` (deg); ``log``: where the index build is said."""
     w, h = image.frame.shape[1], image.frame.shape[0]
     stars, _rejected = fwcentroids.extract(det.blobs, max_stars=fovsearch.IMAGE_STARS,
                                            border=(w, h))
     xy = np.array([(s.x, s.y) for s in stars], dtype=np.float64).reshape(-1, 2)
-    est = fovsearch.search_fov(xy, w, h, band, tolerance_px or 2.0)
+    est = fovsearch.search_fov(xy, w, h, band, tolerance_px or 2.0, log=log)
     search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
               "estimate_deg": est.fov_deg, "level_deg": est.level_deg}
     if est.f_px is None:

@@ -76,6 +76,24 @@ def test_fit_focal_recovers_the_focal_length_and_attitude():
     np.testing.assert_allclose(rot_fit, rot, atol=1e-9)
 
 
+def test_index_is_cached_on_disk_and_described(cache, monkeypatch, capsys):
+    from lodestar.cli import main
+    levels = F.load_index(cache)
+    files = list(cache.glob("lodestar-quads-*.npz"))
+    assert len(files) == 1
+    F._INDEX.clear()                       # read back from the file
+    again = F.load_index(cache)
+    assert [lv.fov_deg for lv in again] == list(F.LEVELS_DEG)
+    for a, b in zip(levels, again):
+        np.testing.assert_array_equal(a.quads, b.quads)
+        np.testing.assert_array_equal(a.codes, b.codes)
+        assert len(a.quads) > 5000 and a.separation == b.separation
+    monkeypatch.setenv("LODESTAR_CACHE_DIR", str(cache))
+    assert main(["db", "quads"]) == 0
+    out = capsys.readouterr().out
+    assert "8 .. 30 deg documented" in out and out.count(" quads, separation ") == 5
+
+
 # --------------------------------------------------------------------------------------
 # Solving at unknown FOV
 # --------------------------------------------------------------------------------------
