@@ -48,22 +48,20 @@ MIN_MATCHES = 10
 """Image stars a candidate must match to hand its scale to the firmware."""
 MAX_FALSE_PROB = 1e-9
 """Largest chance that the matches of an accepted candidate are coincidences."""
-INDEX_SCHEMA = 3
+INDEX_SCHEMA = 4
 
 
 class FovEstimate:
     """A blind search's outcome: ``f_px`` (focal length, px; None when nothing was found),
-    ``fov_deg`` (horizontal), ``n_matches``, ``candidates`` (quads verified), ``level_deg``
-    (the index level that matched), ``matches`` ``[(image index, catalogue row)]``."""
+    ``fov_deg`` (horizontal), ``n_matches`` (image stars the verification matched),
+    ``candidates`` (quads verified), ``level_deg`` (the index level that matched)."""
 
-    def __init__(self, f_px=None, fov_deg=None, n_matches=0, candidates=0, level_deg=None,
-                 matches=()):
+    def __init__(self, f_px=None, fov_deg=None, n_matches=0, candidates=0, level_deg=None):
         self.f_px = f_px
         self.fov_deg = fov_deg
         self.n_matches = n_matches
         self.candidates = candidates
         self.level_deg = level_deg
-        self.matches = list(matches)
 
 
 def reach_deg():
@@ -145,16 +143,15 @@ def quad_codes(points, canonical=True):
 
 class Level:
     """One scale of the index: ``fov_deg``; ``separation`` (rad), ``vectors`` ``(n, 3)`` and
-    ``hip`` of its uniform star selection; ``quads`` ``(m, 4)`` rows of ``vectors``
+    its uniform star selection; ``quads`` ``(m, 4)`` rows of ``vectors``
     (labelled A, B, C, D) and their canonical ``codes`` ``(m, 4)``; ``code_tree`` and
     ``star_tree`` (cKDTrees)."""
 
-    def __init__(self, fov_deg, separation, vectors, hip, quads, codes):
+    def __init__(self, fov_deg, separation, vectors, quads, codes):
         from scipy.spatial import cKDTree
         self.fov_deg = fov_deg
         self.separation = separation
         self.vectors = vectors
-        self.hip = hip
         self.quads = quads
         self.codes = codes
         self.code_tree = cKDTree(codes)
@@ -162,7 +159,7 @@ class Level:
 
 
 def build_level(catalogue, fov_deg):
-    """``(separation, vectors, hip, quads, codes)`` of the level of horizontal FOV ``fov_deg``: the
+    """``(separation, vectors, quads, codes)`` of the level of horizontal FOV ``fov_deg``: the
     uniform selection of :data:`STARS_PER_FIELD` per 4:3 field, brightest first
     (:func:`lodestar.ground.database.select_density`), and every quad of a star with 3 of
     its :data:`NEIGHBOURS` nearest within :data:`QUAD_RADIUS` of the FOV."""
@@ -172,7 +169,6 @@ def build_level(catalogue, fov_deg):
     mask, separation = select_density(allv, np.asarray(catalogue.vmag, dtype=np.float64),
                                 STARS_PER_FIELD, fov_deg, fov_v)
     vectors = allv[mask]
-    hip = np.asarray(catalogue.hip[mask], dtype=np.int64)
     n = len(vectors)
     chord = 2 * math.sin(math.radians(QUAD_RADIUS * fov_deg) / 2)
     _dist, idx = cKDTree(vectors).query(vectors, k=NEIGHBOURS + 1, distance_upper_bound=chord)
@@ -183,7 +179,7 @@ def build_level(catalogue, fov_deg):
     quads = np.unique(np.sort(np.concatenate(quads), axis=1), axis=0)
     codes, labels = quad_codes(_plane(vectors[quads]))
     quads = np.take_along_axis(quads, labels, axis=1)
-    return np.array(separation), vectors, hip, quads.astype(np.int32), codes.astype(np.float64)
+    return np.array(separation), vectors, quads.astype(np.int32), codes.astype(np.float64)
 
 
 def _index_key():
@@ -227,7 +223,7 @@ def load_index(cache_dir=None, log=None):
         catalogue = default_catalogue(None)
         arrays = {"key": np.array(key)}
         for k, fov in enumerate(LEVELS_DEG):
-            for name, value in zip(("separation", "vectors", "hip", "quads", "codes"),
+            for name, value in zip(("separation", "vectors", "quads", "codes"),
                                    build_level(catalogue, fov)):
                 arrays[f"{name}{k}"] = value
         buf = io.BytesIO()
@@ -240,7 +236,7 @@ def load_index(cache_dir=None, log=None):
         if log is not None:
             print(f"lodestar: built the quad index; {where}", file=log, flush=True)
     levels = [Level(fov, float(arrays[f"separation{k}"]), arrays[f"vectors{k}"],
-                    arrays[f"hip{k}"], arrays[f"quads{k}"], arrays[f"codes{k}"])
+                    arrays[f"quads{k}"], arrays[f"codes{k}"])
               for k, fov in enumerate(LEVELS_DEG)]
     _INDEX.clear()
     _INDEX[str(target)] = levels
@@ -292,14 +288,12 @@ def _binomial_tail(n, k, p):
 
 
 def _verify(xy, width, height, f_px, rot, level, tolerance_px):
-    """``(n_matches, false_prob, f_px, rot, pairs)`` of a candidate: the level's stars in the
+    """``(n_matches, false_prob, f_px)`` of a candidate: the level's stars in the
     frame matched to the image stars (nearest within a radius narrowed from 1.5 % of the width
     to ``3 * tolerance_px`` over three least-squares refits of ``f`` and the attitude)."""
     diag = math.hypot(width, height) / 2
     cos_r = math.cos(math.atan(diag / f_px) * 1.05)
     radius = max(3 * tolerance_px, 0.015 * width)
-    pairs = []
-    n_cat = 0
     for step in range(3):
         boresight = rot[2]
         near = level.star_tree.query_ball_point(boresight, 2 * math.sqrt(max(0.0, 2 - 2 * cos_r)))
@@ -313,7 +307,7 @@ def _verify(xy, width, height, f_px, rot, level, tolerance_px):
         cat_xy = np.column_stack([px[inside], py[inside]])
         n_cat = len(cat_xy)
         if n_cat < MIN_MATCHES:
-            return 0, 1.0, f_px, rot, []
+            return 0, 1.0, f_px
         d = np.hypot(xy[:, None, 0] - cat_xy[None, :, 0], xy[:, None, 1] - cat_xy[None, :, 1])
         nearest = np.argmin(d, axis=1)
         ok = d[np.arange(len(xy)), nearest] <= radius
@@ -324,7 +318,7 @@ def _verify(xy, width, height, f_px, rot, level, tolerance_px):
                 taken.add(nearest[i])
                 pairs.append((int(i), int(rows[nearest[i]])))
         if len(pairs) < MIN_MATCHES:
-            return len(pairs), 1.0, f_px, rot, pairs
+            return len(pairs), 1.0, f_px
         img = np.array([i for i, _r in pairs])
         f_px, rot = fit_focal(xy[img], level.vectors[[r for _i, r in pairs]], width, height,
                               f_px)
@@ -332,7 +326,7 @@ def _verify(xy, width, height, f_px, rot, level, tolerance_px):
             radius = max(3 * tolerance_px, radius / 2.5)
     prob = _binomial_tail(len(xy), len(pairs), min(1.0, n_cat * math.pi * radius ** 2 /
                                                     (width * height)))
-    return len(pairs), prob, f_px, rot, pairs
+    return len(pairs), prob, f_px
 
 
 def image_quads(v, radius, n_all=ALL_SUBSETS):
@@ -404,11 +398,10 @@ def search_fov(xy, width, height, fov_range_deg=FOV_RANGE_DEG, tolerance_px=2.0,
                     return FovEstimate(candidates=tried)
                 tried += 1
                 rot = fit_rotation(pixel_vectors(xy[img], width, height, f_est), cat)
-                n, prob, f_fit, rot, pairs = _verify(verify_xy, width, height, f_est, rot,
-                                                      _verify_level(levels, width, f_est),
-                                                      tolerance_px)
+                n, prob, f_fit = _verify(verify_xy, width, height, f_est, rot,
+                                         _verify_level(levels, width, f_est), tolerance_px)
                 if n >= MIN_MATCHES and prob <= MAX_FALSE_PROB and f_lo * 0.98 <= f_fit <= \
                         f_hi * 1.02:
                     return FovEstimate(f_fit, fov_of_f(width, f_fit), n, tried,
-                                       level.fov_deg, pairs)
+                                       level.fov_deg)
     return FovEstimate(candidates=tried)

@@ -529,7 +529,8 @@ def blind_camera(image, det, band, tolerance_px=None, log=None):
     xy = np.array([(s.x, s.y) for s in stars], dtype=np.float64).reshape(-1, 2)
     est = fovsearch.search_fov(xy, w, h, band, tolerance_px or 2.0, log=log)
     search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
-              "estimate_deg": est.fov_deg, "level_deg": est.level_deg}
+              "estimate_deg": est.fov_deg, "level_deg": est.level_deg,
+              "quad_matches": est.n_matches}
     if est.f_px is None:
         return None, search
     return _pinhole(w, h, est.f_px), search

@@ -380,6 +380,7 @@ def _blind_solve(frame, band):
         return SolveResult("BAD_INPUT", f"FOV search: {exc}", **frame.info)
     search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
               "estimate_deg": est.fov_deg, "level_deg": est.level_deg,
+              "quad_matches": est.n_matches,
               "ms": (time.perf_counter() - t0) * 1e3}
     if est.f_px is None:
         return SolveResult("NO_MATCH", f"no field of view in {band[0]:g} .. {band[1]:g} deg "
