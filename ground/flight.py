@@ -18,6 +18,7 @@ from lodestar import contract as C
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX, Settings
+from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
 from lodestar.ground import cache
 from lodestar.ground import codec as packet
 from lodestar.ground import solve as ground_solve
@@ -85,7 +86,7 @@ def default_tolerance_px(camera):
 
 
 def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.0,
-            tolerance_px=None, method="pyramid"):
+            tolerance_px=None, method="pyramid", max_work=DEFAULT_MAX_WORK):
     """Send a detection ``result`` (``lodestar.golden.DetectionResult``) through the packet
     codec and the flight pipeline.
 
@@ -101,7 +102,7 @@ def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.
     t1 = time.perf_counter()
     tracker = StarTracker(database, camera, Settings(
                           method=method, exposure_s=exposure_s,
-                          row_time_s=row_time_s, clock=time.perf_counter,
+                          row_time_s=row_time_s, clock=time.perf_counter, max_work=max_work,
                           tolerance_px=(default_tolerance_px(camera) if tolerance_px is None
                                         else tolerance_px)))
     res = tracker.process(data, omega=omega)

@@ -9,9 +9,10 @@ import warnings
 import numpy as np
 
 from lodestar import contract as C
+from lodestar.firmware import centroids as fwcentroids
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.ground import annotate
+from lodestar.ground import annotate, fovsearch
 from lodestar.ground import flight as flightsolve
 from lodestar.ground import solve as ground_solve
 from lodestar.ground.database import default_catalogue
@@ -308,16 +309,19 @@ def read_image(path, bits=None, binning=1):
 # Camera and detector
 # --------------------------------------------------------------------------------------
 
-def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None):
+def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None,
+                 fov_error=None):
     """``(firmware Camera of the detector's frame, description)`` for ``image``: the preset's
     camera, or the ``fov_deg`` pinhole with ``distortion`` ``(k1, k2, k3, p1, p2)``, or
     ``camera`` (a firmware Camera of the whole image, e.g. a camera file's), scaled to the
-    binned frame.  Raises ``ValueError`` for an absurd FOV, a distortion that cannot be
-    inverted over the frame, a size that differs from the preset's or the camera's, or no
-    camera."""
+    binned frame; ``(None, description)`` when the FOV is to be searched (:func:`fov_band`:
+    no camera option and an image not of the default preset's size, or ``fov_error``).
+    Raises ``ValueError`` for an absurd FOV, a distortion that cannot be inverted over the
+    frame, a size that differs from the preset's or the camera's, or conflicting options."""
 
     if camera is not None:
-        if preset is not None or fov_deg is not None or distortion is not None:
+        if (preset is not None or fov_deg is not None or distortion is not None or
+                fov_error is not None):
             raise ValueError("give one camera: --camera, --preset or --fov")
         if (camera.width, camera.height) != (image.width, image.height):
             raise ValueError(f"the image is {image.width}x{image.height}, the camera "
@@ -325,6 +329,10 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None)
         full = (camera.fx, camera.fy, camera.cx, camera.cy,
                 {k: getattr(camera, k) for k in ("k1", "k2", "k3", "p1", "p2")})
         what = "camera file"
+    elif fov_error is not None or (fov_deg is None and preset is None and
+                                   not _default_preset_fits(image)):
+        lo, hi = fov_band(fov_deg, fov_error, preset, distortion)
+        return None, f"FOV searched in {lo:g} .. {hi:g} deg"
     elif fov_deg is not None:
         if preset is not None:
             raise ValueError("give --preset or --fov, not both")
@@ -344,9 +352,8 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None)
         name = preset or presets.DEFAULT_PRESET
         cam = presets.load_preset(name)
         if (cam.width, cam.height) != (image.width, image.height):
-            hint = "" if preset else "; give --fov (horizontal field of view, deg)"
             raise ValueError(f"the image is {image.width}x{image.height}, the {name} camera "
-                             f"{cam.width}x{cam.height}{hint}")
+                             f"{cam.width}x{cam.height}")
         fw = flightsolve.firmware_camera(cam)
         full = (fw.fx, fw.fy, fw.cx, fw.cy,
                 {"k1": fw.k1, "k2": fw.k2, "k3": fw.k3, "p1": fw.p1, "p2": fw.p2})
@@ -358,6 +365,35 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None)
     camera = Camera(image.frame.shape[1], image.frame.shape[0], fx / n, fy / n,
                     (cx + 0.5) / n - 0.5, (cy + 0.5) / n - 0.5, **dist)
     return camera, what + (f", binned {n}x{n}" if n > 1 else "")
+
+
+def _default_preset_fits(image):
+    cam = presets.load_preset(presets.DEFAULT_PRESET)
+    return (cam.width, cam.height) == (image.width, image.height)
+
+
+def fov_band(fov_deg=None, fov_error=None, preset=None, distortion=None):
+    """``(lo, hi)`` horizontal FOVs (deg) a blind solve searches: ``fov_deg +- fov_error``,
+    or :data:`lodestar.ground.fovsearch.FOV_RANGE_DEG` without a FOV; the part the quad
+    index reaches (:func:`lodestar.ground.fovsearch.reach_deg`).  Raises ``ValueError`` for
+    a band the index does not reach, a bad ``fov_error``, or a preset or distortion with it
+    (the search fits a pinhole)."""
+    if preset is not None or distortion is not None:
+        raise ValueError("--fov-error and the FOV search fit a pinhole: not with --preset or "
+                         "--distortion")
+    if fov_deg is None:
+        if fov_error is not None:
+            raise ValueError("--fov-error needs --fov")
+        return fovsearch.FOV_RANGE_DEG
+    if not (math.isfinite(fov_error) and 0 < fov_error < fov_deg):
+        raise ValueError(f"--fov-error must be a number of degrees in (0, --fov), got "
+                         f"{fov_error:g}")
+    reach = fovsearch.reach_deg()
+    lo, hi = max(fov_deg - fov_error, reach[0]), min(fov_deg + fov_error, reach[1])
+    if lo > hi:
+        raise ValueError(f"--fov {fov_deg:g} --fov-error {fov_error:g}: the FOV search reaches "
+                         f"{reach[0]:.1f} .. {reach[1]:.1f} deg")
+    return lo, hi
 
 
 def noise_sigma(frame):
@@ -394,9 +430,10 @@ def detector_config(image, ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS)
 # --------------------------------------------------------------------------------------
 
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
-                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None):
-    """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame:
-    ``(report dict, DetectionResult, pipeline Result)`` (report fields in the module
+                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None):
+    """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame (None:
+    the FOV is searched over ``fov_band``, deg, :func:`blind_camera`):
+    ``(report dict, DetectionResult, pipeline Result, camera)`` (report fields in the module
     docstring).  ``max_mag``: every star to that V in the database; None: the stars per
     field of :data:`lodestar.ground.solve.DEFAULT_DENSITY` from the whole Hipparcos.
     ``log``: text stream for the database notes (None: silent)."""
@@ -406,20 +443,41 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     t = time.perf_counter()
     det = detect_frame(image.frame, cfg)
     timings["detect"] = (time.perf_counter() - t) * 1e3
-    fov_h, fov_v = ground_solve.camera_fov_deg(camera)
-    t = time.perf_counter()
-    db, db_path = flightsolve.star_database(
-        camera, max_mag, log=log,
-        density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
-    timings["database"] = (time.perf_counter() - t) * 1e3
-    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px)
-    timings["packet"] = stage["packet"]
-    timings["solve"] = stage["solve"]
+    search = None
+    if camera is None:
+        t = time.perf_counter()
+        camera, search = blind_camera(image, det, fov_band or fovsearch.FOV_RANGE_DEG,
+                                      tolerance_px, log)
+        timings["fov_search"] = (time.perf_counter() - t) * 1e3
+    res = db = db_path = None
+    if camera is not None:
+        for attempt in range(2 if search else 1):   # the estimate, then the fitted scale
+            db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
+                                                log, timings, blind=search is not None)
+            if search is None or not res.ok or attempt:
+                break
+            idx = [(x, y, hip) for _i, x, y, hip in res.matches]
+            f_new = ground_solve.refit_focal([(x, y) for x, y, _h in idx],
+                                             [h for _x, _y, h in idx], camera.width,
+                                             camera.height, camera.fx)
+            if abs(f_new / camera.fx - 1) < 1e-6:
+                break
+            camera = _pinhole(camera.width, camera.height, f_new)
+    if search is not None and camera is not None:
+        search["fitted_deg"] = ground_solve.camera_fov_deg(camera)[0]
+    fov_h, fov_v = ground_solve.camera_fov_deg(camera) if camera is not None else (None, None)
     report = {
-        "status": res.status_name, "reason": res.reason, "ra_deg": None, "dec_deg": None,
+        "status": res.status_name if res is not None else "NO_MATCH",
+        "reason": res.reason if res is not None else
+        (f"no field of view in {search['range_deg'][0]:g} .. {search['range_deg'][1]:g} deg "
+         f"verified ({search['candidates']} candidate quads)"),
+        "ra_deg": None, "dec_deg": None,
         "roll_deg": None, "q": None, "fov_deg": fov_h, "fov_vertical_deg": fov_v,
+        "pixel_scale_arcsec": None if camera is None else
+        ground_solve.ARCSEC_PER_RAD / math.sqrt(camera.fx * camera.fy) / image.bin,
+        "fov_search": search,
         "matches": [], "sigma_cross_arcsec": None, "sigma_roll_arcsec": None,
-        "n_stars": res.n_stars,
+        "n_stars": res.n_stars if res is not None else 0,
         "image": {"format": image.format, "width": image.width, "height": image.height,
                   "pixel_bits": image.pixel_bits, "bin": image.bin, "notes": image.notes},
         "detector": {"mode": "local", "window_px": 1 << cfg.local_log2_window,
@@ -427,10 +485,10 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
                      "min_pixels": cfg.min_pixels, "records": len(det.blobs),
                      "n_filtered": det.n_filtered, "dropped": det.dropped},
         "database": None if db_path is None else str(db_path),
-        "mag_limit": float(db.mag_limit),
+        "mag_limit": None if db is None else float(db.mag_limit),
         "timings_ms": timings,
     }
-    if res.ok:
+    if res is not None and res.ok:
         cat = default_catalogue(max_mag)
         ra, dec, roll = to_radec_roll(np.asarray(res.q))
         report.update(ra_deg=float(ra), dec_deg=float(dec), roll_deg=float(roll),
@@ -445,7 +503,49 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         report["reason"] = (f"no stars found: nothing above the local threshold (mean of "
                             f"{1 << cfg.local_log2_window} row neighbours + "
                             f"{cfg.local_offset} ADU)")
-    return report, det, res
+    return report, det, res, camera
+
+
+def _pinhole(width, height, f_px):
+    return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
+
+
+def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind):
+    """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
+    the FOV grid of :func:`lodestar.ground.solve.database_fov`)."""
+    db_camera = camera
+    if blind:
+        fov_h = ground_solve.database_fov(ground_solve.camera_fov_deg(camera)[0])
+        db_camera = _pinhole(camera.width, camera.height,
+                             fovsearch.f_of_fov(camera.width, fov_h))
+    t = time.perf_counter()
+    db, db_path = flightsolve.star_database(
+        db_camera, max_mag, log=log,
+        density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
+    timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
+    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px,
+                                            max_work=ground_solve.GROUND_MAX_WORK)
+    for key in ("packet", "solve"):
+        timings[key] = timings.get(key, 0.0) + stage[key]
+    return db, db_path, res, stage
+
+
+def blind_camera(image, det, band, tolerance_px=None, log=None):
+    """``(camera or None, search dict)``: the centred pinhole of the detector's frame whose
+    focal length the quad search (:func:`lodestar.ground.fovsearch.search_fov`) finds from
+    the firmware's centroids of ``det`` (brightest first, border stars dropped) with the
+    horizontal FOV in ``band`` (deg); ``log``: where the index build is said."""
+    w, h = image.frame.shape[1], image.frame.shape[0]
+    stars, _rejected = fwcentroids.extract(det.blobs, max_stars=fovsearch.IMAGE_STARS,
+                                           border=(w, h))
+    xy = np.array([(s.x, s.y) for s in stars], dtype=np.float64).reshape(-1, 2)
+    est = fovsearch.search_fov(xy, w, h, band, tolerance_px or 2.0, log=log)
+    search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
+              "estimate_deg": est.fov_deg, "level_deg": est.level_deg,
+              "quad_matches": est.n_matches}
+    if est.f_px is None:
+        return None, search
+    return _pinhole(w, h, est.f_px), search
 
 
 def write_annotated(path, image, camera, det, res, report, max_mag):
@@ -453,11 +553,12 @@ def write_annotated(path, image, camera, det, res, report, max_mag):
     to ``max_mag`` (None: the database's faintest star, at most the shipped V 8.03)."""
     labels, markers = [], {}
     if max_mag is None:
-        max_mag = min(report["mag_limit"], float(load().vmag.max()))
+        max_mag = min(report["mag_limit"] or math.inf, float(load().vmag.max()))
     legend = [f"lodestar solve: {report['image']['format']} {image.width}x{image.height}, "
               f"{image.pixel_bits}-bit" + (f", binned {image.bin}x{image.bin}" if image.bin > 1
                                            else "") +
-              f", FOV {report['fov_deg']:.3f} deg, {len(det.blobs)} records (yellow boxes)"]
+              ("" if report["fov_deg"] is None else f", FOV {report['fov_deg']:.3f} deg") +
+              f", {len(det.blobs)} records (yellow boxes)"]
     if res.ok:
         markers["solution"] = [(x, y) for x, y, _h, _v in
                                annotate.predict_pixels(res.q, camera, max_mag)]
@@ -481,7 +582,10 @@ def format_report(path, r, camera_what):
     im, d = r["image"], r["detector"]
     lines = [f"{path}: {im['format']} {im['width']}x{im['height']}, {im['pixel_bits']}-bit"
              + (f", binned {im['bin']}x{im['bin']}" if im["bin"] > 1 else "") +
-             f"; camera {camera_what}: FOV {r['fov_deg']:.3f} x {r['fov_vertical_deg']:.3f} deg",
+             f"; camera {camera_what}" + ("" if r["fov_deg"] is None else
+                                          f": FOV {r['fov_deg']:.3f} x "
+                                          f"{r['fov_vertical_deg']:.3f} deg, "
+                                          f"{r['pixel_scale_arcsec']:.3f}\"/px"),
              f"  detector   local mode, {d['window_px']}-px window, offset "
              f"{d['local_offset']} ADU (noise {d['noise_sigma_adu']:.2f} ADU), min "
              f"{d['min_pixels']} px: {d['records']} records"]
@@ -494,6 +598,11 @@ def format_report(path, r, camera_what):
         for m in r["matches"]:
             lines.append(f"  {m['x']:>9.2f} {m['y']:>9.2f} {m['hip']:>7}  "
                          f"{m['name'] or '':<16} {m['vmag']:>5.2f}")
+    if r.get("fov_search") and r["fov_search"].get("fitted_deg"):
+        fs = r["fov_search"]
+        lines.append(f"  FOV        fitted {fs['fitted_deg']:.4f} deg (searched "
+                     f"{fs['range_deg'][0]:g} .. {fs['range_deg'][1]:g} deg, "
+                     f"{fs['candidates']} candidate quads, estimate {fs['estimate_deg']:.4f})")
     tm = r["timings_ms"]
     lines.append("  timings    ms: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()))
     lines.append(f"  status     {r['status']}" +

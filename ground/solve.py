@@ -12,13 +12,23 @@ from lodestar.firmware import status as fwstatus
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
+from lodestar.ground import fovsearch
 from lodestar.ground.cache import load_database
+from lodestar.ground.database import default_catalogue
 from lodestar.sim.attitude import to_radec_roll
 
 MIN_FOV_DEG = 1.0
 MAX_FOV_DEG = 90.0
 MIN_STARS = 4
 DEFAULT_DUPLICATE_PX = 0.5
+GROUND_MAX_WORK = 1_500_000
+"""Work budget of one ground identification (units of
+:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`): a frame that cannot be solved
+ends within about 0.25 s of CPython here (``docs/solve_centroids.md``, Failures fast)."""
+DB_FOV_STEP = 1.01
+"""A blind solve's databases are built for FOVs on a grid of this ratio (the camera keeps
+the fitted FOV; the firmware accepts a database within 2 %), so solves share them."""
+ARCSEC_PER_RAD = 180 * 3600 / math.pi
 DEFAULT_DENSITY = {"verification_stars_per_fov": 30, "pattern_stars_per_fov": 10}
 """Stars per field of the ground databases (:func:`lodestar.ground.database.build_database`)
 when no ``max_mag`` is given: depth follows the field, from V ~5 at 40 deg to the whole
@@ -31,7 +41,7 @@ class SolveResult:
     FIELDS = ("status", "reason", "ra_deg", "dec_deg", "roll_deg", "q", "matches",
               "sigma_cross_arcsec", "sigma_roll_arcsec", "patterns_tried", "probability",
               "n_centroids", "n_used", "n_duplicates", "n_outside", "centroid_sigma_px",
-              "fov_deg",
+              "fov_deg", "pixel_scale_arcsec", "fov_search",
               "database", "solve_ms")
 
     def __init__(self, status, reason="", **fields):
@@ -45,6 +55,8 @@ class SolveResult:
         self.n_centroids = self.n_used = self.n_duplicates = self.n_outside = 0
         self.centroid_sigma_px = None
         self.fov_deg = None
+        self.pixel_scale_arcsec = None
+        self.fov_search = None
         self.database = None
         self.solve_ms = 0.0
         for name, value in fields.items():
@@ -143,23 +155,28 @@ def _centroid_array(centroids):
 # The solver
 # --------------------------------------------------------------------------------------
 
-def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag=None,
+def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", max_mag=None,
                     distortion=None, cache_dir=None, tolerance_px=None, max_stars=32,
-                    budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX):
+                    budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX,
+                    fov_error_deg=None, max_work=GROUND_MAX_WORK):
     """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
     for bad input (see the module docstring).
 
-    ``width``, ``height``: frame size, px.  ``fov_deg``: horizontal FOV, deg.  ``method``:
+    ``width``, ``height``: frame size, px.  ``fov_deg``: horizontal FOV, deg; None: unknown,
+    searched over :data:`lodestar.ground.fovsearch.FOV_RANGE_DEG`; with ``fov_error_deg``
+    (deg): searched over ``fov_deg +- fov_error_deg`` (a pinhole; the result's ``fov_deg``
+    and ``pixel_scale_arcsec`` are then fitted, ``fov_search`` says how).  ``method``:
     the lost-in-space method (``"pyramid"``, ``"triangle"`` or ``"hashing"``, as far as
     :mod:`lodestar.ground.database` builds and :mod:`lodestar.firmware.starid` serves it).
     ``max_mag``: faintest catalogue star of the database (None: the stars per field of
     :data:`DEFAULT_DENSITY` decide, from the whole Hipparcos; a number: every star to that
     magnitude, the database of earlier versions).  ``distortion``: Brown-Conrady
-    dict.  ``cache_dir``: database cache.
+    dict (known FOV only).  ``cache_dir``: database cache.
     ``tolerance_px``: match tolerance (default ``max(2 px, fov/1000)``).  ``max_stars``:
     brightest centroids used.  ``budget``: pattern budget.  ``centroid_sigma_px``: fixed
     centroid noise for the covariance (default: estimated from the residuals).
-    ``duplicate_px``: centroids closer than this are one star.
+    ``duplicate_px``: centroids closer than this are one star.  ``max_work``: work budget
+    of one identification (:data:`GROUND_MAX_WORK`).
     """
     n_in = len(centroids) if hasattr(centroids, "__len__") else 0
 
@@ -170,9 +187,27 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     for name, value in (("width", width), ("height", height)):
         if not _is_int(value) or not 1 <= value <= 4096:
             return bad(f"{name} must be an int in 1..4096, got {value!r}")
-    if not _is_number(fov_deg) or not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG:
+    if fov_deg is not None and (not _is_number(fov_deg) or
+                                not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
         return bad(f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
                    f"got {fov_deg!r}")
+    band = None
+    if fov_error_deg is not None:
+        if fov_deg is None:
+            return bad("fov_error_deg needs fov_deg")
+        if not _is_number(fov_error_deg) or not 0 < fov_error_deg < fov_deg:
+            return bad(f"fov_error_deg must be a number in (0, fov_deg), got {fov_error_deg!r}")
+        band = (fov_deg - fov_error_deg, fov_deg + fov_error_deg)
+    elif fov_deg is None:
+        band = fovsearch.FOV_RANGE_DEG
+    if band is not None:
+        reach = fovsearch.reach_deg()
+        if band[1] < reach[0] or band[0] > reach[1]:
+            return bad(f"FOV band {band[0]:g} .. {band[1]:g} deg: the blind search reaches "
+                       f"{reach[0]:.1f} .. {reach[1]:.1f} deg")
+        band = (max(band[0], reach[0]), min(band[1], reach[1]))
+        if distortion:
+            return bad("distortion needs a known FOV (fov_deg without fov_error_deg)")
     if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
         return bad(f"max_mag must be a finite magnitude, got {max_mag!r}")
     if method not in stardb.METHOD_NAMES:
@@ -185,13 +220,19 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
         return bad(f"max_stars must be an int >= {MIN_STARS}")
     if not _is_int(budget) or budget < 1:
         return bad("budget must be a positive int")
+    if not _is_int(max_work) or max_work < 1:
+        return bad("max_work must be a positive int")
     if not _is_number(duplicate_px) or duplicate_px < 0:
         return bad(f"duplicate_px must be a number >= 0, got {duplicate_px!r}")
-    try:
-        cam = make_camera(int(width), int(height), float(fov_deg), distortion)
-        fov = camera_fov_deg(cam)
-    except (ValueError, TypeError) as exc:
-        return bad(f"camera: {exc}")
+    cam = None
+    if band is None:
+        try:
+            cam = make_camera(int(width), int(height), float(fov_deg), distortion)
+            fov = camera_fov_deg(cam)
+        except (ValueError, TypeError) as exc:
+            return bad(f"camera: {exc}")
+    else:
+        fov = None
 
     # ---- centroids --------------------------------------------------------------------
     arr = _centroid_array(centroids)
@@ -203,20 +244,21 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     n_outside = int(n_in - np.count_nonzero(inside))
     if arr.shape[1] == 3:
         order = np.argsort(-arr[:, 2], kind="stable")
-        fluxes = arr[order, 2]
     else:
         order = np.arange(n_in)
-        fluxes = None
     order = [i for i in order if inside[i]]
     kept = []                              # indices into the input, brightest first
     n_dup = 0
+    # a blind solve's quad search looks at more stars than the identification uses
+    wanted = max_stars if band is None else max(max_stars, fovsearch.IMAGE_STARS)
     for i in order:
-        if len(kept) == max_stars:
+        if len(kept) == wanted:
             break
         if all(math.hypot(xs[i] - xs[j], ys[i] - ys[j]) >= duplicate_px for j in kept):
             kept.append(int(i))
-        else:
+        elif len(kept) < max_stars:
             n_dup += 1
+    searched, kept = kept, kept[:max_stars]
     info = dict(n_centroids=n_in, n_used=len(kept), n_duplicates=n_dup, n_outside=n_outside,
                 fov_deg=fov)
     note = f"{n_outside} centroids outside the {width}x{height} frame ignored" \
@@ -225,28 +267,67 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
         return SolveResult("TOO_FEW_STARS", f"{len(kept)} distinct centroids in the frame, "
                            f"at least {MIN_STARS} needed" + ("; " + note if note else ""),
                            **info)
-    vectors = [cam.pixel_to_vector(float(xs[i]), float(ys[i])) for i in kept]
+    frame = _Frame(arr, kept, searched, width, height, note, info,
+                   dict(method=method, max_mag=max_mag, cache_dir=cache_dir,
+                        tolerance_px=tolerance_px, max_stars=max_stars, budget=budget,
+                        centroid_sigma_px=centroid_sigma_px, max_work=max_work))
+    if band is None:
+        return _firmware_solve(frame, cam)
+    return _blind_solve(frame, band)
+
+
+class _Frame:
+    """The checked centroids of one solve: ``arr`` (the input rows), ``kept`` (indices,
+    brightest first), ``searched`` (as many for the quad search), the frame size, the
+    outside-frame ``note``, the result ``info`` and the firmware ``options``."""
+
+    def __init__(self, arr, kept, searched, width, height, note, info, options):
+        self.arr = arr
+        self.kept = kept
+        self.searched = searched
+        self.width = width
+        self.height = height
+        self.note = note
+        self.info = info
+        self.options = options
+
+
+def _firmware_solve(frame, cam, database_fov_deg=None):
+    """The flight identification of ``frame`` through the firmware ``cam``, over the
+    database of the camera's FOV (or of horizontal FOV ``database_fov_deg`` with the
+    camera's aspect)."""
+    info = dict(frame.info)
+    opt = frame.options
+    fov = camera_fov_deg(cam)
+    info["fov_deg"] = fov
+    info["pixel_scale_arcsec"] = ARCSEC_PER_RAD / math.sqrt(cam.fx * cam.fy)
+    arr, kept = frame.arr, frame.kept
+    vectors = [cam.pixel_to_vector(float(arr[i, 0]), float(arr[i, 1])) for i in kept]
     if any(v is None for v in vectors):
         return SolveResult("BAD_INPUT", "a centroid is outside the camera model", **info)
-    flux_list = None
-    if fluxes is not None:
-        flux_list = [float(arr[i, 2]) for i in kept]
-
-    # ---- database and tracker ---------------------------------------------------------
+    flux_list = [float(arr[i, 2]) for i in kept] if arr.shape[1] == 3 else None
+    db_fov = fov
+    if database_fov_deg is not None:
+        db_fov = camera_fov_deg(make_camera(frame.width, frame.height, database_fov_deg))
+    max_mag = opt["max_mag"]
+    method = opt["method"]
     try:
-        db, path = load_database(fov[0], fov[1], None if max_mag is None else float(max_mag),
-                                 method, cache_dir,
+        db, path = load_database(db_fov[0], db_fov[1],
+                                 None if max_mag is None else float(max_mag),
+                                 method, opt["cache_dir"],
                                  density=DEFAULT_DENSITY if max_mag is None else None)
     except ValueError as exc:
         return SolveResult("BAD_INPUT", f"database: {exc}", **info)
     except Exception as exc:              # the builder's output failed the reader
         return SolveResult("DATABASE_CORRUPT", f"database: {exc!r}", **info)
     info["database"] = None if path is None else str(path)
+    tolerance_px = opt["tolerance_px"]
     if tolerance_px is None:
         tolerance_px = max(2.0, math.radians(fov[0]) / 1000.0 * cam.fx)
-    tracker = StarTracker(db, cam, Settings(method=method, max_stars=max_stars,
-                          tolerance_px=float(tolerance_px), budget=int(budget),
-                          centroid_sigma_px=centroid_sigma_px))
+    tracker = StarTracker(db, cam, Settings(method=method, max_stars=opt["max_stars"],
+                          tolerance_px=float(tolerance_px), budget=int(opt["budget"]),
+                          centroid_sigma_px=opt["centroid_sigma_px"],
+                          max_work=int(opt["max_work"])))
     if tracker.status != fwstatus.OK:
         return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
     t0 = time.perf_counter()
@@ -254,7 +335,7 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     info["solve_ms"] = (time.perf_counter() - t0) * 1e3
     info["patterns_tried"] = res.patterns_tried
     info["probability"] = res.probability
-    reason = "; ".join(r for r in (note, res.reason) if r)
+    reason = "; ".join(r for r in (frame.note, res.reason) if r)
     if res.status != fwstatus.OK:
         return SolveResult(fwstatus.name(res.status), reason, **info)
     q = [float(v) for v in res.q]
@@ -265,3 +346,62 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
                        sigma_cross_arcsec=res.sigma_cross_arcsec,
                        sigma_roll_arcsec=res.sigma_roll_arcsec,
                        centroid_sigma_px=res.centroid_sigma_px, **info)
+
+
+def database_fov(fov_h_deg):
+    """The horizontal FOV (deg) a blind solve's database is built for: ``fov_h_deg`` rounded
+    to the grid of ratio :data:`DB_FOV_STEP` (within half a step, 0.5 %)."""
+    step = math.log(DB_FOV_STEP)
+    return round(math.exp(round(math.log(fov_h_deg) / step) * step), 4)
+
+
+def refit_focal(xy, hips, width, height, f_px):
+    """Least-squares focal length (px) of a centred pinhole from matched pixels ``xy``
+    ``(n, 2)`` and their Hipparcos numbers (:func:`lodestar.ground.fovsearch.fit_focal`,
+    catalogue directions of the whole Hipparcos)."""
+    cat = default_catalogue(None)
+    rows = [cat.by_hip(h) for h in hips]
+    return fovsearch.fit_focal(np.asarray(xy, dtype=np.float64), cat.unit_vectors()[rows],
+                               width, height, f_px)[0]
+
+
+def _blind_solve(frame, band):
+    """Unknown or approximate FOV (``band``, deg): the quad search of
+    :mod:`lodestar.ground.fovsearch` finds the focal length, the firmware identifies at it,
+    the focal length is fitted to the matched stars by least squares and the firmware
+    verifies again at the fitted scale (``docs/solve_centroids.md``, Unknown FOV)."""
+    arr = frame.arr
+    opt = frame.options
+    t0 = time.perf_counter()
+    try:
+        est = fovsearch.search_fov(arr[frame.searched, :2], frame.width, frame.height, band,
+                                   opt["tolerance_px"] or 2.0, opt["cache_dir"])
+    except ValueError as exc:              # no deep catalogue for the index
+        return SolveResult("BAD_INPUT", f"FOV search: {exc}", **frame.info)
+    search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
+              "estimate_deg": est.fov_deg, "level_deg": est.level_deg,
+              "quad_matches": est.n_matches,
+              "ms": (time.perf_counter() - t0) * 1e3}
+    if est.f_px is None:
+        return SolveResult("NO_MATCH", f"no field of view in {band[0]:g} .. {band[1]:g} deg "
+                           f"verified ({est.candidates} candidate quads)",
+                           fov_search=search, solve_ms=search["ms"], **frame.info)
+    f_px = est.f_px
+    res = None
+    for attempt in range(2):               # the estimate, then the fitted scale
+        fov_h = fovsearch.fov_of_f(frame.width, f_px)
+        res = _firmware_solve(frame, make_camera(frame.width, frame.height, fov_h),
+                              database_fov(fov_h))
+        res.fov_search = search
+        res.solve_ms += search["ms"]
+        search["fitted_deg"] = fov_h if attempt else None
+        if not res.ok or attempt:
+            break
+        idx = sorted(res.matches)
+        f_new = refit_focal(arr[idx, :2], [res.matches[i] for i in idx], frame.width,
+                            frame.height, f_px)
+        if abs(f_new / f_px - 1) < 1e-6:
+            search["fitted_deg"] = fov_h
+            break
+        f_px = f_new
+    return res

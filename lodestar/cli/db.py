@@ -1,5 +1,6 @@
 """``lodestar db build``: build the star-identification database image of a camera;
-``lodestar db info``: validate and describe one."""
+``lodestar db info``: validate and describe one; ``lodestar db quads``: build (or read) the
+multiscale quad index of the ground's FOV search and describe it."""
 
 import math
 
@@ -43,6 +44,8 @@ def add_parser(sub):
     p.set_defaults(func=run)
     i = dsub.add_parser("info", help="validate and describe a database image")
     i.add_argument("file")
+    dsub.add_parser("quads", help="build (or read) the quad index of the FOV search, in the "
+                                  "cache directory (docs/solve_centroids.md, Unknown FOV)")
 
 
 def _print_db(info):
@@ -109,6 +112,21 @@ def _run_db_info(args):
     return 0
 
 
+def _run_db_quads(_args):
+    import sys
+
+    from lodestar.ground import fovsearch
+    levels = fovsearch.load_index(log=sys.stderr)
+    lo, hi = fovsearch.FOV_RANGE_DEG
+    print(f"quad index of the FOV search: {lo:g} .. {hi:g} deg documented, "
+          f"{fovsearch.reach_deg()[0]:.1f} .. {fovsearch.reach_deg()[1]:.1f} deg reached")
+    for lv in levels:
+        print(f"  level {lv.fov_deg:6.2f} deg: {len(lv.vectors):6d} stars, {len(lv.quads):7d} "
+              f"quads, separation {math.degrees(lv.separation):.3f} deg")
+    return 0
+
+
 def run(args):
-    """The ``db`` command: ``build`` or ``info``."""
-    return {"build": _run_db_build, "info": _run_db_info}[args.db_command](args)
+    """The ``db`` command: ``build``, ``info`` or ``quads``."""
+    return {"build": _run_db_build, "info": _run_db_info,
+            "quads": _run_db_quads}[args.db_command](args)

@@ -13,6 +13,7 @@ from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
     DEFAULT_MIN_PIXELS,
     format_report,
+    fov_band,
     image_camera,
     read_image,
     solve_image,
@@ -38,6 +39,10 @@ def add_parser(sub):
                      help="camera preset (the image must have its size)")
     cam.add_argument("--fov", type=float, metavar="DEG",
                      help="horizontal field of view edge to edge, degrees")
+    cam.add_argument("--fov-error", type=float, metavar="DEG",
+                     help="search the FOV within --fov +- this (deg); without --fov, --preset "
+                          "and an image not of the default preset's size the FOV is searched "
+                          "over 8 .. 30 deg")
     cam.add_argument("--distortion", nargs=5, type=float, metavar=("K1", "K2", "K3", "P1", "P2"),
                      help="Brown-Conrady coefficients (with --fov)")
     cam.add_argument("--camera", metavar="FILE",
@@ -78,18 +83,27 @@ def run(args):
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
     given = read_camera_file(args.camera) if args.camera else None
-    camera, what = image_camera(image, args.preset, args.fov, args.distortion, camera=given)
+    camera, what = image_camera(image, args.preset, args.fov, args.distortion, camera=given,
+                                fov_error=args.fov_error)
     if given is not None:
         what = f"camera file {args.camera}" + (f", binned {image.bin}x{image.bin}"
                                                if image.bin > 1 else "")
-    fov_h = math.radians(camera_fov_deg(camera)[0])
-    widest = starid.max_tolerance_rad(fov_h) * math.sqrt(camera.fx * camera.fy)  # px
+    band = None
+    if camera is None:
+        band = fov_band(args.fov, args.fov_error)
+        # the widest field searched: its tolerance limit is the tightest in pixels
+        width = image.frame.shape[1]
+        fov_h, f_px = math.radians(band[1]), width / 2 / math.tan(math.radians(band[1]) / 2)
+    else:
+        fov_h, f_px = math.radians(camera_fov_deg(camera)[0]), math.sqrt(camera.fx * camera.fy)
+    widest = starid.max_tolerance_rad(fov_h) * f_px  # px
     if args.tolerance is not None and not (math.isfinite(args.tolerance) and
                                            0 < args.tolerance <= widest):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
                          f"of the field), got {args.tolerance}")
-    report, det, res = solve_image(image, camera, args.mag, args.tolerance, args.ksigma,
-                                   args.min_pixels, log=sys.stderr)
+    report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
+                                           args.ksigma, args.min_pixels, log=sys.stderr,
+                                           fov_band=band)
     report["camera"] = what
     failure = None
     if args.annotate:

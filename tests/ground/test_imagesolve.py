@@ -337,10 +337,31 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
                     ).save(wide)
     assert main(["solve", str(wide), "--fov", "10"]) == 2
     assert "use --bin 2" in capsys.readouterr().err
+    for extra, message in ((["--fov-error", "2"], "--fov-error needs --fov"),
+                           (["--fov", "20", "--fov-error", "25"], "in (0, --fov)"),
+                           (["--fov", "60", "--fov-error", "5"], "the FOV search reaches"),
+                           (["--preset", "estcube2", "--fov-error", "2"], "fit a pinhole")):
+        assert main(["solve", png, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
     other = tmp_path / "other.png"
     imageio.save_frame(other, np.arange(100 * 120, dtype=np.uint16).reshape(100, 120))
-    assert main(["solve", str(other)]) == 2
-    assert "give --fov" in capsys.readouterr().err
+    assert main(["solve", str(other)]) == 1      # another size: the FOV is searched
+    assert "not solved" in capsys.readouterr().err
+
+
+def test_unknown_fov_is_searched_and_fitted(sky, capsys):
+    """``--fov F --fov-error E`` (here 8 .. 30 deg, as with no FOV on an image of another
+    size): the quad search finds the scale, the firmware solves, the FOV is fitted to the
+    matched stars (within 0.5 %, in fact 1e-4) and reported with the pixel scale."""
+    d, _f, truth = sky
+    code, r, _err = _solve(capsys, d / "frame.png", "--fov", "19", "--fov-error", "11")
+    assert code == 0
+    _check_right(r, truth)
+    assert r["fov_deg"] == pytest.approx(FOV, rel=1e-3)
+    assert r["pixel_scale_arcsec"] == pytest.approx(
+        3600 * math.degrees(2 * math.tan(math.radians(r["fov_deg"]) / 2) / 2592), rel=1e-9)
+    assert r["fov_search"]["range_deg"] == [8.0, 30.0]
+    assert r["fov_search"]["fitted_deg"] == pytest.approx(r["fov_deg"], rel=1e-12)
 
 
 def test_wcs_file_round_trips_the_matched_stars(sky, tmp_path, capsys):

@@ -223,7 +223,10 @@ def test_bad_centroids(cache, centroids, status):
 
 @pytest.mark.parametrize("kwargs", [
     {"fov_deg": 0.0}, {"fov_deg": -20.0}, {"fov_deg": float("nan")}, {"fov_deg": float("inf")},
-    {"fov_deg": 180.0}, {"fov_deg": 0.5}, {"fov_deg": "20"}, {"fov_deg": None},
+    {"fov_deg": 180.0}, {"fov_deg": 0.5}, {"fov_deg": "20"},
+    {"fov_error_deg": 0.0}, {"fov_error_deg": 25.0}, {"fov_error_deg": float("nan")},
+    {"fov_deg": None, "fov_error_deg": 1.0}, {"fov_deg": 60.0, "fov_error_deg": 5.0},
+    {"fov_deg": None, "distortion": {"k1": 0.01}}, {"max_work": 0}, {"max_work": 1.5},
     {"width": 0}, {"width": 5000}, {"width": 2592.0}, {"height": True}, {"height": -5},
     {"max_mag": float("nan")}, {"max_mag": "6"}, {"method": "nonsense"},
     {"distortion": {"k9": 0.1}}, {"distortion": {"k1": "a"}}, {"distortion": [0.1]},
