@@ -159,8 +159,8 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     ksigma = imagesolve.DEFAULT_KSIGMA if ksigma is None else ksigma
     min_pixels = imagesolve.DEFAULT_MIN_PIXELS if min_pixels is None else min_pixels
     binned, _ = imagesolve.image_camera(image, camera=camera)
-    report, det, res = imagesolve.solve_image(image, binned, mag, tolerance_px, ksigma,
-                                              min_pixels)
+    report, det, res, _ = imagesolve.solve_image(image, binned, mag, tolerance_px, ksigma,
+                                                 min_pixels)
     if res.ok:
         q = np.asarray(res.q, dtype=np.float64)
     elif q_fallback is not None:
