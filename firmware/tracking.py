@@ -336,10 +336,12 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
 
     # fine matching at the fitted attitude, refit while the match set changes
     pairs = None
+    converged = False
     for _ in range(iterations):
         predicted, n_fov = predict(database, q, 2.0 * tol, stars)
         new = match_nearest(b, predicted, tol, streaks)
         if new == pairs:
+            converged = True        # the matches at q are pairs: the check below holds
             break
         q_new = fit(b, database, new, weights, stars)
         if q_new is None:
@@ -349,8 +351,11 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     if pairs is None or len(pairs) < 2:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
     # the reported matches must hold at the returned attitude
-    predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-    final = match_nearest(b, predicted, tol, streaks)
+    final = pairs
+    if not converged:
+        predicted, n_fov = predict(database, q, 2.0 * tol, stars)
+        final = match_nearest(b, predicted, tol, streaks)
+    predicted = None
     if final != pairs:
         keep = {}
         for pair in final:
