@@ -162,8 +162,9 @@ def fov(rows, out_dir, title):
             if pts:
                 ax2.plot(*zip(*pts), style, label=f"{preset} {key.split('_')[0]}")
     ax1.axhline(99.0, color="k", ls=":", lw=1, label="goal 99 %")
+    low = min([g["ci_low_pct"] for g in rows if g["ci_low_pct"] is not None] + [99.0])
     ax1.set(xlabel="horizontal FOV, deg", ylabel="solved correctly, % of attitudes",
-            title=f"availability at rest ({title})", ylim=(0, 102))
+            title=f"availability at rest ({title})", ylim=(max(0.0, low - 5.0), 101))
     ax1.grid(alpha=0.3)
     ax1.legend(fontsize=7, loc="lower left")
     ax2.set(xlabel="horizontal FOV, deg", ylabel="1-sigma error, arcsec", yscale="log",
