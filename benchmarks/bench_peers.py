@@ -33,7 +33,7 @@ cedar-solve==0.5.1``).  A peer that is missing is skipped with a note; with neit
 benchmark says so and exits 0.
 
     LODESTAR_CEDAR_PYTHON=V/bin/python \
-    .venv/bin/python benchmarks/bench_peers.py --fovs 8 12 20 30 --scenes 100
+    .venv/bin/python benchmarks/bench_peers.py --scenes 100 [--multiscale]
 """
 
 import argparse
@@ -132,33 +132,52 @@ class Lodestar(InProcess):
 
 
 class Tetra3rs(InProcess):
+    """tetra3rs over a database for this FOV, told the FOV."""
+
     name = "tetra3rs"
+    min_fov = max_fov = None          # the database's range (None: this FOV alone)
 
     def __init__(self, fov_deg, scene, cache_dir):
         import tetra3rs
 
         self.fov = fov_deg
-        path = cache_dir / f"tetra3rs-{tetra3rs.__version__}-fov{fov_deg:g}.bin"
+        lo, hi = self.min_fov or fov_deg, self.max_fov or fov_deg
+        path = cache_dir / f"tetra3rs-{tetra3rs.__version__}-fov{lo:g}-{hi:g}.bin"
         if path.exists():
             self.db = tetra3rs.SolverDatabase.load_from_file(str(path))
         else:
             self.db = tetra3rs.SolverDatabase.generate_from_gaia(
-                max_fov_deg=fov_deg, epoch_proper_motion_year=catalogue.load().epoch)
+                max_fov_deg=hi, min_fov_deg=lo, epoch_proper_motion_year=catalogue.load().epoch)
             self.db.save_to_file(str(path))
         self.range = f"{self.db.min_fov_deg:g}-{self.db.max_fov_deg:g}"
+
+    def fov_estimate(self):
+        return self.fov
 
     def solve(self, scene):
         w, h = scene.cam.width, scene.cam.height
         rows = scene.rows.copy()
         rows[:, 0] -= (w - 1) / 2          # tetra3rs: origin at the image centre, +y down
         rows[:, 1] -= (h - 1) / 2
-        res = self.db.solve_from_centroids(rows, fov_estimate_deg=self.fov, image_width=w,
-                                           image_height=h)
+        res = self.db.solve_from_centroids(rows, fov_estimate_deg=self.fov_estimate(),
+                                           image_width=w, image_height=h)
         if not res:
             return None
         px = scene.probe_pixels()
         world = [res.pixel_to_world(x - (w - 1) / 2, y - (h - 1) / 2) for x, y in px]
         return radec_vectors(*np.array(world).T)
+
+
+class Tetra3rsMultiscale(Tetra3rs):
+    """``--multiscale``: tetra3rs over one multiscale database for every campaign FOV
+    (5-40 deg), told only the geometric middle of that range (14.1 deg) with no error bound:
+    the FOV is unknown to it."""
+
+    name = "tetra3rs-multiscale"
+    min_fov, max_fov = min(T.FOVS_DEG), max(T.FOVS_DEG)
+
+    def fov_estimate(self):
+        return math.sqrt(self.min_fov * self.max_fov)
 
 
 class CedarSolve:
@@ -243,15 +262,18 @@ def run_fov(fov_deg, n_scenes, classes, cache_dir):
     """Rows (one per solver) of one FOV over scenes ``0 .. n_scenes - 1``."""
     scenes = [Scene(fov_deg, i) for i in range(n_scenes)]
     solvers = [cls(fov_deg, scenes[0], cache_dir) for cls in classes]
-    tally = {s.name: {"solved": 0, "wrong": 0, "ms": [], "errors": []} for s in solvers}
+    tally = {s.name: {"solved": 0, "wrong": 0, "ms": [], "errors": [], "wrong_scenes": []}
+             for s in solvers}
     for solver in solvers:
         t = tally[solver.name]
-        for scene, (directions, ms) in zip(scenes, solver.solve_all(scenes)):
+        for i, (scene, (directions, ms)) in enumerate(zip(scenes, solver.solve_all(scenes))):
             t["ms"].append(ms)
             if directions is not None:
                 error = scene.error_arcsec(directions)
                 t["errors"].append(error)
                 t["wrong" if error > WRONG_ARCSEC else "solved"] += 1
+                if error > WRONG_ARCSEC:
+                    t["wrong_scenes"].append([i, round(error, 1)])
     rows = []
     for solver in solvers:
         t = tally[solver.name]
@@ -262,6 +284,7 @@ def run_fov(fov_deg, n_scenes, classes, cache_dir):
                      "failed": n_scenes - t["solved"] - t["wrong"],
                      "p50_ms": float(p50), "p95_ms": float(p95),
                      "error_p50_arcsec": float(np.median(right)) if right else None,
+                     "wrong_scenes": t["wrong_scenes"],      # [scene index, error arcsec]
                      "database_fov_deg": solver.range})
     return rows
 
@@ -298,10 +321,14 @@ def ratios(rows):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--fovs", nargs="+", type=float, default=[8.0, 12.0, 20.0, 30.0],
+    ap.add_argument("--fovs", nargs="+", type=float, default=list(T.FOVS_DEG),
                     help=f"horizontal FOVs, deg, of the fov campaign's {T.FOVS_DEG}")
     ap.add_argument("--scenes", type=int, default=100, help="scenes per FOV")
     ap.add_argument("--json", help="also write the rows to this JSON file")
+    ap.add_argument("--multiscale", action="store_true",
+                    help="add tetra3rs over one 5-40 deg database without the FOV")
+    ap.add_argument("--solvers", nargs="+", metavar="NAME",
+                    help="only these of lodestar, tetra3rs, cedar-solve, tetra3rs-multiscale")
     args = ap.parse_args(argv)
     classes, notes = available()
     for note in notes:
@@ -309,6 +336,10 @@ def main(argv=None):
     if len(classes) == 1:
         print("bench_peers: SKIPPED: no peer installed, nothing to compare")
         return 0
+    if args.multiscale and Tetra3rs in classes:
+        classes.append(Tetra3rsMultiscale)
+    if args.solvers:
+        classes = [c for c in classes if c.name in args.solvers]
     for fov in args.fovs:
         if not math.isfinite(fov) or fov not in T.FOVS_DEG:
             ap.error(f"--fovs: {fov:g} is not one of the campaign's {T.FOVS_DEG}")
@@ -318,13 +349,13 @@ def main(argv=None):
     for fov in args.fovs:
         rows += run_fov(fov, args.scenes, classes, cache_dir)
         print(markdown([r for r in rows if r["fov_deg"] == fov]), flush=True)
+        if args.json:                   # after every FOV: a long run stopped keeps its rows
+            Path(args.json).write_text(json.dumps({"wrong_arcsec": WRONG_ARCSEC,
+                                                   "rows": rows}, indent=1))
     print()
     print(markdown(rows))
     for line in ratios(rows):
         print(line)
-    if args.json:
-        Path(args.json).write_text(json.dumps({"wrong_arcsec": WRONG_ARCSEC, "rows": rows},
-                                              indent=1))
     return 0
 
 
