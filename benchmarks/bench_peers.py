@@ -67,8 +67,11 @@ class Scene:
     v_icrs) and the centroid rows ``(x, y, flux)`` brightest first (pixel centres at
     integers)."""
 
-    def __init__(self, fov_deg, trial):
+    def __init__(self, fov_deg, trial, q=None, rows=None):
         self.cam = T.fov_camera(PRESET, fov_deg)
+        if q is not None:                   # from a scene file (:func:`scenes`)
+            self.q, self.rows = q, rows
+            return
         seed = T.trial_seed(CAMPAIGN_SEED, "fov", PRESET, trial)
         frame = T.Frame(PRESET, camera_settings(PRESET), seed, false_stars=T.FOV_FALSE_STARS,
                         mag_limit=T.fov_render_limit(PRESET, self.cam), cam=self.cam,
@@ -258,15 +261,33 @@ def available():
 
 # ---- the run ---------------------------------------------------------------------------
 
-def run_fov(fov_deg, n_scenes, classes, cache_dir):
+def scenes(fov_deg, n_scenes, path, reuse):
+    """Scenes ``0 .. n_scenes - 1`` of one FOV, rendered and written to ``path`` (npz: the
+    centroid ``rows`` and ``starts``, truth ``q``), or read from it with ``reuse`` when it
+    holds that many (``--reuse-scenes``: only the solvers run again)."""
+    if reuse and path.exists():
+        data = np.load(path)
+        if len(data["q"]) >= n_scenes:
+            starts = data["starts"]
+            return [Scene(fov_deg, i, data["q"][i], data["rows"][starts[i]:starts[i + 1]])
+                    for i in range(n_scenes)]
+    out = [Scene(fov_deg, i) for i in range(n_scenes)]
+    np.savez(path, rows=np.concatenate([s.rows for s in out]),
+             starts=np.cumsum([0] + [len(s.rows) for s in out]), q=np.array([s.q for s in out]))
+    return out
+
+
+def run_fov(fov_deg, n_scenes, classes, cache_dir, reuse=False):
     """Rows (one per solver) of one FOV over scenes ``0 .. n_scenes - 1``."""
-    scenes = [Scene(fov_deg, i) for i in range(n_scenes)]
-    solvers = [cls(fov_deg, scenes[0], cache_dir) for cls in classes]
+    scenes_ = scenes(fov_deg, n_scenes, cache_dir / f"campaign-scenes-fov{fov_deg:g}.npz",
+                     reuse)
+    solvers = [cls(fov_deg, scenes_[0], cache_dir) for cls in classes]
     tally = {s.name: {"solved": 0, "wrong": 0, "ms": [], "errors": [], "wrong_scenes": []}
              for s in solvers}
     for solver in solvers:
         t = tally[solver.name]
-        for i, (scene, (directions, ms)) in enumerate(zip(scenes, solver.solve_all(scenes))):
+        for i, (scene, (directions, ms)) in enumerate(zip(scenes_,
+                                                          solver.solve_all(scenes_))):
             t["ms"].append(ms)
             if directions is not None:
                 error = scene.error_arcsec(directions)
@@ -327,6 +348,9 @@ def main(argv=None):
     ap.add_argument("--json", help="also write the rows to this JSON file")
     ap.add_argument("--multiscale", action="store_true",
                     help="add tetra3rs over one 5-40 deg database without the FOV")
+    ap.add_argument("--reuse-scenes", action="store_true",
+                    help="read the scenes the last run rendered (same --scenes or fewer) "
+                         "instead of rendering them again")
     ap.add_argument("--solvers", nargs="+", metavar="NAME",
                     help="only these of lodestar, tetra3rs, cedar-solve, tetra3rs-multiscale")
     args = ap.parse_args(argv)
@@ -347,7 +371,7 @@ def main(argv=None):
     cache_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for fov in args.fovs:
-        rows += run_fov(fov, args.scenes, classes, cache_dir)
+        rows += run_fov(fov, args.scenes, classes, cache_dir, args.reuse_scenes)
         print(markdown([r for r in rows if r["fov_deg"] == fov]), flush=True)
         if args.json:                   # after every FOV: a long run stopped keeps its rows
             Path(args.json).write_text(json.dumps({"wrong_arcsec": WRONG_ARCSEC,
