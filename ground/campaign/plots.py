@@ -143,4 +143,36 @@ def accuracy(rows, out_dir, title):
     return [_save(fig, os.path.join(out_dir, "campaign_accuracy.png"))]
 
 
-PLOTS = {"rate": rate, "falsestars": falsestars, "limiting": limiting, "accuracy": accuracy}
+def fov(rows, out_dir, title):
+    """Availability (with the 95 % interval; red x: wrong solutions) and 1-sigma errors vs
+    horizontal FOV, per preset sensor: ``campaign_fov.png``."""
+    plt = _pyplot()
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for (preset,), group in _by(rows, "preset").items():
+        f = [g["fov_deg"] for g in group]
+        a = [g["availability_pct"] for g in group]
+        err = [[max(g["availability_pct"] - g["ci_low_pct"], 0.0) for g in group],
+               [max(g["ci_high_pct"] - g["availability_pct"], 0.0) for g in group]]
+        ax1.errorbar(f, a, yerr=err, marker="o", capsize=3, label=f"lodestar, {preset} sensor")
+        wrong = [(g["fov_deg"], g["availability_pct"]) for g in group if g["wrong"]]
+        if wrong:
+            ax1.plot(*zip(*wrong), "rx", markersize=10, label="wrong solutions")
+        for key, style in (("cross_1sigma", "-o"), ("roll_1sigma", "--s")):
+            pts = [(g["fov_deg"], g[key]) for g in group if g[key] is not None]
+            if pts:
+                ax2.plot(*zip(*pts), style, label=f"{preset} {key.split('_')[0]}")
+    ax1.axhline(99.0, color="k", ls=":", lw=1, label="goal 99 %")
+    low = min([g["ci_low_pct"] for g in rows if g["ci_low_pct"] is not None] + [99.0])
+    ax1.set(xlabel="horizontal FOV, deg", ylabel="solved correctly, % of attitudes",
+            title=f"availability at rest ({title})", ylim=(max(0.0, low - 5.0), 101))
+    ax1.grid(alpha=0.3)
+    ax1.legend(fontsize=7, loc="lower left")
+    ax2.set(xlabel="horizontal FOV, deg", ylabel="1-sigma error, arcsec", yscale="log",
+            title="accuracy (cross-boresight per axis, roll)")
+    ax2.grid(alpha=0.3, which="both")
+    ax2.legend(fontsize=7)
+    return [_save(fig, os.path.join(out_dir, "campaign_fov.png"))]
+
+
+PLOTS = {"rate": rate, "falsestars": falsestars, "limiting": limiting, "accuracy": accuracy,
+         "fov": fov}

@@ -22,7 +22,7 @@ from lodestar.sim import presets
 from lodestar.sim.presets import PRESETS
 
 JOURNAL = "journal.jsonl"
-DEFAULT_TRIALS = {"rate": 500, "falsestars": 100, "limiting": 30, "accuracy": 300}
+DEFAULT_TRIALS = {"rate": 500, "falsestars": 100, "limiting": 30, "accuracy": 300, "fov": 100}
 """Monte-Carlo size per level by default: 500 attitudes per rate resolve availability to
 about +-1 % (95 %) near 95 %, and 0.2 % steps near 100 %."""
 QUICK = {"trials": 2, "rates": (0.0, 1.0), "false_stars": (0, 5)}
@@ -41,6 +41,8 @@ def levels(study, rates=None, false_stars=T.FALSE_STARS):
         return [f"false={n}" for n in false_stars] + ["noise"]
     if study == "accuracy":
         return ["rest"]
+    if study == "fov":
+        return [f"{f:g}" for f in T.FOVS_DEG]
     raise ValueError(f"unknown study {study!r} (known: {', '.join(T.STUDIES)})")
 
 
@@ -286,6 +288,11 @@ def _prepare_databases(config):
 
     methods = T.METHODS if config["study"] == "falsestars" else (config["method"],)
     for preset in config["presets"]:
+        if config["study"] == "fov":
+            for level in config["levels"]:
+                T.fov_database(flightsolve.firmware_camera(T.fov_camera(preset, float(level))),
+                               config["method"])
+            continue
         cam = flightsolve.firmware_camera(presets.load_preset(preset))
         for method in methods:
             flightsolve.star_database(cam, method=method)
@@ -325,6 +332,9 @@ COLUMNS = {
     "accuracy": ("preset", "stars_kept", "trials", "right", "wrong", "mean_matches",
                  "cross_1sigma", "sigma_cross_rms", "ratio_cross", "roll_1sigma",
                  "sigma_roll_rms", "ratio_roll"),
+    "fov": ("preset", "fov_deg", "aperture_mm", "render_mag", "db_stars", "trials", "right",
+            "wrong", "failed", "availability_pct", "ci_low_pct", "cross_1sigma",
+            "roll_1sigma", "solve_ms_p50", "solve_ms_p95"),
 }
 """Columns printed on the terminal (the CSV has all)."""
 

@@ -225,6 +225,26 @@ def accuracy_table(tasks, results):
     return rows
 
 
+def fov_table(tasks, results):
+    """``fov``: one row per preset and horizontal FOV: the camera of
+    :func:`lodestar.ground.campaign.trials.fov_camera` (vertical FOV, focal length,
+    aperture, rendered depth), the database's star count, the outcomes and the CPython
+    solve time (p50, p95 over every frame, ms)."""
+    rows = []
+    for (preset, level), verdicts in _grouped(tasks, results).items():
+        cam = T.fov_camera(preset, float(level))
+        fov_h, fov_v, _diag = cam.fov_deg()
+        row = {"preset": preset, "fov_deg": float(level), "fov_v_deg": float(fov_v),
+               "focal_length_mm": cam.focal_length_mm, "aperture_mm": cam.aperture_mm,
+               "render_mag": T.fov_render_limit(preset, cam),
+               "db_stars": verdicts[0]["db_stars"]}
+        row.update(outcome_stats(verdicts))
+        ms = [v["solve_ms"] for v in verdicts]
+        row.update({"solve_ms_p50": _pct(ms, 50), "solve_ms_p95": _pct(ms, 95)})
+        rows.append(row)
+    return rows
+
+
 def tables(study, tasks, results, config):
     """The rows of ``study``'s table (one dict per row, the CSV's columns in order)."""
     if study == "rate":
@@ -235,6 +255,8 @@ def tables(study, tasks, results, config):
         return limiting_table(tasks, results, config)
     if study == "accuracy":
         return accuracy_table(tasks, results)
+    if study == "fov":
+        return fov_table(tasks, results)
     raise ValueError(f"unknown study {study!r}")
 
 

@@ -9,6 +9,7 @@ the verdict's fields: ``docs/campaigns.md``.  Units: rates in deg/s in tasks and
 rad/s towards the firmware; errors and sigmas in arcsec; magnitudes Johnson V.
 """
 
+import dataclasses
 import hashlib
 import math
 
@@ -21,10 +22,11 @@ from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import flight as flightsolve
 from lodestar.ground.flight import detector_config
+from lodestar.ground.solve import DEFAULT_DENSITY
 from lodestar.ground.truth import attitude_error_arcsec, judge, match_rows
-from lodestar.sim import attitude, presets, scene
+from lodestar.sim import attitude, catalogue, presets, scene
 
-STUDIES = ("rate", "falsestars", "limiting", "accuracy")
+STUDIES = ("rate", "falsestars", "limiting", "accuracy", "fov")
 
 RATES_DEG_S = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 5.0)
 """Rates of the ``rate`` study (issue 7), deg/s."""
@@ -48,6 +50,11 @@ frames.  Fainter stars cannot be detected (a V = 7 star's brightest pixel gets a
 estcube2's 5-sigma threshold at rest; lohmann sees to V ~ 5), and rendering the catalogue to
 V = 8 takes about three times as long at 2 deg/s.  The ``limiting`` study renders the whole
 catalogue (``lodestar.sim.scene.CATALOGUE_LIMIT``) to measure detection near the limit."""
+
+FOVS_DEG = (5.0, 8.0, 12.0, 20.0, 30.0, 40.0)
+"""Horizontal fields of the ``fov`` study (issue 15), deg."""
+FOV_FALSE_STARS = 3
+"""False stars in every ``fov`` frame (``lodestar.sim.scene.Extras``: V uniform in 3..6)."""
 
 LIMITING_BIN_MAG = 0.25
 """Magnitude bin of the ``limiting`` study's detection histograms."""
@@ -90,18 +97,19 @@ def rate_vector(rng, rate_deg_s, axis):
 class Frame:
     """One simulated and detected frame: ``cam`` (the preset), ``q`` (truth), ``omega_deg_s``,
     ``truth`` (the simulator's), ``det`` (``DetectionResult``) and ``fw_cam``.  The catalogue
-    is rendered to ``mag_limit`` (V), with ``false_stars`` extra point sources."""
+    is rendered to ``mag_limit`` (V), with ``false_stars`` extra point sources; ``cam``
+    replaces the preset's camera (a sim ``Camera``), ``cat`` the shipped catalogue."""
 
     def __init__(self, preset, settings, seed, rate_deg_s=0.0, axis="cross",
-                 false_stars=0, mag_limit=RENDER_MAG_LIMIT):
+                 false_stars=0, mag_limit=RENDER_MAG_LIMIT, cam=None, cat=None):
 
-        self.cam = presets.load_preset(preset)
+        self.cam = presets.load_preset(preset) if cam is None else cam
         rng = np.random.default_rng(seed)
         self.q = attitude.random_attitude(rng)
         self.omega_deg_s = rate_vector(rng, rate_deg_s, axis)
         sim = scene.simulate(self.cam, self.q, self.omega_deg_s, settings["exposure_s"], seed,
                              extras=scene.Extras(false_stars=false_stars),
-                             mag_limit=mag_limit)
+                             mag_limit=mag_limit, cat=cat)
         self.truth = sim.truth
         self.det = detect_frame(sim.frame, detector_config(self.cam, settings))
         self.fw_cam = flightsolve.firmware_camera(self.cam)
@@ -237,8 +245,56 @@ def accuracy_trial(preset, level, seed, config):
     return out
 
 
+def fov_camera(preset, fov_deg):
+    """The ``fov`` study's camera: the sensor of ``preset`` (size, pixels, noise, shutter,
+    PSF in pixels, exposure) behind a distortion-free lens of the preset's f-number whose
+    horizontal FOV is ``fov_deg``: focal length ``(W / 2) / tan(fov / 2)`` pixels, aperture
+    the focal length over the f-number (a 5 deg lens of estcube2's f/1.2 is 65 mm, 54 mm
+    across; a 40 deg one 7.8 mm, 6.5 mm across)."""
+    base = presets.load_preset(preset)
+    f_px = (base.width / 2) / math.tan(math.radians(fov_deg) / 2)
+    f_mm = f_px * base.pixel_pitch_um * 1e-3
+    return dataclasses.replace(base, fx_px=f_px, fy_px=f_px, cx=None, cy=None, k1=0.0,
+                               k2=0.0, k3=0.0, p1=0.0, p2=0.0, focal_length_mm=f_mm,
+                               aperture_mm=f_mm / base.f_number, name=f"{preset}-fov{fov_deg:g}")
+
+
+def fov_render_limit(preset, cam):
+    """Faintest star (V) rendered by the ``fov`` study for ``cam`` (from
+    :func:`fov_camera`): :data:`RENDER_MAG_LIMIT` shifted by the aperture's light grasp
+    over the preset's, ``5 log10(D / D_preset)`` (same sensor, same PSF in pixels, so the
+    same detection threshold in electrons): V 10.0 at 5 deg, V 5.5 at 40 deg for estcube2."""
+    return RENDER_MAG_LIMIT + 5 * math.log10(cam.aperture_mm /
+                                             presets.load_preset(preset).aperture_mm)
+
+
+def fov_database(fw_cam, method):
+    """The ``fov`` study's star database for the firmware camera ``fw_cam``: the ground
+    solve's default (:data:`lodestar.ground.solve.DEFAULT_DENSITY` stars per field, no
+    magnitude limit, from the whole Hipparcos), built once and cached."""
+    return flightsolve.star_database(fw_cam, max_mag=None, method=method,
+                                     density=DEFAULT_DENSITY)[0]
+
+
+def fov_trial(preset, level, seed, config):
+    """``fov``: one frame at rest of :func:`fov_camera` at ``level`` deg (the whole
+    Hipparcos rendered to :func:`fov_render_limit`, :data:`FOV_FALSE_STARS` false stars),
+    solved by the flight pipeline over :func:`fov_database`: the :func:`verdict` with the
+    solve's wall time ``solve_ms`` (CPython) and the database's ``db_stars``."""
+    cam = fov_camera(preset, float(level))
+    frame = Frame(preset, config["camera"], seed, false_stars=FOV_FALSE_STARS,
+                  mag_limit=fov_render_limit(preset, cam), cam=cam, cat=catalogue.load_deep())
+    db = fov_database(frame.fw_cam, config["method"])
+    _data, res, timings = flightsolve.process(
+        frame.det, frame.fw_cam, db, omega=frame.omega_rad_s,
+        exposure_s=frame.truth["exposure_s"], row_time_s=frame.truth["row_time_s"],
+        method=config["method"])
+    return dict(verdict(res, frame.det.blobs, frame), solve_ms=timings["solve"],
+                db_stars=db.n_stars)
+
+
 TRIALS = {"rate": rate_trial, "falsestars": falsestars_trial, "limiting": limiting_trial,
-          "accuracy": accuracy_trial}
+          "accuracy": accuracy_trial, "fov": fov_trial}
 
 
 def run_task(task, config):

@@ -24,7 +24,7 @@ def add_parser(sub):
     """Register ``campaign`` on an argparse subparsers object."""
 
     p = sub.add_parser("campaign", help="Monte-Carlo studies: rate, false stars, limiting "
-                                        "magnitude, accuracy",
+                                        "magnitude, accuracy, field of view",
                        description="Run a Monte-Carlo campaign (simulator, golden detector, "
                                    "firmware) and write its table (JSON, CSV) and plot.")
     p.add_argument("name", choices=T.STUDIES)
@@ -40,7 +40,7 @@ def add_parser(sub):
     p.add_argument("--axis", choices=T.AXES, default="cross",
                    help="rate axis: cross-boresight (default), random, roll")
     p.add_argument("--method", choices=T.METHODS, default="pyramid",
-                   help="identification method of the rate and accuracy studies")
+                   help="identification method of the rate, accuracy and fov studies")
     p.add_argument("--settings", choices=tuple(SETTINGS), default=DEFAULT_SETTINGS,
                    help="camera settings (lodestar.ground.flight): tuned (3-sigma threshold; "
                         "lohmann at 0.2 s, 3 pixels) or each preset as is")

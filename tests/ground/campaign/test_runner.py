@@ -235,3 +235,21 @@ def test_workers_end_with_the_campaign(tmp_path, how):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_fov_study_writes_its_table(tmp_path, capsys):
+    """The ``fov`` study on two of its fields, one estcube2-sensor frame each, through the
+    command line (the 5 deg database takes a minute to build: the campaign in docs/)."""
+    config = campaign.make_config("fov", ["estcube2"], seed=2)
+    assert config["levels"] == [f"{f:g}" for f in T.FOVS_DEG]
+    config["levels"] = ["20", "40"]
+    rows, paths = campaign.run_campaign(config, 1, str(tmp_path), progress=False)
+    assert sorted(os.path.basename(p) for p in paths) == [
+        "campaign_fov.csv", "campaign_fov.json", "campaign_fov.png"]
+    assert [(r["fov_deg"], r["trials"], r["wrong"]) for r in rows] == [(20.0, 1, 0),
+                                                                      (40.0, 1, 0)]
+    assert rows[0]["db_stars"] > rows[1]["db_stars"] and rows[0]["aperture_mm"] > \
+        rows[1]["aperture_mm"]
+    assert rows[0]["fov_v_deg"] == pytest.approx(15.07, abs=0.01)
+    text = campaign.format_table("fov", rows)
+    assert text.count("\n") == 2 and "solve_ms_p95" in text

@@ -77,3 +77,22 @@ def test_csv_leaves_out_lists_and_blanks_none(tmp_path):
     path = tmp_path / "t.csv"
     tables.write_csv(path, [{"a": 1, "b": None, "c": 0.123456789, "curve": [[1, 2]]}])
     assert path.read_text().splitlines() == ["a,b,c", "1,,0.123457"]
+
+
+def test_fov_table_counts_times_and_describes_the_camera():
+    tasks = [("fov", "estcube2", level, t) for level in ("5", "40") for t in range(3)]
+    results = {}
+    for (_s, _p, level, t) in tasks:
+        out = v(solved=t != 2 or level == "40")
+        results[f"fov/estcube2/{level}/{t}"] = dict(out, solve_ms=10.0 * (t + 1),
+                                                  db_stars=100 if level == "5" else 7)
+    rows = tables.tables("fov", tasks, results, {})
+    assert [(r["fov_deg"], r["right"], r["failed"], r["db_stars"]) for r in rows] == [
+        (5.0, 2, 1, 100), (40.0, 3, 0, 7)]
+    assert rows[0]["solve_ms_p50"] == pytest.approx(20.0)
+    assert rows[0]["solve_ms_p95"] == pytest.approx(29.0)
+    # the camera: the estcube2 sensor at f/1.2, 5 deg wide, 3.75 deg high
+    assert rows[0]["fov_v_deg"] == pytest.approx(3.751, abs=1e-3)
+    assert rows[0]["focal_length_mm"] / rows[0]["aperture_mm"] == pytest.approx(
+        presets.load_preset("estcube2").f_number)
+    assert rows[0]["render_mag"] > rows[1]["render_mag"]

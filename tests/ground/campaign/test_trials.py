@@ -11,6 +11,7 @@ from lodestar.firmware.pipeline import Result
 from lodestar.ground.campaign import trials as T
 from lodestar.ground.flight import camera_settings
 from lodestar.ground.truth import WRONG_ARCSEC
+from lodestar.sim import presets
 
 
 def test_seed_depends_on_campaign_study_preset_trial_not_level():
@@ -70,3 +71,27 @@ def test_noise_trial_identifies_at_small_noise():
         assert out[method]["0"]["status"] == "OK" and out[method]["0"]["wrong_matches"] == 0
     with pytest.raises(ValueError, match="unknown falsestars level"):
         T.falsestars_trial("lohmann", "other", 11, config)
+
+
+@pytest.mark.parametrize("fov", T.FOVS_DEG)
+def test_fov_camera_keeps_the_sensor_and_f_number(fov):
+    base = presets.load_preset("estcube2")
+    cam = T.fov_camera("estcube2", fov)
+    assert cam.fov_deg()[0] == pytest.approx(fov, abs=1e-9)
+    assert (cam.width, cam.height, cam.pixel_pitch_um, cam.read_noise_e, cam.psf_sigma_px) == \
+        (base.width, base.height, base.pixel_pitch_um, base.read_noise_e, base.psf_sigma_px)
+    assert cam.f_number == pytest.approx(base.f_number)
+    # the same sensor behind a lens of 4x the aperture sees 5 log10(4) = 3.01 mag deeper
+    shift = T.fov_render_limit("estcube2", cam) - T.RENDER_MAG_LIMIT
+    assert shift == pytest.approx(5 * math.log10(cam.aperture_mm / base.aperture_mm))
+    assert (shift > 0) == (fov < base.fov_deg()[0])
+
+
+def test_fov_trial_solves_a_wide_field_with_its_own_database():
+    config = {"camera": camera_settings("estcube2", "tuned"), "axis": "cross",
+              "method": "pyramid"}
+    out = T.fov_trial("estcube2", "30", 5, config)
+    assert out["status"] == "OK" and out["wrong_matches"] == 0 and out["n_matches"] >= 8
+    assert out["solve_ms"] > 0
+    # the 30 deg database holds fewer stars than the 20 deg one of the same density
+    assert out["db_stars"] < T.fov_trial("estcube2", "20", 5, config)["db_stars"]
