@@ -32,6 +32,7 @@ from pathlib import Path
 
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
+from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.regress import mcutime, unixport
 from lodestar.regress import replay as regress
 from lodestar.sim import presets
@@ -176,9 +177,11 @@ def flash_table(out_dir):
           "MCU internal flash (512 KiB, with MicroPython itself) |")
     camera = presets.load_preset("estcube2")
     for method in ("pyramid", "triangle", "hashing"):
-        size = len(build_database(camera=camera, method=method))
-        print(f"| estcube2 database, {method} | {size:,} | F-RAM (512 KiB) behind the FPGA, "
-              "or internal flash when it fits beside the firmware |")
+        size = len(build_database(camera=camera, methods=(method,), mag_limit=DEFAULT_MAX_MAG,
+                                  **FLIGHT_DENSITY))
+        print(f"| estcube2 flight database (`db build --flight`), {method} | {size:,} | "
+              "F-RAM (512 KiB) behind the FPGA, or internal flash when it fits beside the "
+              "firmware |")
 
 
 def main():
