@@ -311,7 +311,7 @@ def write_outputs(config, tasks, results, out_dir):
                               "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
     write_atomic(base + ".json", json.dumps(summary, indent=1))
     campaign_tables.write_csv(base + ".csv", rows)
-    title = f"{trials} trials/level, seed {config['seed']}"
+    title = f"{trials} trials/level, seed {config['seed']}, {config['axis']} axis"
     pngs = campaign_plots.PLOTS[study](rows, out_dir, title)
     return rows, [base + ".json", base + ".csv"] + pngs
 
