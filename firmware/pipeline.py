@@ -61,9 +61,17 @@ def _collect():
         gc.collect()
 
 
+MIN_SMEAR_STARS = 3
+"""Fewest stars whose own smear is at most ``max_smear_px`` a frame must keep when others
+smear beyond it; with fewer the frame is ``SMEAR_TOO_LONG`` (three is the fewest any
+identification uses; a frame that has too few stars without any smeared away is
+``TOO_FEW_STARS`` as ever)."""
+
+
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
-    corners most, a cross-boresight rate everywhere alike)."""
+    corners most, a cross-boresight rate everywhere alike): when it is within the limit no
+    star needs its own test."""
     longest = 0.0
     for x, y in ((cam.cx, cam.cy), (0, 0), (cam.width - 1, 0), (0, cam.height - 1),
                  (cam.width - 1, cam.height - 1)):
@@ -74,6 +82,31 @@ def _longest_smear(cam, smear):
         if not length <= longest:
             longest = length
     return longest
+
+
+def _short_smears(stars, smear, limit, max_stars, rejected):
+    """The first ``max_stars`` of ``stars`` (brightest first) whose own expected smear
+    ``smear(x, y)`` is at most ``limit`` px: a roll smears a star in proportion to its
+    distance from the boresight, so the inner stars stay usable when the corners are too
+    long.  Returns ``(kept, longest kept smear in px)``; the others count as
+    ``rejected["smear"]`` or, beyond ``max_stars``, ``rejected["excess"]`` (unmeasured)."""
+    kept = []
+    longest = 0.0
+    limit2 = limit * limit
+    examined = 0
+    for s in stars:
+        if len(kept) >= max_stars:
+            break
+        examined += 1
+        d = smear(s.x, s.y)
+        length2 = d[0] * d[0] + d[1] * d[1] if d is not None else None
+        if length2 is not None and length2 <= limit2:
+            kept.append(s)
+            if length2 > longest:
+                longest = length2
+    rejected["smear"] = examined - len(kept)
+    rejected["excess"] += len(stars) - examined
+    return kept, math.sqrt(longest)
 
 
 def _residuals2(q, b, r):
@@ -592,18 +625,23 @@ class StarTracker:
                 return cam.smear_px(x, y, w, exposure)
 
             longest = _longest_smear(cam, smear)
-            if not longest <= self.settings.max_smear_px:
-                res.status = S.SMEAR_TOO_LONG
-                _note(res, "expected smear " + str(round(longest, 1)) + " px > max_smear_px " +
-                      str(self.settings.max_smear_px))
-                return res
+        limit = self.settings.max_smear_px
+        select = not longest <= limit        # some stars may smear beyond the limit
+        max_stars = self.settings.max_stars
         border = (cam.width, cam.height) if self.settings.drop_border else None
         stars, rejected = _centroids.extract(_records(packet_bytes, res.n_records),
-                                             max_stars=self.settings.max_stars,
+                                             max_stars=None if select else max_stars,
                                              expected_smear_px=smear, border=border,
                                              **self.settings.extract_options)
-        _collect()
         res.rejected = rejected
+        if select:
+            stars, longest = _short_smears(stars, smear, limit, max_stars, rejected)
+            if rejected["smear"] and len(stars) < MIN_SMEAR_STARS:
+                res.status = S.SMEAR_TOO_LONG
+                _note(res, str(rejected["smear"]) + " stars smeared beyond max_smear_px " +
+                      str(limit) + ", " + str(len(stars)) + " left")
+                return res
+        _collect()
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None

@@ -81,7 +81,7 @@ _TABLE = (
     (CAMERA_OUT_OF_VIEW, "CAMERA_OUT_OF_VIEW",
      "camera model: direction behind the camera or beyond the distortion fold radius"),
     (SMEAR_TOO_LONG, "SMEAR_TOO_LONG",
-     "the body rate smears stars longer than the pipeline's max_smear_px: no attitude"),
+     "the body rate smears all but fewer than 3 stars beyond max_smear_px: no attitude"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",

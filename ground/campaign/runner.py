@@ -28,7 +28,11 @@ about +-1 % (95 %) near 95 %, and 0.2 % steps near 100 %."""
 QUICK = {"trials": 2, "rates": (0.0, 1.0), "false_stars": (0, 5)}
 """``--quick``: a smoke-test campaign (seconds on lohmann)."""
 MAX_RATE_DEG_S = 30.0
-"""Largest rate accepted (a frame then smears over several degrees)."""
+"""Largest rate accepted about a cross or random axis (a frame then smears over several
+degrees)."""
+MAX_ROLL_RATE_DEG_S = 360.0
+"""Largest rate accepted about the boresight (``--axis roll``): the seed mission's E-sail
+spin starts at 360 deg/s, and the stars near the boresight smear little at any rate."""
 
 
 def levels(study, rates=None, false_stars=T.FALSE_STARS):
@@ -58,9 +62,10 @@ def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyrami
     if rates is not None:
         if study not in ("rate", "limiting"):
             raise ValueError(f"--rates applies to the rate and limiting studies, not {study}")
-        if not rates or any(not 0 <= r <= MAX_RATE_DEG_S for r in rates) or \
+        most = MAX_ROLL_RATE_DEG_S if axis == "roll" else MAX_RATE_DEG_S
+        if not rates or any(not 0 <= r <= most for r in rates) or \
                 len(set(rates)) < len(rates):
-            raise ValueError(f"--rates must be distinct numbers in 0..{MAX_RATE_DEG_S:g} "
+            raise ValueError(f"--rates must be distinct numbers in 0..{most:g} "
                              f"deg/s, got {rates!r}")
     if axis not in T.AXES:
         raise ValueError(f"unknown rate axis {axis!r} (known: {', '.join(T.AXES)})")
@@ -313,7 +318,7 @@ def write_outputs(config, tasks, results, out_dir):
                               "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
     write_atomic(base + ".json", json.dumps(summary, indent=1))
     campaign_tables.write_csv(base + ".csv", rows)
-    title = f"{trials} trials/level, seed {config['seed']}"
+    title = f"{trials} trials/level, seed {config['seed']}, {config['axis']} axis"
     pngs = campaign_plots.PLOTS[study](rows, out_dir, title)
     return rows, [base + ".json", base + ".csv"] + pngs
 

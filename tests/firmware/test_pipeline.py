@@ -12,6 +12,7 @@
 
 import ast
 import base64
+import functools
 import math
 import re
 
@@ -24,8 +25,11 @@ from lodestar.contract import DetectionResult
 from lodestar.firmware import pipeline, settings
 from lodestar.firmware import status as S
 from lodestar.firmware.settings import Settings
+from lodestar.golden import detect_frame
 from lodestar.ground import codec as ground_packet
+from lodestar.ground import flight
 from lodestar.ground.database import build_database
+from lodestar.sim import attitude, scene
 from lodestar.sim.centroids import attitude_error_deg
 from tests import sim_frames as SF
 
@@ -506,6 +510,74 @@ def test_smear_beyond_the_limit_gets_no_attitude():
     assert tracker.process(frame.packet, omega=fast).status == S.SMEAR_TOO_LONG
     for bad in (0, -1.0, float("nan"), "50"):
         assert SF.tracker(max_smear_px=bad).status == S.BAD_INPUT
+
+
+ROLL_DEG_S = 20.0
+"""The spin about the boresight of the seed mission's E-sail after slow-down: 17 px of smear
+500 px from the centre, 56 px in the corners of estcube2 (beyond ``max_smear_px``)."""
+
+
+@functools.lru_cache(maxsize=None)
+def roll_frames(rate_deg_s=ROLL_DEG_S, n=2, seed=77):
+    """``n`` estcube2 frames spinning at ``rate_deg_s`` about the boresight, random
+    attitudes and spin senses, detected with the flight's tuned threshold (3 sigma: the
+    preset's sees two or three stars of such a frame)."""
+    cam = SF.sim_camera()
+    config = flight.detector_config(cam, flight.camera_settings("estcube2"))
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        q = attitude.random_attitude(rng)
+        omega_deg_s = (0.0, 0.0, rate_deg_s * rng.choice((-1.0, 1.0)))
+        sim = scene.simulate(cam, q, omega_deg_s, seed=seed + i, mag_limit=7.0)
+        result = detect_frame(sim.frame, config)
+        out.append(SF.Frame("roll{}".format(i), ground_packet.encode(result),
+                            list(result.blobs), np.asarray(q, dtype=float),
+                            [math.radians(w) for w in omega_deg_s], sim.truth["sources"]))
+    return tuple(out)
+
+
+def test_a_roll_uses_the_stars_whose_own_smear_is_short():
+    """A roll smears the corners beyond max_smear_px and the centre hardly at all: the frame
+    solves on the stars whose own smear is within the limit (the others are
+    ``rejected["smear"]``); only when fewer than MIN_SMEAR_STARS remain is it
+    SMEAR_TOO_LONG."""
+    tracker = SF.tracker()
+    cam = tracker.camera
+    exposure = tracker.settings.exposure_s
+
+    def smear(frame, x, y):
+        return math.hypot(*cam.smear_px(x, y, frame.omega, exposure))
+
+    def check(frame, res, limit):
+        assert res.ok, (frame.name, limit, res.reason)
+        # right, and as precise as it says (a few inner stars: a loose roll)
+        err = camera_frame_error_arcsec(res.q, frame.q)
+        assert math.hypot(err[0], err[1]) <= 5.0 * res.sigma_cross_arcsec
+        assert abs(err[2]) <= 5.0 * res.sigma_roll_arcsec
+        hips = {s["hip"] for s in frame.sources if s["kind"] == "star"}
+        assert all(hip in hips for _i, _x, _y, hip in res.matches)
+        assert all(smear(frame, x, y) <= limit for _i, x, y, _hip in res.matches)
+        # every record is a star used or a rejection
+        assert res.n_stars + sum(res.rejected.values()) == res.n_records
+
+    for frame in roll_frames():
+        limit = tracker.settings.max_smear_px
+        assert smear(frame, 0, 0) > limit > smear(frame, cam.cx, cam.cy) + limit / 2
+        check(frame, tracker.process(frame.packet, omega=frame.omega), limit)
+        # a limit 500 px from the boresight: the outer stars go, the inner ones solve
+        res = SF.tracker(max_smear_px=30.0).process(frame.packet, omega=frame.omega)
+        check(frame, res, 30.0)
+        assert res.rejected["smear"] >= 1
+        # the brightest max_stars of the stars short enough, the rest counted as excess
+        few = SF.tracker(max_smear_px=30.0, max_stars=4).process(frame.packet,
+                                                                 omega=frame.omega)
+        assert few.n_stars == 4 and few.rejected["excess"] >= 1
+        assert few.n_stars + sum(few.rejected.values()) == few.n_records
+        # a limit only the stars nearest the boresight meet: too few, no attitude
+        tight = SF.tracker(max_smear_px=2.0).process(frame.packet, omega=frame.omega)
+        assert tight.status == S.SMEAR_TOO_LONG and tight.q is None and tight.matches == []
+        assert "max_smear_px" in tight.reason and tight.rejected["smear"] >= 1
 
 
 def test_out_of_heap_is_its_own_status(monkeypatch):

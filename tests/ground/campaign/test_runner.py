@@ -150,6 +150,8 @@ def test_cli_quick_campaign(tmp_path, capsys):
     (["rate", "--trials", "0"], "--trials must be a positive integer"),
     (["rate", "--rates", "-1"], "--rates must be distinct numbers"),
     (["rate", "--rates", "1", "1"], "--rates must be distinct numbers"),
+    (["rate", "--rates", "45"], "--rates must be distinct numbers in 0..30 "),
+    (["rate", "--axis", "roll", "--rates", "400"], "--rates must be distinct numbers in 0..360 "),
     (["accuracy", "--rates", "1"], "--rates applies to the rate and limiting studies"),
     (["rate", "--workers", "0"], "--workers must be a positive integer"),
     (["rate", "--max-tasks", "0"], "--max-tasks must be a positive integer"),
@@ -158,6 +160,15 @@ def test_cli_quick_campaign(tmp_path, capsys):
 def test_bad_arguments(args, message, tmp_path, capsys):
     assert main(["campaign"] + args + ["--out", str(tmp_path), "--no-progress"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_roll_may_spin_faster_than_a_slew():
+    """Up to 360 deg/s about the boresight (the E-sail's first spin), 30 about other axes."""
+    config = campaign.make_config("rate", ["estcube2"], rates=[20.0, 45.0, 360.0], axis="roll")
+    assert config["levels"] == ["20", "45", "360"] and config["axis"] == "roll"
+    for axis in ("cross", "random"):
+        with pytest.raises(ValueError, match=r"0\.\.30 deg/s"):
+            campaign.make_config("rate", ["estcube2"], rates=[45.0], axis=axis)
 
 
 def test_unknown_study_or_preset_is_an_argparse_error(capsys):
