@@ -5,7 +5,8 @@ is a hypothesis ``(observed stars -> catalogue stars)`` that :class:`Search` fit
 partly seen tracks weighted down) and verifies (:func:`lodestar.firmware.starid.verify.verify`).
 The first pattern with an accepted hypothesis ends the search: ``AMBIGUOUS`` if two accepted
 attitudes are more than ``distinct`` apart, else the best refined over all its matches
-(``OK``); ``BUDGET_EXHAUSTED`` / ``NO_MATCH`` otherwise (:mod:`lodestar.firmware.status`).
+(``OK``); ``BUDGET_EXHAUSTED`` / ``NO_MATCH`` otherwise (:mod:`lodestar.firmware.status`),
+or ``MIRRORED`` when the first patterns identify the stars mirrored (:meth:`Search.mirrored`).
 Angles in radians (``docs/conventions.md``); details in ``docs/starid.md`` (Search).  Pure
 Python for CPython and MicroPython (``math`` only).
 """
@@ -27,6 +28,13 @@ catalogue read and matched: about as long as 8,000 pair candidates)."""
 RECORD_WORK = 32
 """Work units of one stored triangle or hash group examined (its stars read and compared:
 about as long as 32 pair candidates)."""
+MIRROR_PATTERNS = 32
+"""Patterns of a failed search tried again with the observed stars mirrored
+(:meth:`Search.mirrored`): an unmirrored frame identifies within its first patterns (of 30
+estcube2 scenes, at most 3 for Pyramid, 11 for Triangle, 26 for Hashing), so a mirrored one
+does when turned back."""
+MIRROR_WORK_SHARE = 10
+"""The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
 
 
 class OutOfWork(Exception):
@@ -251,19 +259,47 @@ class Search:
         patterns were tried or :attr:`max_work` units spent (``BUDGET_EXHAUSTED``) or none is
         left (``NO_MATCH``)."""
         tried = 0
+        first = []
+        status = S.NO_MATCH
         try:
             for pattern in patterns:
                 if tried >= budget:
-                    return self.fail(S.BUDGET_EXHAUSTED, tried)
+                    status = S.BUDGET_EXHAUSTED
+                    break
                 tried += 1
+                if tried <= MIRROR_PATTERNS:
+                    first.append(pattern)
                 accepted = self.try_pattern(pattern)
                 if accepted:
                     return self.conclude(accepted, tried)
         except OutOfWork:
-            return self.fail(S.BUDGET_EXHAUSTED, tried)
+            status = S.BUDGET_EXHAUSTED
         except MemoryError:
             return self.fail(S.OUT_OF_MEMORY, tried)
-        return self.fail(S.NO_MATCH, tried)
+        return self.mirrored(first, self.fail(status, tried))
+
+    def mirrored(self, first, failed):
+        """The failed search's verdict ``failed``, or ``MIRRORED`` (no attitude) when its
+        ``first`` patterns (at most :data:`MIRROR_PATTERNS`) with every observed star and
+        track mirrored (``x -> -x``: a flip of the columns; a flip of the rows is that and a
+        half turn) give an accepted hypothesis.  Angles are parity-invariant, so a mirrored
+        frame finds its patterns, but the handedness tests and the rotation fit reject
+        them; here they are tried turned back, within ``max_work // MIRROR_WORK_SHARE`` work
+        units.  ``failed`` keeps its counts either way (``docs/starid.md``, Parity)."""
+        b, streaks = self.b, self.streaks
+        self.b = [(-v[0], v[1], v[2]) for v in b]
+        if streaks is not None:
+            self.streaks = [None if t is None else (-t[0], t[1], t[2], t[3]) for t in streaks]
+        self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
+        try:
+            for pattern in first:
+                if self.try_pattern(pattern):
+                    failed.status = S.MIRRORED
+                    break
+        except (OutOfWork, MemoryError):
+            pass
+        self.b, self.streaks = b, streaks
+        return failed
 
     def fail(self, status, tried):
         """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
