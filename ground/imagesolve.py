@@ -382,13 +382,32 @@ def detector_config(image, ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS)
 # Solving
 # --------------------------------------------------------------------------------------
 
+def fits_date_obs(path):
+    """The ``DATE-OBS`` of a FITS file's first header that has one (the observation time
+    for the aberration correction), or None (another format, no such keyword)."""
+    if _sniff(path)[0] != "FITS":
+        return None
+    from astropy.io import fits
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with fits.open(path, memmap=False) as hdus:
+            for hdu in hdus:
+                value = hdu.header.get("DATE-OBS")
+                if value:
+                    return str(value)
+    return None
+
+
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
-                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None):
+                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None,
+                velocity_km_s=None):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame:
     ``(report dict, DetectionResult, pipeline Result)`` (report fields in the module
     docstring).  ``max_mag``: every star to that V in the database; None: the stars per
     field of :data:`lodestar.ground.solve.DEFAULT_DENSITY` from the whole Hipparcos.
-    ``log``: text stream for the database notes (None: silent)."""
+    ``log``: text stream for the database notes (None: silent).  ``velocity_km_s``: the
+    observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
+    correction, or None."""
 
     timings = {}
     cfg, sigma = detector_config(image, ksigma, min_pixels)
@@ -401,7 +420,8 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         camera, max_mag, log=log,
         density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = (time.perf_counter() - t) * 1e3
-    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px)
+    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px,
+                                            velocity_km_s=velocity_km_s)
     timings["packet"] = stage["packet"]
     timings["solve"] = stage["solve"]
     report = {
@@ -416,7 +436,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
                      "min_pixels": cfg.min_pixels, "records": len(det.blobs),
                      "n_filtered": det.n_filtered, "dropped": det.dropped},
         "database": None if db_path is None else str(db_path),
-        "mag_limit": float(db.mag_limit),
+        "mag_limit": float(db.mag_limit), "velocity_km_s": velocity_km_s,
         "timings_ms": timings,
     }
     if res.ok:

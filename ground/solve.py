@@ -9,6 +9,7 @@ import numpy as np
 
 from lodestar.contract import stardb
 from lodestar.firmware import status as fwstatus
+from lodestar.firmware.aberration import MAX_SPEED_KM_S
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
@@ -143,9 +144,49 @@ def _centroid_array(centroids):
 # The solver
 # --------------------------------------------------------------------------------------
 
+def observer_velocity_km_s(obstime=None, velocity_km_s=None):
+    """The observer's barycentric velocity for the aberration correction, km/s, ICRS
+    (``docs/apparent_directions.md``): the Earth's at ``obstime`` (an ISO string in UTC, e.g.
+    a FITS ``DATE-OBS``, or an ``astropy.time.Time``; astropy's built-in ephemeris) plus
+    ``velocity_km_s`` (3 numbers: a satellite's geocentric velocity; without ``obstime`` the
+    whole barycentric velocity).  None when neither is given; ``ValueError`` for a time
+    astropy cannot read, a velocity that is not 3 finite numbers or a total faster than
+    the firmware accepts (:data:`lodestar.firmware.aberration.MAX_SPEED_KM_S`)."""
+    if obstime is None and velocity_km_s is None:
+        return None
+    total = np.zeros(3)
+    if obstime is not None:
+        from astropy import units as u
+        from astropy.coordinates import get_body_barycentric_posvel
+        from astropy.time import Time
+        try:
+            t = obstime if isinstance(obstime, Time) else Time(obstime, scale="utc")
+            vel = get_body_barycentric_posvel("earth", t)[1]
+        except Exception as exc:
+            raise ValueError(f"observation time {obstime!r}: {exc}") from None
+        total += vel.xyz.to_value(u.km / u.s)
+    if velocity_km_s is not None:
+        v = np.asarray(velocity_km_s, dtype=np.float64) if _is_vector(velocity_km_s) else None
+        if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"velocity must be 3 finite numbers (km/s), got {velocity_km_s!r}")
+        total += v
+    if not np.linalg.norm(total) <= MAX_SPEED_KM_S:
+        raise ValueError(f"observer speed {np.linalg.norm(total):.1f} km/s is beyond "
+                         f"{MAX_SPEED_KM_S:g} km/s")
+    return [float(x) for x in total]
+
+
+def _is_vector(value):
+    try:
+        return len(value) == 3 and all(_is_number(x) for x in value)
+    except TypeError:
+        return False
+
+
 def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag=None,
                     distortion=None, cache_dir=None, tolerance_px=None, max_stars=32,
-                    budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX):
+                    budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX,
+                    obstime=None, velocity_km_s=None):
     """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
     for bad input (see the module docstring).
 
@@ -159,7 +200,9 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     ``tolerance_px``: match tolerance (default ``max(2 px, fov/1000)``).  ``max_stars``:
     brightest centroids used.  ``budget``: pattern budget.  ``centroid_sigma_px``: fixed
     centroid noise for the covariance (default: estimated from the residuals).
-    ``duplicate_px``: centroids closer than this are one star.
+    ``duplicate_px``: centroids closer than this are one star.  ``obstime``,
+    ``velocity_km_s``: the observation time and/or observer velocity for the aberration
+    correction (:func:`observer_velocity_km_s`; neither: none).
     """
     n_in = len(centroids) if hasattr(centroids, "__len__") else 0
 
@@ -187,6 +230,10 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
         return bad("budget must be a positive int")
     if not _is_number(duplicate_px) or duplicate_px < 0:
         return bad(f"duplicate_px must be a number >= 0, got {duplicate_px!r}")
+    try:
+        velocity = observer_velocity_km_s(obstime, velocity_km_s)
+    except ValueError as exc:
+        return bad(str(exc))
     try:
         cam = make_camera(int(width), int(height), float(fov_deg), distortion)
         fov = camera_fov_deg(cam)
@@ -250,7 +297,7 @@ def solve_centroids(centroids, width, height, fov_deg, method="pyramid", max_mag
     if tracker.status != fwstatus.OK:
         return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
     t0 = time.perf_counter()
-    res = tracker.solve_vectors(vectors, fluxes=flux_list)
+    res = tracker.solve_vectors(vectors, fluxes=flux_list, velocity_km_s=velocity)
     info["solve_ms"] = (time.perf_counter() - t0) * 1e3
     info["patterns_tried"] = res.patterns_tried
     info["probability"] = res.probability
