@@ -89,3 +89,28 @@ def test_beta_accepts_only_plausible_velocities():
     for bad in (None, "fast", (1.0, 2.0), (float("nan"), 0, 0), (float("inf"), 0, 0),
                 (A.MAX_SPEED_KM_S + 1, 0, 0), ("a", 0, 0)):
         assert A.beta(bad) is None, bad
+
+
+def test_aberration_under_micropython(micropython):
+    """MicroPython 1.27 computes what CPython does (the same module, unchanged)."""
+    rng = np.random.default_rng(5)
+    dirs = rng.normal(size=(5, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    v = [12.5, -25.0, 8.0]
+    script = ("from lodestar.firmware import aberration as A\n"
+              f"B = A.beta({v!r})\n"
+              "print('BETA', B, A.beta((1e3, 0, 0)))\n"
+              f"for d in {dirs.tolist()!r}:\n"
+              "    p = A.aberrate(d, B)\n"
+              "    print('P', list(p), list(A.deaberrate(p, B)))\n")
+    code, out = micropython(script)
+    assert code == 0, out
+    b = A.beta(v)
+    got_b = [line for line in out.splitlines() if line.startswith("BETA")][0]
+    assert got_b.endswith("None") and str(b[0])[:10] in got_b
+    rows = [line.split(" ", 1)[1] for line in out.splitlines() if line.startswith("P ")]
+    assert len(rows) == len(dirs)
+    for d, row in zip(dirs, rows):
+        p, back = eval(row.replace("] [", "], ["))
+        assert p == pytest.approx(list(A.aberrate(tuple(d), b)), abs=1e-15)
+        assert back == pytest.approx(list(A.deaberrate(A.aberrate(tuple(d), b), b)), abs=1e-15)
