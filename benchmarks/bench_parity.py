@@ -29,17 +29,25 @@ TOL = 3.0e-4
 """Match tolerance, rad (about 2.2 px of estcube2), as the star-id tests."""
 
 
+REPEATS = 3
+"""Each timing is the fastest of this many runs (the machine is shared)."""
+
+
 def _timed(vectors, db, method):
-    t = time.perf_counter()
-    sol = starid.identify(vectors, db, method=method, tolerance_rad=TOL)
-    return sol, (time.perf_counter() - t) * 1e3
+    best = None
+    for _ in range(REPEATS):
+        t = time.perf_counter()
+        sol = starid.identify(vectors, db, method=method, tolerance_rad=TOL)
+        ms = (time.perf_counter() - t) * 1e3
+        best = ms if best is None or ms < best else best
+    return sol, best
 
 
 def _both(vectors, db, method):
     """``(solution, ms)`` with the check, then ``(solution, ms)`` without it."""
     with_check = _timed(vectors, db, method)
     real = search.Search.mirrored
-    search.Search.mirrored = lambda self, first, failed: failed
+    search.Search.mirrored = lambda self, kept, size, failed: failed
     try:
         without = _timed(vectors, db, method)
     finally:

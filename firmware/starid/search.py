@@ -28,13 +28,22 @@ catalogue read and matched: about as long as 8,000 pair candidates)."""
 RECORD_WORK = 32
 """Work units of one stored triangle or hash group examined (its stars read and compared:
 about as long as 32 pair candidates)."""
-MIRROR_PATTERNS = 32
+MIRROR_PATTERNS = 512
 """Patterns of a failed search tried again with the observed stars mirrored
-(:meth:`Search.mirrored`): an unmirrored frame identifies within its first patterns (of 30
-estcube2 scenes, at most 3 for Pyramid, 11 for Triangle, 26 for Hashing), so a mirrored one
-does when turned back."""
+(:meth:`Search.mirrored`): an unmirrored frame identifies within its first patterns (of 40
+estcube2 scenes with up to 5 false stars, at most 3 for Pyramid, 83 for Triangle, 338 for
+Hashing), so a mirrored one does when turned back."""
+MIRROR_SHARE = 4
+"""The mirror check tries at most ``1 / MIRROR_SHARE`` of the patterns the failed search
+tried (all of them up to :data:`MIRROR_SMALL`) ..."""
+MIRROR_SMALL = 32
+"""... and the patterns of a search that tried no more than this."""
 MIRROR_WORK_SHARE = 10
 """The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
+_FIRST = bytearray(4 * MIRROR_PATTERNS)
+"""The star indices of a search's first :data:`MIRROR_PATTERNS` patterns (of at most 4
+stars below 256) for the mirror check: 2 KiB allocated at import and reused, so a failed
+search needs no block of a fragmented heap."""
 
 
 class OutOfWork(Exception):
@@ -259,7 +268,8 @@ class Search:
         patterns were tried or :attr:`max_work` units spent (``BUDGET_EXHAUSTED``) or none is
         left (``NO_MATCH``)."""
         tried = 0
-        first = []
+        kept = 0                    # patterns kept in _FIRST for the mirror check
+        size = 0                    # their length
         status = S.NO_MATCH
         try:
             for pattern in patterns:
@@ -267,8 +277,12 @@ class Search:
                     status = S.BUDGET_EXHAUSTED
                     break
                 tried += 1
-                if tried <= MIRROR_PATTERNS:
-                    first.append(pattern)
+                if kept == tried - 1 and kept < MIRROR_PATTERNS and len(pattern) <= 4 and \
+                        max(pattern) < 256:
+                    size = len(pattern)
+                    for t in range(size):
+                        _FIRST[4 * kept + t] = pattern[t]
+                    kept += 1
                 accepted = self.try_pattern(pattern)
                 if accepted:
                     return self.conclude(accepted, tried)
@@ -276,24 +290,29 @@ class Search:
             status = S.BUDGET_EXHAUSTED
         except MemoryError:
             return self.fail(S.OUT_OF_MEMORY, tried)
-        return self.mirrored(first, self.fail(status, tried))
+        return self.mirrored(kept, size, self.fail(status, tried))
 
-    def mirrored(self, first, failed):
-        """The failed search's verdict ``failed``, or ``MIRRORED`` (no attitude) when its
-        ``first`` patterns (at most :data:`MIRROR_PATTERNS`) with every observed star and
-        track mirrored (``x -> -x``: a flip of the columns; a flip of the rows is that and a
-        half turn) give an accepted hypothesis.  Angles are parity-invariant, so a mirrored
-        frame finds its patterns, but the handedness tests and the rotation fit reject
-        them; here they are tried turned back, within ``max_work // MIRROR_WORK_SHARE`` work
-        units.  ``failed`` keeps its counts either way (``docs/starid.md``, Parity)."""
+    def mirrored(self, kept, size, failed):
+        """The failed search's verdict ``failed``, or ``MIRRORED`` (no attitude) when one of
+        its first ``kept`` patterns (of ``size`` stars, in :data:`_FIRST`) with every
+        observed star and track mirrored (``x -> -x``: a flip of the columns; a flip of the
+        rows is that and a half turn) gives an accepted hypothesis.  Angles are
+        parity-invariant, so a mirrored frame finds its patterns, but the handedness tests
+        and the rotation fit reject them; here they are tried turned back, within
+        ``max_work // MIRROR_WORK_SHARE`` work units and a :data:`MIRROR_SHARE` of the
+        patterns ``failed`` tried.  ``failed`` keeps its counts either way
+        (``docs/apparent_directions.md``)."""
+        tried = failed.patterns_tried
+        if tried > MIRROR_SMALL and kept > tried // MIRROR_SHARE:
+            kept = tried // MIRROR_SHARE
         b, streaks = self.b, self.streaks
         self.b = [(-v[0], v[1], v[2]) for v in b]
         if streaks is not None:
             self.streaks = [None if t is None else (-t[0], t[1], t[2], t[3]) for t in streaks]
         self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
         try:
-            for pattern in first:
-                if self.try_pattern(pattern):
+            for k in range(kept):
+                if self.try_pattern(tuple(_FIRST[4 * k:4 * k + size])):
                     failed.status = S.MIRRORED
                     break
         except (OutOfWork, MemoryError):
