@@ -90,6 +90,7 @@ def frames(n_rest=N_REST, n_moving=N_MOVING, seed=SEED):
     return tuple(out)
 
 
+@functools.lru_cache(maxsize=None)
 def mirrored_packet(frame, flip):
     """The packet of ``frame`` (a frame of :func:`frames`) re-rendered and read out mirrored:
     ``flip`` ``"x"`` reverses the columns, ``"y"`` the rows."""

@@ -23,6 +23,7 @@ from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.firmware import pipeline, settings
 from lodestar.firmware import status as S
+from lodestar.firmware.database import Database
 from lodestar.firmware.settings import Settings
 from lodestar.ground import codec as ground_packet
 from lodestar.ground.database import build_database
@@ -155,11 +156,16 @@ def test_aberration_correction_refers_the_attitude_to_icrs():
         assert 15.0 < off < 26.0
 
 
-def test_mirrored_frames_are_reported_not_solved():
+@pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
+def test_mirrored_frames_are_reported_not_solved(method):
     """A frame read out mirrored (columns or rows reversed) gets ``MIRRORED`` and the fix,
-    never an attitude, in lost-in-space and from a prior (tracking fails, the fallback
-    reports the parity)."""
-    tracker = SF.tracker()
+    never an attitude, with every method, in lost-in-space and from a prior (tracking
+    fails, the fallback reports the parity)."""
+    db = SF.flight_database() if method == "pyramid" else Database(
+        build_database(camera=SF.sim_camera(), mag_limit=6.0, methods=(method,)))
+    cam = SF.sim_camera()
+    tracker = pipeline.StarTracker(db, SF.firmware_camera(), Settings(
+        method=method, exposure_s=cam.exposure_s, row_time_s=cam.row_time_s))
     for frame, flip in zip(SF.frames()[:4], ("x", "y", "x", "y")):
         mirrored = SF.mirrored_packet(frame, flip)
         for prior in (None, list(frame.q)):
