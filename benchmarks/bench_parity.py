@@ -47,7 +47,7 @@ def _both(vectors, db, method):
     """``(solution, ms)`` with the check, then ``(solution, ms)`` without it."""
     with_check = _timed(vectors, db, method)
     real = search.Search.mirrored
-    search.Search.mirrored = lambda self, kept, size, failed: failed
+    search.Search.mirrored = lambda self, first, kept, size, failed: failed
     try:
         without = _timed(vectors, db, method)
     finally:

@@ -40,10 +40,11 @@ MIRROR_SMALL = 32
 """... and the patterns of a search that tried no more than this."""
 MIRROR_WORK_SHARE = 10
 """The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
-_FIRST = bytearray(4 * MIRROR_PATTERNS)
-"""The star indices of a search's first :data:`MIRROR_PATTERNS` patterns (of at most 4
-stars below 256) for the mirror check: 2 KiB allocated at import and reused, so a failed
-search needs no block of a fragmented heap."""
+MIRROR_EARLY = 32
+"""Patterns kept for the mirror check in :data:`_EARLY` (128 bytes, allocated at import); a
+search that goes on allocates room for :data:`MIRROR_PATTERNS` (2 KiB, :func:`_keep`)."""
+_EARLY = bytearray(4 * MIRROR_EARLY)
+"""The star indices of a search's first patterns, 4 bytes each (reused by every search)."""
 
 
 class OutOfWork(Exception):
@@ -267,9 +268,8 @@ class Search:
         ``try_pattern`` until one has accepted hypotheses (:meth:`conclude`), ``budget``
         patterns were tried or :attr:`max_work` units spent (``BUDGET_EXHAUSTED``) or none is
         left (``NO_MATCH``)."""
-        tried = 0
-        kept = 0                    # patterns kept in _FIRST for the mirror check
-        size = 0                    # their length
+        tried = kept = size = 0     # kept: the first patterns, in ``first``, for the mirror check
+        first = _EARLY
         status = S.NO_MATCH
         try:
             for pattern in patterns:
@@ -277,12 +277,11 @@ class Search:
                     status = S.BUDGET_EXHAUSTED
                     break
                 tried += 1
-                if kept == tried - 1 and kept < MIRROR_PATTERNS and len(pattern) <= 4 and \
-                        max(pattern) < 256:
-                    size = len(pattern)
-                    for t in range(size):
-                        _FIRST[4 * kept + t] = pattern[t]
-                    kept += 1
+                if kept == tried - 1 and kept < MIRROR_PATTERNS:
+                    first = _keep(first, kept, pattern)
+                    if first is not None:
+                        size = len(pattern)
+                        kept += 1
                 accepted = self.try_pattern(pattern)
                 if accepted:
                     return self.conclude(accepted, tried)
@@ -290,11 +289,11 @@ class Search:
             status = S.BUDGET_EXHAUSTED
         except MemoryError:
             return self.fail(S.OUT_OF_MEMORY, tried)
-        return self.mirrored(kept, size, self.fail(status, tried))
+        return self.mirrored(first, kept, size, self.fail(status, tried))
 
-    def mirrored(self, kept, size, failed):
+    def mirrored(self, first, kept, size, failed):
         """The failed search's verdict ``failed``, or ``MIRRORED`` (no attitude) when one of
-        its first ``kept`` patterns (of ``size`` stars, in :data:`_FIRST`) with every
+        its first ``kept`` patterns (of ``size`` stars, in ``first``, :func:`_keep`) with every
         observed star and track mirrored (``x -> -x``: a flip of the columns; a flip of the
         rows is that and a half turn) gives an accepted hypothesis.  Angles are
         parity-invariant, so a mirrored frame finds its patterns, but the handedness tests
@@ -312,7 +311,7 @@ class Search:
         self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
         try:
             for k in range(kept):
-                if self.try_pattern(tuple(_FIRST[4 * k:4 * k + size])):
+                if self.try_pattern(tuple(first[4 * k:4 * k + size])):
                     failed.status = S.MIRRORED
                     break
         except (OutOfWork, MemoryError):
@@ -324,6 +323,26 @@ class Search:
         """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
         return Solution(status, patterns_tried=tried, probability=self.best_rejected,
                         hypotheses=self.hypotheses, work=self.work)
+
+
+def _keep(buf, k, pattern):
+    """Store ``pattern`` (star indices) as the ``k``-th of ``buf`` for the mirror check and
+    return the buffer: :data:`_EARLY`, or past :data:`MIRROR_EARLY` patterns a new one for
+    :data:`MIRROR_PATTERNS`; None when it cannot be kept (more than 4 stars, an index above
+    255, no heap for the larger buffer: the check then tries the patterns kept so far)."""
+    if len(pattern) > 4 or max(pattern) > 255:
+        return None
+    if 4 * k == len(buf):
+        try:
+            grown = bytearray(4 * MIRROR_PATTERNS)
+        except MemoryError:
+            return None
+        for i in range(len(buf)):
+            grown[i] = buf[i]
+        buf = grown
+    for t in range(len(pattern)):
+        buf[4 * k + t] = pattern[t]
+    return buf
 
 
 def handed(t_obs, t_cat, bound):
