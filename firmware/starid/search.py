@@ -41,10 +41,11 @@ MIRROR_SMALL = 32
 MIRROR_WORK_SHARE = 10
 """The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
 MIRROR_EARLY = 32
-"""Patterns kept for the mirror check in :data:`_EARLY` (128 bytes, allocated at import); a
-search that goes on allocates room for :data:`MIRROR_PATTERNS` (2 KiB, :func:`_keep`)."""
-_EARLY = bytearray(4 * MIRROR_EARLY)
-"""The star indices of a search's first patterns, 4 bytes each (reused by every search)."""
+"""Patterns kept for the mirror check in :data:`_EARLY` (64 bytes, allocated at import); a
+search that goes on allocates room for :data:`MIRROR_PATTERNS` (1 KiB, :func:`_keep`)."""
+_EARLY = bytearray(2 * MIRROR_EARLY)
+"""A search's first patterns, 2 bytes each: up to 4 star indices below 16, a nibble each
+(the patterns of the 16 brightest stars; reused by every search)."""
 
 
 class OutOfWork(Exception):
@@ -304,19 +305,21 @@ class Search:
         tried = failed.patterns_tried
         if tried > MIRROR_SMALL and kept > tried // MIRROR_SHARE:
             kept = tried // MIRROR_SHARE
-        b, streaks = self.b, self.streaks
-        self.b = [(-v[0], v[1], v[2]) for v in b]
+        streaks = self.streaks
         if streaks is not None:
             self.streaks = [None if t is None else (-t[0], t[1], t[2], t[3]) for t in streaks]
+        _mirror(self.b)                 # in place (and back: a negation is exact)
         self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
         try:
             for k in range(kept):
-                if self.try_pattern(tuple(first[4 * k:4 * k + size])):
+                code = first[2 * k] | first[2 * k + 1] << 8
+                if self.try_pattern(tuple((code >> 4 * t) & 15 for t in range(size))):
                     failed.status = S.MIRRORED
                     break
         except (OutOfWork, MemoryError):
             pass
-        self.b, self.streaks = b, streaks
+        _mirror(self.b)
+        self.streaks = streaks
         return failed
 
     def fail(self, status, tried):
@@ -329,20 +332,30 @@ def _keep(buf, k, pattern):
     """Store ``pattern`` (star indices) as the ``k``-th of ``buf`` for the mirror check and
     return the buffer: :data:`_EARLY`, or past :data:`MIRROR_EARLY` patterns a new one for
     :data:`MIRROR_PATTERNS`; None when it cannot be kept (more than 4 stars, an index above
-    255, no heap for the larger buffer: the check then tries the patterns kept so far)."""
-    if len(pattern) > 4 or max(pattern) > 255:
+    15, no heap for the larger buffer: the check then tries the patterns kept so far)."""
+    if len(pattern) > 4 or max(pattern) > 15:
         return None
-    if 4 * k == len(buf):
+    if 2 * k == len(buf):
         try:
-            grown = bytearray(4 * MIRROR_PATTERNS)
+            grown = bytearray(2 * MIRROR_PATTERNS)
         except MemoryError:
             return None
         for i in range(len(buf)):
             grown[i] = buf[i]
         buf = grown
+    code = 0
     for t in range(len(pattern)):
-        buf[4 * k + t] = pattern[t]
+        code |= pattern[t] << 4 * t
+    buf[2 * k] = code & 255
+    buf[2 * k + 1] = code >> 8
     return buf
+
+
+def _mirror(b):
+    """Mirror the unit vectors of the list ``b`` in place (``x -> -x``)."""
+    for o in range(len(b)):
+        v = b[o]
+        b[o] = (-v[0], v[1], v[2])
 
 
 def handed(t_obs, t_cat, bound):
