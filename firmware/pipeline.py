@@ -18,7 +18,6 @@ import math
 import sys
 from array import array
 
-from . import aberration as _aberration
 from . import attitude as _att
 from . import camera as _camera
 from . import centroids as _centroids
@@ -230,10 +229,10 @@ class StarTracker:
             self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
             return
         if st.velocity_km_s is not None:
-            self.beta = _aberration.beta(st.velocity_km_s)
+            self.beta = _aberration().beta(st.velocity_km_s)
             if self.beta is None:
                 self._fail(S.BAD_INPUT, "velocity_km_s must be None or 3 finite numbers, km/s, "
-                           "at most " + str(_aberration.MAX_SPEED_KM_S) + " km/s")
+                           "at most " + str(_aberration().MAX_SPEED_KM_S) + " km/s")
                 return
         self.focal_px = focal
         self.tolerance_rad = tolerance_px / focal
@@ -495,10 +494,10 @@ class StarTracker:
         no aberration correction); a malformed one is ignored with a note."""
         if velocity_km_s is None:
             return self.beta
-        b = _aberration.beta(velocity_km_s)
+        b = _aberration().beta(velocity_km_s)
         if b is None:
             _note(res, "velocity_km_s ignored: not 3 finite numbers within " +
-                  str(_aberration.MAX_SPEED_KM_S) + " km/s")
+                  str(_aberration().MAX_SPEED_KM_S) + " km/s")
             return self.beta
         return b
 
@@ -668,14 +667,22 @@ class StarTracker:
         return res
 
 
+def _aberration():
+    """:mod:`lodestar.firmware.aberration`, imported on first use: a flight image that
+    never corrects the aberration keeps none of it on its heap."""
+    from . import aberration
+    return aberration
+
+
 def _deaberrate(vectors, q, beta):
     """Turn the apparent camera-frame unit ``vectors`` into geometric ones in place
     (:func:`lodestar.firmware.aberration.deaberrate`), ``beta`` (ICRS) taken into the
     camera frame by the identified attitude ``q`` (its error of the aberration's size, 1e-4
     rad, changes ``beta`` by 1e-8 of itself)."""
+    deaberrate = _aberration().deaberrate
     bc = _geo.mat_vec(_quat.matrix(q), beta)
     for i in range(len(vectors)):
-        vectors[i] = _aberration.deaberrate(vectors[i], bc)
+        vectors[i] = deaberrate(vectors[i], bc)
 
 
 def _records(packet_bytes, n):
