@@ -1,12 +1,14 @@
 """The flight API: one FPGA packet in, one attitude (or a status) out; never raises.
 
     tracker = StarTracker("/flash/stars.lsdb", camera_dict, Settings(exposure_s=0.1))
-    result = tracker.process(packet_bytes, prior=None, omega=gyro_rad_s, dt=None)
+    result = tracker.process(packet_bytes, prior=None, omega=gyro_rad_s, dt=None,
+                             velocity_km_s=None)
 
 Stages, :class:`Result` fields, statuses and the attitude epoch: ``docs/firmware.md``; units
 and frames: ``docs/conventions.md``.  Configuration errors found at construction are returned
 by every call; malformed optional inputs (``prior``, ``omega``, ``dt``, ``exposure_s``) are
-ignored with a note in ``reason``; a ``MemoryError`` becomes ``OUT_OF_MEMORY`` and any other
+ignored with a note in ``reason`` (``velocity_km_s``: the observer's, for the aberration,
+``docs/apparent_directions.md``); a ``MemoryError`` becomes ``OUT_OF_MEMORY`` and any other
 unexpected exception ``INTERNAL_ERROR``, so the flight loop always gets a result.
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
@@ -186,6 +188,7 @@ class StarTracker:
         self.sigma_rad = None
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
+        self.beta = None
         if COLLECT:
             gc.threshold(GC_THRESHOLD)
         try:
@@ -258,6 +261,12 @@ class StarTracker:
                                               st.exposure_s > 0):
             self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
             return
+        if st.velocity_km_s is not None:
+            self.beta = _aberration().beta(st.velocity_km_s)
+            if self.beta is None:
+                self._fail(S.BAD_INPUT, "velocity_km_s must be None or 3 finite numbers, km/s, "
+                           "at most " + str(_aberration().MAX_SPEED_KM_S) + " km/s")
+                return
         self.focal_px = focal
         self.tolerance_rad = tolerance_px / focal
         self.sigma_rad = None if centroid_sigma_px is None else centroid_sigma_px / focal
@@ -496,20 +505,37 @@ class StarTracker:
         return q, cross, roll, s
 
     def solve_vectors(self, vectors, prior=None, omega=None, dt=None, fluxes=None,
-                      result=None):
+                      result=None, velocity_km_s=None):
         """Identify and fit camera-frame unit ``vectors`` (brightest first, at the epoch;
-        ``fluxes``: one per vector for the weights, or None): a :class:`Result` whose
-        ``matches`` hold ``(vector index, None, None, HIP)``.  Never raises."""
+        ``fluxes``: one per vector for the weights, or None; ``velocity_km_s``: the
+        observer's, as for :meth:`process`): a :class:`Result` whose ``matches`` hold
+        ``(vector index, None, None, HIP)``.  Never raises."""
         try:
-            return self._solve_vectors(vectors, prior, omega, dt, fluxes, result, None, 0.0,
-                                       None)
+            res = result if result is not None else Result(S.OK)
+            beta = self._beta(velocity_km_s, res)
+            if beta is not None:
+                vectors = list(vectors)         # corrected in place: not the caller's list
+            return self._solve_vectors(vectors, prior, omega, dt, fluxes, res, None, 0.0,
+                                       None, beta)
         except MemoryError:
             return Result(S.OUT_OF_MEMORY, "out of heap")
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
+    def _beta(self, velocity_km_s, res):
+        """``v / c`` (ICRS) of this frame's ``velocity_km_s``, else of the settings' (None:
+        no aberration correction); a malformed one is ignored with a note."""
+        if velocity_km_s is None:
+            return self.beta
+        b = _aberration().beta(velocity_km_s)
+        if b is None:
+            _note(res, "velocity_km_s ignored: not 3 finite numbers within " +
+                  str(_aberration().MAX_SPEED_KM_S) + " km/s")
+            return self.beta
+        return b
+
     def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
-                       streaks):
+                       streaks, beta):
         res = result if result is not None else Result(S.OK)
         if self.status != S.OK:
             res.status = self.status
@@ -538,7 +564,12 @@ class StarTracker:
         if code != S.OK:
             res.status = code
             _note(res, mode + ": " + S.name(code))
+            if code == S.MIRRORED:
+                _note(res, "the stars match the sky mirrored: flip the read-out (columns or "
+                      "rows), or the camera model's x or y axis")
             return res
+        if beta is not None:
+            _deaberrate(vectors, sol.q, beta)
         star_ids = getattr(sol, "star_ids", None) or []
         if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
@@ -572,20 +603,23 @@ class StarTracker:
 
     # ---- the flight entry point --------------------------------------------------------
 
-    def process(self, packet_bytes, prior=None, omega=None, dt=None, exposure_s=None):
+    def process(self, packet_bytes, prior=None, omega=None, dt=None, exposure_s=None,
+                velocity_km_s=None):
         """One frame: ``packet_bytes`` (an FPGA packet, ``lodestar.contract`` layout) ->
         :class:`Result`.  ``prior``: attitude at the previous epoch (enables tracking);
         ``omega``: body rate, rad/s, camera frame; ``dt``: s from the prior's epoch to this
-        frame's; ``exposure_s``: this frame's exposure (default: the tracker's).  Never
-        raises."""
+        frame's; ``exposure_s``: this frame's exposure (default: the tracker's);
+        ``velocity_km_s``: the observer's velocity, km/s, ICRS (default: the settings'; None
+        there: no aberration correction), so that ``q`` is relative to ICRS
+        (``docs/apparent_directions.md``).  Never raises."""
         try:
-            return self._process(packet_bytes, prior, omega, dt, exposure_s)
+            return self._process(packet_bytes, prior, omega, dt, exposure_s, velocity_km_s)
         except MemoryError:
             return Result(S.OUT_OF_MEMORY, "out of heap")
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
-    def _process(self, packet_bytes, prior, omega, dt, exposure_s):
+    def _process(self, packet_bytes, prior, omega, dt, exposure_s, velocity_km_s):
         res = Result(S.OK)
         if self.status != S.OK:
             res.status = self.status
@@ -618,6 +652,7 @@ class StarTracker:
                 exposure = exposure_s
             else:
                 _note(res, "exposure_s ignored: not a positive number")
+        beta = self._beta(velocity_km_s, res)
         smear = None
         longest = 0.0
         if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
@@ -660,7 +695,7 @@ class StarTracker:
         stars = used = None
         _collect()
         res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
-                                  streaks)
+                                  streaks, beta)
         if res.status == S.OK:
             matches = []
             for o, _x, _y, hip in res.matches:
@@ -668,6 +703,24 @@ class StarTracker:
             res.matches = matches
         self._tick(timings, "total", first)
         return res
+
+
+def _aberration():
+    """:mod:`lodestar.firmware.aberration`, imported on first use: a flight image that
+    never corrects the aberration keeps none of it on its heap."""
+    from . import aberration
+    return aberration
+
+
+def _deaberrate(vectors, q, beta):
+    """Turn the apparent camera-frame unit ``vectors`` into geometric ones in place
+    (:func:`lodestar.firmware.aberration.deaberrate`), ``beta`` (ICRS) taken into the
+    camera frame by the identified attitude ``q`` (its error of the aberration's size, 1e-4
+    rad, changes ``beta`` by 1e-8 of itself)."""
+    deaberrate = _aberration().deaberrate
+    bc = _geo.mat_vec(_quat.matrix(q), beta)
+    for i in range(len(vectors)):
+        vectors[i] = deaberrate(vectors[i], bc)
 
 
 def _records(packet_bytes, n):

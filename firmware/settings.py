@@ -51,6 +51,9 @@ class Settings:
     ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
     number (e.g. ``time.ticks_ms``) for ``result.timings``.  ``max_work``: work budget of a
     lost-in-space identification (:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`).
+    ``velocity_km_s``: the observer's velocity, km/s, ICRS, for the aberration correction
+    (None: none; ``process(velocity_km_s=...)`` overrides it per frame,
+    ``docs/apparent_directions.md``).
     """
 
     def __init__(self, method="pyramid", max_stars=DEFAULT_MAX_STARS,
@@ -62,7 +65,7 @@ class Settings:
                  track_max_prob=DEFAULT_MAX_MISMATCH_PROB, fallback=True,
                  drop_border=True, refine=True, max_smear_px=DEFAULT_MAX_SMEAR_PX,
                  extract_options=None, id_options=None, clock=None,
-                 max_work=DEFAULT_MAX_WORK):
+                 max_work=DEFAULT_MAX_WORK, velocity_km_s=None):
         self.method = method
         self.max_stars = max_stars
         self.tolerance_px = tolerance_px
@@ -84,3 +87,4 @@ class Settings:
         self.id_options = id_options if id_options is not None else {}
         self.clock = clock
         self.max_work = max_work
+        self.velocity_km_s = velocity_km_s

@@ -46,6 +46,7 @@ SMEAR_TOO_LONG = const(23)
 NO_MATCH = const(30)
 AMBIGUOUS = const(31)
 BUDGET_EXHAUSTED = const(32)
+MIRRORED = const(33)
 
 # --- star database ----------------------------------------------------------------------
 DATABASE_CORRUPT = const(40)
@@ -86,6 +87,8 @@ _TABLE = (
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",
      "the pattern budget ran out before a verified identification"),
+    (MIRRORED, "MIRRORED",
+     "the stars match the sky only mirrored: flip the read-out (columns or rows)"),
     (DATABASE_CORRUPT, "DATABASE_CORRUPT",
      "star database failed its integrity check (header or payload CRC-32)"),
     (DATABASE_MISMATCH, "DATABASE_MISMATCH",

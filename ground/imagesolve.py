@@ -429,14 +429,33 @@ def detector_config(image, ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS)
 # Solving
 # --------------------------------------------------------------------------------------
 
+def fits_date_obs(path):
+    """The ``DATE-OBS`` of a FITS file's first header that has one (the observation time
+    for the aberration correction), or None (another format, no such keyword)."""
+    if _sniff(path)[0] != "FITS":
+        return None
+    from astropy.io import fits
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with fits.open(path, memmap=False) as hdus:
+            for hdu in hdus:
+                value = hdu.header.get("DATE-OBS")
+                if value:
+                    return str(value)
+    return None
+
+
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
-                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None):
+                ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None,
+                velocity_km_s=None):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame (None:
     the FOV is searched over ``fov_band``, deg, :func:`blind_camera`):
     ``(report dict, DetectionResult, pipeline Result, camera)`` (report fields in the module
     docstring).  ``max_mag``: every star to that V in the database; None: the stars per
     field of :data:`lodestar.ground.solve.DEFAULT_DENSITY` from the whole Hipparcos.
-    ``log``: text stream for the database notes (None: silent)."""
+    ``log``: text stream for the database notes (None: silent).  ``velocity_km_s``: the
+    observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
+    correction, or None."""
 
     timings = {}
     cfg, sigma = detector_config(image, ksigma, min_pixels)
@@ -453,7 +472,8 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     if camera is not None:
         for attempt in range(2 if search else 1):   # the estimate, then the fitted scale
             db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
-                                                log, timings, blind=search is not None)
+                                                log, timings, blind=search is not None,
+                                                velocity_km_s=velocity_km_s)
             if search is None or not res.ok or attempt:
                 break
             idx = [(x, y, hip) for _i, x, y, hip in res.matches]
@@ -486,6 +506,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
                      "n_filtered": det.n_filtered, "dropped": det.dropped},
         "database": None if db_path is None else str(db_path),
         "mag_limit": None if db is None else float(db.mag_limit),
+        "velocity_km_s": velocity_km_s,
         "timings_ms": timings,
     }
     if res is not None and res.ok:
@@ -510,9 +531,11 @@ def _pinhole(width, height, f_px):
     return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 
-def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind):
+def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
+              velocity_km_s=None):
     """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
-    the FOV grid of :func:`lodestar.ground.solve.database_fov`)."""
+    the FOV grid of :func:`lodestar.ground.solve.database_fov`), aberration corrected for
+    ``velocity_km_s`` when given."""
     db_camera = camera
     if blind:
         fov_h = ground_solve.database_fov(ground_solve.camera_fov_deg(camera)[0])
@@ -524,7 +547,8 @@ def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind):
         density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
     _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px,
-                                            max_work=ground_solve.GROUND_MAX_WORK)
+                                            max_work=ground_solve.GROUND_MAX_WORK,
+                                            velocity_km_s=velocity_km_s)
     for key in ("packet", "solve"):
         timings[key] = timings.get(key, 0.0) + stage[key]
     return db, db_path, res, stage

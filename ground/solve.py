@@ -9,6 +9,7 @@ import numpy as np
 
 from lodestar.contract import stardb
 from lodestar.firmware import status as fwstatus
+from lodestar.firmware.aberration import MAX_SPEED_KM_S
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
@@ -155,10 +156,50 @@ def _centroid_array(centroids):
 # The solver
 # --------------------------------------------------------------------------------------
 
+def observer_velocity_km_s(obstime=None, velocity_km_s=None):
+    """The observer's barycentric velocity for the aberration correction, km/s, ICRS
+    (``docs/apparent_directions.md``): the Earth's at ``obstime`` (an ISO string in UTC, e.g.
+    a FITS ``DATE-OBS``, or an ``astropy.time.Time``; astropy's built-in ephemeris) plus
+    ``velocity_km_s`` (3 numbers: a satellite's geocentric velocity; without ``obstime`` the
+    whole barycentric velocity).  None when neither is given; ``ValueError`` for a time
+    astropy cannot read, a velocity that is not 3 finite numbers or a total faster than
+    the firmware accepts (:data:`lodestar.firmware.aberration.MAX_SPEED_KM_S`)."""
+    if obstime is None and velocity_km_s is None:
+        return None
+    total = np.zeros(3)
+    if obstime is not None:
+        from astropy import units as u
+        from astropy.coordinates import get_body_barycentric_posvel
+        from astropy.time import Time
+        try:
+            t = obstime if isinstance(obstime, Time) else Time(obstime, scale="utc")
+            vel = get_body_barycentric_posvel("earth", t)[1]
+        except Exception as exc:
+            raise ValueError(f"observation time {obstime!r}: {exc}") from None
+        total += vel.xyz.to_value(u.km / u.s)
+    if velocity_km_s is not None:
+        v = np.asarray(velocity_km_s, dtype=np.float64) if _is_vector(velocity_km_s) else None
+        if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"velocity must be 3 finite numbers (km/s), got {velocity_km_s!r}")
+        total += v
+    if not np.linalg.norm(total) <= MAX_SPEED_KM_S:
+        raise ValueError(f"observer speed {np.linalg.norm(total):.1f} km/s is beyond "
+                         f"{MAX_SPEED_KM_S:g} km/s")
+    return [float(x) for x in total]
+
+
+def _is_vector(value):
+    try:
+        return len(value) == 3 and all(_is_number(x) for x in value)
+    except TypeError:
+        return False
+
+
 def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", max_mag=None,
                     distortion=None, cache_dir=None, tolerance_px=None, max_stars=32,
                     budget=2000, centroid_sigma_px=None, duplicate_px=DEFAULT_DUPLICATE_PX,
-                    fov_error_deg=None, max_work=GROUND_MAX_WORK):
+                    fov_error_deg=None, max_work=GROUND_MAX_WORK, obstime=None,
+                    velocity_km_s=None):
     """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
     for bad input (see the module docstring).
 
@@ -176,7 +217,9 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
     brightest centroids used.  ``budget``: pattern budget.  ``centroid_sigma_px``: fixed
     centroid noise for the covariance (default: estimated from the residuals).
     ``duplicate_px``: centroids closer than this are one star.  ``max_work``: work budget
-    of one identification (:data:`GROUND_MAX_WORK`).
+    of one identification (:data:`GROUND_MAX_WORK`).  ``obstime``, ``velocity_km_s``: the
+    observation time and/or observer velocity for the aberration correction
+    (:func:`observer_velocity_km_s`; neither: none).
     """
     n_in = len(centroids) if hasattr(centroids, "__len__") else 0
 
@@ -224,6 +267,10 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
         return bad("max_work must be a positive int")
     if not _is_number(duplicate_px) or duplicate_px < 0:
         return bad(f"duplicate_px must be a number >= 0, got {duplicate_px!r}")
+    try:
+        velocity = observer_velocity_km_s(obstime, velocity_km_s)
+    except ValueError as exc:
+        return bad(str(exc))
     cam = None
     if band is None:
         try:
@@ -270,7 +317,8 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
     frame = _Frame(arr, kept, searched, width, height, note, info,
                    dict(method=method, max_mag=max_mag, cache_dir=cache_dir,
                         tolerance_px=tolerance_px, max_stars=max_stars, budget=budget,
-                        centroid_sigma_px=centroid_sigma_px, max_work=max_work))
+                        centroid_sigma_px=centroid_sigma_px, max_work=max_work,
+                        velocity_km_s=velocity))
     if band is None:
         return _firmware_solve(frame, cam)
     return _blind_solve(frame, band)
@@ -331,7 +379,7 @@ def _firmware_solve(frame, cam, database_fov_deg=None):
     if tracker.status != fwstatus.OK:
         return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
     t0 = time.perf_counter()
-    res = tracker.solve_vectors(vectors, fluxes=flux_list)
+    res = tracker.solve_vectors(vectors, fluxes=flux_list, velocity_km_s=opt["velocity_km_s"])
     info["solve_ms"] = (time.perf_counter() - t0) * 1e3
     info["patterns_tried"] = res.patterns_tried
     info["probability"] = res.probability

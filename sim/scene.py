@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lodestar import contract as C
+from lodestar.firmware.aberration import SPEED_OF_LIGHT_KM_S
 from lodestar.golden import DetectorConfig
 
 from . import attitude, catalogue, photometry, render, sensor
@@ -53,6 +54,21 @@ def _check_vector(name, value):
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
     return v
+
+
+def apparent(v_inertial, velocity_km_s):
+    """Apparent unit directions (N, 3) of the geometric ICRS unit directions ``v_inertial``
+    seen by an observer moving at ``velocity_km_s`` (ICRS, km/s): the exact (special
+    relativistic) aberration ``p = (u / gamma + beta + (u . beta) beta / (1 + 1 / gamma)) /
+    (1 + u . beta)``, ``beta = v / c`` (``docs/apparent_directions.md``)."""
+    u = np.asarray(v_inertial, dtype=np.float64)
+    b = _check_vector("velocity_km_s", velocity_km_s) / SPEED_OF_LIGHT_KM_S
+    if not np.dot(b, b) < 1.0:
+        raise ValueError(f"velocity_km_s must be slower than light, got {velocity_km_s!r}")
+    inv_gamma = np.sqrt(1.0 - np.dot(b, b))
+    ub = u @ b
+    p = (u * inv_gamma + b + np.outer(ub, b) / (1.0 + inv_gamma)) / (1.0 + ub)[:, None]
+    return p / np.linalg.norm(p, axis=1, keepdims=True)
 
 
 def _sources_in_view(cam, q, omega, span_s, cat):
@@ -125,13 +141,15 @@ def _random_directions_in_view(cam, q, rng, count):
 
 def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
              mag_limit=CATALOGUE_LIMIT, psf_sigma_px=None, sky_e_per_px_s=SKY_E_PER_PX_S,
-             defects=None, extras=None, cat=None):
+             defects=None, extras=None, cat=None, velocity_km_s=None):
     """Render one frame of camera ``cam`` at attitude ``q`` turning at ``omega_deg_s``.
 
     ``q``: scalar-last quaternion (inertial -> camera).  ``omega_deg_s``: body rates, deg/s,
     camera frame.  ``exposure_s``: s (default ``cam.exposure_s``).  ``seed``: frame noise and
     extras.  ``defects``: ``sensor.SensorDefects`` of the camera's sensor (fixed pattern),
-    or None for an ideal sensor.  Returns a :class:`SimFrame`; its truth's ``sources`` give
+    or None for an ideal sensor.  ``velocity_km_s``: the observer's velocity (ICRS, km/s):
+    every source is drawn at its aberrated, apparent direction (:func:`apparent`; None:
+    geometric directions, no aberration).  Returns a :class:`SimFrame`; its truth's ``sources`` give
     per rendered source ``kind``, ``hip``, ``name``, ``vmag``, ``electrons``,
     ``electrons_in_frame``, ``x``, ``y`` (the centroid of its smeared image, px) and
     ``track`` (:func:`visible_tracks`: where it was seen during the exposure).
@@ -169,6 +187,8 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
         ids.append(None)
         names.append(name)
     v_inertial = np.concatenate(dirs) if dirs else np.zeros((0, 3))
+    if velocity_km_s is not None:
+        v_inertial = apparent(v_inertial, velocity_km_s)
 
     electrons = photometry.photo_electrons(np.array(mags, dtype=np.float64), cam.aperture_mm,
                                            exposure, cam.qe)
@@ -208,6 +228,8 @@ def simulate(cam, q, omega_deg_s=(0.0, 0.0, 0.0), exposure_s=None, seed=0, *,
         "cosmic_rays": [{"start": list(r.start), "end": list(r.end), "electrons": r.electrons}
                         for r in rays],
     }
+    if velocity_km_s is not None:
+        truth["velocity_km_s"] = [float(v) for v in velocity_km_s]
     return SimFrame(frame, truth)
 
 

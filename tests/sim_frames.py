@@ -65,9 +65,11 @@ def flight_database():
     return Database(flight_image())
 
 
-def simulate_frame(q, omega_deg_s, seed, name="frame"):
+def simulate_frame(q, omega_deg_s, seed, name="frame", velocity_km_s=None):
+    """A :class:`Frame` at attitude ``q`` (``velocity_km_s``: the observer's, ICRS, for
+    aberrated stars)."""
     cam = sim_camera()
-    sim = scene.simulate(cam, q, omega_deg_s, seed=seed)
+    sim = scene.simulate(cam, q, omega_deg_s, seed=seed, velocity_km_s=velocity_km_s)
     result = detect_frame(sim.frame, scene.detector_config(cam))
     return Frame(name, packet.encode(result), list(result.blobs), np.asarray(q, dtype=float),
                  [math.radians(w) for w in omega_deg_s], sim.truth["sources"])
@@ -86,6 +88,18 @@ def frames(n_rest=N_REST, n_moving=N_MOVING, seed=SEED):
         omega = (0.0, 0.0, 0.0) if i < n_rest else tuple(float(a) for a in RATE_DEG_S * axis)
         out.append(simulate_frame(q, omega, seed + i, name="frame{}".format(i)))
     return tuple(out)
+
+
+@functools.lru_cache(maxsize=None)
+def mirrored_packet(frame, flip):
+    """The packet of ``frame`` (a frame of :func:`frames`) re-rendered and read out mirrored:
+    ``flip`` ``"x"`` reverses the columns, ``"y"`` the rows."""
+    cam = sim_camera()
+    index = frames().index(frame)
+    sim = scene.simulate(cam, frame.q, [math.degrees(w) for w in frame.omega],
+                         seed=SEED + index)
+    image = sim.frame[:, ::-1] if flip == "x" else sim.frame[::-1, :]
+    return packet.encode(detect_frame(np.ascontiguousarray(image), scene.detector_config(cam)))
 
 
 def tracker(**kwargs):

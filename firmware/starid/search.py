@@ -5,7 +5,8 @@ is a hypothesis ``(observed stars -> catalogue stars)`` that :class:`Search` fit
 partly seen tracks weighted down) and verifies (:func:`lodestar.firmware.starid.verify.verify`).
 The first pattern with an accepted hypothesis ends the search: ``AMBIGUOUS`` if two accepted
 attitudes are more than ``distinct`` apart, else the best refined over all its matches
-(``OK``); ``BUDGET_EXHAUSTED`` / ``NO_MATCH`` otherwise (:mod:`lodestar.firmware.status`).
+(``OK``); ``BUDGET_EXHAUSTED`` / ``NO_MATCH`` otherwise (:mod:`lodestar.firmware.status`),
+or ``MIRRORED`` when the first patterns identify the stars mirrored (:meth:`Search.mirrored`).
 Angles in radians (``docs/conventions.md``); details in ``docs/starid.md`` (Search).  Pure
 Python for CPython and MicroPython (``math`` only).
 """
@@ -27,6 +28,24 @@ catalogue read and matched: about as long as 8,000 pair candidates)."""
 RECORD_WORK = 32
 """Work units of one stored triangle or hash group examined (its stars read and compared:
 about as long as 32 pair candidates)."""
+MIRROR_PATTERNS = 512
+"""Patterns of a failed search tried again with the observed stars mirrored
+(:meth:`Search.mirrored`): an unmirrored frame identifies within its first patterns (of 40
+estcube2 scenes with up to 5 false stars, at most 3 for Pyramid, 83 for Triangle, 338 for
+Hashing), so a mirrored one does when turned back."""
+MIRROR_SHARE = 4
+"""The mirror check tries at most ``1 / MIRROR_SHARE`` of the patterns the failed search
+tried (all of them up to :data:`MIRROR_SMALL`) ..."""
+MIRROR_SMALL = 32
+"""... and the patterns of a search that tried no more than this."""
+MIRROR_WORK_SHARE = 10
+"""The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
+MIRROR_EARLY = 32
+"""Patterns kept for the mirror check in :data:`_EARLY` (64 bytes, allocated at import); a
+search that goes on allocates room for :data:`MIRROR_PATTERNS` (1 KiB, :func:`_keep`)."""
+_EARLY = bytearray(2 * MIRROR_EARLY)
+"""A search's first patterns, 2 bytes each: up to 4 star indices below 16, a nibble each
+(the patterns of the 16 brightest stars; reused by every search)."""
 
 
 class OutOfWork(Exception):
@@ -250,25 +269,93 @@ class Search:
         ``try_pattern`` until one has accepted hypotheses (:meth:`conclude`), ``budget``
         patterns were tried or :attr:`max_work` units spent (``BUDGET_EXHAUSTED``) or none is
         left (``NO_MATCH``)."""
-        tried = 0
+        tried = kept = size = 0     # kept: the first patterns, in ``first``, for the mirror check
+        first = _EARLY
+        status = S.NO_MATCH
         try:
             for pattern in patterns:
                 if tried >= budget:
-                    return self.fail(S.BUDGET_EXHAUSTED, tried)
+                    status = S.BUDGET_EXHAUSTED
+                    break
                 tried += 1
+                if kept == tried - 1 and kept < MIRROR_PATTERNS:
+                    first = _keep(first, kept, pattern)
+                    if first is not None:
+                        size = len(pattern)
+                        kept += 1
                 accepted = self.try_pattern(pattern)
                 if accepted:
                     return self.conclude(accepted, tried)
         except OutOfWork:
-            return self.fail(S.BUDGET_EXHAUSTED, tried)
+            status = S.BUDGET_EXHAUSTED
         except MemoryError:
             return self.fail(S.OUT_OF_MEMORY, tried)
-        return self.fail(S.NO_MATCH, tried)
+        return self.mirrored(first, kept, size, self.fail(status, tried))
+
+    def mirrored(self, first, kept, size, failed):
+        """The failed search's verdict ``failed``, or ``MIRRORED`` (no attitude) when one of
+        its first ``kept`` patterns (of ``size`` stars, in ``first``, :func:`_keep`) with every
+        observed star and track mirrored (``x -> -x``: a flip of the columns; a flip of the
+        rows is that and a half turn) gives an accepted hypothesis.  Angles are
+        parity-invariant, so a mirrored frame finds its patterns, but the handedness tests
+        and the rotation fit reject them; here they are tried turned back, within
+        ``max_work // MIRROR_WORK_SHARE`` work units and a :data:`MIRROR_SHARE` of the
+        patterns ``failed`` tried.  ``failed`` keeps its counts either way
+        (``docs/apparent_directions.md``)."""
+        tried = failed.patterns_tried
+        if tried > MIRROR_SMALL and kept > tried // MIRROR_SHARE:
+            kept = tried // MIRROR_SHARE
+        streaks = self.streaks
+        if streaks is not None:
+            self.streaks = [None if t is None else (-t[0], t[1], t[2], t[3]) for t in streaks]
+        _mirror(self.b)                 # in place (and back: a negation is exact)
+        self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
+        try:
+            for k in range(kept):
+                code = first[2 * k] | first[2 * k + 1] << 8
+                if self.try_pattern(tuple((code >> 4 * t) & 15 for t in range(size))):
+                    failed.status = S.MIRRORED
+                    break
+        except (OutOfWork, MemoryError):
+            pass
+        _mirror(self.b)
+        self.streaks = streaks
+        return failed
 
     def fail(self, status, tried):
         """A :class:`Solution` without attitude (``NO_MATCH``, ``BUDGET_EXHAUSTED``)."""
         return Solution(status, patterns_tried=tried, probability=self.best_rejected,
                         hypotheses=self.hypotheses, work=self.work)
+
+
+def _keep(buf, k, pattern):
+    """Store ``pattern`` (star indices) as the ``k``-th of ``buf`` for the mirror check and
+    return the buffer: :data:`_EARLY`, or past :data:`MIRROR_EARLY` patterns a new one for
+    :data:`MIRROR_PATTERNS`; None when it cannot be kept (more than 4 stars, an index above
+    15, no heap for the larger buffer: the check then tries the patterns kept so far)."""
+    if len(pattern) > 4 or max(pattern) > 15:
+        return None
+    if 2 * k == len(buf):
+        try:
+            grown = bytearray(2 * MIRROR_PATTERNS)
+        except MemoryError:
+            return None
+        for i in range(len(buf)):
+            grown[i] = buf[i]
+        buf = grown
+    code = 0
+    for t in range(len(pattern)):
+        code |= pattern[t] << 4 * t
+    buf[2 * k] = code & 255
+    buf[2 * k + 1] = code >> 8
+    return buf
+
+
+def _mirror(b):
+    """Mirror the unit vectors of the list ``b`` in place (``x -> -x``)."""
+    for o in range(len(b)):
+        v = b[o]
+        b[o] = (-v[0], v[1], v[2])
 
 
 def handed(t_obs, t_cat, bound):

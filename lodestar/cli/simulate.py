@@ -7,6 +7,7 @@ import numpy as np
 
 from lodestar.golden import detect_frame
 from lodestar.ground.files import write_atomic
+from lodestar.ground.solve import observer_velocity_km_s
 from lodestar.sim import attitude, imageio, presets, scene, sensor
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS
 
@@ -29,6 +30,11 @@ def add_parser(sub):
     p.add_argument("--hot-pixels", action="store_true", help="add a sensor defect map")
     p.add_argument("--cosmic-rays", type=int, default=0)
     p.add_argument("--false-stars", type=int, default=0)
+    p.add_argument("--time", metavar="ISO",
+                   help="observation time, UTC: stars drawn aberrated by the Earth's velocity")
+    p.add_argument("--velocity", nargs=3, type=float, metavar=("VX", "VY", "VZ"),
+                   help="observer velocity, km/s, ICRS (added to the Earth's with --time): "
+                        "stars drawn aberrated (docs/apparent_directions.md)")
     p.add_argument("-o", "--out", default="frame", help="output prefix (default: frame)")
     p.set_defaults(func=run)
 
@@ -45,9 +51,11 @@ def run(args):
         q = attitude.random_attitude(np.random.default_rng(args.seed))
     defects = (sensor.SensorDefects.generate(cam.height, cam.width, seed=args.seed)
                if args.hot_pixels else None)
+    velocity = observer_velocity_km_s(args.time, args.velocity)
     sim = scene.simulate(cam, q, args.rate, args.exposure, args.seed, defects=defects,
                          extras=scene.Extras(false_stars=args.false_stars,
-                                             cosmic_rays=args.cosmic_rays))
+                                             cosmic_rays=args.cosmic_rays),
+                         velocity_km_s=velocity)
     cfg = scene.detector_config(cam, sim.truth["exposure_s"])
     found = detect_frame(sim.frame, cfg)
     marks = [(s["x"], s["y"], s["name"] or "") for s in sim.truth["sources"]

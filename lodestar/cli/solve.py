@@ -12,6 +12,7 @@ from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
     DEFAULT_KSIGMA,
     DEFAULT_MIN_PIXELS,
+    fits_date_obs,
     format_report,
     fov_band,
     image_camera,
@@ -19,7 +20,7 @@ from lodestar.ground.imagesolve import (
     solve_image,
     write_annotated,
 )
-from lodestar.ground.solve import DEFAULT_DENSITY, camera_fov_deg
+from lodestar.ground.solve import DEFAULT_DENSITY, camera_fov_deg, observer_velocity_km_s
 from lodestar.ground.wcs import header_bytes, wcs_header
 from lodestar.sim.presets import PRESETS
 
@@ -63,6 +64,13 @@ def add_parser(sub):
                           "as deep as the field needs)")
     det.add_argument("--tolerance", type=float, default=None, metavar="PX",
                      help="match tolerance, px (default max(2.5, FOV/1000))")
+    app = p.add_argument_group("apparent directions (docs/apparent_directions.md)")
+    app.add_argument("--time", metavar="ISO",
+                     help="observation time, UTC (default: a FITS image's DATE-OBS): the "
+                          "Earth's velocity corrects the stellar aberration")
+    app.add_argument("--velocity", nargs=3, type=float, metavar=("VX", "VY", "VZ"),
+                     help="observer velocity, km/s, ICRS: added to the Earth's with --time "
+                          "(a satellite's), else the whole velocity")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
     p.add_argument("--wcs", metavar="FILE.wcs",
                    help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
@@ -97,13 +105,16 @@ def run(args):
     else:
         fov_h, f_px = math.radians(camera_fov_deg(camera)[0]), math.sqrt(camera.fx * camera.fy)
     widest = starid.max_tolerance_rad(fov_h) * f_px  # px
+    obstime = args.time if args.time is not None else fits_date_obs(args.image)
+    velocity = observer_velocity_km_s(obstime, args.velocity)
     if args.tolerance is not None and not (math.isfinite(args.tolerance) and
                                            0 < args.tolerance <= widest):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
                          f"of the field), got {args.tolerance}")
     report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
                                            args.ksigma, args.min_pixels, log=sys.stderr,
-                                           fov_band=band)
+                                           fov_band=band, velocity_km_s=velocity)
+    report["time"] = obstime
     report["camera"] = what
     failure = None
     if args.annotate:
@@ -132,5 +143,8 @@ def run(args):
     if report["status"] != "OK":
         print(f"lodestar solve: {args.image} not solved: {report['status']}: "
               f"{report['reason']}", file=sys.stderr)
+        if report["status"] == "MIRRORED":
+            print("lodestar solve: the image is a mirror image of the sky: flip it left-right "
+                  "(or top-bottom) and solve it again", file=sys.stderr)
         return 1
     return 0

@@ -1,6 +1,7 @@
 """The ``lodestar`` command: the detect run prints a table, rejects bad input clearly."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -115,6 +116,25 @@ def test_simulate_bad_input(tmp_path, capsys):
     assert "error" in capsys.readouterr().err
     assert main(["simulate", "--exposure", "-1", "-o", str(tmp_path / "x")]) == 2
     assert "exposure_s must be > 0" in capsys.readouterr().err
+    assert main(["simulate", "--time", "noon", "-o", str(tmp_path / "x")]) == 2
+    assert "observation time 'noon'" in capsys.readouterr().err
+
+
+def test_simulate_draws_aberrated_stars(tmp_path, capsys):
+    """--time (the Earth's velocity) moves every star by the aberration: 20" across the
+    apex, 0.7 px of estcube2."""
+    args = ["simulate", "--radec", "90", "20", "0", "--seed", "4"]
+    assert main(args + ["-o", str(tmp_path / "still")]) == 0
+    assert main(args + ["--time", "2026-06-21T00:00:00", "-o", str(tmp_path / "moving")]) == 0
+    capsys.readouterr()
+    still = json.loads((tmp_path / "still.json").read_text())
+    moving = json.loads((tmp_path / "moving.json").read_text())
+    assert "velocity_km_s" not in still and 29 < math.hypot(*moving["velocity_km_s"]) < 31
+    pos = {s["hip"]: (s["x"], s["y"]) for s in still["sources"] if s["kind"] == "star"}
+    shifts = [math.hypot(s["x"] - pos[s["hip"]][0], s["y"] - pos[s["hip"]][1])
+              for s in moving["sources"] if s["hip"] in pos]
+    # (a star cut by the frame edge keeps the centroid of its part inside)
+    assert len(shifts) > 20 and 0.6 < np.percentile(shifts, 5) and max(shifts) < 0.8
 
 
 def test_db_build_and_info(tmp_path, capsys):

@@ -14,6 +14,7 @@ from PIL import Image
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
 from lodestar.ground import imagesolve
+from lodestar.ground import solve as ground_solve
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
 
@@ -207,6 +208,43 @@ def test_wrong_fov_claims_no_attitude(sky, capsys):
         assert "not solved" in err
 
 
+def test_a_mirrored_image_is_reported_with_the_fix(sky, tmp_path, capsys):
+    d, f, _truth = sky
+    for name, image in (("left_right.png", f[:, ::-1]), ("upside_down.png", f[::-1, :])):
+        _png(tmp_path / name, np.ascontiguousarray(image))
+        code, r, err = _solve(capsys, tmp_path / name, "--fov", FOV)
+        assert code == 1 and r["status"] == "MIRRORED" and r["ra_deg"] is None
+        assert r["matches"] == [] and "flip it left-right (or top-bottom)" in err
+
+
+def test_date_obs_or_time_corrects_the_aberration(tmp_path, capsys):
+    """A frame rendered with the Earth's velocity at its DATE-OBS, the boresight across
+    that velocity: the FITS file solves to the ICRS attitude (the time read from its
+    header, or given by --time), the same frame as PNG without a time ~20" off."""
+    when = "2026-09-23T18:00:00"
+    v = np.array(ground_solve.observer_velocity_km_s(when))
+    axis = np.cross(v, [0.2, 0.7, -0.4])
+    axis /= np.linalg.norm(axis)
+    q = attitude.from_radec_roll(math.degrees(math.atan2(axis[1], axis[0])),
+                                 math.degrees(math.asin(axis[2])), 75.0)
+    sim = scene.simulate(load_preset("estcube2"), q, seed=SEED, velocity_km_s=v)
+    hdu = fits.PrimaryHDU(sim.frame)
+    hdu.header["DATE-OBS"] = when
+    hdu.writeto(tmp_path / "dated.fits")
+    _png(tmp_path / "undated.png", sim.frame)
+    off = {}
+    for name, extra in (("dated.fits", []), ("undated.png", ["--time", when]),
+                        ("undated.png", [])):
+        code, r, _err = _solve(capsys, tmp_path / name, "--fov", FOV, *extra)
+        assert code == 0, r["reason"]
+        got = attitude.from_radec_roll(r["ra_deg"], r["dec_deg"], r["roll_deg"])
+        off[(name, bool(extra))] = attitude_error_arcsec(got, q)["cross"]
+        assert r["time"] == (when if extra or name == "dated.fits" else None)
+    print("\nboresight error by input:", off)
+    assert off[("dated.fits", False)] < 5.0 and off[("undated.png", True)] < 5.0
+    assert 15.0 < off[("undated.png", False)] < 26.0
+
+
 def test_no_stars(tmp_path, capsys):
     rng = np.random.default_rng(2)
     path = tmp_path / "noise.png"
@@ -320,6 +358,8 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
         (["--fov", "20", "--tolerance", "1e9"], "(5 % of the field), got 1000000000.0"),
         (["--fov", "20", "--tolerance", "200"], "in (0, 128]"),
         (["--fov", "20", "--ksigma", "0"], "--ksigma must be a positive"),
+        (["--fov", "20", "--time", "teatime"], "observation time 'teatime'"),
+        (["--fov", "20", "--velocity", "0", "0", "1e3"], "is beyond 100 km/s"),
     ]
     for extra, message in cases:
         assert main(["solve", png, *extra]) == 2, extra

@@ -11,7 +11,7 @@ import pytest
 from lodestar.firmware import centroids as fwcentroids
 from lodestar.ground import cache as cache_module
 from lodestar.ground import solve as L
-from lodestar.sim.attitude import random_attitude, to_radec_roll
+from lodestar.sim.attitude import boresight, from_radec_roll, random_attitude, to_radec_roll
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.goldenset import window_camera
@@ -105,6 +105,38 @@ def test_solves_detected_centroids_of_simulated_images(cache):
             x, y, _ = rows[perm][i]
             assert any(math.hypot(s["x"] - x, s["y"] - y) < 3 for s in frame.sources
                        if s["hip"] == hip)
+
+
+def test_observation_time_corrects_the_aberration(cache):
+    """A frame rendered with the Earth's velocity at a time, its boresight across that
+    velocity (stars shifted ~20"): ``obstime`` gives the ICRS attitude, as the velocity
+    itself does, without it the boresight is off by the aberration."""
+    when = "2026-06-21T06:00:00"
+    v = np.array(L.observer_velocity_km_s(when))
+    assert 29.0 < np.linalg.norm(v) < 31.0
+    axis = np.cross(v, [0.3, -0.5, 0.8])
+    axis /= np.linalg.norm(axis)
+    q = from_radec_roll(math.degrees(math.atan2(axis[1], axis[0])),
+                        math.degrees(math.asin(axis[2])), 30.0)
+    frame = SF.simulate_frame(q, (0.0, 0.0, 0.0), 811, velocity_km_s=v)
+    stars, _ = fwcentroids.extract(frame.records, max_stars=None)
+    rows = [(s.x, s.y, s.flux) for s in stars]
+    fov = pinhole_fov_deg(SF.sim_camera())
+    timed = L.solve_centroids(rows, W, H, fov, cache_dir=cache, obstime=when)
+    given = L.solve_centroids(rows, W, H, fov, cache_dir=cache, velocity_km_s=v)
+    plain = L.solve_centroids(rows, W, H, fov, cache_dir=cache)
+    assert timed.ok and given.ok and plain.ok
+    assert timed.q == pytest.approx(given.q, abs=1e-12)
+    err = attitude_error_deg(timed.q, q) * 3600      # the roll error dominates
+    off = [boresight_arcsec(r.q, q) for r in (timed, plain)]
+    print(f"\nboresight {off[0]:.2f}\" with the time, {off[1]:.2f}\" without; "
+          f"attitude {err:.1f}\"")
+    assert off[0] < 5.0 and 15.0 < off[1] < 26.0
+
+
+def boresight_arcsec(q_est, q_true):
+    a, b = boresight(np.asarray(q_est)), boresight(np.asarray(q_true))
+    return math.degrees(math.acos(min(1.0, float(np.dot(a, b))))) * 3600
 
 
 def test_order_without_fluxes_and_numpy_or_list_input(cache, catalogue):
@@ -231,6 +263,8 @@ def test_bad_centroids(cache, centroids, status):
     {"max_mag": float("nan")}, {"max_mag": "6"}, {"method": "nonsense"},
     {"distortion": {"k9": 0.1}}, {"distortion": {"k1": "a"}}, {"distortion": [0.1]},
     {"distortion": {"k1": -5.0}}, {"tolerance_px": 0}, {"max_stars": 3}, {"budget": 0},
+    {"obstime": "yesterday"}, {"velocity_km_s": [1.0, 2.0]}, {"velocity_km_s": "fast"},
+    {"velocity_km_s": [float("nan"), 0, 0]}, {"velocity_km_s": [0, 0, 200.0]},
 ])
 def test_bad_parameters(cache, catalogue, kwargs):
     args = dict(width=W, height=H, fov_deg=20.2, cache_dir=cache)

@@ -1,6 +1,6 @@
 """Every identification method of the registry (``lodestar.firmware.starid.METHODS``) on the
-same checks: Monte Carlo scenes, mirror images, false stars, bad input, the deterministic
-budget, partly seen tracks and the heap budget.  Method-specific geometry is tested in
+same checks: Monte Carlo scenes, mirror images (``MIRRORED``), false stars, bad input, the
+deterministic budget, partly seen tracks and the heap budget.  Method-specific geometry is tested in
 ``test_pyramid.py``, ``test_triangle.py`` and ``test_hashing.py``."""
 
 import functools
@@ -46,15 +46,23 @@ def test_monte_carlo_200_scenes(method, starid_setup, tol, scene_outcome):
     assert counts["correct"] >= MIN_CORRECT[method]
 
 
-def test_mirrored_scenes_are_not_accepted(method, starid_setup, tol):
+def test_mirrored_scenes_are_reported_mirrored(method, starid_setup, tol):
+    """A scene flipped in x or in y never gets an attitude: every one is reported
+    ``MIRRORED``, and none of the same scenes unflipped is."""
     cam, cat, db = starid_setup
     rng = np.random.default_rng(9)
-    for _ in range(30):
+    counts = {}
+    for trial in range(30):
         scene = centroid_scene(cam, random_attitude(rng), rng, cat, noise_px=0.3, max_stars=30)
-        mirrored = scene.vectors * [-1.0, 1.0, 1.0]
-        sol = starid.identify(mirrored.tolist(), db, method=method, tolerance_rad=tol,
-                              budget=500)
-        assert sol.status != S.OK
+        flip = [-1.0, 1.0, 1.0] if trial % 2 else [1.0, -1.0, 1.0]
+        sol = starid.identify((scene.vectors * flip).tolist(), db, method=method,
+                              tolerance_rad=tol, budget=500)
+        assert sol.status != S.OK and sol.q is None and sol.matches == []
+        counts[S.name(sol.status)] = counts.get(S.name(sol.status), 0) + 1
+        assert starid.identify(scene.vectors.tolist(), db, method=method,
+                               tolerance_rad=tol).status != S.MIRRORED
+    print("\n", method, "30 mirrored scenes:", counts)
+    assert counts == {"MIRRORED": 30}
 
 
 def test_false_stars_only_are_not_accepted(method, starid_setup, tol):
