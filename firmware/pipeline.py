@@ -653,11 +653,17 @@ class StarTracker:
             else:
                 _note(res, "exposure_s ignored: not a positive number")
         beta = self._beta(velocity_km_s, res)
-        smear = None
+        smear = known = None
         longest = 0.0
         if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
+            known = {}          # (x, y) -> smear: extraction, joining, streaks ask again
+
             def smear(x, y):
-                return cam.smear_px(x, y, w, exposure)
+                key = (x, y)
+                if key in known:
+                    return known[key]
+                d = known[key] = cam.smear_px(x, y, w, exposure)
+                return d
 
             longest = _longest_smear(cam, smear)
         limit = self.settings.max_smear_px
@@ -680,6 +686,7 @@ class StarTracker:
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None
+        smear = known = None            # the memo goes before the identification's peak
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
