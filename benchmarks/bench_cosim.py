@@ -121,7 +121,7 @@ def measure(frames_path, repeat, pythonpath=None):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", nargs="+", default=["752x480x10", "2592x1944x12"])
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=3, help="runs per build (median)")
