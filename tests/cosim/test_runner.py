@@ -2,10 +2,12 @@
 command (the broad gateware verification is ``cocotb_tests/test_detector.py``)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lodestar import contract as C
 from lodestar.cli import main
 from lodestar.cosim import runner as cosim
 from lodestar.golden import Detector, DetectorConfig
@@ -97,6 +99,71 @@ def test_run_frames_matches_golden_sequence():
         assert g == golden.process(frame)
 
 
+def test_native_build_plays_as_the_cocotb_build(tmp_path):
+    """The native build (``native.cpp`` clocks the harness) writes the same output as the
+    cocotb build on a stimulus with register writes, a reset inside a frame, a truncated
+    frame and a slow record reader."""
+    rng = np.random.default_rng(7)
+    frames = [np.where(rng.random((24, 32)) < 0.3, rng.integers(200, 4096, (24, 32)),
+                       rng.integers(0, 100, (24, 32))).astype(np.uint16) for _ in range(3)]
+    cfg = DetectorConfig(width=32, height=24, threshold=150, background=60)
+    gap = cosim.frame_gap([cfg])
+    stim = cosim.Stimulus().reset().registers(cfg.registers()).idle(gap) \
+        .frame(frames[0], 2, gap).frame(frames[1], 2, 0, pixels=300).reset(3).idle(gap) \
+        .frame(frames[2], 2, gap).frame(frames[0], 2, 0, pixels=500).idle(gap) \
+        .frame(frames[1], 2, 4 * gap)
+    outputs = []
+    for native in (True, False):
+        build = cosim.Build(32, 24, 12, native=native)
+        got = build.simulate(stim, tmp_path / str(native), reader=lambda clock: clock % 5 != 2)
+        outputs.append((tmp_path / str(native) / "output.txt").read_text())
+    assert outputs[0] == outputs[1]
+    records, trailers = got
+    assert "X 0" in outputs[0] and records
+    assert [t["flags"] & C.FRAME_TRUNCATED for t in trailers] == [0, 0, C.FRAME_TRUNCATED, 0]
+
+
+def test_golden_set_bit_exact_on_both_builds(tmp_path):
+    """Every committed golden frame, back to back per geometry: the native build (what
+    ``run_frames`` uses) is bit-exact with the golden model and its output is the cocotb
+    build's."""
+    from lodestar.hdl.labeller import MIN_HBLANK
+    from lodestar.sim.goldenset import load_frame_doc
+
+    by_geometry = {}
+    for path in sorted(Path(GOLDEN).glob("*.json")):
+        frame, _doc, cfg = load_frame_doc(path)
+        by_geometry.setdefault((cfg.width, cfg.height, cfg.pixel_bits), []).append((frame, cfg))
+    assert len(by_geometry) >= 3
+    for (w, h, bits), pairs in by_geometry.items():
+        frames, cfgs = [f for f, _ in pairs], [c for _, c in pairs]
+        c = cfgs[0]
+        stim = cosim.scenario(frames, cfgs, MIN_HBLANK)
+        outputs = []
+        for native in (True, False):
+            build = cosim.Build(w, h, bits, c.label_capacity, c.record_capacity, native=native)
+            records, trailers = build.simulate(stim, tmp_path / f"{w}x{h}-{native}")
+            outputs.append((tmp_path / f"{w}x{h}-{native}" / "output.txt").read_text())
+            if native:
+                got = cosim.group_frames(records, trailers, w, h, bits)
+        assert outputs[0] == outputs[1], f"{w}x{h}x{bits}: native and cocotb builds differ"
+        golden = Detector(c)
+        for frame, cfg, g in zip(frames, cfgs, got, strict=True):
+            golden.configure(cfg)
+            assert g == golden.process(frame), f"{w}x{h}x{bits}: not bit-exact"
+
+
+def test_native_build_reports_a_failed_playback(tmp_path, monkeypatch):
+    build = cosim.Build(32, 24, 12, native=True)
+    frame = np.zeros((24, 32), np.uint16)
+    with pytest.raises(ValueError, match="no cocotb test module"):
+        build.simulate(cosim.Stimulus(), tmp_path, test_module="detector_tb")
+    real = cosim.encode
+    monkeypatch.setattr(cosim, "encode", lambda words: real(words)[:-10])   # cut in a run
+    with pytest.raises(RuntimeError, match="stimulus ends in a run"):
+        build.simulate(cosim.Stimulus().reset().frame(frame, 2, 0), tmp_path)
+
+
 def test_run_frames_refuses_mixed_capacities():
     cfg = DetectorConfig(width=32, height=24)
     frame = np.zeros((24, 32), np.uint16)
@@ -140,8 +207,6 @@ def test_cli_bad_input(tmp_path, capsys):
 def test_gate_level_golden_set_bit_exact(capsys):
     """Every committed golden frame through the Yosys netlist (one build per geometry,
     ~1.5 min each), back to back per geometry, bit-exact with the golden model."""
-    from pathlib import Path
-
     from lodestar.sim.goldenset import load_frame_doc
 
     by_geometry = {}
