@@ -309,7 +309,8 @@ class Search:
         if streaks is not None:
             self.streaks = [None if t is None else (-t[0], t[1], t[2], t[3]) for t in streaks]
         _mirror(self.b)                 # in place (and back: a negation is exact)
-        self.work, self.max_work = 0, self.max_work // MIRROR_WORK_SHARE
+        work, max_work = self.work, self.max_work
+        self.work, self.max_work = 0, max_work // MIRROR_WORK_SHARE
         try:
             for k in range(kept):
                 code = first[2 * k] | first[2 * k + 1] << 8
@@ -320,6 +321,7 @@ class Search:
             pass
         _mirror(self.b)
         self.streaks = streaks
+        self.work, self.max_work = work + self.work, max_work     # the search's whole spend
         return failed
 
     def fail(self, status, tried):
