@@ -120,30 +120,31 @@ def predict(database, q, margin_rad=0.0, stars=None):
     if stars is None:
         stars = candidates(database, q, margin_rad)
     ids, vecs = stars
-    n_out = 0
-    for c in range(2):                      # count, then fill arrays of the final size
-        if c:
-            out_ids = array("H", range(n_out))     # sized by the range, then overwritten
-            out_vecs = zeros(3 * n_out)
-            n_out = 0
-        n_fov = 0
-        for i in range(len(ids)):
+    inside = bytearray(len(ids))            # count and mark, then fill arrays of the final
+    n_out = n_fov = 0                       # size with the marked stars only
+    for i in range(len(ids)):
+        r0, r1, r2 = vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
+        z = m6 * r0 + m7 * r1 + m8 * r2
+        if z <= 0.0:
+            continue
+        x = m0 * r0 + m1 * r1 + m2 * r2
+        y = m3 * r0 + m4 * r1 + m5 * r2
+        if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
+            inside[i] = 1
+            n_out += 1
+            if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
+                n_fov += 1
+    out_ids = array("H", range(n_out))      # sized by the range, then overwritten
+    out_vecs = zeros(3 * n_out)
+    k = 0
+    for i in range(len(ids)):
+        if inside[i]:
             r0, r1, r2 = vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
-            z = m6 * r0 + m7 * r1 + m8 * r2
-            if z <= 0.0:
-                continue
-            x = m0 * r0 + m1 * r1 + m2 * r2
-            y = m3 * r0 + m4 * r1 + m5 * r2
-            if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
-                if c:
-                    out_ids[n_out] = ids[i]
-                    k = 3 * n_out
-                    out_vecs[k] = x
-                    out_vecs[k + 1] = y
-                    out_vecs[k + 2] = z
-                n_out += 1
-                if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-                    n_fov += 1
+            out_ids[k] = ids[i]
+            out_vecs[3 * k] = m0 * r0 + m1 * r1 + m2 * r2
+            out_vecs[3 * k + 1] = m3 * r0 + m4 * r1 + m5 * r2
+            out_vecs[3 * k + 2] = m6 * r0 + m7 * r1 + m8 * r2
+            k += 1
     return (out_ids, out_vecs), n_fov
 
 
