@@ -63,17 +63,6 @@ def _unit(v, label):
     return [x / n, y / n, z / n]
 
 
-def _units(vs, n, name):
-    """The ``n`` vectors of ``vs`` as unit vectors: a unit tuple is shared, any other
-    normalised into a copy (``ValueError`` naming ``name[i]`` for a bad one).  On the flight
-    path the observed vectors are unit tuples already: no copy, no label string."""
-    out = []
-    for i in range(n):
-        v = vs[i]
-        out.append(v if _geo.is_unit_tuple(v) else _unit(v, "%s[%d]" % (name, i)))
-    return out
-
-
 def _check_spread(vs, name):
     """``ValueError`` unless two of the unit vectors ``vs`` are neither parallel nor opposite."""
     v0 = vs[0]
@@ -114,8 +103,8 @@ def _prepare(b, r, w, wname="w", min_pairs=2):
         raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
     if n < min_pairs:
         raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
-    bs = _units(b, n, "b")
-    rs = _units(r, n, "r")
+    bs = [_unit(b[i], "b[%d]" % i) for i in range(n)]
+    rs = [_unit(r[i], "r[%d]" % i) for i in range(n)]
     if w is None:
         ws = [1.0] * n
     else:
