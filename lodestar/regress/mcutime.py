@@ -125,7 +125,10 @@ def _instructions(argv, cwd, dump_before=None, timeout=900):
     if proc.returncode != 0:
         raise CalibrationError(f"{argv[0]} under valgrind: {(proc.stdout + proc.stderr)[-300:]}")
     if not dump_before:
-        return [int(re.search(r"Collected : (\d+)", proc.stderr).group(1))], proc.stdout
+        found = re.search(r"Collected : (\d+)", proc.stderr)
+        if found is None:
+            raise CalibrationError(f"no instruction count from valgrind: {proc.stderr[-300:]}")
+        return [int(found.group(1))], proc.stdout
     counts = []
     for part in sorted(glob.glob(f"{out}.*"), key=lambda f: int(f.rsplit(".", 1)[1])):
         with open(part, encoding="utf-8") as f:
