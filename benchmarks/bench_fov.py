@@ -25,7 +25,6 @@ index are built (and cached) before timing.
 """
 
 import argparse
-import dataclasses
 import time
 
 import numpy as np
@@ -36,7 +35,7 @@ from lodestar.ground import solve as L
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
-from lodestar.sim.presets import load_preset
+from lodestar.sim.presets import pinhole as pinhole_preset
 
 W, H = 1024, 768
 MAX_ERR_DEG = 0.05
@@ -44,13 +43,8 @@ CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
 
 
 def pinhole(fov_deg):
-    """A sim camera: the estcube2 sensor model as a centred pinhole ``W x H`` of ``fov_deg``."""
-    base = load_preset("estcube2")
-    f = fovsearch.f_of_fov(W, fov_deg)
-    return dataclasses.replace(base, width=W, height=H, fx_px=f, fy_px=f,
-                               focal_length_mm=f * base.pixel_pitch_um / 1000,
-                               cx=(W - 1) / 2, cy=(H - 1) / 2, k1=0.0, k2=0.0, k3=0.0,
-                               p1=0.0, p2=0.0)
+    """The estcube2 sensor cut to ``W x H`` as a centred pinhole of ``fov_deg``."""
+    return pinhole_preset("estcube2", fov_deg, W, H)
 
 
 def scenes(fov_deg, n, rng, cat):

@@ -8,7 +8,9 @@ the lowest legal pixel code, ``0`` when none is reserved; MT9V022 codes 0-3 read
 ``description`` and ``source``.
 """
 
+import dataclasses
 import json
+import math
 from functools import lru_cache
 from importlib import resources
 
@@ -35,3 +37,18 @@ def load_preset(name=DEFAULT_PRESET):
     entry = _presets()[name]
     meta = dict(entry["meta"], description=entry["description"], source=entry["source"])
     return Camera(name=name, meta=meta, **entry["camera"])
+
+
+def pinhole(name, fov_deg, width=None, height=None):
+    """The sensor of preset ``name`` (pixels, noise, shutter, PSF in pixels, exposure), cut to
+    ``width x height`` when given, behind a centred, distortion-free lens of the preset's
+    f-number whose horizontal FOV is ``fov_deg``: focal length ``(W / 2) / tan(fov / 2)``
+    pixels, aperture the focal length over the f-number."""
+    base = load_preset(name)
+    w = base.width if width is None else width
+    h = base.height if height is None else height
+    f_px = (w / 2) / math.tan(math.radians(fov_deg) / 2)
+    f_mm = f_px * base.pixel_pitch_um * 1e-3
+    return dataclasses.replace(base, width=w, height=h, fx_px=f_px, fy_px=f_px, cx=None,
+                               cy=None, k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0,
+                               focal_length_mm=f_mm, aperture_mm=f_mm / base.f_number)

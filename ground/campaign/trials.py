@@ -246,17 +246,11 @@ def accuracy_trial(preset, level, seed, config):
 
 
 def fov_camera(preset, fov_deg):
-    """The ``fov`` study's camera: the sensor of ``preset`` (size, pixels, noise, shutter,
-    PSF in pixels, exposure) behind a distortion-free lens of the preset's f-number whose
-    horizontal FOV is ``fov_deg``: focal length ``(W / 2) / tan(fov / 2)`` pixels, aperture
-    the focal length over the f-number (a 5 deg lens of estcube2's f/1.2 is 65 mm, 54 mm
-    across; a 40 deg one 7.8 mm, 6.5 mm across)."""
-    base = presets.load_preset(preset)
-    f_px = (base.width / 2) / math.tan(math.radians(fov_deg) / 2)
-    f_mm = f_px * base.pixel_pitch_um * 1e-3
-    return dataclasses.replace(base, fx_px=f_px, fy_px=f_px, cx=None, cy=None, k1=0.0,
-                               k2=0.0, k3=0.0, p1=0.0, p2=0.0, focal_length_mm=f_mm,
-                               aperture_mm=f_mm / base.f_number, name=f"{preset}-fov{fov_deg:g}")
+    """The ``fov`` study's camera: :func:`lodestar.sim.presets.pinhole` of ``preset`` with a
+    horizontal FOV of ``fov_deg`` (a 5 deg lens of estcube2's f/1.2 is 65 mm, 54 mm across;
+    a 40 deg one 7.8 mm, 6.5 mm across)."""
+    return dataclasses.replace(presets.pinhole(preset, fov_deg),
+                               name=f"{preset}-fov{fov_deg:g}")
 
 
 def fov_render_limit(preset, cam):

@@ -2,12 +2,13 @@
 
 import dataclasses
 import json
+import math
 from importlib import resources
 
 import pytest
 
 from lodestar.sim.camera import Camera
-from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
+from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset, pinhole
 
 CAMERA_FIELDS = [f.name for f in dataclasses.fields(Camera) if f.name not in ("name", "meta")]
 
@@ -83,3 +84,17 @@ def test_cameras_are_immutable():
     with pytest.raises(TypeError):
         cam.meta["board"] = "other"
     assert load_preset("lohmann").meta["board"] == "Terasic DE2-115"
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_pinhole_keeps_the_sensor_and_f_number_at_the_asked_fov(name):
+    base = load_preset(name)
+    cam = pinhole(name, 12.0, 1024, 768)
+    assert (cam.width, cam.height) == (1024, 768)
+    assert math.degrees(2 * math.atan(cam.width / 2 / cam.fx_px)) == pytest.approx(12.0)
+    assert cam.fx_px == cam.fy_px and (cam.cx, cam.cy) == (511.5, 383.5)
+    assert (cam.k1, cam.k2, cam.k3, cam.p1, cam.p2) == (0.0,) * 5
+    assert cam.f_number == pytest.approx(base.f_number)
+    assert cam.pixel_pitch_um == base.pixel_pitch_um and cam.exposure_s == base.exposure_s
+    full = pinhole(name, 20.0)
+    assert (full.width, full.height) == (base.width, base.height)
