@@ -47,19 +47,29 @@ def _length(seq, label):
         raise ValueError("%s must be a sequence, got %r" % (label, seq)) from None
 
 
-def _unit(v, label):
-    k = _length(v, label)
-    if k != 3:
-        raise ValueError("%s must have 3 components, got %d" % (label, k))
+def _unit(v, name, i=None):
+    """``v`` (named ``name``, or ``name[i]``) normalised, as a list of floats; the name is
+    formatted only for an error (this runs for every vector of every fit)."""
     try:
+        k = len(v)
         x, y, z = float(v[0]), float(v[1]), float(v[2])
-    except (TypeError, ValueError):
-        raise ValueError("%s must hold numbers, got %r" % (label, v)) from None
+    except (TypeError, ValueError, IndexError):
+        k = None
+    if k != 3:
+        label = name if i is None else "%s[%d]" % (name, i)
+        try:
+            k = len(v)
+        except TypeError:
+            raise ValueError("%s must be a sequence, got %r" % (label, v)) from None
+        if k != 3:
+            raise ValueError("%s must have 3 components, got %d" % (label, k))
+        raise ValueError("%s must hold numbers, got %r" % (label, v))
     n = math.sqrt(x * x + y * y + z * z)
-    if not _geo.finite(n):
+    if not _geo.finite(n) or n == 0.0:
+        label = name if i is None else "%s[%d]" % (name, i)
+        if n == 0.0:
+            raise ValueError("%s is a zero vector" % label)
         raise ValueError("%s is not finite: %r" % (label, [x, y, z]))
-    if n == 0.0:
-        raise ValueError("%s is a zero vector" % label)
     return [x / n, y / n, z / n]
 
 
@@ -103,8 +113,8 @@ def _prepare(b, r, w, wname="w", min_pairs=2):
         raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
     if n < min_pairs:
         raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
-    bs = [_unit(b[i], "b[%d]" % i) for i in range(n)]
-    rs = [_unit(r[i], "r[%d]" % i) for i in range(n)]
+    bs = [_unit(b[i], "b", i) for i in range(n)]
+    rs = [_unit(r[i], "r", i) for i in range(n)]
     if w is None:
         ws = [1.0] * n
     else:

@@ -15,7 +15,7 @@ import math
 
 from lodestar import contract as C
 from lodestar.firmware import status as S
-from lodestar.firmware.geometry import EPS, finite, is_number, norm, rotate_about
+from lodestar.firmware.geometry import EPS, finite, is_number, norm
 
 _INF = float("inf")
 
@@ -113,6 +113,9 @@ class Camera(object):
         self.p1 = _number("p1", p1)
         self.p2 = _number("p2", p2)
         self.last_status = S.OK
+        self._pinhole = not (self.k1 or self.k2 or self.k3 or self.p1 or self.p2)
+        self._smear_key = None          # (wx, wy, wz, exposure_s) of _smear_turn
+        self._smear_turn = None         # (ax, ay, az, cos, sin) of half the exposure's turn
         s = _smallest_positive_root(1.0, 3 * self.k1, 5 * self.k2, 7 * self.k3)
         self._fold = _INF if s is None else math.sqrt(s)
         # float-resolution floors of the Newton tolerances (pixels)
@@ -183,6 +186,9 @@ class Camera(object):
         if not (finite(xd) and finite(yd)):
             self.last_status = S.BAD_INPUT
             return None
+        if self._pinhole:               # no distortion: Newton would stop at (xd, yd)
+            self.last_status = S.OK
+            return xd, yd
         fx, fy = self.fx, self.fy
         x, y = xd, yd
         for _ in range(NEWTON_MAX_ITER):
@@ -235,6 +241,10 @@ class Camera(object):
         if not (is_number(X) and is_number(Y) and is_number(Z)):
             self.last_status = S.BAD_INPUT
             return None
+        return self._project(X, Y, Z)
+
+    def _project(self, X, Y, Z):
+        """:meth:`vector_to_pixel` of finite numbers."""
         if not Z > 0:
             self.last_status = S.CAMERA_OUT_OF_VIEW
             return None
@@ -243,7 +253,7 @@ class Camera(object):
         if not math.sqrt(xn * xn + yn * yn) < self._fold:
             self.last_status = S.CAMERA_OUT_OF_VIEW
             return None
-        xd, yd = self.distort(xn, yn)
+        xd, yd = self.distort(xn, yn) if not self._pinhole else (xn, yn)
         self.last_status = S.OK
         return self.cx + self.fx * xd, self.cy + self.fy * yd
 
@@ -271,13 +281,27 @@ class Camera(object):
         v = self.pixel_to_vector(x, y)
         if v is None:
             return None
-        rate = norm((wx, wy, wz))
-        if not rate > 0:
+        key = (wx, wy, wz, exposure_s)
+        if key != self._smear_key:      # the turn is the frame's: computed once per rate
+            rate = norm((wx, wy, wz))
+            half = 0.5 * rate * exposure_s
+            self._smear_turn = None if not rate > 0 else (
+                wx / rate, wy / rate, wz / rate, math.cos(half), math.sin(half))
+            self._smear_key = key
+        if self._smear_turn is None:
             return 0.0, 0.0
-        axis = (wx / rate, wy / rate, wz / rate)
-        half = 0.5 * rate * exposure_s
-        start = self.vector_to_pixel(rotate_about(v, axis, half))      # earlier: rotated back
-        end = self.vector_to_pixel(rotate_about(v, axis, -half))
+        ax, ay, az, c, s = self._smear_turn
+        vx, vy, vz = v
+        # v turned by +half (earlier: rotated back) and -half about the axis (Rodrigues, as
+        # geometry.rotate_about)
+        k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+        kx, ky, kz = ax * k, ay * k, az * k
+        px, py, pz = vx * c, vy * c, vz * c
+        tx = (ay * vz - az * vy) * s
+        ty = (az * vx - ax * vz) * s
+        tz = (ax * vy - ay * vx) * s
+        start = self._project(px + tx + kx, py + ty + ky, pz + tz + kz)
+        end = self._project(px - tx + kx, py - ty + ky, pz - tz + kz)
         if start is None or end is None:
             return None
         return end[0] - start[0], end[1] - start[1]
