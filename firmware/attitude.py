@@ -75,13 +75,19 @@ def _unit(v, name, i=None):
 
 def _check_spread(vs, name):
     """``ValueError`` unless two of the unit vectors ``vs`` are neither parallel nor opposite."""
-    v0 = vs[0]
+    ax, ay, az = vs[0]
+    enough = MIN_SEPARATION * MIN_SEPARATION
     best = 0.0
     for i in range(1, len(vs)):
-        c = _geo.cross(v0, vs[i])
-        s = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+        bx, by, bz = vs[i]
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        s = cx * cx + cy * cy + cz * cz
         if s > best:
             best = s
+            if best >= enough:
+                return                  # two such vectors suffice
     best = math.sqrt(best)
     if best < MIN_SEPARATION:
         raise ValueError("all %s vectors are parallel or opposite (largest sin of separation "

@@ -148,16 +148,30 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
     ``n_observed``) within ``radius_rad`` of predicted star ``p`` (of ``predicted``, as
     :func:`predicted_stars`; of the stretch ``streaks[o]`` along its track,
     :func:`in_region`), with ``(dx, dy, dz)`` the observed minus the predicted vector; in
-    ``o`` then ``p`` order."""
+    ``o`` then ``p`` order.  The predicted stars are sorted by ``x`` once, so each observed
+    star tests only those whose ``x`` is within reach (a binary search), not all."""
     lim = chord(radius_rad)
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     vecs = predicted[1]
     n_pred = len(predicted[0])
+    order = sorted(range(n_pred), key=lambda p: vecs[3 * p])
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
         reach = lim if streak is None else lim + chord(streak[3])
-        for p in range(n_pred):
+        low = ox - 2.0 * reach          # a window wider than the exact test below
+        lo, hi = 0, n_pred
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if vecs[3 * order[mid]] < low:
+                lo = mid + 1
+            else:
+                hi = mid
+        high = ox + 2.0 * reach
+        found = None
+        while lo < n_pred and vecs[3 * order[lo]] <= high:
+            p = order[lo]
+            lo += 1
             k = 3 * p
             dx = ox - vecs[k]
             if dx > reach or -dx > reach:
@@ -165,6 +179,18 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
             dy = oy - vecs[k + 1]
             if dy > reach or -dy > reach:
                 continue
+            if found is None:
+                found = [p]
+            else:
+                found.append(p)
+        if found is None:
+            continue
+        if len(found) > 1:
+            found.sort()
+        for p in found:
+            k = 3 * p
+            dx = ox - vecs[k]
+            dy = oy - vecs[k + 1]
             dz = oz - vecs[k + 2]
             if in_region(dx, dy, dz, streak, lim):
                 yield o, p, dx, dy, dz
