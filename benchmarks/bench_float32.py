@@ -6,7 +6,8 @@ firmware frozen (``lodestar.regress.unixport``, a 64 KiB heap), in one run.
     .venv/bin/python benchmarks/bench_float32.py [--preset estcube2] [--trials 100]
 
 Prints per build the solved and wrong counts, the RMS cross-boresight and roll errors against
-the simulator's truth and their ratio float32 / double (the goal of issue 16: within 10 %),
+the simulator's truth and their ratio float32 / double over the same frames (the goal of
+issue 16: within 10 %),
 and the largest difference between the two builds' attitudes of one frame (cross-boresight
 and roll, arcsec).
 """
@@ -81,8 +82,8 @@ def main():
     print("| build | right | failed (status: count) | same stars as double | RMS cross, "
           "arcsec | RMS roll, arcsec | largest difference from double, cross / roll, arcsec |")
     print("|---|---|---|---|---|---|---|")
-    base = rows["double (CPython)"]
     for name, r in rows.items():
+        base = _errors(frames, double, None, only=r["frames"])     # the same frames
         fails = ", ".join(f"{k}: {v}" for k, v in sorted(r["failed"].items())) or "-"
         print(f"| {name} | {r['right']} | {fails} | {r['same']} | {r['cross']:.3f} "
               f"({r['cross'] / base['cross']:.3f}) | {r['roll']:.2f} "
@@ -90,13 +91,16 @@ def main():
               f"{r['between_roll']:.2f} |")
 
 
-def _errors(frames, double, loop, method=None):
-    """Errors against the truth of the frames the double build got right; ``loop``: a
-    float32 flight loop (None: the double build itself)."""
+def _errors(frames, double, loop, method=None, only=None):
+    """Errors against the truth of the frames the double build got right (of those in
+    ``only``, frame indices, when given); ``loop``: a float32 flight loop (None: the double
+    build itself).  ``frames``: the indices of the frames counted."""
     cross, roll, between_cross, between_roll, same, failed = [], [], [0.0], [0.0], 0, {}
+    counted = set()
     for i, (frame, _data) in enumerate(frames):
         verdict, q_double, ids_double = double[i]
-        if not (verdict["solved"] and not verdict["wrong"]):
+        if not (verdict["solved"] and not verdict["wrong"]) or (only is not None and
+                                                                 i not in only):
             continue
         if loop is None:
             q, ids = q_double, ids_double
@@ -106,6 +110,7 @@ def _errors(frames, double, loop, method=None):
                 failed[out["status_name"]] = failed.get(out["status_name"], 0) + 1
                 continue
             q, ids = out["q"], [tuple(m) for m in out["matches"]]
+        counted.add(i)
         same += ids == ids_double
         e = attitude_error_arcsec(q, frame.q)
         cross += [e["x"], e["y"]]
@@ -115,7 +120,7 @@ def _errors(frames, double, loop, method=None):
         between_roll.append(abs(d["roll"]))
     return {"right": len(roll), "failed": failed, "same": same, "cross": rms(cross),
             "roll": rms(roll), "between_cross": max(between_cross),
-            "between_roll": max(between_roll)}
+            "between_roll": max(between_roll), "frames": counted}
 
 if __name__ == "__main__":
     np.seterr(all="ignore")
