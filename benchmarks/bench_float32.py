@@ -6,8 +6,10 @@ firmware frozen (``lodestar.regress.unixport``, a 64 KiB heap), in one run.
     .venv/bin/python benchmarks/bench_float32.py [--preset estcube2] [--trials 100]
 
 Prints per build the solved and wrong counts, the RMS cross-boresight and roll errors against
-the simulator's truth and their ratio float32 / double (the goal of issue 16: within 10 %),
-and the largest rotation between the two builds' attitudes of one frame.
+the simulator's truth and their ratio float32 / double over the same frames (the goal of
+issue 16: within 10 %),
+and the largest difference between the two builds' attitudes of one frame (cross-boresight
+and roll, arcsec).
 """
 
 import argparse
@@ -17,11 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.campaign import trials as T
 from lodestar.ground.flight import camera_settings, default_tolerance_px, process, star_database
 from lodestar.ground.truth import attitude_error_arcsec
-from lodestar.regress import replay as regress
 from lodestar.regress import unixport
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,8 +40,7 @@ def main():
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     settings = camera_settings(args.preset)
-    script = unixport.build_script(REPO)
-    binary = unixport.build(script, REPO / "manifest.py", default_cache_dir() / "micropython")
+    binary = unixport.float32_build(repo=REPO)
     frames, double = [], []         # double: (verdict, q, [(record index, HIP)])
     for trial in range(args.trials):
         frame = T.Frame(args.preset, settings, T.trial_seed(args.seed, "rate", args.preset,
@@ -81,23 +80,27 @@ def main():
             raise SystemExit("bench_float32: the float32 loop failed:\n" + loop["error"])
         rows[f"float32, {heap // 1024} KiB heap"] = _errors(frames, double, loop, args.method)
     print("| build | right | failed (status: count) | same stars as double | RMS cross, "
-          "arcsec | RMS roll, arcsec | largest rotation from double, arcsec |")
+          "arcsec | RMS roll, arcsec | largest difference from double, cross / roll, arcsec |")
     print("|---|---|---|---|---|---|---|")
-    base = rows["double (CPython)"]
     for name, r in rows.items():
+        base = _errors(frames, double, None, only=r["frames"])     # the same frames
         fails = ", ".join(f"{k}: {v}" for k, v in sorted(r["failed"].items())) or "-"
         print(f"| {name} | {r['right']} | {fails} | {r['same']} | {r['cross']:.3f} "
               f"({r['cross'] / base['cross']:.3f}) | {r['roll']:.2f} "
-              f"({r['roll'] / base['roll']:.3f}) | {r['between']:.2f} |")
+              f"({r['roll'] / base['roll']:.3f}) | {r['between_cross']:.2f} / "
+              f"{r['between_roll']:.2f} |")
 
 
-def _errors(frames, double, loop, method=None):
-    """Errors against the truth of the frames the double build got right; ``loop``: a
-    float32 flight loop (None: the double build itself)."""
-    cross, roll, between, same, failed = [], [], [0.0], 0, {}
+def _errors(frames, double, loop, method=None, only=None):
+    """Errors against the truth of the frames the double build got right (of those in
+    ``only``, frame indices, when given); ``loop``: a float32 flight loop (None: the double
+    build itself).  ``frames``: the indices of the frames counted."""
+    cross, roll, between_cross, between_roll, same, failed = [], [], [0.0], [0.0], 0, {}
+    counted = set()
     for i, (frame, _data) in enumerate(frames):
         verdict, q_double, ids_double = double[i]
-        if not (verdict["solved"] and not verdict["wrong"]):
+        if not (verdict["solved"] and not verdict["wrong"]) or (only is not None and
+                                                                 i not in only):
             continue
         if loop is None:
             q, ids = q_double, ids_double
@@ -107,13 +110,17 @@ def _errors(frames, double, loop, method=None):
                 failed[out["status_name"]] = failed.get(out["status_name"], 0) + 1
                 continue
             q, ids = out["q"], [tuple(m) for m in out["matches"]]
+        counted.add(i)
         same += ids == ids_double
         e = attitude_error_arcsec(q, frame.q)
         cross += [e["x"], e["y"]]
         roll.append(e["roll"])
-        between.append(regress.rotation_angle(q, q_double) * 206264.806)
+        d = attitude_error_arcsec(q, q_double)
+        between_cross.append(d["cross"])
+        between_roll.append(abs(d["roll"]))
     return {"right": len(roll), "failed": failed, "same": same, "cross": rms(cross),
-            "roll": rms(roll), "between": max(between)}
+            "roll": rms(roll), "between_cross": max(between_cross),
+            "between_roll": max(between_roll), "frames": counted}
 
 if __name__ == "__main__":
     np.seterr(all="ignore")

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import record as regress_record
+from lodestar.regress import unixport
 from lodestar.regress.replay import (
     DEFAULT_SET,
     RegressionError,
@@ -23,27 +24,34 @@ def add_parser(sub):
     p = sub.add_parser("regress", help="replay the recorded FPGA packets on CPython and "
                                        "MicroPython and diff against the expected outputs",
                        description="Firmware regression: replay the recorded packets through "
-                                   "the flight API on CPython and MicroPython and compare "
-                                   "with the recorded outputs (exit status 1 on any "
-                                   "difference).")
+                                   "the flight API on CPython, on the flight MCU's float32 "
+                                   "MicroPython build and on MicroPython and compare with "
+                                   "the recorded outputs (exit status 1 on any difference).")
     p.add_argument("--set", dest="set_dir", default=str(DEFAULT_SET), metavar="DIR",
                    help="the regression set (default: lodestar/regress/data/regression)")
     p.add_argument("--micropython", action=argparse.BooleanOptionalAction, default=True,
                    help="also replay on MicroPython (Node.js and `npm ci --prefix "
                         "tools/micropython`; default: yes)")
+    p.add_argument("--float32", action=argparse.BooleanOptionalAction, default=True,
+                   help="also replay on the float32 unix-port build, the firmware frozen, "
+                        "against its own recorded outputs (built from ../shared/micropython "
+                        "or $LODESTAR_MICROPYTHON_BUILD into the cache; default: yes)")
     p.add_argument("--record", action="store_true",
                    help="(re)generate the set in --set instead of replaying it")
     p.set_defaults(func=run)
 
 
 def run(args):
-    """The ``regress`` command: 0 when every replay agrees, 1 when any differs or the set is
-    unusable, 2 for a folder with no set or a missing MicroPython."""
+    """The ``regress`` command: 0 when every replay agrees, 1 when any differs, the set is
+    unusable or a MicroPython run fails, 2 for a folder with no set or a missing MicroPython
+    (recording always needs the float32 build)."""
     if args.record:
-
         try:
             manifest = regress_record.record(args.set_dir, log=sys.stderr)
-        except RegressionError as exc:
+        except unixport.Unavailable as exc:
+            print(f"lodestar regress: {exc}; nothing recorded", file=sys.stderr)
+            return 2
+        except (RegressionError, regress_micropython.MicroPythonError) as exc:
             print(f"lodestar regress: {exc}", file=sys.stderr)
             return 1
         print(f"recorded {len(manifest['cases'])} packets x {len(manifest['methods'])} "
@@ -55,14 +63,18 @@ def run(args):
               file=sys.stderr)
         return 2
     try:
-        rows, mp = regress(args.set_dir, args.micropython)
+        rows, mp = regress(args.set_dir, args.micropython, float32=args.float32)
     except RegressionError as exc:
         print(f"lodestar regress: {exc}", file=sys.stderr)
         return 1
+    except unixport.Unavailable as exc:
+        print(f"lodestar regress: {exc}", file=sys.stderr)
+        return 2
     except regress_micropython.MicroPythonError as exc:
         print(f"lodestar regress: {exc}", file=sys.stderr)
-        return 1 if regress_micropython.unavailable_reason() is None else 2
-    print(format_table(rows, mp))
+        missing = args.micropython and regress_micropython.unavailable_reason() is not None
+        return 2 if missing else 1
+    print(format_table(rows, mp, args.float32))
     if mp is not None:
         print(format_resident(mp))
     return 1 if any(r["problems"] for r in rows) else 0

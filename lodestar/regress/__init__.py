@@ -1,5 +1,13 @@
-"""Firmware regression: recorded FPGA packets replayed through the flight API on CPython
-and MicroPython.  :mod:`.mcu` is the replay that runs on the MCU image (MicroPython-safe),
-:mod:`.replay` loads a set and compares, :mod:`.record` regenerates it and
-:mod:`.micropython` runs MicroPython (the one runner of the command, the tests and the
-benchmarks)."""
+"""Firmware regression: recorded FPGA packets replayed through the flight API on CPython,
+on the flight MCU's float32 MicroPython build and on MicroPython's WebAssembly port.
+:mod:`.mcu` is the replay that runs on the MCU image (MicroPython-safe), :mod:`.replay` loads
+a set and compares, :mod:`.record` regenerates it, :mod:`.micropython` runs the WebAssembly
+port and :mod:`.unixport` the float32 unix-port build (the firmware frozen).
+
+A set is a folder with ``packets/NAME.bin`` and ``manifest.json`` (``format`` 2,
+:data:`.replay.SET_FORMAT`): ``tolerances`` (double comparisons), ``float32`` (``build``,
+``tolerances``: the float32 build against its own outcomes, ``bound``: its outcomes against
+the double ones), ``methods``, ``databases`` (recipes and SHA-256 of the star databases),
+``cameras`` and ``cases``, each with its packet, ``inputs``, ``truth`` and per method
+``expected`` (double precision), ``expected_float32`` (the float32 build) and
+``error_arcsec``.  Every field, and how each is compared: ``docs/regression.md``."""

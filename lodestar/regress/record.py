@@ -14,7 +14,13 @@ before anything is written:
   attitude error below ``WRONG_ARCSEC``, every match inside the true star's grown bounding
   box); a derived packet never solves;
 * each case's ``expect`` holds (``"solve"``: every method solves; ``"fail"``: none does;
-  ``"any"``: no condition; a status name: every method returns it).
+  ``"any"``: no condition; a status name: every method returns it);
+* replayed on the flight MCU's float32 build (:func:`lodestar.regress.unixport.float32_build`,
+  its outcomes recorded as each case's ``expected_float32``), every packet gives the double
+  status and identified stars, the attitude and the 1-sigma figures within
+  :data:`lodestar.regress.replay.FLOAT32_BOUND` of the double ones.  Recording needs the
+  build: where it cannot be made, :class:`lodestar.regress.unixport.Unavailable` is raised
+  before anything else is done.
 
 A case that breaks them is a firmware finding to report, not an expected output: the
 recorder lists every such problem and writes nothing.  The manifest layout is documented in
@@ -24,6 +30,7 @@ recorder lists every such problem and writes nothing.  The manifest layout is do
 import dataclasses
 import json
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +39,7 @@ from lodestar.golden import detect_frame
 from lodestar.ground import codec as packet
 from lodestar.ground import flight as flightsolve
 from lodestar.ground import truth as campaign_truth
-from lodestar.regress import mcu
+from lodestar.regress import mcu, unixport
 from lodestar.regress import replay as regress
 from lodestar.sim import attitude, goldenset, presets
 from lodestar.sim.goldenset import DENSE, ORION
@@ -239,12 +246,39 @@ def frame_entry(case):
     return det, truth, packet.encode(det), inputs, truth_doc
 
 
+def add_float32(manifest, files, binary, db_files):
+    """Replay every case of ``manifest`` (its packets ``files``, ``{path in the set: bytes}``;
+    its databases ``db_files``) with each method on the float32 ``binary``
+    (:func:`lodestar.regress.unixport.float32_outcomes`), add each case's
+    ``expected_float32`` and return the problems: every outcome that differs from the
+    double one (``expected``) beyond the manifest's ``float32.bound``
+    (:func:`lodestar.regress.replay.float32_vs_double`)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        for path, data in files.items():
+            (Path(tmp) / path).parent.mkdir(parents=True, exist_ok=True)
+            (Path(tmp) / path).write_bytes(data)
+        outcomes = unixport.float32_outcomes(binary, manifest, tmp, db_files)
+    bound = manifest["float32"]["bound"]
+    problems = []
+    for case in manifest["cases"]:
+        case["expected_float32"] = {m: outcomes[case["name"], m] for m in manifest["methods"]}
+        for method, out in case["expected_float32"].items():
+            problems += [f"{case['name']} / {method}: float32 vs double: {d}"
+                         for d in regress.float32_vs_double(out, case["expected"][method],
+                                                            bound)]
+    return problems
+
+
 def record(set_dir, cache_dir=None, log=None):
     """Make the set and write it into ``set_dir`` (``manifest.json`` and ``packets/``; other
-    files there are left alone).  ``cache_dir``: the database cache (default
-    :func:`lodestar.ground.cache.default_cache_dir`).  ``log``: a text stream for progress (None:
-    silent).  Returns the manifest.  Raises :class:`lodestar.regress.RegressionError`
-    listing every wrong solution and broken ``expect`` (nothing is written then)."""
+    files there are left alone).  ``cache_dir``: the database cache and the float32 build's
+    folder (default :func:`lodestar.ground.cache.default_cache_dir`).  ``log``: a text stream
+    for progress (None: silent).  Returns the manifest.  Raises
+    :class:`lodestar.regress.unixport.Unavailable` when the float32 build cannot be made here,
+    ``MicroPythonError`` when it fails, and :class:`lodestar.regress.RegressionError` listing
+    every wrong solution, broken ``expect`` and float32 outcome beyond the bound (nothing is
+    written in any of these cases)."""
+    binary = unixport.float32_build(cache_dir)
     presets_used = sorted({c.preset for c in CASES} | {d.camera for d in DERIVED if d.camera})
     cameras, databases = {}, {}
     for preset in presets_used:
@@ -255,7 +289,11 @@ def record(set_dir, cache_dir=None, log=None):
                              "bytes": len(image)}
         regress.cache_image(image, cache_dir)
     manifest = {"format": regress.SET_FORMAT, "generator": "lodestar regress --record",
-                "tolerances": dict(regress.TOLERANCES), "methods": list(regress.METHODS),
+                "tolerances": dict(regress.TOLERANCES),
+                "float32": {"build": binary.name.rsplit("-", 1)[0],
+                            "tolerances": dict(regress.FLOAT32_TOLERANCES),
+                            "bound": dict(regress.FLOAT32_BOUND)},
+                "methods": list(regress.METHODS),
                 "databases": databases, "cameras": cameras, "cases": []}
     db_files = regress.database_files(manifest, cache_dir)
     trackers = {}
@@ -299,11 +337,14 @@ def record(set_dir, cache_dir=None, log=None):
             "name": case.name, "camera": camera, "packet": path,
             "packet_sha256": regress.sha256(data), "note": case.note, "expect": case.expect,
             "inputs": inputs, "truth": truth_doc, "expected": outcomes,
-            "error_arcsec": errors})
+            "expected_float32": {}, "error_arcsec": errors})      # float32: add_float32
         if log is not None:
             print(f"{case.name}: " + ", ".join(f"{m} {o['status_name']}"
                                                for m, o in outcomes.items()),
                   file=log, flush=True)
+    if log is not None:
+        print(f"float32 build {binary.name}: replaying every packet", file=log, flush=True)
+    problems += add_float32(manifest, files, binary, db_files)
     if problems:
         raise regress.RegressionError(
             "nothing written: the firmware's outputs break the set's rules (firmware "

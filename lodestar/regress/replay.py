@@ -1,6 +1,7 @@
 """Load a regression set (manifest, packets, database recipes), replay it through the flight
-API on CPython and compare with the recorded outputs and with the MicroPython replay.
-The set and its tolerances: ``docs/regression.md``."""
+API on CPython and on the float32 MicroPython build and compare with the recorded outputs of
+each (double and float32) and with the MicroPython replay.  The set and its tolerances:
+``docs/regression.md``."""
 
 import hashlib
 import json
@@ -16,11 +17,12 @@ from lodestar.ground import solve as ground_solve
 from lodestar.ground.database import build_database
 from lodestar.ground.files import write_atomic
 from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
-from lodestar.regress import mcu
+from lodestar.regress import mcu, unixport
 from lodestar.regress import micropython as regress_micropython
 
-SET_FORMAT = 1
-"""Version of the manifest layout."""
+SET_FORMAT = 2
+"""Version of the manifest layout (2: the float32 build's expectations, ``float32`` and each
+case's ``expected_float32``)."""
 DEFAULT_SET = Path(str(resources.files("lodestar.regress") / "data" / "regression"))
 
 TOLERANCES = {"q_rad": 1e-9, "sigma_relative": 1e-7}
@@ -30,6 +32,21 @@ attitudes that count as equal (1e-9 rad = 0.2 milliarcsec); ``sigma_relative``: 
 on the development machine; the margin is for other platforms' ``libm`` (last-bit
 differences of ``sin``, ``atan2``...), while a real change of the firmware moves these
 figures by orders of magnitude more."""
+
+FLOAT32_TOLERANCES = dict(TOLERANCES)
+"""The float32 build against its own recorded outcomes (recorded into a set as
+``float32.tolerances``): the double set's, which is bit for bit in effect (1e-9 rad is below
+one float32 step of a unit quaternion, 6e-8).  Measured: the same build reproduces every
+outcome bit for bit in any order and at any heap, and the 32-bit and the 64-bit x86 builds
+(SSE arithmetic, :data:`lodestar.regress.unixport.SSE_COPT`) agree bit for bit.  A float32
+attitude is not stable against last-bit changes (an x87 build moves one by 0.67 arcsec), so
+another arithmetic (compiler, ``libm``, FPU) needs its own recording."""
+
+FLOAT32_BOUND = {"q_rad": math.radians(2.0 / 3600.0), "sigma_relative": 1e-2}
+"""The float32 outcomes against the double ones (recorded into a set as ``float32.bound``;
+:data:`IDENTIFICATION_FIELDS` exactly): 2 arcsec of attitude (measured at most 0.61 arcsec,
+estcube2_rest_s3; fitting float32 catalogue vectors without renormalising them gave 2.37),
+1 % of the 1-sigma figures and the centroid noise (measured at most 0.036 %)."""
 
 
 class RegressionError(Exception):
@@ -186,13 +203,17 @@ def rotation_angle(q1, q2):
 
 EXACT_FIELDS = ("status", "mode", "n_records", "n_stars", "matches", "patterns_tried")
 SIGMA_FIELDS = ("sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px")
+IDENTIFICATION_FIELDS = ("status", "mode", "matches")
+"""The fields a float32 outcome shares exactly with the double one (:func:`float32_vs_double`):
+the status and the identified stars."""
 
 
-def differences(a, b, tolerances):
+def differences(a, b, tolerances, exact=EXACT_FIELDS):
     """What differs between two outcomes beyond ``tolerances`` (list of texts; empty when
-    they agree).  The fields and rules are in the module docstring."""
+    they agree): the ``exact`` fields exactly, the attitude and the sigma fields within
+    ``tolerances`` (``docs/regression.md``, Comparison)."""
     out = []
-    for name in EXACT_FIELDS:
+    for name in exact:
         if a[name] != b[name]:
             if name == "matches":
                 x, y = a[name], b[name]
@@ -219,12 +240,22 @@ def differences(a, b, tolerances):
     return out
 
 
-def compare(manifest, cpython, micropython=None):
+def float32_vs_double(f32, double, bound):
+    """What differs between a float32 outcome and the double one beyond ``bound`` (list of
+    texts): :data:`IDENTIFICATION_FIELDS` exactly, the attitude and the sigma fields within
+    the bound (:data:`FLOAT32_BOUND`)."""
+    return differences(f32, double, bound, exact=IDENTIFICATION_FIELDS)
+
+
+def compare(manifest, cpython, micropython=None, float32=None):
     """One row per case and method: ``case``, ``method``, ``expected``, ``cpython``,
     ``micropython`` (outcomes; the last None when not run), ``mp`` (the MicroPython
-    measurements, or None) and ``problems`` (texts; empty when everything agrees).  With
-    several MicroPython repeats the first is compared."""
+    measurements, or None), ``expected_float32``, ``float32`` (the float32 build's outcome,
+    :func:`lodestar.regress.unixport.float32_outcomes`; None when not run) and ``problems``
+    (texts; empty when everything agrees).  With several MicroPython repeats the first is
+    compared."""
     tol = manifest["tolerances"]
+    f32_tol, f32_bound = manifest["float32"]["tolerances"], manifest["float32"]["bound"]
     mp = {}
     if micropython is not None:
         for r in micropython["results"]:
@@ -251,9 +282,20 @@ def compare(manifest, cpython, micropython=None):
                     if got is not None:
                         problems += ["MicroPython vs CPython: " + d
                                      for d in differences(got, m["out"], tol)]
+            expected_f32 = case["expected_float32"][method]
+            f32 = None if float32 is None else float32.get(key)
+            if float32 is not None:
+                if f32 is None:
+                    problems.append("float32: not replayed")
+                else:
+                    problems += ["float32 vs expected_float32: " + d
+                                 for d in differences(expected_f32, f32, f32_tol)]
+                    problems += ["float32 vs expected (double): " + d
+                                 for d in float32_vs_double(f32, expected, f32_bound)]
             rows.append({"case": case["name"], "method": method, "expected": expected,
                          "cpython": got, "micropython": None if m is None else m["out"],
-                         "mp": m, "problems": problems})
+                         "mp": m, "expected_float32": expected_f32, "float32": f32,
+                         "problems": problems})
     return rows
 
 
@@ -263,14 +305,18 @@ def _angle_text(a, b):
     return f"{rotation_angle(a['q'], b['q']) * 180 / math.pi * 3600e3:.3f}"
 
 
-def format_table(rows, micropython):
+def format_table(rows, micropython, float32=False):
     """The comparison as text: one line per row, then every difference.  Columns: case,
     method, the expected status and number of matched stars (``ids``), per interpreter
     ``same`` or ``DIFF`` and ``dq``, the angle between its attitude and the expected one in
-    milliarcseconds, then ``mp-cp`` (MicroPython against CPython, mas), the MicroPython solve
-    time (ms) and allocation (KB, :mod:`lodestar.regress.micropython`)."""
+    milliarcseconds; with ``float32`` (the build was replayed) ``f32-dbl``, the angle between
+    the float32 expectation and the double one (mas); with ``micropython`` ``mp-cp``
+    (MicroPython against CPython, mas), the MicroPython solve time (ms) and allocation (KB,
+    :mod:`lodestar.regress.micropython`)."""
     head = (f"{'case':<28} {'method':<8} {'expected':<17} {'ids':>3} {'CPython':<8} "
             f"{'dq mas':>7}")
+    if float32:
+        head += f" {'float32':<8} {'dq mas':>7} {'f32-dbl':>7}"
     if micropython is not None:
         head += f" {'MicroPy':<8} {'dq mas':>7} {'mp-cp':>7} {'ms':>6} {'alloc KB':>8}"
     lines = [head, "-" * len(head)]
@@ -279,6 +325,10 @@ def format_table(rows, micropython):
         line = (f"{r['case']:<28} {r['method']:<8} {e['status_name']:<17} "
                 f"{len(e['matches']):>3} {_verdict(c, r, 'CPython'):<8} "
                 f"{_angle_text(e, c):>7}")
+        if float32:
+            ef, f = r["expected_float32"], r["float32"]
+            line += (f" {_verdict(f, r, 'float32'):<8} {_angle_text(ef, f):>7} "
+                     f"{_angle_text(e, ef):>7}")
         if micropython is not None:
             meas = r["mp"]
             line += (f" {_verdict(m, r, 'MicroPython'):<8} {_angle_text(e, m):>7} "
@@ -294,9 +344,10 @@ def format_table(rows, micropython):
             for p in r["problems"]:
                 lines.append(f"  {r['case']} / {r['method']}: {p}")
     else:
-        interpreters = "CPython and MicroPython" if micropython is not None else "CPython"
-        lines.append(f"all {len(rows)} replays agree with the recorded outputs on "
-                     f"{interpreters}")
+        names = ["CPython"] + (["the float32 build"] if float32 else []) + \
+            (["MicroPython"] if micropython is not None else [])
+        names = ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else names[0]
+        lines.append(f"all {len(rows)} replays agree with the recorded outputs on {names}")
     return "\n".join(lines)
 
 
@@ -324,12 +375,20 @@ def format_resident(micropython):
 # The command
 # --------------------------------------------------------------------------------------
 
-def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None):
+def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True):
     """Replay the set: ``(rows, micropython result or None)`` (:func:`compare`,
-    :func:`lodestar.regress.micropython.replay`).  Raises :class:`RegressionError` for an
-    unusable set and ``regress_micropython.MicroPythonError`` when MicroPython is asked for
-    and unavailable or fails."""
+    :func:`lodestar.regress.micropython.replay`); ``float32``: also on the float32 build
+    (:func:`lodestar.regress.unixport.float32_build`, built into ``cache_dir``, the database
+    cache).  Raises :class:`RegressionError` for an unusable set,
+    :class:`lodestar.regress.unixport.Unavailable` when the float32 build cannot be made here
+    and ``regress_micropython.MicroPythonError`` when MicroPython is asked for and
+    unavailable or fails (the float32 build or replay included)."""
     manifest = load_set(set_dir)
+    if float32:
+        reason = unixport.unavailable_reason()
+        if reason is not None:
+            raise unixport.Unavailable(f"the float32 MicroPython build is unavailable: "
+                                       f"{reason} (or run with --no-float32)")
     if micropython:
         reason = regress_micropython.unavailable_reason()
         if reason is not None:
@@ -337,7 +396,11 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None):
                 f"MicroPython unavailable: {reason} (or run with --no-micropython)")
     db_files = database_files(manifest, cache_dir)
     cpython = replay_cpython(manifest, set_dir, db_files)
+    f32 = None
+    if float32:
+        f32 = unixport.float32_outcomes(unixport.float32_build(cache_dir), manifest, set_dir,
+                                        db_files)
     mp = None
     if micropython:
         mp = regress_micropython.replay(manifest, set_dir, db_files, manifest["methods"])
-    return compare(manifest, cpython, mp), mp
+    return compare(manifest, cpython, mp, f32), mp

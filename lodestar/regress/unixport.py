@@ -5,18 +5,23 @@ a flight loop with a fixed heap.
 :func:`build` builds the interpreter with MicroPython's ``build.sh`` and the repository's
 ``manifest.py``; :func:`flight_loop` replays cases one after another in one process, with
 only the current camera's database open, as the flight software would; :func:`min_heap`
-bisects the smallest heap with which a loop still gives the recorded results.  How each
-figure is measured: ``docs/regression.md``, "A real MicroPython".
+bisects the smallest heap with which a loop still gives the recorded results;
+:func:`float32_build` and :func:`float32_outcomes` give the set's float32 expectations
+(recorded and replayed by ``lodestar regress``).  How each figure is measured:
+``docs/regression.md``, "A real MicroPython".
 """
 
 import fcntl
 import hashlib
 import json
 import os
+import platform
+import shutil
 import subprocess
 import tempfile
 from pathlib import Path
 
+from lodestar.ground.cache import default_cache_dir
 from lodestar.regress import mcu
 from lodestar.regress.micropython import MicroPythonError, literal, mcu_image
 
@@ -26,6 +31,54 @@ beside the checkout)."""
 
 HEAP_STEP = 2048
 """Resolution of :func:`min_heap`, bytes."""
+
+EXPECTATION_HEAP = 4 << 20
+"""Heap (bytes) of the replays that give the float32 expectations: no case comes near it, so
+they are the arithmetic's results; the flight heap budget is tested on its own."""
+
+SSE_COPT = "-Os -msse2 -mfpmath=sse"
+"""The unix port's ``COPT`` on x86 hosts: its own ``-Os`` plus SSE floating point, so every
+single-precision operation is rounded to float32 as on the Cortex-M4F's FPU.  The i686
+default (x87) keeps intermediates in 80-bit registers: 6 of the set's 84 replays then differ
+from the x86-64 build, one attitude by 0.67 arcsec; with SSE the 32-bit and the 64-bit
+build give bit-identical results (``docs/regression.md``)."""
+
+
+class Unavailable(MicroPythonError):
+    """The float32 build cannot be made on this machine (the message says why)."""
+
+
+def unavailable_reason(repo=None):
+    """Why the unix port cannot be built from checkout ``repo`` here (a message with the
+    fix), or None when it can.  ``repo`` (its ``manifest.py``, ``../shared`` beside it):
+    default the current directory, the checkout's root (as
+    :func:`lodestar.regress.micropython.tool_dir`)."""
+    repo = Path.cwd() if repo is None else Path(repo)
+    if not (repo / "manifest.py").is_file():
+        return (f"no manifest.py (the MCU image's freeze manifest) in {repo}: run from the "
+                "checkout's root")
+    if build_script(repo) is None:
+        return (f"no MicroPython build script (set {BUILD_ENV} or put ../shared/micropython "
+                "beside the checkout)")
+    for tool in ("make", "cc", "patch", "tar"):
+        if shutil.which(tool) is None:
+            return f"{tool} is not installed (needed to build MicroPython)"
+    return None
+
+
+def float32_build(cache_dir=None, repo=None):
+    """The flight MCU's interpreter (:func:`build`, ``float32``, the MCU image frozen by the
+    ``manifest.py`` of checkout ``repo``, default the current directory) in
+    ``cache_dir/micropython`` (default :func:`lodestar.ground.cache.default_cache_dir`).
+    Raises :class:`Unavailable` when it cannot be built here, :class:`MicroPythonError` when
+    the build fails."""
+    repo = Path.cwd() if repo is None else Path(repo)
+    reason = unavailable_reason(repo)
+    if reason is not None:
+        raise Unavailable(f"the float32 MicroPython build is unavailable: {reason}")
+    directory = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    return build(build_script(repo), Path(repo) / "manifest.py", directory / "micropython",
+                 "float32")
 
 
 def build_script(repo):
@@ -88,7 +141,7 @@ def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1
             if last_key == key and Path(last).is_file():
                 return Path(last)        # build.sh rewrites its config header: a full rebuild
         env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
-                   LODESTAR_MCU_IMAGE=str(image.resolve()))
+                   LODESTAR_MCU_IMAGE=str(image.resolve()), **_copt())
         proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
                               capture_output=True, text=True, timeout=timeout)
         lines = proc.stdout.strip().splitlines()
@@ -114,13 +167,19 @@ def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1
 def _build_key(script, manifest, image, variant):
     """Hash of everything a build depends on: MicroPython's build folder (script, sources,
     patch), the manifest, the staged image, the variant and the C compiler."""
-    h = hashlib.sha256(f"{variant}\0{os.environ.get('CC', 'cc')}\0".encode())
+    h = hashlib.sha256(f"{variant}\0{os.environ.get('CC', 'cc')}\0{_copt()}\0".encode())
     for path in sorted(Path(script).parent.iterdir()) + [Path(manifest)]:
         if path.is_file():
             h.update(path.name.encode() + b"\0" + path.read_bytes())
     for path in sorted(Path(image).rglob("*.py")):
         h.update(path.relative_to(image).as_posix().encode() + b"\0" + path.read_bytes())
     return h.hexdigest()
+
+
+def _copt():
+    """The build's ``COPT`` (:data:`SSE_COPT` on x86 hosts; none elsewhere) as environment."""
+    x86 = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686")
+    return {"COPT": SSE_COPT} if x86 else {}
 
 
 _LOOP = r'''
@@ -244,6 +303,18 @@ def disagreements(loop, runs):
                 (got[0]["status"], got[0]["matches"]) != (want["status"], want["matches"]):
             bad.append((case["name"], method))
     return bad
+
+
+def float32_outcomes(binary, manifest, set_dir, database_files):
+    """``{(case name, method): outcome}`` of every case of the set with each of its methods,
+    replayed on the float32 ``binary`` in one :func:`flight_loop` at
+    :data:`EXPECTATION_HEAP` (the outcomes do not depend on the order or the heap: measured
+    bit-identical).  Raises :class:`MicroPythonError` when the loop does not finish."""
+    runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
+    loop = flight_loop(binary, manifest, set_dir, database_files, runs, EXPECTATION_HEAP)
+    if not loop["finished"]:
+        raise MicroPythonError(f"the float32 replay did not finish:\n{loop['error']}")
+    return {key: out for key, (out, _peak) in loop["results"].items()}
 
 
 def min_heap(binary, manifest, set_dir, database_files, runs, threshold=None,

@@ -3,7 +3,9 @@ MicroPython with the recorded outputs, and any difference, altered file or stale
 recipe is reported with exit status 1.
 
 MicroPython runs through ``tools/micropython/run.mjs`` (skipped without Node.js and the npm
-package unless ``LODESTAR_REQUIRE_MICROPYTHON`` is set, as ``tests/conftest.py`` says).
+package unless ``LODESTAR_REQUIRE_MICROPYTHON`` is set, as ``tests/conftest.py`` says).  The
+float32 build's replay and recording: ``test_unixport.py`` (these tests pass
+``--no-float32``).
 """
 
 import json
@@ -15,7 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.cli import main
-from lodestar.regress import mcu
+from lodestar.regress import mcu, unixport
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
@@ -54,7 +56,7 @@ def _case(manifest, name):
 # --------------------------------------------------------------------------------------
 
 def test_committed_set_replays_on_cpython_and_micropython(capsys, require_micropython):
-    assert main(["regress"]) == 0
+    assert main(["regress", "--no-float32"]) == 0
     out = capsys.readouterr().out
     manifest = _manifest(regress.DEFAULT_SET)
     n = len(manifest["cases"]) * len(manifest["methods"])
@@ -94,13 +96,27 @@ def test_set_covers_the_brief():
 
 
 def test_cpython_only_and_missing_micropython(monkeypatch, capsys):
-    assert main(["regress", "--no-micropython"]) == 0
+    assert main(["regress", "--no-micropython", "--no-float32"]) == 0
     out = capsys.readouterr().out
     assert "agree with the recorded outputs on CPython\n" in out and "MicroPy" not in out
     monkeypatch.setattr(regress_micropython, "unavailable_reason",
                         lambda: "node is not installed")
-    assert main(["regress"]) == 2
+    assert main(["regress", "--no-float32"]) == 2
     assert "MicroPython unavailable: node is not installed" in capsys.readouterr().err
+
+
+def test_missing_float32_build(monkeypatch, capsys, tmp_path):
+    """Without the float32 build the replay stops with one line (exit status 2) unless told
+    ``--no-float32``, and recording writes nothing."""
+    monkeypatch.setattr(unixport, "unavailable_reason", lambda repo=None: "make is not installed")
+    assert main(["regress", "--no-micropython"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("lodestar regress: the float32 MicroPython build is unavailable: make is "
+                   "not installed (or run with --no-float32)\n")
+    assert main(["regress", "--record", "--set", str(tmp_path / "set")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "make is not installed; nothing recorded" in err
+    assert not (tmp_path / "set").exists()
 
 
 # --------------------------------------------------------------------------------------
@@ -119,7 +135,7 @@ def test_differences_fail_the_run(set_copy, capsys):
     sigma = _case(manifest, "estcube2_1dps")["expected"]["pyramid"]
     sigma["sigma_roll_arcsec"] *= 1 + 1e-6
     _write_manifest(set_copy, manifest)
-    assert main(["regress", "--no-micropython", "--set", str(set_copy)]) == 1
+    assert main(["regress", "--no-micropython", "--no-float32", "--set", str(set_copy)]) == 1
     out = capsys.readouterr().out
     n = len(manifest["cases"]) * len(manifest["methods"])
     assert f"4 of {n} replays differ:" in out
@@ -148,6 +164,28 @@ def test_differences_within_tolerance():
     other["reason"] = "reworded"                              # text is not compared
     other["q"] = None
     assert regress.differences(out, other, tol) == [f"q {out['q']!r} vs None"]
+
+
+def test_float32_bound():
+    """A float32 outcome matches the double one when its status and identified stars are the
+    same and its attitude and sigma figures are within :data:`FLOAT32_BOUND`."""
+    bound = regress.FLOAT32_BOUND
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    double = _case(manifest, "estcube2_rest_s0")["expected"]["pyramid"]
+    f32 = json.loads(json.dumps(double))
+    for angle, differs in ((0.9 * bound["q_rad"], False), (1.1 * bound["q_rad"], True)):
+        f32["q"] = list((Rotation.from_rotvec([0.0, angle, 0.0]) *
+                         Rotation.from_quat(double["q"])).as_quat())
+        assert bool(regress.float32_vs_double(f32, double, bound)) is differs
+    f32 = json.loads(json.dumps(double))
+    f32["sigma_roll_arcsec"] *= 1 + 0.5 * bound["sigma_relative"]
+    f32["patterns_tried"] += 1                     # not an identification: not compared
+    assert regress.float32_vs_double(f32, double, bound) == []
+    f32["sigma_roll_arcsec"] = double["sigma_roll_arcsec"] * (1 + 2 * bound["sigma_relative"])
+    f32["matches"] = f32["matches"][:-1]
+    f32["status"] = 1
+    found = regress.float32_vs_double(f32, double, bound)
+    assert [text.split()[0] for text in found] == ["status", "matches:", "sigma_roll_arcsec"]
 
 
 def test_rotation_angle_matches_scipy():
@@ -246,17 +284,6 @@ def test_recorder_expectations():
     assert check("NO_MATCH", {"a": fail}) is None and check("NO_MATCH", {"a": ok}) is not None
     with pytest.raises(ValueError, match="unknown derivation"):
         regress_record.derive("melted", None)
-
-
-@pytest.mark.slow
-def test_record_reproduces_the_committed_set(tmp_path):
-    """``lodestar regress --record`` rewrites the committed set byte for byte (about a
-    minute: every frame is simulated again)."""
-    assert main(["regress", "--record", "--set", str(tmp_path)]) == 0
-    for path in regress.DEFAULT_SET.rglob("*"):
-        if path.is_file():
-            assert (tmp_path / path.relative_to(regress.DEFAULT_SET)).read_bytes() == \
-                path.read_bytes(), path.name
 
 
 # --------------------------------------------------------------------------------------
