@@ -200,7 +200,7 @@ class StarTracker:
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
         self.beta = None
-        self._cone = _verify.Cone()   # tracking's catalogue stars, kept between frames
+        self._cone = _tracking.Cone()   # tracking's catalogue stars, kept between frames
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -414,12 +414,12 @@ class StarTracker:
             mode = "tracking"
             if sol.status == S.OK or not self.settings.fallback:
                 return sol, mode
-        self._cone.clear()              # lost in space: the verifications refill it
+        self._cone.clear()              # lost in space: its heap goes to the search
         _threshold(GC_THRESHOLD)
         sol = _starid.identify(vectors, self.database, method=self.settings.method,
                                tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
                                max_work=self.settings.max_work, streaks=streaks,
-                               cone=self._cone, **self.settings.id_options)
+                               **self.settings.id_options)
         return sol, "lost_in_space"
 
     def weights(self, fluxes):

@@ -19,7 +19,7 @@ from . import status as S
 from .geometry import is_number, is_unit_tuple, residual2, unit, vector3, zeros
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
-from .starid.verify import candidates, chance_agreement, fov_solid_angle, near_pairs
+from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -72,6 +72,61 @@ def propagate(q, omega=None, dt=None):
 # --------------------------------------------------------------------------------------
 # Prediction and matching
 # --------------------------------------------------------------------------------------
+
+CONE_REUSE_RAD = 0.00873
+"""Extra radius (rad, 0.5 deg) of a :class:`Cone`'s query: the stars it holds serve every
+later frame whose cone lies inside it, so a tracker turning at 1 deg/s at 10 Hz queries the
+database about once in five frames (about 8 % more stars each frame to project)."""
+
+
+class Cone:
+    """A tracker's last cone query (:func:`candidates`), kept between frames: ``database``,
+    its ``centre`` (unit vector), ``radius`` (rad) and ``stars`` (``(ids, vecs)``); empty
+    after :meth:`clear` (its heap is then free)."""
+
+    def __init__(self):
+        self.clear()
+
+    def clear(self):
+        self.database = self.centre = self.stars = None
+        self.radius = 0.0
+
+    def covers(self, database, d, radius):
+        """True when the held stars include every star within ``radius`` of ``d``: the same
+        database, and ``angle(centre, d) + radius <= self.radius`` (tested on the chord,
+        accurate in single precision)."""
+        if self.stars is None or database is not self.database or not radius <= self.radius:
+            return False
+        c = self.centre
+        dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
+        room = 2.0 * math.sin(0.5 * (self.radius - radius))
+        return dx * dx + dy * dy + dz * dz <= room * room
+
+
+def candidates(database, q, margin_rad, cone=None):
+    """``(ids, vecs)``: the catalogue stars within the FOV's half-diagonal plus
+    ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict` can find at any
+    attitude within ``margin_rad`` of ``q``; one cone query, reused), as ``array('H')``
+    star indices (ascending) and ``array('f')`` inertial vectors ``x, y, z`` per star (the
+    database's float32 values, exactly).  ``cone``: a :class:`Cone` to take them from when
+    it covers them, else to keep them in (queried :data:`CONE_REUSE_RAD` wider; a superset
+    changes nothing :func:`predict` returns)."""
+    m = matrix(q)
+    d = (m[6], m[7], m[8])
+    radius = 0.5 * database.fov_diag + margin_rad
+    if cone is not None:
+        if cone.covers(database, d, radius):
+            return cone.stars
+        cone.clear()                                # its heap is free for the new query
+        radius += CONE_REUSE_RAD
+    ids = array("H", database.stars_in_cone(d, radius))
+    vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
+    for i in range(len(ids)):
+        vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2] = database.star_vector(ids[i])
+    if cone is not None:
+        cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, (ids, vecs)
+    return ids, vecs
+
 
 def star_vector(database, stars, s):
     """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`, found by binary
@@ -276,9 +331,8 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
     fits; None: equal (or :func:`lodestar.firmware.starid.search.streak_weights`).  ``streaks``:
     per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`): the fine
     matching and the probability use its stretched region.  See ``docs/centroids_and_tracking.md``
-    for the algorithm and the statuses.  ``cone``: a
-    :class:`~lodestar.firmware.starid.verify.Cone` kept between calls (the catalogue stars
-    around the boresight are then read once per several frames).
+    for the algorithm and the statuses.  ``cone``: a :class:`Cone` kept between calls (the
+    catalogue stars around the boresight are then read once per several frames).
     """
     try:
         return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,

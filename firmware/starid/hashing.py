@@ -364,7 +364,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK, cone=None):
+             max_work=DEFAULT_MAX_WORK):
     """Geometric-hashing identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -374,7 +374,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`); the verification
     matches such a star over its stretched region, the hash boxes stay those of
     ``tolerance_rad`` (a group holding a streak's star may be missed).
-    ``cone``: a :class:`.verify.Cone` the verifications share (and leave filled).
     """
     code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
                        streaks)
@@ -388,7 +387,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
                      streaks)
     search.max_work = max_work
-    search.cone = cone
     return search.run(_groups(g, n), budget)
 
 

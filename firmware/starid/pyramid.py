@@ -246,7 +246,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MAX_STARS,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK, cone=None):
+             max_work=DEFAULT_MAX_WORK):
     """Pyramid identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -255,7 +255,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MA
     stars used for patterns.  ``distinct_rad``: attitudes further apart than this are
     distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
     partly seen track (``docs/starid.md``, Search), or None.
-    ``cone``: a :class:`.verify.Cone` the verifications share (and leave filled).
     """
     code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 4,
                        streaks)
@@ -264,7 +263,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MA
     search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
     search.max_work = max_work
-    search.cone = cone
     return search.run(_triples(search.n), budget)
 
 

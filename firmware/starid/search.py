@@ -171,8 +171,6 @@ class Search:
     Search), or None for none.  ``half`` lists each star's ``half`` (0 without a
     streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
     verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
-    ``cone``: None or a :class:`.verify.Cone` the verifications share (a hypothesis and its
-    refinements look at the same sky).
     """
 
     def __init__(self, b, db, tol, max_prob, distinct, streaks=None):
@@ -185,7 +183,6 @@ class Search:
         self.best_rejected = 1.0
         self.work = 0
         self.max_work = DEFAULT_MAX_WORK
-        self.cone = None
         self.streaks = streaks if streaks is not None and any(streaks) else None
         self.half = [0.0] * len(b)
         self.weights = streak_weights(self.streaks, tol)
@@ -208,8 +205,7 @@ class Search:
         if q is None:
             return None, None
         self.hypotheses += 1
-        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks,
-                         cone=self.cone)
+        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks)
 
     def test(self, obs_idx, cat_idx, accepted):
         """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
@@ -232,8 +228,7 @@ class Search:
             q = self.fit(ver.pairs)
             if q is None:
                 break
-            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks,
-                          cone=self.cone)
+            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
             if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
                     ver2.pairs == ver.pairs:
                 return q, ver

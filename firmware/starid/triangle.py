@@ -154,7 +154,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK, cone=None):
+             max_work=DEFAULT_MAX_WORK):
     """Planar-triangle identification; returns a :class:`.search.Solution`.
 
     ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
@@ -163,7 +163,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
     ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`):
     a triangle's tolerances widen by the largest ``half`` of its stars.
-    ``cone``: a :class:`.verify.Cone` the verifications share (and leave filled).
     """
     code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
                        streaks)
@@ -172,7 +171,6 @@ def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
     search = _Search(b, database, tolerance_rad, max_mismatch_prob,
                      20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
     search.max_work = max_work
-    search.cone = cone
     return search.run(_triples(len(b) if len(b) < max_stars else max_stars), budget)
 
 

@@ -91,107 +91,36 @@ class Verification:
         return len(self.pairs)
 
 
-CONE_REUSE_RAD = 0.00873
-"""Extra radius (rad, 0.5 deg) of a :class:`Cone`'s query: the stars it holds serve every
-later frame whose cone lies inside it, so a tracker turning at 1 deg/s at 10 Hz queries the
-database about once in five frames (about 8 % more stars each frame to project)."""
-
-
-class Cone:
-    """A tracker's last cone query (:func:`candidates`), kept between frames: ``database``,
-    its ``centre`` (unit vector), ``radius`` (rad) and ``stars`` (``(ids, vecs)``); empty
-    after :meth:`clear` (its heap is then free)."""
-
-    def __init__(self):
-        self.clear()
-
-    def clear(self):
-        self.database = self.centre = self.stars = None
-        self.radius = 0.0
-
-    def covers(self, database, d, radius):
-        """True when the held stars include every star within ``radius`` of ``d``: the same
-        database, and ``angle(centre, d) + radius <= self.radius`` (tested on the chord,
-        accurate in single precision)."""
-        if self.stars is None or database is not self.database or not radius <= self.radius:
-            return False
-        c = self.centre
-        dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
-        room = 2.0 * math.sin(0.5 * (self.radius - radius))
-        return dx * dx + dy * dy + dz * dz <= room * room
-
-
-def candidates(database, q, margin_rad, cone=None):
-    """``(ids, vecs)``: the catalogue stars within the FOV's half-diagonal plus
-    ``margin_rad`` of the boresight of ``q`` (the stars :func:`predicted_stars` and
-    :func:`lodestar.firmware.tracking.predict` can find at any attitude within ``margin_rad``
-    of ``q``; one cone query, reused), as ``array('H')``
-    star indices (ascending) and ``array('f')`` inertial vectors ``x, y, z`` per star (the
-    database's float32 values, exactly).  ``cone``: a :class:`Cone` to take them from when
-    it covers them, else to keep them in (queried :data:`CONE_REUSE_RAD` wider; a superset
-    changes nothing :func:`predicted_stars` or
-    :func:`lodestar.firmware.tracking.predict` returns)."""
-    m = matrix(q)
-    d = (m[6], m[7], m[8])
-    radius = 0.5 * database.fov_diag + margin_rad
-    if cone is not None:
-        if cone.covers(database, d, radius):
-            return cone.stars
-        cone.clear()                                # its heap is free for the new query
-        radius += CONE_REUSE_RAD
-    ids = array("H", database.stars_in_cone(d, radius))
-    vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
-    for i in range(len(ids)):
-        vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2] = database.star_vector(ids[i])
-    if cone is not None:
-        cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, (ids, vecs)
-    return ids, vecs
-
-
-def predicted_stars(database, q, margin=0.0, cone=None):
+def predicted_stars(database, q, margin=0.0):
     """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
     vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
     per star (compact: no object per star).  ``margin`` (rad) widens the FOV rectangle on
-    every side.  ``cone``: a :class:`Cone` to take the catalogue stars from (and keep them
-    in), as :func:`candidates`; the result is the same."""
+    every side."""
     m = matrix(q)
+    boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
+    half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
-    if cone is not None:
-        ids, vecs = candidates(database, q, margin, cone)
-        star = _held
-    else:
-        boresight = (m[6], m[7], m[8])           # inertial direction of camera +z
-        ids = database.stars_in_cone(boresight, 0.5 * database.fov_diag + margin)
-        vecs = database
-        star = _read
-    inside = bytearray(len(ids))
+    cone = database.stars_in_cone(boresight, half_diag)
+    inside = bytearray(len(cone))
     n = 0
-    for i in range(len(ids)):
-        c = G.mat_vec(m, star(vecs, ids, i))
+    for i in range(len(cone)):
+        c = G.mat_vec(m, database.star_vector(cone[i]))
         if c[2] > 0.0 and abs(c[0]) <= tan_h * c[2] and abs(c[1]) <= tan_v * c[2]:
             inside[i] = 1
             n += 1
-    out_ids = array("H", range(n))          # arrays of their final size (overwritten)
-    out_vecs = G.zeros(3 * n)
+    ids = array("H", range(n))              # arrays of their final size (overwritten)
+    vecs = G.zeros(3 * n)
     k = 0
-    for i in range(len(ids)):
+    for i in range(len(cone)):
         if inside[i]:
-            c = G.mat_vec(m, star(vecs, ids, i))
-            out_ids[k] = ids[i]
-            out_vecs[3 * k] = c[0]
-            out_vecs[3 * k + 1] = c[1]
-            out_vecs[3 * k + 2] = c[2]
+            c = G.mat_vec(m, database.star_vector(cone[i]))
+            ids[k] = cone[i]
+            vecs[3 * k] = c[0]
+            vecs[3 * k + 1] = c[1]
+            vecs[3 * k + 2] = c[2]
             k += 1
-    return out_ids, out_vecs
-
-
-def _held(vecs, ids, i):
-    return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
-
-
-def _read(database, ids, i):
-    return database.star_vector(ids[i])
+    return ids, vecs
 
 
 def chord(angle):
@@ -326,12 +255,12 @@ def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     return out
 
 
-def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None, cone=None):
+def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
     """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors (their
     match regions stretched along ``streaks``); returns a :class:`Verification` (accept
     when ``probability < max_mismatch_prob``; ``p_single``: the largest per-star chance
-    probability).  ``cone``: as :func:`predicted_stars`."""
-    predicted = predicted_stars(database, q, 0.0, cone)
+    probability)."""
+    predicted = predicted_stars(database, q)
     pairs = match_stars(observed, predicted, tolerance_rad, streaks)
     n_fov = len(predicted[0])
     omega = fov_solid_angle(database.fov_h, database.fov_v)
