@@ -1,7 +1,9 @@
 """Accuracy at rest of the single-precision MCU build against the double-precision one: the
 same simulated frames (a ``lodestar campaign rate`` at 0 deg/s) solved by the firmware on
 CPython (double) and on MicroPython 1.27's unix port built 32-bit with float32 and the
-firmware frozen (``lodestar.regress.unixport``, a 64 KiB heap), in one run.
+firmware frozen (``lodestar.regress.unixport``: a 64 KiB heap and the flight packet buffer,
+``contract.FLIGHT_RECORD_CAPACITY`` records, frames with more not run; and a 4 MiB heap,
+every frame), in one run.
 
     .venv/bin/python benchmarks/bench_float32.py [--preset estcube2] [--trials 100]
 
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lodestar import contract as C
 from lodestar.ground.campaign import trials as T
 from lodestar.ground.flight import camera_settings, default_tolerance_px, process, star_database
 from lodestar.ground.truth import attitude_error_arcsec
@@ -26,6 +29,7 @@ from lodestar.regress import unixport
 
 REPO = Path(__file__).resolve().parents[1]
 HEAP = 64 * 1024
+FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
 
 
 def rms(values):
@@ -70,10 +74,21 @@ def main():
                                      "exposure_s": frame.truth["exposure_s"]}})
         manifest = {"cameras": {"cam": camera}}
         runs = [(c, args.method) for c in cases]
-        loops = {heap: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, runs, heap)
-                 for heap in (HEAP, 4 << 20)}
+        # the flight loop: a packet buffer for the flight gateware's record capacity, which
+        # sends no frame with more records (it drops the rest; those frames are not run)
+        flight = [(c, m) for c, m in runs
+                  if (Path(tmp) / c["packet"]).stat().st_size <= FLIGHT_BUFFER]
+        loops = {HEAP: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, flight,
+                                            HEAP, buffer_bytes=FLIGHT_BUFFER),
+                 4 << 20: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, runs,
+                                               4 << 20)}
     print(f"# bench_float32: {args.preset}, {args.trials} frames at rest, {args.method}; "
           f"float32 build {binary.name}")
+    records = sorted(len(frame.det.blobs) for frame, _data in frames)
+    print(f"records per frame: min {records[0]}, median {records[len(records) // 2]}, "
+          f"p95 {records[int(0.95 * (len(records) - 1))]}, max {records[-1]}; "
+          f"{len(runs) - len(flight)} over the flight capacity "
+          f"({C.FLIGHT_RECORD_CAPACITY}), not run at {HEAP // 1024} KiB")
     rows = {"double (CPython)": _errors(frames, double, None)}
     for heap, loop in loops.items():
         if not loop["finished"]:
@@ -105,7 +120,11 @@ def _errors(frames, double, loop, method=None, only=None):
         if loop is None:
             q, ids = q_double, ids_double
         else:
-            out = loop["results"][(str(i), method)][0]
+            got = loop["results"].get((str(i), method))
+            if got is None:
+                failed["over capacity, not run"] = failed.get("over capacity, not run", 0) + 1
+                continue
+            out = got[0]
             if out["status"] != 0:
                 failed[out["status_name"]] = failed.get(out["status_name"], 0) + 1
                 continue

@@ -30,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from lodestar import contract as C
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
 from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
@@ -41,6 +42,8 @@ REPO = Path(__file__).resolve().parents[1]
 BASELINE = "1118c7c"
 """The firmware before the heap work of issue 16."""
 HEAP = 64 * 1024
+FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
+"""The flight SPI loop's packet buffer (``docs/mcu_board.md``)."""
 def packet_class(case):
     """``tracking`` (a prior given), ``bad packet`` (a decoder status), ``moving`` (a body
     rate given) or ``rest``."""
@@ -60,7 +63,8 @@ def build(checkout, out_dir):
 
 
 def heap_table(binaries, manifest, db_files):
-    print("\n## Heap (32-bit float32, frozen): smallest working heap and live peak, KiB")
+    print(f"\n## Heap (32-bit float32, frozen): smallest working heap (packet buffer "
+          f"{FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records) and live peak, KiB")
     print("| method | camera | smallest heap, baseline -> now | live peak rest / moving / "
           "tracking, baseline -> now |")
     print("|---|---|---|---|")
@@ -69,7 +73,8 @@ def heap_table(binaries, manifest, db_files):
             runs = [(c, method) for c in manifest["cases"] if c["camera"] == camera]
             cells = []
             for binary in binaries:
-                low = unixport.min_heap(binary, manifest, regress.DEFAULT_SET, db_files, runs)
+                low = unixport.min_heap(binary, manifest, regress.DEFAULT_SET, db_files, runs,
+                                        buffer_bytes=FLIGHT_BUFFER)
                 loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
                                             runs, 4 << 20, peak=True)
                 peaks = {}

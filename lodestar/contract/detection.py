@@ -101,6 +101,12 @@ MAX_RECORD_CAPACITY = 65535
 """Largest record capacity (the packet's record count is 16 bits)."""
 DEFAULT_RECORD_CAPACITY = 512
 """Default records per frame: hundreds of stars plus margin."""
+FLIGHT_RECORD_CAPACITY = 100
+"""Records per frame of the flight gateware (ESTCube-2): the MCU's packet buffer for it
+(``packet_bytes(100)``, 4,840 bytes) and the firmware fit the STM32F401's 64 KiB heap
+(``docs/mcu_board.md``).  Simulated estcube2 frames at rest hold 29-178 blobs, 57 at the
+median and at most 100 in 95 of 100; a frame with more loses the rest in raster order,
+counted in its trailer (``dropped_records``)."""
 
 
 def max_open_blobs(width):

@@ -239,7 +239,7 @@ print("DONE")
 
 
 def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=False,
-                threshold=None, timing=False, timeout=900):
+                threshold=None, timing=False, timeout=900, buffer_bytes=None):
     """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
     ``binary`` process with a ``heapsize``-byte heap, a new tracker per run, only the current
     camera's database open and one packet buffer (sized for the longest packet, read into
@@ -249,6 +249,9 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     collector setting.  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
     first run (None: the firmware's).
     ``timing``: also time each solve (``time.ticks_us``, the pipeline's stage ``timings``).
+    ``buffer_bytes``: the packet buffer's size, as the flight loop's is sized for the
+    gateware's record capacity (``contract.packet_bytes(FLIGHT_RECORD_CAPACITY)``); None:
+    the longest packet of ``runs``.
 
     Returns ``{"finished": bool, "results": {(case name, method): (outcome, peak bytes or
     None)}, "times": {(case name, method): {"process": us, stage: us}}, "resident":
@@ -256,6 +259,11 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     outside the firmware leaves ``finished`` false."""
     set_dir = Path(set_dir)
     longest = max([(set_dir / case["packet"]).stat().st_size for case, _ in runs] + [1])
+    if buffer_bytes is not None:
+        if buffer_bytes < longest:
+            raise MicroPythonError(f"a {buffer_bytes}-byte packet buffer cannot hold the "
+                                   f"longest packet of the runs ({longest} bytes)")
+        longest = buffer_bytes
     with tempfile.TemporaryDirectory() as tmp:
         case_file = Path(tmp) / "cases.jsonl"
         with open(case_file, "w", encoding="utf-8") as f:
@@ -318,14 +326,14 @@ def float32_outcomes(binary, manifest, set_dir, database_files):
 
 
 def min_heap(binary, manifest, set_dir, database_files, runs, threshold=None,
-             low=16 * 1024, high=256 * 1024):
+             low=16 * 1024, high=256 * 1024, buffer_bytes=None):
     """The smallest heap (a multiple of :data:`HEAP_STEP` in ``(low, high]``) with which
-    :func:`flight_loop` of ``runs`` (``threshold`` as there) finishes with the recorded
-    results, found by bisection;
+    :func:`flight_loop` of ``runs`` (``threshold`` and ``buffer_bytes`` as there) finishes
+    with the recorded results, found by bisection;
     None when ``high`` does not suffice.  Assumes that more heap never hurts."""
     def fits(heap):
         loop = flight_loop(binary, manifest, set_dir, database_files, runs, heap,
-                           threshold=threshold)
+                           threshold=threshold, buffer_bytes=buffer_bytes)
         return not disagreements(loop, runs)
 
     low, high = low // HEAP_STEP, high // HEAP_STEP

@@ -14,6 +14,7 @@ import shutil
 import pytest
 from scipy.spatial.transform import Rotation
 
+from lodestar import contract as C
 from lodestar.cli import main
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
@@ -21,8 +22,12 @@ from lodestar.regress import unixport
 
 HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the 32-bit float32 build
-with the firmware's own collector setting, the STM32F401's (measured: at most 62 KiB,
-Pyramid and hashing on estcube2; ``docs/firmware.md``, Memory)."""
+with the firmware's own collector setting, the STM32F401's, and a packet buffer for the
+flight gateware's record capacity (measured: at most 64 KiB, Pyramid on estcube2;
+``docs/firmware.md``, Memory)."""
+FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
+"""The flight SPI loop's packet buffer (bytes): the largest packet the flight gateware
+sends, whatever packets the set holds."""
 
 
 @pytest.fixture
@@ -142,13 +147,14 @@ def test_record_reproduces_the_committed_set(float32_frozen, tmp_path):
 
 @pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
 def test_every_flight_loop_runs_within_the_heap_budget(mcu_words, regression_set, method):
-    """Each camera's packets one after another in one process, one database open, at
-    :data:`HEAP_BUDGET`: the recorded results, no ``OUT_OF_MEMORY``."""
+    """Each camera's packets one after another in one process, one database open, one
+    :data:`FLIGHT_BUFFER`, at :data:`HEAP_BUDGET`: the recorded results, no
+    ``OUT_OF_MEMORY``."""
     manifest, db_files = regression_set
     for camera in manifest["cameras"]:
         runs = _runs(manifest, method, camera)
         loop = unixport.flight_loop(mcu_words, manifest, regress.DEFAULT_SET, db_files,
-                                    runs, HEAP_BUDGET)
+                                    runs, HEAP_BUDGET, buffer_bytes=FLIGHT_BUFFER)
         assert unixport.disagreements(loop, runs) == [], (camera, loop["error"])
 
 
@@ -164,6 +170,24 @@ def test_min_heap_bisects_to_the_smallest_working_heap(mcu_words, regression_set
         loop = unixport.flight_loop(mcu_words, manifest, regress.DEFAULT_SET, db_files,
                                     runs, size)
         assert (unixport.disagreements(loop, runs) == []) is fits, size
+
+
+def test_a_bigger_packet_buffer_takes_its_size_from_the_heap(mcu_words, regression_set):
+    """The loop's buffer is the given size: a loop that fits with the longest packet's
+    buffer does not with one 8 KiB larger (the heap it takes is the firmware's), and a
+    buffer smaller than a packet is refused."""
+    manifest, db_files = regression_set
+    runs = [(case, "triangle") for case in manifest["cases"]
+            if case["name"] == "estcube2_rest_s0"]
+    heap = unixport.min_heap(mcu_words, manifest, regress.DEFAULT_SET, db_files, runs,
+                             high=HEAP_BUDGET)
+    longest = (regress.DEFAULT_SET / runs[0][0]["packet"]).stat().st_size
+    loop = unixport.flight_loop(mcu_words, manifest, regress.DEFAULT_SET, db_files, runs,
+                                heap, buffer_bytes=longest + 8192)
+    assert unixport.disagreements(loop, runs) != []
+    with pytest.raises(unixport.MicroPythonError, match="cannot hold"):
+        unixport.flight_loop(mcu_words, manifest, regress.DEFAULT_SET, db_files, runs, heap,
+                             buffer_bytes=longest - 1)
 
 
 def test_the_frozen_image_is_the_mcu_image(tmp_path):
