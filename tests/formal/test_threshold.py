@@ -6,9 +6,10 @@ without a flag only outside a frame at a position other than ``(0, 0)``, and it 
 frame only after holding ``(W - 1, H - 1)``.  k-induction on a 3 x 2 unit, pixels, ``sof``,
 ``eol``, every register but ``mode`` and reset free (``mode`` is fixed or global: a local
 frame's beats come through the delay line, not covered): every input beat comes out one
-clock later and no other beat comes out; the beat after one at ``(W - 1, H - 1)`` is at
-``(0, 0)``.  Mutants: a unit whose column count runs on past the
-frame's last pixel, and one that drops ``sof`` beats.
+clock later and no other beat comes out, at a position inside the frame; the beat after
+one at ``(W - 1, H - 1)`` is at ``(0, 0)`` (``test_labeller.py`` assumes exactly this).
+Mutants: a unit whose column count runs on past the frame's last pixel, and one that drops
+``sof`` beats.
 """
 
 import pytest
@@ -47,6 +48,7 @@ class CheckedThreshold(Elaboratable):
         m.d.comb += Assume(th.mode != ThresholdMode.LOCAL)
         m.d.comb += [
             Assert(out.valid == valid_d),
+            Assert(~out.valid | ((out.payload.x < W) & (out.payload.y < H))),
             Assert(~(out.valid & after_last) | origin),
         ]
         if self.helpers:
