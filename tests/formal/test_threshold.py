@@ -16,6 +16,10 @@ pixels, ``sof``, ``eol``, every register and reset free:
   ``local_blanking(log2 L)`` idle clocks have passed, and that bound is tight (one less
   fails, BMC).  Mutant: a unit that counts only the read stages, not the unread pixels, in
   ``frame_tail_dropped``.
+* Local mode's output order (BMC, ``ORDER_DEPTH``, ``--runslow``, ~7 min): in any mode the
+  output keeps the fixed/global guarantee above (positions inside the frame, ``(0, 0)``
+  after ``(W - 1, H - 1)``), which ``test_labeller.py`` assumes.  Mutant: a ``sof`` that
+  leaves a stale pixel in the delay line's stage 2.
 """
 
 from types import SimpleNamespace
@@ -256,4 +260,61 @@ def test_local_blanking_is_tight(tmp_path):
     tight = local_blanking(local_log2_window_max(W)) - 1
     result = prove(LocalCheckedThreshold(th, helpers=False, blanking=tight), "bmc", 20,
                    tmp_path, ports=inputs(th))
+    assert result.failed, result.log
+
+
+# ---- local mode: the labeller's assumption on the output order (bounded) ---------------
+
+ORDER_DEPTH = 30
+"""A 3 x 2 local frame, its drain, the next frame's first beat out after the delay line."""
+
+
+class OrderedThreshold(Elaboratable):
+    """``unit`` in any mode (local included) under the fixed/global proof's output
+    guarantee, which ``test_labeller.py`` assumes: positions inside the frame, and the beat
+    after one at ``(W - 1, H - 1)`` at ``(0, 0)``.  Pixel values and every register but
+    ``mode`` and ``local_log2_window`` are 0: they do not steer positions."""
+
+    def __init__(self, unit):
+        self.unit = unit
+
+    def elaborate(self, platform):
+        m = Module()
+        th = self.unit
+        W, H = th.width, th.height
+        m.submodules.unit = th.elaborate(platform)
+        out = th.out
+        after_last = Signal()
+        with m.If(out.valid):
+            m.d.sync += after_last.eq((out.payload.x == W - 1) & (out.payload.y == H - 1))
+        origin = (out.payload.x == 0) & (out.payload.y == 0)
+        m.d.comb += [Assume(th.pixels.payload.data == 0), Assume(th.threshold == 0),
+                     Assume(th.background == 0), Assume(th.ksigma == 0),
+                     Assume(th.local_offset == 0),
+                     Assert(~out.valid | ((out.payload.x < W) & (out.payload.y < H))),
+                     Assert(~(out.valid & after_last) | origin)]
+        return m
+
+
+class StaleStageUnit(ThresholdUnit):
+    """Mutant: a ``sof`` does not discard the pixel in the delay line's stage 2."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        s = internals(m)
+        m.d.sync += s["stage3_valid"].eq(s["stage2_valid"])
+        return m
+
+
+@pytest.mark.slow
+def test_local_output_order(tmp_path):
+    th = ThresholdUnit(W, H, BITS)
+    result = prove(OrderedThreshold(th), "bmc", ORDER_DEPTH, tmp_path, ports=inputs(th),
+                   timeout=1800)
+    assert result.passed, result.log
+
+
+def test_local_output_order_mutant_fails(tmp_path):
+    th = StaleStageUnit(W, H, BITS)
+    result = prove(OrderedThreshold(th), "bmc", ORDER_DEPTH, tmp_path, ports=inputs(th))
     assert result.failed, result.log
