@@ -116,10 +116,12 @@ class Detector(wiring.Component):
                 fallback.eq(thr.frame_fallback | thr.frame_local_fallback),
                 self.frame_counter.eq(self.frame_counter + 1),
             ]
+        tail_dropped = self._tail_dropped(m, thr, lab)
         trailer = Signal(tr_layout)
         flags = lab.done_flags | Mux(fallback, C.FRAME_GLOBAL_FALLBACK, 0) | \
             Mux(lab.dropped_labels != 0, C.FRAME_LABEL_OVERFLOW, 0) | \
-            Mux(feat.dropped_records != 0, C.FRAME_RECORD_OVERFLOW, 0)
+            Mux(feat.dropped_records != 0, C.FRAME_RECORD_OVERFLOW, 0) | \
+            Mux(tail_dropped, C.FRAME_TAIL_DROPPED, 0)
         m.d.comb += [
             trailer.eq(head), trailer.flags.eq(flags),
             trailer.n_blobs.eq(feat.n_blobs), trailer.n_filtered.eq(feat.n_filtered),
@@ -136,3 +138,19 @@ class Detector(wiring.Component):
         m.d.comb += [out.done.eq(lab.done), out.trailer_in.eq(trailer),
                      self.trailer_lost.eq(out.trailer_lost)]
         return m
+
+    def _tail_dropped(self, m, thr, lab):
+        """``FRAME_TAIL_DROPPED`` of the trailer ending now: the threshold unit discarded
+        pixels (``frame_tail_dropped``, latched at a ``sof`` and read a clock later) since
+        the previous trailer.  Normally the frame the labeller ends at that ``sof``'s
+        ``(0, 0)``; a frame none of whose pixels came out has no trailer, so its drop goes
+        to the next one (``contract.FRAME_TAIL_DROPPED``)."""
+        sof_seen = Signal()                  # a sof entered the threshold unit a clock ago
+        owed = Signal()                      # a drop not yet in a trailer
+        m.d.sync += sof_seen.eq(self.pixels.valid & self.pixels.payload.sof)
+        dropped = owed | (sof_seen & thr.frame_tail_dropped)
+        with m.If(lab.done):
+            m.d.sync += owed.eq(0)
+        with m.Else():
+            m.d.sync += owed.eq(dropped)
+        return dropped

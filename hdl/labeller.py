@@ -611,7 +611,9 @@ class Labeller(wiring.Component):
         same_row, successor = Signal(name="in_same_row"), Signal(name="in_successor")
         prev_y = Signal.like(p.y, name="prev_y")
         prev_next_x = Signal.like(p.x, name="prev_next_x")   # x + 1, y + 1
-        prev_next_y = Signal.like(p.y, name="prev_next_y")
+        # y + 1 one bit wider than y: (0, 0) after (W - 1, H - 1) is no successor, even for
+        # a power-of-two H (the frame ends by its virtual row, or truncated; docs/formal.md)
+        prev_next_y = Signal(range(H + 1), name="prev_next_y")
         prev_last = Signal(name="prev_last_col")
         m.d.sync += [beat.eq(p), valid.eq(p_valid),
                      at_origin.eq((p.x == 0) & (p.y == 0)), same_row.eq(p.y == prev_y),

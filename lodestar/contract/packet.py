@@ -40,10 +40,17 @@ FRAME_LINE_ERROR = 1 << 4
 FRAME_TIMEOUT = 1 << 5
 """Gateware only: the sensor stopped sending inside the frame; the capture front end
 completed it with dark (0) pixels after its stall timeout, so records are partial."""
+FRAME_TAIL_DROPPED = 1 << 6
+"""Gateware only, local mode: since the previous trailer, the threshold unit discarded
+pixels still in its delay line (an early ``sof`` or a frame cut short).  Normally this
+frame's own tail (it also says ``FRAME_TRUNCATED``); without ``FRAME_TRUNCATED``, pixels of
+a frame that left no trailer of its own (none of them had come out yet) or whose trailer
+was already sent (``FRAME_LINE_ERROR``)."""
 FRAME_FLAGS_BITS = 8
 """Width of the header's ``flags`` field."""
 FRAME_FLAGS_DEFINED = (FRAME_LABEL_OVERFLOW | FRAME_RECORD_OVERFLOW | FRAME_GLOBAL_FALLBACK
-                       | FRAME_TRUNCATED | FRAME_LINE_ERROR | FRAME_TIMEOUT)
+                       | FRAME_TRUNCATED | FRAME_LINE_ERROR | FRAME_TIMEOUT
+                       | FRAME_TAIL_DROPPED)
 
 
 # --------------------------------------------------------------------------------------

@@ -142,7 +142,8 @@ def test_decode_golden_packets(crc_path):
         assert agree(data) == S.OK
 
 
-@pytest.mark.parametrize("flag", [C.FRAME_TRUNCATED, C.FRAME_LINE_ERROR, C.FRAME_TIMEOUT])
+@pytest.mark.parametrize("flag", [C.FRAME_TRUNCATED, C.FRAME_LINE_ERROR, C.FRAME_TIMEOUT,
+                                  C.FRAME_TAIL_DROPPED])
 def test_gateware_frame_flags_decode(flag):
     """The gateware-only frame flags (FRAME_TIMEOUT: a frame the capture front end completed
     after a stall) pass both decoders and come back as sent."""

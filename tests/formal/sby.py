@@ -49,6 +49,13 @@ def internals(module):
     return out
 
 
+def fsm_states(module, name="fsm"):
+    """``(state, {state name: ongoing})`` of an elaborated ``Module``'s FSM ``name``: its
+    state register and, for each state it defines, the signal that is high in that state."""
+    fsm = module._generated[name]
+    return fsm.state, {state: fsm.ongoing(state) for state in list(fsm.encoding)}
+
+
 def unnamed(module):
     """Signals of an elaborated ``Module`` that Amaranth could not name (``a, b = Signal(),
     Signal()`` names only ``b``), in the order the module first assigns them."""

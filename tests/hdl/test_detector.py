@@ -10,7 +10,7 @@ import pytest
 
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.hdl.detector import Detector
+from lodestar.hdl.detector import Detector, min_vblank
 from tests.hdl.bench import stream_frames
 
 
@@ -86,6 +86,34 @@ def test_truncated_frame_and_line_error_recover_next_frame():
         res = detect_frame(frames[i], cfg)
         assert trailers[i]["records"] == list(res.blobs)
         assert trailer_fields(trailers[i]) == golden_trailer(res, i)
+
+
+def test_local_frame_cut_early_says_its_tail_was_dropped():
+    """Local mode: frame 1 stops mid-row, so its last pixels wait in the threshold unit's
+    delay line until frame 2's sof discards them: frame 1's trailer says
+    ``FRAME_TAIL_DROPPED`` (and ``FRAME_TRUNCATED``).  Frame 3 stops at a row end, where the
+    delay line empties by itself: ``FRAME_TRUNCATED`` only.  Frame 5 stops after 2 pixels,
+    none of which came out: it has no trailer, and frame 6's says ``FRAME_TAIL_DROPPED``
+    (frame 6 is otherwise exact).  The complete frames are exact, without the flag."""
+    rng = np.random.default_rng(21)
+    h, w, lg = 5, 9, 2
+    frames = [frame_of(rng.random((h, w)) < 0.4, rng) for _ in range(7)]
+    regs = [dict(mode=C.MODE_LOCAL, local_log2_window=lg, local_offset=30)] + [{}] * 6
+    _, trailers, pending = stream_frames(
+        Detector(w, h, 12), frames, regs, stop_after={1: 2 * w + 5, 3: 3 * w, 5: 2},
+        vblank=min_vblank(w, h, 12, C.MODE_LOCAL, lg))
+    flags = [t["flags"] & (C.FRAME_TRUNCATED | C.FRAME_TAIL_DROPPED) for t in trailers]
+    assert flags == [0, C.FRAME_TRUNCATED | C.FRAME_TAIL_DROPPED, 0, C.FRAME_TRUNCATED, 0,
+                     C.FRAME_TAIL_DROPPED]
+    cfg = DetectorConfig(width=w, height=h, threshold_mode="local", local_log2_window=lg,
+                         local_offset=30)
+    for i, t in ((0, trailers[0]), (2, trailers[2]), (4, trailers[4]), (6, trailers[5])):
+        res = detect_frame(frames[i], cfg)
+        assert t["records"] == list(res.blobs)
+        want = golden_trailer(res, t["frame_counter"])
+        want["flags"] |= t["flags"] & C.FRAME_TAIL_DROPPED
+        assert trailer_fields(t) == want
+    assert [t["frame_counter"] for t in trailers] == [0, 1, 2, 3, 4, 5] and pending == []
 
 
 def test_short_horizontal_blanking_is_flagged():
