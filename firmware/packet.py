@@ -6,9 +6,8 @@ Layout: ``lodestar.contract`` (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES
 :func:`lodestar.contract.packet.crc32`).  The checks, their order and their messages are the
 ground codec's (``docs/contract.md``, Packet checks): a failure returns its ``PACKET_*``
 status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read MSB
-first: the header's through byte windows precomputed at import (a field that fits a
-MicroPython small int never allocates a long int), a record's shifted out of the record read
-as one integer (``docs/firmware.md``, Packet decoder).
+first through byte windows precomputed at import, so a field that fits a MicroPython small
+int never allocates a long int (``docs/firmware.md``, Packet decoder).
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
@@ -31,18 +30,8 @@ def _plan(fields):
     return tuple(out)
 
 
-def _shifts(fields):
-    """``(shift, mask)`` per ``(name, bits)`` field of a section read as one big-endian
-    integer: the field is ``(word >> shift) & mask``."""
-    total = 0
-    for _name, bits in fields:
-        total += bits
-    return tuple((total - offset - bits, (1 << bits) - 1)
-                 for _name, offset, bits in C.field_offsets(fields))
-
-
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
-_RECORD_SHIFTS = _shifts(C.RECORD_FIELDS)
+_RECORD_PLAN = _plan(C.RECORD_FIELDS)
 _ZERO_RECORD = (0,) * len(C.RECORD_FIELDS)
 _MIN_BYTES = C.packet_bytes(0)
 _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
@@ -77,17 +66,14 @@ def _unpack_header(data):
 def record(data, index, into=None):
     """Record ``index`` (0-based) of a packet :func:`check` accepted, as a
     ``contract.BlobRecord`` (decoded on each call: the flight pipeline keeps no record list).
-    ``into``: a ``BlobRecord`` to overwrite and return instead of a new one.  The record is
-    read as one integer and each field shifted out of it: twice as fast on MicroPython as
-    reading each field's bytes, for a few short-lived long ints per record
-    (``docs/firmware.md``, Packet decoder)."""
+    ``into``: a ``BlobRecord`` to overwrite and return instead of a new one (reading record
+    after record into one object allocates nothing but large moments)."""
     base = C.HEADER_BYTES + index * C.RECORD_BYTES
     if into is None:
         into = C.BlobRecord(*_ZERO_RECORD)
-    word = int.from_bytes(data[base:base + C.RECORD_BYTES], "big")
     i = 0
-    for shift, mask in _RECORD_SHIFTS:
-        setattr(into, C.RECORD_NAMES[i], (word >> shift) & mask)
+    for first, last, head_mask, tail_drop in _RECORD_PLAN:
+        setattr(into, C.RECORD_NAMES[i], _field(data, base, first, last, head_mask, tail_drop))
         i += 1
     return into
 
