@@ -258,12 +258,15 @@ class ThresholdUnit(wiring.Component):
         rotate_s1, rotate_s2 = Signal(), Signal()
         s1_before = Mux(pos.sof_valid, 0, Mux(rotate_s1, s1.rotate_right(1), s1))
         s1_after = s1_before + p_frame
-        # S2 takes each p*p one clock late, from a register after the multiplier (the
-        # search first reads S2 long after the frame's last pixel)
+        # S2 takes each p*p two clocks late, through a register before the multiplier and
+        # one after it (the search first reads S2 long after the frame's last pixel)
+        p_square = Signal.like(pos.pixel, reset_less=True, name="p_square")
         square = Signal(2 * len(p_frame), reset_less=True)
+        restart = Signal(reset_less=True, name="restart_square")
         restart_s2 = Signal(reset_less=True)
         m.d.sync += [
-            s1.eq(s1_after), square.eq(p_frame * p_frame), restart_s2.eq(pos.sof_valid),
+            s1.eq(s1_after), p_square.eq(p_frame), square.eq(p_square * p_square),
+            restart.eq(pos.sof_valid), restart_s2.eq(restart),
             s2.eq(Mux(restart_s2, 0, Mux(rotate_s2, s2.rotate_right(1), s2)) + square),
         ]
         return SimpleNamespace(s1=s1, s2=s2, rotate_s1=rotate_s1, rotate_s2=rotate_s2,
