@@ -137,6 +137,55 @@ def test_coarse_match_finds_the_consistent_displacement():
 # Tracking on synthetic centroid scenes
 # --------------------------------------------------------------------------------------
 
+class _CountingDatabase:
+    """A database that counts its star reads (everything else passed through)."""
+
+    def __init__(self, db):
+        self._db = db
+        self.reads = 0
+
+    def star_vector(self, i):
+        self.reads += 1
+        return self._db.star_vector(i)
+
+    def __getattr__(self, name):
+        return getattr(self._db, name)
+
+
+def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
+    """Frames turning 0.1 deg each reuse the kept cone (no star read) while the needed cone
+    lies inside it, then query anew; every prediction equals the one without a cone."""
+    db = _CountingDatabase(SF.flight_database())
+    rng = np.random.default_rng(3)
+    q0 = random_attitude(rng)
+    cone = tracking.Cone()
+    margin = 0.0105                                     # 2 search + 2 tolerance, rad
+    queries = 0
+    for k in range(12):
+        q = perturbed(q0, 0.1 * k, rng, axis=(1.0, 0.0, 0.0)).tolist()
+        before = db.reads
+        stars = tracking.candidates(db, q, margin, cone)
+        queries += db.reads > before
+        assert tracking.predict(db, q, 0.005, stars) == \
+            tracking.predict(db, q, 0.005, tracking.candidates(db, q, margin))
+        assert cone.covers(db, (tracking.matrix(q)[6], tracking.matrix(q)[7],
+                                tracking.matrix(q)[8]), 0.5 * db.fov_diag + margin)
+    # 1.1 deg in 0.1 deg steps with 0.5 deg of room: a query about every five frames
+    assert 2 <= queries <= 4
+    cone.clear()
+    assert cone.stars is None and not cone.covers(db, (0.0, 0.0, 1.0), 0.1)
+
+
+def test_a_cone_is_not_shared_between_databases():
+    db = SF.flight_database()
+    other = _CountingDatabase(db)
+    cone = tracking.Cone()
+    q = [0.0, 0.0, 0.0, 1.0]
+    tracking.candidates(db, q, 0.01, cone)
+    tracking.candidates(other, q, 0.01, cone)
+    assert other.reads > 0 and cone.database is other
+
+
 def test_tracking_recovers_a_prior_off_by_0p2_deg():
     db = SF.flight_database()
     cam = SF.sim_camera()
