@@ -4,6 +4,7 @@ that names stars displaced along their tracks."""
 
 import itertools
 import math
+from array import array
 
 import numpy as np
 import pytest
@@ -92,3 +93,37 @@ def test_solid_angle():
     assert V.fov_solid_angle(math.pi, math.pi) == pytest.approx(2 * math.pi)
     small = math.radians(1.0)
     assert V.fov_solid_angle(small, small) == pytest.approx(small * small, rel=1e-4)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_near_pairs_finds_what_testing_every_pair_finds(seed):
+    """The x-sorted search yields exactly the pairs, in the same order, of testing every
+    observed star against every predicted one (clustered stars, equal x, streaks)."""
+    rng = np.random.default_rng(seed)
+    n_pred = 120
+    vecs = rng.normal(size=(n_pred, 3)) * [0.1, 0.1, 0.0] + [0.0, 0.0, 1.0]
+    vecs[5:9, 0] = vecs[4, 0]                               # equal x
+    vecs /= np.linalg.norm(vecs, axis=1)[:, None]
+    predicted = (list(range(n_pred)), array(G.FLOAT_CODE, vecs.ravel().tolist()))
+    picks = rng.choice(n_pred, size=30)
+    observed = [tuple(G.unit(tuple(vecs[p] + rng.normal(scale=3e-4, size=3)))) for p in picks]
+    streaks = [None] * 30
+    for o in range(0, 30, 4):
+        u = G.unit(tuple(np.cross(observed[o], [0.0, 0.0, 1.0]) + [0.0, 0.0, 1e-9]))
+        streaks[o] = (u[0], u[1], u[2], 2e-3)
+    radius = 1e-3
+    lim = V.chord(radius)
+
+    def every_pair(streaks):
+        for o, (ox, oy, oz) in enumerate(observed):
+            streak = streaks[o] if streaks else None
+            for p in range(n_pred):
+                dx, dy, dz = (ox - predicted[1][3 * p], oy - predicted[1][3 * p + 1],
+                              oz - predicted[1][3 * p + 2])
+                if V.in_region(dx, dy, dz, streak, lim):
+                    yield o, p, dx, dy, dz
+
+    for s in (None, streaks):
+        got = list(V.near_pairs(observed, predicted, radius, streaks=s))
+        assert got == list(every_pair(s))
+        assert len(got) >= 30
