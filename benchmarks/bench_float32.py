@@ -29,7 +29,6 @@ from lodestar.regress import unixport
 
 REPO = Path(__file__).resolve().parents[1]
 HEAP = 64 * 1024
-FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
 
 
 def rms(values):
@@ -77,9 +76,9 @@ def main():
         # the flight loop: a packet buffer for the flight gateware's record capacity, which
         # sends no frame with more records (it drops the rest; those frames are not run)
         flight = [(c, m) for c, m in runs
-                  if (Path(tmp) / c["packet"]).stat().st_size <= FLIGHT_BUFFER]
+                  if (Path(tmp) / c["packet"]).stat().st_size <= unixport.FLIGHT_BUFFER]
         loops = {HEAP: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, flight,
-                                            HEAP, buffer_bytes=FLIGHT_BUFFER),
+                                            HEAP, buffer_bytes=unixport.FLIGHT_BUFFER),
                  4 << 20: unixport.flight_loop(binary, manifest, tmp, {"db": db_path}, runs,
                                                4 << 20)}
     print(f"# bench_float32: {args.preset}, {args.trials} frames at rest, {args.method}; "

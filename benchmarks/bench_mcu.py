@@ -42,8 +42,6 @@ REPO = Path(__file__).resolve().parents[1]
 BASELINE = "1118c7c"
 """The firmware before the heap work of issue 16."""
 HEAP = 64 * 1024
-FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
-"""The flight SPI loop's packet buffer (``docs/mcu_board.md``)."""
 def packet_class(case):
     """``tracking`` (a prior given), ``bad packet`` (a decoder status), ``moving`` (a body
     rate given) or ``rest``."""
@@ -64,7 +62,7 @@ def build(checkout, out_dir):
 
 def heap_table(binaries, manifest, db_files):
     print(f"\n## Heap (32-bit float32, frozen): smallest working heap (packet buffer "
-          f"{FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records) and live peak, KiB")
+          f"{unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records) and live peak, KiB")
     print("| method | camera | smallest heap, baseline -> now | live peak rest / moving / "
           "tracking, baseline -> now |")
     print("|---|---|---|---|")
@@ -74,7 +72,7 @@ def heap_table(binaries, manifest, db_files):
             cells = []
             for binary in binaries:
                 low = unixport.min_heap(binary, manifest, regress.DEFAULT_SET, db_files, runs,
-                                        buffer_bytes=FLIGHT_BUFFER)
+                                        buffer_bytes=unixport.FLIGHT_BUFFER)
                 loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
                                             runs, 4 << 20, peak=True)
                 peaks = {}

@@ -21,6 +21,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from lodestar import contract as C
 from lodestar.ground.cache import default_cache_dir
 from lodestar.regress import mcu
 from lodestar.regress.micropython import MicroPythonError, literal, mcu_image
@@ -31,6 +32,11 @@ beside the checkout)."""
 
 HEAP_STEP = 2048
 """Resolution of :func:`min_heap`, bytes."""
+
+FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
+"""The flight SPI loop's packet buffer (bytes): the largest packet the flight gateware sends
+(``docs/mcu_board.md``), whatever packets a loop replays (:func:`flight_loop`'s
+``buffer_bytes``)."""
 
 EXPECTATION_HEAP = 4 << 20
 """Heap (bytes) of the replays that give the float32 expectations: no case comes near it, so
@@ -249,9 +255,8 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     collector setting.  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
     first run (None: the firmware's).
     ``timing``: also time each solve (``time.ticks_us``, the pipeline's stage ``timings``).
-    ``buffer_bytes``: the packet buffer's size, as the flight loop's is sized for the
-    gateware's record capacity (``contract.packet_bytes(FLIGHT_RECORD_CAPACITY)``); None:
-    the longest packet of ``runs``.
+    ``buffer_bytes``: the packet buffer's size (:data:`FLIGHT_BUFFER` for the flight
+    loop's); None: the longest packet of ``runs``.
 
     Returns ``{"finished": bool, "results": {(case name, method): (outcome, peak bytes or
     None)}, "times": {(case name, method): {"process": us, stage: us}}, "resident":

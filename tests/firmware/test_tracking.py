@@ -168,8 +168,8 @@ def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
         queries += db.reads > before
         assert tracking.predict(db, q, 0.005, stars) == \
             tracking.predict(db, q, 0.005, tracking.candidates(db, q, margin))
-        assert cone.covers(db, (tracking.matrix(q)[6], tracking.matrix(q)[7],
-                                tracking.matrix(q)[8]), 0.5 * db.fov_diag + margin)
+        m = tracking.matrix(q)
+        assert cone.covers(db, (m[6], m[7], m[8]), 0.5 * db.fov_diag + margin)
     # 1.1 deg in 0.1 deg steps with 0.5 deg of room: a query about every five frames
     assert 2 <= queries <= 4
     cone.clear()

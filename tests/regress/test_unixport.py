@@ -14,7 +14,6 @@ import shutil
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lodestar import contract as C
 from lodestar.cli import main
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
@@ -25,9 +24,6 @@ HEAP_BUDGET = 64 * 1024
 with the firmware's own collector setting, the STM32F401's, and a packet buffer for the
 flight gateware's record capacity (measured: at most 64 KiB, Pyramid on estcube2;
 ``docs/firmware.md``, Memory)."""
-FLIGHT_BUFFER = C.packet_bytes(C.FLIGHT_RECORD_CAPACITY)
-"""The flight SPI loop's packet buffer (bytes): the largest packet the flight gateware
-sends, whatever packets the set holds."""
 
 
 @pytest.fixture
@@ -148,13 +144,13 @@ def test_record_reproduces_the_committed_set(float32_frozen, tmp_path):
 @pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
 def test_every_flight_loop_runs_within_the_heap_budget(mcu_words, regression_set, method):
     """Each camera's packets one after another in one process, one database open, one
-    :data:`FLIGHT_BUFFER`, at :data:`HEAP_BUDGET`: the recorded results, no
-    ``OUT_OF_MEMORY``."""
+    packet buffer of the flight size (:data:`lodestar.regress.unixport.FLIGHT_BUFFER`), at
+    :data:`HEAP_BUDGET`: the recorded results, no ``OUT_OF_MEMORY``."""
     manifest, db_files = regression_set
     for camera in manifest["cameras"]:
         runs = _runs(manifest, method, camera)
         loop = unixport.flight_loop(mcu_words, manifest, regress.DEFAULT_SET, db_files,
-                                    runs, HEAP_BUDGET, buffer_bytes=FLIGHT_BUFFER)
+                                    runs, HEAP_BUDGET, buffer_bytes=unixport.FLIGHT_BUFFER)
         assert unixport.disagreements(loop, runs) == [], (camera, loop["error"])
 
 

@@ -102,8 +102,11 @@ def test_near_pairs_finds_what_testing_every_pair_finds(seed):
     rng = np.random.default_rng(seed)
     n_pred = 120
     vecs = rng.normal(size=(n_pred, 3)) * [0.1, 0.1, 0.0] + [0.0, 0.0, 1.0]
-    vecs[5:9, 0] = vecs[4, 0]                               # equal x
     vecs /= np.linalg.norm(vecs, axis=1)[:, None]
+    vecs[5:9, 0] = vecs[4, 0]                               # equal x, still unit vectors
+    vecs[5:9, 1:] *= (np.sqrt(1.0 - vecs[4, 0] ** 2) /
+                      np.linalg.norm(vecs[5:9, 1:], axis=1))[:, None]
+    assert len({float(x) for x in vecs[4:9, 0]}) == 1
     predicted = (list(range(n_pred)), array(G.FLOAT_CODE, vecs.ravel().tolist()))
     picks = rng.choice(n_pred, size=30)
     observed = [tuple(G.unit(tuple(vecs[p] + rng.normal(scale=3e-4, size=3)))) for p in picks]
