@@ -253,8 +253,9 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
     parent = list(range(n))
     joined = False
     for i in range(n):
-        a = stars[i]
-        sm = smear(a.x, a.y) if callable(smear) else smear
+        a = stars[i]._v                 # (x, y, flux, sigma_major, sigma_minor, ...): the
+        ax, ay = a[0], a[1]             # pair loop reads tuples, not properties
+        sm = smear(ax, ay) if callable(smear) else smear
         if sm is None:
             continue
         dx, dy = sm[0], sm[1]
@@ -264,13 +265,14 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
         ux = dx / length
         uy = dy / length
         reach = length + 1.0
+        across = across_px + a[4]
         for j in range(i + 1, n):
-            b = stars[j]
-            ex = b.x - a.x
-            ey = b.y - a.y
+            b = stars[j]._v
+            ex = b[0] - ax
+            ey = b[1] - ay
             if abs(ex * ux + ey * uy) > reach:
                 continue
-            if abs(ex * uy - ey * ux) > across_px + a.sigma_minor + b.sigma_minor:
+            if abs(ex * uy - ey * ux) > across + b[4]:
                 continue
             ri = _root(parent, i)
             rj = _root(parent, j)

@@ -38,28 +38,41 @@ _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 
-def _field(data, base, first, last, head_mask, tail_drop):
-    """One field of the section starting at byte ``base`` of ``data`` (see :func:`_plan`).
+def _read(data, base, plan, names, into):
+    """Set attribute ``names[k]`` of ``into`` to field ``k`` of the section starting at byte
+    ``base`` of ``data`` (``plan``: :func:`_plan`); returns ``into``.  Bytes are accumulated
+    MSB first with the neighbouring fields' bits removed before they are shifted in, so no
+    intermediate exceeds the field's value: a value that fits a MicroPython small int is read
+    without allocating a long int.  One loop without calls: it runs for every field of every
+    record, twice per frame."""
+    k = 0
+    for first, last, head_mask, tail_drop in plan:
+        i = base + first
+        end = base + last
+        value = data[i] & head_mask
+        if i == end:
+            value >>= tail_drop
+        else:
+            i += 1
+            while i < end:
+                value = (value << 8) | data[i]
+                i += 1
+            value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
+        setattr(into, names[k], value)
+        k += 1
+    return into
 
-    Bytes are accumulated MSB first with the neighbouring fields' bits removed before they
-    are shifted in, so no intermediate exceeds the field's value: a value that fits a
-    MicroPython small int is read without allocating a long int.
-    """
-    value = data[base + first] & head_mask
-    if first == last:
-        return value >> tail_drop
-    for i in range(base + first + 1, base + last):
-        value = (value << 8) | data[i]
-    return (value << (8 - tail_drop)) | (data[base + last] >> tail_drop)
+
+class _Header:
+    """Attributes :func:`_read` sets, turned into the header dict."""
 
 
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
+    fields = _read(data, 0, _HEADER_PLAN, C.HEADER_NAMES, _Header())
     header = {}
-    i = 0
-    for first, last, head_mask, tail_drop in _HEADER_PLAN:
-        header[C.HEADER_NAMES[i]] = _field(data, 0, first, last, head_mask, tail_drop)
-        i += 1
+    for name in C.HEADER_NAMES:
+        header[name] = getattr(fields, name)
     return header
 
 
@@ -68,14 +81,10 @@ def record(data, index, into=None):
     ``contract.BlobRecord`` (decoded on each call: the flight pipeline keeps no record list).
     ``into``: a ``BlobRecord`` to overwrite and return instead of a new one (reading record
     after record into one object allocates nothing but large moments)."""
-    base = C.HEADER_BYTES + index * C.RECORD_BYTES
     if into is None:
         into = C.BlobRecord(*_ZERO_RECORD)
-    i = 0
-    for first, last, head_mask, tail_drop in _RECORD_PLAN:
-        setattr(into, C.RECORD_NAMES[i], _field(data, base, first, last, head_mask, tail_drop))
-        i += 1
-    return into
+    return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, C.RECORD_NAMES,
+                 into)
 
 
 # --------------------------------------------------------------------------------------
@@ -211,10 +220,31 @@ def record_problem(rec, header, limits):
 # Public entry point
 # --------------------------------------------------------------------------------------
 
-def check(data):
+class BadRecord(Exception):
+    """A record :func:`checked_records` read failed its check; ``args``: ``(status, reason)``
+    (``PACKET_BAD_RECORD`` and the message :func:`check` gives)."""
+
+
+def checked_records(data, header, into=None):
+    """The records of a packet whose framing and header :func:`check` accepted (with
+    ``records=False``), in order, each checked as it is read and yielded in one
+    ``contract.BlobRecord`` overwritten for each (``into``, or a new one).  Raises
+    :class:`BadRecord` at the first bad record, so a consumer that reads them all has
+    checked the packet as :func:`check` does, with one decoding of each record."""
+    limits = moment_limits(header["pixel_bits"])
+    for index in range(header["n_records"]):
+        into = record(data, index, into)
+        reason = record_problem(into, header, limits)
+        if reason:
+            raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
+        yield into
+
+
+def check(data, records=True):
     """Check one packet without keeping its records: ``(status, header, reason)``; never
     raises on bad bytes.  The checks and results of :func:`decode`, one record on the heap at
-    a time; read the records of an accepted packet with :func:`record`."""
+    a time; read the records of an accepted packet with :func:`record`.  ``records=False``:
+    the framing and the header only (then read the records with :func:`checked_records`)."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         return S.BAD_INPUT, None, \
             "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
@@ -229,14 +259,14 @@ def check(data):
     reason = header_problem(header)
     if reason:
         return S.PACKET_BAD_HEADER, None, reason
-    limits = moment_limits(header["pixel_bits"])
-    rec = None
-    for index in range(header["n_records"]):
-        rec = record(data, index, rec)
-        reason = record_problem(rec, header, limits)
-        if reason:
-            return S.PACKET_BAD_RECORD, None, "record {}: {}".format(index, reason)
+    if records:
+        try:
+            for _rec in checked_records(data, header):
+                pass
+        except BadRecord as exc:
+            return exc.args[0], None, exc.args[1]
     return S.OK, header, ""
+
 
 
 def decode(data):

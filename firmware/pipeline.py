@@ -122,6 +122,12 @@ def _short_smears(stars, smear, limit, max_stars, rejected):
     return kept, math.sqrt(longest)
 
 
+def _fit(b, r, w, q0):
+    """The attitude of pairs ``b``, ``r`` (weights ``w``, None: equal): refined from ``q0``,
+    or by QUEST without one."""
+    return _att.quest(b, r, w) if q0 is None else _att.refine(q0, b, r, w)
+
+
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
     catalogue vectors ``r`` under attitude ``q``."""
@@ -416,6 +422,8 @@ class StarTracker:
                 return sol, mode
         self._cone.clear()              # lost in space: its heap goes to the search
         _threshold(GC_THRESHOLD)
+        if prior is not None:           # a tracking frame falls back: collect as for one
+            _collect()
         sol = _starid.identify(vectors, self.database, method=self.settings.method,
                                tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
                                max_work=self.settings.max_work, streaks=streaks,
@@ -440,7 +448,7 @@ class StarTracker:
             out.append(f / median if _geo.is_number(f) and f > 0 else 1.0)
         return out
 
-    def noise_shares(self, b, r, photon):
+    def noise_shares(self, b, r, photon, q0=None):
         """Relative centroid variances ``g_i = (1 - rho) / photon_i + rho`` of the stars
         with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
         ``photon`` (:meth:`weights`), with the floor share ``rho`` of
@@ -448,13 +456,14 @@ class StarTracker:
         equal-weight QUEST fit (per-axis Gaussian noise of variance ``s^2 g_i``, ``s``
         profiled out: maximise ``-sum(log g_i) - n log(sum(e_i^2 / g_i))``); ``rho > 0``
         must gain :data:`FLOOR_EVIDENCE` over ``rho = 0``.  Below
-        :data:`MIN_STARS_NOISE_MODEL` stars, ``rho = 0``.  Raises ``ValueError`` when the
-        fit is degenerate."""
+        :data:`MIN_STARS_NOISE_MODEL` stars, ``rho = 0``.  ``q0``: an attitude near the fit
+        (:func:`lodestar.firmware.attitude.refine` from it; None: QUEST).  Raises
+        ``ValueError`` when the fit is degenerate."""
         n = len(b)
         u = [1.0 / p for p in photon]
         if n < MIN_STARS_NOISE_MODEL:
             return u
-        e2 = _residuals2(_att.quest(b, r, [1.0] * n), b, r)
+        e2 = _residuals2(_fit(b, r, None, q0), b, r)
         best, best_g = None, u
         for rho in FLOOR_SHARES:
             g = [(1.0 - rho) * ui + rho for ui in u]
@@ -470,10 +479,12 @@ class StarTracker:
                 best, best_g = score, g
         return best_g
 
-    def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None):
-        """QUEST over ``star_ids`` ``[(vector index, database star index)]`` and Shuster's
-        covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)`` (``s``: the per-axis
-        noise of a median-flux star); None when degenerate.  ``fluxes``: per vector (None:
+    def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None):
+        """Weighted least-squares attitude of ``star_ids`` ``[(vector index, database star
+        index)]`` and Shuster's covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)``
+        (``s``: the per-axis noise of a median-flux star); None when degenerate.  ``q0``: the
+        identification's attitude, refined from (:func:`lodestar.firmware.attitude.refine`,
+        accurate in single precision); None: QUEST.  ``fluxes``: per vector (None:
         equal weights); ``floor``: let the residuals choose a noise floor
         (:meth:`noise_shares`; else the photon model alone); ``streaks``: per vector None
         or its partly seen track (:meth:`streaks`): the star's relative variance gains
@@ -494,13 +505,13 @@ class StarTracker:
             else:
                 w = self.weights([fluxes[o] for o, s in star_ids])
                 if floor and not tracks:
-                    w = [1.0 / gi for gi in self.noise_shares(b, r, w)]
+                    w = [1.0 / gi for gi in self.noise_shares(b, r, w, q0)]
             if tracks:
                 # a partly seen track adds its variance in units of a median star's noise,
                 # the configured one or a third of the match tolerance
                 s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
                 w = [1.0 / (1.0 / w[i] + extra[i] / (s0 * s0)) for i in range(n)]
-            q = _att.quest(b, r, w)
+            q = _fit(b, r, w, q0)
             s = self.sigma_rad
             if s is None:
                 e2 = _residuals2(q, b, r)
@@ -585,6 +596,7 @@ class StarTracker:
         if beta is not None:
             _deaberrate(vectors, sol.q, beta)
         star_ids = getattr(sol, "star_ids", None) or []
+        q0 = sol.q
         if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
             # (tracking from the identified attitude: it also repairs an attitude fitted to
@@ -592,15 +604,17 @@ class StarTracker:
             ref = self._track(vectors, sol.q, None, None, streaks)
             if ref.status == S.OK and len(ref.star_ids) > len(star_ids):
                 star_ids = ref.star_ids
+                q0 = ref.q
             self._cone.clear()          # not kept through a lost-in-space frame's fit
         if not star_ids:
             predicted, n_fov = _tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
             star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad, streaks)
         sol = ref = predicted = None     # only star_ids goes on to the fit
-        _collect()
+        if mode == "lost_in_space":
+            _collect()
         fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
-                               streaks) if len(star_ids) >= 2 else None
+                               streaks, q0) if len(star_ids) >= 2 else None
         if fitted is None:
             res.status = S.NO_MATCH
             _note(res, "degenerate attitude fit")
@@ -644,7 +658,7 @@ class StarTracker:
         _threshold(GC_THRESHOLD if prior is None else TRACK_GC_THRESHOLD)
         _collect()
         start = first = self._tick(timings, None, None)
-        code, header, reason = _packet.check(packet_bytes)
+        code, header, reason = _packet.check(packet_bytes, records=False)
         start = self._tick(timings, "decode", start)
         if code != S.OK:
             res.status = code
@@ -686,10 +700,13 @@ class StarTracker:
         select = not longest <= limit        # some stars may smear beyond the limit
         max_stars = self.settings.max_stars
         border = (cam.width, cam.height) if self.settings.drop_border else None
-        stars, rejected = _centroids.extract(_records(packet_bytes, res.n_records),
-                                             max_stars=None if select else max_stars,
-                                             expected_smear_px=smear, border=border,
-                                             **self.settings.extract_options)
+        try:        # the records are checked as they are read: one decoding each
+            stars, rejected = _centroids.extract(_packet.checked_records(packet_bytes, header),
+                                                 max_stars=None if select else max_stars,
+                                                 expected_smear_px=smear, border=border,
+                                                 **self.settings.extract_options)
+        except _packet.BadRecord as exc:
+            return Result(exc.args[0], exc.args[1])
         res.rejected = rejected
         if select:
             stars, longest = _short_smears(stars, smear, limit, max_stars, rejected)
@@ -698,7 +715,8 @@ class StarTracker:
                 _note(res, str(rejected["smear"]) + " stars smeared beyond max_smear_px " +
                       str(limit) + ", " + str(len(stars)) + " left")
                 return res
-        _collect()
+        if prior is None:               # a tracking frame's peak is low: no stage collections
+            _collect()
         start = self._tick(timings, "centroids", start)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None
@@ -716,7 +734,8 @@ class StarTracker:
             xy[2 * o + 1] = s.y
             fluxes[o] = s.flux
         stars = used = None
-        _collect()
+        if prior is None:
+            _collect()
         res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
                                   streaks, beta)
         if res.status == S.OK:
@@ -744,15 +763,6 @@ def _deaberrate(vectors, q, beta):
     bc = _geo.mat_vec(_quat.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
-
-
-def _records(packet_bytes, n):
-    """The ``n`` records of a checked packet one at a time, in one object overwritten for
-    each (the consumer keeps no record)."""
-    rec = None
-    for i in range(n):
-        rec = _packet.record(packet_bytes, i, rec)
-        yield rec
 
 
 def _note(res, text):

@@ -267,11 +267,12 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     return pairs
 
 
-def fit(observed, database, pairs, weights=None, stars=None):
-    """QUEST attitude of ``pairs`` ``[(observed index, star index)]``, or None when the
-    geometry is degenerate (fewer than two pairs, all parallel).  ``stars``: the
-    :func:`candidates` to take catalogue vectors from (None, or a star not among them: read
-    from the database)."""
+def fit(observed, database, pairs, q, weights=None, stars=None):
+    """Least-squares attitude of ``pairs`` ``[(observed index, star index)]`` refined from
+    ``q`` (:func:`lodestar.firmware.attitude.refine`: the pairs were matched near ``q``), or
+    None when the geometry is degenerate (fewer than two pairs, all parallel).  ``stars``:
+    the :func:`candidates` to take catalogue vectors from (None, or a star not among them:
+    read from the database)."""
     if len(pairs) < 2:
         return None
     b = [observed[o] for o, s in pairs]
@@ -281,7 +282,7 @@ def fit(observed, database, pairs, weights=None, stars=None):
         r = [star_vector(database, stars, s) for o, s in pairs]
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
-        return _att.quest(b, r, w)
+        return _att.refine(q, b, r, w)
     except (ValueError, ZeroDivisionError):
         return None
 
@@ -364,20 +365,40 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     if len(b) < min_matches:
         return TrackSolution(S.TOO_FEW_STARS, q_predicted=q_pred)
 
-    # coarse association around the prior; one cone query serves every prediction below
-    # (the fitted attitudes stay within the search radius of the prior)
+    # one cone query serves every prediction below (the fitted attitudes stay within the
+    # search radius of the prior)
     stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol, cone)
+    # steady state: the prior is within the match tolerance, so match at it directly
+    predicted, n_fov = predict(database, q_pred, 2.0 * tol, stars)
+    pairs = match_nearest(b, predicted, tol, streaks)
+    predicted = None
+    if len(pairs) >= min_matches:
+        sol = _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
+                      weights, streaks, stars, q_pred, n_fov)
+        if sol.status == S.OK:
+            return sol
+    # coarse association: the prior may be off by up to the search radius
     predicted, n_fov = predict(database, q_pred, search, stars)
     spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error across field
     pairs = coarse_match(b, predicted, search, 2.0 * tol + spread, coarse_stars)
+    predicted = None
     if len(pairs) < 2:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-    q = fit(b, database, pairs, weights, stars)
+    return _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
+                   weights, streaks, stars, q_pred, n_fov, coarse=True)
+
+
+def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weights, streaks,
+            stars, q_pred, n_fov, coarse=False):
+    """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
+    the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
+    predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
+    final (the fine matching always runs at least once)."""
+    q = fit(b, database, pairs, q, weights, stars)
     if q is None:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-
-    # fine matching at the fitted attitude, refit while the match set changes
-    pairs = None
+    if coarse:
+        pairs = None
     converged = False
     for _ in range(iterations):
         predicted, n_fov = predict(database, q, 2.0 * tol, stars)
@@ -385,7 +406,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         if new == pairs:
             converged = True        # the matches at q are pairs: the check below holds
             break
-        q_new = fit(b, database, new, weights, stars)
+        q_new = fit(b, database, new, q, weights, stars)
         if q_new is None:
             break
         pairs = new
@@ -403,7 +424,7 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
         for pair in final:
             keep[pair] = 1
         pairs = [pair for pair in pairs if pair in keep]
-        q2 = fit(b, database, pairs, weights, stars)
+        q2 = fit(b, database, pairs, q, weights, stars)
         if q2 is None:
             return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
         q = q2

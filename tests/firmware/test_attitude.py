@@ -533,3 +533,57 @@ print("MICROPYTHON-OK", G.EPS)
 def test_modules_run_under_micropython(micropython):
     code, out = micropython(SMOKE)
     assert code == 0 and "MICROPYTHON-OK" in out, out
+
+
+# --------------------------------------------------------------------------------------------
+# Gauss-Newton refinement
+# --------------------------------------------------------------------------------------------
+
+def test_refine_from_a_nearby_attitude_agrees_with_q_method():
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for trial in range(200):
+        n = 2 + trial % 20
+        q = Rotation.random(random_state=rng).as_quat()
+        r = _sky(rng, n, [20.0, 10.0, 60.0][trial % 3])
+        if _min_sin_separation(r) < 1e-3:
+            continue
+        sig = rng.uniform(5e-6, 1e-3, n)
+        b = _perturb(rng, Rotation.from_quat(q).apply(r), sig)
+        w = (1.0 / sig ** 2).tolist()
+        start = (Rotation.from_rotvec(rng.normal(size=3) * math.radians(0.3) / math.sqrt(3))
+                 * Rotation.from_quat(q)).as_quat()
+        got = AT.refine(start.tolist(), b.tolist(), r.tolist(), w)
+        assert got[3] >= 0.0
+        worst = max(worst, Q.angle_between(got, AT.q_method(b, r, w)))
+    # it stops after a step below 2 arcsec: what is left is that times the residuals (1e-3)
+    assert worst < 1e-7, worst
+
+
+def test_refine_uses_the_weights_and_takes_one_step_from_the_optimum():
+    rng = np.random.default_rng(12)
+    r = _sky(rng, 8, 20.0)
+    b = _perturb(rng, r, 1e-3)
+    w = rng.uniform(0.1, 10.0, 8).tolist()
+    best = AT.q_method(b, r, w)
+    assert Q.angle_between(AT.refine(best, b, r, w), best) < 1e-12
+    assert Q.angle_between(AT.refine(best, b, r, w, max_iterations=1), best) < 1e-12
+    assert Q.angle_between(AT.refine(best, b, r), AT.q_method(b, r)) < 1e-7
+    assert Q.angle_between(AT.refine(best, b, r), best) > 1e-6       # the weights matter
+
+
+def test_refine_rejects_what_it_cannot_solve():
+    rng = np.random.default_rng(13)
+    r = _sky(rng, 5, 20.0).tolist()
+    q = [0.0, 0.0, 0.0, 1.0]
+    with pytest.raises(ValueError, match="at least 2"):
+        AT.refine(q, r[:1], r[:1])
+    with pytest.raises(ValueError, match="one entry per"):
+        AT.refine(q, r, r[:4])
+    with pytest.raises(ValueError, match="unobservable"):
+        AT.refine(q, [r[0], r[0]], [r[0], r[0]])
+    with pytest.raises(ValueError, match="unobservable"):
+        AT.refine(q, r, [[math.nan] * 3] * 5)
+    far = Rotation.from_rotvec([0.0, 0.0, 3.0]).apply(np.array(r)).tolist()
+    with pytest.raises(ValueError, match="no convergence"):
+        AT.refine(q, far, r, max_iterations=2)

@@ -286,3 +286,17 @@ def test_random_byte_corruption_never_passes(edits):
 
 
 # --------------------------------------------------------------------------------------
+
+
+def test_checked_records_check_each_record_as_check_does():
+    data = ground.encode(base_result())
+    code, header, _ = fw.check(data, records=False)
+    assert code == S.OK
+    assert [r.as_tuple() for r in fw.checked_records(data, header)] == \
+        [r.as_tuple() for r in fw.decode(data)[2]]
+    bad = patch(data, [("xmin", 63, 0)])
+    code, header, _ = fw.check(bad, records=False)
+    assert code == S.OK                 # the framing and the header are fine
+    with pytest.raises(fw.BadRecord) as err:
+        list(fw.checked_records(bad, header))
+    assert err.value.args == (S.PACKET_BAD_RECORD, fw.check(bad)[2])

@@ -453,7 +453,7 @@ def test_unexpected_exceptions_become_a_status(monkeypatch):
     res = tracker.process(frame.packet)
     assert res.status == S.INTERNAL_ERROR and res.q is None
     assert "internal error" in res.reason and "flash ECC error" in res.reason
-    monkeypatch.setattr(pipeline._packet, "check", lambda data: 1 / 0)
+    monkeypatch.setattr(pipeline._packet, "check", lambda data, records=True: 1 / 0)
     res = tracker.process(frame.packet)
     assert res.status == S.INTERNAL_ERROR and "ZeroDivisionError" in res.reason
 

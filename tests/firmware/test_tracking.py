@@ -393,3 +393,21 @@ def test_live_peak_of_a_hard_track_is_within_the_heap_budget(preset, hard_scene_
         assert tracking.track(v, db, prior, tolerance_rad=tol).status == S.OK
         peak = live_peak(lambda: tracking.track(v, db, prior, tolerance_rad=tol))
         assert peak < HEAP_BUDGET, (preset, peak)
+
+
+@pytest.mark.parametrize("off_deg, coarse", [(0.002, False), (0.2, True)])
+def test_a_close_prior_is_matched_directly_a_far_one_coarsely(monkeypatch, off_deg, coarse):
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(21)
+    calls = []
+    real = tracking.coarse_match
+    monkeypatch.setattr(tracking, "coarse_match",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    for _ in range(5):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, catalogue(), noise_px=0.3, max_stars=32)
+        prior = perturbed(q, off_deg, rng)
+        sol = tracking.track(scene.vectors.tolist(), db, prior.tolist(), tolerance_rad=TOL)
+        assert sol.status == S.OK and correct(sol, q, scene.components)
+    assert len(calls) == (5 if coarse else 0)
