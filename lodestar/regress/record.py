@@ -97,6 +97,9 @@ CASES = (
               expect="any", note="turning, the firmware not told"),
     FrameCase("estcube2_tracking_1dps", "estcube2", 11, (0.0, 1.0, 0.0),
               prior_error_deg=0.1, note="tracking from a prior 0.1 deg off"),
+    FrameCase("estcube2_tracking_steady", "estcube2", 18, (0.0, 1.0, 0.0),
+              prior_error_deg=0.002, note="steady tracking: a prior 7 arcsec off, as the last "
+              "attitude propagated by the gyro over 0.1 s"),
     FrameCase("estcube2_false_hot_cosmic", "estcube2", 12, hot_pixels=True, false_stars=8,
               cosmic_rays=12, note="8 false stars, hot pixels, 12 cosmic rays"),
     FrameCase("estcube2_10dps", "estcube2", 13, (8.0, 6.0, 0.0), expect="fail",
