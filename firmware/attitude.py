@@ -120,22 +120,24 @@ def _positive(values, name, n):
 
 
 def _prepare(b, r, w, wname="w", min_pairs=2):
-    """Validated ``(unit b, unit r, weights)`` as lists of floats (weights not rescaled)."""
+    """Validated ``(unit b, unit r, weights)`` as lists of floats (weights not rescaled);
+    ``r`` None: not checked, and None is returned for it."""
     n = _length(b, "b")
-    m = _length(r, "r")
+    m = n if r is None else _length(r, "r")
     if m != n:
         raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
     if n < min_pairs:
         raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
     bs = [_unit(b[i], "b", i) for i in range(n)]
-    rs = [_unit(r[i], "r", i) for i in range(n)]
+    rs = None if r is None else [_unit(r[i], "r", i) for i in range(n)]
     if w is None:
         ws = [1.0] * n
     else:
         ws = _positive(w, wname, n)
     if min_pairs >= 2:
         _check_spread(bs, "body (b)")
-        _check_spread(rs, "reference (r)")
+        if rs is not None:
+            _check_spread(rs, "reference (r)")
     return bs, rs, ws
 
 
@@ -596,8 +598,8 @@ def covariance(b, r, sigmas):
     perpendicular to it.  ``P`` is the covariance of the small rotation vector ``dtheta`` with
     ``A_est = exp([dtheta x]) A_true`` (rotation vector of ``A_est A_true^T``, camera axes)
     when the solver uses weights ``a_i`` proportional to ``sigma_i^-2``.  ``r`` is only
-    validated (same count, finite, not all parallel): to first order the information depends
-    on the body directions alone.
+    validated (same count, finite, not all parallel; None: not checked): to first order the
+    information depends on the body directions alone.
     """
     bs, rs, ss = _prepare(b, r, sigmas, wname="sigmas")
     f00 = f11 = f22 = f01 = f02 = f12 = 0.0

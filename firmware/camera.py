@@ -221,10 +221,15 @@ class Camera(object):
         if not (is_number(x) and is_number(y)):
             self.last_status = S.BAD_INPUT
             return None
-        xy = self.undistort((x - self.cx) / self.fx, (y - self.cy) / self.fy)
-        if xy is None:
-            return None
-        xn, yn = xy
+        xn = (x - self.cx) / self.fx
+        yn = (y - self.cy) / self.fy
+        if self._pinhole:               # undistort would return (xn, yn) itself
+            self.last_status = S.OK
+        else:
+            xy = self.undistort(xn, yn)
+            if xy is None:
+                return None
+            xn, yn = xy
         norm = math.sqrt(xn * xn + yn * yn + 1.0)
         return xn / norm, yn / norm, 1.0 / norm
 
@@ -278,9 +283,13 @@ class Camera(object):
                 and is_number(exposure_s)):
             self.last_status = S.BAD_INPUT
             return None
-        v = self.pixel_to_vector(x, y)
-        if v is None:
-            return None
+        if self._pinhole and is_number(x) and is_number(y):
+            # a homogeneous direction: the turn is linear and the projection divides by Z
+            v = ((x - self.cx) / self.fx, (y - self.cy) / self.fy, 1.0)
+        else:
+            v = self.pixel_to_vector(x, y)
+            if v is None:
+                return None
         key = (wx, wy, wz, exposure_s)
         if key != self._smear_key:      # the turn is the frame's: computed once per rate
             rate = norm((wx, wy, wz))
@@ -300,8 +309,16 @@ class Camera(object):
         tx = (ay * vz - az * vy) * s
         ty = (az * vx - ax * vz) * s
         tz = (ax * vy - ay * vx) * s
-        start = self._project(px + tx + kx, py + ty + ky, pz + tz + kz)
-        end = self._project(px - tx + kx, py - ty + ky, pz - tz + kz)
+        sx, sy, sz = px + tx + kx, py + ty + ky, pz + tz + kz
+        ex, ey, ez = px - tx + kx, py - ty + ky, pz - tz + kz
+        if self._pinhole:               # _project without its checks (no fold radius)
+            if not (sz > 0 and ez > 0):
+                self.last_status = S.CAMERA_OUT_OF_VIEW
+                return None
+            self.last_status = S.OK
+            return self.fx * (ex / ez - sx / sz), self.fy * (ey / ez - sy / sz)
+        start = self._project(sx, sy, sz)
+        end = self._project(ex, ey, ez)
         if start is None or end is None:
             return None
         return end[0] - start[0], end[1] - start[1]

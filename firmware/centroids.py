@@ -98,8 +98,7 @@ class Star(object):
                 ).format(*self.as_tuple())
 
 
-def _is_int(value):
-    return isinstance(value, int) and not isinstance(value, bool)
+_INT = type(0)      # exactly int (a bool is not): ``type(v) is _INT`` costs no call
 
 
 def moments(rec):
@@ -114,12 +113,13 @@ def moments(rec):
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
     if not (finite(s0) and s0 > 0):
         return None
-    if _is_int(s0) and _is_int(sx) and _is_int(sy) and _is_int(sxx) and _is_int(syy) \
-            and _is_int(sxy):
+    if type(s0) is _INT and type(sx) is _INT and type(sy) is _INT and type(sxx) is _INT \
+            and type(syy) is _INT and type(sxy) is _INT:
         nxx = s0 * sxx - sx * sx          # s0^2 cxx, exact
         nyy = s0 * syy - sy * sy
         nxy = s0 * sxy - sx * sy
-        if nxx < 0 or nyy < 0 or nxx * nyy < nxy * nxy:
+        d = nxx * nyy - nxy * nxy       # s0^4 det
+        if nxx < 0 or nyy < 0 or d < 0:
             return None
         q, r = divmod(sx, s0)
         x = q + r / s0
@@ -131,7 +131,7 @@ def moments(rec):
         cxy = nxy / s02
         # det = (nxx nyy - nxy^2) / s0^4; dividing by s0^2 in integers first (quotient and
         # remainder) keeps every float below 2**128 (single-precision MCU floats)
-        q, r = divmod(nxx * nyy - nxy * nxy, s02)
+        q, r = divmod(d, s02)
         det = (q + r / s02) / s02
     else:
         for v in (sx, sy, sxx, syy, sxy):
@@ -378,7 +378,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         if not (finite(s0) and s0 > 0):
             rejected["empty"] += 1
             continue
-        if _is_int(rec.flags) and rec.flags & C.BLOB_MOMENTS_SATURATED:
+        if type(rec.flags) is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
             rejected["saturated"] += 1
             continue
         m = moments(rec)
@@ -434,13 +434,26 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     if max_stars is not None:
         _keep_brightest(stars, max_stars, rejected)
     else:
-        stars.sort(key=_sort_key)
+        _brightest_first(stars)
     return stars, rejected
+
+
+def _brightest_first(stars):
+    """Sort ``stars`` in place by :func:`_sort_key`, computed once per star (MicroPython's
+    ``sort(key=...)`` calls the key at every comparison)."""
+    keyed = []
+    for i in range(len(stars)):
+        v = stars[i]._v
+        keyed.append((-v[2], v[10], i))     # tuples of numbers compare without calls
+    keyed.sort()
+    old = stars[:]
+    for i in range(len(keyed)):
+        stars[i] = old[keyed[i][2]]
 
 
 def _keep_brightest(stars, max_stars, rejected):
     """Sort ``stars`` brightest first and drop all but ``max_stars`` (as ``"excess"``)."""
-    stars.sort(key=_sort_key)
+    _brightest_first(stars)
     if len(stars) > max_stars:
         rejected["excess"] += len(stars) - max_stars
         del stars[max_stars:]

@@ -524,7 +524,7 @@ class StarTracker:
                 if not s >= self.min_sigma_rad:
                     s = self.min_sigma_rad
             sigmas = [s / math.sqrt(wi) for wi in w]
-            cross, roll = _att.sigmas_cross_roll(_att.covariance(b, r, sigmas))
+            cross, roll = _att.sigmas_cross_roll(_att.covariance(b, None, sigmas))
         except (ValueError, ZeroDivisionError):
             return None
         return q, cross, roll, s

@@ -16,7 +16,7 @@ from array import array
 
 from . import attitude as _att
 from . import status as S
-from .geometry import is_number, is_unit_tuple, residual2, unit, vector3, zeros
+from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
@@ -160,32 +160,29 @@ def predict(database, q, margin_rad=0.0, stars=None):
     if stars is None:
         stars = candidates(database, q, margin_rad)
     ids, vecs = stars
-    inside = bytearray(len(ids))            # count and mark, then fill arrays of the final
-    n_out = n_fov = 0                       # size with the marked stars only
-    for i in range(len(ids)):
-        r0, r1, r2 = vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
+    n = len(ids)
+    keep = array("H", range(n))             # the kept stars, compacted (sized by the range)
+    cam = array(FLOAT_CODE, range(3 * n))   # and their camera-frame vectors
+    n_out = n_fov = 0
+    for i in range(n):
+        j = 3 * i
+        r0, r1, r2 = vecs[j], vecs[j + 1], vecs[j + 2]
         z = m6 * r0 + m7 * r1 + m8 * r2
         if z <= 0.0:
             continue
         x = m0 * r0 + m1 * r1 + m2 * r2
+        if abs(x) > tan_hm * z:
+            continue
         y = m3 * r0 + m4 * r1 + m5 * r2
-        if abs(x) <= tan_hm * z and abs(y) <= tan_vm * z:
-            inside[i] = 1
-            n_out += 1
-            if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-                n_fov += 1
-    out_ids = array("H", range(n_out))      # sized by the range, then overwritten
-    out_vecs = zeros(3 * n_out)
-    k = 0
-    for i in range(len(ids)):
-        if inside[i]:
-            r0, r1, r2 = vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
-            out_ids[k] = ids[i]
-            out_vecs[3 * k] = m0 * r0 + m1 * r1 + m2 * r2
-            out_vecs[3 * k + 1] = m3 * r0 + m4 * r1 + m5 * r2
-            out_vecs[3 * k + 2] = m6 * r0 + m7 * r1 + m8 * r2
-            k += 1
-    return (out_ids, out_vecs), n_fov
+        if abs(y) > tan_vm * z:
+            continue
+        keep[n_out] = ids[i]
+        j = 3 * n_out
+        cam[j], cam[j + 1], cam[j + 2] = x, y, z
+        n_out += 1
+        if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
+            n_fov += 1
+    return (keep[:n_out], cam[:3 * n_out]), n_fov
 
 
 def match_nearest(observed, predicted, tolerance_rad, streaks=None):

@@ -154,7 +154,8 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     vecs = predicted[1]
     n_pred = len(predicted[0])
-    order = sorted(range(n_pred), key=lambda p: vecs[3 * p])
+    order = [(vecs[3 * p], p) for p in range(n_pred)]     # (x, p): MicroPython's sort
+    order.sort()                                            # would call a key per comparison
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
@@ -163,14 +164,14 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
         lo, hi = 0, n_pred
         while lo < hi:
             mid = (lo + hi) >> 1
-            if vecs[3 * order[mid]] < low:
+            if order[mid][0] < low:
                 lo = mid + 1
             else:
                 hi = mid
         high = ox + 2.0 * reach
         found = None
-        while lo < n_pred and vecs[3 * order[lo]] <= high:
-            p = order[lo]
+        while lo < n_pred and order[lo][0] <= high:
+            p = order[lo][1]
             lo += 1
             k = 3 * p
             dx = ox - vecs[k]

@@ -318,6 +318,7 @@ def test_covariance_formula():
     assert np.allclose(P, np.linalg.inv(F), rtol=1e-12, atol=0)
     assert np.allclose(P, P.T, rtol=0, atol=0) and np.all(np.linalg.eigvalsh(P) > 0)
     assert np.allclose(AT.covariance(b, r, 3 * sig), 9 * P, rtol=1e-12)
+    assert AT.covariance(b, None, sig) == AT.covariance(b, r, sig)     # r only validated
     cross, roll = AT.sigmas_cross_roll(P)
     assert cross == pytest.approx(math.sqrt((P[0, 0] + P[1, 1]) / 2))
     assert roll == pytest.approx(math.sqrt(P[2, 2]))
