@@ -216,7 +216,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None):
 
 
 def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
-    """Displacement-consensus association (step 3 of ``docs/centroids_and_tracking.md``):
+    """Displacement-consensus association (step 4 of ``docs/centroids_and_tracking.md``):
     ``[(observed index, star index)]``."""
     n = len(observed) if len(observed) < max_stars else max_stars
     cands = list(near_pairs(observed, predicted, search_rad, n))    # (o, p, dx, dy, dz)
