@@ -3,8 +3,9 @@
 :func:`track` takes camera-frame unit vectors of the observed stars, **brightest first**, a
 database and a prior ``q = [x, y, z, w]`` (``v_cam = A(q) v_inertial``), optionally propagated
 by ``omega`` (rad/s, camera frame) over ``dt`` (s) (:func:`propagate`); angles in radians
-(``docs/conventions.md``).  It predicts the catalogue stars, associates them by displacement
-consensus (robust to a prior off by up to ``search_rad``), refines by QUEST and nearest
+(``docs/conventions.md``).  It predicts the catalogue stars, matches them to the observed
+ones directly (a prior within the tolerance) or else by displacement consensus (robust to a
+prior off by up to ``search_rad``), refines by least squares (``attitude.refine``) and nearest
 neighbour, and verifies as lost-in-space does.  Returns a :class:`TrackSolution`; ``NO_MATCH``
 tells the pipeline to fall back to lost-in-space.  Never raises for bad data.  Steps and the
 result's fields: ``docs/centroids_and_tracking.md`` (Tracking).  Pure Python for CPython and
