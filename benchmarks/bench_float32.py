@@ -1,9 +1,9 @@
 """Accuracy at rest of the single-precision MCU build against the double-precision one: the
 same simulated frames (a ``lodestar campaign rate`` at 0 deg/s) solved by the firmware on
-CPython (double) and on MicroPython 1.27's unix port built 32-bit with float32 and the
-firmware frozen (``lodestar.regress.unixport``: a 64 KiB heap and the flight packet buffer,
-``contract.FLIGHT_RECORD_CAPACITY`` records, frames with more not run; and a 4 MiB heap,
-every frame), in one run.
+CPython (double) and on the flight build of MicroPython 1.27's unix port (32-bit, float32 in
+the object word, the firmware frozen: ``lodestar.regress.unixport``; a 64 KiB heap and the
+flight packet buffer, ``contract.FLIGHT_RECORD_CAPACITY`` records, frames with more not run;
+and a 4 MiB heap, every frame), in one run.
 
     .venv/bin/python benchmarks/bench_float32.py [--preset estcube2] [--trials 100]
 

@@ -1,6 +1,7 @@
 """The flight firmware as the STM32F401 runs it: heap, time and flash, measured on MicroPython
-1.27's unix port built 32-bit with single-precision floats and the firmware frozen
-(``lodestar.regress.unixport``), against a baseline revision built the same way in the same run.
+1.27's unix port built as the flight build (32-bit, single-precision floats in the object word,
+``MICROPY_OBJ_REPR_C``, the firmware frozen: ``lodestar.regress.unixport``), against a
+baseline revision built the same way in the same run.
 
     .venv/bin/python benchmarks/bench_mcu.py [--baseline REV] [--repeats 3]
 
@@ -12,10 +13,12 @@
   heap (best of ``--repeats``; the collector's work included) and the stage times of the
   slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz: the
   time here times how much slower a NUCLEO-F401RE ran two of MicroPython's own benchmarks
-  (published figures, run here on the same build: :mod:`lodestar.regress.mcutime`).
+  (published figures, run here on the same MicroPython in the published run's object
+  representation A, ``unixport.reference_build``: :mod:`lodestar.regress.mcutime`).
 * **instructions**: per packet class and method, the instructions of ``process`` (valgrind's
   count of the build's x86 instructions: the same under any load) and each stage's, scaled to
-  the F401 by the same benchmarks' microseconds per instruction (needs ``valgrind``).
+  the F401 by the same benchmarks' microseconds per instruction on the representation-A
+  build (needs ``valgrind``).
 * **flash**: the frozen firmware's bytecode (``mpy-cross`` of the build) and the estcube2
   database of each method, with where each lives.
 
@@ -61,7 +64,7 @@ def build(checkout, out_dir):
 
 
 def heap_table(binaries, manifest, db_files):
-    print(f"\n## Heap (32-bit float32, frozen): smallest working heap (packet buffer "
+    print(f"\n## Heap (32-bit float32, REPR_C, frozen): smallest working heap (packet buffer "
           f"{unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records) and live peak, KiB")
     print("| method | camera | smallest heap, baseline -> now | live peak rest / moving / "
           "tracking, baseline -> now |")
@@ -88,13 +91,15 @@ def heap_table(binaries, manifest, db_files):
                   f"{peak_text} |")
 
 
-def time_table(binary, manifest, db_files, repeats):
-    cal = mcutime.calibrate(binary)
+def time_table(binary, reference, manifest, db_files, repeats):
+    """Per method and packet class: the wall time of ``process`` on the flight ``binary``
+    and the F401 estimate, scaled by the benchmarks on the ``reference`` build."""
+    cal = mcutime.calibrate(reference)
     scale = cal["scale"]
     ratios = ", ".join(f"{name} {mcutime.F401_US[name]:,.0f} us there / {min(us)} us here = "
                        f"{cal['ratio'][name]:.0f}x" for name, us in cal["runs"].items())
-    print(f"\n## Time: F401 estimate = time here x {scale:.0f} (geometric mean of {ratios}; "
-          f"{mcutime.F401_SOURCE})")
+    print(f"\n## Time: F401 estimate = time here x {scale:.0f} (geometric mean of {ratios}, "
+          f"on the representation-A build; {mcutime.F401_SOURCE})")
     print("| method | class | solves | here p50 / p95 / max, ms | F401 estimate p50 / p95 / "
           "max, ms | slowest solve's stages here, ms |")
     print("|---|---|---|---|---|---|")
@@ -124,14 +129,15 @@ def time_table(binary, manifest, db_files, repeats):
                   f"{ms[-1] * scale:.0f} | {stage_text} |")
 
 
-def instruction_table(binary, manifest, db_files):
-    """Per method and packet class: the instructions of ``process`` (valgrind, the second
-    of two frames) and the F401 estimate from them; the slowest frame's stages."""
+def instruction_table(binary, reference, manifest, db_files):
+    """Per method and packet class: the instructions of ``process`` on the flight ``binary``
+    (valgrind, the second of two frames) and the F401 estimate from them (ns per
+    instruction of the benchmarks on the ``reference`` build); the slowest frame's stages."""
     if mcutime.valgrind() is None:
         print("\n## Instructions: skipped (valgrind is not installed)")
         return
-    cal = mcutime.calibrate_instructions(binary)
-    per = ", ".join(f"{name} {cal['ir'][name] / 1e6:.2f} M instructions here, "
+    cal = mcutime.calibrate_instructions(reference)
+    per = ", ".join(f"{name} {cal['ir'][name] / 1e6:.2f} M instructions on A here, "
                     f"{mcutime.F401_US[name]:,.0f} us there" for name in cal["ir"])
     us_per = cal["us_per_ir_mean"]
     print(f"\n## Instructions at a {HEAP // 1024} KiB heap: F401 estimate = instructions x "
@@ -163,9 +169,12 @@ def instruction_table(binary, manifest, db_files):
                   f"{ir[-1] * us_per / 1e3:.0f} | {split} |")
 
 
-def flash_table(out_dir):
-    mpy_cross = next(Path(out_dir).glob("micropython-*/mpy-cross/build/mpy-cross"))
-    image = Path(out_dir) / "mcu-image"
+def flash_table(binary):
+    """The frozen bytecode of the MCU image ``binary`` froze (its build folder's ``mpy-cross``
+    and staged image) and the estcube2 databases."""
+    out_dir = Path(binary).parent
+    mpy_cross = next(out_dir.glob("micropython-*/mpy-cross/build/mpy-cross"))
+    image = out_dir / "mcu-image"
     total = 0
     with tempfile.TemporaryDirectory() as tmp:
         for py in sorted(image.rglob("*.py")):
@@ -206,12 +215,13 @@ def main():
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
                             str(base_tree)], check=True)
     current = build(None, cache)
+    reference = unixport.reference_build(repo=REPO)
     print(f"# bench_mcu: baseline {args.baseline} -> working tree; builds "
           f"{time.perf_counter() - t0:.0f} s")
     heap_table((baseline, current), manifest, db_files)
-    time_table(current, manifest, db_files, args.repeats)
-    instruction_table(current, manifest, db_files)
-    flash_table(cache)
+    time_table(current, reference, manifest, db_files, args.repeats)
+    instruction_table(current, reference, manifest, db_files)
+    flash_table(current)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,18 @@ under any load, and the F401's microseconds per instruction agree within a few p
 between the two benchmarks).  :func:`frame_instructions` counts a pipeline frame's
 instructions stage by stage.  Either way an estimate, and labelled so: the F401 runs Thumb-2
 code of another compiler from flash.
+
+The published run is the STM32 port's default build, object representation ``A`` (every
+float a heap object), while the flight build stores floats in the object word
+(``MICROPY_OBJ_REPR_C``, :data:`lodestar.regress.unixport.FLIGHT_REPR`), which runs
+``bm_float`` in fewer instructions (measured: 2.44 M against 3.54 M, while ``bm_nqueens``
+takes 35.4 M in both; calibrated on C, the two would disagree on the F401's time per
+instruction by 47 %).  So the calibration runs on a representation-``A``
+build of the same sources (:func:`lodestar.regress.unixport.reference_build`; the
+calibration functions refuse another) and its scale is applied to the flight build's times
+and counts: this assumes that the F401 spends the same time per instruction counted here
+in both representations, which is an estimate too (no F401 has run a representation-``C``
+build for this project).
 """
 
 import glob
@@ -30,7 +42,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from lodestar.regress import mcu
+from lodestar.regress import mcu, unixport
 from lodestar.regress.micropython import literal
 
 F401_SOURCE = ("micropython/micropython pull request #18069 (NUCLEO-F401RE, 84 MHz, "
@@ -79,11 +91,24 @@ def benchmark_source(name):
     return body.replace("import pyperf\n", "")
 
 
+def _check_reference(binary):
+    """Raise :class:`CalibrationError` unless ``binary`` has the published run's object
+    representation, ``A`` (:func:`lodestar.regress.unixport.object_representation`)."""
+    found = unixport.object_representation(binary)
+    if found != "A":
+        raise CalibrationError(f"{binary} has object representation {found}: the F401 "
+                               "figures were measured on representation A (calibrate on "
+                               "lodestar.regress.unixport.reference_build)")
+
+
 def calibrate(binary, runs=7, timeout=120):
     """Run each calibration benchmark ``runs`` times on MicroPython ``binary`` (a fresh
-    process each time) and return ``{"runs": {name: [us, ...]}, "ratio": {name: F401 us /
-    fastest us here}, "scale": geometric mean of the ratios}``: an F401's time for a piece
-    of code is about ``scale`` times its time on ``binary`` here."""
+    process each time; object representation ``A``, as the published run:
+    :func:`lodestar.regress.unixport.reference_build`) and return ``{"runs": {name: [us,
+    ...]}, "ratio": {name: F401 us / fastest us here}, "scale": geometric mean of the
+    ratios}``: an F401's time for a piece of code is about ``scale`` times its time here on
+    a build of the same sources (the flight build included, an estimate: see the module)."""
+    _check_reference(binary)
     times = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (call, expect) in _CALLS.items():
@@ -139,9 +164,14 @@ def _instructions(argv, cwd, dump_before=None, timeout=900):
 
 def calibrate_instructions(binary):
     """``{"ir": {name: instructions of one run here}, "us_per_ir": {name: F401 us per
-    instruction}, "us_per_ir_mean": their geometric mean}``: an F401's time for a piece of
-    code is about its instruction count on ``binary`` times ``us_per_ir_mean``.  One run's
-    count is the difference between a process running it three times and once."""
+    instruction}, "us_per_ir_mean": their geometric mean}`` on MicroPython ``binary``
+    (object representation ``A``, as the published run:
+    :func:`lodestar.regress.unixport.reference_build`): an F401's time for a piece of code
+    is about its instruction count on a build of the same sources (the flight build's
+    :func:`frame_instructions` included, an estimate: see the module) times
+    ``us_per_ir_mean``.  One run's count is the difference between a process running it
+    three times and once."""
+    _check_reference(binary)
     ir = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (call, expect) in _CALLS.items():

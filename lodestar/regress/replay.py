@@ -37,16 +37,22 @@ FLOAT32_TOLERANCES = dict(TOLERANCES)
 """The float32 build against its own recorded outcomes (recorded into a set as
 ``float32.tolerances``): the double set's, which is bit for bit in effect (1e-9 rad is below
 one float32 step of a unit quaternion, 6e-8).  Measured: the same build reproduces every
-outcome bit for bit in any order and at any heap, and the 32-bit and the 64-bit x86 builds
-(SSE arithmetic, :data:`lodestar.regress.unixport.SSE_COPT`) agree bit for bit.  A float32
+outcome bit for bit in any order and at any heap, and (in object representation A, which
+can be built 64-bit) the 32-bit and the 64-bit x86 builds (SSE arithmetic,
+:data:`lodestar.regress.unixport.SSE_COPT`) agreed bit for bit.  A float32
 attitude is not stable against last-bit changes (an x87 build moves one by 0.67 arcsec), so
 another arithmetic (compiler, ``libm``, FPU) needs its own recording."""
 
-FLOAT32_BOUND = {"q_rad": math.radians(2.0 / 3600.0), "sigma_relative": 1e-2}
+FLOAT32_BOUND = {"q_rad": math.radians(6.0 / 3600.0), "sigma_relative": 2e-2}
 """The float32 outcomes against the double ones (recorded into a set as ``float32.bound``;
-:data:`IDENTIFICATION_FIELDS` exactly): 2 arcsec of attitude (measured at most 0.61 arcsec,
-estcube2_rest_s3; fitting float32 catalogue vectors without renormalising them gave 2.37),
-1 % of the 1-sigma figures and the centroid noise (measured at most 0.036 %)."""
+:data:`IDENTIFICATION_FIELDS` exactly): 6 arcsec of attitude and 2 % of the 1-sigma figures
+and the centroid noise.  Measured on the flight build (object representation C, 22-bit float
+significands, :data:`lodestar.regress.unixport.FLIGHT_REPR`): attitudes at most 5.17 arcsec
+from double and sigmas at most 1.39 % (both estcube2_rest_s3: the fit's residuals, from which
+the centroid noise and the sigmas come, grow with its error); the same build in
+representation A (24 bits) gave 0.61 arcsec and 0.036 % (and fitting float32 catalogue
+vectors without renormalising them there, 2.37 arcsec).  To be tightened once the attitude
+fit is made float32-friendly."""
 
 
 class RegressionError(Exception):

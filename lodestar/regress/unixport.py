@@ -1,13 +1,15 @@
 """MicroPython 1.27's unix port as the flight MCU runs it: built 32-bit with single-precision
-floats and the MCU image frozen (bytecode in "flash"), then the regression set replayed as
-a flight loop with a fixed heap.
+floats stored in the object word (``MICROPY_OBJ_REPR_C``) and the MCU image frozen (bytecode
+in "flash"), then the regression set replayed as a flight loop with a fixed heap.
 
 :func:`build` builds the interpreter with MicroPython's ``build.sh`` and the repository's
 ``manifest.py``; :func:`flight_loop` replays cases one after another in one process, with
 only the current camera's database open, as the flight software would; :func:`min_heap`
 bisects the smallest heap with which a loop still gives the recorded results;
 :func:`float32_build` and :func:`float32_outcomes` give the set's float32 expectations
-(recorded and replayed by ``lodestar regress``).  How each figure is measured:
+(recorded and replayed by ``lodestar regress``); :func:`reference_build` is the same
+MicroPython in the STM32 port's default object representation, which ran the published F401
+benchmarks (:mod:`lodestar.regress.mcutime`).  How each figure is measured:
 ``docs/regression.md``, "A real MicroPython".
 """
 
@@ -16,6 +18,7 @@ import hashlib
 import json
 import os
 import platform
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -42,12 +45,35 @@ EXPECTATION_HEAP = 4 << 20
 """Heap (bytes) of the replays that give the float32 expectations: no case comes near it, so
 they are the arithmetic's results; the flight heap budget is tested on its own."""
 
-SSE_COPT = "-Os -msse2 -mfpmath=sse"
-"""The unix port's ``COPT`` on x86 hosts: its own ``-Os`` plus SSE floating point, so every
+PORT_COPT = "-Os"
+"""The unix port's own ``COPT`` (its ``Makefile``'s default), which a build's ``COPT``
+replaces and so repeats."""
+
+SSE_COPT = f"{PORT_COPT} -msse2 -mfpmath=sse"
+"""The unix port's ``COPT`` on x86 hosts: its own plus SSE floating point, so every
 single-precision operation is rounded to float32 as on the Cortex-M4F's FPU.  The i686
 default (x87) keeps intermediates in 80-bit registers: 6 of the set's 84 replays then differ
 from the x86-64 build, one attitude by 0.67 arcsec; with SSE the 32-bit and the 64-bit
-build give bit-identical results (``docs/regression.md``)."""
+build gave bit-identical results (object representation ``A``, ``docs/regression.md``)."""
+
+OBJ_REPRS = {"A": "", "C": "-DMICROPY_OBJ_REPR=MICROPY_OBJ_REPR_C"}
+"""MicroPython's object representations a build can have (``py/mpconfig.h``), as additions
+to its ``COPT``.  ``A``: MicroPython's default and the STM32 port's; every float result is
+a 16-byte heap object.  ``C``: a float is stored in the 32-bit object word itself (30 bits:
+float32 with the two lowest significand bits dropped, a 22-bit significand), so float
+arithmetic allocates nothing; it needs 32-bit words and single-precision floats."""
+
+FLIGHT_REPR = "C"
+"""The flight build's object representation (:data:`OBJ_REPRS`), as the flight board's
+``mpconfigboard.h`` sets it: on the regression set 31-43 % fewer instructions per frame at
+the median and 4-10 KiB smaller flight-loop heaps than ``A`` (``docs/mcu_board.md``)."""
+
+NO_32BIT = ("the C compiler cannot build 32-bit programs (cc -m32; Debian: install "
+            "gcc-multilib), which the flight build's MICROPY_OBJ_REPR_C needs")
+"""Why the flight build cannot be made without a 32-bit target, and the fix."""
+
+M32_PROBE = "int main(void){return 0;}"
+"""The C program ``build.sh`` links with ``cc -m32`` to choose a 32-bit build."""
 
 
 class Unavailable(MicroPythonError):
@@ -69,22 +95,63 @@ def unavailable_reason(repo=None):
     for tool in ("make", "cc", "patch", "tar"):
         if shutil.which(tool) is None:
             return f"{tool} is not installed (needed to build MicroPython)"
+    if not links_32bit():
+        return NO_32BIT
     return None
 
 
+def links_32bit():
+    """Whether the C compiler (``$CC``, default ``cc``) links :data:`M32_PROBE` with
+    ``-m32``: ``build.sh``'s test for a 32-bit build (else it builds 64-bit)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            proc = subprocess.run(_cc() + ["-m32", "-x", "c", "-", "-o", str(Path(tmp) / "a")],
+                                  input=M32_PROBE, capture_output=True, text=True, timeout=120)
+        except OSError:
+            return False
+    return proc.returncode == 0
+
+
+def _cc():
+    """The C compiler command, as ``build.sh`` runs it (``$CC`` split into words)."""
+    return shlex.split(os.environ.get("CC") or "cc")
+
+
 def float32_build(cache_dir=None, repo=None):
-    """The flight MCU's interpreter (:func:`build`, ``float32``, the MCU image frozen by the
-    ``manifest.py`` of checkout ``repo``, default the current directory) in
-    ``cache_dir/micropython`` (default :func:`lodestar.ground.cache.default_cache_dir`).
+    """The flight MCU's interpreter (:func:`build`: ``float32``, :data:`FLIGHT_REPR`, the MCU
+    image frozen by the ``manifest.py`` of checkout ``repo``, default the current directory)
+    under ``cache_dir/micropython`` (default :func:`lodestar.ground.cache.default_cache_dir`).
     Raises :class:`Unavailable` when it cannot be built here, :class:`MicroPythonError` when
     the build fails."""
+    repo = _available(repo)
+    return build(build_script(repo), repo / "manifest.py", _cache(cache_dir), "float32")
+
+
+def reference_build(cache_dir=None, repo=None):
+    """The flight build's MicroPython in the STM32 port's default object representation
+    (``A``), float32 and nothing frozen: the configuration that ran the published F401
+    benchmarks, which calibrate :mod:`lodestar.regress.mcutime` (they are not the firmware:
+    a plain interpreter runs them as a frozen one does).  Built beside :func:`float32_build`
+    once (36 s here) and reused while MicroPython's build folder and the flags stay the same;
+    raises as :func:`float32_build`."""
+    repo = _available(repo)
+    return build(build_script(repo), None, _cache(cache_dir), "float32", obj_repr="A")
+
+
+def _available(repo):
+    """Checkout ``repo`` (default the current directory) as a path; raises
+    :class:`Unavailable` with :func:`unavailable_reason`."""
     repo = Path.cwd() if repo is None else Path(repo)
     reason = unavailable_reason(repo)
     if reason is not None:
         raise Unavailable(f"the float32 MicroPython build is unavailable: {reason}")
-    directory = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    return build(build_script(repo), Path(repo) / "manifest.py", directory / "micropython",
-                 "float32")
+    return repo
+
+
+def _cache(cache_dir):
+    """The builds' folder: ``micropython`` in ``cache_dir`` (default
+    :func:`lodestar.ground.cache.default_cache_dir`)."""
+    return (Path(cache_dir) if cache_dir is not None else default_cache_dir()) / "micropython"
 
 
 def build_script(repo):
@@ -127,27 +194,43 @@ def stage_mcu_image(folder, checkout=None):
     return folder
 
 
-def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1200):
+def build(script, manifest, out_dir, variant="float32", checkout=None, obj_repr=FLIGHT_REPR,
+          timeout=1200):
     """Build (incrementally) the unix-port interpreter ``variant`` (``float32`` or
-    ``double``) with the MCU image frozen by ``manifest`` (the repository's
-    ``manifest.py``) using MicroPython's build ``script``; returns the path of a copy named
-    by its content (the build's own name plus a hash: it says 32- or 64-bit), which no
-    later build overwrites while it runs.  Builds into one ``out_dir`` take turns (a lock
-    file).  ``checkout``: freeze another checkout's image (:func:`stage_mcu_image`).
-    Raises :class:`MicroPythonError` when the build fails."""
-    out_dir = Path(out_dir)
+    ``double``) in object representation ``obj_repr`` (:data:`OBJ_REPRS`; ``C`` needs
+    ``float32`` and a compiler that can target ``-m32``) with the MCU image frozen by
+    ``manifest`` (the repository's ``manifest.py``; None: nothing frozen) using MicroPython's
+    build ``script``; returns the path of a copy named by its content (the build's own name,
+    which says 32- or 64-bit, the representation and a hash), which no later build
+    overwrites while it runs.  Each representation builds in its own folder,
+    ``out_dir/repr-a`` or ``out_dir/repr-c``: ``build.sh`` names a binary and its build
+    folder by variant and word size only, so two representations in one folder would
+    rebuild each other.  Builds into one folder take turns (a lock file).  ``checkout``:
+    freeze another checkout's image (:func:`stage_mcu_image`).  Raises :class:`Unavailable`
+    for ``C`` without a 32-bit compiler, :class:`MicroPythonError` when the build fails."""
+    if obj_repr == "C" and variant != "float32":
+        raise ValueError(f"MICROPY_OBJ_REPR_C needs single-precision floats, not {variant}")
+    if obj_repr == "C" and not links_32bit():
+        raise Unavailable(NO_32BIT)
+    out_dir = Path(out_dir) / f"repr-{obj_repr.lower()}"
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / ".build.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        image = stage_mcu_image(out_dir / "mcu-image", checkout)
-        key = _build_key(script, manifest, image, variant)
-        known = out_dir / f".{variant}-built"
+        image = None if manifest is None else stage_mcu_image(out_dir / "mcu-image", checkout)
+        key = _build_key(script, manifest, image, variant, obj_repr)
+        known = out_dir / f".{variant}{'' if manifest is None else '-frozen'}-built"
         if known.is_file():
             last_key, _, last = known.read_text().partition(" ")
             if last_key == key and Path(last).is_file():
                 return Path(last)        # build.sh rewrites its config header: a full rebuild
-        env = dict(os.environ, FROZEN_MANIFEST=str(Path(manifest).resolve()),
-                   LODESTAR_MCU_IMAGE=str(image.resolve()), **_copt())
+        env = dict(os.environ, COPT=_copt(obj_repr))
+        env.pop("FROZEN_MANIFEST", None)
+        if manifest is None:             # build.sh reuses a plain binary: build this one
+            for bits in (32, 64):
+                (out_dir / f"micropython-{variant}-{bits}").unlink(missing_ok=True)
+        else:
+            env.update(FROZEN_MANIFEST=str(Path(manifest).resolve()),
+                       LODESTAR_MCU_IMAGE=str(image.resolve()))
         proc = subprocess.run(["bash", str(script), str(out_dir), variant], env=env,
                               capture_output=True, text=True, timeout=timeout)
         lines = proc.stdout.strip().splitlines()
@@ -157,35 +240,76 @@ def build(script, manifest, out_dir, variant="float32", checkout=None, timeout=1
                                    f"{(proc.stdout + proc.stderr).strip()[-2000:]}")
         built = Path(lines[-1])
         data = built.read_bytes()
-        copy = built.with_name(f"{built.name}-{hashlib.sha256(data).hexdigest()[:12]}")
+        name = f"{built.name}-repr-{obj_repr.lower()}"
+        copy = built.with_name(f"{name}-{hashlib.sha256(data).hexdigest()[:12]}")
         if not copy.is_file():
             tmp = copy.with_name(copy.name + ".tmp")
             tmp.write_bytes(data)
             tmp.chmod(0o755)
             os.replace(tmp, copy)
-        for old in built.parent.glob(built.name + "-*"):
+        for old in built.parent.glob(name + "-*"):
             if old != copy:
                 old.unlink(missing_ok=True)     # a running copy keeps its inode
         known.write_text(f"{key} {copy}")
         return copy
 
 
-def _build_key(script, manifest, image, variant):
+def _build_key(script, manifest, image, variant, obj_repr):
     """Hash of everything a build depends on: MicroPython's build folder (script, sources,
-    patch), the manifest, the staged image, the variant and the C compiler."""
-    h = hashlib.sha256(f"{variant}\0{os.environ.get('CC', 'cc')}\0{_copt()}\0".encode())
-    for path in sorted(Path(script).parent.iterdir()) + [Path(manifest)]:
+    patch), the manifest and the staged image (when frozen), the variant, the object
+    representation, the C compiler and its flags."""
+    h = hashlib.sha256(f"{variant}\0{obj_repr}\0{os.environ.get('CC', 'cc')}\0"
+                       f"{_copt(obj_repr)}\0".encode())
+    for path in sorted(Path(script).parent.iterdir()) + ([] if manifest is None else
+                                                         [Path(manifest)]):
         if path.is_file():
             h.update(path.name.encode() + b"\0" + path.read_bytes())
-    for path in sorted(Path(image).rglob("*.py")):
+    for path in sorted(Path(image).rglob("*.py")) if image is not None else []:
         h.update(path.relative_to(image).as_posix().encode() + b"\0" + path.read_bytes())
     return h.hexdigest()
 
 
-def _copt():
-    """The build's ``COPT`` (:data:`SSE_COPT` on x86 hosts; none elsewhere) as environment."""
+def _copt(obj_repr):
+    """The build's ``COPT``: :data:`SSE_COPT` on x86 hosts, else :data:`PORT_COPT`, and the
+    object representation's flag (:data:`OBJ_REPRS`)."""
     x86 = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686")
-    return {"COPT": SSE_COPT} if x86 else {}
+    return " ".join(f for f in (SSE_COPT if x86 else PORT_COPT, OBJ_REPRS[obj_repr]) if f)
+
+
+_PROBE = r'''
+import gc
+
+
+def allocated(n):
+    gc.collect()
+    start = gc.mem_alloc()
+    x = 1.5
+    for _ in range(n):
+        x = x * 1.0001
+    return gc.mem_alloc() - start
+
+
+print(allocated(101) - allocated(1), 1.0 + 2.0 ** -22 == 1.0)
+'''
+
+
+def object_representation(binary, timeout=60):
+    """The object representation of MicroPython ``binary`` (:data:`OBJ_REPRS`), observed:
+    ``C`` when 100 more float products allocate nothing more and ``1 + 2**-22`` is 1 (a
+    22-bit significand), ``A`` when they allocate and the sum keeps float32's 24 bits.
+    Raises :class:`MicroPythonError` for anything else."""
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "probe.py"
+        script.write_text(_PROBE, encoding="utf-8")
+        proc = subprocess.run([str(binary), str(script)], capture_output=True, text=True,
+                              timeout=timeout, cwd=tmp)
+    words = proc.stdout.split()
+    if proc.returncode == 0 and len(words) == 2 and words[0].isdigit():
+        boxed, rounded = int(words[0]) > 0, words[1] == "True"
+        if boxed != rounded:
+            return "A" if boxed else "C"
+    raise MicroPythonError(f"no object representation from {binary}: "
+                           f"{(proc.stdout + proc.stderr).strip()[-300:]}")
 
 
 _LOOP = r'''
