@@ -85,10 +85,9 @@ def bounds(v1, v2, v3, eps):
 def canonical_order(v1, v2, v3):
     """Vertex order ``(i0, i1, i2)`` (indices 0..2) opposite the shortest, middle and
     longest side (ties by index) and those sides ``(t0, t1, t2)``."""
-    opp = (chord(v2, v3), chord(v1, v3), chord(v1, v2))
-    order = [0, 1, 2]
-    order.sort(key=lambda i: (opp[i], i))
-    return (order[0], order[1], order[2]), (opp[order[0]], opp[order[1]], opp[order[2]])
+    s = [(chord(v2, v3), 0), (chord(v1, v3), 1), (chord(v1, v2), 2)]
+    s.sort()                            # (side, index) tuples: ties by index, no key calls
+    return (s[0][1], s[1][1], s[2][1]), (s[0][0], s[1][0], s[2][0])
 
 
 _PERMUTATIONS = ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
