@@ -43,16 +43,14 @@ can be built 64-bit) the 32-bit and the 64-bit x86 builds (SSE arithmetic,
 attitude is not stable against last-bit changes (an x87 build moves one by 0.67 arcsec), so
 another arithmetic (compiler, ``libm``, FPU) needs its own recording."""
 
-FLOAT32_BOUND = {"q_rad": math.radians(6.0 / 3600.0), "sigma_relative": 2e-2}
+FLOAT32_BOUND = {"q_rad": math.radians(1.0 / 3600.0), "sigma_relative": 1e-2}
 """The float32 outcomes against the double ones (recorded into a set as ``float32.bound``;
-:data:`IDENTIFICATION_FIELDS` exactly): 6 arcsec of attitude and 2 % of the 1-sigma figures
+:data:`IDENTIFICATION_FIELDS` exactly): 1 arcsec of attitude and 1 % of the 1-sigma figures
 and the centroid noise.  Measured on the flight build (object representation C, 22-bit float
-significands, :data:`lodestar.regress.unixport.FLIGHT_REPR`): attitudes at most 5.17 arcsec
-from double and sigmas at most 1.39 % (both estcube2_rest_s3: the fit's residuals, from which
-the centroid noise and the sigmas come, grow with its error); the same build in
-representation A (24 bits) gave 0.61 arcsec and 0.036 % (and fitting float32 catalogue
-vectors without renormalising them there, 2.37 arcsec).  To be tightened once the attitude
-fit is made float32-friendly."""
+significands, :data:`lodestar.regress.unixport.FLIGHT_REPR`) with the fits refined by
+``attitude.refine``: attitudes at most 0.20 arcsec from double (lohmann_orion), sigmas at
+most 0.27 %.  Before that refinement QUEST's ``eps / gap`` gave 5.17 arcsec and 1.39 %
+(estcube2_rest_s3), and 0.61 arcsec in representation A (24 bits)."""
 
 
 class RegressionError(Exception):
