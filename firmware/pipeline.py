@@ -50,10 +50,11 @@ FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
 COLLECT = sys.implementation.name == "micropython"
 """On MicroPython a :class:`StarTracker` sets ``gc.threshold`` for each frame
-(:data:`GC_THRESHOLD`, :data:`TRACK_GC_THRESHOLD`) and collects at the stage boundaries of
-:meth:`StarTracker.process` (before the packet is checked, after the centroids, before the
-identification and before the attitude fit): on an MCU's small heap this keeps temporaries
-from fragmenting it (``docs/firmware.md``, Memory); CPython's own collector needs no help."""
+(:data:`GC_THRESHOLD`, :data:`TRACK_GC_THRESHOLD`) and collects before each frame and, in a
+lost-in-space frame, at the stage boundaries of :meth:`StarTracker.process` (after the
+centroids, before the identification and before the attitude fit): on an MCU's small heap
+this keeps temporaries from fragmenting it, while a tracking frame's low peak needs no stage
+collections (``docs/firmware.md``, Memory); CPython's own collector needs no help."""
 GC_THRESHOLD = 8192
 """Bytes allocated between two collections on MicroPython in a lost-in-space frame, whose
 search and fit peak high: collecting often keeps the heap from fragmenting
