@@ -248,6 +248,14 @@ def test_noise_model_chooses_the_floor_from_the_residuals():
     truth = tracker.attitude(b, ids, None)               # equal weights: right for this noise
     assert with_floor[0] == pytest.approx(truth[0], abs=1e-12)
     assert photon_only[0] != pytest.approx(truth[0], abs=1e-9)
+    # refined from a nearby attitude (the identification's, q0) rather than by QUEST: the
+    # same fit, noise model and sigmas
+    q0 = (Rotation.from_rotvec([2e-3, -1e-3, 3e-3]) * Rotation.from_quat(truth[0])).as_quat()
+    for floor in (True, False):
+        quest = tracker.attitude(b, ids, fluxes, floor=floor)
+        refined = tracker.attitude(b, ids, fluxes, floor=floor, q0=q0.tolist())
+        assert refined[0] == pytest.approx(quest[0], abs=1e-9)
+        assert refined[1:] == pytest.approx(quest[1:], rel=1e-6)
 
 
 class _VectorDatabase:
@@ -654,3 +662,27 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
     monkeypatch.setattr(tracker.database, "star_vector", no_heap)
     res = tracker.process(frame.packet)
     assert res.status == S.OUT_OF_MEMORY and res.q is None
+
+
+def test_collections_per_frame_kind(monkeypatch):
+    """On MicroPython a lost-in-space frame collects before the frame and at its three stage
+    boundaries at the 8 KiB threshold; a tracking frame collects once, at 32 KiB; a tracking
+    frame that falls back collects before its search and its fit, back at 8 KiB."""
+    frame = SF.frames()[0]
+    tracker = SF.tracker()
+    calls = []
+    monkeypatch.setattr(pipeline, "COLLECT", True)
+    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
+        "collect": staticmethod(lambda: calls.append("collect")),
+        "threshold": staticmethod(lambda n: calls.append(n))}))
+    lis, track = pipeline.GC_THRESHOLD, pipeline.TRACK_GC_THRESHOLD
+    assert tracker.process(frame.packet).status == S.OK
+    assert calls == [lis, "collect", "collect", "collect", lis, "collect"]
+    del calls[:]
+    assert tracker.process(frame.packet, prior=frame.q.tolist()).mode == "tracking"
+    assert calls == [track, "collect"]
+    del calls[:]
+    far = (Rotation.from_rotvec([0.35, 0.0, 0.0]) * Rotation.from_quat(frame.q)).as_quat()
+    res = tracker.process(frame.packet, prior=far.tolist())
+    assert res.status == S.OK and res.mode == "lost_in_space"
+    assert calls == [track, "collect", lis, "collect", "collect"]
