@@ -44,7 +44,7 @@ def _read(data, base, plan, names, into):
     MSB first with the neighbouring fields' bits removed before they are shifted in, so no
     intermediate exceeds the field's value: a value that fits a MicroPython small int is read
     without allocating a long int.  One loop without calls: it runs for every field of every
-    record, twice per frame."""
+    record."""
     k = 0
     for first, last, head_mask, tail_drop in plan:
         i = base + first
