@@ -74,3 +74,15 @@ def test_rotate_about_matches_scipy():
         want = Rotation.from_rotvec(angle * axis).apply(v)
         assert G.rotate_about(tuple(v), tuple(axis), angle) == pytest.approx(tuple(want),
                                                                             abs=1e-12)
+
+
+def test_is_number_takes_subclasses_and_rejects_bools():
+    class Count(int):
+        pass
+
+    assert G.is_number(1) and G.is_number(-2.5) and G.is_number(Count(3))
+    assert G.is_number(np.float64(0.25))            # a float subclass
+    assert not G.is_number(np.float32(0.25))        # not an int or float
+    assert not G.is_number(True) and not G.is_number(float("nan"))
+    assert not G.is_number(float("inf")) and not G.is_number(np.float64("inf"))
+    assert not G.is_number("1") and not G.is_number(None)
