@@ -41,6 +41,13 @@ with margin), added to a cone query's reach so no cell is missed."""
 PAIR_BLOCK = 32
 """Most pair records one :meth:`Database.pair_stars` read returns."""
 _PAIR_STARS_FORMAT = "<" + "2x2H" * PAIR_BLOCK
+_SCRATCH_BYTES = max(L.HEADER_SIZE, PAIR_BLOCK * L.PAIR_SIZE)
+"""A file source's read buffer: the header, or a block of pairs or of stars."""
+STAR_BLOCK = _SCRATCH_BYTES // L.STAR_SIZE
+"""Most star vectors one :meth:`Database.star_vectors` read returns."""
+_STAR_VECTOR = "fff" + str(L.STAR_SIZE - 12) + "x"     # a star record's vector, then skip
+_STAR_VECTORS_FORMAT = "<" + _STAR_VECTOR * STAR_BLOCK
+_CELL_RANGE_FORMAT = "<" + L.CELL_FORMAT[1:] * 2        # two consecutive cell starts
 
 
 class DatabaseError(Exception):
@@ -122,7 +129,7 @@ class _FileSource:
         self.f = f
         f.seek(0, 2)
         self.size = f.tell()
-        self.scratch = bytearray(max(L.HEADER_SIZE, PAIR_BLOCK * L.PAIR_SIZE))
+        self.scratch = bytearray(_SCRATCH_BYTES)
         self.mv = memoryview(self.scratch)
 
     def unpack(self, fmt, offset, size):
@@ -394,6 +401,35 @@ class Database:
         r = self._src.unpack("<fff", self._stars_off + i * L.STAR_SIZE, 12)
         return r[0], r[1], r[2]
 
+    def star_vectors(self, start):
+        """The vectors of stars ``start, start + 1, ...`` as one flat tuple ``(x, y, z, x,
+        ...)``: :data:`STAR_BLOCK` of them (fewer at the end of the table) in one read."""
+        n = self.n_stars - start
+        if n >= STAR_BLOCK:
+            return self._src.unpack(_STAR_VECTORS_FORMAT, self._stars_off + start * L.STAR_SIZE,
+                                    STAR_BLOCK * L.STAR_SIZE)
+        return self._src.unpack("<" + _STAR_VECTOR * n, self._stars_off + start * L.STAR_SIZE,
+                                n * L.STAR_SIZE)
+
+    def read_vectors(self, ids, vecs):
+        """Set ``vecs[3 k], vecs[3 k + 1], vecs[3 k + 2]`` to the vector of star ``ids[k]``
+        for every ``k``: a run of ascending ids within :data:`STAR_BLOCK` (a cone's stars,
+        stored by sky cell) shares one read."""
+        n = len(ids)
+        k = 0
+        while k < n:
+            first = ids[k]
+            block = self.star_vectors(first)
+            m = len(block) // 3
+            while k < n:
+                t = ids[k] - first
+                if t < 0 or t >= m:
+                    break
+                t *= 3
+                j = 3 * k
+                vecs[j], vecs[j + 1], vecs[j + 2] = block[t], block[t + 1], block[t + 2]
+                k += 1
+
     def _star_word(self, i):
         return self._src.unpack("<HH", self._stars_off + i * L.STAR_SIZE + 12, 4)
 
@@ -422,7 +458,7 @@ class Database:
 
     def cell_range(self, c):
         """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
-        return self._cell_start(c), self._cell_start(c + 1)
+        return self._src.unpack(_CELL_RANGE_FORMAT, self._cells_off + 2 * c, 4)
 
     def stars_in_cone(self, d, radius, out=None):
         """Indices of the stars within ``radius`` (rad) of the unit vector ``d``, appended
@@ -438,10 +474,14 @@ class Database:
             if cells[3 * c] * dx + cells[3 * c + 1] * dy + cells[3 * c + 2] * dz < cos_reach:
                 continue
             a, b = self.cell_range(c)
-            for s in range(a, b):
-                x, y, z = self.star_vector(s)
-                if x * dx + y * dy + z * dz >= cos_r:
-                    out.append(s)
+            while a < b:                # the cell's stars, a block per read
+                v = self.star_vectors(a)
+                n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
+                for k in range(n):
+                    j = 3 * k
+                    if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:
+                        out.append(a + k)
+                a += n
         return out
 
     # ---- pairs ----------------------------------------------------------------------

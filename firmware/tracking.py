@@ -122,8 +122,7 @@ def candidates(database, q, margin_rad, cone=None):
         radius += CONE_REUSE_RAD
     ids = array("H", database.stars_in_cone(d, radius))
     vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
-    for i in range(len(ids)):
-        vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2] = database.star_vector(ids[i])
+    database.read_vectors(ids, vecs)
     if cone is not None:
         cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, (ids, vecs)
     return ids, vecs

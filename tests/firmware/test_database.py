@@ -94,6 +94,35 @@ def test_stars_in_cone_equals_brute_force():
     assert len(db.stars_in_cone((0.0, 0.0, 1.0), 4.0)) == db.n_stars
 
 
+def test_block_reads_equal_star_by_star(tmp_path):
+    """``star_vectors`` and ``read_vectors`` give ``star_vector``'s values, from a buffer and
+    from a file, at the end of the table and for ids in runs, gaps and out of order."""
+    from array import array
+
+    from lodestar.firmware.database import STAR_BLOCK
+    image = estcube2_image()
+    path = tmp_path / "db.bin"
+    path.write_bytes(image)
+    mem = Database(image)
+    f = Database.open(str(path))
+    try:
+        n = mem.n_stars
+        for db in (mem, f):
+            for start in (0, 5, n - STAR_BLOCK, n - 3, n - 1):
+                block = db.star_vectors(start)
+                assert len(block) == 3 * min(STAR_BLOCK, n - start)
+                for k in range(len(block) // 3):
+                    assert tuple(block[3 * k:3 * k + 3]) == mem.star_vector(start + k)
+            ids = array("H", [0, 1, 2, 40, 41, STAR_BLOCK + 60, 7, n - 1, n - 2, 3])
+            vecs = array("d", range(3 * len(ids)))
+            db.read_vectors(ids, vecs)
+            assert [tuple(vecs[3 * k:3 * k + 3]) for k in range(len(ids))] == \
+                [mem.star_vector(i) for i in ids]
+            assert db.cell_range(3) == (mem._cell_start(3), mem._cell_start(4))
+    finally:
+        f.close()
+
+
 # --------------------------------------------------------------------------------------
 # Corruption and mismatch
 # --------------------------------------------------------------------------------------

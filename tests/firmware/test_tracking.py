@@ -148,6 +148,10 @@ class _CountingDatabase:
         self.reads += 1
         return self._db.star_vector(i)
 
+    def read_vectors(self, ids, vecs):
+        self.reads += len(ids)
+        return self._db.read_vectors(ids, vecs)
+
     def __getattr__(self, name):
         return getattr(self._db, name)
 
