@@ -220,12 +220,14 @@ class Search:
             self.best_rejected = ver.probability
         return False
 
-    def refine(self, ver, rounds=4):
-        """Attitude from all matches: refit and re-verify while the match set grows (up to
-        ``rounds`` times).  Returns ``(q, ver)`` with ``q`` the q-method fit of exactly
-        ``ver.pairs`` (a re-verification that loses matches or acceptance is discarded)."""
+    def refine(self, q, ver, rounds=4):
+        """Attitude from all matches of the hypothesis ``q`` (verified as ``ver``): refit
+        from ``q`` and re-verify while the match set grows (up to ``rounds`` times).
+        Returns ``(q, ver)`` with ``q`` the least-squares fit of exactly ``ver.pairs`` (a
+        re-verification that loses matches or acceptance is discarded)."""
+        start = q
         for _ in range(rounds):
-            q = self.fit(ver.pairs)
+            q = self.fit(ver.pairs, start)
             if q is None:
                 break
             ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
@@ -233,16 +235,25 @@ class Search:
                     ver2.pairs == ver.pairs:
                 return q, ver
             ver = ver2
-        return self.fit(ver.pairs), ver
+            start = q
+        return self.fit(ver.pairs, start), ver
 
-    def fit(self, pairs):
-        """The q-method attitude of the matches ``pairs`` (observed, catalogue index),
-        weighted by :attr:`weights`; None when degenerate."""
+    def fit(self, pairs, q0=None):
+        """The least-squares attitude of the matches ``pairs`` (observed, catalogue index),
+        weighted by :attr:`weights`: the q-method (a pattern's first fit), or refined from a
+        nearby attitude ``q0`` (:func:`lodestar.firmware.attitude.refine`: one or two steps
+        instead of a 4x4 Jacobi, and accurate in single precision); None when degenerate."""
         db = self.db
         obs = [self.b[o] for o, s in pairs]
         ref = [db.star_vector(s) for o, s in pairs]
         w = None if self.weights is None else [self.weights[o] for o, s in pairs]
-        return fit_attitude(obs, ref, w)
+        if q0 is None:
+            return fit_attitude(obs, ref, w)
+        try:
+            q = _attitude.refine(q0, obs, ref, w)
+        except ValueError:
+            return None
+        return q[0], q[1], q[2], q[3]
 
     def conclude(self, accepted, tried):
         """The :class:`Solution` of the accepted hypotheses of one pattern: ``AMBIGUOUS`` if
@@ -257,7 +268,7 @@ class Search:
             if angle_between(accepted[h][0], q) > self.distinct:
                 return Solution(S.AMBIGUOUS, patterns_tried=tried, probability=ver.probability,
                                 hypotheses=self.hypotheses, work=self.work)
-        q, ver = self.refine(ver)
+        q, ver = self.refine(q, ver)
         db = self.db
         matches = [(o, db.star_hip(s)) for o, s in ver.pairs]
         return Solution(S.OK, q=q, matches=matches, patterns_tried=tried,

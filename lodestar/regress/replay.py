@@ -48,8 +48,8 @@ FLOAT32_BOUND = {"q_rad": math.radians(1.0 / 3600.0), "sigma_relative": 1e-2}
 :data:`IDENTIFICATION_FIELDS` exactly): 1 arcsec of attitude and 1 % of the 1-sigma figures
 and the centroid noise.  Measured on the flight build (object representation C, 22-bit float
 significands, :data:`lodestar.regress.unixport.FLIGHT_REPR`) with the fits refined by
-``attitude.refine``: attitudes at most 0.20 arcsec from double (lohmann_orion), sigmas at
-most 0.27 %.  Before that refinement QUEST's ``eps / gap`` gave 5.17 arcsec and 1.39 %
+``attitude.refine``: attitudes at most 0.25 arcsec from double (estcube2_rest_s4, triangle),
+sigmas at most 0.45 %.  Before that refinement QUEST's ``eps / gap`` gave 5.17 arcsec and 1.39 %
 (estcube2_rest_s3), and 0.61 arcsec in representation A (24 bits)."""
 
 
