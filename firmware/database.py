@@ -38,6 +38,10 @@ heap of floats (the whole table is resident while the database is open)."""
 _CELL_ERROR = 1e-4
 """Bound (rad) of the angle a rounded cell centre moves (``sqrt(3) / 2 / _CELL_SCALE`` = 2.6e-5,
 with margin), added to a cone query's reach so no cell is missed."""
+_FACE_RADIUS = math.atan(math.sqrt(2.0))
+"""Angle (rad, 54.7 deg) from a cube face's centre to its corners: every cell centre of the
+face lies within it, so a cone query skips a face whose centre is further than its reach plus
+this (:meth:`Database.stars_in_cone`)."""
 PAIR_BLOCK = 32
 """Most pair records one :meth:`Database.pair_stars` read returns."""
 _PAIR_STARS_FORMAT = "<" + "2x2H" * PAIR_BLOCK
@@ -469,19 +473,27 @@ class Database:
         cos_r = math.cos(radius) if radius < math.pi else -2.0
         reach = radius + self.cell_radius + _CELL_ERROR
         cos_reach = _CELL_SCALE * math.cos(reach) if reach < math.pi else -2.0 * _CELL_SCALE
+        far = reach + _FACE_RADIUS + _CELL_ERROR
+        cos_face = math.cos(far) if far < math.pi else -2.0
         cells = self._cells
-        for c in range(len(cells) // 3):
-            if cells[3 * c] * dx + cells[3 * c + 1] * dy + cells[3 * c + 2] * dz < cos_reach:
-                continue
-            a, b = self.cell_range(c)
-            while a < b:                # the cell's stars, a block per read
-                v = self.star_vectors(a)
-                n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
-                for k in range(n):
-                    j = 3 * k
-                    if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:
-                        out.append(a + k)
-                a += n
+        per_face = len(cells) // 18
+        for face in range(6):           # cells are stored face by face (cell_of)
+            towards = d[face >> 1]
+            if (-towards if face & 1 else towards) < cos_face:
+                continue                # the whole face is out of reach
+            for c in range(face * per_face, (face + 1) * per_face):
+                j = 3 * c
+                if cells[j] * dx + cells[j + 1] * dy + cells[j + 2] * dz < cos_reach:
+                    continue
+                a, b = self.cell_range(c)
+                while a < b:            # the cell's stars, a block per read
+                    v = self.star_vectors(a)
+                    n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
+                    for k in range(n):
+                        j = 3 * k
+                        if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:
+                            out.append(a + k)
+                    a += n
         return out
 
     # ---- pairs ----------------------------------------------------------------------

@@ -92,6 +92,14 @@ def test_stars_in_cone_equals_brute_force():
         expected = np.flatnonzero(vec @ d >= np.float64(math.cos(radius)))
         assert got == expected.tolist()
     assert len(db.stars_in_cone((0.0, 0.0, 1.0), 4.0)) == db.n_stars
+    # at the cube's corners, edges and face centres, where the face test decides
+    r3, r2 = 1.0 / math.sqrt(3.0), 1.0 / math.sqrt(2.0)
+    for d in [(r3, r3, r3), (-r3, -r3, r3), (r3, -r3, -r3), (r2, r2, 0.0), (0.0, -r2, r2),
+              (1.0, 0.0, 0.0), (0.0, 0.0, -1.0)]:
+        for radius in (0.02, 0.2, 0.6):
+            got = sorted(db.stars_in_cone(d, radius))
+            expected = np.flatnonzero(vec @ np.array(d) >= np.float64(math.cos(radius)))
+            assert got == expected.tolist(), (d, radius)
 
 
 def test_block_reads_equal_star_by_star(tmp_path):
