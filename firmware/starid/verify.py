@@ -164,24 +164,35 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     vecs = predicted[1]
     n_pred = len(predicted[0])
-    order = [(vecs[3 * p], p) for p in range(n_pred)]     # (x, p): MicroPython's sort
-    order.sort()                                            # would call a key per comparison
+    # the predicted stars in x order, as one list of small ints ``(k << shift) | p`` with ``k``
+    # a power-of-two quantisation of ``x + 1`` (monotonic, so the window below holds every
+    # star within reach): sorting it calls no key per comparison (MicroPython's sort would)
+    # and allocates neither tuples nor long ints (keys below 2**30)
+    shift = 1
+    while (1 << shift) < n_pred:
+        shift += 1
+    steps = float(1 << (28 - shift))
+    mask = (1 << shift) - 1
+    order = [0] * n_pred
+    for p in range(n_pred):
+        order[p] = (int((vecs[3 * p] + 1.0) * steps) << shift) | p
+    order.sort()
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
         reach = lim if streak is None else lim + chord(streak[3])
-        low = ox - 2.0 * reach          # a window wider than the exact test below
-        lo, hi = 0, n_pred
+        low = int((ox - 2.0 * reach + 1.0) * steps) << shift    # a window wider than the
+        lo, hi = 0, n_pred                                      # exact test below
         while lo < hi:
             mid = (lo + hi) >> 1
-            if order[mid][0] < low:
+            if order[mid] < low:
                 lo = mid + 1
             else:
                 hi = mid
-        high = ox + 2.0 * reach
+        high = (int((ox + 2.0 * reach + 1.0) * steps) << shift) | mask
         found = None
-        while lo < n_pred and order[lo][0] <= high:
-            p = order[lo][1]
+        while lo < n_pred and order[lo] <= high:
+            p = order[lo] & mask
             lo += 1
             k = 3 * p
             dx = ox - vecs[k]
