@@ -454,7 +454,7 @@ class StarTracker:
         with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
         ``photon`` (:meth:`weights`), with the floor share ``rho`` of
         :data:`FLOOR_SHARES` that maximises the likelihood of the residuals ``e_i`` of an
-        equal-weight QUEST fit (per-axis Gaussian noise of variance ``s^2 g_i``, ``s``
+        equal-weight fit (per-axis Gaussian noise of variance ``s^2 g_i``, ``s``
         profiled out: maximise ``-sum(log g_i) - n log(sum(e_i^2 / g_i))``); ``rho > 0``
         must gain :data:`FLOOR_EVIDENCE` over ``rho = 0``.  Below
         :data:`MIN_STARS_NOISE_MODEL` stars, ``rho = 0``.  ``q0``: an attitude near the fit
