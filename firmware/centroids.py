@@ -443,8 +443,7 @@ def _brightest_first(stars):
     ``sort(key=...)`` calls the key at every comparison)."""
     keyed = []
     for i in range(len(stars)):
-        v = stars[i]._v
-        keyed.append((-v[2], v[10], i))     # tuples of numbers compare without calls
+        keyed.append(_sort_key(stars[i]) + (i,))    # tuples of numbers: no call to compare
     keyed.sort()
     old = stars[:]
     for i in range(len(keyed)):

@@ -105,6 +105,19 @@ def query(lo, hi, m, q, n_bins, table_at, key_at, n):
     return first, a
 
 
+def lower_bound(keys, value):
+    """The first index ``i`` of the ascending indexable ``keys`` with ``keys[i] >= value``
+    (``len(keys)`` when there is none): a binary search."""
+    lo, hi = 0, len(keys)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 def query_list(keys, lo, hi, kvec):
     """Convenience: :func:`query` over a Python list ``keys`` and ``kvec = (m, q, table)``."""
     m, q, tab = kvec

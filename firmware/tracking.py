@@ -18,6 +18,7 @@ from array import array
 from . import attitude as _att
 from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
+from .kvector import lower_bound
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
@@ -132,13 +133,7 @@ def star_vector(database, stars, s):
     """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`, found by binary
     search) when it holds it, else read from the database."""
     ids, vecs = stars
-    lo, hi = 0, len(ids)
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if ids[mid] < s:
-            lo = mid + 1
-        else:
-            hi = mid
+    lo = lower_bound(ids, s)
     if lo < len(ids) and ids[lo] == s:
         return vecs[3 * lo], vecs[3 * lo + 1], vecs[3 * lo + 2]
     return database.star_vector(s)

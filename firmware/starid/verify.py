@@ -15,6 +15,7 @@ import math
 from array import array
 
 from .. import geometry as G
+from ..kvector import lower_bound
 from ..quaternion import matrix
 
 
@@ -181,14 +182,8 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
         reach = lim if streak is None else lim + chord(streak[3])
-        low = int((ox - 2.0 * reach + 1.0) * steps) << shift    # a window wider than the
-        lo, hi = 0, n_pred                                      # exact test below
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if order[mid] < low:
-                lo = mid + 1
-            else:
-                hi = mid
+        # a window wider than the exact test below
+        lo = lower_bound(order, int((ox - 2.0 * reach + 1.0) * steps) << shift)
         high = (int((ox + 2.0 * reach + 1.0) * steps) << shift) | mask
         found = None
         while lo < n_pred and order[lo] <= high:

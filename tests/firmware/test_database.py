@@ -6,6 +6,7 @@ import functools
 import math
 import pathlib
 import struct
+from array import array
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 from lodestar.contract import stardb
 from lodestar.firmware import database as L
 from lodestar.firmware import status as S
-from lodestar.firmware.database import Database, DatabaseError, check, load
+from lodestar.firmware.database import STAR_BLOCK, Database, DatabaseError, check, load
 from lodestar.ground.database import build_database
 from lodestar.sim.presets import load_preset
 from tests.firmware.db_images import reseal, status_of
@@ -52,12 +53,15 @@ def test_buffer_types(wrap):
     assert all_records(db) == all_records(Database(image))
 
 
-def test_file_reader_equals_buffer_reader(tmp_path):
-    image = tiny_image()
+def _both_readers(image, tmp_path):
+    """``(Database(image), Database.open(a file of image))``; the caller closes the file."""
     path = tmp_path / "db.bin"
     path.write_bytes(image)
-    mem = Database(image)
-    f = Database.open(str(path))
+    return Database(image), Database.open(str(path))
+
+
+def test_file_reader_equals_buffer_reader(tmp_path):
+    mem, f = _both_readers(tiny_image(), tmp_path)
     try:
         assert all_records(f) == all_records(mem)
         assert f.info() == mem.info()
@@ -105,14 +109,7 @@ def test_stars_in_cone_equals_brute_force():
 def test_block_reads_equal_star_by_star(tmp_path):
     """``star_vectors`` and ``read_vectors`` give ``star_vector``'s values, from a buffer and
     from a file, at the end of the table and for ids in runs, gaps and out of order."""
-    from array import array
-
-    from lodestar.firmware.database import STAR_BLOCK
-    image = estcube2_image()
-    path = tmp_path / "db.bin"
-    path.write_bytes(image)
-    mem = Database(image)
-    f = Database.open(str(path))
+    mem, f = _both_readers(estcube2_image(), tmp_path)
     try:
         n = mem.n_stars
         for db in (mem, f):

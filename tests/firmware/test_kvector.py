@@ -113,3 +113,9 @@ def test_database_pair_index_is_exact():
         start, stop = db.pairs_in_range(lo, hi)
         expected = [i for i, k in enumerate(keys) if lo / step <= k <= hi / step]
         assert list(range(start, stop)) == expected, (lo, hi)
+
+
+@given(st.lists(st.integers(-50, 50), max_size=40), st.integers(-60, 60))
+def test_lower_bound_equals_bisect_left(keys, value):
+    keys.sort()
+    assert kvector.lower_bound(keys, value) == bisect.bisect_left(keys, value)
