@@ -300,8 +300,9 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
 
 
 def _joined(stars, central, members):
-    """One :class:`Star` with the moments of the union of ``members``' pieces."""
-    f = 0.0
+    """One :class:`Star` with the moments of the union of ``members``' pieces (its flux the
+    exact sum of integer ``s0``)."""
+    f = 0
     fx = 0.0
     fy = 0.0
     best = members[0]

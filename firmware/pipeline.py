@@ -18,6 +18,8 @@ import math
 import sys
 from array import array
 
+from lodestar import contract as _C
+
 from . import attitude as _att
 from . import camera as _camera
 from . import centroids as _centroids
@@ -63,6 +65,36 @@ TRACK_GC_THRESHOLD = 32768
 """The same in a tracking frame, whose live peak is a third of a lost-in-space one: fewer
 collections, about 30 % fewer instructions per frame (``docs/firmware.md``, Memory).  A
 fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
+
+
+TRACK_MARGIN_PERCENT = 70
+"""The ``min_sum`` a solved frame returns is this share (percent) of the flux of its
+``track_stars``-th brightest star: a star's ``s0`` changes by a few percent from frame to
+frame at rest and by more as the smear changes, and 70 % lets about a third more blobs than
+``track_stars`` through (``docs/firmware.md``, Record budget)."""
+MIN_SUM_MAX = (1 << _C.REGISTER_BY_NAME["min_sum"].bits) - 1
+"""Largest value of the gateware's ``min_sum`` register."""
+
+
+def min_sum(stars, track_stars):
+    """The ``min_sum`` register value that budgets the next frame for about ``track_stars``
+    blobs: :data:`TRACK_MARGIN_PERCENT` of the smallest flux among the ``track_stars``
+    brightest of ``stars`` (:class:`lodestar.firmware.centroids.Star`, brightest first), a
+    star joined from ``k`` pieces counting ``1/k`` of its flux (each piece is a blob the
+    register filters); 0 (every blob) when there are fewer stars or ``track_stars`` is
+    None.  Integer arithmetic: the same value in every float precision."""
+    if track_stars is None or len(stars) < track_stars:
+        return 0
+    level = None
+    for i in range(track_stars):
+        s = stars[i]
+        f = int(s.flux)
+        if s.parts:
+            f //= len(s.parts)
+        if level is None or f < level:
+            level = f
+    level = level * TRACK_MARGIN_PERCENT // 100
+    return level if level < MIN_SUM_MAX else MIN_SUM_MAX
 
 
 def _collect():
@@ -141,7 +173,7 @@ class Result:
 
     __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
-                 "patterns_tried", "probability", "rejected", "timings")
+                 "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
     def __init__(self, status, reason=""):
         self.status = status
@@ -158,6 +190,7 @@ class Result:
         self.probability = 1.0
         self.rejected = None
         self.timings = {}
+        self.min_sum = 0
 
     @property
     def ok(self):
@@ -202,6 +235,7 @@ class StarTracker:
         self.camera = None
         self.settings = settings if settings is not None else Settings()
         self.track_search_rad = 0.0
+        self.track_stars = None         # the record budget, at most max_stars
         self.tolerance_rad = 0.0
         self.sigma_rad = None
         self.min_sigma_rad = 0.0
@@ -258,6 +292,10 @@ class StarTracker:
         if not (isinstance(st.max_stars, int) and 4 <= st.max_stars <= MAX_STARS):
             self._fail(S.BAD_INPUT, "max_stars must be an int in 4.." + str(MAX_STARS))
             return
+        if st.track_stars is not None and (isinstance(st.track_stars, bool) or not (
+                isinstance(st.track_stars, int) and st.track_stars >= 1)):
+            self._fail(S.BAD_INPUT, "track_stars must be None or an int >= 1")
+            return
         if isinstance(st.max_work, bool) or not (isinstance(st.max_work, int) and
                                                  st.max_work >= 1):
             self._fail(S.BAD_INPUT, "max_work must be an int >= 1")
@@ -290,6 +328,8 @@ class StarTracker:
         self.sigma_rad = None if centroid_sigma_px is None else centroid_sigma_px / focal
         self.min_sigma_rad = min_sigma_px / focal
         self.track_search_rad = math.radians(track_search_deg)
+        self.track_stars = st.track_stars if st.track_stars is None or \
+            st.track_stars <= st.max_stars else st.max_stars
         # database
         if isinstance(database, _database.Database):
             db = database
@@ -719,6 +759,7 @@ class StarTracker:
         if prior is None:               # a tracking frame's peak is low: no stage collections
             _collect()
         start = self._tick(timings, "centroids", start)
+        budget = min_sum(stars, self.track_stars)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None
         smear = known = None            # the memo goes before the identification's peak
@@ -744,6 +785,7 @@ class StarTracker:
             for o, _x, _y, hip in res.matches:
                 matches.append((index[o], xy[2 * o], xy[2 * o + 1], hip))
             res.matches = matches
+            res.min_sum = budget
         self._tick(timings, "total", first)
         return res
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import codec as packet
 from lodestar.ground import flight as flightsolve
@@ -52,7 +53,10 @@ class FrameCase:
     (deg/s, camera frame); ``exposure_s`` (None: the preset's); sensor defects
     (``hot_pixels``), ``false_stars``, ``cosmic_rays``; ``gyro``: the firmware gets the
     rate; ``prior_error_deg``: tracking from the true attitude turned by this angle about the
-    camera x axis (None: lost in space); ``expect`` as in the manifest."""
+    camera x axis (None: lost in space); ``budgeted``: detected as a flight loop in steady
+    tracking sees the frame, with the ``min_sum`` register the firmware returns
+    (``Result.min_sum``, Pyramid) for the same frame detected with every blob; ``expect``
+    as in the manifest."""
 
     name: str
     preset: str
@@ -64,6 +68,7 @@ class FrameCase:
     cosmic_rays: int = 0
     gyro: bool = True
     prior_error_deg: float = None
+    budgeted: bool = False
     expect: str = "solve"
     note: str = ""
     pointing: tuple = None
@@ -100,6 +105,12 @@ CASES = (
     FrameCase("estcube2_tracking_steady", "estcube2", 18, (0.0, 1.0, 0.0),
               prior_error_deg=0.002, note="steady tracking: a prior 7 arcsec off, as the last "
               "attitude propagated by the gyro over 0.1 s"),
+    FrameCase("estcube2_tracking_budget", "estcube2", 0, prior_error_deg=0.002, budgeted=True,
+              note="steady tracking at rest with the record budget: the demo's frame, 50 "
+              "blobs, detected with the min_sum its own replay returns"),
+    FrameCase("estcube2_tracking_budget_1dps", "estcube2", 7, (0.6, -0.8, 0.0),
+              prior_error_deg=0.002, budgeted=True,
+              note="steady tracking with the record budget: estcube2_1dps's frame"),
     FrameCase("estcube2_false_hot_cosmic", "estcube2", 12, hot_pixels=True, false_stars=8,
               cosmic_rays=12, note="8 false stars, hot pixels, 12 cosmic rays"),
     FrameCase("estcube2_10dps", "estcube2", 13, (8.0, 6.0, 0.0), expect="fail",
@@ -137,10 +148,10 @@ DERIVED = (
 """Packets derived from the frames' packets."""
 
 
-def _frame(case):
-    """``(DetectionResult, truth)`` of a frame case."""
-
-
+def _frame(case, budget=None):
+    """``(DetectionResult, truth)`` of a frame case; ``budget``: for a ``budgeted`` case, the
+    function of ``(packet, inputs)`` of the frame with every blob that gives the ``min_sum``
+    register to detect it with."""
     pointing = case.pointing
     if pointing is None:
         q = attitude.random_attitude(np.random.default_rng(case.seed))
@@ -149,7 +160,11 @@ def _frame(case):
                                case.exposure_s, case.hot_pixels, case.cosmic_rays,
                                case.false_stars, case.seed)
     frame, truth, cfg = goldenset.render_spec(spec)
-    return detect_frame(frame, cfg), truth
+    det = detect_frame(frame, cfg)
+    if case.budgeted:
+        cfg = dataclasses.replace(cfg, min_sum=budget(packet.encode(det), _inputs(case, truth)))
+        det = detect_frame(frame, cfg)
+    return det, truth
 
 
 def derive(kind, det):
@@ -234,15 +249,21 @@ def check_expect(expect, outcomes):
     return None if good else f"expected {expect!r}, the firmware gave {statuses}"
 
 
-def frame_entry(case):
-    """``(det, truth, packet, inputs, truth_doc)`` of a frame case."""
+def _inputs(case, truth):
+    """The firmware inputs of a frame case (``docs/regression.md``)."""
+    return {"omega": [math.radians(w) for w in case.rate] if case.gyro else None,
+            "exposure_s": truth["exposure_s"],
+            "prior": (None if case.prior_error_deg is None else
+                      _prior(truth["quaternion_xyzw"], case.prior_error_deg)),
+            "dt": None}
 
-    det, truth = _frame(case)
-    inputs = {"omega": [math.radians(w) for w in case.rate] if case.gyro else None,
-              "exposure_s": truth["exposure_s"],
-              "prior": (None if case.prior_error_deg is None else
-                        _prior(truth["quaternion_xyzw"], case.prior_error_deg)),
-              "dt": None}
+
+def frame_entry(case, budget=None):
+    """``(det, truth, packet, inputs, truth_doc)`` of a frame case (``budget``: as for
+    :func:`_frame`)."""
+
+    det, truth = _frame(case, budget)
+    inputs = _inputs(case, truth)
     truth_doc = {"q": truth["quaternion_xyzw"], "ra_deg": truth["ra_deg"],
                  "dec_deg": truth["dec_deg"], "roll_deg": truth["roll_deg"],
                  "rate_deg_s": truth["omega_deg_s"]}
@@ -308,7 +329,9 @@ def record(set_dir, cache_dir=None, log=None):
     frames, files, problems = {}, {}, []
     for case in CASES + DERIVED:
         if isinstance(case, FrameCase):
-            det, truth, data, inputs, truth_doc = frame_entry(case)
+            tracker = trackers[case.preset, Settings().method]     # the flight method
+            det, truth, data, inputs, truth_doc = frame_entry(
+                case, lambda data, inputs: mcu.process(tracker, data, inputs).min_sum)
             frames[case.name] = (det, truth, case)
             camera = case.preset
         else:

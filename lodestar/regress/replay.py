@@ -205,11 +205,12 @@ def rotation_angle(q1, q2):
     return 2.0 * math.atan2(s, dot)
 
 
-EXACT_FIELDS = ("status", "mode", "n_records", "n_stars", "matches", "patterns_tried")
+EXACT_FIELDS = ("status", "mode", "n_records", "n_stars", "matches", "patterns_tried",
+                "min_sum")
 SIGMA_FIELDS = ("sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px")
-IDENTIFICATION_FIELDS = ("status", "mode", "matches")
+IDENTIFICATION_FIELDS = ("status", "mode", "matches", "min_sum")
 """The fields a float32 outcome shares exactly with the double one (:func:`float32_vs_double`):
-the status and the identified stars."""
+the status, the identified stars and the next frame's record budget (integers)."""
 
 
 def differences(a, b, tolerances, exact=EXACT_FIELDS):

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.firmware import pipeline, settings
+from lodestar.firmware.centroids import Star
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
 from lodestar.firmware.settings import Settings
@@ -200,6 +201,65 @@ def test_result_fields_and_timings():
     fixed = SF.tracker(centroid_sigma_px=1.0).process(frame.packet)
     assert fixed.centroid_sigma_px == pytest.approx(1.0)
     assert fixed.q == res.q
+
+
+def test_min_sum_budgets_the_brightest_stars():
+    """70 % of the smallest flux among the ``track_stars`` brightest, a joined star's flux
+    shared by its pieces; 0 with fewer stars or no budget; clamped to the register."""
+    def star(flux, parts=None):
+        return Star(1.0, 2.0, flux, 1.0, 1.0, 1.0, 0.0, 9, 0, 100, 0, parts)
+
+    stars = [star(f) for f in (9000, 5000, 4001, 3000, 10)]
+    assert pipeline.min_sum(stars, 3) == 4001 * 70 // 100 == 2800
+    assert pipeline.min_sum(stars, 5) == 7 and pipeline.min_sum(stars, 1) == 6300
+    assert pipeline.min_sum(stars, 6) == 0 and pipeline.min_sum(stars, None) == 0
+    # a track in three pieces: each piece is a blob of about a third of the flux
+    assert pipeline.min_sum([star(9000, [0, 4, 7]), star(5000)], 2) == 3000 * 70 // 100
+    assert pipeline.min_sum([star(float("1e30"))], 1) == pipeline.MIN_SUM_MAX
+    assert pipeline.MIN_SUM_MAX == (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
+
+
+def test_a_budgeted_frame_carries_fewer_records_and_tracks():
+    """The flight loop writes ``result.min_sum`` into the gateware's register: the same sky
+    detected with it carries about ``track_stars`` blobs, tracks at a loss of accuracy of
+    at most a third, and asks for about the same budget again."""
+    tracker = SF.tracker()
+    cam = SF.sim_camera()
+    records = [0, 0]                # every blob, budgeted
+    for index in range(4):
+        frame = SF.frames()[index]
+        res = tracker.process(frame.packet)
+        assert res.ok and res.min_sum > 0
+        sim = scene.simulate(cam, frame.q, (0.0, 0.0, 0.0), seed=SF.SEED + index)
+        det = detect_frame(sim.frame, scene.detector_config(cam, min_sum=res.min_sum))
+        assert all(b.s0 >= res.min_sum for b in det.blobs)
+        budgeted = tracker.process(ground_packet.encode(det), prior=res.q)
+        assert budgeted.ok and budgeted.mode == "tracking"
+        k = settings.DEFAULT_TRACK_STARS
+        assert k <= budgeted.n_records <= min(2 * k, res.n_records)
+        records[0] += res.n_records
+        records[1] += budgeted.n_records
+        assert budgeted.sigma_cross_arcsec < 4 / 3 * res.sigma_cross_arcsec
+        err = camera_frame_error_arcsec(budgeted.q, frame.q)
+        assert math.hypot(err[0], err[1]) <= 5.0 * budgeted.sigma_cross_arcsec
+        assert abs(budgeted.min_sum - res.min_sum) <= 0.1 * res.min_sum
+    assert records[1] < 0.6 * records[0]
+    # no budget: every blob, always; a failed frame asks for every blob
+    assert SF.tracker(track_stars=None).process(SF.frames()[0].packet).min_sum == 0
+    assert tracker.process(packet_of([])).min_sum == 0
+    # a budget above max_stars budgets max_stars
+    few = SF.tracker(track_stars=40, max_stars=8).process(SF.frames()[0].packet)
+    assert few.ok and few.min_sum == pipeline.min_sum(
+        sorted_stars(SF.frames()[0].packet), 8)
+
+
+def sorted_stars(packet_bytes):
+    """The accepted stars of a packet, brightest first (the pipeline's extraction)."""
+    from lodestar.firmware import centroids, packet
+    _st, header, _reason = packet.check(packet_bytes, records=False)
+    stars, _rej = centroids.extract(packet.checked_records(packet_bytes, header),
+                                    border=(header["width"], header["height"]))
+    return stars
 
 
 def test_weights_are_relative_inverse_variances():
@@ -418,6 +478,8 @@ def test_configuration_problems_are_reported_by_process():
         (pipeline.StarTracker(image, cam, Settings(centroid_sigma_px=float("nan"))), "BAD_INPUT"),
         (pipeline.StarTracker(image, cam, Settings(max_stars=2)), "BAD_INPUT"),
         (pipeline.StarTracker(image, cam, Settings(budget=0)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(track_stars=0)), "BAD_INPUT"),
+        (pipeline.StarTracker(image, cam, Settings(track_stars=True)), "BAD_INPUT"),
         (pipeline.StarTracker(image, cam, Settings(exposure_s=0)), "BAD_INPUT"),
         (pipeline.StarTracker(image, cam, Settings(row_time_s=float("inf"))), "BAD_INPUT"),
         (pipeline.StarTracker(image, cam, {"method": "pyramid"}), "BAD_INPUT"),

@@ -72,8 +72,8 @@ def test_set_covers_the_brief():
     assert manifest["methods"] == list(regress.METHODS) == ["pyramid", "triangle", "hashing"]
     cases = manifest["cases"]
     solved = [c for c in cases if all(o["status_name"] == "OK" for o in c["expected"].values())]
-    est_rest = [c for c in solved if c["camera"] == "estcube2" and
-                c["truth"] and not any(c["truth"]["rate_deg_s"])]
+    est_rest = [c for c in solved if c["camera"] == "estcube2" and c["inputs"]["prior"] is None
+                and c["truth"] and not any(c["truth"]["rate_deg_s"])]
     est_moving = [c for c in solved if c["camera"] == "estcube2" and
                   c["truth"] and any(c["truth"]["rate_deg_s"])]
     assert len(est_rest) >= 5 and len({tuple(c["truth"]["q"]) for c in est_rest}) == len(est_rest)
@@ -82,6 +82,14 @@ def test_set_covers_the_brief():
     assert any(c["expect"] == "fail" for c in cases)
     assert any("false" in c["name"] for c in solved)
     assert any(o["mode"] == "tracking" for c in solved for o in c["expected"].values())
+    # the record budget: a solved dense frame asks for fewer blobs, and a frame detected
+    # with its min_sum carries them and tracks
+    by_name = {c["name"]: c for c in cases}
+    dense, budgeted = by_name["estcube2_rest_s0"], by_name["estcube2_tracking_budget"]
+    assert dense["expected"]["pyramid"]["min_sum"] > 0
+    assert budgeted["truth"] == dense["truth"]
+    assert 12 <= budgeted["expected"]["pyramid"]["n_records"] < \
+        dense["expected"]["pyramid"]["n_records"] / 3
     statuses = {o["status_name"] for c in cases for o in c["expected"].values()}
     assert {"PACKET_BAD_CRC", "PACKET_TRUNCATED", "PACKET_BAD_LENGTH", "PACKET_BAD_MAGIC",
             "PACKET_BAD_HEADER", "PACKET_BAD_RECORD", "TOO_FEW_STARS", "BAD_INPUT",
