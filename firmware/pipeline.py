@@ -534,7 +534,9 @@ class StarTracker:
         match tolerance), then ``s`` scales all as without tracks (no floor)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
-        r = [self.database.star_vector(s) for o, s in star_ids]
+        db, stars = self.database, self._cone.stars     # a tracking frame's stars are held
+        r = [db.star_vector(s) if stars is None else _tracking.star_vector(db, stars, s)
+             for o, s in star_ids]
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
@@ -637,6 +639,8 @@ class StarTracker:
         if beta is not None:
             _deaberrate(vectors, sol.q, beta)
         star_ids = getattr(sol, "star_ids", None) or []
+        # a tracking solution names its stars already (matches align with star_ids)
+        hips = [hip for _o, hip in sol.matches] if mode == "tracking" else None
         q0 = sol.q
         if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
@@ -645,6 +649,7 @@ class StarTracker:
             ref = self._track(vectors, sol.q, None, None, streaks)
             if ref.status == S.OK and len(ref.star_ids) > len(star_ids):
                 star_ids = ref.star_ids
+                hips = [hip for _o, hip in ref.matches]
                 q0 = ref.q
             self._cone.clear()          # not kept through a lost-in-space frame's fit
         if not star_ids:
@@ -664,8 +669,10 @@ class StarTracker:
         res.status = S.OK
         res.centroid_sigma_px = sigma * self.focal_px
         res.q = q
-        db = self.database
-        res.matches = [(o, None, None, db.star_hip(s)) for o, s in star_ids]
+        if hips is None:
+            db = self.database
+            hips = [db.star_hip(s) for _o, s in star_ids]
+        res.matches = [(star_ids[i][0], None, None, hips[i]) for i in range(len(star_ids))]
         res.sigma_cross_arcsec = cross * RAD_TO_ARCSEC
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
         self._tick(timings, "attitude", start)

@@ -18,7 +18,6 @@ from array import array
 from . import attitude as _att
 from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
-from .kvector import lower_bound
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
@@ -106,13 +105,14 @@ class Cone:
 
 
 def candidates(database, q, margin_rad, cone=None):
-    """``(ids, vecs)``: the catalogue stars within the FOV's half-diagonal plus
+    """``(ids, vecs, where)``: the catalogue stars within the FOV's half-diagonal plus
     ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict` can find at any
     attitude within ``margin_rad`` of ``q``; one cone query, reused), as ``array('H')``
-    star indices (ascending) and ``array('f')`` inertial vectors ``x, y, z`` per star (the
-    database's float32 values, exactly).  ``cone``: a :class:`Cone` to take them from when
-    it covers them, else to keep them in (queried :data:`CONE_REUSE_RAD` wider; a superset
-    changes nothing :func:`predict` returns)."""
+    star indices (ascending), ``array('f')`` inertial vectors ``x, y, z`` per star (the
+    database's float32 values, exactly) and a dict of each star's position in them (a fit
+    looks its stars up there: a binary search would cost more than the fit).  ``cone``: a
+    :class:`Cone` to take them from when it covers them, else to keep them in (queried
+    :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns)."""
     m = matrix(q)
     d = (m[6], m[7], m[8])
     radius = 0.5 * database.fov_diag + margin_rad
@@ -124,19 +124,23 @@ def candidates(database, q, margin_rad, cone=None):
     ids = array("H", database.stars_in_cone(d, radius))
     vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
     database.read_vectors(ids, vecs)
+    where = {}
+    for i in range(len(ids)):
+        where[ids[i]] = i
+    stars = (ids, vecs, where)
     if cone is not None:
-        cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, (ids, vecs)
-    return ids, vecs
+        cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, stars
+    return stars
 
 
 def star_vector(database, stars, s):
-    """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`, found by binary
-    search) when it holds it, else read from the database."""
-    ids, vecs = stars
-    lo = lower_bound(ids, s)
-    if lo < len(ids) and ids[lo] == s:
-        return vecs[3 * lo], vecs[3 * lo + 1], vecs[3 * lo + 2]
-    return database.star_vector(s)
+    """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`) when it holds it,
+    else read from the database."""
+    i = stars[2].get(s)
+    if i is None:
+        return database.star_vector(s)
+    vecs = stars[1]
+    return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
 
 
 def predict(database, q, margin_rad=0.0, stars=None):
@@ -154,7 +158,7 @@ def predict(database, q, margin_rad=0.0, stars=None):
     tan_vm = math.tan(0.5 * database.fov_v + margin_rad)
     if stars is None:
         stars = candidates(database, q, margin_rad)
-    ids, vecs = stars
+    ids, vecs = stars[0], stars[1]
     n = len(ids)
     keep = array("H", range(n))             # the kept stars, compacted (sized by the range)
     cam = array(FLOAT_CODE, range(3 * n))   # and their camera-frame vectors
@@ -279,14 +283,16 @@ def fit(observed, database, pairs, q, weights=None, stars=None):
         return None
 
 
-def residual_rms(observed, database, q, pairs):
-    """RMS angle (rad) between matched observed stars and their catalogue stars at ``q``."""
+def residual_rms(observed, database, q, pairs, stars=None):
+    """RMS angle (rad) between matched observed stars and their catalogue stars at ``q``
+    (``stars``: as for :func:`fit`)."""
     if not pairs:
         return None
     m = matrix(q)
     total = 0.0
     for o, s in pairs:
-        total += residual2(m, observed[o], database.star_vector(s))
+        r = database.star_vector(s) if stars is None else star_vector(database, stars, s)
+        total += residual2(m, observed[o], r)
     return math.sqrt(total / len(pairs))
 
 
@@ -423,7 +429,7 @@ def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weigh
     omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
     _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
     matches = [(o, database.star_hip(s)) for o, s in pairs]
-    rms = residual_rms(b, database, q, pairs)
+    rms = residual_rms(b, database, q, pairs, stars)
     status = S.OK if len(pairs) >= min_matches and prob < max_prob else S.NO_MATCH
     return TrackSolution(status, q=q if status == S.OK else None,
                          matches=matches if status == S.OK else [],

@@ -23,8 +23,8 @@ from scipy.spatial.transform import Rotation
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.firmware import pipeline, settings
-from lodestar.firmware.centroids import Star
 from lodestar.firmware import status as S
+from lodestar.firmware.centroids import Star
 from lodestar.firmware.database import Database
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame

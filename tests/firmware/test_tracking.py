@@ -180,6 +180,19 @@ def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
     assert cone.stars is None and not cone.covers(db, (0.0, 0.0, 1.0), 0.1)
 
 
+def test_star_vectors_come_from_the_candidates_or_the_database():
+    db = _CountingDatabase(SF.flight_database())
+    stars = tracking.candidates(db, [0.0, 0.0, 0.0, 1.0], 0.01)
+    ids = list(stars[0])
+    before = db.reads
+    for s in ids[:5]:
+        assert tracking.star_vector(db, stars, s) == db._db.star_vector(s)
+    assert db.reads == before                   # held: no read
+    outside = next(s for s in range(db.n_stars) if s not in stars[2])
+    assert tracking.star_vector(db, stars, outside) == db._db.star_vector(outside)
+    assert db.reads > before
+
+
 def test_a_cone_is_not_shared_between_databases():
     db = SF.flight_database()
     other = _CountingDatabase(db)
