@@ -114,8 +114,8 @@ class Camera(object):
         self.p2 = _number("p2", p2)
         self.last_status = S.OK
         self._pinhole = not (self.k1 or self.k2 or self.k3 or self.p1 or self.p2)
-        self._smear_key = None          # (wx, wy, wz, exposure_s) of _smear_turn
-        self._smear_turn = None         # (ax, ay, az, cos, sin) of half the exposure's turn
+        self._smear_key = None          # (wx, wy, wz, exposure_s) of _smear
+        self._smear = None              # smear_function of the last smear_px call's rate
         s = _smallest_positive_root(1.0, 3 * self.k1, 5 * self.k2, 7 * self.k3)
         self._fold = _INF if s is None else math.sqrt(s)
         # float-resolution floors of the Newton tolerances (pixels)
@@ -276,52 +276,97 @@ class Camera(object):
         or when the pixel or either end leaves the model.
         """
         try:
-            wx, wy, wz = omega[0], omega[1], omega[2]
+            key = (omega[0], omega[1], omega[2], exposure_s)
         except (TypeError, IndexError, KeyError):
-            wx = wy = wz = None
-        if not (is_number(wx) and is_number(wy) and is_number(wz)
-                and is_number(exposure_s)):
+            key = None
+        if key != self._smear_key:      # the turn is the frame's: computed once per rate
+            self._smear = self.smear_function(omega, exposure_s)
+            self._smear_key = key
+        if self._smear is None or not (is_number(x) and is_number(y)):
             self.last_status = S.BAD_INPUT
             return None
-        if self._pinhole and is_number(x) and is_number(y):
-            # a homogeneous direction: the turn is linear and the projection divides by Z
-            v = ((x - self.cx) / self.fx, (y - self.cy) / self.fy, 1.0)
-        else:
-            v = self.pixel_to_vector(x, y)
-            if v is None:
-                return None
-        key = (wx, wy, wz, exposure_s)
-        if key != self._smear_key:      # the turn is the frame's: computed once per rate
-            rate = norm((wx, wy, wz))
-            half = 0.5 * rate * exposure_s
-            self._smear_turn = None if not rate > 0 else (
-                wx / rate, wy / rate, wz / rate, math.cos(half), math.sin(half))
-            self._smear_key = key
-        if self._smear_turn is None:
-            return 0.0, 0.0
-        ax, ay, az, c, s = self._smear_turn
-        vx, vy, vz = v
-        # v turned by +half (earlier: rotated back) and -half about the axis (Rodrigues, as
-        # geometry.rotate_about)
-        k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
-        kx, ky, kz = ax * k, ay * k, az * k
-        px, py, pz = vx * c, vy * c, vz * c
-        tx = (ay * vz - az * vy) * s
-        ty = (az * vx - ax * vz) * s
-        tz = (ax * vy - ay * vx) * s
-        sx, sy, sz = px + tx + kx, py + ty + ky, pz + tz + kz
-        ex, ey, ez = px - tx + kx, py - ty + ky, pz - tz + kz
-        if self._pinhole:               # _project without its checks (no fold radius)
-            if not (sz > 0 and ez > 0):
-                self.last_status = S.CAMERA_OUT_OF_VIEW
-                return None
-            self.last_status = S.OK
-            return self.fx * (ex / ez - sx / sz), self.fy * (ey / ez - sy / sz)
-        start = self._project(sx, sy, sz)
-        end = self._project(ex, ey, ez)
-        if start is None or end is None:
+        return self._smear(x, y)
+
+    def smear_function(self, omega, exposure_s):
+        """``smear(x, y)``: :meth:`smear_px` at ``omega`` and ``exposure_s`` for a pixel whose
+        coordinates are numbers, the turn computed once (a frame's stars share it, and the
+        flight pipeline calls it without checking each star's arguments again); None when
+        ``omega`` is not three numbers or ``exposure_s`` not a number."""
+        try:
+            wx, wy, wz = omega[0], omega[1], omega[2]
+        except (TypeError, IndexError, KeyError):
             return None
-        return end[0] - start[0], end[1] - start[1]
+        if not (is_number(wx) and is_number(wy) and is_number(wz) and is_number(exposure_s)):
+            return None
+        rate = norm((wx, wy, wz))
+        turn = rate > 0
+        if turn:
+            half = 0.5 * rate * exposure_s
+            ax, ay, az = wx / rate, wy / rate, wz / rate
+            c, s = math.cos(half), math.sin(half)
+        pinhole = self._pinhole
+        cx, cy, fx, fy = self.cx, self.cy, self.fx, self.fy
+
+        def smear(x, y):
+            if pinhole:
+                # a homogeneous direction: the turn is linear and the projection divides by Z
+                vx, vy, vz = (x - cx) / fx, (y - cy) / fy, 1.0
+            else:
+                v = self.pixel_to_vector(x, y)
+                if v is None:
+                    return None
+                vx, vy, vz = v
+            if not turn:
+                return 0.0, 0.0
+            # v turned by +half (earlier: rotated back) and -half about the axis (Rodrigues,
+            # as geometry.rotate_about)
+            k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+            kx, ky, kz = ax * k, ay * k, az * k
+            px, py, pz = vx * c, vy * c, vz * c
+            tx = (ay * vz - az * vy) * s
+            ty = (az * vx - ax * vz) * s
+            tz = (ax * vy - ay * vx) * s
+            sx, sy, sz = px + tx + kx, py + ty + ky, pz + tz + kz
+            ex, ey, ez = px - tx + kx, py - ty + ky, pz - tz + kz
+            if pinhole:                 # _project without its checks (no fold radius)
+                if not (sz > 0 and ez > 0):
+                    self.last_status = S.CAMERA_OUT_OF_VIEW
+                    return None
+                self.last_status = S.OK
+                return fx * (ex / ez - sx / sz), fy * (ey / ez - sy / sz)
+            start = self._project(sx, sy, sz)
+            end = self._project(ex, ey, ez)
+            if start is None or end is None:
+                return None
+            return end[0] - start[0], end[1] - start[1]
+        return smear
+
+    def pixel_tangent(self, x, y, ex, ey):
+        """``(ux, uy, uz, rad_per_px)``: the camera-frame unit tangent of the direction of
+        pixel ``(x, y)`` as the pixel moves along the unit ``(ex, ey)``, and how many radians
+        one pixel of that move turns it; None when the model does not invert the pixel.  A
+        pinhole's is the derivative of ``p / |p|``, ``p = ((x - cx) / fx, (y - cy) / fy, 1)``;
+        with distortion, the difference over one pixel."""
+        if self._pinhole:
+            xn = (x - self.cx) / self.fx
+            yn = (y - self.cy) / self.fy
+            dx = ex / self.fx
+            dy = ey / self.fy
+            r2 = xn * xn + yn * yn + 1.0
+            a = (xn * dx + yn * dy) / r2
+            tx, ty, tz = dx - xn * a, dy - yn * a, -a        # r |p| dv, r = |p|
+            r = math.sqrt(r2)
+        else:
+            v0 = self.pixel_to_vector(x, y)
+            v1 = self.pixel_to_vector(x + ex, y + ey)
+            if v0 is None or v1 is None:
+                return None
+            tx, ty, tz = v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]
+            r = 1.0
+        t = math.sqrt(tx * tx + ty * ty + tz * tz)
+        if not t > 0:
+            return None
+        return tx / t, ty / t, tz / t, t / r
 
     # ---- construction check ---------------------------------------------------------------
 

@@ -111,7 +111,7 @@ def moments(rec):
     """
     s0, sx, sy = rec.s0, rec.sx, rec.sy
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
-    if not (finite(s0) and s0 > 0):
+    if not (s0 - s0 == 0 and s0 > 0):       # finite(s0), inline: this runs for every record
         return None
     if type(s0) is _INT and type(sx) is _INT and type(sy) is _INT and type(sxx) is _INT \
             and type(syy) is _INT and type(sxy) is _INT:
@@ -224,7 +224,7 @@ def unseen_px(sigma_major, sigma_minor, orientation, smear):
     if smear is None:
         return 0.0
     dx, dy = smear[0], smear[1]
-    if not (finite(dx) and finite(dy)):
+    if not (dx - dx == 0 and dy - dy == 0):     # finite, inline (once per star)
         return 0.0
     length = math.sqrt(dx * dx + dy * dy)
     if not length > 0:
@@ -248,37 +248,61 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
     returns the list of stars with each group of pieces replaced by one joined
     :class:`Star` (at the place of its first piece).  ``central``: per star, its central
     second moments ``(cxx, cyy, cxy)`` (px^2); ``smear``: the expected smear ``(dx, dy)`` or
-    a function of ``(x, y)``."""
+    a function of ``(x, y)``.  Each star tests only the stars whose ``x`` lies within its
+    reach (stars sorted by ``x`` once): a pair further apart in ``x`` than the track's
+    length plus both widths fails the tests below."""
     n = len(stars)
     parent = list(range(n))
     joined = False
+    vs = [star._v for star in stars]    # (x, y, flux, sigma_major, sigma_minor, ...): the
+    widest = 0.0                        # pair loop reads tuples, not properties
+    keys = []
     for i in range(n):
-        a = stars[i]._v                 # (x, y, flux, sigma_major, sigma_minor, ...): the
-        ax, ay = a[0], a[1]             # pair loop reads tuples, not properties
+        if vs[i][4] > widest:
+            widest = vs[i][4]
+        keys.append((vs[i][0], i))
+    keys.sort()
+    rank = [0] * n                      # position of each star in x order
+    for k in range(n):
+        rank[keys[k][1]] = k
+    for i in range(n):
+        a = vs[i]
+        ax, ay = a[0], a[1]
         sm = smear(ax, ay) if callable(smear) else smear
         if sm is None:
             continue
         dx, dy = sm[0], sm[1]
-        length = math.sqrt(dx * dx + dy * dy) if finite(dx) and finite(dy) else 0.0
+        length = math.sqrt(dx * dx + dy * dy) if dx - dx == 0 and dy - dy == 0 else 0.0
         if not length > 0:
             continue
         ux = dx / length
         uy = dy / length
         reach = length + 1.0
         across = across_px + a[4]
-        for j in range(i + 1, n):
-            b = stars[j]._v
-            ex = b[0] - ax
-            ey = b[1] - ay
-            if abs(ex * ux + ey * uy) > reach:
-                continue
-            if abs(ex * uy - ey * ux) > across + b[4]:
-                continue
-            ri = _root(parent, i)
-            rj = _root(parent, j)
-            if ri != rj:
-                parent[rj] = ri
-                joined = True
+        # |ex| <= |e.u| + |e x u| <= reach + across + the other's sigma_minor
+        lim = reach + across + widest
+        for step in (1, -1):
+            k = rank[i] + step
+            while 0 <= k < n:
+                xj, j = keys[k]
+                k += step
+                if xj - ax > lim or ax - xj > lim:
+                    break
+                if j <= i:
+                    continue
+                b = vs[j]
+                ex = xj - ax
+                ey = b[1] - ay
+                if abs(ex * ux + ey * uy) > reach:
+                    continue
+                if abs(ex * uy - ey * ux) > across + b[4]:
+                    continue
+                ri = _root(parent, i)
+                rj = _root(parent, j)
+                if ri != rj:
+                    parent[rj] = ri
+                    joined = True
+    vs = keys = rank = None
     if not joined:
         return stars
     groups = {}
@@ -376,7 +400,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
     for rec in records:
         index += 1
         s0 = rec.s0
-        if not (finite(s0) and s0 > 0):
+        if not (s0 - s0 == 0 and s0 > 0):   # finite(s0), inline
             rejected["empty"] += 1
             continue
         if type(rec.flags) is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
@@ -429,9 +453,9 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         stars = kept
     if joining:
         for star in stars:
-            smear = smear_fn(star.x, star.y) if smear_fn is not None else expected_smear_px
-            star.unseen = unseen_px(star.sigma_major, star.sigma_minor, star.orientation,
-                                    smear)
+            v = star._v                 # (x, y, flux, sigma_major, sigma_minor, elongation,
+            smear = smear_fn(v[0], v[1]) if smear_fn is not None else expected_smear_px
+            star.unseen = unseen_px(v[3], v[4], v[6], smear)        # orientation, ...)
     if max_stars is not None:
         _keep_brightest(stars, max_stars, rejected)
     else:

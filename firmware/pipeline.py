@@ -410,34 +410,30 @@ class StarTracker:
             used.append(i)
         return vectors, used
 
-    def streaks(self, stars, used, smear, omega=None, exposure_s=None):
+    def streaks(self, stars, used, smear):
         """Per direction of :meth:`directions` (``used``), the partly seen track of its star
         for the identification (:mod:`lodestar.firmware.starid.verify`): None, or ``(ux, uy, uz,
         half)`` with ``u`` the camera-frame unit tangent along the expected smear
-        (``smear(x, y) -> (dx, dy)`` px) and ``half`` the star's ``unseen`` track in rad;
-        None instead of the list when no star has an unseen track.  ``omega``, ``exposure_s``
-        as for :meth:`directions` (the tangent turns with its direction)."""
+        (``smear(x, y) -> (dx, dy)`` px; :meth:`Camera.pixel_tangent`) and ``half`` the
+        star's ``unseen`` track in rad; None instead of the list when no star has an unseen
+        track.  The tangent is not turned to the epoch as its direction is: the turn, at
+        most the rate times the frame's read-out and exposure (2e-3 rad at 1 deg/s), tilts
+        the match region's axis by that angle and moves its ends by that share of ``half``
+        (0.02 px of a 10 px track)."""
         cam = self.camera
-        turn = self._epoch_turn(omega, exposure_s)
         out = []
         found = False
         for i in used:
-            s = stars[i]
+            v = stars[i]._v             # (x, y, ...): properties cost a call each
+            unseen = stars[i].unseen
             streak = None
-            d = smear(s.x, s.y) if s.unseen > 0 else None
+            d = smear(v[0], v[1]) if unseen > 0 else None
             length = math.sqrt(d[0] * d[0] + d[1] * d[1]) if d is not None else 0.0
             if length > 0:
-                v0 = cam.pixel_to_vector(s.x, s.y)
-                v1 = cam.pixel_to_vector(s.x + d[0] / length, s.y + d[1] / length)
-                if v0 is not None and v1 is not None:
-                    t = (v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2])
-                    per_px = _geo.norm(t)
-                    if per_px > 0:
-                        u = (t[0] / per_px, t[1] / per_px, t[2] / per_px)
-                        if turn is not None:
-                            u = turn(u, s.y)
-                        streak = (u[0], u[1], u[2], s.unseen * per_px)
-                        found = True
+                t = cam.pixel_tangent(v[0], v[1], d[0] / length, d[1] / length)
+                if t is not None:
+                    streak = (t[0], t[1], t[2], unseen * t[3])
+                    found = True
             out.append(streak)
         return out if found else None
 
@@ -489,7 +485,7 @@ class StarTracker:
             out.append(f / median if _geo.is_number(f) and f > 0 else 1.0)
         return out
 
-    def noise_shares(self, b, r, photon, q0=None):
+    def noise_shares(self, b, r, photon, q0=None, fitted=False):
         """Relative centroid variances ``g_i = (1 - rho) / photon_i + rho`` of the stars
         with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
         ``photon`` (:meth:`weights`), with the floor share ``rho`` of
@@ -498,21 +494,27 @@ class StarTracker:
         profiled out: maximise ``-sum(log g_i) - n log(sum(e_i^2 / g_i))``); ``rho > 0``
         must gain :data:`FLOOR_EVIDENCE` over ``rho = 0``.  Below
         :data:`MIN_STARS_NOISE_MODEL` stars, ``rho = 0``.  ``q0``: an attitude near the fit
-        (:func:`lodestar.firmware.attitude.refine` from it; None: QUEST).  Raises
-        ``ValueError`` when the fit is degenerate."""
+        (:func:`lodestar.firmware.attitude.refine` from it; None: QUEST); ``fitted``: ``q0``
+        is that fit already (a tracking solution's), used as it is.  Raises ``ValueError``
+        when the fit is degenerate."""
         n = len(b)
         u = [1.0 / p for p in photon]
         if n < MIN_STARS_NOISE_MODEL:
             return u
-        e2 = _residuals2(_fit(b, r, None, q0), b, r)
+        e2 = _residuals2(q0 if fitted else _fit(b, r, None, q0), b, r)
         best, best_g = None, u
         for rho in FLOOR_SHARES:
             g = [(1.0 - rho) * ui + rho for ui in u]
             total = 0.0
             logs = 0.0
+            prod = 1.0
             for i in range(n):
                 total += e2[i] / g[i]
-                logs += math.log(g[i])
+                prod *= g[i]
+                if i & 3 == 3:          # one log per 4 stars: a product of 4 shares (each
+                    logs += math.log(prod)      # within 1e-9..1e9 of the median star's)
+                    prod = 1.0                  # stays inside single precision's range
+            logs += math.log(prod)
             if not total > 0:
                 return u
             score = -logs - n * math.log(total) - (FLOOR_EVIDENCE if rho > 0 else 0.0)
@@ -520,13 +522,15 @@ class StarTracker:
                 best, best_g = score, g
         return best_g
 
-    def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None):
+    def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None,
+                 fitted=False):
         """Weighted least-squares attitude of ``star_ids`` ``[(vector index, database star
         index)]`` and Shuster's covariance: ``(q, sigma_cross_rad, sigma_roll_rad, s_rad)``
         (``s``: the per-axis noise of a median-flux star); None when degenerate.  ``q0``: the
         identification's attitude, refined from (:func:`lodestar.firmware.attitude.refine`,
-        accurate in single precision); None: QUEST.  ``fluxes``: per vector (None:
-        equal weights); ``floor``: let the residuals choose a noise floor
+        accurate in single precision); None: QUEST; ``fitted``: ``q0`` is the unweighted fit
+        of ``star_ids`` already (:meth:`noise_shares` takes its residuals).  ``fluxes``: per
+        vector (None: equal weights); ``floor``: let the residuals choose a noise floor
         (:meth:`noise_shares`; else the photon model alone); ``streaks``: per vector None
         or its partly seen track (:meth:`streaks`): the star's relative variance gains
         ``(half^2 / 6) / s0^2`` (a uniform offset over ``+-half`` along one axis is
@@ -548,7 +552,7 @@ class StarTracker:
             else:
                 w = self.weights([fluxes[o] for o, s in star_ids])
                 if floor and not tracks:
-                    w = [1.0 / gi for gi in self.noise_shares(b, r, w, q0)]
+                    w = [1.0 / gi for gi in self.noise_shares(b, r, w, q0, fitted)]
             if tracks:
                 # a partly seen track adds its variance in units of a median star's noise,
                 # the configured one or a third of the match tolerance
@@ -639,9 +643,11 @@ class StarTracker:
         if beta is not None:
             _deaberrate(vectors, sol.q, beta)
         star_ids = getattr(sol, "star_ids", None) or []
-        # a tracking solution names its stars already (matches align with star_ids)
+        # a tracking solution names its stars already (matches align with star_ids) and,
+        # without tracks to weight, its attitude is their unweighted fit
         hips = [hip for _o, hip in sol.matches] if mode == "tracking" else None
         q0 = sol.q
+        fitted = mode == "tracking" and streaks is None
         if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
             # (tracking from the identified attitude: it also repairs an attitude fitted to
@@ -651,21 +657,23 @@ class StarTracker:
                 star_ids = ref.star_ids
                 hips = [hip for _o, hip in ref.matches]
                 q0 = ref.q
+                fitted = streaks is None
             self._cone.clear()          # not kept through a lost-in-space frame's fit
         if not star_ids:
             predicted, n_fov = _tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
             star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad, streaks)
+            hips, fitted = None, False
         sol = ref = predicted = None     # only star_ids goes on to the fit
         if mode == "lost_in_space":
             _collect()
-        fitted = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
-                               streaks, q0) if len(star_ids) >= 2 else None
-        if fitted is None:
+        solved = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
+                               streaks, q0, fitted) if len(star_ids) >= 2 else None
+        if solved is None:
             res.status = S.NO_MATCH
             _note(res, "degenerate attitude fit")
             return res
-        q, cross, roll, sigma = fitted
+        q, cross, roll, sigma = solved
         res.status = S.OK
         res.centroid_sigma_px = sigma * self.focal_px
         res.q = q
@@ -735,12 +743,13 @@ class StarTracker:
         longest = 0.0
         if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
             known = {}          # (x, y) -> smear: extraction, joining, streaks ask again
+            smear_at = cam.smear_function(w, exposure)
 
             def smear(x, y):
                 key = (x, y)
                 if key in known:
                     return known[key]
-                d = known[key] = cam.smear_px(x, y, w, exposure)
+                d = known[key] = smear_at(x, y)
                 return d
 
             longest = _longest_smear(cam, smear)
@@ -768,7 +777,7 @@ class StarTracker:
         start = self._tick(timings, "centroids", start)
         budget = min_sum(stars, self.track_stars)
         vectors, used = self.directions(stars, w, exposure)
-        streaks = self.streaks(stars, used, smear, w, exposure) if smear is not None else None
+        streaks = self.streaks(stars, used, smear) if smear is not None else None
         smear = known = None            # the memo goes before the identification's peak
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):

@@ -324,6 +324,59 @@ def test_broken_track_is_joined_into_one_star():
     assert rejected["fragment"] == 0 and len(stars) == 2
 
 
+def _groups_by_every_pair(stars, smear, across_px):
+    """The groups :func:`FC.join_fragments` forms, by testing every pair (its rule)."""
+    groups = [{i} for i in range(len(stars))]
+    for i, a in enumerate(stars):
+        dx, dy = smear(a.x, a.y)
+        length = math.hypot(dx, dy)
+        ux, uy = dx / length, dy / length
+        for j in range(i + 1, len(stars)):
+            b = stars[j]
+            ex, ey = b.x - a.x, b.y - a.y
+            if abs(ex * ux + ey * uy) <= length + 1.0 and \
+                    abs(ex * uy - ey * ux) <= across_px + a.sigma_minor + b.sigma_minor:
+                gi = next(g for g in groups if i in g)
+                gj = next(g for g in groups if j in g)
+                if gi is not gj:
+                    gi |= gj
+                    groups.remove(gj)
+    return sorted(sorted(g) for g in groups)
+
+
+def test_joining_tests_the_pairs_every_pair_test_would():
+    """The x-sorted window finds exactly the groups of the every-pair rule, in the order of
+    their first pieces: random crowded fields, short and long smears, and a pair further
+    apart in x than the track is long (joined across it)."""
+    rng = np.random.default_rng(5)
+    fields = [([(10.0, 10.0, 3.0), (14.9, 5.1, 3.0)], 1.0, 1.0)]
+    for _ in range(150):
+        n = int(rng.integers(1, 31))
+        scale = 30.0 if rng.random() < 0.5 else 2.0
+        fields.append(([(float(x), float(y), float(sm)) for x, y, sm in
+                        zip(rng.uniform(0, 80, n), rng.uniform(0, 80, n),
+                            rng.uniform(0.1, 4.0, n))],
+                       float(rng.uniform(-scale, scale)), float(rng.uniform(-scale, scale))))
+    for points, dx, dy in fields:
+        if math.hypot(dx, dy) < 0.5:
+            dx = 1.0
+
+        def smear(x, y, dx=dx, dy=dy):
+            return dx * (1.0 + x / 1000.0), dy
+
+        stars = [FC.Star(x, y, 100 + i, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
+                 for i, (x, y, sm) in enumerate(points)]
+        central = [(1.0, 1.0, 0.0)] * len(stars)
+        out = FC.join_fragments(stars, central, smear, FC.DEFAULT_JOIN_ACROSS_PX)
+        got = sorted(sorted(s.parts) if s.parts else [s.index] for s in out)
+        assert got == _groups_by_every_pair(stars, smear, FC.DEFAULT_JOIN_ACROSS_PX)
+        firsts = [min(s.parts) if s.parts else s.index for s in out]
+        assert firsts == sorted(firsts)
+    assert len(FC.join_fragments(*[[FC.Star(x, y, 100, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
+                                    for i, (x, y, sm) in enumerate(fields[0][0])]],
+                                 [(1.0, 1.0, 0.0)] * 2, lambda x, y: (1.0, 1.0))) == 1
+
+
 def test_unseen_track_of_a_piece():
     # the whole track: nothing unseen; 60 % of it: a fifth of the track each way
     dx, dy = 24.0, -10.0
