@@ -20,7 +20,7 @@ from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
-from .starid.verify import chance_agreement, fov_solid_angle, near_pairs
+from .starid.verify import chance_agreement, chord, fov_solid_angle, in_region, near_pairs
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -34,6 +34,13 @@ DEFAULT_COARSE_STARS = 16
 """Brightest observed stars used by the coarse association."""
 DEFAULT_ITERATIONS = 4
 """Most fit / predict / match rounds."""
+SLACK_TOL = 0.5
+"""How far (in match tolerances) a steady frame's fit may turn from the prior for its
+matches to be confirmed from the prior's candidates (:func:`confirm`) instead of a new
+prediction; the prior's prediction is widened by ``2 SLACK_TOL`` tolerances so that it holds
+every star a match region can reach after such a turn (the turn moves a star across the
+field's rectangle by at most itself over the cosine of the star's angle off the axis'
+plane, within 1.1 of itself for fields below 48 deg)."""
 
 
 class TrackSolution(Solution):
@@ -184,34 +191,83 @@ def predict(database, q, margin_rad=0.0, stars=None):
     return (keep[:n_out], cam[:3 * n_out]), n_fov
 
 
-def match_nearest(observed, predicted, tolerance_rad, streaks=None):
+def _claim(near):
+    """The matching rule of :func:`match_nearest` over ``near``, a list of ``(observed
+    index, star index, squared distance)`` of the pairs within their match regions, in
+    observed then star order: ``[(observed index, star index)]``."""
+    claimed = {}
+    pairs = []
+    best, best_d2, second, current = -1, 0.0, False, -1
+    for o, s, d2 in near:
+        if o != current:
+            if best >= 0 and not second:
+                claimed[best] = current
+                pairs.append((current, best))
+            best, second, current = -1, False, o
+        if s in claimed:
+            continue
+        if best >= 0:
+            second = True
+        if best < 0 or d2 <= best_d2:
+            best, best_d2 = s, d2
+    if best >= 0 and not second:
+        pairs.append((current, best))
+    return pairs
+
+
+def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
     index) closer than ``tolerance_rad`` (or within the region stretched along a star's
     track, ``streaks``: :func:`lodestar.firmware.starid.verify.in_region`): observed stars in
     order (brightest first) take the nearest unclaimed predicted star; a star with a second
-    unclaimed prediction within tolerance is left unnamed."""
-    claimed = {}
-    pairs = []
-    best, best_d2, second, current = -1, 0.0, False, -1
+    unclaimed prediction within tolerance is left unnamed.  ``slack_rad``: also return the
+    candidates, ``(pairs, candidates)``: every ``(observed index, star index)`` within
+    ``tolerance_rad + 2 slack_rad`` (:func:`confirm` re-tests them at an attitude within
+    ``slack_rad`` of the prediction's)."""
+    ids = predicted[0]
+    lim = chord(tolerance_rad)
+    radius = tolerance_rad if slack_rad is None else tolerance_rad + 2.0 * slack_rad
+    near = []
+    candidates = [] if slack_rad is not None else None
+    for o, p, dx, dy, dz in near_pairs(observed, predicted, radius, streaks=streaks):
+        if candidates is not None:
+            candidates.append((o, ids[p]))
+            if not in_region(dx, dy, dz, streaks[o] if streaks is not None else None, lim):
+                continue
+        near.append((o, ids[p], dx * dx + dy * dy + dz * dz))
+    pairs = _claim(near)
+    return pairs if candidates is None else (pairs, candidates)
 
-    def close(o):
-        if best >= 0 and not second:
-            claimed[best] = o
-            pairs.append((o, predicted[0][best]))
 
-    for o, p, dx, dy, dz in near_pairs(observed, predicted, tolerance_rad, streaks=streaks):
-        if o != current:
-            close(current)
-            best, second, current = -1, False, o
-        if p in claimed:
-            continue
-        d2 = dx * dx + dy * dy + dz * dz
-        if best >= 0:
-            second = True
-        if best < 0 or d2 <= best_d2:
-            best, best_d2 = p, d2
-    close(current)
-    return pairs
+def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, stars=None):
+    """:func:`match_nearest` at attitude ``q`` from the ``candidates`` it returned at an
+    attitude within its ``slack_rad`` of ``q``: the same matches as predicting anew, from
+    the few stars that can be in a match region (a star moves by at most the turn between
+    the two attitudes).  ``stars``: as for :func:`fit`."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
+    lim = chord(tolerance_rad)
+    near = []
+    for o, s in candidates:
+        r0, r1, r2 = star_vector(database, stars, s) if stars is not None else \
+            database.star_vector(s)
+        v = observed[o]
+        dx = v[0] - (m0 * r0 + m1 * r1 + m2 * r2)
+        dy = v[1] - (m3 * r0 + m4 * r1 + m5 * r2)
+        dz = v[2] - (m6 * r0 + m7 * r1 + m8 * r2)
+        if in_region(dx, dy, dz, streaks[o] if streaks is not None else None, lim):
+            near.append((o, s, dx * dx + dy * dy + dz * dz))
+    return _claim(near)
+
+
+def _within(q, q0, angle):
+    """True when the rotation from ``q0`` to ``q`` (unit quaternions) is at most ``angle``
+    rad: the vector part of their quotient is ``sin(angle / 2)``."""
+    w, w0 = q[3], q0[3]
+    vx = w0 * q[0] - w * q0[0] - (q0[1] * q[2] - q0[2] * q[1])
+    vy = w0 * q[1] - w * q0[1] - (q0[2] * q[0] - q0[0] * q[2])
+    vz = w0 * q[2] - w * q0[2] - (q0[0] * q[1] - q0[1] * q[0])
+    h = math.sin(0.5 * angle)
+    return vx * vx + vy * vy + vz * vz <= h * h
 
 
 def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
@@ -367,14 +423,16 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     # search radius of the prior)
     stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol, cone)
     # steady state: the prior is within the match tolerance, so match at it directly
-    predicted, n_fov = predict(database, q_pred, 2.0 * tol, stars)
-    pairs = match_nearest(b, predicted, tol, streaks)
+    slack = SLACK_TOL * tol
+    predicted, n_fov = predict(database, q_pred, 2.0 * tol + 2.0 * slack, stars)
+    pairs, near = match_nearest(b, predicted, tol, streaks, slack)
     predicted = None
     if len(pairs) >= min_matches:
         sol = _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
-                      weights, streaks, stars, q_pred, n_fov)
+                      weights, streaks, stars, q_pred, n_fov, near=(near, slack))
         if sol.status == S.OK:
             return sol
+    near = None
     # coarse association: the prior may be off by up to the search radius
     predicted, n_fov = predict(database, q_pred, search, stars)
     spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error across field
@@ -387,11 +445,14 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
 
 
 def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weights, streaks,
-            stars, q_pred, n_fov, coarse=False):
+            stars, q_pred, n_fov, coarse=False, near=None):
     """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
     the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
     predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
-    final (the fine matching always runs at least once)."""
+    final (the fine matching always runs at least once); ``near``: ``(candidates, slack)``
+    of :func:`match_nearest` at ``q``, which confirm the first fit's matches when it lies
+    within the slack (``n_fov`` then stays the prior's)."""
+    q0 = q
     q = fit(b, database, pairs, q, weights, stars)
     if q is None:
         return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
@@ -399,8 +460,12 @@ def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weigh
         pairs = None
     converged = False
     for _ in range(iterations):
-        predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-        new = match_nearest(b, predicted, tol, streaks)
+        if near is not None and _within(q, q0, near[1]):
+            new = confirm(b, database, q, near[0], tol, streaks, stars)
+        else:
+            predicted, n_fov = predict(database, q, 2.0 * tol, stars)
+            new = match_nearest(b, predicted, tol, streaks)
+        near = None
         if new == pairs:
             converged = True        # the matches at q are pairs: the check below holds
             break

@@ -117,6 +117,39 @@ def test_match_nearest_rules():
     assert tracking.match_nearest(observed, _predicted([]), tol) == []
 
 
+def test_confirming_from_candidates_matches_as_a_new_prediction():
+    """At any attitude within the slack of the prediction's, the candidates give the
+    matches a new prediction gives, with stars near the tolerance's edge (2 px noise
+    against 2.5 px) and with tracks."""
+    db = SF.flight_database()
+    cam = SF.sim_camera()
+    rng = np.random.default_rng(31)
+    slack = tracking.SLACK_TOL * TOL
+    compared = changed = 0
+    for trial in range(12):
+        q = random_attitude(rng)
+        scene = centroid_scene(cam, q, rng, catalogue(), noise_px=2.0, max_stars=32)
+        b = [tuple(v) for v in scene.vectors.tolist()]
+        streaks = None
+        if trial % 3 == 2:                  # a track along x, half of it unseen, every 2nd
+            streaks = [(1.0, 0.0, 0.0, 3 * TOL) if i % 2 else None for i in range(len(b))]
+        prior = perturbed(q, 0.002, rng)
+        stars = tracking.candidates(db, prior, 0.02)
+        predicted, _n = tracking.predict(db, prior, 2 * TOL + 2 * slack, stars)
+        pairs, near = tracking.match_nearest(b, predicted, TOL, streaks, slack)
+        assert pairs == tracking.match_nearest(
+            b, tracking.predict(db, prior, 2 * TOL, stars)[0], TOL, streaks)
+        for _ in range(6):
+            qq = perturbed(prior, math.degrees(rng.uniform(0, slack)), rng)
+            assert tracking._within(qq.tolist(), prior.tolist(), slack)
+            full = tracking.match_nearest(
+                b, tracking.predict(db, qq, 2 * TOL, stars)[0], TOL, streaks)
+            assert tracking.confirm(b, db, qq, near, TOL, streaks, stars) == full
+            compared += 1
+            changed += full != pairs
+    assert compared == 72 and changed >= 5       # the turns change some matches
+
+
 def test_coarse_match_finds_the_consistent_displacement():
     # six stars shifted by the same small rotation, plus distractors around them
     rng = np.random.default_rng(3)
