@@ -121,16 +121,18 @@ def _positive(values, name, n):
     return out
 
 
-def _prepare(b, r, w, wname="w", min_pairs=2):
+def _prepare(b, r, w, wname="w", min_pairs=2, shared=False):
     """Validated ``(unit b, unit r, weights)`` as lists of floats (weights not rescaled);
-    ``r`` None: not checked, and None is returned for it."""
+    ``r`` None: not checked, and None is returned for it.  ``shared``: a unit tuple of ``b``
+    is taken as it is (not normalised again: where its last bits do not matter)."""
     n = _length(b, "b")
     m = n if r is None else _length(r, "r")
     if m != n:
         raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
     if n < min_pairs:
         raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
-    bs = [_unit(b[i], "b", i) for i in range(n)]
+    bs = [b[i] if shared and _geo.is_unit_tuple(b[i]) else _unit(b[i], "b", i)
+          for i in range(n)]
     rs = None if r is None else [_unit(r[i], "r", i) for i in range(n)]
     if w is None:
         ws = [1.0] * n
@@ -603,12 +605,12 @@ def covariance(b, r, sigmas):
     validated (same count, finite, not all parallel; None: not checked): to first order the
     information depends on the body directions alone.
     """
-    bs, rs, ss = _prepare(b, r, sigmas, wname="sigmas")
+    bs, rs, ss = _prepare(b, r, sigmas, wname="sigmas", shared=True)
     f00 = f11 = f22 = f01 = f02 = f12 = 0.0
     for k in range(len(bs)):
         g = 1.0 / ss[k]
         g *= g
-        if not _geo.finite(g):
+        if not g - g == 0:              # finite(g), inline
             raise ValueError("sigmas[%d] = %r is too small" % (k, ss[k]))
         x, y, z = bs[k]
         f00 += g * (1.0 - x * x)

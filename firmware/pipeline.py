@@ -392,20 +392,20 @@ class StarTracker:
         return turn
 
     def directions(self, stars, omega=None, exposure_s=None):
-        """Camera-frame unit vectors of ``stars`` (objects with ``x``, ``y``) at the epoch:
-        ``(vectors, used)`` with ``used`` the indices into ``stars`` of the stars whose pixel
-        the camera model inverts (the others are dropped)."""
+        """Camera-frame unit vectors of ``stars`` (:class:`~lodestar.firmware.centroids.Star`)
+        at the epoch: ``(vectors, used)`` with ``used`` the indices into ``stars`` of the
+        stars whose pixel the camera model inverts (the others are dropped)."""
         cam = self.camera
         turn = self._epoch_turn(omega, exposure_s)
         vectors = []
         used = []
         for i in range(len(stars)):
-            s = stars[i]
-            v = cam.pixel_to_vector(s.x, s.y)
+            x, y = stars[i]._v[0], stars[i]._v[1]       # properties would cost a call each
+            v = cam.pixel_to_vector(x, y)
             if v is None:
                 continue
             if turn is not None:
-                v = turn(v, s.y)
+                v = turn(v, y)
             vectors.append(v)
             used.append(i)
         return vectors, used

@@ -247,6 +247,7 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, star
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
     lim = chord(tolerance_rad)
     near = []
+    last, streak = -1, None
     for o, s in candidates:
         r0, r1, r2 = star_vector(database, stars, s) if stars is not None else \
             database.star_vector(s)
@@ -254,7 +255,9 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, star
         dx = v[0] - (m0 * r0 + m1 * r1 + m2 * r2)
         dy = v[1] - (m3 * r0 + m4 * r1 + m5 * r2)
         dz = v[2] - (m6 * r0 + m7 * r1 + m8 * r2)
-        if in_region(dx, dy, dz, streaks[o] if streaks is not None else None, lim):
+        if o != last and streaks is not None:       # candidates are grouped by o
+            last, streak = o, streaks[o]
+        if in_region(dx, dy, dz, streak, lim):
             near.append((o, s, dx * dx + dy * dy + dz * dz))
     return _claim(near)
 
