@@ -52,11 +52,12 @@ FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
 COLLECT = sys.implementation.name == "micropython"
 """On MicroPython a :class:`StarTracker` sets ``gc.threshold`` for each frame
-(:data:`GC_THRESHOLD`, :data:`TRACK_GC_THRESHOLD`) and collects before each frame and, in a
-lost-in-space frame, at the stage boundaries of :meth:`StarTracker.process` (after the
-centroids, before the identification and before the attitude fit): on an MCU's small heap
-this keeps temporaries from fragmenting it, while a tracking frame's low peak needs no stage
-collections (``docs/firmware.md``, Memory); CPython's own collector needs no help."""
+(:data:`GC_THRESHOLD`, :data:`TRACK_GC_THRESHOLD`) and, in a lost-in-space frame, collects
+before it and at the stage boundaries of :meth:`StarTracker.process` (after the centroids,
+before the identification and before the attitude fit): on an MCU's small heap this keeps
+temporaries from fragmenting it, while a tracking frame's low peak needs no collection but
+the threshold's (about one per frame: it allocates about 30 KB; ``docs/firmware.md``,
+Memory); CPython's own collector needs no help."""
 GC_THRESHOLD = 8192
 """Bytes allocated between two collections on MicroPython in a lost-in-space frame, whose
 search and fit peak high: collecting often keeps the heap from fragmenting
@@ -67,33 +68,41 @@ collections, about 30 % fewer instructions per frame (``docs/firmware.md``, Memo
 fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
 
 
-TRACK_MARGIN_PERCENT = 70
-"""The ``min_sum`` a solved frame returns is this share (percent) of the flux of its
-``track_stars``-th brightest star: a star's ``s0`` changes by a few percent from frame to
-frame at rest and by more as the smear changes, and 70 % lets about a third more blobs than
-``track_stars`` through (``docs/firmware.md``, Record budget)."""
+TRACK_MARGIN_PERCENT = 85
+"""The ``min_sum`` a solved frame returns admits blobs down to this share (percent) of the
+``track_stars``-th brightest blob's ``s0``, which changes by a few percent from frame to
+frame at rest (``docs/firmware.md``, Record budget)."""
+TRACK_EXTRA_STARS = 2
+"""... but no more than ``track_stars`` plus this many blobs of the frame: a group of stars
+of about the same brightness at the cut cannot swell the next frame."""
 MIN_SUM_MAX = (1 << _C.REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
 
 def min_sum(stars, track_stars):
-    """The ``min_sum`` register value that budgets the next frame for about ``track_stars``
-    blobs: :data:`TRACK_MARGIN_PERCENT` of the smallest flux among the ``track_stars``
-    brightest of ``stars`` (:class:`lodestar.firmware.centroids.Star`, brightest first), a
-    star joined from ``k`` pieces counting ``1/k`` of its flux (each piece is a blob the
-    register filters); 0 (every blob) when there are fewer stars or ``track_stars`` is
-    None.  Integer arithmetic: the same value in every float precision."""
+    """The ``min_sum`` register value that budgets the next frame for ``track_stars`` to
+    ``track_stars +`` :data:`TRACK_EXTRA_STARS` blobs, from this frame's ``stars``
+    (:class:`lodestar.firmware.centroids.Star`), each blob's ``s0`` a star's flux (of a star
+    joined from ``k`` pieces, ``k`` blobs of ``1/k`` of it: the register filters pieces): the
+    larger of :data:`TRACK_MARGIN_PERCENT` of the ``track_stars``-th largest and the
+    ``(track_stars + TRACK_EXTRA_STARS)``-th largest; 0 (every blob) with fewer than
+    ``track_stars`` stars or ``track_stars`` None.  Integer arithmetic: the same value in
+    every float precision."""
     if track_stars is None or len(stars) < track_stars:
         return 0
-    level = None
-    for i in range(track_stars):
-        s = stars[i]
+    levels = []
+    for s in stars:
         f = int(s.flux)
         if s.parts:
-            f //= len(s.parts)
-        if level is None or f < level:
-            level = f
-    level = level * TRACK_MARGIN_PERCENT // 100
+            levels += [f // len(s.parts)] * len(s.parts)
+        else:
+            levels.append(f)
+    levels.sort()
+    n = len(levels)
+    level = levels[n - track_stars] * TRACK_MARGIN_PERCENT // 100
+    extra = n - track_stars - TRACK_EXTRA_STARS
+    if extra >= 0 and levels[extra] > level:
+        level = levels[extra]
     return level if level < MIN_SUM_MAX else MIN_SUM_MAX
 
 
@@ -712,7 +721,8 @@ class StarTracker:
             return res
         timings = res.timings
         _threshold(GC_THRESHOLD if prior is None else TRACK_GC_THRESHOLD)
-        _collect()
+        if prior is None:
+            _collect()
         start = first = self._tick(timings, None, None)
         code, header, reason = _packet.check(packet_bytes, records=False)
         start = self._tick(timings, "decode", start)

@@ -28,12 +28,13 @@ MAX_STARS = 256
 """Most stars a frame may keep (``max_stars``): verification work grows with it."""
 DEFAULT_TRACK_SEARCH_DEG = 0.3
 """Largest expected error of the propagated prior, deg."""
-DEFAULT_TRACK_STARS = 12
-"""Brightest stars a tracking frame is budgeted for (``track_stars``): the ``min_sum`` a
-solved frame returns lets about this many blobs, plus a margin, into the next packet
-(``docs/firmware.md``, Record budget).  Flux weighting makes the faint stars it leaves out
-worth little: on estcube2 frames at rest 13-16 records instead of 38-50 raise the 1-sigma
-figures by about 15 %."""
+DEFAULT_TRACK_STARS = 8
+"""Brightest blobs a tracking frame is budgeted for (``track_stars``): the ``min_sum`` a
+solved frame returns lets 8 to 10 of them into the next packet (``docs/firmware.md``,
+Record budget).  Flux weighting makes the faint stars it leaves out worth little: over 30
+estcube2 frames tracked at rest (9 records instead of 54 at the median) the RMS errors are
+0.92 (cross-boresight) and 1.03 (roll) of every blob's, at 1 deg/s (9 instead of 29) 1.12
+and 1.13 (``benchmarks/bench_track_budget.py``)."""
 
 
 class Settings:

@@ -204,17 +204,22 @@ def test_result_fields_and_timings():
 
 
 def test_min_sum_budgets_the_brightest_stars():
-    """70 % of the smallest flux among the ``track_stars`` brightest, a joined star's flux
-    shared by its pieces; 0 with fewer stars or no budget; clamped to the register."""
+    """85 % of the track_stars-th largest blob, but no lower than the (track_stars + 2)-th
+    largest; a joined star's pieces each a blob; 0 with fewer stars or no budget; clamped
+    to the register."""
     def star(flux, parts=None):
         return Star(1.0, 2.0, flux, 1.0, 1.0, 1.0, 0.0, 9, 0, 100, 0, parts)
 
+    assert pipeline.TRACK_MARGIN_PERCENT == 85 and pipeline.TRACK_EXTRA_STARS == 2
     stars = [star(f) for f in (9000, 5000, 4001, 3000, 10)]
-    assert pipeline.min_sum(stars, 3) == 4001 * 70 // 100 == 2800
-    assert pipeline.min_sum(stars, 5) == 7 and pipeline.min_sum(stars, 1) == 6300
+    assert pipeline.min_sum(stars, 3) == 4001 * 85 // 100 == 3400
+    assert pipeline.min_sum(stars, 1) == 7650 and pipeline.min_sum(stars, 5) == 8
     assert pipeline.min_sum(stars, 6) == 0 and pipeline.min_sum(stars, None) == 0
-    # a track in three pieces: each piece is a blob of about a third of the flux
-    assert pipeline.min_sum([star(9000, [0, 4, 7]), star(5000)], 2) == 3000 * 70 // 100
+    # six stars of about the same brightness: the cut keeps four (2 + 2), not all six
+    crowd = [star(f) for f in (1000, 990, 980, 970, 960, 950)]
+    assert pipeline.min_sum(crowd, 2) == 970
+    # a track in three pieces: three blobs of a third of the flux each
+    assert pipeline.min_sum([star(9000, [0, 4, 7]), star(5000)], 2) == 3000
     assert pipeline.min_sum([star(float("1e30"))], 1) == pipeline.MIN_SUM_MAX
     assert pipeline.MIN_SUM_MAX == (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
 
@@ -236,7 +241,8 @@ def test_a_budgeted_frame_carries_fewer_records_and_tracks():
         budgeted = tracker.process(ground_packet.encode(det), prior=res.q)
         assert budgeted.ok and budgeted.mode == "tracking"
         k = settings.DEFAULT_TRACK_STARS
-        assert k <= budgeted.n_records <= min(2 * k, res.n_records)
+        assert k <= budgeted.n_records <= min(k + pipeline.TRACK_EXTRA_STARS + 2,
+                                               res.n_records)
         records[0] += res.n_records
         records[1] += budgeted.n_records
         assert budgeted.sigma_cross_arcsec < 4 / 3 * res.sigma_cross_arcsec
@@ -728,8 +734,8 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
 
 def test_collections_per_frame_kind(monkeypatch):
     """On MicroPython a lost-in-space frame collects before the frame and at its three stage
-    boundaries at the 8 KiB threshold; a tracking frame collects once, at 32 KiB; a tracking
-    frame that falls back collects before its search and its fit, back at 8 KiB."""
+    boundaries at the 8 KiB threshold; a tracking frame only at its 32 KiB threshold; a
+    tracking frame that falls back collects before its search and its fit, back at 8 KiB."""
     frame = SF.frames()[0]
     tracker = SF.tracker()
     calls = []
@@ -742,9 +748,9 @@ def test_collections_per_frame_kind(monkeypatch):
     assert calls == [lis, "collect", "collect", "collect", lis, "collect"]
     del calls[:]
     assert tracker.process(frame.packet, prior=frame.q.tolist()).mode == "tracking"
-    assert calls == [track, "collect"]
+    assert calls == [track]
     del calls[:]
     far = (Rotation.from_rotvec([0.35, 0.0, 0.0]) * Rotation.from_quat(frame.q)).as_quat()
     res = tracker.process(frame.packet, prior=far.tolist())
     assert res.status == S.OK and res.mode == "lost_in_space"
-    assert calls == [track, "collect", lis, "collect", "collect"]
+    assert calls == [track, lis, "collect", "collect"]

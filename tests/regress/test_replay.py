@@ -17,6 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.cli import main
+from lodestar.firmware.settings import DEFAULT_TRACK_STARS
 from lodestar.regress import mcu, unixport
 from lodestar.regress import micropython as regress_micropython
 from lodestar.regress import record as regress_record
@@ -88,7 +89,7 @@ def test_set_covers_the_brief():
     dense, budgeted = by_name["estcube2_rest_s0"], by_name["estcube2_tracking_budget"]
     assert dense["expected"]["pyramid"]["min_sum"] > 0
     assert budgeted["truth"] == dense["truth"]
-    assert 12 <= budgeted["expected"]["pyramid"]["n_records"] < \
+    assert DEFAULT_TRACK_STARS <= budgeted["expected"]["pyramid"]["n_records"] < \
         dense["expected"]["pyramid"]["n_records"] / 3
     statuses = {o["status_name"] for c in cases for o in c["expected"].values()}
     assert {"PACKET_BAD_CRC", "PACKET_TRUNCATED", "PACKET_BAD_LENGTH", "PACKET_BAD_MAGIC",
