@@ -20,7 +20,7 @@ from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
-from .starid.verify import chance_agreement, chord, fov_solid_angle, in_region, near_pairs
+from .starid.verify import chance_agreement, chord, fov_solid_angle, in_region, near_pairs, x_order
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -112,12 +112,15 @@ class Cone:
 
 
 def candidates(database, q, margin_rad, cone=None):
-    """``(ids, vecs, where)``: the catalogue stars within the FOV's half-diagonal plus
-    ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict` can find at any
-    attitude within ``margin_rad`` of ``q``; one cone query, reused), as ``array('H')``
-    star indices (ascending), ``array('f')`` inertial vectors ``x, y, z`` per star (the
-    database's float32 values, exactly) and a dict of each star's position in them (a fit
-    looks its stars up there: a binary search would cost more than the fit).  ``cone``: a
+    """``(ids, vecs, where, order, omega)``: the catalogue stars within the FOV's
+    half-diagonal plus ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict`
+    can find at any attitude within ``margin_rad`` of ``q``; one cone query, reused), as
+    ``array('H')`` star indices (ascending), ``array('f')`` inertial vectors ``x, y, z`` per
+    star (the database's float32 values, exactly), a dict of each star's position in them
+    (a fit looks its stars up there: a binary search would cost more than the fit), their
+    :func:`lodestar.firmware.starid.verify.x_order` (the direct match searches them in the
+    inertial frame) and the cone's solid angle (sr; with their count, the catalogue's
+    density around the boresight).  ``cone``: a
     :class:`Cone` to take them from when it covers them, else to keep them in (queried
     :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns)."""
     m = matrix(q)
@@ -134,7 +137,8 @@ def candidates(database, q, margin_rad, cone=None):
     where = {}
     for i in range(len(ids)):
         where[ids[i]] = i
-    stars = (ids, vecs, where)
+    omega = 4.0 * math.pi * math.sin(0.5 * radius) ** 2        # 2 pi (1 - cos r)
+    stars = (ids, vecs, where, x_order(vecs, len(ids)), omega)
     if cone is not None:
         cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, stars
     return stars
@@ -215,7 +219,8 @@ def _claim(near):
     return pairs
 
 
-def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=None):
+def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=None,
+                  order=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
     index) closer than ``tolerance_rad`` (or within the region stretched along a star's
     track, ``streaks``: :func:`lodestar.firmware.starid.verify.in_region`): observed stars in
@@ -223,13 +228,15 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=No
     unclaimed prediction within tolerance is left unnamed.  ``slack_rad``: also return the
     candidates, ``(pairs, candidates)``: every ``(observed index, star index)`` within
     ``tolerance_rad + 2 slack_rad`` (:func:`confirm` re-tests them at an attitude within
-    ``slack_rad`` of the prediction's)."""
+    ``slack_rad`` of the prediction's).  ``order``: as for
+    :func:`lodestar.firmware.starid.verify.near_pairs`."""
     ids = predicted[0]
     lim = chord(tolerance_rad)
     radius = tolerance_rad if slack_rad is None else tolerance_rad + 2.0 * slack_rad
     near = []
     candidates = [] if slack_rad is not None else None
-    for o, p, dx, dy, dz in near_pairs(observed, predicted, radius, streaks=streaks):
+    for o, p, dx, dy, dz in near_pairs(observed, predicted, radius, streaks=streaks,
+                                       order=order):
         if candidates is not None:
             candidates.append((o, ids[p]))
             if not in_region(dx, dy, dz, streaks[o] if streaks is not None else None, lim):
@@ -260,6 +267,28 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, star
         if in_region(dx, dy, dz, streak, lim):
             near.append((o, s, dx * dx + dy * dy + dz * dz))
     return _claim(near)
+
+
+def _to_inertial(vectors, q):
+    """Camera-frame ``vectors`` turned into the inertial frame by attitude ``q``: ``A^T v``
+    (distances and in-region tests are the same in either frame)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
+    out = []
+    for v in vectors:
+        x, y, z = v[0], v[1], v[2]
+        out.append((m0 * x + m3 * y + m6 * z, m1 * x + m4 * y + m7 * z,
+                    m2 * x + m5 * y + m8 * z))
+    return out
+
+
+def _streaks_to_inertial(streaks, q):
+    """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays)."""
+    if streaks is None:
+        return None
+    out = []
+    for st in streaks:
+        out.append(None if st is None else _to_inertial((st,), q)[0] + (st[3],))
+    return out
 
 
 def _within(q, q0, angle):
@@ -425,11 +454,13 @@ def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_
     # one cone query serves every prediction below (the fitted attitudes stay within the
     # search radius of the prior)
     stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol, cone)
-    # steady state: the prior is within the match tolerance, so match at it directly
+    # steady state: the prior is within the match tolerance, so match at it directly, in the
+    # inertial frame: the observed stars turned back by the prior against the cone's stars
+    # (sorted once per cone), the catalogue's density from the cone
     slack = SLACK_TOL * tol
-    predicted, n_fov = predict(database, q_pred, 2.0 * tol + 2.0 * slack, stars)
-    pairs, near = match_nearest(b, predicted, tol, streaks, slack)
-    predicted = None
+    pairs, near = match_nearest(_to_inertial(b, q_pred), stars, tol,
+                                _streaks_to_inertial(streaks, q_pred), slack, order=stars[3])
+    n_fov = len(stars[0]) * fov_solid_angle(database.fov_h, database.fov_v) / stars[4]
     if len(pairs) >= min_matches:
         sol = _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
                       weights, streaks, stars, q_pred, n_fov, near=(near, slack))

@@ -154,30 +154,38 @@ def in_region(dx, dy, dz, streak, lim):
     return d2 - a * a + beyond * beyond <= lim * lim
 
 
-def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None):
+def x_order(vecs, n):
+    """``(order, shift, steps)``: the ``n`` unit vectors ``vecs`` (``x, y, z`` each) in ``x``
+    order for :func:`near_pairs`, as one sorted list of small ints ``(k << shift) | p`` with
+    ``k = int((x + 1) steps)`` a power-of-two quantisation of ``x + 1`` (monotonic, so a
+    window of keys holds every vector within reach): sorting it calls no key per comparison
+    (MicroPython's sort would) and allocates neither tuples nor long ints (keys below
+    2**30)."""
+    shift = 1
+    while (1 << shift) < n:
+        shift += 1
+    steps = float(1 << (28 - shift))
+    order = [0] * n
+    for p in range(n):
+        order[p] = (int((vecs[3 * p] + 1.0) * steps) << shift) | p
+    order.sort()
+    return order, shift, steps
+
+
+def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None, order=None):
     """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
     ``n_observed``) within ``radius_rad`` of predicted star ``p`` (of ``predicted``, as
     :func:`predicted_stars`; of the stretch ``streaks[o]`` along its track,
     :func:`in_region`), with ``(dx, dy, dz)`` the observed minus the predicted vector; in
-    ``o`` then ``p`` order.  The predicted stars are sorted by ``x`` once, so each observed
-    star tests only those whose ``x`` is within reach (a binary search), not all."""
+    ``o`` then ``p`` order.  The predicted stars are sorted by ``x`` once (:func:`x_order`;
+    ``order``: that of ``predicted``, kept by the caller), so each observed star tests only
+    those whose ``x`` is within reach (a binary search), not all."""
     lim = chord(radius_rad)
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     vecs = predicted[1]
     n_pred = len(predicted[0])
-    # the predicted stars in x order, as one list of small ints ``(k << shift) | p`` with ``k``
-    # a power-of-two quantisation of ``x + 1`` (monotonic, so the window below holds every
-    # star within reach): sorting it calls no key per comparison (MicroPython's sort would)
-    # and allocates neither tuples nor long ints (keys below 2**30)
-    shift = 1
-    while (1 << shift) < n_pred:
-        shift += 1
-    steps = float(1 << (28 - shift))
+    order, shift, steps = x_order(vecs, n_pred) if order is None else order
     mask = (1 << shift) - 1
-    order = [0] * n_pred
-    for p in range(n_pred):
-        order[p] = (int((vecs[3 * p] + 1.0) * steps) << shift) | p
-    order.sort()
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None

@@ -118,9 +118,10 @@ def test_match_nearest_rules():
 
 
 def test_confirming_from_candidates_matches_as_a_new_prediction():
-    """At any attitude within the slack of the prediction's, the candidates give the
-    matches a new prediction gives, with stars near the tolerance's edge (2 px noise
-    against 2.5 px) and with tracks."""
+    """The direct match in the inertial frame equals the camera frame's; at any attitude
+    within the slack of the prediction's, the candidates give the matches a new prediction
+    gives, with stars near the tolerance's edge (2 px noise against 2.5 px) and with
+    tracks."""
     db = SF.flight_database()
     cam = SF.sim_camera()
     rng = np.random.default_rng(31)
@@ -139,6 +140,10 @@ def test_confirming_from_candidates_matches_as_a_new_prediction():
         pairs, near = tracking.match_nearest(b, predicted, TOL, streaks, slack)
         assert pairs == tracking.match_nearest(
             b, tracking.predict(db, prior, 2 * TOL, stars)[0], TOL, streaks)
+        # the same in the inertial frame, against every star of the cone in its x order
+        assert (pairs, near) == tracking.match_nearest(
+            tracking._to_inertial(b, prior), stars, TOL,
+            tracking._streaks_to_inertial(streaks, prior), slack, order=stars[3])
         for _ in range(6):
             qq = perturbed(prior, math.degrees(rng.uniform(0, slack)), rng)
             assert tracking._within(qq.tolist(), prior.tolist(), slack)
