@@ -4,7 +4,7 @@ overflow bits.  The gateware's slave
 one command per chip-select, timing) is described in ``hdl/spi_slave.py``; the sensors
 and their pixel widths are in :mod:`lodestar.contract.detection`."""
 
-from lodestar.contract.detection import REGISTER_WORD_BITS, REGISTERS, bits_for
+from lodestar.contract.detection import REGISTER_BY_NAME, REGISTER_WORD_BITS, REGISTERS, bits_for
 from lodestar.contract.packet import HEADER_FIELDS
 
 OP_WRITE_REG = 0x57
@@ -28,6 +28,21 @@ REG_ADDR_BITS = bits_for(max(r.address for r in REGISTERS))
 """Width of the write port's address: the contract's largest word address."""
 if max(r.address for r in REGISTERS) >> (8 * ADDRESS_BYTES):
     raise ValueError("a register address does not fit the SPI address byte")
+
+
+
+def write_reg_command(name, value):
+    """The bytes of the ``WRITE_REG`` transaction (one chip-select) that sets the runtime
+    register ``name`` (:data:`lodestar.contract.detection.REGISTERS`) to ``value``: opcode,
+    word address, value big endian.  ``ValueError`` for an unknown register or a value that
+    is not an int within its ``bits``."""
+    reg = REGISTER_BY_NAME.get(name)
+    if reg is None:
+        raise ValueError("unknown register {!r}".format(name))
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0 or value >> reg.bits:
+        raise ValueError("register {} holds {} bits, got {!r}".format(name, reg.bits, value))
+    return bytes((OP_WRITE_REG, reg.address)) + value.to_bytes(VALUE_BYTES, "big")
+
 
 LINK_COUNT_BITS = 8
 """Width of the saturating ``errors`` and ``underruns`` counts of the status word."""

@@ -29,3 +29,16 @@ def test_decode_status_round_trips_every_field():
     assert C.decode_status(word.to_bytes(C.STATUS_BYTES, "big")) == values
     with pytest.raises(ValueError, match="status word"):
         C.decode_status(b"\x00")
+
+
+def test_write_reg_command_sets_a_register_by_name():
+    reg = C.REGISTER_BY_NAME["min_sum"]
+    value = (1 << reg.bits) - 1
+    data = C.write_reg_command("min_sum", value)
+    assert len(data) == C.WRITE_REG_BYTES
+    assert data == bytes([C.OP_WRITE_REG, reg.address]) + value.to_bytes(4, "big")
+    assert C.write_reg_command("mode", 0)[1] == C.REGISTER_BY_NAME["mode"].address
+    for name, bad in (("min_sum", 1 << reg.bits), ("min_sum", -1), ("min_sum", 1.0),
+                      ("min_sum", True), ("nonsense", 0)):
+        with pytest.raises(ValueError):
+            C.write_reg_command(name, bad)
