@@ -48,6 +48,14 @@ FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
 halved)."""
+INCOMPLETE_FLAGS = ((_C.FRAME_TRUNCATED, "FRAME_TRUNCATED"), (_C.FRAME_TIMEOUT, "FRAME_TIMEOUT"),
+                    (_C.FRAME_LINE_ERROR, "FRAME_LINE_ERROR"))
+"""Frame flags that make a frame ``FRAME_INCOMPLETE``: a blob cut by the frame's end has
+a partial record, and a line of the wrong length misplaces every later one."""
+LOST_FLAGS = ((_C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW"),
+              (_C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW"))
+"""Frame flags noted in ``reason`` of a frame that is solved all the same: blobs were lost
+(``dropped_records``, ``dropped_labels``), the others are whole."""
 FOV_TOLERANCE = 0.02
 """Largest relative difference between the camera's and the database's horizontal FOV."""
 COLLECT = sys.implementation.name == "micropython"
@@ -731,6 +739,16 @@ class StarTracker:
             res.reason = reason
             return res
         res.n_records = header["n_records"]
+        flags = header["flags"]
+        for bit, name in INCOMPLETE_FLAGS:
+            if flags & bit:
+                res.status = S.FRAME_INCOMPLETE
+                _note(res, name)
+        if res.status != S.OK:
+            return res
+        for bit, name in LOST_FLAGS:
+            if flags & bit:
+                _note(res, name + ": blobs lost")
         cam = self.camera
         if header["width"] != cam.width or header["height"] != cam.height:
             res.status = S.BAD_INPUT

@@ -35,6 +35,7 @@ PACKET_BAD_LENGTH = const(4)
 PACKET_BAD_CRC = const(5)
 PACKET_BAD_HEADER = const(6)
 PACKET_BAD_RECORD = const(7)
+FRAME_INCOMPLETE = const(8)
 
 # --- centroiding and camera model -------------------------------------------------------
 TOO_FEW_STARS = const(20)
@@ -76,6 +77,9 @@ _TABLE = (
      "packet header field out of range or inconsistent (CRC was correct)"),
     (PACKET_BAD_RECORD, "PACKET_BAD_RECORD",
      "blob record field out of range or inconsistent (CRC was correct)"),
+    (FRAME_INCOMPLETE, "FRAME_INCOMPLETE",
+     "the gateware cut the frame short (FRAME_TRUNCATED, FRAME_TIMEOUT or FRAME_LINE_ERROR): "
+     "its records are partial or misplaced"),
     (TOO_FEW_STARS, "TOO_FEW_STARS", "fewer usable stars than the algorithm needs"),
     (CAMERA_NOT_CONVERGED, "CAMERA_NOT_CONVERGED",
      "camera model: undistortion did not converge (pixel far outside the frame)"),

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lodestar import contract as C
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import codec as packet
@@ -126,11 +127,12 @@ CASES = (
 """The simulated frames of the set."""
 
 KINDS = ("bit_flip", "truncated", "trailing_byte", "bad_magic", "empty", "bad_header",
-         "bad_record", "two_records", "other_camera")
+         "bad_record", "two_records", "frame_truncated", "other_camera")
 """Derivations: one bit flipped in the middle of the records; the last 7 bytes cut; a zero
 byte appended; the first byte inverted; no bytes; the frame width set to 0 under a valid
 CRC; record 0 with ``n = 0`` under a valid CRC; only the first two records (a valid packet);
-the packet unchanged, replayed with another camera (``camera``)."""
+the gateware's ``FRAME_TRUNCATED`` flag set (a valid packet of a frame cut short); the
+packet unchanged, replayed with another camera (``camera``)."""
 
 DERIVED = (
     DerivedCase("corrupt_bit_flip", "estcube2_rest_s0", "bit_flip", "PACKET_BAD_CRC"),
@@ -142,6 +144,8 @@ DERIVED = (
     DerivedCase("corrupt_bad_header", "estcube2_rest_s0", "bad_header", "PACKET_BAD_HEADER"),
     DerivedCase("corrupt_bad_record", "estcube2_rest_s0", "bad_record", "PACKET_BAD_RECORD"),
     DerivedCase("two_records", "estcube2_rest_s1", "two_records", "TOO_FEW_STARS"),
+    DerivedCase("frame_truncated", "estcube2_rest_s0", "frame_truncated", "FRAME_INCOMPLETE",
+                note="the frame flagged cut short: no attitude from partial records"),
     DerivedCase("lohmann_packet_on_estcube2", "lohmann_orion", "other_camera",
                 "BAD_INPUT", camera="estcube2", note="frame size differs from the camera's"),
 )
@@ -192,6 +196,8 @@ def derive(kind, det):
         first = type(blobs[0])(*blobs[0].as_tuple())
         first.n = 0
         return packet.encode(det.replace(blobs=[first] + blobs[1:]))
+    if kind == "frame_truncated":
+        return packet.encode(det.replace(flags=det.flags | C.FRAME_TRUNCATED))
     if kind == "two_records":
         kept = det.blobs[:2]
         return packet.encode(det.replace(

@@ -419,6 +419,27 @@ def test_bad_packets_give_packet_statuses():
     assert tracker.process(memoryview(data)).ok
 
 
+def test_frames_cut_short_give_no_attitude_and_lost_blobs_a_note():
+    """A frame the gateware flags cut short (truncated, timed out, a line of the wrong
+    length) is FRAME_INCOMPLETE, the flags named; one that lost blobs to a full record or
+    label buffer is solved from the rest, with a note."""
+    tracker = SF.tracker()
+    det = ground_packet.decode(SF.frames()[0].packet)
+    for flags, names in ((C.FRAME_TRUNCATED, ["FRAME_TRUNCATED"]),
+                         (C.FRAME_TIMEOUT, ["FRAME_TIMEOUT"]),
+                         (C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR,
+                          ["FRAME_TRUNCATED", "FRAME_LINE_ERROR"])):
+        res = tracker.process(ground_packet.encode(det.replace(flags=flags)))
+        assert res.status == S.FRAME_INCOMPLETE and res.q is None and res.min_sum == 0
+        assert all(name in res.reason for name in names), res.reason
+    lost = det.replace(flags=C.FRAME_RECORD_OVERFLOW, dropped_records=3,
+                       n_blobs=det.n_blobs + 3)
+    res = tracker.process(ground_packet.encode(lost))
+    assert res.ok and "FRAME_RECORD_OVERFLOW" in res.reason
+    # a local-mode frame that dropped the previous frame's tail is whole
+    assert tracker.process(ground_packet.encode(det.replace(flags=C.FRAME_TAIL_DROPPED))).ok
+
+
 def test_random_bytes_never_raise():
     tracker = SF.tracker()
     rng = np.random.default_rng(0)
