@@ -661,10 +661,11 @@ class StarTracker:
             _deaberrate(vectors, sol.q, beta)
         star_ids = getattr(sol, "star_ids", None) or []
         # a tracking solution names its stars already (matches align with star_ids) and,
-        # without tracks to weight, its attitude is their unweighted fit
+        # without tracks to weight or an aberration correction since, its attitude is their
+        # unweighted fit
         hips = [hip for _o, hip in sol.matches] if mode == "tracking" else None
         q0 = sol.q
-        fitted = mode == "tracking" and streaks is None
+        fitted = mode == "tracking" and streaks is None and beta is None
         if mode == "lost_in_space" and self.settings.refine:
             # the identification's match set, grown to every observed star that agrees
             # (tracking from the identified attitude: it also repairs an attitude fitted to

@@ -440,6 +440,22 @@ def test_frames_cut_short_give_no_attitude_and_lost_blobs_a_note():
     assert tracker.process(ground_packet.encode(det.replace(flags=C.FRAME_TAIL_DROPPED))).ok
 
 
+def test_the_noise_model_takes_a_tracking_fit_only_while_it_fits_the_vectors(monkeypatch):
+    """A tracking solution's attitude is the unweighted fit of its stars, which the noise
+    model uses as it is, unless the vectors changed since (an aberration correction)."""
+    frame = SF.frames()[0]
+    tracker = SF.tracker()
+    seen = []
+    real = tracker.noise_shares
+    monkeypatch.setattr(tracker, "noise_shares",
+                        lambda b, r, w, q0=None, fitted=False: seen.append(fitted) or
+                        real(b, r, w, q0, fitted))
+    assert tracker.process(frame.packet, prior=frame.q.tolist()).mode == "tracking"
+    assert tracker.process(frame.packet, prior=frame.q.tolist(),
+                           velocity_km_s=(10.0, -20.0, 5.0)).ok
+    assert seen == [True, False]
+
+
 def test_random_bytes_never_raise():
     tracker = SF.tracker()
     rng = np.random.default_rng(0)
