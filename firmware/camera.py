@@ -354,7 +354,7 @@ class Camera(object):
             dy = ey / self.fy
             r2 = xn * xn + yn * yn + 1.0
             a = (xn * dx + yn * dy) / r2
-            tx, ty, tz = dx - xn * a, dy - yn * a, -a        # r |p| dv, r = |p|
+            tx, ty, tz = dx - xn * a, dy - yn * a, -a        # |p| times the derivative
             r = math.sqrt(r2)
         else:
             v0 = self.pixel_to_vector(x, y)

@@ -37,10 +37,9 @@ DEFAULT_ITERATIONS = 4
 SLACK_TOL = 0.5
 """How far (in match tolerances) a steady frame's fit may turn from the prior for its
 matches to be confirmed from the prior's candidates (:func:`confirm`) instead of a new
-prediction; the prior's prediction is widened by ``2 SLACK_TOL`` tolerances so that it holds
-every star a match region can reach after such a turn (the turn moves a star across the
-field's rectangle by at most itself over the cosine of the star's angle off the axis'
-plane, within 1.1 of itself for fields below 48 deg)."""
+prediction: the direct match keeps every pair within ``1 + 2 SLACK_TOL`` tolerances, which
+holds every pair such a turn (it moves each star by at most its angle) can bring within
+one."""
 
 
 class TrackSolution(Solution):
@@ -485,7 +484,7 @@ def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weigh
     predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
     final (the fine matching always runs at least once); ``near``: ``(candidates, slack)``
     of :func:`match_nearest` at ``q``, which confirm the first fit's matches when it lies
-    within the slack (``n_fov`` then stays the prior's)."""
+    within the slack (``n_fov`` then stays the direct match's, from the cone's density)."""
     q0 = q
     q = fit(b, database, pairs, q, weights, stars)
     if q is None:

@@ -209,6 +209,42 @@ def test_smear_matches_rotating_the_direction(name):
         assert fw.last_status == S.BAD_INPUT
 
 
+@pytest.mark.parametrize("name", PRESETS)
+def test_smear_function_is_smear_px_for_one_rate(name):
+    fw = firmware_camera(load_preset(name))
+    rng = np.random.default_rng(6)
+    omega = tuple(rng.normal(0.0, math.radians(2.0), 3))
+    smear = fw.smear_function(omega, 0.1)
+    for _ in range(10):
+        x, y = rng.uniform(0, fw.width - 1), rng.uniform(0, fw.height - 1)
+        assert smear(x, y) == fw.smear_px(x, y, omega, 0.1)
+    assert fw.smear_function((0.0, 0.0, 0.0), 0.1)(5.0, 5.0) == (0.0, 0.0)
+    assert fw.smear_function((0.0, 0.0), 0.1) is None
+    assert fw.smear_function(omega, float("nan")) is None
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_pixel_tangent_is_the_direction_s_derivative(distorted):
+    """A pinhole's tangent is the analytic derivative (a central difference over +-1e-3 px
+    within 1e-7); a distorted camera's the difference over one pixel (the central one over
+    +-0.5 px within 1e-3: the undistortion's Newton tolerance)."""
+    cam = Camera(2592, 1944, 3000.0, 3000.0, k1=-0.05 if distorted else 0.0)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        x, y = rng.uniform(0, 2591), rng.uniform(0, 1943)
+        phi = rng.uniform(0, 2 * math.pi)
+        ex, ey = math.cos(phi), math.sin(phi)
+        h = 0.5 if distorted else 1e-3
+        a = np.array(cam.pixel_to_vector(x - h * ex, y - h * ey))
+        b = np.array(cam.pixel_to_vector(x + h * ex, y + h * ey))
+        d = (b - a) / (2 * h)
+        t = cam.pixel_tangent(x, y, ex, ey)
+        tol = 1e-3 if distorted else 1e-7
+        assert np.allclose(t[:3], d / np.linalg.norm(d), atol=tol)
+        assert t[3] == pytest.approx(np.linalg.norm(d), rel=tol)
+    assert Camera(752, 480, 1000.0, 1000.0).pixel_tangent(10.0, 10.0, 0.0, 0.0) is None
+
+
 def test_float_epsilon_and_tolerance_floors():
     assert geometry.EPS == np.finfo(float).eps
     cam = Camera(752, 480, 1000.0, 1000.0)
