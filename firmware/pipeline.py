@@ -93,10 +93,12 @@ def min_sum(stars, track_stars):
     (:class:`lodestar.firmware.centroids.Star`), each blob's ``s0`` a star's flux (of a star
     joined from ``k`` pieces, ``k`` blobs of ``1/k`` of it: the register filters pieces): the
     larger of :data:`TRACK_MARGIN_PERCENT` of the ``track_stars``-th largest and the
-    ``(track_stars + TRACK_EXTRA_STARS)``-th largest; 0 (every blob) with fewer than
-    ``track_stars`` stars or ``track_stars`` None.  Integer arithmetic: the same value in
-    every float precision."""
-    if track_stars is None or len(stars) < track_stars:
+    ``(track_stars + TRACK_EXTRA_STARS)``-th largest.  With fewer blobs (stars left the
+    field, or a budget cut too deep), half the smallest: the next frames admit fainter
+    blobs until ``track_stars`` are seen again (in a sparse field, every blob after a few
+    frames).  0 (every blob) without stars or with ``track_stars`` None.  Integer
+    arithmetic: the same value in every float precision."""
+    if track_stars is None or not stars:
         return 0
     levels = []
     for s in stars:
@@ -107,6 +109,8 @@ def min_sum(stars, track_stars):
             levels.append(f)
     levels.sort()
     n = len(levels)
+    if n < track_stars:
+        return levels[0] // 2
     level = levels[n - track_stars] * TRACK_MARGIN_PERCENT // 100
     extra = n - track_stars - TRACK_EXTRA_STARS
     if extra >= 0 and levels[extra] > level:
