@@ -284,9 +284,16 @@ def _streaks_to_inertial(streaks, q):
     """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays)."""
     if streaks is None:
         return None
+    tracks = [st for st in streaks if st is not None]
+    turned = _to_inertial(tracks, q)            # one matrix for every track
     out = []
+    k = 0
     for st in streaks:
-        out.append(None if st is None else _to_inertial((st,), q)[0] + (st[3],))
+        if st is None:
+            out.append(None)
+        else:
+            out.append(turned[k] + (st[3],))
+            k += 1
     return out
 
 
