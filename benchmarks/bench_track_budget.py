@@ -53,12 +53,12 @@ def prior_of(q, rng):
     return [float(v) for v in (Rotation.from_rotvec(axis) * Rotation.from_quat(q)).as_quat()]
 
 
-def frames(trials, rate, seed):
+def frames(n_trials, rate, seed):
     """``(label, image, det config, q, omega_deg_s, truth)`` per frame."""
     cam = presets.load_preset(PRESET)
     settings = F.camera_settings(PRESET)
     for label, level in (("rest", 0.0), (f"{rate:g} deg/s", rate)):
-        for trial in range(trials):
+        for trial in range(n_trials):
             s = T.trial_seed(seed, "budget", PRESET, trial)
             rng = np.random.default_rng(s)
             q = attitude.random_attitude(rng)

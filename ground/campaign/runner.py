@@ -81,12 +81,12 @@ def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyrami
             "camera": {p: camera_settings(p, settings) for p in presets}}
 
 
-def make_tasks(config, trials):
+def make_tasks(config, n_trials):
     """The task list ``(study, preset, level, trial)`` in table order."""
-    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
-        raise ValueError(f"--trials must be a positive integer, got {trials!r}")
+    if isinstance(n_trials, bool) or not isinstance(n_trials, int) or n_trials < 1:
+        raise ValueError(f"--trials must be a positive integer, got {n_trials!r}")
     return [(config["study"], preset, level, trial) for preset in config["presets"]
-            for level in config["levels"] for trial in range(trials)]
+            for level in config["levels"] for trial in range(n_trials)]
 
 
 # ---- journal ---------------------------------------------------------------------------
@@ -236,13 +236,13 @@ def _run_dask(tasks, config, address, sink):
         client.close()
 
 
-def run_campaign(config, trials, out_dir, workers=1, dask=None, resume=False,
+def run_campaign(config, n_trials, out_dir, workers=1, dask=None, resume=False,
                  max_tasks=None, progress=True):
     """Run the campaign's pending tasks (at most ``max_tasks``), journaling each result;
     notes (resuming, stopped) go to stderr.  Returns ``(rows, paths)``: the table and the
     files written, or ``(None, [])`` when tasks remain (stopped by ``max_tasks``).  Raises
     ``ValueError`` for bad arguments."""
-    tasks = make_tasks(config, trials)
+    tasks = make_tasks(config, n_trials)
     if dask is None and (isinstance(workers, bool) or not isinstance(workers, int) or
                          workers < 1):
         raise ValueError(f"--workers must be a positive integer, got {workers!r}")
@@ -308,8 +308,8 @@ def write_outputs(config, tasks, results, out_dir):
     study = config["study"]
     rows = campaign_tables.tables(study, tasks, results, config)
     base = os.path.join(out_dir, f"campaign_{study}")
-    trials = len(tasks) // max(1, len(config["presets"]) * len(config["levels"]))
-    summary = {"campaign": config, "trials_per_level": trials,
+    per_level = len(tasks) // max(1, len(config["presets"]) * len(config["levels"]))
+    summary = {"campaign": config, "trials_per_level": per_level,
                "wrong_arcsec": campaign_truth.WRONG_ARCSEC,
                "wrong_sigmas": campaign_truth.WRONG_SIGMAS, "table": rows,
                "references": {"dzamba_table_4_1": {f"{k:g}": v for k, v in
@@ -318,7 +318,7 @@ def write_outputs(config, tasks, results, out_dir):
                               "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
     write_atomic(base + ".json", json.dumps(summary, indent=1))
     campaign_tables.write_csv(base + ".csv", rows)
-    title = f"{trials} trials/level, seed {config['seed']}, {config['axis']} axis"
+    title = f"{per_level} trials/level, seed {config['seed']}, {config['axis']} axis"
     pngs = campaign_plots.PLOTS[study](rows, out_dir, title)
     return rows, [base + ".json", base + ".csv"] + pngs
 

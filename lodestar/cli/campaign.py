@@ -63,13 +63,13 @@ def run(args):
     """The ``campaign`` command: run, print the table and the files written."""
     config = make_config(args.name, args.presets, args.seed, args.rates, args.axis,
                          args.method, args.settings, args.quick)
-    trials = args.trials if args.trials is not None else \
+    n_trials = args.trials if args.trials is not None else \
         QUICK["trials"] if args.quick else DEFAULT_TRIALS[args.name]
     out = args.out or os.path.join("out", f"campaign-{args.name}")
     t0 = time.perf_counter()
     signal.signal(signal.SIGTERM, _interrupt)     # SIGTERM stops a campaign as Ctrl-C does
     try:
-        rows, paths = run_campaign(config, trials, out, args.workers, args.dask, args.resume,
+        rows, paths = run_campaign(config, n_trials, out, args.workers, args.dask, args.resume,
                                    args.max_tasks, progress=not args.no_progress)
     except KeyboardInterrupt:
         print(f"lodestar campaign: interrupted; the finished tasks are in "
