@@ -108,3 +108,92 @@ def _stdlib_imports(path):
 def test_root_imports_nothing():
     source = Path(lodestar.__file__).read_text()
     assert not [n for n in ast.parse(source).body if isinstance(n, (ast.Import, ast.ImportFrom))]
+
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT_FOLDERS = ("tests", "benchmarks", "cocotb_tests")
+ABBREVIATIONS = {"lodestar.contract": "C", "lodestar.firmware.status": "S",
+                 "lodestar.firmware.geometry": "G", "lodestar.firmware.quaternion": "Q",
+                 "numpy": "np", "matplotlib.pyplot": "plt", "hypothesis.strategies": "st",
+                 "astropy.units": "u"}
+"""The documented module abbreviations (``docs/conventions.md``, Import names); every other
+module is imported under its own name."""
+MAX_FUNCTION_LINES = 100
+
+
+def _sources():
+    """``{label: path}`` of the packages' modules and the test and benchmark scripts."""
+    out = {name: path for name, path in MODULES.items()}
+    for folder in SCRIPT_FOLDERS:
+        for path in sorted((REPO / folder).rglob("*.py")):
+            out[str(path.relative_to(REPO))] = path
+    return out
+
+
+SOURCES = _sources()
+
+
+def _is_project_module(name):
+    if name in MODULES:
+        return True
+    parts = name.split(".")
+    return parts[0] in SCRIPT_FOLDERS and (REPO.joinpath(*parts).with_suffix(".py").is_file()
+                                           or REPO.joinpath(*parts, "__init__.py").is_file())
+
+
+def _module_aliases(label, path):
+    """``(module, alias)`` of every ``import M as A`` / ``from P import M as A`` in a source."""
+    package = label if path.name == "__init__.py" else label.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(a.name, a.asname) for a in node.names if a.asname]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[:len(parts) - node.level + 1] + ([base] if base else []))
+            out += [(base + "." + a.name, a.asname) for a in node.names if a.asname]
+    return out
+
+
+@pytest.mark.parametrize("label", sorted(SOURCES))
+def test_modules_are_imported_under_their_own_names(label):
+    """An alias names a module only by its documented abbreviation: a reader who greps for
+    the name at a call site finds the module."""
+    for module, alias in _module_aliases(label, SOURCES[label]):
+        if module in ABBREVIATIONS:
+            assert alias == ABBREVIATIONS[module], (module, alias)
+        elif _is_project_module(module):
+            assert alias == module.rpartition(".")[2], (module, alias)
+
+
+def _functions(tree):
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            yield node
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_no_function_over_100_lines(name):
+    tree = ast.parse(MODULES[name].read_text())
+    long = [(f.name, f.lineno, f.end_lineno - f.lineno + 1) for f in _functions(tree)
+            if f.end_lineno - f.lineno + 1 > MAX_FUNCTION_LINES]
+    assert not long, long
+
+
+@pytest.mark.parametrize("name", sorted(m for m in MODULES if m.startswith("lodestar.hdl.")))
+def test_gateware_neither_branches_on_sensor_names_nor_passes_bags(name):
+    """Sensors are rows of the front-end table, and stages have declared interfaces: no
+    ``sensor == "mt9p031"`` and no ``SimpleNamespace`` in ``hdl/``."""
+    from lodestar.contract import SENSORS
+    tree = ast.parse(MODULES[name].read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            constants = [n.value for n in [node.left, *node.comparators]
+                         if isinstance(n, ast.Constant)]
+            assert not set(constants) & set(SENSORS), (name, node.lineno)
+        if isinstance(node, ast.Name):
+            assert node.id != "SimpleNamespace", (name, node.lineno)
+        if isinstance(node, ast.alias):
+            assert node.name != "SimpleNamespace", name
