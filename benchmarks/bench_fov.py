@@ -145,7 +145,7 @@ def main(argv=None):
                     if res.ok:
                         continue           # solved after all: not a failing solve
                     kinds[kind].append(dt)
-                    statuses[kind][res.status] = statuses[kind].get(res.status, 0) + 1
+                    statuses[kind][res.status_name] = statuses[kind].get(res.status_name, 0) + 1
         everything = []
         for kind, ms in kinds.items():
             everything += ms

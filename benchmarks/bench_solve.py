@@ -135,8 +135,8 @@ def available_methods(requested, cam, cache_dir):
                          [2000.0, 300.0, 0.5]])
         res = L.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
                                 cache_dir=cache_dir)
-        if res.status == "BAD_INPUT" or res.status.startswith("DATABASE_"):
-            print(f"method {method}: not available ({res.status}: {res.reason})")
+        if res.status_name == "BAD_INPUT" or res.status_name.startswith("DATABASE_"):
+            print(f"method {method}: not available ({res.status_name}: {res.reason})")
             continue
         out.append(method)
     return out
@@ -149,7 +149,7 @@ def run_lodestar(scenes, cam, method, cache_dir, clock):
         res = L.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
                                 cache_dir=cache_dir)
         dt = clock() - t0
-        if res.status != "OK":
+        if not res.ok:
             rows_out.append(("no-solve", dt, None, None, True, None))
             continue
         err = attitude_error_deg(res.q, scene.q)

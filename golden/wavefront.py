@@ -1,6 +1,6 @@
 """The labeller algorithm of ``hdl/labeller.py`` in plain Python, column by column.
 
-The gateware's algorithm (``hdl/DESIGN.md``, The labeller) with Python lists instead of
+The gateware's algorithm (``docs/gateware.md``, The labeller) with Python lists instead of
 memories, so that it can be checked exhaustively against the golden streaming model and a
 gateware mismatch traced to the algorithm or to its transcription.  Per row it keeps the
 previous row's nodes (``prev``), the current row's (``new``), the stack of straddling

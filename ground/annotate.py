@@ -6,10 +6,8 @@ identified, and where the catalogue says the stars are.
     save_annotated("out.png", frame, records=blobs, labels=[(x, y, "HIP 677 Alpheratz", True)],
                    markers={"solution": [(x, y), ...]}, legend=["seed 0", ...])
 
-Conventions are those of ``lodestar.contract`` and ``lodestar.sim``: ``x`` the column,
-``y`` the row, the centre of pixel ``(x, y)`` at the integer point (the picture's pixel
-``(x, y)`` is the frame's, drawn at full resolution); ``q = [x, y, z, w]`` scalar last with
-``v_cam = A(q) v_icrs``; body rates in the camera frame, rad/s.
+Pixel coordinates, quaternions and rates: ``docs/conventions.md``; the picture's pixel
+``(x, y)`` is the frame's, drawn at full resolution.
 
 Picture: the frame stretched for people (:func:`lodestar.sim.imageio.stretch` between
 :data:`STRETCH_PERCENTILES`), every

@@ -92,9 +92,10 @@ def camera_params(camera):
     return np.array([getattr(camera, name) for name in INTRINSICS], dtype=np.float64)
 
 
-def make_camera(width, height, params):
-    """The firmware :class:`Camera` of ``params`` (raises ``ValueError`` when the distortion
-    is not invertible over the frame)."""
+def camera_from_params(width, height, params):
+    """The firmware :class:`Camera` of ``params`` (:data:`INTRINSICS`; the inverse of
+    :func:`camera_params`).  Raises ``ValueError`` when the distortion is not invertible over
+    the frame."""
     return Camera(width, height, **dict(zip(INTRINSICS, (float(p) for p in params))))
 
 
@@ -283,7 +284,7 @@ def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
     fit.sigma = {name: math.sqrt(max(cov[i, i], 0.0)) for i, name in enumerate(free)}
     if one_focal and "fx" in fit.sigma:
         fit.sigma["fy"] = fit.sigma["fx"]
-    fit.camera = make_camera(camera0.width, camera0.height, p)
+    fit.camera = camera_from_params(camera0.width, camera0.height, p)
     fit.q = [Rotation.from_matrix(m).as_quat() for m in rot]
     fit.frames = frames
     fit.inlier = mask

@@ -2,9 +2,7 @@
 :class:`lodestar.firmware.pipeline.StarTracker` -> attitude, over a star database built and
 cached for the camera.  Shared by ``lodestar demo`` and ``lodestar solve``.
 
-Units and conventions: those of ``lodestar.firmware.pipeline`` (pixels as
-``lodestar.contract``, ``q = [x, y, z, w]`` scalar last with ``v_cam = A(q) v_icrs``, rates
-in rad/s in the camera frame, times in seconds, sigmas in arcseconds); stage timings in
+Units and conventions: ``docs/conventions.md``; stage timings in
 milliseconds of wall clock.  Also how each camera preset is run in flight (exposure and the
 detector's fixed-threshold registers, :data:`SETTINGS`; the reasons are in
 ``docs/camera_settings.md``).

@@ -7,8 +7,9 @@ import time
 
 import numpy as np
 
+from lodestar import contract as C
 from lodestar.contract import stardb
-from lodestar.firmware import status as fwstatus
+from lodestar.firmware import status as S
 from lodestar.firmware.aberration import MAX_SPEED_KM_S
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
@@ -37,12 +38,14 @@ Hipparcos at 5 deg (``docs/stardb.md``)."""
 
 
 class SolveResult:
-    """Outcome of :func:`solve_centroids` (fields in the module docstring)."""
+    """Outcome of :func:`solve_centroids` (fields in ``docs/solve_centroids.md``): ``status``
+    is a firmware status code (:mod:`lodestar.firmware.status`), ``status_name`` its name, as
+    in the firmware's ``Result``."""
 
-    FIELDS = ("status", "reason", "ra_deg", "dec_deg", "roll_deg", "q", "matches",
-              "sigma_cross_arcsec", "sigma_roll_arcsec", "patterns_tried", "probability",
-              "n_centroids", "n_used", "n_duplicates", "n_outside", "centroid_sigma_px",
-              "fov_deg", "pixel_scale_arcsec", "fov_search",
+    FIELDS = ("status", "status_name", "reason", "ra_deg", "dec_deg", "roll_deg", "q",
+              "matches", "sigma_cross_arcsec", "sigma_roll_arcsec", "patterns_tried",
+              "probability", "n_centroids", "n_used", "n_duplicates", "n_outside",
+              "centroid_sigma_px", "fov_deg", "pixel_scale_arcsec", "fov_search",
               "database", "solve_ms")
 
     def __init__(self, status, reason="", **fields):
@@ -61,13 +64,17 @@ class SolveResult:
         self.database = None
         self.solve_ms = 0.0
         for name, value in fields.items():
-            if name not in self.FIELDS:
+            if name not in self.FIELDS or name == "status_name":
                 raise TypeError(f"unknown field {name!r}")
             setattr(self, name, value)
 
     @property
     def ok(self):
-        return self.status == "OK"
+        return self.status == S.OK
+
+    @property
+    def status_name(self):
+        return S.name(self.status)
 
     def __getitem__(self, name):
         if name not in self.FIELDS:
@@ -82,7 +89,7 @@ class SolveResult:
 
     def __repr__(self):
         if not self.ok:
-            return f"SolveResult({self.status}, reason={self.reason!r})"
+            return f"SolveResult({self.status_name}, reason={self.reason!r})"
         return (f"SolveResult(OK, ra={self.ra_deg:.5f}, dec={self.dec_deg:.5f}, "
                 f"roll={self.roll_deg:.4f} deg, matches={len(self.matches)}, "
                 f"sigma_cross={self.sigma_cross_arcsec:.2f}\", "
@@ -97,7 +104,9 @@ DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2", "cx", "cy")
 
 
 def make_camera(width, height, fov_deg, distortion=None):
-    """The firmware camera of the module docstring (raises ``ValueError``)."""
+    """The firmware camera of a centred pinhole of horizontal FOV ``fov_deg`` (deg) with
+    square pixels, plus the Brown-Conrady ``distortion`` (a dict of :data:`DISTORTION_KEYS`);
+    raises ``ValueError``."""
     f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
     kwargs = {}
     for key, value in (distortion or {}).items():
@@ -201,7 +210,7 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
                     fov_error_deg=None, max_work=GROUND_MAX_WORK, obstime=None,
                     velocity_km_s=None):
     """Identify the stars of ``centroids`` and return a :class:`SolveResult`; never raises
-    for bad input (see the module docstring).
+    for bad input (``docs/solve_centroids.md``).
 
     ``width``, ``height``: frame size, px.  ``fov_deg``: horizontal FOV, deg; None: unknown,
     searched over :data:`lodestar.ground.fovsearch.FOV_RANGE_DEG`; with ``fov_error_deg``
@@ -222,96 +231,38 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
     (:func:`observer_velocity_km_s`; neither: none).
     """
     n_in = len(centroids) if hasattr(centroids, "__len__") else 0
-
-    def bad(reason, status="BAD_INPUT", **fields):
-        return SolveResult(status, reason, n_centroids=n_in, **fields)
-
-    # ---- parameters -------------------------------------------------------------------
-    for name, value in (("width", width), ("height", height)):
-        if not _is_int(value) or not 1 <= value <= 4096:
-            return bad(f"{name} must be an int in 1..4096, got {value!r}")
-    if fov_deg is not None and (not _is_number(fov_deg) or
-                                not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
-        return bad(f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
-                   f"got {fov_deg!r}")
-    band = None
-    if fov_error_deg is not None:
-        if fov_deg is None:
-            return bad("fov_error_deg needs fov_deg")
-        if not _is_number(fov_error_deg) or not 0 < fov_error_deg < fov_deg:
-            return bad(f"fov_error_deg must be a number in (0, fov_deg), got {fov_error_deg!r}")
-        band = (fov_deg - fov_error_deg, fov_deg + fov_error_deg)
-    elif fov_deg is None:
-        band = fovsearch.FOV_RANGE_DEG
-    if band is not None:
-        reach = fovsearch.reach_deg()
-        if band[1] < reach[0] or band[0] > reach[1]:
-            return bad(f"FOV band {band[0]:g} .. {band[1]:g} deg: the blind search reaches "
-                       f"{reach[0]:.1f} .. {reach[1]:.1f} deg")
-        band = (max(band[0], reach[0]), min(band[1], reach[1]))
-        if distortion:
-            return bad("distortion needs a known FOV (fov_deg without fov_error_deg)")
-    if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
-        return bad(f"max_mag must be a finite magnitude, got {max_mag!r}")
-    if method not in stardb.METHOD_NAMES:
-        return bad(f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})")
-    if distortion is not None and not isinstance(distortion, dict):
-        return bad("distortion must be a dict of k1, k2, k3, p1, p2 (and cx, cy)")
-    if tolerance_px is not None and not (_is_number(tolerance_px) and tolerance_px > 0):
-        return bad(f"tolerance_px must be a positive number, got {tolerance_px!r}")
-    if not _is_int(max_stars) or max_stars < MIN_STARS:
-        return bad(f"max_stars must be an int >= {MIN_STARS}")
-    if not _is_int(budget) or budget < 1:
-        return bad("budget must be a positive int")
-    if not _is_int(max_work) or max_work < 1:
-        return bad("max_work must be a positive int")
-    if not _is_number(duplicate_px) or duplicate_px < 0:
-        return bad(f"duplicate_px must be a number >= 0, got {duplicate_px!r}")
-    try:
-        velocity = observer_velocity_km_s(obstime, velocity_km_s)
-    except ValueError as exc:
-        return bad(str(exc))
-    cam = None
+    band, reason = _fov_band(width, height, fov_deg, fov_error_deg, distortion)
+    if reason is None:
+        reason = _option_error(max_mag, method, distortion, tolerance_px, max_stars, budget,
+                               max_work, duplicate_px)
+    if reason is None:
+        try:
+            velocity = observer_velocity_km_s(obstime, velocity_km_s)
+        except ValueError as exc:
+            reason = str(exc)
+    if reason is not None:
+        return SolveResult(S.BAD_INPUT, reason, n_centroids=n_in)
+    cam = fov = None
     if band is None:
         try:
             cam = make_camera(int(width), int(height), float(fov_deg), distortion)
             fov = camera_fov_deg(cam)
         except (ValueError, TypeError) as exc:
-            return bad(f"camera: {exc}")
-    else:
-        fov = None
+            return SolveResult(S.BAD_INPUT, f"camera: {exc}", n_centroids=n_in)
 
-    # ---- centroids --------------------------------------------------------------------
     arr = _centroid_array(centroids)
     if isinstance(arr, str):
-        return bad(arr, fov_deg=fov)
-    n_in = len(arr)
-    xs, ys = arr[:, 0], arr[:, 1]
-    inside = (xs >= -0.5) & (xs < width - 0.5) & (ys >= -0.5) & (ys < height - 0.5)
-    n_outside = int(n_in - np.count_nonzero(inside))
-    if arr.shape[1] == 3:
-        order = np.argsort(-arr[:, 2], kind="stable")
-    else:
-        order = np.arange(n_in)
-    order = [i for i in order if inside[i]]
-    kept = []                              # indices into the input, brightest first
-    n_dup = 0
+        return SolveResult(S.BAD_INPUT, arr, n_centroids=n_in, fov_deg=fov)
     # a blind solve's quad search looks at more stars than the identification uses
     wanted = max_stars if band is None else max(max_stars, fovsearch.IMAGE_STARS)
-    for i in order:
-        if len(kept) == wanted:
-            break
-        if all(math.hypot(xs[i] - xs[j], ys[i] - ys[j]) >= duplicate_px for j in kept):
-            kept.append(int(i))
-        elif len(kept) < max_stars:
-            n_dup += 1
-    searched, kept = kept, kept[:max_stars]
-    info = dict(n_centroids=n_in, n_used=len(kept), n_duplicates=n_dup, n_outside=n_outside,
-                fov_deg=fov)
+    searched, n_dup, n_outside = _distinct(arr, width, height, wanted, max_stars, duplicate_px)
+    kept = searched[:max_stars]
+    info = dict(n_centroids=len(arr), n_used=len(kept), n_duplicates=n_dup,
+                n_outside=n_outside, fov_deg=fov)
     note = f"{n_outside} centroids outside the {width}x{height} frame ignored" \
         if n_outside else ""
     if len(kept) < MIN_STARS:
-        return SolveResult("TOO_FEW_STARS", f"{len(kept)} distinct centroids in the frame, "
+        return SolveResult(S.TOO_FEW_STARS, f"{len(kept)} distinct centroids in the frame, "
                            f"at least {MIN_STARS} needed" + ("; " + note if note else ""),
                            **info)
     frame = _Frame(arr, kept, searched, width, height, note, info,
@@ -322,6 +273,84 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
     if band is None:
         return _firmware_solve(frame, cam)
     return _blind_solve(frame, band)
+
+
+def _fov_band(width, height, fov_deg, fov_error_deg, distortion):
+    """``(band, reason)``: the FOV band (deg) to search, None for a known FOV; ``reason``
+    says what is wrong with the frame size or the FOV arguments (None: nothing)."""
+    for name, value in (("width", width), ("height", height)):
+        limit = C.MAX_WIDTH if name == "width" else C.MAX_HEIGHT
+        if not _is_int(value) or not 1 <= value <= limit:
+            return None, f"{name} must be an int in 1..{limit}, got {value!r}"
+    if fov_deg is not None and (not _is_number(fov_deg) or
+                                not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
+        return None, (f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
+                      f"got {fov_deg!r}")
+    if fov_error_deg is not None:
+        if fov_deg is None:
+            return None, "fov_error_deg needs fov_deg"
+        if not _is_number(fov_error_deg) or not 0 < fov_error_deg < fov_deg:
+            return None, f"fov_error_deg must be a number in (0, fov_deg), got {fov_error_deg!r}"
+        band = (fov_deg - fov_error_deg, fov_deg + fov_error_deg)
+    elif fov_deg is None:
+        band = fovsearch.FOV_RANGE_DEG
+    else:
+        return None, None
+    reach = fovsearch.reach_deg()
+    if band[1] < reach[0] or band[0] > reach[1]:
+        return None, (f"FOV band {band[0]:g} .. {band[1]:g} deg: the blind search reaches "
+                      f"{reach[0]:.1f} .. {reach[1]:.1f} deg")
+    if distortion:
+        return None, "distortion needs a known FOV (fov_deg without fov_error_deg)"
+    return (max(band[0], reach[0]), min(band[1], reach[1])), None
+
+
+def _option_error(max_mag, method, distortion, tolerance_px, max_stars, budget, max_work,
+                  duplicate_px):
+    """What is wrong with the database and identification options, or None."""
+    if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
+        return f"max_mag must be a finite magnitude, got {max_mag!r}"
+    if method not in stardb.METHOD_NAMES:
+        return f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})"
+    if distortion is not None and not isinstance(distortion, dict):
+        return "distortion must be a dict of k1, k2, k3, p1, p2 (and cx, cy)"
+    if tolerance_px is not None and not (_is_number(tolerance_px) and tolerance_px > 0):
+        return f"tolerance_px must be a positive number, got {tolerance_px!r}"
+    if not _is_int(max_stars) or max_stars < MIN_STARS:
+        return f"max_stars must be an int >= {MIN_STARS}"
+    if not _is_int(budget) or budget < 1:
+        return "budget must be a positive int"
+    if not _is_int(max_work) or max_work < 1:
+        return "max_work must be a positive int"
+    if not _is_number(duplicate_px) or duplicate_px < 0:
+        return f"duplicate_px must be a number >= 0, got {duplicate_px!r}"
+    return None
+
+
+def _distinct(arr, width, height, wanted, max_stars, duplicate_px):
+    """``(indices, n_duplicates, n_outside)``: up to ``wanted`` rows of ``arr`` inside the
+    frame, brightest first (input order without fluxes), none closer than
+    ``duplicate_px`` to one before it; duplicates are counted among the first
+    ``max_stars`` distinct ones."""
+    xs, ys = arr[:, 0], arr[:, 1]
+    inside = (xs >= -0.5) & (xs < width - 0.5) & (ys >= -0.5) & (ys < height - 0.5)
+    n_outside = int(len(arr) - np.count_nonzero(inside))
+    if arr.shape[1] == 3:
+        order = np.argsort(-arr[:, 2], kind="stable")
+    else:
+        order = np.arange(len(arr))
+    kept = []
+    n_dup = 0
+    for i in order:
+        if not inside[i]:
+            continue
+        if len(kept) == wanted:
+            break
+        if all(math.hypot(xs[i] - xs[j], ys[i] - ys[j]) >= duplicate_px for j in kept):
+            kept.append(int(i))
+        elif len(kept) < max_stars:
+            n_dup += 1
+    return kept, n_dup, n_outside
 
 
 class _Frame:
@@ -352,7 +381,7 @@ def _firmware_solve(frame, cam, database_fov_deg=None):
     arr, kept = frame.arr, frame.kept
     vectors = [cam.pixel_to_vector(float(arr[i, 0]), float(arr[i, 1])) for i in kept]
     if any(v is None for v in vectors):
-        return SolveResult("BAD_INPUT", "a centroid is outside the camera model", **info)
+        return SolveResult(S.BAD_INPUT, "a centroid is outside the camera model", **info)
     flux_list = [float(arr[i, 2]) for i in kept] if arr.shape[1] == 3 else None
     db_fov = fov
     if database_fov_deg is not None:
@@ -365,9 +394,9 @@ def _firmware_solve(frame, cam, database_fov_deg=None):
                                  method, opt["cache_dir"],
                                  density=DEFAULT_DENSITY if max_mag is None else None)
     except ValueError as exc:
-        return SolveResult("BAD_INPUT", f"database: {exc}", **info)
+        return SolveResult(S.BAD_INPUT, f"database: {exc}", **info)
     except Exception as exc:              # the builder's output failed the reader
-        return SolveResult("DATABASE_CORRUPT", f"database: {exc!r}", **info)
+        return SolveResult(S.DATABASE_CORRUPT, f"database: {exc!r}", **info)
     info["database"] = None if path is None else str(path)
     tolerance_px = opt["tolerance_px"]
     if tolerance_px is None:
@@ -376,19 +405,19 @@ def _firmware_solve(frame, cam, database_fov_deg=None):
                           tolerance_px=float(tolerance_px), budget=int(opt["budget"]),
                           centroid_sigma_px=opt["centroid_sigma_px"],
                           max_work=int(opt["max_work"])))
-    if tracker.status != fwstatus.OK:
-        return SolveResult(fwstatus.name(tracker.status), tracker.reason, **info)
+    if tracker.status != S.OK:
+        return SolveResult(tracker.status, tracker.reason, **info)
     t0 = time.perf_counter()
     res = tracker.solve_vectors(vectors, fluxes=flux_list, velocity_km_s=opt["velocity_km_s"])
     info["solve_ms"] = (time.perf_counter() - t0) * 1e3
     info["patterns_tried"] = res.patterns_tried
     info["probability"] = res.probability
     reason = "; ".join(r for r in (frame.note, res.reason) if r)
-    if res.status != fwstatus.OK:
-        return SolveResult(fwstatus.name(res.status), reason, **info)
+    if res.status != S.OK:
+        return SolveResult(res.status, reason, **info)
     q = [float(v) for v in res.q]
     ra, dec, roll = to_radec_roll(np.asarray(q))
-    return SolveResult("OK", reason, ra_deg=float(ra), dec_deg=float(dec),
+    return SolveResult(S.OK, reason, ra_deg=float(ra), dec_deg=float(dec),
                        roll_deg=float(roll), q=q,
                        matches={kept[o]: int(hip) for o, _x, _y, hip in res.matches},
                        sigma_cross_arcsec=res.sigma_cross_arcsec,
@@ -425,13 +454,13 @@ def _blind_solve(frame, band):
         est = fovsearch.search_fov(arr[frame.searched, :2], frame.width, frame.height, band,
                                    opt["tolerance_px"] or 2.0, opt["cache_dir"])
     except ValueError as exc:              # no deep catalogue for the index
-        return SolveResult("BAD_INPUT", f"FOV search: {exc}", **frame.info)
+        return SolveResult(S.BAD_INPUT, f"FOV search: {exc}", **frame.info)
     search = {"range_deg": [float(band[0]), float(band[1])], "candidates": est.candidates,
               "estimate_deg": est.fov_deg, "level_deg": est.level_deg,
               "quad_matches": est.n_matches,
               "ms": (time.perf_counter() - t0) * 1e3}
     if est.f_px is None:
-        return SolveResult("NO_MATCH", f"no field of view in {band[0]:g} .. {band[1]:g} deg "
+        return SolveResult(S.NO_MATCH, f"no field of view in {band[0]:g} .. {band[1]:g} deg "
                            f"verified ({est.candidates} candidate quads)",
                            fov_search=search, solve_ms=search["ms"], **frame.info)
     f_px = est.f_px

@@ -4,7 +4,7 @@ and the campaigns (``lodestar campaign``).
 * The attitude error is the rotation ``A_sol A_true^T`` as a rotation vector in the camera
   frame, in arcsec: ``x``, ``y`` (cross-boresight components; ``cross`` = their root sum
   square, the boresight's pointing error), ``roll`` (about the boresight) and ``total``
-  (its norm).  Quaternions are scalar last with ``v_cam = A(q) v_icrs`` (``lodestar.sim``).
+  (its norm).
 * A solution is **wrong** (:func:`judge`) when it names a record's star wrongly (a wrong
   match, below: a misidentification), or when its attitude is more than
   :data:`WRONG_ARCSEC` off *and* further off than :data:`WRONG_SIGMAS` times its own
@@ -17,8 +17,9 @@ and the campaigns (``lodestar campaign``).
   visible track (``lodestar.sim.scene.visible_tracks``, the path it drew during the
   exposure, rolling shutter included) passes through that box.  At rest the track is a
   point; in a smeared frame a record can be one fragment of a broken streak, whose box
-  need not hold the streak's centroid.  Pixel coordinates as ``lodestar.contract``: ``x``
-  column, ``y`` row, pixel centres at integer indices.
+  need not hold the streak's centroid.
+
+Quaternions, frames and pixel coordinates: ``docs/conventions.md``.
 """
 
 import math

@@ -11,7 +11,7 @@ words, so 128 records of 345 bits need 5 blocks (256 x 173).
 * write: an item is taken when ``w_en & w_rdy``; its low half is written in that clock, its
   high half (held in a register) in the next, during which ``w_rdy`` is low.  So the buffer
   takes at most one item per two clocks, as fast as the detector's records come
-  (``hdl/DESIGN.md``, output buffers).
+  (``docs/gateware.md``, output buffers).
 * read: the head item's low half is read into a register, then its high half is read and
   held on the memory's read port; ``r_data`` is the two together and ``r_rdy`` rises two
   clocks after an item became available or the previous one was taken, so a reader that is

@@ -9,7 +9,7 @@ contract's order, then the frame's trailer (``hdl.layouts.TRAILER_NAMES``); a fr
 are the ``n_records`` before its trailer.  Registers written between frames are latched at a
 frame's first pixel.  The record buffer, the held trailer and lost trailers are the output
 stage's (:class:`lodestar.hdl.output.OutputStage`); these, ``reg_error`` and the status
-outputs are described in ``hdl/DESIGN.md``.
+outputs are described in ``docs/gateware.md``.
 """
 
 from amaranth import Module, Mux, Signal

@@ -10,7 +10,7 @@ counted, filtered (contract ``passes_filters``) and emitted while fewer than
 slot is read back correctly two or more clocks after its write (the table's read is not
 transparent; its output goes into a register and the bypass is explicit, so that it maps to
 a synchronous-read block RAM and its output starts no long path).  The op fields, frame tags and
-the arithmetic: ``hdl/DESIGN.md``.
+the arithmetic: ``docs/gateware.md``.
 """
 
 from amaranth import Cat, Module, Mux, Signal

@@ -1,7 +1,7 @@
 """Single-pass 4-connected labeller: one pixel per clock, any image content.
 
 The algorithm (a stack of the previous row's straddling components, no ``find``) is
-described in ``hdl/DESIGN.md``; its architectural model is ``golden/wavefront.py``, which
+described in ``docs/gateware.md``; its architectural model is ``golden/wavefront.py``, which
 takes the same decisions column by column.  ``elaborate`` builds the state (held pixel,
 previous-row bitmap, node memories, stack, free slots) and then the four stages of a column
 decision in the model's order: push, pixel, pop, run end.
@@ -10,7 +10,7 @@ Input: the threshold unit's ``out`` stream, one pixel per beat in raster order, 
 backpressure, registered on the way in.  The decision for column ``x`` is taken when pixel
 ``x + 1`` is out of that register (it needs to know whether the run ends), or in the clock
 after the row's last pixel.  No block-RAM read port drives a decision (node and stack reads
-prefetched into registers, bitmap read three columns ahead; ``hdl/DESIGN.md``).  Output:
+prefetched into registers, bitmap read three columns ahead; ``docs/gateware.md``).  Output:
 one op per decision to the feature engine (``hdl/features.py``).
 
 * Blanking: ``MIN_HBLANK`` idle clocks between rows; ``vblank_cycles(width)`` after a

@@ -8,7 +8,7 @@ and offers it on ``trailer`` once the records between the last claimed one and t
 trailer's first (orphans: a lost frame's, or one taken in a ``done`` clock) are discarded,
 so a reader that takes a trailer and then its ``n_records`` records (the packetizer) stays
 in step.  A ``done`` while the held trailer is not taken loses the new trailer and counts
-it in ``trailer_lost`` (wrapping).  Sequence numbers and proofs: ``hdl/DESIGN.md`` (output
+it in ``trailer_lost`` (wrapping).  Sequence numbers and proofs: ``docs/gateware.md`` (output
 buffers), ``docs/formal.md``.
 """
 

@@ -7,7 +7,7 @@ Input: the detector's ``records`` and ``trailer`` streams (a frame's records are
 clock; ``valid`` falls for two clocks between records, which the SPI reader never sees;
 ``busy`` is high from the trailer's acceptance until the CRC's last byte is taken.  Records
 are sent from the record stream's payload, so the detector's record buffer holds a frame's
-records until its packet is read (``hdl/DESIGN.md``, Packetizer).
+records until its packet is read (``docs/gateware.md``, Packetizer).
 """
 
 from amaranth import Cat, Const, Module, Signal, Value

@@ -1,7 +1,7 @@
 """Threshold unit: pixel stream in, lit flag and weight out, one pixel per clock.
 
 Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract`` bit-exactly
-(``hdl/DESIGN.md`` describes how, with each mode's latency and blanking).  ``pixels``: one
+(``docs/gateware.md`` describes how, with each mode's latency and blanking).  ``pixels``: one
 pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's first pixel, ``eol``
 on each line's last; registers are latched on the ``sof`` pixel.  ``out``: one beat per pixel
 in raster order, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on the frame's last.
@@ -122,7 +122,7 @@ class ThresholdUnit(wiring.Component):
     """Fixed, global and local thresholds for ``width x height`` frames of ``pixel_bits``
     pixels.  Status outputs, latched on each ``sof``: ``frame_threshold``/
     ``frame_background`` (the frame's T and B), ``frame_fallback``,
-    ``frame_local_fallback``, ``frame_tail_dropped`` (``hdl/DESIGN.md``).  ``stats_busy`` is
+    ``frame_local_fallback``, ``frame_tail_dropped`` (``docs/gateware.md``).  ``stats_busy`` is
     high while the global levels are being computed."""
 
     def __init__(self, width, height, pixel_bits):

@@ -1,14 +1,17 @@
 """The package layout's rules: no import cycle, no path into the checkout, an MCU-safe root
-and contract, and firmware that imports only what the MCU image holds."""
+and contract, firmware that imports only what the MCU image holds, and a docs index that
+reaches every page."""
 
 import ast
 import importlib
 import pkgutil
+import re
 from pathlib import Path
 
 import pytest
 
 import lodestar
+from tests import REPO
 
 PACKAGES = ("lodestar", "lodestar.contract", "lodestar.cli", "lodestar.cosim",
             "lodestar.regress", "lodestar.golden", "lodestar.hdl", "lodestar.firmware",
@@ -110,7 +113,6 @@ def test_root_imports_nothing():
     assert not [n for n in ast.parse(source).body if isinstance(n, (ast.Import, ast.ImportFrom))]
 
 
-REPO = Path(__file__).resolve().parents[1]
 SCRIPT_FOLDERS = ("tests", "benchmarks", "cocotb_tests")
 ABBREVIATIONS = {"lodestar.contract": "C", "lodestar.firmware.status": "S",
                  "lodestar.firmware.geometry": "G", "lodestar.firmware.quaternion": "Q",
@@ -198,3 +200,21 @@ def test_gateware_neither_branches_on_sensor_names_nor_passes_bags(name):
             assert node.id != "SimpleNamespace", (name, node.lineno)
         if isinstance(node, ast.alias):
             assert node.name != "SimpleNamespace", name
+
+
+def _linked_files(page):
+    """Files the Markdown links of ``page`` point to (resolved, anchors dropped)."""
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text())
+    return {(page.parent / t).resolve() for t in targets if "://" not in t}
+
+
+def test_docs_index_links_every_page():
+    """``docs/README.md`` links every page of ``docs/`` and the README links it: every page
+    is reachable from the README."""
+    docs = REPO / "docs"
+    index = docs / "README.md"
+    linked = _linked_files(index)
+    pages = {p.resolve() for p in docs.glob("*.md")} - {index.resolve()}
+    assert sorted(p.name for p in pages - linked) == []
+    assert all(p.exists() for p in linked), sorted(str(p) for p in linked if not p.exists())
+    assert index.resolve() in _linked_files(REPO / "README.md")

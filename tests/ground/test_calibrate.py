@@ -29,8 +29,8 @@ def _deviation(fit, truth):
 
 
 def test_project_is_the_firmware_model():
-    cam = cal.make_camera(752, 480, [1438.3, 1426.7, 371.2, 243.9, -0.3686, 0.3148, 0.05,
-                                     -0.0023, 0.0003])
+    cam = cal.camera_from_params(752, 480, [1438.3, 1426.7, 371.2, 243.9, -0.3686, 0.3148,
+                                            0.05, -0.0023, 0.0003])
     rng = np.random.default_rng(3)
     xy = np.column_stack((rng.uniform(-0.5, 751.5, 200), rng.uniform(-0.5, 479.5, 200)))
     v = np.array([cam.pixel_to_vector(float(x), float(y)) for x, y in xy])
@@ -77,7 +77,7 @@ def test_fit_recovers_a_known_camera_and_rejects_outliers():
 
 
 def test_fit_one_focal_and_fixed_parameters():
-    truth_cam = cal.make_camera(752, 480, [1430.0, 1430.0, 375.5, 239.5, -0.3, 0.2, 0, 0, 0])
+    truth_cam = cal.camera_from_params(752, 480, [1430.0, 1430.0, 375.5, 239.5, -0.3, 0.2, 0, 0, 0])
     frames = _synthetic_frames(truth_cam, 4, 25, 0.05, seed=8)
     fit = cal.fit_camera(frames, lohmann_frames.start_camera(), free=("fx", "k1", "k2"),
                          one_focal=True)
@@ -114,7 +114,7 @@ def test_match_records_refuses_ambiguous_and_shared_stars():
     got = cal.match_records(records, cam, q, Stars(v), 2.0)
     assert got == [(0, 0)]
     # a star far outside the field (tan 1.4), where the polynomial folds back into the frame
-    cam = cal.make_camera(752, 480, [1438.0, 1427.0, 375.5, 239.5, -0.5, 0, 0, 0, 0])
+    cam = cal.camera_from_params(752, 480, [1438.0, 1427.0, 375.5, 239.5, -0.5, 0, 0, 0, 0])
     far = np.array([[1.4, 0.0, 1.0]]) / np.linalg.norm([1.4, 0.0, 1.0])
     assert cam.fold_radius() < 1.4 and cam.vector_to_pixel(far[0]) is None
     folded = cal.project(cal.camera_params(cam), far)[0]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from lodestar.firmware import status as S
 from lodestar.firmware.starid.search import MIRROR_WORK_SHARE
 from lodestar.ground import fovsearch as F
 from lodestar.ground import solve as L
@@ -118,7 +119,7 @@ def test_approximate_fov_searches_only_its_band(cache):
     assert res.fov_search["range_deg"] == [14.0, 18.0]
     assert res.fov_deg[0] == pytest.approx(15.0, rel=0.005)
     outside = L.solve_centroids(rows, W, H, fov_deg=20.0, fov_error_deg=2.0, cache_dir=cache)
-    assert outside.status == "NO_MATCH" and "18 .. 22 deg" in outside.reason
+    assert outside.status == S.NO_MATCH and "18 .. 22 deg" in outside.reason
     assert outside.q is None and outside.fov_search["estimate_deg"] is None
 
 
@@ -128,7 +129,7 @@ def test_random_centroids_at_unknown_fov_do_not_solve(cache):
         rows = np.column_stack([rng.uniform(0, W, 40), rng.uniform(0, H, 40),
                                 1e5 / (1.0 + np.arange(40))])
         res = L.solve_centroids(rows, W, H, cache_dir=cache)
-        assert res.status == "NO_MATCH" and res.q is None
+        assert res.status == S.NO_MATCH and res.q is None
         assert 0 < res.fov_search["candidates"] <= F.MAX_CANDIDATES
 
 
@@ -137,7 +138,7 @@ def test_degenerate_centroids_at_unknown_fov_end_with_a_status(cache):
     line = [(10.0 * k, 20.0 * k, 100.0 - k) for k in range(30)]
     for rows in (same, line):
         res = L.solve_centroids(rows, W, H, duplicate_px=0.0, cache_dir=cache)
-        assert res.status in ("NO_MATCH", "TOO_FEW_STARS") and res.q is None
+        assert res.status in (S.NO_MATCH, S.TOO_FEW_STARS) and res.q is None
 
 
 # --------------------------------------------------------------------------------------
@@ -152,11 +153,11 @@ def test_failing_solves_stop_at_the_ground_work_budget(cache, work_spent):
     rows = np.column_stack([rng.uniform(0, W, 40), rng.uniform(0, H, 40),
                             1e5 / (1.0 + np.arange(40))])
     res = L.solve_centroids(rows, W, H, 10.0, cache_dir=cache)
-    assert res.status in ("NO_MATCH", "BUDGET_EXHAUSTED") and res.q is None
+    assert res.status in (S.NO_MATCH, S.BUDGET_EXHAUSTED) and res.q is None
     # a failed search may spend another 1/MIRROR_WORK_SHARE of its budget on the mirror check
     most = L.GROUND_MAX_WORK * (1 + 1 / MIRROR_WORK_SHARE)
     assert work_spent and all(limit == L.GROUND_MAX_WORK and
-                              (work <= most or res.status == "BUDGET_EXHAUSTED")
+                              (work <= most or res.status == S.BUDGET_EXHAUSTED)
                               for work, limit in work_spent)
     sc, good = rows_of(10.0, 1)
     assert L.solve_centroids(good, W, H, 10.0, cache_dir=cache).ok

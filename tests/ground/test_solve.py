@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lodestar.firmware import centroids as fwcentroids
+from lodestar.firmware import status as S
 from lodestar.ground import cache as cache_module
 from lodestar.ground import solve as L
 from lodestar.sim.attitude import boresight, from_radec_roll, random_attitude, to_radec_roll
@@ -42,7 +43,7 @@ def scene_centroids(scene):
 
 
 def outcome(res, scene):
-    if res.status != "OK":
+    if res.status != S.OK:
         return "no-solve"
     if attitude_error_deg(res.q, scene.q) > MAX_ERR_DEG:
         return "wrong"
@@ -204,14 +205,18 @@ def test_wrong_fov_is_not_a_wrong_attitude(cache, catalogue):
 
 
 def test_result_access():
-    res = L.SolveResult("OK", ra_deg=1.0, dec_deg=2.0, roll_deg=3.0, q=[0, 0, 0, 1],
+    res = L.SolveResult(S.OK, ra_deg=1.0, dec_deg=2.0, roll_deg=3.0, q=[0, 0, 0, 1],
                         matches={0: 1}, sigma_cross_arcsec=1.0, sigma_roll_arcsec=9.0)
     assert res["ra_deg"] == 1.0 and res.ok and set(res.keys()) == set(L.SolveResult.FIELDS)
     assert res.as_dict()["matches"] == {0: 1} and "OK" in repr(res)
+    assert res["status"] == S.OK and res.as_dict()["status_name"] == "OK"
     with pytest.raises(KeyError):
         res["nope"]
-    bad = L.SolveResult("BAD_INPUT", "why")
-    assert not bad.ok and bad.q is None and "why" in repr(bad)
+    with pytest.raises(TypeError):
+        L.SolveResult(S.OK, status_name="OK")
+    bad = L.SolveResult(S.BAD_INPUT, "why")
+    assert not bad.ok and bad.q is None and "why" in repr(bad) and "BAD_INPUT" in repr(bad)
+    assert bad.status_name == "BAD_INPUT"
 
 
 # --------------------------------------------------------------------------------------
@@ -226,30 +231,30 @@ def good_scene(catalogue):
 
 
 @pytest.mark.parametrize("centroids, status", [
-    ([], "TOO_FEW_STARS"),
-    (np.zeros((0, 3)), "TOO_FEW_STARS"),
-    ([(100.0, 200.0)], "TOO_FEW_STARS"),
-    ([(100.0, 200.0, 5.0), (300.0, 400.0, 4.0)], "TOO_FEW_STARS"),
-    ([(100.0, 200.0), (300.0, 400.0), (500.0, 600.0)], "TOO_FEW_STARS"),
-    ([(100.0, 200.0, 1.0)] * 10, "TOO_FEW_STARS"),
-    ([(100.0, 200.0), (100.2, 200.1), (300.0, 400.0), (300.0, 400.0)], "TOO_FEW_STARS"),
-    ([(float("nan"), 1.0)] * 5, "BAD_INPUT"),
-    ([(1.0, 2.0), (3.0, float("inf")), (5, 6), (7, 8)], "BAD_INPUT"),
-    ([(1.0, 2.0, float("nan"))] * 5, "BAD_INPUT"),
-    ([(-1.0, 2.0), (-1.0, 20.0), (-1.0, 200.0), (-1.0, 2000.0)], "TOO_FEW_STARS"),
+    ([], S.TOO_FEW_STARS),
+    (np.zeros((0, 3)), S.TOO_FEW_STARS),
+    ([(100.0, 200.0)], S.TOO_FEW_STARS),
+    ([(100.0, 200.0, 5.0), (300.0, 400.0, 4.0)], S.TOO_FEW_STARS),
+    ([(100.0, 200.0), (300.0, 400.0), (500.0, 600.0)], S.TOO_FEW_STARS),
+    ([(100.0, 200.0, 1.0)] * 10, S.TOO_FEW_STARS),
+    ([(100.0, 200.0), (100.2, 200.1), (300.0, 400.0), (300.0, 400.0)], S.TOO_FEW_STARS),
+    ([(float("nan"), 1.0)] * 5, S.BAD_INPUT),
+    ([(1.0, 2.0), (3.0, float("inf")), (5, 6), (7, 8)], S.BAD_INPUT),
+    ([(1.0, 2.0, float("nan"))] * 5, S.BAD_INPUT),
+    ([(-1.0, 2.0), (-1.0, 20.0), (-1.0, 200.0), (-1.0, 2000.0)], S.TOO_FEW_STARS),
     ([(W - 0.5, 2.0), (W, 20.0), (W + 1e6, 200.0), (1.0, 2.0), (10.0, H + 100.0)],
-     "TOO_FEW_STARS"),
-    ("not centroids", "BAD_INPUT"),
-    ([[1.0, 2.0], [3.0]], "BAD_INPUT"),
-    ([(1.0, 2.0, 3.0, 4.0)] * 5, "BAD_INPUT"),
-    ([("a", "b")] * 5, "BAD_INPUT"),
-    (None, "BAD_INPUT"),
-    (5, "BAD_INPUT"),
-    ([{"x": 1}] * 5, "BAD_INPUT"),
+     S.TOO_FEW_STARS),
+    ("not centroids", S.BAD_INPUT),
+    ([[1.0, 2.0], [3.0]], S.BAD_INPUT),
+    ([(1.0, 2.0, 3.0, 4.0)] * 5, S.BAD_INPUT),
+    ([("a", "b")] * 5, S.BAD_INPUT),
+    (None, S.BAD_INPUT),
+    (5, S.BAD_INPUT),
+    ([{"x": 1}] * 5, S.BAD_INPUT),
 ])
 def test_bad_centroids(cache, centroids, status):
     res = L.solve_centroids(centroids, W, H, 20.0, cache_dir=cache)
-    assert res.status == status, res.reason
+    assert res.status == status, (res.status_name, res.reason)
     assert res.q is None and res.ra_deg is None and res.matches == {} and res.reason
 
 
@@ -270,7 +275,7 @@ def test_bad_parameters(cache, catalogue, kwargs):
     args = dict(width=W, height=H, fov_deg=20.2, cache_dir=cache)
     args.update(kwargs)
     res = L.solve_centroids(scene_centroids(good_scene(catalogue)), **args)
-    assert res.status == "BAD_INPUT", res
+    assert res.status == S.BAD_INPUT, res
     assert res.q is None and res.reason
 
 
@@ -287,7 +292,7 @@ def test_centroids_outside_the_frame_are_ignored(cache, catalogue):
     # swapped (y, x) coordinates of a wide frame: some fall outside, the rest cannot match
     swapped = L.solve_centroids(rows[:, [1, 0, 2]], W, H, pinhole_fov_deg(SF.sim_camera()),
                                 cache_dir=cache)
-    assert swapped.status in ("NO_MATCH", "TOO_FEW_STARS") and swapped.q is None
+    assert swapped.status in (S.NO_MATCH, S.TOO_FEW_STARS) and swapped.q is None
 
 
 def test_duplicates_are_merged(cache, catalogue):
@@ -303,12 +308,12 @@ def test_duplicates_are_merged(cache, catalogue):
 def test_databases_that_cannot_be_built_give_a_status(cache, catalogue):
     rows = scene_centroids(good_scene(catalogue))
     res = L.solve_centroids(rows, W, H, 20.2, max_mag=-1.0, cache_dir=cache)
-    assert res.status == "BAD_INPUT" and "database" in res.reason
+    assert res.status == S.BAD_INPUT and "database" in res.reason
     # a method the builder does not make (yet): a status, not an exception
     for method in ("triangle", "hashing"):
         res = L.solve_centroids(rows, W, H, 20.2, method=method, cache_dir=cache)
-        assert res.status in ("OK", "NO_MATCH", "BAD_INPUT") or \
-            res.status.startswith("DATABASE_"), res
+        assert res.status in (S.OK, S.NO_MATCH, S.BAD_INPUT) or \
+            res.status_name.startswith("DATABASE_"), res
 
 
 # --------------------------------------------------------------------------------------

@@ -79,6 +79,6 @@ def test_tiny_frames_at_wide_fields_end_with_a_status(width, height, fov, work_s
              zip(rng.uniform(0, width, 30), rng.uniform(0, height, 30),
                  rng.uniform(100, 1000, 30))]
     result = solve_centroids(cents, width, height, fov, cache_dir=tmp_path)
-    assert result.status != "OK" or result.matches
+    assert result.status != S.OK or result.matches
     assert all(work <= limit for work, limit in work_spent) or \
-        result.status == "BUDGET_EXHAUSTED"
+        result.status == S.BUDGET_EXHAUSTED
