@@ -52,12 +52,8 @@ class PopAction(enum.Enum, shape=3):
 
 def check_frame(width, height, pixel_bits):
     """Raise ``ValueError`` unless ``width x height`` frames of ``pixel_bits`` pixels are
-    within the contract (the layouts' widths are derived from them)."""
-    if pixel_bits not in C.PIXEL_BITS:
-        raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
-    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-        raise ValueError(f"frame {width}x{height} is outside the contract's "
-                         f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+    within the contract (``contract.check_geometry``: the layouts' widths derive from them)."""
+    C.check_geometry(width, height, pixel_bits)
 
 
 def pixel_layout(pixel_bits):
