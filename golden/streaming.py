@@ -16,9 +16,21 @@ from lodestar.contract import DetectionResult
 
 from .frame import FrameStats, frame_levels
 
-# feature-table slots
-_N, _NSAT, _S0, _SX, _SY, _SXX, _SYY, _SXY, _XMIN, _XMAX, _YMIN, _YMAX, _PEAK, _SAT, \
-    _LAST, _TRACKED = range(16)
+# feature-table slots: the record's fields in contract order, then the blob's last raster
+# index and whether it is tracked
+_N = C.RECORD_NAMES.index("n")
+_NSAT = C.RECORD_NAMES.index("nsat")
+_S0 = C.RECORD_NAMES.index("s0")
+_MOMENTS = tuple(C.RECORD_NAMES.index(name) for name in C.MOMENTS)
+_XMIN = C.RECORD_NAMES.index("xmin")
+_XMAX = C.RECORD_NAMES.index("xmax")
+_YMIN = C.RECORD_NAMES.index("ymin")
+_YMAX = C.RECORD_NAMES.index("ymax")
+_PEAK = C.RECORD_NAMES.index("peak")
+_FLAGS = C.RECORD_NAMES.index("flags")
+_LAST = len(C.RECORD_NAMES)
+_TRACKED = _LAST + 1
+_SLOTS = _LAST + 2
 
 
 class StreamingModel:
@@ -80,12 +92,12 @@ class StreamingModel:
             self.open_tracked += 1
             if self.open_tracked > self.peak_open:
                 self.peak_open = self.open_tracked
-            f = [0] * 16
+            f = [0] * _SLOTS
             f[_XMIN] = f[_XMAX] = x
             f[_YMIN] = f[_YMAX] = y
             f[_TRACKED] = True
         else:
-            f = [0] * 16
+            f = [0] * _SLOTS
             f[_TRACKED] = False
         self.feat[lab] = f
         self._add(f, x, y, p, w, raster)
@@ -107,13 +119,14 @@ class StreamingModel:
         f[_YMAX] = y
         if w:
             lim = self.lim
-            terms = (w, w * x, w * y, w * x * x, w * y * y, w * x * y)
+            terms = (w, w * x, w * y, w * x * x, w * y * y, w * x * y)   # C.MOMENTS
             for k in range(6):
-                v = f[_S0 + k] + terms[k]
+                slot = _MOMENTS[k]
+                v = f[slot] + terms[k]
                 if v > lim[k]:
                     v = lim[k]
-                    f[_SAT] = True
-                f[_S0 + k] = v
+                    f[_FLAGS] |= C.BLOB_MOMENTS_SATURATED
+                f[slot] = v
 
     def _union(self, keep, gone):
         """Merge root ``gone`` into root ``keep`` (``parent[gone] = keep``)."""
@@ -134,12 +147,13 @@ class StreamingModel:
         fk[_NSAT] += fg[_NSAT]
         lim = self.lim
         for k in range(6):
-            v = fk[_S0 + k] + fg[_S0 + k]
+            slot = _MOMENTS[k]
+            v = fk[slot] + fg[slot]
             if v > lim[k]:
                 v = lim[k]
-                fk[_SAT] = True
-            fk[_S0 + k] = v
-        fk[_SAT] = fk[_SAT] or fg[_SAT]
+                fk[_FLAGS] |= C.BLOB_MOMENTS_SATURATED
+            fk[slot] = v
+        fk[_FLAGS] |= fg[_FLAGS]
         fk[_XMIN] = min(fk[_XMIN], fg[_XMIN])
         fk[_XMAX] = max(fk[_XMAX], fg[_XMAX])
         fk[_YMIN] = min(fk[_YMIN], fg[_YMIN])
@@ -158,10 +172,7 @@ class StreamingModel:
         if not C.passes_filters(f[_N], f[_S0], cfg.min_pixels, cfg.min_sum, cfg.max_pixels_reg):
             self.n_filtered += 1
         elif len(self.records) < cfg.record_capacity:
-            self.records.append(C.BlobRecord(
-                f[_N], f[_NSAT], f[_S0], f[_SX], f[_SY], f[_SXX], f[_SYY], f[_SXY],
-                f[_XMIN], f[_XMAX], f[_YMIN], f[_YMAX], f[_PEAK],
-                C.BLOB_MOMENTS_SATURATED if f[_SAT] else 0))
+            self.records.append(C.BlobRecord(**dict(zip(C.RECORD_NAMES, f))))
         else:
             self.dropped_records += 1
 

@@ -26,21 +26,56 @@ class Entry:
         self.has_cur, self.first_addr, self.last_addr, self.cont = False, 0, 0, False
 
 
+# a blob's features: the record's fields in contract order
+_FEATURES = len(C.RECORD_NAMES)
+_N = C.RECORD_NAMES.index("n")
+_NSAT = C.RECORD_NAMES.index("nsat")
+_S0, _SX, _SY, _SXX, _SYY, _SXY = _MOMENTS = tuple(C.RECORD_NAMES.index(m) for m in C.MOMENTS)
+_XMIN = C.RECORD_NAMES.index("xmin")
+_XMAX = C.RECORD_NAMES.index("xmax")
+_YMIN = C.RECORD_NAMES.index("ymin")
+_YMAX = C.RECORD_NAMES.index("ymax")
+_PEAK = C.RECORD_NAMES.index("peak")
+_FLAGS = C.RECORD_NAMES.index("flags")
+
+
 def _feat(x, y, p, w, fs):
-    return [1, int(p == fs), w, w * x, w * y, w * x * x, w * y * y, w * x * y,
-            x, x, y, y, p, False]
+    """The features of one pixel."""
+    f = [0] * _FEATURES
+    f[_N] = 1
+    f[_NSAT] = int(p == fs)
+    wx = w * x
+    wy = w * y
+    f[_S0] = w
+    f[_SX] = wx
+    f[_SY] = wy
+    f[_SXX] = wx * x
+    f[_SYY] = wy * y
+    f[_SXY] = wx * y
+    f[_XMIN] = f[_XMAX] = x
+    f[_YMIN] = f[_YMAX] = y
+    f[_PEAK] = p
+    return f
 
 
 def _combine(a, b, lim):
-    out = [a[0] + b[0], a[1] + b[1]]
-    sat = a[13] or b[13]
-    for k in range(6):
-        v = a[2 + k] + b[2 + k]
-        if v > lim[k]:
-            v, sat = lim[k], True
-        out.append(v)
-    out += [min(a[8], b[8]), max(a[9], b[9]), min(a[10], b[10]), max(a[11], b[11]),
-            max(a[12], b[12]), sat]
+    """The features of the union of two blobs, moments saturated at ``lim``."""
+    out = [0] * _FEATURES
+    out[_N] = a[_N] + b[_N]
+    out[_NSAT] = a[_NSAT] + b[_NSAT]
+    flags = a[_FLAGS] | b[_FLAGS]
+    for slot, top in zip(_MOMENTS, lim):
+        v = a[slot] + b[slot]
+        if v > top:
+            v = top
+            flags |= C.BLOB_MOMENTS_SATURATED
+        out[slot] = v
+    out[_XMIN] = min(a[_XMIN], b[_XMIN])
+    out[_XMAX] = max(a[_XMAX], b[_XMAX])
+    out[_YMIN] = min(a[_YMIN], b[_YMIN])
+    out[_YMAX] = max(a[_YMAX], b[_YMAX])
+    out[_PEAK] = max(a[_PEAK], b[_PEAK])
+    out[_FLAGS] = flags
     return out
 
 
@@ -144,11 +179,10 @@ class WavefrontLabeller:
 
     def _complete(self, f):
         self.n_blobs += 1
-        if not C.passes_filters(f[0], f[2], *self.filters):
+        if not C.passes_filters(f[_N], f[_S0], *self.filters):
             self.n_filtered += 1
         elif len(self.records) < self.rcap:
-            self.records.append(C.BlobRecord(
-                *f[:13], C.BLOB_MOMENTS_SATURATED if f[13] else 0))
+            self.records.append(C.BlobRecord(**dict(zip(C.RECORD_NAMES, f))))
         else:
             self.dropped_records += 1
 

@@ -81,14 +81,9 @@ def op_layout(width, height, pixel_bits, slots):
 
 
 def record_fields(width, height, pixel_bits):
-    """``[(name, bits)]`` of a compact record for ``width x height`` frames, contract order."""
-    moments = C.moment_widths(pixel_bits)
-    xb, yb = C.bits_for(width - 1), C.bits_for(height - 1)
-    count = C.bits_for(width * height)
-    widths = {"n": count, "nsat": count, "xmin": xb, "xmax": xb, "ymin": yb, "ymax": yb,
-              "peak": pixel_bits, "flags": C.bits_for(C.BLOB_FLAGS_DEFINED)}
-    widths.update(moments)
-    return [(name, widths[name]) for name in C.RECORD_NAMES]
+    """``[(name, bits)]`` of a compact record for ``width x height`` frames, contract order
+    (``contract.record_fields``)."""
+    return list(C.record_fields(width, height, pixel_bits))
 
 
 def record_layout(width, height, pixel_bits):
