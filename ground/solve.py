@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from lodestar import contract as C
 from lodestar.contract import stardb
 from lodestar.firmware import status as fwstatus
 from lodestar.firmware.aberration import MAX_SPEED_KM_S
@@ -227,9 +228,9 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
         return SolveResult(status, reason, n_centroids=n_in, **fields)
 
     # ---- parameters -------------------------------------------------------------------
-    for name, value in (("width", width), ("height", height)):
-        if not _is_int(value) or not 1 <= value <= 4096:
-            return bad(f"{name} must be an int in 1..4096, got {value!r}")
+    for name, value, limit in (("width", width, C.MAX_WIDTH), ("height", height, C.MAX_HEIGHT)):
+        if not _is_int(value) or not 1 <= value <= limit:
+            return bad(f"{name} must be an int in 1..{limit}, got {value!r}")
     if fov_deg is not None and (not _is_number(fov_deg) or
                                 not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
         return bad(f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
