@@ -157,7 +157,12 @@ class BlobRecord(object):
 
     def __init__(self, **fields):
         """Every field of ``RECORD_NAMES`` by name; a missing one raises ``TypeError`` (or
-        ``KeyError`` naming it when an unknown name stands in for it)."""
+        ``KeyError`` naming it when an unknown name stands in for it).  No field at all: a
+        record of zeros for a decoder to fill (on MicroPython, without a dict of fields)."""
+        if not fields:
+            for name in RECORD_NAMES:
+                setattr(self, name, 0)
+            return
         if len(fields) != len(RECORD_NAMES):
             raise TypeError("BlobRecord takes the fields {}, got {}".format(
                 ", ".join(RECORD_NAMES), ", ".join(sorted(fields))))

@@ -50,6 +50,7 @@ def test_blob_record_takes_every_field_by_name():
         C.BlobRecord(**fields)
     with pytest.raises(KeyError, match="peak"):
         C.BlobRecord(**dict(fields, colour=1))
+    assert C.BlobRecord().as_tuple() == (0,) * len(C.RECORD_NAMES)
 
 
 def test_record_fields_are_the_packet_record_at_the_largest_frame():
