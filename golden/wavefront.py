@@ -10,6 +10,26 @@ with one idle clock per row, so tests can check the one-access-per-two-clocks bo
 
 from lodestar import contract as C
 
+from .features import (
+    FLAGS,
+    MOMENTS,
+    NSAT,
+    PEAK,
+    S0,
+    SLOTS,
+    SX,
+    SXX,
+    SXY,
+    SY,
+    SYY,
+    XMAX,
+    XMIN,
+    YMAX,
+    YMIN,
+    N,
+    record,
+)
+
 
 class Node:
     __slots__ = ("first", "last", "lab", "tracked")
@@ -26,56 +46,43 @@ class Entry:
         self.has_cur, self.first_addr, self.last_addr, self.cont = False, 0, 0, False
 
 
-# a blob's features: the record's fields in contract order
-_FEATURES = len(C.RECORD_NAMES)
-_N = C.RECORD_NAMES.index("n")
-_NSAT = C.RECORD_NAMES.index("nsat")
-_S0, _SX, _SY, _SXX, _SYY, _SXY = _MOMENTS = tuple(C.RECORD_NAMES.index(m) for m in C.MOMENTS)
-_XMIN = C.RECORD_NAMES.index("xmin")
-_XMAX = C.RECORD_NAMES.index("xmax")
-_YMIN = C.RECORD_NAMES.index("ymin")
-_YMAX = C.RECORD_NAMES.index("ymax")
-_PEAK = C.RECORD_NAMES.index("peak")
-_FLAGS = C.RECORD_NAMES.index("flags")
-
-
 def _feat(x, y, p, w, fs):
     """The features of one pixel."""
-    f = [0] * _FEATURES
-    f[_N] = 1
-    f[_NSAT] = int(p == fs)
+    f = [0] * SLOTS
+    f[N] = 1
+    f[NSAT] = int(p == fs)
     wx = w * x
     wy = w * y
-    f[_S0] = w
-    f[_SX] = wx
-    f[_SY] = wy
-    f[_SXX] = wx * x
-    f[_SYY] = wy * y
-    f[_SXY] = wx * y
-    f[_XMIN] = f[_XMAX] = x
-    f[_YMIN] = f[_YMAX] = y
-    f[_PEAK] = p
+    f[S0] = w
+    f[SX] = wx
+    f[SY] = wy
+    f[SXX] = wx * x
+    f[SYY] = wy * y
+    f[SXY] = wx * y
+    f[XMIN] = f[XMAX] = x
+    f[YMIN] = f[YMAX] = y
+    f[PEAK] = p
     return f
 
 
 def _combine(a, b, lim):
     """The features of the union of two blobs, moments saturated at ``lim``."""
-    out = [0] * _FEATURES
-    out[_N] = a[_N] + b[_N]
-    out[_NSAT] = a[_NSAT] + b[_NSAT]
-    flags = a[_FLAGS] | b[_FLAGS]
-    for slot, top in zip(_MOMENTS, lim):
+    out = [0] * SLOTS
+    out[N] = a[N] + b[N]
+    out[NSAT] = a[NSAT] + b[NSAT]
+    flags = a[FLAGS] | b[FLAGS]
+    for slot, top in zip(MOMENTS, lim):
         v = a[slot] + b[slot]
         if v > top:
             v = top
             flags |= C.BLOB_MOMENTS_SATURATED
         out[slot] = v
-    out[_XMIN] = min(a[_XMIN], b[_XMIN])
-    out[_XMAX] = max(a[_XMAX], b[_XMAX])
-    out[_YMIN] = min(a[_YMIN], b[_YMIN])
-    out[_YMAX] = max(a[_YMAX], b[_YMAX])
-    out[_PEAK] = max(a[_PEAK], b[_PEAK])
-    out[_FLAGS] = flags
+    out[XMIN] = min(a[XMIN], b[XMIN])
+    out[XMAX] = max(a[XMAX], b[XMAX])
+    out[YMIN] = min(a[YMIN], b[YMIN])
+    out[YMAX] = max(a[YMAX], b[YMAX])
+    out[PEAK] = max(a[PEAK], b[PEAK])
+    out[FLAGS] = flags
     return out
 
 
@@ -179,10 +186,10 @@ class WavefrontLabeller:
 
     def _complete(self, f):
         self.n_blobs += 1
-        if not C.passes_filters(f[_N], f[_S0], *self.filters):
+        if not C.passes_filters(f[N], f[S0], *self.filters):
             self.n_filtered += 1
         elif len(self.records) < self.rcap:
-            self.records.append(C.BlobRecord(**dict(zip(C.RECORD_NAMES, f))))
+            self.records.append(record(f))
         else:
             self.dropped_records += 1
 
