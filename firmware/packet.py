@@ -32,7 +32,6 @@ def _plan(fields):
 
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
 _RECORD_PLAN = _plan(C.RECORD_FIELDS)
-_ZERO_RECORD = (0,) * len(C.RECORD_FIELDS)
 _MIN_BYTES = C.packet_bytes(0)
 _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
@@ -82,7 +81,7 @@ def record(data, index, into=None):
     ``into``: a ``BlobRecord`` to overwrite and return instead of a new one (reading record
     after record into one object allocates nothing but large moments)."""
     if into is None:
-        into = C.BlobRecord(*_ZERO_RECORD)
+        into = C.BlobRecord()
     return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, C.RECORD_NAMES,
                  into)
 

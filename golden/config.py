@@ -73,9 +73,9 @@ class DetectorConfig:
         if self.threshold_mode not in C.MODE_NAMES:
             raise ValueError(
                 f"threshold_mode={self.threshold_mode!r} is not one of {C.MODE_NAMES}")
-        fs = C.full_scale(self.pixel_bits)
-        _require_range("threshold", self.threshold, 0, fs, f" ({self.pixel_bits}-bit pixels)")
-        _require_range("background", self.background, 0, fs, f" ({self.pixel_bits}-bit pixels)")
+        pixels = f" ({self.pixel_bits}-bit pixels)"
+        self._require_register("threshold", self.threshold, pixels)
+        self._require_register("background", self.background, pixels)
         if isinstance(self.ksigma, bool) or not isinstance(self.ksigma, (int, float)) or \
                 not math.isfinite(self.ksigma):
             raise ValueError(f"ksigma must be a finite number, got {self.ksigma!r}")
@@ -84,21 +84,21 @@ class DetectorConfig:
             raise ValueError(f"ksigma={self.ksigma} is not a multiple of "
                              f"1/{1 << C.KSIGMA_FRAC_BITS} (the register has "
                              f"{C.KSIGMA_FRAC_BITS} fractional bits)")
-        kmax = ((1 << C.KSIGMA_BITS) - 1) / (1 << C.KSIGMA_FRAC_BITS)
-        if not 0 <= kreg < (1 << C.KSIGMA_BITS):
-            raise ValueError(f"ksigma={self.ksigma} is out of range 0..{kmax}")
-        _require_range("local_log2_window", self.local_log2_window, C.LOCAL_LOG2_WINDOW_MIN,
-                       C.LOCAL_LOG2_WINDOW_MAX)
-        _require_range("local_offset", self.local_offset, 0, fs, f" ({self.pixel_bits}-bit pixels)")
+        klow, khigh = C.register_range("ksigma", self.pixel_bits)
+        if not klow <= kreg <= khigh:
+            raise ValueError(f"ksigma={self.ksigma} is out of range "
+                             f"{klow}..{khigh / (1 << C.KSIGMA_FRAC_BITS)}")
+        self._require_register("local_log2_window", self.local_log2_window)
+        self._require_register("local_offset", self.local_offset, pixels)
         if self.threshold_mode == "local" and self.width <= (1 << self.local_log2_window):
             raise ValueError(
                 f"width={self.width} must exceed the local window of "
                 f"{1 << self.local_log2_window} pixels (local_log2_window="
                 f"{self.local_log2_window})")
-        _require_range("min_pixels", self.min_pixels, 0, C.MAX_PIXELS_UNLIMITED)
-        _require_range("min_sum", self.min_sum, 0, (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1)
+        self._require_register("min_pixels", self.min_pixels)
+        self._require_register("min_sum", self.min_sum)
         if self.max_pixels is not None:
-            _require_range("max_pixels", self.max_pixels, 0, C.MAX_PIXELS_UNLIMITED)
+            self._require_register("max_pixels", self.max_pixels)
             if self.max_pixels < self.min_pixels:
                 raise ValueError(f"max_pixels={self.max_pixels} is below min_pixels="
                                  f"{self.min_pixels}: no blob could ever be emitted")
@@ -107,6 +107,11 @@ class DetectorConfig:
                            C.max_open_blobs(self.width),
                            " (more than max_open_blobs(width) can never be used)")
         _require_range("record_capacity", self.record_capacity, 0, C.MAX_RECORD_CAPACITY)
+
+    def _require_register(self, name, value, why=""):
+        """``value`` of the register ``name`` within ``contract.register_range``."""
+        low, high = C.register_range(name, self.pixel_bits)
+        _require_range(name, value, low, high, why)
 
     # -- values as the gateware sees them ------------------------------------------------
     @property

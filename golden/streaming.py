@@ -14,11 +14,14 @@ import numpy as np
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
 
+from .features import FLAGS, MOMENTS, NSAT, PEAK, S0, SLOTS, XMAX, XMIN, YMAX, YMIN, N, record
 from .frame import FrameStats, frame_levels
 
-# feature-table slots
-_N, _NSAT, _S0, _SX, _SY, _SXX, _SYY, _SXY, _XMIN, _XMAX, _YMIN, _YMAX, _PEAK, _SAT, \
-    _LAST, _TRACKED = range(16)
+# feature-table slots: the record's (.features), then the blob's last raster index and
+# whether it is tracked
+_LAST = SLOTS
+_TRACKED = SLOTS + 1
+_TABLE_SLOTS = SLOTS + 2
 
 
 class StreamingModel:
@@ -80,12 +83,12 @@ class StreamingModel:
             self.open_tracked += 1
             if self.open_tracked > self.peak_open:
                 self.peak_open = self.open_tracked
-            f = [0] * 16
-            f[_XMIN] = f[_XMAX] = x
-            f[_YMIN] = f[_YMAX] = y
+            f = [0] * _TABLE_SLOTS
+            f[XMIN] = f[XMAX] = x
+            f[YMIN] = f[YMAX] = y
             f[_TRACKED] = True
         else:
-            f = [0] * 16
+            f = [0] * _TABLE_SLOTS
             f[_TRACKED] = False
         self.feat[lab] = f
         self._add(f, x, y, p, w, raster)
@@ -95,25 +98,26 @@ class StreamingModel:
         f[_LAST] = raster
         if not f[_TRACKED]:
             return
-        f[_N] += 1
+        f[N] += 1
         if p == self.fs:
-            f[_NSAT] += 1
-        if p > f[_PEAK]:
-            f[_PEAK] = p
-        if x < f[_XMIN]:
-            f[_XMIN] = x
-        if x > f[_XMAX]:
-            f[_XMAX] = x
-        f[_YMAX] = y
+            f[NSAT] += 1
+        if p > f[PEAK]:
+            f[PEAK] = p
+        if x < f[XMIN]:
+            f[XMIN] = x
+        if x > f[XMAX]:
+            f[XMAX] = x
+        f[YMAX] = y
         if w:
             lim = self.lim
-            terms = (w, w * x, w * y, w * x * x, w * y * y, w * x * y)
+            terms = (w, w * x, w * y, w * x * x, w * y * y, w * x * y)   # C.MOMENTS
             for k in range(6):
-                v = f[_S0 + k] + terms[k]
+                slot = MOMENTS[k]
+                v = f[slot] + terms[k]
                 if v > lim[k]:
                     v = lim[k]
-                    f[_SAT] = True
-                f[_S0 + k] = v
+                    f[FLAGS] |= C.BLOB_MOMENTS_SATURATED
+                f[slot] = v
 
     def _union(self, keep, gone):
         """Merge root ``gone`` into root ``keep`` (``parent[gone] = keep``)."""
@@ -130,21 +134,22 @@ class StreamingModel:
             fk[_TRACKED] = False
             return
         self.open_tracked -= 1
-        fk[_N] += fg[_N]
-        fk[_NSAT] += fg[_NSAT]
+        fk[N] += fg[N]
+        fk[NSAT] += fg[NSAT]
         lim = self.lim
         for k in range(6):
-            v = fk[_S0 + k] + fg[_S0 + k]
+            slot = MOMENTS[k]
+            v = fk[slot] + fg[slot]
             if v > lim[k]:
                 v = lim[k]
-                fk[_SAT] = True
-            fk[_S0 + k] = v
-        fk[_SAT] = fk[_SAT] or fg[_SAT]
-        fk[_XMIN] = min(fk[_XMIN], fg[_XMIN])
-        fk[_XMAX] = max(fk[_XMAX], fg[_XMAX])
-        fk[_YMIN] = min(fk[_YMIN], fg[_YMIN])
-        fk[_YMAX] = max(fk[_YMAX], fg[_YMAX])
-        fk[_PEAK] = max(fk[_PEAK], fg[_PEAK])
+                fk[FLAGS] |= C.BLOB_MOMENTS_SATURATED
+            fk[slot] = v
+        fk[FLAGS] |= fg[FLAGS]
+        fk[XMIN] = min(fk[XMIN], fg[XMIN])
+        fk[XMAX] = max(fk[XMAX], fg[XMAX])
+        fk[YMIN] = min(fk[YMIN], fg[YMIN])
+        fk[YMAX] = max(fk[YMAX], fg[YMAX])
+        fk[PEAK] = max(fk[PEAK], fg[PEAK])
 
     def _complete(self, root):
         f = self.feat[root]
@@ -155,13 +160,10 @@ class StreamingModel:
         self.open_tracked -= 1
         self.n_blobs += 1
         cfg = self.cfg
-        if not C.passes_filters(f[_N], f[_S0], cfg.min_pixels, cfg.min_sum, cfg.max_pixels_reg):
+        if not C.passes_filters(f[N], f[S0], cfg.min_pixels, cfg.min_sum, cfg.max_pixels_reg):
             self.n_filtered += 1
         elif len(self.records) < cfg.record_capacity:
-            self.records.append(C.BlobRecord(
-                f[_N], f[_NSAT], f[_S0], f[_SX], f[_SY], f[_SXX], f[_SYY], f[_SXY],
-                f[_XMIN], f[_XMAX], f[_YMIN], f[_YMAX], f[_PEAK],
-                C.BLOB_MOMENTS_SATURATED if f[_SAT] else 0))
+            self.records.append(record(f))
         else:
             self.dropped_records += 1
 

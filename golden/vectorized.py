@@ -88,39 +88,34 @@ def measure(frame, lit, weight, pixel_bits):
     wt = weight.ravel()[idx].astype(np.uint64)
     fs = C.full_scale(pixel_bits)
 
-    n = np.diff(np.r_[starts, len(idx)])
-    sums = {
+    fields = {
+        "n": np.diff(np.r_[starts, len(idx)]),
+        "nsat": _reduce((p == fs).astype(np.int64), starts, np.add),
         "s0": _reduce(wt, starts, np.add),
         "sx": _reduce(wt * xs, starts, np.add),
         "sy": _reduce(wt * ys, starts, np.add),
         "sxx": _reduce(wt * xs * xs, starts, np.add),
         "syy": _reduce(wt * ys * ys, starts, np.add),
         "sxy": _reduce(wt * xs * ys, starts, np.add),
+        "xmin": _reduce(xs, starts, np.minimum),
+        "xmax": _reduce(xs, starts, np.maximum),
+        "ymin": ys[starts],                      # first pixel in raster order
+        "ymax": _reduce(ys, starts, np.maximum),
+        "peak": _reduce(p, starts, np.maximum),
     }
-    nsat = _reduce((p == fs).astype(np.int64), starts, np.add)
-    xmin = _reduce(xs, starts, np.minimum)
-    xmax = _reduce(xs, starts, np.maximum)
-    ymin = ys[starts]                            # first pixel in raster order
-    ymax = _reduce(ys, starts, np.maximum)
-    peak = _reduce(p, starts, np.maximum)
     last = _reduce(idx, starts, np.maximum)
 
     limits = C.moment_max(pixel_bits)
     saturated = np.zeros(len(starts), dtype=bool)
     for name in C.MOMENTS:
-        over = sums[name] > np.uint64(limits[name])
+        over = fields[name] > np.uint64(limits[name])
         saturated |= over
-        sums[name] = np.where(over, np.uint64(limits[name]), sums[name])
+        fields[name] = np.where(over, np.uint64(limits[name]), fields[name])
+    fields["flags"] = np.where(saturated, C.BLOB_MOMENTS_SATURATED, 0)
 
-    records = []
-    for i in np.argsort(last, kind="stable"):
-        records.append(C.BlobRecord(
-            int(n[i]), int(nsat[i]),
-            int(sums["s0"][i]), int(sums["sx"][i]), int(sums["sy"][i]),
-            int(sums["sxx"][i]), int(sums["syy"][i]), int(sums["sxy"][i]),
-            int(xmin[i]), int(xmax[i]), int(ymin[i]), int(ymax[i]), int(peak[i]),
-            C.BLOB_MOMENTS_SATURATED if saturated[i] else 0))
-    return records
+    order = np.argsort(last, kind="stable")
+    columns = [fields[name][order].tolist() for name in C.RECORD_NAMES]
+    return [C.BlobRecord(**dict(zip(C.RECORD_NAMES, values))) for values in zip(*columns)]
 
 
 def detect(frame, cfg, prev_stats):

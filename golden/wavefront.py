@@ -10,6 +10,26 @@ with one idle clock per row, so tests can check the one-access-per-two-clocks bo
 
 from lodestar import contract as C
 
+from .features import (
+    FLAGS,
+    MOMENTS,
+    NSAT,
+    PEAK,
+    S0,
+    SLOTS,
+    SX,
+    SXX,
+    SXY,
+    SY,
+    SYY,
+    XMAX,
+    XMIN,
+    YMAX,
+    YMIN,
+    N,
+    record,
+)
+
 
 class Node:
     __slots__ = ("first", "last", "lab", "tracked")
@@ -27,20 +47,42 @@ class Entry:
 
 
 def _feat(x, y, p, w, fs):
-    return [1, int(p == fs), w, w * x, w * y, w * x * x, w * y * y, w * x * y,
-            x, x, y, y, p, False]
+    """The features of one pixel."""
+    f = [0] * SLOTS
+    f[N] = 1
+    f[NSAT] = int(p == fs)
+    wx = w * x
+    wy = w * y
+    f[S0] = w
+    f[SX] = wx
+    f[SY] = wy
+    f[SXX] = wx * x
+    f[SYY] = wy * y
+    f[SXY] = wx * y
+    f[XMIN] = f[XMAX] = x
+    f[YMIN] = f[YMAX] = y
+    f[PEAK] = p
+    return f
 
 
 def _combine(a, b, lim):
-    out = [a[0] + b[0], a[1] + b[1]]
-    sat = a[13] or b[13]
-    for k in range(6):
-        v = a[2 + k] + b[2 + k]
-        if v > lim[k]:
-            v, sat = lim[k], True
-        out.append(v)
-    out += [min(a[8], b[8]), max(a[9], b[9]), min(a[10], b[10]), max(a[11], b[11]),
-            max(a[12], b[12]), sat]
+    """The features of the union of two blobs, moments saturated at ``lim``."""
+    out = [0] * SLOTS
+    out[N] = a[N] + b[N]
+    out[NSAT] = a[NSAT] + b[NSAT]
+    flags = a[FLAGS] | b[FLAGS]
+    for slot, top in zip(MOMENTS, lim):
+        v = a[slot] + b[slot]
+        if v > top:
+            v = top
+            flags |= C.BLOB_MOMENTS_SATURATED
+        out[slot] = v
+    out[XMIN] = min(a[XMIN], b[XMIN])
+    out[XMAX] = max(a[XMAX], b[XMAX])
+    out[YMIN] = min(a[YMIN], b[YMIN])
+    out[YMAX] = max(a[YMAX], b[YMAX])
+    out[PEAK] = max(a[PEAK], b[PEAK])
+    out[FLAGS] = flags
     return out
 
 
@@ -144,11 +186,10 @@ class WavefrontLabeller:
 
     def _complete(self, f):
         self.n_blobs += 1
-        if not C.passes_filters(f[0], f[2], *self.filters):
+        if not C.passes_filters(f[N], f[S0], *self.filters):
             self.n_filtered += 1
         elif len(self.records) < self.rcap:
-            self.records.append(C.BlobRecord(
-                *f[:13], C.BLOB_MOMENTS_SATURATED if f[13] else 0))
+            self.records.append(record(f))
         else:
             self.dropped_records += 1
 

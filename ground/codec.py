@@ -7,13 +7,12 @@ section.  ``encode`` raises ``ValueError`` naming the field when a value is not 
 fits its field (it never truncates); ``decode`` raises :class:`PacketError` (a ``ValueError``)
 naming the first failed check.  The checks are the flight decoder's
 (``lodestar.firmware.packet``, the one home of the packet's rules), in the order listed in
-``docs/contract.md`` (Packet checks).  Uses only the bitstring API common to 4.2+ and 5.x.
+``docs/contract.md`` (Packet checks).  A section is packed into and read from one Python
+integer at the contract's offsets (``contract.field_offsets``).
 """
 
 import operator
 import zlib
-
-import bitstring
 
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
@@ -24,20 +23,33 @@ class PacketError(ValueError):
     """The bytes are not a valid packet; the message names the failed check and the values."""
 
 
-def _format(fields):
-    """bitstring format string of ``(name, bits)`` fields: ``"uint:b0, uint:b1, ..."``."""
-    return ", ".join("uint:{}".format(bits) for _, bits in fields)
-
-
 HEADER_LAYOUT = C.field_offsets(C.HEADER_FIELDS)
 """``(name, bit_offset, bits)`` of each header field; offsets from the packet start."""
 RECORD_LAYOUT = C.field_offsets(C.RECORD_FIELDS)
 """``(name, bit_offset, bits)`` of each record field; offsets from the record start."""
 
-_HEADER_FORMAT = _format(C.HEADER_FIELDS)
-_RECORD_FORMAT = _format(C.RECORD_FIELDS)
 _PACKET_ONLY = ("magic", "version", "n_records")
 """Header fields that describe the packet, not the frame (``n_records`` is ``len(blobs)``)."""
+
+
+def _pack(fields, values):
+    """The bytes of a section: ``values`` (each fits its field) in ``(name, bits)`` fields,
+    MSB first."""
+    word = 0
+    bits = 0
+    for (_, width), value in zip(fields, values):
+        word = (word << width) | value
+        bits += width
+    return word.to_bytes(bits // 8, "big")
+
+
+def _unpack(layout, data):
+    """Fields by name of the section ``data`` (bytes) laid out as ``layout``
+    (``HEADER_LAYOUT`` or ``RECORD_LAYOUT``)."""
+    word = int.from_bytes(data, "big")
+    end = 8 * len(data)
+    return {name: (word >> (end - offset - bits)) & ((1 << bits) - 1)
+            for name, offset, bits in layout}
 
 
 def _crc(body):
@@ -78,11 +90,11 @@ def encode(result):
     """
     header = dict(result.header(), magic=C.PACKET_MAGIC, version=C.PACKET_VERSION)
     values = _checked_values("header", C.HEADER_FIELDS, [header[name] for name in C.HEADER_NAMES])
-    parts = [bitstring.pack(_HEADER_FORMAT, *values).tobytes()]
+    parts = [_pack(C.HEADER_FIELDS, values)]
     for index, blob in enumerate(result.blobs):
         values = _checked_values("record {}".format(index), C.RECORD_FIELDS,
                                  [getattr(blob, name) for name in C.RECORD_NAMES])
-        parts.append(bitstring.pack(_RECORD_FORMAT, *values).tobytes())
+        parts.append(_pack(C.RECORD_FIELDS, values))
     body = b"".join(parts)
     return body + _crc(body)
 
@@ -102,14 +114,13 @@ def _as_bytes(data):
 
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
-    values = bitstring.Bits(data[:C.HEADER_BYTES]).unpack(_HEADER_FORMAT)
-    return dict(zip(C.HEADER_NAMES, values))
+    return _unpack(HEADER_LAYOUT, data[:C.HEADER_BYTES])
 
 
 def _unpack_record(data, index):
     """Record ``index`` of a framed packet as a ``contract.BlobRecord``."""
     start = C.HEADER_BYTES + index * C.RECORD_BYTES
-    return C.BlobRecord(*bitstring.Bits(data[start:start + C.RECORD_BYTES]).unpack(_RECORD_FORMAT))
+    return C.BlobRecord(**_unpack(RECORD_LAYOUT, data[start:start + C.RECORD_BYTES]))
 
 
 def decode(data):

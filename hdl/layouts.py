@@ -52,12 +52,8 @@ class PopAction(enum.Enum, shape=3):
 
 def check_frame(width, height, pixel_bits):
     """Raise ``ValueError`` unless ``width x height`` frames of ``pixel_bits`` pixels are
-    within the contract (the layouts' widths are derived from them)."""
-    if pixel_bits not in C.PIXEL_BITS:
-        raise ValueError(f"pixel_bits={pixel_bits} is not one of {C.PIXEL_BITS}")
-    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-        raise ValueError(f"frame {width}x{height} is outside the contract's "
-                         f"{C.MAX_WIDTH}x{C.MAX_HEIGHT}")
+    within the contract (``contract.check_geometry``: the layouts' widths derive from them)."""
+    C.check_geometry(width, height, pixel_bits)
 
 
 def pixel_layout(pixel_bits):
@@ -85,14 +81,9 @@ def op_layout(width, height, pixel_bits, slots):
 
 
 def record_fields(width, height, pixel_bits):
-    """``[(name, bits)]`` of a compact record for ``width x height`` frames, contract order."""
-    moments = C.moment_widths(pixel_bits)
-    xb, yb = C.bits_for(width - 1), C.bits_for(height - 1)
-    count = C.bits_for(width * height)
-    widths = {"n": count, "nsat": count, "xmin": xb, "xmax": xb, "ymin": yb, "ymax": yb,
-              "peak": pixel_bits, "flags": C.bits_for(C.BLOB_FLAGS_DEFINED)}
-    widths.update(moments)
-    return [(name, widths[name]) for name in C.RECORD_NAMES]
+    """``[(name, bits)]`` of a compact record for ``width x height`` frames, contract order
+    (``contract.record_fields``)."""
+    return list(C.record_fields(width, height, pixel_bits))
 
 
 def record_layout(width, height, pixel_bits):

@@ -4,9 +4,8 @@ A write (``addr``, ``data``, ``en`` for one clock) updates the register at that 
 address.  The detector latches the registers at the start of each frame, so writes take
 effect on the next frame; writing during a frame is harmless.  A write is refused, the
 register keeps its value and ``error`` is raised (sticky until ``error_clear``) when the
-address is not a register, the value does not fit the register's field, ``mode`` is not a
-mode, ``local_log2_window`` is outside ``LOCAL_LOG2_WINDOW_MIN .. MAX``, or ``threshold``,
-``background`` or ``local_offset`` exceed the pixel's full scale.  Reset values are the
+address is not a register or the value is outside ``contract.register_range`` (the field,
+a mode number, the local window's bounds, a pixel's full scale).  Reset values are the
 contract's.
 
 Cost: the registers' flip-flops (a register keeps only the bits its limit can set: a pixel
@@ -23,23 +22,6 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
-
-_PIXEL_REGISTERS = ("threshold", "background", "local_offset")
-
-
-def _limit(reg, pixel_bits):
-    """Largest value the register accepts."""
-    if reg.name == "mode":
-        return len(C.MODE_NAMES) - 1
-    if reg.name == "local_log2_window":
-        return C.LOCAL_LOG2_WINDOW_MAX
-    if reg.name in _PIXEL_REGISTERS:
-        return C.full_scale(pixel_bits)
-    return (1 << reg.bits) - 1
-
-
-def _lower(reg):
-    return C.LOCAL_LOG2_WINDOW_MIN if reg.name == "local_log2_window" else 0
 
 
 def _in_range(data, low, high):
@@ -78,10 +60,10 @@ class RegisterBank(wiring.Component):
         m.d.comb += refused.eq(1)
         reset = ResetSignal()
         for reg in C.REGISTERS:
-            high = _limit(reg, self.pixel_bits)
+            low, high = C.register_range(reg.name, self.pixel_bits)
             value = Signal(C.bits_for(high), init=reg.reset, reset_less=True, name=reg.name)
             m.d.comb += getattr(self, reg.name).eq(value)
-            hit = (self.addr == reg.address) & _in_range(self.data, _lower(reg), high)
+            hit = (self.addr == reg.address) & _in_range(self.data, low, high)
             with m.If(hit):
                 m.d.comb += refused.eq(0)
             # the domain's reset taken as an ordinary write of the reset value: the data

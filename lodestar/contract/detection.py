@@ -34,6 +34,16 @@ def full_scale(pixel_bits):
     return (1 << pixel_bits) - 1
 
 
+def check_geometry(width, height, pixel_bits=None):
+    """Raise ``ValueError`` unless ``width x height`` frames (of ``pixel_bits``-bit pixels,
+    when given) are within the contract: every width of the gateware derives from them."""
+    if pixel_bits is not None and pixel_bits not in PIXEL_BITS:
+        raise ValueError("pixel_bits={} is not one of {}".format(pixel_bits, PIXEL_BITS))
+    if not (1 <= width <= MAX_WIDTH and 1 <= height <= MAX_HEIGHT):
+        raise ValueError("frame {}x{} is outside the contract's 1..{} x 1..{}".format(
+            width, height, MAX_WIDTH, MAX_HEIGHT))
+
+
 # --------------------------------------------------------------------------------------
 # Blob features and accumulator widths
 # --------------------------------------------------------------------------------------
@@ -166,6 +176,21 @@ del _r
 
 MAX_PIXELS_UNLIMITED = REGISTER_BY_NAME["max_pixels"].reset
 """``max_pixels`` register value that no blob can exceed."""
+
+
+def register_range(name, pixel_bits):
+    """``(lowest, highest)`` value the register ``name`` accepts with ``pixel_bits``-bit
+    pixels: its field's range, narrowed to a mode number for ``mode``, to
+    ``LOCAL_LOG2_WINDOW_MIN .. MAX`` for ``local_log2_window`` and to the pixel's full scale
+    for ``threshold``, ``background`` and ``local_offset``.  The register bank refuses other
+    values and the golden models' configuration rejects them."""
+    if name == "mode":
+        return 0, len(MODE_NAMES) - 1
+    if name == "local_log2_window":
+        return LOCAL_LOG2_WINDOW_MIN, LOCAL_LOG2_WINDOW_MAX
+    if name in ("threshold", "background", "local_offset"):
+        return 0, full_scale(pixel_bits)
+    return 0, (1 << REGISTER_BY_NAME[name].bits) - 1
 
 
 def global_levels(n, s1, s2, ksigma_reg, pixel_bits):

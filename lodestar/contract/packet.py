@@ -2,13 +2,13 @@
 big-endian), CRC-32, :class:`BlobRecord` and :class:`DetectionResult`.  MicroPython-safe."""
 
 from lodestar.contract.detection import (
-    COUNT_BITS,
+    MAX_HEIGHT,
     MAX_PIXEL_BITS,
+    MAX_WIDTH,
     MODE_NAMES,
-    X_BITS,
-    Y_BITS,
     moment_widths,
 )
+from lodestar.contract.integers import bits_for
 
 try:
     from binascii import crc32 as _binascii_crc32
@@ -20,7 +20,8 @@ BLOB_MOMENTS_SATURATED = 1 << 0
 """At least one moment of this blob saturated (true value above the accumulator maximum)."""
 BLOB_FLAGS_DEFINED = BLOB_MOMENTS_SATURATED
 BLOB_FLAGS_BITS = 6
-"""Width of a record's ``flags`` field (the gateware's flag registers have this width)."""
+"""Width of a record's ``flags`` field in the packet: the defined flags, room for more, and
+the padding that makes the record whole bytes (the gateware carries the defined ones only)."""
 
 
 # --------------------------------------------------------------------------------------
@@ -57,28 +58,42 @@ FRAME_FLAGS_DEFINED = (FRAME_LABEL_OVERFLOW | FRAME_RECORD_OVERFLOW | FRAME_GLOB
 # Blob record and packet layout
 # --------------------------------------------------------------------------------------
 
-_PACKET_MOMENTS = moment_widths(MAX_PIXEL_BITS)
+def record_fields(width, height, pixel_bits, flags_bits=None):
+    """One blob record, ``((field, bits), ...)`` in record order, for ``width x height``
+    frames of ``pixel_bits``-bit pixels: each field as wide as its values can be there (the
+    gateware's compact record).  ``flags_bits`` (default: the defined flags) widens ``flags``.
 
-RECORD_FIELDS = (
-    ("n", COUNT_BITS),
-    ("nsat", COUNT_BITS),
-    ("s0", _PACKET_MOMENTS["s0"]),
-    ("sx", _PACKET_MOMENTS["sx"]),
-    ("sy", _PACKET_MOMENTS["sy"]),
-    ("sxx", _PACKET_MOMENTS["sxx"]),
-    ("syy", _PACKET_MOMENTS["syy"]),
-    ("sxy", _PACKET_MOMENTS["sxy"]),
-    ("xmin", X_BITS),
-    ("xmax", X_BITS),
-    ("ymin", Y_BITS),
-    ("ymax", Y_BITS),
-    ("peak", MAX_PIXEL_BITS),
-    ("flags", BLOB_FLAGS_BITS),
-)
+    The one list of the record's fields: a new field is a row here (and its value in the
+    gateware's and the golden models' accumulation).
+    """
+    moments = moment_widths(pixel_bits)
+    count = bits_for(width * height)
+    x = bits_for(width - 1)
+    y = bits_for(height - 1)
+    return (
+        ("n", count),
+        ("nsat", count),
+        ("s0", moments["s0"]),
+        ("sx", moments["sx"]),
+        ("sy", moments["sy"]),
+        ("sxx", moments["sxx"]),
+        ("syy", moments["syy"]),
+        ("sxy", moments["sxy"]),
+        ("xmin", x),
+        ("xmax", x),
+        ("ymin", y),
+        ("ymax", y),
+        ("peak", pixel_bits),
+        ("flags", bits_for(BLOB_FLAGS_DEFINED) if flags_bits is None else flags_bits),
+    )
+
+
+RECORD_FIELDS = record_fields(MAX_WIDTH, MAX_HEIGHT, MAX_PIXEL_BITS, BLOB_FLAGS_BITS)
 """One blob record in the packet: (field, bits), MSB first, big-endian bit order.
 
-Widths are those of the widest pixels (16 bits); narrower sensors leave high bits zero.
-The record is a whole number of bytes (``RECORD_BYTES``)."""
+:func:`record_fields` of the largest frame and the widest pixels (16 bits), ``flags``
+``BLOB_FLAGS_BITS`` wide; narrower sensors and smaller frames leave high bits zero.  The
+record is a whole number of bytes (``RECORD_BYTES``)."""
 
 RECORD_NAMES = tuple(name for name, _ in RECORD_FIELDS)
 RECORD_BITS = sum(bits for _, bits in RECORD_FIELDS)
@@ -140,21 +155,19 @@ class BlobRecord(object):
 
     __slots__ = RECORD_NAMES
 
-    def __init__(self, n, nsat, s0, sx, sy, sxx, syy, sxy, xmin, xmax, ymin, ymax, peak, flags):
-        self.n = n
-        self.nsat = nsat
-        self.s0 = s0
-        self.sx = sx
-        self.sy = sy
-        self.sxx = sxx
-        self.syy = syy
-        self.sxy = sxy
-        self.xmin = xmin
-        self.xmax = xmax
-        self.ymin = ymin
-        self.ymax = ymax
-        self.peak = peak
-        self.flags = flags
+    def __init__(self, **fields):
+        """Every field of ``RECORD_NAMES`` by name; a missing one raises ``TypeError`` (or
+        ``KeyError`` naming it when an unknown name stands in for it).  No field at all: a
+        record of zeros for a decoder to fill (on MicroPython, without a dict of fields)."""
+        if not fields:
+            for name in RECORD_NAMES:
+                setattr(self, name, 0)
+            return
+        if len(fields) != len(RECORD_NAMES):
+            raise TypeError("BlobRecord takes the fields {}, got {}".format(
+                ", ".join(RECORD_NAMES), ", ".join(sorted(fields))))
+        for name in RECORD_NAMES:
+            setattr(self, name, fields[name])
 
     def as_tuple(self):
         """Field values in ``RECORD_NAMES`` order."""

@@ -392,7 +392,7 @@ def group_frames(records, trailers, width, height, pixel_bits):
         n = t["n_records"]
         if k + n > len(records):
             raise ValueError(f"trailer {len(out)} claims {n} records, {len(records) - k} left")
-        blobs = [C.BlobRecord(*(r[name] for name in C.RECORD_NAMES))
+        blobs = [C.BlobRecord(**{name: r[name] for name in C.RECORD_NAMES})
                  for r in records[k:k + n]]
         k += n
         out.append(DetectionResult(

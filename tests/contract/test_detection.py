@@ -43,6 +43,29 @@ def test_register_map_is_consistent():
     assert C.REGISTER_BY_NAME["threshold"].reset == 120
 
 
+@pytest.mark.parametrize("pixel_bits", C.PIXEL_BITS)
+def test_register_ranges_fit_their_fields(pixel_bits):
+    for r in C.REGISTERS:
+        low, high = C.register_range(r.name, pixel_bits)
+        assert 0 <= low <= r.reset <= high < (1 << r.bits), r.name
+    assert C.register_range("mode", pixel_bits) == (0, len(C.MODE_NAMES) - 1)
+    assert C.register_range("local_log2_window", pixel_bits) == (C.LOCAL_LOG2_WINDOW_MIN,
+                                                                 C.LOCAL_LOG2_WINDOW_MAX)
+    for name in ("threshold", "background", "local_offset"):
+        assert C.register_range(name, pixel_bits) == (0, C.full_scale(pixel_bits))
+    assert C.register_range("max_pixels", pixel_bits) == (0, C.MAX_PIXELS_UNLIMITED)
+
+
+def test_check_geometry():
+    C.check_geometry(1, 1)
+    C.check_geometry(C.MAX_WIDTH, C.MAX_HEIGHT, C.MAX_PIXEL_BITS)
+    for width, height in ((0, 1), (1, 0), (C.MAX_WIDTH + 1, 1), (1, C.MAX_HEIGHT + 1)):
+        with pytest.raises(ValueError, match="outside the contract"):
+            C.check_geometry(width, height)
+    with pytest.raises(ValueError, match="pixel_bits=14 is not one of"):
+        C.check_geometry(64, 48, 14)
+
+
 def _global_by_definition(pixels, kreg, pixel_bits):
     """T and B straight from the written definition (float-free, brute-force search)."""
     n, s1, s2 = len(pixels), sum(pixels), sum(p * p for p in pixels)

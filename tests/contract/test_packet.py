@@ -26,11 +26,43 @@ def test_record_and_header_layout():
     assert C.packet_bytes(3) == C.HEADER_BYTES + 3 * C.RECORD_BYTES + C.CRC_BYTES
 
 
+def record(values):
+    """A ``BlobRecord`` of ``values`` in ``RECORD_NAMES`` order."""
+    return C.BlobRecord(**dict(zip(C.RECORD_NAMES, values)))
+
+
 def test_blob_record_is_a_value():
-    a = C.BlobRecord(*range(14))
-    b = C.BlobRecord(*range(14))
-    assert a == b and hash(a) == hash(b) and a != C.BlobRecord(*range(1, 15))
-    assert a.as_tuple() == tuple(range(14))
+    count = len(C.RECORD_NAMES)
+    a = record(range(count))
+    b = record(range(count))
+    assert a == b and hash(a) == hash(b) and a != record(range(1, count + 1))
+    assert a.as_tuple() == tuple(range(count))
+
+
+def test_blob_record_takes_every_field_by_name():
+    fields = dict.fromkeys(C.RECORD_NAMES, 0)
+    with pytest.raises(TypeError):
+        C.BlobRecord(*fields.values())
+    with pytest.raises(TypeError, match="n, nsat"):
+        C.BlobRecord(**dict(fields, colour=1))
+    del fields["peak"]
+    with pytest.raises(TypeError):
+        C.BlobRecord(**fields)
+    with pytest.raises(KeyError, match="peak"):
+        C.BlobRecord(**dict(fields, colour=1))
+    assert C.BlobRecord().as_tuple() == (0,) * len(C.RECORD_NAMES)
+
+
+def test_record_fields_are_the_packet_record_at_the_largest_frame():
+    largest = C.record_fields(C.MAX_WIDTH, C.MAX_HEIGHT, C.MAX_PIXEL_BITS, C.BLOB_FLAGS_BITS)
+    assert largest == C.RECORD_FIELDS
+    small = dict(C.record_fields(64, 48, 10))
+    assert list(small) == list(C.RECORD_NAMES)
+    assert small["n"] == small["nsat"] == C.bits_for(64 * 48)
+    assert small["xmin"] == small["xmax"] == 6 and small["ymin"] == small["ymax"] == 6
+    assert small["peak"] == 10 and small["flags"] == C.bits_for(C.BLOB_FLAGS_DEFINED)
+    for name, bits in C.moment_widths(10).items():
+        assert small[name] == bits
 
 
 @pytest.mark.parametrize("size", [0, 1, 2, 3, 4, 7, 36, 100, 1000])
@@ -75,7 +107,8 @@ def test_crc_constants_are_zlibs():
 
 
 def test_detection_result_equality_ignores_geometry_and_replace_copies():
-    rec = C.BlobRecord(1, 0, 5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 5, 0)
+    rec = C.BlobRecord(n=1, nsat=0, s0=5, sx=0, sy=0, sxx=0, syy=0, sxy=0, xmin=0, xmax=0,
+                       ymin=0, ymax=0, peak=5, flags=0)
     a = C.DetectionResult([rec], C.MODE_FIXED, 10, 2, 1, 0, 0, 0, 0, width=8, height=4,
                           pixel_bits=12)
     b = a.replace(width=16)

@@ -138,12 +138,13 @@ def reference_blobs(frame, ts, bs, pixel_bits):
                 nsat += p == fs
                 peak = max(peak, p)
             sat = any(true[m] > lim[m] for m in C.MOMENTS)
-            mom = [min(true[m], lim[m]) for m in C.MOMENTS]
+            moments = {m: min(true[m], lim[m]) for m in C.MOMENTS}
             xs = [x for x, _ in pixels]
             ys = [y for _, y in pixels]
             last = max(y * w + x for x, y in pixels)
-            rec = C.BlobRecord(len(pixels), nsat, *mom, min(xs), max(xs), min(ys), max(ys),
-                               peak, C.BLOB_MOMENTS_SATURATED if sat else 0)
+            rec = C.BlobRecord(n=len(pixels), nsat=nsat, xmin=min(xs), xmax=max(xs),
+                               ymin=min(ys), ymax=max(ys), peak=peak,
+                               flags=C.BLOB_MOMENTS_SATURATED if sat else 0, **moments)
             blobs.append((last, rec))
     blobs.sort(key=lambda item: item[0])
     return [rec for _, rec in blobs]

@@ -10,7 +10,9 @@ ENGINE_NAMES = sorted(ENGINES)
 
 
 def rec(n, nsat, s0, sx, sy, sxx, syy, sxy, xmin, xmax, ymin, ymax, peak, flags=0):
-    return C.BlobRecord(n, nsat, s0, sx, sy, sxx, syy, sxy, xmin, xmax, ymin, ymax, peak, flags)
+    """A record from a hand-checked row (the fields in record order)."""
+    return C.BlobRecord(n=n, nsat=nsat, s0=s0, sx=sx, sy=sy, sxx=sxx, syy=syy, sxy=sxy,
+                        xmin=xmin, xmax=xmax, ymin=ymin, ymax=ymax, peak=peak, flags=flags)
 
 
 # x = column, y = row

@@ -22,9 +22,12 @@ def base_result():
     """
     fs = C.full_scale(12)
     blobs = [
-        C.BlobRecord(1, 0, 100, 300, 200, 900, 400, 600, 3, 3, 2, 2, 240, 0),
-        C.BlobRecord(4, 1, 9000, 94500, 184500, 992250, 3782250, 1937250, 10, 11, 20, 21, fs, 0),
-        C.BlobRecord(3, 0, 500, 30500, 23500, 1860500, 1104500, 1433500, 60, 62, 47, 47, 400, 0),
+        C.BlobRecord(n=1, nsat=0, s0=100, sx=300, sy=200, sxx=900, syy=400, sxy=600,
+                     xmin=3, xmax=3, ymin=2, ymax=2, peak=240, flags=0),
+        C.BlobRecord(n=4, nsat=1, s0=9000, sx=94500, sy=184500, sxx=992250, syy=3782250,
+                     sxy=1937250, xmin=10, xmax=11, ymin=20, ymax=21, peak=fs, flags=0),
+        C.BlobRecord(n=3, nsat=0, s0=500, sx=30500, sy=23500, sxx=1860500, syy=1104500,
+                     sxy=1433500, xmin=60, xmax=62, ymin=47, ymax=47, peak=400, flags=0),
     ]
     return DetectionResult(blobs=blobs, mode=C.MODE_GLOBAL, threshold=200, background=40,
                            n_blobs=5, n_filtered=1, dropped_records=1, dropped_labels=0,
@@ -101,7 +104,8 @@ def records(draw, width, height, pixel_bits):
     nsat = draw(st.integers(0, n))
     fs = C.full_scale(pixel_bits)
     peak = fs if nsat else draw(st.integers(0, fs))
-    return C.BlobRecord(n, nsat, *moments, xmin, xmax, ymin, ymax, peak, flags)
+    return C.BlobRecord(n=n, nsat=nsat, xmin=xmin, xmax=xmax, ymin=ymin, ymax=ymax, peak=peak,
+                        flags=flags, **dict(zip(C.MOMENTS, moments)))
 
 
 @st.composite

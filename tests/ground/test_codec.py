@@ -131,7 +131,8 @@ def test_decode_accepts_bytearray_and_memoryview(base_packet):
 
 def test_encode_accepts_numpy_integers():
     result = base_result()
-    result.blobs = [C.BlobRecord(*(np.int64(v) for v in blob.as_tuple())) for blob in result.blobs]
+    result.blobs = [C.BlobRecord(**{name: np.int64(getattr(blob, name)) for name in C.RECORD_NAMES})
+                    for blob in result.blobs]
     result.threshold = np.uint16(result.threshold)
     assert encode(result) == encode(base_result())
 

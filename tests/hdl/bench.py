@@ -12,7 +12,7 @@ from tests.hdl.streams import stream_idle, stream_put
 
 def to_record(fields):
     """``contract.BlobRecord`` of an unpacked compact record."""
-    return C.BlobRecord(*(fields[name] for name in C.RECORD_NAMES))
+    return C.BlobRecord(**{name: fields[name] for name in C.RECORD_NAMES})
 
 
 def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None,
