@@ -1,5 +1,5 @@
-"""Formal: the MT9V022 word aligner (``hdl.mt9v022.MT9V022Frontend``) relocks, and delivers
-no pixel while unlocked.
+"""Formal: the MT9V022 front end (``hdl.mt9v022.MT9V022Frontend``): its word aligner relocks,
+and no pixel is delivered while unlocked.
 
 The link is driven by a packet generator: 12-bit packets back to back, ``lanes`` bits per
 clock (12: one packet per clock, the shortest trace; 6: the DE2-115 build's; 4, opt-in) at a
@@ -22,7 +22,7 @@ a framing error (delivers pixels after the loss without a new frame start).
 """
 
 import pytest
-from amaranth import Array, Cat, Elaboratable, Module, Mux, Signal
+from amaranth import Cat, Elaboratable, Module, Mux, Signal
 from amaranth.hdl import Assert, Assume
 
 from lodestar.hdl.mt9v022 import (
@@ -32,7 +32,7 @@ from lodestar.hdl.mt9v022 import (
     MT9V022Frontend,
 )
 
-from .sby import available, internals, prove, submodule
+from .sby import available, elaborate_submodule, internals, prove, submodule
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -67,7 +67,7 @@ class CheckedAligner(Elaboratable):
         m.submodules.frontend = unit = fe.elaborate(platform)
         cross = submodule(unit, "crossing")
         unit._named_submodules["crossing"] = (Module(), None)     # only its input is observed
-        s = internals(unit)
+        s = internals(elaborate_submodule(unit, "aligner", platform))
         locked = s["locked"]
 
         # ---- packet generator: packets back to back at a constant bit offset -------------
@@ -134,8 +134,8 @@ class FickleAligner(MT9V022Frontend):
 
     def elaborate(self, platform):
         m = super().elaborate(platform)
-        relock = internals(m)["relock"]
-        m.d.sync += relock.eq(0)
+        aligner = elaborate_submodule(m, "aligner", platform)
+        aligner.d.sync += internals(aligner)["relock"].eq(0)
         return m
 
 
@@ -144,12 +144,12 @@ class ResumingAligner(MT9V022Frontend):
 
     def elaborate(self, platform):
         m = super().elaborate(platform)
-        s = internals(m)
-        sr, lock_a = s["sr"], s["lock_a"]
-        good = Array([sr[a] & ~sr[a + PACKET_BITS - 1] for a in range(PACKET_BITS)])
-        with m.If(s["locked"] & ~good[lock_a]):           # one packet per clock: lanes = 12
-            m.d.sync += [s["in_frame"].eq(s["in_frame"]), s["in_line"].eq(s["in_line"]),
-                         s["held_valid"].eq(s["held_valid"])]
+        framing_error = submodule(m, "decoder").framing_error
+        decoder = elaborate_submodule(m, "decoder", platform)
+        s = internals(decoder)
+        with decoder.If(framing_error):
+            decoder.d.sync += [s["in_frame"].eq(s["in_frame"]), s["in_line"].eq(s["in_line"]),
+                               s["held_valid"].eq(s["held_valid"])]
         return m
 
 
