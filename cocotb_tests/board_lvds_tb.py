@@ -56,13 +56,14 @@ from lodestar import contract as C
 from lodestar.contract import OVF_LINK_DOWN, OVF_LINK_ERROR
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.ground import codec as packet
-from lodestar.hdl.boards import BOARDS, LVDS_LANES
+from lodestar.hdl.boards import BOARDS
 from lodestar.hdl.mt9v022 import (
     FRAME_END,
     FRAME_START_MIDDLE,
     FULL,
     LINE_END,
     LINE_START,
+    LVDS_LANES,
     PACKET_BITS,
     PIXEL_BITS,
     RESERVED_WORDS,

@@ -1,220 +1,99 @@
 """MT9P031 parallel front end: PIXCLK, LINE_VALID, FRAME_VALID and D[11:0] in, the detector's
-pixel stream out in ``sync``.
+pixel stream out in ``sync`` (the stream contract of :mod:`lodestar.hdl.frontend`).
 
-``out`` is an always-ready ``lib.stream`` in ``sync`` of ``threshold.pixel_layout(12)``
-(``data``, ``sof`` on a frame's first pixel, ``eol`` on each line's last, raster order).
 Capture runs in the pixel clock domain (default ``"pix"``), whose edge the board top level
 chooses (R0x0A[15]); ``width x height`` are checked, not enforced (the detector flags bad
-frames).  :class:`PixelCrossing` (shared with the MT9V022) crosses into ``sync`` through an
-AsyncFIFO: with the sync clock at least the pixel rate the write side never counts more than
-6 entries (``FIFO_DEPTH = 8``); on overflow the sticky ``overflow`` rises and the frame is
-cut until the next ``sof``, never delivered shifted.  :class:`FrameWatchdog` (in ``sync``, after
-either front end) completes a frame the sensor stops sending.  Derivation:
-``docs/sensors_and_link.md``.
+frames).  The crossing into ``sync`` is :class:`lodestar.hdl.frontend.PixelCrossing`.  On a
+board, PIXCLK clocks ``pix`` and the board's PLL makes EXTCLK (:meth:`board_clocks`).
+Derivation: ``docs/sensors_and_link.md``.
 """
 
-from amaranth import Module, Mux, Signal
-from amaranth.lib import stream, wiring
-from amaranth.lib.cdc import PulseSynchronizer
-from amaranth.lib.fifo import AsyncFIFO
-from amaranth.lib.wiring import In, Out
+from amaranth import ClockSignal, Const, Module, Signal
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In
 
 from lodestar import contract as C
-from lodestar.hdl.labeller import MIN_HBLANK
-from lodestar.hdl.threshold import pixel_layout
+from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9p031"]
 """MT9P031 pixel width (the contract's ``SENSOR_PIXEL_BITS``)."""
 
-FIFO_DEPTH = 8
-"""Entries of the pixel-clock -> sync FIFO when the sync clock is at least the pixel rate
-(module docstring: at most 6 are ever counted by the write side)."""
 
+class MT9P031Frontend(SensorFrontend):
+    """MT9P031 parallel bus, sampled in ``domain``, to the detector's pixel stream in ``sync``.
 
-def check_geometry(width, height):
-    """Raise ``ValueError`` unless a ``width x height`` frame is within the contract."""
-    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-        raise ValueError(f"frame {width}x{height} is outside the contract's "
-                         f"1..{C.MAX_WIDTH} x 1..{C.MAX_HEIGHT}")
+    Parameters
+    ----------
+    width, height : int
+        The programmed frame, not enforced (module docstring).
+    domain : str
+        The pixel clock domain.
+    fifo_depth : int
+        Entries of the crossing's FIFO.
 
-
-class PixelCrossing(wiring.Component):
-    """Pixel stream from a sensor clock domain into ``sync``; frames broken on overflow.
-
-    ``pixels`` (in ``domain``) and ``out`` (in ``sync``) are always-ready streams of
-    ``pixel_layout(pixel_bits)``.  ``overflow`` (sync) is sticky until ``overflow_clear``
-    (sync).  ``fifo_level`` (in ``domain``) is the FIFO occupancy as the write side sees it
-    (entries written and not yet known to be read: the quantity that overflows).  See
-    ``docs/sensors_and_link.md`` for the depth and the broken-frame rule.
+    Members
+    -------
+    d : ``In(PIXEL_BITS)``
+        The data bus D[11:0], in ``domain``.
+    line_valid, frame_valid : ``In(1)``
+        LINE_VALID and FRAME_VALID, in ``domain``.
+    out, overflow, overflow_clear, fifo_level
+        As :class:`lodestar.hdl.frontend.SensorFrontend`.
     """
 
-    def __init__(self, pixel_bits, domain, depth=FIFO_DEPTH):
-        if depth < 2:
-            raise ValueError(f"FIFO depth must be at least 2, got {depth}")
-        self.pixel_bits, self.domain, self.depth = pixel_bits, domain, depth
-        layout = pixel_layout(pixel_bits)
-        super().__init__({
-            "pixels": In(stream.Signature(layout, always_ready=True)),
-            "out": Out(stream.Signature(layout, always_ready=True)),
-            "overflow": Out(1),
-            "overflow_clear": In(1),
-            "fifo_level": Out(range(depth + 1)),
-        })
-
-    def elaborate(self, platform):
-        m = Module()
-        w = self.domain
-        m.submodules.fifo = fifo = AsyncFIFO(width=pixel_layout(self.pixel_bits).size,
-                                             depth=self.depth, r_domain="sync", w_domain=w)
-        m.submodules.lost_cdc = lost_cdc = PulseSynchronizer(i_domain=w, o_domain="sync")
-        p = self.pixels
-
-        # ---- write side: drop the rest of a frame once a pixel is lost ------------------
-        broken = Signal(init=1)      # wait for a frame start (also after reset)
-        take = p.valid & (p.payload.sof | ~broken)
-        lost = take & ~fifo.w_rdy
-        m.d.comb += [fifo.w_en.eq(take), fifo.w_data.eq(p.payload), lost_cdc.i.eq(lost)]
-        with m.If(lost):
-            m.d[w] += broken.eq(1)
-        with m.Elif(take & p.payload.sof):
-            m.d[w] += broken.eq(0)
-        # ``lost`` pulses at most once per frame (later pixels are not taken until the next
-        # sof), so the toggle synchronizer never merges two of them.
-
-        # ---- read side: always ready -----------------------------------------------------
-        m.d.comb += [
-            fifo.r_en.eq(1),
-            self.out.valid.eq(fifo.r_rdy),
-            self.out.payload.eq(fifo.r_data),
-            self.fifo_level.eq(fifo.w_level),
-        ]
-        with m.If(lost_cdc.o):
-            m.d.sync += self.overflow.eq(1)
-        with m.Elif(self.overflow_clear):
-            m.d.sync += self.overflow.eq(0)
-        return m
-
-
-STALL_TIMEOUT = 1 << 20
-"""Default clocks without a pixel inside a frame before :class:`FrameWatchdog` completes it:
-10.5 ms at 100 MHz, 21 ms at 50 MHz, over 200x the longest row blanking either sensor can
-be programmed for (MT9P031 R0x05 <= 4095, MT9V022 R0x05 <= 1023 pixel clocks; frame
-blanking lies outside a frame and is never timed)."""
-
-
-class FrameWatchdog(wiring.Component):
-    """Completes a frame the sensor stopped sending, so that the detector always ends it.
-
-    ``pixels`` in, ``out`` (one register later) to the detector, both always-ready streams of
-    ``pixel_layout(pixel_bits)`` in ``sync``.  Positions are counted as the threshold unit
-    counts them (a line ends at ``eol`` or at column ``width - 1``; the frame at its last
-    row's end).  When a frame has started and ``timeout`` clocks pass without a pixel, the
-    watchdog pulses ``stalled`` and sends dark pixels (0, never lit: ``lit = p > T``) for the
-    rest of the frame, one per clock with ``MIN_HBLANK`` idle clocks after each line; the
-    detector then ends the frame normally and the board top level flags its trailer
-    ``FRAME_TIMEOUT``.  Sensor pixels that arrive while it pads are dropped, except a
-    ``sof``, which ends the padding (the detector then ends the frame ``FRAME_TRUNCATED``).
-    ``padding`` is high while dark pixels are being sent.
-    """
-
-    def __init__(self, width, height, pixel_bits, timeout=STALL_TIMEOUT):
-        check_geometry(width, height)
-        if timeout < 1:
-            raise ValueError(f"stall timeout must be at least 1 clock, got {timeout}")
-        self.width, self.height, self.pixel_bits = width, height, pixel_bits
-        self.timeout = timeout
-        layout = pixel_layout(pixel_bits)
-        super().__init__({
-            "pixels": In(stream.Signature(layout, always_ready=True)),
-            "out": Out(stream.Signature(layout, always_ready=True)),
-            "stalled": Out(1),
-            "padding": Out(1),
-        })
-
-    def elaborate(self, platform):
-        m = Module()
-        W, H = self.width, self.height
-        p, out = self.pixels, self.out
-        x = Signal(range(W))                 # the next pixel's position
-        y = Signal(range(H))
-        in_frame = Signal()                  # a frame has started and not reached its end
-        idle = Signal(range(self.timeout))
-        gap = Signal(range(MIN_HBLANK + 1))  # idle clocks still owed after a padded line
-
-        # the pixel sent this clock (registered into ``out``): the sensor's or a dark one
-        send = Signal()
-        sof = Signal()
-        eol = Signal()
-        data = Signal(self.pixel_bits)
-        m.d.sync += [out.valid.eq(send), out.payload.sof.eq(sof), out.payload.eol.eq(eol),
-                     out.payload.data.eq(data)]
-        cur_x = Mux(sof, 0, x)
-        cur_y = Mux(sof, 0, y)
-        row_end = eol | (cur_x == W - 1)
-        with m.If(send):
-            with m.If(row_end):
-                m.d.sync += [x.eq(0), y.eq(Mux(cur_y == H - 1, 0, cur_y + 1))]
-            with m.Else():
-                m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y)]
-            m.d.sync += in_frame.eq(~(row_end & (cur_y == H - 1)))
-
-        with m.FSM():
-            with m.State("PASS"):
-                m.d.comb += [send.eq(p.valid), sof.eq(p.payload.sof), eol.eq(p.payload.eol),
-                             data.eq(p.payload.data)]
-                with m.If(p.valid | ~in_frame):
-                    m.d.sync += idle.eq(0)
-                with m.Elif(idle == self.timeout - 1):
-                    m.d.comb += self.stalled.eq(1)
-                    m.d.sync += gap.eq(0)
-                    m.next = "PAD"
-                with m.Else():
-                    m.d.sync += idle.eq(idle + 1)
-            with m.State("PAD"):
-                m.d.comb += self.padding.eq(1)
-                with m.If(p.valid & p.payload.sof):
-                    m.d.comb += [send.eq(1), sof.eq(1), eol.eq(p.payload.eol),
-                                 data.eq(p.payload.data)]
-                    m.d.sync += idle.eq(0)
-                    m.next = "PASS"
-                with m.Elif(gap != 0):
-                    m.d.sync += gap.eq(gap - 1)
-                with m.Else():
-                    m.d.comb += [send.eq(1), eol.eq(x == W - 1)]
-                    with m.If(x == W - 1):
-                        m.d.sync += gap.eq(MIN_HBLANK)
-                        with m.If(y == H - 1):
-                            m.d.sync += idle.eq(0)
-                            m.next = "PASS"
-        return m
-
-
-class MT9P031Frontend(wiring.Component):
-    """MT9P031 parallel bus (``d``, ``line_valid``, ``frame_valid`` sampled in ``domain``) to
-    the detector's pixel stream ``out`` in ``sync``; sticky ``overflow``/``overflow_clear`` in
-    ``sync``; ``fifo_level`` in ``domain`` (see :class:`PixelCrossing`).  ``width x height``:
-    the programmed frame, not enforced (module docstring)."""
+    SENSOR = "mt9p031"
+    PIXEL_BITS = PIXEL_BITS
+    IO_VOLTS = (1.7, 3.1)
+    """VDD_IO 1.7-3.1 V (datasheet); 96 MHz PIXCLK needs 2.8 V."""
+    CLOCK_PINS = ("pixclk",)
 
     def __init__(self, width, height, *, domain="pix", fifo_depth=FIFO_DEPTH):
-        check_geometry(width, height)
-        self.width, self.height, self.domain, self.fifo_depth = width, height, domain, fifo_depth
-        super().__init__({
+        super().__init__(width, height, {
             "d": In(PIXEL_BITS),
             "line_valid": In(1),
             "frame_valid": In(1),
-            "out": Out(stream.Signature(pixel_layout(PIXEL_BITS), always_ready=True)),
-            "overflow": Out(1),
-            "overflow_clear": In(1),
-            "fifo_level": Out(range(fifo_depth + 1)),
-        })
+        }, domain=domain, fifo_depth=fifo_depth)
+
+    @property
+    def pins(self):
+        """The top level's sensor ports: the bus as it comes from the pins."""
+        return wiring.Signature({"pix_d": In(PIXEL_BITS), "line_valid": In(1),
+                                 "frame_valid": In(1)})
+
+    def connect_pins(self, m, top):
+        """Drive the front end from the top level's ``pins``."""
+        m.d.comb += [self.d.eq(top.pix_d), self.line_valid.eq(top.line_valid),
+                     self.frame_valid.eq(top.frame_valid)]
+
+    def board_clocks(self, m, board, pins, top, master_clk):
+        """PIXCLK clocks ``domain``, ``master_clk`` drives EXTCLK (the sensor's own PLL makes
+        PIXCLK from it), the bus goes to the top level; the capture clock runs once the board
+        is up (returns 1)."""
+        m.d.comb += [ClockSignal(self.domain).eq(pins["pixclk"].i),
+                     pins["extclk"].o.eq(master_clk),
+                     top.pix_d.eq(pins["d"].i), top.line_valid.eq(pins["line_valid"].i),
+                     top.frame_valid.eq(pins["frame_valid"].i)]
+        return Const(1)
+
+    @staticmethod
+    def sdc_constraints(board):
+        """PIXCLK's domain is asynchronous to ``sync``; the bus's input delay."""
+        ports = "mt9p031_0__d* mt9p031_0__line_valid* mt9p031_0__frame_valid*"
+        delay = "set_input_delay -clock [get_clocks {*mt9p031_0__pixclk*}] -clock_fall"
+        return ["# the sensor clock domain meets sync only through the AsyncFIFO and "
+                "synchronizers",
+                "set_clock_groups -asynchronous -group [get_clocks {*mt9*}]",
+                "# MT9P031 launches D/LV/FV on PIXCLK's falling edge; the FPGA samples on the "
+                "rising edge.",
+                "# Output delay window assumed +-2 ns around the falling edge (datasheet "
+                "tPD, to verify).",
+                f"{delay} -max 2.0 [get_ports {{{ports}}}]",
+                f"{delay} -min -2.0 [get_ports {{{ports}}}]"]
 
     def elaborate(self, platform):
         m = Module()
         pix = self.domain
-        m.submodules.crossing = cross = PixelCrossing(PIXEL_BITS, pix, self.fifo_depth)
-        wiring.connect(m, wiring.flipped(self.out), cross.out)
-        m.d.comb += [cross.overflow_clear.eq(self.overflow_clear),
-                     self.overflow.eq(cross.overflow), self.fifo_level.eq(cross.fifo_level)]
+        cross = self.crossing(m)
 
         # ---- input registers (I/O cells): no reset, so that each is a bare flip-flop the
         # fitter can pack into the pin's I/O element (FAST_INPUT_REGISTER in the QSF) ------

@@ -1,23 +1,25 @@
 """MT9V022 stand-alone LVDS front end: the serial bit stream in, the detector's pixel stream
-``pixel_layout(10)`` out in ``sync`` (same stream contract as :mod:`lodestar.hdl.mt9p031`).
+``pixel_layout(10)`` out in ``sync`` (the stream contract of :mod:`lodestar.hdl.frontend`).
 
 The link carries one 12-bit packet per pixel clock (start bit ``1``, 10 data bits LSB first,
 stop bit ``0``) with LINE_VALID/FRAME_VALID embedded as reserved words (0-3, and 1023, 0, 1023
 for a frame start).  A Cyclone IV has no hard SERDES, so the front end takes ``lanes`` bits
 per ``ser`` clock (``bits[lanes-1]`` earliest), finds the word boundary itself (lock on a
-unique alignment; a framing error drops lock and the rest of its frame) and crosses into
-``sync`` through :class:`lodestar.hdl.mt9p031.PixelCrossing` (sync clock >= pixel clock).
+unique alignment; a framing error drops lock and the rest of its frame: :class:`WordAligner`),
+decodes the reserved words (:class:`WordDecoder`) and crosses into ``sync`` through
+:class:`lodestar.hdl.frontend.PixelCrossing` (sync clock >= pixel clock).  On a board, an
+ALTLVDS_RX deserializes the link and clocks ``ser`` (:meth:`MT9V022Frontend.board_clocks`).
 Datasheet sources, the points not yet verified, decoding and lock rules:
 ``docs/sensors_and_link.md`` (MT9V022).
 """
 
-from amaranth import Array, Cat, Module, Mux, Signal
+from amaranth import Array, Cat, ClockSignal, Instance, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
-from lodestar.hdl.mt9p031 import FIFO_DEPTH, PixelCrossing, check_geometry
+from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend
 from lodestar.hdl.threshold import pixel_layout
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9v022"]
@@ -37,6 +39,8 @@ LOCK_PACKETS = 8
 """Consecutive well-framed packets an alignment needs before it may be locked on."""
 ERROR_COUNT_BITS = 16
 """Width of the saturating framing-error counter."""
+LVDS_LANES = 6
+"""Bits per ``ser`` clock from the board's LVDS deserializer (ALTLVDS_RX, factor 6)."""
 
 
 def packet_bits(word):
@@ -44,26 +48,40 @@ def packet_bits(word):
     return [1] + [(word >> i) & 1 for i in range(PIXEL_BITS)] + [0]
 
 
-class MT9V022Frontend(wiring.Component):
-    """MT9V022 LVDS bits (``bits``, ``lanes`` per ``domain`` clock) to the detector's pixel
-    stream ``out`` in ``sync``; ``overflow``/``overflow_clear``, ``locked`` and
-    ``framing_errors`` in ``sync``; ``fifo_level`` in ``domain`` (see ``PixelCrossing``).
-    See ``docs/sensors_and_link.md`` (MT9V022)."""
 
-    def __init__(self, width, height, *, lanes=6, domain="ser", fifo_depth=FIFO_DEPTH):
-        check_geometry(width, height)
-        if lanes < 1 or PACKET_BITS % lanes:
-            raise ValueError(f"lanes must divide the {PACKET_BITS}-bit packet, got {lanes}")
-        self.width, self.height = width, height
-        self.lanes, self.domain, self.fifo_depth = lanes, domain, fifo_depth
+class WordAligner(wiring.Component):
+    """Finds the packets' word boundary in the bit stream and hands over their words.
+
+    All candidate alignments are checked in parallel; lock is taken on a unique one after
+    ``LOCK_PACKETS`` well-framed packets (the previous alignment preferred when relocking),
+    and a framing error at the locked alignment drops it.  Everything is in ``domain``.
+
+    Parameters
+    ----------
+    lanes : int
+        Bits per clock; divides ``PACKET_BITS``.
+    domain : str
+        The bit clock domain.
+
+    Members
+    -------
+    bits : ``In(lanes)``
+        The link's bits, ``bits[lanes-1]`` earliest.
+    words : ``Out(stream.Signature(PIXEL_BITS, always_ready=True))``
+        A well-framed packet's word at the locked alignment (combinational).
+    framing_error : ``Out(1)``
+        The packet at the locked alignment is badly framed (lock is lost).
+    locked : ``Out(1)``
+        Locked on an alignment.
+    """
+
+    def __init__(self, lanes, domain):
+        self.lanes, self.domain = lanes, domain
         super().__init__({
             "bits": In(lanes),
-            "out": Out(stream.Signature(pixel_layout(PIXEL_BITS), always_ready=True)),
-            "overflow": Out(1),
-            "overflow_clear": In(1),
-            "fifo_level": Out(range(fifo_depth + 1)),
+            "words": Out(stream.Signature(PIXEL_BITS, always_ready=True)),
+            "framing_error": Out(1),
             "locked": Out(1),
-            "framing_errors": Out(ERROR_COUNT_BITS),
         })
 
     def elaborate(self, platform):
@@ -71,10 +89,6 @@ class MT9V022Frontend(wiring.Component):
         ser = self.domain
         L = self.lanes
         P = PACKET_BITS // L           # ser clocks per packet
-        m.submodules.crossing = cross = PixelCrossing(PIXEL_BITS, ser, self.fifo_depth)
-        wiring.connect(m, wiring.flipped(self.out), cross.out)
-        m.d.comb += [cross.overflow_clear.eq(self.overflow_clear),
-                     self.overflow.eq(cross.overflow), self.fifo_level.eq(cross.fifo_level)]
 
         # ---- bit window: sr[0] is the oldest bit, sr[-1] the newest ----------------------
         sr = Signal(PACKET_BITS + L - 1)
@@ -108,35 +122,63 @@ class MT9V022Frontend(wiring.Component):
             with m.If(sat[a]):
                 m.d.comb += which.eq(a)
 
-        locked = Signal()
+        locked = self.locked
         relock = Signal()              # lock_a was locked before: preferred when it qualifies
         lock_a = Signal(range(PACKET_BITS))
         lock_p = Array([a // L for a in range(PACKET_BITS)])[lock_a]
         lock_s = Array([a % L for a in range(PACKET_BITS)])[lock_a]
         at_word = locked & (ph == lock_p)
         word_good = Array(good)[lock_s]
-        word = Array(words)[lock_s]
-        word_valid = at_word & word_good
-        framing_error = at_word & ~word_good
+        m.d.comb += [self.words.valid.eq(at_word & word_good),
+                     self.words.payload.eq(Array(words)[lock_s]),
+                     self.framing_error.eq(at_word & ~word_good)]
         with m.If(~locked):
             with m.If(relock & sat.bit_select(lock_a, 1)):
                 m.d[ser] += locked.eq(1)
             with m.Elif(unique):
                 m.d[ser] += [locked.eq(1), relock.eq(1), lock_a.eq(which)]
-        with m.If(framing_error):
+        with m.If(self.framing_error):
             # Lose lock and restart every candidate, so that the locked alignment competes
             # again on equal terms with alignments that only pass on the blanking pattern.
             m.d[ser] += [locked.eq(0)] + [r.eq(0) for r in runs]
         with m.Else():
             m.d[ser] += [r.eq(n) for r, n in zip(runs, nexts)]
+        return m
 
-        errors = Signal(ERROR_COUNT_BITS)
-        errors_gray = Signal(ERROR_COUNT_BITS)
-        errors_next = Mux(framing_error & (errors != (1 << ERROR_COUNT_BITS) - 1),
-                          errors + 1, errors)
-        m.d[ser] += [errors.eq(errors_next), errors_gray.eq(errors_next ^ (errors_next >> 1))]
 
-        # ---- reserved-word decoder --------------------------------------------------------
+class WordDecoder(wiring.Component):
+    """The link's words to pixels: the reserved words (0-3, and 1023, 0, 1023 for a frame
+    start) mark lines and frames; a pixel is held until the next word tells whether it ends
+    its line.  A framing error abandons the frame until the next frame start.  Everything is
+    in ``domain``.
+
+    Parameters
+    ----------
+    domain : str
+        The bit clock domain.
+
+    Members
+    -------
+    words : ``In(stream.Signature(PIXEL_BITS, always_ready=True))``
+        The aligned words (:class:`WordAligner`).
+    framing_error : ``In(1)``
+        The aligner's framing error.
+    pixels : ``Out(stream.Signature(pixel_layout(PIXEL_BITS), always_ready=True))``
+        The frame's pixels, raster order, ``sof`` and ``eol`` marked.
+    """
+
+    def __init__(self, domain):
+        self.domain = domain
+        super().__init__({
+            "words": In(stream.Signature(PIXEL_BITS, always_ready=True)),
+            "framing_error": In(1),
+            "pixels": Out(stream.Signature(pixel_layout(PIXEL_BITS), always_ready=True)),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        ser = self.domain
+        word, word_valid = self.words.payload, self.words.valid
         prev1 = Signal(PIXEL_BITS)
         prev2 = Signal(PIXEL_BITS)
         in_frame = Signal()
@@ -148,10 +190,10 @@ class MT9V022Frontend(wiring.Component):
         reserved = word < RESERVED_WORDS
         frame_start = (prev2 == FULL) & (prev1 == FRAME_START_MIDDLE) & (word == FULL)
         m.d.comb += [
-            cross.pixels.valid.eq(word_valid & held_valid),
-            cross.pixels.payload.data.eq(held),
-            cross.pixels.payload.sof.eq(held_sof),
-            cross.pixels.payload.eol.eq(reserved),
+            self.pixels.valid.eq(word_valid & held_valid),
+            self.pixels.payload.data.eq(held),
+            self.pixels.payload.sof.eq(held_sof),
+            self.pixels.payload.eol.eq(reserved),
         ]
         with m.If(word_valid):
             m.d[ser] += [prev1.eq(word), prev2.eq(prev1), held_valid.eq(0)]
@@ -164,12 +206,127 @@ class MT9V022Frontend(wiring.Component):
             with m.Elif(in_line):
                 m.d[ser] += [held.eq(word), held_valid.eq(1), held_sof.eq(sof_next),
                              sof_next.eq(0)]
-        with m.Elif(framing_error):    # abandon the frame; wait for the next frame start
+        with m.Elif(self.framing_error):    # abandon the frame; wait for the next frame start
             m.d[ser] += [in_frame.eq(0), in_line.eq(0), held_valid.eq(0),
                          prev1.eq(0), prev2.eq(0)]
+        return m
+
+
+class MT9V022Frontend(SensorFrontend):
+    """MT9V022 LVDS bits, ``lanes`` per ``domain`` clock, to the detector's pixel stream in
+    ``sync``: :class:`WordAligner`, :class:`WordDecoder`, then the crossing.  See
+    ``docs/sensors_and_link.md`` (MT9V022).
+
+    Parameters
+    ----------
+    width, height : int
+        The programmed frame, not enforced.
+    lanes : int
+        Bits per ``domain`` clock; divides ``PACKET_BITS``.
+    domain : str
+        The bit clock domain.
+    fifo_depth : int
+        Entries of the crossing's FIFO.
+
+    Members
+    -------
+    bits : ``In(lanes)``
+        The link's bits, ``bits[lanes-1]`` earliest, in ``domain``.
+    locked : ``Out(1)``
+        The aligner is locked (``sync``, synchronized).
+    framing_errors : ``Out(ERROR_COUNT_BITS)``
+        Saturating count of framing errors (``sync``, through a Gray code).
+    out, overflow, overflow_clear, fifo_level
+        As :class:`lodestar.hdl.frontend.SensorFrontend`.
+    """
+
+    SENSOR = "mt9v022"
+    PIXEL_BITS = PIXEL_BITS
+    IO_VOLTS = (3.0, 3.6)
+    """VDD 3.3 V +- 0.3 V (datasheet)."""
+    LVDS_PINS = ("ser_clk", "ser_data")
+
+    def __init__(self, width, height, *, lanes=LVDS_LANES, domain="ser",
+                 fifo_depth=FIFO_DEPTH):
+        if lanes < 1 or PACKET_BITS % lanes:
+            raise ValueError(f"lanes must divide the {PACKET_BITS}-bit packet, got {lanes}")
+        self.lanes = lanes
+        super().__init__(width, height, {
+            "bits": In(lanes),
+            "locked": Out(1),
+            "framing_errors": Out(ERROR_COUNT_BITS),
+        }, domain=domain, fifo_depth=fifo_depth)
+
+    @property
+    def pins(self):
+        """The top level's sensor ports: the deserializer's ``lvds_bits`` (``lanes`` bits,
+        earliest first as ``bits``, in ``domain``) and its PLL's ``rx_locked``
+        (synchronized into ``sync`` by the board)."""
+        return wiring.Signature({"lvds_bits": In(self.lanes), "rx_locked": In(1)})
+
+    def connect_pins(self, m, top):
+        """Drive the front end from the top level's ``pins``."""
+        m.d.comb += self.bits.eq(top.lvds_bits)
+
+    def status(self, top, since_read):
+        """``OVF_LINK_DOWN`` while the aligner or the receiver's PLL is unlocked;
+        ``OVF_LINK_ERROR`` while the framing-error count differs from its last read."""
+        return {C.OVF_LINK_DOWN: ~self.locked | ~top.rx_locked,
+                C.OVF_LINK_ERROR: since_read(self.framing_errors, "framing_errors")}
+
+    def board_clocks(self, m, board, pins, top, master_clk):
+        """An ALTLVDS_RX (factor ``lanes``) deserializes ``ser_data`` on the returned
+        ``ser_clk`` and clocks ``domain``; ``master_clk`` drives SYSCLK; the capture clock
+        runs while the receiver's PLL is locked (returned; also synchronized into
+        ``top.rx_locked``)."""
+        ser_clk = Signal()
+        rx_locked = Signal()
+        bit_ps = 1e12 / (board.pixel_hz * PACKET_BITS)
+        m.submodules.lvds_rx = Instance(
+            "altlvds_rx",
+            p_intended_device_family="Cyclone IV E", p_lpm_type="altlvds_rx",
+            p_number_of_channels=1, p_deserialization_factor=self.lanes,
+            p_data_rate=f"{1e6 / bit_ps:.1f} Mbps",
+            p_input_data_rate=round(1e6 / bit_ps),
+            p_inclock_period=round(1e12 / board.pixel_hz), p_implement_in_les="ON",
+            # no DPA on Cyclone IV: shift the sampling clock by half a bit so that a
+            # clock edge-aligned with the data samples each bit in its middle
+            p_inclock_phase_shift=round(bit_ps / 2),
+            p_registered_output="ON", p_use_external_pll="OFF",
+            i_rx_in=pins["ser_data"].i, i_rx_inclock=pins["ser_clk"].i,
+            o_rx_out=top.lvds_bits, o_rx_outclock=ser_clk, o_rx_locked=rx_locked)
+        m.d.comb += [ClockSignal(self.domain).eq(ser_clk), pins["sysclk"].o.eq(master_clk)]
+        m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)
+        return rx_locked
+
+    @staticmethod
+    def sdc_constraints(board):
+        """The returned LVDS clock, asynchronous to ``sync`` with the receiver's PLL."""
+        return ["# the LVDS receiver's reference clock (its PLL's outputs come from "
+                "derive_pll_clocks)",
+                f"create_clock -name mt9v022_ser_clk -period {1e9 / board.pixel_hz:.3f} "
+                "[get_ports {mt9v022_0__ser_clk__io}]",
+                "set_clock_groups -asynchronous -group [get_clocks {mt9v022_ser_clk "
+                "*lvds_rx*}]"]
+
+    def elaborate(self, platform):
+        m = Module()
+        ser = self.domain
+        cross = self.crossing(m)
+        m.submodules.aligner = aligner = WordAligner(self.lanes, ser)
+        m.submodules.decoder = decoder = WordDecoder(ser)
+        m.d.comb += aligner.bits.eq(self.bits)
+        wiring.connect(m, aligner.words, decoder.words)
+        m.d.comb += decoder.framing_error.eq(aligner.framing_error)
+        wiring.connect(m, decoder.pixels, cross.pixels)
 
         # ---- status into sync -------------------------------------------------------------
-        m.submodules.locked_cdc = FFSynchronizer(locked, self.locked, o_domain="sync")
+        errors = Signal(ERROR_COUNT_BITS)
+        errors_gray = Signal(ERROR_COUNT_BITS)
+        errors_next = Mux(aligner.framing_error & (errors != (1 << ERROR_COUNT_BITS) - 1),
+                          errors + 1, errors)
+        m.d[ser] += [errors.eq(errors_next), errors_gray.eq(errors_next ^ (errors_next >> 1))]
+        m.submodules.locked_cdc = FFSynchronizer(aligner.locked, self.locked, o_domain="sync")
         gray = Signal(ERROR_COUNT_BITS)
         m.submodules.errors_cdc = FFSynchronizer(errors_gray, gray, o_domain="sync")
         binary = [gray[-1]]

@@ -18,11 +18,6 @@ from lodestar import contract as C
 
 from .layouts import TRAILER_NAMES, record_fields, record_layout, trailer_layout
 
-CRC_POLY = 0xEDB88320
-"""Reflected CRC-32 polynomial (ISO-HDLC, ``zlib.crc32``)."""
-CRC_INIT = 0xFFFFFFFF
-"""Initial value and final XOR of the CRC."""
-
 BUILD_FIELDS = ("magic", "version", "width", "height", "pixel_bits")
 """Header fields that are constants of the build (the others come from the trailer)."""
 
@@ -34,7 +29,7 @@ def crc32_byte(crc, byte):
     for k in range(8):
         feedback = bits[0] ^ byte[k]
         bits = bits[1:] + [Const(0, 1)]
-        bits = [b ^ feedback if (CRC_POLY >> i) & 1 else b for i, b in enumerate(bits)]
+        bits = [b ^ feedback if (C.CRC_POLY >> i) & 1 else b for i, b in enumerate(bits)]
     return Cat(*bits)
 
 
@@ -79,7 +74,7 @@ class Packetizer(wiring.Component):
         # the trailer of the packet being sent (the header's source); its ``n_records``
         # counts the records still to send once the header is out
         tr = Signal(trailer_layout(), reset_less=True)
-        crc = Signal(C.CRC_BITS, reset_less=True)           # loaded with CRC_INIT per packet
+        crc = Signal(C.CRC_BITS, reset_less=True)           # loaded with C.CRC_INIT per packet
 
         values = dict(self.constants)
         values.update({name: Value.cast(tr[name]) for name in TRAILER_NAMES})
@@ -89,7 +84,7 @@ class Packetizer(wiring.Component):
         rec = self.records.payload
         record = _msb_first([(Value.cast(rec[n]) if n in compact else Const(0, b), b)
                              for n, b in C.RECORD_FIELDS])
-        sections = [header, record, crc ^ CRC_INIT]
+        sections = [header, record, crc ^ C.CRC_INIT]
         # every byte of the packet's sections in sending order; ``pos`` is the byte sent
         in_order = Cat(*[v.word_select(len(v) // 8 - 1 - k, 8)
                          for v in sections for k in range(len(v) // 8)])
@@ -107,7 +102,7 @@ class Packetizer(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += self.trailer.ready.eq(1)
                 with m.If(self.trailer.valid):
-                    m.d.sync += [tr.eq(self.trailer.payload), pos.eq(0), crc.eq(CRC_INIT)]
+                    m.d.sync += [tr.eq(self.trailer.payload), pos.eq(0), crc.eq(C.CRC_INIT)]
                     m.next = "BODY"
             with m.State("BODY"):              # header and record bytes: into the CRC
                 in_record = pos >= first_record

@@ -154,7 +154,7 @@ def build_with_quartus(folder):
 def place_and_route(board, speed, cache_dir=None):
     """Post-route timing of the board's detector on ECP5 (``hdl.pnr``): the report's
     ``pnr`` entry."""
-    det = board.star_tracker().detector
+    det = board.gateware_top().detector
     detector = Detector(det.width, det.height, det.pixel_bits, det.label_capacity,
                         det.record_capacity, det.record_depth)
     result = pnr.place_and_route(pnr.harness_verilog(detector), speed=speed,
@@ -167,7 +167,7 @@ def place_and_route(board, speed, cache_dir=None):
 def run(args):
 
     board = _board(args)
-    component = board.star_tracker()   # checks the frame against the contract
+    component = board.gateware_top()   # checks the frame against the contract
     out = Path(args.out or f"out/synth-{board.name}")
     out.mkdir(parents=True, exist_ok=True)
     report = estimate.board_report(board, component, yosys=not args.no_yosys,

@@ -18,10 +18,12 @@ X_BITS = bits_for(MAX_WIDTH - 1)
 Y_BITS = bits_for(MAX_HEIGHT - 1)
 """Bits of a row index (12)."""
 
-SENSORS = ("mt9p031", "mt9v022")
-"""Sensor front ends: ``mt9p031`` parallel 12-bit, ``mt9v022`` stand-alone LVDS 10-bit."""
-SENSOR_PIXEL_BITS = {"mt9p031": 12, "mt9v022": 10}
-"""Pixel width each sensor delivers."""
+SENSOR_TABLE = (("mt9p031", 12), ("mt9v022", 10))
+"""The sensors and the pixel width each delivers: ``mt9p031`` parallel 12-bit, ``mt9v022``
+stand-alone LVDS 10-bit (their front ends: ``lodestar.hdl.boards.FRONTENDS``).  A tuple, so
+that the order is the same under MicroPython, whose dicts do not keep it."""
+SENSORS = tuple(name for name, _ in SENSOR_TABLE)
+SENSOR_PIXEL_BITS = dict(SENSOR_TABLE)
 FILE_PIXEL_BITS = (8, 16)
 """Further pixel widths of image files (8-bit and 16-bit PNG/TIFF/FITS)."""
 PIXEL_BITS = (8, 10, 12, 16)

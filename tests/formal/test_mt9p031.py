@@ -1,4 +1,4 @@
-"""Formal: ``hdl.mt9p031.PixelCrossing`` never delivers a frame shifted (multiclock BMC).
+"""Formal: ``hdl.frontend.PixelCrossing`` never delivers a frame shifted (multiclock BMC).
 
 The sensor side (``pix``) and ``sync`` have independent free clocks (SBY ``multiclock on``:
 either may tick at any step, so either may be much faster), and any stream of beats is
@@ -16,7 +16,7 @@ import pytest
 from amaranth import ClockDomain, ClockSignal, Elaboratable, Module, Mux, ResetSignal, Signal
 from amaranth.hdl import Assert, Assume
 
-from lodestar.hdl.mt9p031 import PixelCrossing
+from lodestar.hdl.frontend import PixelCrossing
 
 from .sby import available, prove, submodule
 

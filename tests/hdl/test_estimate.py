@@ -147,7 +147,7 @@ def test_estcube2_memory_budget():
     """The issue's goal: at most half of the EP4CE22's 66 M9K for 2592 x 1944 x 12."""
     from lodestar.hdl.estimate import memory_budget
 
-    mems, m9k, _ = memory_budget(BOARDS["estcube2"].star_tracker())
+    mems, m9k, _ = memory_budget(BOARDS["estcube2"].gateware_top())
     assert m9k <= 33
     by_name = {m["name"]: m for m in mems}
     assert by_name["detector.output.record_fifo.storage"]["m9k"] == 5

@@ -17,8 +17,10 @@ from amaranth.sim import Simulator
 
 from lodestar import contract as C
 from lodestar.hdl.export import to_verilog
+from lodestar.hdl.frontend import FrameWatchdog
 from lodestar.hdl.labeller import MIN_HBLANK
-from lodestar.hdl.mt9p031 import PIXEL_BITS, FrameWatchdog, MT9P031Frontend
+from lodestar.hdl.mt9p031 import PIXEL_BITS, MT9P031Frontend
+from tests.hdl.streams import stream_collect
 
 NS = 1e-9
 
@@ -93,17 +95,10 @@ def run(dut, segments, sync_period, tail=200, clear_at=None):
         await ctx.delay(tail * sync_period)
         flags.append(ctx.get(dut.overflow))
 
-    async def collect(ctx):
-        while True:
-            await ctx.tick()
-            if ctx.get(dut.out.valid):
-                o = dut.out.payload
-                beats.append((ctx.get(o.data), ctx.get(o.sof), ctx.get(o.eol)))
-
     sim = Simulator(top)
     sim.add_clock(sync_period, phase=0.37 * sync_period)
     sim.add_testbench(sensor)
-    sim.add_testbench(collect, background=True)
+    stream_collect(sim, dut.out, beats, lambda p: (p.data, p.sof, p.eol))
     sim.run()
     return beats, flags, peak[0]
 

@@ -25,6 +25,7 @@ from lodestar.hdl.mt9v022 import (
     MT9V022Frontend,
     packet_bits,
 )
+from tests.hdl.streams import stream_collect
 
 NS = 1e-9
 BLANK = RESERVED_WORDS          # what the link carries between lines and frames (raw 0 -> 4)
@@ -122,17 +123,10 @@ def run(dut, segments, sync_period, clear_at=None, idle_words=4):
                 await ctx.delay(sync_period)
                 ctx.set(dut.overflow_clear, 0)
 
-    async def collect(ctx):
-        while True:
-            await ctx.tick()
-            if ctx.get(dut.out.valid):
-                o = dut.out.payload
-                beats.append((ctx.get(o.data), ctx.get(o.sof), ctx.get(o.eol)))
-
     sim = Simulator(top)
     sim.add_clock(sync_period, phase=0.29 * sync_period)
     sim.add_testbench(sensor)
-    sim.add_testbench(collect, background=True)
+    stream_collect(sim, dut.out, beats, lambda p: (p.data, p.sof, p.eol))
     sim.run()
     return beats, status, peak[0]
 
