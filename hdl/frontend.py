@@ -27,13 +27,6 @@ FIFO_DEPTH = 8
 (module docstring: at most 6 are ever counted by the write side)."""
 
 
-def check_geometry(width, height):
-    """Raise ``ValueError`` unless a ``width x height`` frame is within the contract."""
-    if not (1 <= width <= C.MAX_WIDTH and 1 <= height <= C.MAX_HEIGHT):
-        raise ValueError(f"frame {width}x{height} is outside the contract's "
-                         f"1..{C.MAX_WIDTH} x 1..{C.MAX_HEIGHT}")
-
-
 class PixelCrossing(wiring.Component):
     """Pixel stream from a sensor clock domain into ``sync``; frames broken on overflow.
 
@@ -151,7 +144,7 @@ class FrameWatchdog(wiring.Component):
     """
 
     def __init__(self, width, height, pixel_bits, timeout=STALL_TIMEOUT):
-        check_geometry(width, height)
+        C.check_geometry(width, height)
         if timeout < 1:
             raise ValueError(f"stall timeout must be at least 1 clock, got {timeout}")
         self.width, self.height, self.pixel_bits = width, height, pixel_bits
@@ -268,7 +261,7 @@ class SensorFrontend(wiring.Component):
     LVDS_PINS = ()
 
     def __init__(self, width, height, members, *, domain, fifo_depth):
-        check_geometry(width, height)
+        C.check_geometry(width, height)
         self.width, self.height, self.domain, self.fifo_depth = width, height, domain, fifo_depth
         super().__init__({
             **members,
