@@ -30,7 +30,7 @@ from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
-from .settings import MAX_STARS, Settings
+from .settings import Settings
 from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
@@ -243,7 +243,7 @@ class StarTracker:
     ``camera``: a :class:`lodestar.firmware.camera.Camera` or a dict for
     :meth:`Camera.from_dict` (a ``lodestar.sim`` preset's camera block).
     ``settings``: a :class:`lodestar.firmware.settings.Settings` (None: the defaults),
-    validated here.
+    checked here (:meth:`Settings.check`, then its method against the database).
 
     Never raises: a configuration problem sets ``status``/``reason`` and every
     :meth:`process` returns it.
@@ -281,11 +281,6 @@ class StarTracker:
         if not isinstance(st, Settings):
             self._fail(S.BAD_INPUT, "settings must be a firmware Settings or None")
             return
-        tolerance_px = st.tolerance_px
-        centroid_sigma_px = st.centroid_sigma_px
-        min_sigma_px = st.min_sigma_px
-        track_search_deg = st.track_search_deg
-        # camera
         if isinstance(camera, _camera.Camera):
             self.camera = camera
         elif isinstance(camera, dict):
@@ -297,61 +292,21 @@ class StarTracker:
         else:
             self._fail(S.BAD_INPUT, "camera must be a firmware Camera or a dict")
             return
+        code, reason = st.check()
+        if code != S.OK:
+            self._fail(code, reason)
+            return
         cam = self.camera
         focal = math.sqrt(cam.fx * cam.fy)
-        # parameters
-        if not (_geo.is_number(tolerance_px) and tolerance_px > 0):
-            self._fail(S.BAD_INPUT, "tolerance_px must be a positive number")
-            return
-        if centroid_sigma_px is not None and not (_geo.is_number(centroid_sigma_px) and
-                                                  centroid_sigma_px > 0):
-            self._fail(S.BAD_INPUT, "centroid_sigma_px must be a positive number or None")
-            return
-        if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
-            self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
-            return
-        if not (isinstance(st.max_stars, int) and 4 <= st.max_stars <= MAX_STARS):
-            self._fail(S.BAD_INPUT, "max_stars must be an int in 4.." + str(MAX_STARS))
-            return
-        if st.track_stars is not None and (isinstance(st.track_stars, bool) or not (
-                isinstance(st.track_stars, int) and st.track_stars >= 1)):
-            self._fail(S.BAD_INPUT, "track_stars must be None or an int >= 1")
-            return
-        if isinstance(st.max_work, bool) or not (isinstance(st.max_work, int) and
-                                                 st.max_work >= 1):
-            self._fail(S.BAD_INPUT, "max_work must be an int >= 1")
-            return
-        if not (isinstance(st.budget, int) and st.budget >= 1):
-            self._fail(S.BAD_INPUT, "budget must be an int >= 1")
-            return
-        if not (_geo.is_number(st.max_smear_px) and st.max_smear_px > 0):
-            self._fail(S.BAD_INPUT, "max_smear_px must be a positive number")
-            return
-        if not (_geo.is_number(track_search_deg) and track_search_deg >= 0):
-            self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
-            return
-        for name in ("row_time_s", "epoch_s"):
-            if not _geo.is_number(getattr(st, name)):
-                self._fail(S.BAD_INPUT, name + " must be a finite number")
-                return
-        if st.exposure_s is not None and not (_geo.is_number(st.exposure_s) and
-                                              st.exposure_s > 0):
-            self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
-            return
         if st.velocity_km_s is not None:
             self.beta = _aberration().beta(st.velocity_km_s)
-            if self.beta is None:
-                self._fail(S.BAD_INPUT, "velocity_km_s must be None or 3 finite numbers, km/s, "
-                           "at most " + str(_aberration().MAX_SPEED_KM_S) + " km/s")
-                return
         self.focal_px = focal
-        self.tolerance_rad = tolerance_px / focal
-        self.sigma_rad = None if centroid_sigma_px is None else centroid_sigma_px / focal
-        self.min_sigma_rad = min_sigma_px / focal
-        self.track_search_rad = math.radians(track_search_deg)
+        self.tolerance_rad = st.tolerance_px / focal
+        self.sigma_rad = None if st.centroid_sigma_px is None else st.centroid_sigma_px / focal
+        self.min_sigma_rad = st.min_sigma_px / focal
+        self.track_search_rad = math.radians(st.track_search_deg)
         self.track_stars = st.track_stars if st.track_stars is None or \
             st.track_stars <= st.max_stars else st.max_stars
-        # database
         if isinstance(database, _database.Database):
             db = database
         else:
