@@ -20,7 +20,14 @@ from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
-from .starid.verify import chance_agreement, chord, fov_solid_angle, in_region, near_pairs, x_order
+from .starid.verify import (
+    chance_agreement,
+    chord_of_angle,
+    fov_solid_angle,
+    in_region,
+    near_pairs,
+    x_order,
+)
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -230,7 +237,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=No
     ``slack_rad`` of the prediction's).  ``order``: as for
     :func:`lodestar.firmware.starid.verify.near_pairs`."""
     ids = predicted[0]
-    lim = chord(tolerance_rad)
+    lim = chord_of_angle(tolerance_rad)
     radius = tolerance_rad if slack_rad is None else tolerance_rad + 2.0 * slack_rad
     near = []
     candidates = [] if slack_rad is not None else None
@@ -251,7 +258,7 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, star
     the few stars that can be in a match region (a star moves by at most the turn between
     the two attitudes).  ``stars``: as for :func:`fit`."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
-    lim = chord(tolerance_rad)
+    lim = chord_of_angle(tolerance_rad)
     near = []
     last, streak = -1, None
     for o, s in candidates:
