@@ -263,6 +263,7 @@ class StarTracker:
         self.focal_px = 1.0
         self.beta = None
         self._cone = _tracking.Cone()   # tracking's catalogue stars, kept between frames
+        self._tracker = None            # tracking, with these settings and that cone
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -305,6 +306,9 @@ class StarTracker:
         self.sigma_rad = None if st.centroid_sigma_px is None else st.centroid_sigma_px / focal
         self.min_sigma_rad = st.min_sigma_px / focal
         self.track_search_rad = math.radians(st.track_search_deg)
+        self._tracker = _tracking.Tracker(self.tolerance_rad, self.track_search_rad,
+                                          st.track_min_matches, st.track_max_prob,
+                                          cone=self._cone)
         self.track_stars = st.track_stars if st.track_stars is None or \
             st.track_stars <= st.max_stars else st.max_stars
         if isinstance(database, _database.Database):
@@ -414,13 +418,7 @@ class StarTracker:
         return out if found else None
 
     def _track(self, vectors, prior, omega, dt, streaks):
-        st = self.settings
-        return _tracking.track(vectors, self.database, prior, omega, dt,
-                               tolerance_rad=self.tolerance_rad,
-                               search_rad=self.track_search_rad,
-                               min_matches=st.track_min_matches,
-                               max_mismatch_prob=st.track_max_prob, streaks=streaks,
-                               cone=self._cone)
+        return self._tracker.track(vectors, self.database, prior, omega, dt, streaks=streaks)
 
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
@@ -514,9 +512,8 @@ class StarTracker:
         match tolerance), then ``s`` scales all as without tracks (no floor)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
-        db, stars = self.database, self._cone.stars     # a tracking frame's stars are held
-        r = [db.star_vector(s) if stars is None else _tracking.star_vector(db, stars, s)
-             for o, s in star_ids]
+        db, cone = self.database, self._cone            # a tracking frame's stars are held
+        r = [cone.star_vector(db, s) for o, s in star_ids]
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
