@@ -615,7 +615,7 @@ class StarTracker:
             return res
         if beta is not None:
             _deaberrate(vectors, sol.q, beta)
-        star_ids = getattr(sol, "star_ids", None) or []
+        star_ids = sol.star_ids
         # a tracking solution names its stars already (matches align with star_ids) and,
         # without tracks to weight or an aberration correction since, its attitude is their
         # unweighted fit
@@ -695,22 +695,8 @@ class StarTracker:
             res.status = code
             res.reason = reason
             return res
-        res.n_records = header["n_records"]
-        flags = header["flags"]
-        for bit, name in INCOMPLETE_FLAGS:
-            if flags & bit:
-                res.status = S.FRAME_INCOMPLETE
-                _note(res, name)
+        self._check_frame(header, res)
         if res.status != S.OK:
-            return res
-        for bit, name in LOST_FLAGS:
-            if flags & bit:
-                _note(res, name + ": blobs lost")
-        cam = self.camera
-        if header["width"] != cam.width or header["height"] != cam.height:
-            res.status = S.BAD_INPUT
-            res.reason = "frame is {}x{}, the camera {}x{}".format(
-                header["width"], header["height"], cam.width, cam.height)
             return res
         w = None
         if omega is not None:
@@ -724,20 +710,9 @@ class StarTracker:
             else:
                 _note(res, "exposure_s ignored: not a positive number")
         beta = self._beta(velocity_km_s, res)
-        smear = known = None
-        longest = 0.0
-        if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
-            known = {}          # (x, y) -> smear: extraction, joining, streaks ask again
-            smear_at = cam.smear_function(w, exposure)
-
-            def smear(x, y):
-                key = (x, y)
-                if key in known:
-                    return known[key]
-                d = known[key] = smear_at(x, y)
-                return d
-
-            longest = _longest_smear(cam, smear)
+        cam = self.camera
+        smear = self._smear(w, exposure)
+        longest = _longest_smear(cam, smear) if smear is not None else 0.0
         limit = self.settings.max_smear_px
         select = not longest <= limit        # some stars may smear beyond the limit
         max_stars = self.settings.max_stars
@@ -763,25 +738,18 @@ class StarTracker:
         budget = min_sum(stars, self.track_stars)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear) if smear is not None else None
-        smear = known = None            # the memo goes before the identification's peak
+        smear = None                    # the memo goes before the identification's peak
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
-        # the rest needs of each used star its record index, centroid and flux only: the star
-        # objects are dropped before the identification (docs/firmware.md, Memory)
-        index, xy, fluxes = self._index, self._xy, self._flux
-        for o in range(len(used)):
-            s = stars[used[o]]
-            index[o] = s.index
-            xy[2 * o] = s.x
-            xy[2 * o + 1] = s.y
-            fluxes[o] = s.flux
+        self._keep(stars, used)
         stars = used = None
         if prior is None:
             _collect()
-        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
+        res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
                                   streaks, beta)
         if res.status == S.OK:
+            index, xy = self._index, self._xy
             matches = []
             for o, _x, _y, hip in res.matches:
                 matches.append((index[o], xy[2 * o], xy[2 * o + 1], hip))
@@ -789,6 +757,55 @@ class StarTracker:
             res.min_sum = budget
         self._tick(timings, "total", first)
         return res
+
+    def _check_frame(self, header, res):
+        """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
+        size) for a frame that cannot be solved; note the lost blobs of one that can."""
+        flags = header["flags"]
+        res.n_records = header["n_records"]
+        for bit, name in INCOMPLETE_FLAGS:
+            if flags & bit:
+                res.status = S.FRAME_INCOMPLETE
+                _note(res, name)
+        if res.status != S.OK:
+            return
+        for bit, name in LOST_FLAGS:
+            if flags & bit:
+                _note(res, name + ": blobs lost")
+        cam = self.camera
+        if header["width"] != cam.width or header["height"] != cam.height:
+            res.status = S.BAD_INPUT
+            res.reason = "frame is {}x{}, the camera {}x{}".format(
+                header["width"], header["height"], cam.width, cam.height)
+
+    def _smear(self, omega, exposure_s):
+        """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
+        (:meth:`Camera.smear_function`), remembered per pixel (extraction, joining and
+        streaks ask again); None without a non-zero rate or an exposure."""
+        if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
+            return None
+        known = {}
+        smear_at = self.camera.smear_function(omega, exposure_s)
+
+        def smear(x, y):
+            key = (x, y)
+            if key in known:
+                return known[key]
+            d = known[key] = smear_at(x, y)
+            return d
+        return smear
+
+    def _keep(self, stars, used):
+        """Copy the record index, centroid and flux of each used star into the tracker's
+        buffers: the rest of a frame needs no more of them, so the star objects are dropped
+        before the identification (``docs/firmware.md``, Memory)."""
+        index, xy, fluxes = self._index, self._xy, self._flux
+        for o in range(len(used)):
+            s = stars[used[o]]
+            index[o] = s.index
+            xy[2 * o] = s.x
+            xy[2 * o + 1] = s.y
+            fluxes[o] = s.flux
 
 
 def _aberration():
