@@ -30,7 +30,7 @@ from . import quaternion as _quat
 from . import starid as _starid
 from . import status as S
 from . import tracking as _tracking
-from .settings import MAX_STARS, Settings
+from .settings import Settings
 from .starid import verify as _verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
@@ -243,7 +243,7 @@ class StarTracker:
     ``camera``: a :class:`lodestar.firmware.camera.Camera` or a dict for
     :meth:`Camera.from_dict` (a ``lodestar.sim`` preset's camera block).
     ``settings``: a :class:`lodestar.firmware.settings.Settings` (None: the defaults),
-    validated here.
+    checked here (:meth:`Settings.check`, then its method against the database).
 
     Never raises: a configuration problem sets ``status``/``reason`` and every
     :meth:`process` returns it.
@@ -263,6 +263,7 @@ class StarTracker:
         self.focal_px = 1.0
         self.beta = None
         self._cone = _tracking.Cone()   # tracking's catalogue stars, kept between frames
+        self._tracker = None            # tracking, with these settings and that cone
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -281,11 +282,6 @@ class StarTracker:
         if not isinstance(st, Settings):
             self._fail(S.BAD_INPUT, "settings must be a firmware Settings or None")
             return
-        tolerance_px = st.tolerance_px
-        centroid_sigma_px = st.centroid_sigma_px
-        min_sigma_px = st.min_sigma_px
-        track_search_deg = st.track_search_deg
-        # camera
         if isinstance(camera, _camera.Camera):
             self.camera = camera
         elif isinstance(camera, dict):
@@ -297,61 +293,24 @@ class StarTracker:
         else:
             self._fail(S.BAD_INPUT, "camera must be a firmware Camera or a dict")
             return
+        code, reason = st.check()
+        if code != S.OK:
+            self._fail(code, reason)
+            return
         cam = self.camera
         focal = math.sqrt(cam.fx * cam.fy)
-        # parameters
-        if not (_geo.is_number(tolerance_px) and tolerance_px > 0):
-            self._fail(S.BAD_INPUT, "tolerance_px must be a positive number")
-            return
-        if centroid_sigma_px is not None and not (_geo.is_number(centroid_sigma_px) and
-                                                  centroid_sigma_px > 0):
-            self._fail(S.BAD_INPUT, "centroid_sigma_px must be a positive number or None")
-            return
-        if not (_geo.is_number(min_sigma_px) and min_sigma_px > 0):
-            self._fail(S.BAD_INPUT, "min_sigma_px must be a positive number")
-            return
-        if not (isinstance(st.max_stars, int) and 4 <= st.max_stars <= MAX_STARS):
-            self._fail(S.BAD_INPUT, "max_stars must be an int in 4.." + str(MAX_STARS))
-            return
-        if st.track_stars is not None and (isinstance(st.track_stars, bool) or not (
-                isinstance(st.track_stars, int) and st.track_stars >= 1)):
-            self._fail(S.BAD_INPUT, "track_stars must be None or an int >= 1")
-            return
-        if isinstance(st.max_work, bool) or not (isinstance(st.max_work, int) and
-                                                 st.max_work >= 1):
-            self._fail(S.BAD_INPUT, "max_work must be an int >= 1")
-            return
-        if not (isinstance(st.budget, int) and st.budget >= 1):
-            self._fail(S.BAD_INPUT, "budget must be an int >= 1")
-            return
-        if not (_geo.is_number(st.max_smear_px) and st.max_smear_px > 0):
-            self._fail(S.BAD_INPUT, "max_smear_px must be a positive number")
-            return
-        if not (_geo.is_number(track_search_deg) and track_search_deg >= 0):
-            self._fail(S.BAD_INPUT, "track_search_deg must be a number >= 0")
-            return
-        for name in ("row_time_s", "epoch_s"):
-            if not _geo.is_number(getattr(st, name)):
-                self._fail(S.BAD_INPUT, name + " must be a finite number")
-                return
-        if st.exposure_s is not None and not (_geo.is_number(st.exposure_s) and
-                                              st.exposure_s > 0):
-            self._fail(S.BAD_INPUT, "exposure_s must be a positive number or None")
-            return
         if st.velocity_km_s is not None:
             self.beta = _aberration().beta(st.velocity_km_s)
-            if self.beta is None:
-                self._fail(S.BAD_INPUT, "velocity_km_s must be None or 3 finite numbers, km/s, "
-                           "at most " + str(_aberration().MAX_SPEED_KM_S) + " km/s")
-                return
         self.focal_px = focal
-        self.tolerance_rad = tolerance_px / focal
-        self.sigma_rad = None if centroid_sigma_px is None else centroid_sigma_px / focal
-        self.min_sigma_rad = min_sigma_px / focal
-        self.track_search_rad = math.radians(track_search_deg)
+        self.tolerance_rad = st.tolerance_px / focal
+        self.sigma_rad = None if st.centroid_sigma_px is None else st.centroid_sigma_px / focal
+        self.min_sigma_rad = st.min_sigma_px / focal
+        self.track_search_rad = math.radians(st.track_search_deg)
+        self._tracker = _tracking.Tracker(self.tolerance_rad, self.track_search_rad,
+                                          st.track_min_matches, st.track_max_prob,
+                                          cone=self._cone)
         self.track_stars = st.track_stars if st.track_stars is None or \
             st.track_stars <= st.max_stars else st.max_stars
-        # database
         if isinstance(database, _database.Database):
             db = database
         else:
@@ -459,13 +418,7 @@ class StarTracker:
         return out if found else None
 
     def _track(self, vectors, prior, omega, dt, streaks):
-        st = self.settings
-        return _tracking.track(vectors, self.database, prior, omega, dt,
-                               tolerance_rad=self.tolerance_rad,
-                               search_rad=self.track_search_rad,
-                               min_matches=st.track_min_matches,
-                               max_mismatch_prob=st.track_max_prob, streaks=streaks,
-                               cone=self._cone)
+        return self._tracker.track(vectors, self.database, prior, omega, dt, streaks=streaks)
 
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
@@ -559,9 +512,8 @@ class StarTracker:
         match tolerance), then ``s`` scales all as without tracks (no floor)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
-        db, stars = self.database, self._cone.stars     # a tracking frame's stars are held
-        r = [db.star_vector(s) if stars is None else _tracking.star_vector(db, stars, s)
-             for o, s in star_ids]
+        db, cone = self.database, self._cone            # a tracking frame's stars are held
+        r = [cone.star_vector(db, s) for o, s in star_ids]
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
@@ -663,7 +615,7 @@ class StarTracker:
             return res
         if beta is not None:
             _deaberrate(vectors, sol.q, beta)
-        star_ids = getattr(sol, "star_ids", None) or []
+        star_ids = sol.star_ids
         # a tracking solution names its stars already (matches align with star_ids) and,
         # without tracks to weight or an aberration correction since, its attitude is their
         # unweighted fit
@@ -743,22 +695,8 @@ class StarTracker:
             res.status = code
             res.reason = reason
             return res
-        res.n_records = header["n_records"]
-        flags = header["flags"]
-        for bit, name in INCOMPLETE_FLAGS:
-            if flags & bit:
-                res.status = S.FRAME_INCOMPLETE
-                _note(res, name)
+        self._check_frame(header, res)
         if res.status != S.OK:
-            return res
-        for bit, name in LOST_FLAGS:
-            if flags & bit:
-                _note(res, name + ": blobs lost")
-        cam = self.camera
-        if header["width"] != cam.width or header["height"] != cam.height:
-            res.status = S.BAD_INPUT
-            res.reason = "frame is {}x{}, the camera {}x{}".format(
-                header["width"], header["height"], cam.width, cam.height)
             return res
         w = None
         if omega is not None:
@@ -772,20 +710,9 @@ class StarTracker:
             else:
                 _note(res, "exposure_s ignored: not a positive number")
         beta = self._beta(velocity_km_s, res)
-        smear = known = None
-        longest = 0.0
-        if w is not None and exposure is not None and (w[0] or w[1] or w[2]):
-            known = {}          # (x, y) -> smear: extraction, joining, streaks ask again
-            smear_at = cam.smear_function(w, exposure)
-
-            def smear(x, y):
-                key = (x, y)
-                if key in known:
-                    return known[key]
-                d = known[key] = smear_at(x, y)
-                return d
-
-            longest = _longest_smear(cam, smear)
+        cam = self.camera
+        smear = self._smear(w, exposure)
+        longest = _longest_smear(cam, smear) if smear is not None else 0.0
         limit = self.settings.max_smear_px
         select = not longest <= limit        # some stars may smear beyond the limit
         max_stars = self.settings.max_stars
@@ -811,25 +738,18 @@ class StarTracker:
         budget = min_sum(stars, self.track_stars)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear) if smear is not None else None
-        smear = known = None            # the memo goes before the identification's peak
+        smear = None                    # the memo goes before the identification's peak
         start = self._tick(timings, "directions", start)
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
-        # the rest needs of each used star its record index, centroid and flux only: the star
-        # objects are dropped before the identification (docs/firmware.md, Memory)
-        index, xy, fluxes = self._index, self._xy, self._flux
-        for o in range(len(used)):
-            s = stars[used[o]]
-            index[o] = s.index
-            xy[2 * o] = s.x
-            xy[2 * o + 1] = s.y
-            fluxes[o] = s.flux
+        self._keep(stars, used)
         stars = used = None
         if prior is None:
             _collect()
-        res = self._solve_vectors(vectors, prior, w, dt, fluxes, res, start, longest,
+        res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
                                   streaks, beta)
         if res.status == S.OK:
+            index, xy = self._index, self._xy
             matches = []
             for o, _x, _y, hip in res.matches:
                 matches.append((index[o], xy[2 * o], xy[2 * o + 1], hip))
@@ -837,6 +757,55 @@ class StarTracker:
             res.min_sum = budget
         self._tick(timings, "total", first)
         return res
+
+    def _check_frame(self, header, res):
+        """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
+        size) for a frame that cannot be solved; note the lost blobs of one that can."""
+        flags = header["flags"]
+        res.n_records = header["n_records"]
+        for bit, name in INCOMPLETE_FLAGS:
+            if flags & bit:
+                res.status = S.FRAME_INCOMPLETE
+                _note(res, name)
+        if res.status != S.OK:
+            return
+        for bit, name in LOST_FLAGS:
+            if flags & bit:
+                _note(res, name + ": blobs lost")
+        cam = self.camera
+        if header["width"] != cam.width or header["height"] != cam.height:
+            res.status = S.BAD_INPUT
+            res.reason = "frame is {}x{}, the camera {}x{}".format(
+                header["width"], header["height"], cam.width, cam.height)
+
+    def _smear(self, omega, exposure_s):
+        """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
+        (:meth:`Camera.smear_function`), remembered per pixel (extraction, joining and
+        streaks ask again); None without a non-zero rate or an exposure."""
+        if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
+            return None
+        known = {}
+        smear_at = self.camera.smear_function(omega, exposure_s)
+
+        def smear(x, y):
+            key = (x, y)
+            if key in known:
+                return known[key]
+            d = known[key] = smear_at(x, y)
+            return d
+        return smear
+
+    def _keep(self, stars, used):
+        """Copy the record index, centroid and flux of each used star into the tracker's
+        buffers: the rest of a frame needs no more of them, so the star objects are dropped
+        before the identification (``docs/firmware.md``, Memory)."""
+        index, xy, fluxes = self._index, self._xy, self._flux
+        for o in range(len(used)):
+            s = stars[used[o]]
+            index[o] = s.index
+            xy[2 * o] = s.x
+            xy[2 * o + 1] = s.y
+            fluxes[o] = s.flux
 
 
 def _aberration():

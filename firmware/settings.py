@@ -4,11 +4,14 @@ the regression and the campaigns.
     from lodestar.firmware.settings import Settings
     tracker = StarTracker(database, camera, Settings(method="pyramid", exposure_s=0.1))
 
-:class:`Settings` only holds values; :class:`lodestar.firmware.pipeline.StarTracker`
-validates them when it is built and reports a bad one as its ``BAD_INPUT`` status (it never
-raises).  Pure Python for CPython and MicroPython.
+Each option is declared once, in :data:`OPTIONS`: its name, its default and its check.
+:meth:`Settings.check` reports the first bad one, which
+:class:`lodestar.firmware.pipeline.StarTracker` returns as its status (it never raises).
+Pure Python for CPython and MicroPython.
 """
 
+from . import status as S
+from .geometry import is_number
 from .starid.search import DEFAULT_MAX_WORK
 from .tracking import DEFAULT_MAX_MISMATCH_PROB, DEFAULT_MIN_MATCHES
 
@@ -37,8 +40,84 @@ estcube2 frames tracked at rest (9 records instead of 54 at the median) the RMS 
 and 1.13 (``benchmarks/bench_track_budget.py``)."""
 
 
+# Checks of :data:`OPTIONS`: None for a good value, else what the value must be.
+
+def _positive(x):
+    return None if is_number(x) and x > 0 else "a positive number"
+
+
+def _positive_or_none(x):
+    return None if x is None or is_number(x) and x > 0 else "a positive number or None"
+
+
+def _not_negative(x):
+    return None if is_number(x) and x >= 0 else "a number >= 0"
+
+
+def _finite(x):
+    return None if is_number(x) else "a finite number"
+
+
+def _star_count(x):
+    return None if isinstance(x, int) and 4 <= x <= MAX_STARS else \
+        "an int in 4.." + str(MAX_STARS)
+
+
+def _count(x):
+    return None if type(x) is not bool and isinstance(x, int) and x >= 1 else "an int >= 1"
+
+
+def _count_or_none(x):
+    return None if x is None or _count(x) is None else "None or an int >= 1"
+
+
+def _budget(x):
+    # as _count, but True (one pattern) passes, as it always has
+    return None if isinstance(x, int) and x >= 1 else "an int >= 1"
+
+
+def _velocity(x):
+    # the aberration module is imported only when a velocity is set (docs/firmware.md)
+    if x is None:
+        return None
+    from . import aberration
+    return None if aberration.beta(x) is not None else \
+        "None or 3 finite numbers, km/s, at most " + str(aberration.MAX_SPEED_KM_S) + " km/s"
+
+
+OPTIONS = (
+    # name                default                     check (None: any value)
+    ("tolerance_px",      DEFAULT_TOLERANCE_PX,       _positive),
+    ("centroid_sigma_px", None,                       _positive_or_none),
+    ("min_sigma_px",      DEFAULT_MIN_SIGMA_PX,       _positive),
+    ("max_stars",         DEFAULT_MAX_STARS,          _star_count),
+    ("track_stars",       DEFAULT_TRACK_STARS,        _count_or_none),
+    ("max_work",          DEFAULT_MAX_WORK,           _count),
+    ("budget",            DEFAULT_BUDGET,             _budget),
+    ("max_smear_px",      DEFAULT_MAX_SMEAR_PX,       _positive),
+    ("track_search_deg",  DEFAULT_TRACK_SEARCH_DEG,   _not_negative),
+    ("row_time_s",        0.0,                        _finite),
+    ("epoch_s",           0.0,                        _finite),
+    ("exposure_s",        None,                       _positive_or_none),
+    ("velocity_km_s",     None,                       _velocity),
+    ("method",            "pyramid",                  None),   # StarTracker: by the database
+    ("flux_weighting",    True,                       None),
+    ("track_min_matches", DEFAULT_MIN_MATCHES,        None),
+    ("track_max_prob",    DEFAULT_MAX_MISMATCH_PROB,  None),
+    ("fallback",          True,                       None),
+    ("drop_border",       True,                       None),
+    ("refine",            True,                       None),
+    ("extract_options",   None,                       None),   # None: {}
+    ("id_options",        None,                       None),   # None: {}
+    ("clock",             None,                       None),
+)
+"""Every option of :class:`Settings`: ``(name, default, check)``, ``check(value)`` None for a
+good value, else what it must be; checked in this order (:meth:`Settings.check`)."""
+
+
 class Settings:
-    """Settings of a :class:`~lodestar.firmware.pipeline.StarTracker` (keywords only).
+    """Settings of a :class:`~lodestar.firmware.pipeline.StarTracker` (keywords of
+    :data:`OPTIONS` only; an unknown one raises ``TypeError``).
 
     ``method``: lost-in-space method, a name of :data:`lodestar.firmware.starid.METHODS`.
     ``max_stars``: brightest stars kept per frame.  ``tolerance_px``: match tolerance, px.
@@ -64,37 +143,22 @@ class Settings:
     ``docs/apparent_directions.md``).
     """
 
-    def __init__(self, method="pyramid", max_stars=DEFAULT_MAX_STARS,
-                 tolerance_px=DEFAULT_TOLERANCE_PX, centroid_sigma_px=None,
-                 min_sigma_px=DEFAULT_MIN_SIGMA_PX, flux_weighting=True,
-                 budget=DEFAULT_BUDGET, exposure_s=None, row_time_s=0.0, epoch_s=0.0,
-                 track_search_deg=DEFAULT_TRACK_SEARCH_DEG,
-                 track_min_matches=DEFAULT_MIN_MATCHES,
-                 track_max_prob=DEFAULT_MAX_MISMATCH_PROB,
-                 track_stars=DEFAULT_TRACK_STARS, fallback=True,
-                 drop_border=True, refine=True, max_smear_px=DEFAULT_MAX_SMEAR_PX,
-                 extract_options=None, id_options=None, clock=None,
-                 max_work=DEFAULT_MAX_WORK, velocity_km_s=None):
-        self.method = method
-        self.max_stars = max_stars
-        self.tolerance_px = tolerance_px
-        self.centroid_sigma_px = centroid_sigma_px
-        self.min_sigma_px = min_sigma_px
-        self.flux_weighting = flux_weighting
-        self.budget = budget
-        self.exposure_s = exposure_s
-        self.row_time_s = row_time_s
-        self.epoch_s = epoch_s
-        self.track_search_deg = track_search_deg
-        self.track_min_matches = track_min_matches
-        self.track_max_prob = track_max_prob
-        self.track_stars = track_stars
-        self.fallback = fallback
-        self.drop_border = drop_border
-        self.refine = refine
-        self.max_smear_px = max_smear_px
-        self.extract_options = extract_options if extract_options is not None else {}
-        self.id_options = id_options if id_options is not None else {}
-        self.clock = clock
-        self.max_work = max_work
-        self.velocity_km_s = velocity_km_s
+    def __init__(self, **options):
+        for name, default, _check in OPTIONS:
+            setattr(self, name, options.pop(name, default))
+        if options:
+            raise TypeError("unknown settings " + ", ".join(sorted(options)))
+        if self.extract_options is None:
+            self.extract_options = {}
+        if self.id_options is None:
+            self.id_options = {}
+
+    def check(self):
+        """``(status, reason)``: ``(OK, "")``, or ``BAD_INPUT`` and what the first bad
+        option of :data:`OPTIONS` must be.  The method is checked by the
+        :class:`~lodestar.firmware.pipeline.StarTracker`, against its database."""
+        for name, _default, check in OPTIONS:
+            must = None if check is None else check(getattr(self, name))
+            if must is not None:
+                return S.BAD_INPUT, name + " must be " + must
+        return S.OK, ""

@@ -20,7 +20,14 @@ from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
-from .starid.verify import chance_agreement, chord, fov_solid_angle, in_region, near_pairs, x_order
+from .starid.verify import (
+    chance_agreement,
+    chord_of_angle,
+    fov_solid_angle,
+    in_region,
+    near_pairs,
+    x_order,
+)
 
 DEFAULT_SEARCH_RAD = 0.00524
 """Largest expected error of the (propagated) prior, rad (0.3 deg)."""
@@ -87,47 +94,64 @@ database about once in five frames (about 8 % more stars each frame to project).
 
 
 class Cone:
-    """A tracker's last cone query (:func:`candidates`), kept between frames: ``database``,
-    its ``centre`` (unit vector), ``radius`` (rad) and ``stars`` (``(ids, vecs)``); empty
-    after :meth:`clear` (its heap is then free)."""
+    """The catalogue stars around a boresight (:func:`candidates`), kept between frames by a
+    tracker: the ``database``, the query's ``centre`` (unit vector) and ``radius`` (rad),
+    ``ids`` (``array('H')`` star indices, ascending), ``vecs`` (``array('f')`` inertial
+    vectors ``x, y, z`` per star, the database's float32 values exactly), ``stars`` (``(ids,
+    vecs)``: predicted stars for :func:`~lodestar.firmware.starid.verify.near_pairs`),
+    ``where`` (each star's position in them: a fit looks its stars up there, a binary
+    search would cost more than the fit), ``order`` (their
+    :func:`~lodestar.firmware.starid.verify.x_order`: the direct match searches them in the
+    inertial frame) and ``solid_angle`` (sr; with their count, the catalogue's density
+    around the boresight).  Empty (``ids`` None) after :meth:`clear`, its heap then free."""
+
+    __slots__ = ("database", "centre", "radius", "ids", "vecs", "stars", "where", "order",
+                 "solid_angle")
 
     def __init__(self):
         self.clear()
 
     def clear(self):
-        self.database = self.centre = self.stars = None
-        self.radius = 0.0
+        self.database = self.centre = self.ids = self.vecs = self.stars = None
+        self.where = self.order = None
+        self.radius = self.solid_angle = 0.0
 
     def covers(self, database, d, radius):
         """True when the held stars include every star within ``radius`` of ``d``: the same
         database, and ``angle(centre, d) + radius <= self.radius`` (tested on the chord,
         accurate in single precision)."""
-        if self.stars is None or database is not self.database or not radius <= self.radius:
+        if self.ids is None or database is not self.database or not radius <= self.radius:
             return False
         c = self.centre
         dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
         room = 2.0 * math.sin(0.5 * (self.radius - radius))
         return dx * dx + dy * dy + dz * dz <= room * room
 
+    def star_vector(self, database, s):
+        """Inertial vector of star ``s``: held, else read from ``database``."""
+        where = self.where
+        i = where.get(s) if where is not None else None
+        if i is None:
+            return database.star_vector(s)
+        vecs = self.vecs
+        return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
+
 
 def candidates(database, q, margin_rad, cone=None):
-    """``(ids, vecs, where, order, omega)``: the catalogue stars within the FOV's
-    half-diagonal plus ``margin_rad`` of the boresight of ``q`` (the stars :func:`predict`
-    can find at any attitude within ``margin_rad`` of ``q``; one cone query, reused), as
-    ``array('H')`` star indices (ascending), ``array('f')`` inertial vectors ``x, y, z`` per
-    star (the database's float32 values, exactly), a dict of each star's position in them
-    (a fit looks its stars up there: a binary search would cost more than the fit), their
-    :func:`lodestar.firmware.starid.verify.x_order` (the direct match searches them in the
-    inertial frame) and the cone's solid angle (sr; with their count, the catalogue's
-    density around the boresight).  ``cone``: a
-    :class:`Cone` to take them from when it covers them, else to keep them in (queried
-    :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns)."""
+    """A :class:`Cone` of the catalogue stars within the FOV's half-diagonal plus
+    ``margin_rad`` of the boresight of ``q``: the stars :func:`predict` can find at any
+    attitude within ``margin_rad`` of ``q`` (one cone query, reused).  ``cone``: the
+    :class:`Cone` to return when it covers them, else to refill (queried
+    :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns); None:
+    a new one."""
     m = matrix(q)
     d = (m[6], m[7], m[8])
     radius = 0.5 * database.fov_diag + margin_rad
-    if cone is not None:
-        if cone.covers(database, d, radius):
-            return cone.stars
+    if cone is None:
+        cone = Cone()
+    elif cone.covers(database, d, radius):
+        return cone
+    else:
         cone.clear()                                # its heap is free for the new query
         radius += CONE_REUSE_RAD
     ids = array("H", database.stars_in_cone(d, radius))
@@ -136,29 +160,19 @@ def candidates(database, q, margin_rad, cone=None):
     where = {}
     for i in range(len(ids)):
         where[ids[i]] = i
-    omega = 4.0 * math.pi * math.sin(0.5 * radius) ** 2        # 2 pi (1 - cos r)
-    stars = (ids, vecs, where, x_order(vecs, len(ids)), omega)
-    if cone is not None:
-        cone.database, cone.centre, cone.radius, cone.stars = database, d, radius, stars
-    return stars
+    cone.database, cone.centre, cone.radius = database, d, radius
+    cone.ids, cone.vecs, cone.stars, cone.where = ids, vecs, (ids, vecs), where
+    cone.order = x_order(vecs, len(ids))
+    cone.solid_angle = 4.0 * math.pi * math.sin(0.5 * radius) ** 2     # 2 pi (1 - cos r)
+    return cone
 
 
-def star_vector(database, stars, s):
-    """Inertial vector of star ``s``: from ``stars`` (:func:`candidates`) when it holds it,
-    else read from the database."""
-    i = stars[2].get(s)
-    if i is None:
-        return database.star_vector(s)
-    vecs = stars[1]
-    return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
-
-
-def predict(database, q, margin_rad=0.0, stars=None):
+def predict(database, q, margin_rad=0.0, cone=None):
     """Catalogue stars in the FOV at attitude ``q`` (a unit quaternion):
     ``(predicted, n_fov)`` with ``predicted`` the stars inside the FOV rectangle widened by
     ``margin_rad`` on every side (``(ids, vecs)``, as
     :func:`lodestar.firmware.starid.verify.predicted_stars`) and ``n_fov`` the number of them
-    inside the plain rectangle.  ``stars``: the :func:`candidates` to consider (None: a cone
+    inside the plain rectangle.  ``cone``: the :func:`candidates` to consider (None: a cone
     query around ``q``)."""
     m = matrix(q)
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
@@ -166,9 +180,9 @@ def predict(database, q, margin_rad=0.0, stars=None):
     tan_v = math.tan(0.5 * database.fov_v)
     tan_hm = math.tan(0.5 * database.fov_h + margin_rad)
     tan_vm = math.tan(0.5 * database.fov_v + margin_rad)
-    if stars is None:
-        stars = candidates(database, q, margin_rad)
-    ids, vecs = stars[0], stars[1]
+    if cone is None:
+        cone = candidates(database, q, margin_rad)
+    ids, vecs = cone.ids, cone.vecs
     n = len(ids)
     keep = array("H", range(n))             # the kept stars, compacted (sized by the range)
     cam = array(FLOAT_CODE, range(3 * n))   # and their camera-frame vectors
@@ -230,7 +244,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=No
     ``slack_rad`` of the prediction's).  ``order``: as for
     :func:`lodestar.firmware.starid.verify.near_pairs`."""
     ids = predicted[0]
-    lim = chord(tolerance_rad)
+    lim = chord_of_angle(tolerance_rad)
     radius = tolerance_rad if slack_rad is None else tolerance_rad + 2.0 * slack_rad
     near = []
     candidates = [] if slack_rad is not None else None
@@ -245,17 +259,17 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=No
     return pairs if candidates is None else (pairs, candidates)
 
 
-def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, stars=None):
+def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone=None):
     """:func:`match_nearest` at attitude ``q`` from the ``candidates`` it returned at an
     attitude within its ``slack_rad`` of ``q``: the same matches as predicting anew, from
     the few stars that can be in a match region (a star moves by at most the turn between
-    the two attitudes).  ``stars``: as for :func:`fit`."""
+    the two attitudes).  ``cone``: as for :func:`fit`."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
-    lim = chord(tolerance_rad)
+    lim = chord_of_angle(tolerance_rad)
     near = []
     last, streak = -1, None
     for o, s in candidates:
-        r0, r1, r2 = star_vector(database, stars, s) if stars is not None else \
+        r0, r1, r2 = cone.star_vector(database, s) if cone is not None else \
             database.star_vector(s)
         v = observed[o]
         dx = v[0] - (m0 * r0 + m1 * r1 + m2 * r2)
@@ -357,19 +371,19 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     return pairs
 
 
-def fit(observed, database, pairs, q, weights=None, stars=None):
+def fit(observed, database, pairs, q, weights=None, cone=None):
     """Least-squares attitude of ``pairs`` ``[(observed index, star index)]`` refined from
     ``q`` (:func:`lodestar.firmware.attitude.refine`: the pairs were matched near ``q``), or
-    None when the geometry is degenerate (fewer than two pairs, all parallel).  ``stars``:
+    None when the geometry is degenerate (fewer than two pairs, all parallel).  ``cone``:
     the :func:`candidates` to take catalogue vectors from (None, or a star not among them:
     read from the database)."""
     if len(pairs) < 2:
         return None
     b = [observed[o] for o, s in pairs]
-    if stars is None:
+    if cone is None:
         r = [database.star_vector(s) for o, s in pairs]
     else:
-        r = [star_vector(database, stars, s) for o, s in pairs]
+        r = [cone.star_vector(database, s) for o, s in pairs]
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
         return _att.refine(q, b, r, w)
@@ -377,15 +391,15 @@ def fit(observed, database, pairs, q, weights=None, stars=None):
         return None
 
 
-def residual_rms(observed, database, q, pairs, stars=None):
+def residual_rms(observed, database, q, pairs, cone=None):
     """RMS angle (rad) between matched observed stars and their catalogue stars at ``q``
-    (``stars``: as for :func:`fit`)."""
+    (``cone``: as for :func:`fit`)."""
     if not pairs:
         return None
     m = matrix(q)
     total = 0.0
     for o, s in pairs:
-        r = database.star_vector(s) if stars is None else star_vector(database, stars, s)
+        r = database.star_vector(s) if cone is None else cone.star_vector(database, s)
         total += residual2(m, observed[o], r)
     return math.sqrt(total / len(pairs))
 
@@ -425,118 +439,159 @@ def track(vectors, database, q_prior, omega=None, dt=None, tolerance_rad=DEFAULT
     per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`): the fine
     matching and the probability use its stretched region.  See ``docs/centroids_and_tracking.md``
     for the algorithm and the statuses.  ``cone``: a :class:`Cone` kept between calls (the
-    catalogue stars around the boresight are then read once per several frames).
+    catalogue stars around the boresight are then read once per several frames).  A
+    :class:`Tracker` kept between calls does the same without allocating itself each time.
     """
     try:
-        return _track(vectors, database, q_prior, omega, dt, tolerance_rad, search_rad,
-                      min_matches, max_mismatch_prob, coarse_stars, iterations, weights,
-                      streaks, cone)
+        tracker = Tracker(tolerance_rad, search_rad, min_matches, max_mismatch_prob,
+                          coarse_stars, iterations, cone)
     except MemoryError:
         return TrackSolution(S.OUT_OF_MEMORY)
-    except Exception:       # a database read error or a bug must not reach the flight loop
-        return TrackSolution(S.INTERNAL_ERROR)
+    return tracker.track(vectors, database, q_prior, omega, dt, weights, streaks)
 
 
-def _track(vectors, database, q_prior, omega, dt, tol, search, min_matches, max_prob,
-           coarse_stars, iterations, weights, streaks, cone):
-    if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
-            is_number(max_prob) and min_matches >= 2 and coarse_stars >= 2):
-        return TrackSolution(S.BAD_INPUT)
-    q_pred = propagate(q_prior, omega, dt)
-    if q_pred is None:
-        return TrackSolution(S.BAD_INPUT)
-    b = _unit_vectors(vectors)
-    if b is None:
-        return TrackSolution(S.BAD_INPUT)
-    if weights is not None and len(weights) != len(b):
-        return TrackSolution(S.BAD_INPUT)
-    if not streaks_valid(streaks, len(b)):
-        return TrackSolution(S.BAD_INPUT)
-    if weights is None:
-        weights = streak_weights(streaks, tol)
-    if len(b) < min_matches:
-        return TrackSolution(S.TOO_FEW_STARS, q_predicted=q_pred)
+class Tracker:
+    """:func:`track` with its settings fixed (``tol``: the match tolerance, ``search``: the
+    search radius, rad; ``cone``: a :class:`Cone` or None), kept between frames by a flight
+    tracker.  While :meth:`track` runs it also holds the frame's ``database``, observed unit
+    vectors ``b``, ``weights``, ``streaks``, the propagated prior ``q_pred`` and the
+    ``slack`` of the direct match (:data:`SLACK_TOL` tolerances, rad), which its steps
+    share."""
 
-    # one cone query serves every prediction below (the fitted attitudes stay within the
-    # search radius of the prior)
-    stars = candidates(database, q_pred, 2.0 * search + 2.0 * tol, cone)
-    # steady state: the prior is within the match tolerance, so match at it directly, in the
-    # inertial frame: the observed stars turned back by the prior against the cone's stars
-    # (sorted once per cone), the catalogue's density from the cone
-    slack = SLACK_TOL * tol
-    pairs, near = match_nearest(_to_inertial(b, q_pred), stars, tol,
-                                _streaks_to_inertial(streaks, q_pred), slack, order=stars[3])
-    n_fov = len(stars[0]) * fov_solid_angle(database.fov_h, database.fov_v) / stars[4]
-    if len(pairs) >= min_matches:
-        sol = _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
-                      weights, streaks, stars, q_pred, n_fov, near=(near, slack))
-        if sol.status == S.OK:
-            return sol
-    near = None
-    # coarse association: the prior may be off by up to the search radius
-    predicted, n_fov = predict(database, q_pred, search, stars)
-    spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error across field
-    pairs = coarse_match(b, predicted, search, 2.0 * tol + spread, coarse_stars)
-    predicted = None
-    if len(pairs) < 2:
-        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-    return _settle(b, database, q_pred, pairs, tol, min_matches, max_prob, iterations,
-                   weights, streaks, stars, q_pred, n_fov, coarse=True)
+    __slots__ = ("tol", "search", "min_matches", "max_prob", "coarse_stars", "iterations",
+                 "cone", "database", "b", "weights", "streaks", "q_pred", "slack")
 
+    def __init__(self, tolerance_rad=DEFAULT_TOLERANCE_RAD, search_rad=DEFAULT_SEARCH_RAD,
+                 min_matches=DEFAULT_MIN_MATCHES, max_mismatch_prob=DEFAULT_MAX_MISMATCH_PROB,
+                 coarse_stars=DEFAULT_COARSE_STARS, iterations=DEFAULT_ITERATIONS, cone=None):
+        self.tol = tolerance_rad
+        self.search = search_rad
+        self.min_matches = min_matches
+        self.max_prob = max_mismatch_prob
+        self.coarse_stars = coarse_stars
+        self.iterations = iterations
+        self.cone = cone
+        self.database = self.b = self.weights = self.streaks = self.q_pred = None
+        self.slack = 0.0
 
-def _settle(b, database, q, pairs, tol, min_matches, max_prob, iterations, weights, streaks,
-            stars, q_pred, n_fov, coarse=False, near=None):
-    """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
-    the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
-    predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
-    final (the fine matching always runs at least once); ``near``: ``(candidates, slack)``
-    of :func:`match_nearest` at ``q``, which confirm the first fit's matches when it lies
-    within the slack (``n_fov`` then stays the direct match's, from the cone's density)."""
-    q0 = q
-    q = fit(b, database, pairs, q, weights, stars)
-    if q is None:
-        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-    if coarse:
-        pairs = None
-    converged = False
-    for _ in range(iterations):
-        if near is not None and _within(q, q0, near[1]):
-            new = confirm(b, database, q, near[0], tol, streaks, stars)
-        else:
-            predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-            new = match_nearest(b, predicted, tol, streaks)
+    def track(self, vectors, database, q_prior, omega=None, dt=None, weights=None,
+              streaks=None):
+        """:func:`track` of these arguments with this tracker's settings; never raises."""
+        cone = self.cone
+        try:
+            return self._track(vectors, database, q_prior, omega, dt, weights, streaks)
+        except MemoryError:
+            return TrackSolution(S.OUT_OF_MEMORY)
+        except Exception:   # a database read error or a bug must not reach the flight loop
+            return TrackSolution(S.INTERNAL_ERROR)
+        finally:            # the frame's data is dropped, and a cone made for it
+            self.database = self.b = self.weights = self.streaks = self.q_pred = None
+            self.cone = cone
+
+    def _fail(self, status, n_fov=0):
+        return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
+
+    def _track(self, vectors, database, q_prior, omega, dt, weights, streaks):
+        tol, search = self.tol, self.search
+        if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
+                is_number(self.max_prob) and self.min_matches >= 2 and self.coarse_stars >= 2):
+            return TrackSolution(S.BAD_INPUT)
+        self.q_pred = q_pred = propagate(q_prior, omega, dt)
+        if q_pred is None:
+            return TrackSolution(S.BAD_INPUT)
+        self.b = b = _unit_vectors(vectors)
+        if b is None:
+            return TrackSolution(S.BAD_INPUT)
+        if weights is not None and len(weights) != len(b):
+            return TrackSolution(S.BAD_INPUT)
+        if not streaks_valid(streaks, len(b)):
+            return TrackSolution(S.BAD_INPUT)
+        self.weights = weights if weights is not None else streak_weights(streaks, tol)
+        self.streaks = streaks
+        self.database = database
+        if len(b) < self.min_matches:
+            return TrackSolution(S.TOO_FEW_STARS, q_predicted=q_pred)
+
+        # one cone query serves every prediction below (the fitted attitudes stay within the
+        # search radius of the prior)
+        self.cone = cone = candidates(database, q_pred, 2.0 * search + 2.0 * tol, self.cone)
+        # steady state: the prior is within the match tolerance, so match at it directly, in
+        # the inertial frame: the observed stars turned back by the prior against the cone's
+        # stars (sorted once per cone), the catalogue's density from the cone
+        self.slack = SLACK_TOL * tol
+        pairs, near = match_nearest(_to_inertial(b, q_pred), cone.stars, tol,
+                                    _streaks_to_inertial(streaks, q_pred), self.slack,
+                                    order=cone.order)
+        n_fov = len(cone.ids) * fov_solid_angle(database.fov_h, database.fov_v) / \
+            cone.solid_angle
+        if len(pairs) >= self.min_matches:
+            sol = self._settle(q_pred, pairs, n_fov, near=near)
+            if sol.status == S.OK:
+                return sol
         near = None
-        if new == pairs:
-            converged = True        # the matches at q are pairs: the check below holds
-            break
-        q_new = fit(b, database, new, q, weights, stars)
-        if q_new is None:
-            break
-        pairs = new
-        q = q_new
-    if pairs is None or len(pairs) < 2:
-        return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-    # the reported matches must hold at the returned attitude
-    final = pairs
-    if not converged:
-        predicted, n_fov = predict(database, q, 2.0 * tol, stars)
-        final = match_nearest(b, predicted, tol, streaks)
-    predicted = None
-    if final != pairs:
-        keep = {}
-        for pair in final:
-            keep[pair] = 1
-        pairs = [pair for pair in pairs if pair in keep]
-        q2 = fit(b, database, pairs, q, weights, stars)
-        if q2 is None:
-            return TrackSolution(S.NO_MATCH, q_predicted=q_pred, n_predicted=n_fov)
-        q = q2
-    omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
-    _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
-    matches = [(o, database.star_hip(s)) for o, s in pairs]
-    rms = residual_rms(b, database, q, pairs, stars)
-    status = S.OK if len(pairs) >= min_matches and prob < max_prob else S.NO_MATCH
-    return TrackSolution(status, q=q if status == S.OK else None,
-                         matches=matches if status == S.OK else [],
-                         star_ids=list(pairs) if status == S.OK else [], probability=prob,
-                         q_predicted=q_pred, n_predicted=n_fov, residual_rad=rms)
+        # coarse association: the prior may be off by up to the search radius
+        predicted, n_fov = predict(database, q_pred, search, cone)
+        spread = 2.0 * math.sin(0.5 * database.fov_diag) * search      # roll error, field
+        pairs = coarse_match(b, predicted, search, 2.0 * tol + spread, self.coarse_stars)
+        predicted = None
+        if len(pairs) < 2:
+            return self._fail(S.NO_MATCH, n_fov)
+        return self._settle(q_pred, pairs, n_fov, coarse=True)
+
+    def _settle(self, q, pairs, n_fov, coarse=False, near=None):
+        """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
+        the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
+        predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
+        final (the fine matching always runs at least once); ``near``: the candidates of
+        :func:`match_nearest` at ``q``, which confirm the first fit's matches when it lies
+        within ``slack`` (``n_fov`` then stays the direct match's, from the cone's density)."""
+        b, database, cone = self.b, self.database, self.cone     # (more than three: a tuple)
+        tol, streaks = self.tol, self.streaks
+        q0 = q
+        q = fit(b, database, pairs, q, self.weights, cone)
+        if q is None:
+            return self._fail(S.NO_MATCH, n_fov)
+        if coarse:
+            pairs = None
+        converged = False
+        for _ in range(self.iterations):
+            if near is not None and _within(q, q0, self.slack):
+                new = confirm(b, database, q, near, tol, streaks, cone)
+            else:
+                predicted, n_fov = predict(database, q, 2.0 * tol, cone)
+                new = match_nearest(b, predicted, tol, streaks)
+            near = None
+            if new == pairs:
+                converged = True        # the matches at q are pairs: the check below holds
+                break
+            q_new = fit(b, database, new, q, self.weights, cone)
+            if q_new is None:
+                break
+            pairs = new
+            q = q_new
+        if pairs is None or len(pairs) < 2:
+            return self._fail(S.NO_MATCH, n_fov)
+        # the reported matches must hold at the returned attitude
+        final = pairs
+        if not converged:
+            predicted, n_fov = predict(database, q, 2.0 * tol, cone)
+            final = match_nearest(b, predicted, tol, streaks)
+        predicted = None
+        if final != pairs:
+            keep = {}
+            for pair in final:
+                keep[pair] = 1
+            pairs = [pair for pair in pairs if pair in keep]
+            q2 = fit(b, database, pairs, q, self.weights, cone)
+            if q2 is None:
+                return self._fail(S.NO_MATCH, n_fov)
+            q = q2
+        omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
+        _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
+        matches = [(o, database.star_hip(s)) for o, s in pairs]
+        rms = residual_rms(b, database, q, pairs, cone)
+        status = S.OK if len(pairs) >= self.min_matches and prob < self.max_prob else S.NO_MATCH
+        return TrackSolution(status, q=q if status == S.OK else None,
+                             matches=matches if status == S.OK else [],
+                             star_ids=list(pairs) if status == S.OK else [], probability=prob,
+                             q_predicted=self.q_pred, n_predicted=n_fov, residual_rad=rms)

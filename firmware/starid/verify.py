@@ -134,8 +134,9 @@ def predicted_stars(database, q, margin=0.0):
     return ids, vecs
 
 
-def chord(angle):
-    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart."""
+def chord_of_angle(angle):
+    """Chord length of an angle (rad): ``|a - b|`` of unit vectors ``angle`` apart
+    (:func:`lodestar.firmware.geometry.chord` is that of two vectors)."""
     return 2.0 * math.sin(0.5 * angle)
 
 
@@ -143,12 +144,13 @@ def in_region(dx, dy, dz, streak, lim):
     """True when the offset ``(dx, dy, dz)`` of an observed unit vector from a predicted one
     lies in the observed star's match region: within the chord ``lim`` of the predicted
     star, widened along a ``streak`` ``(ux, uy, uz, half)`` to the stadium of points within
-    ``lim`` of the segment ``+-chord(half)`` along ``u`` (``docs/starid.md``; None: a disc)."""
+    ``lim`` of the segment ``+-chord_of_angle(half)`` along ``u`` (``docs/starid.md``;
+    None: a disc)."""
     d2 = dx * dx + dy * dy + dz * dz
     if streak is None:
         return d2 <= lim * lim
     a = abs(dx * streak[0] + dy * streak[1] + dz * streak[2])    # along the track
-    beyond = a - chord(streak[3])                                  # past the segment's end
+    beyond = a - chord_of_angle(streak[3])                         # past the segment's end
     if beyond < 0.0:
         beyond = 0.0
     return d2 - a * a + beyond * beyond <= lim * lim
@@ -180,7 +182,7 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None, o
     ``o`` then ``p`` order.  The predicted stars are sorted by ``x`` once (:func:`x_order`;
     ``order``: that of ``predicted``, kept by the caller), so each observed star tests only
     those whose ``x`` is within reach (a binary search), not all."""
-    lim = chord(radius_rad)
+    lim = chord_of_angle(radius_rad)
     n = len(observed) if n_observed is None else min(n_observed, len(observed))
     vecs = predicted[1]
     n_pred = len(predicted[0])
@@ -189,7 +191,7 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None, o
     for o in range(n):
         ox, oy, oz = observed[o]
         streak = streaks[o] if streaks is not None else None
-        reach = lim if streak is None else lim + chord(streak[3])
+        reach = lim if streak is None else lim + chord_of_angle(streak[3])
         # a window wider than the exact test below
         lo = lower_bound(order, int((ox - 2.0 * reach + 1.0) * steps) << shift)
         high = (int((ox + 2.0 * reach + 1.0) * steps) << shift) | mask

@@ -135,21 +135,21 @@ def test_confirming_from_candidates_matches_as_a_new_prediction():
         if trial % 3 == 2:                  # a track along x, half of it unseen, every 2nd
             streaks = [(1.0, 0.0, 0.0, 3 * TOL) if i % 2 else None for i in range(len(b))]
         prior = perturbed(q, 0.002, rng)
-        stars = tracking.candidates(db, prior, 0.02)
-        predicted, _n = tracking.predict(db, prior, 2 * TOL + 2 * slack, stars)
+        cone = tracking.candidates(db, prior, 0.02)
+        predicted, _n = tracking.predict(db, prior, 2 * TOL + 2 * slack, cone)
         pairs, near = tracking.match_nearest(b, predicted, TOL, streaks, slack)
         assert pairs == tracking.match_nearest(
-            b, tracking.predict(db, prior, 2 * TOL, stars)[0], TOL, streaks)
+            b, tracking.predict(db, prior, 2 * TOL, cone)[0], TOL, streaks)
         # the same in the inertial frame, against every star of the cone in its x order
         assert (pairs, near) == tracking.match_nearest(
-            tracking._to_inertial(b, prior), stars, TOL,
-            tracking._streaks_to_inertial(streaks, prior), slack, order=stars[3])
+            tracking._to_inertial(b, prior), cone.stars, TOL,
+            tracking._streaks_to_inertial(streaks, prior), slack, order=cone.order)
         for _ in range(6):
             qq = perturbed(prior, math.degrees(rng.uniform(0, slack)), rng)
             assert tracking._within(qq.tolist(), prior.tolist(), slack)
             full = tracking.match_nearest(
-                b, tracking.predict(db, qq, 2 * TOL, stars)[0], TOL, streaks)
-            assert tracking.confirm(b, db, qq, near, TOL, streaks, stars) == full
+                b, tracking.predict(db, qq, 2 * TOL, cone)[0], TOL, streaks)
+            assert tracking.confirm(b, db, qq, near, TOL, streaks, cone) == full
             compared += 1
             changed += full != pairs
     assert compared == 72 and changed >= 5       # the turns change some matches
@@ -206,29 +206,34 @@ def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
     for k in range(12):
         q = perturbed(q0, 0.1 * k, rng, axis=(1.0, 0.0, 0.0)).tolist()
         before = db.reads
-        stars = tracking.candidates(db, q, margin, cone)
+        assert tracking.candidates(db, q, margin, cone) is cone
         queries += db.reads > before
-        assert tracking.predict(db, q, 0.005, stars) == \
+        assert tracking.predict(db, q, 0.005, cone) == \
             tracking.predict(db, q, 0.005, tracking.candidates(db, q, margin))
         m = tracking.matrix(q)
         assert cone.covers(db, (m[6], m[7], m[8]), 0.5 * db.fov_diag + margin)
     # 1.1 deg in 0.1 deg steps with 0.5 deg of room: a query about every five frames
     assert 2 <= queries <= 4
     cone.clear()
-    assert cone.stars is None and not cone.covers(db, (0.0, 0.0, 1.0), 0.1)
+    assert cone.ids is None and cone.stars is None
+    assert not cone.covers(db, (0.0, 0.0, 1.0), 0.1)
 
 
-def test_star_vectors_come_from_the_candidates_or_the_database():
+def test_star_vectors_come_from_the_cone_or_the_database():
     db = _CountingDatabase(SF.flight_database())
-    stars = tracking.candidates(db, [0.0, 0.0, 0.0, 1.0], 0.01)
-    ids = list(stars[0])
+    cone = tracking.candidates(db, [0.0, 0.0, 0.0, 1.0], 0.01)
+    assert cone.stars == (cone.ids, cone.vecs) and cone.database is db
+    ids = list(cone.ids)
     before = db.reads
     for s in ids[:5]:
-        assert tracking.star_vector(db, stars, s) == db._db.star_vector(s)
+        assert cone.star_vector(db, s) == db._db.star_vector(s)
     assert db.reads == before                   # held: no read
-    outside = next(s for s in range(db.n_stars) if s not in stars[2])
-    assert tracking.star_vector(db, stars, outside) == db._db.star_vector(outside)
+    outside = next(s for s in range(db.n_stars) if s not in cone.where)
+    assert cone.star_vector(db, outside) == db._db.star_vector(outside)
     assert db.reads > before
+    cone.clear()                                # empty: every star read
+    assert cone.star_vector(db, ids[0]) == db._db.star_vector(ids[0])
+    assert db.reads > before + 1
 
 
 def test_a_cone_is_not_shared_between_databases():

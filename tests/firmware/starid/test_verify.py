@@ -19,7 +19,7 @@ from lodestar.sim.centroids import centroid_scene
 def test_match_region_is_a_stadium_along_the_track():
     u = (1.0, 0.0, 0.0)
     streak = u + (5e-4,)
-    lim = V.chord(1e-4)
+    lim = V.chord_of_angle(1e-4)
     # along the track: out to half + tolerance
     assert V.in_region(5.9e-4, 0.0, 0.0, streak, lim)
     assert not V.in_region(6.1e-4, 0.0, 0.0, streak, lim)
@@ -115,7 +115,7 @@ def test_near_pairs_finds_what_testing_every_pair_finds(seed):
         u = G.unit(tuple(np.cross(observed[o], [0.0, 0.0, 1.0]) + [0.0, 0.0, 1e-9]))
         streaks[o] = (u[0], u[1], u[2], 2e-3)
     radius = 1e-3
-    lim = V.chord(radius)
+    lim = V.chord_of_angle(radius)
 
     def every_pair(streaks):
         for o, (ox, oy, oz) in enumerate(observed):
