@@ -45,18 +45,6 @@ STAR_FLAG_PATTERN = 1        # flag bit: the star is in the pair table (a patter
 STAR_FLAG_TRIANGLE = 2       # flag bit: the star is a vertex of a stored triangle
 STAR_FLAG_HASH = 4           # flag bit: the star is a member of a stored hash group
 
-# Method bit mask and the sections each method needs.
-METHOD_PYRAMID = 1
-METHOD_TRIANGLE = 2
-METHOD_HASHING = 4
-METHODS = ("pyramid", "triangle", "hashing")
-"""The identification methods, in the order of their bits: the one list of the project."""
-METHOD_NAMES = dict(zip(METHODS, (METHOD_PYRAMID, METHOD_TRIANGLE, METHOD_HASHING)))
-"""Method name -> its bit in the header's ``methods`` mask."""
-METHOD_SECTIONS = {METHOD_PYRAMID: (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
-                   METHOD_TRIANGLE: (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
-                   METHOD_HASHING: (SEC_STARS, SEC_CELLS, SEC_HASH)}
-
 # Section 4 (triangles): a 40-byte section header, the records sorted by
 # (area_key, moment_key, s0, s1, s2), zero padding to 4 bytes, then the k-vector over the area
 # keys ((tri_kv_bins + 1) x "<I").  Section header fields (attributes "tri_" + name):
@@ -81,3 +69,43 @@ HASH_HEADER_SIZE = 56
 HASH_FLAG_DISTANCE = 1       # non-normalized hash: the code also keys the A-B angle
 HASH_GROUP_SIZES = (3, 4)
 HASH_MAX_CODE = 1 << 30      # codes stay MicroPython small ints
+
+# Sections with a header of their own (magic first), then records sorted by key (the first
+# field of a record), zero padding to 4 bytes and the k-vector over the keys.  Per section:
+# (id, attribute prefix of the header fields, magic, header format, size, fields, key format).
+KEYED_SECTIONS = ((SEC_TRIANGLES, "tri_", TRI_MAGIC, TRI_HEADER_FORMAT, TRI_HEADER_SIZE,
+                   TRI_HEADER_FIELDS, "<H"),
+                  (SEC_HASH, "hash_", HASH_MAGIC, HASH_HEADER_FORMAT, HASH_HEADER_SIZE,
+                   HASH_HEADER_FIELDS, "<I"))
+
+# The identification methods, in the order of their bits: the one table of the project.
+# Per method: (name, bit in the header's ``methods`` mask, the flight module that implements
+# it, the sections its images carry, the ground builder's options as (name, default) pairs).
+# ``lodestar.firmware.starid`` imports the module; ``lodestar.firmware.database`` derives
+# its masks and required sections; ``lodestar.ground.database`` its dispatch and options.
+METHOD_TABLE = (
+    ("pyramid", 1, "lodestar.firmware.starid.pyramid",
+     (SEC_STARS, SEC_CELLS, SEC_PAIRS, SEC_KVECTOR),
+     (("pairs_per_bin", 32),)),
+    ("triangle", 2, "lodestar.firmware.starid.triangle",
+     (SEC_STARS, SEC_CELLS, SEC_TRIANGLES),
+     (("regions_per_face", 16), ("region_radius_deg", None), ("stars_per_region", 5),
+      ("max_side_deg", None), ("per_bin", 4))),
+    ("hashing", 4, "lodestar.firmware.starid.hashing",
+     (SEC_STARS, SEC_CELLS, SEC_HASH),
+     (("group_size", 4), ("normalized", False), ("regions_per_face", 16),
+      ("region_radius_deg", None), ("stars_per_region", 6), ("max_diameter_deg", None),
+      ("min_diameter_deg", None), ("coord_lo", -1.0), ("coord_bucket", 0.075),
+      ("dist_bucket_deg", 0.25), ("per_bin", 4))),
+)
+METHODS = tuple(m[0] for m in METHOD_TABLE)
+"""The method names, in the order of their bits."""
+METHOD_NAMES = dict((m[0], m[1]) for m in METHOD_TABLE)
+"""Method name -> its bit in the header's ``methods`` mask."""
+METHOD_SECTIONS = dict((m[1], m[3]) for m in METHOD_TABLE)
+"""Method bit -> the sections an image serving it carries."""
+METHOD_MASK = sum(m[1] for m in METHOD_TABLE)
+"""Every method bit: a ``methods`` mask with any other bit is not an image of this format."""
+METHOD_PYRAMID = METHOD_NAMES["pyramid"]
+METHOD_TRIANGLE = METHOD_NAMES["triangle"]
+METHOD_HASHING = METHOD_NAMES["hashing"]
