@@ -1,7 +1,15 @@
 """Star-identification database layout: one little-endian binary image that the ground
 builder (``lodestar.ground.database``) writes and the flight reader
 (``lodestar.firmware.database``) reads by offset.  The layout is specified in
-``docs/stardb.md``; every value of it is here.  MicroPython-safe."""
+``docs/stardb.md``; every value of it is here.  MicroPython-safe: the values the tables
+below are made of are ``const()``, so MicroPython folds the tables into constants that a
+frozen image keeps in flash."""
+
+try:
+    from micropython import const
+except ImportError:         # CPython
+    def const(value):
+        return value
 
 MAGIC = b"LSDB"
 VERSION = 1
@@ -21,12 +29,12 @@ HEADER_CRC_OFFSET = 156      # "<I": CRC-32 of header bytes [0, 156)
 SECTION_ALIGN = 4
 
 # Section ids (index into the directory).  Length 0 = absent.
-SEC_STARS = 0                # n_stars records of STAR_FORMAT
-SEC_CELLS = 1                # (6 * cells_per_face**2 + 1) x "<H": first star of each cell
-SEC_PAIRS = 2                # n_pairs records of PAIR_FORMAT, sorted by (key, a, b)
-SEC_KVECTOR = 3              # (kv_bins + 1) x "<I": the k-vector over the pair keys
-SEC_TRIANGLES = 4            # TRI_HEADER, n_triangles x TRI_RECORD, k-vector (triangle)
-SEC_HASH = 5                 # HASH_HEADER, n_groups x HASH_RECORD, k-vector (hashing)
+SEC_STARS = const(0)      # n_stars records of STAR_FORMAT
+SEC_CELLS = const(1)      # (6 * cells_per_face**2 + 1) x "<H": first star of each cell
+SEC_PAIRS = const(2)      # n_pairs records of PAIR_FORMAT, sorted by (key, a, b)
+SEC_KVECTOR = const(3)    # (kv_bins + 1) x "<I": the k-vector over the pair keys
+SEC_TRIANGLES = const(4)  # TRI_HEADER, n_triangles x TRI_RECORD, k-vector (triangle)
+SEC_HASH = const(5)       # HASH_HEADER, n_groups x HASH_RECORD, k-vector (hashing)
 SECTION_NAMES = ("stars", "cells", "pairs", "kvector", "triangles", "hash", "reserved6",
                  "reserved7")
 
@@ -48,24 +56,25 @@ STAR_FLAG_HASH = 4           # flag bit: the star is a member of a stored hash g
 # Section 4 (triangles): a 40-byte section header, the records sorted by
 # (area_key, moment_key, s0, s1, s2), zero padding to 4 bytes, then the k-vector over the area
 # keys ((tri_kv_bins + 1) x "<I").  Section header fields (attributes "tri_" + name):
-TRI_MAGIC = b"TRI1"
-TRI_HEADER_FORMAT = "<4sIIfffffHHf"
-TRI_HEADER_FIELDS = ("magic", "n", "kv_bins", "area_step", "moment_step", "max_side", "kv_m",
-                     "kv_q", "regions_per_face", "stars_per_region", "region_radius")
-TRI_HEADER_SIZE = 40
+TRI_MAGIC = const(b"TRI1")
+TRI_HEADER_FORMAT = const("<4sIIfffffHHf")
+TRI_HEADER_FIELDS = const(("magic", "n", "kv_bins", "area_step", "moment_step", "max_side",
+                           "kv_m", "kv_q", "regions_per_face", "stars_per_region",
+                           "region_radius"))
+TRI_HEADER_SIZE = const(40)
 TRI_RECORD_FORMAT = "<HHHHH"  # area key, moment key, s0, s1, s2 (s0 opposite the shortest side)
 TRI_RECORD_SIZE = 10
 
 # Section 5 (hash): a 56-byte section header, the records sorted by (code, stars), zero
 # padding to 4 bytes, then the k-vector over the codes.  Record: "<I" bucket code, then
 # hash_group_size x "<H" star indices in the canonical order A, B, C(, D).
-HASH_MAGIC = b"HSH1"
-HASH_HEADER_FORMAT = "<4sIIHHffHHfffffHHf"
-HASH_HEADER_FIELDS = ("magic", "n", "kv_bins", "group_size", "flags", "coord_lo",
-                      "coord_bucket", "coord_buckets", "dist_buckets", "dist_bucket",
-                      "min_diameter", "max_diameter", "kv_m", "kv_q", "regions_per_face",
-                      "stars_per_region", "region_radius")
-HASH_HEADER_SIZE = 56
+HASH_MAGIC = const(b"HSH1")
+HASH_HEADER_FORMAT = const("<4sIIHHffHHfffffHHf")
+HASH_HEADER_FIELDS = const(("magic", "n", "kv_bins", "group_size", "flags", "coord_lo",
+                            "coord_bucket", "coord_buckets", "dist_buckets", "dist_bucket",
+                            "min_diameter", "max_diameter", "kv_m", "kv_q", "regions_per_face",
+                            "stars_per_region", "region_radius"))
+HASH_HEADER_SIZE = const(56)
 HASH_FLAG_DISTANCE = 1       # non-normalized hash: the code also keys the A-B angle
 HASH_GROUP_SIZES = (3, 4)
 HASH_MAX_CODE = 1 << 30      # codes stay MicroPython small ints
