@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 from lodestar import contract as C
+from lodestar.contract.stardb import METHODS
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
 from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
@@ -188,7 +189,7 @@ def flash_table(binary):
     print(f"| firmware + contract, frozen bytecode (mpy-cross, armv7emsp) | {total:,} | "
           "MCU internal flash (512 KiB, with MicroPython itself) |")
     camera = presets.load_preset("estcube2")
-    for method in ("pyramid", "triangle", "hashing"):
+    for method in METHODS:
         size = len(build_database(camera=camera, methods=(method,), mag_limit=DEFAULT_MAX_MAG,
                                   **FLIGHT_DENSITY))
         print(f"| estcube2 flight database (`db build --flight`), {method} | {size:,} | "

@@ -83,6 +83,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lodestar.contract.stardb import METHODS
 from lodestar.ground import solve as L
 from lodestar.ground.truth import judge
 from lodestar.sim.attitude import random_attitude
@@ -91,7 +92,6 @@ from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
 
 MAX_ERR_DEG = 0.05
-ALL_METHODS = ("pyramid", "triangle", "hashing")
 CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
 
 
@@ -292,7 +292,7 @@ def main(argv=None):
     parser.add_argument("--scenes", type=int, default=500,
                         help="scenes (default 500; the full run is 10000)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--methods", default=",".join(ALL_METHODS),
+    parser.add_argument("--methods", default=",".join(METHODS),
                         help="comma-separated lodestar methods (unavailable ones are skipped)")
     parser.add_argument("--cedar", action="store_true",
                         help="compare with cedar-solve (installed with --no-deps if missing)")

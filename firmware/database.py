@@ -7,7 +7,10 @@ region) with ``struct.unpack_from``; ``Database.open(path)`` reads a file by ``s
 ``DATABASE_*`` status of each failure: ``docs/firmware.md``, Database reader.
 **Error policy**: the reader raises :class:`DatabaseError` (``status``, ``reason``); the flight
 API calls :func:`load` or :func:`check`, which return ``(status, reason)``, so no exception
-reaches the flight loop.  All three methods are served (:data:`SUPPORTED_METHODS`).
+reaches the flight loop.  Every method of the contract's table is served
+(:data:`SUPPORTED_METHODS`); the sections an image must carry follow from its ``methods``
+mask and that table (:func:`required_sections`), and each section with its own header is
+checked by one procedure (``lodestar.contract.stardb.KEYED_SECTIONS``).
 Pure Python for CPython and MicroPython 1.27 (``struct``, ``binascii``, ``math``, ``array``).
 """
 
@@ -21,8 +24,8 @@ from lodestar.contract.packet import crc32
 from . import kvector
 from . import status as S
 
-SUPPORTED_METHODS = L.METHOD_PYRAMID | L.METHOD_TRIANGLE | L.METHOD_HASHING
-"""The methods this reader serves."""
+SUPPORTED_METHODS = L.METHOD_MASK
+"""The methods this reader serves: every method of ``lodestar.contract.stardb.METHOD_TABLE``."""
 
 # Status codes of DatabaseError / check() / load(): lodestar.firmware.status integers.
 OK = S.OK
@@ -171,6 +174,16 @@ def _finite_positive(x):
     return x == x and 0.0 < x < 1e30
 
 
+def required_sections(methods):
+    """The section ids an image with the ``methods`` mask must carry (the contract's
+    :data:`~lodestar.contract.stardb.METHOD_TABLE`; repeats possible)."""
+    out = []
+    for entry in L.METHOD_TABLE:
+        if methods & entry[1]:
+            out.extend(entry[3])
+    return out
+
+
 class Database:
     """A validated star-identification database image.
 
@@ -252,8 +265,7 @@ class Database:
         def bad(reason):
             raise DatabaseError(S.DATABASE_BAD_LAYOUT, reason)
 
-        if self.methods == 0 or self.methods & ~(L.METHOD_PYRAMID | L.METHOD_TRIANGLE |
-                                                 L.METHOD_HASHING):
+        if self.methods == 0 or self.methods & ~L.METHOD_MASK:
             bad("unknown method mask " + str(self.methods))
         if not self.methods & SUPPORTED_METHODS:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "method mask " + str(self.methods) +
@@ -269,18 +281,15 @@ class Database:
             bad("cells_per_face " + str(self.cells_per_face))
         expected = {L.SEC_STARS: self.n_stars * L.STAR_SIZE,
                     L.SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
-        if self.methods & L.METHOD_PYRAMID:
+        required = required_sections(self.methods)
+        if L.SEC_PAIRS in required:         # the pair table's values are header fields
             if self.n_pairs < 1 or self.kv_bins < 1:
-                bad("pyramid method without pairs or k-vector bins")
+                bad("pair table without pairs or k-vector bins")
             if not (_finite_positive(self.key_step) and _finite_positive(self.kv_m)) or \
                     self.kv_q != self.kv_q:
                 bad("key step or k-vector line not finite and positive")
             expected[L.SEC_PAIRS] = self.n_pairs * L.PAIR_SIZE
             expected[L.SEC_KVECTOR] = (self.kv_bins + 1) * 4
-        required = []
-        for bit in (L.METHOD_PYRAMID, L.METHOD_TRIANGLE, L.METHOD_HASHING):
-            if self.methods & bit:
-                required.extend(L.METHOD_SECTIONS[bit])
         spans = []
         for sec in range(L.N_SECTIONS):
             offset, length = self.sections[sec]
@@ -306,66 +315,63 @@ class Database:
         nc = n_cells(self.cells_per_face)
         if self._cell_start(0) != 0 or self._cell_start(nc) != self.n_stars:
             bad("cell index does not span the star table")
-        self.tri_n = self.hash_n = 0
-        if self.methods & L.METHOD_TRIANGLE:
-            self._check_triangles(bad)
-        if self.methods & L.METHOD_HASHING:
-            self._check_hash(bad)
+        for spec in L.KEYED_SECTIONS:
+            setattr(self, spec[1] + "n", 0)
+            if spec[0] in required:
+                self._check_keyed(spec, bad)
 
-    def _section_header(self, sec, fmt, size, fields, prefix, magic, bad):
+    def _check_keyed(self, spec, bad):
+        """Check a section of :data:`~lodestar.contract.stardb.KEYED_SECTIONS`: its header
+        (fields set as attributes ``prefix + name``), the values of its method
+        (:data:`_KEYED_VALUES`), its length, its sorted keys and k-vector; sets the offsets
+        ``_<prefix>off`` (records) and ``_<prefix>kv_off`` (k-vector)."""
+        sec, prefix, magic, fmt, size, fields, key_format = spec
+        name = L.SECTION_NAMES[sec]
         offset, length = self.sections[sec]
         if length < size:
-            bad("section " + L.SECTION_NAMES[sec] + " is shorter than its header")
+            bad("section " + name + " is shorter than its header")
         values = self._src.unpack(fmt, offset, size)
         if values[0] != magic:
-            raise DatabaseError(S.DATABASE_UNSUPPORTED, "section " + L.SECTION_NAMES[sec] +
-                                " format " + repr(values[0]) + " is not " + repr(magic))
-        for name, value in zip(fields[1:], values[1:]):
-            setattr(self, prefix + name, value)
-        return offset, length
-
-    @staticmethod
-    def _tail_length(n, record_size, kv_bins):
+            raise DatabaseError(S.DATABASE_UNSUPPORTED, "section " + name + " format " +
+                                repr(values[0]) + " is not " + repr(magic))
+        for field, value in zip(fields[1:], values[1:]):
+            setattr(self, prefix + field, value)
+        record_size = _KEYED_VALUES[sec](self, bad)
+        n, kv_bins = getattr(self, prefix + "n"), getattr(self, prefix + "kv_bins")
+        if n < 1 or kv_bins < 1:
+            bad("section " + name + " without records or k-vector bins")
         body = n * record_size
-        return body + (-body) % L.SECTION_ALIGN + 4 * (kv_bins + 1)
-
-    def _check_kvector(self, kv_off, kv_bins, n, first_key, last_key, kv_m, kv_q, name, bad):
+        if length != size + body + (-body) % L.SECTION_ALIGN + 4 * (kv_bins + 1):
+            bad("section " + name + " is " + str(length) + " bytes, its header implies otherwise")
+        off = offset + size
+        kv_off = off + body + (-body) % L.SECTION_ALIGN
+        setattr(self, "_" + prefix + "off", off)
+        setattr(self, "_" + prefix + "kv_off", kv_off)
+        src = self._src
+        kv_m, kv_q = getattr(self, prefix + "kv_m"), getattr(self, prefix + "kv_q")
         if not (_finite_positive(kv_m) and kv_q == kv_q and abs(kv_q) < 1e30):
             bad(name + " k-vector line not finite")
-        if self._src.unpack(L.KV_FORMAT, kv_off, 4)[0] > n or \
-                self._src.unpack(L.KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
+        if src.unpack(L.KV_FORMAT, kv_off, 4)[0] > n or \
+                src.unpack(L.KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
             bad(name + " k-vector does not span its records")
-        if first_key > last_key:
+        key_size = struct.calcsize(key_format)
+        if src.unpack(key_format, off, key_size)[0] > \
+                src.unpack(key_format, off + (n - 1) * record_size, key_size)[0]:
             bad(name + " records are not sorted")
 
-    def _check_triangles(self, bad):
-        offset, length = self._section_header(L.SEC_TRIANGLES, L.TRI_HEADER_FORMAT,
-                                              L.TRI_HEADER_SIZE,
-                                              L.TRI_HEADER_FIELDS, "tri_", L.TRI_MAGIC, bad)
-        if self.tri_n < 1 or self.tri_kv_bins < 1:
-            bad("triangle method without triangles or k-vector bins")
+    def _triangle_values(self, bad):
+        """The triangle section's own values; returns its record size."""
         for name in ("tri_area_step", "tri_moment_step", "tri_max_side"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
                 bad(name + " not finite and positive")
-        if length != L.TRI_HEADER_SIZE + self._tail_length(self.tri_n, L.TRI_RECORD_SIZE,
-                                                         self.tri_kv_bins):
-            bad("section triangles is " + str(length) + " bytes, its header implies otherwise")
-        self._tri_off = offset + L.TRI_HEADER_SIZE
-        body = self.tri_n * L.TRI_RECORD_SIZE
-        self._tri_kv_off = self._tri_off + body + (-body) % L.SECTION_ALIGN
-        self._check_kvector(self._tri_kv_off, self.tri_kv_bins, self.tri_n,
-                            self.triangle_area_key(0), self.triangle_area_key(self.tri_n - 1),
-                            self.tri_kv_m, self.tri_kv_q, "triangle", bad)
+        return L.TRI_RECORD_SIZE
 
-    def _check_hash(self, bad):
-        offset, length = self._section_header(L.SEC_HASH, L.HASH_HEADER_FORMAT, L.HASH_HEADER_SIZE,
-                                              L.HASH_HEADER_FIELDS, "hash_", L.HASH_MAGIC, bad)
+    def _hash_values(self, bad):
+        """The hash section's own values; returns its record size (sets the record format)."""
         g = self.hash_group_size
         if g not in L.HASH_GROUP_SIZES or self.hash_flags & ~L.HASH_FLAG_DISTANCE:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "hash group size " + str(g) +
                                 " or flags " + str(self.hash_flags) + " not served")
-        if self.hash_n < 1 or self.hash_kv_bins < 1:
-            bad("hashing method without groups or k-vector bins")
         for name in ("hash_coord_bucket", "hash_dist_bucket", "hash_max_diameter"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
                 bad(name + " not finite and positive")
@@ -378,15 +384,7 @@ class Database:
             bad("hash bucket grid too large")
         self._hash_record_size = 4 + 2 * g
         self._hash_format = "<I" + "H" * g
-        if length != L.HASH_HEADER_SIZE + self._tail_length(self.hash_n, self._hash_record_size,
-                                                          self.hash_kv_bins):
-            bad("section hash is " + str(length) + " bytes, its header implies otherwise")
-        self._hash_off = offset + L.HASH_HEADER_SIZE
-        body = self.hash_n * self._hash_record_size
-        self._hash_kv_off = self._hash_off + body + (-body) % L.SECTION_ALIGN
-        self._check_kvector(self._hash_kv_off, self.hash_kv_bins, self.hash_n,
-                            self.hash_code(0), self.hash_code(self.hash_n - 1),
-                            self.hash_kv_m, self.hash_kv_q, "hash", bad)
+        return self._hash_record_size
 
     def _cell_centres(self):
         n = self.cells_per_face
@@ -585,13 +583,16 @@ class Database:
         for name in L.HEADER_FIELDS:
             out[name] = getattr(self, name)
         out["sections"] = list(self.sections)
-        if self.methods & L.METHOD_TRIANGLE:
-            out["triangles"] = dict((name, getattr(self, "tri_" + name))
-                                    for name in L.TRI_HEADER_FIELDS[1:])
-        if self.methods & L.METHOD_HASHING:
-            out["hash"] = dict((name, getattr(self, "hash_" + name))
-                               for name in L.HASH_HEADER_FIELDS[1:])
+        required = required_sections(self.methods)
+        for sec, prefix, _, _, _, fields, _ in L.KEYED_SECTIONS:
+            if sec in required:
+                out[L.SECTION_NAMES[sec]] = dict((name, getattr(self, prefix + name))
+                                                 for name in fields[1:])
         return out
+
+
+_KEYED_VALUES = {L.SEC_TRIANGLES: Database._triangle_values, L.SEC_HASH: Database._hash_values}
+"""The checks of the values of each keyed section's method (:meth:`Database._check_keyed`)."""
 
 
 def check(buffer):

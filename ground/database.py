@@ -9,6 +9,7 @@ import math
 import struct
 import zlib
 from itertools import combinations
+from typing import NamedTuple
 
 import numpy as np
 
@@ -377,21 +378,18 @@ def _kvector_tail(records, keys, per_bin):
     return body + kv_table.astype("<u4").tobytes(), kv_bins, kv_m, kv_q
 
 
-TRIANGLE_DEFAULTS = {"regions_per_face": 16, "region_radius_deg": None, "stars_per_region": 5,
-                     "max_side_deg": None, "per_bin": 4}
-"""Triangle-section options (``triangle_options``): cube cells per face of the regions,
-region radius (default half the vertical FOV), the brightest pattern stars taken per region,
-the longest side (default the FOV diagonal) and triangles per k-vector bin."""
+class Sky(NamedTuple):
+    """The ordered star table a method's section builder reads (indices are its rows)."""
 
-HASH_DEFAULTS = {"group_size": 4, "normalized": False, "regions_per_face": 16,
-                 "region_radius_deg": None, "stars_per_region": 6, "max_diameter_deg": None,
-                 "min_diameter_deg": None, "coord_lo": -1.0, "coord_bucket": 0.075,
-                 "dist_bucket_deg": 0.25, "per_bin": 4}
-"""Hash-section options (``hash_options``): group size 3 or 4, normalized (no A-B angle in
-the code) or not, regions (cube cells per face, radius default half the vertical FOV, the
-brightest non-blended stars taken per region), group diameter range (default a quarter of
-the vertical FOV to the FOV diagonal), the coordinate grid (lower edge, bucket width; the
-grid spans [coord_lo, coord_lo + 3]), the A-B angle bucket and groups per k-vector bin."""
+    v32: np.ndarray         # (n, 3) float32 unit vectors as stored
+    v64: np.ndarray         # the same as float64
+    vmag: np.ndarray        # V magnitudes
+    pattern: np.ndarray     # bool: pattern stars (pairs, triangles)
+    unblended: np.ndarray   # bool: stars without a close neighbour (hash groups)
+    fov_v: float            # vertical FOV, deg
+    fov_d: float            # diagonal FOV, deg
+    min_pair: float         # pair angle range, rad
+    max_pair: float
 
 
 # --------------------------------------------------------------------------------------
@@ -416,8 +414,7 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
                    fov_v_deg=None, mag_limit=6.0, method=None, methods=None,
                    max_pair_angle_deg=None, min_pair_angle_deg=0.0, pattern_radius_deg=None,
                    pattern_per_region=6, blend_radius_deg=0.02, cells_per_face=8,
-                   pairs_per_bin=32, triangle_options=None, hash_options=None,
-                   verification_stars_per_fov=None, pattern_stars_per_fov=None,
+                   options=None, verification_stars_per_fov=None, pattern_stars_per_fov=None,
                    density_per_region=None, max_pair_fraction=1.0):
     """Build a database image (``bytes``; layout in the module docstring).
 
@@ -433,25 +430,15 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     the ``pattern_per_region`` rule; ``density_per_region``: stars allowed within the
     selection's separation (default :data:`DENSITY_PER_REGION`).
     ``methods``: the identification methods the image serves, any of :data:`METHODS`
-    (``("pyramid", "triangle", "hashing")`` gives one image with every section; default
-    ``("pyramid",)``); ``method``: a single name, the same as ``methods=(method,)``.
+    (all of them give one image with every section; default ``("pyramid",)``); ``method``:
+    a single name, the same as ``methods=(method,)``.
     ``max_pair_angle_deg`` defaults to ``max_pair_fraction`` (default 1) of the FOV
-    diagonal, ``pattern_radius_deg`` to half the vertical FOV.  ``triangle_options`` /
-    ``hash_options``: dicts overriding :data:`TRIANGLE_DEFAULTS` / :data:`HASH_DEFAULTS`.
+    diagonal, ``pattern_radius_deg`` to half the vertical FOV.  ``options``: ``{method name:
+    {option: value}}`` overriding the defaults of the contract's
+    :data:`~lodestar.contract.stardb.METHOD_TABLE` (``docs/stardb.md``, Builder options).
     """
-    if method is not None and methods is not None:
-        raise ValueError("give method or methods, not both")
-    if methods is None:
-        methods = ("pyramid",) if method is None else (method,)
-    if isinstance(methods, str):
-        methods = (methods,)
-    methods = tuple(methods)
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
-        raise NotImplementedError(f"methods {unknown or methods!r}: only {METHODS} can be "
-                                  "built")
-    tri_opt = _options(TRIANGLE_DEFAULTS, triangle_options, "triangle_options")
-    hash_opt = _options(HASH_DEFAULTS, hash_options, "hash_options")
+    methods = _methods(method, methods)
+    opts = _method_options(options)
     if catalogue is None:
         catalogue = default_catalogue(mag_limit)
     fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
@@ -472,13 +459,8 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     per_region = DENSITY_PER_REGION if density_per_region is None else int(density_per_region)
     if per_region < 1:
         raise ValueError(f"density_per_region must be >= 1, got {density_per_region!r}")
-    sel = np.flatnonzero(catalogue.vmag <= (np.inf if mag_limit is None else mag_limit))
-    if verification_stars_per_fov is not None:
-        sel = sel[select_density(catalogue.unit_vectors()[sel], catalogue.vmag[sel],
-                                 verification_stars_per_fov, fov_h, fov_v,
-                                 per_region=per_region)[0]]
-    if not 4 <= len(sel) <= 0xFFFF:
-        raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: need 4..65535")
+    sel = _table_rows(catalogue, mag_limit, verification_stars_per_fov, fov_h, fov_v,
+                      per_region)
     vectors64 = catalogue.unit_vectors()[sel]
     vmag = np.asarray(catalogue.vmag[sel], dtype=np.float64)
     hip = np.asarray(catalogue.hip[sel], dtype=np.int64)
@@ -504,60 +486,107 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     order = np.lexsort((hip, vmag, cells))
     v32, vmag, hip, mag_code, pattern, unblended, cells = (
         arr[order] for arr in (v32, vmag, hip, mag_code, pattern, unblended, cells))
-    n_stars = len(order)
-    nc = fwdb.n_cells(cells_per_face)
-    cell_start = np.searchsorted(cells, np.arange(nc + 1), side="left")
-    v64 = v32.astype(np.float64)
-    flags = np.zeros(n_stars, dtype=np.int64)
-    sections = {L.SEC_CELLS: cell_start.astype("<u2").tobytes()}
-    values = {"methods": 0, "n_pattern_stars": 0, "n_pairs": 0, "pair_min_angle": 0.0,
-              "pair_max_angle": 0.0, "key_step": 0.0, "kv_bins": 0, "kv_m": 0.0, "kv_q": 0.0}
-
-    if "pyramid" in methods:
-        pairs, kvector, pyramid_values = _pyramid_sections(v64, pattern, min_pair, max_pair,
-                                                           pairs_per_bin)
-        sections[L.SEC_PAIRS], sections[L.SEC_KVECTOR] = pairs, kvector
-        flags |= np.where(pattern, L.STAR_FLAG_PATTERN, 0)
-        values.update(pyramid_values, methods=values["methods"] | L.METHOD_PYRAMID)
-    if "triangle" in methods:
-        sections[L.SEC_TRIANGLES], groups = _triangle_section(v32, v64, vmag, pattern, fov_v,
-                                                              fov_d, tri_opt)
-        flags |= _member_flags(n_stars, groups, L.STAR_FLAG_TRIANGLE)
-        values["methods"] |= L.METHOD_TRIANGLE
-    if "hashing" in methods:
-        sections[L.SEC_HASH], groups = _hash_section(v32, v64, vmag, unblended, fov_v, fov_d,
-                                                     hash_opt)
-        flags |= _member_flags(n_stars, groups, L.STAR_FLAG_HASH)
-        values["methods"] |= L.METHOD_HASHING
-
-    # the star table (flags known now)
-    word = (hip >> 16) | (mag_code << 1) | (flags << 12)
-    stars = np.zeros(n_stars, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                     ("hip_lo", "<u2"), ("word", "<u2")])
-    stars["x"], stars["y"], stars["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
-    stars["hip_lo"], stars["word"] = hip & 0xFFFF, word
-    sections[L.SEC_STARS] = stars.tobytes()
+    sky = Sky(v32, v32.astype(np.float64), vmag, pattern, unblended, fov_v, fov_d, min_pair,
+              max_pair)
+    sections, flags, values = _method_sections(sky, methods, opts)
+    cell_start = np.searchsorted(cells, np.arange(fwdb.n_cells(cells_per_face) + 1),
+                                 side="left")
+    sections[L.SEC_CELLS] = cell_start.astype("<u2").tobytes()
+    sections[L.SEC_STARS] = _star_section(v32, hip, mag_code, flags)
     values.update({
         "star_record_size": L.STAR_SIZE,
         "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
         "fov_diag": math.radians(fov_d),
         "mag_limit": float(vmag.max()) if mag_limit is None else mag_limit,
         "epoch": catalogue.epoch,
-        "n_stars": n_stars, "cells_per_face": cells_per_face,
+        "n_stars": len(order), "cells_per_face": cells_per_face,
         "pattern_per_region": pattern_per_region,
         "cell_radius": cell_radius(cells_per_face) + 1e-5, "pattern_radius": pattern_radius,
     })
     return _image(sections, values)
 
 
-def _pyramid_sections(v64, pattern, min_pair, max_pair, pairs_per_bin):
-    """``(pair table, k-vector, header values)`` of the pattern stars' pairs (indices into
-    the ordered star table)."""
+def _table_rows(catalogue, mag_limit, stars_per_fov, fov_h, fov_v, per_region):
+    """The catalogue rows of the star table: ``V <= mag_limit``, thinned to about
+    ``stars_per_fov`` per field when given (:func:`select_density`)."""
+    sel = np.flatnonzero(catalogue.vmag <= (np.inf if mag_limit is None else mag_limit))
+    if stars_per_fov is not None:
+        sel = sel[select_density(catalogue.unit_vectors()[sel], catalogue.vmag[sel],
+                                 stars_per_fov, fov_h, fov_v, per_region=per_region)[0]]
+    if not 4 <= len(sel) <= 0xFFFF:
+        raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: need 4..65535")
+    return sel
+
+
+def _methods(method, methods):
+    """The method names of :func:`build_database`'s ``method`` / ``methods``, checked."""
+    if method is not None and methods is not None:
+        raise ValueError("give method or methods, not both")
+    if methods is None:
+        methods = ("pyramid",) if method is None else (method,)
+    if isinstance(methods, str):
+        methods = (methods,)
+    methods = tuple(methods)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise NotImplementedError(f"methods {unknown or methods!r}: only {METHODS} can be "
+                                  "built")
+    return methods
+
+
+def _method_options(given):
+    """``{method name: {option: value}}``: the table's defaults, overridden by ``given``
+    (ValueError for an unknown method or option)."""
+    given = dict(given or {})
+    out = {}
+    for name, _, _, _, defaults in L.METHOD_TABLE:
+        out[name] = dict(defaults)
+        for key, value in given.pop(name, {}).items():
+            if key not in out[name]:
+                raise ValueError(f"options[{name!r}]: unknown option {key!r} "
+                                 f"(known: {sorted(out[name])})")
+            out[name][key] = value
+    if given:
+        raise ValueError(f"options for unknown methods {sorted(given)} (known: {METHODS})")
+    return out
+
+
+def _method_sections(sky, methods, opts):
+    """``(sections, star flags, header values)`` of the ``methods``, each built by its
+    :data:`SECTION_BUILDERS` entry in the order of the contract's table."""
+    sections = {}
+    flags = np.zeros(len(sky.v32), dtype=np.int64)
+    values = {"methods": 0, "n_pattern_stars": 0, "n_pairs": 0, "pair_min_angle": 0.0,
+              "pair_max_angle": 0.0, "key_step": 0.0, "kv_bins": 0, "kv_m": 0.0, "kv_q": 0.0}
+    for name in METHODS:
+        if name in methods:
+            built, member_flags, header = SECTION_BUILDERS[name](sky, opts[name])
+            sections.update(built)
+            flags |= member_flags
+            values.update(header)
+            values["methods"] |= L.METHOD_NAMES[name]
+    return sections, flags, values
+
+
+def _star_section(v32, hip, mag_code, flags):
+    """The star table's bytes (:data:`~lodestar.contract.stardb.STAR_FORMAT` records)."""
+    word = (hip >> 16) | (mag_code << 1) | (flags << 12)
+    stars = np.zeros(len(v32), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                      ("hip_lo", "<u2"), ("word", "<u2")])
+    stars["x"], stars["y"], stars["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
+    stars["hip_lo"], stars["word"] = hip & 0xFFFF, word
+    return stars.tobytes()
+
+
+def _pyramid_sections(sky, opt):
+    """The pair table and its k-vector over the pattern stars' pairs (indices into the
+    ordered star table), the pattern flags and the pair header values."""
+    max_pair = sky.max_pair
     key_step = _f32(max_pair / 0xFFFF)
     if key_step * 0xFFFF < max_pair:
         key_step = float(np.nextafter(np.float32(key_step), np.float32(1)))
-    pidx = np.flatnonzero(pattern)
-    keys, a, b = pair_table(v64[pidx], min_pair, max_pair, key_step)
+    pidx = np.flatnonzero(sky.pattern)
+    keys, a, b = pair_table(sky.v64[pidx], sky.min_pair, max_pair, key_step)
     a, b = pidx[a], pidx[b]
     lo_, hi_ = np.minimum(a, b), np.maximum(a, b)
     order = np.lexsort((hi_, lo_, keys))
@@ -565,44 +594,47 @@ def _pyramid_sections(v64, pattern, min_pair, max_pair, pairs_per_bin):
     n_pairs = len(keys)
     if n_pairs == 0:
         raise ValueError("no star pairs: FOV too small or magnitude limit too bright")
-    kv_bins = max(1, n_pairs // pairs_per_bin)
+    kv_bins = max(1, n_pairs // opt["pairs_per_bin"])
     kv_m, kv_q, kv_table = kvector_numpy(keys, kv_bins)
     pairs = np.zeros(n_pairs, dtype=[("key", "<u2"), ("a", "<u2"), ("b", "<u2")])
     pairs["key"], pairs["a"], pairs["b"] = keys, a, b
-    values = {"n_pattern_stars": int(pattern.sum()), "n_pairs": n_pairs,
-              "pair_min_angle": min_pair, "pair_max_angle": max_pair, "key_step": key_step,
-              "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q}
-    return pairs.tobytes(), kv_table.astype("<u4").tobytes(), values
+    values = {"n_pattern_stars": int(sky.pattern.sum()), "n_pairs": n_pairs,
+              "pair_min_angle": sky.min_pair, "pair_max_angle": max_pair,
+              "key_step": key_step, "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q}
+    sections = {L.SEC_PAIRS: pairs.tobytes(),
+                L.SEC_KVECTOR: kv_table.astype("<u4").tobytes()}
+    return sections, np.where(sky.pattern, L.STAR_FLAG_PATTERN, 0), values
 
 
 def _radians(value_deg, default_deg):
     return math.radians(default_deg if value_deg is None else value_deg)
 
 
-def _triangle_section(v32, v64, vmag, pattern, fov_v, fov_d, opt):
-    """``(section bytes, star groups)`` of the triangle method (``opt``: the options)."""
-    radius = _radians(opt["region_radius_deg"], fov_v / 2)
-    max_side = _radians(opt["max_side_deg"], fov_d)
-    groups = regional_groups(v64, vmag, pattern, opt["regions_per_face"], radius,
+def _triangle_section(sky, opt):
+    """The triangle section, the flags of its stars and no header values."""
+    radius = _radians(opt["region_radius_deg"], sky.fov_v / 2)
+    max_side = _radians(opt["max_side_deg"], sky.fov_d)
+    groups = regional_groups(sky.v64, sky.vmag, sky.pattern, opt["regions_per_face"], radius,
                              opt["stars_per_region"], 3, max_side)
     if len(groups) == 0:
         raise ValueError("no triangles: FOV too small or magnitude limit too bright")
-    records, area_step, moment_step = triangle_table(v32, groups)
+    records, area_step, moment_step = triangle_table(sky.v32, groups)
     tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["area"], opt["per_bin"])
     header = struct.pack(L.TRI_HEADER_FORMAT, L.TRI_MAGIC, len(records), kv_bins, area_step,
                          moment_step, max_side, kv_m, kv_q, opt["regions_per_face"],
                          opt["stars_per_region"], radius)
-    return header + tail, groups
+    return ({L.SEC_TRIANGLES: header + tail},
+            _member_flags(len(sky.v32), groups, L.STAR_FLAG_TRIANGLE), {})
 
 
-def _hash_section(v32, v64, vmag, unblended, fov_v, fov_d, opt):
-    """``(section bytes, star groups)`` of the geometric-hashing method."""
+def _hash_section(sky, opt):
+    """The geometric-hashing section, the flags of its stars and no header values."""
     g = int(opt["group_size"])
     if g not in L.HASH_GROUP_SIZES:
         raise ValueError(f"hash group size {g}: must be one of {L.HASH_GROUP_SIZES}")
-    radius = _radians(opt["region_radius_deg"], fov_v / 2)
-    max_diam = _radians(opt["max_diameter_deg"], fov_d)
-    min_diam = _radians(opt["min_diameter_deg"], fov_v / 4)
+    radius = _radians(opt["region_radius_deg"], sky.fov_v / 2)
+    max_diam = _radians(opt["max_diameter_deg"], sky.fov_d)
+    min_diam = _radians(opt["min_diameter_deg"], sky.fov_v / 4)
     flags_h = 0 if opt["normalized"] else L.HASH_FLAG_DISTANCE
     coord_lo, coord_bucket = _f32(opt["coord_lo"]), _f32(opt["coord_bucket"])
     coord_buckets = int(math.ceil(3.0 / coord_bucket))
@@ -611,17 +643,24 @@ def _hash_section(v32, v64, vmag, unblended, fov_v, fov_d, opt):
     if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > L.HASH_MAX_CODE:
         raise ValueError("hash bucket grid too fine: codes would exceed 2**30")
     grid = _HashGrid(coord_lo, coord_bucket, coord_buckets, flags_h, dist_bucket, dist_buckets)
-    groups = regional_groups(v64, vmag, unblended, opt["regions_per_face"], radius,
+    groups = regional_groups(sky.v64, sky.vmag, sky.unblended, opt["regions_per_face"], radius,
                              opt["stars_per_region"], g, max_diam, min_diam)
     if len(groups) == 0:
         raise ValueError("no hash groups: FOV too small or magnitude limit too bright")
-    records = hash_table(v32, groups, grid)
+    records = hash_table(sky.v32, groups, grid)
     tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["code"], opt["per_bin"])
     header = struct.pack(L.HASH_HEADER_FORMAT, L.HASH_MAGIC, len(records), kv_bins, g, flags_h,
                          coord_lo, coord_bucket, coord_buckets, dist_buckets, dist_bucket,
                          min_diam, max_diam, kv_m, kv_q, opt["regions_per_face"],
                          opt["stars_per_region"], radius)
-    return header + tail, groups
+    return ({L.SEC_HASH: header + tail},
+            _member_flags(len(sky.v32), groups, L.STAR_FLAG_HASH), {})
+
+
+SECTION_BUILDERS = {"pyramid": _pyramid_sections, "triangle": _triangle_section,
+                    "hashing": _hash_section}
+"""Method name -> its section builder ``(sky, options) -> (sections, star flags, header
+values)``: one per name of the contract's :data:`~lodestar.contract.stardb.METHOD_TABLE`."""
 
 
 def _member_flags(n_stars, groups, flag):
@@ -658,15 +697,6 @@ def _image(sections, values):
         raise ValueError(f"the database for these parameters would be unreadable in flight "
                          f"({reason})")
     return image
-
-
-def _options(defaults, given, name):
-    out = dict(defaults)
-    for key, value in (given or {}).items():
-        if key not in defaults:
-            raise ValueError(f"{name}: unknown option {key!r} (known: {sorted(defaults)})")
-        out[key] = value
-    return out
 
 
 def describe(image):

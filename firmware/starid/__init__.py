@@ -7,21 +7,24 @@ returns a :class:`Solution` (``status``, ``q``, ``matches``, ``patterns_tried``,
 * ``vectors``: camera-frame unit vectors of the observed stars, **brightest first**
   (``+z`` boresight).
 * ``database``: a :class:`lodestar.firmware.database.Database` serving the method (its
-  ``methods`` bit, the method module's ``DATABASE_BIT``).
+  ``methods`` has the method's bit).
 * ``tolerance_rad``: largest direction error of one observed star: the verification's match
   radius and the base of every pattern tolerance.  Default ``fov_h / 1000``.
 * ``budget``: deterministic cap on the patterns tried.
 * ``options``: ``max_stars``, ``max_mismatch_prob``, ``distinct_rad``, ``streaks``.
 
-:data:`METHODS` (the contract's one list) names the methods: ``'pyramid'`` (Mortari's
-Pyramid, :mod:`.pyramid`), ``'triangle'`` (Lohmann's planar triangles, :mod:`.triangle`),
-``'hashing'`` (Astrometry.net's geometric hash, :mod:`.hashing`).  Statuses are
+:data:`METHODS` names the methods of the contract's one table
+(:data:`lodestar.contract.stardb.METHOD_TABLE`, which also names each method's module):
+``'pyramid'`` (Mortari's Pyramid, :mod:`.pyramid`), ``'triangle'`` (Lohmann's planar
+triangles, :mod:`.triangle`), ``'hashing'`` (Astrometry.net's geometric hash, :mod:`.hashing`).
+A method module exports ``DATABASE_BIT`` and ``identify``, which calls
+:func:`.search.identify_with` with its :class:`.search.Search` subclass.  Statuses are
 :mod:`lodestar.firmware.status` codes: ``BAD_INPUT`` for an unknown method,
 ``DATABASE_UNSUPPORTED`` for a database without the method's section.
 Pure Python for CPython and MicroPython.
 """
 
-from lodestar.contract.stardb import METHODS
+from lodestar.contract.stardb import METHOD_TABLE, METHODS
 
 from .. import status as S
 from .search import DEFAULT_MAX_WORK, Solution
@@ -35,18 +38,18 @@ def max_tolerance_rad(fov_h):
     """The widest match tolerance (rad) for a horizontal field of ``fov_h`` rad."""
     return MAX_TOLERANCE_FRACTION * fov_h
 
-def _module_of(name):
-    if name not in METHODS:
-        return None
-    return __import__(__name__ + "." + name, None, None, ("identify",))
-
 
 def method(name):
     """The module of identification method ``name`` (``identify``, ``DATABASE_BIT``), or
-    None for a name not in :data:`METHODS`.  Each of the contract's :data:`METHODS` is the
-    module of that name in this package, imported on first use: a flight image running one
-    method keeps no other method's functions on its heap."""
-    return _module_of(name)
+    None for a name not in :data:`METHODS`: the module the contract's table names, imported
+    on first use (a flight image running one method keeps no other method's code on its
+    heap)."""
+    if name not in METHODS:
+        return None
+    return __import__(METHOD_TABLE[METHODS.index(name)][2], None, None, ("identify",))
+
+
+_method = method        # identify's parameter ``method`` shadows the name
 
 
 def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=2000,
@@ -55,7 +58,7 @@ def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=200
     a method the database does not serve: ``DATABASE_UNSUPPORTED``; ``budget`` patterns or
     ``max_work`` units of work spent: ``BUDGET_EXHAUSTED``).  A tolerance wider than
     :data:`MAX_TOLERANCE_FRACTION` of the field is ``BAD_INPUT``: it would match anything."""
-    module = _module_of(method)
+    module = _method(method)
     if module is None or isinstance(max_work, bool) or not isinstance(max_work, int) or \
             max_work < 1:
         return Solution(S.BAD_INPUT)

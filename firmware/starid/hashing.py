@@ -16,7 +16,7 @@ from lodestar.contract.stardb import HASH_FLAG_DISTANCE, HASH_MAX_CODE, METHOD_H
 
 from .. import geometry as G
 from .. import status as S
-from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, Solution, handed, observed, triple_bound
+from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, handed, identify_with, triple_bound
 
 DATABASE_BIT = METHOD_HASHING
 """The database's ``methods`` bit this method reads."""
@@ -286,9 +286,11 @@ class _Search(Search):
     of each of their pairs are computed once (``n * n`` tables, index ``i * n + j``,
     ``i < j``)."""
 
-    def __init__(self, b, db, tol, max_prob, distinct, n, streaks):
-        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
-        self.n = n
+    BIT = DATABASE_BIT
+
+    def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
+        n = self.n
         self.use_d = bool(db.hash_flags & HASH_FLAG_DISTANCE)
         self.d_tol = 2.0 * tol * BOUND_MARGIN + 1e-7
         self.min_d = db.hash_min_diameter - self.d_tol
@@ -301,6 +303,18 @@ class _Search(Search):
             for i in range(j):
                 self.chord2[i * n + j] = _chord2(b[i], b[j])
                 self.angle[i * n + j] = G.angle(b[i], b[j])
+
+    @staticmethod
+    def refuses(b, db, max_stars):
+        """``TOO_FEW_STARS`` below the database's group size, ``BAD_INPUT`` for a
+        ``max_stars`` below it, else None."""
+        g = db.hash_group_size
+        if len(b) < g:
+            return S.TOO_FEW_STARS
+        return S.BAD_INPUT if max_stars < g else None
+
+    def patterns(self):
+        return _groups(self.db.hash_group_size, self.n)
 
     def try_pattern(self, idx):
         """Accepted ``[(q, Verification)]`` of the observed group ``idx`` (ascending star
@@ -365,29 +379,12 @@ class _Search(Search):
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
              max_work=DEFAULT_MAX_WORK):
-    """Geometric-hashing identification; returns a :class:`.search.Solution`.
-
-    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
-    here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
-    most groups tried.  ``max_stars``: observed stars used for groups.  ``distinct_rad``:
-    attitudes further apart are distinct (default ``20 * tolerance_rad``).  ``streaks``: per
-    star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`); the verification
-    matches such a star over its stretched region, the hash boxes stay those of
-    ``tolerance_rad`` (a group holding a streak's star may be missed).
-    """
-    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
-                       streaks)
-    if b is None:
-        return Solution(code)
-    g = database.hash_group_size
-    if len(b) < g or max_stars < g:
-        return Solution(S.TOO_FEW_STARS if len(b) < g else S.BAD_INPUT)
-    n = len(b) if len(b) < max_stars else max_stars
-    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, n,
-                     streaks)
-    search.max_work = max_work
-    return search.run(_groups(g, n), budget)
+    """Geometric-hashing identification (:func:`.search.identify_with`; ``budget`` counts
+    groups); returns a :class:`.search.Solution`.  A streak's star is matched over its
+    stretched region by the verification, but the hash boxes stay those of
+    ``tolerance_rad`` (a group holding a streak's star may be missed)."""
+    return identify_with(_Search, vectors, database, tolerance_rad, budget, max_stars,
+                         max_mismatch_prob, distinct_rad, streaks, max_work)
 
 
 def _groups(g, n):

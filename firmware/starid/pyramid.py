@@ -17,7 +17,7 @@ from lodestar.contract.stardb import METHOD_PYRAMID
 
 from .. import geometry as G
 from ..database import PAIR_BLOCK
-from .search import DEFAULT_MAX_WORK, Search, Solution, handed, observed
+from .search import DEFAULT_MAX_WORK, Search, handed, identify_with
 
 DATABASE_BIT = METHOD_PYRAMID
 """The database's ``methods`` bit this method reads."""
@@ -67,9 +67,11 @@ def _observed_angles(b, n):
 
 
 class _Search(Search):
-    def __init__(self, b, db, tol, max_stars, max_prob, distinct_rad, streaks):
-        Search.__init__(self, b, db, tol, max_prob, distinct_rad, streaks)
-        self.n = len(b) if len(b) < max_stars else max_stars
+    BIT = DATABASE_BIT
+    MIN_STARS = 4           # a triple and the fourth star that confirms it
+
+    def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
         size = 2 * self.n * self.n
@@ -225,6 +227,9 @@ class _Search(Search):
                     return r, cr
         return None
 
+    def patterns(self):
+        return _triples(self.n)
+
     def try_pattern(self, triple):
         """Accepted ``[(q, Verification)]`` of the observed ``triple`` (empty if none)."""
         i, j, k = triple
@@ -247,23 +252,10 @@ class _Search(Search):
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MAX_STARS,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
              max_work=DEFAULT_MAX_WORK):
-    """Pyramid identification; returns a :class:`.search.Solution`.
-
-    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
-    here).  ``tolerance_rad``: largest direction error of one observed star (the
-    verification match radius).  ``budget``: most triples tried.  ``max_stars``: observed
-    stars used for patterns.  ``distinct_rad``: attitudes further apart than this are
-    distinct solutions (default ``20 * tolerance_rad``).  ``streaks``: per star None or its
-    partly seen track (``docs/starid.md``, Search), or None.
-    """
-    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 4,
-                       streaks)
-    if b is None:
-        return Solution(code)
-    search = _Search(b, database, tolerance_rad, max_stars, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    search.max_work = max_work
-    return search.run(_triples(search.n), budget)
+    """Pyramid identification (:func:`.search.identify_with`; ``budget`` counts triples);
+    returns a :class:`.search.Solution`."""
+    return identify_with(_Search, vectors, database, tolerance_rad, budget, max_stars,
+                         max_mismatch_prob, distinct_rad, streaks, max_work)
 
 
 def _triples(n):

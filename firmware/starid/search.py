@@ -128,6 +128,32 @@ def observed(vectors, database, bit, tolerance_rad, budget, max_stars, min_stars
     return S.OK, b
 
 
+def identify_with(search_class, vectors, database, tolerance_rad, budget, max_stars,
+                  max_mismatch_prob, distinct_rad, streaks, max_work):
+    """The identification of every method (LOST's ``StarIdAlgorithm::Go``): checks the input
+    (:func:`observed`, ``search_class.refuses``), makes the method's :class:`Search`
+    subclass and runs its patterns; returns a :class:`Solution`.
+
+    ``tolerance_rad``: largest direction error of one observed star (the verification match
+    radius).  ``budget``: most patterns tried.  ``max_stars``: observed stars the patterns
+    use.  ``distinct_rad``: attitudes further apart are distinct solutions (None: ``20 *
+    tolerance_rad``).  ``streaks``: per star None or its partly seen track
+    (``docs/starid.md``, Search), or None.  ``max_work``: work units (:data:`DEFAULT_MAX_WORK`).
+    """
+    code, b = observed(vectors, database, search_class.BIT, tolerance_rad, budget, max_stars,
+                       search_class.MIN_STARS, streaks)
+    if b is None:
+        return Solution(code)
+    code = search_class.refuses(b, database, max_stars)
+    if code is not None:
+        return Solution(code)
+    search = search_class(b, database, tolerance_rad, max_mismatch_prob,
+                          20.0 * tolerance_rad if distinct_rad is None else distinct_rad,
+                          streaks, max_stars)
+    search.max_work = max_work
+    return search.run(search.patterns(), budget)
+
+
 def streak_weights(streaks, tolerance_rad):
     """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
     ``1 / (1 + streak_variance / (tolerance_rad / 3)^2)`` (:func:`streak_variance` against
@@ -168,13 +194,24 @@ class Search:
     direction tolerance (rad); ``max_prob``: acceptance threshold of the binomial
     probability; ``distinct``: attitudes further apart (rad) are distinct solutions;
     ``streaks``: per observed star None or its track ``(ux, uy, uz, half)`` (``docs/starid.md``,
-    Search), or None for none.  ``half`` lists each star's ``half`` (0 without a
+    Search), or None for none; ``max_stars``: observed stars the patterns use (``n``, the
+    first of ``b``).  ``half`` lists each star's ``half`` (0 without a
     streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
     verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
+
+    A method subclasses it (:func:`identify_with` makes and runs it): ``BIT`` (its database
+    bit), ``MIN_STARS`` (fewest observed stars), :meth:`refuses`, :meth:`patterns` and
+    :meth:`try_pattern`.
     """
 
-    def __init__(self, b, db, tol, max_prob, distinct, streaks=None):
+    BIT = 0
+    """The database's ``methods`` bit the method reads."""
+    MIN_STARS = 3
+    """Fewest observed stars the method searches (fewer: ``TOO_FEW_STARS``)."""
+
+    def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         self.b = b
+        self.n = len(b) if len(b) < max_stars else max_stars
         self.db = db
         self.tol = tol
         self.max_prob = max_prob
@@ -190,6 +227,21 @@ class Search:
             for o in range(len(b)):
                 if streaks[o] is not None:
                     self.half[o] = streaks[o][3]
+
+    @staticmethod
+    def refuses(b, db, max_stars):
+        """A status when the method cannot search the observed ``b`` of ``db`` beyond the
+        checks of :func:`observed`, else None (the default)."""
+        return None
+
+    def patterns(self):
+        """The observed patterns (star index tuples) in search order, for :meth:`run`."""
+        raise NotImplementedError
+
+    def try_pattern(self, pattern):
+        """Accepted ``[(q, Verification)]`` of the observed ``pattern`` (star indices): the
+        method's catalogue candidates, each through :meth:`test`."""
+        raise NotImplementedError
 
     def spend(self, units):
         """Count ``units`` of work; raises :class:`OutOfWork` past :attr:`max_work`."""

@@ -15,7 +15,7 @@ import math
 from lodestar.contract.stardb import METHOD_TRIANGLE
 
 from ..geometry import chord, norm, triple
-from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, Solution, handed, observed, triple_bound
+from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, handed, identify_with, triple_bound
 
 DATABASE_BIT = METHOD_TRIANGLE
 """The database's ``methods`` bit this method reads."""
@@ -106,9 +106,14 @@ def correspondences(obs_opp, cat_opp, tol):
 
 
 class _Search(Search):
-    def __init__(self, b, db, tol, max_prob, distinct, streaks):
-        Search.__init__(self, b, db, tol, max_prob, distinct, streaks)
+    BIT = DATABASE_BIT
+
+    def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
+        Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
         self.max_side0 = 2.0 * math.sin(0.5 * db.tri_max_side)
+
+    def patterns(self):
+        return _triples(self.n)
 
     def try_pattern(self, tri):
         """Accepted ``[(q, Verification)]`` of the observed triple ``tri = (i, j, k)``."""
@@ -154,23 +159,11 @@ class _Search(Search):
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
              max_work=DEFAULT_MAX_WORK):
-    """Planar-triangle identification; returns a :class:`.search.Solution`.
-
-    ``vectors``: camera-frame directions of the observed stars (brightest first; normalised
-    here).  ``tolerance_rad``: largest direction error of one observed star.  ``budget``:
-    most triples tried.  ``max_stars``: observed stars used for triangles.
-    ``distinct_rad``: attitudes further apart are distinct (default ``20 * tolerance_rad``).
-    ``streaks``: per star None or its partly seen track (:mod:`lodestar.firmware.starid.verify`):
-    a triangle's tolerances widen by the largest ``half`` of its stars.
-    """
-    code, b = observed(vectors, database, DATABASE_BIT, tolerance_rad, budget, max_stars, 3,
-                       streaks)
-    if b is None:
-        return Solution(code)
-    search = _Search(b, database, tolerance_rad, max_mismatch_prob,
-                     20.0 * tolerance_rad if distinct_rad is None else distinct_rad, streaks)
-    search.max_work = max_work
-    return search.run(_triples(len(b) if len(b) < max_stars else max_stars), budget)
+    """Planar-triangle identification (:func:`.search.identify_with`; ``budget`` counts
+    triples; a streak widens a triangle's tolerances by the largest ``half`` of its stars);
+    returns a :class:`.search.Solution`."""
+    return identify_with(_Search, vectors, database, tolerance_rad, budget, max_stars,
+                         max_mismatch_prob, distinct_rad, streaks, max_work)
 
 
 def _triples(n):

@@ -114,7 +114,9 @@ from js import performance
 RESIDENT = {"start": gc.mem_alloc()}
 from lodestar.regress import mcu as R
 from lodestar.firmware import tracking
-from lodestar.firmware.starid import hashing, pyramid, triangle
+from lodestar.firmware import starid
+for _m in METHODS:
+    starid.method(_m)
 gc.collect()
 #@split
 RESIDENT["code"] = gc.mem_alloc()

@@ -1,5 +1,6 @@
 """The star-database layout of the contract against its specification, docs/stardb.md."""
 
+import importlib
 import re
 import struct
 
@@ -21,11 +22,26 @@ def test_formats_have_their_documented_sizes():
     assert len(L.SECTION_NAMES) == L.N_SECTIONS
 
 
-def test_methods_are_one_list_with_one_bit_each():
-    assert tuple(L.METHOD_NAMES) == L.METHODS
+def test_methods_are_one_table_with_one_bit_each():
+    assert tuple(L.METHOD_NAMES) == L.METHODS == tuple(m[0] for m in L.METHOD_TABLE)
     bits = [L.METHOD_NAMES[m] for m in L.METHODS]
     assert all(b & (b - 1) == 0 for b in bits) and len(set(bits)) == len(bits)
+    assert bits == sorted(bits) and L.METHOD_MASK == sum(bits)
     assert set(L.METHOD_SECTIONS) == set(bits)
+    for _, bit, module, sections, options in L.METHOD_TABLE:
+        assert importlib.import_module(module).DATABASE_BIT == bit
+        assert {L.SEC_STARS, L.SEC_CELLS} <= set(sections) < set(range(L.N_SECTIONS))
+        assert all(isinstance(o, tuple) and len(o) == 2 for o in options)
+        assert len({o[0] for o in options}) == len(options)
+
+
+def test_keyed_sections_have_their_layout():
+    for sec, prefix, magic, fmt, size, fields, key_format in L.KEYED_SECTIONS:
+        assert 0 <= sec < L.N_SECTIONS
+        assert struct.calcsize(fmt) == size and len(magic) == 4
+        assert len(struct.unpack(fmt, bytes(size))) == len(fields)
+        assert fields[:3] == ("magic", "n", "kv_bins") and "kv_m" in fields
+        assert struct.calcsize(key_format) in (2, 4) and prefix.endswith("_")
 
 
 def test_specification_names_the_layout_values():

@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
+from lodestar.contract.stardb import METHODS
 from lodestar.firmware import pipeline, settings
 from lodestar.firmware import status as S
 from lodestar.firmware.centroids import Star
@@ -161,7 +162,7 @@ def test_aberration_correction_refers_the_attitude_to_icrs():
         assert 15.0 < off < 26.0
 
 
-@pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
+@pytest.mark.parametrize("method", METHODS)
 def test_mirrored_frames_are_reported_not_solved(method):
     """A frame read out mirrored (columns or rows reversed) gets ``MIRRORED`` and the fix,
     never an attitude, with every method, in lost-in-space and from a prior (tracking

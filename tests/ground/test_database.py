@@ -63,7 +63,7 @@ def test_estcube2_all_methods_size_budget(record_property):
           f"({len(image) / 1024:.1f} KiB); {info['triangles']['n']} triangles, "
           f"{info['hash']['n']} hash groups; sections {info['section_bytes']}")
     assert len(image) <= MB
-    assert info["methods"] == stardb.METHOD_PYRAMID | stardb.METHOD_TRIANGLE | stardb.METHOD_HASHING
+    assert info["methods"] == stardb.METHOD_MASK
     assert info["section_bytes"]["triangles"] <= 160 * 1024
     assert info["section_bytes"]["hash"] <= 320 * 1024
     single = L.Database(estcube2_image())
@@ -75,13 +75,13 @@ def test_estcube2_all_methods_size_budget(record_property):
         a, b = single.star(i), db.star(i)
         assert a[:5] == b[:5] and b[5] & stardb.STAR_FLAG_PATTERN == a[5]
     # per-method images hold only their sections
-    for name, bit, sec in (("triangle", stardb.METHOD_TRIANGLE, stardb.SEC_TRIANGLES),
-                           ("hashing", stardb.METHOD_HASHING, stardb.SEC_HASH)):
+    assert set(G.SECTION_BUILDERS) == set(stardb.METHODS)
+    for name, bit, _, sections, _ in stardb.METHOD_TABLE:
         one = L.Database(G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
                                           methods=(name,)))
-        assert one.methods == bit and one.n_pairs == 0 and one.n_pattern_stars == 0
-        assert [i for i, (o, n) in enumerate(one.sections) if n] == [
-            stardb.SEC_STARS, stardb.SEC_CELLS, sec]
+        assert one.methods == bit
+        assert (one.n_pairs == 0) == (stardb.SEC_PAIRS not in sections)
+        assert [i for i, (o, n) in enumerate(one.sections) if n] == sorted(sections)
 
 
 def test_deterministic():
@@ -199,10 +199,12 @@ def test_bad_requests():
         G.build_database(fov_h_deg=20, aspect=1, method="pyramid", methods=("pyramid",))
     with pytest.raises(ValueError):
         G.build_database(fov_h_deg=20, aspect=1, methods=("hashing",),
-                         hash_options={"group_size": 5})
+                         options={"hashing": {"group_size": 5}})
     with pytest.raises(ValueError):
         G.build_database(fov_h_deg=20, aspect=1, methods=("triangle",),
-                         triangle_options={"no_such_option": 1})
+                         options={"triangle": {"no_such_option": 1}})
+    with pytest.raises(ValueError):
+        G.build_database(fov_h_deg=20, aspect=1, options={"voting": {}})
     with pytest.raises(ValueError):
         G.build_database(fov_h_deg=20, aspect=1, mag_limit=-2.0)
     with pytest.raises(ValueError):

@@ -15,6 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.cli import main
+from lodestar.contract.stardb import METHODS
 from lodestar.regress import record as regress_record
 from lodestar.regress import replay as regress
 from lodestar.regress import unixport
@@ -165,7 +166,7 @@ def test_record_reproduces_the_committed_set(float32_frozen, tmp_path):
                 path.read_bytes(), path.name
 
 
-@pytest.mark.parametrize("method", ["pyramid", "triangle", "hashing"])
+@pytest.mark.parametrize("method", METHODS)
 def test_every_flight_loop_runs_within_the_heap_budget(float32_frozen, regression_set, method):
     """Each camera's packets one after another in one process, one database open, one
     packet buffer of the flight size (:data:`lodestar.regress.unixport.FLIGHT_BUFFER`), at

@@ -39,7 +39,8 @@ def setup(group_size=4, normalized=False):
     cam = load_preset("estcube2")
     cat = load()
     image = build_database(cat, cam, mag_limit=6.0, methods=("hashing",),
-                           hash_options={"group_size": group_size, "normalized": normalized})
+                           options={"hashing": {"group_size": group_size,
+                                                "normalized": normalized}})
     return cam, cat, image, Database(image)
 
 

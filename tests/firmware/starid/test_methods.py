@@ -7,6 +7,7 @@ import functools
 
 import numpy as np
 
+from lodestar.contract import stardb
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
@@ -21,9 +22,11 @@ MIN_CORRECT = {"pyramid": 190, "triangle": 180, "hashing": 180}
 
 
 def test_registry():
-    assert starid.METHODS == ("pyramid", "triangle", "hashing")
-    for name in starid.METHODS:
-        assert starid.method(name).identify and starid.method(name).DATABASE_BIT
+    """Each method of the contract's table is the module the table names."""
+    assert starid.METHODS == stardb.METHODS
+    for name, bit, module, _, _ in stardb.METHOD_TABLE:
+        assert starid.method(name).__name__ == module and starid.method(name).identify
+        assert starid.method(name).DATABASE_BIT == bit
     assert starid.method("voting") is None
 
 

@@ -1,10 +1,14 @@
 """lodestar.firmware.starid.search: the q-method fit and the streak checks shared by the
 methods (the search itself runs in every ``test_methods.py`` case)."""
 
+import inspect
+
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
-from lodestar.firmware import quaternion
+from lodestar.contract import stardb
+from lodestar.firmware import quaternion, starid
 from lodestar.firmware.starid import search as SE
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import attitude_error_deg
@@ -35,3 +39,20 @@ def test_streaks_are_checked():
     for bad in ([None, None], [None, (0.0, 1.0, 0.0), None], [None, (0, 1, 0, -1e-4), None],
                 [None, (0, 1, float("nan"), 1e-4), None], 5, [None, "abcd", None]):
         assert not SE.streaks_valid(bad, 3), bad
+
+
+def test_every_method_declares_the_search_interface():
+    """``Search`` declares the hooks :func:`identify_with` calls; each method of the
+    contract's table overrides them with one constructor order."""
+    base = SE.Search([(0.0, 0.0, 1.0)] * 3, None, 1e-4, 1e-9, 2e-3, None, 16)
+    assert base.n == 3 and base.refuses(base.b, None, 16) is None
+    with pytest.raises(NotImplementedError):
+        base.patterns()
+    with pytest.raises(NotImplementedError):
+        base.try_pattern((0, 1, 2))
+    for name in stardb.METHODS:
+        cls = starid.method(name)._Search
+        assert issubclass(cls, SE.Search) and cls.BIT == stardb.METHOD_NAMES[name]
+        assert cls.try_pattern is not SE.Search.try_pattern
+        assert cls.patterns is not SE.Search.patterns
+        assert inspect.signature(cls.__init__) == inspect.signature(SE.Search.__init__)
