@@ -15,7 +15,7 @@ import numpy as np
 from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
-from lodestar.firmware.starid import search as SR
+from lodestar.firmware.starid import search
 from lodestar.ground.database import build_database
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
@@ -63,9 +63,9 @@ def main():
         px = db.fov_h / cam.width
         for tol_px in (2.5, 30.0, 100.0, 0.049 * db.fov_h / px):
             tol = tol_px * px
-            got = _timed(vectors, db, method, tol, SR.DEFAULT_MAX_WORK, args.cap)
+            got = _timed(vectors, db, method, tol, search.DEFAULT_MAX_WORK, args.cap)
             free = _timed(vectors, db, method, tol, 10 ** 15, args.cap)
-            print(f"{method:9} {tol_px:8.1f}px {SR.DEFAULT_MAX_WORK:>10}  {got[0]:16} "
+            print(f"{method:9} {tol_px:8.1f}px {search.DEFAULT_MAX_WORK:>10}  {got[0]:16} "
                   f"{got[1]:>9} {got[2]:6.2f} | {free[0]:16} {free[1] or '-':>10} {free[2]:7.2f}",
                   flush=True)
 

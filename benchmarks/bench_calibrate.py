@@ -3,7 +3,7 @@ comes to the preset's, and whether the reported 1-sigma describe the scatter.
 
 Each trial renders ``--frames`` frames of the ``lohmann`` preset (752 x 480, k1 = -0.37:
 about 14 px of barrel distortion at the edge) at random attitudes with the flight exposure
-(``lodestar.ground.flight.SETTINGS``), then runs :func:`lodestar.ground.calibrate.calibrate`
+(``lodestar.ground.onboard.SETTINGS``), then runs :func:`lodestar.ground.calibrate.calibrate`
 from a distortion-free pinhole with the nominal horizontal FOV, as ``lodestar calibrate
 --fov`` does.  Per free parameter: the median reported 1-sigma and the deviation from the
 truth in units of the reported 1-sigma (``z``): mean, standard deviation (1 when the 1-sigma
@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lodestar.ground import calibrate as cal
-from lodestar.ground import imagesolve
+from lodestar.ground import calibrate, imagesolve
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.ground import lohmann_frames  # noqa: E402  (the tests' frames and start camera)
@@ -33,13 +32,13 @@ def trial(folder, n_frames, seed):
     paths = lohmann_frames.write_frames(folder, n=n_frames, seed=seed)
     images = [(p.name, imagesolve.read_image(p)) for p in paths]
     t0 = time.perf_counter()
-    result = cal.calibrate(images, lohmann_frames.start_camera(),
+    result = calibrate.calibrate(images, lohmann_frames.start_camera(),
                            ksigma=lohmann_frames.KSIGMA, skip_unsolved=True)
     seconds = time.perf_counter() - t0
-    truth = cal.camera_params(lohmann_frames.truth_camera())
+    truth = calibrate.camera_params(lohmann_frames.truth_camera())
     names = result.fit.cov_names
-    delta = np.array([result.fit.params[cal.INTRINSICS.index(n)] -
-                      truth[cal.INTRINSICS.index(n)] for n in names])
+    delta = np.array([result.fit.params[calibrate.INTRINSICS.index(n)] -
+                      truth[calibrate.INTRINSICS.index(n)] for n in names])
     z = {n: d / result.sigma[n] for n, d in zip(names, delta)}
     chi2 = float(delta @ np.linalg.solve(result.fit.cov, delta))
     solved = sum(f["status"] == "OK" for f in result.frames)
@@ -57,7 +56,7 @@ def main(argv=None):
         for k in range(args.trials):
             try:
                 z, chi2, res, sec, solved = trial(Path(tmp), args.frames, args.seed + k)
-            except cal.CalibrationError as exc:
+            except calibrate.CalibrationError as exc:
                 print(f"trial {k}: {exc}", flush=True)
                 continue
             zs.append(z)

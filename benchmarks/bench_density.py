@@ -22,7 +22,7 @@ import tempfile
 
 import numpy as np
 
-from lodestar.ground import solve as GS
+from lodestar.ground import solve
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load_deep
 from lodestar.sim.centroids import centroid_scene
@@ -57,7 +57,7 @@ def main(argv=None):
         flux = 10 ** (-0.04 * np.arange(len(scene.hip)))
         rows = np.column_stack([scene.pixels, flux])
         for name, mag in DEPTHS.items():
-            res = GS.solve_centroids(rows, WIDTH, HEIGHT, args.fov, max_mag=mag)
+            res = solve.solve_centroids(rows, WIDTH, HEIGHT, args.fov, max_mag=mag)
             wrong = res.ok and any(scene.hip[i] and h not in scene.components[i]
                                    for i, h in res.matches.items())
             tally[name]["solved"] += res.ok and not wrong

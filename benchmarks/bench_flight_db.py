@@ -2,7 +2,7 @@
 (estcube2, the ``rate`` study's seeds and settings) solved with each database variant in
 one run, so the difference is the database alone.  Variants: ``magnitude`` (every star to
 V 6.0, the database before issue 16) and ``density`` (the flight selection,
-:data:`lodestar.ground.flight.FLIGHT_DENSITY`), or any ``--variant NAME:V:P[:K[:PAIR]]``
+:data:`lodestar.ground.onboard.FLIGHT_DENSITY`), or any ``--variant NAME:V:P[:K[:PAIR]]``
 (V verification and P pattern stars per field, 0 for every star; K stars per separation,
 default 6; PAIR the longest pair, deg, default the FOV diagonal).  Prints the image sizes
 and, per rate and variant, solved / wrong / failures by status.
@@ -17,10 +17,10 @@ import concurrent.futures
 import time
 
 from lodestar.firmware.database import Database
-from lodestar.ground import flight
-from lodestar.ground.campaign import trials as T
+from lodestar.ground import onboard
+from lodestar.ground.campaign import trials
 from lodestar.ground.database import build_database
-from lodestar.ground.flight import camera_settings
+from lodestar.ground.onboard import camera_settings
 from lodestar.sim.presets import load_preset
 
 PRESET = "estcube2"
@@ -28,7 +28,7 @@ _DB = {}
 
 
 def _variants(specs):
-    out = {"magnitude": None, "density": dict(flight.FLIGHT_DENSITY)}
+    out = {"magnitude": None, "density": dict(onboard.FLIGHT_DENSITY)}
     for spec in specs or ():
         name, *values = spec.split(":")
         v, p, k, pair = (values + [0, 0, 0, 0])[:4]
@@ -40,7 +40,7 @@ def _variants(specs):
 
 
 def _image(density, method):
-    return build_database(camera=load_preset(PRESET), mag_limit=flight.DEFAULT_MAX_MAG,
+    return build_database(camera=load_preset(PRESET), mag_limit=onboard.DEFAULT_MAX_MAG,
                           method=method, **(density or {}))
 
 
@@ -50,14 +50,15 @@ def _trial(args):
     if key not in _DB:
         _DB[key] = {name: Database(_image(d, method)) for name, d in variants.items()}
     settings = camera_settings(PRESET)
-    frame = T.Frame(PRESET, settings, T.trial_seed(0, "rate", PRESET, trial), rate, "cross")
+    frame = trials.Frame(PRESET, settings, trials.trial_seed(0, "rate", PRESET, trial), rate,
+                         "cross")
     out = {}
     for name, db in _DB[key].items():
-        _data, res, timings = flight.process(
+        _data, res, timings = onboard.process(
             frame.det, frame.fw_cam, db, omega=frame.omega_rad_s,
             exposure_s=frame.truth["exposure_s"], row_time_s=frame.truth["row_time_s"],
             method=method)
-        verdict = T.verdict(res, frame.det.blobs, frame)
+        verdict = trials.verdict(res, frame.det.blobs, frame)
         out[name] = (verdict["status"], verdict["solved"] and not verdict["wrong"],
                      verdict["wrong"], timings["solve"])
     return rate, out

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from lodestar import contract as C
-from lodestar.ground.campaign import trials as T
-from lodestar.ground.flight import camera_settings, default_tolerance_px, process, star_database
+from lodestar.ground.campaign import trials
+from lodestar.ground.onboard import camera_settings, default_tolerance_px, process, star_database
 from lodestar.ground.truth import attitude_error_arcsec
 from lodestar.regress import unixport
 
@@ -46,14 +46,15 @@ def main():
     binary = unixport.float32_build(repo=REPO)
     frames, double = [], []         # double: (verdict, q, [(record index, HIP)])
     for trial in range(args.trials):
-        frame = T.Frame(args.preset, settings, T.trial_seed(args.seed, "rate", args.preset,
+        frame = trials.Frame(args.preset, settings, trials.trial_seed(args.seed, "rate",
+                                                                      args.preset,
                                                             trial))
         db, _path = star_database(frame.fw_cam, method=args.method)
         data, res, _ = process(frame.det, frame.fw_cam, db, omega=frame.omega_rad_s,
                                exposure_s=frame.truth["exposure_s"],
                                row_time_s=frame.truth["row_time_s"], method=args.method)
         frames.append((frame, data))
-        double.append((T.verdict(res, frame.det.blobs, frame), res.q,
+        double.append((trials.verdict(res, frame.det.blobs, frame), res.q,
                        [(m[0], m[3]) for m in res.matches]))
     frame0 = frames[0][0]
     _db, db_path = star_database(frame0.fw_cam, method=args.method)

@@ -30,8 +30,7 @@ import time
 import numpy as np
 
 from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
-from lodestar.ground import fovsearch
-from lodestar.ground import solve as L
+from lodestar.ground import fovsearch, solve
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
@@ -60,7 +59,7 @@ def scenes(fov_deg, n, rng, cat):
 
 def timed(clock, **kwargs):
     t0 = clock()
-    res = L.solve_centroids(**kwargs)
+    res = solve.solve_centroids(**kwargs)
     return res, (clock() - t0) * 1e3
 
 
@@ -75,7 +74,7 @@ def main(argv=None):
     parser.add_argument("--fovs", default="8,10,15,20,25,30", help="horizontal FOVs, deg")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--clock", choices=tuple(CLOCKS), default="cpu")
-    parser.add_argument("--max-work", type=int, default=L.GROUND_MAX_WORK,
+    parser.add_argument("--max-work", type=int, default=solve.GROUND_MAX_WORK,
                         help="work budget of the failing solves (default the ground's; "
                              f"{DEFAULT_MAX_WORK} is the firmware's, the behaviour before)")
     parser.add_argument("--skip", default="", help="comma-separated parts to skip "
@@ -92,8 +91,8 @@ def main(argv=None):
           f"{args.scenes} scenes per FOV, {W}x{H}")
     per_fov = {fov: scenes(fov, args.scenes, rng, cat) for fov in fovs}
     for fov in fovs:                       # build the databases outside the timing
-        L.solve_centroids(per_fov[fov][0][1], W, H, fov)
-        L.solve_centroids(per_fov[fov][0][1], W, H, fov * 1.25)
+        solve.solve_centroids(per_fov[fov][0][1], W, H, fov)
+        solve.solve_centroids(per_fov[fov][0][1], W, H, fov * 1.25)
 
     if "blind" not in skip:
         print("\nblind (no FOV given)")
@@ -117,7 +116,7 @@ def main(argv=None):
         print("\nknown FOV: ground budget vs the firmware default")
         for fov in fovs:
             line = f"  {fov:5.1f} deg:"
-            for name, work in (("ground", L.GROUND_MAX_WORK), ("default", DEFAULT_MAX_WORK)):
+            for name, work in (("ground", solve.GROUND_MAX_WORK), ("default", DEFAULT_MAX_WORK)):
                 ok, ms = 0, []
                 for sc, rows in per_fov[fov]:
                     res, dt = timed(clock, centroids=rows, width=W, height=H, fov_deg=fov,

@@ -37,9 +37,8 @@ from lodestar import contract as C
 from lodestar.contract.stardb import METHODS
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
-from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
-from lodestar.regress import mcutime, unixport
-from lodestar.regress import replay as regress
+from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+from lodestar.regress import mcutime, replay, unixport
 from lodestar.sim import presets
 
 REPO = Path(__file__).resolve().parents[1]
@@ -75,9 +74,9 @@ def heap_table(binaries, manifest, db_files):
             runs = [(c, method) for c in manifest["cases"] if c["camera"] == camera]
             cells = []
             for binary in binaries:
-                low = unixport.min_heap(binary, manifest, regress.DEFAULT_SET, db_files, runs,
+                low = unixport.min_heap(binary, manifest, replay.DEFAULT_SET, db_files, runs,
                                         buffer_bytes=unixport.FLIGHT_BUFFER)
-                loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
+                loop = unixport.flight_loop(binary, manifest, replay.DEFAULT_SET, db_files,
                                             runs, 4 << 20, peak=True)
                 peaks = {}
                 for case, _ in runs:
@@ -110,7 +109,7 @@ def time_table(binary, reference, manifest, db_files, repeats):
         for _ in range(repeats):
             for camera in manifest["cameras"]:
                 part = [r for r in runs if r[0]["camera"] == camera]
-                loop = unixport.flight_loop(binary, manifest, regress.DEFAULT_SET, db_files,
+                loop = unixport.flight_loop(binary, manifest, replay.DEFAULT_SET, db_files,
                                             part, HEAP, timing=True)
                 for key, times in loop["times"].items():
                     if key not in best or times["process"] < best[key]["process"]:
@@ -154,7 +153,7 @@ def instruction_table(binary, reference, manifest, db_files):
             camera = manifest["cameras"][case["camera"]]
             _, stages[case["name"]] = mcutime.frame_instructions(
                 binary, case, method, db_files[camera["database"]], camera,
-                regress.DEFAULT_SET / case["packet"], HEAP)
+                replay.DEFAULT_SET / case["packet"], HEAP)
         for cls in ("rest", "moving", "tracking"):
             names = [c["name"] for c in manifest["cases"] if packet_class(c) == cls]
             ir = sorted(stages[n]["process"] for n in names)
@@ -202,8 +201,8 @@ def main():
     p.add_argument("--baseline", default=BASELINE, help="git revision to compare with")
     p.add_argument("--repeats", type=int, default=3)
     args = p.parse_args()
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    db_files = regress.database_files(manifest)
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    db_files = replay.database_files(manifest)
     cache = default_cache_dir() / "micropython-bench"   # not replaced by a test run
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:

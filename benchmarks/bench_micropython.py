@@ -38,9 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import starid, tracking
-from lodestar.regress import mcu
-from lodestar.regress import micropython as regress_micropython
-from lodestar.regress import replay as regress
+from lodestar.regress import mcu, micropython, replay
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import centroid_scene
@@ -67,7 +65,7 @@ def percentile(values, p):
 
 def heap_probe():
     """What ``--heapsize 64k`` does to a script allocating 4 MB: the text to print."""
-    proc = regress_micropython.run(HEAP_PROBE, heapsize=64 * 1024)
+    proc = micropython.run(HEAP_PROBE, heapsize=64 * 1024)
     for line in proc.stdout.splitlines():
         if line.startswith("PROBE "):
             return (f"--heapsize 64k is no cap: a script held 4 MB (gc.mem_alloc() "
@@ -77,7 +75,7 @@ def heap_probe():
 
 def cpython_figures(manifest, set_dir, db_files, cases, repeats):
     """``{method: {"ms": [...], "ms_ok": [...], "peak": [...]}}`` on this interpreter."""
-    data = regress.packets(manifest, set_dir)
+    data = replay.packets(manifest, set_dir)
     dbs = {name: mcu.open_database(str(path)) for name, path in db_files.items()}
     out = {}
     for method in manifest["methods"]:
@@ -142,16 +140,16 @@ def hard_peaks(manifest, db_files, methods, n, seed=3):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5, help="solves per packet and method")
-    ap.add_argument("--set", dest="set_dir", default=str(regress.DEFAULT_SET))
+    ap.add_argument("--set", dest="set_dir", default=str(replay.DEFAULT_SET))
     ap.add_argument("--hard", type=int, default=20, help="hard centroid scenes per camera")
     args = ap.parse_args()
 
-    manifest = regress.load_set(args.set_dir)
-    db_files = regress.database_files(manifest)
+    manifest = replay.load_set(args.set_dir)
+    db_files = replay.database_files(manifest)
     frames = [c for c in manifest["cases"] if c["truth"] is not None]
     bench = dict(manifest, cases=frames)
     t0 = time.perf_counter()
-    mp = regress_micropython.replay(bench, args.set_dir, db_files, manifest["methods"],
+    mp = micropython.replay(bench, args.set_dir, db_files, manifest["methods"],
                                     args.repeats)
     wall = time.perf_counter() - t0
     cp = cpython_figures(manifest, args.set_dir, db_files, frames, args.repeats)
@@ -178,7 +176,7 @@ def main():
               f"{percentile(c['ms'], 50):>14.2f} {percentile(c['ms'], 95):>6.2f} "
               f"{statistics.median(peak):>16.1f} {max(peak):>6.1f}")
     print()
-    print(regress.format_resident(mp))
+    print(replay.format_resident(mp))
     live = [r["live_before"] for r in mp["results"]]
     print(f"MicroPython live heap between solves: first {live[0] / 1024:.1f} KB, last "
           f"{mp['live_end'] / 1024:.1f} KB (growth across {len(live)} solves: "

@@ -47,10 +47,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lodestar.firmware import centroids as fwcentroids
+from lodestar.firmware import centroids
 from lodestar.ground import cache
-from lodestar.ground.campaign import trials as T
-from lodestar.ground.flight import camera_settings
+from lodestar.ground.campaign import trials
+from lodestar.ground.onboard import camera_settings
 from lodestar.ground.solve import solve_centroids
 from lodestar.ground.truth import WRONG_ARCSEC
 from lodestar.sim import catalogue
@@ -68,16 +68,17 @@ class Scene:
     integers)."""
 
     def __init__(self, fov_deg, trial, q=None, rows=None):
-        self.cam = T.fov_camera(PRESET, fov_deg)
+        self.cam = trials.fov_camera(PRESET, fov_deg)
         if q is not None:                   # from a scene file (:func:`scenes`)
             self.q, self.rows = q, rows
             return
-        seed = T.trial_seed(CAMPAIGN_SEED, "fov", PRESET, trial)
-        frame = T.Frame(PRESET, camera_settings(PRESET), seed, false_stars=T.FOV_FALSE_STARS,
-                        mag_limit=T.fov_render_limit(PRESET, self.cam), cam=self.cam,
+        seed = trials.trial_seed(CAMPAIGN_SEED, "fov", PRESET, trial)
+        frame = trials.Frame(PRESET, camera_settings(PRESET), seed,
+                             false_stars=trials.FOV_FALSE_STARS,
+                        mag_limit=trials.fov_render_limit(PRESET, self.cam), cam=self.cam,
                         cat=catalogue.load_deep())
         self.q = frame.q
-        stars, _rejected = fwcentroids.extract(frame.det.blobs, max_stars=None)
+        stars, _rejected = centroids.extract(frame.det.blobs, max_stars=None)
         self.rows = np.array([(s.x, s.y, s.flux) for s in stars], dtype=np.float64)
 
     def probe_pixels(self):
@@ -177,7 +178,7 @@ class Tetra3rsMultiscale(Tetra3rs):
     the FOV is unknown to it."""
 
     name = "tetra3rs-multiscale"
-    min_fov, max_fov = min(T.FOVS_DEG), max(T.FOVS_DEG)
+    min_fov, max_fov = min(trials.FOVS_DEG), max(trials.FOVS_DEG)
 
     def fov_estimate(self):
         return math.sqrt(self.min_fov * self.max_fov)
@@ -342,8 +343,8 @@ def ratios(rows):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--fovs", nargs="+", type=float, default=list(T.FOVS_DEG),
-                    help=f"horizontal FOVs, deg, of the fov campaign's {T.FOVS_DEG}")
+    ap.add_argument("--fovs", nargs="+", type=float, default=list(trials.FOVS_DEG),
+                    help=f"horizontal FOVs, deg, of the fov campaign's {trials.FOVS_DEG}")
     ap.add_argument("--scenes", type=int, default=100, help="scenes per FOV")
     ap.add_argument("--json", help="also write the rows to this JSON file")
     ap.add_argument("--multiscale", action="store_true",
@@ -365,8 +366,8 @@ def main(argv=None):
     if args.solvers:
         classes = [c for c in classes if c.name in args.solvers]
     for fov in args.fovs:
-        if not math.isfinite(fov) or fov not in T.FOVS_DEG:
-            ap.error(f"--fovs: {fov:g} is not one of the campaign's {T.FOVS_DEG}")
+        if not math.isfinite(fov) or fov not in trials.FOVS_DEG:
+            ap.error(f"--fovs: {fov:g} is not one of the campaign's {trials.FOVS_DEG}")
     cache_dir = cache.default_cache_dir() / "peers"
     cache_dir.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -84,7 +84,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lodestar.contract.stardb import METHODS
-from lodestar.ground import solve as L
+from lodestar.ground import solve
 from lodestar.ground.truth import judge
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
@@ -133,7 +133,7 @@ def available_methods(requested, cam, cache_dir):
     for method in requested:
         rows = np.array([[100.0, 100.0, 3.0], [900.0, 500.0, 2.0], [1500.0, 1200.0, 1.0],
                          [2000.0, 300.0, 0.5]])
-        res = L.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
+        res = solve.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
                                 cache_dir=cache_dir)
         if res.status_name == "BAD_INPUT" or res.status_name.startswith("DATABASE_"):
             print(f"method {method}: not available ({res.status_name}: {res.reason})")
@@ -146,7 +146,7 @@ def run_lodestar(scenes, cam, method, cache_dir, clock):
     rows_out = []
     for scene, rows, _ in scenes:
         t0 = clock()
-        res = L.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
+        res = solve.solve_centroids(rows, cam.width, cam.height, fov_deg(cam), method=method,
                                 cache_dir=cache_dir)
         dt = clock() - t0
         if not res.ok:

@@ -29,9 +29,8 @@ import numpy as np
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
-from lodestar.ground import codec
-from lodestar.ground import flight as F
-from lodestar.ground.campaign import trials as T
+from lodestar.ground import codec, onboard
+from lodestar.ground.campaign import trials
 from lodestar.ground.truth import attitude_error_arcsec
 from lodestar.regress import mcutime, unixport
 from lodestar.sim import attitude, presets, scene
@@ -56,15 +55,15 @@ def prior_of(q, rng):
 def frames(n_trials, rate, seed):
     """``(label, image, det config, q, omega_deg_s, truth)`` per frame."""
     cam = presets.load_preset(PRESET)
-    settings = F.camera_settings(PRESET)
+    settings = onboard.camera_settings(PRESET)
     for label, level in (("rest", 0.0), (f"{rate:g} deg/s", rate)):
         for trial in range(n_trials):
-            s = T.trial_seed(seed, "budget", PRESET, trial)
+            s = trials.trial_seed(seed, "budget", PRESET, trial)
             rng = np.random.default_rng(s)
             q = attitude.random_attitude(rng)
-            omega = T.rate_vector(rng, level, "cross")
+            omega = trials.rate_vector(rng, level, "cross")
             sim = scene.simulate(cam, q, omega, settings["exposure_s"], s)
-            yield label, sim.frame, F.detector_config(cam, settings), q, omega, sim.truth, s
+            yield label, sim.frame, onboard.detector_config(cam, settings), q, omega, sim.truth, s
 
 
 def main():
@@ -76,11 +75,11 @@ def main():
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     cam = presets.load_preset(PRESET)
-    fw_cam = F.firmware_camera(cam)
-    db, db_path = F.star_database(fw_cam)
-    exposure = F.camera_settings(PRESET)["exposure_s"] or cam.exposure_s
+    fw_cam = onboard.firmware_camera(cam)
+    db, db_path = onboard.star_database(fw_cam)
+    exposure = onboard.camera_settings(PRESET)["exposure_s"] or cam.exposure_s
     row_time = cam.row_time_s if cam.shutter == "rolling" else 0.0
-    tol = F.default_tolerance_px(fw_cam)
+    tol = onboard.default_tolerance_px(fw_cam)
     budgets = [None] + list(args.stars)
 
     def tracker(k):

@@ -55,7 +55,7 @@ from spi_slave_tb import T_NS, Master
 from lodestar import contract as C
 from lodestar.contract import OVF_LINK_DOWN, OVF_LINK_ERROR
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 from lodestar.hdl.boards import BOARDS
 from lodestar.hdl.mt9v022 import (
     FRAME_END,
@@ -175,7 +175,7 @@ def golden_packets(frames, configs):
     packets = []
     for image, cfg in zip(frames, configs):
         detector.configure(cfg)
-        packets.append(packet.encode(detector.process(image)))
+        packets.append(codec.encode(detector.process(image)))
     return packets
 
 
@@ -223,8 +223,8 @@ async def board_lvds_frames(dut):
         packets.append(await frame_and_packet(master, sensor, i, image,
                                               write_threshold if i == 1 else None))
     for i, (data, expected) in enumerate(zip(packets, want)):
-        assert data == expected, (i, packet.decode(data), packet.decode(expected))
-    got = [packet.decode(p) for p in packets]
+        assert data == expected, (i, codec.decode(data), codec.decode(expected))
+    got = [codec.decode(p) for p in packets]
     assert [g.mode for g in got] == modes
     assert [g.threshold for g in got[:4]] == thresholds[:4]
     assert not any(g.flags & C.FRAME_GLOBAL_FALLBACK for g in got[4:])
@@ -276,7 +276,7 @@ async def board_lvds_link_stops(dut):
         result = detector.process(image)
         if k == 1:
             result = result.replace(flags=result.flags | C.FRAME_TIMEOUT)
-        want.append(packet.encode(result))
+        want.append(codec.encode(result))
 
     got = [await frame_and_packet(master, sensor, 0, frames[0])]
     assert (await master.read_status())["overflow"] == 0
@@ -292,9 +292,9 @@ async def board_lvds_link_stops(dut):
     await Timer(100, unit="ns")
     got.append(await frame_and_packet(master, sensor, 2, frames[2]))
     for k, (data, expected) in enumerate(zip(got, want)):
-        assert data == expected, (k, packet.decode(data), packet.decode(expected))
-    assert packet.decode(got[1]).flags & C.FRAME_TIMEOUT
-    assert not any(packet.decode(g).flags for g in (got[0], got[2]))
+        assert data == expected, (k, codec.decode(data), codec.decode(expected))
+    assert codec.decode(got[1]).flags & C.FRAME_TIMEOUT
+    assert not any(codec.decode(g).flags for g in (got[0], got[2]))
     await check_idle(master, 3)
     dut._log.info("board LVDS link stops: frame 1 cut at (%d, %d), %d records after the "
-                  "timeout, frames 0 and 2 exact", col, row, len(packet.decode(got[1]).blobs))
+                  "timeout, frames 0 and 2 exact", col, row, len(codec.decode(got[1]).blobs))

@@ -21,7 +21,7 @@ from spi_slave_tb import Master
 
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 
 PIX_NS = 13
 SCK_NS = 45
@@ -147,11 +147,11 @@ async def board_top_frames(dut):
                              background=40, min_pixels=1, record_capacity=cap)
         expected = detect_frame(image, cfg)
         expected.frame_counter = i
-        got = packet.decode(data)
+        got = codec.decode(data)
         assert got == expected, (i, got, expected)
-    assert any(len(packet.decode(p).blobs) for p in packets)
-    assert packet.decode(packets[2]).threshold == 200 and packet.decode(packets[1]).threshold == 50
+    assert any(len(codec.decode(p).blobs) for p in packets)
+    assert codec.decode(packets[2]).threshold == 200 and codec.decode(packets[1]).threshold == 50
 
     await check_idle(master, len(frames))
     dut._log.info("board top: %d frames, %d records, all packets equal the golden results",
-                  len(frames), sum(len(packet.decode(p).blobs) for p in packets))
+                  len(frames), sum(len(codec.decode(p).blobs) for p in packets))

@@ -13,13 +13,13 @@ pairs, unobservable roll) raise ``ValueError`` naming the element.  Pure Python,
 
 import math
 
-from . import geometry as _geo
-from . import quaternion as _quat
+from . import geometry as G
+from . import quaternion as Q
 
 MIN_SEPARATION = 1e-6
 """Smallest accepted ``sin`` of the largest angle between body (or reference) vectors."""
 
-NEWTON_TOLERANCE = max(1e-14, 16.0 * _geo.EPS)
+NEWTON_TOLERANCE = max(1e-14, 16.0 * G.EPS)
 """QUEST/ESOQ2 Newton-Raphson stops once a step is below this (``lambda_0 = sum w = 1``), or
 as soon as the steps stop shrinking (the rounding floor)."""
 
@@ -75,7 +75,7 @@ def _unit(v, name, i=None):
             raise ValueError("%s must have 3 components, got %d" % (label, k))
         raise ValueError("%s must hold numbers, got %r" % (label, v))
     n = math.sqrt(x * x + y * y + z * z)
-    if not _geo.finite(n) or n == 0.0:
+    if not G.finite(n) or n == 0.0:
         label = name if i is None else "%s[%d]" % (name, i)
         if n == 0.0:
             raise ValueError("%s is a zero vector" % label)
@@ -115,7 +115,7 @@ def _positive(values, name, n):
             a = float(values[i])
         except (TypeError, ValueError):
             raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i])) from None
-        if not _geo.finite(a) or not a > 0.0:
+        if not G.finite(a) or not a > 0.0:
             raise ValueError("%s[%d] = %r must be positive and finite" % (name, i, a))
         out.append(a)
     return out
@@ -131,7 +131,7 @@ def _prepare(b, r, w, wname="w", min_pairs=2, shared=False):
         raise ValueError("b and r must have the same number of vectors, got %d and %d" % (n, m))
     if n < min_pairs:
         raise ValueError("need at least %d vector pairs, got %d" % (min_pairs, n))
-    bs = [b[i] if shared and _geo.is_unit_tuple(b[i]) else _unit(b[i], "b", i)
+    bs = [b[i] if shared and G.is_unit_tuple(b[i]) else _unit(b[i], "b", i)
           for i in range(n)]
     rs = None if r is None else [_unit(r[i], "r", i) for i in range(n)]
     if w is None:
@@ -149,7 +149,7 @@ def _unit_weights(ws):
     total = 0.0
     for a in ws:
         total += a
-    if not _geo.finite(total):
+    if not G.finite(total):
         raise ValueError("sum of weights is not finite")
     return [a / total for a in ws]
 
@@ -216,7 +216,7 @@ def _coefficients(B):
     kappa, delta = _adj_trace_det(S)
     Sz = _sym_mul(S, z)
     s2 = sigma * sigma
-    return (s2 - kappa, s2 + _geo.dot(z, z), delta + _geo.dot(z, Sz), _geo.dot(Sz, Sz),
+    return (s2 - kappa, s2 + G.dot(z, z), delta + G.dot(z, Sz), G.dot(Sz, Sz),
             sigma)
 
 
@@ -274,12 +274,12 @@ def _quest_column(B, lam):
 def _ours(vec, scalar, axis):
     """Our quaternion from Shuster's ``[vec; scalar]`` solved in the frame turned about axis."""
     n = math.sqrt(vec[0] * vec[0] + vec[1] * vec[1] + vec[2] * vec[2] + scalar * scalar)
-    if not (n > 0.0 and _geo.finite(n)):
+    if not (n > 0.0 and G.finite(n)):
         raise ValueError("degenerate attitude solution (quaternion norm %r)" % n)
     q = [-vec[0] / n, -vec[1] / n, -vec[2] / n, scalar / n]    # conjugate: Shuster -> ours
     if axis >= 0:
-        q = _quat.multiply(q, _AXIS_QUATERNIONS[axis])           # A = A' R_axis
-    return _quat.canonical(q)
+        q = Q.multiply(q, _AXIS_QUATERNIONS[axis])           # A = A' R_axis
+    return Q.canonical(q)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -323,7 +323,7 @@ def loss(q, b, r, w=None):
     ``q`` is our quaternion (normalised implicitly); a single pair is allowed here.
     """
     bs, rs, ws = _prepare(b, r, w, min_pairs=1)
-    A = _quat.to_matrix(q)
+    A = Q.to_matrix(q)
     total = 0.0
     for k in range(len(bs)):
         bv, rv = bs[k], rs[k]
@@ -344,8 +344,8 @@ def _rayleigh(B, vec, scalar):
     """``qbar^T K qbar / |qbar|^2`` for Shuster's ``qbar = [vec; scalar]`` and ``K`` of ``B``."""
     S, sigma, z = _parts(B)
     Sv = _sym_mul(S, vec)
-    vv = _geo.dot(vec, vec)
-    num = (_geo.dot(vec, Sv) - sigma * vv + 2.0 * scalar * _geo.dot(z, vec)
+    vv = G.dot(vec, vec)
+    num = (G.dot(vec, Sv) - sigma * vv + 2.0 * scalar * G.dot(z, vec)
            + sigma * scalar * scalar)
     return num / (vv + scalar * scalar)
 
@@ -398,10 +398,10 @@ def refine(q, b, r, w=None, max_iterations=REFINE_MAX_ITERATIONS):
         raise ValueError("b, r and w must have one entry per vector pair")
     if n < 2:
         raise ValueError("need at least 2 vector pairs, got %d" % n)
-    q = _quat.normalise(q)
+    q = Q.normalise(q)
     enough = REFINE_STEP_RAD * REFINE_STEP_RAD
     for _ in range(max_iterations):
-        m0, m1, m2, m3, m4, m5, m6, m7, m8 = _quat.matrix(q)
+        m0, m1, m2, m3, m4, m5, m6, m7, m8 = Q.matrix(q)
         sxx = syy = szz = sxy = sxz = syz = gx = gy = gz = 0.0
         for k in range(n):
             rv = r[k]
@@ -439,9 +439,9 @@ def refine(q, b, r, w=None, max_iterations=REFINE_MAX_ITERATIONS):
         px = (c00 * gx + c01 * gy + c02 * gz) / det
         py = (c01 * gx + c11 * gy + c12 * gz) / det
         pz = (c02 * gx + c12 * gy + c22 * gz) / det
-        q = _quat.multiply(_quat.from_rotation_vector((px, py, pz)), q)
+        q = Q.multiply(Q.from_rotation_vector((px, py, pz)), q)
         if px * px + py * py + pz * pz <= enough:
-            return _quat.canonical(q)
+            return Q.canonical(q)
     raise ValueError("refine: no convergence in %d steps (start more than a few degrees "
                      "off?)" % max_iterations)
 
@@ -457,15 +457,15 @@ def _esoq2_solve(B, lam):
     m2 = [m0[2], m1[2], t * (s22 - u) + z[2] * z[2]]
     e = None
     best = -1.0
-    for c in (_geo.cross(m1, m2), _geo.cross(m2, m0), _geo.cross(m0, m1)):
+    for c in (G.cross(m1, m2), G.cross(m2, m0), G.cross(m0, m1)):
         n2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
         if n2 > best:
             best, e = n2, c
-    if not (best > 0.0 and _geo.finite(best)):
+    if not (best > 0.0 and G.finite(best)):
         raise ValueError("ESOQ2: M has rank < 2 (degenerate geometry)")
     n = math.sqrt(best)
     e = [e[0] / n, e[1] / n, e[2] / n]
-    return [t * e[0], t * e[1], t * e[2]], _geo.dot(z, e)
+    return [t * e[0], t * e[1], t * e[2]], G.dot(z, e)
 
 
 def esoq2(b, r, w=None, refine=True):
@@ -509,7 +509,7 @@ def _jacobi_top_eigenvector(K):
         for p in range(3):
             for q in range(p + 1, 4):
                 off += a[p][q] * a[p][q]
-        if off <= 1e-4 * _geo.EPS * _geo.EPS * scale:
+        if off <= 1e-4 * G.EPS * G.EPS * scale:
             break
         for p in range(3):
             for q in range(p + 1, 4):
@@ -565,13 +565,13 @@ def q_method(b, r, w=None):
 
 
 def _triad_frame(u, v, name):
-    c = _geo.cross(u, v)
-    n = _geo.norm(c)
+    c = G.cross(u, v)
+    n = G.norm(c)
     if n < MIN_SEPARATION:
         raise ValueError("TRIAD: the two %s vectors are parallel or opposite (sin of "
                          "separation %.3g < %.3g)" % (name, n, MIN_SEPARATION))
     t2 = [c[0] / n, c[1] / n, c[2] / n]
-    return u, t2, _geo.cross(u, t2)
+    return u, t2, G.cross(u, t2)
 
 
 def triad(b1, b2, r1, r2):
@@ -587,7 +587,7 @@ def triad(b1, b2, r1, r2):
     tr = _triad_frame(ru1, ru2, "reference")
     A = [[tb[0][i] * tr[0][j] + tb[1][i] * tr[1][j] + tb[2][i] * tr[2][j] for j in range(3)]
          for i in range(3)]
-    return _quat.from_matrix(A)
+    return Q.from_matrix(A)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -626,7 +626,7 @@ def covariance(b, r, sigmas):
     c12 = f01 * f02 - f00 * f12
     c22 = f00 * f11 - f01 * f01
     det = f00 * c00 + f01 * c01 + f02 * c02
-    if not (det > 0.0 and _geo.finite(det)):
+    if not (det > 0.0 and G.finite(det)):
         raise ValueError("covariance: information matrix is singular (det %r)" % det)
     return [[c00 / det, c01 / det, c02 / det],
             [c01 / det, c11 / det, c12 / det],
@@ -648,7 +648,7 @@ def sigmas_cross_roll(P):
         if len(P[i]) != 3:
             raise ValueError("P row %d must have 3 elements, got %d" % (i, len(P[i])))
         v = float(P[i][i])
-        if not _geo.finite(v) or v < 0.0:
+        if not G.finite(v) or v < 0.0:
             raise ValueError("P[%d][%d] = %r must be finite and >= 0" % (i, i, v))
         d.append(v)
     return math.sqrt(0.5 * (d[0] + d[1])), math.sqrt(d[2])

@@ -18,13 +18,13 @@ import math
 import struct
 from array import array
 
-from lodestar.contract import stardb as L
+from lodestar.contract import stardb
 from lodestar.contract.packet import crc32
 
 from . import kvector
 from . import status as S
 
-SUPPORTED_METHODS = L.METHOD_MASK
+SUPPORTED_METHODS = stardb.METHOD_MASK
 """The methods this reader serves: every method of ``lodestar.contract.stardb.METHOD_TABLE``."""
 
 # Status codes of DatabaseError / check() / load(): lodestar.firmware.status integers.
@@ -48,13 +48,13 @@ this (:meth:`Database.stars_in_cone`)."""
 PAIR_BLOCK = 32
 """Most pair records one :meth:`Database.pair_stars` read returns."""
 _PAIR_STARS_FORMAT = "<" + "2x2H" * PAIR_BLOCK
-_SCRATCH_BYTES = max(L.HEADER_SIZE, PAIR_BLOCK * L.PAIR_SIZE)
+_SCRATCH_BYTES = max(stardb.HEADER_SIZE, PAIR_BLOCK * stardb.PAIR_SIZE)
 """A file source's read buffer: the header, or a block of pairs or of stars."""
-STAR_BLOCK = _SCRATCH_BYTES // L.STAR_SIZE
+STAR_BLOCK = _SCRATCH_BYTES // stardb.STAR_SIZE
 """Most star vectors one :meth:`Database.star_vectors` read returns."""
-_STAR_VECTOR = "fff" + str(L.STAR_SIZE - 12) + "x"     # a star record's vector, then skip
+_STAR_VECTOR = "fff" + str(stardb.STAR_SIZE - 12) + "x"     # a star record's vector, then skip
 _STAR_VECTORS_FORMAT = "<" + _STAR_VECTOR * STAR_BLOCK
-_CELL_RANGE_FORMAT = "<" + L.CELL_FORMAT[1:] * 2        # two consecutive cell starts
+_CELL_RANGE_FORMAT = "<" + stardb.CELL_FORMAT[1:] * 2        # two consecutive cell starts
 
 
 class DatabaseError(Exception):
@@ -178,7 +178,7 @@ def required_sections(methods):
     """The section ids an image with the ``methods`` mask must carry (the contract's
     :data:`~lodestar.contract.stardb.METHOD_TABLE`; repeats possible)."""
     out = []
-    for entry in L.METHOD_TABLE:
+    for entry in stardb.METHOD_TABLE:
         if methods & entry[1]:
             out.extend(entry[3])
     return out
@@ -190,7 +190,7 @@ class Database:
     ``Database(buffer)`` over bytes-like memory or :meth:`open` over a file; both raise
     :class:`DatabaseError` on any corruption or mismatch.  ``expected_fov_h`` (rad), when
     given, must match the image's horizontal FOV to ``fov_tolerance`` (relative), else
-    ``FOV_MISMATCH``.  Header values are attributes named as in :data:`L.HEADER_FIELDS`
+    ``FOV_MISMATCH``.  Header values are attributes named as in :data:`stardb.HEADER_FIELDS`
     (angles in radians); ``sections`` is the list of ``(offset, length)``.
     """
 
@@ -231,30 +231,30 @@ class Database:
 
     def _validate(self, expected_fov_h, fov_tolerance):
         src = self._src
-        if src.size < L.HEADER_SIZE:
+        if src.size < stardb.HEADER_SIZE:
             raise DatabaseError(S.DATABASE_BAD_LENGTH, "image of " + str(src.size) +
                                 " bytes is shorter than the header")
-        values = src.unpack(L.HEADER_FORMAT, 0, L.DIRECTORY_OFFSET)
-        for name, value in zip(L.HEADER_FIELDS, values):
+        values = src.unpack(stardb.HEADER_FORMAT, 0, stardb.DIRECTORY_OFFSET)
+        for name, value in zip(stardb.HEADER_FIELDS, values):
             setattr(self, name, value)
-        if self.magic != L.MAGIC:
+        if self.magic != stardb.MAGIC:
             raise DatabaseError(S.DATABASE_BAD_MAGIC, "magic " + repr(self.magic) + " is not " +
-                                repr(L.MAGIC))
-        if self.version != L.VERSION:
+                                repr(stardb.MAGIC))
+        if self.version != stardb.VERSION:
             raise DatabaseError(S.DATABASE_BAD_VERSION, "format version " + str(self.version) +
-                                " (this reader reads " + str(L.VERSION) + ")")
-        if self.header_size != L.HEADER_SIZE:
+                                " (this reader reads " + str(stardb.VERSION) + ")")
+        if self.header_size != stardb.HEADER_SIZE:
             raise DatabaseError(S.DATABASE_BAD_VERSION, "header size " + str(self.header_size))
-        if src.crc(0, L.HEADER_CRC_OFFSET) != src.unpack("<I", L.HEADER_CRC_OFFSET, 4)[0]:
+        if src.crc(0, stardb.HEADER_CRC_OFFSET) != src.unpack("<I", stardb.HEADER_CRC_OFFSET, 4)[0]:
             raise DatabaseError(S.DATABASE_CORRUPT, "header CRC-32 mismatch")
         if self.image_size != src.size:
             raise DatabaseError(S.DATABASE_BAD_LENGTH, "image is " + str(src.size) +
                                 " bytes, header says " + str(self.image_size))
-        if src.crc(L.HEADER_SIZE, src.size) != self.payload_crc:
+        if src.crc(stardb.HEADER_SIZE, src.size) != self.payload_crc:
             raise DatabaseError(S.DATABASE_CORRUPT, "payload CRC-32 mismatch")
         self.sections = []
-        for i in range(L.N_SECTIONS):
-            self.sections.append(src.unpack("<II", L.DIRECTORY_OFFSET + 8 * i, 8))
+        for i in range(stardb.N_SECTIONS):
+            self.sections.append(src.unpack("<II", stardb.DIRECTORY_OFFSET + 8 * i, 8))
         self._check_layout()
         if expected_fov_h is not None:
             if abs(self.fov_h - expected_fov_h) > fov_tolerance * expected_fov_h:
@@ -265,12 +265,12 @@ class Database:
         def bad(reason):
             raise DatabaseError(S.DATABASE_BAD_LAYOUT, reason)
 
-        if self.methods == 0 or self.methods & ~L.METHOD_MASK:
+        if self.methods == 0 or self.methods & ~stardb.METHOD_MASK:
             bad("unknown method mask " + str(self.methods))
         if not self.methods & SUPPORTED_METHODS:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "method mask " + str(self.methods) +
                                 " has nothing this reader serves")
-        if self.star_record_size != L.STAR_SIZE:
+        if self.star_record_size != stardb.STAR_SIZE:
             bad("star record size " + str(self.star_record_size))
         for name in ("fov_h", "fov_v", "fov_diag", "cell_radius"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > math.pi:
@@ -279,43 +279,43 @@ class Database:
             bad("star counts " + str(self.n_stars) + "/" + str(self.n_pattern_stars))
         if not 1 <= self.cells_per_face <= 64:
             bad("cells_per_face " + str(self.cells_per_face))
-        expected = {L.SEC_STARS: self.n_stars * L.STAR_SIZE,
-                    L.SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
+        expected = {stardb.SEC_STARS: self.n_stars * stardb.STAR_SIZE,
+                    stardb.SEC_CELLS: (n_cells(self.cells_per_face) + 1) * 2}
         required = required_sections(self.methods)
-        if L.SEC_PAIRS in required:         # the pair table's values are header fields
+        if stardb.SEC_PAIRS in required:         # the pair table's values are header fields
             if self.n_pairs < 1 or self.kv_bins < 1:
                 bad("pair table without pairs or k-vector bins")
             if not (_finite_positive(self.key_step) and _finite_positive(self.kv_m)) or \
                     self.kv_q != self.kv_q:
                 bad("key step or k-vector line not finite and positive")
-            expected[L.SEC_PAIRS] = self.n_pairs * L.PAIR_SIZE
-            expected[L.SEC_KVECTOR] = (self.kv_bins + 1) * 4
+            expected[stardb.SEC_PAIRS] = self.n_pairs * stardb.PAIR_SIZE
+            expected[stardb.SEC_KVECTOR] = (self.kv_bins + 1) * 4
         spans = []
-        for sec in range(L.N_SECTIONS):
+        for sec in range(stardb.N_SECTIONS):
             offset, length = self.sections[sec]
             if length == 0:
                 if sec in required:
-                    bad("section " + L.SECTION_NAMES[sec] + " is missing")
+                    bad("section " + stardb.SECTION_NAMES[sec] + " is missing")
                 continue
-            if offset < L.HEADER_SIZE or offset % L.SECTION_ALIGN or \
+            if offset < stardb.HEADER_SIZE or offset % stardb.SECTION_ALIGN or \
                     offset + length > self.image_size:
-                bad("section " + L.SECTION_NAMES[sec] + " lies outside the image")
+                bad("section " + stardb.SECTION_NAMES[sec] + " lies outside the image")
             if sec in expected and length != expected[sec]:
-                bad("section " + L.SECTION_NAMES[sec] + " is " + str(length) +
+                bad("section " + stardb.SECTION_NAMES[sec] + " is " + str(length) +
                     " bytes, expected " + str(expected[sec]))
             spans.append((offset, offset + length))
         spans.sort()
         for i in range(1, len(spans)):
             if spans[i][0] < spans[i - 1][1]:
                 bad("sections overlap")
-        self._stars_off = self.sections[L.SEC_STARS][0]
-        self._cells_off = self.sections[L.SEC_CELLS][0]
-        self._pairs_off = self.sections[L.SEC_PAIRS][0]
-        self._kv_off = self.sections[L.SEC_KVECTOR][0]
+        self._stars_off = self.sections[stardb.SEC_STARS][0]
+        self._cells_off = self.sections[stardb.SEC_CELLS][0]
+        self._pairs_off = self.sections[stardb.SEC_PAIRS][0]
+        self._kv_off = self.sections[stardb.SEC_KVECTOR][0]
         nc = n_cells(self.cells_per_face)
         if self._cell_start(0) != 0 or self._cell_start(nc) != self.n_stars:
             bad("cell index does not span the star table")
-        for spec in L.KEYED_SECTIONS:
+        for spec in stardb.KEYED_SECTIONS:
             setattr(self, spec[1] + "n", 0)
             if spec[0] in required:
                 self._check_keyed(spec, bad)
@@ -326,7 +326,7 @@ class Database:
         (:data:`_KEYED_VALUES`), its length, its sorted keys and k-vector; sets the offsets
         ``_<prefix>off`` (records) and ``_<prefix>kv_off`` (k-vector)."""
         sec, prefix, magic, fmt, size, fields, key_format = spec
-        name = L.SECTION_NAMES[sec]
+        name = stardb.SECTION_NAMES[sec]
         offset, length = self.sections[sec]
         if length < size:
             bad("section " + name + " is shorter than its header")
@@ -341,18 +341,18 @@ class Database:
         if n < 1 or kv_bins < 1:
             bad("section " + name + " without records or k-vector bins")
         body = n * record_size
-        if length != size + body + (-body) % L.SECTION_ALIGN + 4 * (kv_bins + 1):
+        if length != size + body + (-body) % stardb.SECTION_ALIGN + 4 * (kv_bins + 1):
             bad("section " + name + " is " + str(length) + " bytes, its header implies otherwise")
         off = offset + size
-        kv_off = off + body + (-body) % L.SECTION_ALIGN
+        kv_off = off + body + (-body) % stardb.SECTION_ALIGN
         setattr(self, "_" + prefix + "off", off)
         setattr(self, "_" + prefix + "kv_off", kv_off)
         src = self._src
         kv_m, kv_q = getattr(self, prefix + "kv_m"), getattr(self, prefix + "kv_q")
         if not (_finite_positive(kv_m) and kv_q == kv_q and abs(kv_q) < 1e30):
             bad(name + " k-vector line not finite")
-        if src.unpack(L.KV_FORMAT, kv_off, 4)[0] > n or \
-                src.unpack(L.KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
+        if src.unpack(stardb.KV_FORMAT, kv_off, 4)[0] > n or \
+                src.unpack(stardb.KV_FORMAT, kv_off + 4 * kv_bins, 4)[0] != n:
             bad(name + " k-vector does not span its records")
         key_size = struct.calcsize(key_format)
         if src.unpack(key_format, off, key_size)[0] > \
@@ -364,12 +364,12 @@ class Database:
         for name in ("tri_area_step", "tri_moment_step", "tri_max_side"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > 4.0:
                 bad(name + " not finite and positive")
-        return L.TRI_RECORD_SIZE
+        return stardb.TRI_RECORD_SIZE
 
     def _hash_values(self, bad):
         """The hash section's own values; returns its record size (sets the record format)."""
         g = self.hash_group_size
-        if g not in L.HASH_GROUP_SIZES or self.hash_flags & ~L.HASH_FLAG_DISTANCE:
+        if g not in stardb.HASH_GROUP_SIZES or self.hash_flags & ~stardb.HASH_FLAG_DISTANCE:
             raise DatabaseError(S.DATABASE_UNSUPPORTED, "hash group size " + str(g) +
                                 " or flags " + str(self.hash_flags) + " not served")
         for name in ("hash_coord_bucket", "hash_dist_bucket", "hash_max_diameter"):
@@ -378,9 +378,9 @@ class Database:
         if not (abs(self.hash_coord_lo) < 4.0 and 0.0 <= self.hash_min_diameter <
                 self.hash_max_diameter):
             bad("hash coordinate grid or diameters out of range")
-        nd = self.hash_dist_buckets if self.hash_flags & L.HASH_FLAG_DISTANCE else 1
+        nd = self.hash_dist_buckets if self.hash_flags & stardb.HASH_FLAG_DISTANCE else 1
         if self.hash_coord_buckets < 1 or nd < 1 or \
-                self.hash_coord_buckets ** (2 * (g - 2)) * nd > L.HASH_MAX_CODE:
+                self.hash_coord_buckets ** (2 * (g - 2)) * nd > stardb.HASH_MAX_CODE:
             bad("hash bucket grid too large")
         self._hash_record_size = 4 + 2 * g
         self._hash_format = "<I" + "H" * g
@@ -400,7 +400,7 @@ class Database:
 
     def star_vector(self, i):
         """Inertial unit vector ``(x, y, z)`` of star ``i`` (float32 precision)."""
-        r = self._src.unpack("<fff", self._stars_off + i * L.STAR_SIZE, 12)
+        r = self._src.unpack("<fff", self._stars_off + i * stardb.STAR_SIZE, 12)
         return r[0], r[1], r[2]
 
     def star_vectors(self, start):
@@ -408,10 +408,11 @@ class Database:
         ...)``: :data:`STAR_BLOCK` of them (fewer at the end of the table) in one read."""
         n = self.n_stars - start
         if n >= STAR_BLOCK:
-            return self._src.unpack(_STAR_VECTORS_FORMAT, self._stars_off + start * L.STAR_SIZE,
-                                    STAR_BLOCK * L.STAR_SIZE)
-        return self._src.unpack("<" + _STAR_VECTOR * n, self._stars_off + start * L.STAR_SIZE,
-                                n * L.STAR_SIZE)
+            return self._src.unpack(_STAR_VECTORS_FORMAT,
+                                    self._stars_off + start * stardb.STAR_SIZE,
+                                    STAR_BLOCK * stardb.STAR_SIZE)
+        return self._src.unpack("<" + _STAR_VECTOR * n, self._stars_off + start * stardb.STAR_SIZE,
+                                n * stardb.STAR_SIZE)
 
     def read_vectors(self, ids, vecs):
         """Set ``vecs[3 k], vecs[3 k + 1], vecs[3 k + 2]`` to the vector of star ``ids[k]``
@@ -433,7 +434,7 @@ class Database:
                 k += 1
 
     def _star_word(self, i):
-        return self._src.unpack("<HH", self._stars_off + i * L.STAR_SIZE + 12, 4)
+        return self._src.unpack("<HH", self._stars_off + i * stardb.STAR_SIZE + 12, 4)
 
     def star_hip(self, i):
         """Hipparcos number of star ``i``."""
@@ -442,21 +443,22 @@ class Database:
 
     def star_mag(self, i):
         """V magnitude of star ``i`` (0.01 mag resolution)."""
-        return ((self._star_word(i)[1] >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET
+        return ((self._star_word(i)[1] >> 1) & 0x7FF) / stardb.MAG_SCALE - stardb.MAG_OFFSET
 
     def star_flags(self, i):
-        """Flag bits of star ``i`` (:data:`L.STAR_FLAG_PATTERN`)."""
+        """Flag bits of star ``i`` (:data:`stardb.STAR_FLAG_PATTERN`)."""
         return self._star_word(i)[1] >> 12
 
     def star(self, i):
         """``(x, y, z, hip, mag, flags)`` of star ``i``."""
-        x, y, z, lo, word = self._src.unpack(L.STAR_FORMAT, self._stars_off + i * L.STAR_SIZE,
-                                             L.STAR_SIZE)
-        mag = ((word >> 1) & 0x7FF) / L.MAG_SCALE - L.MAG_OFFSET
+        x, y, z, lo, word = self._src.unpack(stardb.STAR_FORMAT,
+                                             self._stars_off + i * stardb.STAR_SIZE,
+                                             stardb.STAR_SIZE)
+        mag = ((word >> 1) & 0x7FF) / stardb.MAG_SCALE - stardb.MAG_OFFSET
         return (x, y, z, lo | ((word & 1) << 16), mag, word >> 12)
 
     def _cell_start(self, c):
-        return self._src.unpack(L.CELL_FORMAT, self._cells_off + 2 * c, 2)[0]
+        return self._src.unpack(stardb.CELL_FORMAT, self._cells_off + 2 * c, 2)[0]
 
     def cell_range(self, c):
         """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
@@ -498,29 +500,32 @@ class Database:
 
     def pair(self, i):
         """Star indices ``(a, b)``, ``a < b``, of pair ``i`` (pairs sorted by angle)."""
-        r = self._src.unpack(L.PAIR_FORMAT, self._pairs_off + i * L.PAIR_SIZE, L.PAIR_SIZE)
+        r = self._src.unpack(stardb.PAIR_FORMAT, self._pairs_off + i * stardb.PAIR_SIZE,
+                             stardb.PAIR_SIZE)
         return r[1], r[2]
 
     def pair_record(self, i):
         """``(key, a, b)`` of pair ``i``: its angle is ``key * key_step`` rad."""
-        return self._src.unpack(L.PAIR_FORMAT, self._pairs_off + i * L.PAIR_SIZE, L.PAIR_SIZE)
+        return self._src.unpack(stardb.PAIR_FORMAT, self._pairs_off + i * stardb.PAIR_SIZE,
+                                stardb.PAIR_SIZE)
 
     def pair_stars(self, start, n):
         """Star indices of the ``n`` pairs ``start .. start + n - 1`` (``1 <= n <=
         PAIR_BLOCK``) as one flat tuple ``(a, b, a, b, ...)``: one read instead of ``n``."""
         fmt = _PAIR_STARS_FORMAT if n == PAIR_BLOCK else "<" + "2x2H" * n
-        return self._src.unpack(fmt, self._pairs_off + start * L.PAIR_SIZE, n * L.PAIR_SIZE)
+        return self._src.unpack(fmt, self._pairs_off + start * stardb.PAIR_SIZE,
+                                n * stardb.PAIR_SIZE)
 
     def pair_key(self, i):
         """Integer angle key of pair ``i`` (ascending with ``i``)."""
-        return self._src.unpack("<H", self._pairs_off + i * L.PAIR_SIZE, 2)[0]
+        return self._src.unpack("<H", self._pairs_off + i * stardb.PAIR_SIZE, 2)[0]
 
     def pair_angle(self, i):
         """Inter-star angle of pair ``i`` as stored, rad (``key * key_step``)."""
         return self.pair_key(i) * self.key_step
 
     def _kv_at(self, j):
-        return self._src.unpack(L.KV_FORMAT, self._kv_off + 4 * j, 4)[0]
+        return self._src.unpack(stardb.KV_FORMAT, self._kv_off + 4 * j, 4)[0]
 
     def pairs_in_range(self, lo, hi):
         """``(start, stop)``: the pairs ``start <= i < stop`` are exactly those whose stored
@@ -540,15 +545,16 @@ class Database:
         """``(area_key, moment_key, s0, s1, s2)`` of triangle ``i``: its (chord) area is
         ``area_key * tri_area_step`` and polar moment ``moment_key * tri_moment_step``;
         ``s0, s1, s2`` are the stars opposite its shortest, middle and longest side."""
-        return self._src.unpack(L.TRI_RECORD_FORMAT, self._tri_off + i * L.TRI_RECORD_SIZE,
-                                L.TRI_RECORD_SIZE)
+        return self._src.unpack(stardb.TRI_RECORD_FORMAT,
+                                self._tri_off + i * stardb.TRI_RECORD_SIZE,
+                                stardb.TRI_RECORD_SIZE)
 
     def triangle_area_key(self, i):
         """Integer area key of triangle ``i`` (ascending with ``i``)."""
-        return self._src.unpack("<H", self._tri_off + i * L.TRI_RECORD_SIZE, 2)[0]
+        return self._src.unpack("<H", self._tri_off + i * stardb.TRI_RECORD_SIZE, 2)[0]
 
     def _tri_kv_at(self, j):
-        return self._src.unpack(L.KV_FORMAT, self._tri_kv_off + 4 * j, 4)[0]
+        return self._src.unpack(stardb.KV_FORMAT, self._tri_kv_off + 4 * j, 4)[0]
 
     def triangles_in_range(self, lo, hi):
         """``(start, stop)``: exactly the triangles whose area key ``k`` satisfies
@@ -569,7 +575,7 @@ class Database:
         return self._src.unpack("<I", self._hash_off + i * self._hash_record_size, 4)[0]
 
     def _hash_kv_at(self, j):
-        return self._src.unpack(L.KV_FORMAT, self._hash_kv_off + 4 * j, 4)[0]
+        return self._src.unpack(stardb.KV_FORMAT, self._hash_kv_off + 4 * j, 4)[0]
 
     def hash_bucket(self, code):
         """``(start, stop)``: the hash groups of bucket ``code`` (by k-vector)."""
@@ -580,18 +586,19 @@ class Database:
         """The header values as a dict (for telemetry and the ground tools); the triangle
         and hash section headers as dicts ``"triangles"`` and ``"hash"`` when served."""
         out = {}
-        for name in L.HEADER_FIELDS:
+        for name in stardb.HEADER_FIELDS:
             out[name] = getattr(self, name)
         out["sections"] = list(self.sections)
         required = required_sections(self.methods)
-        for sec, prefix, _, _, _, fields, _ in L.KEYED_SECTIONS:
+        for sec, prefix, _, _, _, fields, _ in stardb.KEYED_SECTIONS:
             if sec in required:
-                out[L.SECTION_NAMES[sec]] = dict((name, getattr(self, prefix + name))
+                out[stardb.SECTION_NAMES[sec]] = dict((name, getattr(self, prefix + name))
                                                  for name in fields[1:])
         return out
 
 
-_KEYED_VALUES = {L.SEC_TRIANGLES: Database._triangle_values, L.SEC_HASH: Database._hash_values}
+_KEYED_VALUES = {stardb.SEC_TRIANGLES: Database._triangle_values,
+                 stardb.SEC_HASH: Database._hash_values}
 """The checks of the values of each keyed section's method (:meth:`Database._check_keyed`)."""
 
 

@@ -18,20 +18,17 @@ import math
 import sys
 from array import array
 
-from lodestar import contract as _C
+from lodestar import contract as C
 
-from . import attitude as _att
+from . import attitude as _attitude
 from . import camera as _camera
-from . import centroids as _centroids
+from . import centroids, packet, starid, tracking
 from . import database as _database
-from . import geometry as _geo
-from . import packet as _packet
-from . import quaternion as _quat
-from . import starid as _starid
+from . import geometry as G
+from . import quaternion as Q
 from . import status as S
-from . import tracking as _tracking
 from .settings import Settings
-from .starid import verify as _verify
+from .starid import verify
 
 RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
@@ -48,12 +45,12 @@ FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
 halved)."""
-INCOMPLETE_FLAGS = ((_C.FRAME_TRUNCATED, "FRAME_TRUNCATED"), (_C.FRAME_TIMEOUT, "FRAME_TIMEOUT"),
-                    (_C.FRAME_LINE_ERROR, "FRAME_LINE_ERROR"))
+INCOMPLETE_FLAGS = ((C.FRAME_TRUNCATED, "FRAME_TRUNCATED"), (C.FRAME_TIMEOUT, "FRAME_TIMEOUT"),
+                    (C.FRAME_LINE_ERROR, "FRAME_LINE_ERROR"))
 """Frame flags that make a frame ``FRAME_INCOMPLETE``: a blob cut by the frame's end has
 a partial record, and a line of the wrong length misplaces every later one."""
-LOST_FLAGS = ((_C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW"),
-              (_C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW"))
+LOST_FLAGS = ((C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW"),
+              (C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW"))
 """Frame flags noted in ``reason`` of a frame that is solved all the same: blobs were lost
 (``dropped_records``, ``dropped_labels``), the others are whole."""
 FOV_TOLERANCE = 0.02
@@ -83,7 +80,7 @@ frame at rest (``docs/firmware.md``, Record budget)."""
 TRACK_EXTRA_STARS = 2
 """... but no more than ``track_stars`` plus this many blobs of the frame: a group of stars
 of about the same brightness at the cut cannot swell the next frame."""
-MIN_SUM_MAX = (1 << _C.REGISTER_BY_NAME["min_sum"].bits) - 1
+MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
 
@@ -179,14 +176,14 @@ def _short_smears(stars, smear, limit, max_stars, rejected):
 def _fit(b, r, w, q0):
     """The attitude of pairs ``b``, ``r`` (weights ``w``, None: equal): refined from ``q0``,
     or by QUEST without one."""
-    return _att.quest(b, r, w) if q0 is None else _att.refine(q0, b, r, w)
+    return _attitude.quest(b, r, w) if q0 is None else _attitude.refine(q0, b, r, w)
 
 
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
     catalogue vectors ``r`` under attitude ``q``."""
-    m = _quat.matrix(q)
-    return [_geo.residual2(m, b[i], r[i]) for i in range(len(b))]
+    m = Q.matrix(q)
+    return [G.residual2(m, b[i], r[i]) for i in range(len(b))]
 
 
 class Result:
@@ -262,7 +259,7 @@ class StarTracker:
         self.min_sigma_rad = 0.0
         self.focal_px = 1.0
         self.beta = None
-        self._cone = _tracking.Cone()   # tracking's catalogue stars, kept between frames
+        self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
         _threshold(GC_THRESHOLD)
         try:
@@ -306,7 +303,7 @@ class StarTracker:
         self.sigma_rad = None if st.centroid_sigma_px is None else st.centroid_sigma_px / focal
         self.min_sigma_rad = st.min_sigma_px / focal
         self.track_search_rad = math.radians(st.track_search_deg)
-        self._tracker = _tracking.Tracker(self.tolerance_rad, self.track_search_rad,
+        self._tracker = tracking.Tracker(self.tolerance_rad, self.track_search_rad,
                                           st.track_min_matches, st.track_max_prob,
                                           cone=self._cone)
         self.track_stars = st.track_stars if st.track_stars is None or \
@@ -320,7 +317,7 @@ class StarTracker:
                            str(reason))
                 return
         self.database = db
-        module = _starid.method(st.method)
+        module = starid.method(st.method)
         if module is None:
             self._fail(S.BAD_INPUT, "unknown method " + repr(st.method))
             return
@@ -331,17 +328,17 @@ class StarTracker:
         # per-star buffers of process(), allocated with the tracker (before any frame has
         # fragmented the heap) and reused: record index, centroid and flux of each star
         self._index = array("H", range(st.max_stars))
-        self._xy = _geo.zeros(2 * st.max_stars)
-        self._flux = _geo.zeros(st.max_stars)
+        self._xy = G.zeros(2 * st.max_stars)
+        self._flux = G.zeros(st.max_stars)
         fov_h = _camera_fov_h(cam)
         if fov_h is None or abs(fov_h - db.fov_h) > FOV_TOLERANCE * db.fov_h:
             self._fail(S.DATABASE_MISMATCH, "database horizontal FOV " + str(db.fov_h) +
                        " rad, camera " + str(fov_h))
             return
-        widest = _starid.max_tolerance_rad(db.fov_h)
+        widest = starid.max_tolerance_rad(db.fov_h)
         if self.tolerance_rad > widest:
             self._fail(S.BAD_INPUT, "tolerance_px must be at most " + str(int(widest * focal)) +
-                       " px (" + str(_starid.MAX_TOLERANCE_FRACTION) + " of the field)")
+                       " px (" + str(starid.MAX_TOLERANCE_FRACTION) + " of the field)")
             return
 
     # ---- stages ---------------------------------------------------------------------
@@ -359,7 +356,7 @@ class StarTracker:
         docstring, stage 3), or None without a rate."""
         if omega is None:
             return None
-        rate = _geo.norm(omega)
+        rate = G.norm(omega)
         if not rate > 0:
             return None
         axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
@@ -368,7 +365,7 @@ class StarTracker:
         epoch = self.settings.epoch_s
 
         def turn(v, y):
-            return _geo.rotate_about(v, axis, rate * (half + y * row_time - epoch))
+            return G.rotate_about(v, axis, rate * (half + y * row_time - epoch))
         return turn
 
     def directions(self, stars, omega=None, exposure_s=None):
@@ -435,7 +432,7 @@ class StarTracker:
         _threshold(GC_THRESHOLD)
         if prior is not None:           # a tracking frame falls back: collect as for one
             _collect()
-        sol = _starid.identify(vectors, self.database, method=self.settings.method,
+        sol = starid.identify(vectors, self.database, method=self.settings.method,
                                tolerance_rad=self.tolerance_rad, budget=self.settings.budget,
                                max_work=self.settings.max_work, streaks=streaks,
                                **self.settings.id_options)
@@ -448,7 +445,7 @@ class StarTracker:
         n = len(fluxes)
         if not self.settings.flux_weighting:
             return [1.0] * n
-        good = [f for f in fluxes if _geo.is_number(f) and f > 0]
+        good = [f for f in fluxes if G.is_number(f) and f > 0]
         if not good:
             return [1.0] * n
         good.sort()
@@ -456,7 +453,7 @@ class StarTracker:
         median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
         out = []
         for f in fluxes:
-            out.append(f / median if _geo.is_number(f) and f > 0 else 1.0)
+            out.append(f / median if G.is_number(f) and f > 0 else 1.0)
         return out
 
     def noise_shares(self, b, r, photon, q0=None, fitted=False):
@@ -517,7 +514,7 @@ class StarTracker:
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
-                extra[i] = _verify.streak_variance(streaks[star_ids[i][0]])
+                extra[i] = verify.streak_variance(streaks[star_ids[i][0]])
         tracks = max(extra) > 0 if n else False
         try:
             if fluxes is None:
@@ -544,7 +541,7 @@ class StarTracker:
                 if not s >= self.min_sigma_rad:
                     s = self.min_sigma_rad
             sigmas = [s / math.sqrt(wi) for wi in w]
-            cross, roll = _att.sigmas_cross_roll(_att.covariance(b, None, sigmas))
+            cross, roll = _attitude.sigmas_cross_roll(_attitude.covariance(b, None, sigmas))
         except (ValueError, ZeroDivisionError):
             return None
         return q, cross, roll, s
@@ -590,10 +587,10 @@ class StarTracker:
         if start is None:
             start = self._tick(timings, None, None)
         res.n_stars = len(vectors)
-        if prior is not None and _quat.unit_quaternion(prior) is None:
+        if prior is not None and Q.unit_quaternion(prior) is None:
             _note(res, "prior ignored: not 4 finite numbers with a non-zero norm")
             prior = None
-        if prior is not None and dt is not None and not _geo.is_number(dt):
+        if prior is not None and dt is not None and not G.is_number(dt):
             _note(res, "dt ignored: not a finite number")
             dt = None
         if len(vectors) < 3:
@@ -634,9 +631,9 @@ class StarTracker:
                 fitted = streaks is None
             self._cone.clear()          # not kept through a lost-in-space frame's fit
         if not star_ids:
-            predicted, n_fov = _tracking.predict(self.database, sol.q,
+            predicted, n_fov = tracking.predict(self.database, sol.q,
                                                  2.0 * self.tolerance_rad)
-            star_ids = _tracking.match_nearest(vectors, predicted, self.tolerance_rad, streaks)
+            star_ids = tracking.match_nearest(vectors, predicted, self.tolerance_rad, streaks)
             hips, fitted = None, False
         sol = ref = predicted = None     # only star_ids goes on to the fit
         if mode == "lost_in_space":
@@ -689,7 +686,7 @@ class StarTracker:
         if prior is None:
             _collect()
         start = first = self._tick(timings, None, None)
-        code, header, reason = _packet.check(packet_bytes, records=False)
+        code, header, reason = packet.check(packet_bytes, records=False)
         start = self._tick(timings, "decode", start)
         if code != S.OK:
             res.status = code
@@ -700,12 +697,12 @@ class StarTracker:
             return res
         w = None
         if omega is not None:
-            w = _geo.vector3(omega)
+            w = G.vector3(omega)
             if w is None:
                 _note(res, "omega ignored: not 3 finite numbers")
         exposure = self.settings.exposure_s
         if exposure_s is not None:
-            if _geo.is_number(exposure_s) and exposure_s > 0:
+            if G.is_number(exposure_s) and exposure_s > 0:
                 exposure = exposure_s
             else:
                 _note(res, "exposure_s ignored: not a positive number")
@@ -718,11 +715,11 @@ class StarTracker:
         max_stars = self.settings.max_stars
         border = (cam.width, cam.height) if self.settings.drop_border else None
         try:        # the records are checked as they are read: one decoding each
-            stars, rejected = _centroids.extract(_packet.checked_records(packet_bytes, header),
+            stars, rejected = centroids.extract(packet.checked_records(packet_bytes, header),
                                                  max_stars=None if select else max_stars,
                                                  expected_smear_px=smear, border=border,
                                                  **self.settings.extract_options)
-        except _packet.BadRecord as exc:
+        except packet.BadRecord as exc:
             return Result(exc.args[0], exc.args[1])
         res.rejected = rejected
         if select:
@@ -821,7 +818,7 @@ def _deaberrate(vectors, q, beta):
     camera frame by the identified attitude ``q`` (its error of the aberration's size, 1e-4
     rad, changes ``beta`` by 1e-8 of itself)."""
     deaberrate = _aberration().deaberrate
-    bc = _geo.mat_vec(_quat.matrix(q), beta)
+    bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
 
@@ -838,4 +835,4 @@ def _camera_fov_h(cam):
     b = cam.pixel_to_vector(cam.width - 0.5, ym)
     if a is None or b is None:
         return None
-    return _geo.angle(a, b)
+    return G.angle(a, b)

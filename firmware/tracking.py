@@ -15,7 +15,7 @@ MicroPython (``math``, ``array``).
 import math
 from array import array
 
-from . import attitude as _att
+from . import attitude
 from . import status as S
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
@@ -386,7 +386,7 @@ def fit(observed, database, pairs, q, weights=None, cone=None):
         r = [cone.star_vector(database, s) for o, s in pairs]
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
-        return _att.refine(q, b, r, w)
+        return attitude.refine(q, b, r, w)
     except (ValueError, ZeroDivisionError):
         return None
 

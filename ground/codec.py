@@ -16,7 +16,7 @@ import zlib
 
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
-from lodestar.firmware import packet as rules
+from lodestar.firmware import packet
 
 
 class PacketError(ValueError):
@@ -136,17 +136,17 @@ def decode(data):
         raise PacketError("truncated: {} bytes, a packet needs at least {}".format(
             len(data), minimum))
     header = _unpack_header(data)
-    problem = rules.framing_problem(data, header)
+    problem = packet.framing_problem(data, header)
     if problem:
         raise PacketError(problem[1])
-    reason = rules.header_problem(header)
+    reason = packet.header_problem(header)
     if reason:
         raise PacketError(reason)
-    limits = rules.moment_limits(header["pixel_bits"])
+    limits = packet.moment_limits(header["pixel_bits"])
     blobs = []
     for index in range(header["n_records"]):
         rec = _unpack_record(data, index)
-        reason = rules.record_problem(rec, header, limits)
+        reason = packet.record_problem(rec, header, limits)
         if reason:
             raise PacketError("record {}: {}".format(index, reason))
         blobs.append(rec)

@@ -13,12 +13,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from lodestar.contract import stardb as L
+from lodestar.contract import stardb
 from lodestar.contract.stardb import METHODS
-from lodestar.firmware import database as fwdb
-from lodestar.firmware import kvector
-from lodestar.firmware.starid import hashing as H
-from lodestar.firmware.starid import triangle as T
+from lodestar.firmware import database, kvector
+from lodestar.firmware.starid import hashing, triangle
 from lodestar.sim.catalogue import CatalogueError, load, load_deep
 
 BLEND_MAG_DIFF = 2.0
@@ -215,8 +213,8 @@ def blended_stars(vectors, vmag, blend_radius_rad):
 def cell_radius(n):
     """Largest angle (rad) between a cell centre and its corners on the ``n x n`` cube."""
     worst = 0.0
-    for c in range(fwdb.n_cells(n)):
-        centre = np.array(fwdb.cell_centre(c, n))
+    for c in range(database.n_cells(n)):
+        centre = np.array(database.cell_centre(c, n))
         face, rest = divmod(c, n * n)
         iu, iv = divmod(rest, n)
         a, s = face >> 1, (-1.0 if face & 1 else 1.0)
@@ -292,8 +290,9 @@ def regional_groups(vectors, vmag, candidates, regions_per_face, radius, per_reg
     chord = 2 * math.sin(radius / 2)
     cos_max, cos_min = math.cos(max_diameter), math.cos(min_diameter)
     found = set()
-    for c in range(fwdb.n_cells(regions_per_face)):
-        near = idx[tree.query_ball_point(np.array(fwdb.cell_centre(c, regions_per_face)), chord)]
+    for c in range(database.n_cells(regions_per_face)):
+        near = idx[tree.query_ball_point(np.array(database.cell_centre(c, regions_per_face)),
+                                         chord)]
         near = near[np.lexsort((near, vmag[near]))][:per_region]
         if len(near) < size:
             continue
@@ -320,9 +319,9 @@ def triangle_table(v32, groups, key_bits=16):
     verts = np.zeros((n, 3), dtype=np.int64)
     for r, (i, j, k) in enumerate(groups.tolist()):
         tri = (i, j, k)
-        order, _ = T.canonical_order(vec[i], vec[j], vec[k])
+        order, _ = triangle.canonical_order(vec[i], vec[j], vec[k])
         verts[r] = [tri[order[0]], tri[order[1]], tri[order[2]]]
-        area[r], moment[r] = T.area_moment(vec[i], vec[j], vec[k])
+        area[r], moment[r] = triangle.area_moment(vec[i], vec[j], vec[k])
     n_keys = (1 << key_bits) - 1
     area_step, moment_step = _step_for(area.max(), n_keys), _step_for(moment.max(), n_keys)
     records = np.zeros(n, dtype=[("area", "<u2"), ("moment", "<u2"), ("s0", "<u2"),
@@ -360,8 +359,8 @@ def hash_table(v32, groups, grid):
     names = ("a", "b", "c", "d")[:g]
     records = np.zeros(n, dtype=[("code", "<u4")] + [(name, "<u2") for name in names])
     for r, grp in enumerate(groups.tolist()):
-        order, h, d = H.group_hash([vec[s] for s in grp])
-        records[r]["code"] = H.bucket_code(h, d, grid)
+        order, h, d = hashing.group_hash([vec[s] for s in grp])
+        records[r]["code"] = hashing.bucket_code(h, d, grid)
         for name, o in zip(names, order):
             records[r][name] = grp[o]
     keys = [records[name] for name in reversed(names)] + [records["code"]]
@@ -374,7 +373,7 @@ def _kvector_tail(records, keys, per_bin):
     kv_bins = max(1, len(keys) // per_bin)
     kv_m, kv_q, kv_table = kvector_numpy(keys.astype(np.int64), kv_bins)
     body = records.tobytes()
-    body += b"\0" * ((-len(body)) % L.SECTION_ALIGN)
+    body += b"\0" * ((-len(body)) % stardb.SECTION_ALIGN)
     return body + kv_table.astype("<u4").tobytes(), kv_bins, kv_m, kv_q
 
 
@@ -466,7 +465,7 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     hip = np.asarray(catalogue.hip[sel], dtype=np.int64)
     if hip.max() >= 1 << 17:
         raise ValueError("HIP number too large for the 17-bit field")
-    mag_code = np.rint((vmag + L.MAG_OFFSET) * L.MAG_SCALE).astype(np.int64)
+    mag_code = np.rint((vmag + stardb.MAG_OFFSET) * stardb.MAG_SCALE).astype(np.int64)
     if mag_code.min() < 0 or mag_code.max() > 0x7FF:
         raise ValueError("magnitude out of the storable range [-2, 18.47]")
 
@@ -481,7 +480,7 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
 
     # order the star table by (cell, magnitude, HIP) of the stored float32 vectors
     v32 = vectors64.astype(np.float32)
-    cells = np.array([fwdb.cell_of(float(x), float(y), float(z), cells_per_face)
+    cells = np.array([database.cell_of(float(x), float(y), float(z), cells_per_face)
                       for x, y, z in v32], dtype=np.int64)
     order = np.lexsort((hip, vmag, cells))
     v32, vmag, hip, mag_code, pattern, unblended, cells = (
@@ -489,12 +488,12 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     sky = Sky(v32, v32.astype(np.float64), vmag, pattern, unblended, fov_v, fov_d, min_pair,
               max_pair)
     sections, flags, values = _method_sections(sky, methods, opts)
-    cell_start = np.searchsorted(cells, np.arange(fwdb.n_cells(cells_per_face) + 1),
+    cell_start = np.searchsorted(cells, np.arange(database.n_cells(cells_per_face) + 1),
                                  side="left")
-    sections[L.SEC_CELLS] = cell_start.astype("<u2").tobytes()
-    sections[L.SEC_STARS] = _star_section(v32, hip, mag_code, flags)
+    sections[stardb.SEC_CELLS] = cell_start.astype("<u2").tobytes()
+    sections[stardb.SEC_STARS] = _star_section(v32, hip, mag_code, flags)
     values.update({
-        "star_record_size": L.STAR_SIZE,
+        "star_record_size": stardb.STAR_SIZE,
         "fov_h": math.radians(fov_h), "fov_v": math.radians(fov_v),
         "fov_diag": math.radians(fov_d),
         "mag_limit": float(vmag.max()) if mag_limit is None else mag_limit,
@@ -539,7 +538,7 @@ def _method_options(given):
     (ValueError for an unknown method or option)."""
     given = dict(given or {})
     out = {}
-    for name, _, _, _, defaults in L.METHOD_TABLE:
+    for name, _, _, _, defaults in stardb.METHOD_TABLE:
         out[name] = dict(defaults)
         for key, value in given.pop(name, {}).items():
             if key not in out[name]:
@@ -564,7 +563,7 @@ def _method_sections(sky, methods, opts):
             sections.update(built)
             flags |= member_flags
             values.update(header)
-            values["methods"] |= L.METHOD_NAMES[name]
+            values["methods"] |= stardb.METHOD_NAMES[name]
     return sections, flags, values
 
 
@@ -601,9 +600,9 @@ def _pyramid_sections(sky, opt):
     values = {"n_pattern_stars": int(sky.pattern.sum()), "n_pairs": n_pairs,
               "pair_min_angle": sky.min_pair, "pair_max_angle": max_pair,
               "key_step": key_step, "kv_bins": kv_bins, "kv_m": kv_m, "kv_q": kv_q}
-    sections = {L.SEC_PAIRS: pairs.tobytes(),
-                L.SEC_KVECTOR: kv_table.astype("<u4").tobytes()}
-    return sections, np.where(sky.pattern, L.STAR_FLAG_PATTERN, 0), values
+    sections = {stardb.SEC_PAIRS: pairs.tobytes(),
+                stardb.SEC_KVECTOR: kv_table.astype("<u4").tobytes()}
+    return sections, np.where(sky.pattern, stardb.STAR_FLAG_PATTERN, 0), values
 
 
 def _radians(value_deg, default_deg):
@@ -620,27 +619,28 @@ def _triangle_section(sky, opt):
         raise ValueError("no triangles: FOV too small or magnitude limit too bright")
     records, area_step, moment_step = triangle_table(sky.v32, groups)
     tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["area"], opt["per_bin"])
-    header = struct.pack(L.TRI_HEADER_FORMAT, L.TRI_MAGIC, len(records), kv_bins, area_step,
+    header = struct.pack(stardb.TRI_HEADER_FORMAT, stardb.TRI_MAGIC, len(records), kv_bins,
+                         area_step,
                          moment_step, max_side, kv_m, kv_q, opt["regions_per_face"],
                          opt["stars_per_region"], radius)
-    return ({L.SEC_TRIANGLES: header + tail},
-            _member_flags(len(sky.v32), groups, L.STAR_FLAG_TRIANGLE), {})
+    return ({stardb.SEC_TRIANGLES: header + tail},
+            _member_flags(len(sky.v32), groups, stardb.STAR_FLAG_TRIANGLE), {})
 
 
 def _hash_section(sky, opt):
     """The geometric-hashing section, the flags of its stars and no header values."""
     g = int(opt["group_size"])
-    if g not in L.HASH_GROUP_SIZES:
-        raise ValueError(f"hash group size {g}: must be one of {L.HASH_GROUP_SIZES}")
+    if g not in stardb.HASH_GROUP_SIZES:
+        raise ValueError(f"hash group size {g}: must be one of {stardb.HASH_GROUP_SIZES}")
     radius = _radians(opt["region_radius_deg"], sky.fov_v / 2)
     max_diam = _radians(opt["max_diameter_deg"], sky.fov_d)
     min_diam = _radians(opt["min_diameter_deg"], sky.fov_v / 4)
-    flags_h = 0 if opt["normalized"] else L.HASH_FLAG_DISTANCE
+    flags_h = 0 if opt["normalized"] else stardb.HASH_FLAG_DISTANCE
     coord_lo, coord_bucket = _f32(opt["coord_lo"]), _f32(opt["coord_bucket"])
     coord_buckets = int(math.ceil(3.0 / coord_bucket))
     dist_bucket = _f32(math.radians(opt["dist_bucket_deg"]))
     dist_buckets = int(math.floor(max_diam / dist_bucket)) + 2
-    if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > L.HASH_MAX_CODE:
+    if coord_buckets ** (2 * (g - 2)) * (dist_buckets if flags_h else 1) > stardb.HASH_MAX_CODE:
         raise ValueError("hash bucket grid too fine: codes would exceed 2**30")
     grid = _HashGrid(coord_lo, coord_bucket, coord_buckets, flags_h, dist_bucket, dist_buckets)
     groups = regional_groups(sky.v64, sky.vmag, sky.unblended, opt["regions_per_face"], radius,
@@ -649,12 +649,13 @@ def _hash_section(sky, opt):
         raise ValueError("no hash groups: FOV too small or magnitude limit too bright")
     records = hash_table(sky.v32, groups, grid)
     tail, kv_bins, kv_m, kv_q = _kvector_tail(records, records["code"], opt["per_bin"])
-    header = struct.pack(L.HASH_HEADER_FORMAT, L.HASH_MAGIC, len(records), kv_bins, g, flags_h,
+    header = struct.pack(stardb.HASH_HEADER_FORMAT, stardb.HASH_MAGIC, len(records), kv_bins, g,
+                         flags_h,
                          coord_lo, coord_bucket, coord_buckets, dist_buckets, dist_bucket,
                          min_diam, max_diam, kv_m, kv_q, opt["regions_per_face"],
                          opt["stars_per_region"], radius)
-    return ({L.SEC_HASH: header + tail},
-            _member_flags(len(sky.v32), groups, L.STAR_FLAG_HASH), {})
+    return ({stardb.SEC_HASH: header + tail},
+            _member_flags(len(sky.v32), groups, stardb.STAR_FLAG_HASH), {})
 
 
 SECTION_BUILDERS = {"pyramid": _pyramid_sections, "triangle": _triangle_section,
@@ -674,26 +675,29 @@ def _image(sections, values):
     """The image: header (``values`` by field, the directory, the CRCs) and the sections,
     each aligned to :data:`~lodestar.contract.stardb.SECTION_ALIGN`."""
     payload = bytearray()
-    directory = [(0, 0)] * L.N_SECTIONS
+    directory = [(0, 0)] * stardb.N_SECTIONS
     for sec in sorted(sections):
-        while (L.HEADER_SIZE + len(payload)) % L.SECTION_ALIGN:
+        while (stardb.HEADER_SIZE + len(payload)) % stardb.SECTION_ALIGN:
             payload.append(0)
-        directory[sec] = (L.HEADER_SIZE + len(payload), len(sections[sec]))
+        directory[sec] = (stardb.HEADER_SIZE + len(payload), len(sections[sec]))
         payload += sections[sec]
-    while len(payload) % L.SECTION_ALIGN:
+    while len(payload) % stardb.SECTION_ALIGN:
         payload.append(0)
-    values = dict(values, magic=L.MAGIC, version=L.VERSION, header_size=L.HEADER_SIZE,
-                  image_size=L.HEADER_SIZE + len(payload),
+    values = dict(values, magic=stardb.MAGIC, version=stardb.VERSION,
+                  header_size=stardb.HEADER_SIZE,
+                  image_size=stardb.HEADER_SIZE + len(payload),
                   payload_crc=zlib.crc32(payload) & 0xFFFFFFFF)
-    header = bytearray(L.HEADER_SIZE)
-    struct.pack_into(L.HEADER_FORMAT, header, 0, *(values[name] for name in L.HEADER_FIELDS))
+    header = bytearray(stardb.HEADER_SIZE)
+    struct.pack_into(stardb.HEADER_FORMAT, header, 0,
+                     *(values[name] for name in stardb.HEADER_FIELDS))
     for sec, (offset, length) in enumerate(directory):
-        struct.pack_into("<II", header, L.DIRECTORY_OFFSET + 8 * sec, offset, length)
-    struct.pack_into("<I", header, L.HEADER_CRC_OFFSET,
-                     zlib.crc32(bytes(header[:L.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
+        struct.pack_into("<II", header, stardb.DIRECTORY_OFFSET + 8 * sec, offset, length)
+    struct.pack_into("<I", header, stardb.HEADER_CRC_OFFSET,
+                     zlib.crc32(bytes(header[:stardb.HEADER_CRC_OFFSET])) & 0xFFFFFFFF)
     image = bytes(header) + bytes(payload)
-    status, reason = fwdb.check(image)
-    if status != fwdb.OK:       # parameters the flight reader refuses: never hand such a file out
+    status, reason = database.check(image)
+    # parameters the flight reader refuses: never hand such a file out
+    if status != database.OK:
         raise ValueError(f"the database for these parameters would be unreadable in flight "
                          f"({reason})")
     return image
@@ -701,9 +705,9 @@ def _image(sections, values):
 
 def describe(image):
     """Header values, section sizes (bytes) and total size of an image, as a dict."""
-    db = fwdb.Database(image)
+    db = database.Database(image)
     info = db.info()
-    info["section_bytes"] = {L.SECTION_NAMES[i]: length
+    info["section_bytes"] = {stardb.SECTION_NAMES[i]: length
                              for i, (offset, length) in enumerate(db.sections) if length}
     info["total_bytes"] = len(image)
     return info

@@ -9,12 +9,10 @@ import warnings
 import numpy as np
 
 from lodestar import contract as C
-from lodestar.firmware import centroids as fwcentroids
+from lodestar.firmware import centroids
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.ground import annotate, fovsearch
-from lodestar.ground import flight as flightsolve
-from lodestar.ground import solve as ground_solve
+from lodestar.ground import annotate, fovsearch, onboard, solve
 from lodestar.ground.database import default_catalogue
 from lodestar.sim import presets
 from lodestar.sim.attitude import to_radec_roll
@@ -337,10 +335,10 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None,
         if preset is not None:
             raise ValueError("give --preset or --fov, not both")
         if not (math.isfinite(fov_deg) and
-                ground_solve.MIN_FOV_DEG <= fov_deg <= ground_solve.MAX_FOV_DEG):
+                solve.MIN_FOV_DEG <= fov_deg <= solve.MAX_FOV_DEG):
             raise ValueError(f"--fov {fov_deg:g} is absurd: the horizontal field of view must "
-                             f"be in {ground_solve.MIN_FOV_DEG:g} .. "
-                             f"{ground_solve.MAX_FOV_DEG:g} degrees")
+                             f"be in {solve.MIN_FOV_DEG:g} .. "
+                             f"{solve.MAX_FOV_DEG:g} degrees")
         keys = ("k1", "k2", "k3", "p1", "p2")
         dist = dict(zip(keys, distortion)) if distortion is not None else {}
         f = (image.width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
@@ -354,7 +352,7 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None,
         if (cam.width, cam.height) != (image.width, image.height):
             raise ValueError(f"the image is {image.width}x{image.height}, the {name} camera "
                              f"{cam.width}x{cam.height}")
-        fw = flightsolve.firmware_camera(cam)
+        fw = onboard.firmware_camera(cam)
         full = (fw.fx, fw.fy, fw.cx, fw.cy,
                 {"k1": fw.k1, "k2": fw.k2, "k3": fw.k3, "p1": fw.p1, "p2": fw.p2})
         what = f"preset {name}"
@@ -477,15 +475,15 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
             if search is None or not res.ok or attempt:
                 break
             idx = [(x, y, hip) for _i, x, y, hip in res.matches]
-            f_new = ground_solve.refit_focal([(x, y) for x, y, _h in idx],
+            f_new = solve.refit_focal([(x, y) for x, y, _h in idx],
                                              [h for _x, _y, h in idx], camera.width,
                                              camera.height, camera.fx)
             if abs(f_new / camera.fx - 1) < 1e-6:
                 break
             camera = _pinhole(camera.width, camera.height, f_new)
     if search is not None and camera is not None:
-        search["fitted_deg"] = ground_solve.camera_fov_deg(camera)[0]
-    fov_h, fov_v = ground_solve.camera_fov_deg(camera) if camera is not None else (None, None)
+        search["fitted_deg"] = solve.camera_fov_deg(camera)[0]
+    fov_h, fov_v = solve.camera_fov_deg(camera) if camera is not None else (None, None)
     report = {
         "status": res.status_name if res is not None else "NO_MATCH",
         "reason": res.reason if res is not None else
@@ -494,7 +492,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         "ra_deg": None, "dec_deg": None,
         "roll_deg": None, "q": None, "fov_deg": fov_h, "fov_vertical_deg": fov_v,
         "pixel_scale_arcsec": None if camera is None else
-        ground_solve.ARCSEC_PER_RAD / math.sqrt(camera.fx * camera.fy) / image.bin,
+        solve.ARCSEC_PER_RAD / math.sqrt(camera.fx * camera.fy) / image.bin,
         "fov_search": search,
         "matches": [], "sigma_cross_arcsec": None, "sigma_roll_arcsec": None,
         "n_stars": res.n_stars if res is not None else 0,
@@ -538,16 +536,16 @@ def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
     ``velocity_km_s`` when given."""
     db_camera = camera
     if blind:
-        fov_h = ground_solve.database_fov(ground_solve.camera_fov_deg(camera)[0])
+        fov_h = solve.database_fov(solve.camera_fov_deg(camera)[0])
         db_camera = _pinhole(camera.width, camera.height,
                              fovsearch.f_of_fov(camera.width, fov_h))
     t = time.perf_counter()
-    db, db_path = flightsolve.star_database(
+    db, db_path = onboard.star_database(
         db_camera, max_mag, log=log,
-        density=ground_solve.DEFAULT_DENSITY if max_mag is None else None)
+        density=solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
-    _data, res, stage = flightsolve.process(det, camera, db, tolerance_px=tolerance_px,
-                                            max_work=ground_solve.GROUND_MAX_WORK,
+    _data, res, stage = onboard.process(det, camera, db, tolerance_px=tolerance_px,
+                                            max_work=solve.GROUND_MAX_WORK,
                                             velocity_km_s=velocity_km_s)
     for key in ("packet", "solve"):
         timings[key] = timings.get(key, 0.0) + stage[key]
@@ -560,7 +558,7 @@ def blind_camera(image, det, band, tolerance_px=None, log=None):
     the firmware's centroids of ``det`` (brightest first, border stars dropped) with the
     horizontal FOV in ``band`` (deg); ``log``: where the index build is said."""
     w, h = image.frame.shape[1], image.frame.shape[0]
-    stars, _rejected = fwcentroids.extract(det.blobs, max_stars=fovsearch.IMAGE_STARS,
+    stars, _rejected = centroids.extract(det.blobs, max_stars=fovsearch.IMAGE_STARS,
                                            border=(w, h))
     xy = np.array([(s.x, s.y) for s in stars], dtype=np.float64).reshape(-1, 2)
     est = fovsearch.search_fov(xy, w, h, band, tolerance_px or 2.0, log=log)

@@ -12,7 +12,7 @@ import numpy as np
 from lodestar.firmware.camera import Camera
 from lodestar.firmware.database import Database
 from lodestar.golden import detect_frame
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 from lodestar.ground.database import build_database
 from lodestar.sim import attitude, scene
 from lodestar.sim.presets import load_preset
@@ -71,7 +71,7 @@ def simulate_frame(q, omega_deg_s, seed, name="frame", velocity_km_s=None):
     cam = sim_camera()
     sim = scene.simulate(cam, q, omega_deg_s, seed=seed, velocity_km_s=velocity_km_s)
     result = detect_frame(sim.frame, scene.detector_config(cam))
-    return Frame(name, packet.encode(result), list(result.blobs), np.asarray(q, dtype=float),
+    return Frame(name, codec.encode(result), list(result.blobs), np.asarray(q, dtype=float),
                  [math.radians(w) for w in omega_deg_s], sim.truth["sources"])
 
 
@@ -99,7 +99,7 @@ def mirrored_packet(frame, flip):
     sim = scene.simulate(cam, frame.q, [math.degrees(w) for w in frame.omega],
                          seed=SEED + index)
     image = sim.frame[:, ::-1] if flip == "x" else sim.frame[::-1, :]
-    return packet.encode(detect_frame(np.ascontiguousarray(image), scene.detector_config(cam)))
+    return codec.encode(detect_frame(np.ascontiguousarray(image), scene.detector_config(cam)))
 
 
 def tracker(**kwargs):

@@ -11,7 +11,7 @@ Angles in radians (``docs/conventions.md``); details in ``docs/starid.md`` (Sear
 Python for CPython and MicroPython (``math`` only).
 """
 
-from .. import attitude as _attitude
+from .. import attitude
 from .. import geometry as G
 from .. import status as S
 from ..quaternion import angle_between
@@ -96,7 +96,7 @@ def fit_attitude(observed, reference, weights=None):
     attitude.q_method`, a Jacobi eigen-solver: accurate for every rotation angle).
     """
     try:
-        q = _attitude.q_method(observed, reference, weights)
+        q = attitude.q_method(observed, reference, weights)
     except ValueError:
         return None
     return q[0], q[1], q[2], q[3]
@@ -302,7 +302,7 @@ class Search:
         if q0 is None:
             return fit_attitude(obs, ref, w)
         try:
-            q = _attitude.refine(q0, obs, ref, w)
+            q = attitude.refine(q0, obs, ref, w)
         except ValueError:
             return None
         return q[0], q[1], q[2], q[3]

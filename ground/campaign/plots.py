@@ -5,8 +5,7 @@ their units (deg/s, arcsec, px, V mag, %)."""
 import io
 import os
 
-from lodestar.ground.campaign import tables
-from lodestar.ground.campaign import trials as T
+from lodestar.ground.campaign import tables, trials
 from lodestar.ground.files import write_atomic
 
 
@@ -114,7 +113,7 @@ def limiting(rows, out_dir, title):
     ax1.grid(alpha=0.3)
     ax1.legend(fontsize=7)
     ax2.set(xlabel="V magnitude", ylabel="fraction detected", title="detection curves",
-            xlim=(T.LIMITING_MAG_RANGE[0] + 2, T.LIMITING_MAG_RANGE[1]))
+            xlim=(trials.LIMITING_MAG_RANGE[0] + 2, trials.LIMITING_MAG_RANGE[1]))
     ax2.grid(alpha=0.3)
     ax2.legend(fontsize=6, ncol=2)
     return [_save(fig, os.path.join(out_dir, "campaign_limiting.png"))]

@@ -11,13 +11,10 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-from lodestar.ground import flight as flightsolve
-from lodestar.ground import truth as campaign_truth
-from lodestar.ground.campaign import plots as campaign_plots
-from lodestar.ground.campaign import tables as campaign_tables
-from lodestar.ground.campaign import trials as T
+from lodestar.ground import onboard, truth
+from lodestar.ground.campaign import plots, tables, trials
 from lodestar.ground.files import write_atomic
-from lodestar.ground.flight import camera_settings
+from lodestar.ground.onboard import camera_settings
 from lodestar.sim import presets
 from lodestar.sim.presets import PRESETS
 
@@ -35,27 +32,27 @@ MAX_ROLL_RATE_DEG_S = 360.0
 spin starts at 360 deg/s, and the stars near the boresight smear little at any rate."""
 
 
-def levels(study, rates=None, false_stars=T.FALSE_STARS):
+def levels(study, rates=None, false_stars=trials.FALSE_STARS):
     """The swept levels of ``study`` as task text."""
     if study == "rate":
-        return [f"{r:g}" for r in (T.RATES_DEG_S if rates is None else rates)]
+        return [f"{r:g}" for r in (trials.RATES_DEG_S if rates is None else rates)]
     if study == "limiting":
-        return [f"{r:g}" for r in (T.LIMITING_RATES_DEG_S if rates is None else rates)]
+        return [f"{r:g}" for r in (trials.LIMITING_RATES_DEG_S if rates is None else rates)]
     if study == "falsestars":
         return [f"false={n}" for n in false_stars] + ["noise"]
     if study == "accuracy":
         return ["rest"]
     if study == "fov":
-        return [f"{f:g}" for f in T.FOVS_DEG]
-    raise ValueError(f"unknown study {study!r} (known: {', '.join(T.STUDIES)})")
+        return [f"{f:g}" for f in trials.FOVS_DEG]
+    raise ValueError(f"unknown study {study!r} (known: {', '.join(trials.STUDIES)})")
 
 
 def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyramid",
                 settings="tuned", quick=False):
     """The campaign settings (the journal's header; JSON-ready).  Raises ``ValueError``."""
 
-    if study not in T.STUDIES:
-        raise ValueError(f"unknown study {study!r} (known: {', '.join(T.STUDIES)})")
+    if study not in trials.STUDIES:
+        raise ValueError(f"unknown study {study!r} (known: {', '.join(trials.STUDIES)})")
     if not presets or any(p not in PRESETS for p in presets) or len(set(presets)) < len(presets):
         raise ValueError(f"presets must be distinct names of {', '.join(PRESETS)}, "
                          f"got {presets!r}")
@@ -67,16 +64,16 @@ def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyrami
                 len(set(rates)) < len(rates):
             raise ValueError(f"--rates must be distinct numbers in 0..{most:g} "
                              f"deg/s, got {rates!r}")
-    if axis not in T.AXES:
-        raise ValueError(f"unknown rate axis {axis!r} (known: {', '.join(T.AXES)})")
-    if method not in T.METHODS:
-        raise ValueError(f"unknown method {method!r} (known: {', '.join(T.METHODS)})")
+    if axis not in trials.AXES:
+        raise ValueError(f"unknown rate axis {axis!r} (known: {', '.join(trials.AXES)})")
+    if method not in trials.METHODS:
+        raise ValueError(f"unknown method {method!r} (known: {', '.join(trials.METHODS)})")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"--seed must be a non-negative integer, got {seed!r}")
     if quick and rates is None:
         rates = QUICK["rates"]
     return {"study": study, "seed": seed, "presets": list(presets),
-            "levels": levels(study, rates, QUICK["false_stars"] if quick else T.FALSE_STARS),
+            "levels": levels(study, rates, QUICK["false_stars"] if quick else trials.FALSE_STARS),
             "axis": axis, "method": method, "settings": settings,
             "camera": {p: camera_settings(p, settings) for p in presets}}
 
@@ -192,13 +189,13 @@ _PR_SET_PDEATHSIG = 1
 def _run_local(tasks, config, workers, sink):
     if workers == 1:
         for task in tasks:
-            sink(*T.run_task(task, config))
+            sink(*trials.run_task(task, config))
         return
 
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent,
                                initargs=(os.getpid(),))
     try:
-        futures = [pool.submit(T.run_task, task, config) for task in tasks]
+        futures = [pool.submit(trials.run_task, task, config) for task in tasks]
         for future in as_completed(futures):
             sink(*future.result())
     except BaseException:
@@ -229,7 +226,7 @@ def _run_dask(tasks, config, address, sink):
     except OSError as exc:
         raise ValueError(f"--dask: cannot reach the scheduler at {address}: {exc}") from None
     try:
-        futures = client.map(T.run_task, tasks, config=config, pure=False)
+        futures = client.map(trials.run_task, tasks, config=config, pure=False)
         for future in as_completed(futures):
             sink(*future.result())
     finally:
@@ -249,8 +246,8 @@ def run_campaign(config, n_trials, out_dir, workers=1, dask=None, resume=False,
     if max_tasks is not None and (not isinstance(max_tasks, int) or max_tasks < 1):
         raise ValueError(f"--max-tasks must be a positive integer, got {max_tasks!r}")
     journal, results = open_journal(out_dir, config, resume)
-    keys = {T.task_key(t) for t in tasks}
-    pending = [t for t in tasks if T.task_key(t) not in results]
+    keys = {trials.task_key(t) for t in tasks}
+    pending = [t for t in tasks if trials.task_key(t) not in results]
     if results:
         print(f"lodestar campaign: resuming: {len(keys & set(results))} of {len(tasks)} "
               f"tasks already in {journal.name}", file=sys.stderr)
@@ -291,35 +288,36 @@ def _prepare_databases(config):
     """Build (or read) the star databases once before the workers start, so that parallel
     workers do not all build the same cache file."""
 
-    methods = T.METHODS if config["study"] == "falsestars" else (config["method"],)
+    methods = trials.METHODS if config["study"] == "falsestars" else (config["method"],)
     for preset in config["presets"]:
         if config["study"] == "fov":
             for level in config["levels"]:
-                T.fov_database(flightsolve.firmware_camera(T.fov_camera(preset, float(level))),
+                trials.fov_database(onboard.firmware_camera(trials.fov_camera(preset,
+                                                                              float(level))),
                                config["method"])
             continue
-        cam = flightsolve.firmware_camera(presets.load_preset(preset))
+        cam = onboard.firmware_camera(presets.load_preset(preset))
         for method in methods:
-            flightsolve.star_database(cam, method=method)
+            onboard.star_database(cam, method=method)
 
 
 def write_outputs(config, tasks, results, out_dir):
     """The table as JSON and CSV and the plot: ``(rows, paths)``."""
     study = config["study"]
-    rows = campaign_tables.tables(study, tasks, results, config)
+    rows = tables.tables(study, tasks, results, config)
     base = os.path.join(out_dir, f"campaign_{study}")
     per_level = len(tasks) // max(1, len(config["presets"]) * len(config["levels"]))
     summary = {"campaign": config, "trials_per_level": per_level,
-               "wrong_arcsec": campaign_truth.WRONG_ARCSEC,
-               "wrong_sigmas": campaign_truth.WRONG_SIGMAS, "table": rows,
+               "wrong_arcsec": truth.WRONG_ARCSEC,
+               "wrong_sigmas": truth.WRONG_SIGMAS, "table": rows,
                "references": {"dzamba_table_4_1": {f"{k:g}": v for k, v in
-                                                   campaign_tables.DZAMBA_TABLE_4_1.items()},
-                              "schumann_5dps_sky_pct": campaign_tables.SCHUMANN_5DPS_PCT,
-                              "schumann_smear_model": campaign_tables.SCHUMANN_SMEAR}}
+                                                   tables.DZAMBA_TABLE_4_1.items()},
+                              "schumann_5dps_sky_pct": tables.SCHUMANN_5DPS_PCT,
+                              "schumann_smear_model": tables.SCHUMANN_SMEAR}}
     write_atomic(base + ".json", json.dumps(summary, indent=1))
-    campaign_tables.write_csv(base + ".csv", rows)
+    tables.write_csv(base + ".csv", rows)
     title = f"{per_level} trials/level, seed {config['seed']}, {config['axis']} axis"
-    pngs = campaign_plots.PLOTS[study](rows, out_dir, title)
+    pngs = plots.PLOTS[study](rows, out_dir, title)
     return rows, [base + ".json", base + ".csv"] + pngs
 
 

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from lodestar.ground.campaign import trials as T
+from lodestar.ground.campaign import trials
 from lodestar.ground.files import write_atomic
 from lodestar.sim import photometry, presets, scene
 
@@ -98,7 +98,7 @@ def _grouped(tasks, results):
     groups = {}
     for task in tasks:
         _study, preset, level, _trial = task
-        groups.setdefault((preset, level), []).append(results[T.task_key(task)])
+        groups.setdefault((preset, level), []).append(results[trials.task_key(task)])
     return groups
 
 
@@ -122,14 +122,14 @@ def falsestars_table(tasks, results):
     rows = []
     for (preset, level), outs in _grouped(tasks, results).items():
         if level.startswith("false="):
-            for method in T.METHODS:
+            for method in trials.METHODS:
                 row = {"preset": preset, "sweep": "false_stars", "level": int(level[6:]),
                        "method": method}
                 row.update(outcome_stats([o[method] for o in outs]))
                 rows.append(row)
         else:
-            for method in T.METHODS:
-                for sigma in T.NOISE_PX:
+            for method in trials.METHODS:
+                for sigma in trials.NOISE_PX:
                     row = {"preset": preset, "sweep": "noise_px", "level": sigma,
                            "method": method}
                     row.update(outcome_stats([o[method][f"{sigma:g}"] for o in outs]))
@@ -189,12 +189,12 @@ def limiting_table(tasks, results, config):
     ``r = 1000 px`` (``schumann_m_rot``; None at rest, where it gives its ``m_static``),
     and the detection curve (``curve``: bin centre, stars, detected; JSON only)."""
 
-    lo, _hi = T.LIMITING_MAG_RANGE
+    lo, _hi = trials.LIMITING_MAG_RANGE
     rows = []
     for (preset, level), outs in _grouped(tasks, results).items():
         total = np.sum([o["total"] for o in outs], axis=0)
         found = np.sum([o["found"] for o in outs], axis=0)
-        centres = lo + T.LIMITING_BIN_MAG * (np.arange(len(total)) + 0.5)
+        centres = lo + trials.LIMITING_BIN_MAG * (np.arange(len(total)) + 0.5)
         cam = presets.load_preset(preset)
         exposure = config["camera"][preset]["exposure_s"] or cam.exposure_s
         rate = float(level)
@@ -215,7 +215,7 @@ def accuracy_table(tasks, results):
     consistent covariance)."""
     rows = []
     for (preset, _level), outs in _grouped(tasks, results).items():
-        for cap in T.STAR_CAPS:
+        for cap in trials.STAR_CAPS:
             row = {"preset": preset, "stars_kept": cap}
             row.update(outcome_stats([o[str(cap)] for o in outs]))
             for axis in ("cross", "roll"):
@@ -232,11 +232,11 @@ def fov_table(tasks, results):
     solve time (p50, p95 over every frame, ms)."""
     rows = []
     for (preset, level), verdicts in _grouped(tasks, results).items():
-        cam = T.fov_camera(preset, float(level))
+        cam = trials.fov_camera(preset, float(level))
         fov_h, fov_v, _diag = cam.fov_deg()
         row = {"preset": preset, "fov_deg": float(level), "fov_v_deg": float(fov_v),
                "focal_length_mm": cam.focal_length_mm, "aperture_mm": cam.aperture_mm,
-               "render_mag": T.fov_render_limit(preset, cam),
+               "render_mag": trials.fov_render_limit(preset, cam),
                "db_stars": verdicts[0]["db_stars"]}
         row.update(outcome_stats(verdicts))
         ms = [v["solve_ms"] for v in verdicts]

@@ -20,8 +20,8 @@ from lodestar.firmware import centroids
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
-from lodestar.ground import flight as flightsolve
-from lodestar.ground.flight import detector_config
+from lodestar.ground import onboard
+from lodestar.ground.onboard import detector_config
 from lodestar.ground.solve import DEFAULT_DENSITY
 from lodestar.ground.truth import attitude_error_arcsec, judge, match_rows
 from lodestar.sim import attitude, catalogue, presets, scene
@@ -112,19 +112,19 @@ class Frame:
                              mag_limit=mag_limit, cat=cat)
         self.truth = sim.truth
         self.det = detect_frame(sim.frame, detector_config(self.cam, settings))
-        self.fw_cam = flightsolve.firmware_camera(self.cam)
+        self.fw_cam = onboard.firmware_camera(self.cam)
 
     @property
     def omega_rad_s(self):
         return [math.radians(w) for w in self.omega_deg_s]
 
     def database(self, method):
-        return flightsolve.star_database(self.fw_cam, method=method)[0]
+        return onboard.star_database(self.fw_cam, method=method)[0]
 
     def solve(self, method="pyramid", det=None):
         """The firmware on this frame's packet (or on ``det``): :func:`verdict`."""
         det = self.det if det is None else det
-        _data, res, _timings = flightsolve.process(
+        _data, res, _timings = onboard.process(
             det, self.fw_cam, self.database(method), omega=self.omega_rad_s,
             exposure_s=self.truth["exposure_s"], row_time_s=self.truth["row_time_s"],
             method=method)
@@ -177,7 +177,7 @@ def falsestars_trial(preset, level, seed, config):
     out = {}
     for method in METHODS:
         tracker = StarTracker(frame.database(method), frame.fw_cam, Settings(method=method,
-                              tolerance_px=flightsolve.default_tolerance_px(frame.fw_cam)))
+                              tolerance_px=onboard.default_tolerance_px(frame.fw_cam)))
         out[method] = {}
         for sigma in NOISE_PX:
             vectors, used = [], []
@@ -266,7 +266,7 @@ def fov_database(fw_cam, method):
     """The ``fov`` study's star database for the firmware camera ``fw_cam``: the ground
     solve's default (:data:`lodestar.ground.solve.DEFAULT_DENSITY` stars per field, no
     magnitude limit, from the whole Hipparcos), built once and cached."""
-    return flightsolve.star_database(fw_cam, max_mag=None, method=method,
+    return onboard.star_database(fw_cam, max_mag=None, method=method,
                                      density=DEFAULT_DENSITY)[0]
 
 
@@ -279,7 +279,7 @@ def fov_trial(preset, level, seed, config):
     frame = Frame(preset, config["camera"], seed, false_stars=FOV_FALSE_STARS,
                   mag_limit=fov_render_limit(preset, cam), cam=cam, cat=catalogue.load_deep())
     db = fov_database(frame.fw_cam, config["method"])
-    _data, res, timings = flightsolve.process(
+    _data, res, timings = onboard.process(
         frame.det, frame.fw_cam, db, omega=frame.omega_rad_s,
         exposure_s=frame.truth["exposure_s"], row_time_s=frame.truth["row_time_s"],
         method=config["method"])

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from lodestar import contract as C
-from lodestar.ground import calibrate as cal
+from lodestar.ground import calibrate
 from lodestar.ground.camerafile import SUFFIXES, read_camera_file, write_camera_file
 from lodestar.ground.files import check_output
 from lodestar.ground.imagesolve import (
@@ -41,9 +41,10 @@ def add_parser(sub):
                      help="Brown-Conrady coefficients (with --fov)")
     cam.add_argument("--camera", metavar="FILE", help="a camera file")
     fit = p.add_argument_group("fit")
-    fit.add_argument("--free", nargs="+", choices=cal.INTRINSICS, default=None,
+    fit.add_argument("--free", nargs="+", choices=calibrate.INTRINSICS, default=None,
                      metavar="PARAM", help="parameters to fit, of "
-                     f"{' '.join(cal.INTRINSICS)} (default: {' '.join(cal.DEFAULT_FREE)})")
+                     f"{' '.join(calibrate.INTRINSICS)} "
+                     f"(default: {' '.join(calibrate.DEFAULT_FREE)})")
     fit.add_argument("--one-focal", action="store_true",
                      help="square pixels: one focal length (fy = fx)")
     fit.add_argument("--rounds", type=int, default=2,
@@ -84,8 +85,8 @@ def run(args):
     camera0, what = image_camera(first, args.preset, args.fov, args.distortion, camera=given)
     if given is not None:
         what = f"camera file {args.camera}"
-    result = cal.calibrate(images, camera0, rounds=args.rounds,
-                           free=tuple(args.free or cal.DEFAULT_FREE),
+    result = calibrate.calibrate(images, camera0, rounds=args.rounds,
+                           free=tuple(args.free or calibrate.DEFAULT_FREE),
                            one_focal=args.one_focal, mag=args.mag,
                            tolerance_px=args.tolerance, ksigma=args.ksigma,
                            min_pixels=args.min_pixels, skip_unsolved=args.skip_unsolved,
@@ -106,7 +107,7 @@ def format_result(result, camera0, what, out):
     lines = [f"start: {what}; {len(result.fit.frames)} frames, {result.fit.n_pairs} star "
              f"pairs, {result.fit.n_rejected} rejected as outliers, {result.rounds} rounds",
              f"  {'param':>5} {'start':>12} {'fitted':>12} {'1-sigma':>10}"]
-    for name in cal.INTRINSICS:
+    for name in calibrate.INTRINSICS:
         sigma = result.sigma.get(name)
         lines.append(f"  {name:>5} {getattr(camera0, name):>12.6g} "
                      f"{getattr(result.camera, name):>12.6g} "

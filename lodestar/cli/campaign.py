@@ -7,7 +7,7 @@ import signal
 import sys
 import time
 
-from lodestar.ground.campaign import trials as T
+from lodestar.ground.campaign import trials
 from lodestar.ground.campaign.runner import (
     DEFAULT_TRIALS,
     JOURNAL,
@@ -16,7 +16,7 @@ from lodestar.ground.campaign.runner import (
     make_config,
     run_campaign,
 )
-from lodestar.ground.flight import DEFAULT_SETTINGS, SETTINGS
+from lodestar.ground.onboard import DEFAULT_SETTINGS, SETTINGS
 from lodestar.sim.presets import PRESETS
 
 
@@ -27,7 +27,7 @@ def add_parser(sub):
                                         "magnitude, accuracy, field of view",
                        description="Run a Monte-Carlo campaign (simulator, golden detector, "
                                    "firmware) and write its table (JSON, CSV) and plot.")
-    p.add_argument("name", choices=T.STUDIES)
+    p.add_argument("name", choices=trials.STUDIES)
     p.add_argument("--out", help="output folder (default out/campaign-NAME)")
     p.add_argument("--trials", type=int, help="trials per level (defaults: " + ", ".join(
         f"{k} {v}" for k, v in DEFAULT_TRIALS.items()) + f"; --quick {QUICK['trials']})")
@@ -37,12 +37,12 @@ def add_parser(sub):
     p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
     p.add_argument("--rates", nargs="+", type=float, metavar="DEG_S",
                    help="rates of the rate and limiting studies, deg/s")
-    p.add_argument("--axis", choices=T.AXES, default="cross",
+    p.add_argument("--axis", choices=trials.AXES, default="cross",
                    help="rate axis: cross-boresight (default), random, roll")
-    p.add_argument("--method", choices=T.METHODS, default="pyramid",
+    p.add_argument("--method", choices=trials.METHODS, default="pyramid",
                    help="identification method of the rate, accuracy and fov studies")
     p.add_argument("--settings", choices=tuple(SETTINGS), default=DEFAULT_SETTINGS,
-                   help="camera settings (lodestar.ground.flight): tuned (3-sigma threshold; "
+                   help="camera settings (lodestar.ground.onboard): tuned (3-sigma threshold; "
                         "lohmann at 0.2 s, 3 pixels) or each preset as is")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: the CPU count)")

@@ -9,7 +9,7 @@ from lodestar.firmware.database import DatabaseError
 from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.database import build_database, describe
 from lodestar.ground.files import write_atomic
-from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.ground.solve import camera_fov_deg
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
 
@@ -36,7 +36,7 @@ def add_parser(sub):
                             "deep as each region needs, instead of every star to --mag")
     depth.add_argument("--flight", action="store_true",
                        help="the flight database: V <= 6 at the flight density "
-                            "(lodestar.ground.flight.FLIGHT_DENSITY, docs/stardb.md)")
+                            "(lodestar.ground.onboard.FLIGHT_DENSITY, docs/stardb.md)")
     b.add_argument("--method", nargs="+", default=["pyramid"],
                    choices=stardb.METHODS,
                    help="identification method(s) the image serves (default: pyramid)")

@@ -10,10 +10,9 @@ import time
 import numpy as np
 
 from lodestar.golden import detect_frame
-from lodestar.ground import annotate
-from lodestar.ground import flight as flightsolve
+from lodestar.ground import annotate, onboard
 from lodestar.ground.files import check_output
-from lodestar.ground.flight import (
+from lodestar.ground.onboard import (
     DEFAULT_SETTINGS,
     SETTINGS,
     camera_settings,
@@ -52,7 +51,7 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
              out=DEFAULT_OUT, log=None, settings=DEFAULT_SETTINGS):
     """Run the demo (stages in the module docstring) and return the report dict.  ``out``:
     the annotated PNG (None: none is written).  ``log``: text stream for the database notes
-    (None: silent).  ``settings``: a name of :data:`lodestar.ground.flight.SETTINGS`.
+    (None: silent).  ``settings``: a name of :data:`lodestar.ground.onboard.SETTINGS`.
     Raises ``ValueError`` for bad arguments (unknown preset or settings, non-finite rates,
     exposure)."""
     t_start = time.perf_counter()
@@ -76,13 +75,13 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
     det = _detect(sim.frame, cfg, cosim)
     timings["detect"] = (time.perf_counter() - t) * 1e3
 
-    fw_cam = flightsolve.firmware_camera(cam)
+    fw_cam = onboard.firmware_camera(cam)
     t = time.perf_counter()
-    db, db_path = flightsolve.star_database(fw_cam, label=cam.name, log=log)
+    db, db_path = onboard.star_database(fw_cam, label=cam.name, log=log)
     timings["database"] = (time.perf_counter() - t) * 1e3
 
     omega = [math.radians(w) for w in rate]
-    data, res, stage = flightsolve.process(det, fw_cam, db, omega=omega,
+    data, res, stage = onboard.process(det, fw_cam, db, omega=omega,
                                            exposure_s=truth["exposure_s"],
                                            row_time_s=truth["row_time_s"])
     timings["packet"] = stage["packet"]
@@ -142,7 +141,7 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
 
 def _annotate(path, sim, det, res, report, fw_cam, omega):
     truth = sim.truth
-    max_mag = flightsolve.DEFAULT_MAX_MAG
+    max_mag = onboard.DEFAULT_MAX_MAG
     markers = {"truth": [(s["x"], s["y"]) for s in truth["sources"]
                          if s["kind"] == "star" and s["vmag"] <= max_mag]}
     labels = []
@@ -246,7 +245,7 @@ def add_parser(sub):
     p.add_argument("--exposure", type=float, default=None,
                    help="seconds (default: the camera settings', else the preset's)")
     p.add_argument("--settings", choices=tuple(SETTINGS), default=DEFAULT_SETTINGS,
-                   help="camera settings (lodestar.ground.flight; default tuned)")
+                   help="camera settings (lodestar.ground.onboard; default tuned)")
     p.add_argument("--cosim", action="store_true",
                    help="detect with the Verilated gateware instead of the golden model")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="FILE.png",

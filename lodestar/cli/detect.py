@@ -10,7 +10,7 @@ import numpy as np
 from lodestar import contract as C
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_BITS = 2592, 1944, 12  # MT9P031 (estcube2 camera)
 
@@ -90,8 +90,8 @@ def run(args):
     for _ in range(args.frames):
         result = det.process(frame)
     dt = (time.perf_counter() - t0) / args.frames
-    data = packet.encode(result)
-    decoded = packet.decode(data)
+    data = codec.encode(result)
+    decoded = codec.decode(data)
     if decoded != result:
         raise AssertionError("packet round trip changed the result")
 

@@ -6,9 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from lodestar.regress import micropython as regress_micropython
-from lodestar.regress import record as regress_record
-from lodestar.regress import unixport
+from lodestar.regress import micropython, record, unixport
 from lodestar.regress.replay import (
     DEFAULT_SET,
     RegressionError,
@@ -47,11 +45,11 @@ def run(args):
     (recording always needs the float32 build)."""
     if args.record:
         try:
-            manifest = regress_record.record(args.set_dir, log=sys.stderr)
+            manifest = record.record(args.set_dir, log=sys.stderr)
         except unixport.Unavailable as exc:
             print(f"lodestar regress: {exc}; nothing recorded", file=sys.stderr)
             return 2
-        except (RegressionError, regress_micropython.MicroPythonError) as exc:
+        except (RegressionError, micropython.MicroPythonError) as exc:
             print(f"lodestar regress: {exc}", file=sys.stderr)
             return 1
         print(f"recorded {len(manifest['cases'])} packets x {len(manifest['methods'])} "
@@ -70,9 +68,9 @@ def run(args):
     except unixport.Unavailable as exc:
         print(f"lodestar regress: {exc}", file=sys.stderr)
         return 2
-    except regress_micropython.MicroPythonError as exc:
+    except micropython.MicroPythonError as exc:
         print(f"lodestar regress: {exc}", file=sys.stderr)
-        missing = args.micropython and regress_micropython.unavailable_reason() is not None
+        missing = args.micropython and micropython.unavailable_reason() is not None
         return 2 if missing else 1
     print(format_table(rows, mp, args.float32))
     if mp is not None:

@@ -164,7 +164,7 @@ def test_db_build_by_density(tmp_path, capsys):
     (the flight database, within the 256 KiB budget); ``--mag none`` alone or with
     ``--flight`` is refused."""
     from lodestar.firmware.database import Database
-    from lodestar.ground.flight import FLIGHT_DENSITY
+    from lodestar.ground.onboard import FLIGHT_DENSITY
     out = tmp_path / "dense.bin"
     assert main(["db", "build", "--fov", "30", "--density", "20", "8", "--mag", "none",
                  "-o", str(out)]) == 0

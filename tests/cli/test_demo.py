@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.cli import demo, main
-from lodestar.ground import flight as flightsolve
+from lodestar.ground import onboard
 
 
 @pytest.fixture(autouse=True)
@@ -80,7 +80,7 @@ def test_no_stars_fails_with_exit_1(tmp_path, capsys):
 
 
 def test_a_wrong_solution_is_reported_and_fails(monkeypatch, capsys, tmp_path):
-    real = flightsolve.process
+    real = onboard.process
 
     def off_by_a_tenth_of_a_degree(*args, **kwargs):
         data, res, timings = real(*args, **kwargs)
@@ -88,7 +88,7 @@ def test_a_wrong_solution_is_reported_and_fails(monkeypatch, capsys, tmp_path):
                       Rotation.from_quat(res.q)).as_quat())
         return data, res, timings
 
-    monkeypatch.setattr(flightsolve, "process", off_by_a_tenth_of_a_degree)
+    monkeypatch.setattr(onboard, "process", off_by_a_tenth_of_a_degree)
     assert main(["demo", "--json", "--out", str(tmp_path / "wrong.png")]) == 1
     r = json.loads(capsys.readouterr().out)
     assert r["status"] == "WRONG" and r["solver_status"] == "OK"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
-from lodestar.contract import packet as P
+from lodestar.contract import packet
 
 
 def test_record_and_header_layout():
@@ -69,17 +69,17 @@ def test_record_fields_are_the_packet_record_at_the_largest_frame():
 def test_crc_table_matches_zlib(size):
     rng = np.random.default_rng(size)
     data = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
-    assert P.crc32_table(data) == zlib.crc32(data)
-    assert P.crc32(data) == zlib.crc32(data)
+    assert packet.crc32_table(data) == zlib.crc32(data)
+    assert packet.crc32(data) == zlib.crc32(data)
     cut = size // 3
-    assert P.crc32_table(data[cut:], P.crc32_table(data[:cut])) == zlib.crc32(data)
-    assert P.crc32_table(bytearray(data)) == P.crc32_table(memoryview(data))
+    assert packet.crc32_table(data[cut:], packet.crc32_table(data[:cut])) == zlib.crc32(data)
+    assert packet.crc32_table(bytearray(data)) == packet.crc32_table(memoryview(data))
 
 
 def test_crc_known_values():
-    assert P.crc32_table(b"") == 0
-    assert P.crc32_table(b"123456789") == 0xCBF43926      # CRC-32/ISO-HDLC check value
-    assert P.crc32_table(b"\xff" * 64) == zlib.crc32(b"\xff" * 64)
+    assert packet.crc32_table(b"") == 0
+    assert packet.crc32_table(b"123456789") == 0xCBF43926      # CRC-32/ISO-HDLC check value
+    assert packet.crc32_table(b"\xff" * 64) == zlib.crc32(b"\xff" * 64)
 
 
 def test_fallback_selected_without_binascii():
@@ -87,11 +87,11 @@ def test_fallback_selected_without_binascii():
     one is replaced) the contract selects the table CRC."""
     script = ("import sys; sys.modules['binascii'] = None\n"
               "from lodestar.contract import packet as P\n"
-              "assert P.crc32_native is None and P.crc32(b'123456789') == 0xCBF43926\n")
+              "assert packet.crc32_native is None and packet.crc32(b'123456789') == 0xCBF43926\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
-    assert P.crc32_native is not None
+    assert packet.crc32_native is not None
 
 
 def test_flag_widths_hold_every_defined_flag():
@@ -102,7 +102,7 @@ def test_flag_widths_hold_every_defined_flag():
 
 
 def test_crc_constants_are_zlibs():
-    assert P.crc32_table(b"\x00") == zlib.crc32(b"\x00")
+    assert packet.crc32_table(b"\x00") == zlib.crc32(b"\x00")
     assert C.CRC_POLY == 0xEDB88320 and C.CRC_INIT == 0xFFFFFFFF
 
 

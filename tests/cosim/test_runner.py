@@ -9,7 +9,7 @@ import pytest
 
 from lodestar import contract as C
 from lodestar.cli import main
-from lodestar.cosim import runner as cosim
+from lodestar.cosim import runner
 from lodestar.golden import Detector, DetectorConfig
 
 GOLDEN = "tests/data/golden_small"
@@ -17,7 +17,7 @@ GOLDEN = "tests/data/golden_small"
 
 def test_stimulus_words():
     frame = np.array([[1, 2, 3], [4, 5, 6]], dtype=np.uint16)
-    words = cosim.Stimulus().reset(1).registers({"threshold": 9}) \
+    words = runner.Stimulus().reset(1).registers({"threshold": 9}) \
         .frame(frame, 1, 2).words(reader=lambda clock: clock != 3)
     valid = 1 << 18
     assert len(words) == 1 + 1 + 2 * 4 + 2
@@ -26,7 +26,7 @@ def test_stimulus_words():
     assert pixels == [1, 2, 3, 4, 5, 6]
     assert int(words[2]) & (1 << 17) and int(words[4]) & (1 << 16)      # sof, eol
     assert not words[3] & (1 << 19) and words[2] & (1 << 19)            # reader
-    cut = cosim.Stimulus().frame(frame, 1, 0, pixels=4).words()
+    cut = runner.Stimulus().frame(frame, 1, 0, pixels=4).words()
     assert [int(w) & 0xFFFF for w in cut if w & valid] == [1, 2, 3, 4]
 
 
@@ -39,7 +39,7 @@ def play_file(data):
         at += 8
         n = cmd >> 32
         if cmd & (1 << 23):
-            assert 0 < n <= cosim.RUN_MAX
+            assert 0 < n <= runner.RUN_MAX
             base = cmd & 0xFF_3C_00_00                     # control bits, no sof/eol/data
             for i in range(n):
                 pixel = int.from_bytes(data[at + 2 * i:at + 2 * i + 2], "big")
@@ -58,16 +58,16 @@ def play_file(data):
 def test_stimulus_file_plays_every_word():
     rng = np.random.default_rng(3)
     frame = rng.integers(0, 4096, (5, 4100), dtype=np.uint16)      # rows beyond RUN_MAX
-    stim = cosim.Stimulus().reset(3).registers({"threshold": 9, "background": 0}) \
+    stim = runner.Stimulus().reset(3).registers({"threshold": 9, "background": 0}) \
         .idle(5000).frame(frame, 1, 7).frame(frame[:, :3], 0, 1).frame(frame, 2, 0, pixels=9)
     for reader in (None, lambda clock: clock % 7 != 3):
         words = stim.words(reader)
-        data = cosim.encode(words)
+        data = runner.encode(words)
         assert play_file(data) == [int(w) for w in words]
-    assert len(cosim.encode(stim.words())) < 2.1 * len(words)      # about 2 bytes a pixel
-    assert cosim.encode([]) == b""
+    assert len(runner.encode(stim.words())) < 2.1 * len(words)      # about 2 bytes a pixel
+    assert runner.encode([]) == b""
     with pytest.raises(ValueError, match="command bits"):
-        cosim.encode(np.array([1 << 23], np.uint64))
+        runner.encode(np.array([1 << 23], np.uint64))
 
 
 def test_read_output_drops_records_of_a_reset_frame(tmp_path):
@@ -79,11 +79,11 @@ def test_read_output_drops_records_of_a_reset_frame(tmp_path):
     offset = sum(bits for name, bits in trailer_fields() if name != "n_records")
     trailer = 1 << offset
     (tmp_path / "out.txt").write_text(f"R 1\nT {trailer:x}\nR 2\nX 0\nR 3\n")
-    records, trailers = cosim.read_output(tmp_path / "out.txt", gw)
+    records, trailers = runner.read_output(tmp_path / "out.txt", gw)
     assert len(trailers) == 1 and trailers[0]["n_records"] == 1
     assert [r["n"] for r in records] == [1, 3]
     with pytest.raises(ValueError, match="after the last trailer"):
-        cosim.group_frames(records, trailers, 8, 4, 12)
+        runner.group_frames(records, trailers, 8, 4, 12)
 
 
 def test_run_frames_matches_golden_sequence():
@@ -92,7 +92,7 @@ def test_run_frames_matches_golden_sequence():
                        rng.integers(0, 100, (24, 32))).astype(np.uint16) for d in (0.1, 0.5)]
     cfg = DetectorConfig(width=32, height=24, threshold=150, background=60)
     cfgs = [cfg, cfg.replace(threshold_mode="global", ksigma=1.0)]
-    got = cosim.run_frames(frames, cfg, cfgs=cfgs)
+    got = runner.run_frames(frames, cfg, cfgs=cfgs)
     golden = Detector(cfg)
     for frame, c, g in zip(frames, cfgs, got):
         golden.configure(c)
@@ -107,14 +107,14 @@ def test_native_build_plays_as_the_cocotb_build(tmp_path):
     frames = [np.where(rng.random((24, 32)) < 0.3, rng.integers(200, 4096, (24, 32)),
                        rng.integers(0, 100, (24, 32))).astype(np.uint16) for _ in range(3)]
     cfg = DetectorConfig(width=32, height=24, threshold=150, background=60)
-    gap = cosim.frame_gap([cfg])
-    stim = cosim.Stimulus().reset().registers(cfg.registers()).idle(gap) \
+    gap = runner.frame_gap([cfg])
+    stim = runner.Stimulus().reset().registers(cfg.registers()).idle(gap) \
         .frame(frames[0], 2, gap).frame(frames[1], 2, 0, pixels=300).reset(3).idle(gap) \
         .frame(frames[2], 2, gap).frame(frames[0], 2, 0, pixels=500).idle(gap) \
         .frame(frames[1], 2, 4 * gap)
     outputs = []
     for native in (True, False):
-        build = cosim.Build(32, 24, 12, native=native)
+        build = runner.Build(32, 24, 12, native=native)
         got = build.simulate(stim, tmp_path / str(native), reader=lambda clock: clock % 5 != 2)
         outputs.append((tmp_path / str(native) / "output.txt").read_text())
     assert outputs[0] == outputs[1]
@@ -138,14 +138,14 @@ def test_golden_set_bit_exact_on_both_builds(tmp_path):
     for (w, h, bits), pairs in by_geometry.items():
         frames, cfgs = [f for f, _ in pairs], [c for _, c in pairs]
         c = cfgs[0]
-        stim = cosim.scenario(frames, cfgs, MIN_HBLANK)
+        stim = runner.scenario(frames, cfgs, MIN_HBLANK)
         outputs = []
         for native in (True, False):
-            build = cosim.Build(w, h, bits, c.label_capacity, c.record_capacity, native=native)
+            build = runner.Build(w, h, bits, c.label_capacity, c.record_capacity, native=native)
             records, trailers = build.simulate(stim, tmp_path / f"{w}x{h}-{native}")
             outputs.append((tmp_path / f"{w}x{h}-{native}" / "output.txt").read_text())
             if native:
-                got = cosim.group_frames(records, trailers, w, h, bits)
+                got = runner.group_frames(records, trailers, w, h, bits)
         assert outputs[0] == outputs[1], f"{w}x{h}x{bits}: native and cocotb builds differ"
         golden = Detector(c)
         for frame, cfg, g in zip(frames, cfgs, got, strict=True):
@@ -154,21 +154,21 @@ def test_golden_set_bit_exact_on_both_builds(tmp_path):
 
 
 def test_native_build_reports_a_failed_playback(tmp_path, monkeypatch):
-    build = cosim.Build(32, 24, 12, native=True)
+    build = runner.Build(32, 24, 12, native=True)
     frame = np.zeros((24, 32), np.uint16)
     with pytest.raises(ValueError, match="no cocotb test module"):
-        build.simulate(cosim.Stimulus(), tmp_path, test_module="detector_tb")
-    real = cosim.encode
-    monkeypatch.setattr(cosim, "encode", lambda words: real(words)[:-10])   # cut in a run
+        build.simulate(runner.Stimulus(), tmp_path, test_module="detector_tb")
+    real = runner.encode
+    monkeypatch.setattr(runner, "encode", lambda words: real(words)[:-10])   # cut in a run
     with pytest.raises(RuntimeError, match="stimulus ends in a run"):
-        build.simulate(cosim.Stimulus().reset().frame(frame, 2, 0), tmp_path)
+        build.simulate(runner.Stimulus().reset().frame(frame, 2, 0), tmp_path)
 
 
 def test_run_frames_refuses_mixed_capacities():
     cfg = DetectorConfig(width=32, height=24)
     frame = np.zeros((24, 32), np.uint16)
     with pytest.raises(ValueError, match="elaboration parameters"):
-        cosim.run_frames([frame, frame], cfg, cfgs=[cfg, cfg.replace(label_capacity=3)])
+        runner.run_frames([frame, frame], cfg, cfgs=[cfg, cfg.replace(label_capacity=3)])
 
 
 def test_cli_golden_frames_bit_exact(capsys):
@@ -180,14 +180,14 @@ def test_cli_golden_frames_bit_exact(capsys):
 
 
 def test_cli_reports_a_mismatch(monkeypatch, capsys):
-    real = cosim.run_frames
+    real = runner.run_frames
 
     def broken(*args, **kwargs):
         results = real(*args, **kwargs)
         results[0].n_blobs += 1
         return results
 
-    monkeypatch.setattr(cosim, "run_frames", broken)
+    monkeypatch.setattr(runner, "run_frames", broken)
     assert main(["cosim", f"{GOLDEN}/shape_spiral.json"]) == 1
     assert "MISMATCH in n_blobs" in capsys.readouterr().out
 

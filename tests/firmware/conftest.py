@@ -17,7 +17,7 @@ from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
-from tests import sim_frames as SF
+from tests import sim_frames
 
 MAX_ERR_DEG = 0.05
 """An accepted attitude further than this from the truth is a wrong solution."""
@@ -141,7 +141,7 @@ def starid_database_of():
 @pytest.fixture(scope="session")
 def firmware_camera():
     """The estcube2 camera as the firmware models it (:class:`lodestar.firmware.camera`)."""
-    return SF.firmware_camera()
+    return sim_frames.firmware_camera()
 
 
 @pytest.fixture(scope="session")

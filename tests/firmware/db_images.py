@@ -6,9 +6,8 @@ import struct
 
 import pytest
 
-from lodestar.contract import packet as contract_packet
-from lodestar.contract import stardb
-from lodestar.firmware import database as L
+from lodestar.contract import packet, stardb
+from lodestar.firmware import database
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database, DatabaseError
 
@@ -31,9 +30,9 @@ def reseal(image, patch=None):
         patch(b)
     if len(b) >= stardb.HEADER_SIZE:
         struct.pack_into("<I", b, PAYLOAD_CRC_OFFSET,
-                         contract_packet.crc32(bytes(b[stardb.HEADER_SIZE:])))
+                         packet.crc32(bytes(b[stardb.HEADER_SIZE:])))
         struct.pack_into("<I", b, stardb.HEADER_CRC_OFFSET,
-                         contract_packet.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
+                         packet.crc32(bytes(b[:stardb.HEADER_CRC_OFFSET])))
     return bytes(b)
 
 
@@ -42,6 +41,6 @@ def status_of(image, **kw):
     error names its status and a reason."""
     with pytest.raises(DatabaseError) as info:
         Database(image, **kw)
-    assert info.value.status in L.STATUSES and info.value.reason
+    assert info.value.status in database.STATUSES and info.value.reason
     assert str(info.value).startswith(S.name(info.value.status) + ": ")
     return info.value.status

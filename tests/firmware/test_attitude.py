@@ -17,11 +17,11 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from lodestar import firmware
-from lodestar.firmware import attitude as AT
+from lodestar.firmware import attitude
 from lodestar.firmware import quaternion as Q
 
 FIRMWARE = pathlib.Path(firmware.__file__).parent
-SOLVERS = [AT.quest, AT.q_method, AT.esoq2]
+SOLVERS = [attitude.quest, attitude.q_method, attitude.esoq2]
 SOLVER_IDS = ["quest", "q_method", "esoq2"]
 
 
@@ -88,10 +88,10 @@ def test_noise_free_recovery_triad_and_textbook_quest():
         if sep < 1e-3:
             continue
         b = Rotation.from_quat(q).apply(r)
-        assert Q.angle_between(AT.triad(b[0], b[1], r[0], r[1]), q) < 1e-9
+        assert Q.angle_between(attitude.triad(b[0], b[1], r[0], r[1]), q) < 1e-9
         if sep > math.sin(math.radians(2.0)):
-            assert Q.angle_between(AT.quest(b, r, refine=False), q) < 1e-9
-            assert Q.angle_between(AT.esoq2(b, r, refine=False), q) < 1e-9
+            assert Q.angle_between(attitude.quest(b, r, refine=False), q) < 1e-9
+            assert Q.angle_between(attitude.esoq2(b, r, refine=False), q) < 1e-9
 
 
 def test_refinement_matters_for_two_close_stars():
@@ -104,8 +104,8 @@ def test_refinement_matters_for_two_close_stars():
         d = math.radians(0.3)
         r = bore.apply(_unit_rows([[0.0, 0.0, 1.0], [math.sin(d), 0.0, math.cos(d)]]))
         b = _perturb(rng, Rotation.from_quat(q).apply(r), 1e-5)
-        ref = AT.q_method(b, r)
-        for solver in (AT.quest, AT.esoq2):
+        ref = attitude.q_method(b, r)
+        for solver in (attitude.quest, attitude.esoq2):
             worst = max(worst, Q.angle_between(solver(b, r), ref))
     assert worst < 1e-10, worst
 
@@ -130,7 +130,7 @@ NEAR_180 = [math.pi, math.radians(179.999), math.pi - 1e-9, math.radians(170.0)]
 NEAR_0 = [0.0, 1e-12, 1e-6, math.radians(0.001)]
 
 
-@pytest.mark.parametrize("solver", SOLVERS + [lambda b, r: AT.quest(b, r, refine=False)],
+@pytest.mark.parametrize("solver", SOLVERS + [lambda b, r: attitude.quest(b, r, refine=False)],
                          ids=SOLVER_IDS + ["quest_textbook"])
 @pytest.mark.parametrize("angle", NEAR_180 + NEAR_0)
 def test_near_180_and_near_0_rotations(solver, angle):
@@ -146,20 +146,20 @@ def test_near_180_and_near_0_rotations(solver, angle):
 def test_quest_uses_sequential_rotation_only_when_needed(monkeypatch):
     """The frame is turned for 180 deg, kept for small angles (|gamma| = psi' q4^2)."""
     calls = []
-    real_flip = AT._flip
+    real_flip = attitude._flip
 
     def spy(B, axis):
         calls.append(axis)
         return real_flip(B, axis)
 
-    monkeypatch.setattr(AT, "_flip", spy)
+    monkeypatch.setattr(attitude, "_flip", spy)
     rng = np.random.default_rng(3)
     r = _sky(rng, 5)
     for angle, turned in ((0.3, False), (math.radians(110), False), (math.pi, True),
                           (math.radians(130), True)):
         calls.clear()
         q = Rotation.from_rotvec([0.0, 0.6 * angle, 0.8 * angle]).as_quat()
-        got = AT.quest(Rotation.from_quat(q).apply(r), r)
+        got = attitude.quest(Rotation.from_quat(q).apply(r), r)
         assert bool(calls) == turned
         assert Q.angle_between(got, q) < 1e-12
 
@@ -180,9 +180,9 @@ def test_noisy_solvers_agree_with_q_method_and_svd():
         sig = rng.uniform(5e-6, 1e-3, n)
         b = _perturb(rng, Rotation.from_quat(q).apply(r), sig)
         w = 1.0 / sig ** 2
-        ref = AT.q_method(b, r, w)
-        worst["quest"] = max(worst["quest"], Q.angle_between(AT.quest(b, r, w), ref))
-        worst["esoq2"] = max(worst["esoq2"], Q.angle_between(AT.esoq2(b, r, w), ref))
+        ref = attitude.q_method(b, r, w)
+        worst["quest"] = max(worst["quest"], Q.angle_between(attitude.quest(b, r, w), ref))
+        worst["esoq2"] = max(worst["esoq2"], Q.angle_between(attitude.esoq2(b, r, w), ref))
         svd, _ = Rotation.align_vectors(b, r, weights=w)
         worst["svd"] = max(worst["svd"], Q.angle_between(svd.as_quat(), ref))
     assert worst["quest"] < 1e-10, worst
@@ -198,15 +198,15 @@ def test_solution_minimises_loss_and_loss_is_lambda0_minus_lambda_max():
         r = _sky(rng, n, 20.0)
         b = _perturb(rng, Rotation.from_quat(q).apply(r), 1e-3)
         w = rng.uniform(0.5, 3.0, n)
-        K = np.array(AT.davenport_k(b, r, w))
+        K = np.array(attitude.davenport_k(b, r, w))
         lam_max = np.linalg.eigvalsh(K)[-1]
         for solver in SOLVERS:
             qs = solver(b, r, w)
-            J = AT.loss(qs, b, r, w)
+            J = attitude.loss(qs, b, r, w)
             assert J == pytest.approx(w.sum() - lam_max, rel=1e-9, abs=1e-13 * w.sum())
             for _ in range(5):
                 d = Rotation.from_rotvec(rng.normal(size=3) * 1e-4)
-                assert AT.loss((d * Rotation.from_quat(qs)).as_quat(), b, r, w) > J
+                assert attitude.loss((d * Rotation.from_quat(qs)).as_quat(), b, r, w) > J
 
 
 def test_weights_are_scale_invariant_and_default_equal():
@@ -242,7 +242,7 @@ def test_triad_first_pair_exact():
         q = Rotation.random(random_state=rng).as_quat()
         r = _sky(rng, 2, 20.0)
         b = _perturb(rng, Rotation.from_quat(q).apply(r), [0.0, 1e-2])   # b2 noisy
-        got = AT.triad(b[0], b[1], r[0], r[1])
+        got = attitude.triad(b[0], b[1], r[0], r[1])
         assert np.allclose(Q.rotate(got, r[0]), b[0], atol=1e-15, rtol=0)
         # the second body vector lies in the plane of b1 and A r2, on the same side
         Ar2 = np.asarray(Q.rotate(got, r[1]))
@@ -256,8 +256,8 @@ def test_triad_is_order_sensitive_and_matches_noise_free_truth():
     q = Rotation.random(random_state=rng).as_quat()
     r = _sky(rng, 2, 20.0)
     b = _perturb(rng, Rotation.from_quat(q).apply(r), 1e-3)
-    q12 = AT.triad(b[0], b[1], r[0], r[1])
-    q21 = AT.triad(b[1], b[0], r[1], r[0])
+    q12 = attitude.triad(b[0], b[1], r[0], r[1])
+    q21 = attitude.triad(b[1], b[0], r[1], r[0])
     assert np.allclose(Q.rotate(q21, r[1]), b[1], atol=1e-15)
     assert Q.angle_between(q12, q21) > 1e-5
 
@@ -271,10 +271,10 @@ def test_quest_polynomial_hand_check():
     K = diag(0, 0, -1, 1); a = 1 - tr adj S = 0, b = 1, c = d = 0, so
     psi = l^4 - l^2 = [1, 0, -1, 0, 0] (eigenvalues 1, -1, 0, 0)."""
     v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
-    K = AT.davenport_k(v, v, [0.5, 0.5])
+    K = attitude.davenport_k(v, v, [0.5, 0.5])
     assert K == [[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0],
                  [0.0, 0.0, 0.0, 1.0]]
-    assert AT.quest_polynomial(v, v, [0.5, 0.5]) == [1.0, 0.0, -1.0, 0.0, 0.0]
+    assert attitude.quest_polynomial(v, v, [0.5, 0.5]) == [1.0, 0.0, -1.0, 0.0, 0.0]
 
 
 def test_quest_polynomial_equals_numpy_poly_and_c_is_8_det_b():
@@ -284,12 +284,12 @@ def test_quest_polynomial_equals_numpy_poly_and_c_is_8_det_b():
         r = _sky(rng, n, [None, 20.0][_ % 2])
         b = _perturb(rng, Rotation.random(random_state=rng).apply(r), 0.05)
         w = rng.uniform(0.1, 2.0, n)
-        K = np.array(AT.davenport_k(b, r, w))
+        K = np.array(attitude.davenport_k(b, r, w))
         assert np.allclose(K, K.T, atol=0) and abs(np.trace(K)) < 1e-14
         ref = np.poly(K)
-        got = AT.quest_polynomial(b, r, w)
+        got = attitude.quest_polynomial(b, r, w)
         assert np.allclose(got, ref, rtol=1e-11, atol=1e-13 * w.sum() ** 4)
-        B = np.array(AT.profile_matrix(b, r, w))
+        B = np.array(attitude.profile_matrix(b, r, w))
         assert np.allclose(B, (w[:, None, None] * b[:, :, None] * r[:, None, :]).sum(0))
         assert -got[3] == pytest.approx(8 * np.linalg.det(B), rel=1e-10, abs=1e-14)
 
@@ -299,7 +299,7 @@ def test_davenport_k_eigenvector_is_shusters_quaternion():
     q = Rotation.random(random_state=rng).as_quat()
     r = _sky(rng, 6)
     b = Rotation.from_quat(q).apply(r)
-    vals, vecs = np.linalg.eigh(np.array(AT.davenport_k(b, r)))
+    vals, vecs = np.linalg.eigh(np.array(attitude.davenport_k(b, r)))
     assert Q.angle_between(Q.conjugate(list(vecs[:, -1])), q) < 1e-12
     assert vals[-1] == pytest.approx(6.0)
 
@@ -313,13 +313,14 @@ def test_covariance_formula():
     r = _sky(rng, 6, 20.0)
     b = Rotation.random(random_state=rng).apply(r)
     sig = rng.uniform(1e-5, 5e-5, 6)
-    P = np.array(AT.covariance(b, r, sig))
+    P = np.array(attitude.covariance(b, r, sig))
     F = sum((np.eye(3) - np.outer(v, v)) / s ** 2 for v, s in zip(b, sig))
     assert np.allclose(P, np.linalg.inv(F), rtol=1e-12, atol=0)
     assert np.allclose(P, P.T, rtol=0, atol=0) and np.all(np.linalg.eigvalsh(P) > 0)
-    assert np.allclose(AT.covariance(b, r, 3 * sig), 9 * P, rtol=1e-12)
-    assert AT.covariance(b, None, sig) == AT.covariance(b, r, sig)     # r only validated
-    cross, roll = AT.sigmas_cross_roll(P)
+    assert np.allclose(attitude.covariance(b, r, 3 * sig), 9 * P, rtol=1e-12)
+    # r only validated
+    assert attitude.covariance(b, None, sig) == attitude.covariance(b, r, sig)
+    cross, roll = attitude.sigmas_cross_roll(P)
     assert cross == pytest.approx(math.sqrt((P[0, 0] + P[1, 1]) / 2))
     assert roll == pytest.approx(math.sqrt(P[2, 2]))
 
@@ -329,7 +330,7 @@ def test_covariance_narrow_field_roll_is_worse():
     rng = np.random.default_rng(15)
     cam = _unit_rows(np.column_stack([rng.uniform(-0.1, 0.1, 10), rng.uniform(-0.1, 0.1, 10),
                                       np.ones(10)]))
-    cross, roll = AT.sigmas_cross_roll(AT.covariance(cam, cam, [1e-5] * 10))
+    cross, roll = attitude.sigmas_cross_roll(attitude.covariance(cam, cam, [1e-5] * 10))
     assert roll > 5 * cross
     assert cross == pytest.approx(1e-5 / math.sqrt(10), rel=0.05)
 
@@ -345,18 +346,18 @@ def test_covariance_monte_carlo_matches_quest_scatter():
     r = truth.inv().apply(cam)
     sig = rng.uniform(2e-5, 6e-5, n)
     w = 1.0 / sig ** 2
-    P = np.array(AT.covariance(cam, r, sig))
+    P = np.array(attitude.covariance(cam, r, sig))
     start = time.perf_counter()
     errors = np.empty((2000, 3))
     for k in range(len(errors)):
         b = _perturb(rng, cam, sig)
-        est = Rotation.from_quat(AT.quest(b, r, w))
+        est = Rotation.from_quat(attitude.quest(b, r, w))
         errors[k] = (est * truth.inv()).as_rotvec()
     assert time.perf_counter() - start < 10.0
     C = np.cov(errors.T)
     assert np.allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(P)), rtol=0.10, atol=0)
-    cross, roll = AT.sigmas_cross_roll(P)
-    cross_mc, roll_mc = AT.sigmas_cross_roll(C.tolist())
+    cross, roll = attitude.sigmas_cross_roll(P)
+    cross_mc, roll_mc = attitude.sigmas_cross_roll(C.tolist())
     assert cross_mc == pytest.approx(cross, rel=0.10)
     assert roll_mc == pytest.approx(roll, rel=0.10)
     assert roll > 3 * cross                     # the narrow-field signature
@@ -379,9 +380,9 @@ def test_loss_matches_definition():
     w = rng.uniform(0.5, 2, 5)
     A = Rotation.from_quat(q).as_matrix()
     ref = 0.5 * np.sum(w * np.sum((b - r @ A.T) ** 2, axis=1))
-    assert AT.loss(q, b, r, w) == pytest.approx(ref, rel=1e-13)
-    assert AT.loss(q, b[:1], r[:1]) == pytest.approx(0.5 * np.sum((b[0] - A @ r[0]) ** 2))
-    assert AT.loss(q, Rotation.from_quat(q).apply(r), r, w) < 1e-28
+    assert attitude.loss(q, b, r, w) == pytest.approx(ref, rel=1e-13)
+    assert attitude.loss(q, b[:1], r[:1]) == pytest.approx(0.5 * np.sum((b[0] - A @ r[0]) ** 2))
+    assert attitude.loss(q, Rotation.from_quat(q).apply(r), r, w) < 1e-28
 
 
 # --------------------------------------------------------------------------------------------
@@ -425,7 +426,7 @@ def test_bad_inputs_raise(solver, b, r, w, match):
 def test_good_inputs_of_the_bad_input_table_work():
     for solver in SOLVERS:
         q = solver(GOOD_B, GOOD_R)
-        assert AT.loss(q, GOOD_B, GOOD_R) < 0.05
+        assert attitude.loss(q, GOOD_B, GOOD_R) < 0.05
 
 
 @pytest.mark.parametrize("args, match", [
@@ -437,7 +438,7 @@ def test_good_inputs_of_the_bad_input_table_work():
 ])
 def test_triad_bad_inputs(args, match):
     with pytest.raises(ValueError, match=match):
-        AT.triad(*args)
+        attitude.triad(*args)
 
 
 @pytest.mark.parametrize("sigmas, match", [
@@ -449,9 +450,9 @@ def test_triad_bad_inputs(args, match):
 ])
 def test_covariance_bad_inputs(sigmas, match):
     with pytest.raises(ValueError, match=match):
-        AT.covariance(GOOD_B, GOOD_R, sigmas)
+        attitude.covariance(GOOD_B, GOOD_R, sigmas)
     with pytest.raises(ValueError, match="parallel"):
-        AT.covariance([[0, 0, 1]] * 3, GOOD_R, [1e-5] * 3)
+        attitude.covariance([[0, 0, 1]] * 3, GOOD_R, [1e-5] * 3)
 
 
 @pytest.mark.parametrize("P, match", [
@@ -462,7 +463,7 @@ def test_covariance_bad_inputs(sigmas, match):
 ])
 def test_sigmas_cross_roll_bad_inputs(P, match):
     with pytest.raises(ValueError, match=match):
-        AT.sigmas_cross_roll(P)
+        attitude.sigmas_cross_roll(P)
 
 
 # --------------------------------------------------------------------------------------------
@@ -499,7 +500,7 @@ def test_firmware_source_is_micropython_subset(name):
 
 SMOKE = r"""
 import sys, math
-from lodestar.firmware import attitude as AT, geometry as G, quaternion as Q
+from lodestar.firmware import attitude, geometry as G, quaternion as Q
 assert sys.implementation.name == "micropython"
 q = Q.normalise([0.1, -0.7, 0.3, 0.6])
 r = [G.normalise_vector(v) for v in ([1.0, 0.2, 0.1], [0.1, 1.0, -0.3], [0.2, 0.1, 1.0],
@@ -507,23 +508,23 @@ r = [G.normalise_vector(v) for v in ([1.0, 0.2, 0.1], [0.1, 1.0, -0.3], [0.2, 0.
 for angle in (0.0, 1e-9, 1.0, math.pi - 1e-7, math.pi):
     qt = Q.multiply(q, Q.from_axis_angle([0.3, -0.2, 0.9], angle)) if angle else q
     b = [Q.rotate(qt, v) for v in r]
-    for f in (AT.quest, AT.q_method, AT.esoq2):
+    for f in (attitude.quest, attitude.q_method, attitude.esoq2):
         e = Q.angle_between(f(b, r, [1, 2, 3, 4]), qt)
         assert e < 1e-12, (angle, e)
-    assert Q.angle_between(AT.triad(b[0], b[1], r[0], r[1]), qt) < 1e-12
+    assert Q.angle_between(attitude.triad(b[0], b[1], r[0], r[1]), qt) < 1e-12
     assert Q.angle_between(Q.from_matrix(Q.to_matrix(qt)), qt) < 1e-14
-P = AT.covariance(b, r, [1e-5] * 4)
-cross, roll = AT.sigmas_cross_roll(P)
+P = attitude.covariance(b, r, [1e-5] * 4)
+cross, roll = attitude.sigmas_cross_roll(P)
 assert 1e-6 < cross < 1e-4 and 1e-6 < roll < 1e-4
-assert AT.loss(q, b, r) >= 0.0
-assert len(AT.quest_polynomial(b, r)) == 5
+assert attitude.loss(q, b, r) >= 0.0
+assert len(attitude.quest_polynomial(b, r)) == 5
 try:
-    AT.quest(b[:1], r[:1])
+    attitude.quest(b[:1], r[:1])
     raise AssertionError("no error")
 except ValueError as e:
     assert "at least 2" in str(e)
 try:
-    AT.esoq2(b, r, [1, 1, float("nan"), 1])
+    attitude.esoq2(b, r, [1, 1, float("nan"), 1])
     raise AssertionError("no error")
 except ValueError as e:
     assert "w[2]" in str(e)
@@ -554,9 +555,9 @@ def test_refine_from_a_nearby_attitude_agrees_with_q_method():
         w = (1.0 / sig ** 2).tolist()
         start = (Rotation.from_rotvec(rng.normal(size=3) * math.radians(0.3) / math.sqrt(3))
                  * Rotation.from_quat(q)).as_quat()
-        got = AT.refine(start.tolist(), b.tolist(), r.tolist(), w)
+        got = attitude.refine(start.tolist(), b.tolist(), r.tolist(), w)
         assert got[3] >= 0.0
-        worst = max(worst, Q.angle_between(got, AT.q_method(b, r, w)))
+        worst = max(worst, Q.angle_between(got, attitude.q_method(b, r, w)))
     # it stops after a step below 10 arcsec: what is left is that times the step and the
     # residuals (up to 1e-3): 5.5e-8 at most here
     assert worst < 1e-7, worst
@@ -567,11 +568,11 @@ def test_refine_uses_the_weights_and_takes_one_step_from_the_optimum():
     r = _sky(rng, 8, 20.0)
     b = _perturb(rng, r, 1e-3)
     w = rng.uniform(0.1, 10.0, 8).tolist()
-    best = AT.q_method(b, r, w)
-    assert Q.angle_between(AT.refine(best, b, r, w), best) < 1e-12
-    assert Q.angle_between(AT.refine(best, b, r, w, max_iterations=1), best) < 1e-12
-    assert Q.angle_between(AT.refine(best, b, r), AT.q_method(b, r)) < 1e-7
-    assert Q.angle_between(AT.refine(best, b, r), best) > 1e-6       # the weights matter
+    best = attitude.q_method(b, r, w)
+    assert Q.angle_between(attitude.refine(best, b, r, w), best) < 1e-12
+    assert Q.angle_between(attitude.refine(best, b, r, w, max_iterations=1), best) < 1e-12
+    assert Q.angle_between(attitude.refine(best, b, r), attitude.q_method(b, r)) < 1e-7
+    assert Q.angle_between(attitude.refine(best, b, r), best) > 1e-6       # the weights matter
 
 
 def test_refine_rejects_what_it_cannot_solve():
@@ -579,13 +580,13 @@ def test_refine_rejects_what_it_cannot_solve():
     r = _sky(rng, 5, 20.0).tolist()
     q = [0.0, 0.0, 0.0, 1.0]
     with pytest.raises(ValueError, match="at least 2"):
-        AT.refine(q, r[:1], r[:1])
+        attitude.refine(q, r[:1], r[:1])
     with pytest.raises(ValueError, match="one entry per"):
-        AT.refine(q, r, r[:4])
+        attitude.refine(q, r, r[:4])
     with pytest.raises(ValueError, match="unobservable"):
-        AT.refine(q, [r[0], r[0]], [r[0], r[0]])
+        attitude.refine(q, [r[0], r[0]], [r[0], r[0]])
     with pytest.raises(ValueError, match="unobservable"):
-        AT.refine(q, r, [[math.nan] * 3] * 5)
+        attitude.refine(q, r, [[math.nan] * 3] * 5)
     far = Rotation.from_rotvec([0.0, 0.0, 3.0]).apply(np.array(r)).tolist()
     with pytest.raises(ValueError, match="no convergence"):
-        AT.refine(q, far, r, max_iterations=2)
+        attitude.refine(q, far, r, max_iterations=2)

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lodestar.firmware import camera as fwcam
-from lodestar.firmware import geometry
+from lodestar.firmware import camera, geometry
 from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
 from lodestar.sim.camera import Camera as SimCamera
@@ -117,7 +116,7 @@ def test_random_distortions_agree_with_sim():
     (-0.3686, 0.3148, 0.0), (0.1, -1.0, 2.0), (-1.0, 3.0, -3.0),
 ])
 def test_fold_radius_matches_sim(k1, k2, k3):
-    got = fwcam._smallest_positive_root(1.0, 3 * k1, 5 * k2, 7 * k3)
+    got = camera._smallest_positive_root(1.0, 3 * k1, 5 * k2, 7 * k3)
     # the sim's method reads only the coefficients (many of these fail its frame check)
     expected = SimCamera.fold_radius(SimpleNamespace(k1=k1, k2=k2, k3=k3))
     if expected == math.inf:
@@ -248,4 +247,4 @@ def test_pixel_tangent_is_the_direction_s_derivative(distorted):
 def test_float_epsilon_and_tolerance_floors():
     assert geometry.EPS == np.finfo(float).eps
     cam = Camera(752, 480, 1000.0, 1000.0)
-    assert cam._step_px == fwcam.NEWTON_STEP_PX and cam._residual_px == fwcam.NEWTON_RESIDUAL_PX
+    assert cam._step_px == camera.NEWTON_STEP_PX and cam._residual_px == camera.NEWTON_RESIDUAL_PX

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar.firmware import centroids as FC
+from lodestar.firmware import centroids
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.golden.starfield import star_frame
@@ -88,7 +88,7 @@ def star_records(seed=1, pixel_bits=12, **kwargs):
 
 
 def total(rejected):
-    assert set(rejected) == set(FC.REASONS)
+    assert set(rejected) == set(centroids.REASONS)
     return sum(rejected.values())
 
 
@@ -100,7 +100,7 @@ def test_moments_are_exact_for_golden_records():
     records = star_records(1) + star_records(2, pixel_bits=16, flux_range=(1e4, 1e7))
     assert len(records) > 40
     for rec in records:
-        x, y, cxx, cyy, cxy, det = FC.moments(rec)
+        x, y, cxx, cyy, cxy, det = centroids.moments(rec)
         ex, ey, exx, eyy, exy = exact_moments(rec)
         assert x == pytest.approx(float(ex), rel=1e-15, abs=1e-12)
         assert y == pytest.approx(float(ey), rel=1e-15, abs=1e-12)
@@ -119,11 +119,11 @@ def test_moments_match_numpy_weighted_covariance():
         xs = xs + (rec.xmin - xs.min())
         ys = ys + (rec.ymin - ys.min())
         cov = np.cov(np.vstack([xs, ys]), aweights=w, bias=True)
-        x, y, cxx, cyy, cxy, _ = FC.moments(rec)
+        x, y, cxx, cyy, cxy, _ = centroids.moments(rec)
         assert (x, y) == pytest.approx((np.average(xs, weights=w), np.average(ys, weights=w)),
                                        abs=1e-9)
         assert (cxx, cyy, cxy) == pytest.approx((cov[0, 0], cov[1, 1], cov[0, 1]), abs=1e-6)
-        smaj, smin, elong, orient = FC.shape(cxx, cyy, cxy)
+        smaj, smin, elong, orient = centroids.shape(cxx, cyy, cxy)
         evals, evecs = np.linalg.eigh(cov)
         assert (smin, smaj) == pytest.approx(tuple(np.sqrt(np.maximum(evals, 0))), abs=1e-6)
         major = evecs[:, 1]
@@ -134,7 +134,7 @@ def test_moments_match_numpy_weighted_covariance():
 @pytest.mark.parametrize("angle", np.linspace(-math.pi / 2 + 0.01, math.pi / 2, 9))
 def test_shape_of_rotated_gaussian(angle):
     rec = record_from_weights(gaussian_weights(4.0, 1.5, angle))
-    smaj, smin, elong, orient = FC.shape(*FC.moments(rec)[2:])
+    smaj, smin, elong, orient = centroids.shape(*centroids.moments(rec)[2:])
     assert smaj == pytest.approx(4.0, rel=2e-3)
     assert smin == pytest.approx(1.5, rel=2e-3)
     assert elong == pytest.approx(4.0 / 1.5, rel=4e-3)
@@ -143,20 +143,20 @@ def test_shape_of_rotated_gaussian(angle):
 
 
 def test_shape_edge_cases():
-    assert FC.shape(0.0, 0.0, 0.0) == (0.0, 0.0, 1.0, 0.0)          # single pixel
+    assert centroids.shape(0.0, 0.0, 0.0) == (0.0, 0.0, 1.0, 0.0)          # single pixel
     row = record_from_weights(np.array([[5, 5, 5, 5]]), 10, 20)     # one row: no width
-    smaj, smin, elong, orient = FC.shape(*FC.moments(row)[2:])
+    smaj, smin, elong, orient = centroids.shape(*centroids.moments(row)[2:])
     assert smin == 0.0 and elong == math.inf and orient == 0.0
     assert smaj == pytest.approx(math.sqrt(1.25))
     col = record_from_weights(np.array([[5], [5], [5], [5]]), 10, 20)
-    smaj, smin, elong, orient = FC.shape(*FC.moments(col)[2:])
+    smaj, smin, elong, orient = centroids.shape(*centroids.moments(col)[2:])
     assert smin == 0.0 and orient == pytest.approx(math.pi / 2)
 
 
 def test_minor_axis_accurate_for_long_thin_blobs():
     """``l2 = det / l1`` keeps the minor sigma accurate where ``l1 - root`` would cancel."""
     rec = record_from_weights(gaussian_weights(2000.0, 0.4, 0.3, size=401), 100, 100)
-    _, _, cxx, cyy, cxy, det = FC.moments(rec)
+    _, _, cxx, cyy, cxy, det = centroids.moments(rec)
     exact = exact_moments(rec)
     a, b, c = exact[2], exact[4], exact[3]
     mean = (a + c) / 2
@@ -164,7 +164,7 @@ def test_minor_axis_accurate_for_long_thin_blobs():
     disc = float(((a - c) / 2) ** 2 + b * b)
     l1 = float(mean) + math.sqrt(disc)
     l2_exact = float(a * c - b * b) / l1
-    assert FC.shape(cxx, cyy, cxy, det)[1] == pytest.approx(math.sqrt(l2_exact), rel=1e-9)
+    assert centroids.shape(cxx, cyy, cxy, det)[1] == pytest.approx(math.sqrt(l2_exact), rel=1e-9)
 
 
 # --------------------------------------------------------------------------------------
@@ -181,10 +181,10 @@ def _with(rec, **changes):
 
 
 def test_round_star_is_kept_with_its_measurements():
-    stars, rejected = FC.extract([STAR])
+    stars, rejected = centroids.extract([STAR])
     assert total(rejected) == 0 and len(stars) == 1
     s = stars[0]
-    x, y = FC.moments(STAR)[:2]
+    x, y = centroids.moments(STAR)[:2]
     assert (s.x, s.y, s.flux, s.n, s.nsat, s.peak, s.index) == (
         x, y, STAR.s0, STAR.n, 0, STAR.peak, 0)
     assert s.sigma_major == pytest.approx(1.5, rel=0.02)
@@ -203,26 +203,26 @@ def test_round_star_is_kept_with_its_measurements():
     (dict(n=2), "hot_pixel"),
 ])
 def test_rejection_reasons(changes, reason):
-    stars, rejected = FC.extract([_with(STAR, **changes)])
+    stars, rejected = centroids.extract([_with(STAR, **changes)])
     assert stars == [] and rejected[reason] == 1 and total(rejected) == 1
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -5.0, -1, 0.0])
 def test_bad_s0_is_empty(value):
-    stars, rejected = FC.extract([_with(STAR, s0=value)])
+    stars, rejected = centroids.extract([_with(STAR, s0=value)])
     assert stars == [] and rejected["empty"] == 1
 
 
 @pytest.mark.parametrize("name", ["sx", "sy", "sxx", "syy", "sxy"])
 def test_non_finite_moment_is_inconsistent(name):
-    stars, rejected = FC.extract([_with(STAR, **{name: float("nan")})])
+    stars, rejected = centroids.extract([_with(STAR, **{name: float("nan")})])
     assert stars == [] and rejected["inconsistent"] == 1
 
 
 def test_float_records_agree_with_int_records():
     as_float = _with(STAR, **{name: float(getattr(STAR, name)) for name in C.MOMENTS})
-    a = FC.extract([STAR])[0][0].as_tuple()
-    b = FC.extract([as_float])[0][0].as_tuple()
+    a = centroids.extract([STAR])[0][0].as_tuple()
+    b = centroids.extract([as_float])[0][0].as_tuple()
     assert b == pytest.approx(a, rel=1e-9)
 
 
@@ -231,18 +231,18 @@ def test_hot_pixels_are_rejected():
     pair = record_from_weights(np.array([[3000, 2000]]), 5, 5)
     # sharper than any PSF: a bright pixel with faint neighbours (sigma 0.06 px)
     sharp = record_from_weights(np.array([[0, 10, 0], [10, 5000, 10], [0, 10, 0]]), 5, 5)
-    stars, rejected = FC.extract([single, pair, sharp])
+    stars, rejected = centroids.extract([single, pair, sharp])
     assert stars == [] and rejected["hot_pixel"] == 3
-    stars, rejected = FC.extract([single, pair, sharp], min_pixels=1, min_sigma_px=0.0)
+    stars, rejected = centroids.extract([single, pair, sharp], min_pixels=1, min_sigma_px=0.0)
     assert len(stars) == 2 and rejected["cosmic_ray"] == 1        # the pair is a 1-D track
-    assert FC.extract([sharp], min_sigma_px=0.05)[0]
+    assert centroids.extract([sharp], min_sigma_px=0.05)[0]
 
 
 def test_lohmann_like_sharp_star_is_kept():
     """A PSF of sigma 0.6 px (the Lohmann lens) passes the default sharpness limit."""
     rec = record_from_weights(gaussian_weights(0.6, 0.6, 0.0, amplitude=3000, size=9))
-    stars, _ = FC.extract([rec])
-    assert len(stars) == 1 and stars[0].sigma_minor > FC.DEFAULT_MIN_SIGMA_PX
+    stars, _ = centroids.extract([rec])
+    assert len(stars) == 1 and stars[0].sigma_minor > centroids.DEFAULT_MIN_SIGMA_PX
 
 
 @pytest.mark.parametrize("angle", [0.0, 0.4, -1.2, math.pi / 2])
@@ -250,11 +250,12 @@ def test_cosmic_ray_and_smear(angle):
     length = 14.0
     track = record_from_weights(line_weights(length, angle), 300, 200)
     smear = (length * math.cos(angle), length * math.sin(angle))
-    _, rejected = FC.extract([track])
+    _, rejected = centroids.extract([track])
     assert rejected["cosmic_ray"] == 1
     # the expected smear explains it, in either sense
     for sense in (1, -1):
-        stars, _ = FC.extract([track], expected_smear_px=(sense * smear[0], sense * smear[1]))
+        stars, _ = centroids.extract([track], expected_smear_px=(sense * smear[0],
+                                                                 sense * smear[1]))
         assert len(stars) == 1
         assert abs(math.sin(stars[0].orientation - angle)) < 0.01
     # ... and as a function of position
@@ -263,25 +264,25 @@ def test_cosmic_ray_and_smear(angle):
     def smear_at(x, y):
         calls.append((x, y))
         return smear
-    assert len(FC.extract([track], expected_smear_px=smear_at)[0]) == 1
-    assert calls and calls[0] == pytest.approx(FC.moments(track)[:2])
+    assert len(centroids.extract([track], expected_smear_px=smear_at)[0]) == 1
+    assert calls and calls[0] == pytest.approx(centroids.moments(track)[:2])
     # wrong direction, wrong length, no motion: still a cosmic ray
     for wrong in [(-smear[1], smear[0]),
                   (smear[0] * 3, smear[1] * 3), (smear[0] / 3, smear[1] / 3),
                   (0.0, 0.0), (float("nan"), 1.0)]:
-        _, rejected = FC.extract([track], expected_smear_px=wrong)
+        _, rejected = centroids.extract([track], expected_smear_px=wrong)
         assert rejected["cosmic_ray"] == 1, wrong
-    assert FC.extract([track], expected_smear_px=lambda x, y: None)[1]["cosmic_ray"] == 1
+    assert centroids.extract([track], expected_smear_px=lambda x, y: None)[1]["cosmic_ray"] == 1
 
 
 def test_smeared_star_kept_only_with_expected_smear():
     dx, dy = 24.0, -10.0
     rec = record_from_weights(smeared_star_weights(1.2, dx, dy), 500, 400)
-    smaj, smin, elong, orient = FC.shape(*FC.moments(rec)[2:])
-    assert elong > FC.DEFAULT_MAX_ELONGATION
+    smaj, smin, elong, orient = centroids.shape(*centroids.moments(rec)[2:])
+    assert elong > centroids.DEFAULT_MAX_ELONGATION
     assert math.sqrt(12 * (smaj ** 2 - smin ** 2)) == pytest.approx(math.hypot(dx, dy), rel=0.02)
-    assert FC.extract([rec])[1]["cosmic_ray"] == 1
-    stars, _ = FC.extract([rec], expected_smear_px=(dx, dy))
+    assert centroids.extract([rec])[1]["cosmic_ray"] == 1
+    stars, _ = centroids.extract([rec], expected_smear_px=(dx, dy))
     assert len(stars) == 1
     assert (stars[0].x - 500 - 30, stars[0].y - 400 - 30) == pytest.approx((0, 0), abs=0.01)
 
@@ -299,7 +300,7 @@ def test_broken_track_is_joined_into_one_star():
     left = record_from_weights(np.where((along < 0) & ~gap, w, 0), 500, 400)
     right = record_from_weights(np.where((along > 0) & ~gap, w, 0), 500, 400)
     noise = record_from_weights(gaussian_weights(1.2, 1.2, 0.0, size=11), 800, 100)
-    stars, rejected = FC.extract([noise, left, right], expected_smear_px=(dx, dy))
+    stars, rejected = centroids.extract([noise, left, right], expected_smear_px=(dx, dy))
     assert len(stars) == 2 and rejected["fragment"] == 1 and total(rejected) == 1
     joined = [s for s in stars if s.parts is not None][0]
     assert joined.parts == [1, 2] and joined.flux == left.s0 + right.s0
@@ -310,22 +311,22 @@ def test_broken_track_is_joined_into_one_star():
     assert kept > 0
     sx = left.sx + right.sx
     assert joined.x == pytest.approx(sx / (left.s0 + right.s0), abs=1e-9)
-    _smaj, smin, _e, _orient = FC.shape(*FC.moments(whole)[2:])
+    _smaj, smin, _e, _orient = centroids.shape(*centroids.moments(whole)[2:])
     assert joined.sigma_minor == pytest.approx(smin, rel=0.1)
     assert math.tan(joined.orientation) == pytest.approx(dy / dx, abs=0.02)
     # without a known smear, or across the smear, nothing is joined
-    stars, rejected = FC.extract([left, right])
+    stars, rejected = centroids.extract([left, right])
     assert rejected["fragment"] == 0 and all(s.parts is None for s in stars)
-    stars, rejected = FC.extract([left, right], expected_smear_px=(-dy, dx))
+    stars, rejected = centroids.extract([left, right], expected_smear_px=(-dy, dx))
     assert rejected["fragment"] == 0
     # two stars further apart along the smear than its length stay apart
     far = record_from_weights(np.where((along > 0) & ~gap, w, 0), 560, 375)
-    stars, rejected = FC.extract([left, far], expected_smear_px=(dx, dy))
+    stars, rejected = centroids.extract([left, far], expected_smear_px=(dx, dy))
     assert rejected["fragment"] == 0 and len(stars) == 2
 
 
 def _groups_by_every_pair(stars, smear, across_px):
-    """The groups :func:`FC.join_fragments` forms, by testing every pair (its rule)."""
+    """The groups :func:`centroids.join_fragments` forms, by testing every pair (its rule)."""
     groups = [{i} for i in range(len(stars))]
     for i, a in enumerate(stars):
         dx, dy = smear(a.x, a.y)
@@ -364,15 +365,15 @@ def test_joining_tests_the_pairs_every_pair_test_would():
         def smear(x, y, dx=dx, dy=dy):
             return dx * (1.0 + x / 1000.0), dy
 
-        stars = [FC.Star(x, y, 100 + i, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
+        stars = [centroids.Star(x, y, 100 + i, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
                  for i, (x, y, sm) in enumerate(points)]
         central = [(1.0, 1.0, 0.0)] * len(stars)
-        out = FC.join_fragments(stars, central, smear, FC.DEFAULT_JOIN_ACROSS_PX)
+        out = centroids.join_fragments(stars, central, smear, centroids.DEFAULT_JOIN_ACROSS_PX)
         got = sorted(sorted(s.parts) if s.parts else [s.index] for s in out)
-        assert got == _groups_by_every_pair(stars, smear, FC.DEFAULT_JOIN_ACROSS_PX)
+        assert got == _groups_by_every_pair(stars, smear, centroids.DEFAULT_JOIN_ACROSS_PX)
         firsts = [min(s.parts) if s.parts else s.index for s in out]
         assert firsts == sorted(firsts)
-    assert len(FC.join_fragments(*[[FC.Star(x, y, 100, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
+    assert len(centroids.join_fragments(*[[centroids.Star(x, y, 100, 2.0, sm, 1.5, 0.0, 9, 0, 50, i)
                                     for i, (x, y, sm) in enumerate(fields[0][0])]],
                                  [(1.0, 1.0, 0.0)] * 2, lambda x, y: (1.0, 1.0))) == 1
 
@@ -388,7 +389,7 @@ def test_unseen_track_of_a_piece():
     whole = record_from_weights(w, 500, 400)
     half = record_from_weights(np.where(along > -0.1 * length, w, 0), 700, 600)
     dot = record_from_weights(gaussian_weights(1.2, 1.2, 0.0, size=11), 800, 100)
-    stars, _ = FC.extract([whole, half, dot], expected_smear_px=(dx, dy))
+    stars, _ = centroids.extract([whole, half, dot], expected_smear_px=(dx, dy))
     by_index = {s.index: s for s in stars}
     assert by_index[0].unseen == pytest.approx(0.0, abs=0.3)
     assert by_index[1].unseen == pytest.approx(length / 5, abs=0.6)
@@ -397,52 +398,52 @@ def test_unseen_track_of_a_piece():
     assert abs((by_index[1].x - 700 - c) * dx + (by_index[1].y - 600 - c) * dy) / length \
         <= by_index[1].unseen + 0.5
     # without a smear nothing is unseen
-    assert all(s.unseen == 0.0 for s in FC.extract([half, dot])[0])
+    assert all(s.unseen == 0.0 for s in centroids.extract([half, dot])[0])
 
 
 def test_unseen_px_formula():
     # a line of length l on an isotropic PSF: sigma_major^2 - sigma_minor^2 = l^2 / 12
     smaj = math.sqrt(1 + 16 / 12)                        # l = 4 px on a 1 px PSF
-    assert FC.unseen_px(smaj, 1.0, 0.0, (10.0, 0.0)) == pytest.approx(3.0)
-    assert FC.unseen_px(smaj, 1.0, math.pi, (-10.0, 0.0)) == pytest.approx(3.0)
+    assert centroids.unseen_px(smaj, 1.0, 0.0, (10.0, 0.0)) == pytest.approx(3.0)
+    assert centroids.unseen_px(smaj, 1.0, math.pi, (-10.0, 0.0)) == pytest.approx(3.0)
     # measured along the smear only: a piece across it shows none of the track
-    assert FC.unseen_px(smaj, 1.0, math.pi / 2, (10.0, 0.0)) == pytest.approx(5.0)
-    assert FC.unseen_px(smaj, 1.0, 0.0, (3.0, 0.0)) == 0.0           # longer than the smear
-    assert FC.unseen_px(smaj, 1.0, 0.0, None) == 0.0
-    assert FC.unseen_px(smaj, 1.0, 0.0, (float("nan"), 0.0)) == 0.0
+    assert centroids.unseen_px(smaj, 1.0, math.pi / 2, (10.0, 0.0)) == pytest.approx(5.0)
+    assert centroids.unseen_px(smaj, 1.0, 0.0, (3.0, 0.0)) == 0.0           # longer than the smear
+    assert centroids.unseen_px(smaj, 1.0, 0.0, None) == 0.0
+    assert centroids.unseen_px(smaj, 1.0, 0.0, (float("nan"), 0.0)) == 0.0
 
 
 def test_smear_consistent_tolerances():
     smaj, smin = math.sqrt(1 + 100 / 12), 1.0        # a 10 px smear on a 1 px PSF
-    assert FC.smear_consistent(smaj, smin, 0.0, (10.0, 0.0))
-    assert FC.smear_consistent(smaj, smin, 0.3, (10.0, 0.0))
-    assert not FC.smear_consistent(smaj, smin, 0.4, (10.0, 0.0))
-    assert FC.smear_consistent(smaj, smin, 0.4, (10.0, 0.0), angle_tol=0.45)
-    assert FC.smear_consistent(smaj, smin, math.pi / 2 - 0.1, (0.0, -10.0))
-    assert FC.smear_consistent(smaj, smin, -math.pi / 2 + 0.1, (0.0, 10.0))
-    assert FC.smear_consistent(smaj, smin, 0.0, (19.0, 0.0))
-    assert not FC.smear_consistent(smaj, smin, 0.0, (21.0, 0.0))
-    assert FC.smear_consistent(smaj, smin, 0.0, (5.1, 0.0))
-    assert not FC.smear_consistent(smaj, smin, 0.0, (4.9, 0.0))
-    assert not FC.smear_consistent(smaj, smin, 0.0, None)
+    assert centroids.smear_consistent(smaj, smin, 0.0, (10.0, 0.0))
+    assert centroids.smear_consistent(smaj, smin, 0.3, (10.0, 0.0))
+    assert not centroids.smear_consistent(smaj, smin, 0.4, (10.0, 0.0))
+    assert centroids.smear_consistent(smaj, smin, 0.4, (10.0, 0.0), angle_tol=0.45)
+    assert centroids.smear_consistent(smaj, smin, math.pi / 2 - 0.1, (0.0, -10.0))
+    assert centroids.smear_consistent(smaj, smin, -math.pi / 2 + 0.1, (0.0, 10.0))
+    assert centroids.smear_consistent(smaj, smin, 0.0, (19.0, 0.0))
+    assert not centroids.smear_consistent(smaj, smin, 0.0, (21.0, 0.0))
+    assert centroids.smear_consistent(smaj, smin, 0.0, (5.1, 0.0))
+    assert not centroids.smear_consistent(smaj, smin, 0.0, (4.9, 0.0))
+    assert not centroids.smear_consistent(smaj, smin, 0.0, None)
 
 
 def test_brightest_kept_in_order():
     records = star_records(4)
-    stars, rejected = FC.extract(records, max_stars=None)
+    stars, rejected = centroids.extract(records, max_stars=None)
     assert len(stars) > 10
     fluxes = [s.flux for s in stars]
     assert fluxes == sorted(fluxes, reverse=True)
-    top, rejected_top = FC.extract(records, max_stars=5)
+    top, rejected_top = centroids.extract(records, max_stars=5)
     assert [s.as_tuple() for s in top] == [s.as_tuple() for s in stars[:5]]
     assert rejected_top["excess"] == len(stars) - 5
     assert len(top) + total(rejected_top) == len(records)
-    assert FC.extract(records, max_stars=0)[0] == []
+    assert centroids.extract(records, max_stars=0)[0] == []
     # ties keep record order
     twins = [STAR, _with(STAR, xmin=0, xmax=999, sx=STAR.sx + 7 * STAR.s0,
                          sxx=STAR.sxx + 14 * STAR.sx + 49 * STAR.s0,
                          sxy=STAR.sxy + 7 * STAR.sy), STAR]
-    stars, _ = FC.extract(twins)
+    stars, _ = centroids.extract(twins)
     assert [s.index for s in stars] == [0, 1, 2]
 
 
@@ -452,7 +453,7 @@ def test_brightest_kept_in_order():
     for name in C.RECORD_NAMES}), max_size=6), st.integers(0, 8))
 def test_never_raises_and_counts_add_up(fields, max_stars):
     records = [C.BlobRecord(**f) for f in fields]
-    stars, rejected = FC.extract(records, max_stars=max_stars,
+    stars, rejected = centroids.extract(records, max_stars=max_stars,
                                  expected_smear_px=(3.0, 4.0))
     assert len(stars) + total(rejected) == len(records)
     assert len(stars) <= max_stars
@@ -463,8 +464,8 @@ def test_never_raises_and_counts_add_up(fields, max_stars):
 def test_overflowing_float_moments_are_inconsistent():
     huge = _with(STAR, s0=1e-300, sx=1e-298, sy=5e-299, sxx=1e308, syy=1e308, sxy=0.0,
                  xmin=0, xmax=1000, ymin=0, ymax=1000)
-    assert FC.moments(huge) is None
-    assert FC.extract([huge])[1]["inconsistent"] == 1
+    assert centroids.moments(huge) is None
+    assert centroids.extract([huge])[1]["inconsistent"] == 1
 
 
 # --------------------------------------------------------------------------------------
@@ -530,7 +531,7 @@ def _nearest(points, x, y):
 def test_simulated_frame(sigma, velocity):
     records, stars_true, rays, hot = simulate(sigma, velocity, seed=int(sigma * 10))
     smear = (velocity[0] * 0.1, velocity[1] * 0.1)
-    stars, rejected = FC.extract(records, max_stars=None, expected_smear_px=smear)
+    stars, rejected = centroids.extract(records, max_stars=None, expected_smear_px=smear)
     assert len(stars) + total(rejected) == len(records)
     # every kept blob is a star, measured to a fraction of a pixel (noise decides where a
     # long faint track crosses the threshold) ...
@@ -544,7 +545,7 @@ def test_simulated_frame(sigma, velocity):
     assert rejected["hot_pixel"] >= len(hot)
     # without the rate, long smears read as cosmic rays
     if math.hypot(*smear) > 20:
-        blind, rejected_blind = FC.extract(records, max_stars=None)
+        blind, rejected_blind = centroids.extract(records, max_stars=None)
         assert len(blind) < len(stars) and rejected_blind["cosmic_ray"] > rejected["cosmic_ray"]
 
 
@@ -570,7 +571,7 @@ def test_golden_small_frames(name):
 
     def smear(x, y):
         return cam.smear_px(x, y, omega, truth["exposure_s"])
-    stars, rejected = FC.extract(records, max_stars=None, expected_smear_px=smear)
+    stars, rejected = centroids.extract(records, max_stars=None, expected_smear_px=smear)
     sources = np.array([[s["x"], s["y"]] for s in truth["sources"]])
     rays = np.array([[(r["start"][0] + r["end"][0]) / 2, (r["start"][1] + r["end"][1]) / 2]
                      for r in truth["cosmic_rays"]]).reshape(-1, 2)
@@ -579,7 +580,7 @@ def test_golden_small_frames(name):
         assert _nearest(sources, s.x, s.y) < 3.0
     n_ray_blobs = 0
     for index, rec in enumerate(records):
-        x, y = FC.moments(rec)[:2]
+        x, y = centroids.moments(rec)[:2]
         if len(rays) and _nearest(rays, x, y) < 3.0 and _nearest(sources, x, y) > 3.0:
             n_ray_blobs += 1
             assert index not in kept

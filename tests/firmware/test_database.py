@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from lodestar.contract import stardb
-from lodestar.firmware import database as L
+from lodestar.firmware import database
 from lodestar.firmware import status as S
 from lodestar.firmware.database import STAR_BLOCK, Database, DatabaseError, check, load
 from lodestar.ground.database import build_database
 from lodestar.sim.presets import load_preset
 from tests.firmware.db_images import reseal, status_of
 
-FIRMWARE = pathlib.Path(L.__file__).parent
+FIRMWARE = pathlib.Path(database.__file__).parent
 
 
 @functools.lru_cache(maxsize=None)
@@ -42,7 +42,7 @@ def estcube2_image():
 def all_records(db):
     return ([db.star(i) for i in range(db.n_stars)],
             [db.pair_record(i) for i in range(db.n_pairs)],
-            [db.cell_range(c) for c in range(L.n_cells(db.cells_per_face))])
+            [db.cell_range(c) for c in range(database.n_cells(db.cells_per_face))])
 
 
 @pytest.mark.parametrize("wrap", [bytes, bytearray, memoryview])

@@ -14,12 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar.contract import packet as contract_packet
-from lodestar.firmware import packet as fw
+from lodestar.firmware import packet
 from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
-from lodestar.ground import codec as ground
+from lodestar.ground import codec
 from tests.ground.packet_samples import base_result, field_span, results, spot_results
 
 HYPOTHESIS = settings(max_examples=150, deadline=None)
@@ -69,12 +68,12 @@ def expected_status(message):
 
 def agree(data):
     """Decode ``data`` with both codecs, assert they agree, return the firmware status."""
-    out = fw.decode(data)
+    out = packet.decode(data)
     assert isinstance(out, tuple) and len(out) == 4
     code, header, records, reason = out
     try:
-        result = ground.decode(data)
-    except ground.PacketError as err:
+        result = codec.decode(data)
+    except codec.PacketError as err:
         assert (code, header, records, reason) == (expected_status(str(err)), None, [],
                                                    str(err))
         assert code != S.OK
@@ -91,9 +90,9 @@ def agree(data):
 def crc_path(request, monkeypatch):
     """Run a test with ``binascii.crc32`` and again with the table-driven fallback."""
     if request.param == "table":
-        monkeypatch.setattr(contract_packet, "crc32_native", None)
+        monkeypatch.setattr(C, "crc32_native", None)
     else:
-        assert contract_packet.crc32_native is not None
+        assert C.crc32_native is not None
     return request.param
 
 
@@ -119,7 +118,7 @@ def golden_results():
 
 
 GOLDEN = golden_results()
-GOLDEN_PACKETS = [ground.encode(r) for r in GOLDEN]
+GOLDEN_PACKETS = [codec.encode(r) for r in GOLDEN]
 
 
 def test_golden_sample_covers_the_packet():
@@ -135,7 +134,7 @@ def test_golden_sample_covers_the_packet():
 
 def test_decode_golden_packets(crc_path):
     for result, data in zip(GOLDEN, GOLDEN_PACKETS):
-        code, header, records, reason = fw.decode(data)
+        code, header, records, reason = packet.decode(data)
         assert (code, reason) == (S.OK, "")
         assert records == result.blobs
         assert header == dict(result.header(), magic=C.PACKET_MAGIC, version=C.PACKET_VERSION)
@@ -149,25 +148,25 @@ def test_gateware_frame_flags_decode(flag):
     after a stall) pass both decoders and come back as sent."""
     base = base_result()
     flags = base.flags | flag
-    data = ground.encode(base.replace(flags=flags))
-    code, header, _records, reason = fw.decode(data)
+    data = codec.encode(base.replace(flags=flags))
+    code, header, _records, reason = packet.decode(data)
     assert (code, reason) == (S.OK, "") and header["flags"] == flags
-    assert ground.decode(data).flags == flags and agree(data) == S.OK
+    assert codec.decode(data).flags == flags and agree(data) == S.OK
 
 
 def test_decode_accepts_bytearray_and_memoryview():
     data = GOLDEN_PACKETS[0]
-    expected = fw.decode(data)
-    assert fw.decode(bytearray(data)) == expected
-    assert fw.decode(memoryview(data)) == expected
-    assert fw.decode(memoryview(b"xx" + data)[2:]) == expected
+    expected = packet.decode(data)
+    assert packet.decode(bytearray(data)) == expected
+    assert packet.decode(memoryview(data)) == expected
+    assert packet.decode(memoryview(b"xx" + data)[2:]) == expected
 
 
 @HYPOTHESIS
 @given(results(max_records=5))
 def test_decode_random_valid_results(result):
-    data = ground.encode(result)
-    code, header, recs, _ = fw.decode(data)
+    data = codec.encode(result)
+    code, header, recs, _ = packet.decode(data)
     assert code == S.OK
     assert recs == result.blobs
     assert header["frame_counter"] == result.frame_counter
@@ -179,7 +178,7 @@ def test_decode_random_valid_results(result):
 # --------------------------------------------------------------------------------------
 
 def test_every_single_bit_flip_is_rejected(crc_path):
-    packets = [ground.encode(base_result()), ground.encode(GOLDEN[1])]
+    packets = [codec.encode(base_result()), codec.encode(GOLDEN[1])]
     for data in packets:
         for bit in range(8 * len(data)):
             corrupt = bytearray(data)
@@ -189,9 +188,9 @@ def test_every_single_bit_flip_is_rejected(crc_path):
 
 
 def test_every_truncation_is_rejected(crc_path):
-    for data in (ground.encode(base_result()), max(GOLDEN_PACKETS, key=len)):
+    for data in (codec.encode(base_result()), max(GOLDEN_PACKETS, key=len)):
         for length in range(len(data)):
-            code, header, recs, reason = fw.decode(data[:length])
+            code, header, recs, reason = packet.decode(data[:length])
             assert (code, header, recs) == (S.PACKET_TRUNCATED, None, [])
             assert reason.startswith("truncated: {} bytes".format(length))
         for length in range(0, len(data), 7):
@@ -200,20 +199,20 @@ def test_every_truncation_is_rejected(crc_path):
 
 @pytest.mark.parametrize("extra", [b"\x00", b"\xff", b"\x00" * C.RECORD_BYTES])
 def test_trailing_bytes_are_rejected(extra):
-    data = ground.encode(base_result()) + extra
+    data = codec.encode(base_result()) + extra
     assert agree(data) == S.PACKET_BAD_LENGTH
 
 
 @pytest.mark.parametrize("data", ["LS", 0x4C53, None, [1, 2, 3], 1.5, object()])
 def test_non_bytes_is_bad_input(data):
-    code, header, recs, reason = fw.decode(data)
+    code, header, recs, reason = packet.decode(data)
     assert (code, header, recs) == (S.BAD_INPUT, None, [])
     assert reason == "packet must be bytes-like (bytes, bytearray or memoryview), got {}".format(
         type(data).__name__)
 
 
 def test_framing_statuses():
-    data = ground.encode(base_result())
+    data = codec.encode(base_result())
     assert agree(patch(data, [("magic", C.PACKET_MAGIC ^ 1, None)])) == S.PACKET_BAD_MAGIC
     assert agree(patch(data, [("version", C.PACKET_VERSION + 1, None)])) == S.PACKET_BAD_VERSION
     assert agree(patch(data, [("n_records", 4, None)])) == S.PACKET_TRUNCATED
@@ -239,7 +238,7 @@ def _sweep_values(name, record, original):
 def test_field_sweep_agrees_with_ground(crc_path):
     """Every header and record field of the base packet set to every edge value (with a
     correct CRC): the firmware gives the ground codec's verdict, message and result."""
-    data = ground.encode(base_result())
+    data = codec.encode(base_result())
     result = base_result()
     originals = dict(result.header(), magic=C.PACKET_MAGIC, version=C.PACKET_VERSION)
     seen = set()
@@ -263,7 +262,7 @@ def test_random_field_values_agree_with_ground(data):
     for _ in range(data.draw(st.integers(1, 3))):
         name = data.draw(st.sampled_from(names))
         changes.append((name, data.draw(st.integers(0, field_top(name, record))), record))
-    agree(patch(ground.encode(base_result()), changes))
+    agree(patch(codec.encode(base_result()), changes))
 
 
 @HYPOTHESIS
@@ -271,17 +270,17 @@ def test_random_field_values_agree_with_ground(data):
 def test_random_bytes_agree_with_ground(blob):
     agree(blob)
     # and the same bytes behind a valid header prefix get past the magic/version checks
-    agree(ground.encode(base_result())[:4] + blob)
+    agree(codec.encode(base_result())[:4] + blob)
 
 
 @HYPOTHESIS
 @given(st.lists(st.tuples(st.integers(0, C.packet_bytes(3) - 1), st.integers(1, 255)),
                 min_size=1, max_size=6))
 def test_random_byte_corruption_never_passes(edits):
-    data = bytearray(ground.encode(base_result()))
+    data = bytearray(codec.encode(base_result()))
     for position, xor in edits:
         data[position] ^= xor
-    if bytes(data) != ground.encode(base_result()):
+    if bytes(data) != codec.encode(base_result()):
         assert agree(bytes(data)) != S.OK
 
 
@@ -289,14 +288,14 @@ def test_random_byte_corruption_never_passes(edits):
 
 
 def test_checked_records_check_each_record_as_check_does():
-    data = ground.encode(base_result())
-    code, header, _ = fw.check(data, records=False)
+    data = codec.encode(base_result())
+    code, header, _ = packet.check(data, records=False)
     assert code == S.OK
-    assert [r.as_tuple() for r in fw.checked_records(data, header)] == \
-        [r.as_tuple() for r in fw.decode(data)[2]]
+    assert [r.as_tuple() for r in packet.checked_records(data, header)] == \
+        [r.as_tuple() for r in packet.decode(data)[2]]
     bad = patch(data, [("xmin", 63, 0)])
-    code, header, _ = fw.check(bad, records=False)
+    code, header, _ = packet.check(bad, records=False)
     assert code == S.OK                 # the framing and the header are fine
-    with pytest.raises(fw.BadRecord) as err:
-        list(fw.checked_records(bad, header))
-    assert err.value.args == (S.PACKET_BAD_RECORD, fw.check(bad)[2])
+    with pytest.raises(packet.BadRecord) as err:
+        list(packet.checked_records(bad, header))
+    assert err.value.args == (S.PACKET_BAD_RECORD, packet.check(bad)[2])

@@ -29,14 +29,13 @@ from lodestar.firmware.centroids import Star
 from lodestar.firmware.database import Database
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
-from lodestar.ground import codec as ground_packet
-from lodestar.ground import flight
+from lodestar.ground import codec, onboard
 from lodestar.ground.database import build_database
 from lodestar.sim import attitude, scene
 from lodestar.sim.centroids import attitude_error_deg
-from tests import sim_frames as SF
+from tests import sim_frames
 
-MAX_ERR_DEG = SF.MAX_ERR_DEG
+MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 
 
 def camera_frame_error_arcsec(q_est, q_true):
@@ -51,7 +50,7 @@ def packet_of(records, width=2592, height=1944, pixel_bits=12):
                              background=189, n_blobs=len(records), n_filtered=0,
                              dropped_records=0, dropped_labels=0, flags=0, width=width,
                              height=height, pixel_bits=pixel_bits)
-    return ground_packet.encode(result)
+    return codec.encode(result)
 
 
 def with_crc(body):
@@ -63,8 +62,8 @@ def with_crc(body):
 # --------------------------------------------------------------------------------------
 
 def test_end_to_end_on_simulated_frames():
-    tracker = SF.tracker()
-    frames = SF.frames()
+    tracker = sim_frames.tracker()
+    frames = sim_frames.frames()
     outcome = {"correct": 0, "wrong": 0, "no-solve": 0}
     rest = []               # (cross x, cross y, roll) errors and sigmas at rest
     for frame in frames:
@@ -110,8 +109,8 @@ def test_end_to_end_on_simulated_frames():
 def test_rate_compensation_refers_the_attitude_to_the_frame_epoch():
     """At 1 deg/s the stars move ~0.1 deg between the start of row 0's exposure (the truth's
     instant) and their mean exposure time; with the gyro rate the pipeline removes that."""
-    tracker = SF.tracker()
-    moving = [f for f in SF.frames() if f.moving]
+    tracker = sim_frames.tracker()
+    moving = [f for f in sim_frames.frames() if f.moving]
     with_rate, without = [], []
     for frame in moving:
         a = tracker.process(frame.packet, omega=frame.omega)
@@ -123,7 +122,7 @@ def test_rate_compensation_refers_the_attitude_to_the_frame_epoch():
     assert np.median(with_rate) < 0.02 < np.median(without)
     # epoch_s moves the instant: half the exposure later, the attitude of that instant
     frame = moving[0]
-    late = SF.tracker(epoch_s=0.05).process(frame.packet, omega=frame.omega)
+    late = sim_frames.tracker(epoch_s=0.05).process(frame.packet, omega=frame.omega)
     truth = (Rotation.from_rotvec(-np.asarray(frame.omega) * 0.05) *
              Rotation.from_quat(frame.q)).as_quat()
     assert attitude_error_deg(late.q, truth) < 0.02
@@ -141,15 +140,15 @@ def test_aberration_correction_refers_the_attitude_to_icrs():
     shifted by 20.6"): with the velocity the attitude is the ICRS truth within its noise,
     without it off by the aberration; per frame or in the settings alike."""
     rng = np.random.default_rng(15)
-    plain = SF.tracker()
+    plain = sim_frames.tracker()
     for seed in range(2):
-        q = SF.attitude.random_attitude(rng)
+        q = sim_frames.attitude.random_attitude(rng)
         axis = Rotation.from_quat(q).inv().apply([0.0, 0.0, 1.0])
         across = np.cross(axis, rng.normal(size=3))
         v = 30.0 * across / np.linalg.norm(across)
-        frame = SF.simulate_frame(q, (0.0, 0.0, 0.0), 700 + seed, velocity_km_s=v)
+        frame = sim_frames.simulate_frame(q, (0.0, 0.0, 0.0), 700 + seed, velocity_km_s=v)
         corrected = plain.process(frame.packet, velocity_km_s=list(v))
-        configured = SF.tracker(velocity_km_s=tuple(v)).process(frame.packet)
+        configured = sim_frames.tracker(velocity_km_s=tuple(v)).process(frame.packet)
         ignored = plain.process(frame.packet)
         assert corrected.ok and configured.ok and ignored.ok
         assert configured.q == corrected.q
@@ -167,13 +166,13 @@ def test_mirrored_frames_are_reported_not_solved(method):
     """A frame read out mirrored (columns or rows reversed) gets ``MIRRORED`` and the fix,
     never an attitude, with every method, in lost-in-space and from a prior (tracking
     fails, the fallback reports the parity)."""
-    db = SF.flight_database() if method == "pyramid" else Database(
-        build_database(camera=SF.sim_camera(), mag_limit=6.0, methods=(method,)))
-    cam = SF.sim_camera()
-    tracker = pipeline.StarTracker(db, SF.firmware_camera(), Settings(
+    db = sim_frames.flight_database() if method == "pyramid" else Database(
+        build_database(camera=sim_frames.sim_camera(), mag_limit=6.0, methods=(method,)))
+    cam = sim_frames.sim_camera()
+    tracker = pipeline.StarTracker(db, sim_frames.firmware_camera(), Settings(
         method=method, exposure_s=cam.exposure_s, row_time_s=cam.row_time_s))
-    for frame, flip in zip(SF.frames()[:4], ("x", "y", "x", "y")):
-        mirrored = SF.mirrored_packet(frame, flip)
+    for frame, flip in zip(sim_frames.frames()[:4], ("x", "y", "x", "y")):
+        mirrored = sim_frames.mirrored_packet(frame, flip)
         for prior in (None, list(frame.q)):
             res = tracker.process(mirrored, prior=prior)
             assert res.status == S.MIRRORED and res.q is None and res.matches == [], res
@@ -183,8 +182,8 @@ def test_mirrored_frames_are_reported_not_solved(method):
 
 def test_result_fields_and_timings():
     ticks = iter(range(0, 10000, 7))
-    tracker = SF.tracker(clock=lambda: next(ticks))
-    frame = SF.frames()[0]
+    tracker = sim_frames.tracker(clock=lambda: next(ticks))
+    frame = sim_frames.frames()[0]
     res = tracker.process(frame.packet)
     assert res.ok and res.status_name == "OK" and res.reason == ""
     assert res.n_records == len(frame.records) and res.n_stars <= settings.DEFAULT_MAX_STARS
@@ -196,10 +195,10 @@ def test_result_fields_and_timings():
     assert d["status_name"] == "OK" and d["q"] == res.q and "OK" in repr(res)
     assert res.centroid_sigma_px > 0 and res.sigma_roll_arcsec > res.sigma_cross_arcsec
     # without a clock: no timings, same answer
-    again = SF.tracker().process(frame.packet)
+    again = sim_frames.tracker().process(frame.packet)
     assert again.timings == {} and again.q == res.q and again.matches == res.matches
     # a fixed centroid noise gives the covariance of that noise
-    fixed = SF.tracker(centroid_sigma_px=1.0).process(frame.packet)
+    fixed = sim_frames.tracker(centroid_sigma_px=1.0).process(frame.packet)
     assert fixed.centroid_sigma_px == pytest.approx(1.0)
     assert fixed.q == res.q
 
@@ -230,17 +229,17 @@ def test_a_budgeted_frame_carries_fewer_records_and_tracks():
     """The flight loop writes ``result.min_sum`` into the gateware's register: the same sky
     detected with it carries about ``track_stars`` blobs, tracks at a loss of accuracy of
     at most a third, and asks for about the same budget again."""
-    tracker = SF.tracker()
-    cam = SF.sim_camera()
+    tracker = sim_frames.tracker()
+    cam = sim_frames.sim_camera()
     records = [0, 0]                # every blob, budgeted
     for index in range(4):
-        frame = SF.frames()[index]
+        frame = sim_frames.frames()[index]
         res = tracker.process(frame.packet)
         assert res.ok and res.min_sum > 0
-        sim = scene.simulate(cam, frame.q, (0.0, 0.0, 0.0), seed=SF.SEED + index)
+        sim = scene.simulate(cam, frame.q, (0.0, 0.0, 0.0), seed=sim_frames.SEED + index)
         det = detect_frame(sim.frame, scene.detector_config(cam, min_sum=res.min_sum))
         assert all(b.s0 >= res.min_sum for b in det.blobs)
-        budgeted = tracker.process(ground_packet.encode(det), prior=res.q)
+        budgeted = tracker.process(codec.encode(det), prior=res.q)
         assert budgeted.ok and budgeted.mode == "tracking"
         k = settings.DEFAULT_TRACK_STARS
         assert k <= budgeted.n_records <= min(k + pipeline.TRACK_EXTRA_STARS + 2,
@@ -253,12 +252,12 @@ def test_a_budgeted_frame_carries_fewer_records_and_tracks():
         assert abs(budgeted.min_sum - res.min_sum) <= 0.1 * res.min_sum
     assert records[1] < 0.6 * records[0]
     # no budget: every blob, always; a failed frame asks for every blob
-    assert SF.tracker(track_stars=None).process(SF.frames()[0].packet).min_sum == 0
+    assert sim_frames.tracker(track_stars=None).process(sim_frames.frames()[0].packet).min_sum == 0
     assert tracker.process(packet_of([])).min_sum == 0
     # a budget above max_stars budgets max_stars
-    few = SF.tracker(track_stars=40, max_stars=8).process(SF.frames()[0].packet)
+    few = sim_frames.tracker(track_stars=40, max_stars=8).process(sim_frames.frames()[0].packet)
     assert few.ok and few.min_sum == pipeline.min_sum(
-        sorted_stars(SF.frames()[0].packet), 8)
+        sorted_stars(sim_frames.frames()[0].packet), 8)
 
 
 def test_the_record_budget_holds_over_a_two_second_turn():
@@ -268,8 +267,8 @@ def test_the_record_budget_holds_over_a_two_second_turn():
     records (a frame that sees fewer than 8 stars, some having left the field, halves the
     cut), right within 5 sigma, and keeps asking for a budget."""
     from lodestar.firmware.tracking import propagate
-    cam = SF.sim_camera()
-    tracker = SF.tracker()
+    cam = sim_frames.sim_camera()
+    tracker = sim_frames.tracker()
     rng = np.random.default_rng(41)
     q0 = attitude.random_attitude(rng)
     omega_deg = (0.6, -0.8, 0.0)
@@ -280,7 +279,7 @@ def test_the_record_budget_holds_over_a_two_second_turn():
         q = propagate(q0.tolist(), omega, k * period)
         sim = scene.simulate(cam, q, omega_deg, seed=500 + k)
         det = detect_frame(sim.frame, scene.detector_config(cam, min_sum=budget))
-        res = tracker.process(ground_packet.encode(det), prior=prior, omega=omega,
+        res = tracker.process(codec.encode(det), prior=prior, omega=omega,
                               dt=period if prior is not None else None)
         assert res.ok, (k, res.status_name, res.reason)
         assert res.mode == ("lost_in_space" if k == 0 else "tracking")
@@ -307,12 +306,12 @@ def sorted_stars(packet_bytes):
 
 
 def test_weights_are_relative_inverse_variances():
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     # photon-limited centroid variance goes as 1 / flux: weight = flux / median flux
     assert tracker.weights([100.0, 300.0, 200.0]) == [0.5, 1.5, 1.0]
     assert tracker.weights([100, 200, 0, float("nan")]) == [100 / 150, 200 / 150, 1.0, 1.0]
     assert tracker.weights([]) == [] and tracker.weights([-1.0]) == [1.0]
-    assert SF.tracker(flux_weighting=False).weights([100.0, 300.0]) == [1.0, 1.0]
+    assert sim_frames.tracker(flux_weighting=False).weights([100.0, 300.0]) == [1.0, 1.0]
 
 
 def _noisy_pairs(rng, sigmas):
@@ -330,7 +329,7 @@ def _noisy_pairs(rng, sigmas):
 
 
 def test_noise_model_chooses_the_floor_from_the_residuals():
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     rng = np.random.default_rng(5)
     flux = np.geomspace(20.0, 1.0, 30)
     photon = tracker.weights([float(f) for f in flux])
@@ -376,7 +375,7 @@ def test_partly_seen_tracks_are_weighted_by_their_unseen_length():
     """Stars offset uniformly along their tracks (``streaks``), the others with the noise
     the model assumes (a third of the match tolerance): the fit that knows it is better
     than the one that does not, and its reported sigma is the error's RMS."""
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     rng = np.random.default_rng(8)
     sigma = tracker.tolerance_rad / 3
     errs = {"plain": [], "tracks": []}
@@ -412,9 +411,9 @@ def test_partly_seen_tracks_are_weighted_by_their_unseen_length():
 
 
 def test_flux_weighting_is_optional():
-    frame = SF.frames()[1]
-    a = SF.tracker().process(frame.packet)
-    b = SF.tracker(flux_weighting=False).process(frame.packet)
+    frame = sim_frames.frames()[1]
+    a = sim_frames.tracker().process(frame.packet)
+    b = sim_frames.tracker(flux_weighting=False).process(frame.packet)
     assert a.ok and b.ok and a.matches == b.matches
     assert attitude_error_deg(a.q, frame.q) < MAX_ERR_DEG
     assert attitude_error_deg(b.q, frame.q) < MAX_ERR_DEG
@@ -447,8 +446,8 @@ def bad_packets(data):
 
 
 def test_bad_packets_give_packet_statuses():
-    tracker = SF.tracker()
-    data = SF.frames()[0].packet
+    tracker = sim_frames.tracker()
+    data = sim_frames.frames()[0].packet
     for expected, bad in bad_packets(data):
         res = tracker.process(bad)
         assert res.status == expected, (S.name(res.status), res.reason)
@@ -461,28 +460,28 @@ def test_frames_cut_short_give_no_attitude_and_lost_blobs_a_note():
     """A frame the gateware flags cut short (truncated, timed out, a line of the wrong
     length) is FRAME_INCOMPLETE, the flags named; one that lost blobs to a full record or
     label buffer is solved from the rest, with a note."""
-    tracker = SF.tracker()
-    det = ground_packet.decode(SF.frames()[0].packet)
+    tracker = sim_frames.tracker()
+    det = codec.decode(sim_frames.frames()[0].packet)
     for flags, names in ((C.FRAME_TRUNCATED, ["FRAME_TRUNCATED"]),
                          (C.FRAME_TIMEOUT, ["FRAME_TIMEOUT"]),
                          (C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR,
                           ["FRAME_TRUNCATED", "FRAME_LINE_ERROR"])):
-        res = tracker.process(ground_packet.encode(det.replace(flags=flags)))
+        res = tracker.process(codec.encode(det.replace(flags=flags)))
         assert res.status == S.FRAME_INCOMPLETE and res.q is None and res.min_sum == 0
         assert all(name in res.reason for name in names), res.reason
     lost = det.replace(flags=C.FRAME_RECORD_OVERFLOW, dropped_records=3,
                        n_blobs=det.n_blobs + 3)
-    res = tracker.process(ground_packet.encode(lost))
+    res = tracker.process(codec.encode(lost))
     assert res.ok and "FRAME_RECORD_OVERFLOW" in res.reason
     # a local-mode frame that dropped the previous frame's tail is whole
-    assert tracker.process(ground_packet.encode(det.replace(flags=C.FRAME_TAIL_DROPPED))).ok
+    assert tracker.process(codec.encode(det.replace(flags=C.FRAME_TAIL_DROPPED))).ok
 
 
 def test_the_noise_model_takes_a_tracking_fit_only_while_it_fits_the_vectors(monkeypatch):
     """A tracking solution's attitude is the unweighted fit of its stars, which the noise
     model uses as it is, unless the vectors changed since (an aberration correction)."""
-    frame = SF.frames()[0]
-    tracker = SF.tracker()
+    frame = sim_frames.frames()[0]
+    tracker = sim_frames.tracker()
     seen = []
     real = tracker.noise_shares
     monkeypatch.setattr(tracker, "noise_shares",
@@ -495,9 +494,9 @@ def test_the_noise_model_takes_a_tracking_fit_only_while_it_fits_the_vectors(mon
 
 
 def test_random_bytes_never_raise():
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     rng = np.random.default_rng(0)
-    data = SF.frames()[0].packet
+    data = sim_frames.frames()[0].packet
     for n in list(range(0, 40)) + [len(data)] * 20:
         blob = bytes(rng.integers(0, 256, n, dtype=np.uint8))
         assert tracker.process(blob).status != S.OK
@@ -509,8 +508,8 @@ def test_random_bytes_never_raise():
 
 
 def test_too_few_stars_and_foreign_frames():
-    tracker = SF.tracker()
-    frame = SF.frames()[0]
+    tracker = sim_frames.tracker()
+    frame = sim_frames.frames()[0]
     assert tracker.process(packet_of([])).status == S.TOO_FEW_STARS
     res = tracker.process(packet_of(frame.records[:2]))
     assert res.status == S.TOO_FEW_STARS and res.n_stars == 2
@@ -522,8 +521,8 @@ def test_too_few_stars_and_foreign_frames():
 
 
 def test_malformed_optional_inputs_are_ignored_with_a_note():
-    tracker = SF.tracker()
-    frame = SF.frames()[0]
+    tracker = sim_frames.tracker()
+    frame = sim_frames.frames()[0]
     for kwargs, note in (({"prior": "junk"}, "prior ignored"),
                          ({"prior": [0, 0, 0, 0]}, "prior ignored"),
                          ({"prior": [float("nan"), 0, 0, 1]}, "prior ignored"),
@@ -540,9 +539,9 @@ def test_malformed_optional_inputs_are_ignored_with_a_note():
 
 
 def test_configuration_problems_are_reported_by_process():
-    frame = SF.frames()[0]
-    cam = SF.firmware_camera()
-    image = SF.flight_image()
+    frame = sim_frames.frames()[0]
+    cam = sim_frames.firmware_camera()
+    image = sim_frames.flight_image()
     corrupt = bytearray(image)
     corrupt[len(image) // 2] ^= 0xFF
     other_fov = build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=5.0)
@@ -577,21 +576,21 @@ def test_configuration_problems_are_reported_by_process():
 
 def test_a_camera_dict_and_a_database_file_work(tmp_path):
     path = tmp_path / "stars.lsdb"
-    path.write_bytes(SF.flight_image())
-    cam = SF.sim_camera()
+    path.write_bytes(sim_frames.flight_image())
+    cam = sim_frames.sim_camera()
     camera = {"width": cam.width, "height": cam.height, "fx_px": cam.fx_px,
               "fy_px": cam.fy_px, "cx": cam.cx, "cy": cam.cy, "ignored": "extra key"}
     tracker = pipeline.StarTracker(str(path), camera)
     assert tracker.status == S.OK, tracker.reason
-    frame = SF.frames()[2]
+    frame = sim_frames.frames()[2]
     res = tracker.process(frame.packet)
     assert res.ok and attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
     tracker.database.close()
 
 
 def test_unexpected_exceptions_become_a_status(monkeypatch):
-    tracker = SF.tracker()
-    frame = SF.frames()[0]
+    tracker = sim_frames.tracker()
+    frame = sim_frames.frames()[0]
 
     def broken(*args, **kwargs):
         raise RuntimeError("flash ECC error")
@@ -648,7 +647,7 @@ print("DONE")
 def micropython_cases():
     """Recorded packets: two frames at rest (lost in space) and one at 1 deg/s tracked
     from a prior off by 0.2 deg, with the gyro rate."""
-    frames = SF.frames()
+    frames = sim_frames.frames()
     moving = [f for f in frames if f.moving][0]
     turn = Rotation.from_rotvec(np.radians([0.12, -0.1, 0.12]))
     prior = (turn * Rotation.from_quat(moving.q)).as_quat().tolist()
@@ -660,9 +659,9 @@ def test_pipeline_under_micropython(micropython, tmp_path):
     """The flight pipeline on MicroPython (the WebAssembly port, double precision) gives
     CPython's results; its heap is measured on the 32-bit float32 unix port
     (``tests/regress/test_unixport.py``)."""
-    cam = SF.sim_camera()
+    cam = sim_frames.sim_camera()
     cases = micropython_cases()
-    image = SF.flight_image()
+    image = sim_frames.flight_image()
     chunk = 48000
     data = "\n".join([
         "DB_CHUNKS = " + repr([base64.b64encode(image[i:i + chunk]).decode()
@@ -682,7 +681,7 @@ def test_pipeline_under_micropython(micropython, tmp_path):
     # the same packets on CPython, the database read from a file in the same way
     path = tmp_path / "flash.lsdb"
     path.write_bytes(image)
-    tracker = pipeline.StarTracker(str(path), SF.firmware_camera(),
+    tracker = pipeline.StarTracker(str(path), sim_frames.firmware_camera(),
                                    Settings(exposure_s=cam.exposure_s, row_time_s=cam.row_time_s))
     results = dict((int(m.group(1)), ast.literal_eval(m.group(2)))
                    for m in re.finditer(r"^RESULT (\d+) (.*)$", out, re.M))
@@ -704,12 +703,12 @@ def test_pipeline_under_micropython(micropython, tmp_path):
 
 def test_smear_beyond_the_limit_gets_no_attitude():
     """A rate that smears stars beyond max_smear_px: SMEAR_TOO_LONG, never an attitude."""
-    frame = [f for f in SF.frames() if f.moving][0]
-    tracker = SF.tracker()
+    frame = [f for f in sim_frames.frames() if f.moving][0]
+    tracker = sim_frames.tracker()
     assert tracker.process(frame.packet, omega=frame.omega).ok
     cam = tracker.camera
     length = math.hypot(*cam.smear_px(cam.cx, cam.cy, frame.omega, tracker.settings.exposure_s))
-    short = SF.tracker(max_smear_px=0.5 * length)
+    short = sim_frames.tracker(max_smear_px=0.5 * length)
     res = short.process(frame.packet, omega=frame.omega)
     assert res.status == S.SMEAR_TOO_LONG and res.q is None and res.matches == []
     assert "max_smear_px" in res.reason
@@ -717,7 +716,7 @@ def test_smear_beyond_the_limit_gets_no_attitude():
     fast = [10.0 * w for w in frame.omega]
     assert tracker.process(frame.packet, omega=fast).status == S.SMEAR_TOO_LONG
     for bad in (0, -1.0, float("nan"), "50"):
-        assert SF.tracker(max_smear_px=bad).status == S.BAD_INPUT
+        assert sim_frames.tracker(max_smear_px=bad).status == S.BAD_INPUT
 
 
 ROLL_DEG_S = 20.0
@@ -730,8 +729,8 @@ def roll_frames(rate_deg_s=ROLL_DEG_S, n=2, seed=77):
     """``n`` estcube2 frames spinning at ``rate_deg_s`` about the boresight, random
     attitudes and spin senses, detected with the flight's tuned threshold (3 sigma: the
     preset's sees two or three stars of such a frame)."""
-    cam = SF.sim_camera()
-    config = flight.detector_config(cam, flight.camera_settings("estcube2"))
+    cam = sim_frames.sim_camera()
+    config = onboard.detector_config(cam, onboard.camera_settings("estcube2"))
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
@@ -739,7 +738,7 @@ def roll_frames(rate_deg_s=ROLL_DEG_S, n=2, seed=77):
         omega_deg_s = (0.0, 0.0, rate_deg_s * rng.choice((-1.0, 1.0)))
         sim = scene.simulate(cam, q, omega_deg_s, seed=seed + i, mag_limit=7.0)
         result = detect_frame(sim.frame, config)
-        out.append(SF.Frame("roll{}".format(i), ground_packet.encode(result),
+        out.append(sim_frames.Frame("roll{}".format(i), codec.encode(result),
                             list(result.blobs), np.asarray(q, dtype=float),
                             [math.radians(w) for w in omega_deg_s], sim.truth["sources"]))
     return tuple(out)
@@ -750,7 +749,7 @@ def test_a_roll_uses_the_stars_whose_own_smear_is_short():
     solves on the stars whose own smear is within the limit (the others are
     ``rejected["smear"]``); only when fewer than MIN_SMEAR_STARS remain is it
     SMEAR_TOO_LONG."""
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     cam = tracker.camera
     exposure = tracker.settings.exposure_s
 
@@ -774,16 +773,16 @@ def test_a_roll_uses_the_stars_whose_own_smear_is_short():
         assert smear(frame, 0, 0) > limit > smear(frame, cam.cx, cam.cy) + limit / 2
         check(frame, tracker.process(frame.packet, omega=frame.omega), limit)
         # a limit 500 px from the boresight: the outer stars go, the inner ones solve
-        res = SF.tracker(max_smear_px=30.0).process(frame.packet, omega=frame.omega)
+        res = sim_frames.tracker(max_smear_px=30.0).process(frame.packet, omega=frame.omega)
         check(frame, res, 30.0)
         assert res.rejected["smear"] >= 1
         # the brightest max_stars of the stars short enough, the rest counted as excess
-        few = SF.tracker(max_smear_px=30.0, max_stars=4).process(frame.packet,
+        few = sim_frames.tracker(max_smear_px=30.0, max_stars=4).process(frame.packet,
                                                                  omega=frame.omega)
         assert few.n_stars == 4 and few.rejected["excess"] >= 1
         assert few.n_stars + sum(few.rejected.values()) == few.n_records
         # a limit only the stars nearest the boresight meet: too few, no attitude
-        tight = SF.tracker(max_smear_px=2.0).process(frame.packet, omega=frame.omega)
+        tight = sim_frames.tracker(max_smear_px=2.0).process(frame.packet, omega=frame.omega)
         assert tight.status == S.SMEAR_TOO_LONG and tight.q is None and tight.matches == []
         assert "max_smear_px" in tight.reason and tight.rejected["smear"] >= 1
 
@@ -791,8 +790,8 @@ def test_a_roll_uses_the_stars_whose_own_smear_is_short():
 def test_out_of_heap_is_its_own_status(monkeypatch):
     """A ``MemoryError`` anywhere (a stage, the tracking, the identification) is
     ``OUT_OF_MEMORY``, distinct from a bug's ``INTERNAL_ERROR``, and never an exception."""
-    tracker = SF.tracker()
-    frame = SF.frames()[0]
+    tracker = sim_frames.tracker()
+    frame = sim_frames.frames()[0]
 
     def no_heap(*args, **kwargs):
         raise MemoryError
@@ -811,8 +810,8 @@ def test_collections_per_frame_kind(monkeypatch):
     """On MicroPython a lost-in-space frame collects before the frame and at its three stage
     boundaries at the 8 KiB threshold; a tracking frame only at its 32 KiB threshold; a
     tracking frame that falls back collects before its search and its fit, back at 8 KiB."""
-    frame = SF.frames()[0]
-    tracker = SF.tracker()
+    frame = sim_frames.frames()[0]
+    tracker = sim_frames.tracker()
     calls = []
     monkeypatch.setattr(pipeline, "COLLECT", True)
     monkeypatch.setattr(pipeline, "gc", type("GC", (), {

@@ -4,7 +4,7 @@ from lodestar.firmware import status as S
 from lodestar.firmware import tracking
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import DEFAULT_MAX_STARS, DEFAULT_TOLERANCE_PX, Settings
-from tests import sim_frames as SF
+from tests import sim_frames
 
 
 def test_defaults():
@@ -18,8 +18,8 @@ def test_defaults():
 
 
 def test_no_settings_is_the_defaults():
-    frame = SF.frames()[0]
-    db, cam = SF.flight_database(), SF.firmware_camera()
+    frame = sim_frames.frames()[0]
+    db, cam = sim_frames.flight_database(), sim_frames.firmware_camera()
     plain = StarTracker(db, cam).process(frame.packet)
     default = StarTracker(db, cam, Settings()).process(frame.packet)
     assert plain.status == default.status == S.OK
@@ -80,7 +80,7 @@ BAD_SETTINGS = [
 
 def test_each_bad_setting_has_its_status_and_reason():
     """The status and reason of each bad setting, pinned (a StarTracker built with it)."""
-    image, cam = SF.flight_image(), SF.firmware_camera()
+    image, cam = sim_frames.flight_image(), sim_frames.firmware_camera()
     for options, reason in BAD_SETTINGS:
         tracker = StarTracker(image, cam, Settings(**options))
         assert (S.name(tracker.status), tracker.reason) == ("BAD_INPUT", reason), options
@@ -90,7 +90,7 @@ def test_each_bad_setting_has_its_status_and_reason():
 
 
 def test_edge_settings_are_accepted():
-    image, cam = SF.flight_image(), SF.firmware_camera()
+    image, cam = sim_frames.flight_image(), sim_frames.firmware_camera()
     for options, track_stars in (({"budget": True}, 8), ({"track_search_deg": 0}, 8),
                                  ({"track_stars": None, "centroid_sigma_px": None,
                                    "exposure_s": None}, None),
@@ -100,7 +100,7 @@ def test_edge_settings_are_accepted():
 
 
 def test_the_camera_and_the_settings_type_are_checked_before_the_settings():
-    image, cam = SF.flight_image(), SF.firmware_camera()
+    image, cam = sim_frames.flight_image(), sim_frames.firmware_camera()
     for camera, settings, reason in (
             ("estcube2", Settings(tolerance_px=-1), "camera must be a firmware Camera or a dict"),
             ({"width": 2592}, Settings(max_stars=2), "camera: camera parameter height is missing"),

@@ -20,10 +20,10 @@ from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
-from tests import sim_frames as SF
+from tests import sim_frames
 
 TOL = 3.4e-4            # rad: 2.5 px of estcube2
-MAX_ERR_DEG = SF.MAX_ERR_DEG
+MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 
 
 @functools.lru_cache(maxsize=None)
@@ -122,8 +122,8 @@ def test_confirming_from_candidates_matches_as_a_new_prediction():
     within the slack of the prediction's, the candidates give the matches a new prediction
     gives, with stars near the tolerance's edge (2 px noise against 2.5 px) and with
     tracks."""
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(31)
     slack = tracking.SLACK_TOL * TOL
     compared = changed = 0
@@ -197,7 +197,7 @@ class _CountingDatabase:
 def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
     """Frames turning 0.1 deg each reuse the kept cone (no star read) while the needed cone
     lies inside it, then query anew; every prediction equals the one without a cone."""
-    db = _CountingDatabase(SF.flight_database())
+    db = _CountingDatabase(sim_frames.flight_database())
     rng = np.random.default_rng(3)
     q0 = random_attitude(rng)
     cone = tracking.Cone()
@@ -220,7 +220,7 @@ def test_a_cone_serves_the_next_frames_until_the_boresight_leaves_it():
 
 
 def test_star_vectors_come_from_the_cone_or_the_database():
-    db = _CountingDatabase(SF.flight_database())
+    db = _CountingDatabase(sim_frames.flight_database())
     cone = tracking.candidates(db, [0.0, 0.0, 0.0, 1.0], 0.01)
     assert cone.stars == (cone.ids, cone.vecs) and cone.database is db
     ids = list(cone.ids)
@@ -237,7 +237,7 @@ def test_star_vectors_come_from_the_cone_or_the_database():
 
 
 def test_a_cone_is_not_shared_between_databases():
-    db = SF.flight_database()
+    db = sim_frames.flight_database()
     other = _CountingDatabase(db)
     cone = tracking.Cone()
     q = [0.0, 0.0, 0.0, 1.0]
@@ -247,8 +247,8 @@ def test_a_cone_is_not_shared_between_databases():
 
 
 def test_tracking_recovers_a_prior_off_by_0p2_deg():
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(7)
     outcomes = {"correct": 0, "wrong": 0, "no-solve": 0}
     errors = []
@@ -280,8 +280,8 @@ def test_tracking_names_stars_displaced_along_their_tracks(streaked):
     """All stars but the four brightest sit up to 12 tolerances along their tracks: the
     tracker that knows their streaks names nearly all of them right, the one that does not
     only the four (too few to rule out chance)."""
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(12)
     named = {"plain": [], "streaks": []}
     for _ in range(10):
@@ -308,8 +308,8 @@ def test_tracking_names_stars_displaced_along_their_tracks(streaked):
 
 @pytest.mark.parametrize("axis", [(0, 0, 1), (1, 0, 0), (0.6, 0.8, 0)])
 def test_tracking_absorbs_roll_and_cross_boresight_errors(axis):
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(11)
     for _ in range(5):
         q = random_attitude(rng)
@@ -320,8 +320,8 @@ def test_tracking_absorbs_roll_and_cross_boresight_errors(axis):
 
 
 def test_propagation_brings_an_old_prior_into_reach():
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(5)
     omega = np.radians([1.5, -1.0, 2.0])            # rad/s
     dt = 0.8                                           # s: 2.1 deg since the prior
@@ -338,8 +338,8 @@ def test_propagation_brings_an_old_prior_into_reach():
 
 
 def test_far_off_priors_are_rejected_never_wrong():
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(13)
     accepted = 0
     for angle in (1.0, 3.0, 10.0, 45.0, 180.0):
@@ -358,7 +358,7 @@ def test_far_off_priors_are_rejected_never_wrong():
 
 
 def test_bad_inputs():
-    db = SF.flight_database()
+    db = sim_frames.flight_database()
     good = [(0.0, 0.0, 1.0), (0.01, 0.0, 1.0), (0.0, 0.01, 1.0), (0.02, 0.02, 1.0)]
     q = [0, 0, 0, 1]
     for prior in (None, [0, 0, 0, 0], [1, 2, 3], [float("nan"), 0, 0, 1], "abcd"):
@@ -394,9 +394,9 @@ def test_a_failing_database_gives_a_status():
 # --------------------------------------------------------------------------------------
 
 def test_pipeline_tracks_simulated_frames_from_a_perturbed_prior():
-    tracker = SF.tracker()
+    tracker = sim_frames.tracker()
     rng = np.random.default_rng(17)
-    frames = SF.frames()
+    frames = sim_frames.frames()
     tracked = 0
     for frame in frames:
         omega = frame.omega if frame.moving else None
@@ -414,8 +414,8 @@ def test_pipeline_tracks_simulated_frames_from_a_perturbed_prior():
 
 
 def test_pipeline_propagates_the_prior_with_the_gyro_rate():
-    tracker = SF.tracker()
-    moving = [f for f in SF.frames() if f.moving][:4]
+    tracker = sim_frames.tracker()
+    moving = [f for f in sim_frames.frames() if f.moving][:4]
     for frame in moving:
         omega = np.asarray(frame.omega)
         dt = 0.5
@@ -427,13 +427,13 @@ def test_pipeline_propagates_the_prior_with_the_gyro_rate():
 
 
 def test_pipeline_falls_back_to_lost_in_space():
-    frame = SF.frames()[0]
+    frame = sim_frames.frames()[0]
     rng = np.random.default_rng(19)
     far = perturbed(frame.q, 20.0, rng).tolist()
-    res = SF.tracker().process(frame.packet, prior=far)
+    res = sim_frames.tracker().process(frame.packet, prior=far)
     assert res.status == S.OK and res.mode == "lost_in_space"
     assert attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
-    res = SF.tracker(fallback=False).process(frame.packet, prior=far)
+    res = sim_frames.tracker(fallback=False).process(frame.packet, prior=far)
     assert res.status == S.NO_MATCH and res.mode == "tracking" and res.q is None
 
 
@@ -457,8 +457,8 @@ def test_live_peak_of_a_hard_track_is_within_the_heap_budget(preset, hard_scene_
 
 @pytest.mark.parametrize("off_deg, coarse", [(0.002, False), (0.2, True)])
 def test_a_close_prior_is_matched_directly_a_far_one_coarsely(monkeypatch, off_deg, coarse):
-    db = SF.flight_database()
-    cam = SF.sim_camera()
+    db = sim_frames.flight_database()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(21)
     calls = []
     real = tracking.coarse_match

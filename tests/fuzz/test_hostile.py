@@ -15,13 +15,12 @@ from hypothesis import strategies as st
 
 from lodestar import contract as C
 from lodestar.cli import main
-from lodestar.firmware import database as fwdb
+from lodestar.firmware import database
 from lodestar.firmware import status as S
 from lodestar.ground import imagesolve
 from lodestar.ground.solve import solve_centroids
 from lodestar.ground.truth import attitude_error_arcsec
-from lodestar.regress import mcu
-from lodestar.regress import replay as regress
+from lodestar.regress import mcu, replay
 from tests.firmware.db_images import reseal as reseal_database
 
 FUZZ = settings(max_examples=int(os.environ.get("LODESTAR_FUZZ_EXAMPLES", "20")),
@@ -35,13 +34,13 @@ WRONG_ARCSEC = 120.0
 @pytest.fixture(scope="module")
 def flight():
     """``(tracker, packet, case)``: the regression set's demo frame and its tracker."""
-    manifest = regress.load_set(regress.DEFAULT_SET)
+    manifest = replay.load_set(replay.DEFAULT_SET)
     case = next(c for c in manifest["cases"] if c["name"] == "estcube2_rest_s0")
-    db_files = regress.database_files(manifest)
+    db_files = replay.database_files(manifest)
     camera = manifest["cameras"][case["camera"]]
     tracker = mcu.make_tracker(mcu.open_database(str(db_files[camera["database"]])), camera,
                                "pyramid")
-    packet = regress.packets(manifest, regress.DEFAULT_SET)[case["name"]]
+    packet = replay.packets(manifest, replay.DEFAULT_SET)[case["name"]]
     return tracker, packet, case
 
 
@@ -138,7 +137,7 @@ def test_corrupted_databases(database_image, edits, reseal, cut):
         data = data[:cut % (len(data) + 1)]
     elif reseal:
         data = reseal_database(data)
-    status, _reason = fwdb.check(bytes(data))
+    status, _reason = database.check(bytes(data))
     assert status in STATUSES
 
 

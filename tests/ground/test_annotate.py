@@ -9,7 +9,7 @@ from PIL import Image
 
 from lodestar.contract import BlobRecord
 from lodestar.ground import annotate
-from lodestar.ground.flight import firmware_camera
+from lodestar.ground.onboard import firmware_camera
 from lodestar.sim import attitude, scene
 from lodestar.sim.goldenset import window_camera
 from lodestar.sim.presets import load_preset

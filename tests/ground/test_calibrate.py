@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lodestar.ground import calibrate as cal
-from lodestar.ground import imagesolve
+from lodestar.ground import calibrate, imagesolve
 from lodestar.sim import attitude
 from tests.ground import lohmann_frames
 
@@ -22,19 +21,19 @@ CHI2_8_P001 = 26.12
 def _deviation(fit, truth):
     """``(per-parameter deviation / sigma, joint chi-square)`` of the free parameters."""
     names = fit.cov_names
-    delta = np.array([fit.params[cal.INTRINSICS.index(n)] - truth[cal.INTRINSICS.index(n)]
-                      for n in names])
+    index = calibrate.INTRINSICS.index
+    delta = np.array([fit.params[index(n)] - truth[index(n)] for n in names])
     z = {n: d / fit.sigma[n] for n, d in zip(names, delta)}
     return z, float(delta @ np.linalg.solve(fit.cov, delta))
 
 
 def test_project_is_the_firmware_model():
-    cam = cal.camera_from_params(752, 480, [1438.3, 1426.7, 371.2, 243.9, -0.3686, 0.3148,
+    cam = calibrate.camera_from_params(752, 480, [1438.3, 1426.7, 371.2, 243.9, -0.3686, 0.3148,
                                             0.05, -0.0023, 0.0003])
     rng = np.random.default_rng(3)
     xy = np.column_stack((rng.uniform(-0.5, 751.5, 200), rng.uniform(-0.5, 479.5, 200)))
     v = np.array([cam.pixel_to_vector(float(x), float(y)) for x, y in xy])
-    got = cal.project(cal.camera_params(cam), v * rng.uniform(0.5, 2.0, (200, 1)))
+    got = calibrate.project(calibrate.camera_params(cam), v * rng.uniform(0.5, 2.0, (200, 1)))
     want = np.array([cam.vector_to_pixel(tuple(u)) for u in v])
     assert np.max(np.abs(got - want)) < 1e-9
     assert np.max(np.abs(got - xy)) < 1e-6
@@ -44,7 +43,7 @@ def _synthetic_frames(camera, n_frames, n_stars, sigma_px, seed):
     """Pairs of random directions in view of ``camera`` at random attitudes, pixels from the
     model plus Gaussian noise."""
     rng = np.random.default_rng(seed)
-    params = cal.camera_params(camera)
+    params = calibrate.camera_params(camera)
     frames = []
     for k in range(n_frames):
         q = attitude.random_attitude(rng)
@@ -52,20 +51,20 @@ def _synthetic_frames(camera, n_frames, n_stars, sigma_px, seed):
                               rng.uniform(5, camera.height - 5, n_stars)))
         v_cam = np.array([camera.pixel_to_vector(float(x), float(y)) for x, y in xy])
         v = Rotation.from_quat(q).inv().apply(v_cam)
-        noisy = cal.project(params, v_cam) + rng.normal(0.0, sigma_px, xy.shape)
+        noisy = calibrate.project(params, v_cam) + rng.normal(0.0, sigma_px, xy.shape)
         # the solver's attitude is a little off: the fit must not depend on it
         q0 = (Rotation.from_rotvec(rng.normal(0, 1e-3, 3)) * Rotation.from_quat(q)).as_quat()
-        frames.append(cal.FramePairs(f"f{k}", noisy, v, np.arange(n_stars), q0, n_stars))
+        frames.append(calibrate.FramePairs(f"f{k}", noisy, v, np.arange(n_stars), q0, n_stars))
     return frames
 
 
 def test_fit_recovers_a_known_camera_and_rejects_outliers():
     truth_cam = lohmann_frames.truth_camera()
-    truth = cal.camera_params(truth_cam)
+    truth = calibrate.camera_params(truth_cam)
     frames = _synthetic_frames(truth_cam, 5, 30, 0.1, seed=7)
     for k, j in ((0, 3), (2, 11), (4, 20)):                # three wrong matches
         frames[k].xy[j] += (4.0, -3.0)
-    fit = cal.fit_camera(frames, lohmann_frames.start_camera())
+    fit = calibrate.fit_camera(frames, lohmann_frames.start_camera())
     z, chi2 = _deviation(fit, truth)
     assert max(abs(v) for v in z.values()) < 3.0, z
     assert chi2 < CHI2_8_P001
@@ -77,23 +76,24 @@ def test_fit_recovers_a_known_camera_and_rejects_outliers():
 
 
 def test_fit_one_focal_and_fixed_parameters():
-    truth_cam = cal.camera_from_params(752, 480, [1430.0, 1430.0, 375.5, 239.5, -0.3, 0.2, 0, 0, 0])
+    truth_cam = calibrate.camera_from_params(752, 480, [1430.0, 1430.0, 375.5, 239.5, -0.3, 0.2, 0,
+                                                        0, 0])
     frames = _synthetic_frames(truth_cam, 4, 25, 0.05, seed=8)
-    fit = cal.fit_camera(frames, lohmann_frames.start_camera(), free=("fx", "k1", "k2"),
+    fit = calibrate.fit_camera(frames, lohmann_frames.start_camera(), free=("fx", "k1", "k2"),
                          one_focal=True)
     assert fit.camera.fx == fit.camera.fy
     assert abs(fit.camera.fx - 1430.0) < 4 * fit.sigma["fx"]
     assert (fit.camera.cx, fit.camera.p1) == (375.5, 0.0)
     assert set(fit.sigma) == {"fx", "fy", "k1", "k2"}
-    start = cal.fit_camera(frames, lohmann_frames.start_camera(), free=(),
+    start = calibrate.fit_camera(frames, lohmann_frames.start_camera(), free=(),
                            reject_sigma=math.inf)
     assert start.scale_px > 20 * fit.scale_px
 
 
 def test_too_few_pairs_is_a_clear_error():
     frames = _synthetic_frames(lohmann_frames.truth_camera(), 1, 6, 0.1, seed=9)
-    with pytest.raises(cal.CalibrationError, match="too few matched stars: 6 pairs"):
-        cal.fit_camera(frames, lohmann_frames.start_camera())
+    with pytest.raises(calibrate.CalibrationError, match="too few matched stars: 6 pairs"):
+        calibrate.fit_camera(frames, lohmann_frames.start_camera())
 
 
 def test_match_records_refuses_ambiguous_and_shared_stars():
@@ -111,29 +111,29 @@ def test_match_records_refuses_ambiguous_and_shared_stars():
     records = np.array([(100.4, 99.8),            # star 0
                         (300.2, 200.0),           # star 1, but star 2 is 3 px away: ambiguous
                         (499.5, 300.0), (500.5, 300.0)])   # two records for star 3: neither
-    got = cal.match_records(records, cam, q, Stars(v), 2.0)
+    got = calibrate.match_records(records, cam, q, Stars(v), 2.0)
     assert got == [(0, 0)]
     # a star far outside the field (tan 1.4), where the polynomial folds back into the frame
-    cam = cal.camera_from_params(752, 480, [1438.0, 1427.0, 375.5, 239.5, -0.5, 0, 0, 0, 0])
+    cam = calibrate.camera_from_params(752, 480, [1438.0, 1427.0, 375.5, 239.5, -0.5, 0, 0, 0, 0])
     far = np.array([[1.4, 0.0, 1.0]]) / np.linalg.norm([1.4, 0.0, 1.0])
     assert cam.fold_radius() < 1.4 and cam.vector_to_pixel(far[0]) is None
-    folded = cal.project(cal.camera_params(cam), far)[0]
+    folded = calibrate.project(calibrate.camera_params(cam), far)[0]
     assert cam.in_frame(*folded)
-    assert cal.match_records(np.array([folded]), cam, q, Stars(far), 2.0) == []
+    assert calibrate.match_records(np.array([folded]), cam, q, Stars(far), 2.0) == []
 
 
 @pytest.fixture(scope="module")
 def lohmann_calibration(tmp_path_factory):
     paths = lohmann_frames.write_frames(tmp_path_factory.mktemp("lohmann"))
     images = [(p.name, imagesolve.read_image(p)) for p in paths]
-    return cal.calibrate(images, lohmann_frames.start_camera(), ksigma=lohmann_frames.KSIGMA)
+    return calibrate.calibrate(images, lohmann_frames.start_camera(), ksigma=lohmann_frames.KSIGMA)
 
 
 def test_calibration_recovers_the_lohmann_lens(lohmann_calibration):
     result = lohmann_calibration
     assert [f["status"] for f in result.frames] == ["OK"] * lohmann_frames.N_FRAMES
-    z, chi2 = _deviation(result.fit, cal.camera_params(lohmann_frames.truth_camera()))
-    assert set(z) == set(cal.DEFAULT_FREE)
+    z, chi2 = _deviation(result.fit, calibrate.camera_params(lohmann_frames.truth_camera()))
+    assert set(z) == set(calibrate.DEFAULT_FREE)
     assert max(abs(v) for v in z.values()) < 3.0, z
     assert chi2 < CHI2_8_P001, (chi2, z)
     # the distortion is measured, not just bounded: k1 to better than 5 % of itself

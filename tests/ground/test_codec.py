@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from lodestar import contract as C
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 from lodestar.ground.codec import PacketError, decode, encode
 from tests.ground.packet_samples import (
     base_result,
@@ -404,8 +404,8 @@ def test_encode_rejects_too_many_records():
 
 
 @pytest.mark.parametrize("layout, fields, size", [
-    (packet.HEADER_LAYOUT, C.HEADER_FIELDS, C.HEADER_BYTES),
-    (packet.RECORD_LAYOUT, C.RECORD_FIELDS, C.RECORD_BYTES),
+    (codec.HEADER_LAYOUT, C.HEADER_FIELDS, C.HEADER_BYTES),
+    (codec.RECORD_LAYOUT, C.RECORD_FIELDS, C.RECORD_BYTES),
 ])
 def test_layout_is_contiguous_whole_bytes(layout, fields, size):
     assert [(name, bits) for name, _, bits in layout] == list(fields)

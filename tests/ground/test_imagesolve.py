@@ -14,8 +14,7 @@ from PIL import Image
 
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
-from lodestar.ground import imagesolve
-from lodestar.ground import solve as ground_solve
+from lodestar.ground import imagesolve, solve
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
 
@@ -227,7 +226,7 @@ def test_date_obs_or_time_corrects_the_aberration(tmp_path, capsys):
     that velocity: the FITS file solves to the ICRS attitude (the time read from its
     header, or given by --time), the same frame as PNG without a time ~20" off."""
     when = "2026-09-23T18:00:00"
-    v = np.array(ground_solve.observer_velocity_km_s(when))
+    v = np.array(solve.observer_velocity_km_s(when))
     axis = np.cross(v, [0.2, 0.7, -0.4])
     axis /= np.linalg.norm(axis)
     q = attitude.from_radec_roll(math.degrees(math.atan2(axis[1], axis[0])),

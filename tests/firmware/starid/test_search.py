@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
 from lodestar.firmware import quaternion, starid
-from lodestar.firmware.starid import search as SE
+from lodestar.firmware.starid import search
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import attitude_error_deg
 
@@ -21,7 +21,7 @@ def test_fit_attitude_matches_scipy_convention():
         ref = rng.normal(size=(6, 3))
         ref /= np.linalg.norm(ref, axis=1, keepdims=True)
         obs = Rotation.from_quat(q).apply(ref) + rng.normal(0, 1e-5, (6, 3))
-        est = SE.fit_attitude(obs.tolist(), ref.tolist())
+        est = search.fit_attitude(obs.tolist(), ref.tolist())
         assert attitude_error_deg(est, q) < 0.01
         assert np.allclose(np.array(quaternion.matrix(q)).reshape(3, 3),
                            Rotation.from_quat(q).as_matrix(), atol=1e-12)
@@ -30,21 +30,21 @@ def test_fit_attitude_matches_scipy_convention():
         d = rng.normal(0, 0.1, (5, 3)) + [0, 0, 1]
         ref = d / np.linalg.norm(d, axis=1, keepdims=True)
         obs = Rotation.from_quat(q).apply(ref)
-        assert attitude_error_deg(SE.fit_attitude(obs.tolist(), ref.tolist()), q) < 1e-5
+        assert attitude_error_deg(search.fit_attitude(obs.tolist(), ref.tolist()), q) < 1e-5
 
 
 def test_streaks_are_checked():
-    assert SE.streaks_valid(None, 3)
-    assert SE.streaks_valid([None, (0.0, 1.0, 0.0, 1e-4), None], 3)
+    assert search.streaks_valid(None, 3)
+    assert search.streaks_valid([None, (0.0, 1.0, 0.0, 1e-4), None], 3)
     for bad in ([None, None], [None, (0.0, 1.0, 0.0), None], [None, (0, 1, 0, -1e-4), None],
                 [None, (0, 1, float("nan"), 1e-4), None], 5, [None, "abcd", None]):
-        assert not SE.streaks_valid(bad, 3), bad
+        assert not search.streaks_valid(bad, 3), bad
 
 
 def test_every_method_declares_the_search_interface():
     """``Search`` declares the hooks :func:`identify_with` calls; each method of the
     contract's table overrides them with one constructor order."""
-    base = SE.Search([(0.0, 0.0, 1.0)] * 3, None, 1e-4, 1e-9, 2e-3, None, 16)
+    base = search.Search([(0.0, 0.0, 1.0)] * 3, None, 1e-4, 1e-9, 2e-3, None, 16)
     assert base.n == 3 and base.refuses(base.b, None, 16) is None
     with pytest.raises(NotImplementedError):
         base.patterns()
@@ -52,7 +52,7 @@ def test_every_method_declares_the_search_interface():
         base.try_pattern((0, 1, 2))
     for name in stardb.METHODS:
         cls = starid.method(name)._Search
-        assert issubclass(cls, SE.Search) and cls.BIT == stardb.METHOD_NAMES[name]
-        assert cls.try_pattern is not SE.Search.try_pattern
-        assert cls.patterns is not SE.Search.patterns
-        assert inspect.signature(cls.__init__) == inspect.signature(SE.Search.__init__)
+        assert issubclass(cls, search.Search) and cls.BIT == stardb.METHOD_NAMES[name]
+        assert cls.try_pattern is not search.Search.try_pattern
+        assert cls.patterns is not search.Search.patterns
+        assert inspect.signature(cls.__init__) == inspect.signature(search.Search.__init__)

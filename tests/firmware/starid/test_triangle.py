@@ -15,12 +15,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
-from lodestar.firmware import database as L
+from lodestar.firmware import database, starid
 from lodestar.firmware import geometry as G
-from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.database import Database
-from lodestar.firmware.starid import triangle as T
+from lodestar.firmware.starid import triangle
 from lodestar.ground.database import build_database
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.catalogue import load
@@ -52,28 +51,29 @@ def unit(v):
 def test_area_and_moment_of_hand_checked_triangles():
     # 3-4-5 right triangle: area 6, moment 6 * (9 + 16 + 25) / 36 = 25/3
     for a, b, c in ((3.0, 4.0, 5.0), (5.0, 3.0, 4.0), (4.0, 5.0, 3.0)):
-        assert T.area(a, b, c) == 6.0
-        assert T.moment(a, b, c) == pytest.approx(25.0 / 3.0, rel=1e-15)
+        assert triangle.area(a, b, c) == 6.0
+        assert triangle.moment(a, b, c) == pytest.approx(25.0 / 3.0, rel=1e-15)
     # equilateral of side 2: area sqrt(3), moment sqrt(3) * 12 / 36
-    assert T.area(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0), rel=1e-15)
-    assert T.moment(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0) / 3.0, rel=1e-15)
+    assert triangle.area(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0), rel=1e-15)
+    assert triangle.moment(2.0, 2.0, 2.0) == pytest.approx(math.sqrt(3.0) / 3.0, rel=1e-15)
     # degenerate and impossible triangles have no area
-    assert T.area(1.0, 2.0, 3.0) == 0.0 and T.area(1.0, 1.0, 3.0) == 0.0
+    assert triangle.area(1.0, 2.0, 3.0) == 0.0 and triangle.area(1.0, 1.0, 3.0) == 0.0
     # Kahan's Heron keeps a needle triangle accurate: sides 1, 1, 1e-8
     c = 1e-8
-    assert T.area(1.0, 1.0, c) == pytest.approx(0.5 * c * math.sqrt(1 - c * c / 4), rel=1e-12)
+    assert triangle.area(1.0, 1.0, c) == pytest.approx(0.5 * c * math.sqrt(1 - c * c / 4),
+                                                       rel=1e-12)
 
 
 def test_sides_use_the_corrected_formula_on_unit_vectors():
     """Lohmann's a = |V1| - |V2| is zero for unit vectors; the corrected a = |V1 - V2|."""
     x, y, z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
-    assert T.sides(x, y, z) == pytest.approx((math.sqrt(2),) * 3, rel=1e-15)
+    assert triangle.sides(x, y, z) == pytest.approx((math.sqrt(2),) * 3, rel=1e-15)
     # equilateral of side sqrt(2): area sqrt(3)/2, moment (sqrt(3)/2) * 6 / 36 = sqrt(3)/12
-    ar, mo = T.area_moment(x, y, z)
+    ar, mo = triangle.area_moment(x, y, z)
     assert ar == pytest.approx(math.sqrt(3) / 2, rel=1e-15)
     assert mo == pytest.approx(math.sqrt(3) / 12, rel=1e-15)
     v1, v2, v3 = (1.0, 0.0, 0.0), unit([1.0, 0.1, 0.0]), unit([1.0, 0.0, 0.2])
-    a, b, c = T.sides(v1, v2, v3)
+    a, b, c = triangle.sides(v1, v2, v3)
     assert a == pytest.approx(np.linalg.norm(np.subtract(v1, v2)), rel=1e-15)
     assert b == pytest.approx(np.linalg.norm(np.subtract(v2, v3)), rel=1e-15)
     assert c == pytest.approx(np.linalg.norm(np.subtract(v1, v3)), rel=1e-15)
@@ -84,7 +84,7 @@ def test_area_moment_are_invariant_and_equal_the_planar_triangle():
     for _ in range(100):
         d = rng.normal(0, 0.1, (3, 3)) + [0, 0, 1]
         v = d / np.linalg.norm(d, axis=1, keepdims=True)
-        ar, mo = T.area_moment(*map(tuple, v))
+        ar, mo = triangle.area_moment(*map(tuple, v))
         cross = 0.5 * np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0]))
         assert ar == pytest.approx(cross, rel=1e-9)
         assert mo == pytest.approx(cross * sum(np.sum((v[i] - v[j]) ** 2)
@@ -93,7 +93,7 @@ def test_area_moment_are_invariant_and_equal_the_planar_triangle():
         rot = Rotation.random(random_state=rng).apply(v)
         mirror = v * [-1, 1, 1]
         for w in (rot, mirror, v[[2, 0, 1]], v[[1, 0, 2]]):
-            assert T.area_moment(*map(tuple, w)) == pytest.approx((ar, mo), rel=1e-9)
+            assert triangle.area_moment(*map(tuple, w)) == pytest.approx((ar, mo), rel=1e-9)
 
 
 def test_bounds_hold_for_worst_case_perturbations():
@@ -105,8 +105,8 @@ def test_bounds_hold_for_worst_case_perturbations():
         eps = 10 ** rng.uniform(-5, -3)
         d = rng.normal(0, rng.uniform(0.02, 0.15), (3, 3)) + [0, 0, 1]
         v = d / np.linalg.norm(d, axis=1, keepdims=True)
-        base = T.area_moment(*map(tuple, v))
-        bound = T.bounds(*map(tuple, v), eps)
+        base = triangle.area_moment(*map(tuple, v))
+        bound = triangle.bounds(*map(tuple, v), eps)
         for which in (0, 1):
             for sign in (1.0, -1.0):
                 moved = []
@@ -115,13 +115,13 @@ def test_bounds_hold_for_worst_case_perturbations():
                     for ax in range(3):
                         h = np.zeros((3, 3))
                         h[i, ax] = 1e-7
-                        grad[ax] = (T.area_moment(*map(tuple, v + h))[which] -
-                                    T.area_moment(*map(tuple, v - h))[which]) / 2e-7
+                        grad[ax] = (triangle.area_moment(*map(tuple, v + h))[which] -
+                                    triangle.area_moment(*map(tuple, v - h))[which]) / 2e-7
                     grad -= (grad @ v[i]) * v[i]
                     n = np.linalg.norm(grad)
                     step = sign * grad / n if n > 0 else np.zeros(3)
                     moved.append(tuple(v[i] * math.cos(eps) + step * math.sin(eps)))
-                ratio = abs(T.area_moment(*moved)[which] - base[which]) / bound[which]
+                ratio = abs(triangle.area_moment(*moved)[which] - base[which]) / bound[which]
                 worst[which] = max(worst[which], ratio)
     assert max(worst) <= 1.0
     assert min(worst) > 0.8          # the bounds are not loose
@@ -134,21 +134,21 @@ def test_bounds_hold_for_worst_case_perturbations():
 def test_canonical_order_and_correspondence_from_side_lengths():
     v = [(1.0, 0.0, 0.0), unit([1.0, 0.05, 0.0]), unit([1.0, 0.0, 0.12])]
     # sides opposite: v0 -> |v1 - v2| (longest), v1 -> |v0 - v2| (middle), v2 -> shortest
-    order, opp = T.canonical_order(*v)
+    order, opp = triangle.canonical_order(*v)
     assert order == (2, 1, 0)
     assert opp[0] < opp[1] < opp[2]
     cat_opp = opp
     for perm in ((0, 1, 2), (2, 0, 1), (1, 2, 0), (2, 1, 0)):
         obs = [v[order[p]] for p in perm]           # observed vertices in another order
         obs_opp = (G.chord(obs[1], obs[2]), G.chord(obs[0], obs[2]), G.chord(obs[0], obs[1]))
-        found = T.correspondences(obs_opp, cat_opp, 1e-6)
+        found = triangle.correspondences(obs_opp, cat_opp, 1e-6)
         # catalogue vertex m (order[m]) is observed vertex perm.index(m)
         assert found == [tuple(perm.index(m) for m in range(3))]
     # an isosceles triangle has two correspondences; handedness picks the right one
     iso = [(1.0, 0.0, 0.0), unit([1.0, 0.1, 0.0]), unit([1.0, 0.05, 0.3])]
-    _, iso_opp = T.canonical_order(*iso)
+    _, iso_opp = triangle.canonical_order(*iso)
     assert abs(iso_opp[1] - iso_opp[2]) < 2e-3
-    assert len(T.correspondences(iso_opp, iso_opp, 2e-3)) == 2
+    assert len(triangle.correspondences(iso_opp, iso_opp, 2e-3)) == 2
 
 
 def test_database_triangles_are_canonical_exact_and_sorted():
@@ -161,7 +161,7 @@ def test_database_triangles_are_canonical_exact_and_sorted():
     for i in rng.integers(0, db.tri_n, 400).tolist():
         akey, mkey, s0, s1, s2 = recs[i]
         v = [db.star_vector(s) for s in (s0, s1, s2)]
-        ar, mo = T.area_moment(*v)
+        ar, mo = triangle.area_moment(*v)
         assert akey == round(ar / db.tri_area_step)
         assert mkey == round(mo / db.tri_moment_step)
         opp = (G.chord(v[1], v[2]), G.chord(v[0], v[2]), G.chord(v[0], v[1]))
@@ -186,7 +186,7 @@ def test_mirror_images_are_rejected_by_handedness(monkeypatch):
         mirrored.append((scene.vectors * [-1.0, 1.0, 1.0]).tolist())
     with_check = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
     assert all(sol.status != S.OK for sol in with_check)
-    monkeypatch.setattr(T, "handed", lambda t_obs, t_cat, bound: True)
+    monkeypatch.setattr(triangle, "handed", lambda t_obs, t_cat, bound: True)
     without = [starid.identify(m, db, method="triangle", tolerance_rad=TOL) for m in mirrored]
     assert all(sol.status != S.OK for sol in without)     # verification catches them
     hyp_with = sum(s.hypotheses for s in with_check)
@@ -227,7 +227,7 @@ def test_corrupt_triangle_section_is_refused():
             rng.integers(off, off + length, 20).tolist():
         b = bytearray(image)
         b[i] ^= 0x10
-        assert L.check(b)[0] == S.DATABASE_CORRUPT
+        assert database.check(b)[0] == S.DATABASE_CORRUPT
     # CRC-consistent but inconsistent section headers
     assert status_of(reseal(image, lambda b: b.__setitem__(slice(off, off + 4), b"TRI9"))) == \
         S.DATABASE_UNSUPPORTED

@@ -11,7 +11,7 @@ import pytest
 from scipy.stats import binom
 
 from lodestar.firmware import geometry as G
-from lodestar.firmware.starid import verify as V
+from lodestar.firmware.starid import verify
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import centroid_scene
 
@@ -19,27 +19,27 @@ from lodestar.sim.centroids import centroid_scene
 def test_match_region_is_a_stadium_along_the_track():
     u = (1.0, 0.0, 0.0)
     streak = u + (5e-4,)
-    lim = V.chord_of_angle(1e-4)
+    lim = verify.chord_of_angle(1e-4)
     # along the track: out to half + tolerance
-    assert V.in_region(5.9e-4, 0.0, 0.0, streak, lim)
-    assert not V.in_region(6.1e-4, 0.0, 0.0, streak, lim)
-    assert V.in_region(-5.9e-4, 0.0, 0.0, streak, lim)
+    assert verify.in_region(5.9e-4, 0.0, 0.0, streak, lim)
+    assert not verify.in_region(6.1e-4, 0.0, 0.0, streak, lim)
+    assert verify.in_region(-5.9e-4, 0.0, 0.0, streak, lim)
     # across it: the point tolerance only
-    assert V.in_region(3e-4, 0.99e-4, 0.0, streak, lim)
-    assert not V.in_region(3e-4, 1.01e-4, 0.0, streak, lim)
+    assert verify.in_region(3e-4, 0.99e-4, 0.0, streak, lim)
+    assert not verify.in_region(3e-4, 1.01e-4, 0.0, streak, lim)
     # the rounded ends
-    assert V.in_region(5e-4 + 0.7e-4, 0.7e-4, 0.0, streak, lim)
-    assert not V.in_region(5e-4 + 0.72e-4, 0.72e-4, 0.0, streak, lim)
+    assert verify.in_region(5e-4 + 0.7e-4, 0.7e-4, 0.0, streak, lim)
+    assert not verify.in_region(5e-4 + 0.72e-4, 0.72e-4, 0.0, streak, lim)
     # no streak: a disc
-    assert V.in_region(0.0, 0.99e-4, 0.0, None, lim)
-    assert not V.in_region(1.01e-4, 0.0, 0.0, None, lim)
+    assert verify.in_region(0.0, 0.99e-4, 0.0, None, lim)
+    assert not verify.in_region(1.01e-4, 0.0, 0.0, None, lim)
 
 
 def test_poisson_binomial_tail():
     # equal probabilities: the binomial tail
     for n, k, p in [(10, 3, 1e-3), (28, 5, 0.01), (6, 0, 0.5), (6, 7, 0.5), (12, 12, 0.2)]:
-        assert V.poisson_binomial_tail([p] * n, k) == pytest.approx(
-            V.binomial_tail(n, k, p), rel=1e-9, abs=1e-300)
+        assert verify.poisson_binomial_tail([p] * n, k) == pytest.approx(
+            verify.binomial_tail(n, k, p), rel=1e-9, abs=1e-300)
     # unequal ones: the sum over all outcomes
     ps = [0.1, 0.02, 0.3, 0.05, 0.5]
     for k in range(7):
@@ -47,7 +47,7 @@ def test_poisson_binomial_tail():
         for hits in itertools.product((0, 1), repeat=len(ps)):
             if sum(hits) >= k:
                 exact += math.prod(p if h else 1 - p for p, h in zip(ps, hits))
-        assert V.poisson_binomial_tail(ps, k) == pytest.approx(exact, rel=1e-12, abs=1e-300)
+        assert verify.poisson_binomial_tail(ps, k) == pytest.approx(exact, rel=1e-12, abs=1e-300)
 
 
 def test_verification_names_stars_displaced_along_their_tracks(starid_database_of, tol,
@@ -59,8 +59,8 @@ def test_verification_names_stars_displaced_along_their_tracks(starid_database_o
     half = 12 * TOL
     vectors, streaks = streaked(scene.vectors, rng, half, every=2)
     b = [G.unit(v) for v in vectors]
-    plain = V.verify(b, db, scene.q, TOL)
-    stretched = V.verify(b, db, scene.q, TOL, streaks=streaks)
+    plain = verify.verify(b, db, scene.q, TOL)
+    stretched = verify.verify(b, db, scene.q, TOL, streaks=streaks)
     n = len(b)
     n_streaks = sum(s is not None for s in streaks)
     assert plain.n_matched <= n - n_streaks + 1
@@ -71,7 +71,7 @@ def test_verification_names_stars_displaced_along_their_tracks(starid_database_o
     assert stretched.p_single > plain.p_single
     assert stretched.probability < 1e-9
     # an attitude off by more than a track reaches matches little
-    assert V.verify(b, db, _turned(scene.q, 3 * half), TOL, streaks=streaks).n_matched <= 2
+    assert verify.verify(b, db, _turned(scene.q, 3 * half), TOL, streaks=streaks).n_matched <= 2
 
 
 def _turned(q, angle):
@@ -85,14 +85,14 @@ def test_binomial_tail_matches_scipy():
     for n, k, p in [(20, 5, 1e-4), (30, 10, 0.05), (10, 0, 0.3), (10, 11, 0.3), (50, 3, 0.2),
                     (28, 26, 1e-4), (5, 5, 0.999), (12, 4, 0.0)]:
         expected = binom.sf(k - 1, n, p)
-        got = V.binomial_tail(n, k, p)
+        got = verify.binomial_tail(n, k, p)
         assert got == pytest.approx(expected, rel=1e-9, abs=1e-300), (n, k, p)
 
 
 def test_solid_angle():
-    assert V.fov_solid_angle(math.pi, math.pi) == pytest.approx(2 * math.pi)
+    assert verify.fov_solid_angle(math.pi, math.pi) == pytest.approx(2 * math.pi)
     small = math.radians(1.0)
-    assert V.fov_solid_angle(small, small) == pytest.approx(small * small, rel=1e-4)
+    assert verify.fov_solid_angle(small, small) == pytest.approx(small * small, rel=1e-4)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -115,7 +115,7 @@ def test_near_pairs_finds_what_testing_every_pair_finds(seed):
         u = G.unit(tuple(np.cross(observed[o], [0.0, 0.0, 1.0]) + [0.0, 0.0, 1e-9]))
         streaks[o] = (u[0], u[1], u[2], 2e-3)
     radius = 1e-3
-    lim = V.chord_of_angle(radius)
+    lim = verify.chord_of_angle(radius)
 
     def every_pair(streaks):
         for o, (ox, oy, oz) in enumerate(observed):
@@ -123,10 +123,10 @@ def test_near_pairs_finds_what_testing_every_pair_finds(seed):
             for p in range(n_pred):
                 dx, dy, dz = (ox - predicted[1][3 * p], oy - predicted[1][3 * p + 1],
                               oz - predicted[1][3 * p + 2])
-                if V.in_region(dx, dy, dz, streak, lim):
+                if verify.in_region(dx, dy, dz, streak, lim):
                     yield o, p, dx, dy, dz
 
     for s in (None, streaks):
-        got = list(V.near_pairs(observed, predicted, radius, streaks=s))
+        got = list(verify.near_pairs(observed, predicted, radius, streaks=s))
         assert got == list(every_pair(s))
         assert len(got) >= 30

@@ -14,12 +14,11 @@ from pathlib import Path
 import pytest
 
 from lodestar.cli import main
-from lodestar.ground.campaign import runner as campaign
-from lodestar.ground.campaign import trials as T
+from lodestar.ground.campaign import runner, trials
 
 
 def rate_config(**changes):
-    config = campaign.make_config("rate", ["lohmann"], seed=3, rates=[0.0, 1.0])
+    config = runner.make_config("rate", ["lohmann"], seed=3, rates=[0.0, 1.0])
     config.update(changes)
     return config
 
@@ -28,12 +27,12 @@ def rate_config(**changes):
 def reference(tmp_path_factory):
     """A complete two-rate, two-trial campaign run in this process."""
     out = tmp_path_factory.mktemp("reference")
-    rows, paths = campaign.run_campaign(rate_config(), 2, str(out), workers=1, progress=False)
+    rows, paths = runner.run_campaign(rate_config(), 2, str(out), workers=1, progress=False)
     return out, rows, paths
 
 
 def journal_results(out):
-    return campaign.read_journal(os.path.join(out, campaign.JOURNAL))[1]
+    return runner.read_journal(os.path.join(out, runner.JOURNAL))[1]
 
 
 def test_files_written(reference):
@@ -59,7 +58,7 @@ def test_files_written(reference):
 
 def test_same_results_with_two_workers(reference, tmp_path):
     out, rows, _paths = reference
-    rows2, _ = campaign.run_campaign(rate_config(), 2, str(tmp_path), workers=2,
+    rows2, _ = runner.run_campaign(rate_config(), 2, str(tmp_path), workers=2,
                                      progress=False)
     assert rows2 == rows
     assert journal_results(tmp_path) == journal_results(out)
@@ -67,21 +66,21 @@ def test_same_results_with_two_workers(reference, tmp_path):
 
 def test_resume_runs_only_the_missing_tasks(reference, tmp_path, monkeypatch, capsys):
     out, rows, _paths = reference
-    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=3,
+    assert runner.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=3,
                                  progress=False) == (None, [])
     assert "3 tasks; 1 remain" in capsys.readouterr().err
     assert len(journal_results(tmp_path)) == 3
-    with open(tmp_path / campaign.JOURNAL, "a") as fh:      # a write the kill cut short
+    with open(tmp_path / runner.JOURNAL, "a") as fh:      # a write the kill cut short
         fh.write('{"key": "rate/lohmann/1/1", "resu')
     ran = []
-    real = T.run_task
+    real = trials.run_task
 
     def counting(task, config):
-        ran.append(T.task_key(task))
+        ran.append(trials.task_key(task))
         return real(task, config)
 
-    monkeypatch.setattr(T, "run_task", counting)
-    rows2, paths = campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+    monkeypatch.setattr(trials, "run_task", counting)
+    rows2, paths = runner.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
                                          progress=False)
     assert len(ran) == 1 and rows2 == rows and paths
     assert "resuming: 3 of 4 tasks" in capsys.readouterr().err
@@ -91,12 +90,12 @@ def test_resume_runs_only_the_missing_tasks(reference, tmp_path, monkeypatch, ca
 def test_existing_journal_needs_resume_and_the_same_settings(reference, tmp_path):
     out, _rows, _paths = reference
     with pytest.raises(ValueError, match="pass --resume"):
-        campaign.run_campaign(rate_config(), 2, str(out), progress=False)
+        runner.run_campaign(rate_config(), 2, str(out), progress=False)
     with pytest.raises(ValueError, match="seed differ"):
-        campaign.run_campaign(rate_config(seed=4), 2, str(out), resume=True, progress=False)
-    (tmp_path / campaign.JOURNAL).write_text('{"campaign": {}}\nnot json\n{"key": 1}\n')
+        runner.run_campaign(rate_config(seed=4), 2, str(out), resume=True, progress=False)
+    (tmp_path / runner.JOURNAL).write_text('{"campaign": {}}\nnot json\n{"key": 1}\n')
     with pytest.raises(ValueError, match="line 2 is not a result"):
-        campaign.read_journal(str(tmp_path / campaign.JOURNAL))
+        runner.read_journal(str(tmp_path / runner.JOURNAL))
 
 
 @pytest.mark.parametrize("last", ["junk line\n", '{"key": "x"}\n', "[1, 2]\n", '"text"\n',
@@ -106,16 +105,16 @@ def test_a_bad_last_line_is_repaired_and_resume_works_again(reference, tmp_path,
     a write cut short) is cut from the journal on resume, so the next resume works too and
     no result is lost."""
     out, rows, _paths = reference
-    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=2,
+    assert runner.run_campaign(rate_config(), 2, str(tmp_path), max_tasks=2,
                                  progress=False) == (None, [])
-    journal = tmp_path / campaign.JOURNAL
+    journal = tmp_path / runner.JOURNAL
     good = journal.read_bytes()
     with open(journal, "a") as fh:
         fh.write(last)
-    assert campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+    assert runner.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
                                  max_tasks=1, progress=False) == (None, [])
     assert journal.read_bytes().startswith(good) and last not in journal.read_text()
-    rows2, paths = campaign.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
+    rows2, paths = runner.run_campaign(rate_config(), 2, str(tmp_path), resume=True,
                                          progress=False)
     assert rows2 == rows and paths
     assert journal_results(tmp_path) == journal_results(out)
@@ -124,14 +123,14 @@ def test_a_bad_last_line_is_repaired_and_resume_works_again(reference, tmp_path,
 def test_every_study_writes_its_table(tmp_path):
     """Each other study on one lohmann frame per level (the falsestars levels reduced)."""
     for study, levels in (("accuracy", None), ("limiting", ["2"]), ("falsestars", ["false=3"])):
-        config = campaign.make_config(study, ["lohmann"], seed=1, quick=True)
+        config = runner.make_config(study, ["lohmann"], seed=1, quick=True)
         if levels:
             config["levels"] = levels
-        rows, paths = campaign.run_campaign(config, 1, str(tmp_path / study), progress=False)
+        rows, paths = runner.run_campaign(config, 1, str(tmp_path / study), progress=False)
         assert all(os.path.getsize(p) > 0 for p in paths) and len(paths) == 3
         assert rows and all(r["preset"] == "lohmann" for r in rows)
-        assert campaign.format_table(study, rows).count("\n") == len(rows)
-    assert {r["method"] for r in rows} == set(T.METHODS)
+        assert runner.format_table(study, rows).count("\n") == len(rows)
+    assert {r["method"] for r in rows} == set(trials.METHODS)
 
 
 def test_cli_quick_campaign(tmp_path, capsys):
@@ -164,11 +163,11 @@ def test_bad_arguments(args, message, tmp_path, capsys):
 
 def test_a_roll_may_spin_faster_than_a_slew():
     """Up to 360 deg/s about the boresight (the E-sail's first spin), 30 about other axes."""
-    config = campaign.make_config("rate", ["estcube2"], rates=[20.0, 45.0, 360.0], axis="roll")
+    config = runner.make_config("rate", ["estcube2"], rates=[20.0, 45.0, 360.0], axis="roll")
     assert config["levels"] == ["20", "45", "360"] and config["axis"] == "roll"
     for axis in ("cross", "random"):
         with pytest.raises(ValueError, match=r"0\.\.30 deg/s"):
-            campaign.make_config("rate", ["estcube2"], rates=[45.0], axis=axis)
+            runner.make_config("rate", ["estcube2"], rates=[45.0], axis=axis)
 
 
 def test_unknown_study_or_preset_is_an_argparse_error(capsys):
@@ -182,7 +181,7 @@ def test_unknown_study_or_preset_is_an_argparse_error(capsys):
 def test_dask_missing_is_a_clear_message(tmp_path, monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "dask.distributed", None)
     with pytest.raises(ValueError, match=r"pip install 'lodestar\[dask\]'"):
-        campaign.run_campaign(rate_config(), 1, str(tmp_path), dask="tcp://127.0.0.1:1",
+        runner.run_campaign(rate_config(), 1, str(tmp_path), dask="tcp://127.0.0.1:1",
                               progress=False)
 
 
@@ -191,7 +190,7 @@ def test_dask_cluster_gives_the_same_results(reference, tmp_path):
     out, rows, _paths = reference
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
-        rows2, _ = campaign.run_campaign(rate_config(), 2, str(tmp_path),
+        rows2, _ = runner.run_campaign(rate_config(), 2, str(tmp_path),
                                          dask=cluster.scheduler_address, progress=False)
     assert rows2 == rows
 
@@ -238,7 +237,7 @@ def test_workers_end_with_the_campaign(tmp_path, how):
         code = proc.wait(timeout=60)
         if how == signal.SIGTERM:
             assert code == 130 and "--resume" in proc.stderr.read()
-            assert (out / campaign.JOURNAL).is_file()
+            assert (out / runner.JOURNAL).is_file()
         deadline = time.monotonic() + 15
         while any(_alive(p) for p in workers) and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -251,10 +250,10 @@ def test_workers_end_with_the_campaign(tmp_path, how):
 def test_fov_study_writes_its_table(tmp_path, capsys):
     """The ``fov`` study on two of its fields, one estcube2-sensor frame each, through the
     command line (the 5 deg database takes a minute to build: the campaign in docs/)."""
-    config = campaign.make_config("fov", ["estcube2"], seed=2)
-    assert config["levels"] == [f"{f:g}" for f in T.FOVS_DEG]
+    config = runner.make_config("fov", ["estcube2"], seed=2)
+    assert config["levels"] == [f"{f:g}" for f in trials.FOVS_DEG]
     config["levels"] = ["20", "40"]
-    rows, paths = campaign.run_campaign(config, 1, str(tmp_path), progress=False)
+    rows, paths = runner.run_campaign(config, 1, str(tmp_path), progress=False)
     assert sorted(os.path.basename(p) for p in paths) == [
         "campaign_fov.csv", "campaign_fov.json", "campaign_fov.png"]
     assert [(r["fov_deg"], r["trials"], r["wrong"]) for r in rows] == [(20.0, 1, 0),
@@ -262,5 +261,5 @@ def test_fov_study_writes_its_table(tmp_path, capsys):
     assert rows[0]["db_stars"] > rows[1]["db_stars"] and rows[0]["aperture_mm"] > \
         rows[1]["aperture_mm"]
     assert rows[0]["fov_v_deg"] == pytest.approx(15.07, abs=0.01)
-    text = campaign.format_table("fov", rows)
+    text = runner.format_table("fov", rows)
     assert text.count("\n") == 2 and "solve_ms_p95" in text

@@ -8,30 +8,32 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import Result
-from lodestar.ground.campaign import trials as T
-from lodestar.ground.flight import camera_settings
+from lodestar.ground.campaign import trials
+from lodestar.ground.onboard import camera_settings
 from lodestar.ground.truth import WRONG_ARCSEC
 from lodestar.sim import presets
 
 
 def test_seed_depends_on_campaign_study_preset_trial_not_level():
-    s = T.trial_seed(0, "rate", "estcube2", 5)
-    assert s == T.trial_seed(0, "rate", "estcube2", 5) and 0 <= s < 2 ** 63
-    others = {T.trial_seed(1, "rate", "estcube2", 5), T.trial_seed(0, "limiting", "estcube2", 5),
-              T.trial_seed(0, "rate", "lohmann", 5), T.trial_seed(0, "rate", "estcube2", 6)}
+    s = trials.trial_seed(0, "rate", "estcube2", 5)
+    assert s == trials.trial_seed(0, "rate", "estcube2", 5) and 0 <= s < 2 ** 63
+    others = {trials.trial_seed(1, "rate", "estcube2", 5), trials.trial_seed(0, "limiting",
+                                                                             "estcube2", 5),
+              trials.trial_seed(0, "rate", "lohmann", 5), trials.trial_seed(0, "rate", "estcube2",
+                                                                            6)}
     assert s not in others and len(others) == 4
-    assert T.task_key(("rate", "lohmann", "1.5", 7)) == "rate/lohmann/1.5/7"
+    assert trials.task_key(("rate", "lohmann", "1.5", 7)) == "rate/lohmann/1.5/7"
 
 
 def test_rate_axes():
     rng = np.random.default_rng(0)
     for _ in range(20):
-        w = T.rate_vector(rng, 2.0, "cross")
+        w = trials.rate_vector(rng, 2.0, "cross")
         assert w[2] == 0 and np.linalg.norm(w) == pytest.approx(2.0)
-        assert np.linalg.norm(T.rate_vector(rng, 2.0, "random")) == pytest.approx(2.0)
-        assert abs(T.rate_vector(rng, 2.0, "roll")[2]) == 2.0
+        assert np.linalg.norm(trials.rate_vector(rng, 2.0, "random")) == pytest.approx(2.0)
+        assert abs(trials.rate_vector(rng, 2.0, "roll")[2]) == 2.0
     with pytest.raises(ValueError, match="unknown rate axis"):
-        T.rate_vector(rng, 1.0, "diagonal")
+        trials.rate_vector(rng, 1.0, "diagonal")
 
 
 class FakeFrame:
@@ -43,7 +45,7 @@ class FakeFrame:
 def test_verdict_tells_wrong_from_failed():
     q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
     frame = FakeFrame(q)
-    failed = T.verdict(Result(S.NO_MATCH), [], frame)
+    failed = trials.verdict(Result(S.NO_MATCH), [], frame)
     assert failed["status"] == "NO_MATCH" and not failed["solved"] and not failed["wrong"]
     res = Result(S.OK)
     res.sigma_cross_arcsec, res.sigma_roll_arcsec = 1.0, 10.0
@@ -54,7 +56,7 @@ def test_verdict_tells_wrong_from_failed():
         res.sigma_cross_arcsec = sigma
         res.q = list((Rotation.from_rotvec([0, math.radians(angle / 3600), 0]) *
                       Rotation.from_quat(q)).as_quat())
-        out = T.verdict(res, [], frame)
+        out = trials.verdict(res, [], frame)
         assert out["solved"] and out["wrong"] is wrong and out["imprecise"] is imprecise
         assert out["status"] == ("WRONG" if wrong else "OK")
         assert out["error_arcsec"][1] == pytest.approx(angle, rel=1e-6)
@@ -64,25 +66,25 @@ def test_verdict_tells_wrong_from_failed():
 def test_noise_trial_identifies_at_small_noise():
     config = {"camera": camera_settings("lohmann", "tuned"), "axis": "cross",
               "method": "pyramid"}
-    out = T.falsestars_trial("lohmann", "noise", 11, config)
-    assert set(out) == set(T.METHODS)
-    for method in T.METHODS:
-        assert set(out[method]) == {f"{s:g}" for s in T.NOISE_PX}
+    out = trials.falsestars_trial("lohmann", "noise", 11, config)
+    assert set(out) == set(trials.METHODS)
+    for method in trials.METHODS:
+        assert set(out[method]) == {f"{s:g}" for s in trials.NOISE_PX}
         assert out[method]["0"]["status"] == "OK" and out[method]["0"]["wrong_matches"] == 0
     with pytest.raises(ValueError, match="unknown falsestars level"):
-        T.falsestars_trial("lohmann", "other", 11, config)
+        trials.falsestars_trial("lohmann", "other", 11, config)
 
 
-@pytest.mark.parametrize("fov", T.FOVS_DEG)
+@pytest.mark.parametrize("fov", trials.FOVS_DEG)
 def test_fov_camera_keeps_the_sensor_and_f_number(fov):
     base = presets.load_preset("estcube2")
-    cam = T.fov_camera("estcube2", fov)
+    cam = trials.fov_camera("estcube2", fov)
     assert cam.fov_deg()[0] == pytest.approx(fov, abs=1e-9)
     assert (cam.width, cam.height, cam.pixel_pitch_um, cam.read_noise_e, cam.psf_sigma_px) == \
         (base.width, base.height, base.pixel_pitch_um, base.read_noise_e, base.psf_sigma_px)
     assert cam.f_number == pytest.approx(base.f_number)
     # the same sensor behind a lens of 4x the aperture sees 5 log10(4) = 3.01 mag deeper
-    shift = T.fov_render_limit("estcube2", cam) - T.RENDER_MAG_LIMIT
+    shift = trials.fov_render_limit("estcube2", cam) - trials.RENDER_MAG_LIMIT
     assert shift == pytest.approx(5 * math.log10(cam.aperture_mm / base.aperture_mm))
     assert (shift > 0) == (fov < base.fov_deg()[0])
 
@@ -90,8 +92,8 @@ def test_fov_camera_keeps_the_sensor_and_f_number(fov):
 def test_fov_trial_solves_a_wide_field_with_its_own_database():
     config = {"camera": camera_settings("estcube2", "tuned"), "axis": "cross",
               "method": "pyramid"}
-    out = T.fov_trial("estcube2", "30", 5, config)
+    out = trials.fov_trial("estcube2", "30", 5, config)
     assert out["status"] == "OK" and out["wrong_matches"] == 0 and out["n_matches"] >= 8
     assert out["solve_ms"] > 0
     # the 30 deg database holds fewer stars than the 20 deg one of the same density
-    assert out["db_stars"] < T.fov_trial("estcube2", "20", 5, config)["db_stars"]
+    assert out["db_stars"] < trials.fov_trial("estcube2", "20", 5, config)["db_stars"]

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from lodestar import contract as C
-from lodestar.ground.flight import SETTINGS, camera_settings, detector_config
+from lodestar.ground.onboard import SETTINGS, camera_settings, detector_config
 from lodestar.sim import presets, scene
 
 

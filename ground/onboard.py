@@ -17,9 +17,7 @@ from lodestar.firmware.camera import Camera
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import DEFAULT_TOLERANCE_PX, Settings
 from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
-from lodestar.ground import cache
-from lodestar.ground import codec as packet
-from lodestar.ground import solve as ground_solve
+from lodestar.ground import cache, codec, solve
 from lodestar.sim import scene
 
 DEFAULT_MAX_MAG = 6.0
@@ -49,7 +47,7 @@ def star_database(camera, max_mag=DEFAULT_MAX_MAG, method="pyramid", label="",
     names the camera in those lines.  ``density``: stars per field (:data:`FLIGHT_DENSITY`;
     None: every star to ``max_mag``).  Raises ``ValueError`` when no database can be built
     for this field of view and magnitude."""
-    fov_h, fov_v = ground_solve.camera_fov_deg(camera)
+    fov_h, fov_v = solve.camera_fov_deg(camera)
     depth = [] if max_mag is None else [f"V <= {max_mag:g}"]
     if density:
         depth.append(f"{density['verification_stars_per_fov']:g} stars per field")
@@ -79,7 +77,7 @@ def star_database(camera, max_mag=DEFAULT_MAX_MAG, method="pyramid", label="",
 def default_tolerance_px(camera):
     """Match tolerance for a camera, px: the pipeline's default, or 1/1000 of the horizontal
     FOV when that is larger (as :func:`lodestar.ground.solve.solve_centroids`)."""
-    fov_h, _ = ground_solve.camera_fov_deg(camera)
+    fov_h, _ = solve.camera_fov_deg(camera)
     return max(DEFAULT_TOLERANCE_PX, math.radians(fov_h) / 1000.0 * camera.fx)
 
 
@@ -96,8 +94,8 @@ def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.
     ``velocity_km_s``: the observer's (ICRS) for the aberration, or None.  Raises
     ``AssertionError`` if the packet does not decode to ``result`` (a codec bug)."""
     t0 = time.perf_counter()
-    data = packet.encode(result)
-    if packet.decode(data) != result:
+    data = codec.encode(result)
+    if codec.decode(data) != result:
         raise AssertionError("the packet round trip changed the detection result")
     t1 = time.perf_counter()
     tracker = StarTracker(database, camera, Settings(
