@@ -11,6 +11,7 @@ float32 build's replay and recording: ``test_unixport.py`` (these tests pass
 import json
 import math
 import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -299,25 +300,43 @@ def test_recorder_expectations():
 # The MicroPython harness
 # --------------------------------------------------------------------------------------
 
-def test_micropython_script_and_output_parsing():
+def test_micropython_run_file_and_output_parsing(tmp_path):
+    """The replay's run file holds every case with each method, the files as MicroPython
+    opens them; the runner's output parses, and an unfinished replay raises."""
     manifest = regress.load_set(regress.DEFAULT_SET)
-    script = regress_micropython.build_script(manifest, ["hashing"], repeats=2)
-    assert script.count("R.replay(") == 2 * len(manifest["cases"])
-    assert script.count("#@split") == 3 + 2 * len(manifest["cases"]) + 1
-    value = [None, True, 3, 0.1, "a'b", {"k": [1.5, -2]}, (1, 2)]
-    assert eval(regress_micropython.literal(value)) == [None, True, 3, 0.1, "a'b",
-                                                        {"k": [1.5, -2]}, [1, 2]]
-    for bad in (float("nan"), float("inf")):
-        with pytest.raises(ValueError):
-            regress_micropython.literal(bad)
-    with pytest.raises(TypeError):
-        regress_micropython.literal(object())
+    runs = [(case, "hashing") for case in manifest["cases"]]
+    regress_micropython.write_runs(tmp_path / "runs.jsonl", manifest, runs,
+                                   lambda name: f"/db/{name}", lambda case: case["packet"])
+    lines = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    case = manifest["cases"][0]
+    camera = manifest["cameras"][case["camera"]]
+    assert len(lines) == len(manifest["cases"])
+    assert lines[0] == [case["name"], "hashing", case["camera"], camera["database"],
+                        f"/db/{camera['database']}", camera, case["packet"], case["inputs"]]
     with pytest.raises(regress_micropython.MicroPythonError, match="exit status 1"):
         regress_micropython.parse_output(1, "RESIDENT {}\n", "Traceback: MemoryError")
     parsed = regress_micropython.parse_output(
         0, 'RESIDENT {"code": 1}\nRESULT {"case": "c", "out": {}}\nLIVE_END 7\nDONE\n', "")
     assert parsed == {"resident": {"code": 1}, "results": [{"case": "c", "out": {}}],
                       "live_end": 7}
+
+
+def test_the_mcu_loop_runs_on_cpython():
+    """The loop both MicroPython runners run (:mod:`lodestar.regress.loop`) is plain Python:
+    the flight loop on CPython (``python -m``, no heap figures) gives the recorded
+    outcomes."""
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    db_files = regress.database_files(manifest)
+    runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]
+            if case["camera"] == "lohmann"]
+    loop = unixport.flight_loop(sys.executable, manifest, regress.DEFAULT_SET, db_files, runs,
+                                64 * 1024, timeout=300)
+    assert loop["finished"], loop["error"]
+    assert set(loop["resident"]) == {manifest["cameras"]["lohmann"]["database"]}
+    for case, method in runs:
+        out, peak = loop["results"][case["name"], method]
+        assert peak is None
+        assert regress.differences(case["expected"][method], out, manifest["tolerances"]) == []
 
 
 def test_runner_copies_files(tmp_path, require_micropython):

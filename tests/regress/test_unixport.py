@@ -211,14 +211,20 @@ def test_a_bigger_packet_buffer_takes_its_size_from_the_heap(float32_frozen, reg
 
 
 def test_the_frozen_image_is_the_mcu_image(tmp_path):
-    """The staged tree holds exactly the MCU image: the root, the contract and the
-    firmware, nothing of the ground."""
-    staged = unixport.stage_mcu_image(tmp_path)
+    """The staged tree holds exactly the MCU image: the root, the contract, the firmware and
+    the MCU side of the regression, nothing of the ground; a checkout's source tree stages
+    the same image."""
+    staged = unixport.stage_mcu_image(tmp_path / "installed")
     files = sorted(str(p.relative_to(staged)) for p in staged.rglob("*.py"))
     assert "lodestar/__init__.py" in files and "lodestar/firmware/pipeline.py" in files
     assert "lodestar/contract/packet.py" in files
+    regress_files = ["lodestar/regress/__init__.py", "lodestar/regress/loop.py",
+                     "lodestar/regress/mcu.py"]
     assert all(f.startswith(("lodestar/firmware/", "lodestar/contract/")) or
-               f == "lodestar/__init__.py" for f in files)
+               f == "lodestar/__init__.py" or f in regress_files for f in files)
+    assert set(regress_files) <= set(files)
+    checkout = unixport.stage_mcu_image(tmp_path / "checkout", checkout=REPO)
+    assert sorted(str(p.relative_to(checkout)) for p in checkout.rglob("*.py")) == files
 
 
 def test_restaging_rewrites_only_what_changed(tmp_path):
