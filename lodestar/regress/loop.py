@@ -181,7 +181,8 @@ def stages(config_path):
     one run in the config file ``config_path`` (a flight-loop config), whose clock returns
     ``2 ** k`` at its ``k``-th call: under callgrind with a dump at each entry into the C
     clock, the part that ends at tick ``k`` is the stage's instructions
-    (:func:`lodestar.regress.mcutime.frame_instructions`)."""
+    (:func:`lodestar.regress.mcutime.frame_instructions`).  A collection before the first
+    call: where the frames' collections fall then depends on the frames only."""
     f = open(config_path)
     config = json.load(f)
     f.close()
@@ -190,6 +191,8 @@ def stages(config_path):
     f.close()
     tracker = mcu.make_tracker(mcu.open_database(path), settings, method)
     packet = _read_into(bytearray(config["buffer_bytes"]), packet)
+    config = settings = None
+    gc.collect()        # the collector's count starts here, not with the imports and reads
     mcu.process(tracker, packet, inputs)        # warm: the second frame is counted
     ticks = [0]
 
