@@ -67,7 +67,7 @@ def _resident(config, clock):
     allocates with the collector off (``alloc``) and its time (``ms``); ``LIVE_END``."""
     resident, repeats = config["resident"], config.get("repeats", 1)
     heap = {}
-    for name in METHODS:           # every method's code, as a ground test's image holds
+    for name in METHODS:           # every method's module, so that `code` counts them all
         starid.method(name)
     gc.collect()
     yield
