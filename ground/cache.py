@@ -1,15 +1,16 @@
 """The star-database cache of the ground tools: databases built for a field of view, kept on
-disk (``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else ``~/.cache/lodestar``)
-under a key of every input, and in memory; files are written atomically."""
+disk (:func:`lodestar.cache.default_cache_dir`: ``$LODESTAR_CACHE_DIR``, else
+``$XDG_CACHE_HOME/lodestar``, else ``~/.cache/lodestar``) under a key of every input, and in
+memory; files are written atomically."""
 
 import hashlib
 import math
-import os
 from importlib import resources
 from pathlib import Path
 
+from lodestar.cache import default_cache_dir
 from lodestar.contract import stardb
-from lodestar.firmware import database as fwdatabase
+from lodestar.firmware import database
 from lodestar.ground.database import build_database
 from lodestar.ground.files import write_atomic
 from lodestar.sim import catalogue
@@ -23,15 +24,6 @@ MEMORY_CACHE_SIZE = 8
 
 
 _MEMORY = {}          # cache file path -> (Database, path or None)
-
-
-def default_cache_dir():
-    """``$LODESTAR_CACHE_DIR``, else ``$XDG_CACHE_HOME/lodestar``, else
-    ``~/.cache/lodestar``."""
-    if os.environ.get("LODESTAR_CACHE_DIR"):
-        return Path(os.environ["LODESTAR_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "lodestar"
 
 
 _CATALOGUE_HASH = []
@@ -100,7 +92,7 @@ def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir
         return hit
     db = path = None
     try:
-        db = fwdatabase.Database(target.read_bytes())
+        db = database.Database(target.read_bytes())
         path = target
     except Exception:            # missing, unreadable or corrupt: rebuild
         db = None
@@ -113,7 +105,7 @@ def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir
                                    method=method, **(density or {}))
         except NotImplementedError as exc:
             raise ValueError(str(exc)) from None
-        db = fwdatabase.Database(image)
+        db = database.Database(image)
         try:
             write_atomic(target, image)
             path = target

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from lodestar.firmware.camera import Camera
-from lodestar.ground import imagesolve
+from lodestar.ground import imagesolve, onboard
 from lodestar.ground.database import default_catalogue
 from lodestar.sim.attitude import to_radec_roll
 
@@ -177,7 +177,7 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     n_solver = len(xy)
     if radius_px is None:
         radius_px = (tolerance_px if tolerance_px is not None else
-                     imagesolve.flightsolve.default_tolerance_px(binned)) * image.bin
+                     onboard.default_tolerance_px(binned)) * image.bin
     taken = set(hips)
     for i, star in match_records(xy_all, camera, q, cat, radius_px):
         hip = int(cat.hip[star])

@@ -13,8 +13,8 @@ import os
 
 import pytest
 
-from lodestar.firmware.starid import search as starid_search
-from lodestar.regress import micropython as runner
+from lodestar.firmware.starid import search
+from lodestar.regress import micropython as _micropython
 from tests import REPO
 
 
@@ -22,11 +22,11 @@ from tests import REPO
 def _micropython_tool():
     """The checkout's ``tools/micropython`` for the runner (unless the environment names
     another)."""
-    os.environ.setdefault(runner.TOOL_ENV, str(REPO / "tools" / "micropython"))
+    os.environ.setdefault(_micropython.TOOL_ENV, str(REPO / "tools" / "micropython"))
 
 
 def _require():
-    reason = runner.unavailable_reason()
+    reason = _micropython.unavailable_reason()
     if reason is None:
         return
     if os.environ.get("LODESTAR_REQUIRE_MICROPYTHON", "") not in ("", "0"):
@@ -45,7 +45,7 @@ def micropython(require_micropython):
     """Run a script under MicroPython: ``(exit status, stdout + stderr)``."""
     def run(script_text, heapsize=None, timeout=120):
         _require()
-        proc = runner.run(script_text, heapsize=heapsize, timeout=timeout)
+        proc = _micropython.run(script_text, heapsize=heapsize, timeout=timeout)
         return proc.returncode, proc.stdout + proc.stderr
     return run
 
@@ -55,7 +55,7 @@ def work_spent(monkeypatch):
     """``[(work, max_work), ...]``: the work each identification search spent, in call order
     (for calls that reach the search through the pipeline or the ground solve)."""
     spent = []
-    run = starid_search.Search.run
+    run = search.Search.run
 
     def recording(self, patterns, budget):
         try:
@@ -63,5 +63,5 @@ def work_spent(monkeypatch):
         finally:
             spent.append((self.work, self.max_work))
 
-    monkeypatch.setattr(starid_search.Search, "run", recording)
+    monkeypatch.setattr(search.Search, "run", recording)
     return spent

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 import lodestar
+from lodestar.regress.micropython import IMAGE_REGRESS
 from tests import REPO
 
 PACKAGES = ("lodestar", "lodestar.contract", "lodestar.cli", "lodestar.cosim",
@@ -20,11 +21,21 @@ MCU_PACKAGES = ("lodestar.contract", "lodestar.firmware")
 """What the MCU image holds besides the root (``lodestar.regress.micropython.mcu_image``)."""
 
 
+MCU_REGRESS = ("lodestar.regress", "lodestar.regress.mcu", "lodestar.regress.loop")
+"""The MCU side of the regression, also in the image
+(``lodestar.regress.micropython.IMAGE_REGRESS``)."""
+
+
 def on_mcu(name):
-    """True for a module of the MCU image or the MCU-side replay."""
-    return (name in ("lodestar", "lodestar.regress", "lodestar.regress.mcu")
+    """True for a module of the MCU image."""
+    return (name == "lodestar" or name in MCU_REGRESS
             or name in MCU_PACKAGES or name.startswith(tuple(p + "." for p in MCU_PACKAGES)))
+
+
 MCU_STDLIB = {"math", "struct", "array", "binascii", "gc", "micropython", "sys"}
+REGRESS_STDLIB = MCU_STDLIB | {"json", "time"}
+"""The regression loop also reads its runs as JSON and times solves (MicroPython's own
+``json`` and ``time``)."""
 
 
 def _modules():
@@ -94,7 +105,14 @@ def test_no_path_into_the_checkout(name):
 def test_mcu_modules_import_only_the_mcu_image(name):
     for module in _imports(name, MODULES[name]):
         assert on_mcu(module), (name, module)
-    assert _stdlib_imports(MODULES[name]) <= MCU_STDLIB, name
+    allowed = REGRESS_STDLIB if name in MCU_REGRESS else MCU_STDLIB
+    assert _stdlib_imports(MODULES[name]) <= allowed, name
+
+
+def test_the_image_is_what_the_rules_check():
+    """The image's regression modules are the ones :data:`MCU_REGRESS` holds to its rules."""
+    assert {"lodestar.regress" + ("" if m == "__init__" else "." + m) for m in IMAGE_REGRESS} \
+        == set(MCU_REGRESS)
 
 
 def _stdlib_imports(path):

@@ -24,9 +24,9 @@ import numpy as np
 
 from lodestar import contract as C
 from lodestar import hdl
+from lodestar.cache import default_cache_dir
 from lodestar.contract import DetectionResult
 from lodestar.golden.frame import check_frame
-from lodestar.ground.cache import default_cache_dir
 from lodestar.hdl.detector import Detector, min_vblank
 from lodestar.hdl.export import to_verilog
 from lodestar.hdl.labeller import MIN_HBLANK

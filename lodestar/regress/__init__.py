@@ -1,9 +1,10 @@
 """Firmware regression: recorded FPGA packets replayed through the flight API on CPython,
 on the flight MCU's float32 MicroPython build and on MicroPython's WebAssembly port.
-:mod:`.mcu` is the replay that runs on the MCU image (MicroPython-safe), :mod:`.replay` loads
-a set and compares, :mod:`.record` regenerates it, :mod:`.micropython` runs the WebAssembly
-port, :mod:`.unixport` the float32 unix-port build (floats in the object word, the firmware
-frozen) and :mod:`.mcutime` estimates its time on the F401.
+:mod:`.mcu` and :mod:`.loop` are the replay that runs in the MCU image (MicroPython-safe, frozen
+into it), :mod:`.replay` loads a set and compares, :mod:`.record` regenerates it,
+:mod:`.micropython` runs the WebAssembly port, :mod:`.unixport` the float32 unix-port build
+(floats in the object word, the firmware frozen) and :mod:`.mcutime` estimates its time on
+the F401 (with :mod:`.perfbench`; :mod:`.reprprobe` tells a build's object representation).
 
 A set is a folder with ``packets/NAME.bin`` and ``manifest.json`` (``format`` 2,
 :data:`.replay.SET_FORMAT`): ``tolerances`` (double comparisons), ``float32`` (``build``,

@@ -42,8 +42,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from lodestar.regress import mcu, unixport
-from lodestar.regress.micropython import literal
+from lodestar.regress import perfbench, unixport
+from lodestar.regress.micropython import write_runs
 
 F401_SOURCE = ("micropython/micropython pull request #18069 (NUCLEO-F401RE, 84 MHz, "
                "run-perfbench.py N=84 M=80, 2025-09-14)")
@@ -60,14 +60,8 @@ result (a check that the workload is the published one, in single or double prec
 HEAP = "80K"
 """The heap the calibration runs get: the ``M=80`` (kilobytes of heap) of the published run."""
 
-_HARNESS = """
-import time
-t0 = time.ticks_us()
-r = {call}
-dt = time.ticks_diff(time.ticks_us(), t0)
-print(dt, r)
-"""
-
+_PERFBENCH = str(Path(perfbench.__file__).resolve())
+"""The timing script of a calibration run (:mod:`lodestar.regress.perfbench`)."""
 
 class CalibrationError(RuntimeError):
     """A calibration benchmark is missing or gave another result than the published run."""
@@ -107,18 +101,18 @@ def calibrate(binary, runs=7, timeout=120):
     :func:`lodestar.regress.unixport.reference_build`) and return ``{"runs": {name: [us,
     ...]}, "ratio": {name: F401 us / fastest us here}, "scale": geometric mean of the
     ratios}``: an F401's time for a piece of code is about ``scale`` times its time here on
-    a build of the same sources (the flight build included, an estimate: see the module)."""
+    a build of the same sources (the flight build included, an estimate: see the module).
+    Each run is :mod:`lodestar.regress.perfbench` of the benchmark's source and call."""
     _check_reference(binary)
     times = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (call, expect) in _CALLS.items():
-            script = Path(tmp) / f"{name}.py"
-            script.write_text(benchmark_source(name) + _HARNESS.format(call=call),
-                              encoding="utf-8")
+            source = Path(tmp) / f"{name}.py"
+            source.write_text(benchmark_source(name), encoding="utf-8")
             times[name] = []
             for _ in range(runs):
-                proc = subprocess.run([str(binary), "-X", f"heapsize={HEAP}", str(script)],
-                                      capture_output=True,
+                proc = subprocess.run([str(binary), "-X", f"heapsize={HEAP}", _PERFBENCH,
+                                       str(source), call], capture_output=True,
                                       text=True, timeout=timeout, cwd=tmp)
                 out = proc.stdout.strip().split(" ", 1)
                 if proc.returncode != 0 or len(out) != 2 or not out[1].startswith(expect):
@@ -170,51 +164,22 @@ def calibrate_instructions(binary):
     is about its instruction count on a build of the same sources (the flight build's
     :func:`frame_instructions` included, an estimate: see the module) times
     ``us_per_ir_mean``.  One run's count is the difference between a process running it
-    three times and once."""
+    three times and once (:mod:`lodestar.regress.perfbench`)."""
     _check_reference(binary)
     ir = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (call, expect) in _CALLS.items():
-            script = Path(tmp) / f"{name}.py"
-            script.write_text(benchmark_source(name) + "import sys\n"
-                              "for _ in range(int(sys.argv[1])):\n"
-                              f"    r = {call}\nprint(r)\n", encoding="utf-8")
-            once, out = _instructions([binary, "-X", f"heapsize={HEAP}", script, 1], tmp)
-            if not out.startswith(expect):
+            source = Path(tmp) / f"{name}.py"
+            source.write_text(benchmark_source(name), encoding="utf-8")
+            argv = [binary, "-X", f"heapsize={HEAP}", _PERFBENCH, source, call]
+            once, out = _instructions(argv + [1], tmp)
+            if not out.partition(" ")[2].startswith(expect):
                 raise CalibrationError(f"{name} on {binary}: {out[-300:]}")
-            thrice, _ = _instructions([binary, "-X", f"heapsize={HEAP}", script, 3], tmp)
+            thrice, _ = _instructions(argv + [3], tmp)
             ir[name] = (thrice[0] - once[0]) / 2
     per = {name: F401_US[name] / ir[name] for name in ir}
     mean = math.exp(sum(math.log(v) for v in per.values()) / len(per))
     return {"ir": ir, "us_per_ir": per, "us_per_ir_mean": mean}
-
-
-_FRAME = r'''
-import json
-import time
-R = {}
-exec(open(MCU).read(), R)
-CASE = json.loads(open(CASE_FILE).read())
-DB = R["open_database"](CASE["database"])
-TRACKER = R["make_tracker"](DB, CASE["camera"], CASE["method"])
-BUF = bytearray(PACKET_BYTES)
-F = open(CASE["packet"], "rb")
-PACKET = memoryview(BUF)[:F.readinto(BUF)]
-F.close()
-RES = R["process"](TRACKER, PACKET, CASE["inputs"])     # warm: the second frame is counted
-TICKS = [0]
-
-
-def clock():
-    time.ticks_us()                 # callgrind starts a new part on entering the C clock
-    TICKS[0] += 1
-    return 1 << TICKS[0]            # a stage's timing 2**(k-1) names its tick k
-
-
-TRACKER.settings.clock = clock
-RES = R["process"](TRACKER, PACKET, CASE["inputs"])
-print(json.dumps([RES.status, [[k, v] for k, v in RES.timings.items()]]))
-'''
 
 
 def frame_instructions(binary, case, method, database_file, camera, packet, heapsize):
@@ -223,18 +188,17 @@ def frame_instructions(binary, case, method, database_file, camera, packet, heap
     ``method`` on ``binary`` at ``heapsize`` bytes of heap, the second of two calls (the
     first warms up): ``(status, {stage: instructions, "process": all stages})``, stages as
     the pipeline's ``timings`` (``decode``, ``centroids``, ``directions``, ``identify``,
-    ``attitude``; fewer when the frame ends early)."""
+    ``attitude``; fewer when the frame ends early): :func:`lodestar.regress.loop.stages`,
+    frozen in ``binary``."""
     with tempfile.TemporaryDirectory() as tmp:
-        (Path(tmp) / "case.json").write_text(json.dumps({
-            "database": str(Path(database_file).resolve()), "camera": camera,
-            "method": method, "packet": str(Path(packet).resolve()),
-            "inputs": case["inputs"]}), encoding="utf-8")
-        script = Path(tmp) / "frame.py"
-        script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
-                          f"CASE_FILE = 'case.json'\n"
-                          f"PACKET_BYTES = {Path(packet).stat().st_size}\n" + _FRAME,
-                          encoding="utf-8")
-        parts, out = _instructions([binary, "-X", f"heapsize={int(heapsize)}", script], tmp,
+        write_runs(Path(tmp) / "runs.jsonl", {"cameras": {case["camera"]: camera}},
+                   [(case, method)], lambda _name: str(Path(database_file).resolve()),
+                   lambda _case: str(Path(packet).resolve()))
+        (Path(tmp) / "frame.json").write_text(json.dumps({
+            "runs": "runs.jsonl", "buffer_bytes": Path(packet).stat().st_size}),
+            encoding="utf-8")
+        parts, out = _instructions([binary, "-X", f"heapsize={int(heapsize)}", "-m",
+                                    "lodestar.regress.loop", "--stages", "frame.json"], tmp,
                                    dump_before="__clock_gettime64")
     status, timings = json.loads(out.strip().splitlines()[-1])
     stages = {}

@@ -1,18 +1,19 @@
-"""MicroPython 1.27 (WebAssembly port under Node.js): the one runner of scripts with the MCU
-image (:func:`run`), and the regression set replayed on it with the time and heap of every
-solve (:func:`replay`).
+"""MicroPython 1.27 (WebAssembly port under Node.js): the MCU image (:func:`mcu_image`, the
+one definition, which the unix port freezes too), the one runner of scripts with it
+(:func:`run`), and the regression set replayed on it with the time and heap of every solve
+(:func:`replay`).
 
 The tool folder is ``tools/micropython`` of the checkout (``npm ci --prefix
 tools/micropython``) or ``$LODESTAR_MICROPYTHON_TOOL``; its ``run.mjs`` runs a script with
-:func:`mcu_image` under ``/lib/lodestar`` and, for a replay, :mod:`lodestar.regress.mcu`, the
+:func:`mcu_image` under ``/lib`` and, for a replay, the loop's config and run file, the
 databases and the packet files under ``/regress``, read by offset and from files as on the
 MCU.  :func:`replay` reports per solve ``live_before``, ``alloc`` (an upper bound of the peak
 heap) and ``ms`` (WebAssembly wall time, not an MCU's), and the ``resident`` heap per run:
 ``docs/regression.md`` says how each is measured.
 """
 
+import importlib
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -20,7 +21,6 @@ import tempfile
 from pathlib import Path
 
 import lodestar
-from lodestar import contract, firmware
 from lodestar.regress import mcu
 
 PACKAGE = "@micropython/micropython-webassembly-pyscript"
@@ -50,24 +50,45 @@ def unavailable_reason():
     return None
 
 
-def _package_files(package, target):
-    root = Path(package.__file__).parent
-    return [(path, target + "/" + path.relative_to(root).as_posix())
-            for path in sorted(root.rglob("*.py"))]
+IMAGE_PACKAGES = ("lodestar.contract", "lodestar.firmware")
+"""The packages the MCU image holds whole, besides the ``lodestar`` root's ``__init__.py``."""
+
+CHECKOUT_FOLDERS = {"lodestar.contract": "lodestar/contract", "lodestar.firmware": "firmware"}
+"""Where a checkout's source tree holds each of :data:`IMAGE_PACKAGES` (``pyproject.toml``'s
+``package-dir``), for an image taken from another checkout."""
+
+IMAGE_REGRESS = ("__init__", "mcu", "loop")
+"""The MCU side of the regression (:mod:`lodestar.regress`), also in the image: the replay of
+one packet (:mod:`.mcu`) and the loop of both runners (:mod:`.loop`)."""
 
 
-def mcu_image():
-    """``[(host path, target path)]`` of the modules the MCU holds: the ``lodestar`` root
-    (``__init__.py``), :mod:`lodestar.contract` and :mod:`lodestar.firmware`, under
-    ``/lib/lodestar``."""
-    return ([(Path(lodestar.__file__), "/lib/lodestar/__init__.py")]
-            + _package_files(contract, "/lib/lodestar/contract")
-            + _package_files(firmware, "/lib/lodestar/firmware"))
+def mcu_image(checkout=None):
+    """``[(host path, image path)]`` of the modules the MCU holds, image paths relative to its
+    library folder (``lodestar/firmware/pipeline.py``): the ``lodestar`` root,
+    :mod:`lodestar.contract`, :mod:`lodestar.firmware` and :data:`IMAGE_REGRESS`.
+    ``checkout``: the root, contract and firmware of another checkout's source tree instead
+    of the installed ones (a benchmark's baseline; :data:`CHECKOUT_FOLDERS`), replayed by this
+    installation's regression modules."""
+    if checkout is None:
+        pairs = [(Path(lodestar.__file__), "lodestar/__init__.py")]
+        folders = [(Path(importlib.import_module(name).__file__).parent, name)
+                   for name in IMAGE_PACKAGES]
+    else:
+        checkout = Path(checkout)
+        pairs = [(checkout / "lodestar" / "__init__.py", "lodestar/__init__.py")]
+        folders = [(checkout / CHECKOUT_FOLDERS[name], name) for name in IMAGE_PACKAGES]
+    for folder, name in folders:
+        target = name.replace(".", "/")
+        pairs += [(path, target + "/" + path.relative_to(folder).as_posix())
+                  for path in sorted(folder.rglob("*.py"))]
+    regress = Path(mcu.__file__).parent
+    return pairs + [(regress / (name + ".py"), "lodestar/regress/" + name + ".py")
+                    for name in IMAGE_REGRESS]
 
 
 def run(script_text, copies=(), heapsize=None, timeout=120):
-    """Run ``script_text`` under MicroPython with :func:`mcu_image` and ``copies`` (more
-    ``(host path, target path)`` pairs) in its filesystem; returns the finished
+    """Run ``script_text`` under MicroPython with :func:`mcu_image` (under ``/lib``) and
+    ``copies`` (more ``(host path, target path)`` pairs) in its filesystem; returns the finished
     ``subprocess.CompletedProcess`` (text output; exit status 0 when the script finished, 1
     when it raised, the traceback on stderr).  ``heapsize``: bytes of initial heap (the port
     grows it on demand).  Raises :class:`MicroPythonError` when MicroPython is unavailable
@@ -81,7 +102,8 @@ def run(script_text, copies=(), heapsize=None, timeout=120):
         command = ["node", str(tool_dir() / "run.mjs")]
         if heapsize is not None:
             command += ["--heapsize", str(int(heapsize))]
-        for host, target in mcu_image() + list(copies):
+        image = [(host, "/lib/" + target) for host, target in mcu_image()]
+        for host, target in image + list(copies):
             command += ["--copy", f"{os.path.abspath(host)}={target}"]
         command.append(str(script))
         try:
@@ -91,115 +113,50 @@ def run(script_text, copies=(), heapsize=None, timeout=120):
                 from None
 
 
-def literal(value):
-    """MicroPython source text for a JSON-like ``value`` (None, bool, int, finite float, str,
-    list, tuple, dict)."""
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            raise ValueError(f"no literal for the non-finite float {value!r}")
-        return repr(value)
-    if value is None or isinstance(value, (bool, int, str)):
-        return repr(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(literal(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(literal(k) + ": " + literal(v) for k, v in value.items()) + "}"
-    raise TypeError(f"no literal for {value!r}")
+STUB = ("from js import performance\n"
+        "from lodestar.regress import loop\n"
+        f"STEPS = loop.replay({TARGET_DIR + '/replay.json'!r}, performance.now)\n")
+"""The script of a replay: :func:`lodestar.regress.loop.replay`, stepped by ``run.mjs``, with
+Node's millisecond clock."""
 
 
-_PRELUDE = r'''
-import gc
-import json
-from js import performance
-RESIDENT = {"start": gc.mem_alloc()}
-from lodestar.regress import mcu as R
-from lodestar.firmware import tracking
-from lodestar.firmware import starid
-for _m in METHODS:
-    starid.method(_m)
-gc.collect()
-#@split
-RESIDENT["code"] = gc.mem_alloc()
-DBS = {}
-for _name in DB_PATHS:
-    DBS[_name] = R.open_database(DB_PATHS[_name])
-gc.collect()
-#@split
-RESIDENT["databases"] = gc.mem_alloc()
-TRACKERS = {}
-for _cam in CAMERAS:
-    for _m in METHODS:
-        TRACKERS[_cam + "/" + _m] = R.make_tracker(DBS[CAMERAS[_cam]["database"]],
-                                                   CAMERAS[_cam], _m)
-gc.collect()
-#@split
-RESIDENT["trackers"] = gc.mem_alloc()
-print("RESIDENT " + json.dumps(RESIDENT))
-gc.collect()
-'''
-
-_SOLVE = r'''
-#@split
-LIVE = gc.mem_alloc()
-_f = open({path}, "rb")
-PKT = _f.read()
-_f.close()
-_f = None
-gc.disable()
-T0 = performance.now()
-BASE = gc.mem_alloc()
-OUT = R.replay(TRACKERS[{tracker}], PKT, {inputs})
-ALLOC = gc.mem_alloc() - BASE
-MS = performance.now() - T0
-gc.enable()
-print("RESULT " + json.dumps({{"case": {case}, "method": {method}, "repeat": {repeat},
-                              "live_before": LIVE, "ms": MS, "alloc": ALLOC, "out": OUT}}))
-PKT = OUT = None
-gc.collect()
-'''
-
-_END = r'''
-#@split
-print("LIVE_END " + str(gc.mem_alloc()))
-print("DONE")
-'''
-
-
-def build_script(manifest, methods, repeats=1):
-    """The MicroPython script replaying every case of ``manifest`` (a loaded set, see
-    :mod:`lodestar.regress`) with each of ``methods``, ``repeats`` times."""
-    db_paths = {name: f"{TARGET_DIR}/{name}.lsdb" for name in manifest["databases"]}
-    parts = ["DB_PATHS = " + literal(db_paths),
-             "CAMERAS = " + literal(manifest["cameras"]),
-             "METHODS = " + literal(list(methods)),
-             _PRELUDE]
-    for case in manifest["cases"]:
-        for method in methods:
-            for repeat in range(repeats):
-                parts.append(_SOLVE.format(
-                    path=literal(f"{TARGET_DIR}/{case['packet']}"),
-                    tracker=literal(case["camera"] + "/" + method),
-                    inputs=literal(case["inputs"]), case=literal(case["name"]),
-                    method=literal(method), repeat=repeat))
-    parts.append(_END)
-    return "\n".join(parts)
+def write_runs(path, manifest, runs, database_path, packet_path):
+    """Write ``runs`` (``[(case, method)]``, ``case`` a case of ``manifest``) to ``path`` as
+    the JSON-lines run file of :mod:`lodestar.regress.loop`, the files as the interpreter
+    opens them: ``database_path(name)``, ``packet_path(case)``."""
+    with open(path, "w", encoding="utf-8") as f:
+        for case, method in runs:
+            camera = manifest["cameras"][case["camera"]]
+            f.write(json.dumps([case["name"], method, case["camera"], camera["database"],
+                                database_path(camera["database"]), camera,
+                                packet_path(case), case["inputs"]]) + "\n")
 
 
 def replay(manifest, set_dir, database_files, methods, repeats=1, timeout=900):
     """Run the set on MicroPython: ``{"results": [...], "resident": {...}, "live_end": n}``.
 
     ``database_files``: ``{database name: host path}`` (the images the set's recipes
-    build).  Each result: ``case``, ``method``, ``repeat``, ``live_before``, ``alloc`` (bytes),
-    ``ms`` and ``out`` (:func:`lodestar.regress.mcu.outcome`).  Raises
-    :class:`MicroPythonError` when MicroPython is unavailable or the script fails."""
+    build).  Every case with each of ``methods``, ``repeats`` times, by
+    :func:`lodestar.regress.loop.replay` with everything resident.  Each result: ``case``,
+    ``method``, ``repeat``, ``live_before``, ``alloc`` (bytes), ``ms`` and ``out``
+    (:func:`lodestar.regress.mcu.outcome`).  Raises :class:`MicroPythonError` when MicroPython
+    is unavailable or the script fails."""
     set_dir = Path(set_dir)
-    copies = [(Path(mcu.__file__).with_name("__init__.py"), "/lib/lodestar/regress/__init__.py"),
-              (Path(mcu.__file__), "/lib/lodestar/regress/mcu.py")]
-    copies += [(Path(path), f"{TARGET_DIR}/{name}.lsdb")
-               for name, path in database_files.items()]
-    copies += [(set_dir / case["packet"], f"{TARGET_DIR}/{case['packet']}")
-               for case in manifest["cases"]]
-    proc = run(build_script(manifest, methods, repeats), copies, timeout=timeout)
+    databases = {name: f"{TARGET_DIR}/{name}.lsdb" for name in manifest["databases"]}
+    with tempfile.TemporaryDirectory() as tmp:
+        write_runs(Path(tmp) / "runs.jsonl", manifest,
+                   [(case, method) for case in manifest["cases"] for method in methods],
+                   databases.get, lambda case: f"{TARGET_DIR}/{case['packet']}")
+        (Path(tmp) / "replay.json").write_text(json.dumps({
+            "runs": f"{TARGET_DIR}/runs.jsonl", "repeats": repeats,
+            "resident": {"databases": databases, "cameras": manifest["cameras"],
+                         "methods": list(methods)}}), encoding="utf-8")
+        copies = [(Path(tmp) / name, f"{TARGET_DIR}/{name}")
+                  for name in ("replay.json", "runs.jsonl")]
+        copies += [(Path(path), databases[name]) for name, path in database_files.items()]
+        copies += [(set_dir / case["packet"], f"{TARGET_DIR}/{case['packet']}")
+                   for case in manifest["cases"]]
+        proc = run(STUB, copies, timeout=timeout)
     return parse_output(proc.returncode, proc.stdout, proc.stderr)
 
 

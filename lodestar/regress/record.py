@@ -38,11 +38,9 @@ import numpy as np
 from lodestar import contract as C
 from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
-from lodestar.ground import codec as packet
-from lodestar.ground import flight as flightsolve
-from lodestar.ground import truth as campaign_truth
-from lodestar.regress import mcu, unixport
-from lodestar.regress import replay as regress
+from lodestar.ground import codec, onboard
+from lodestar.ground import truth as _truth
+from lodestar.regress import mcu, replay, unixport
 from lodestar.sim import attitude, goldenset, presets
 from lodestar.sim.goldenset import DENSE, ORION
 
@@ -166,7 +164,7 @@ def _frame(case, budget=None):
     frame, truth, cfg = goldenset.render_spec(spec)
     det = detect_frame(frame, cfg)
     if case.budgeted:
-        cfg = dataclasses.replace(cfg, min_sum=budget(packet.encode(det), _inputs(case, truth)))
+        cfg = dataclasses.replace(cfg, min_sum=budget(codec.encode(det), _inputs(case, truth)))
         det = detect_frame(frame, cfg)
     return det, truth
 
@@ -176,7 +174,7 @@ def derive(kind, det):
 
     if kind not in KINDS:
         raise ValueError(f"unknown derivation {kind!r}; known: {', '.join(KINDS)}")
-    data = packet.encode(det)
+    data = codec.encode(det)
     if kind == "bit_flip":
         corrupt = bytearray(data)
         corrupt[len(data) // 2] ^= 0x10
@@ -190,17 +188,17 @@ def derive(kind, det):
     if kind == "empty":
         return b""
     if kind == "bad_header":
-        return packet.encode(det.replace(width=0))
+        return codec.encode(det.replace(width=0))
     if kind == "bad_record":
         blobs = list(det.blobs)
         first = type(blobs[0])(*blobs[0].as_tuple())
         first.n = 0
-        return packet.encode(det.replace(blobs=[first] + blobs[1:]))
+        return codec.encode(det.replace(blobs=[first] + blobs[1:]))
     if kind == "frame_truncated":
-        return packet.encode(det.replace(flags=det.flags | C.FRAME_TRUNCATED))
+        return codec.encode(det.replace(flags=det.flags | C.FRAME_TRUNCATED))
     if kind == "two_records":
         kept = det.blobs[:2]
-        return packet.encode(det.replace(
+        return codec.encode(det.replace(
             blobs=kept, n_blobs=det.n_filtered + det.dropped_records + len(kept)))
     return data                                   # other_camera: the packet unchanged
 
@@ -216,10 +214,10 @@ def _prior(q_true, error_deg):
 def _camera_settings(preset):
 
     cam = presets.load_preset(preset)
-    fw = flightsolve.firmware_camera(cam)
+    fw = onboard.firmware_camera(cam)
     return fw, {"camera": fw.as_dict(), "exposure_s": cam.exposure_s,
                 "row_time_s": cam.row_time_s if cam.shutter == "rolling" else 0.0,
-                "tolerance_px": flightsolve.default_tolerance_px(fw), "database": preset}
+                "tolerance_px": onboard.default_tolerance_px(fw), "database": preset}
 
 
 def check_truth(out, det, truth):
@@ -227,13 +225,13 @@ def check_truth(out, det, truth):
     (``{"cross", "roll"}``, arcsec; :mod:`lodestar.ground.truth`) and None, or the problem
     when the solution is wrong."""
 
-    err = campaign_truth.attitude_error_arcsec(out["q"], truth["quaternion_xyzw"])
+    err = _truth.attitude_error_arcsec(out["q"], truth["quaternion_xyzw"])
     matches = [(i, det.blobs[i].sx / det.blobs[i].s0, det.blobs[i].sy / det.blobs[i].s0, hip)
                for i, hip in out["matches"]]
-    wrong = [row for row in campaign_truth.match_rows(matches, det.blobs, truth["sources"])
+    wrong = [row for row in _truth.match_rows(matches, det.blobs, truth["sources"])
              if not row["right"]]
     problem = None
-    if err["total"] > campaign_truth.WRONG_ARCSEC or wrong:
+    if err["total"] > _truth.WRONG_ARCSEC or wrong:
         problem = (f"WRONG solution: attitude error {err['total']:.0f}\" (cross "
                    f"{err['cross']:.1f}\", roll {err['roll']:.1f}\"), {len(wrong)} of "
                    f"{len(matches)} matches wrong (HIP {[r['hip'] for r in wrong]})")
@@ -273,7 +271,7 @@ def frame_entry(case, budget=None):
     truth_doc = {"q": truth["quaternion_xyzw"], "ra_deg": truth["ra_deg"],
                  "dec_deg": truth["dec_deg"], "roll_deg": truth["roll_deg"],
                  "rate_deg_s": truth["omega_deg_s"]}
-    return det, truth, packet.encode(det), inputs, truth_doc
+    return det, truth, codec.encode(det), inputs, truth_doc
 
 
 def add_float32(manifest, files, binary, db_files):
@@ -294,7 +292,7 @@ def add_float32(manifest, files, binary, db_files):
         case["expected_float32"] = {m: outcomes[case["name"], m] for m in manifest["methods"]}
         for method, out in case["expected_float32"].items():
             problems += [f"{case['name']} / {method}: float32 vs double: {d}"
-                         for d in regress.float32_vs_double(out, case["expected"][method],
+                         for d in replay.float32_vs_double(out, case["expected"][method],
                                                             bound)]
     return problems
 
@@ -313,23 +311,23 @@ def record(set_dir, cache_dir=None, log=None):
     cameras, databases = {}, {}
     for preset in presets_used:
         fw_cam, cameras[preset] = _camera_settings(preset)
-        recipe = regress.database_recipe(fw_cam)
-        image = regress.build_image(recipe)
-        databases[preset] = {"recipe": recipe, "sha256": regress.sha256(image),
+        recipe = replay.database_recipe(fw_cam)
+        image = replay.build_image(recipe)
+        databases[preset] = {"recipe": recipe, "sha256": replay.sha256(image),
                              "bytes": len(image)}
-        regress.cache_image(image, cache_dir)
-    manifest = {"format": regress.SET_FORMAT, "generator": "lodestar regress --record",
-                "tolerances": dict(regress.TOLERANCES),
+        replay.cache_image(image, cache_dir)
+    manifest = {"format": replay.SET_FORMAT, "generator": "lodestar regress --record",
+                "tolerances": dict(replay.TOLERANCES),
                 "float32": {"build": binary.name.rsplit("-", 1)[0],
-                            "tolerances": dict(regress.FLOAT32_TOLERANCES),
-                            "bound": dict(regress.FLOAT32_BOUND)},
-                "methods": list(regress.METHODS),
+                            "tolerances": dict(replay.FLOAT32_TOLERANCES),
+                            "bound": dict(replay.FLOAT32_BOUND)},
+                "methods": list(replay.METHODS),
                 "databases": databases, "cameras": cameras, "cases": []}
-    db_files = regress.database_files(manifest, cache_dir)
+    db_files = replay.database_files(manifest, cache_dir)
     trackers = {}
     for preset in presets_used:
         db = mcu.open_database(str(db_files[preset]))
-        for method in regress.METHODS:
+        for method in replay.METHODS:
             trackers[preset, method] = mcu.make_tracker(db, cameras[preset], method)
 
     frames, files, problems = {}, {}, []
@@ -348,7 +346,7 @@ def record(set_dir, cache_dir=None, log=None):
                       "dt": None}
             truth_doc = None
         outcomes = {m: mcu.replay(trackers[camera, m], data, inputs)
-                    for m in regress.METHODS}
+                    for m in replay.METHODS}
         errors = {}
         for method, out in outcomes.items():
             if out["status_name"] != "OK":
@@ -367,7 +365,7 @@ def record(set_dir, cache_dir=None, log=None):
         files[path] = data
         manifest["cases"].append({
             "name": case.name, "camera": camera, "packet": path,
-            "packet_sha256": regress.sha256(data), "note": case.note, "expect": case.expect,
+            "packet_sha256": replay.sha256(data), "note": case.note, "expect": case.expect,
             "inputs": inputs, "truth": truth_doc, "expected": outcomes,
             "expected_float32": {}, "error_arcsec": errors})      # float32: add_float32
         if log is not None:
@@ -378,7 +376,7 @@ def record(set_dir, cache_dir=None, log=None):
         print(f"float32 build {binary.name}: replaying every packet", file=log, flush=True)
     problems += add_float32(manifest, files, binary, db_files)
     if problems:
-        raise regress.RegressionError(
+        raise replay.RegressionError(
             "nothing written: the firmware's outputs break the set's rules (firmware "
             "findings to report, or cases to change):\n  " + "\n  ".join(problems))
     set_dir = Path(set_dir)

@@ -12,13 +12,12 @@ from importlib import resources
 from pathlib import Path
 
 from lodestar.firmware.starid import METHODS
-from lodestar.ground import cache
-from lodestar.ground import solve as ground_solve
+from lodestar.ground import cache, solve
 from lodestar.ground.database import build_database
 from lodestar.ground.files import write_atomic
-from lodestar.ground.flight import DEFAULT_MAX_MAG, FLIGHT_DENSITY
+from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.regress import mcu, unixport
-from lodestar.regress import micropython as regress_micropython
+from lodestar.regress import micropython as _micropython
 
 SET_FORMAT = 2
 """Version of the manifest layout (2: the float32 build's expectations, ``float32`` and each
@@ -69,9 +68,9 @@ def sha256(data):
 
 def database_recipe(fw_camera):
     """The ``build_database`` arguments of the set's database for a firmware camera: the
-    flight selection (:data:`lodestar.ground.flight.FLIGHT_DENSITY`) serving every method."""
+    flight selection (:data:`lodestar.ground.onboard.FLIGHT_DENSITY`) serving every method."""
 
-    fov_h, fov_v = ground_solve.camera_fov_deg(fw_camera)
+    fov_h, fov_v = solve.camera_fov_deg(fw_camera)
     return dict({"fov_h_deg": round(fov_h, 4), "fov_v_deg": round(fov_v, 4),
                  "mag_limit": DEFAULT_MAX_MAG, "methods": list(METHODS)}, **FLIGHT_DENSITY)
 
@@ -386,7 +385,7 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True)
     (:func:`lodestar.regress.unixport.float32_build`, built into ``cache_dir``, the database
     cache).  Raises :class:`RegressionError` for an unusable set,
     :class:`lodestar.regress.unixport.Unavailable` when the float32 build cannot be made here
-    and ``regress_micropython.MicroPythonError`` when MicroPython is asked for and
+    and ``_micropython.MicroPythonError`` when MicroPython is asked for and
     unavailable or fails (the float32 build or replay included)."""
     manifest = load_set(set_dir)
     if float32:
@@ -395,9 +394,9 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True)
             raise unixport.Unavailable(f"the float32 MicroPython build is unavailable: "
                                        f"{reason} (or run with --no-float32)")
     if micropython:
-        reason = regress_micropython.unavailable_reason()
+        reason = _micropython.unavailable_reason()
         if reason is not None:
-            raise regress_micropython.MicroPythonError(
+            raise _micropython.MicroPythonError(
                 f"MicroPython unavailable: {reason} (or run with --no-micropython)")
     db_files = database_files(manifest, cache_dir)
     cpython = replay_cpython(manifest, set_dir, db_files)
@@ -407,5 +406,5 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True)
                                         db_files)
     mp = None
     if micropython:
-        mp = regress_micropython.replay(manifest, set_dir, db_files, manifest["methods"])
+        mp = _micropython.replay(manifest, set_dir, db_files, manifest["methods"])
     return compare(manifest, cpython, mp, f32), mp

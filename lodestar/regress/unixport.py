@@ -25,9 +25,9 @@ import tempfile
 from pathlib import Path
 
 from lodestar import contract as C
-from lodestar.ground.cache import default_cache_dir
-from lodestar.regress import mcu
-from lodestar.regress.micropython import MicroPythonError, literal, mcu_image
+from lodestar.cache import default_cache_dir
+from lodestar.regress import reprprobe
+from lodestar.regress.micropython import MicroPythonError, mcu_image, write_runs
 
 BUILD_ENV = "LODESTAR_MICROPYTHON_BUILD"
 """Environment variable naming MicroPython's ``build.sh`` (else ``../shared/micropython``
@@ -120,7 +120,7 @@ def _cc():
 def float32_build(cache_dir=None, repo=None):
     """The flight MCU's interpreter (:func:`build`: ``float32``, :data:`FLIGHT_REPR`, the MCU
     image frozen by the ``manifest.py`` of checkout ``repo``, default the current directory)
-    under ``cache_dir/micropython`` (default :func:`lodestar.ground.cache.default_cache_dir`).
+    under ``cache_dir/micropython`` (default :func:`lodestar.cache.default_cache_dir`).
     Raises :class:`Unavailable` when it cannot be built here, :class:`MicroPythonError` when
     the build fails."""
     repo = _available(repo)
@@ -150,7 +150,7 @@ def _available(repo):
 
 def _cache(cache_dir):
     """The builds' folder: ``micropython`` in ``cache_dir`` (default
-    :func:`lodestar.ground.cache.default_cache_dir`)."""
+    :func:`lodestar.cache.default_cache_dir`)."""
     return (Path(cache_dir) if cache_dir is not None else default_cache_dir()) / "micropython"
 
 
@@ -163,23 +163,12 @@ def build_script(repo):
 
 
 def stage_mcu_image(folder, checkout=None):
-    """Copy :func:`lodestar.regress.micropython.mcu_image` into ``folder`` as the tree
-    ``lodestar/...`` that a freeze manifest packages (only changed files are rewritten and
-    files no longer in the image removed, so an incremental build re-freezes only what
-    changed); returns ``folder``.  ``checkout``: take
-    the image from another checkout of the repository instead (its ``lodestar/__init__.py``,
-    ``lodestar/contract`` and ``firmware``; a benchmark's baseline)."""
+    """Copy :func:`lodestar.regress.micropython.mcu_image` of ``checkout`` (None: this
+    installation's) into ``folder`` as the tree ``lodestar/...`` that a freeze manifest
+    packages (only changed files are rewritten and files no longer in the image removed, so
+    an incremental build re-freezes only what changed); returns ``folder``."""
     folder = Path(folder)
-    if checkout is None:
-        pairs = [(host, target[len("/lib/"):]) for host, target in mcu_image()]
-    else:
-        checkout = Path(checkout)
-        pairs = [(checkout / "lodestar" / "__init__.py", "lodestar/__init__.py")]
-        for sub, target in (("lodestar/contract", "lodestar/contract"),
-                            ("firmware", "lodestar/firmware")):
-            pairs += [(p, target + "/" + p.relative_to(checkout / sub).as_posix())
-                      for p in sorted((checkout / sub).rglob("*.py"))]
-    wanted = {folder / target: Path(host) for host, target in pairs}
+    wanted = {folder / target: Path(host) for host, target in mcu_image(checkout)}
     if folder.exists():
         for old in sorted(folder.rglob("*"), reverse=True):     # files before their folders
             if old.is_file() and old not in wanted:
@@ -276,33 +265,15 @@ def _copt(obj_repr):
     return " ".join(f for f in (SSE_COPT if x86 else PORT_COPT, OBJ_REPRS[obj_repr]) if f)
 
 
-_PROBE = r'''
-import gc
-
-
-def allocated(n):
-    gc.collect()
-    start = gc.mem_alloc()
-    x = 1.5
-    for _ in range(n):
-        x = x * 1.0001
-    return gc.mem_alloc() - start
-
-
-print(allocated(101) - allocated(1), 1.0 + 2.0 ** -22 == 1.0)
-'''
-
-
 def object_representation(binary, timeout=60):
     """The object representation of MicroPython ``binary`` (:data:`OBJ_REPRS`), observed:
     ``C`` when 100 more float products allocate nothing more and ``1 + 2**-22`` is 1 (a
     22-bit significand), ``A`` when they allocate and the sum keeps float32's 24 bits.
-    Raises :class:`MicroPythonError` for anything else."""
+    Raises :class:`MicroPythonError` for anything else (:mod:`lodestar.regress.reprprobe`,
+    run as a script)."""
     with tempfile.TemporaryDirectory() as tmp:
-        script = Path(tmp) / "probe.py"
-        script.write_text(_PROBE, encoding="utf-8")
-        proc = subprocess.run([str(binary), str(script)], capture_output=True, text=True,
-                              timeout=timeout, cwd=tmp)
+        proc = subprocess.run([str(binary), str(Path(reprprobe.__file__).resolve())],
+                              capture_output=True, text=True, timeout=timeout, cwd=tmp)
     words = proc.stdout.split()
     if proc.returncode == 0 and len(words) == 2 and words[0].isdigit():
         boxed, rounded = int(words[0]) > 0, words[1] == "True"
@@ -312,68 +283,13 @@ def object_representation(binary, timeout=60):
                            f"{(proc.stdout + proc.stderr).strip()[-300:]}")
 
 
-_LOOP = r'''
-import gc
-import json
-import time
-R = {}
-exec(open(MCU).read(), R)
-if PEAK:
-    gc.threshold(512)
-elif THRESHOLD:
-    gc.threshold(THRESHOLD)
-BUF = bytearray(PACKET_BYTES)           # one packet buffer, reused (as the SPI loop's)
-DB = None
-DB_NAME = None
-CASES = open(CASE_FILE)
-while True:
-    LINE = CASES.readline()
-    if not LINE:
-        break
-    CASE, METHOD, NAME, DB_PATH, CAMERA, PACKET, INPUTS = json.loads(LINE)
-    LINE = None
-    if NAME != DB_NAME:
-        DB = None
-        gc.collect()
-        DB = R["open_database"](DB_PATH)
-        DB_NAME = NAME
-        gc.collect()
-        print("RESIDENT " + json.dumps([NAME, gc.mem_alloc()]))
-    TRACKER = R["make_tracker"](DB, CAMERA, METHOD)
-    if TIMING:
-        TRACKER.settings.clock = time.ticks_us
-    F = open(PACKET, "rb")
-    BYTES = memoryview(BUF)[:F.readinto(BUF)]
-    F.close()
-    F = CAMERA = None
-    if PEAK:
-        gc.collect()
-        BASE = gc.mem_alloc()
-        gc.live_peak(0)
-    T0 = time.ticks_us()
-    RES = R["process"](TRACKER, BYTES, INPUTS)
-    T1 = time.ticks_us()
-    PEAK_BYTES = gc.live_peak()[0] - BASE if PEAK else None
-    TRACKER = BYTES = INPUTS = None
-    OUT = R["outcome"](RES)
-    TIMES = None
-    if TIMING:
-        TIMES = {"process": time.ticks_diff(T1, T0)}
-        for K in RES.timings:
-            TIMES[K] = RES.timings[K] % 1073741824      # ticks_us wrap
-    RES = None
-    print("RESULT " + json.dumps([CASE, METHOD, OUT, PEAK_BYTES, TIMES]))
-    OUT = TIMES = None
-print("DONE")
-'''
-
-
 def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=False,
                 threshold=None, timing=False, timeout=900, buffer_bytes=None):
     """Replay ``runs`` (``[(case, method)]``, ``case`` a manifest case) in order in one
-    ``binary`` process with a ``heapsize``-byte heap, a new tracker per run, only the current
-    camera's database open and one packet buffer (sized for the longest packet, read into
-    and passed as a ``memoryview``, as the flight SPI loop does).  ``peak``: also measure
+    ``binary`` process (:mod:`lodestar.regress.loop`, frozen) with a ``heapsize``-byte heap,
+    a new tracker per run, only the current camera's database open and one packet buffer
+    (sized for the longest packet, read into and passed as a ``memoryview``, as the flight
+    SPI loop does).  ``peak``: also measure
     each solve's live peak above the heap before it (``gc.threshold(512)``;
     ``gc.live_peak()`` of MicroPython's ``build.sh``), which overrides the firmware's
     collector setting.  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
@@ -394,36 +310,35 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
                                    f"longest packet of the runs ({longest} bytes)")
         longest = buffer_bytes
     with tempfile.TemporaryDirectory() as tmp:
-        case_file = Path(tmp) / "cases.jsonl"
-        with open(case_file, "w", encoding="utf-8") as f:
-            for case, method in runs:
-                name = manifest["cameras"][case["camera"]]["database"]
-                f.write(json.dumps([case["name"], method, name,
-                                    str(Path(database_files[name]).resolve()),
-                                    manifest["cameras"][case["camera"]],
-                                    str((set_dir / case["packet"]).resolve()),
-                                    case["inputs"]]) + "\n")
-        script = Path(tmp) / "loop.py"
-        script.write_text(f"MCU = {literal(str(Path(mcu.__file__).resolve()))}\n"
-                          f"CASE_FILE = {literal(str(case_file))}\n"
-                          f"PEAK = {peak!r}\nTHRESHOLD = {threshold!r}\n"
-                          f"TIMING = {timing!r}\nPACKET_BYTES = {longest}\n" + _LOOP,
-                          encoding="utf-8")
+        write_runs(Path(tmp) / "runs.jsonl", manifest, runs,
+                   lambda name: str(Path(database_files[name]).resolve()),
+                   lambda case: str((set_dir / case["packet"]).resolve()))
+        config = Path(tmp) / "loop.json"
+        config.write_text(json.dumps({"runs": str(Path(tmp) / "runs.jsonl"), "peak": peak,
+                                      "threshold": threshold, "timing": timing,
+                                      "buffer_bytes": longest}), encoding="utf-8")
         try:
-            proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", str(script)],
+            proc = subprocess.run([str(binary), "-X", f"heapsize={int(heapsize)}", "-m",
+                                   "lodestar.regress.loop", str(config)],
                                   capture_output=True, text=True, timeout=timeout, cwd=tmp)
         except subprocess.TimeoutExpired:
             raise MicroPythonError(f"the flight loop ran more than {timeout} s") from None
+    return _loop_output(proc)
+
+
+def _loop_output(proc):
+    """The :func:`flight_loop` dict of a finished flight-loop process."""
     out = {"finished": False, "results": {}, "times": {}, "resident": {},
            "error": (proc.stdout + proc.stderr).strip()[-2000:]}
     for line in proc.stdout.splitlines():
         if line.startswith("RESULT "):
-            case, method, outcome, peak_bytes, times = json.loads(line[len("RESULT "):])
-            out["results"][(case, method)] = (outcome, peak_bytes)
-            if times is not None:
-                out["times"][(case, method)] = times
-        elif line.startswith("RESIDENT "):
-            name, live = json.loads(line[len("RESIDENT "):])
+            result = json.loads(line[len("RESULT "):])
+            key = (result["case"], result["method"])
+            out["results"][key] = (result["out"], result["peak"])
+            if result["times"] is not None:
+                out["times"][key] = result["times"]
+        elif line.startswith("OPENED "):
+            name, live = json.loads(line[len("OPENED "):])
             out["resident"].setdefault(name, live)      # at its first opening
     out["finished"] = proc.returncode == 0 and "DONE" in proc.stdout.splitlines()
     return out

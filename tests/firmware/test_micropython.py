@@ -17,14 +17,12 @@ import pytest
 from lodestar import contract as C
 from lodestar import firmware
 from lodestar.contract import DetectionResult
-from lodestar.firmware import camera as fwcamera
-from lodestar.firmware import centroids as fwcentroids
-from lodestar.firmware import packet as fwpacket
-from lodestar.firmware import status as fwstatus
+from lodestar.firmware import camera, centroids, packet
+from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
-from lodestar.ground import codec as ground
-from lodestar.regress import micropython as mp_runner
+from lodestar.ground import codec
+from lodestar.regress import micropython as _micropython
 from lodestar.sim.presets import PRESETS, load_preset
 from tests.firmware.mpy import lit
 
@@ -59,11 +57,11 @@ def packet_cases():
                             n_blobs=0, n_filtered=0, dropped_records=0, dropped_labels=0,
                             flags=0, frame_counter=0xFFFFFFFF, width=C.MAX_WIDTH,
                             height=C.MAX_HEIGHT, pixel_bits=16)
-    return [("stars100", ground.encode(big)),
-            ("stars10bit", ground.encode(_frame_result(2, 30, 200, 150, pixel_bits=10))),
-            ("stars16bit", ground.encode(_frame_result(3, 30, 200, 150, pixel_bits=16))),
-            ("saturated", ground.encode(saturated)),
-            ("empty", ground.encode(empty))]
+    return [("stars100", codec.encode(big)),
+            ("stars10bit", codec.encode(_frame_result(2, 30, 200, 150, pixel_bits=10))),
+            ("stars16bit", codec.encode(_frame_result(3, 30, 200, 150, pixel_bits=16))),
+            ("saturated", codec.encode(saturated)),
+            ("empty", codec.encode(empty))]
 
 
 def corrupt_cases(data):
@@ -99,7 +97,7 @@ def camera_cases():
     rng = np.random.default_rng(11)
     for name in PRESETS:
         sim = load_preset(name)
-        cam = fwcamera.Camera(sim.width, sim.height, sim.fx_px, sim.fy_px, sim.cx, sim.cy,
+        cam = camera.Camera(sim.width, sim.height, sim.fx_px, sim.fy_px, sim.cx, sim.cy,
                               sim.k1, sim.k2, sim.k3, sim.p1, sim.p2)
         w, h = sim.width, sim.height
         pixels = [(x, y) for x in (-0.5, 0.0, w / 3, w / 2 - 0.5, w - 1.0, w - 0.5)
@@ -120,18 +118,18 @@ def build_script():
     packets = packet_cases()
     decoded = []
     for name, data in packets:
-        code, header, records, reason = fwpacket.decode(data)
-        assert code == fwstatus.OK, reason
-        stars, rejected = fwcentroids.extract(records, max_stars=None)
-        stars_smear, rejected_smear = fwcentroids.extract(
+        code, header, records, reason = packet.decode(data)
+        assert code == S.OK, reason
+        stars, rejected = centroids.extract(records, max_stars=None)
+        stars_smear, rejected_smear = centroids.extract(
             records, max_stars=20, expected_smear_px=(6.0, -4.0), max_elongation=1.5)
         decoded.append((name, data, header, [r.as_tuple() for r in records],
                         [star_tuple(s) for s in stars], rejected,
                         [star_tuple(s) for s in stars_smear], rejected_smear))
     corrupt = []
     for data in corrupt_cases(packets[1][1]):
-        code, header, records, reason = fwpacket.decode(data)
-        assert code != fwstatus.OK
+        code, header, records, reason = packet.decode(data)
+        assert code != S.OK
         corrupt.append((data, code, reason))
     firmware_modules = sorted(p.stem for p in (FIRMWARE).glob("*.py")
                               if p.name != "__init__.py")
@@ -140,8 +138,8 @@ def build_script():
         "DECODED = " + lit(decoded),
         "CORRUPT = " + lit(corrupt),
         "CAMERAS = " + lit(camera_cases()),
-        "STATUS_NAMES = " + lit([(code, fwstatus.name(code)) for code in fwstatus.codes()]),
-        "BAD_INPUTS = " + lit([(bad, fwpacket.decode(bad)) for bad in ("LS", 5, None, [1, 2])]),
+        "STATUS_NAMES = " + lit([(code, S.name(code)) for code in S.codes()]),
+        "BAD_INPUTS = " + lit([(bad, packet.decode(bad)) for bad in ("LS", 5, None, [1, 2])]),
     ])
     return data_block + "\n" + MICROPYTHON_SCRIPT
 
@@ -163,7 +161,6 @@ for n in names:
     __import__("lodestar.firmware." + n)
 
 from lodestar import contract as C
-from lodestar.contract import packet as contract_packet
 from lodestar.firmware import camera, centroids, packet, status
 
 checks = [0]
@@ -201,10 +198,10 @@ for code, name in STATUS_NAMES:
 
 # --- packets -----------------------------------------------------------------------------
 import binascii
-print("BINASCII_CRC32", hasattr(binascii, "crc32"), contract_packet.crc32_native is not None)
+print("BINASCII_CRC32", hasattr(binascii, "crc32"), C.crc32_native is not None)
 for crc_impl in ("binascii", "table"):
     if crc_impl == "table":
-        contract_packet.crc32_native = None
+        C.crc32_native = None
     for name, data, header, records, stars, rejected, stars_s, rejected_s in DECODED:
         where = "{} ({})".format(name, crc_impl)
         code, h, recs, reason = packet.decode(data)
@@ -228,7 +225,7 @@ for crc_impl in ("binascii", "table"):
     for bad, expected in BAD_INPUTS:
         same(packet.decode(bad), expected, "bad input")
     same(C.crc32(b"123456789"), 0xCBF43926, "crc check value")
-contract_packet.crc32_native = binascii.crc32 if hasattr(binascii, "crc32") else None
+C.crc32_native = binascii.crc32 if hasattr(binascii, "crc32") else None
 same(C.crc32_table(b"123456789"), 0xCBF43926, "table crc check value")
 
 # --- camera ------------------------------------------------------------------------------
@@ -326,7 +323,7 @@ def test_missing_micropython_skips_or_fails(micropython, monkeypatch, tmp_path):
     with pytest.raises(pytest.fail.Exception, match="MicroPython required"):
         micropython("print(1)")
     monkeypatch.setattr("shutil.which", lambda name: None)   # no node
-    assert "node is not installed" in mp_runner.unavailable_reason()
+    assert "node is not installed" in _micropython.unavailable_reason()
 
 
 @pytest.mark.parametrize("name", ["status", "packet", "centroids", "camera"])

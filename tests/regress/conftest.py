@@ -16,8 +16,7 @@ import os
 
 import pytest
 
-from lodestar.regress import replay as regress
-from lodestar.regress import unixport
+from lodestar.regress import replay, unixport
 from tests import REPO
 
 
@@ -44,5 +43,5 @@ def reference():
 
 @pytest.fixture(scope="session")
 def regression_set():
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    return manifest, regress.database_files(manifest)
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    return manifest, replay.database_files(manifest)

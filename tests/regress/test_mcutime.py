@@ -4,8 +4,7 @@ published results; the flight build is refused for calibration and counts its fr
 
 import pytest
 
-from lodestar.regress import mcutime
-from lodestar.regress import replay as regress
+from lodestar.regress import mcutime, replay
 
 
 def test_sources_are_pyperformance_functions_without_the_runner():
@@ -61,7 +60,7 @@ def test_frame_instructions_split_a_frame_by_stage(float32_frozen, valgrind, reg
     camera = manifest["cameras"][case["camera"]]
     status, stages = mcutime.frame_instructions(
         float32_frozen, case, "pyramid", files[camera["database"]], camera,
-        regress.DEFAULT_SET / case["packet"], 64 * 1024)
+        replay.DEFAULT_SET / case["packet"], 64 * 1024)
     assert status == case["expected"]["pyramid"]["status"]
     assert set(stages) == {"decode", "centroids", "directions", "identify", "attitude",
                            "process"}

@@ -11,6 +11,7 @@ float32 build's replay and recording: ``test_unixport.py`` (these tests pass
 import json
 import math
 import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -19,10 +20,7 @@ from scipy.spatial.transform import Rotation
 from lodestar.cli import main
 from lodestar.contract.stardb import METHODS
 from lodestar.firmware.settings import DEFAULT_TRACK_STARS
-from lodestar.regress import mcu, unixport
-from lodestar.regress import micropython as regress_micropython
-from lodestar.regress import record as regress_record
-from lodestar.regress import replay as regress
+from lodestar.regress import mcu, micropython, record, replay, unixport
 
 
 @pytest.fixture(autouse=True)
@@ -37,7 +35,7 @@ def cache_dir(tmp_path_factory, monkeypatch):
 def set_copy(tmp_path):
     """A writable copy of the committed set."""
     target = tmp_path / "set"
-    shutil.copytree(regress.DEFAULT_SET, target)
+    shutil.copytree(replay.DEFAULT_SET, target)
     return target
 
 
@@ -60,7 +58,7 @@ def _case(manifest, name):
 def test_committed_set_replays_on_cpython_and_micropython(capsys, require_micropython):
     assert main(["regress", "--no-float32"]) == 0
     out = capsys.readouterr().out
-    manifest = _manifest(regress.DEFAULT_SET)
+    manifest = _manifest(replay.DEFAULT_SET)
     n = len(manifest["cases"]) * len(manifest["methods"])
     assert f"all {n} replays agree with the recorded outputs on CPython and MicroPython" in out
     assert out.count(" same ") >= 2 * n          # a CPython and a MicroPython verdict per row
@@ -70,8 +68,8 @@ def test_committed_set_replays_on_cpython_and_micropython(capsys, require_microp
 def test_set_covers_the_brief():
     """Several estcube2 attitudes and rates, clean failures, lohmann frames, false stars and
     hot pixels, corrupted packets with their status; every method; small committed data."""
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    assert manifest["methods"] == list(regress.METHODS) == list(METHODS)
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    assert manifest["methods"] == list(replay.METHODS) == list(METHODS)
     cases = manifest["cases"]
     solved = [c for c in cases if all(o["status_name"] == "OK" for o in c["expected"].values())]
     est_rest = [c for c in solved if c["camera"] == "estcube2" and c["inputs"]["prior"] is None
@@ -101,7 +99,7 @@ def test_set_covers_the_brief():
             assert len(out["matches"]) >= 4 and out["sigma_cross_arcsec"] > 0
             err = case["error_arcsec"][method]
             assert math.hypot(err["cross"], err["roll"]) < 180
-    size = sum(p.stat().st_size for p in regress.DEFAULT_SET.rglob("*") if p.is_file())
+    size = sum(p.stat().st_size for p in replay.DEFAULT_SET.rglob("*") if p.is_file())
     assert size < 512 * 1024
 
 
@@ -109,7 +107,7 @@ def test_cpython_only_and_missing_micropython(monkeypatch, capsys):
     assert main(["regress", "--no-micropython", "--no-float32"]) == 0
     out = capsys.readouterr().out
     assert "agree with the recorded outputs on CPython\n" in out and "MicroPy" not in out
-    monkeypatch.setattr(regress_micropython, "unavailable_reason",
+    monkeypatch.setattr(micropython, "unavailable_reason",
                         lambda: "node is not installed")
     assert main(["regress", "--no-float32"]) == 2
     assert "MicroPython unavailable: node is not installed" in capsys.readouterr().err
@@ -158,43 +156,43 @@ def test_differences_fail_the_run(set_copy, capsys):
 
 
 def test_differences_within_tolerance():
-    tol = regress.TOLERANCES
-    manifest = regress.load_set(regress.DEFAULT_SET)
+    tol = replay.TOLERANCES
+    manifest = replay.load_set(replay.DEFAULT_SET)
     out = _case(manifest, "estcube2_rest_s0")["expected"]["pyramid"]
-    assert regress.differences(out, out, tol) == []
+    assert replay.differences(out, out, tol) == []
     other = json.loads(json.dumps(out))
     other["q"] = [-c for c in out["q"]]                       # the same rotation
     other["sigma_cross_arcsec"] *= 1 + 0.5 * tol["sigma_relative"]
-    assert regress.differences(out, other, tol) == []
+    assert replay.differences(out, other, tol) == []
     for angle, differs in ((0.5 * tol["q_rad"], False), (2 * tol["q_rad"], True)):
         turn = Rotation.from_rotvec([angle, 0.0, 0.0])
         other["q"] = list((turn * Rotation.from_quat(out["q"])).as_quat())
-        assert bool(regress.differences(out, other, tol)) is differs
+        assert bool(replay.differences(out, other, tol)) is differs
     other = json.loads(json.dumps(out))
     other["reason"] = "reworded"                              # text is not compared
     other["q"] = None
-    assert regress.differences(out, other, tol) == [f"q {out['q']!r} vs None"]
+    assert replay.differences(out, other, tol) == [f"q {out['q']!r} vs None"]
 
 
 def test_float32_bound():
     """A float32 outcome matches the double one when its status and identified stars are the
     same and its attitude and sigma figures are within :data:`FLOAT32_BOUND`."""
-    bound = regress.FLOAT32_BOUND
-    manifest = regress.load_set(regress.DEFAULT_SET)
+    bound = replay.FLOAT32_BOUND
+    manifest = replay.load_set(replay.DEFAULT_SET)
     double = _case(manifest, "estcube2_rest_s0")["expected"]["pyramid"]
     f32 = json.loads(json.dumps(double))
     for angle, differs in ((0.9 * bound["q_rad"], False), (1.1 * bound["q_rad"], True)):
         f32["q"] = list((Rotation.from_rotvec([0.0, angle, 0.0]) *
                          Rotation.from_quat(double["q"])).as_quat())
-        assert bool(regress.float32_vs_double(f32, double, bound)) is differs
+        assert bool(replay.float32_vs_double(f32, double, bound)) is differs
     f32 = json.loads(json.dumps(double))
     f32["sigma_roll_arcsec"] *= 1 + 0.5 * bound["sigma_relative"]
     f32["patterns_tried"] += 1                     # not an identification: not compared
-    assert regress.float32_vs_double(f32, double, bound) == []
+    assert replay.float32_vs_double(f32, double, bound) == []
     f32["sigma_roll_arcsec"] = double["sigma_roll_arcsec"] * (1 + 2 * bound["sigma_relative"])
     f32["matches"] = f32["matches"][:-1]
     f32["status"] = 1
-    found = regress.float32_vs_double(f32, double, bound)
+    found = replay.float32_vs_double(f32, double, bound)
     assert [text.split()[0] for text in found] == ["status", "matches:", "sigma_roll_arcsec"]
 
 
@@ -205,7 +203,7 @@ def test_rotation_angle_matches_scipy():
         d = Rotation.from_rotvec(rng.normal(size=3) * scale / math.sqrt(3))
         b = d * a
         expected = d.magnitude()
-        got = regress.rotation_angle(list(a.as_quat()), list(-b.as_quat()))
+        got = replay.rotation_angle(list(a.as_quat()), list(-b.as_quat()))
         assert got == pytest.approx(expected, rel=1e-6, abs=1e-15)
 
 
@@ -224,32 +222,32 @@ def test_altered_or_missing_packet(set_copy, capsys):
     packet.unlink()
     assert main(["regress", "--no-micropython", "--set", str(set_copy / "nowhere")]) == 2
     assert "no regression set in" in capsys.readouterr().err
-    with pytest.raises(regress.RegressionError, match="case estcube2_rest_s2"):
-        regress.load_set(set_copy)
-    with pytest.raises(regress.RegressionError, match="no regression set"):
-        regress.load_set(set_copy / "nowhere")
+    with pytest.raises(replay.RegressionError, match="case estcube2_rest_s2"):
+        replay.load_set(set_copy)
+    with pytest.raises(replay.RegressionError, match="no regression set"):
+        replay.load_set(set_copy / "nowhere")
     manifest = _manifest(set_copy)
     manifest["format"] = 99
     _write_manifest(set_copy, manifest)
-    with pytest.raises(regress.RegressionError, match="set format 99"):
-        regress.load_set(set_copy)
+    with pytest.raises(replay.RegressionError, match="set format 99"):
+        replay.load_set(set_copy)
 
 
 def test_database_cache_and_recipe(tmp_path):
     """The database is rebuilt from its recipe into the cache, a damaged cache file is
     rebuilt, and a recipe that no longer gives the recorded image is refused."""
-    manifest = regress.load_set(regress.DEFAULT_SET)
+    manifest = replay.load_set(replay.DEFAULT_SET)
     entry = manifest["databases"]["lohmann"]
     one = {"databases": {"lohmann": entry}}
-    path = regress.database_files(one, tmp_path)["lohmann"]
+    path = replay.database_files(one, tmp_path)["lohmann"]
     assert path.parent == tmp_path and path.stat().st_size == entry["bytes"]
     path.write_bytes(b"garbage")
-    assert regress.sha256(regress.database_files(one, tmp_path)["lohmann"].read_bytes()) == \
+    assert replay.sha256(replay.database_files(one, tmp_path)["lohmann"].read_bytes()) == \
         entry["sha256"]
     path.unlink()
     entry["recipe"]["methods"] = ["pyramid"]
-    with pytest.raises(regress.RegressionError, match="database lohmann: the recipe"):
-        regress.database_files(one, tmp_path)
+    with pytest.raises(replay.RegressionError, match="database lohmann: the recipe"):
+        replay.database_files(one, tmp_path)
 
 
 # --------------------------------------------------------------------------------------
@@ -257,68 +255,86 @@ def test_database_cache_and_recipe(tmp_path):
 # --------------------------------------------------------------------------------------
 
 def _tracker(manifest, camera, method):
-    db = mcu.open_database(str(regress.database_files(manifest)[camera]))
+    db = mcu.open_database(str(replay.database_files(manifest)[camera]))
     return mcu.make_tracker(db, manifest["cameras"][camera], method)
 
 
 def test_recorder_remakes_a_committed_packet_and_checks_truth():
     """A frame of the set is simulated and detected again into the committed bytes; its
     replay is right against the truth, and a moved attitude or a wrong star is refused."""
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    spec = next(c for c in regress_record.CASES if c.name == "lohmann_orion")
-    det, truth, data, inputs, truth_doc = regress_record.frame_entry(spec)
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    spec = next(c for c in record.CASES if c.name == "lohmann_orion")
+    det, truth, data, inputs, truth_doc = record.frame_entry(spec)
     case = _case(manifest, spec.name)
-    assert data == (regress.DEFAULT_SET / case["packet"]).read_bytes()
+    assert data == (replay.DEFAULT_SET / case["packet"]).read_bytes()
     assert inputs == case["inputs"] and truth_doc == case["truth"]
     out = mcu.replay(_tracker(manifest, "lohmann", "pyramid"), data, inputs)
-    assert regress.differences(case["expected"]["pyramid"], out, regress.TOLERANCES) == []
-    error, problem = regress_record.check_truth(out, det, truth)
+    assert replay.differences(case["expected"]["pyramid"], out, replay.TOLERANCES) == []
+    error, problem = record.check_truth(out, det, truth)
     assert problem is None and error == pytest.approx(case["error_arcsec"]["pyramid"])
     turned = dict(out, q=list((Rotation.from_rotvec([0.0, 0.0, math.radians(0.1)]) *
                                Rotation.from_quat(out["q"])).as_quat()))
-    error, problem = regress_record.check_truth(turned, det, truth)
+    error, problem = record.check_truth(turned, det, truth)
     assert problem.startswith("WRONG solution") and math.hypot(error["cross"],
                                                                error["roll"]) > 300
     swapped = dict(out, matches=[[out["matches"][0][0], out["matches"][1][1]]] +
                    out["matches"][1:])
-    assert "1 of" in regress_record.check_truth(swapped, det, truth)[1]
+    assert "1 of" in record.check_truth(swapped, det, truth)[1]
 
 
 def test_recorder_expectations():
     ok, fail = {"status_name": "OK"}, {"status_name": "NO_MATCH"}
-    check = regress_record.check_expect
+    check = record.check_expect
     assert check("solve", {"a": ok, "b": ok}) is None
     assert "expected 'solve'" in check("solve", {"a": ok, "b": fail})
     assert check("fail", {"a": fail}) is None and check("fail", {"a": ok}) is not None
     assert check("any", {"a": ok, "b": fail}) is None
     assert check("NO_MATCH", {"a": fail}) is None and check("NO_MATCH", {"a": ok}) is not None
     with pytest.raises(ValueError, match="unknown derivation"):
-        regress_record.derive("melted", None)
+        record.derive("melted", None)
 
 
 # --------------------------------------------------------------------------------------
 # The MicroPython harness
 # --------------------------------------------------------------------------------------
 
-def test_micropython_script_and_output_parsing():
-    manifest = regress.load_set(regress.DEFAULT_SET)
-    script = regress_micropython.build_script(manifest, ["hashing"], repeats=2)
-    assert script.count("R.replay(") == 2 * len(manifest["cases"])
-    assert script.count("#@split") == 3 + 2 * len(manifest["cases"]) + 1
-    value = [None, True, 3, 0.1, "a'b", {"k": [1.5, -2]}, (1, 2)]
-    assert eval(regress_micropython.literal(value)) == [None, True, 3, 0.1, "a'b",
-                                                        {"k": [1.5, -2]}, [1, 2]]
-    for bad in (float("nan"), float("inf")):
-        with pytest.raises(ValueError):
-            regress_micropython.literal(bad)
-    with pytest.raises(TypeError):
-        regress_micropython.literal(object())
-    with pytest.raises(regress_micropython.MicroPythonError, match="exit status 1"):
-        regress_micropython.parse_output(1, "RESIDENT {}\n", "Traceback: MemoryError")
-    parsed = regress_micropython.parse_output(
+def test_micropython_run_file_and_output_parsing(tmp_path):
+    """The replay's run file holds every case with each method, the files as MicroPython
+    opens them; the runner's output parses, and an unfinished replay raises."""
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    runs = [(case, "hashing") for case in manifest["cases"]]
+    micropython.write_runs(tmp_path / "runs.jsonl", manifest, runs,
+                                   lambda name: f"/db/{name}", lambda case: case["packet"])
+    lines = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    case = manifest["cases"][0]
+    camera = manifest["cameras"][case["camera"]]
+    assert len(lines) == len(manifest["cases"])
+    assert lines[0] == [case["name"], "hashing", case["camera"], camera["database"],
+                        f"/db/{camera['database']}", camera, case["packet"], case["inputs"]]
+    with pytest.raises(micropython.MicroPythonError, match="exit status 1"):
+        micropython.parse_output(1, "RESIDENT {}\n", "Traceback: MemoryError")
+    parsed = micropython.parse_output(
         0, 'RESIDENT {"code": 1}\nRESULT {"case": "c", "out": {}}\nLIVE_END 7\nDONE\n', "")
     assert parsed == {"resident": {"code": 1}, "results": [{"case": "c", "out": {}}],
                       "live_end": 7}
+
+
+def test_the_mcu_loop_runs_on_cpython():
+    """The loop both MicroPython runners run (:mod:`lodestar.regress.loop`) is plain Python:
+    the flight loop on CPython (``python -m``, no heap figures) gives the recorded
+    outcomes."""
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    db_files = replay.database_files(manifest)
+    runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]
+            if case["camera"] == "lohmann"]
+    loop = unixport.flight_loop(sys.executable, manifest, replay.DEFAULT_SET, db_files, runs,
+                                64 * 1024, timeout=300)
+    assert loop["finished"], loop["error"]
+    assert set(loop["resident"]) == {manifest["cameras"]["lohmann"]["database"]}
+    for case, method in runs:
+        out, peak = loop["results"][case["name"], method]
+        assert peak is None
+        assert replay.differences(case["expected"][method], out, manifest["tolerances"]) == []
 
 
 def test_runner_copies_files(tmp_path, require_micropython):
@@ -329,7 +345,7 @@ def test_runner_copies_files(tmp_path, require_micropython):
     data.write_bytes(b"\x00\x01lodestar")
     script = tmp_path / "s.py"
     script.write_text("print(open('/regress/x/data.bin', 'rb').read())\n")
-    run = ["node", str(regress_micropython.tool_dir() / "run.mjs")]
+    run = ["node", str(micropython.tool_dir() / "run.mjs")]
     proc = subprocess.run(run + ["--copy", f"{data}=/regress/x/data.bin", str(script)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and "b'\\x00\\x01lodestar'" in proc.stdout

@@ -16,9 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.cli import main
 from lodestar.contract.stardb import METHODS
-from lodestar.regress import record as regress_record
-from lodestar.regress import replay as regress
-from lodestar.regress import unixport
+from lodestar.regress import record, replay, unixport
 from tests import REPO
 
 HEAP_BUDGET = 64 * 1024
@@ -74,15 +72,15 @@ def test_the_float32_build_reproduces_its_expectations(float32_frozen, regressio
     the set's tight ``float32.tolerances``; the same outcomes bit for bit in the reverse
     order at another heap (the expectations are the arithmetic's, not the loop's)."""
     manifest, db_files = regression_set
-    got = unixport.float32_outcomes(float32_frozen, manifest, regress.DEFAULT_SET, db_files)
+    got = unixport.float32_outcomes(float32_frozen, manifest, replay.DEFAULT_SET, db_files)
     tol = manifest["float32"]["tolerances"]
-    assert tol == regress.FLOAT32_TOLERANCES
+    assert tol == replay.FLOAT32_TOLERANCES
     problems = [(case["name"], method, d) for case, method in _runs_all(manifest)
-                for d in regress.differences(case["expected_float32"][method],
+                for d in replay.differences(case["expected_float32"][method],
                                              got[case["name"], method], tol)]
     assert problems == []
     runs = _runs_all(manifest)[::-1]
-    loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+    loop = unixport.flight_loop(float32_frozen, manifest, replay.DEFAULT_SET, db_files, runs,
                                 512 * 1024)
     assert loop["finished"]
     assert {key: out for key, (out, _peak) in loop["results"].items()} == got
@@ -94,14 +92,14 @@ def test_float32_expectations_are_within_the_bound_of_the_double_ones(regression
     ``float32.bound`` (:data:`lodestar.regress.replay.FLOAT32_BOUND`)."""
     manifest, _db_files = regression_set
     bound = manifest["float32"]["bound"]
-    assert bound == regress.FLOAT32_BOUND
+    assert bound == replay.FLOAT32_BOUND
     assert manifest["float32"]["build"] == "micropython-float32-32-frozen-repr-c"
     worst = 0.0
     for case, method in _runs_all(manifest):
         f32, double = case["expected_float32"][method], case["expected"][method]
-        assert regress.float32_vs_double(f32, double, bound) == [], (case["name"], method)
+        assert replay.float32_vs_double(f32, double, bound) == [], (case["name"], method)
         if double["q"] is not None:
-            worst = max(worst, regress.rotation_angle(f32["q"], double["q"]))
+            worst = max(worst, replay.rotation_angle(f32["q"], double["q"]))
     assert 0.0 < worst < bound["q_rad"]          # float32 is not double, and within the bound
 
 
@@ -109,13 +107,13 @@ def test_lodestar_regress_checks_the_float32_build(float32_frozen, tmp_path, cap
     """``lodestar regress`` replays the committed set on the float32 build and agrees; a
     float32 expectation tampered with beyond the tight tolerance (an attitude turned by 3e-9
     rad, a sigma by 1e-6, well within the double bound) or an identification is caught."""
-    n = len(regress.load_set(regress.DEFAULT_SET)["cases"]) * 3
+    n = len(replay.load_set(replay.DEFAULT_SET)["cases"]) * 3
     assert main(["regress", "--no-micropython"]) == 0
     out = capsys.readouterr().out
     assert f"all {n} replays agree with the recorded outputs on CPython and the float32 " \
            "build" in out and out.count(" same ") >= 2 * n
     target = tmp_path / "set"
-    shutil.copytree(regress.DEFAULT_SET, target)
+    shutil.copytree(replay.DEFAULT_SET, target)
     manifest = json.loads((target / "manifest.json").read_text())
     cases = {case["name"]: case for case in manifest["cases"]}
     moved = cases["estcube2_rest_s1"]["expected_float32"]["triangle"]
@@ -139,15 +137,15 @@ def test_the_recorder_refuses_float32_outcomes_beyond_the_bound(float32_frozen, 
     double outcomes moved by twice the bound and given another star."""
     manifest, db_files = regression_set
     manifest = copy.deepcopy(manifest)
-    files = {case["packet"]: (regress.DEFAULT_SET / case["packet"]).read_bytes()
+    files = {case["packet"]: (replay.DEFAULT_SET / case["packet"]).read_bytes()
              for case in manifest["cases"]}
     committed = {case["name"]: case.pop("expected_float32") for case in manifest["cases"]}
     cases = {case["name"]: case for case in manifest["cases"]}
     turned = cases["estcube2_rest_s2"]["expected"]["pyramid"]
-    turned["q"] = list((Rotation.from_rotvec([2 * regress.FLOAT32_BOUND["q_rad"], 0.0, 0.0]) *
+    turned["q"] = list((Rotation.from_rotvec([2 * replay.FLOAT32_BOUND["q_rad"], 0.0, 0.0]) *
                         Rotation.from_quat(turned["q"])).as_quat())
     cases["lohmann_orion"]["expected"]["triangle"]["matches"][0][1] += 1
-    problems = regress_record.add_float32(manifest, files, float32_frozen, db_files)
+    problems = record.add_float32(manifest, files, float32_frozen, db_files)
     assert len(problems) == 2
     assert problems[0].startswith("estcube2_rest_s2 / pyramid: float32 vs double: attitude "
                                   "differs by")
@@ -160,9 +158,9 @@ def test_record_reproduces_the_committed_set(float32_frozen, tmp_path):
     """``lodestar regress --record`` rewrites the committed set byte for byte, the float32
     expectations included (about a minute: every frame is simulated again)."""
     assert main(["regress", "--record", "--set", str(tmp_path)]) == 0
-    for path in regress.DEFAULT_SET.rglob("*"):
+    for path in replay.DEFAULT_SET.rglob("*"):
         if path.is_file():
-            assert (tmp_path / path.relative_to(regress.DEFAULT_SET)).read_bytes() == \
+            assert (tmp_path / path.relative_to(replay.DEFAULT_SET)).read_bytes() == \
                 path.read_bytes(), path.name
 
 
@@ -174,7 +172,7 @@ def test_every_flight_loop_runs_within_the_heap_budget(float32_frozen, regressio
     manifest, db_files = regression_set
     for camera in manifest["cameras"]:
         runs = _runs(manifest, method, camera)
-        loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files,
+        loop = unixport.flight_loop(float32_frozen, manifest, replay.DEFAULT_SET, db_files,
                                     runs, HEAP_BUDGET, buffer_bytes=unixport.FLIGHT_BUFFER)
         assert unixport.disagreements(loop, runs) == [], (camera, loop["error"])
 
@@ -184,11 +182,11 @@ def test_min_heap_bisects_to_the_smallest_working_heap(float32_frozen, regressio
     manifest, db_files = regression_set
     runs = [(case, "triangle") for case in manifest["cases"]
             if case["name"] == "estcube2_rest_s0"]
-    heap = unixport.min_heap(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+    heap = unixport.min_heap(float32_frozen, manifest, replay.DEFAULT_SET, db_files, runs,
                              high=HEAP_BUDGET)
     assert heap is not None and heap <= HEAP_BUDGET
     for size, fits in ((heap, True), (heap - unixport.HEAP_STEP, False)):
-        loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files,
+        loop = unixport.flight_loop(float32_frozen, manifest, replay.DEFAULT_SET, db_files,
                                     runs, size)
         assert (unixport.disagreements(loop, runs) == []) is fits, size
 
@@ -200,26 +198,32 @@ def test_a_bigger_packet_buffer_takes_its_size_from_the_heap(float32_frozen, reg
     manifest, db_files = regression_set
     runs = [(case, "triangle") for case in manifest["cases"]
             if case["name"] == "estcube2_rest_s0"]
-    heap = unixport.min_heap(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+    heap = unixport.min_heap(float32_frozen, manifest, replay.DEFAULT_SET, db_files, runs,
                              high=HEAP_BUDGET)
-    longest = (regress.DEFAULT_SET / runs[0][0]["packet"]).stat().st_size
-    loop = unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs,
+    longest = (replay.DEFAULT_SET / runs[0][0]["packet"]).stat().st_size
+    loop = unixport.flight_loop(float32_frozen, manifest, replay.DEFAULT_SET, db_files, runs,
                                 heap, buffer_bytes=longest + 8192)
     assert unixport.disagreements(loop, runs) != []
     with pytest.raises(unixport.MicroPythonError, match="cannot hold"):
-        unixport.flight_loop(float32_frozen, manifest, regress.DEFAULT_SET, db_files, runs, heap,
+        unixport.flight_loop(float32_frozen, manifest, replay.DEFAULT_SET, db_files, runs, heap,
                              buffer_bytes=longest - 1)
 
 
 def test_the_frozen_image_is_the_mcu_image(tmp_path):
-    """The staged tree holds exactly the MCU image: the root, the contract and the
-    firmware, nothing of the ground."""
-    staged = unixport.stage_mcu_image(tmp_path)
+    """The staged tree holds exactly the MCU image: the root, the contract, the firmware and
+    the MCU side of the regression, nothing of the ground; a checkout's source tree stages
+    the same image."""
+    staged = unixport.stage_mcu_image(tmp_path / "installed")
     files = sorted(str(p.relative_to(staged)) for p in staged.rglob("*.py"))
     assert "lodestar/__init__.py" in files and "lodestar/firmware/pipeline.py" in files
     assert "lodestar/contract/packet.py" in files
+    regress_files = ["lodestar/regress/__init__.py", "lodestar/regress/loop.py",
+                     "lodestar/regress/mcu.py"]
     assert all(f.startswith(("lodestar/firmware/", "lodestar/contract/")) or
-               f == "lodestar/__init__.py" for f in files)
+               f == "lodestar/__init__.py" or f in regress_files for f in files)
+    assert set(regress_files) <= set(files)
+    checkout = unixport.stage_mcu_image(tmp_path / "checkout", checkout=REPO)
+    assert sorted(str(p.relative_to(checkout)) for p in checkout.rglob("*.py")) == files
 
 
 def test_restaging_rewrites_only_what_changed(tmp_path):

@@ -24,6 +24,11 @@
 // at the start of the next mp.runPython call, where no object hides in WebAssembly locals.
 // So a script that measures live memory ends a part with gc.collect() and reads
 // gc.mem_alloc() at the start of the next part.
+//
+// A script that leaves a generator in the global STEPS (a module's loop, as
+// lodestar.regress.loop.replay) is then resumed once per mp.runPython call until it ends:
+// each `yield` ends a part as `#@split` does, so the loop's gc.collect() before a yield has
+// run when it resumes.
 
 import fs from "node:fs";
 import path from "node:path";
@@ -83,8 +88,11 @@ for (const [host, target] of copies) {
 
 let status = 0;
 try {
-  mp.runPython("import sys\nif '/lib' not in sys.path:\n    sys.path.insert(0, '/lib')\n");
+  mp.runPython("import sys\nif '/lib' not in sys.path:\n    sys.path.insert(0, '/lib')\n" +
+               "STEPS = None\n");
   for (const part of code.split(/^#@split[ \t]*$/m)) mp.runPython(part);
+  const step = "try:\n    next(STEPS)\nexcept StopIteration:\n    STEPS = None\n";
+  while (mp.globals.get("STEPS") !== null) mp.runPython(step);
 } catch (error) {
   if (error && error.name === "PythonError") {
     // error.message is the MicroPython traceback.
