@@ -17,7 +17,6 @@ import threading
 import time
 from pathlib import Path
 
-import dask
 import pytest
 from dask import distributed
 
@@ -33,9 +32,6 @@ for a hung cluster, far above a campaign's few seconds."""
 TRIALS = 2
 CAMPAIGN_ARGS = ["rate", "--presets", "lohmann", "--rates", "0", "1", "--trials", str(TRIALS),
                  "--seed", "3", "--no-progress"]
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
-"""The workers' statistical profiler samples the trial's stack every 10 ms, which slows a
-trial by about a third (``docs/campaigns.md``): off, as the docs advise."""
 
 
 QUIET = {"dashboard_address": None, "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"},
@@ -160,9 +156,8 @@ def cluster():
     """A ``LocalCluster`` of 2 worker processes (1 thread each) under their nannies; closed,
     and none of its processes left, at the end of the module."""
     before = _children()
-    with dask.config.set(WORKER_CONFIG):
-        local = distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                         timeout=TIMEOUT, **QUIET)
+    local = distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
+                                     timeout=TIMEOUT, **QUIET)
     started = _children() - before
     try:
         yield local
@@ -282,14 +277,12 @@ def test_a_lost_scheduler_ends_the_command_and_resume_finishes(reference, cluste
     then locally, to the uninterrupted results."""
     rows, results = reference
     scheduler_file = tmp_path / "scheduler.json"
-    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED="False")  # WORKER_CONFIG
     scheduler = _start([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
                         "--port", "0", "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
                         "--scheduler-file", str(scheduler_file)], tmp_path / "scheduler.log")
     workers = _start([sys.executable, "-m", "dask", "worker", "--scheduler-file",
                       str(scheduler_file), "--nworkers", "2", "--nthreads", "1",
-                      "--no-dashboard", "--host", "127.0.0.1"], tmp_path / "workers.log",
-                     env=env)
+                      "--no-dashboard", "--host", "127.0.0.1"], tmp_path / "workers.log")
     try:
         _until(lambda: scheduler_file.is_file() and scheduler_file.stat().st_size,
                "the scheduler file", poll=0.1)
