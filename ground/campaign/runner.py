@@ -237,7 +237,7 @@ def _run_dask(tasks, config, address, sink):
         client = Client(address, timeout="20s")
     except OSError as exc:
         raise ValueError(f"--dask: cannot reach the scheduler at {address}: {exc}") from None
-    lost = False
+    lost = failed = False
     try:
         if not client.scheduler_info().get("workers"):
             print(f"lodestar campaign: the scheduler at {address} has no workers yet; "
@@ -262,26 +262,32 @@ def _run_dask(tasks, config, address, sink):
                     f"{getattr(exc.last_worker, 'address', '?')} (the scheduler's "
                     f"allowed-failures is {exc.allowed_failures}): see the worker logs "
                     "(out of memory?)") from None
+    except BaseException:
+        failed = True
+        raise
     finally:
-        _close_client(client, lost)
+        _close_client(client, lost, failed)
 
 
-def _close_client(client, lost):
-    """Close ``client``.  After a lost scheduler the client is retrying the connection, and
-    closing it cancels that retry, which ``distributed.client`` logs as an error with a
-    traceback: the campaign has already said what happened in one line, so that logger is
-    muted for the close."""
-    if not lost:
-        client.close()
-        return
+def _close_client(client, lost, failed):
+    """Close ``client``; when the campaign ``failed``, an error of the close itself is
+    dropped (the campaign's error is the one to report).  After a ``lost`` scheduler the
+    client is retrying the connection, and closing it cancels that retry, which
+    ``distributed.client`` logs as an error with a traceback: the campaign has already said
+    what happened in one line, so that logger is muted for the close."""
     import logging
 
     log = logging.getLogger("distributed.client")
-    disabled, log.disabled = log.disabled, True
+    disabled = log.disabled
+    log.disabled = disabled or lost
     try:
-        client.close(timeout=10)
-    except Exception:        # the scheduler is gone: nothing more to close
-        pass
+        if failed:
+            client.close(timeout=10)
+        else:
+            client.close()
+    except Exception:
+        if not failed:
+            raise
     finally:
         log.disabled = disabled
 

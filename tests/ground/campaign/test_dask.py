@@ -192,9 +192,9 @@ def test_a_cluster_of_two_processes_gives_the_local_results(reference, cluster, 
 def _kill_a_busy_worker(client, journal):
     """Once the journal holds a result, SIGKILL the worker process holding the most trials:
     its address and pid."""
-    _until(lambda: journal.is_file() and journal.read_text().count("\n") >= 2,
-           "the first result")
     pids = client.run(os.getpid)
+    _until(lambda: journal.is_file() and journal.read_text().count("\n") >= 2,
+           "the first result", poll=0.005)
     busy = client.processing()
     victim = max(pids, key=lambda w: len(busy.get(w, ())))
     assert busy.get(victim), "the campaign ended before a worker could be killed"
@@ -237,7 +237,7 @@ def test_a_trial_whose_workers_keep_dying_is_a_clear_error(reference, cluster, c
     finally:
         cluster.scheduler.allowed_failures = 3
     message = str(error.value)
-    assert "\n" not in message
+    assert "\n" not in message, message
     assert message.startswith("--dask: trial rate/lohmann/") and "lost its worker 1 time" \
         in message and "run again with --resume" in message, message
     client.wait_for_workers(2, timeout=TIMEOUT)
@@ -271,7 +271,8 @@ def _end_group(proc):
 
 
 def test_a_lost_scheduler_ends_the_command_and_resume_finishes(reference, cluster, tmp_path):
-    """``dask scheduler`` and ``dask worker`` as docs/campaigns.md starts them; the scheduler
+    """``dask scheduler`` and ``dask worker`` as docs/campaigns.md starts them (one worker
+    process, so that trials remain for a good while after the first result); the scheduler
     killed (SIGKILL) mid-campaign: ``lodestar campaign --dask`` exits 2 with one line, no
     output file is written, and the journal resumes on another cluster (for one task) and
     then locally, to the uninterrupted results."""
@@ -281,14 +282,14 @@ def test_a_lost_scheduler_ends_the_command_and_resume_finishes(reference, cluste
                         "--port", "0", "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
                         "--scheduler-file", str(scheduler_file)], tmp_path / "scheduler.log")
     workers = _start([sys.executable, "-m", "dask", "worker", "--scheduler-file",
-                      str(scheduler_file), "--nworkers", "2", "--nthreads", "1",
+                      str(scheduler_file), "--nworkers", "1", "--nthreads", "1",
                       "--no-dashboard", "--host", "127.0.0.1"], tmp_path / "workers.log")
     try:
         _until(lambda: scheduler_file.is_file() and scheduler_file.stat().st_size,
                "the scheduler file", poll=0.1)
         address = json.loads(scheduler_file.read_text())["address"]
         with distributed.Client(address, timeout=TIMEOUT) as look:
-            look.wait_for_workers(2, timeout=TIMEOUT)
+            look.wait_for_workers(1, timeout=TIMEOUT)
         out = tmp_path / "campaign"
         journal = out / runner.JOURNAL
         command = subprocess.Popen([sys.executable, "-m", "lodestar", "campaign",
@@ -297,7 +298,7 @@ def test_a_lost_scheduler_ends_the_command_and_resume_finishes(reference, cluste
         try:
             _until(lambda: command.poll() is not None or (
                 journal.is_file() and journal.read_text().count("\n") >= 2),
-                "the first result")
+                "the first result", poll=0.005)
             os.killpg(scheduler.pid, signal.SIGKILL)
             stdout, stderr = command.communicate(timeout=TIMEOUT)
         finally:
