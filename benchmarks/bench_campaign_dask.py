@@ -27,13 +27,12 @@ from lodestar.ground.campaign import runner
 
 QUIET = {"dashboard_address": None, "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"},
          "silence_logs": logging.ERROR}
-
-
+"""No dashboard, the scheduler's HTTP server on a free port (not 8787), only errors logged."""
 
 
 def _cpu(client):
-    """CPU seconds used so far by this process (the campaign's own work, and the clusters'
-    schedulers and nannies, which run in it) and its reaped children (the local pool's
+    """CPU seconds used so far by this process (the campaign's own work, and the cluster's
+    scheduler and nannies, which run in it) and its reaped children (the local pool's
     workers), plus with a Dask ``client`` its workers' processes (the trials, their event
     loop and profiler)."""
     own, children = resource.getrusage(resource.RUSAGE_SELF), \

@@ -248,8 +248,8 @@ def _run_dask(tasks, config, address, sink):
             try:
                 sink(*future.result())
             except CancelledError as exc:
-                reason = getattr(exc, "reason", "unknown")
-                lost = reason == "scheduler-connection-lost"
+                reason = getattr(exc, "reason", "unknown")     # distributed >= 2024.6
+                lost = reason == "scheduler-connection-lost" or client.status == "connecting"
                 if lost:
                     raise ClusterError(f"--dask: lost the scheduler at {address} (it "
                                        "stopped, or the network did)") from None
