@@ -215,9 +215,18 @@ def _kill_workers(pool):
         proc.kill()
 
 
+class ClusterError(ValueError):
+    """The Dask cluster failed the campaign (scheduler gone, a trial's workers died): the
+    message says what happened; :func:`run_campaign` adds where the finished tasks are."""
+
+
 def _run_dask(tasks, config, address, sink):
+    """Run ``tasks`` on the Dask scheduler at ``address``, calling ``sink`` as each result
+    arrives.  A worker lost mid-trial is the scheduler's business (it runs the trial again
+    elsewhere, up to ``distributed.scheduler.allowed-failures`` times); a scheduler lost,
+    or a trial whose workers kept dying, raises :class:`ClusterError`."""
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import CancelledError, Client, KilledWorker, as_completed
     except ImportError:
         raise ValueError("--dask needs dask.distributed, the optional extra: pip install "
                          "'lodestar[dask]'") from None
@@ -225,12 +234,59 @@ def _run_dask(tasks, config, address, sink):
         client = Client(address, timeout="20s")
     except OSError as exc:
         raise ValueError(f"--dask: cannot reach the scheduler at {address}: {exc}") from None
+    lost = failed = False
     try:
+        if not client.scheduler_info().get("workers"):
+            print(f"lodestar campaign: the scheduler at {address} has no workers yet; "
+                  "waiting for some (dask worker ADDRESS)", file=sys.stderr)
         futures = client.map(trials.run_task, tasks, config=config, pure=False)
+        names = {future.key: trials.task_key(task) for future, task in zip(futures, tasks)}
         for future in as_completed(futures):
-            sink(*future.result())
+            try:
+                sink(*future.result())
+            except CancelledError as exc:
+                reason = getattr(exc, "reason", "unknown")     # distributed >= 2024.6
+                lost = reason == "scheduler-connection-lost" or client.status == "connecting"
+                if lost:
+                    raise ClusterError(f"--dask: lost the scheduler at {address} (it "
+                                       "stopped, or the network did)") from None
+                raise ClusterError(f"--dask: trial {names.get(future.key, future.key)} was "
+                                   f"cancelled on the cluster ({reason})") from None
+            except KilledWorker as exc:
+                raise ClusterError(
+                    f"--dask: trial {names.get(exc.task, exc.task)} lost its worker "
+                    f"{exc.allowed_failures + 1} time(s), the last at "
+                    f"{getattr(exc.last_worker, 'address', '?')} (the scheduler's "
+                    f"allowed-failures is {exc.allowed_failures}): see the worker logs "
+                    "(out of memory?)") from None
+    except BaseException:
+        failed = True
+        raise
     finally:
-        client.close()
+        _close_client(client, lost, failed)
+
+
+def _close_client(client, lost, failed):
+    """Close ``client``; when the campaign ``failed``, an error of the close itself is
+    dropped (the campaign's error is the one to report).  After a ``lost`` scheduler the
+    client is retrying the connection, and closing it cancels that retry, which
+    ``distributed.client`` logs as an error with a traceback: the campaign has already said
+    what happened in one line, so that logger is muted for the close."""
+    import logging
+
+    log = logging.getLogger("distributed.client")
+    disabled = log.disabled
+    log.disabled = disabled or lost
+    try:
+        if failed:
+            client.close(timeout=10)
+        else:
+            client.close()
+    except Exception:
+        if not failed:
+            raise
+    finally:
+        log.disabled = disabled
 
 
 def run_campaign(config, n_trials, out_dir, workers=1, dask=None, resume=False,
@@ -264,7 +320,13 @@ def run_campaign(config, n_trials, out_dir, workers=1, dask=None, resume=False,
         if todo:
             _prepare_databases(config)
             if dask is not None:
-                _run_dask(todo, config, dask, sink)
+                try:
+                    _run_dask(todo, config, dask, sink)
+                except ClusterError as exc:
+                    raise ValueError(
+                        f"{exc}; {journal.name} holds {len(keys & set(results))} of "
+                        f"{len(tasks)} tasks: run again with --resume (on a cluster, or "
+                        "locally with --workers)") from None
             else:
                 _run_local(todo, config, min(workers, len(todo)), sink)
     finally:

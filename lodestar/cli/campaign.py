@@ -46,7 +46,9 @@ def add_parser(sub):
                         "lohmann at 0.2 s, 3 pixels) or each preset as is")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: the CPU count)")
-    p.add_argument("--dask", metavar="ADDRESS", help="run on this Dask scheduler instead")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run on the Dask scheduler at ADDRESS (tcp://HOST:8786) instead; "
+                        "start it with dask scheduler and dask worker (docs/campaigns.md)")
     p.add_argument("--resume", action="store_true",
                    help="continue the campaign journaled in --out")
     p.add_argument("--max-tasks", type=int, metavar="N",

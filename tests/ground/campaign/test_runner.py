@@ -178,23 +178,6 @@ def test_unknown_study_or_preset_is_an_argparse_error(capsys):
     capsys.readouterr()
 
 
-def test_dask_missing_is_a_clear_message(tmp_path, monkeypatch):
-    monkeypatch.setitem(__import__("sys").modules, "dask.distributed", None)
-    with pytest.raises(ValueError, match=r"pip install 'lodestar\[dask\]'"):
-        runner.run_campaign(rate_config(), 1, str(tmp_path), dask="tcp://127.0.0.1:1",
-                              progress=False)
-
-
-def test_dask_cluster_gives_the_same_results(reference, tmp_path):
-    distributed = pytest.importorskip("dask.distributed")
-    out, rows, _paths = reference
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
-        rows2, _ = runner.run_campaign(rate_config(), 2, str(tmp_path),
-                                         dask=cluster.scheduler_address, progress=False)
-    assert rows2 == rows
-
-
 def _children(pid):
     """Process ids whose parent is ``pid`` (Linux /proc)."""
     out = []
