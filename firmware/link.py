@@ -20,7 +20,8 @@ a packet is trusted only after its header's magic, version and ``n_records`` (at
 mid-packet, so the link resynchronises: FLUSH (the gateware drops what is queued), then it
 drains ``READ_STREAM`` while ``irq`` stays high (bounded by the longest packet and a time
 limit), then a status read absorbs the underruns of the drain.  Buffers are allocated once
-here; a frame allocates nothing but the frame counter's long int where MicroPython needs one.
+here; a frame allocates only a few small objects (views of the packet's variable-length parts,
+the long ints of 32-bit values: about 330 bytes on the Cortex-M4F build, ``docs/mcu_board.md``).
 Pure Python for CPython and MicroPython (docs/mcu_board.md).
 """
 
@@ -94,6 +95,8 @@ def _field(data, base, spec):
     value = 0
     for i in range(first, last + 1):
         value = (value << 8) | data[i]
+    if not (at | bits) & 7:
+        return value                     # byte aligned: no shift or mask (no long ints)
     return (value >> (7 - (at + bits - 1) % 8)) & ((1 << bits) - 1)
 
 
@@ -124,6 +127,11 @@ class Link(object):
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
         self._rxv = memoryview(self._rx)
+        # the views of each fixed-length transaction, made once (a slice is a heap object)
+        self._views = {}
+        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, _C.WRITE_REG_BYTES):
+            self._views[n] = (self._txv[:n], self._rxv[:n])
+        self._status_data = self._rxv[_REPLY:_STATUS_LEN]
         self._stream_op = bytearray((_C.OP_READ_STREAM,) + (0,) * _C.TURNAROUND_BYTES)
         self._keyed = {}
         for op in _C.KEYED_OPCODES:
@@ -163,7 +171,8 @@ class Link(object):
         try:
             self._select(True)
             try:
-                self.spi.write_readinto(self._txv[:n], self._rxv[:n])
+                views = self._views[n]
+                self.spi.write_readinto(views[0], views[1])
             finally:
                 self._select(False)
         except OSError:
@@ -207,8 +216,7 @@ class Link(object):
             if rx[i] != _C.FILLER:
                 self.count(C_STATUS_BAD)
                 return STATUS_BAD
-        if _C.crc8(self._rxv[_REPLY:_STATUS_LEN], _C.STATUS_DATA_BYTES) != \
-                rx[_STATUS_LEN - 1]:
+        if _C.crc8(self._status_data, _C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
             self.count(C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter

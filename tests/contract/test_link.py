@@ -52,8 +52,21 @@ def test_write_reg_command_sets_a_register_by_name():
             C.write_reg_command(name, bad)
 
 
+def bitwise_crc8(data):
+    crc = C.CRC8_INIT
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ C.CRC8_POLY) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc ^ C.CRC8_XOROUT
+
+
 def test_crc8_is_autosar_and_a_floating_miso_never_passes():
     assert C.crc8(b"123456789") == 0xDF                    # CRC-8/AUTOSAR check value
+    rng = __import__("random").Random(5)
+    for n in (0, 1, 7, 64):
+        data = bytes(rng.randrange(256) for _ in range(n))
+        assert C.crc8(data) == bitwise_crc8(data)          # the table is the bitwise CRC
     for stuck in (0x00, 0xFF):
         reply = bytes([stuck] * C.STATUS_BYTES)
         assert not C.status_ok(reply)
