@@ -210,3 +210,97 @@ def test_bus_errors_are_codes_not_exceptions():
     assert link.command(C.OP_FLUSH) == L.BUS_ERROR
     assert counters(link)["bus"] >= 5
     assert bus.cs.value() == 1                          # CS released after each failure
+
+
+_MP_LINK = r'''
+from lodestar import contract as C
+from lodestar.firmware import link as L
+
+class Clock:
+    now = 0
+    def ticks_ms(self):
+        return self.now
+    def ticks_diff(self, a, b):
+        return a - b
+    def sleep_ms(self, n):
+        self.now += n
+
+class FPGA:
+    """The slave's replies as bytes: status (CRC-8 from the contract), READ_REG from a bank,
+    READ_ID, the packet stream with irq high while bytes remain; ``flip`` corrupts a MISO byte
+    of the stream."""
+    def __init__(self, stream):
+        self.stream = bytearray(stream)
+        self.bank = {}
+        self.flip = None
+        self.sent = 0
+        self.op = None
+    def value(self, v=None):
+        return 1 if self.stream else 0
+    def write_readinto(self, out, into):
+        op = out[0]
+        for i in range(len(into)):
+            into[i] = 0
+        if op == C.OP_READ_STATUS:
+            into[2:] = C.encode_status({"frame_counter": 9, "errors": 0, "underruns": 0,
+                                        "overflow": 0, "busy": 0})
+        elif op == C.OP_WRITE_REG:
+            self.bank[out[1]] = bytes(out[2:6])
+        elif op == C.OP_READ_REG:
+            into[3:7] = self.bank.get(out[1], bytes(4))
+        elif op == C.OP_READ_ID:
+            into[2:6] = C.gateware_id(7).to_bytes(4, "big")
+    def write(self, out):
+        self.op = out[0]
+        if out[0] == C.OP_FLUSH:
+            self.stream = bytearray()
+    def readinto(self, buf, write=0):
+        n = len(buf)
+        for i in range(n):
+            if i < len(self.stream):
+                b = self.stream[i]
+                if self.flip == self.sent:
+                    b ^= 1
+                buf[i] = b
+            else:
+                buf[i] = C.FILLER
+            self.sent += 1
+        self.stream = self.stream[n:]
+
+P = PACKETS
+fpga = FPGA(P[0] + P[1] + P[2][:10])
+lk = L.Link(fpga, fpga, fpga, Clock(), capacity=8)
+out = [lk.read_id(), lk.ident, lk.read_status(), lk.frame_counter]
+out.append(lk.read_packet())
+out.append(bytes(lk.packet(out[-1][1])) == P[0])
+fpga.flip = fpga.sent + 40
+out.append(lk.read_packet())                   # corrupt: flushed
+fpga.stream = bytearray(P[2][5:] + P[1])      # mid-packet, then a good one
+fpga.flip = None
+out.append(lk.read_packet())
+fpga.stream = bytearray(P[1])
+out.append(lk.read_packet())
+out.append(lk.write_reg("min_sum", 4321))
+out.append(lk.write_reg("mode", 1 << 9))
+out.append(list(lk.counters))
+print(repr(out))
+'''
+
+
+def test_link_runs_unchanged_on_micropython(micropython, packets):
+    """The master under MicroPython 1.27 against a byte-level fake FPGA gives CPython's
+    codes, counters and bytes."""
+    lit = [bytes(p) for p in packets[:3]]
+    script = "PACKETS = " + repr(lit) + "\n" + _MP_LINK
+    code, out = micropython(script)
+    assert code == 0, out
+    ns = {"PACKETS": lit}
+    lines = []
+    exec(compile(_MP_LINK.replace("print(repr(out))", "LINES.append(repr(out))"), "mp",
+                 "exec"), dict(ns, LINES=lines))
+    assert out.split("\n")[0] == lines[0]
+    got = eval(lines[0])
+    assert got[:4] == [L.OK, (C.LINK_VERSION, 7), L.OK, 9]
+    assert got[4][0] == L.OK and got[5] is True
+    assert got[6] == (L.PACKET_CRC, 0) and got[7] == (L.HEADER_BAD, 0)
+    assert got[8][0] == L.OK and got[9] == L.OK and got[10] == L.BAD_ARGUMENT
