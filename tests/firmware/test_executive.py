@@ -330,3 +330,37 @@ def test_executive_over_the_amaranth_slave():
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == exe.min_sum == 1002
     assert lnk.counter("packet_crc") == 1 and exe.health[E.H_LINK_FAULT] == 1
     assert tracker.calls[1][2] == 2 * exe.frame_s          # dt from the frame counters
+
+
+def test_executive_tracks_recorded_packets_with_the_real_tracker():
+    """The executive around the real ``StarTracker`` on the recorded estcube2 frame (the
+    regression set's Pyramid case): lost in space, then tracking on its own prior with the
+    frame counters' dt, the attitude in the telemetry record that of the recorded solution."""
+    from lodestar.regress import mcu
+    from lodestar.regress import replay as regress
+    from lodestar.regress.replay import rotation_angle
+
+    manifest = regress.load_set(regress.DEFAULT_SET)
+    case = next(c for c in manifest["cases"] if c["name"] == "estcube2_rest_s0")
+    data = regress.packets(manifest, regress.DEFAULT_SET)[case["name"]]
+    db = mcu.open_database(str(regress.database_files(manifest)["estcube2"]))
+    tracker = mcu.make_tracker(db, manifest["cameras"]["estcube2"], "pyramid")
+
+    class RecordedLink(F.Link):
+        def packet(self, n):
+            return data
+
+    clock = F.Clock()
+    link = RecordedLink(clock, [F.OK_FRAME] * 3)
+    records = []
+    exe = E.Executive(link, tracker, clock, registers={"min_sum": 0},
+                      watchdog=F.Watchdog(clock), gyro=lambda: (0.0, 0.0, 0.0),
+                      telemetry=lambda b: records.append(bytes(b)))
+    assert run(exe, 5) == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "TRACK"]
+    expected = case["expected"]["pyramid"]
+    t = E.decode_telemetry(records[-1])
+    q = (t["qx"], t["qy"], t["qz"], t["qw"])
+    assert rotation_angle(q, expected["q"]) * 206264.8 < 0.1        # float32 in the record
+    assert exe.last_result.mode == "tracking" and t["matches"] >= 20
+    assert link.writes[1] == ("min_sum", expected["min_sum"])
+    db.close()
