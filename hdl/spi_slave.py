@@ -6,10 +6,16 @@ SPI mode 0 (CPOL = 0, CPHA = 0), MSB first, CS active low; SCK, MOSI and CS_N pa
 (:func:`max_sck_hz`; SCK high and low each >= 2 clocks, CS_N setup >= 4, hold >= 2, high >= 3
 clocks).  ``miso_oe`` is high only while CS is low (the board tri-states MISO otherwise).
 One command per transaction: byte 0 is the opcode (``OP_WRITE_REG``, ``OP_READ_STATUS``,
-``OP_READ_STREAM``), every read has one turnaround byte, MISO carries ``FILLER`` where no
-reply byte is defined.  ``errors`` (unknown opcode or register, value too wide, aborted
-write) and ``underruns`` saturate and restart at each status read.  Protocol table, byte
-layer and timing derivation: ``docs/sensors_and_link.md`` (SPI slave).
+``OP_READ_STREAM``, ``OP_READ_REG``, ``OP_READ_ID``, ``OP_SOFT_RESET``, ``OP_FLUSH``), every
+read has one turnaround byte, MISO carries ``FILLER`` where no reply byte is defined.  The
+status reply ends with its CRC-8 (``contract.crc8``) of the captured word.
+``READ_REG`` shows its address on ``reg_addr`` from the clock after the address byte until
+CS rises and sends ``reg_rdata`` (the register bank's word at that address; it may lag
+``reg_addr`` by up to 8 clocks) from byte 3 on.  ``soft_reset`` and ``flush`` pulse for one
+clock when a keyed command's key byte (``contract.command_key``) completes.  ``errors``
+(unknown opcode or register, value too wide, aborted write, wrong or missing key) and
+``underruns`` saturate and restart at each status read.  Protocol table, byte layer and
+timing derivation: ``docs/sensors_and_link.md`` (SPI slave).
 """
 
 from amaranth import Cat, Const, Module, Mux, Signal
@@ -93,20 +99,53 @@ class SPIByteSlave(wiring.Component):
         return m
 
 
-class SPISlave(wiring.Component):
-    """SPI command slave: pins, the register write port, the status inputs and the packet byte
-    stream.  Protocol and timing requirements: ``docs/sensors_and_link.md``."""
+def crc8_matrix():
+    """``(columns, constant)`` of the status CRC as an affine map of the data word: the CRC of
+    a ``STATUS_DATA_BITS``-bit word ``w`` is ``constant`` XOR the ``columns[i]`` of every set
+    bit ``i`` of ``w`` (CRC-8 is linear in the data for a fixed initial value)."""
+    n = C.STATUS_DATA_BYTES
+    constant = C.crc8(bytes(n))
+    columns = [C.crc8((1 << i).to_bytes(n, "big")) ^ constant for i in range(8 * n)]
+    return columns, constant
 
-    def __init__(self):
+
+def crc8_of(word):
+    """Amaranth expression: the CRC-8 of the ``STATUS_DATA_BITS``-bit value ``word``."""
+    columns, constant = crc8_matrix()
+    bits = []
+    for b in range(8):
+        taps = [word[i] for i in range(len(columns)) if (columns[i] >> b) & 1]
+        bit = Const((constant >> b) & 1, 1)
+        for t in taps:
+            bit = bit ^ t
+        bits.append(bit)
+    return Cat(*bits)
+
+
+class SPISlave(wiring.Component):
+    """SPI command slave: pins, the register write and read ports, the status inputs, the
+    ``soft_reset`` and ``flush`` strobes and the packet byte stream; ``build`` (0 .. 255) is
+    the ID word's build byte.  Protocol and timing requirements: ``docs/sensors_and_link.md``.
+
+    ``soft_reset``: the top level returns the detector datapath (front end, detector,
+    packetizer) to its power-up state and keeps the register bank; ``flush``: it drops every
+    packet byte queued for the MCU, so the next ``READ_STREAM`` starts at the next packet's
+    magic.  Both act within a few clocks, before the master's next transaction can start."""
+
+    def __init__(self, build=0):
+        self.build = build
         super().__init__({
             **SPI_PINS,
             "reg_addr": Out(C.REG_ADDR_BITS),
             "reg_data": Out(C.REGISTER_WORD_BITS),
             "reg_strobe": Out(1),
+            "reg_rdata": In(C.REGISTER_WORD_BITS),
             "busy": In(1),
             "overflow": In(C.OVERFLOW_BITS),
             "frame_counter": In(C.FRAME_COUNTER_BITS),
             "status_read": Out(1),
+            "soft_reset": Out(1),
+            "flush": Out(1),
             "packet": In(stream.Signature(8)),
         })
 
@@ -116,18 +155,28 @@ class SPISlave(wiring.Component):
         m.d.comb += [byte.sck.eq(self.sck), byte.mosi.eq(self.mosi), byte.cs_n.eq(self.cs_n),
                      self.miso.eq(byte.miso), self.miso_oe.eq(byte.miso_oe)]
         rx, tx = byte.rx, byte.tx
+        first_reply = 1 + C.TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
         # bytes received in this transaction, saturating past the longest fixed-length reply
-        index_max = max(C.WRITE_REG_BYTES, 1 + C.TURNAROUND_BYTES + C.STATUS_BYTES)
+        index_max = max(C.WRITE_REG_BYTES, first_reply + C.STATUS_BYTES, C.READ_REG_BYTES,
+                        C.ID_FIRST_REPLY + C.ID_BYTES, C.KEYED_BYTES)
         index = Signal(range(index_max + 1))
         # the opcode of this transaction, decoded (all 0: none yet, or unknown)
-        is_write, is_status, is_stream = Signal(), Signal(), Signal()
+        is_write = Signal()
+        is_status = Signal()
+        is_stream = Signal()
+        is_read = Signal()
+        is_id = Signal()
+        is_reset = Signal()
+        is_flush = Signal()
+        flags = {C.OP_WRITE_REG: is_write, C.OP_READ_STATUS: is_status,
+                 C.OP_READ_STREAM: is_stream, C.OP_READ_REG: is_read, C.OP_READ_ID: is_id,
+                 C.OP_SOFT_RESET: is_reset, C.OP_FLUSH: is_flush}
         # data registers without reset: meaningful only under the flags and counts above
         address = Signal(8 * C.ADDRESS_BYTES, reset_less=True)
         value = Signal(C.REGISTER_WORD_BITS, reset_less=True)
-        status = Signal(C.STATUS_BITS, reset_less=True)
+        status = Signal(C.STATUS_DATA_BITS, reset_less=True)
         errors = Signal(C.LINK_COUNT_BITS)
         underruns = Signal(C.LINK_COUNT_BITS)
-        first_reply = 1 + C.TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
 
         # ---- status word and read-to-clear counters -----------------------------------
         opening = rx.valid & (index == 0)
@@ -138,11 +187,20 @@ class SPISlave(wiring.Component):
         m.d.comb += self.status_read.eq(snapshot)
         with m.If(snapshot):
             m.d.sync += status.eq(live)
+        # the reply: the captured word and its CRC-8 (an XOR tree of the captured bits)
+        reply = Signal(C.STATUS_BITS)
+        m.d.comb += reply.eq(Cat(crc8_of(status), status))
 
         def count(counter, event):
             base = Mux(snapshot, 0, counter)
             full = base == (1 << C.LINK_COUNT_BITS) - 1
             m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
+
+        def known_address(addr):
+            ok = Const(0, 1)
+            for r in C.REGISTERS:
+                ok = ok | (addr == r.address)
+            return ok
 
         # ---- commands ------------------------------------------------------------------
         # ``value`` shifts in every byte after the address; after the 6th byte of a write it
@@ -156,7 +214,19 @@ class SPISlave(wiring.Component):
         write_done = rx.valid & is_write & (index == C.WRITE_REG_BYTES - 1)
         unknown_op = opening & ~Cat(*[rx.payload == op for op in C.OPCODES]).any()
         aborted = ~byte.selected & is_write & (index < C.WRITE_REG_BYTES)
-        count(errors, unknown_op | (write_done & ~known) | aborted)
+        # keyed commands: the key is byte 1
+        key_byte = rx.valid & (index == C.KEYED_BYTES - 1)
+        keyed = {C.OP_SOFT_RESET: (is_reset, self.soft_reset), C.OP_FLUSH: (is_flush, self.flush)}
+        bad_key = Const(0, 1)
+        key_missing = Const(0, 1)
+        for op, (flag, strobe) in keyed.items():
+            good = key_byte & flag & (rx.payload == C.command_key(op))
+            m.d.sync += strobe.eq(good)
+            bad_key = bad_key | (key_byte & flag & (rx.payload != C.command_key(op)))
+            key_missing = key_missing | (~byte.selected & flag & (index < C.KEYED_BYTES))
+        bad_read = rx.valid & is_read & (index == C.ADDRESS_BYTES) & ~known_address(rx.payload)
+        count(errors, unknown_op | (write_done & ~known) | aborted | bad_key | key_missing
+              | bad_read)
         count(underruns, byte.underrun)
 
         m.d.comb += [self.reg_addr.eq(address), self.reg_data.eq(value)]
@@ -164,29 +234,36 @@ class SPISlave(wiring.Component):
         with m.If(rx.valid):
             m.d.sync += index.eq(Mux(index == index_max, index, index + 1))
             with m.If(index == 0):
-                m.d.sync += [is_write.eq(rx.payload == C.OP_WRITE_REG),
-                             is_status.eq(rx.payload == C.OP_READ_STATUS),
-                             is_stream.eq(rx.payload == C.OP_READ_STREAM)]
+                m.d.sync += [flag.eq(rx.payload == op) for op, flag in flags.items()]
             with m.Elif(index <= C.ADDRESS_BYTES):
                 m.d.sync += address.eq(Cat(rx.payload, address[:-8]))
             with m.Else():
                 m.d.sync += value.eq(word)
         with m.If(~byte.selected):
-            m.d.sync += [index.eq(0), is_write.eq(0), is_status.eq(0), is_stream.eq(0)]
+            m.d.sync += [index.eq(0)] + [flag.eq(0) for flag in flags.values()]
 
         # ---- reply bytes ---------------------------------------------------------------
         # The byte being loaded at a boundary is number index + 1; a reply byte loaded with
         # index == first_reply - 1 + k is reply byte k, and has index == first_reply + k when
         # the master clocks its first bit (that is when a packet byte is consumed).
+        ident = C.gateware_id(self.build)
+        replies = [
+            (is_status, first_reply, C.STATUS_BYTES, lambda k: reply.word_select(
+                C.STATUS_BYTES - 1 - k, 8)),
+            (is_read, C.READ_REG_FIRST_REPLY, C.VALUE_BYTES, lambda k: self.reg_rdata.word_select(
+                C.VALUE_BYTES - 1 - k, 8)),
+            (is_id, C.ID_FIRST_REPLY, C.ID_BYTES, lambda k: Const(
+                (ident >> (8 * (C.ID_BYTES - 1 - k))) & 0xFF, 8)),
+        ]
         with m.If(is_stream & (index >= first_reply - 1)):
             m.d.comb += [tx.valid.eq(self.packet.valid), tx.payload.eq(self.packet.payload),
                          self.packet.ready.eq(tx.ready & (index >= first_reply))]
         with m.Else():
             m.d.comb += [tx.valid.eq(1), tx.payload.eq(C.FILLER)]
-            with m.If(is_status):
-                with m.Switch(index):
-                    for k in range(C.STATUS_BYTES):
-                        with m.Case(first_reply - 1 + k):
-                            m.d.comb += tx.payload.eq(
-                                status.word_select(C.STATUS_BYTES - 1 - k, 8))
+            for flag, first, n, byte_k in replies:
+                with m.If(flag):
+                    with m.Switch(index):
+                        for k in range(n):
+                            with m.Case(first - 1 + k):
+                                m.d.comb += tx.payload.eq(byte_k(k))
         return m

@@ -1,8 +1,9 @@
-"""The SPI link between the MCU and the FPGA: opcodes, framing, the status word and its
-overflow bits.  The gateware's slave
-(``lodestar.hdl.spi_slave``) and the MCU both use these names; the protocol (SPI mode 0,
-one command per chip-select, timing) is described in ``hdl/spi_slave.py``; the sensors
-and their pixel widths are in :mod:`lodestar.contract.detection`."""
+"""The SPI link between the MCU and the FPGA: opcodes, framing, the status word with its
+CRC-8, its overflow bits, and the gateware ID word.  The gateware's slave
+(``lodestar.hdl.spi_slave``) and the MCU's master (``lodestar.firmware.link``) both use these
+names; the protocol (SPI mode 0, one command per chip-select, timing) is described in
+``hdl/spi_slave.py`` and ``docs/sensors_and_link.md``; the sensors and their pixel widths are
+in :mod:`lodestar.contract.detection`.  MicroPython-safe (the MCU imports it)."""
 
 from lodestar.contract.detection import REGISTER_BY_NAME, REGISTER_WORD_BITS, REGISTERS, bits_for
 from lodestar.contract.packet import HEADER_FIELDS
@@ -13,7 +14,29 @@ OP_READ_STATUS = 0x53
 """``'S'``: read the status word."""
 OP_READ_STREAM = 0x52
 """``'R'``: read packet bytes until CS rises."""
-OPCODES = (OP_WRITE_REG, OP_READ_STATUS, OP_READ_STREAM)
+OP_READ_REG = 0x47
+"""``'G'``: read back one runtime register (the register bank's value, after any refusal)."""
+OP_READ_ID = 0x49
+"""``'I'``: read the gateware ID word (:data:`ID_FIELDS`)."""
+OP_SOFT_RESET = 0x5A
+"""``'Z'`` + :func:`command_key`: reset the detector datapath (the register bank keeps its
+values); the slave pulses ``soft_reset``."""
+OP_FLUSH = 0x46
+"""``'F'`` + :func:`command_key`: drop every packet byte queued for the MCU; the slave pulses
+``flush``."""
+OPCODES = (OP_WRITE_REG, OP_READ_STATUS, OP_READ_STREAM, OP_READ_REG, OP_READ_ID,
+           OP_SOFT_RESET, OP_FLUSH)
+KEYED_OPCODES = (OP_SOFT_RESET, OP_FLUSH)
+"""Commands that act only when their second byte is their :func:`command_key`: a bit error
+that turns another opcode into one of them does not reset or flush anything (the key is
+neither ``0x00`` nor ``0xFF``, the bytes a master clocks out in a read)."""
+KEYED_BYTES = 2
+"""Bytes of a keyed command: opcode, key (bytes after them are ignored)."""
+
+
+def command_key(opcode):
+    """The key byte that must follow a keyed opcode: its complement."""
+    return opcode ^ 0xFF
 FILLER = 0x00
 """MISO byte wherever no reply byte is defined, and in place of missing packet bytes."""
 TURNAROUND_BYTES = 1
@@ -28,7 +51,10 @@ REG_ADDR_BITS = bits_for(max(r.address for r in REGISTERS))
 """Width of the write port's address: the contract's largest word address."""
 if max(r.address for r in REGISTERS) >> (8 * ADDRESS_BYTES):
     raise ValueError("a register address does not fit the SPI address byte")
-
+READ_REG_FIRST_REPLY = 1 + ADDRESS_BYTES + TURNAROUND_BYTES
+"""Byte number of a ``READ_REG``'s first value byte (opcode: 0)."""
+READ_REG_BYTES = READ_REG_FIRST_REPLY + VALUE_BYTES
+"""Bytes of a ``READ_REG`` transaction: opcode, address, turnaround, value (big endian)."""
 
 
 def write_reg_command(name, value):
@@ -42,6 +68,53 @@ def write_reg_command(name, value):
     if isinstance(value, bool) or not isinstance(value, int) or value < 0 or value >> reg.bits:
         raise ValueError("register {} holds {} bits, got {!r}".format(name, reg.bits, value))
     return bytes((OP_WRITE_REG, reg.address)) + value.to_bytes(VALUE_BYTES, "big")
+
+
+def read_reg_command(name):
+    """The MOSI bytes of the ``READ_REG`` transaction of register ``name`` (``READ_REG_BYTES``
+    long; the value comes back in the last ``VALUE_BYTES``).  ``ValueError`` for an unknown
+    register."""
+    reg = REGISTER_BY_NAME.get(name)
+    if reg is None:
+        raise ValueError("unknown register {!r}".format(name))
+    return bytes((OP_READ_REG, reg.address)) + bytes(TURNAROUND_BYTES + VALUE_BYTES)
+
+
+def keyed_command(opcode):
+    """The bytes of a keyed command (``OP_SOFT_RESET`` or ``OP_FLUSH``)."""
+    if opcode not in KEYED_OPCODES:
+        raise ValueError("opcode 0x{:02X} is not a keyed command".format(opcode))
+    return bytes((opcode, command_key(opcode)))
+
+
+ID_MAGIC = 0x4C44
+"""``"LD"``: the first two bytes of the ID word, so a floating MISO never reads as an ID."""
+LINK_VERSION = 2
+"""Version of this protocol (1: the three commands of the first slave, no status CRC)."""
+ID_FIELDS = (("magic", 16), ("link_version", 8), ("build", 8))
+"""The ``READ_ID`` reply, MSB first, big endian: :data:`ID_MAGIC`, :data:`LINK_VERSION` and
+the gateware's ``build`` byte (a board top level's number; 0: not given)."""
+ID_BYTES = 4
+ID_FIRST_REPLY = 1 + TURNAROUND_BYTES
+"""Byte number of the ID word's first byte."""
+
+
+def gateware_id(build=0):
+    """The ID word (an int) of a gateware with ``build`` (0 .. 255)."""
+    if not 0 <= build <= 0xFF:
+        raise ValueError("build {!r} is not a byte".format(build))
+    return (ID_MAGIC << 16) | (LINK_VERSION << 8) | build
+
+
+def decode_id(data):
+    """``{"magic", "link_version", "build"}`` of an ID word given as ``ID_BYTES`` bytes;
+    ``ValueError`` if the length or the magic is wrong."""
+    if len(data) != ID_BYTES:
+        raise ValueError("an ID word is {} bytes, got {}".format(ID_BYTES, len(data)))
+    word = (data[0] << 24) | (data[1] << 16) | (data[2] << 8) | data[3]
+    if word >> 16 != ID_MAGIC:
+        raise ValueError("ID word 0x{:08X} has no magic 0x{:04X}".format(word, ID_MAGIC))
+    return {"magic": word >> 16, "link_version": (word >> 8) & 0xFF, "build": word & 0xFF}
 
 
 LINK_COUNT_BITS = 8
@@ -76,24 +149,97 @@ STATUS_FIELDS = (
     ("overflow", OVERFLOW_BITS),
     ("busy", 1),
 )
-"""The status word, MSB first: ``(field, bits)``; sent big endian.  The overflow bits are
-sticky until the next status read (except ``OVF_LINK_DOWN``), and ``errors``/``underruns``
-count since the previous status read."""
-STATUS_BITS = 0
+"""The status word's data fields, MSB first: ``(field, bits)``; sent big endian and followed
+by its CRC-8 byte (:func:`crc8`).  The overflow bits are sticky until the next status read
+(except ``OVF_LINK_DOWN``), and ``errors``/``underruns`` count since the previous status
+read."""
+STATUS_DATA_BITS = 0
 for _name, _bits in STATUS_FIELDS:
-    STATUS_BITS += _bits
-STATUS_BYTES = STATUS_BITS // 8
-if STATUS_BITS % 8:
+    STATUS_DATA_BITS += _bits
+if STATUS_DATA_BITS % 8:
     raise ValueError("the status word must be a whole number of bytes")
+STATUS_DATA_BYTES = STATUS_DATA_BITS // 8
+STATUS_CHECK_BYTES = 1
+"""The CRC-8 byte after the status word's data."""
+STATUS_BYTES = STATUS_DATA_BYTES + STATUS_CHECK_BYTES
+"""Bytes of the status reply: the data fields, then their CRC-8."""
+STATUS_BITS = 8 * STATUS_BYTES
+
+CRC8_POLY = 0x2F
+"""CRC-8 of the status word: CRC-8/AUTOSAR (polynomial 0x2F, MSB first, initial value and
+final XOR 0xFF; check value 0xDF for ``b"123456789"``).  Neither an all-zeros nor an all-ones
+reply (a floating or stuck MISO) has a valid CRC, and it detects every error of up to 3 bits
+in the 7 data bytes."""
+CRC8_INIT = 0xFF
+CRC8_XOROUT = 0xFF
+
+
+_CRC8_TABLE = (
+    b"\x00\x2f\x5e\x71\xbc\x93\xe2\xcd\x57\x78\x09\x26\xeb\xc4\xb5\x9a"
+    b"\xae\x81\xf0\xdf\x12\x3d\x4c\x63\xf9\xd6\xa7\x88\x45\x6a\x1b\x34"
+    b"\x73\x5c\x2d\x02\xcf\xe0\x91\xbe\x24\x0b\x7a\x55\x98\xb7\xc6\xe9"
+    b"\xdd\xf2\x83\xac\x61\x4e\x3f\x10\x8a\xa5\xd4\xfb\x36\x19\x68\x47"
+    b"\xe6\xc9\xb8\x97\x5a\x75\x04\x2b\xb1\x9e\xef\xc0\x0d\x22\x53\x7c"
+    b"\x48\x67\x16\x39\xf4\xdb\xaa\x85\x1f\x30\x41\x6e\xa3\x8c\xfd\xd2"
+    b"\x95\xba\xcb\xe4\x29\x06\x77\x58\xc2\xed\x9c\xb3\x7e\x51\x20\x0f"
+    b"\x3b\x14\x65\x4a\x87\xa8\xd9\xf6\x6c\x43\x32\x1d\xd0\xff\x8e\xa1"
+    b"\xe3\xcc\xbd\x92\x5f\x70\x01\x2e\xb4\x9b\xea\xc5\x08\x27\x56\x79"
+    b"\x4d\x62\x13\x3c\xf1\xde\xaf\x80\x1a\x35\x44\x6b\xa6\x89\xf8\xd7"
+    b"\x90\xbf\xce\xe1\x2c\x03\x72\x5d\xc7\xe8\x99\xb6\x7b\x54\x25\x0a"
+    b"\x3e\x11\x60\x4f\x82\xad\xdc\xf3\x69\x46\x37\x18\xd5\xfa\x8b\xa4"
+    b"\x05\x2a\x5b\x74\xb9\x96\xe7\xc8\x52\x7d\x0c\x23\xee\xc1\xb0\x9f"
+    b"\xab\x84\xf5\xda\x17\x38\x49\x66\xfc\xd3\xa2\x8d\x40\x6f\x1e\x31"
+    b"\x76\x59\x28\x07\xca\xe5\x94\xbb\x21\x0e\x7f\x50\x9d\xb2\xc3\xec"
+    b"\xd8\xf7\x86\xa9\x64\x4b\x3a\x15\x8f\xa0\xd1\xfe\x33\x1c\x6d\x42")
+"""CRC-8 of each byte value (``CRC8_POLY``, from a zero register): a constant, so a frozen
+image keeps it in flash; ``tests/contract/test_link.py`` checks it against the bitwise CRC."""
+
+
+def crc8(data, n=None):
+    """CRC-8 (:data:`CRC8_POLY`) of the first ``n`` bytes of ``data`` (all of them if None);
+    one table look-up per byte."""
+    if n is None:
+        n = len(data)
+    table = _CRC8_TABLE
+    crc = CRC8_INIT
+    for i in range(n):
+        crc = table[crc ^ data[i]]
+    return crc ^ CRC8_XOROUT
+
+
+def status_word(fields):
+    """The ``STATUS_DATA_BITS``-bit data word (an int) of a dict of :data:`STATUS_FIELDS`."""
+    word = 0
+    for name, bits in STATUS_FIELDS:
+        value = fields[name]
+        if value < 0 or value >> bits:
+            raise ValueError("status field {} holds {} bits, got {!r}".format(name, bits, value))
+        word = (word << bits) | value
+    return word
+
+
+def encode_status(fields):
+    """The ``STATUS_BYTES`` bytes the slave sends for a dict of :data:`STATUS_FIELDS`."""
+    data = status_word(fields).to_bytes(STATUS_DATA_BYTES, "big")
+    return data + bytes((crc8(data),))
+
+
+def status_ok(data):
+    """True if ``data`` is ``STATUS_BYTES`` long and its CRC-8 byte matches its data."""
+    return len(data) == STATUS_BYTES and crc8(data, STATUS_DATA_BYTES) == data[-1]
 
 
 def decode_status(data):
-    """The fields of a status word given as ``STATUS_BYTES`` bytes (MSB first), as a dict."""
+    """The fields of a status reply given as ``STATUS_BYTES`` bytes (data MSB first, then the
+    CRC-8), as a dict; ``ValueError`` if the length or the CRC is wrong."""
     if len(data) != STATUS_BYTES:
         raise ValueError("a status word is {} bytes, got {}".format(STATUS_BYTES, len(data)))
+    if not status_ok(data):
+        raise ValueError("status word CRC-8 0x{:02X} does not match its data (0x{:02X})".format(
+            data[-1], crc8(data, STATUS_DATA_BYTES)))
     value = 0
-    for byte in data:
-        value = (value << 8) | byte
+    for i in range(STATUS_DATA_BYTES):
+        value = (value << 8) | data[i]
     out = {}
     for name, bits in reversed(STATUS_FIELDS):
         out[name] = value & ((1 << bits) - 1)

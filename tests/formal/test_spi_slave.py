@@ -1,35 +1,52 @@
-"""Formal: the SPI command layer (``hdl.spi_slave.SPISlave``) writes registers and reads the
-packet stream only as the protocol says, for any pin activity.
+"""Formal: the SPI command layer (``hdl.spi_slave.SPISlave``) writes registers, strobes its
+soft reset and flush, reads the packet stream and sends its replies only as the protocol
+says, for any pin activity.
 
-SCK, MOSI and CS_N are free inputs (no timing assumed) and reset may rise on any clock.  An
-observer collects the bytes of each transaction from the byte layer (``rx``, ``selected``);
-k-induction proves (``docs/formal.md``):
+SCK, MOSI and CS_N are free inputs (no timing assumed) and reset may rise on any clock; the
+register bank's read data is a fixed function of ``reg_addr`` (:func:`bank`), whose four
+bytes differ for every address.  An observer collects the bytes of each transaction from
+the byte layer (``rx``, ``selected``); k-induction proves (``docs/formal.md``):
 
 * a register write strobes exactly when a transaction's 6th byte completes a WRITE_REG of
   a known register with a value that fits, one clock later, with the address and value of
   those bytes (so at most one strobe per transaction: the observer's byte count only
   grows until CS_N rises);
+* ``soft_reset`` (``flush``) strobes exactly when a transaction's 2nd byte completes a
+  SOFT_RESET (FLUSH) whose 2nd byte is its key, one clock later;
 * ``packet.ready`` (a packet byte consumed) only in a READ_STREAM transaction, from its
-  first reply byte on.
+  first reply byte on;
+* a READ_STATUS's reply bytes are the status word captured at its opcode and the CRC-8 of
+  that word (the contract's ``crc8``), in order;
+* a READ_REG's reply bytes are the register bank's word at the transaction's address, big
+  endian, after a FILLER turnaround; a READ_ID's are the ID word of the slave's ``build``.
 
 Mutations (BMC finds their counterexample, so the properties are not vacuous): a slave that
-consumes packet bytes during the turnaround byte (24 clocks), and one that shows a wrong
-address (100 clocks, the length of a write: opt-in, ``--runslow``).
+consumes packet bytes during the turnaround byte (24 clocks), one that resets without
+checking the key (40), one whose status CRC has another initial value (2), one that sends
+the ID's first byte wrong (40), one that sends a READ_REG's value little endian (60), and
+one that shows a wrong address (100 clocks, the length of a write: opt-in, ``--runslow``).
 """
 
 import pytest
-from amaranth import Const, Elaboratable, Module, Mux, Signal
+from amaranth import Cat, Const, Elaboratable, Module, Mux, Signal
 from amaranth.hdl import Assert
 
 from lodestar import contract as C
+from lodestar.hdl import spi_slave
 from lodestar.hdl.spi_slave import SPISlave
 
-from .sby import available, internals, prove, submodule, unnamed
+from .sby import available, internals, prove, submodule
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
 FIRST_REPLY = 1 + C.TURNAROUND_BYTES           # byte number of the first reply byte
 ADDR_BITS = 8 * C.ADDRESS_BYTES
+BUILD = 0x5C
+INDEX_MAX = max(C.WRITE_REG_BYTES, FIRST_REPLY + C.STATUS_BYTES, C.READ_REG_BYTES,
+                C.ID_FIRST_REPLY + C.ID_BYTES, C.KEYED_BYTES)
+FLAGS = {"is_write": C.OP_WRITE_REG, "is_status": C.OP_READ_STATUS,
+         "is_stream": C.OP_READ_STREAM, "is_read": C.OP_READ_REG, "is_id": C.OP_READ_ID,
+         "is_reset": C.OP_SOFT_RESET, "is_flush": C.OP_FLUSH}
 
 
 def known(address, value):
@@ -41,6 +58,36 @@ def known(address, value):
     return ok
 
 
+def bank(addr):
+    """The register bank's word at ``addr``: four different bytes for every address."""
+    a = Cat(addr, Const(0, 8 - len(addr)))
+    return Cat(a ^ 0x88, a ^ 0x44, a ^ 0x22, a ^ 0x11)
+
+
+def contract_crc8(word, nbits):
+    """The contract's CRC-8 of the ``nbits``-bit big-endian ``word`` as an expression: CRC-8
+    is affine in the data, so each CRC bit is a constant XOR the data bits whose unit word's
+    CRC (``contract.crc8``) differs from the zero word's in that bit.  (Taken from the
+    contract's function here, not the slave's matrix; a bit-serial LFSR would state the same
+    but its equivalence with any XOR matrix is a hard SAT problem for the solver.)"""
+    n = nbits // 8
+    zero = C.crc8(bytes(n))
+    columns = [C.crc8((1 << i).to_bytes(n, "big")) ^ zero for i in range(nbits)]
+    out = []
+    for b in range(8):
+        bit = Const((zero >> b) & 1, 1)
+        for i in range(nbits):
+            if (columns[i] >> b) & 1:
+                bit = bit ^ word[i]
+        out.append(bit)
+    return Cat(*out)
+
+
+def byte_of(word, k, n):
+    """Byte ``k`` (0: most significant) of the ``n``-byte ``word``."""
+    return word.word_select(n - 1 - k, 8)
+
+
 class CheckedSPI(Elaboratable):
     def __init__(self, spi):
         self.spi = spi
@@ -50,7 +97,8 @@ class CheckedSPI(Elaboratable):
         spi = self.spi
         m.submodules.spi = unit = spi.elaborate(platform)
         byte = submodule(unit, "byte")
-        rx, sel = byte.rx, byte.selected
+        rx, sel, tx = byte.rx, byte.selected, byte.tx
+        m.d.comb += spi.reg_rdata.eq(bank(spi.reg_addr))
 
         # ---- observer: this transaction's bytes --------------------------------------
         count = Signal(4)                               # bytes received, saturating at 15
@@ -61,6 +109,7 @@ class CheckedSPI(Elaboratable):
         value_now = Signal(C.REGISTER_WORD_BITS)
         m.d.comb += value_now.eq((value << 8) | rx.payload)
         expect = Signal()                               # a write completed in the last clock
+        expect_keyed = {op: Signal(name="expect_{:02x}".format(op)) for op in C.KEYED_OPCODES}
         with m.If(rx.valid):
             m.d.sync += count.eq(Mux(count == count_max, count, count + 1))
             with m.If(count == 0):
@@ -73,34 +122,53 @@ class CheckedSPI(Elaboratable):
             m.d.sync += [count.eq(0), opcode.eq(0)]
         m.d.sync += expect.eq(rx.valid & (count == C.WRITE_REG_BYTES - 1)
                               & (opcode == C.OP_WRITE_REG) & known(address, value_now))
+        for op, sig in expect_keyed.items():
+            m.d.sync += sig.eq(rx.valid & (count == C.KEYED_BYTES - 1) & (opcode == op)
+                               & (rx.payload == C.command_key(op)))
 
         # ---- the properties ---------------------------------------------------------
+        st = internals(unit)
+        status = st["status"]
+        reply = Cat(contract_crc8(status, C.STATUS_DATA_BITS), status)
+        ident = C.gateware_id(BUILD)
+
+        def loads(op, k):
+            """The byte layer loads byte ``k + 1`` of an ``op`` transaction."""
+            return rx.valid & (opcode == op) & (count == k)
+
         m.d.comb += [
             Assert(spi.reg_strobe == expect),
             Assert(~spi.reg_strobe | ((spi.reg_addr == address) & (spi.reg_data == value))),
+            Assert(spi.soft_reset == expect_keyed[C.OP_SOFT_RESET]),
+            Assert(spi.flush == expect_keyed[C.OP_FLUSH]),
             Assert(~spi.packet.ready | ((opcode == C.OP_READ_STREAM) & (count >= FIRST_REPLY)
                                         & sel)),
+            Assert(st["reply"] == reply),
+            *[Assert(~loads(C.OP_READ_STATUS, FIRST_REPLY - 1 + k)
+                     | (tx.payload == byte_of(st["reply"], k, C.STATUS_BYTES)))
+              for k in range(C.STATUS_BYTES)],
+            Assert(~loads(C.OP_READ_REG, C.READ_REG_FIRST_REPLY - 2) | (tx.payload == C.FILLER)),
+            *[Assert(~loads(C.OP_READ_REG, C.READ_REG_FIRST_REPLY - 1 + k)
+                     | (tx.payload == byte_of(bank(address[:C.REG_ADDR_BITS]), k, 4)))
+              for k in range(C.VALUE_BYTES)],
+            *[Assert(~loads(C.OP_READ_ID, C.ID_FIRST_REPLY - 1 + k)
+                     | (tx.payload == (ident >> (8 * (C.ID_BYTES - 1 - k))) & 0xFF))
+              for k in range(C.ID_BYTES)],
         ]
         # ---- helper invariants on the slave's state, for the induction ----------------
-        st = internals(unit)
-        # ``is_write, is_status, is_stream = Signal(), Signal(), Signal()``: only the last
-        # has a name; the others are the first unnamed signals the slave assigns
-        st["is_write"], st["is_status"] = unnamed(unit)[:2]
         index = st["index"]
         active = count != 0
         m.d.comb += [
-            # the slave's byte index saturates past the write's last byte, at most at the
-            # longest fixed-length transaction
-            Assert((index == count) | ((count > index) & (index >= C.WRITE_REG_BYTES))),
-            Assert(index <= max(C.WRITE_REG_BYTES, FIRST_REPLY + C.STATUS_BYTES)),
-            Assert(st["is_write"] == (active & (opcode == C.OP_WRITE_REG))),
-            Assert(st["is_status"] == (active & (opcode == C.OP_READ_STATUS))),
-            Assert(st["is_stream"] == (active & (opcode == C.OP_READ_STREAM))),
+            # the slave's byte index is the observer's count, saturating past the longest
+            # fixed-length transaction
+            Assert(index == Mux(count > INDEX_MAX, INDEX_MAX, count)),
+            *[Assert(st[flag] == (active & (opcode == op))) for flag, op in FLAGS.items()],
             Assert((count <= C.ADDRESS_BYTES) | (st["address"][:ADDR_BITS] == address)),
             *[Assert((count < C.ADDRESS_BYTES + 1 + k)
                      | (st["value"][:8 * k] == value[:8 * k]))
               for k in range(1, C.REGISTER_WORD_BITS // 8 + 1)],
             Assert(~expect | (count == C.WRITE_REG_BYTES)),
+            *[Assert(~sig | (count == C.KEYED_BYTES)) for sig in expect_keyed.values()],
         ]
         return m
 
@@ -126,6 +194,58 @@ class EarlyStreamSPI(SPISlave):
         return m
 
 
+class KeylessResetSPI(SPISlave):
+    """Mutant: the soft reset strobes whatever the second byte is."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        st = internals(m)
+        rx = submodule(m, "byte").rx
+        m.d.sync += self.soft_reset.eq(rx.valid & st["is_reset"] & (st["index"] == 1))
+        return m
+
+
+class WrongCRCSPI(SPISlave):
+    """Mutant: the status CRC starts from another initial value (its constant term off)."""
+
+    def elaborate(self, platform):
+        real = spi_slave.crc8_matrix
+
+        def wrong():
+            columns, constant = real()
+            return columns, constant ^ 0x01
+        spi_slave.crc8_matrix = wrong
+        try:
+            return super().elaborate(platform)
+        finally:
+            spi_slave.crc8_matrix = real
+
+
+class WrongIDSPI(SPISlave):
+    """Mutant: the ID word's first byte has its low bit flipped."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        st = internals(m)
+        tx = submodule(m, "byte").tx
+        with m.If(st["is_id"] & (st["index"] == C.ID_FIRST_REPLY - 1)):
+            m.d.comb += tx.payload.eq((C.ID_MAGIC >> 8) ^ 1)
+        return m
+
+
+class LittleEndianReadSPI(SPISlave):
+    """Mutant: a READ_REG's value goes out least significant byte first."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        st = internals(m)
+        tx = submodule(m, "byte").tx
+        for k in range(C.VALUE_BYTES):
+            with m.If(st["is_read"] & (st["index"] == C.READ_REG_FIRST_REPLY - 1 + k)):
+                m.d.comb += tx.payload.eq(self.reg_rdata.word_select(k, 8))
+        return m
+
+
 def inputs(spi):
     return [spi.sck, spi.mosi, spi.cs_n, spi.busy, spi.overflow, spi.frame_counter,
             spi.packet.valid, spi.packet.payload]
@@ -135,21 +255,24 @@ DEPTH = 12
 
 
 def test_command_layer(tmp_path):
-    spi = SPISlave()
+    spi = SPISlave(build=BUILD)
     result = prove(CheckedSPI(spi), "prove", DEPTH, tmp_path, ports=inputs(spi))
     assert result.passed, result.log
 
 
-def test_stream_mutant_fails(tmp_path):
-    spi = EarlyStreamSPI()
-    result = prove(CheckedSPI(spi), "bmc", 24, tmp_path, ports=inputs(spi))
+@pytest.mark.parametrize("mutant,depth", [(EarlyStreamSPI, 24), (KeylessResetSPI, 40),
+                                          (WrongCRCSPI, 4), (WrongIDSPI, 40)])
+def test_mutant_fails(tmp_path, mutant, depth):
+    spi = mutant(build=BUILD)
+    result = prove(CheckedSPI(spi), "bmc", depth, tmp_path, ports=inputs(spi))
     assert result.failed, result.log
 
 
 @pytest.mark.slow
-def test_write_mutant_fails(tmp_path):
-    """A write needs 6 bytes of 8 SCK periods of at least 2 clocks: BMC to 100 clocks
-    (30-90 s)."""
-    spi = WrongAddressSPI()
-    result = prove(CheckedSPI(spi), "bmc", 100, tmp_path, ports=inputs(spi))
+@pytest.mark.parametrize("mutant,depth", [(WrongAddressSPI, 100), (LittleEndianReadSPI, 60)])
+def test_long_mutant_fails(tmp_path, mutant, depth):
+    """A write needs 6 bytes of 8 SCK periods of at least 2 clocks (BMC to 100 clocks, 30-90
+    s); a read's value starts at byte 3 (60 clocks)."""
+    spi = mutant(build=BUILD)
+    result = prove(CheckedSPI(spi), "bmc", depth, tmp_path, ports=inputs(spi))
     assert result.failed, result.log

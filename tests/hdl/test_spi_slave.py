@@ -1,7 +1,8 @@
 """The SPI slave in the Amaranth simulator, driven by an SPI master model (mode 0, MSB first)
 whose SCK is asynchronous to the system clock, at several SCK/sysclk ratios down to the
-documented 4x: register writes, status reads, packet streaming with underruns and partial
-reads, bad commands, and CS/SCK glitches that must not wedge the slave."""
+documented 4x: register writes and read-back, status reads (CRC-8 checked), the ID word,
+the keyed soft-reset and flush strobes, packet streaming with underruns and partial reads,
+bad commands, and CS/SCK glitches that must not wedge the slave."""
 
 from collections import deque
 
@@ -12,12 +13,18 @@ from amaranth.sim import Simulator
 from lodestar import contract as C
 from lodestar.contract import (
     FILLER,
+    OP_FLUSH,
+    OP_READ_ID,
+    OP_READ_REG,
     OP_READ_STATUS,
     OP_READ_STREAM,
+    OP_SOFT_RESET,
     OP_WRITE_REG,
     OVERFLOW_BITS,
     STATUS_BYTES,
     TURNAROUND_BYTES,
+    command_key,
+    decode_id,
     decode_status,
 )
 from lodestar.hdl.spi_slave import SPISlave
@@ -63,18 +70,31 @@ class Master:
         assert got[:REPLY] == [FILLER] * REPLY
         return decode_status(got[REPLY:])
 
+    async def read_reg(self, address):
+        got = await self.transfer([OP_READ_REG, address] + [0] * (TURNAROUND_BYTES + 4))
+        assert got[:C.READ_REG_FIRST_REPLY] == [FILLER] * C.READ_REG_FIRST_REPLY
+        return int.from_bytes(bytes(got[C.READ_REG_FIRST_REPLY:]), "big")
+
+    async def read_id(self):
+        got = await self.transfer([OP_READ_ID] + [0] * (TURNAROUND_BYTES + C.ID_BYTES))
+        assert got[:C.ID_FIRST_REPLY] == [FILLER] * C.ID_FIRST_REPLY
+        return decode_id(bytes(got[C.ID_FIRST_REPLY:]))
+
     async def read_stream(self, n):
         got = await self.transfer([OP_READ_STREAM] + [0xFF] * (TURNAROUND_BYTES + n))
         assert got[:REPLY] == [FILLER] * REPLY
         return got[REPLY:]
 
 
-def simulate(script, T, sck_period, packet=()):
+def simulate(script, T, sck_period, packet=(), build=0):
     """Run ``script(master, state)`` against a fresh slave with a packet-byte source holding
-    ``packet``; ``state`` has ``writes`` [(addr, data)], ``queue`` (bytes not yet consumed,
-    the script may append), ``status_reads`` and ``set(name, value)`` for the inputs."""
-    dut = SPISlave()
-    state = {"writes": [], "queue": deque(packet), "status_reads": 0}
+    ``packet`` and a register bank (``reg_rdata`` the word at ``reg_addr`` one clock later, as
+    a registered read mux gives it; writes land in it); ``state`` has ``writes`` [(addr,
+    data)], ``bank``, ``queue`` (bytes not yet consumed, the script may append),
+    ``status_reads``, ``resets`` and ``flushes`` (strobe clocks) and ``set(name, value)``."""
+    dut = SPISlave(build=build)
+    state = {"writes": [], "queue": deque(packet), "status_reads": 0, "bank": {},
+             "resets": 0, "flushes": 0}
 
     async def bench(ctx):
         state["set"] = lambda name, value: ctx.set(getattr(dut, name), value)
@@ -82,11 +102,16 @@ def simulate(script, T, sck_period, packet=()):
 
     async def monitor(ctx):
         while True:
-            _, _, strobe, addr, data, read = await ctx.tick().sample(
-                dut.reg_strobe, dut.reg_addr, dut.reg_data, dut.status_read)
+            _, _, strobe, addr, data, read, reset, flush = await ctx.tick().sample(
+                dut.reg_strobe, dut.reg_addr, dut.reg_data, dut.status_read, dut.soft_reset,
+                dut.flush)
             if strobe:
                 state["writes"].append((addr, data))
+                state["bank"][addr] = data
+            ctx.set(dut.reg_rdata, state["bank"].get(ctx.get(dut.reg_addr), 0))
             state["status_reads"] += read
+            state["resets"] += reset
+            state["flushes"] += flush
 
     async def source(ctx):
         q = state["queue"]
@@ -226,12 +251,52 @@ def test_glitches_do_not_wedge():
 
 
 def test_status_layout_and_decode():
-    assert STATUS_BYTES * 8 == 32 + 8 + 8 + OVERFLOW_BITS + 1
+    assert STATUS_BYTES * 8 == 32 + 8 + 8 + OVERFLOW_BITS + 1 + 8
     word = bytes([0x12, 0x34, 0x56, 0x78, 0x05, 0x06, 0x83])
+    word += bytes([C.crc8(word)])
     assert decode_status(word) == {"frame_counter": 0x12345678, "errors": 5, "underruns": 6,
                                    "overflow": 0x41, "busy": 1}
     with pytest.raises(ValueError, match="status word"):
         decode_status(word[:-1])
+    with pytest.raises(ValueError, match="CRC"):
+        decode_status(word[:-1] + bytes([word[-1] ^ 1]))
+
+
+@pytest.mark.parametrize("T,sck", [(10, 40), (10, 97)])
+def test_read_back_id_and_keyed_commands(T, sck):
+    """Every register reads back what was written (an unknown address reads 0);
+    the ID word carries the build byte; soft reset and flush strobe once each with the right
+    key, never with a wrong or missing key (each counted as an error), and touch neither the
+    registers nor the stream."""
+    rng = np.random.default_rng(int(sck))
+    values = {r.address: int(rng.integers(0, 1 << r.bits)) for r in C.REGISTERS}
+    unknown = max(r.address for r in C.REGISTERS) + 1
+    result = {}
+
+    async def script(master, state):
+        for r in C.REGISTERS:
+            await master.write_reg(r.address, values[r.address])
+        result["back"] = {r.address: await master.read_reg(r.address) for r in C.REGISTERS}
+        result["unknown"] = await master.read_reg(unknown)                 # error 1
+        result["id"] = await master.read_id()
+        await master.transfer([OP_SOFT_RESET, command_key(OP_SOFT_RESET)])
+        await master.transfer([OP_FLUSH, command_key(OP_FLUSH), 0, 0])     # extra bytes
+        await master.transfer([OP_SOFT_RESET, command_key(OP_FLUSH)])      # error 2
+        await master.transfer([OP_FLUSH, 0x00])                            # error 3
+        await master.transfer([OP_SOFT_RESET])                             # error 4
+        await master.transfer([OP_FLUSH, command_key(OP_FLUSH)], bits=12)  # error 5
+        result["status"] = await master.read_status()
+        result["stream"] = await master.read_stream(3)
+        result["back2"] = await master.read_reg(C.REGISTER_BY_NAME["min_sum"].address)
+
+    state = simulate(script, T * NS, sck * NS, packet=[5, 6, 7], build=0x2A)
+    assert result["back"] == values
+    assert result["unknown"] == 0
+    assert result["id"] == {"magic": C.ID_MAGIC, "link_version": C.LINK_VERSION, "build": 0x2A}
+    assert (state["resets"], state["flushes"]) == (1, 1)
+    assert result["status"]["errors"] == 5
+    assert result["stream"] == [5, 6, 7]
+    assert result["back2"] == values[C.REGISTER_BY_NAME["min_sum"].address]
 
 
 def test_miso_driven_only_while_selected():

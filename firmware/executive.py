@@ -1,0 +1,634 @@
+"""The flight executive: the MCU's main loop as a bounded state machine; never raises.
+
+    exe = Executive(link, tracker, clock=time, sensor=cam, sensor_settings=settings,
+                    watchdog=machine.WDT(timeout=8000), store=store, gyro=gyro,
+                    telemetry=downlink, now_s=obc_time)
+    while True:
+        exe.step()                    # one frame (or one recovery or safe-mode action)
+
+States (``STATE_NAMES``): ``BOOT`` (restore the prior, check the gateware ID and the star
+database) -> ``CONFIGURE`` (sensor start-up, the row time and exposure the sensor's
+registers give written into the tracker's settings, gateware registers written and read
+back) -> ``ACQUIRE`` (lost in space) <-> ``TRACK`` (the last attitude as the prior) ->
+``COAST`` (up to ``coast_frames`` bad frames in a row: the last good attitude is kept
+and carried on the gyro rate, ``process(prior=q, omega, dt)``, instead of dropping to lost
+in space) -> ``RECOVER`` -> ``SAFE``.  A frame: wait for ``irq`` (at most
+``irq_timeout_ms``), read and check the status word, read the packet (the link checks
+length and CRC and resynchronises after a bad read), ``StarTracker.process``, write
+``min_sum`` back (read back), emit the telemetry record, keep the attitude with its time
+and a CRC in the persistent ``store``.
+
+Recovery escalates while faults persist (``recover_after`` link faults in a row per level):
+1 resynchronise the link (flush + drain), 2 soft-reset the detector, 3 start the sensor
+again (PLL, settings; also at once on the status word's ``OVF_CLOCK_LOST``), 4 ``SAFE``:
+no frames are processed until a ``CMD_RESET`` or ``CMD_MODE`` command.  A good frame
+resets the level.  The watchdog (``feed()``; ``machine.WDT`` on the MCU) is fed at every
+stage boundary and, through ``Settings.clock``, at every stage boundary inside ``process``.
+
+Telemetry: one record of :data:`TELEMETRY_BYTES` per step, packed into one preallocated
+buffer (:data:`TELEMETRY_FORMAT`, fields :data:`TELEMETRY_FIELDS`) and handed to
+``telemetry(buf)``.  Commands (:meth:`Executive.command`, queued, applied at the next step):
+``CMD_MODE`` (``MODE_AUTO``, ``MODE_SAFE``, ``MODE_ACQUIRE``), ``CMD_EXPOSURE`` (seconds),
+``CMD_GAIN`` (sensor steps), ``CMD_SETTING`` (a tracker setting by name), ``CMD_DATABASE``
+(a slot, through ``select_database(slot)`` that returns a new tracker or None), ``CMD_RESET``.
+
+Injected objects (all optional but ``link``, ``tracker`` and ``clock``): ``clock`` with
+``ticks_ms``/``ticks_diff``/``sleep_ms``; ``now_ms()`` spacecraft time in integer ms (the
+time tags; the clock's ticks when absent; integers, as a float32 cannot hold it);
+``gyro()`` the body rate (rad/s, camera frame) or None;
+``store`` with ``read()`` -> bytes or None and ``write(bytes)`` (RTC backup registers or
+F-RAM; :data:`PRIOR_FORMAT`); ``mem_free()`` for the heap figure (``gc.mem_free``).
+Pure Python for CPython and MicroPython; its buffers are allocated once, and a step allocates
+only short-lived small objects besides ``process`` (about 0.7 KB on the Cortex-M4F build, the
+link's share included).  Board wiring, formats and measurements: ``docs/mcu_board.md``.
+"""
+
+import struct
+from array import array
+
+from lodestar import contract as _C
+
+from . import link as _link
+from . import status as S
+
+BOOT = 0
+CONFIGURE = 1
+ACQUIRE = 2
+TRACK = 3
+COAST = 4
+RECOVER = 5
+SAFE = 6
+STATE_NAMES = ("BOOT", "CONFIGURE", "ACQUIRE", "TRACK", "COAST", "RECOVER", "SAFE")
+
+CMD_MODE = 1
+CMD_EXPOSURE = 2
+CMD_GAIN = 3
+CMD_SETTING = 4
+CMD_DATABASE = 5
+CMD_RESET = 6
+MODE_AUTO = 0
+MODE_SAFE = 1
+MODE_ACQUIRE = 2
+COMMAND_QUEUE = 4
+"""Commands held between two steps (more are refused: ``command`` returns False)."""
+
+# recovery levels
+LEVEL_NONE = 0
+LEVEL_RESYNC = 1
+LEVEL_DETECTOR = 2
+LEVEL_SENSOR = 3
+LEVEL_SAFE = 4
+
+# health counters (indices into Executive.health)
+H_FRAMES = 0           # frames read whole
+H_OK = 1               # frames solved
+H_BAD = 2              # frames not solved (any status)
+H_IRQ_TIMEOUT = 3      # waits for a frame that timed out
+H_LINK_FAULT = 4       # status or packet reads refused
+H_COASTED = 5          # frames carried on the gyro
+H_LOST = 6             # tracks dropped to lost in space
+H_RESYNC = 7           # recoveries at level 1
+H_DETECTOR_RESET = 8   # recoveries at level 2
+H_SENSOR_INIT = 9      # sensor start-ups (the first included)
+H_SAFE = 10            # entries into SAFE
+H_CLOCK_LOST = 11      # status words with OVF_CLOCK_LOST
+H_SENSOR_FAULT = 12    # sensor start-ups or writes that failed (NACK, read-back)
+H_REG_FAULT = 13       # gateware register writes that did not read back
+H_COMMANDS = 14        # commands applied
+H_INTERNAL = 15        # exceptions caught in a step
+HEALTH_NAMES = ("frames", "ok", "bad", "irq_timeout", "link_fault", "coasted", "lost",
+                "resync", "detector_reset", "sensor_init", "safe", "clock_lost",
+                "sensor_fault", "reg_fault", "commands", "internal")
+N_HEALTH = 16
+
+HEAP_EVERY = 16
+"""Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
+more than the rest of a step's telemetry); the records between repeat the last figure."""
+TELEMETRY_MAGIC = 0x4C54        # "LT"
+TELEMETRY_VERSION = 1
+TELEMETRY_FORMAT = ">HBBIQIBBBBHI4f2f16HII"
+"""Big endian: magic, version, state, sequence, the attitude's time tag (ms) and FPGA frame
+counter,
+result status, link code, matches, recovery level, records, min_sum, q (x, y, z, w;
+NaN without an attitude), sigma cross and roll (arcsec; NaN), the 16 health counters,
+heap free (bytes; 0 unknown), CRC-32 (``contract.crc32``, native ``binascii``: a CRC-8 in
+Python costs more than the rest of the record on the MCU) of everything before it."""
+TELEMETRY_FIELDS = ("magic", "version", "state", "sequence", "time_ms", "frame_counter",
+                    "status", "link_code", "matches", "level", "n_records", "min_sum",
+                    "qx", "qy", "qz", "qw", "sigma_cross", "sigma_roll") + HEALTH_NAMES + (
+                        "heap_free", "crc")
+TELEMETRY_BYTES = struct.calcsize(TELEMETRY_FORMAT)
+
+PRIOR_FORMAT = ">4fQII"
+"""The prior kept across a reset: q (x, y, z, w), time tag (ms), FPGA frame counter, CRC-32
+(``contract.crc32``) of the bytes before it."""
+PRIOR_BYTES = struct.calcsize(PRIOR_FORMAT)
+NAN = float("nan")
+
+
+def _count(array_, index, n=1):
+    value = array_[index] + n
+    array_[index] = value if value < 0xFFFF else 0xFFFF
+
+
+class Executive(object):
+    """The flight loop (module docstring).  ``sensor_settings``: the dict for
+    ``sensor.start``; ``registers``: gateware registers ``{name: value}`` written at
+    configuration; ``frame_s``: the frame period (s; from the sensor's timing when it has
+    one); ``irq_timeout_ms``: the longest wait for a frame; ``coast_frames``: bad frames
+    carried on the gyro before the track is dropped; ``recover_after``: link faults in a
+    row before the next recovery level; ``max_prior_age_s``: oldest stored attitude used
+    after a reset."""
+
+    def __init__(self, link, tracker, clock, sensor=None, sensor_settings=None, registers=None,
+                 watchdog=None, store=None, gyro=None, telemetry=None, now_ms=None,
+                 mem_free=None, select_database=None, frame_s=0.1, irq_timeout_ms=250,
+                 coast_frames=5, recover_after=3, max_prior_age_s=10.0):
+        self.link = link
+        self.tracker = tracker
+        self.clock = clock
+        self.sensor = sensor
+        self.sensor_settings = sensor_settings if sensor_settings is not None else {}
+        self.registers = registers if registers is not None else {}
+        self.watchdog = watchdog
+        self.store = store
+        self.gyro = gyro
+        self.telemetry = telemetry
+        self.now_ms = now_ms
+        self.mem_free = mem_free
+        self.select_database = select_database
+        self.frame_s = frame_s
+        self.irq_timeout_ms = irq_timeout_ms
+        self.coast_frames = coast_frames
+        self.recover_after = recover_after
+        self.max_prior_age_s = max_prior_age_s
+        self.health = array("H", [0] * N_HEALTH)
+        self.record = bytearray(TELEMETRY_BYTES)
+        self._record_body = memoryview(self.record)[:TELEMETRY_BYTES - 4]
+        self._prior_buf = bytearray(PRIOR_BYTES)
+        self._commands = [None] * COMMAND_QUEUE
+        self._n_commands = 0
+        self.state = BOOT
+        self.mode = MODE_AUTO
+        self.level = LEVEL_NONE
+        self.faults = 0               # link faults in a row
+        self.bad = 0                  # bad frames in a row (solve failures included)
+        self.q = None                 # last good attitude
+        self.q_time = 0               # its time tag, ms
+        self.q_counter = 0            # its FPGA frame counter
+        self.sequence = 0
+        self.reason = ""
+        self.last_status = S.OK
+        self.last_link = _link.OK
+        self.last_result = None
+        self.min_sum = 0
+        self.last_command = (0, S.OK)
+        self.configured = False       # CONFIGURE completed since BOOT
+        self.heap_free = 0            # the last mem_free() figure
+        self._wrapped = None
+        self._wrap_clock()
+
+    # ---- helpers -------------------------------------------------------------------------
+
+    def _wrap_clock(self):
+        """Feed the watchdog at the stage boundaries inside ``process`` (``Settings.clock``
+        is called there)."""
+        try:
+            settings = getattr(self.tracker, "settings", None)
+            if settings is None or self._wrapped is self.tracker:
+                return
+            inner = settings.clock
+        except Exception:
+            return
+        self._wrapped = self.tracker
+        clock = self.clock
+
+        def fed():
+            self.feed()
+            return inner() if inner is not None else clock.ticks_ms()
+        settings.clock = fed
+
+    def feed(self):
+        if self.watchdog is not None:
+            try:
+                self.watchdog.feed()
+            except Exception:
+                pass
+
+    def time_ms(self):
+        if self.now_ms is not None:
+            try:
+                return int(self.now_ms())
+            except Exception:
+                pass
+        return self.clock.ticks_ms()
+
+    def _enter(self, state, reason=""):
+        if state == SAFE and self.state != SAFE:
+            _count(self.health, H_SAFE)
+        self.state = state
+        if reason:
+            self.reason = reason
+
+    # ---- commands ------------------------------------------------------------------------
+
+    def command(self, code, arg=None, value=None):
+        """Queue a command for the next step: True if queued (False: the queue is full)."""
+        if self._n_commands >= COMMAND_QUEUE:
+            return False
+        self._commands[self._n_commands] = (code, arg, value)
+        self._n_commands += 1
+        return True
+
+    def _apply_commands(self):
+        for i in range(self._n_commands):
+            code, arg, value = self._commands[i]
+            self._commands[i] = None
+            self.last_command = (code, self._apply(code, arg, value))
+            _count(self.health, H_COMMANDS)
+        self._n_commands = 0
+
+    def _apply(self, code, arg, value):
+        if code == CMD_MODE:
+            if arg == MODE_SAFE:
+                self.mode = MODE_SAFE
+                self._enter(SAFE, "commanded")
+            elif arg in (MODE_AUTO, MODE_ACQUIRE):
+                self.mode = MODE_AUTO
+                self.level = LEVEL_NONE
+                self.faults = 0
+                if arg == MODE_ACQUIRE:
+                    self.q = None
+                self._enter(CONFIGURE if self.state in (SAFE, BOOT) else ACQUIRE
+                            if self.q is None else TRACK, "commanded")
+            else:
+                return S.BAD_INPUT
+            return S.OK
+        if code == CMD_EXPOSURE or code == CMD_GAIN:
+            if self.sensor is None:
+                return S.BAD_INPUT
+            if code == CMD_EXPOSURE:
+                settings = self._exposure_rows(arg)
+                if settings is None:
+                    return S.BAD_INPUT
+            else:
+                settings = {"gain": arg}
+            st, reason = self.sensor.configure(**settings)
+            if st != S.OK:
+                _count(self.health, H_SENSOR_FAULT)
+                self.reason = reason
+                return st
+            self.sensor_settings.update(settings)
+            self._read_timing()
+            return S.OK
+        if code == CMD_SETTING:
+            settings = getattr(self.tracker, "settings", None)
+            if settings is None or not isinstance(arg, str) or not hasattr(settings, arg) \
+                    or arg.startswith("_") or arg == "clock":
+                return S.BAD_INPUT
+            setattr(settings, arg, value)
+            return S.OK
+        if code == CMD_DATABASE:
+            if self.select_database is None:
+                return S.BAD_INPUT
+            tracker = self.select_database(arg)
+            if tracker is None or getattr(tracker, "status", S.OK) != S.OK:
+                return S.DATABASE_CORRUPT
+            self.tracker = tracker
+            self._wrap_clock()
+            self.q = None
+            self._read_timing()
+            if self.state in (TRACK, COAST):
+                self._enter(ACQUIRE)
+            return S.OK
+        if code == CMD_RESET:
+            self.level = LEVEL_NONE
+            self.faults = 0
+            self.bad = 0
+            self.mode = MODE_AUTO
+            self._enter(BOOT, "commanded reset")
+            return S.OK
+        return S.BAD_INPUT
+
+    def _exposure_rows(self, exposure_s):
+        """Sensor settings for an exposure in s, from the row time the registers give."""
+        timing = self._timing()
+        if timing is None or not isinstance(exposure_s, (int, float)) or exposure_s <= 0:
+            return None
+        return {"exposure": max(1, int(exposure_s / timing[0] + 0.5))}
+
+    # ---- persistent prior --------------------------------------------------------------
+
+    def _save_prior(self):
+        if self.store is None or self.q is None:
+            return
+        buf = self._prior_buf
+        q = self.q
+        struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], self.q_time,
+                         (self.q_counter or 0) & 0xFFFFFFFF, 0)
+        struct.pack_into(">I", buf, PRIOR_BYTES - 4, _C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
+        try:
+            self.store.write(buf)
+        except Exception:
+            pass
+
+    def _load_prior(self):
+        """Restore the stored attitude if its CRC matches and it is young enough."""
+        if self.store is None:
+            return
+        try:
+            data = self.store.read()
+        except Exception:
+            return
+        if data is None or len(data) != PRIOR_BYTES:
+            return
+        x, y, z, w, t, counter, crc = struct.unpack(PRIOR_FORMAT, data)
+        if _C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
+            return
+        age = self.time_ms() - t
+        if not 0 <= age <= 1000 * self.max_prior_age_s:
+            return
+        n = x * x + y * y + z * z + w * w
+        if not 0.9 < n < 1.1:
+            return
+        self.q = (x, y, z, w)
+        self.q_time = t
+        self.q_counter = None         # the FPGA may have restarted: dt from the time tags
+
+    # ---- states --------------------------------------------------------------------------
+
+    def step(self):
+        """One step of the state machine (at most one frame); returns the state."""
+        try:
+            self.feed()
+            self._apply_commands()
+            state = self.state
+            if state == BOOT:
+                self._boot()
+            elif state == CONFIGURE:
+                self._configure()
+            elif state in (ACQUIRE, TRACK, COAST):
+                self._frame()
+            elif state == RECOVER:
+                self._recover()
+            else:
+                self._safe()
+        except MemoryError:
+            _count(self.health, H_INTERNAL)
+            self.reason = "out of heap"
+            self._fault()
+        except Exception as exc:
+            _count(self.health, H_INTERNAL)
+            try:
+                self.reason = "internal: " + repr(exc)
+            except Exception:
+                self.reason = "internal"
+            self._fault()
+        self.feed()
+        self._emit()
+        return self.state
+
+    def _boot(self):
+        self.configured = False
+        self._load_prior()
+        tracker = self.tracker
+        if getattr(tracker, "status", S.OK) != S.OK:
+            self.last_status = tracker.status
+            self._enter(SAFE, "database: " + getattr(tracker, "reason", ""))
+            return
+        code = _link.BUS_ERROR
+        for _attempt in range(3):
+            code = self.link.read_id()
+            if code == _link.OK:
+                break
+        self.last_link = code
+        if code != _link.OK:
+            self._fault()
+            self.reason = "gateware ID: " + _link.CODE_NAMES[code]
+            return
+        self._enter(CONFIGURE)
+
+    def _timing(self):
+        if self.sensor is None:
+            return None
+        try:
+            st, _reason, timing = self.sensor.timing()
+        except Exception:
+            return None
+        return timing if st == S.OK else None
+
+    def _read_timing(self):
+        """Row time and exposure of the sensor's registers into the tracker's settings."""
+        timing = self._timing()
+        settings = getattr(self.tracker, "settings", None)
+        if timing is None or settings is None:
+            return
+        settings.row_time_s = timing[0]
+        settings.exposure_s = timing[1]
+        self.frame_s = timing[2]
+
+    def _configure(self):
+        if self.sensor is not None:
+            _count(self.health, H_SENSOR_INIT)
+            self.feed()
+            st, reason = self.sensor.start(self.sensor_settings)
+            self.feed()
+            if st != S.OK:
+                _count(self.health, H_SENSOR_FAULT)
+                self.reason = "sensor: " + reason
+                self._fault(LEVEL_SENSOR)
+                return
+            self._read_timing()
+        for name in self.registers:
+            code = self.link.write_reg(name, self.registers[name])
+            if code != _link.OK:
+                _count(self.health, H_REG_FAULT)
+                self.last_link = code
+                self.reason = "register " + name + ": " + _link.CODE_NAMES[code]
+                self._fault()
+                return
+        self.min_sum = self.registers.get("min_sum", 0)
+        self.link.resync()                     # start at a packet boundary
+        self.configured = True
+        self._enter(TRACK if self.q is not None else ACQUIRE)
+
+    def _fault(self, at_least=LEVEL_NONE):
+        """A link or system fault: escalate after ``recover_after`` in a row."""
+        self.faults += 1
+        level = self.level
+        if self.faults >= self.recover_after:
+            level += 1
+            self.faults = 0
+        if at_least > level:
+            level = at_least
+        if level > self.level:
+            self.level = level
+            self._enter(RECOVER)
+
+    def _recover(self):
+        level = self.level
+        if level >= LEVEL_SAFE:
+            self._enter(SAFE, self.reason)
+            return
+        if level == LEVEL_RESYNC:
+            _count(self.health, H_RESYNC)
+            code = self.link.resync()
+        elif level == LEVEL_DETECTOR:
+            _count(self.health, H_DETECTOR_RESET)
+            code = self.link.soft_reset()
+        else:
+            self._enter(CONFIGURE)
+            return
+        self.last_link = code
+        if not self.configured:
+            self._enter(BOOT)
+        else:
+            self._enter(ACQUIRE if self.q is None else COAST)
+
+    def _safe(self):
+        """No frames: the watchdog fed, telemetry emitted, one frame period slept."""
+        self.clock.sleep_ms(int(self.frame_s * 1000))
+
+    def _frame(self):
+        link = self.link
+        if not link.wait_irq(self.irq_timeout_ms):
+            _count(self.health, H_IRQ_TIMEOUT)
+            self.last_link = _link.IRQ_TIMEOUT
+            self._bad_frame()
+            self._fault()
+            return
+        self.feed()
+        code = link.read_status()
+        if code == _link.OK and link.clock_lost():
+            _count(self.health, H_CLOCK_LOST)
+            self.last_link = code
+            self.reason = "clock lost"
+            self._bad_frame()
+            self._fault(LEVEL_SENSOR)
+            link.resync()
+            return
+        if code == _link.OK:
+            code, n = link.read_packet()
+        self.last_link = code
+        if code != _link.OK:
+            _count(self.health, H_LINK_FAULT)
+            self._bad_frame()
+            self._fault()
+            return
+        _count(self.health, H_FRAMES)
+        self.faults = 0
+        counter = link.last_frame_counter
+        now = self.time_ms()
+        omega = None
+        if self.gyro is not None:
+            try:
+                omega = self.gyro()
+            except Exception:
+                omega = None
+        prior = self.q
+        dt = None
+        if prior is not None:
+            frames = 0
+            if self.q_counter is not None:
+                frames = (counter - self.q_counter) & 0xFFFFFFFF
+            dt = frames * self.frame_s if 0 < frames < 1000 else (now - self.q_time) / 1000.0
+        self.feed()
+        result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
+        self.feed()
+        self.last_result = result
+        self.last_status = result.status
+        if result.status == S.OK and result.q is not None:
+            _count(self.health, H_OK)
+            self.q = result.q
+            self.q_time = now
+            self.q_counter = counter
+            self.bad = 0
+            self.level = LEVEL_NONE
+            self._enter(TRACK)
+            self._save_prior()
+            if result.min_sum != self.min_sum:
+                self._write_min_sum(result.min_sum)
+            return
+        self._bad_frame()
+
+    def _bad_frame(self):
+        """A frame without an attitude: coast on the prior, then drop to lost in space with
+        every record admitted again."""
+        _count(self.health, H_BAD)
+        self.bad += 1
+        if self.q is not None and self.bad <= self.coast_frames:
+            _count(self.health, H_COASTED)
+            if self.state in (TRACK, COAST):
+                self._enter(COAST)
+            return
+        if self.q is not None:
+            _count(self.health, H_LOST)
+            self.q = None
+        if self.state in (TRACK, COAST):
+            self._enter(ACQUIRE)
+        if self.min_sum:
+            self._write_min_sum(0)
+
+    def _write_min_sum(self, value):
+        code = self.link.write_reg("min_sum", value)
+        if code == _link.OK:
+            self.min_sum = value
+        else:
+            _count(self.health, H_REG_FAULT)
+
+    # ---- telemetry -----------------------------------------------------------------------
+
+    def _emit(self):
+        self.sequence = (self.sequence + 1) & 0xFFFFFFFF
+        res = self.last_result
+        q = self.q
+        if q is None:
+            q = (NAN, NAN, NAN, NAN)
+        sc = NAN
+        sr = NAN
+        matches = 0
+        n_records = 0
+        if res is not None:
+            if res.sigma_cross_arcsec is not None:
+                sc = res.sigma_cross_arcsec
+            if res.sigma_roll_arcsec is not None:
+                sr = res.sigma_roll_arcsec
+            matches = min(255, len(res.matches))
+            n_records = min(0xFFFF, res.n_records)
+        heap = self.heap_free
+        if self.mem_free is not None and self.sequence % HEAP_EVERY == 1:
+            try:
+                heap = self.heap_free = self.mem_free()
+            except Exception:
+                heap = 0
+        h = self.health
+        buf = self.record
+        struct.pack_into(TELEMETRY_FORMAT, buf, 0, TELEMETRY_MAGIC, TELEMETRY_VERSION,
+                         self.state, self.sequence, self.q_time,
+                         (self.q_counter or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
+                         self.last_link & 0xFF, matches, self.level, n_records,
+                         self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
+                         h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
+                         h[11], h[12], h[13], h[14], h[15], heap & 0xFFFFFFFF, 0)
+        struct.pack_into(">I", buf, TELEMETRY_BYTES - 4, _C.crc32(self._record_body))
+        if self.telemetry is not None:
+            try:
+                self.telemetry(buf)
+            except Exception:
+                pass
+
+
+def decode_telemetry(data):
+    """The telemetry record as a dict of :data:`TELEMETRY_FIELDS` (ground side), or None
+    when its length, magic or CRC-32 is wrong."""
+    if len(data) != TELEMETRY_BYTES:
+        return None
+    values = struct.unpack(TELEMETRY_FORMAT, bytes(data))
+    if _C.crc32(bytes(data)[:TELEMETRY_BYTES - 4]) != values[-1]:
+        return None
+    if values[0] != TELEMETRY_MAGIC:
+        return None
+    out = {}
+    for i in range(len(TELEMETRY_FIELDS)):
+        out[TELEMETRY_FIELDS[i]] = values[i]
+    return out

@@ -1,0 +1,404 @@
+"""The MCU's SPI master of the FPGA link (``lodestar.contract.link``): status word, packets,
+registers with read-back, the ID word, soft reset and flush; never raises, bounded in time.
+
+    link = Link(machine.SPI(1, baudrate=10_500_000), Pin("A4", Pin.OUT, value=1),
+                Pin("B0", Pin.IN), time, capacity=contract.FLIGHT_RECORD_CAPACITY)
+    if link.wait_irq(250) and link.read_status() == OK:
+        code, n = link.read_packet()          # the packet is link.packet(n) (a memoryview)
+
+``spi``: an object with ``machine.SPI``'s ``write(buf)``, ``readinto(buf, write)`` and
+``write_readinto(out, in)``; ``cs`` and ``irq``: objects with ``machine.Pin``'s ``value()``
+(CS active low, driven here; ``irq`` high while a packet is being delivered); ``clock``: an
+object with ``ticks_ms()``, ``ticks_diff(a, b)`` and ``sleep_ms(n)`` (MicroPython's ``time``
+module; tests pass a simulated clock).  A bus call that raises ``OSError`` is a bus error.
+
+Every result is a code of this module (:data:`OK` ... ), and every kind of error increments
+its counter in :attr:`Link.counters` (an ``array('H')``, saturating, indexed by the ``C_*``
+constants, names in :data:`COUNTER_NAMES`).  The packet buffer holds ``capacity`` records;
+a packet is trusted only after its header's magic, version and ``n_records`` (at most
+``capacity``) pass and its CRC-32 matches; any other read leaves the stream possibly
+mid-packet, so the link resynchronises: FLUSH (the gateware drops what is queued), then it
+drains ``READ_STREAM`` while ``irq`` stays high (bounded by the longest packet and a time
+limit), then a status read absorbs the underruns of the drain.  Buffers are allocated once
+here; a frame allocates only a few small objects (views of the packet's variable-length parts,
+the long ints of 32-bit values: about 330 bytes on the Cortex-M4F build, ``docs/mcu_board.md``).
+Pure Python for CPython and MicroPython (docs/mcu_board.md).
+"""
+
+from array import array
+
+from lodestar import contract as _C
+
+# result codes
+OK = 0
+BUS_ERROR = 1            # the SPI or a pin raised OSError
+STATUS_BAD = 2           # status reply failed its CRC-8 or its turnaround bytes
+IRQ_TIMEOUT = 3          # no packet within the wait
+HEADER_BAD = 4           # packet magic or version wrong: the stream is not at a packet start
+LENGTH_BAD = 5           # n_records beyond the buffer or the contract
+PACKET_CRC = 6           # CRC-32 of a packet of plausible length wrong
+VERIFY_FAILED = 7        # a register read back another value than written
+ID_BAD = 8               # no ID magic, or another link version
+RESYNC_FAILED = 9        # irq still high after draining the longest packet
+BAD_ARGUMENT = 10        # unknown register, value out of its field
+CODE_NAMES = ("OK", "BUS_ERROR", "STATUS_BAD", "IRQ_TIMEOUT", "HEADER_BAD", "LENGTH_BAD",
+              "PACKET_CRC", "VERIFY_FAILED", "ID_BAD", "RESYNC_FAILED", "BAD_ARGUMENT")
+
+# counters (indices into Link.counters)
+C_BUS = 0                # bus errors
+C_STATUS_BAD = 1         # status replies rejected (CRC-8, turnaround)
+C_IRQ_TIMEOUT = 2        # waits for irq that timed out
+C_HEADER_BAD = 3         # packets with a wrong magic or version
+C_LENGTH_BAD = 4         # packets whose n_records exceeds the buffer or the contract
+C_PACKET_CRC = 5         # packets with a wrong CRC-32
+C_VERIFY = 6             # register read-backs that differed
+C_RESYNC = 7             # resynchronisations (flush + drain)
+C_RESYNC_FAILED = 8      # drains that did not see irq fall
+C_SLAVE_ERRORS = 9       # the slave's own ``errors`` count, accumulated
+C_UNDERRUNS = 10         # the slave's ``underruns`` (bytes read past the stream's end)
+C_FRAMES_SKIPPED = 11    # frames between two status reads beyond one (frame_counter jumps)
+C_OVERFLOW = 12          # status reads with any overflow flag
+C_CLOCK_LOST = 13        # status reads with OVF_CLOCK_LOST
+C_PACKETS = 14           # packets read whole with a good CRC
+C_STATUS = 15            # status reads accepted
+COUNTER_NAMES = ("bus", "status_bad", "irq_timeout", "header_bad", "length_bad",
+                 "packet_crc", "verify", "resync", "resync_failed", "slave_errors",
+                 "underruns", "frames_skipped", "overflow", "clock_lost", "packets", "status")
+N_COUNTERS = 16
+COUNTER_MAX = 0xFFFF
+
+_REPLY = 1 + _C.TURNAROUND_BYTES                # MISO bytes before a read's reply
+_STATUS_LEN = _REPLY + _C.STATUS_BYTES
+_READ_LEN = _C.READ_REG_BYTES
+_ID_LEN = _C.ID_FIRST_REPLY + _C.ID_BYTES
+
+
+def _offsets(fields):
+    """``{name: (bit offset from the MSB, bits)}`` of a field table."""
+    out = {}
+    at = 0
+    for name, bits in fields:
+        out[name] = (at, bits)
+        at += bits
+    return out
+
+
+_HEADER = _offsets(_C.HEADER_FIELDS)
+_STATUS = _offsets(_C.STATUS_FIELDS)
+
+
+def _field(data, base, spec):
+    """Unsigned field ``spec`` = (bit offset, bits) of the big-endian bytes at ``base``."""
+    at, bits = spec
+    first = base + at // 8
+    last = base + (at + bits - 1) // 8
+    value = 0
+    for i in range(first, last + 1):
+        value = (value << 8) | data[i]
+    if not (at | bits) & 7:
+        return value                     # byte aligned: no shift or mask (no long ints)
+    return (value >> (7 - (at + bits - 1) % 8)) & ((1 << bits) - 1)
+
+
+DRAIN_CHUNK = 32
+"""Bytes per ``READ_STREAM`` while draining (``irq`` checked between chunks)."""
+DRAIN_MS = 50
+"""Longest drain (ms); the longest packet takes 12 ms at 10.5 MHz."""
+
+
+class Link(object):
+    """The master on one SPI bus (module docstring).  ``capacity``: records the packet
+    buffer holds (the gateware's ``record_capacity`` must not exceed it, or every full frame
+    is refused as ``LENGTH_BAD``); ``retries``: extra attempts of a register write whose
+    read-back differs."""
+
+    def __init__(self, spi, cs, irq, clock, capacity=_C.FLIGHT_RECORD_CAPACITY, retries=2):
+        self.spi = spi
+        self.cs = cs
+        self.irq = irq
+        self.clock = clock
+        self.capacity = max(0, min(int(capacity), _C.MAX_RECORD_CAPACITY))
+        self.retries = retries
+        self.counters = array("H", [0] * N_COUNTERS)
+        self.buf = bytearray(_C.packet_bytes(self.capacity))
+        self._mv = memoryview(self.buf)
+        self._head = self._mv[:_C.HEADER_BYTES]
+        self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, _C.WRITE_REG_BYTES))
+        self._rx = bytearray(len(self._tx))
+        self._txv = memoryview(self._tx)
+        self._rxv = memoryview(self._rx)
+        # the views of each fixed-length transaction, made once (a slice is a heap object)
+        self._views = {}
+        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, _C.WRITE_REG_BYTES):
+            self._views[n] = (self._txv[:n], self._rxv[:n])
+        self._status_data = self._rxv[_REPLY:_STATUS_LEN]
+        self._stream_op = bytearray((_C.OP_READ_STREAM,) + (0,) * _C.TURNAROUND_BYTES)
+        self._keyed = {}
+        for op in _C.KEYED_OPCODES:
+            self._keyed[op] = bytearray(_C.keyed_command(op))
+        # the last status word read (valid after read_status() == OK)
+        self.frame_counter = None
+        self.errors = 0
+        self.underruns = 0
+        self.overflow = 0
+        self.busy = 0
+        self.last_frame_counter = None   # the frame counter of the last good packet
+        self.n_records = 0
+        self.ident = None                # (link_version, build) after read_id() == OK
+        self._drain_underruns = False
+
+    # ---- counters ----------------------------------------------------------------------
+
+    def count(self, index, n=1):
+        value = self.counters[index] + n
+        self.counters[index] = value if value < COUNTER_MAX else COUNTER_MAX
+
+    def counter(self, name):
+        """A counter by its name in :data:`COUNTER_NAMES` (0 for an unknown name)."""
+        for i in range(N_COUNTERS):
+            if COUNTER_NAMES[i] == name:
+                return self.counters[i]
+        return 0
+
+    # ---- transactions ------------------------------------------------------------------
+
+    def _select(self, on):
+        self.cs.value(0 if on else 1)
+
+    def _exchange(self, n):
+        """One transaction of ``n`` bytes from ``_tx``, the reply in ``_rx``: True if the
+        bus did not fail."""
+        try:
+            self._select(True)
+            try:
+                views = self._views[n]
+                self.spi.write_readinto(views[0], views[1])
+            finally:
+                self._select(False)
+        except OSError:
+            self.count(C_BUS)
+            return False
+        return True
+
+    def _clear(self, n):
+        tx = self._tx
+        for i in range(n):
+            tx[i] = 0
+
+    def wait_irq(self, timeout_ms):
+        """Wait until ``irq`` is high, at most ``timeout_ms``: True if it is."""
+        clock = self.clock
+        try:
+            if self.irq.value():
+                return True
+            start = clock.ticks_ms()
+            while clock.ticks_diff(clock.ticks_ms(), start) < timeout_ms:
+                clock.sleep_ms(1)
+                if self.irq.value():
+                    return True
+        except OSError:
+            self.count(C_BUS)
+            return False
+        self.count(C_IRQ_TIMEOUT)
+        return False
+
+    def read_status(self):
+        """Read and check the status word; its fields land in ``frame_counter``, ``errors``,
+        ``underruns``, ``overflow``, ``busy``, and the counters add them up.  Returns a
+        code (``STATUS_BAD``: CRC-8 or turnaround wrong; the fields keep their old
+        values)."""
+        self._clear(_STATUS_LEN)
+        self._tx[0] = _C.OP_READ_STATUS
+        if not self._exchange(_STATUS_LEN):
+            return BUS_ERROR
+        rx = self._rx
+        for i in range(_REPLY):
+            if rx[i] != _C.FILLER:
+                self.count(C_STATUS_BAD)
+                return STATUS_BAD
+        if _C.crc8(self._status_data, _C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
+            self.count(C_STATUS_BAD)
+            return STATUS_BAD
+        previous = self.frame_counter
+        self.frame_counter = _field(rx, _REPLY, _STATUS["frame_counter"])
+        self.errors = _field(rx, _REPLY, _STATUS["errors"])
+        self.underruns = _field(rx, _REPLY, _STATUS["underruns"])
+        self.overflow = _field(rx, _REPLY, _STATUS["overflow"])
+        self.busy = _field(rx, _REPLY, _STATUS["busy"])
+        self.count(C_STATUS)
+        self.count(C_SLAVE_ERRORS, self.errors)
+        if self._drain_underruns:
+            self._drain_underruns = False        # the drain's own reads past the end
+        else:
+            self.count(C_UNDERRUNS, self.underruns)
+        if self.overflow:
+            self.count(C_OVERFLOW)
+        if self.overflow & (1 << _C.OVF_CLOCK_LOST):
+            self.count(C_CLOCK_LOST)
+        if previous is not None:
+            step = (self.frame_counter - previous) & 0xFFFFFFFF
+            if 1 < step < 0x80000000:
+                self.count(C_FRAMES_SKIPPED, min(step - 1, COUNTER_MAX))
+        return OK
+
+    def clock_lost(self):
+        """The last status word's ``OVF_CLOCK_LOST`` flag."""
+        return bool(self.overflow & (1 << _C.OVF_CLOCK_LOST))
+
+    def _stream(self, view):
+        """One ``READ_STREAM`` transaction that fills ``view``: True if the bus did not
+        fail."""
+        try:
+            self._select(True)
+            try:
+                self.spi.write(self._stream_op)
+                self.spi.readinto(view, 0)
+            finally:
+                self._select(False)
+        except OSError:
+            self.count(C_BUS)
+            return False
+        return True
+
+    def read_packet(self):
+        """Read one packet into :attr:`buf`: ``(code, n_records)``; on ``OK`` the packet is
+        ``packet(n_records)``.  The header is read first and its magic, version and
+        ``n_records`` checked before the rest is read; a refused or corrupt packet
+        resynchronises the stream (:meth:`resync`) before returning its code."""
+        self.n_records = 0
+        head = self._head
+        if not self._stream(head):
+            self.resync()
+            return BUS_ERROR, 0
+        if _field(head, 0, _HEADER["magic"]) != _C.PACKET_MAGIC or \
+                _field(head, 0, _HEADER["version"]) != _C.PACKET_VERSION:
+            self.count(C_HEADER_BAD)
+            self.resync()
+            return HEADER_BAD, 0
+        n = _field(head, 0, _HEADER["n_records"])
+        if n > self.capacity:
+            self.count(C_LENGTH_BAD)
+            self.resync()
+            return LENGTH_BAD, 0
+        total = _C.packet_bytes(n)
+        if not self._stream(self._mv[_C.HEADER_BYTES:total]):
+            self.resync()
+            return BUS_ERROR, 0
+        body = total - _C.CRC_BYTES
+        buf = self.buf
+        want = (buf[body] << 24) | (buf[body + 1] << 16) | (buf[body + 2] << 8) | buf[body + 3]
+        if _C.crc32(self._mv[:body]) != want:
+            self.count(C_PACKET_CRC)
+            self.resync()
+            return PACKET_CRC, 0
+        self.count(C_PACKETS)
+        self.n_records = n
+        self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
+        return OK, n
+
+    def packet(self, n_records):
+        """The packet of ``n_records`` records in the buffer, as a memoryview."""
+        return self._mv[:_C.packet_bytes(n_records)]
+
+    def resync(self):
+        """Put the stream back at a packet start: FLUSH, then drain ``READ_STREAM`` while
+        ``irq`` is high (at most the longest packet and :data:`DRAIN_MS`), then read the
+        status (its underruns are the drain's).  Returns ``OK`` or ``RESYNC_FAILED``."""
+        self.count(C_RESYNC)
+        self.command(_C.OP_FLUSH)
+        limit = _C.packet_bytes(_C.MAX_RECORD_CAPACITY)
+        drained = 0
+        clock = self.clock
+        scratch = self._mv[:min(DRAIN_CHUNK, len(self.buf))]
+        try:
+            start = clock.ticks_ms()
+            while self.irq.value():
+                if drained >= limit or clock.ticks_diff(clock.ticks_ms(), start) > DRAIN_MS:
+                    self.count(C_RESYNC_FAILED)
+                    return RESYNC_FAILED
+                if not self._stream(scratch):
+                    return RESYNC_FAILED
+                drained += len(scratch)
+        except OSError:
+            self.count(C_BUS)
+            return RESYNC_FAILED
+        self._drain_underruns = True
+        self.read_status()
+        return OK
+
+    def command(self, opcode):
+        """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code."""
+        data = self._keyed.get(opcode)
+        if data is None:
+            return BAD_ARGUMENT
+        try:
+            self._select(True)
+            try:
+                self.spi.write(data)
+            finally:
+                self._select(False)
+        except OSError:
+            self.count(C_BUS)
+            return BUS_ERROR
+        return OK
+
+    def soft_reset(self):
+        """Reset the detector datapath (registers kept), then resynchronise: a code."""
+        code = self.command(_C.OP_SOFT_RESET)
+        if code != OK:
+            return code
+        return self.resync()
+
+    def read_reg(self, address):
+        """``(code, value)`` of the register at word ``address``."""
+        self._clear(_READ_LEN)
+        self._tx[0] = _C.OP_READ_REG
+        self._tx[1] = address & 0xFF
+        if not self._exchange(_READ_LEN):
+            return BUS_ERROR, 0
+        rx = self._rx
+        at = _C.READ_REG_FIRST_REPLY
+        value = 0
+        for i in range(_C.VALUE_BYTES):
+            value = (value << 8) | rx[at + i]
+        return OK, value
+
+    def write_reg(self, name, value):
+        """Write register ``name`` (``contract.REGISTERS``) and read it back, retrying
+        ``retries`` times: a code (``VERIFY_FAILED`` if it never reads back ``value``;
+        the gateware refuses values outside a register's limits, so those fail too)."""
+        reg = _C.REGISTER_BY_NAME.get(name)
+        if reg is None or not isinstance(value, int) or value < 0 or value >> reg.bits:
+            return BAD_ARGUMENT
+        code = VERIFY_FAILED
+        for _attempt in range(1 + self.retries):
+            tx = self._tx
+            tx[0] = _C.OP_WRITE_REG
+            tx[1] = reg.address
+            for i in range(_C.VALUE_BYTES):
+                tx[2 + i] = (value >> (8 * (_C.VALUE_BYTES - 1 - i))) & 0xFF
+            if not self._exchange(_C.WRITE_REG_BYTES):
+                code = BUS_ERROR
+                continue
+            code, back = self.read_reg(reg.address)
+            if code == OK and back == value:
+                return OK
+            if code == OK:
+                self.count(C_VERIFY)
+                code = VERIFY_FAILED
+        return code
+
+    def read_id(self):
+        """Read the gateware ID word: a code (``ID_BAD`` without the magic or with another
+        link version); ``ident`` = ``(link_version, build)``."""
+        self._clear(_ID_LEN)
+        self._tx[0] = _C.OP_READ_ID
+        if not self._exchange(_ID_LEN):
+            return BUS_ERROR
+        rx = self._rx
+        at = _C.ID_FIRST_REPLY
+        if ((rx[at] << 8) | rx[at + 1]) != _C.ID_MAGIC or rx[at + 2] != _C.LINK_VERSION:
+            self.ident = None
+            return ID_BAD
+        self.ident = (rx[at + 2], rx[at + 3])
+        return OK

@@ -1,0 +1,207 @@
+"""Scripted fakes of the executive's surroundings, in plain Python that MicroPython runs too
+(no f-strings, dataclasses or typing): a clock, a watchdog that records the longest gap
+between feeds, a link that plays a script of frames, a sensor, a tracker whose results and
+solve times are scripted, and a persistent store."""
+
+from lodestar.firmware import link as L
+from lodestar.firmware import status as S
+
+
+class Clock(object):
+    def __init__(self):
+        self.now = 0
+
+    def ticks_ms(self):
+        return self.now
+
+    def ticks_diff(self, a, b):
+        return a - b
+
+    def sleep_ms(self, n):
+        self.now += n
+
+
+class Watchdog(object):
+    """``feed()`` records the longest interval between two feeds (ms of the clock)."""
+
+    def __init__(self, clock):
+        self.clock = clock
+        self.last = clock.now
+        self.max_gap = 0
+        self.feeds = 0
+
+    def feed(self):
+        gap = self.clock.now - self.last
+        if gap > self.max_gap:
+            self.max_gap = gap
+        self.last = self.clock.now
+        self.feeds += 1
+
+
+# link script items
+OK_FRAME = "ok"            # a good packet
+TIMEOUT = "timeout"        # no irq within the wait
+STATUS_BAD = "status"      # the status word fails its CRC
+CRC = "crc"                # the packet fails its CRC-32
+CLOCK_LOST = "clock"       # the status word shows OVF_CLOCK_LOST
+READ_MS = 6                # a frame's status + packet read
+
+
+class Link(object):
+    """Plays ``script`` (a list of the items above), one per frame; past its end the irq is
+    dead.  Frame counters count up by one per item, so a timed-out frame is a skipped one."""
+
+    def __init__(self, clock, script, id_ok=True, reg_ok=True):
+        self.clock = clock
+        self.script = list(script)
+        self.pos = 0
+        self.item = None
+        self.id_ok = id_ok
+        self.reg_ok = reg_ok
+        self.counter = 0
+        self.last_frame_counter = None
+        self.writes = []
+        self.resyncs = 0
+        self.soft_resets = 0
+        self.overflow = 0
+        self.counters = [0] * L.N_COUNTERS
+
+    def read_id(self):
+        return L.OK if self.id_ok else L.ID_BAD
+
+    def write_reg(self, name, value):
+        self.writes.append((name, value))
+        return L.OK if self.reg_ok else L.VERIFY_FAILED
+
+    def resync(self):
+        self.resyncs += 1
+        return L.OK
+
+    def soft_reset(self):
+        self.soft_resets += 1
+        return L.OK
+
+    def wait_irq(self, timeout_ms):
+        if self.pos >= len(self.script):
+            self.item = TIMEOUT
+        else:
+            self.item = self.script[self.pos]
+            self.pos += 1
+        self.counter += 1
+        if self.item == TIMEOUT:
+            self.clock.sleep_ms(timeout_ms)
+            return False
+        self.clock.sleep_ms(1)
+        return True
+
+    def read_status(self):
+        self.overflow = 64 if self.item == CLOCK_LOST else 0
+        return L.STATUS_BAD if self.item == STATUS_BAD else L.OK
+
+    def clock_lost(self):
+        return self.item == CLOCK_LOST
+
+    def read_packet(self):
+        self.clock.sleep_ms(READ_MS)
+        if self.item == CRC:
+            return L.PACKET_CRC, 0
+        self.last_frame_counter = self.counter
+        return L.OK, 3
+
+    def packet(self, n):
+        return b"packet"
+
+
+class Sensor(object):
+    """``start`` answers from ``starts`` (a list of booleans; past its end: True) and takes
+    40 ms; ``timing`` gives a 36.4 us row and a 0.1 s frame."""
+
+    def __init__(self, clock, starts=()):
+        self.clock = clock
+        self.starts = list(starts)
+        self.n_starts = 0
+        self.configured = []
+        self.row = 3.64e-05
+
+    def start(self, settings):
+        self.clock.sleep_ms(40)
+        ok = self.starts[self.n_starts] if self.n_starts < len(self.starts) else True
+        self.n_starts += 1
+        if not ok:
+            return S.BAD_INPUT, "bus: writing R0x0D failed (NACK)"
+        return S.OK, ""
+
+    def configure(self, **settings):
+        self.configured.append(settings)
+        return S.OK, ""
+
+    def timing(self):
+        return S.OK, "", (self.row, 2743 * self.row, 0.09998)
+
+
+class Settings(object):
+    def __init__(self):
+        self.clock = None
+        self.row_time_s = 0.0
+        self.exposure_s = None
+        self.max_stars = 30
+
+
+class Result(object):
+    def __init__(self, status, q=None, min_sum=0):
+        self.status = status
+        self.q = q
+        self.min_sum = min_sum
+        self.matches = [(0, None, None, 1)] * (12 if q is not None else 0)
+        self.n_records = 20
+        self.sigma_cross_arcsec = 0.5 if q is not None else None
+        self.sigma_roll_arcsec = 5.0 if q is not None else None
+        self.reason = ""
+
+
+Q0 = (0.0, 0.0, 0.6, 0.8)
+
+
+class Tracker(object):
+    """``outcomes``: per frame a status (``S.OK`` gives ``Q0``) or ``"raise"``; past its end
+    every frame solves.  A solve takes ``solve_ms`` (lost in space) or ``track_ms`` (with
+    a prior), calling ``settings.clock`` at ``stages`` boundaries as the pipeline does."""
+
+    def __init__(self, clock, outcomes=(), status=S.OK, solve_ms=700, track_ms=80, stages=6):
+        self.clock = clock
+        self.outcomes = list(outcomes)
+        self.status = status
+        self.reason = "database CRC" if status != S.OK else ""
+        self.settings = Settings()
+        self.solve_ms = solve_ms
+        self.track_ms = track_ms
+        self.stages = stages
+        self.calls = []
+
+    def process(self, packet, prior=None, omega=None, dt=None):
+        self.calls.append((prior, omega, dt))
+        k = len(self.calls) - 1
+        outcome = self.outcomes[k] if k < len(self.outcomes) else S.OK
+        spent = self.solve_ms if prior is None else self.track_ms
+        for _ in range(self.stages):
+            self.clock.sleep_ms(spent // self.stages)
+            if self.settings.clock is not None:
+                self.settings.clock()
+        if outcome == "raise":
+            raise ValueError("scripted")
+        if outcome == S.OK:
+            return Result(S.OK, Q0, min_sum=1000 + k)
+        return Result(outcome)
+
+
+class Store(object):
+    def __init__(self):
+        self.data = None
+        self.writes = 0
+
+    def read(self):
+        return self.data
+
+    def write(self, data):
+        self.data = bytes(data)
+        self.writes += 1
