@@ -46,7 +46,7 @@ link's share included).  Board wiring, formats and measurements: ``docs/mcu_boar
 import struct
 from array import array
 
-from lodestar import contract as _C
+from lodestar import contract as C
 
 from . import link as _link
 from . import status as S
@@ -326,7 +326,7 @@ class Executive(object):
         q = self.q
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], self.q_time,
                          (self.q_counter or 0) & 0xFFFFFFFF, 0)
-        struct.pack_into(">I", buf, PRIOR_BYTES - 4, _C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
+        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
         try:
             self.store.write(buf)
         except Exception:
@@ -343,7 +343,7 @@ class Executive(object):
         if data is None or len(data) != PRIOR_BYTES:
             return
         x, y, z, w, t, counter, crc = struct.unpack(PRIOR_FORMAT, data)
-        if _C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
+        if C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
             return
         age = self.time_ms() - t
         if not 0 <= age <= 1000 * self.max_prior_age_s:
@@ -610,7 +610,7 @@ class Executive(object):
                          self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
                          h[11], h[12], h[13], h[14], h[15], heap & 0xFFFFFFFF, 0)
-        struct.pack_into(">I", buf, TELEMETRY_BYTES - 4, _C.crc32(self._record_body))
+        struct.pack_into(">I", buf, TELEMETRY_BYTES - 4, C.crc32(self._record_body))
         if self.telemetry is not None:
             try:
                 self.telemetry(buf)
@@ -624,7 +624,7 @@ def decode_telemetry(data):
     if len(data) != TELEMETRY_BYTES:
         return None
     values = struct.unpack(TELEMETRY_FORMAT, bytes(data))
-    if _C.crc32(bytes(data)[:TELEMETRY_BYTES - 4]) != values[-1]:
+    if C.crc32(bytes(data)[:TELEMETRY_BYTES - 4]) != values[-1]:
         return None
     if values[0] != TELEMETRY_MAGIC:
         return None

@@ -27,7 +27,7 @@ Pure Python for CPython and MicroPython (docs/mcu_board.md).
 
 from array import array
 
-from lodestar import contract as _C
+from lodestar import contract as C
 
 # result codes
 OK = 0
@@ -67,10 +67,10 @@ COUNTER_NAMES = ("bus", "status_bad", "irq_timeout", "header_bad", "length_bad",
 N_COUNTERS = 16
 COUNTER_MAX = 0xFFFF
 
-_REPLY = 1 + _C.TURNAROUND_BYTES                # MISO bytes before a read's reply
-_STATUS_LEN = _REPLY + _C.STATUS_BYTES
-_READ_LEN = _C.READ_REG_BYTES
-_ID_LEN = _C.ID_FIRST_REPLY + _C.ID_BYTES
+_REPLY = 1 + C.TURNAROUND_BYTES                # MISO bytes before a read's reply
+_STATUS_LEN = _REPLY + C.STATUS_BYTES
+_READ_LEN = C.READ_REG_BYTES
+_ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
 
 
 def _offsets(fields):
@@ -83,8 +83,8 @@ def _offsets(fields):
     return out
 
 
-_HEADER = _offsets(_C.HEADER_FIELDS)
-_STATUS = _offsets(_C.STATUS_FIELDS)
+_HEADER = _offsets(C.HEADER_FIELDS)
+_STATUS = _offsets(C.STATUS_FIELDS)
 
 
 def _field(data, base, spec):
@@ -112,30 +112,30 @@ class Link(object):
     is refused as ``LENGTH_BAD``); ``retries``: extra attempts of a register write whose
     read-back differs."""
 
-    def __init__(self, spi, cs, irq, clock, capacity=_C.FLIGHT_RECORD_CAPACITY, retries=2):
+    def __init__(self, spi, cs, irq, clock, capacity=C.FLIGHT_RECORD_CAPACITY, retries=2):
         self.spi = spi
         self.cs = cs
         self.irq = irq
         self.clock = clock
-        self.capacity = max(0, min(int(capacity), _C.MAX_RECORD_CAPACITY))
+        self.capacity = max(0, min(int(capacity), C.MAX_RECORD_CAPACITY))
         self.retries = retries
         self.counters = array("H", [0] * N_COUNTERS)
-        self.buf = bytearray(_C.packet_bytes(self.capacity))
+        self.buf = bytearray(C.packet_bytes(self.capacity))
         self._mv = memoryview(self.buf)
-        self._head = self._mv[:_C.HEADER_BYTES]
-        self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, _C.WRITE_REG_BYTES))
+        self._head = self._mv[:C.HEADER_BYTES]
+        self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES))
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
         self._rxv = memoryview(self._rx)
         # the views of each fixed-length transaction, made once (a slice is a heap object)
         self._views = {}
-        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, _C.WRITE_REG_BYTES):
+        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES):
             self._views[n] = (self._txv[:n], self._rxv[:n])
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
-        self._stream_op = bytearray((_C.OP_READ_STREAM,) + (0,) * _C.TURNAROUND_BYTES)
+        self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
         self._keyed = {}
-        for op in _C.KEYED_OPCODES:
-            self._keyed[op] = bytearray(_C.keyed_command(op))
+        for op in C.KEYED_OPCODES:
+            self._keyed[op] = bytearray(C.keyed_command(op))
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
         self.errors = 0
@@ -208,15 +208,15 @@ class Link(object):
         code (``STATUS_BAD``: CRC-8 or turnaround wrong; the fields keep their old
         values)."""
         self._clear(_STATUS_LEN)
-        self._tx[0] = _C.OP_READ_STATUS
+        self._tx[0] = C.OP_READ_STATUS
         if not self._exchange(_STATUS_LEN):
             return BUS_ERROR
         rx = self._rx
         for i in range(_REPLY):
-            if rx[i] != _C.FILLER:
+            if rx[i] != C.FILLER:
                 self.count(C_STATUS_BAD)
                 return STATUS_BAD
-        if _C.crc8(self._status_data, _C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
+        if C.crc8(self._status_data, C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
             self.count(C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter
@@ -233,7 +233,7 @@ class Link(object):
             self.count(C_UNDERRUNS, self.underruns)
         if self.overflow:
             self.count(C_OVERFLOW)
-        if self.overflow & (1 << _C.OVF_CLOCK_LOST):
+        if self.overflow & (1 << C.OVF_CLOCK_LOST):
             self.count(C_CLOCK_LOST)
         if previous is not None:
             step = (self.frame_counter - previous) & 0xFFFFFFFF
@@ -243,7 +243,7 @@ class Link(object):
 
     def clock_lost(self):
         """The last status word's ``OVF_CLOCK_LOST`` flag."""
-        return bool(self.overflow & (1 << _C.OVF_CLOCK_LOST))
+        return bool(self.overflow & (1 << C.OVF_CLOCK_LOST))
 
     def _stream(self, view):
         """One ``READ_STREAM`` transaction that fills ``view``: True if the bus did not
@@ -270,8 +270,8 @@ class Link(object):
         if not self._stream(head):
             self.resync()
             return BUS_ERROR, 0
-        if _field(head, 0, _HEADER["magic"]) != _C.PACKET_MAGIC or \
-                _field(head, 0, _HEADER["version"]) != _C.PACKET_VERSION:
+        if _field(head, 0, _HEADER["magic"]) != C.PACKET_MAGIC or \
+                _field(head, 0, _HEADER["version"]) != C.PACKET_VERSION:
             self.count(C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
@@ -280,14 +280,14 @@ class Link(object):
             self.count(C_LENGTH_BAD)
             self.resync()
             return LENGTH_BAD, 0
-        total = _C.packet_bytes(n)
-        if not self._stream(self._mv[_C.HEADER_BYTES:total]):
+        total = C.packet_bytes(n)
+        if not self._stream(self._mv[C.HEADER_BYTES:total]):
             self.resync()
             return BUS_ERROR, 0
-        body = total - _C.CRC_BYTES
+        body = total - C.CRC_BYTES
         buf = self.buf
         want = (buf[body] << 24) | (buf[body + 1] << 16) | (buf[body + 2] << 8) | buf[body + 3]
-        if _C.crc32(self._mv[:body]) != want:
+        if C.crc32(self._mv[:body]) != want:
             self.count(C_PACKET_CRC)
             self.resync()
             return PACKET_CRC, 0
@@ -298,15 +298,15 @@ class Link(object):
 
     def packet(self, n_records):
         """The packet of ``n_records`` records in the buffer, as a memoryview."""
-        return self._mv[:_C.packet_bytes(n_records)]
+        return self._mv[:C.packet_bytes(n_records)]
 
     def resync(self):
         """Put the stream back at a packet start: FLUSH, then drain ``READ_STREAM`` while
         ``irq`` is high (at most the longest packet and :data:`DRAIN_MS`), then read the
         status (its underruns are the drain's).  Returns ``OK`` or ``RESYNC_FAILED``."""
         self.count(C_RESYNC)
-        self.command(_C.OP_FLUSH)
-        limit = _C.packet_bytes(_C.MAX_RECORD_CAPACITY)
+        self.command(C.OP_FLUSH)
+        limit = C.packet_bytes(C.MAX_RECORD_CAPACITY)
         drained = 0
         clock = self.clock
         scratch = self._mv[:min(DRAIN_CHUNK, len(self.buf))]
@@ -344,7 +344,7 @@ class Link(object):
 
     def soft_reset(self):
         """Reset the detector datapath (registers kept), then resynchronise: a code."""
-        code = self.command(_C.OP_SOFT_RESET)
+        code = self.command(C.OP_SOFT_RESET)
         if code != OK:
             return code
         return self.resync()
@@ -352,14 +352,14 @@ class Link(object):
     def read_reg(self, address):
         """``(code, value)`` of the register at word ``address``."""
         self._clear(_READ_LEN)
-        self._tx[0] = _C.OP_READ_REG
+        self._tx[0] = C.OP_READ_REG
         self._tx[1] = address & 0xFF
         if not self._exchange(_READ_LEN):
             return BUS_ERROR, 0
         rx = self._rx
-        at = _C.READ_REG_FIRST_REPLY
+        at = C.READ_REG_FIRST_REPLY
         value = 0
-        for i in range(_C.VALUE_BYTES):
+        for i in range(C.VALUE_BYTES):
             value = (value << 8) | rx[at + i]
         return OK, value
 
@@ -367,17 +367,17 @@ class Link(object):
         """Write register ``name`` (``contract.REGISTERS``) and read it back, retrying
         ``retries`` times: a code (``VERIFY_FAILED`` if it never reads back ``value``;
         the gateware refuses values outside a register's limits, so those fail too)."""
-        reg = _C.REGISTER_BY_NAME.get(name)
+        reg = C.REGISTER_BY_NAME.get(name)
         if reg is None or not isinstance(value, int) or value < 0 or value >> reg.bits:
             return BAD_ARGUMENT
         code = VERIFY_FAILED
         for _attempt in range(1 + self.retries):
             tx = self._tx
-            tx[0] = _C.OP_WRITE_REG
+            tx[0] = C.OP_WRITE_REG
             tx[1] = reg.address
-            for i in range(_C.VALUE_BYTES):
-                tx[2 + i] = (value >> (8 * (_C.VALUE_BYTES - 1 - i))) & 0xFF
-            if not self._exchange(_C.WRITE_REG_BYTES):
+            for i in range(C.VALUE_BYTES):
+                tx[2 + i] = (value >> (8 * (C.VALUE_BYTES - 1 - i))) & 0xFF
+            if not self._exchange(C.WRITE_REG_BYTES):
                 code = BUS_ERROR
                 continue
             code, back = self.read_reg(reg.address)
@@ -392,12 +392,12 @@ class Link(object):
         """Read the gateware ID word: a code (``ID_BAD`` without the magic or with another
         link version); ``ident`` = ``(link_version, build)``."""
         self._clear(_ID_LEN)
-        self._tx[0] = _C.OP_READ_ID
+        self._tx[0] = C.OP_READ_ID
         if not self._exchange(_ID_LEN):
             return BUS_ERROR
         rx = self._rx
-        at = _C.ID_FIRST_REPLY
-        if ((rx[at] << 8) | rx[at + 1]) != _C.ID_MAGIC or rx[at + 2] != _C.LINK_VERSION:
+        at = C.ID_FIRST_REPLY
+        if ((rx[at] << 8) | rx[at + 1]) != C.ID_MAGIC or rx[at + 2] != C.LINK_VERSION:
             self.ident = None
             return ID_BAD
         self.ident = (rx[at + 2], rx[at + 3])

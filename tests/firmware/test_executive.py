@@ -1,49 +1,50 @@
 """The flight executive (``firmware/executive.py``) through scripted fakes
-(``tests/firmware/exec_fakes.py``): the nominal boot -> configure -> acquire -> track, coasting
+(``tests/firmware/fakes.py``): the nominal boot -> configure -> acquire -> track, coasting
 on the gyro through bad frames, and every fault path of issue 30 (dead IRQ, CRC errors in a
 row, the clock-lost flag, a sensor that NACKs, a database that fails its CRC, a watchdog that
 would starve in a long solve), the escalation of recovery up to SAFE, commands, the prior
 kept across a reset, the fixed-size telemetry record, and the same records on MicroPython."""
 
 import math
+import struct
 from pathlib import Path
 
-from lodestar.firmware import executive as E
-from lodestar.firmware import link as L
+from lodestar.firmware import executive
+from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
-from tests.firmware import exec_fakes as F
+from tests.firmware import fakes
 
 WDT_MS = 1000
 
 
 def build(script=(), outcomes=(), starts=(), tracker_status=S.OK, store=None, now=None,
           **kw):
-    clock = F.Clock()
+    clock = fakes.Clock()
     if now is not None:
         clock.now = now
-    link = F.Link(clock, script)
-    sensor = F.Sensor(clock, starts)
-    tracker = F.Tracker(clock, outcomes, status=tracker_status)
-    wdt = F.Watchdog(clock)
+    link = fakes.Link(clock, script)
+    sensor = fakes.Sensor(clock, starts)
+    tracker = fakes.Tracker(clock, outcomes, status=tracker_status)
+    wdt = fakes.Watchdog(clock)
     records = []
-    exe = E.Executive(link, tracker, clock, sensor=sensor, sensor_settings={"gain": 8},
+    exe = executive.Executive(link, tracker, clock, sensor=sensor, sensor_settings={"gain": 8},
                       registers={"min_sum": 0, "mode": 0}, watchdog=wdt,
-                      store=store if store is not None else F.Store(),
+                      store=store if store is not None else fakes.Store(),
                       gyro=lambda: (0.001, 0.0, 0.0), telemetry=lambda b: records.append(bytes(b)),
                       mem_free=lambda: 31000, **kw)
     return exe, clock, link, sensor, tracker, wdt, records
 
 
 def run(exe, n):
-    return [E.STATE_NAMES[exe.step()] for _ in range(n)]
+    return [executive.STATE_NAMES[exe.step()] for _ in range(n)]
 
 
 def health(exe):
-    return {name: exe.health[i] for i, name in enumerate(E.HEALTH_NAMES) if exe.health[i]}
+    return {name: exe.health[i] for i, name in enumerate(executive.HEALTH_NAMES) if exe.health[i]}
 
 
 def test_nominal_boot_configure_acquire_track():
-    exe, clock, link, sensor, tracker, wdt, records = build([F.OK_FRAME] * 5)
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 5)
     states = run(exe, 7)
     assert states == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "TRACK", "TRACK", "TRACK"]
     # the row time and exposure of the sensor's registers reached the tracker's settings
@@ -52,37 +53,37 @@ def test_nominal_boot_configure_acquire_track():
     assert exe.frame_s == 0.09998
     # lost in space first, then the prior with the frame counter's dt and the gyro
     assert tracker.calls[0] == (None, (0.001, 0.0, 0.0), None)
-    assert tracker.calls[1][0] == F.Q0 and math.isclose(tracker.calls[1][2], 0.09998)
+    assert tracker.calls[1][0] == fakes.Q0 and math.isclose(tracker.calls[1][2], 0.09998)
     # min_sum written back (read back by the link) after every solved frame
     assert link.writes[:2] == [("min_sum", 0), ("mode", 0)]
     assert link.writes[2:] == [("min_sum", 1000 + k) for k in range(5)]
     assert exe.min_sum == 1004
     assert health(exe) == {"frames": 5, "ok": 5, "sensor_init": 1}
     # one fixed-size record per step, decodable, with the attitude and its time tag
-    assert len(records) == 7 and {len(r) for r in records} == {E.TELEMETRY_BYTES}
-    t = E.decode_telemetry(records[-1])
-    assert t["state"] == E.TRACK and t["status"] == S.OK and t["matches"] == 12
+    assert len(records) == 7 and {len(r) for r in records} == {executive.TELEMETRY_BYTES}
+    t = executive.decode_telemetry(records[-1])
+    assert t["state"] == executive.TRACK and t["status"] == S.OK and t["matches"] == 12
     assert (t["qx"], t["qy"], t["qz"], t["qw"]) == (0.0, 0.0, 0.6000000238418579,
                                                     0.800000011920929)
     assert t["frame_counter"] == 5 and t["time_ms"] == exe.q_time and t["heap_free"] == 31000
     assert t["min_sum"] == 1004 and t["ok"] == 5 and t["sequence"] == 7
-    assert math.isnan(E.decode_telemetry(records[0])["qx"])
+    assert math.isnan(executive.decode_telemetry(records[0])["qx"])
     bad = bytearray(records[-1])
     bad[20] ^= 1
-    assert E.decode_telemetry(bad) is None
+    assert executive.decode_telemetry(bad) is None
     assert wdt.max_gap < WDT_MS
 
 
 def test_coasts_through_bad_frames_then_drops_to_lost_in_space():
     outcomes = [S.OK, S.OK, S.TOO_FEW_STARS, S.PACKET_BAD_CRC, S.NO_MATCH, S.OK] + \
         [S.TOO_FEW_STARS] * 7
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 13, outcomes)
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 13, outcomes)
     states = run(exe, 15)
     assert states[:8] == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "COAST", "COAST", "COAST",
                           "TRACK"]
     # while coasting the prior is the last good attitude with dt growing from its frame
     dts = [round(dt / 0.09998) for _p, _w, dt in tracker.calls[2:5]]
-    assert dts == [1, 2, 3] and all(p == F.Q0 for p, _w, _dt in tracker.calls[2:6])
+    assert dts == [1, 2, 3] and all(p == fakes.Q0 for p, _w, _dt in tracker.calls[2:6])
     assert states[8:13] == ["COAST"] * 5 and states[13] == "ACQUIRE"
     assert tracker.calls[12][0] is None                    # lost in space again
     assert link.writes[-1] == ("min_sum", 0)               # every record admitted again
@@ -95,7 +96,7 @@ def escalation(exe, n):
     out = []
     for _ in range(n):
         exe.step()
-        out.append((E.STATE_NAMES[exe.state], exe.level))
+        out.append((executive.STATE_NAMES[exe.state], exe.level))
     return out
 
 
@@ -117,35 +118,37 @@ def test_dead_irq_escalates_to_safe_in_bounded_time():
     assert wdt.max_gap <= exe.irq_timeout_ms < WDT_MS
     assert len(records) == 20
     # a command brings it back: the FPGA answers again
-    link.script += [F.OK_FRAME] * 3
-    exe.command(E.CMD_MODE, E.MODE_AUTO)         # applied, then CONFIGURE in the same step
+    link.script += [fakes.OK_FRAME] * 3
+    # applied, then CONFIGURE in the same step
+    exe.command(executive.CMD_MODE, executive.MODE_AUTO)
     assert run(exe, 3) == ["ACQUIRE", "TRACK", "TRACK"]
-    assert exe.level == E.LEVEL_NONE
+    assert exe.level == executive.LEVEL_NONE
 
 
 def test_crc_errors_in_a_row_recover_by_resync_then_track():
-    script = [F.OK_FRAME, F.CRC, F.CRC, F.STATUS_BAD, F.OK_FRAME, F.OK_FRAME]
+    script = [fakes.OK_FRAME, fakes.CRC, fakes.CRC, fakes.STATUS_BAD, fakes.OK_FRAME,
+              fakes.OK_FRAME]
     exe, clock, link, sensor, tracker, wdt, _ = build(script)
     trace = escalation(exe, 8)
     assert [s for s, _ in trace] == ["CONFIGURE", "ACQUIRE", "TRACK", "COAST", "COAST",
                                      "RECOVER", "COAST", "TRACK"]
-    assert trace[5][1] == E.LEVEL_RESYNC and trace[7][1] == E.LEVEL_NONE
+    assert trace[5][1] == executive.LEVEL_RESYNC and trace[7][1] == executive.LEVEL_NONE
     h = health(exe)
     assert h["link_fault"] == 3 and h["resync"] == 1 and "detector_reset" not in h
-    assert tracker.calls[1][0] == F.Q0                     # the prior survived the faults
+    assert tracker.calls[1][0] == fakes.Q0                     # the prior survived the faults
 
 
 def test_clock_lost_restarts_the_sensor():
-    script = [F.OK_FRAME, F.CLOCK_LOST, F.OK_FRAME, F.OK_FRAME]
+    script = [fakes.OK_FRAME, fakes.CLOCK_LOST, fakes.OK_FRAME, fakes.OK_FRAME]
     exe, clock, link, sensor, tracker, wdt, _ = build(script)
     states = run(exe, 7)
     assert states == ["CONFIGURE", "ACQUIRE", "TRACK", "RECOVER", "CONFIGURE", "TRACK", "TRACK"]
     assert sensor.n_starts == 2 and health(exe)["clock_lost"] == 1
-    assert tracker.calls[1][0] == F.Q0                     # tracking resumed on the prior
+    assert tracker.calls[1][0] == fakes.Q0                     # tracking resumed on the prior
 
 
 def test_sensor_nack_retries_then_safe_and_recovers_on_reset():
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 3,
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 3,
                                                       starts=[False] * 6)
     states = run(exe, 9)
     assert states[0] == "CONFIGURE" and "SAFE" in states
@@ -154,23 +157,23 @@ def test_sensor_nack_retries_then_safe_and_recovers_on_reset():
     assert sensor.n_starts == 3 and health(exe)["sensor_fault"] == 3
     assert "sensor: bus" in exe.reason
     sensor.starts = []                                     # the bus answers again
-    exe.command(E.CMD_RESET)
+    exe.command(executive.CMD_RESET)
     assert run(exe, 4) == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK"]
 
 
 def test_database_crc_failure_is_safe_until_another_slot():
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 3,
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 3,
                                                       tracker_status=S.DATABASE_CORRUPT)
     assert run(exe, 3) == ["SAFE"] * 3
     assert exe.reason.startswith("database") and exe.last_status == S.DATABASE_CORRUPT
-    good = F.Tracker(clock)
+    good = fakes.Tracker(clock)
     slots = {1: None, 2: good}
     exe.select_database = slots.get
-    exe.command(E.CMD_DATABASE, 1)
+    exe.command(executive.CMD_DATABASE, 1)
     exe.step()
-    assert exe.last_command == (E.CMD_DATABASE, S.DATABASE_CORRUPT)
-    exe.command(E.CMD_DATABASE, 2)
-    exe.command(E.CMD_MODE, E.MODE_AUTO)
+    assert exe.last_command == (executive.CMD_DATABASE, S.DATABASE_CORRUPT)
+    exe.command(executive.CMD_DATABASE, 2)
+    exe.command(executive.CMD_MODE, executive.MODE_AUTO)
     assert run(exe, 3) == ["ACQUIRE", "TRACK", "TRACK"]
     assert exe.tracker is good and good.settings.row_time_s == sensor.row
 
@@ -178,12 +181,12 @@ def test_database_crc_failure_is_safe_until_another_slot():
 def test_watchdog_is_fed_inside_long_solves():
     """A 5 s lost-in-space solve (a slow F401 at its work budget) with six stage
     boundaries: the longest gap between feeds is one stage, not the solve."""
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 2)
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 2)
     tracker.solve_ms = 5000
     run(exe, 3)
-    assert wdt.max_gap <= 5000 // 6 + F.READ_MS < WDT_MS
+    assert wdt.max_gap <= 5000 // 6 + fakes.READ_MS < WDT_MS
     tracker.settings.clock = None                          # without the hook: starved
-    exe2, clock2, _l, _s, tracker2, wdt2, _r = build([F.OK_FRAME])
+    exe2, clock2, _l, _s, tracker2, wdt2, _r = build([fakes.OK_FRAME])
     tracker2.solve_ms = 5000
     exe2._wrapped = tracker2                               # pretend it was never wrapped
     tracker2.settings.clock = None
@@ -192,12 +195,12 @@ def test_watchdog_is_fed_inside_long_solves():
 
 
 def test_prior_kept_across_a_reset_with_its_crc_and_age():
-    store = F.Store()
-    exe, clock, *_ = build([F.OK_FRAME] * 3, store=store, now_ms=lambda: 1_000_000)
+    store = fakes.Store()
+    exe, clock, *_ = build([fakes.OK_FRAME] * 3, store=store, now_ms=lambda: 1_000_000)
     run(exe, 5)
-    assert store.writes == 3 and len(store.data) == E.PRIOR_BYTES
+    assert store.writes == 3 and len(store.data) == executive.PRIOR_BYTES
     # a reset 2 s later: the stored attitude is the prior of the first frame
-    exe2, clock2, link2, _s, tracker2, *_ = build([F.OK_FRAME] * 2, store=store,
+    exe2, clock2, link2, _s, tracker2, *_ = build([fakes.OK_FRAME] * 2, store=store,
                                                   now_ms=lambda: 1_002_000)
     link2.counter = 20
     assert run(exe2, 3) == ["CONFIGURE", "TRACK", "TRACK"]
@@ -209,37 +212,37 @@ def test_prior_kept_across_a_reset_with_its_crc_and_age():
         data = bytearray(store.data)
         if flip is not None:
             data[flip] ^= 0x10
-        store3 = F.Store()
+        store3 = fakes.Store()
         store3.data = bytes(data)
-        exe3, _c, _l, _s, tracker3, *_ = build([F.OK_FRAME], store=store3,
+        exe3, _c, _l, _s, tracker3, *_ = build([fakes.OK_FRAME], store=store3,
                                                now_ms=lambda now=now: now)
         assert run(exe3, 3) == ["CONFIGURE", "ACQUIRE", "TRACK"]
         assert tracker3.calls[0][0] is None
 
 
 def test_commands():
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 8)
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 8)
     run(exe, 3)
-    assert exe.command(E.CMD_EXPOSURE, 0.05)
-    assert exe.command(E.CMD_GAIN, 16)
-    assert exe.command(E.CMD_SETTING, "max_stars", 20)
-    assert exe.command(E.CMD_SETTING, "clock", None)       # refused: the watchdog hook
+    assert exe.command(executive.CMD_EXPOSURE, 0.05)
+    assert exe.command(executive.CMD_GAIN, 16)
+    assert exe.command(executive.CMD_SETTING, "max_stars", 20)
+    assert exe.command(executive.CMD_SETTING, "clock", None)       # refused: the watchdog hook
     assert not exe.command(99)                              # the queue holds four
     exe.step()
     assert sensor.configured == [{"exposure": round(0.05 / sensor.row)}, {"gain": 16}]
     assert tracker.settings.max_stars == 20
-    assert exe.last_command == (E.CMD_SETTING, S.BAD_INPUT)
+    assert exe.last_command == (executive.CMD_SETTING, S.BAD_INPUT)
     exe.command(99)
-    exe.command(E.CMD_MODE, E.MODE_SAFE)
+    exe.command(executive.CMD_MODE, executive.MODE_SAFE)
     assert run(exe, 2) == ["SAFE", "SAFE"]
-    exe.command(E.CMD_MODE, E.MODE_ACQUIRE)
+    exe.command(executive.CMD_MODE, executive.MODE_ACQUIRE)
     assert run(exe, 2) == ["ACQUIRE", "TRACK"]
     assert tracker.calls[-1][0] is None                    # lost in space, as commanded
     assert health(exe)["commands"] == 7
 
 
 def test_never_raises():
-    exe, clock, link, sensor, tracker, wdt, _ = build([F.OK_FRAME] * 6,
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 6,
                                                       outcomes=["raise", "raise", "raise"])
     run(exe, 8)
     assert health(exe)["internal"] == 3 and exe.reason.startswith("internal")
@@ -247,31 +250,33 @@ def test_never_raises():
     class Broken:
         def __getattr__(self, name):
             raise RuntimeError("broken " + name)
-    exe2 = E.Executive(Broken(), Broken(), F.Clock(), telemetry=Broken())
+    exe2 = executive.Executive(Broken(), Broken(), fakes.Clock(), telemetry=Broken())
     for _ in range(5):
         exe2.step()
-    assert exe2.health[E.H_INTERNAL] == 5
+    assert exe2.health[executive.H_INTERNAL] == 5
 
 
 def test_link_codes_and_health_names_fit_the_record():
-    assert len(E.HEALTH_NAMES) == E.N_HEALTH == 16
-    assert len(E.TELEMETRY_FIELDS) == len(E.struct.unpack(E.TELEMETRY_FORMAT,
-                                                          bytes(E.TELEMETRY_BYTES)))
-    assert len(L.CODE_NAMES) < 256 and len(E.STATE_NAMES) == 7
+    assert len(executive.HEALTH_NAMES) == executive.N_HEALTH == 16
+    empty = bytes(executive.TELEMETRY_BYTES)
+    assert len(executive.TELEMETRY_FIELDS) == len(struct.unpack(executive.TELEMETRY_FORMAT, empty))
+    assert len(_link.CODE_NAMES) < 256 and len(executive.STATE_NAMES) == 7
 
 
 _MP = r'''
-from lodestar.firmware import executive as E
+from lodestar.firmware import executive
 from lodestar.firmware import status as S
 import binascii
-SCRIPT = [F.OK_FRAME, F.OK_FRAME, F.CRC, F.CRC, F.CLOCK_LOST, F.OK_FRAME] + [F.TIMEOUT] * 9
+SCRIPT = [fakes.OK_FRAME, fakes.OK_FRAME, fakes.CRC, fakes.CRC, fakes.CLOCK_LOST,
+          fakes.OK_FRAME] + [fakes.TIMEOUT] * 9
 OUT = [S.OK, S.TOO_FEW_STARS, S.OK, S.OK]
-clock = F.Clock()
-link = F.Link(clock, SCRIPT)
+clock = fakes.Clock()
+link = fakes.Link(clock, SCRIPT)
 records = []
-exe = E.Executive(link, F.Tracker(clock, OUT), clock, sensor=F.Sensor(clock),
-                  registers={"min_sum": 0}, watchdog=F.Watchdog(clock), store=F.Store(),
-                  gyro=lambda: (0.001, 0.0, 0.0), telemetry=lambda b: records.append(bytes(b)))
+exe = executive.Executive(link, fakes.Tracker(clock, OUT), clock, sensor=fakes.Sensor(clock),
+                          registers={"min_sum": 0}, watchdog=fakes.Watchdog(clock),
+                          store=fakes.Store(), gyro=lambda: (0.001, 0.0, 0.0),
+                          telemetry=lambda b: records.append(bytes(b)))
 for _ in range(24):
     exe.step()
 for r in records:
@@ -280,18 +285,17 @@ for r in records:
 
 
 def test_same_records_on_micropython(micropython):
-    fakes = Path(F.__file__).read_text()
-    script = "class _F:\n    pass\n" + fakes + "\nF = _F()\n" + "".join(
-        "F.{0} = {0}\n".format(name) for name in ("Clock", "Link", "Sensor", "Tracker",
-                                                  "Watchdog", "Store", "OK_FRAME", "CRC",
-                                                  "CLOCK_LOST", "TIMEOUT")) + _MP
+    source = Path(fakes.__file__).read_text()
+    script = "class _Fakes:\n    pass\n" + source + "\nfakes = _Fakes()\n" + "".join(
+        "fakes.{0} = {0}\n".format(name) for name in ("Clock", "Link", "Sensor", "Tracker",
+                                                      "Watchdog", "Store", "OK_FRAME", "CRC",
+                                                      "CLOCK_LOST", "TIMEOUT")) + _MP
     code, out = micropython(script)
     assert code == 0, out
-    ns = {"F": F}
     lines = []
     exec(compile(_MP.replace("print(binascii.hexlify(r).decode())",
                              "LINES.append(binascii.hexlify(r).decode())"), "mp", "exec"),
-         dict(ns, LINES=lines))
+         {"fakes": fakes, "LINES": lines})
     assert out.split("\n")[:24] == lines
 
 
@@ -305,8 +309,8 @@ def test_executive_over_the_amaranth_slave():
 
     bus = AmaranthBus()
     clock = SimClock()
-    lnk = L.Link(bus.spi, bus.cs, bus.irq, clock, capacity=8)
-    tracker = F.Tracker(clock, solve_ms=0, track_ms=0)
+    lnk = _link.Link(bus.spi, bus.cs, bus.irq, clock, capacity=8)
+    tracker = fakes.Tracker(clock, solve_ms=0, track_ms=0)
     seen = []
     real = tracker.process
 
@@ -314,7 +318,7 @@ def test_executive_over_the_amaranth_slave():
         seen.append(bytes(packet))
         return real(packet, **kw)
     tracker.process = process
-    exe = E.Executive(lnk, tracker, clock, registers={"min_sum": 5, "mode": 1},
+    exe = executive.Executive(lnk, tracker, clock, registers={"min_sum": 5, "mode": 1},
                       irq_timeout_ms=20)
     assert run(exe, 2) == ["CONFIGURE", "ACQUIRE"]
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == 5
@@ -324,11 +328,11 @@ def test_executive_over_the_amaranth_slave():
     for k, p in enumerate(packets):
         bus.packets.append(p)
         bus.miso_hook = (lambda i, b: b ^ 0x40 if i == 2 + 40 else b) if k == 1 else None
-        states.append(E.STATE_NAMES[exe.step()])
+        states.append(executive.STATE_NAMES[exe.step()])
     assert states == ["TRACK", "COAST", "TRACK", "TRACK"]
     assert seen == [packets[0], packets[2], packets[3]]
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == exe.min_sum == 1002
-    assert lnk.counter("packet_crc") == 1 and exe.health[E.H_LINK_FAULT] == 1
+    assert lnk.counter("packet_crc") == 1 and exe.health[executive.H_LINK_FAULT] == 1
     assert tracker.calls[1][2] == 2 * exe.frame_s          # dt from the frame counters
 
 
@@ -336,29 +340,28 @@ def test_executive_tracks_recorded_packets_with_the_real_tracker():
     """The executive around the real ``StarTracker`` on the recorded estcube2 frame (the
     regression set's Pyramid case): lost in space, then tracking on its own prior with the
     frame counters' dt, the attitude in the telemetry record that of the recorded solution."""
-    from lodestar.regress import mcu
-    from lodestar.regress import replay as regress
+    from lodestar.regress import mcu, replay
     from lodestar.regress.replay import rotation_angle
 
-    manifest = regress.load_set(regress.DEFAULT_SET)
+    manifest = replay.load_set(replay.DEFAULT_SET)
     case = next(c for c in manifest["cases"] if c["name"] == "estcube2_rest_s0")
-    data = regress.packets(manifest, regress.DEFAULT_SET)[case["name"]]
-    db = mcu.open_database(str(regress.database_files(manifest)["estcube2"]))
+    data = replay.packets(manifest, replay.DEFAULT_SET)[case["name"]]
+    db = mcu.open_database(str(replay.database_files(manifest)["estcube2"]))
     tracker = mcu.make_tracker(db, manifest["cameras"]["estcube2"], "pyramid")
 
-    class RecordedLink(F.Link):
+    class RecordedLink(fakes.Link):
         def packet(self, n):
             return data
 
-    clock = F.Clock()
-    link = RecordedLink(clock, [F.OK_FRAME] * 3)
+    clock = fakes.Clock()
+    link = RecordedLink(clock, [fakes.OK_FRAME] * 3)
     records = []
-    exe = E.Executive(link, tracker, clock, registers={"min_sum": 0},
-                      watchdog=F.Watchdog(clock), gyro=lambda: (0.0, 0.0, 0.0),
+    exe = executive.Executive(link, tracker, clock, registers={"min_sum": 0},
+                      watchdog=fakes.Watchdog(clock), gyro=lambda: (0.0, 0.0, 0.0),
                       telemetry=lambda b: records.append(bytes(b)))
     assert run(exe, 5) == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "TRACK"]
     expected = case["expected"]["pyramid"]
-    t = E.decode_telemetry(records[-1])
+    t = executive.decode_telemetry(records[-1])
     q = (t["qx"], t["qy"], t["qz"], t["qw"])
     assert rotation_angle(q, expected["q"]) * 206264.8 < 0.1        # float32 in the record
     assert exe.last_result.mode == "tracking" and t["matches"] >= 20

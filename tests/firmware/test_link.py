@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lodestar import contract as C
-from lodestar.firmware import link as L
+from lodestar.firmware import link as _link
 from lodestar.golden import Detector, DetectorConfig
 from lodestar.golden.starfield import star_frame
 from lodestar.ground import codec
@@ -40,35 +40,35 @@ def packets():
 def new_link(capacity=8, **kw):
     bus = AmaranthBus(**kw)
     clock = SimClock()
-    return bus, L.Link(bus.spi, bus.cs, bus.irq, clock, capacity=capacity), clock
+    return bus, _link.Link(bus.spi, bus.cs, bus.irq, clock, capacity=capacity), clock
 
 
 def counters(link):
-    return {name: link.counters[i] for i, name in enumerate(L.COUNTER_NAMES)
+    return {name: link.counters[i] for i, name in enumerate(_link.COUNTER_NAMES)
             if link.counters[i]}
 
 
 def test_status_id_registers_and_keyed_commands():
     bus, link, _ = new_link()
     bus.status_in.update(frame_counter=0xDEADBEEF, overflow=1 << C.OVF_CLOCK_LOST, busy=1)
-    assert link.read_status() == L.OK
+    assert link.read_status() == _link.OK
     assert (link.frame_counter, link.errors, link.underruns, link.overflow, link.busy) == \
         (0xDEADBEEF, 0, 0, 1 << C.OVF_CLOCK_LOST, 1)
     assert link.clock_lost()
     bus.status_in["overflow"] = 0
-    assert link.read_id() == L.OK and link.ident == (C.LINK_VERSION, 0x21)
+    assert link.read_id() == _link.OK and link.ident == (C.LINK_VERSION, 0x21)
     rng = np.random.default_rng(3)
     for reg in C.REGISTERS:
         value = int(rng.integers(0, 1 << reg.bits))
-        assert link.write_reg(reg.name, value) == L.OK
+        assert link.write_reg(reg.name, value) == _link.OK
         assert bus.bank[reg.address] == value
-        assert link.read_reg(reg.address) == (L.OK, value)
-    assert link.write_reg("nonsense", 1) == L.BAD_ARGUMENT
-    assert link.write_reg("mode", 1 << 8) == L.BAD_ARGUMENT
-    assert link.command(C.OP_SOFT_RESET) == L.OK and bus.resets == 1
-    assert link.command(C.OP_FLUSH) == L.OK and bus.flushes == 1
-    assert link.command(C.OP_READ_STREAM) == L.BAD_ARGUMENT
-    assert link.read_status() == L.OK and link.errors == 0
+        assert link.read_reg(reg.address) == (_link.OK, value)
+    assert link.write_reg("nonsense", 1) == _link.BAD_ARGUMENT
+    assert link.write_reg("mode", 1 << 8) == _link.BAD_ARGUMENT
+    assert link.command(C.OP_SOFT_RESET) == _link.OK and bus.resets == 1
+    assert link.command(C.OP_FLUSH) == _link.OK and bus.flushes == 1
+    assert link.command(C.OP_READ_STREAM) == _link.BAD_ARGUMENT
+    assert link.read_status() == _link.OK and link.errors == 0
     assert counters(link) == {"status": 2, "overflow": 1, "clock_lost": 1}
 
 
@@ -78,13 +78,13 @@ def test_packets_read_whole_and_frames_skipped(packets):
     for p in packets[:2]:
         assert link.wait_irq(10)
         code, n = link.read_packet()
-        assert (code, n) == (L.OK, records(p))
+        assert (code, n) == (_link.OK, records(p))
         assert bytes(link.packet(n)) == p
     assert not bus.irq.value()
     bus.status_in["frame_counter"] = 5
-    assert link.read_status() == L.OK
+    assert link.read_status() == _link.OK
     bus.status_in["frame_counter"] = 9
-    assert link.read_status() == L.OK
+    assert link.read_status() == _link.OK
     assert counters(link) == {"packets": 2, "status": 2, "frames_skipped": 3}
     assert link.last_frame_counter == 2
 
@@ -94,17 +94,17 @@ def test_packet_longer_than_the_buffer_is_refused_and_flushed(packets):
     assert records(big) > 8
     bus, link, _ = new_link()
     bus.packets.extend([big, packets[0]])
-    assert link.read_packet() == (L.LENGTH_BAD, 0)
+    assert link.read_packet() == (_link.LENGTH_BAD, 0)
     assert bus.flushes == 1 and not bus.irq.value()     # the flush dropped both
     bus.packets.append(packets[1])
-    assert link.read_packet() == (L.OK, records(packets[1]))
+    assert link.read_packet() == (_link.OK, records(packets[1]))
     assert counters(link) == {"length_bad": 1, "resync": 1, "status": 1, "packets": 1}
 
 
 def no_flush(link):
     """Make ``link`` talk to a gateware whose FLUSH does nothing (link version 1)."""
     real = link.command
-    link.command = lambda op: L.OK if op == C.OP_FLUSH else real(op)
+    link.command = lambda op: _link.OK if op == C.OP_FLUSH else real(op)
 
 
 @pytest.mark.parametrize("flush_works", [True, False])
@@ -117,11 +117,11 @@ def test_corrupt_byte_resynchronises(packets, flush_works):
         no_flush(link)
     bus.packets.extend(packets[:1])
     bus.miso_hook = lambda i, b: b ^ 0x01 if i == 2 + 5 else b
-    assert link.read_packet() == (L.PACKET_CRC, 0)
+    assert link.read_packet() == (_link.PACKET_CRC, 0)
     bus.miso_hook = None
     assert not bus.irq.value()
     bus.packets.append(packets[1])
-    assert link.read_packet() == (L.OK, records(packets[1]))
+    assert link.read_packet() == (_link.OK, records(packets[1]))
     c = counters(link)
     assert c["packet_crc"] == 1 and c["resync"] == 1 and "underruns" not in c
     assert bus.flushes == (1 if flush_works else 0)
@@ -130,11 +130,11 @@ def test_corrupt_byte_resynchronises(packets, flush_works):
 def test_mid_packet_start_and_short_packet(packets):
     bus, link, _ = new_link()
     bus.packets.append(packets[0][10:])                   # entered mid-packet
-    assert link.read_packet() == (L.HEADER_BAD, 0)
+    assert link.read_packet() == (_link.HEADER_BAD, 0)
     bus.packets.append(packets[1][:-3])                   # the last 3 bytes never come
-    assert link.read_packet() == (L.PACKET_CRC, 0)
+    assert link.read_packet() == (_link.PACKET_CRC, 0)
     bus.packets.append(packets[2])
-    assert link.read_packet() == (L.OK, records(packets[2]))
+    assert link.read_packet() == (_link.OK, records(packets[2]))
     c = counters(link)
     assert c["header_bad"] == 1 and c["packet_crc"] == 1 and c["resync"] == 2
     # the short packet's 3 bytes read past the end were underruns, seen by the status read
@@ -146,21 +146,21 @@ def test_drain_without_flush_stops_at_the_packet_end(packets):
     bus, link, _ = new_link()
     no_flush(link)
     bus.packets.extend([packets[0][5:]])
-    assert link.read_packet() == (L.HEADER_BAD, 0)
+    assert link.read_packet() == (_link.HEADER_BAD, 0)
     assert not bus.irq.value() and bus.flushes == 0
     bus.packets.append(packets[1])
-    assert link.read_packet() == (L.OK, records(packets[1]))
+    assert link.read_packet() == (_link.OK, records(packets[1]))
 
 
 @pytest.mark.parametrize("level", [0x00, 0xFF])
 def test_floating_miso_is_never_a_status_or_an_id(level):
     bus, link, _ = new_link()
     bus.miso_hook = lambda i, b: level
-    assert link.read_status() == L.STATUS_BAD
+    assert link.read_status() == _link.STATUS_BAD
     assert link.frame_counter is None
-    assert link.read_id() == L.ID_BAD
-    assert link.write_reg("min_sum", 1234) == L.VERIFY_FAILED
-    assert link.read_packet() == (L.HEADER_BAD, 0)
+    assert link.read_id() == _link.ID_BAD
+    assert link.write_reg("min_sum", 1234) == _link.VERIFY_FAILED
+    assert link.read_packet() == (_link.HEADER_BAD, 0)
     c = counters(link)
     assert c["status_bad"] >= 1 and c["verify"] == 3 and c["header_bad"] == 1
 
@@ -183,10 +183,10 @@ def test_stuck_irq_resync_fails_in_bounded_time(packets):
     def tick(*_):
         clock.now += 1
     bus.miso_hook = lambda i, b: (tick(), b)[1]
-    assert link.read_packet() == (L.HEADER_BAD, 0)
+    assert link.read_packet() == (_link.HEADER_BAD, 0)
     assert counters(link)["resync_failed"] == 1
     # the header, the flush, then chunks until the drain time is up
-    assert clock.now - start <= C.HEADER_BYTES + 2 + 2 + L.DRAIN_MS + L.DRAIN_CHUNK + 2
+    assert clock.now - start <= C.HEADER_BYTES + 2 + 2 + _link.DRAIN_MS + _link.DRAIN_CHUNK + 2
 
 
 class FailingSPI:
@@ -202,19 +202,19 @@ class FailingSPI:
 
 def test_bus_errors_are_codes_not_exceptions():
     bus, _, clock = new_link()
-    link = L.Link(FailingSPI(), bus.cs, bus.irq, clock, capacity=8)
-    assert link.read_status() == L.BUS_ERROR
-    assert link.read_id() == L.BUS_ERROR
-    assert link.write_reg("min_sum", 3) == L.BUS_ERROR
-    assert link.read_packet() == (L.BUS_ERROR, 0)
-    assert link.command(C.OP_FLUSH) == L.BUS_ERROR
+    link = _link.Link(FailingSPI(), bus.cs, bus.irq, clock, capacity=8)
+    assert link.read_status() == _link.BUS_ERROR
+    assert link.read_id() == _link.BUS_ERROR
+    assert link.write_reg("min_sum", 3) == _link.BUS_ERROR
+    assert link.read_packet() == (_link.BUS_ERROR, 0)
+    assert link.command(C.OP_FLUSH) == _link.BUS_ERROR
     assert counters(link)["bus"] >= 5
     assert bus.cs.value() == 1                          # CS released after each failure
 
 
 _MP_LINK = r'''
 from lodestar import contract as C
-from lodestar.firmware import link as L
+from lodestar.firmware import link as _link
 
 class Clock:
     now = 0
@@ -269,7 +269,7 @@ class FPGA:
 
 P = PACKETS
 fpga = FPGA(P[0] + P[1] + P[2][:10])
-lk = L.Link(fpga, fpga, fpga, Clock(), capacity=8)
+lk = _link.Link(fpga, fpga, fpga, Clock(), capacity=8)
 out = [lk.read_id(), lk.ident, lk.read_status(), lk.frame_counter]
 out.append(lk.read_packet())
 out.append(bytes(lk.packet(out[-1][1])) == P[0])
@@ -300,7 +300,7 @@ def test_link_runs_unchanged_on_micropython(micropython, packets):
                  "exec"), dict(ns, LINES=lines))
     assert out.split("\n")[0] == lines[0]
     got = eval(lines[0])
-    assert got[:4] == [L.OK, (C.LINK_VERSION, 7), L.OK, 9]
-    assert got[4][0] == L.OK and got[5] is True
-    assert got[6] == (L.PACKET_CRC, 0) and got[7] == (L.HEADER_BAD, 0)
-    assert got[8][0] == L.OK and got[9] == L.OK and got[10] == L.BAD_ARGUMENT
+    assert got[:4] == [_link.OK, (C.LINK_VERSION, 7), _link.OK, 9]
+    assert got[4][0] == _link.OK and got[5] is True
+    assert got[6] == (_link.PACKET_CRC, 0) and got[7] == (_link.HEADER_BAD, 0)
+    assert got[8][0] == _link.OK and got[9] == _link.OK and got[10] == _link.BAD_ARGUMENT
