@@ -86,7 +86,7 @@ def test_fallback_selected_without_binascii():
     """Where ``binascii`` cannot be imported (a fresh interpreter, so that no class of this
     one is replaced) the contract selects the table CRC."""
     script = ("import sys; sys.modules['binascii'] = None\n"
-              "from lodestar.contract import packet as P\n"
+              "from lodestar.contract import packet\n"
               "assert packet.crc32_native is None and packet.crc32(b'123456789') == 0xCBF43926\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=60)

@@ -3,7 +3,7 @@
 between feeds, a link that plays a script of frames, a sensor, a tracker whose results and
 solve times are scripted, and a persistent store."""
 
-from lodestar.firmware import link
+from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
 
 
@@ -64,22 +64,22 @@ class Link(object):
         self.resyncs = 0
         self.soft_resets = 0
         self.overflow = 0
-        self.counters = [0] * link.N_COUNTERS
+        self.counters = [0] * _link.N_COUNTERS
 
     def read_id(self):
-        return link.OK if self.id_ok else link.ID_BAD
+        return _link.OK if self.id_ok else _link.ID_BAD
 
     def write_reg(self, name, value):
         self.writes.append((name, value))
-        return link.OK if self.reg_ok else link.VERIFY_FAILED
+        return _link.OK if self.reg_ok else _link.VERIFY_FAILED
 
     def resync(self):
         self.resyncs += 1
-        return link.OK
+        return _link.OK
 
     def soft_reset(self):
         self.soft_resets += 1
-        return link.OK
+        return _link.OK
 
     def wait_irq(self, timeout_ms):
         if self.pos >= len(self.script):
@@ -96,7 +96,7 @@ class Link(object):
 
     def read_status(self):
         self.overflow = 64 if self.item == CLOCK_LOST else 0
-        return link.STATUS_BAD if self.item == STATUS_BAD else link.OK
+        return _link.STATUS_BAD if self.item == STATUS_BAD else _link.OK
 
     def clock_lost(self):
         return self.item == CLOCK_LOST
@@ -104,9 +104,9 @@ class Link(object):
     def read_packet(self):
         self.clock.sleep_ms(READ_MS)
         if self.item == CRC:
-            return link.PACKET_CRC, 0
+            return _link.PACKET_CRC, 0
         self.last_frame_counter = self.counter
-        return link.OK, 3
+        return _link.OK, 3
 
     def packet(self, n):
         return b"packet"
