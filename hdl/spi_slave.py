@@ -154,33 +154,26 @@ class SPISlave(wiring.Component):
         m.submodules.byte = byte = SPIByteSlave()
         m.d.comb += [byte.sck.eq(self.sck), byte.mosi.eq(self.mosi), byte.cs_n.eq(self.cs_n),
                      self.miso.eq(byte.miso), self.miso_oe.eq(byte.miso_oe)]
-        rx, tx = byte.rx, byte.tx
-        first_reply = 1 + C.TURNAROUND_BYTES      # number of the first reply byte (opcode: 0)
-        # bytes received in this transaction, saturating past the longest fixed-length reply
-        index_max = max(C.WRITE_REG_BYTES, first_reply + C.STATUS_BYTES, C.READ_REG_BYTES,
-                        C.ID_FIRST_REPLY + C.ID_BYTES, C.KEYED_BYTES)
-        index = Signal(range(index_max + 1))
-        # the opcode of this transaction, decoded (all 0: none yet, or unknown)
-        is_write = Signal()
-        is_status = Signal()
-        is_stream = Signal()
-        is_read = Signal()
-        is_id = Signal()
-        is_reset = Signal()
-        is_flush = Signal()
-        flags = {C.OP_WRITE_REG: is_write, C.OP_READ_STATUS: is_status,
-                 C.OP_READ_STREAM: is_stream, C.OP_READ_REG: is_read, C.OP_READ_ID: is_id,
-                 C.OP_SOFT_RESET: is_reset, C.OP_FLUSH: is_flush}
-        # data registers without reset: meaningful only under the flags and counts above
-        address = Signal(8 * C.ADDRESS_BYTES, reset_less=True)
-        value = Signal(C.REGISTER_WORD_BITS, reset_less=True)
-        status = Signal(C.STATUS_DATA_BITS, reset_less=True)
+        tr = _transaction(m, byte)
         errors = Signal(C.LINK_COUNT_BITS)
         underruns = Signal(C.LINK_COUNT_BITS)
+        snapshot, reply = self._status(m, tr, errors, underruns)
 
-        # ---- status word and read-to-clear counters -----------------------------------
-        opening = rx.valid & (index == 0)
-        snapshot = opening & (rx.payload == C.OP_READ_STATUS)
+        def count(counter, event):
+            base = Mux(snapshot, 0, counter)
+            full = base == (1 << C.LINK_COUNT_BITS) - 1
+            m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
+
+        count(errors, self._commands(m, byte, tr))
+        count(underruns, byte.underrun)
+        self._replies(m, byte.tx, tr, reply)
+        return m
+
+    def _status(self, m, tr, errors, underruns):
+        """The status word captured at a ``READ_STATUS`` opcode: ``(snapshot, reply)``, the
+        capture strobe (it also clears the counts) and the word with its CRC-8."""
+        status = Signal(C.STATUS_DATA_BITS, reset_less=True)
+        snapshot = tr.opening & (tr.rx.payload == C.OP_READ_STATUS)
         fields = {"frame_counter": self.frame_counter, "errors": errors,
                   "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
         live = Cat(*[fields[name] for name, _ in reversed(C.STATUS_FIELDS)])
@@ -190,80 +183,109 @@ class SPISlave(wiring.Component):
         # the reply: the captured word and its CRC-8 (an XOR tree of the captured bits)
         reply = Signal(C.STATUS_BITS)
         m.d.comb += reply.eq(Cat(crc8_of(status), status))
+        return snapshot, reply
 
-        def count(counter, event):
-            base = Mux(snapshot, 0, counter)
-            full = base == (1 << C.LINK_COUNT_BITS) - 1
-            m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
-
-        def known_address(addr):
-            ok = Const(0, 1)
-            for r in C.REGISTERS:
-                ok = ok | (addr == r.address)
-            return ok
-
-        # ---- commands ------------------------------------------------------------------
+    def _commands(self, m, byte, tr):
+        """Register writes and the keyed strobes; returns the link-error event of this
+        cycle (unknown opcode or address, aborted write, bad or missing key)."""
+        rx, index, is_ = tr.rx, tr.index, tr.flags
         # ``value`` shifts in every byte after the address; after the 6th byte of a write it
         # is the register word, and the write port shows it with ``address`` while
         # ``reg_strobe`` is high (the next byte, if any, comes 8 SCK periods later).
-        word = Cat(rx.payload, value[:C.REGISTER_WORD_BITS - 8])   # value with this byte
         known = Const(0, 1)
         for r in C.REGISTERS:
-            fits = 1 if r.bits >= C.REGISTER_WORD_BITS else word[r.bits:] == 0
-            known = known | ((address == r.address) & fits)
-        write_done = rx.valid & is_write & (index == C.WRITE_REG_BYTES - 1)
-        unknown_op = opening & ~Cat(*[rx.payload == op for op in C.OPCODES]).any()
-        aborted = ~byte.selected & is_write & (index < C.WRITE_REG_BYTES)
+            fits = 1 if r.bits >= C.REGISTER_WORD_BITS else tr.word[r.bits:] == 0
+            known = known | ((tr.address == r.address) & fits)
+        write = is_[C.OP_WRITE_REG]
+        write_done = rx.valid & write & (index == C.WRITE_REG_BYTES - 1)
+        unknown_op = tr.opening & ~Cat(*[rx.payload == op for op in C.OPCODES]).any()
+        aborted = ~byte.selected & write & (index < C.WRITE_REG_BYTES)
         # keyed commands: the key is byte 1
         key_byte = rx.valid & (index == C.KEYED_BYTES - 1)
-        keyed = {C.OP_SOFT_RESET: (is_reset, self.soft_reset), C.OP_FLUSH: (is_flush, self.flush)}
+        keyed = {C.OP_SOFT_RESET: self.soft_reset, C.OP_FLUSH: self.flush}
         bad_key = Const(0, 1)
         key_missing = Const(0, 1)
-        for op, (flag, strobe) in keyed.items():
-            good = key_byte & flag & (rx.payload == C.command_key(op))
-            m.d.sync += strobe.eq(good)
+        for op, strobe in keyed.items():
+            flag = is_[op]
+            m.d.sync += strobe.eq(key_byte & flag & (rx.payload == C.command_key(op)))
             bad_key = bad_key | (key_byte & flag & (rx.payload != C.command_key(op)))
             key_missing = key_missing | (~byte.selected & flag & (index < C.KEYED_BYTES))
-        bad_read = rx.valid & is_read & (index == C.ADDRESS_BYTES) & ~known_address(rx.payload)
-        count(errors, unknown_op | (write_done & ~known) | aborted | bad_key | key_missing
-              | bad_read)
-        count(underruns, byte.underrun)
-
-        m.d.comb += [self.reg_addr.eq(address), self.reg_data.eq(value)]
+        readable = Const(0, 1)
+        for r in C.REGISTERS:
+            readable = readable | (rx.payload == r.address)
+        bad_read = rx.valid & is_[C.OP_READ_REG] & (index == C.ADDRESS_BYTES) & ~readable
+        m.d.comb += [self.reg_addr.eq(tr.address), self.reg_data.eq(tr.value)]
         m.d.sync += self.reg_strobe.eq(write_done & known)
-        with m.If(rx.valid):
-            m.d.sync += index.eq(Mux(index == index_max, index, index + 1))
-            with m.If(index == 0):
-                m.d.sync += [flag.eq(rx.payload == op) for op, flag in flags.items()]
-            with m.Elif(index <= C.ADDRESS_BYTES):
-                m.d.sync += address.eq(Cat(rx.payload, address[:-8]))
-            with m.Else():
-                m.d.sync += value.eq(word)
-        with m.If(~byte.selected):
-            m.d.sync += [index.eq(0)] + [flag.eq(0) for flag in flags.values()]
+        return unknown_op | (write_done & ~known) | aborted | bad_key | key_missing | bad_read
 
-        # ---- reply bytes ---------------------------------------------------------------
-        # The byte being loaded at a boundary is number index + 1; a reply byte loaded with
-        # index == first_reply - 1 + k is reply byte k, and has index == first_reply + k when
-        # the master clocks its first bit (that is when a packet byte is consumed).
+    def _replies(self, m, tx, tr, reply):
+        """The MISO bytes: packet bytes under ``READ_STREAM``, the status, register or ID
+        reply bytes at their places, else the filler.  The byte being loaded at a boundary is
+        number index + 1; a reply byte loaded with index == first - 1 + k is reply byte k,
+        and has index == first + k when the master clocks its first bit (that is when a
+        packet byte is consumed)."""
+        first_reply = 1 + C.TURNAROUND_BYTES
         ident = C.gateware_id(self.build)
         replies = [
-            (is_status, first_reply, C.STATUS_BYTES, lambda k: reply.word_select(
+            (C.OP_READ_STATUS, first_reply, C.STATUS_BYTES, lambda k: reply.word_select(
                 C.STATUS_BYTES - 1 - k, 8)),
-            (is_read, C.READ_REG_FIRST_REPLY, C.VALUE_BYTES, lambda k: self.reg_rdata.word_select(
-                C.VALUE_BYTES - 1 - k, 8)),
-            (is_id, C.ID_FIRST_REPLY, C.ID_BYTES, lambda k: Const(
+            (C.OP_READ_REG, C.READ_REG_FIRST_REPLY, C.VALUE_BYTES,
+             lambda k: self.reg_rdata.word_select(C.VALUE_BYTES - 1 - k, 8)),
+            (C.OP_READ_ID, C.ID_FIRST_REPLY, C.ID_BYTES, lambda k: Const(
                 (ident >> (8 * (C.ID_BYTES - 1 - k))) & 0xFF, 8)),
         ]
-        with m.If(is_stream & (index >= first_reply - 1)):
+        with m.If(tr.flags[C.OP_READ_STREAM] & (tr.index >= first_reply - 1)):
             m.d.comb += [tx.valid.eq(self.packet.valid), tx.payload.eq(self.packet.payload),
-                         self.packet.ready.eq(tx.ready & (index >= first_reply))]
+                         self.packet.ready.eq(tx.ready & (tr.index >= first_reply))]
         with m.Else():
             m.d.comb += [tx.valid.eq(1), tx.payload.eq(C.FILLER)]
-            for flag, first, n, byte_k in replies:
-                with m.If(flag):
-                    with m.Switch(index):
+            for op, first, n, byte_k in replies:
+                with m.If(tr.flags[op]):
+                    with m.Switch(tr.index):
                         for k in range(n):
                             with m.Case(first - 1 + k):
                                 m.d.comb += tx.payload.eq(byte_k(k))
-        return m
+
+
+_FLAG_NAMES = {C.OP_WRITE_REG: "write", C.OP_READ_STATUS: "status", C.OP_READ_STREAM: "stream",
+               C.OP_READ_REG: "read", C.OP_READ_ID: "id", C.OP_SOFT_RESET: "reset",
+               C.OP_FLUSH: "flush"}
+"""The decoded-opcode flags' signal names (``is_<name>``), for waveforms and proofs."""
+if set(_FLAG_NAMES) != set(C.OPCODES):
+    raise ValueError("every opcode of the contract needs a flag name")
+
+
+class _Transaction:
+    """One chip-select's decoded state: ``rx`` (the byte stream in), ``index`` (bytes
+    received, saturating past the longest fixed-length reply), ``flags`` (opcode -> its
+    decoded flag; all 0: none yet, or unknown), ``opening`` (the opcode byte is arriving),
+    ``address`` and ``value`` (shifted in after the opcode; without reset, meaningful only
+    under the flags and counts) and ``word`` (``value`` with the arriving byte)."""
+
+    def __init__(self, rx, index, flags, address, value):
+        self.rx, self.index, self.flags = rx, index, flags
+        self.address, self.value = address, value
+        self.opening = rx.valid & (index == 0)
+        self.word = Cat(rx.payload, value[:C.REGISTER_WORD_BITS - 8])
+
+
+def _transaction(m, byte):
+    """The :class:`_Transaction` of ``byte``'s stream, with its updates."""
+    rx = byte.rx
+    index_max = max(C.WRITE_REG_BYTES, 1 + C.TURNAROUND_BYTES + C.STATUS_BYTES,
+                    C.READ_REG_BYTES, C.ID_FIRST_REPLY + C.ID_BYTES, C.KEYED_BYTES)
+    tr = _Transaction(rx, Signal(range(index_max + 1), name="index"),
+                      {op: Signal(name="is_" + name) for op, name in _FLAG_NAMES.items()},
+                      Signal(8 * C.ADDRESS_BYTES, reset_less=True, name="address"),
+                      Signal(C.REGISTER_WORD_BITS, reset_less=True, name="value"))
+    with m.If(rx.valid):
+        m.d.sync += tr.index.eq(Mux(tr.index == index_max, tr.index, tr.index + 1))
+        with m.If(tr.index == 0):
+            m.d.sync += [flag.eq(rx.payload == op) for op, flag in tr.flags.items()]
+        with m.Elif(tr.index <= C.ADDRESS_BYTES):
+            m.d.sync += tr.address.eq(Cat(rx.payload, tr.address[:-8]))
+        with m.Else():
+            m.d.sync += tr.value.eq(tr.word)
+    with m.If(~byte.selected):
+        m.d.sync += [tr.index.eq(0)] + [flag.eq(0) for flag in tr.flags.values()]
+    return tr
