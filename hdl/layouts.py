@@ -144,6 +144,15 @@ def local_mean_layout(width, height, pixel_bits):
                               "eof": 1, "mean": pixel_bits})
 
 
+def held_layout(x_bits, y_bits, pixel_bits):
+    """Labeller: the input pixel held until its right neighbour arrives, the column decided
+    next (in the virtual row, ``x`` is the column decided); ``first_row`` (``y == 0``) and
+    ``last_col`` (``x == width - 1``) registered beside it."""
+    return data.StructLayout({"valid": 1, "x": x_bits, "y": y_bits, "lit": 1,
+                              "data": pixel_bits, "weight": pixel_bits, "first_row": 1,
+                              "last_col": 1})
+
+
 def node_flags_layout():
     """Labeller node: first/last node of its component in its row."""
     return data.StructLayout({"first": 1, "last": 1})
