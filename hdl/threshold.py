@@ -428,13 +428,13 @@ class LocalWindow(wiring.Component):
         A frame starts (a ``sof`` pixel of any mode): the pixels left in the line are
         discarded and ``log2_window`` is latched.
     log2_window : ``In(C.REGISTER_BY_NAME["local_log2_window"].bits)``
-        ``log2 L`` of the frame that starts; one of the values that are narrower than the
-        frame (``local_log2_window_max``).
+        ``log2 L`` of the frame that starts (its pixels come only if the window is
+        narrower than the frame: ``local_log2_window_max``).
     out : ``Out(stream.Signature(local_mean_layout(width, height, pixel_bits), always_ready=True))``
         Each pixel with ``mean``, the mean of the ``L`` other pixels of its window (its
         row's columns ``contract.local_window_start`` to that ``+ L``), ``LOCAL_LATENCY - 1``
-        clocks after the input pixel that made it ready: the ``L + 1``-th after it, or a
-        row's end (one per clock while more are ready).
+        clocks after the input pixel that made it ready: the ``L``-th after it, or its
+        row's last (one per clock while more are ready).
     pending : ``Out(1)``
         Pixels are in the line (a ``start`` now would discard them).
     """
