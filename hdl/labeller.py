@@ -335,7 +335,7 @@ class Labeller(wiring.Component):
         frame (and ends an unfinished one, ``FRAME_TRUNCATED``); any other unexpected
         position, or a row started before its first previous-row node was fetched, ends it
         with ``FRAME_TRUNCATED | FRAME_LINE_ERROR``, and pixels are ignored until the next
-        ``(0, 0)``.
+        ``(0, 0)``.  The next frame is exact.
     ops : ``Out(stream.Signature(op_layout(...), always_ready=True))``
         One op per column decision, to the feature engine (``hdl/features.py``).
     tag : ``Out(FRAME_TAG_BITS)``
