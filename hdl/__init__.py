@@ -1,2 +1,2 @@
-"""Amaranth gateware of the detection pipeline; its executable spec is
-``lodestar.golden.streaming`` and every width and layout comes from ``lodestar.contract``."""
+"""Amaranth gateware of the detection pipeline.  Every width and layout comes from
+``lodestar.contract``; the labeller's executable spec is ``golden/wavefront.py``."""

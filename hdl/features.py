@@ -1,16 +1,11 @@
 """Feature engine: blob features per label slot, merged on union, emitted at completion.
 
-Takes the labeller's ops (one per decided column, at most one per clock, in raster order) and
-keeps each open tracked component's features in a table of ``slots`` entries in the compact
-record layout (``hdl.layouts.record_layout``; ``flags`` is the moment-saturation flag).  Sums
-saturate at the contract's moment widths; counts, box and peak are exact.  A completed blob is
-counted, filtered (contract ``passes_filters``) and emitted while fewer than
-``record_capacity`` records left this frame and the stream takes it, else counted in
-``dropped_records``.  An op entering at clock ``c`` writes its slot and record at ``c + 4``; a
-slot is read back correctly two or more clocks after its write (the table's read is not
-transparent; its output goes into a register and the bypass is explicit, so that it maps to
-a synchronous-read block RAM and its output starts no long path).  The op fields, frame tags and
-the arithmetic: ``docs/gateware.md``.
+Each open tracked component's features are kept in a table of ``slots`` entries in the
+compact record layout (``hdl.layouts.record_layout``; ``flags`` is the moment-saturation
+flag).  Sums saturate at the contract's moment widths; counts, box and peak are exact.  The
+table's read is not transparent: its output goes into a register and the bypass is
+explicit, so that it maps to a synchronous-read block RAM and its output starts no long
+path.  The op fields, frame tags and the arithmetic: ``docs/gateware.md``.
 """
 
 from amaranth import Cat, Module, Mux, Signal
@@ -77,7 +72,40 @@ def empty_features(width, height):
 
 
 class FeatureEngine(wiring.Component):
-    """Feature table, accumulator and record emission for ``width x height`` frames."""
+    """Feature table, accumulator and record emission for ``width x height`` frames.  An
+    op entering at clock ``c`` writes its slot and record at ``c + 4``; a slot is read back
+    correctly two or more clocks after its write.
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size in pixels.
+    pixel_bits : int
+        Bits per pixel.
+    slots : int
+        Entries of the feature table (``labeller.slots_for``).
+    record_capacity : int
+        Most records emitted per frame (``1 .. contract.MAX_RECORD_CAPACITY``).
+
+    Members
+    -------
+    ops : ``In(stream.Signature(op_layout(...), always_ready=True))``
+        The labeller's ops: one per decided column, at most one per clock, in raster order.
+    tag : ``In(FRAME_TAG_BITS)``
+        The current frame's tag: ops with another tag are stale and ignored.
+    clear : ``In(1)``
+        A frame starts: the counters and the accumulator restart.
+    min_pixels, min_sum, max_pixels : ``In``
+        The filter registers (contract ``passes_filters``), for the current frame.
+    records : ``Out(stream.Signature(record_layout(width, height, pixel_bits)))``
+        A completed blob's record, if it passes the filters and fewer than
+        ``record_capacity`` records left this frame; not taken at once, it is dropped.
+    n_blobs, n_filtered, dropped_records, n_records : ``Out``
+        This frame's counts (trailer fields): blobs completed, filtered out, dropped for
+        lack of room or of ``ready``, and emitted.
+    busy : ``Out(1)``
+        Ops are in the pipeline.
+    """
 
     def __init__(self, width, height, pixel_bits, slots, record_capacity):
         if not 1 <= record_capacity <= C.MAX_RECORD_CAPACITY:
@@ -105,7 +133,6 @@ class FeatureEngine(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         W, H, pb = self.width, self.height, self.pixel_bits
-        fields = record_fields(W, H, pb)
         layout = record_layout(W, H, pb)
         fs = C.full_scale(pb)
         empty = layout.const(empty_features(W, H))
@@ -194,7 +221,20 @@ class FeatureEngine(wiring.Component):
         with m.Elif(v4):
             m.d.sync += run_open.eq(live & op4.pix & (op4.x != W - 1))
         empties = Mux(v4, ~(live & op4.pix), ~run_open)
-        sums, sat = _sums(m, acc, slot4, use4, pix4, empties, fields)
+        self._accumulate(m, acc, acc_next, slot4, use4, pix4, best4, empties,
+                         Mux(v4, op4.y, acc.ymax))
+        m.d.comb += [wp.addr.eq(op4.wr_addr), wp.data.eq(acc_next),
+                     wp.en.eq(live & op4.wr)]
+        self._complete(m, live & op4.complete, passes, slot4)
+        m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)
+        return m
+
+    def _accumulate(self, m, acc, acc_next, slot4, use4, pix4, best4, empties, ymax):
+        """``acc_next = acc (+) slot4 (+) pix4`` (``slot4`` taken if ``use4``; ``best4``: the
+        box and peak terms; the row ``ymax``), empty if ``empties``; ``acc`` registers it."""
+        W, H, pb = self.width, self.height, self.pixel_bits
+        empty = record_layout(W, H, pb).const(empty_features(W, H))
+        sums, sat = _sums(m, acc, slot4, use4, pix4, empties, record_fields(W, H, pb))
         for name, total in sums.items():
             m.d.comb += acc_next[name].eq(total)
         for name, smaller in (("xmin", True), ("xmax", False), ("ymin", True),
@@ -202,25 +242,23 @@ class FeatureEngine(wiring.Component):
             a, b = acc[name], best4[name]
             m.d.comb += acc_next[name].eq(Mux(empties, empty[name],
                                               Mux((a < b) if smaller else (a > b), a, b)))
-        m.d.comb += [acc_next.ymax.eq(Mux(empties, 0, Mux(v4, op4.y, acc.ymax))),
-                     acc_next.flags.eq(sat)]
+        m.d.comb += [acc_next.ymax.eq(Mux(empties, 0, ymax)), acc_next.flags.eq(sat)]
         m.d.sync += acc.eq(acc_next)
-        m.d.comb += [wp.addr.eq(op4.wr_addr), wp.data.eq(acc_next),
-                     wp.en.eq(live & op4.wr)]
 
-        # ---- completion: filters, record, counters ------------------------------------
-        # counters as wide as the frame needs (at most one blob per two pixels), widened at
-        # the ports
-        blob_bits = C.bits_for((W * H + 1) // 2)
+    def _complete(self, m, done, passes, record):
+        """A blob completes (``done``): counted, filtered (``passes``: its ``record``
+        passes the filters) and emitted while there is room, else counted as dropped.
+        The counters are as wide as the frame needs (at most one blob per two pixels),
+        widened at the ports."""
+        blob_bits = C.bits_for((self.width * self.height + 1) // 2)
         n_blobs = Signal(blob_bits)
         n_filtered = Signal(blob_bits)
         dropped = Signal(blob_bits)
         n_records = Signal(range(self.record_capacity + 1))
         room = n_records != self.record_capacity     # it never exceeds the capacity
-        done = live & op4.complete
         emit = done & passes & room
         taken = emit & self.records.ready
-        m.d.comb += [self.records.payload.eq(slot4), self.records.valid.eq(emit),
+        m.d.comb += [self.records.payload.eq(record), self.records.valid.eq(emit),
                      self.n_blobs.eq(n_blobs), self.n_filtered.eq(n_filtered),
                      self.dropped_records.eq(dropped), self.n_records.eq(n_records)]
         with m.If(self.clear):
@@ -230,5 +268,3 @@ class FeatureEngine(wiring.Component):
                          n_filtered.eq(n_filtered + (done & ~passes)),
                          n_records.eq(n_records + taken),
                          dropped.eq(dropped + (done & passes & ~taken))]
-        m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)
-        return m

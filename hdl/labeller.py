@@ -2,28 +2,10 @@
 
 The algorithm (a stack of the previous row's straddling components, no ``find``) is
 described in ``docs/gateware.md``; its architectural model is ``golden/wavefront.py``, which
-takes the same decisions column by column.  ``elaborate`` builds the state (held pixel,
-previous-row bitmap, node memories, stack, free slots) and then the four stages of a column
-decision in the model's order: push, pixel, pop, run end.
-
-Input: the threshold unit's ``out`` stream, one pixel per beat in raster order, no
-backpressure, registered on the way in.  The decision for column ``x`` is taken when pixel
-``x + 1`` is out of that register (it needs to know whether the run ends), or in the clock
-after the row's last pixel.  No block-RAM read port drives a decision (node and stack reads
-prefetched into registers, bitmap read three columns ahead; ``docs/gateware.md``).  Output:
-one op per decision to the feature engine (``hdl/features.py``).
-
-* Blanking: ``MIN_HBLANK`` idle clocks between rows; ``vblank_cycles(width)`` after a
-  frame's last pixel (a virtual dark row completes the last row's blobs, then the feature
-  pipeline drains and ``done`` rises).
-* Faults: a pixel at ``(0, 0)`` starts a frame and ends an unfinished one with ``done`` and
-  ``FRAME_TRUNCATED``; any other unexpected position, or a row started before its first
-  previous-row node was fetched, ends it with ``FRAME_TRUNCATED | FRAME_LINE_ERROR`` and
-  pixels are ignored until the next ``(0, 0)``.  The next frame is exact.
-* Capacity: ``label_capacity`` tracked open blobs (contract semantics); untracked blobs are
-  counted in ``dropped_labels`` when they complete.  ``fault`` (sticky, for verification)
-  flags an internal bound being exceeded, which cannot happen.
+takes the same decisions column by column.  Ports, blanking and faults: :class:`Labeller`.
 """
+
+from collections import namedtuple
 
 from amaranth import Cat, Module, Mux, Signal
 from amaranth.lib import stream, wiring
@@ -38,6 +20,7 @@ from .layouts import (
     PixelAction,
     PopAction,
     active_layout,
+    held_layout,
     lit_layout,
     node_flags_layout,
     node_label_layout,
@@ -74,21 +57,6 @@ def max_stack(width):
 def slots_for(label_capacity):
     """Feature-table slots for ``label_capacity`` tracked open blobs."""
     return label_capacity + 2
-
-
-class _Held:
-    """The input pixel held until its right neighbour arrives: the column decided next
-    (in the virtual row, ``x`` is the column decided)."""
-
-    def __init__(self, x_bits, y_bits, pixel_bits):
-        self.valid = Signal(name="held_valid")
-        self.x = Signal(x_bits, name="held_x")
-        self.y = Signal(y_bits, name="held_y")
-        self.lit = Signal(name="held_lit")
-        self.data = Signal(pixel_bits, name="held_data")
-        self.weight = Signal(pixel_bits, name="held_weight")
-        self.first_row = Signal(name="held_first_row")       # y == 0, registered
-        self.last_col = Signal(name="held_last_col")         # x == width - 1, registered
 
 
 class _Stack:
@@ -294,8 +262,100 @@ class _Nodes:
                          self.fetched.eq(0), behind.eq(0)]
 
 
+_Registers = namedtuple("_Registers", [
+    "active", "prev_lit", "open_tracked", "dropped", "row_parity", "line_error", "fault"])
+_Registers.__doc__ = """The registers a column decision updates (beside the node, stack and
+free-slot parts): the current run's component ``active`` (``active_layout``), ``prev_lit``
+(the decided pixel's left neighbour was lit), ``open_tracked`` (tracked blobs open),
+``dropped`` (untracked blobs completed this frame), ``row_parity`` (the node bank of the
+row decided next), ``line_error`` (a row started before its first node was fetched) and
+``fault`` (sticky)."""
+
+_Parts = namedtuple("_Parts", ["held", "nodes", "stack", "free"])
+_Parts.__doc__ = """The decision's state: the held pixel (``held_layout``), the node
+memories (``_Nodes``), the stack (``_Stack``) and the free slots (``_FreeSlots``)."""
+
+_Sequence = namedtuple("_Sequence", ["decide", "next_lit", "start"])
+_Sequence.__doc__ = """What the frame state machine tells the stages: ``decide`` (a column
+decision this clock, the held pixel's), ``next_lit`` (the lookahead: pixel ``x + 1`` is lit)
+and ``start`` (this beat starts a frame)."""
+
+_Above = namedtuple("_Above", ["left", "here", "right", "node_starts", "last_col"])
+_Above.__doc__ = """The previous row's pixels around the decided column, all from
+registers, ``node_starts`` (a previous-row node starts at the column) and ``last_col`` (the
+column is the row's last)."""
+
+_PushStage = namedtuple("_PushStage", ["top", "second", "push"])
+_PushStage.__doc__ = """The stack's ``top`` and ``second`` entries after the push stage, and
+``push`` (a previous-row component's first node starts here)."""
+
+_PixelStage = namedtuple("_PixelStage", ["active", "top", "tracked_birth", "merge_closes"])
+_PixelStage.__doc__ = """The active component and the top entry after the pixel stage;
+``tracked_birth`` (a tracked blob is born) and ``merge_closes`` (a merge lowers the
+open-tracked count)."""
+
+_PopStage = namedtuple("_PopStage", ["active", "top", "pop", "completes", "drops"])
+_PopStage.__doc__ = """The active component and the top entry after the pop stage; ``pop``
+(a component's last previous-row node ends here), ``completes`` (a tracked blob is
+complete) and ``drops`` (an untracked one is)."""
+
+_RunEndStage = namedtuple("_RunEndStage", ["top", "run_end", "allocate"])
+_RunEndStage.__doc__ = """The top entry after the run-end stage; ``run_end`` (the current run
+ends at the column) and ``allocate`` (its component takes a slot)."""
+
+
 class Labeller(wiring.Component):
-    """Labeller for ``width x height`` frames of ``pixel_bits`` pixels."""
+    """Labeller for ``width x height`` frames of ``pixel_bits`` pixels.  ``elaborate``
+    builds the state (held pixel, previous-row bitmap, node memories, stack, free slots),
+    the frame state machine and then the four stages of a column decision in the model's
+    order: push, pixel, pop, run end; each stage returns what it decides.
+
+    The decision for column ``x`` is taken when pixel ``x + 1`` is out of the input
+    register (it needs to know whether the run ends), or in the clock after the row's last
+    pixel.  No block-RAM read port drives a decision (node and stack reads prefetched into
+    registers, bitmap read three columns ahead; ``docs/gateware.md``).
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size in pixels (``width >= MIN_WIDTH``).
+    pixel_bits : int
+        Bits per pixel.
+    label_capacity : int
+        Tracked open blobs (contract semantics); ``slots_for(label_capacity)`` feature
+        slots.
+
+    Members
+    -------
+    pixels : ``In(stream.Signature(lit_layout(width, height, pixel_bits), always_ready=True))``
+        The threshold unit's ``out``: one pixel per beat in raster order, no backpressure,
+        registered on the way in.  Rows need ``MIN_HBLANK`` idle clocks between them, and a
+        frame ``vblank_cycles(width)`` after its last pixel (a virtual dark row completes the
+        last row's blobs, then the feature pipeline drains).  A pixel at ``(0, 0)`` starts a
+        frame (and ends an unfinished one, ``FRAME_TRUNCATED``); any other unexpected
+        position, or a row started before its first previous-row node was fetched, ends it
+        with ``FRAME_TRUNCATED | FRAME_LINE_ERROR``, and pixels are ignored until the next
+        ``(0, 0)``.  The next frame is exact.
+    ops : ``Out(stream.Signature(op_layout(...), always_ready=True))``
+        One op per column decision, to the feature engine (``hdl/features.py``).
+    tag : ``Out(FRAME_TAG_BITS)``
+        The frame's tag: ops of an aborted frame carry an older one.
+    clear, frame_start : ``Out(1)``
+        A frame starts (the feature engine restarts; the detector latches the frame's
+        registers).
+    feat_busy : ``In(1)``
+        The feature engine still has ops in flight: a frame is done once it is idle.
+    done : ``Out(1)``
+        A frame ended, with ``done_flags``.
+    done_flags : ``Out(FRAME_FLAGS_BITS)``
+        ``contract.FRAME_*`` of the frame that ends (0, or truncated, line error).
+    dropped_labels : ``Out``
+        Untracked blobs that completed this frame (beyond ``label_capacity`` open).
+    busy : ``Out(1)``
+        A frame is in progress.
+    fault : ``Out(1)``
+        Sticky, for verification: an internal bound was exceeded (it cannot happen).
+    """
 
     def __init__(self, width, height, pixel_bits, label_capacity):
         if width < MIN_WIDTH:
@@ -326,43 +386,40 @@ class Labeller(wiring.Component):
         W, H = self.width, self.height
         slot_bits = C.bits_for(self.slots - 1)
         node_bits = C.bits_for(max_nodes(W) - 1)
-        entry = stack_entry_layout(slot_bits, node_bits)
+        held = Signal(held_layout(C.bits_for(W - 1), C.bits_for(H), self.pixel_bits),
+                      name="held")
+        regs = _Registers(
+            active=Signal(active_layout(slot_bits, node_bits), name="active"),
+            prev_lit=Signal(name="prev_lit"),
+            open_tracked=Signal(range(self.label_capacity + 1), name="open_tracked"),
+            # at most one blob per two pixels: the count is that wide, widened at the port
+            dropped=Signal(C.bits_for((W * H + 1) // 2), name="dropped"),
+            row_parity=Signal(name="row_parity"), line_error=Signal(name="line_error"),
+            fault=Signal(name="fault_reg"))
+        parts = _Parts(held=held,
+                       nodes=_Nodes(m, max_nodes(W), node_bits, node_label_layout(slot_bits),
+                                    regs.row_parity),
+                       stack=_Stack(m, stack_entry_layout(slot_bits, node_bits),
+                                    max_stack(W)),
+                       free=_FreeSlots(m, self.slots, slot_bits))
+        m.d.comb += [self.fault.eq(regs.fault), self.dropped_labels.eq(regs.dropped)]
 
-        self._held = _Held(C.bits_for(W - 1), C.bits_for(H), self.pixel_bits)
-        self._decide = Signal()             # a column decision this clock: the held pixel's
-        self._next_lit = Signal()           # lookahead: pixel x + 1 is lit
-        self._start = Signal()              # this beat starts a frame
-        self._row_parity = Signal()         # parity of the row decided next: its node bank
-        self._line_error = Signal()         # a row started before its first node was fetched
-        self._fault = Signal()
-        self._active = Signal(active_layout(slot_bits, node_bits), name="active")
-        self._prev_lit = Signal()           # the decided pixel's left neighbour was lit
-        self._open_tracked = Signal(range(self.label_capacity + 1))
-        # at most one blob per two pixels: the count is that wide, widened at the port
-        self._dropped = Signal(C.bits_for((W * H + 1) // 2), name="dropped")
-        self._nodes = _Nodes(m, max_nodes(W), node_bits, node_label_layout(slot_bits),
-                             self._row_parity)
-        self._stack = _Stack(m, entry, max_stack(W))
-        self._free = _FreeSlots(m, self.slots, slot_bits)
-        m.d.comb += self.fault.eq(self._fault)
-
-        above = self._previous_row(m)
-        top, second, push = self._push(m, above)
-        active, top = self._pixel(m, above, top)
-        active, top, pop = self._pop(m, above, active, top, second, push)
-        top, run_end, allocate = self._run_end(m, active, top)
-        self._update(m, above, active, top, push, pop, run_end, allocate)
-        self._frames(m)
+        seq = self._frames(m, held, regs.line_error)
+        above = self._previous_row(m, held, seq.decide)
+        push = self._push(m, above, parts)
+        pixel = self._pixel(m, above, push.top, parts, regs)
+        pop = self._pop(m, above, pixel, push, parts)
+        run = self._run_end(m, pop, parts, seq)
+        self._update(m, above, push, pixel, pop, run, parts, regs, seq)
         return m
 
     # ---- previous row ---------------------------------------------------------------
-    def _previous_row(self, m):
-        """The previous row's pixels around the decided column ``x``, all from registers:
-        ``{"left", "here", "right", "node_starts", "last_col"}``.  The bitmap is read at
-        column ``x + 3`` (wrapping into the next row: those columns of this row are
-        written, the read is transparent for ``W`` = 3) and its read data only shifts into
-        the registers at each decision."""
-        W, held = self.width, self._held
+    def _previous_row(self, m, held, decide):
+        """The previous row's pixels around the decided column ``x``, all from registers
+        (an ``_Above``).  The bitmap is read at column ``x + 3`` (wrapping into the next
+        row: those columns of this row are written, the read is transparent for ``W`` = 3)
+        and its read data only shifts into the registers at each decision."""
+        W = self.width
         m.submodules.bitmap = bitmap = Memory(shape=1, depth=W, init=[])
         write = bitmap.write_port()
         read = bitmap.read_port(transparent_for=(write,))
@@ -374,49 +431,48 @@ class Labeller(wiring.Component):
         ahead = Signal(C.bits_for(W - 1), name="ahead")  # x + 3, wrapped into the row
         m.d.comb += ahead.eq(Mux(held.x >= W - 3, held.x - (W - 3), held.x + 3))
         m.d.comb += [
-            write.addr.eq(held.x), write.data.eq(held.lit), write.en.eq(self._decide),
-            read.addr.eq(ahead), read.en.eq(self._decide),
+            write.addr.eq(held.x), write.data.eq(held.lit), write.en.eq(decide),
+            read.addr.eq(ahead), read.en.eq(decide),
         ]
-        with m.If(self._decide):
+        with m.If(decide):
             m.d.sync += [left_reg.eq(Mux(last_col, 0, here_reg)), here_reg.eq(right_reg),
                          right_reg.eq(read.data)]
-        return {"left": left, "here": here, "right": right_reg & ~first_row & ~last_col,
-                "node_starts": here & ~left, "last_col": last_col}
+        return _Above(left=left, here=here, right=right_reg & ~first_row & ~last_col,
+                      node_starts=here & ~left, last_col=last_col)
 
     # ---- the four stages of a column decision ---------------------------------------
-    def _push(self, m, above):
-        """A previous-row node starting here that is its component's first is pushed:
-        returns the stack's ``(top, second)`` after the push, and ``push``."""
-        nodes, stack = self._nodes, self._stack
-        push = above["node_starts"] & nodes.flags.first
+    def _push(self, m, above, parts):
+        """A previous-row node starting here that is its component's first is pushed
+        (a ``_PushStage``)."""
+        nodes, stack = parts.nodes, parts.stack
+        push = above.node_starts & nodes.flags.first
         pushed = Signal.like(stack.top, name="pushed")
         m.d.comb += [pushed.slot.eq(nodes.label.slot), pushed.tracked.eq(nodes.label.tracked)]
         top = Signal.like(stack.top, name="top_after_push")
         second = Signal.like(stack.top, name="second_after_push")
         m.d.comb += [top.eq(Mux(push, pushed, stack.top)),
                      second.eq(Mux(push, stack.top, stack.second))]
-        return top, second, push
+        return _PushStage(top=top, second=second, push=push)
 
-    def _pixel(self, m, above, under):
+    def _pixel(self, m, above, under, parts, regs):
         """The decided pixel: a run starting under a node continues its component (the
         top entry ``under``), a run starting over dark pixels is a birth, a node of another
-        component starting under the run is a merge.  Returns the active component and the
-        top entry after it."""
-        held, act, nodes, free, op = (self._held, self._active, self._nodes, self._free,
-                                      self.ops.payload)
+        component starting under the run is a merge (a ``_PixelStage``)."""
+        held, nodes, free, op = parts.held, parts.nodes, parts.free, self.ops.payload
+        act = regs.active
         active = Signal.like(act, name="active_after_pixel")
         top = Signal.like(under, name="top_after_pixel")
         action = Signal(PixelAction, name="pixel_action")
         m.d.comb += [active.eq(act), top.eq(under)]
-        run_starts = held.lit & ~self._prev_lit
-        self._tracked_birth = Signal()
-        self._merge_closes = Signal()       # a merge lowers the open-tracked count
+        run_starts = held.lit & ~regs.prev_lit
+        tracked_birth = Signal()
+        merge_closes = Signal()       # a merge lowers the open-tracked count
         m.d.comb += [op.tag.eq(self.tag), op.pix.eq(held.lit), op.x.eq(held.x),
                      op.y.eq(held.y), op.p.eq(held.data), op.w.eq(held.weight)]
         both_tracked = act.tracked & under.tracked
-        merge = held.lit & ~run_starts & above["node_starts"] & \
+        merge = held.lit & ~run_starts & above.node_starts & \
             ~(act.on_stack & ~nodes.flags.first)
-        with m.If(run_starts & above["here"]):
+        with m.If(run_starts & above.here):
             m.d.comb += [active.slot.eq(under.slot), active.tracked.eq(under.tracked),
                          active.has_slot.eq(under.tracked), active.in_row.eq(under.in_row),
                          active.first_node.eq(under.first_node),
@@ -424,59 +480,65 @@ class Labeller(wiring.Component):
                          op.rd.eq(under.tracked), op.rd_addr.eq(under.slot),
                          action.eq(PixelAction.CONTINUE)]
         with m.Elif(run_starts):
-            tracked = self._open_tracked != self.label_capacity  # it never exceeds it
+            tracked = regs.open_tracked != self.label_capacity  # it never exceeds it
             m.d.comb += [active.eq(0), active.tracked.eq(tracked),
-                         self._tracked_birth.eq(tracked), action.eq(PixelAction.BIRTH)]
+                         tracked_birth.eq(tracked), action.eq(PixelAction.BIRTH)]
         with m.Elif(merge):
-            m.d.comb += [self._merge_closes.eq(act.tracked | under.tracked),
+            m.d.comb += [merge_closes.eq(act.tracked | under.tracked),
                          active.tracked.eq(both_tracked), active.on_stack.eq(1),
                          op.rd.eq(both_tracked), op.rd_addr.eq(under.slot),
                          action.eq(PixelAction.MERGE)]
-            # the slot the survivor keeps is one a first node names already; the other is
-            # freed (both, when the merge untracks the survivor)
-            either_slot = Mux(act.has_slot, act.slot, under.slot)
-            with m.If(under.in_row):        # case (i): the active run nests inside ``under``
-                m.d.comb += [nodes.flags_patch_req.eq(act.in_row),
-                             nodes.flags_patch_addr.eq(act.first_node),
-                             nodes.flags_patch.eq(0),
-                             active.in_row.eq(1), active.first_node.eq(under.first_node),
-                             active.last_node.eq(Mux(act.in_row, act.last_node,
-                                                     under.last_node))]
-                with m.If(both_tracked):
-                    m.d.comb += [active.slot.eq(under.slot), active.has_slot.eq(1),
-                                 free.free_en.eq(act.has_slot), free.free_slot.eq(act.slot)]
-                with m.Else():
-                    m.d.comb += [active.has_slot.eq(0),
-                                 free.free_en.eq(act.has_slot | under.tracked),
-                                 free.free_slot.eq(either_slot)]
-            with m.Else():                  # case (ii): ``under`` has no node in this row yet
-                m.d.comb += top.continues.eq(act.on_stack | under.continues)
-                with m.If(both_tracked):
-                    m.d.comb += [active.slot.eq(either_slot), active.has_slot.eq(1),
-                                 free.free_en.eq(act.has_slot), free.free_slot.eq(under.slot)]
-                with m.Else():
-                    m.d.comb += [active.has_slot.eq(0),
-                                 free.free_en.eq(act.has_slot | under.tracked),
-                                 free.free_slot.eq(either_slot)]
-            with m.If(~both_tracked & (under.in_row | act.in_row)):  # the survivor's first node
-                m.d.comb += [nodes.untrack_req.eq(1),
-                             nodes.untrack_addr.eq(Mux(under.in_row, under.first_node,
-                                                       act.first_node))]
-        return active, top
+            self._merge(m, act, under, active, top, nodes, free)
+        return _PixelStage(active=active, top=top, tracked_birth=tracked_birth,
+                           merge_closes=merge_closes)
 
-    def _pop(self, m, above, active_in, popped, second, push):
+    def _merge(self, m, act, under, active, top, nodes, free):
+        """A merge of the active component ``act`` with the top entry ``under``: the slot
+        the survivor keeps is one a first node names already; the other is freed (both,
+        when the merge untracks the survivor)."""
+        both_tracked = act.tracked & under.tracked
+        either_slot = Mux(act.has_slot, act.slot, under.slot)
+        with m.If(under.in_row):        # case (i): the active run nests inside ``under``
+            m.d.comb += [nodes.flags_patch_req.eq(act.in_row),
+                         nodes.flags_patch_addr.eq(act.first_node),
+                         nodes.flags_patch.eq(0),
+                         active.in_row.eq(1), active.first_node.eq(under.first_node),
+                         active.last_node.eq(Mux(act.in_row, act.last_node,
+                                                 under.last_node))]
+            with m.If(both_tracked):
+                m.d.comb += [active.slot.eq(under.slot), active.has_slot.eq(1),
+                             free.free_en.eq(act.has_slot), free.free_slot.eq(act.slot)]
+            with m.Else():
+                m.d.comb += [active.has_slot.eq(0),
+                             free.free_en.eq(act.has_slot | under.tracked),
+                             free.free_slot.eq(either_slot)]
+        with m.Else():                  # case (ii): ``under`` has no node in this row yet
+            m.d.comb += top.continues.eq(act.on_stack | under.continues)
+            with m.If(both_tracked):
+                m.d.comb += [active.slot.eq(either_slot), active.has_slot.eq(1),
+                             free.free_en.eq(act.has_slot), free.free_slot.eq(under.slot)]
+            with m.Else():
+                m.d.comb += [active.has_slot.eq(0),
+                             free.free_en.eq(act.has_slot | under.tracked),
+                             free.free_slot.eq(either_slot)]
+        with m.If(~both_tracked & (under.in_row | act.in_row)):  # the survivor's first node
+            m.d.comb += [nodes.untrack_req.eq(1),
+                         nodes.untrack_addr.eq(Mux(under.in_row, under.first_node,
+                                                   act.first_node))]
+
+    def _pop(self, m, above, pixel, push, parts):
         """The component whose last previous-row node ends here is popped: the run carries
         it on, its information moves to the entry below, its last node in this row is
-        patched, or it is complete.  Returns the active component, the top entry after the
-        pop, and ``pop``."""
-        held, nodes, free, op = self._held, self._nodes, self._free, self.ops.payload
-        node_last = Mux(above["node_starts"], nodes.flags.last, nodes.last_reg)
-        pop = above["here"] & ~above["right"] & node_last
+        patched, or it is complete (a ``_PopStage``)."""
+        held, nodes, free, op = parts.held, parts.nodes, parts.free, self.ops.payload
+        active_in, popped, second = pixel.active, pixel.top, push.second
+        node_last = Mux(above.node_starts, nodes.flags.last, nodes.last_reg)
+        pop = above.here & ~above.right & node_last
         active = Signal.like(active_in, name="active_after_pop")
         top = Signal.like(popped, name="top_after_pop")
         action = Signal(PopAction, name="pop_action")
-        self._completes = Signal()
-        self._drops = Signal()
+        completes = Signal()
+        drops = Signal()
         m.d.comb += active.eq(active_in)
         carried = held.lit & active_in.on_stack      # the current run belongs to it
         with m.If(pop):
@@ -491,40 +553,40 @@ class Labeller(wiring.Component):
                              nodes.flags_patch.first.eq(popped.last_node == popped.first_node),
                              nodes.flags_patch.last.eq(1), action.eq(PopAction.PATCH_LAST)]
             with m.Elif(popped.tracked):
-                m.d.comb += [self._completes.eq(1), op.complete.eq(1), op.rd.eq(1),
+                m.d.comb += [completes.eq(1), op.complete.eq(1), op.rd.eq(1),
                              op.rd_addr.eq(popped.slot), free.free_en.eq(1),
                              free.free_slot.eq(popped.slot), action.eq(PopAction.COMPLETE)]
             with m.Else():
-                m.d.comb += [self._drops.eq(1), action.eq(PopAction.DROP)]
+                m.d.comb += [drops.eq(1), action.eq(PopAction.DROP)]
         moved = Signal.like(popped, name="moved")   # the entry below, with the popped information
         m.d.comb += [moved.eq(popped), moved.continues.eq(second.continues)]
-        with m.If(pop & push):
-            m.d.comb += top.eq(self._stack.top)
+        with m.If(pop & push.push):
+            m.d.comb += top.eq(parts.stack.top)
         with m.Elif(pop):
             m.d.comb += top.eq(Mux(popped.continues & ~carried, moved, second))
         with m.Else():
             m.d.comb += top.eq(popped)
-        return active, top, pop
+        return _PopStage(active=active, top=top, pop=pop, completes=completes, drops=drops)
 
-    def _run_end(self, m, active, top_in):
+    def _run_end(self, m, pop, parts, seq):
         """The current run ends (``x + 1`` dark or the row's last column): its node is
-        written, its slot allocated if it has none.  Returns the top entry after it,
-        ``run_end`` and ``allocate``."""
-        held, nodes, free, op = self._held, self._nodes, self._free, self.ops.payload
-        run_end = held.lit & ~self._next_lit
+        written, its slot allocated if it has none (a ``_RunEndStage``)."""
+        held, nodes, free, op = parts.held, parts.nodes, parts.free, self.ops.payload
+        active, top_in, decide = pop.active, pop.top, seq.decide
+        run_end = held.lit & ~seq.next_lit
         allocate = run_end & active.tracked & ~active.has_slot
         slot = Signal.like(active.slot, name="run_slot")
         m.d.comb += slot.eq(active.slot)
         with m.If(allocate):
             with m.If(free.ready):
-                m.d.comb += [slot.eq(free.head), free.pop.eq(self._decide)]
+                m.d.comb += [slot.eq(free.head), free.pop.eq(decide)]
             with m.Else():
                 m.d.comb += slot.eq(free.fresh)
-        m.d.comb += free.push.eq(self._decide & free.free_en)
+        m.d.comb += free.push.eq(decide & free.free_en)
         top = Signal.like(top_in, name="top_after_run")
         m.d.comb += top.eq(top_in)
         with m.If(run_end):
-            m.d.comb += [nodes.write_en.eq(self._decide),
+            m.d.comb += [nodes.write_en.eq(decide),
                          nodes.write_flags.first.eq(~active.in_row),
                          nodes.write_flags.last.eq(~active.on_stack),
                          nodes.write_label.slot.eq(slot),
@@ -536,66 +598,66 @@ class Labeller(wiring.Component):
                              top.first_node.eq(Mux(active.in_row, active.first_node,
                                                    nodes.write_ptr)),
                              top.last_node.eq(nodes.write_ptr)]
-        m.d.comb += [nodes.flags_patch_en.eq(nodes.flags_patch_req & self._decide),
-                     nodes.untrack_en.eq(nodes.untrack_req & self._decide)]
-        m.d.comb += self.ops.valid.eq(self._decide)
-        return top, run_end, allocate
+        m.d.comb += [nodes.flags_patch_en.eq(nodes.flags_patch_req & decide),
+                     nodes.untrack_en.eq(nodes.untrack_req & decide)]
+        m.d.comb += self.ops.valid.eq(decide)
+        return _RunEndStage(top=top, run_end=run_end, allocate=allocate)
 
     # ---- state updated by a decision -------------------------------------------------
-    def _update(self, m, above, active, top, push, pop, run_end, allocate):
-        """Registers, stack, node pointers and counts after a decision; their frame-start
-        values."""
-        nodes, stack, free, decide = self._nodes, self._stack, self._free, self._decide
-        last_col, count = above["last_col"], self._open_tracked
-        closes = self._merge_closes | self._completes
+    def _update(self, m, above, push, pixel, pop, run, parts, regs, seq):
+        """The registers ``regs``, the stack, node pointers and counts after a decision
+        (from the four stages' results); their frame-start values."""
+        nodes, stack, free, decide = parts.nodes, parts.stack, parts.free, seq.decide
+        last_col, count = above.last_col, regs.open_tracked
+        pushed, popped = push.push, pop.pop
+        closes = pixel.merge_closes | pop.completes
         # the refill port reads the entry below the memory's top on every clock, from
         # registers only: after a pop it is the new second (no push follows a pop at once)
         m.d.comb += [stack.spill_en.eq(0),
-                     stack.spilled_next.eq(stack.spilled + Mux(push & ~pop, 1,
-                                                               Mux(pop & ~push, -1, 0)))]
+                     stack.spilled_next.eq(stack.spilled + Mux(pushed & ~popped, 1,
+                                                               Mux(popped & ~pushed, -1, 0)))]
         with m.If(stack.reload):
             m.d.sync += [stack.second.eq(stack.refilled), stack.reload.eq(0)]
         with m.If(decide):
-            m.d.sync += [self._active.eq(active), stack.top.eq(top),
+            m.d.sync += [regs.active.eq(pop.active), stack.top.eq(run.top),
                          # a birth, a merge and a completion exclude each other: +1 or -1
-                         count.eq(count + Cat(self._tracked_birth | closes,
+                         count.eq(count + Cat(pixel.tracked_birth | closes,
                                               closes.replicate(len(count) - 1))),
-                         self._dropped.eq(self._dropped + self._drops),
-                         self._prev_lit.eq(self._held.lit & ~last_col)]
-            with m.If(allocate & ~free.ready):
+                         regs.dropped.eq(regs.dropped + pop.drops),
+                         regs.prev_lit.eq(parts.held.lit & ~last_col)]
+            with m.If(run.allocate & ~free.ready):
                 m.d.sync += free.fresh.eq(free.fresh + 1)
                 with m.If(free.fresh == self.slots):
-                    m.d.sync += self._fault.eq(1)
+                    m.d.sync += regs.fault.eq(1)
             m.d.sync += stack.spilled.eq(stack.spilled_next)
-            with m.If(push & ~pop):
+            with m.If(pushed & ~popped):
                 m.d.sync += stack.second.eq(stack.top)
                 m.d.comb += stack.spill_en.eq(~stack.spilled[-1])
                 with m.If(stack.spilled == max_stack(self.width) - 2):
-                    m.d.sync += self._fault.eq(1)
-            with m.Elif(pop & ~push):       # the new second is the memory's last entry
+                    m.d.sync += regs.fault.eq(1)
+            with m.Elif(popped & ~pushed):       # the new second is the memory's last entry
                 m.d.sync += stack.reload.eq(~stack.spilled_next[-1])
-            with m.If(above["node_starts"]):
+            with m.If(above.node_starts):
                 m.d.sync += nodes.last_reg.eq(nodes.flags.last)
                 with m.If(~nodes.fetched):
-                    m.d.sync += self._line_error.eq(1)
-            with m.If(run_end):
+                    m.d.sync += regs.line_error.eq(1)
+            with m.If(run.run_end):
                 m.d.sync += nodes.write_ptr.eq(nodes.write_ptr + 1)
             with m.If(last_col):
                 m.d.sync += [nodes.write_ptr.eq(0), stack.spilled.eq(-2),
-                             self._row_parity.eq(~self._row_parity)]
+                             regs.row_parity.eq(~regs.row_parity)]
                 # the stack is empty at every row end (spilled_next == -2)
-                with m.If(~(Mux(push == pop, stack.spilled == -2,
-                                pop & (stack.spilled == -1)))):
-                    m.d.sync += self._fault.eq(1)
-        m.d.comb += [nodes.consume.eq(decide & above["node_starts"]),
-                     nodes.restart.eq(decide & last_col), nodes.start.eq(self._start)]
+                with m.If(~(Mux(pushed == popped, stack.spilled == -2,
+                                popped & (stack.spilled == -1)))):
+                    m.d.sync += regs.fault.eq(1)
+        m.d.comb += [nodes.consume.eq(decide & above.node_starts),
+                     nodes.restart.eq(decide & last_col), nodes.start.eq(seq.start)]
 
-        m.d.comb += self.dropped_labels.eq(self._dropped)
-        with m.If(self._start):
+        with m.If(seq.start):
             m.d.comb += free.start.eq(1)
-            m.d.sync += [count.eq(0), free.fresh.eq(0), self._dropped.eq(0), self._row_parity.eq(0),
-                         self._prev_lit.eq(0), stack.spilled.eq(-2), nodes.write_ptr.eq(0),
-                         self._line_error.eq(0), stack.reload.eq(0)]
+            m.d.sync += [count.eq(0), free.fresh.eq(0), regs.dropped.eq(0),
+                         regs.row_parity.eq(0), regs.prev_lit.eq(0), stack.spilled.eq(-2),
+                         nodes.write_ptr.eq(0), regs.line_error.eq(0), stack.reload.eq(0)]
 
     # ---- frame sequencing --------------------------------------------------------------
     def _input(self, m):
@@ -624,12 +686,15 @@ class Labeller(wiring.Component):
                          prev_last.eq(p.x == W - 1)]
         return beat, valid, at_origin, same_row, successor
 
-    def _frames(self, m):
-        """Frame state machine: takes pixels at their expected positions into the held
-        register, decides the virtual row, drains, and ends frames (done, faults)."""
-        W, H, held = self.width, self.height, self._held
+    def _frames(self, m, held, line_error):
+        """Frame state machine: takes pixels at their expected positions into the ``held``
+        register, decides the virtual row, drains, and ends frames (done, faults; a
+        ``line_error`` ends the frame).  Returns a ``_Sequence``."""
+        W, H = self.width, self.height
         beat, valid, at_origin, same_row, expected = self._input(m)
-        start, decide = self._start, self._decide
+        start = Signal(name="start")          # this beat starts a frame
+        decide = Signal(name="decide")        # a column decision this clock: the held pixel's
+        next_lit = Signal(name="next_lit")    # lookahead: pixel x + 1 is lit
         drain = Signal(range(_DRAIN + 2))
         tag = Signal(FRAME_TAG_BITS, name="frame_tag")
         abort = Signal()              # the frame in progress ends early
@@ -640,7 +705,7 @@ class Labeller(wiring.Component):
         m.d.comb += [self.tag.eq(tag), self.frame_start.eq(start), self.clear.eq(start),
                      self.done_flags.eq(abort_flags),
                      # outside RUN no decision takes a lit pixel (the virtual row is dark)
-                     self._next_lit.eq(~row_end_held & beat.lit)]
+                     next_lit.eq(~row_end_held & beat.lit)]
         with m.If(start | abort):
             m.d.sync += tag.eq(tag + 1)
 
@@ -671,7 +736,7 @@ class Labeller(wiring.Component):
                     with m.Else():
                         m.d.comb += abort_flags.eq(C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR)
                         m.next = "SKIP"
-                with m.Elif(self._line_error):
+                with m.Elif(line_error):
                     m.d.comb += [abort.eq(1),
                                  abort_flags.eq(C.FRAME_TRUNCATED | C.FRAME_LINE_ERROR)]
                     m.next = "SKIP"
@@ -715,3 +780,4 @@ class Labeller(wiring.Component):
             m.d.sync += held.valid.eq(0)
         with m.If(abort & ~start):
             m.d.sync += held.valid.eq(0)
+        return _Sequence(decide=decide, next_lit=next_lit, start=start)

@@ -118,6 +118,32 @@ def delay_entry_layout(width, height, pixel_bits):
                               "eof": 1, "row_start": 1, "move_first": 1, "move_end": 1})
 
 
+def local_pixel_layout(width, height, pixel_bits, sum_bits):
+    """Threshold unit, local mode: a pixel entering the delay line (``LocalWindow``), with
+    its position, ``sof``/``eof``, ``row_end`` (its line's last pixel) and the frame's
+    running ``S1`` after it and before it (``sum_bits`` wide: a window's sum is their
+    difference)."""
+    return data.StructLayout({"data": pixel_bits, "x": range(width), "y": range(height),
+                              "sof": 1, "eof": 1, "row_end": 1,
+                              "sum_after": sum_bits, "sum_before": sum_bits})
+
+
+def local_mean_layout(width, height, pixel_bits):
+    """Threshold unit, local mode: a pixel leaving the delay line, with ``mean``, the mean
+    of the other pixels of its window."""
+    return data.StructLayout({"data": pixel_bits, "x": range(width), "y": range(height),
+                              "eof": 1, "mean": pixel_bits})
+
+
+def held_layout(x_bits, y_bits, pixel_bits):
+    """Labeller: the input pixel held until its right neighbour arrives, the column decided
+    next (in the virtual row, ``x`` is the column decided); ``first_row`` (``y == 0``) and
+    ``last_col`` (``x == width - 1``) registered beside it."""
+    return data.StructLayout({"valid": 1, "x": x_bits, "y": y_bits, "lit": 1,
+                              "data": pixel_bits, "weight": pixel_bits, "first_row": 1,
+                              "last_col": 1})
+
+
 def node_flags_layout():
     """Labeller node: first/last node of its component in its row."""
     return data.StructLayout({"first": 1, "last": 1})

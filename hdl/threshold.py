@@ -1,16 +1,14 @@
 """Threshold unit: pixel stream in, lit flag and weight out, one pixel per clock.
 
 Implements the ``fixed``, ``global`` and ``local`` modes of ``lodestar.contract`` bit-exactly
-(``docs/gateware.md`` describes how, with each mode's latency and blanking).  ``pixels``: one
-pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's first pixel, ``eol``
-on each line's last; registers are latched on the ``sof`` pixel.  ``out``: one beat per pixel
-in raster order, ``lit = p > T``, ``weight = max(p - B, 0)``, ``eof`` on the frame's last.
-Fixed and global mode answer one clock later, local mode ``LOCAL_LATENCY`` clocks after the
-pixel that made a beat ready.  A frame that cannot use its mode's levels uses the fixed
-registers and says so (``frame_fallback``, ``frame_local_fallback``, ``frame_tail_dropped``).
+(``docs/gateware.md`` describes how, with each mode's latency and blanking).
+:class:`ThresholdUnit` wires :class:`GlobalLevels` (global mode's levels, searched after each
+complete frame) and :class:`LocalWindow` (local mode's delay line and window mean) to the
+frame's position count, statistics and output register.  A frame that cannot use its mode's
+levels uses the fixed registers and says so.
 """
 
-from types import SimpleNamespace
+from collections import namedtuple
 
 from amaranth import Cat, Const, Module, Mux, Signal
 from amaranth.lib import stream, wiring
@@ -19,7 +17,15 @@ from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
 
-from .layouts import ThresholdMode, check_frame, delay_entry_layout, lit_layout, pixel_layout
+from .layouts import (
+    ThresholdMode,
+    check_frame,
+    delay_entry_layout,
+    lit_layout,
+    local_mean_layout,
+    local_pixel_layout,
+    pixel_layout,
+)
 
 
 def _pass_bits(width, height, pixel_bits):
@@ -99,6 +105,12 @@ def local_log2_window_max(width):
     return max(usable) if usable else None
 
 
+def _log2_windows(width):
+    """The ``local_log2_window`` values a frame ``width`` pixels wide admits."""
+    return range(C.LOCAL_LOG2_WINDOW_MIN,
+                 (local_log2_window_max(width) or C.LOCAL_LOG2_WINDOW_MIN - 1) + 1)
+
+
 def local_depth(width):
     """Entries of the local-mode circular buffer for frames ``width`` pixels wide.
 
@@ -117,13 +129,93 @@ def local_blanking(log2_window):
     return (1 << log2_window) + LOCAL_LATENCY - 1
 
 
+def local_sum_bits(width, pixel_bits):
+    """Width of the running ``S1`` copies the local delay line keeps: a window's sum of
+    ``L + 1`` pixels, for the widest ``L`` a frame ``width`` pixels wide admits (the window
+    sums are differences of the copies, exact modulo this width)."""
+    window_max = 1 << (local_log2_window_max(width) or C.LOCAL_LOG2_WINDOW_MIN)
+    return C.bits_for((window_max + 1) * C.full_scale(pixel_bits))
+
+
+def _sum_widths(width, height, pixel_bits):
+    """Widths of a frame's ``S1 = sum(p)`` and ``S2 = sum(p*p)``."""
+    nfs = width * height * C.full_scale(pixel_bits)
+    return C.bits_for(nfs), C.bits_for(nfs * C.full_scale(pixel_bits))
+
+
+_Position = namedtuple("_Position", [
+    "sof", "sof_valid", "pixel", "x", "y", "last_col", "eol", "frame_end", "in_frame",
+    "complete"])
+_Position.__doc__ = """The input pixel's position and the frame's integrity, as the input counts
+them: ``x``/``y`` (0 at a ``sof``), ``last_col`` (``x == W - 1``), ``frame_end`` (a valid
+pixel at ``(W - 1, H - 1)`` of a started frame), ``in_frame`` (a frame started and has not
+ended), ``complete`` (``frame_end`` of a frame whose every line was ``W`` long)."""
+
+_Sums = namedtuple("_Sums", ["s1", "s2", "s1_before", "s1_after"])
+_Sums.__doc__ = """The frame's ``S1`` and ``S2`` registers, and ``S1`` before and after the
+input pixel (local mode's running sum)."""
+
+
+class _PixelLevels(namedtuple("_PixelLevels", [
+        "sof_valid", "local_new", "use_global", "local", "global_", "fixed", "frame"])):
+    """The candidate ``(T, B)`` pairs of the input pixel: at a ``sof`` the new frame's
+    (``local``: the offset and 0, ``global_``: the search's, ``fixed``: the registers,
+    chosen by ``local_new`` and ``use_global``), else the frame's latched ``frame``."""
+
+    def apply(self, f):
+        """``f(T, B)`` of this pixel's levels, computed for each candidate and selected
+        after (the sof's mode decision runs beside ``f``'s arithmetic: timing)."""
+        new = Mux(self.local_new, f(*self.local),
+                  Mux(self.use_global, f(*self.global_), f(*self.fixed)))
+        return Mux(self.sof_valid, new, f(*self.frame))
+
+
+_FrameMode = namedtuple("_FrameMode", [
+    "threshold", "levels", "use_global", "window_ok", "local_new", "local"])
+_FrameMode.__doc__ = """The mode of the frame the input pixel belongs to: ``threshold`` (its T,
+the offset in local mode), ``levels`` (a ``_PixelLevels``), ``use_global`` and ``local_new``
+(a frame starting now uses the search's levels, local mode), ``window_ok`` (the window
+register admits local mode), ``local`` (the pixel's frame is in local mode)."""
+
 
 class ThresholdUnit(wiring.Component):
     """Fixed, global and local thresholds for ``width x height`` frames of ``pixel_bits``
-    pixels.  Status outputs, latched on each ``sof``: ``frame_threshold``/
-    ``frame_background`` (the frame's T and B), ``frame_fallback``,
-    ``frame_local_fallback``, ``frame_tail_dropped`` (``docs/gateware.md``).  ``stats_busy`` is
-    high while the global levels are being computed."""
+    pixels, bit-exact against ``lodestar.contract`` (``docs/gateware.md``: each mode's latency
+    and blanking).  Composes the global-levels search (:class:`GlobalLevels`) and the local
+    delay line (:class:`LocalWindow`) with the position count, the statistics and the
+    output register.
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size in pixels.
+    pixel_bits : int
+        Bits per pixel (``contract.PIXEL_BITS``).
+
+    Members
+    -------
+    pixels : ``In(stream.Signature(pixel_layout(pixel_bits), always_ready=True))``
+        One pixel per clock while ``valid`` (no backpressure), ``sof`` on a frame's first
+        pixel, ``eol`` on each line's last.
+    out : ``Out(stream.Signature(lit_layout(width, height, pixel_bits), always_ready=True))``
+        One beat per pixel in raster order: ``lit = p > T``, ``weight = max(p - B, 0)``,
+        ``eof`` on the frame's last.  Fixed and global mode: a clock after the pixel; local
+        mode: ``LOCAL_LATENCY`` clocks after the pixel that made the beat ready.
+    mode, threshold, background, ksigma, local_log2_window, local_offset : ``In``
+        The registers of the same names (``contract.REGISTERS``), latched on the ``sof``
+        pixel (``ksigma`` also when the global search starts its ``D`` pass).
+    frame_threshold, frame_background : ``Out(pixel_bits)``
+        The frame's T and B (local mode: the offset and 0), from the clock after its
+        ``sof``.
+    frame_fallback, frame_local_fallback : ``Out(1)``
+        Latched at each ``sof``: the frame asked for global (local) mode and uses the fixed
+        registers (no levels for ``ksigma`` yet; a window not narrower than the frame).
+    frame_tail_dropped : ``Out(1)``
+        Latched at each ``sof``: it discarded pixels of the previous local-mode frame that
+        were still in the delay line.
+    stats_busy : ``Out(1)``
+        The global levels are being computed.
+    """
 
     def __init__(self, width, height, pixel_bits):
         check_frame(width, height, pixel_bits)
@@ -149,21 +241,27 @@ class ThresholdUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
+        W, H, pb = self.width, self.height, self.pixel_bits
+        m.submodules.levels = levels = GlobalLevels(W, H, pb)
+        m.submodules.window = window = LocalWindow(W, H, pb)
         pos = self._position(m)
-        levels = self._global_levels_state()
         mode = self._frame_mode(m, pos, levels)
-        sums = self._statistics(m, pos)
-        local = self._local_mode(m, pos, mode, sums)
-        self._frame_status(m, pos, mode, levels, local)
-        self._output(m, pos, mode, local)
-        self._global_mode(m, pos, levels, sums)
+        sums = self._statistics(m, pos, levels.rotate_s1, levels.rotate_s2)
+        self._window_input(m, pos, mode, sums, window)
+        self._frame_status(m, pos, mode, window.pending)
+        self._output(m, pos, mode, window.out)
+        m.d.comb += [levels.s1.eq(sums.s1), levels.s2.eq(sums.s2), levels.ksigma.eq(self.ksigma),
+                     levels.start.eq(pos.sof_valid), levels.frame_end.eq(pos.frame_end),
+                     levels.complete.eq(pos.complete), levels.in_frame.eq(pos.in_frame),
+                     self.stats_busy.eq(levels.busy)]
         return m
 
-    # ---- shared: positions, frame mode and levels, statistics, output -------------------
     def _position(self, m):
-        """Position of the input pixel and frame integrity, as the input counts them."""
+        """Position of the input pixel and frame integrity, as the input counts them
+        (a ``_Position``)."""
         W, H, inp = self.width, self.height, self.pixels
         sof = inp.payload.sof
+        sof_valid = inp.valid & sof
         x = Signal(range(W), reset_less=True)
         y = Signal(range(H), reset_less=True)
         in_frame = Signal()
@@ -187,37 +285,26 @@ class ThresholdUnit(wiring.Component):
                 m.d.sync += [x.eq(cur_x + 1), y.eq(cur_y), x_last.eq(before_last_col),
                              y_last.eq(last_row)]
             m.d.sync += frame_ok.eq(Mux(sof, 1, frame_ok) & ~line_error)
-        return SimpleNamespace(
-            sof=sof, sof_valid=inp.valid & sof, pixel=inp.payload.data, x=cur_x, y=cur_y,
-            last_col=last_col, line_error=line_error, frame_end=frame_end, in_frame=in_frame,
-            # a frame that ends here with every line W long
+        with m.If(sof_valid):
+            m.d.sync += in_frame.eq(1)
+        with m.If(frame_end):
+            m.d.sync += in_frame.eq(0)
+        return _Position(
+            sof=sof, sof_valid=sof_valid, pixel=inp.payload.data, x=cur_x, y=cur_y,
+            last_col=last_col, eol=inp.payload.eol, frame_end=frame_end, in_frame=in_frame,
             complete=frame_end & Mux(sof, 1, frame_ok) & ~line_error)
-
-    def _global_levels_state(self):
-        """Registers the global-levels search fills and the frame start reads."""
-        pb = self.pixel_bits
-        return SimpleNamespace(
-            threshold=Signal(pb, reset_less=True, name="next_threshold"),
-            background=Signal(pb, reset_less=True, name="next_background"),
-            valid=Signal(name="levels_valid"),   # they hold the levels for ``ksigma``
-            ksigma=Signal(C.KSIGMA_BITS, reset_less=True, name="levels_ksigma"),
-            have_sums=Signal(),   # S1, S2 hold a complete frame and ``background`` its B
-        )
 
     def _frame_mode(self, m, pos, levels):
         """The mode a frame starting now uses and its T and B (local mode: the offset and
-        0), latched on the ``sof`` pixel."""
-        W, pb, fs = self.width, self.pixel_bits, C.full_scale(self.pixel_bits)
+        0), latched on the ``sof`` pixel (a ``_FrameMode``); ``levels``: the search's."""
+        pb, fs = self.pixel_bits, C.full_scale(self.pixel_bits)
         # a sof while in_frame: the previous frame never ended, so its statistics are
         # missing and this frame falls back, as after an incomplete frame.  (levels.valid
         # is 0 while the levels are being computed.)
         use_global = ((self.mode == ThresholdMode.GLOBAL) & levels.valid &
-                      (levels.ksigma == self.ksigma) & ~pos.in_frame)
-        log2_window_max = local_log2_window_max(W)    # window narrower than the frame
-        log2_windows = range(C.LOCAL_LOG2_WINDOW_MIN,
-                             (log2_window_max or C.LOCAL_LOG2_WINDOW_MIN - 1) + 1)
-        window_ok = Const(0)
-        for k in log2_windows:
+                      (levels.valid_ksigma == self.ksigma) & ~pos.in_frame)
+        window_ok = Const(0)         # a window narrower than the frame
+        for k in _log2_windows(self.width):
             window_ok |= self.local_log2_window == k
         local_new = (self.mode == ThresholdMode.LOCAL) & window_ok
         offset_sat = Mux(self.local_offset[pb:].any(), fs, self.local_offset[:pb])
@@ -229,33 +316,28 @@ class ThresholdUnit(wiring.Component):
         threshold = Mux(pos.sof_valid, Mux(local_new, offset_sat, t_new), t_frame)
         background = Mux(pos.sof_valid, Mux(local_new, 0, b_new), b_frame)
         m.d.sync += [t_frame.eq(threshold), b_frame.eq(background)]
+        with m.If(pos.sof_valid):
+            m.d.sync += local_frame.eq(local_new)
         m.d.comb += [self.frame_threshold.eq(t_frame), self.frame_background.eq(b_frame)]
+        pixel_levels = _PixelLevels(
+            sof_valid=pos.sof_valid, local_new=local_new, use_global=use_global,
+            local=(offset_sat, Const(0, pb)), global_=(levels.threshold, levels.background),
+            fixed=(self.threshold, self.background), frame=(t_frame, b_frame))
+        return _FrameMode(threshold=threshold, levels=pixel_levels, use_global=use_global,
+                          window_ok=window_ok, local_new=local_new,
+                          local=Mux(pos.sof, local_new, local_frame))
 
-        def apply(f):
-            """``f(T, B)`` of this pixel's levels, computed for each candidate and selected
-            after (the sof's mode decision runs beside ``f``'s arithmetic: timing)."""
-            new = Mux(local_new, f(offset_sat, Const(0, pb)),
-                      Mux(use_global, f(levels.threshold, levels.background),
-                          f(self.threshold, self.background)))
-            return Mux(pos.sof_valid, new, f(t_frame, b_frame))
-        return SimpleNamespace(
-            threshold=threshold, use_global=use_global, apply=apply,
-            window_ok=window_ok, local_new=local_new,
-            local_frame=local_frame, local=Mux(pos.sof, local_new, local_frame),
-            log2_window=Signal.like(self.local_log2_window, reset_less=True,
-                                    name="log2_window"),   # of the current frame
-            log2_windows=log2_windows, log2_window_max=log2_window_max)
-
-    def _statistics(self, m, pos):
+    def _statistics(self, m, pos, rotate_s1, rotate_s2):
         """``S1 = sum(p)`` and ``S2 = sum(p*p)`` of the frame's pixels (a stray pixel
-        between frames leaves them alone; a sof restarts them).  The global-levels search
-        reads them in place by rotating them right (``rotate_s1``/``rotate_s2``, exactly
-        once per trial).  S1 after each pixel is also local mode's running sum."""
-        N, fs, inp = self.width * self.height, C.full_scale(self.pixel_bits), self.pixels
-        s1 = Signal(C.bits_for(N * fs), reset_less=True)
-        s2 = Signal(C.bits_for(N * fs * fs), reset_less=True)
+        between frames leaves them alone; a sof restarts them), as ``_Sums``.  The
+        global-levels search reads them in place by rotating them right (``rotate_s1``/
+        ``rotate_s2``, exactly once per trial).  S1 after each pixel is also local mode's
+        running sum."""
+        inp = self.pixels
+        s1_bits, s2_bits = _sum_widths(self.width, self.height, self.pixel_bits)
+        s1 = Signal(s1_bits, reset_less=True)
+        s2 = Signal(s2_bits, reset_less=True)
         p_frame = Mux(inp.valid & (pos.sof | pos.in_frame), pos.pixel, 0)
-        rotate_s1, rotate_s2 = Signal(), Signal()
         s1_before = Mux(pos.sof_valid, 0, Mux(rotate_s1, s1.rotate_right(1), s1))
         s1_after = s1_before + p_frame
         # S2 takes each p*p two clocks late, through a register before the multiplier and
@@ -269,112 +351,184 @@ class ThresholdUnit(wiring.Component):
             restart.eq(pos.sof_valid), restart_s2.eq(restart),
             s2.eq(Mux(restart_s2, 0, Mux(rotate_s2, s2.rotate_right(1), s2)) + square),
         ]
-        return SimpleNamespace(s1=s1, s2=s2, rotate_s1=rotate_s1, rotate_s2=rotate_s2,
-                               s1_before=s1_before, s1_after=s1_after)
+        return _Sums(s1=s1, s2=s2, s1_before=s1_before, s1_after=s1_after)
 
-    def _frame_status(self, m, pos, mode, levels, local):
-        """Latched on each sof: the frame's mode, its fallbacks and dropped tail."""
+    def _window_input(self, m, pos, mode, sums, window):
+        """The local delay line's input: each pixel of a local-mode frame, with the
+        running S1 after it and before it; a ``sof`` of any mode restarts it."""
+        inp, beat = self.pixels, window.pixels.payload
+        m.d.comb += [
+            window.pixels.valid.eq(inp.valid & mode.local & (pos.sof | pos.in_frame)),
+            beat.data.eq(pos.pixel), beat.x.eq(pos.x), beat.y.eq(pos.y), beat.sof.eq(pos.sof),
+            beat.eof.eq(pos.frame_end), beat.row_end.eq(pos.last_col | pos.eol),
+            beat.sum_after.eq(sums.s1_after), beat.sum_before.eq(sums.s1_before),
+            window.start.eq(pos.sof_valid), window.log2_window.eq(self.local_log2_window),
+        ]
+
+    def _frame_status(self, m, pos, mode, tail_pending):
+        """Latched on each sof: the frame's fallbacks, and whether it dropped the delay
+        line's ``tail_pending`` pixels."""
         with m.If(pos.sof_valid):
             m.d.sync += [
                 self.frame_fallback.eq((self.mode == ThresholdMode.GLOBAL) & ~mode.use_global),
                 self.frame_local_fallback.eq((self.mode == ThresholdMode.LOCAL) &
                                              ~mode.window_ok),
-                self.frame_tail_dropped.eq(local.pending),
-                mode.local_frame.eq(mode.local_new), mode.log2_window.eq(self.local_log2_window),
-                pos.in_frame.eq(1),
+                self.frame_tail_dropped.eq(tail_pending),
             ]
-        with m.If(pos.frame_end):
-            m.d.sync += pos.in_frame.eq(0)
 
     def _output(self, m, pos, mode, local):
-        """Output register: the input pixel (fixed, global) or the delay line's (local).
-        ``p > min(M + offset, fs)`` is ``p - M > offset`` for ``p <= fs``; ``mode.threshold``
-        is the offset in a local frame."""
-        pb, out = self.pixel_bits, self.out
+        """Output register: the input pixel (fixed, global) or the delay line's ``local``
+        beat.  ``p > min(M + offset, fs)`` is ``p - M > offset`` for ``p <= fs``;
+        ``mode.threshold`` is the offset in a local frame."""
+        pb, out, lp = self.pixel_bits, self.out, local.payload
         fixed_valid = self.pixels.valid & ~mode.local
         beat = Signal.like(out.payload, reset_less=True)
         m.d.comb += out.payload.eq(beat)
-        value = Mux(local.valid, local.data, pos.pixel)
-        above_local = local.data - local.mean
+        value = Mux(local.valid, lp.data, pos.pixel)
+        above_local = lp.data - lp.mean
         above = Mux(local.valid, above_local,                    # weight if >= 0
-                    mode.apply(lambda t, b: pos.pixel - b))
+                    mode.levels.apply(lambda t, b: pos.pixel - b))
         below = Mux(local.valid, mode.threshold - above_local,   # < 0: lit
-                    mode.apply(lambda t, b: t - pos.pixel))
+                    mode.levels.apply(lambda t, b: t - pos.pixel))
         m.d.sync += [
             out.valid.eq(fixed_valid | local.valid),
             beat.data.eq(value),
-            beat.x.eq(Mux(local.valid, local.x, pos.x)),
-            beat.y.eq(Mux(local.valid, local.y, pos.y)),
+            beat.x.eq(Mux(local.valid, lp.x, pos.x)),
+            beat.y.eq(Mux(local.valid, lp.y, pos.y)),
             beat.lit.eq(below[-1]),
             beat.weight.eq(Mux(above[-1], 0, above[:pb])),
-            beat.eof.eq(Mux(local.valid, local.eof, pos.frame_end)),
+            beat.eof.eq(Mux(local.valid, lp.eof, pos.frame_end)),
         ]
 
-    # ---- local mode ---------------------------------------------------------------------
-    def _local_mode(self, m, pos, mode, sums):
-        """Delay line and window mean.  Each pixel of a local-mode frame is stored with its
-        position, eof and window flags and with two copies of the frame's running S1 (after
-        it and before it), read back once ready, and goes through six stages: read data
-        registered, window addresses, window sums registered, window sum less the pixel,
-        mean, output register.  Every memory's read data goes straight into a register and
-        every read address comes from registers through one adder (post-route timing,
-        ``docs/synthesis.md``)."""
-        W, H, pb = self.width, self.height, self.pixel_bits
-        fs, inp = C.full_scale(pb), self.pixels
-        depth = local_depth(W)
-        window_max = 1 << (mode.log2_window_max or C.LOCAL_LOG2_WINDOW_MIN)
-        sum_bits = C.bits_for((window_max + 1) * fs)
+
+class LocalWindow(wiring.Component):
+    """Local mode's delay line and window mean for ``width x height`` frames of
+    ``pixel_bits`` pixels.  Each pixel is stored with its position, eof and window flags
+    and with two copies of the frame's running S1 (after it and before it), read back once
+    its window's last pixel is in, and goes through six stages: read data registered,
+    window addresses, window sums registered, window sum less the pixel, mean, output
+    register.  Every memory's read data goes straight into a register and every read
+    address comes from registers through one adder (post-route timing,
+    ``docs/synthesis.md``).
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size in pixels.
+    pixel_bits : int
+        Bits per pixel.
+
+    Members
+    -------
+    pixels : ``In(stream.Signature(local_pixel_layout(...), always_ready=True))``
+        The pixels of local-mode frames, in raster order, at most one per clock: position,
+        ``sof``, ``eof``, ``row_end`` (the line's last pixel) and the frame's running S1
+        after and before the pixel (``local_sum_bits`` wide).
+    start : ``In(1)``
+        A frame starts (a ``sof`` pixel of any mode): the pixels left in the line are
+        discarded and ``log2_window`` is latched.
+    log2_window : ``In(C.REGISTER_BY_NAME["local_log2_window"].bits)``
+        ``log2 L`` of the frame that starts (its pixels come only if the window is
+        narrower than the frame: ``local_log2_window_max``).
+    out : ``Out(stream.Signature(local_mean_layout(width, height, pixel_bits), always_ready=True))``
+        Each pixel with ``mean``, the mean of the ``L`` other pixels of its window (its
+        row's columns ``contract.local_window_start`` to that ``+ L``), ``LOCAL_LATENCY - 1``
+        clocks after the input pixel that made it ready: the ``L``-th after it, or its
+        row's last (one per clock while more are ready).
+    pending : ``Out(1)``
+        Pixels are in the line (a ``start`` now would discard them).
+    """
+
+    def __init__(self, width, height, pixel_bits):
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.depth = local_depth(width)
+        super().__init__({
+            "pixels": In(stream.Signature(
+                local_pixel_layout(width, height, pixel_bits,
+                                   local_sum_bits(width, pixel_bits)), always_ready=True)),
+            "start": In(1),
+            "log2_window": In(C.REGISTER_BY_NAME["local_log2_window"].bits),
+            "out": Out(stream.Signature(local_mean_layout(width, height, pixel_bits),
+                                        always_ready=True)),
+            "pending": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        log2_window = Signal.like(self.log2_window, reset_less=True,
+                                  name="log2_window")   # of the current frame
+        with m.If(self.start):
+            m.d.sync += log2_window.eq(self.log2_window)
+        window = Const(1, 1) << log2_window      # L of the current frame
+        px_read, end_read, start_read, write_addr = self._write(m, log2_window)
+        read, read_addr, unread = self._read(m, write_addr, window)
+        stages = self._stages(m, px_read, end_read, start_read, read, read_addr, window,
+                              log2_window)
+        m.d.comb += self.pending.eq((unread != 0) | Cat(*stages).any())
+        return m
+
+    def _write(self, m, log2_window):
+        """The delay line's memories, written with each input pixel (its entry, the S1
+        copies); returns their read ports and the write address."""
+        W, H, pb, depth = self.width, self.height, self.pixel_bits, self.depth
+        inp = self.pixels.payload
+        sum_bits = len(inp.sum_after)
         entry = delay_entry_layout(W, H, pb)
         m.submodules.px_mem = px_mem = Memory(shape=entry, depth=depth, init=[])
         m.submodules.end_mem = end_mem = Memory(shape=sum_bits, depth=depth, init=[])
         m.submodules.start_mem = start_mem = Memory(shape=sum_bits, depth=depth, init=[])
-        px_read, end_read, start_read = (px_mem.read_port(), end_mem.read_port(),
-                                         start_mem.read_port())
-        write = inp.valid & mode.local & (pos.sof | pos.in_frame)  # a local-mode frame's pixel
-        drop = pos.sof_valid        # a new frame: discard what is left of the last one
         write_addr = Signal(range(depth), reset_less=True)
         px_write, end_write, start_write = (px_mem.write_port(), end_mem.write_port(),
                                             start_mem.write_port())
         for port in (px_write, end_write, start_write):
-            m.d.comb += [port.addr.eq(write_addr), port.en.eq(write)]
+            m.d.comb += [port.addr.eq(write_addr), port.en.eq(self.pixels.valid)]
         # the window of the pixel in column x: its last pixel s + L (an address of the end
         # copy) and its first s (of the start copy).  The window moves (s advances by one)
         # at each x with half < x <= W - 1 - half; elsewhere the start copy's read port
         # keeps its last word, so no read reaches back more than half pixels.  The flags
         # are those of the window the pixel's frame uses (latched at its sof).
-        log2_window = Mux(pos.sof, self.local_log2_window, mode.log2_window)
+        frame_window = Mux(inp.sof, self.log2_window, log2_window)
         move_first = Const(0, range(W + 1))   # the window moves from x = half + 1 up to,
         move_end = Const(0, range(W + 1))     # not including, x = W - half
-        for k in mode.log2_windows:
-            move_first = Mux(log2_window == k, (1 << (k - 1)) + 1, move_first)
-            move_end = Mux(log2_window == k, W - (1 << (k - 1)), move_end)
+        for k in _log2_windows(W):
+            move_first = Mux(frame_window == k, (1 << (k - 1)) + 1, move_first)
+            move_end = Mux(frame_window == k, W - (1 << (k - 1)), move_end)
         written = Signal(entry)
-        m.d.comb += [written.data.eq(pos.pixel), written.x.eq(pos.x), written.y.eq(pos.y),
-                     written.eof.eq(pos.frame_end), written.row_start.eq(pos.x == 0),
-                     written.move_first.eq(pos.x == move_first),
-                     written.move_end.eq(pos.x == move_end)]
-        m.d.comb += [px_write.data.eq(written),
-                     end_write.data.eq(sums.s1_after[:sum_bits]),
-                     start_write.data.eq(sums.s1_before[:sum_bits])]
-        window = Const(1, 1) << mode.log2_window      # L of the current frame
-        with m.If(write):
+        m.d.comb += [written.data.eq(inp.data), written.x.eq(inp.x), written.y.eq(inp.y),
+                     written.eof.eq(inp.eof), written.row_start.eq(inp.x == 0),
+                     written.move_first.eq(inp.x == move_first),
+                     written.move_end.eq(inp.x == move_end)]
+        m.d.comb += [px_write.data.eq(written), end_write.data.eq(inp.sum_after),
+                     start_write.data.eq(inp.sum_before)]
+        with m.If(self.pixels.valid):
             m.d.sync += write_addr.eq(write_addr + 1)
+        return px_mem.read_port(), end_mem.read_port(), start_mem.read_port(), write_addr
 
-        # reads, one ready pixel per clock
+    def _read(self, m, write_addr, window):
+        """One ready pixel read per clock: while more than ``window`` are unread, or a row
+        end is among them.  Returns ``read``, its address and the count unread."""
+        depth, write, drop = self.depth, self.pixels.valid, self.start
         unread = Signal(range(depth))         # pixels written and not yet read
         row_ended = Signal(range(depth))      # of them, those up to the last row end written
         read_addr = Signal(range(depth), reset_less=True)    # the oldest unread pixel
         read = ((unread > window) | (row_ended != 0)) & ~drop
         unread_next = unread + Cat(write ^ read, (read & ~write).replicate(len(unread) - 1))
-        row_end = write & (pos.last_col | inp.payload.eol)
-        m.d.comb += px_read.addr.eq(read_addr)
+        row_end = write & self.pixels.payload.row_end
         with m.If(drop):
             m.d.sync += [read_addr.eq(write_addr), unread.eq(write), row_ended.eq(row_end)]
         with m.Else():
             m.d.sync += [read_addr.eq(read_addr + read), unread.eq(unread_next),
                          row_ended.eq(Mux(row_end, unread_next,
                                           row_ended - (read & (row_ended != 0))))]
+        return read, read_addr, unread
 
+    def _stages(self, m, px_read, end_read, start_read, read, read_addr, window,
+                log2_window):
+        """The six stages from a read to ``out``; returns their valid flags."""
+        depth, pb, drop = self.depth, self.pixel_bits, self.start
+        entry = delay_entry_layout(self.width, self.height, pb)
+        sum_bits = len(end_read.data)
+        m.d.comb += px_read.addr.eq(read_addr)
         # stage 0: the pixel's entry on the read port, registered
         stage0_valid = Signal()
         stage0_addr = Signal(range(depth), reset_less=True)
@@ -426,32 +580,94 @@ class ThresholdUnit(wiring.Component):
         # new frame reaches this stage within a clock of it)
         scale = Signal(1 << C.LOCAL_LOG2_WINDOW_MAX, reset_less=True)
         scale_now = Const(0, 1 << C.LOCAL_LOG2_WINDOW_MAX)
-        for k in mode.log2_windows:
-            scale_now = Mux(mode.log2_window == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k),
-                            scale_now)
+        for k in _log2_windows(self.width):
+            scale_now = Mux(log2_window == k, 1 << (C.LOCAL_LOG2_WINDOW_MAX - k), scale_now)
         m.d.sync += scale.eq(scale_now)
         mean_now = (others * scale)[C.LOCAL_LOG2_WINDOW_MAX:][:pb]
         m.d.sync += [stage5_valid.eq(stage4_valid & ~drop), stage5.eq(stage4),
                      mean.eq(mean_now)]
         # stage 5 is the output register
-        return SimpleNamespace(
-            valid=stage5_valid & ~drop, data=stage5.data, x=stage5.x, y=stage5.y,
-            eof=stage5.eof, mean=mean,
-            pending=(unread != 0) | stage0_valid | stage1_valid | stage2_valid |
-            stage3_valid | stage4_valid | stage5_valid)
+        out = self.out.payload
+        m.d.comb += [self.out.valid.eq(stage5_valid & ~drop), out.data.eq(stage5.data),
+                     out.x.eq(stage5.x), out.y.eq(stage5.y), out.eof.eq(stage5.eof),
+                     out.mean.eq(mean)]
+        return [stage0_valid, stage1_valid, stage2_valid, stage3_valid, stage4_valid,
+                stage5_valid]
 
-    # ---- global mode --------------------------------------------------------------------
-    def _global_mode(self, m, pos, levels, sums):
-        """Sequential global-levels search after each complete frame: ``B`` then ``D``,
-        bit by bit, MSB first (``c``: the bits found so far with the trial bit set):
-        ``B``: ``N*c <= S1``; ``D``: ``256*N*N*c*c <= K*K*(N*S2 - S1*S1)``.  Each trial
-        streams both sides LSB first through serial multipliers into a serial subtraction
-        whose last borrow decides it.  B's first trial only flushes what an abandoned
-        computation left in the multipliers of ``c``."""
+
+class GlobalLevels(wiring.Component):
+    """Global mode's levels for ``width x height`` frames of ``pixel_bits`` pixels: after
+    each complete frame a sequential search finds ``B`` then ``D``, bit by bit, MSB first
+    (``c``: the bits found so far with the trial bit set): ``B``: ``N*c <= S1``; ``D``:
+    ``256*N*N*c*c <= K*K*(N*S2 - S1*S1)``; then ``T = min(B + D, fs)``.  Each trial streams
+    both sides LSB first through serial multipliers into a serial subtraction whose last
+    borrow decides it.  B's first trial only flushes what an abandoned computation left in
+    the multipliers of ``c``.  It takes ``global_cycles`` clocks, and ``ksigma_cycles`` after
+    a ``ksigma`` write.
+
+    Parameters
+    ----------
+    width, height : int
+        Frame size in pixels (``N = width * height``).
+    pixel_bits : int
+        Bits per pixel.
+
+    Members
+    -------
+    s1, s2 : ``In``
+        The frame's ``S1 = sum(p)`` and ``S2 = sum(p*p)`` registers, read in place: while
+        ``rotate_s1`` (``rotate_s2``) is high their owner rotates them right by one bit a
+        clock, exactly once per trial, and bit 0 is the bit streamed.
+    rotate_s1, rotate_s2 : ``Out(1)``
+        Rotate ``s1`` (``s2``) this clock.
+    start : ``In(1)``
+        A ``sof`` pixel: the sums restart (a search under way is abandoned).
+    frame_end : ``In(1)``
+        A frame's last pixel; ``complete`` with it when every line of the frame was
+        ``width`` long: the search starts on its sums.
+    complete : ``In(1)``
+        See ``frame_end``.
+    in_frame : ``In(1)``
+        A frame started and has not ended (the levels of a frame cut short are invalid).
+    ksigma : ``In(C.KSIGMA_BITS)``
+        The ``ksigma`` register: read as the ``D`` search starts; a value that differs from
+        ``valid_ksigma`` restarts the ``D`` search.
+    threshold, background : ``Out(pixel_bits)``
+        The levels ``T`` and ``B`` found, for ``valid_ksigma`` while ``valid``.
+    valid : ``Out(1)``
+        ``threshold`` and ``background`` hold the last complete frame's levels.
+    valid_ksigma : ``Out(C.KSIGMA_BITS)``
+        The ``ksigma`` of the levels.
+    busy : ``Out(1)``
+        A trial is under way.
+    """
+
+    def __init__(self, width, height, pixel_bits):
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        s1_bits, s2_bits = _sum_widths(width, height, pixel_bits)
+        super().__init__({
+            "s1": In(s1_bits), "s2": In(s2_bits),
+            "rotate_s1": Out(1), "rotate_s2": Out(1),
+            "start": In(1), "frame_end": In(1), "complete": In(1), "in_frame": In(1),
+            "ksigma": In(C.KSIGMA_BITS),
+            "threshold": Out(pixel_bits), "background": Out(pixel_bits), "valid": Out(1),
+            "valid_ksigma": Out(C.KSIGMA_BITS),
+            "busy": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
         W, H, pb = self.width, self.height, self.pixel_bits
         N, fs = W * H, C.full_scale(pb)
-        s1, s2 = sums.s1, sums.s2
-        ksigma_same = levels.ksigma == self.ksigma
+        s1, s2 = self.s1, self.s2
+        threshold = Signal(pb, reset_less=True, name="next_threshold")
+        background = Signal(pb, reset_less=True, name="next_background")
+        valid = Signal(name="levels_valid")   # they hold the levels for ``ksigma``
+        ksigma = Signal(C.KSIGMA_BITS, reset_less=True, name="levels_ksigma")
+        have_sums = Signal()   # S1, S2 hold a complete frame and ``background`` its B
+        m.d.comb += [self.threshold.eq(threshold), self.background.eq(background),
+                     self.valid.eq(valid), self.valid_ksigma.eq(ksigma)]
+        ksigma_same = ksigma == self.ksigma
         b_bits, d_bits = _pass_bits(W, H, pb)
         run = Signal(name="search_run")      # a trial is under way
         searching_d = Signal()               # else B
@@ -465,17 +681,18 @@ class ThresholdUnit(wiring.Component):
         ref_b, ref_d = Const(N), Const((N << C.KSIGMA_FRAC_BITS) ** 2)
         ref = Signal(max(len(ref_b), len(ref_d)), reset_less=True)
 
-        s1_copy = Signal.like(s1, name="s1_copy")  # the multiplicand of S1*S1 (s1 rotates)
-        m.d.comb += [sums.rotate_s1.eq(run & _below_const(trial_clock, len(s1))),
-                     sums.rotate_s2.eq(run & searching_d & _below_const(trial_clock, len(s2)))]
-        s1_bit = s1[0] & sums.rotate_s1
+        # the multiplicand of S1*S1 (s1 rotates)
+        s1_copy = Signal(len(s1), reset_less=True, name="s1_copy")
+        m.d.comb += [self.rotate_s1.eq(run & _below_const(trial_clock, len(s1))),
+                     self.rotate_s2.eq(run & searching_d & _below_const(trial_clock, len(s2)))]
+        s1_bit = s1[0] & self.rotate_s1
         variance_bit, _ = _serial_sub(
-            m, _serial_mul(m, s2[0] & sums.rotate_s2, Const(N)),
+            m, _serial_mul(m, s2[0] & self.rotate_s2, Const(N)),
             _serial_mul(m, s1_bit & searching_d, s1_copy), run & ~last)
         # D's two sides each delayed a clock by a register (the chain's timing cut)
         variance = Signal(reset_less=True, name="variance_bit")
         m.d.sync += variance.eq(variance_bit)
-        lhs_d = _serial_mul(m, _serial_mul(m, variance, levels.ksigma), levels.ksigma)
+        lhs_d = _serial_mul(m, _serial_mul(m, variance, ksigma), ksigma)
         reference = ref[0] & run
         rhs_b = _serial_mul(m, reference, c)
         rhs_d = Signal(reset_less=True, name="rhs_d_bit")
@@ -484,41 +701,36 @@ class ThresholdUnit(wiring.Component):
                                 Mux(searching_d, rhs_d, rhs_b), run & ~last)
         passed = ~borrow             # at the trial's last bit
 
-        def start_d():
-            return [searching_d.eq(1), levels.ksigma.eq(self.ksigma),
-                    trial.eq(1 << (pb - 1)), found.eq(0), trial_clock.eq(0), s1_copy.eq(s1),
-                    ref.eq(ref_d)]
-
-        m.d.comb += self.stats_busy.eq(run)
+        start_d = [searching_d.eq(1), ksigma.eq(self.ksigma), trial.eq(1 << (pb - 1)),
+                   found.eq(0), trial_clock.eq(0), s1_copy.eq(s1), ref.eq(ref_d)]
+        m.d.comb += self.busy.eq(run)
         found_now = Mux(passed, c, found)    # at a trial's last bit
 
-        def threshold(d):
+        def saturated(d):
             """T = min(B + d, fs), from registers only."""
-            level = levels.background + d
+            level = background + d
             return Mux(level[pb], fs, level[:pb])
         # both outcomes of the last trial precomputed, so ``passed`` only selects
-        threshold_now = Mux(passed, threshold(c), threshold(found))
-        with m.If(pos.complete):
-            m.d.sync += [levels.valid.eq(0), levels.have_sums.eq(0), run.eq(1),
-                         searching_d.eq(0), trial.eq(1 << pb), found.eq(0), trial_clock.eq(0),
-                         ref.eq(ref_b)]
-        with m.Elif(pos.frame_end | pos.sof_valid):   # S1, S2 restart, or a broken frame
-            m.d.sync += [levels.have_sums.eq(0), run.eq(0)]
-            with m.If(pos.frame_end | pos.in_frame | run):
-                m.d.sync += levels.valid.eq(0)
+        threshold_now = Mux(passed, saturated(c), saturated(found))
+        with m.If(self.complete):
+            m.d.sync += [valid.eq(0), have_sums.eq(0), run.eq(1), searching_d.eq(0),
+                         trial.eq(1 << pb), found.eq(0), trial_clock.eq(0), ref.eq(ref_b)]
+        with m.Elif(self.frame_end | self.start):   # S1, S2 restart, or a broken frame
+            m.d.sync += [have_sums.eq(0), run.eq(0)]
+            with m.If(self.frame_end | self.in_frame | run):
+                m.d.sync += valid.eq(0)
         with m.Elif(~run):
-            with m.If(levels.have_sums & ~ksigma_same):   # ksigma rewritten: search D anew
-                m.d.sync += [levels.valid.eq(0), run.eq(1)] + start_d()
+            with m.If(have_sums & ~ksigma_same):   # ksigma rewritten: search D anew
+                m.d.sync += [valid.eq(0), run.eq(1)] + start_d
         with m.Else():
             m.d.sync += [trial_clock.eq(trial_clock + 1), ref.eq(ref >> 1)]
             with m.If(last):
                 m.d.sync += [trial_clock.eq(0), trial.eq(trial >> 1), found.eq(found_now),
                              ref.eq(Mux(searching_d, ref_d, ref_b))]
                 with m.If(searching_d & ~ksigma_same):
-                    m.d.sync += start_d()                 # rewritten meanwhile: restart
+                    m.d.sync += start_d                   # rewritten meanwhile: restart
                 with m.Elif(trial[0] & ~searching_d):
-                    m.d.sync += [levels.have_sums.eq(1),
-                                 levels.background.eq(found_now)] + start_d()
+                    m.d.sync += [have_sums.eq(1), background.eq(found_now)] + start_d
                 with m.Elif(trial[0]):                    # T = min(B + D', fs)
-                    m.d.sync += [run.eq(0), levels.valid.eq(1),
-                                 levels.threshold.eq(threshold_now)]
+                    m.d.sync += [run.eq(0), valid.eq(1), threshold.eq(threshold_now)]
+        return m

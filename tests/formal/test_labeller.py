@@ -22,13 +22,15 @@ blanking and the next frame's start (~2.5 min); mutant: a push stage that never 
 """
 
 import pytest
-from amaranth import Elaboratable, Module, Mux, Signal
+from amaranth import Const, Elaboratable, Module, Mux, Signal
 from amaranth.hdl import Assert, Assume
+from amaranth.lib import data
 
 from lodestar import contract as C
 from lodestar.hdl.labeller import Labeller
+from lodestar.hdl.layouts import held_layout
 
-from .sby import available, fsm_states, internals, prove
+from .sby import available, elaborate, fsm_states, internals, prove
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -46,7 +48,7 @@ class TakenOrFlagged(Elaboratable):
         m = Module()
         lab = self.lab
         W, H = lab.width, lab.height
-        m.submodules.labeller = mod = lab.elaborate(platform)
+        m.submodules.labeller = mod = elaborate(lab, platform)
         p, valid = lab.pixels.payload, lab.pixels.valid
         origin = (p.x == 0) & (p.y == 0)
         # the threshold unit's guarantee (test_threshold.py)
@@ -76,14 +78,16 @@ class TakenOrFlagged(Elaboratable):
         m.d.sync += [last_x.eq(beat.x), last_y.eq(beat.y), last_valid.eq(beat_valid),
                      last_ok.eq(flag | lab.fault | beat_exempt | (skipping & ~beat_origin))]
         s = internals(mod)
-        held = s["held_valid"] & (s["held_x"] == last_x) & (s["held_y"] == last_y)
-        m.d.comb += Assert(~last_valid | last_ok | flag | held)
+        held = data.View(held_layout(C.bits_for(W - 1), C.bits_for(H), lab.pixel_bits),
+                         s["held"])
+        m.d.comb += Assert(~last_valid | last_ok | flag |
+                           (held.valid & (held.x == last_x) & (held.y == last_y)))
         if self.helpers:
-            m.d.comb += self.invariants(mod, s, beat, beat_valid, beat_origin, after_last,
-                                        after_reset, skipping)
+            m.d.comb += self.invariants(mod, s, held, beat, beat_valid, beat_origin,
+                                        after_last, after_reset, skipping)
         return m
 
-    def invariants(self, mod, s, beat, beat_valid, beat_origin, after_last, after_reset,
+    def invariants(self, mod, s, held, beat, beat_valid, beat_origin, after_last, after_reset,
                    skipping):
         """The input register is the observer's copy; the FSM in a defined state; once a
         frame is over (a state between frames, or ``(W - 1, H - 1)`` just held) the beat
@@ -92,12 +96,12 @@ class TakenOrFlagged(Elaboratable):
         ``IDLE``."""
         W, H = self.lab.width, self.lab.height
         state, st = fsm_states(mod)
-        hv, hl = s["held_valid"], s["held_last_col"]
+        hv, hl = held.valid, held.last_col
         over = (st["IDLE"] | st["GAP"] | st["VROW"] | st["DRAIN"] |
-                (st["RUN"] & hv & hl & (s["held_y"] == H - 1)))
+                (st["RUN"] & hv & hl & (held.y == H - 1)))
         return [Assert(s["in_valid"] == beat_valid), Assert(s["in_beat"] == beat.as_value()),
                 Assert(s["in_origin"] == beat_origin), Assert(state < len(st)),
-                Assert(~hv | (hl == (s["held_x"] == W - 1))),
+                Assert(~hv | (hl == (held.x == W - 1))),
                 Assert(~over | after_reset | Mux(beat_valid, beat_origin, after_last)),
                 Assert(~after_reset | st["IDLE"]), Assert(skipping == st["SKIP"])]
 
@@ -118,13 +122,14 @@ class WrappingSuccessor(Labeller):
 class LateRestart(Labeller):
     """Mutant: ``DRAIN`` ignores the next frame's ``(0, 0)`` (waits to finish draining)."""
 
-    def _frames(self, m):
-        super()._frames(m)
+    def _frames(self, m, held, line_error):
+        seq = super()._frames(m, held, line_error)
         s = internals(m)
         state, st = fsm_states(m)
         with m.If(st["DRAIN"] & s["in_valid"] & s["in_origin"]):
-            m.d.comb += [self._start.eq(0), s["take"].eq(0), s["abort"].eq(0)]
+            m.d.comb += [seq.start.eq(0), s["take"].eq(0), s["abort"].eq(0)]
             m.d.sync += state.eq(state)
+        return seq
 
 
 class BoundedLabeller(Elaboratable):
@@ -143,9 +148,8 @@ class BoundedLabeller(Elaboratable):
 class ForgetfulLabeller(Labeller):
     """Mutant: the push stage never pushes a previous-row component on the stack."""
 
-    def _push(self, m, above):
-        top, second, _push = super()._push(m, above)
-        return top, second, 0
+    def _push(self, m, above, parts):
+        return super()._push(m, above, parts)._replace(push=Const(0))
 
 
 def inputs(lab):

@@ -22,8 +22,6 @@ pixels, ``sof``, ``eol``, every register and reset free:
   leaves a stale pixel in the delay line's stage 2.
 """
 
-from types import SimpleNamespace
-
 import pytest
 from amaranth import Cat, Elaboratable, Module, Mux, Signal
 from amaranth.hdl import Assert, Assume
@@ -37,7 +35,7 @@ from lodestar.hdl.threshold import (
     local_log2_window_max,
 )
 
-from .sby import available, internals, prove
+from .sby import available, elaborate, elaborate_submodule, internals, prove
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -54,7 +52,7 @@ class CheckedThreshold(Elaboratable):
     def elaborate(self, platform):
         m = Module()
         th = self.unit
-        m.submodules.unit = mod = th.elaborate(platform)
+        m.submodules.unit = mod = elaborate(th, platform)
         out = th.out
         valid_d = Signal()
         after_last = Signal()            # the last beat out was at (W - 1, H - 1)
@@ -70,17 +68,18 @@ class CheckedThreshold(Elaboratable):
             Assert(~(out.valid & after_last) | origin),
         ]
         if self.helpers:
-            m.d.comb += self.invariants(internals(mod), valid_d, last, after_last)
+            delay = internals(elaborate_submodule(mod, "window", platform))
+            m.d.comb += self.invariants(internals(mod), delay, valid_d, last, after_last)
         return m
 
-    def invariants(self, s, valid_d, last, after_last):
+    def invariants(self, s, delay, valid_d, last, after_last):
         """The position counters and an idle delay line (no local-mode frame)."""
         x, y = s["x"], s["y"]
         ended = Mux(valid_d, last, after_last)     # the latest input beat was the last
         return [Assert(x < W), Assert(y < H),
                 Assert(s["x_last"] == (x == W - 1)), Assert(s["y_last"] == (y == H - 1)),
-                Assert(~s["local_frame"]), Assert(s["unread"] == 0),
-                *[Assert(~s[f"stage{k}_valid"]) for k in range(6)],
+                Assert(~s["local_frame"]), Assert(delay["unread"] == 0),
+                *[Assert(~delay[f"stage{k}_valid"]) for k in range(6)],
                 Assert(~ended | ((x == 0) & (y == 0)))]
 
 
@@ -145,7 +144,7 @@ class LocalCheckedThreshold(Elaboratable):
         m = Module()
         th = self.unit
         W, H = th.width, th.height
-        m.submodules.unit = mod = th.elaborate(platform)
+        m.submodules.unit = mod = elaborate(th, platform)
         inp, out = th.pixels, th.out
         sof, eol = inp.payload.sof, inp.payload.eol
         sof_valid = inp.valid & sof
@@ -196,24 +195,26 @@ class LocalCheckedThreshold(Elaboratable):
             Assert((since <= blanking) | (left == 0)),
         ]
         if self.helpers:
-            m.d.comb += self.invariants(internals(mod), x, y, in_frame, local, log2_window,
-                                        owed, since, out.valid)
+            delay = internals(elaborate_submodule(mod, "window", platform))
+            m.d.comb += self.invariants(internals(mod), delay, x, y, in_frame, local,
+                                        log2_window, owed, since, out.valid)
         return m
 
-    def invariants(self, s, x, y, in_frame, local, log2_window, owed, since, out_valid):
+    def invariants(self, s, delay, x, y, in_frame, local, log2_window, owed, since,
+                   out_valid):
         """The observer's copies are the unit's; the beats owed are those unread and in
         the six stages; the delay line is idle outside a local frame, holds at most
         ``L + 1`` unread pixels, and after the frame's last pixel drains one per clock."""
         W, H = self.unit.width, self.unit.height
-        stages = [s[f"stage{k}_valid"] for k in range(6)]
-        unread, row_ended = s["unread"], s["row_ended"]
+        stages = [delay[f"stage{k}_valid"] for k in range(6)]
+        unread, row_ended = delay["unread"], delay["row_ended"]
         window = 1 << log2_window
         lg_max = local_log2_window_max(W)
         ended = since != 0
         return [
             Assert(s["x"] == x), Assert(s["y"] == y), Assert(s["in_frame"] == in_frame),
             Assert(s["x_last"] == (x == W - 1)), Assert(s["y_last"] == (y == H - 1)),
-            Assert(s["local_frame"] == local), Assert(s["log2_window"] == log2_window),
+            Assert(s["local_frame"] == local), Assert(delay["log2_window"] == log2_window),
             Assert(owed == unread + sum(stages) + out_valid),
             Assert(local | ((unread == 0) & ~Cat(*stages).any())),
             Assert(~local | ((log2_window >= C.LOCAL_LOG2_WINDOW_MIN) &
@@ -231,10 +232,13 @@ class TailForgettingUnit(ThresholdUnit):
     """Mutant: a ``sof`` discards the delay line's unread pixels without saying so
     (``frame_tail_dropped`` counts only the pixels already in the read stages)."""
 
-    def _frame_status(self, m, pos, mode, levels, local):
-        s = internals(m)
-        in_stages = Cat(*(s[f"stage{k}_valid"] for k in range(6))).any()
-        super()._frame_status(m, pos, mode, levels, SimpleNamespace(pending=in_stages))
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        window = internals(elaborate_submodule(m, "window", platform))
+        in_stages = Cat(*(window[f"stage{k}_valid"] for k in range(6))).any()
+        with m.If(self.pixels.valid & self.pixels.payload.sof):
+            m.d.sync += self.frame_tail_dropped.eq(in_stages)
+        return m
 
 
 @pytest.mark.parametrize("size", [(W, H, BITS), (5, 3, BITS), (9, 2, BITS), (752, 480, 10),
@@ -282,7 +286,7 @@ class OrderedThreshold(Elaboratable):
         m = Module()
         th = self.unit
         W, H = th.width, th.height
-        m.submodules.unit = th.elaborate(platform)
+        m.submodules.unit = elaborate(th, platform)
         out = th.out
         after_last = Signal()
         with m.If(out.valid):
@@ -301,8 +305,9 @@ class StaleStageUnit(ThresholdUnit):
 
     def elaborate(self, platform):
         m = super().elaborate(platform)
-        s = internals(m)
-        m.d.sync += s["stage3_valid"].eq(s["stage2_valid"])
+        window = elaborate_submodule(m, "window", platform)
+        s = internals(window)
+        window.d.sync += s["stage3_valid"].eq(s["stage2_valid"])
         return m
 
 

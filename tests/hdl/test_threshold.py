@@ -7,10 +7,12 @@ from amaranth.sim import Simulator
 from lodestar import contract as C
 from lodestar.hdl.threshold import (
     LOCAL_LATENCY,
+    LocalWindow,
     ThresholdUnit,
     global_cycles,
     ksigma_cycles,
     local_blanking,
+    local_sum_bits,
 )
 from tests.hdl.streams import stream_collect, stream_idle, stream_put
 
@@ -269,6 +271,44 @@ def test_local_mode_matches_contract(pixel_bits, width, windows, hblank):
     assert [s["frame_tail_dropped"] for s in status] == [0] * len(windows)
     assert [s["frame_local_fallback"] for s in status] == [0] * len(windows)
     assert status[-1]["frame_threshold"] == fs and status[-1]["frame_background"] == 0
+
+
+def test_local_window_alone():
+    """The delay line by itself, given each pixel's running S1 as the unit's statistics
+    give it: every pixel comes out once, in raster order, with the mean of its window's
+    other L pixels, and nothing is pending after the blanking."""
+    w, h, pb, lg = 12, 3, 10, 2
+    frame = star_frame(np.random.default_rng(5), h, w, pb)
+    dut = LocalWindow(w, h, pb)
+    mask = (1 << local_sum_bits(w, pb)) - 1
+    beats, pending = [], []
+
+    async def bench(ctx):
+        ctx.set(dut.log2_window, lg)
+        s1 = 0
+        for k, p in enumerate(frame.ravel().tolist()):
+            y, x = divmod(k, w)
+            ctx.set(dut.start, int(k == 0))
+            await stream_put(ctx, dut.pixels, {
+                "data": p, "x": x, "y": y, "sof": int(k == 0), "eof": int(k == w * h - 1),
+                "row_end": int(x == w - 1), "sum_before": s1 & mask,
+                "sum_after": (s1 + p) & mask})
+            s1 += p
+        ctx.set(dut.start, 0)
+        await stream_idle(ctx, dut.pixels, local_blanking(lg))
+        pending.append(ctx.get(dut.pending))
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    stream_collect(sim, dut.out, beats, lambda o: (o.x, o.y, o.data, o.mean, o.eof))
+    sim.run()
+    want = [(x, y, d, eof) for x, y, d, _, _, eof in local_beats(frame, lg, 0, pb)]
+    assert [(x, y, d, eof) for x, y, d, _, eof in beats] == want
+    means = [(sum(row[C.local_window_start(x, w, lg):][:(1 << lg) + 1]) - row[x]) >> lg
+             for row in frame.astype(int).tolist() for x in range(w)]
+    assert [b[3] for b in beats] == means
+    assert pending == [0]
 
 
 def test_local_latency_and_drain():
