@@ -21,7 +21,6 @@ from cocotb.triggers import RisingEdge
 from lodestar import contract as C
 from lodestar.cosim.runner import group_frames, read_output
 from lodestar.golden import Detector, DetectorConfig
-from lodestar.hdl.detector import Detector as Gateware
 
 
 def expected_results(scenario, frames):
@@ -51,9 +50,8 @@ async def check(dut):
     await RisingEdge(dut.done)
 
     cfg = DetectorConfig(**scenario["frames"][0]["config"])
-    gateware = Gateware(cfg.width, cfg.height, cfg.pixel_bits, cfg.label_capacity,
-                        cfg.record_capacity)
-    records, trailers = read_output(os.environ["COSIM_OUTPUT"], gateware)
+    records, trailers = read_output(os.environ["COSIM_OUTPUT"], cfg.width, cfg.height,
+                                    cfg.pixel_bits)
     got = group_frames(records, trailers, cfg.width, cfg.height, cfg.pixel_bits)
     want = expected_results(scenario, frames)
     assert len(got) == len(want), f"{len(got)} trailers for {len(want)} frames"

@@ -173,6 +173,9 @@ class GatewareTop(wiring.Component):
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None,
                  stall_timeout=STALL_TIMEOUT):
         frontend = frontend_class(sensor)
+        # the contract's check before any part is built (a part built for a refused frame
+        # would warn UnusedElaboratable)
+        C.check_geometry(width, height, frontend.PIXEL_BITS)
         self.sensor, self.width, self.height = sensor, width, height
         self.pixel_bits = frontend.PIXEL_BITS
         self.frontend = frontend(width, height)
@@ -331,7 +334,9 @@ class Board:
         return f"{self.device}{self.package}{self.speed}"
 
     def gateware_top(self):
-        """The board's :class:`GatewareTop`."""
+        """The board's :class:`GatewareTop`; ``ValueError`` if its frame is outside the
+        contract (checked before the top is built)."""
+        C.check_geometry(self.width, self.height, self.pixel_bits)
         return GatewareTop(self.sensor, self.width, self.height,
                            label_capacity=self.label_capacity,
                            record_capacity=self.record_capacity, record_depth=self.record_depth)

@@ -154,9 +154,8 @@ def build_with_quartus(folder):
 def place_and_route(board, speed, cache_dir=None):
     """Post-route timing of the board's detector on ECP5 (``hdl.pnr``): the report's
     ``pnr`` entry."""
-    det = board.gateware_top().detector
-    detector = Detector(det.width, det.height, det.pixel_bits, det.label_capacity,
-                        det.record_capacity, det.record_depth)
+    detector = Detector(board.width, board.height, board.pixel_bits, board.label_capacity,
+                        board.record_capacity, board.record_depth)    # the board top's
     result = pnr.place_and_route(pnr.harness_verilog(detector), speed=speed,
                                  cache_dir=cache_dir or default_cache_dir())
     result["design"] = "detector in a shift-register harness (hdl.pnr.ShiftHarness)"

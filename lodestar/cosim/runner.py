@@ -205,11 +205,14 @@ class Build:
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None, root=None,
                  gate_level=False, native=False):
 
-        self.detector = Detector(width, height, pixel_bits, label_capacity, record_capacity,
-                                 record_depth)
-        d = self.detector
-        params = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
-                  d.record_depth)
+        # the Detector's parameters, its defaults resolved, without building it: a Detector
+        # built and never elaborated (a cached build) warns UnusedElaboratable
+        C.check_geometry(width, height, pixel_bits)
+        self.width, self.height, self.pixel_bits = width, height, pixel_bits
+        self.label_capacity = label_capacity or C.max_open_blobs(width)
+        self.record_capacity = record_capacity
+        self.record_depth = record_depth or record_capacity
+        params = self._detector_params()
         self.gate_level = gate_level
         self.native = native
         netlist = GATE_LEVEL_SCRIPT if gate_level else ""
@@ -225,11 +228,25 @@ class Build:
         self._runner(log)
         return self
 
+    def _detector_params(self):
+        return (self.width, self.height, self.pixel_bits, self.label_capacity,
+                self.record_capacity, self.record_depth)
+
+    def detector(self):
+        """The ``Detector`` of this build, built only to be elaborated (its Verilog written);
+        raises if its resolved parameters are not the build's (its key, its ports)."""
+        d = Detector(*self._detector_params())
+        got = (d.width, d.height, d.pixel_bits, d.label_capacity, d.record_capacity,
+               d.record_depth, len(d.reg_addr))
+        if got != self._detector_params() + (C.REG_ADDR_BITS,):
+            raise RuntimeError(f"Detector parameters {got} differ from the build's "
+                               f"{self._detector_params() + (C.REG_ADDR_BITS,)}")
+        return d
+
     def _params(self):
-        d = self.detector
-        return {"PB": d.pixel_bits,
-                "REC_W": record_layout(d.width, d.height, d.pixel_bits).size,
-                "TR_W": trailer_layout().size, "ADDR_W": len(d.reg_addr), "RUN_MAX": RUN_MAX}
+        return {"PB": self.pixel_bits,
+                "REC_W": record_layout(self.width, self.height, self.pixel_bits).size,
+                "TR_W": trailer_layout().size, "ADDR_W": C.REG_ADDR_BITS, "RUN_MAX": RUN_MAX}
 
     def _runner(self, log=None):
         """A cocotb runner on this build (``None`` for a native build).  Verilator runs only
@@ -245,7 +262,7 @@ class Build:
             if not built:
                 if log:
                     log(f"cosim: building the gateware with Verilator in {self.dir} (once)")
-                (self.dir / "detector.v").write_text(to_verilog(self.detector, "detector"))
+                (self.dir / "detector.v").write_text(to_verilog(self.detector(), "detector"))
                 if self.gate_level:
                     synthesize(self.dir)
                 shutil.copy(HARNESS, self.dir / HARNESS.name)
@@ -294,7 +311,7 @@ class Build:
             self._play_native(stim, out)
         else:
             self._play_cocotb(runner, stim, out, workdir, test_module, test_dir, extra_env)
-        return read_output(out, self.detector)
+        return read_output(out, self.width, self.height, self.pixel_bits)
 
     def _play_native(self, stim, out):
         run = subprocess.run([str(self.dir / "cosim_native"), f"+stim={stim}", f"+out={out}"],
@@ -319,12 +336,13 @@ class Build:
                                f"see {workdir}")
 
 
-def read_output(path, detector):
-    """``(records, trailers)`` of a harness output file, as field dicts.  Records emitted
-    after the last trailer before a reset belong to a frame the reset interrupted; they are
-    dropped, as the MCU drops a frame without a trailer."""
+def read_output(path, width, height, pixel_bits):
+    """``(records, trailers)`` of a harness output file of a ``width x height x pixel_bits``
+    detector, as field dicts.  Records emitted after the last trailer before a reset belong
+    to a frame the reset interrupted; they are dropped, as the MCU drops a frame without a
+    trailer."""
 
-    rec_f = record_fields(detector.width, detector.height, detector.pixel_bits)
+    rec_f = record_fields(width, height, pixel_bits)
     tr_f = trailer_fields()
     records, trailers = [], []
     claimed = 0                                    # records up to the last trailer

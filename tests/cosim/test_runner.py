@@ -71,15 +71,13 @@ def test_stimulus_file_plays_every_word():
 
 
 def test_read_output_drops_records_of_a_reset_frame(tmp_path):
-    from lodestar.hdl.detector import Detector as Gateware
     from lodestar.hdl.layouts import trailer_fields
 
-    gw = Gateware(8, 4, 12)
     # a trailer claiming one record (n_records is the last field)
     offset = sum(bits for name, bits in trailer_fields() if name != "n_records")
     trailer = 1 << offset
     (tmp_path / "out.txt").write_text(f"R 1\nT {trailer:x}\nR 2\nX 0\nR 3\n")
-    records, trailers = runner.read_output(tmp_path / "out.txt", gw)
+    records, trailers = runner.read_output(tmp_path / "out.txt", 8, 4, 12)
     assert len(trailers) == 1 and trailers[0]["n_records"] == 1
     assert [r["n"] for r in records] == [1, 3]
     with pytest.raises(ValueError, match="after the last trailer"):

@@ -62,6 +62,16 @@ def unnamed(module):
     return [sig for sig in module._driving.keys() if sig.name == "$signal"]
 
 
+def elaborate(elaboratable, platform):
+    """``elaboratable.elaborate(platform)``: its ``Module``, for properties on its internal
+    state (``internals``), to add as a submodule in its place.  Marked used as
+    ``Fragment.get`` marks what it elaborates: Amaranth sees only that the elaboratable
+    itself is never added, and would warn ``UnusedElaboratable`` when it is collected."""
+    elaborated = elaboratable.elaborate(platform)
+    elaboratable._MustUse__used = True        # Amaranth's own flag, set by Fragment.get
+    return elaborated
+
+
 def submodule(module, name):
     """A named submodule of an elaborated ``Module``."""
     return module._named_submodules[name][0]

@@ -19,7 +19,7 @@ from amaranth.hdl import Assert, Assume
 
 from lodestar.hdl.buffers import HalfWordFIFO
 
-from .sby import available, internals, prove
+from .sby import available, elaborate, internals, prove
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -37,7 +37,7 @@ class AccountedFIFO(Elaboratable):
     def elaborate(self, platform):
         m = Module()
         f = self.fifo
-        m.submodules.fifo = unit = f.elaborate(platform)
+        m.submodules.fifo = unit = elaborate(f, platform)
         s = internals(unit)
         count, second, fetch = s["count"], s["second"], s["fetch"]
         w_item, r_item = s["w_item"], s["r_item"]
