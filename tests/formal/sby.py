@@ -77,14 +77,6 @@ def submodule(module, name):
     return module._named_submodules[name][0]
 
 
-def elaborate(unit, platform):
-    """``unit.elaborate(platform)``, for a wrapper that adds the ``Module`` as its submodule
-    to read the unit's internals.  The unit is marked used, as ``Fragment.get`` marks what
-    it elaborates (else Amaranth warns that it was never used)."""
-    unit._MustUse__used = True
-    return unit.elaborate(platform)
-
-
 def elaborate_submodule(module, name, platform):
     """Elaborate the named submodule of an elaborated ``Module`` in place and return its
     ``Module``, for properties on the internal state of a unit's own submodule."""

@@ -35,7 +35,7 @@ from lodestar import contract as C
 from lodestar.hdl import spi_slave
 from lodestar.hdl.spi_slave import SPISlave
 
-from .sby import available, internals, prove, submodule
+from .sby import available, elaborate, internals, prove, submodule
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -95,7 +95,7 @@ class CheckedSPI(Elaboratable):
     def elaborate(self, platform):
         m = Module()
         spi = self.spi
-        m.submodules.spi = unit = spi.elaborate(platform)
+        m.submodules.spi = unit = elaborate(spi, platform)
         byte = submodule(unit, "byte")
         rx, sel, tx = byte.rx, byte.selected, byte.tx
         m.d.comb += spi.reg_rdata.eq(bank(spi.reg_addr))
