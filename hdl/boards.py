@@ -9,9 +9,12 @@ at least ``IRQ_MIN_CLOCKS`` (the MCU reads one packet per rising edge with ``REA
 register writes take effect on the next frame.  The status word's ``overflow`` bits are the
 contract's ``OVF_*``.  A frame the sensor stops sending is completed by
 :class:`lodestar.hdl.frontend.FrameWatchdog` and its trailer flagged ``FRAME_TIMEOUT``.  Only
-power-up resets the design: a later PLL lock loss sets ``OVF_CLOCK_LOST`` and keeps the
-registers and the sensor's configuration.  :data:`FRONTENDS` gives each sensor its front
-end, which supplies the sensor's pins, board clocking and constraints.  Every pin marked
+power-up resets the whole design: a later PLL lock loss sets ``OVF_CLOCK_LOST`` and keeps the
+registers and the sensor's configuration; the MCU's ``SOFT_RESET`` resets the detector
+datapath only (registers kept), ``FLUSH`` drops the queued packets, ``READ_REG`` reads the
+register bank back and ``READ_ID`` names the build (:class:`GatewareTop`).
+:data:`FRONTENDS` gives each sensor its front end, which supplies the sensor's pins, board
+clocking and constraints.  Every pin marked
 *assumed* in :data:`BOARDS` must be checked against the board's schematic before the
 bitstream is loaded.  Details: ``docs/sensors_and_link.md`` (Board top levels).
 """

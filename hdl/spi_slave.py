@@ -242,7 +242,15 @@ class SPISlave(wiring.Component):
         with m.If(~byte.selected):
             m.d.sync += [index.eq(0)] + [flag.eq(0) for flag in flags.values()]
 
-        # ---- reply bytes ---------------------------------------------------------------
+        self._replies(m, tx, index, flags, reply)
+        return m
+
+    def _replies(self, m, tx, index, flags, reply):
+        """The reply bytes: packet bytes in ``READ_STREAM``, the status word and its CRC, the
+        register's value, the ID word; ``FILLER`` elsewhere."""
+        first_reply = 1 + C.TURNAROUND_BYTES
+        is_status, is_stream = flags[C.OP_READ_STATUS], flags[C.OP_READ_STREAM]
+        is_read, is_id = flags[C.OP_READ_REG], flags[C.OP_READ_ID]
         # The byte being loaded at a boundary is number index + 1; a reply byte loaded with
         # index == first_reply - 1 + k is reply byte k, and has index == first_reply + k when
         # the master clocks its first bit (that is when a packet byte is consumed).
