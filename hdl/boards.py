@@ -9,9 +9,12 @@ at least ``IRQ_MIN_CLOCKS`` (the MCU reads one packet per rising edge with ``REA
 register writes take effect on the next frame.  The status word's ``overflow`` bits are the
 contract's ``OVF_*``.  A frame the sensor stops sending is completed by
 :class:`lodestar.hdl.frontend.FrameWatchdog` and its trailer flagged ``FRAME_TIMEOUT``.  Only
-power-up resets the design: a later PLL lock loss sets ``OVF_CLOCK_LOST`` and keeps the
-registers and the sensor's configuration.  :data:`FRONTENDS` gives each sensor its front
-end, which supplies the sensor's pins, board clocking and constraints.  Every pin marked
+power-up resets the whole design: a later PLL lock loss sets ``OVF_CLOCK_LOST`` and keeps the
+registers and the sensor's configuration; the MCU's ``SOFT_RESET`` resets the detector
+datapath only (registers kept), ``FLUSH`` drops the queued packets, ``READ_REG`` reads the
+register bank back and ``READ_ID`` names the build (:class:`GatewareTop`).
+:data:`FRONTENDS` gives each sensor its front end, which supplies the sensor's pins, board
+clocking and constraints.  Every pin marked
 *assumed* in :data:`BOARDS` must be checked against the board's schematic before the
 bitstream is loaded.  Details: ``docs/sensors_and_link.md`` (Board top levels).
 """
@@ -25,6 +28,7 @@ from amaranth import (
     Instance,
     Module,
     Mux,
+    ResetInserter,
     Signal,
 )
 from amaranth.build import Attrs, Clock, Pins, Resource, Subsignal
@@ -41,6 +45,7 @@ from .layouts import trailer_layout
 from .mt9p031 import MT9P031Frontend
 from .mt9v022 import MT9V022Frontend
 from .packetizer import Packetizer
+from .registers import RegisterBank
 from .spi_slave import SPI_PINS, SPISlave, max_sck_hz
 
 FRONTENDS = {frontend.SENSOR: frontend for frontend in (MT9P031Frontend, MT9V022Frontend)}
@@ -56,6 +61,16 @@ value at the last status read, so 4 losses between two reads would go unseen).""
 TIMEOUT_SLOTS = 8
 """Frames whose ``FRAME_TIMEOUT`` mark is remembered until their trailer goes out (indexed by
 the frame counter's low bits)."""
+
+
+SOFT_RESET_CLOCKS = 4
+"""Clocks the datapath's reset is held after ``SOFT_RESET`` (the slave's one-clock strobe
+included).  One clock restores every flip-flop (``ResetInserter``); the memories need none
+(the labeller's free list and bitmap and the feature table are emptied or masked at each
+frame start, the record buffer is addressed from its reset pointers).  The hold covers the
+two-clock read pipelines (memory read port, ``HalfWordFIFO`` fetch) so no read started before
+the reset lands in a reset register; after it the pixels are ignored until the next frame
+start, so the first frame the datapath sees is whole."""
 
 
 def frontend_class(sensor):
@@ -143,6 +158,20 @@ class GatewareTop(wiring.Component):
     The sensor's front end (:data:`FRONTENDS`), :class:`FrameWatchdog`, the detector, the
     packetizer and the SPI slave; the front end's clock domain and ``sync``.
 
+    The SPI slave's commands: ``SOFT_RESET`` holds the datapath (watchdog, threshold,
+    labeller, features, output stage, packetizer, the ``FRAME_TIMEOUT`` marks) in reset for
+    :data:`SOFT_RESET_CLOCKS` and then ignores pixels until the next frame start; the
+    register bank keeps its values (its flip-flops are ``reset_less`` and reload only on the
+    domain's own reset), its sticky refusal flag is cleared, and the frame counter restarts
+    at 0.  The front end (clock-domain crossing) is not reset.  ``FLUSH`` drains what is
+    queued for the MCU inside the gateware: the packet being delivered and the held trailer's
+    packet are read out at one byte per clock with ``irq`` held low and ``READ_STREAM``
+    seeing no bytes (the records of the frame under detection stay, and become the next
+    packet), so the next packet the MCU reads is whole; it takes at most
+    :meth:`flush_clocks` clocks.  ``READ_REG`` reads a mirror of the detector's register
+    bank (the same :class:`RegisterBank` fed the same writes, so equal to it bit for bit).
+    The ID word's ``build`` is :attr:`build` (``contract.build_id`` of the build parameters).
+
     Parameters
     ----------
     sensor : str
@@ -167,6 +196,8 @@ class GatewareTop(wiring.Component):
         A packet is being delivered (:class:`IrqLine`).
     pll_losses : ``In(PLL_LOSS_BITS)``
         The board's Gray count of PLL lock losses in ``sync`` (``OVF_CLOCK_LOST``).
+    datapath_reset, flushing : ``Signal()``
+        Not ports: high while the soft reset is held, and while a flush drains.
     """
 
     def __init__(self, sensor, width, height, *, label_capacity=None,
@@ -183,8 +214,14 @@ class GatewareTop(wiring.Component):
         self.detector = Detector(width, height, self.pixel_bits, label_capacity=label_capacity,
                                  record_capacity=record_capacity, record_depth=record_depth)
         self.packetizer = Packetizer(width, height, self.pixel_bits)
-        self.spi = SPISlave()
+        det = self.detector
+        self.build = C.build_id(sensor, width, height, self.pixel_bits, det.label_capacity,
+                                det.record_capacity, det.record_depth)
+        self.spi = SPISlave(build=self.build)
         self.irq_line = IrqLine()
+        self.mirror = RegisterBank(self.pixel_bits)
+        self.datapath_reset = Signal()
+        self.flushing = Signal()
         super().__init__({
             **self.frontend.pins.members,
             **SPI_PINS,
@@ -192,27 +229,93 @@ class GatewareTop(wiring.Component):
             "pll_losses": In(PLL_LOSS_BITS),
         })
 
+    def flush_clocks(self):
+        """Most clocks a ``FLUSH`` drains for: the packet being delivered and the held
+        trailer's, each at most ``record_capacity`` records at one byte per clock and two
+        clocks more per record (``HalfWordFIFO``)."""
+        cap = min(self.detector.record_capacity, self.detector.record_depth)
+        return 2 * (C.packet_bytes(cap) + 2 * cap + 4)
+
     def elaborate(self, platform):
         m = Module()
         fe, det, pkt, spi = self.frontend, self.detector, self.packetizer, self.spi
-        m.submodules.frontend, m.submodules.detector = fe, det
-        m.submodules.packetizer, m.submodules.spi = pkt, spi
-        m.submodules.watchdog, m.submodules.irq_line = wd, irq = self.watchdog, self.irq_line
+        rst = self.datapath_reset
+        m.submodules.frontend, m.submodules.spi = fe, spi
+        m.submodules.detector = ResetInserter(rst)(det)
+        m.submodules.packetizer = ResetInserter(rst)(pkt)
+        m.submodules.watchdog = ResetInserter(rst)(self.watchdog)
+        m.submodules.irq_line = irq = self.irq_line
+        m.submodules.mirror = mirror = self.mirror
+        wd = self.watchdog
         fe.connect_pins(m, self)
-        wiring.connect(m, fe.out, wd.pixels)
+        self._soft_reset(m, fe, wd)
         wiring.connect(m, wd.out, det.pixels)
         wiring.connect(m, det.records, pkt.records)
-        wiring.connect(m, pkt.packet, spi.packet)
+        self._flush(m, pkt, spi, irq)
+        self._timeouts(m, det, wd, pkt)
+        m.d.comb += [
+            spi.sck.eq(self.sck), spi.mosi.eq(self.mosi), spi.cs_n.eq(self.cs_n),
+            self.miso.eq(spi.miso), self.miso_oe.eq(spi.miso_oe),
+            det.reg_addr.eq(spi.reg_addr), det.reg_data.eq(spi.reg_data),
+            det.reg_en.eq(spi.reg_strobe),
+            mirror.addr.eq(spi.reg_addr), mirror.data.eq(spi.reg_data),
+            mirror.en.eq(spi.reg_strobe), mirror.raddr.eq(spi.reg_addr),
+            spi.reg_rdata.eq(mirror.rdata),
+            spi.busy.eq(det.busy), spi.frame_counter.eq(det.frame_counter),
+            fe.overflow_clear.eq(spi.status_read), det.reg_error_clear.eq(spi.status_read),
+            self.irq.eq(irq.irq),
+        ]
+        self._overflow(m, fe, det, spi)
+        return m
 
-        # ---- FRAME_TIMEOUT: marked per frame number, added to that frame's trailer --------
-        # When the watchdog gives up on a frame, the labeller started it long ago, so it is
-        # frame ``frame_counter - 1``; a frame's mark is cleared when its pixels start.  The
-        # mark of a trailer held unread for TIMEOUT_SLOTS frames (later trailers are then
-        # lost: OVF_TRAILER_LOST) may be overwritten.
+    def _soft_reset(self, m, fe, wd):
+        """``datapath_reset`` for :data:`SOFT_RESET_CLOCKS` from ``spi.soft_reset``; then the
+        front end's pixels reach the watchdog only from the next frame start on."""
+        hold = Signal(range(SOFT_RESET_CLOCKS), name="soft_reset_hold")
+        with m.If(self.spi.soft_reset):
+            m.d.sync += hold.eq(SOFT_RESET_CLOCKS - 1)
+        with m.Elif(hold != 0):
+            m.d.sync += hold.eq(hold - 1)
+        m.d.comb += self.datapath_reset.eq(self.spi.soft_reset | (hold != 0))
+        waiting = Signal(name="wait_for_sof")       # after a soft reset, until a frame start
+        sof = fe.out.valid & fe.out.payload.sof
+        with m.If(self.datapath_reset):
+            m.d.sync += waiting.eq(1)
+        with m.Elif(sof):
+            m.d.sync += waiting.eq(0)
+        m.d.comb += [wd.pixels.payload.eq(fe.out.payload),
+                     wd.pixels.valid.eq(fe.out.valid & ~self.datapath_reset & (~waiting | sof))]
+
+    def _flush(self, m, pkt, spi, irq):
+        """From ``spi.flush`` until the packetizer is idle with no trailer offered, take its
+        bytes here (``READ_STREAM`` sees none, ``irq`` stays low)."""
+        flushing = self.flushing
+        idle = ~pkt.busy & ~pkt.trailer.valid
+        with m.If(self.datapath_reset):
+            m.d.sync += flushing.eq(0)
+        with m.Elif(spi.flush):
+            m.d.sync += flushing.eq(1)
+        with m.Elif(idle):
+            m.d.sync += flushing.eq(0)
+        m.d.comb += [
+            spi.packet.payload.eq(pkt.packet.payload),
+            spi.packet.valid.eq(pkt.packet.valid & ~flushing),
+            pkt.packet.ready.eq(Mux(flushing, 1, spi.packet.ready)),
+            irq.busy.eq(pkt.busy & ~flushing),
+        ]
+
+    def _timeouts(self, m, det, wd, pkt):
+        """FRAME_TIMEOUT: marked per frame number, added to that frame's trailer.  When the
+        watchdog gives up on a frame, the labeller started it long ago, so it is frame
+        ``frame_counter - 1``; a frame's mark is cleared when its pixels start.  The mark of
+        a trailer held unread for TIMEOUT_SLOTS frames (later trailers are then lost:
+        OVF_TRAILER_LOST) may be overwritten.  The marks are the datapath's (soft reset)."""
         slot_bits = C.bits_for(TIMEOUT_SLOTS - 1)
-        marks = Signal(TIMEOUT_SLOTS)
+        marks = Signal(TIMEOUT_SLOTS, name="timeout_marks")
         newest = det.frame_counter[:slot_bits]
-        with m.If(wd.stalled):
+        with m.If(self.datapath_reset):
+            m.d.sync += marks.eq(0)
+        with m.Elif(wd.stalled):
             m.d.sync += marks.bit_select((newest - 1)[:slot_bits], 1).eq(1)
         with m.Elif(wd.pixels.valid & wd.pixels.payload.sof):
             m.d.sync += marks.bit_select(newest, 1).eq(0)
@@ -224,33 +327,27 @@ class GatewareTop(wiring.Component):
             pkt.trailer.payload.eq(head), pkt.trailer.valid.eq(det.trailer.valid),
             det.trailer.ready.eq(pkt.trailer.ready),
         ]
-        m.d.comb += [
-            spi.sck.eq(self.sck), spi.mosi.eq(self.mosi), spi.cs_n.eq(self.cs_n),
-            self.miso.eq(spi.miso), self.miso_oe.eq(spi.miso_oe),
-            det.reg_addr.eq(spi.reg_addr), det.reg_data.eq(spi.reg_data),
-            det.reg_en.eq(spi.reg_strobe),
-            spi.busy.eq(det.busy), spi.frame_counter.eq(det.frame_counter),
-            fe.overflow_clear.eq(spi.status_read), det.reg_error_clear.eq(spi.status_read),
-            irq.busy.eq(pkt.busy), self.irq.eq(irq.irq),
-        ]
 
-        def since_read(counter, name):
-            """High while ``counter`` differs from its value at the last status read."""
+    def _overflow(self, m, fe, det, spi):
+        """The status word's overflow bits (``contract.OVF_*``)."""
+        def since_read(counter, name, reset=None):
+            """High while ``counter`` differs from its value at the last status read (or at
+            ``reset``, when the counter itself restarts)."""
             seen = Signal.like(counter, name=f"{name}_seen")
-            with m.If(spi.status_read):
-                m.d.sync += seen.eq(counter)
+            with m.If(spi.status_read | (reset if reset is not None else 0)):
+                m.d.sync += seen.eq(Mux(spi.status_read, counter, 0))
             return counter != seen
 
         overflow = [Const(0, 1)] * C.OVERFLOW_BITS
         overflow[C.OVF_PIXEL_FIFO] = fe.overflow
-        overflow[C.OVF_TRAILER_LOST] = since_read(det.trailer_lost, "trailer_lost")
+        overflow[C.OVF_TRAILER_LOST] = since_read(det.trailer_lost, "trailer_lost",
+                                                  self.datapath_reset)
         overflow[C.OVF_REG_REFUSED] = det.reg_error
         overflow[C.OVF_FAULT] = det.fault
         overflow[C.OVF_CLOCK_LOST] = since_read(self.pll_losses, "pll_losses")
         for bit, value in fe.status(self, since_read).items():
             overflow[bit] = value
         m.d.comb += spi.overflow.eq(Cat(*overflow))
-        return m
 
 
 # --------------------------------------------------------------------------------------
@@ -438,10 +535,13 @@ class DE0NanoBoard(Board):
 
 
 class ESTCube2Board(DE0NanoBoard):
-    """The ESTCube-2 flight board: the DE0-Nano's part and layout at industrial grade."""
+    """The ESTCube-2 flight board: the DE0-Nano's part and layout at industrial grade, its
+    record capacity the contract's ``FLIGHT_RECORD_CAPACITY`` (the MCU's packet buffer;
+    ``record_depth`` 128 as on the DE0-Nano: 5 M9K)."""
 
     name = "estcube2"
     speed = "I7"
+    record_capacity = C.FLIGHT_RECORD_CAPACITY
     notes = ("ESTCube-2 star tracker configuration (Schumann 2019): EP4CE22 with the "
              "MT9P031.  The flight board is custom: the package (F17), the industrial "
              "speed grade I7, the 50 MHz oscillator and every pin are assumptions that "

@@ -15,6 +15,10 @@ while ``ResetSignal()`` is high), so the select "reset value bit or data bit" is
 data bit and reset value bit shared by all registers, not one per flip-flop.  Every limit
 but ``mode``'s is ``2**k - 1`` (``local_log2_window``'s also has a lower bound), so the
 range checks are "the bits above ``k`` are zero", not comparators.
+
+Read-back: ``raddr`` selects a register whose value appears on ``rdata`` one clock later
+(0 for an address that is not a register); a bank whose read port is unused (the
+detector's) loses the multiplexer in synthesis.
 """
 
 from amaranth import Module, Mux, ResetSignal, Signal
@@ -38,7 +42,26 @@ def _in_range(data, low, high):
 
 
 class RegisterBank(wiring.Component):
-    """The register bank for ``pixel_bits``-bit pixels; one output port per register."""
+    """The register bank for ``pixel_bits``-bit pixels; one output port per register.
+
+    Parameters
+    ----------
+    pixel_bits : int
+        The pixels' width (the pixel registers' limit).
+
+    Members
+    -------
+    addr, data, en : ``In``
+        The write port: word address, value, strobe.
+    error : ``Out(1)``
+        A write was refused (sticky until ``error_clear``).
+    error_clear : ``In(1)``
+        Clears ``error``.
+    raddr : ``In``; rdata : ``Out(REGISTER_WORD_BITS)``
+        The read port: the value at ``raddr``, one clock later.
+    (one ``Out`` per register of ``contract.REGISTERS``)
+        The values.
+    """
 
     def __init__(self, pixel_bits):
         self.pixel_bits = pixel_bits
@@ -49,6 +72,8 @@ class RegisterBank(wiring.Component):
             "en": In(1),
             "error": Out(1),
             "error_clear": In(1),
+            "raddr": In(C.bits_for(top)),
+            "rdata": Out(C.REGISTER_WORD_BITS),
         }
         for reg in C.REGISTERS:
             members[reg.name] = Out(reg.bits, init=reg.reset)
@@ -70,6 +95,12 @@ class RegisterBank(wiring.Component):
             # bit or reset bit select is then shared by every register, not one per bit
             with m.If(reset | (self.en & hit)):
                 m.d.sync += value.eq(Mux(reset, reg.reset, self.data))
+        with m.Switch(self.raddr):
+            for reg in C.REGISTERS:
+                with m.Case(reg.address):
+                    m.d.sync += self.rdata.eq(getattr(self, reg.name))
+            with m.Default():
+                m.d.sync += self.rdata.eq(0)
         with m.If(self.en & refused):
             m.d.sync += self.error.eq(1)
         with m.Elif(self.error_clear):

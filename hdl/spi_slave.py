@@ -130,7 +130,9 @@ class SPISlave(wiring.Component):
     ``soft_reset``: the top level returns the detector datapath (front end, detector,
     packetizer) to its power-up state and keeps the register bank; ``flush``: it drops every
     packet byte queued for the MCU, so the next ``READ_STREAM`` starts at the next packet's
-    magic.  Both act within a few clocks, before the master's next transaction can start."""
+    magic.  The reset acts within a few clocks, before the master's next transaction can
+    start; the flush drains for up to ``GatewareTop.flush_clocks()`` with ``irq`` low and
+    the stream closed to ``READ_STREAM`` (:class:`lodestar.hdl.boards.GatewareTop`)."""
 
     def __init__(self, build=0):
         self.build = build

@@ -114,11 +114,18 @@ MAX_RECORD_CAPACITY = 65535
 DEFAULT_RECORD_CAPACITY = 512
 """Default records per frame: hundreds of stars plus margin."""
 FLIGHT_RECORD_CAPACITY = 100
-"""Records per frame of the flight gateware (ESTCube-2): the MCU's packet buffer for it
-(``packet_bytes(100)``, 4,840 bytes) and the firmware fit the STM32F401's 64 KiB heap
-(``docs/mcu_board.md``).  Simulated estcube2 frames at rest hold 29-178 blobs, 57 at the
-median and at most 100 in 95 of 100; a frame with more loses the rest in raster order,
-counted in its trailer (``dropped_records``)."""
+"""Records per frame of the flight gateware (ESTCube-2), the one value both sides use: the
+estcube2 board builds its detector with this ``record_capacity``
+(``lodestar.hdl.boards.ESTCube2Board``) and the MCU's link sizes its packet buffer for it
+(``firmware/link.py``: ``packet_bytes(100)``, 4,840 bytes), so a full frame always fits the
+buffer and never leaves bytes in the FPGA's stream.  Why 100: the heap is the binding
+budget (``docs/mcu_board.md``: the flight stack already needs 58-64 KiB of the F401's
+64-72 KiB, and every 10 records more cost 480 bytes of it), while a tracking frame carries
+8-10 records (the ``min_sum`` record budget, ``docs/firmware.md``) and a lost-in-space frame
+(``min_sum`` = 0) all its blobs: simulated estcube2 frames at rest hold 29-178 blobs, 57 at
+the median and at most 100 in 95 of 100, and Pyramid needs far fewer than 100 stars.  A
+frame with more loses the rest in raster order, flagged ``FRAME_RECORD_OVERFLOW`` and
+counted in its trailer (``dropped_records``), and is still solved from the others."""
 
 
 def max_open_blobs(width):

@@ -106,6 +106,24 @@ def gateware_id(build=0):
     return (ID_MAGIC << 16) | (LINK_VERSION << 8) | build
 
 
+BUILD_FIELDS = ("sensor", "width", "height", "pixel_bits", "label_capacity",
+                "record_capacity", "record_depth")
+"""The build parameters :func:`build_id` digests, in this order."""
+
+
+def build_id(sensor, width, height, pixel_bits, label_capacity, record_capacity,
+             record_depth):
+    """The ``build`` byte of the ID word of a gateware built with these parameters (the
+    board top level's :data:`BUILD_FIELDS`): the :func:`crc8` of their ASCII text
+    ``"sensor:width:height:pixel_bits:label_capacity:record_capacity:record_depth"``, 1 in
+    place of 0 (0 means "not given").  The MCU computes it from the configuration it
+    expects and compares it with ``READ_ID``'s: a gateware of another sensor, frame or
+    record capacity differs with probability 254/255 (a checksum, not a unique number)."""
+    text = ":".join(str(v) for v in (sensor, width, height, pixel_bits, label_capacity,
+                                     record_capacity, record_depth))
+    return crc8(text.encode()) or 1
+
+
 def decode_id(data):
     """``{"magic", "link_version", "build"}`` of an ID word given as ``ID_BYTES`` bytes;
     ``ValueError`` if the length or the magic is wrong."""

@@ -158,3 +158,34 @@ class SimClock:
         self.now += n
         if self.on_sleep is not None:
             self.on_sleep(self.now)
+
+
+class GatewareTopBus(AmaranthBus):
+    """The same master, but its far end is a whole :class:`lodestar.hdl.boards.GatewareTop`
+    (an idle MT9P031 on a small frame; ``pix`` clocked): the register bank, soft reset, flush
+    and ``irq`` are the gateware's own."""
+
+    def __init__(self, T=10 * NS, sck=53 * NS, width=16, height=8, capacity=4):
+        from lodestar.hdl.boards import GatewareTop
+
+        self.T, self.half = T, sck / 2
+        self.dut = GatewareTop("mt9p031", width, height, record_capacity=capacity,
+                               record_depth=2 * capacity)
+        self.miso_hook = None
+        self._ops = deque()
+        self._done = None
+        self._cs = 1
+        self._byte_no = 0
+        self._irq = 0
+        sim = self.sim = Simulator(self.dut)
+        sim.add_clock(T, phase=0.43 * T)
+        sim.add_clock(1.04 * T, domain="pix")
+        sim.add_testbench(self._master, background=True)
+        sim.add_testbench(self._watch, background=True)
+        self.spi = self
+        self.cs = _Pin(read=lambda: self._cs, write=self._set_cs)
+        self.irq = _Pin(read=lambda: self._irq)
+
+    async def _watch(self, ctx):
+        async for _, _, irq in ctx.tick().sample(self.dut.irq):
+            self._irq = irq
