@@ -97,7 +97,7 @@ def test_aberration_under_micropython(micropython):
     dirs = rng.normal(size=(5, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     v = [12.5, -25.0, 8.0]
-    script = ("from lodestar.firmware import aberration as A\n"
+    script = ("from lodestar.firmware import aberration\n"
               f"B = aberration.beta({v!r})\n"
               "print('BETA', B, aberration.beta((1e3, 0, 0)))\n"
               f"for d in {dirs.tolist()!r}:\n"

@@ -599,11 +599,11 @@ def test_unexpected_exceptions_become_a_status(monkeypatch):
     res = tracker.process(frame.packet)
     assert res.status == S.INTERNAL_ERROR and res.q is None
     monkeypatch.undo()
-    monkeypatch.setattr(pipeline._centroids, "extract", broken)
+    monkeypatch.setattr(pipeline.centroids, "extract", broken)
     res = tracker.process(frame.packet)
     assert res.status == S.INTERNAL_ERROR and res.q is None
     assert "internal error" in res.reason and "flash ECC error" in res.reason
-    monkeypatch.setattr(pipeline._packet, "check", lambda data, records=True: 1 / 0)
+    monkeypatch.setattr(pipeline.packet, "check", lambda data, records=True: 1 / 0)
     res = tracker.process(frame.packet)
     assert res.status == S.INTERNAL_ERROR and "ZeroDivisionError" in res.reason
 
@@ -796,7 +796,7 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
     def no_heap(*args, **kwargs):
         raise MemoryError
 
-    monkeypatch.setattr(pipeline._centroids, "extract", no_heap)
+    monkeypatch.setattr(pipeline.centroids, "extract", no_heap)
     res = tracker.process(frame.packet)
     assert res.status == S.OUT_OF_MEMORY and res.q is None and S.name(res.status) == \
         "OUT_OF_MEMORY"
