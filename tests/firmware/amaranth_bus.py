@@ -46,8 +46,7 @@ class AmaranthBus:
         self._byte_no = 0
         sim = self.sim = Simulator(dut)
         sim.add_clock(T, phase=0.43 * T)
-        sim.add_testbench(self._master, background=True)
-        sim.add_testbench(self._fabric, background=True)
+        self._benches = [self._master, self._fabric]
         self.spi = self
         self.cs = _Pin(read=lambda: self._cs, write=self._set_cs)
         self.irq = _Pin(read=lambda: int(bool(self.current or self.packets)))
@@ -110,6 +109,11 @@ class AmaranthBus:
             self._done = got
 
     def _run(self, op):
+        # the testbenches join at the first transaction: a bus that is never clocked
+        # leaves no coroutine that was never awaited
+        for bench in self._benches:
+            self.sim.add_testbench(bench, background=True)
+        self._benches = []
         self._done = None
         self._ops.append(op)
         while self._done is None:
@@ -180,8 +184,7 @@ class GatewareTopBus(AmaranthBus):
         sim = self.sim = Simulator(self.dut)
         sim.add_clock(T, phase=0.43 * T)
         sim.add_clock(1.04 * T, domain="pix")
-        sim.add_testbench(self._master, background=True)
-        sim.add_testbench(self._watch, background=True)
+        self._benches = [self._master, self._watch]
         self.spi = self
         self.cs = _Pin(read=lambda: self._cs, write=self._set_cs)
         self.irq = _Pin(read=lambda: self._irq)
