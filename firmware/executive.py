@@ -138,13 +138,16 @@ class Executive(object):
     one); ``irq_timeout_ms``: the longest wait for a frame; ``coast_frames``: bad frames
     carried on the gyro before the track is dropped; ``recover_after``: link faults in a
     row before the next recovery level; ``max_prior_age_s``: oldest stored attitude used
-    after a reset."""
+    after a reset; ``build``: the gateware build byte this software expects
+    (``contract.build_id`` of the board's configuration; None: not checked): a gateware of
+    another build puts the loop in ``SAFE`` at boot."""
 
     def __init__(self, link, tracker, clock, sensor=None, sensor_settings=None, registers=None,
                  watchdog=None, store=None, gyro=None, telemetry=None, now_ms=None,
                  mem_free=None, select_database=None, frame_s=0.1, irq_timeout_ms=250,
-                 coast_frames=5, recover_after=3, max_prior_age_s=10.0):
+                 coast_frames=5, recover_after=3, max_prior_age_s=10.0, build=None):
         self.link = link
+        self.build = build
         self.tracker = tracker
         self.clock = clock
         self.sensor = sensor
@@ -405,6 +408,10 @@ class Executive(object):
         if code != _link.OK:
             self._fault()
             self.reason = "gateware ID: " + _link.CODE_NAMES[code]
+            return
+        if self.build is not None and self.link.ident[1] != self.build:
+            self._enter(SAFE, "gateware build 0x{:02X}, expected 0x{:02X}".format(
+                self.link.ident[1], self.build))
             return
         self._enter(CONFIGURE)
 

@@ -3,6 +3,7 @@
 between feeds, a link that plays a script of frames, a sensor, a tracker whose results and
 solve times are scripted, and a persistent store."""
 
+from lodestar import contract as C
 from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
 
@@ -45,14 +46,16 @@ STATUS_BAD = "status"      # the status word fails its CRC
 CRC = "crc"                # the packet fails its CRC-32
 CLOCK_LOST = "clock"       # the status word shows OVF_CLOCK_LOST
 READ_MS = 6                # a frame's status + packet read
+BUILD = 0x5A               # the gateware build byte the link reads
 
 
 class Link(object):
     """Plays ``script`` (a list of the items above), one per frame; past its end the irq is
     dead.  Frame counters count up by one per item, so a timed-out frame is a skipped one."""
 
-    def __init__(self, clock, script, id_ok=True, reg_ok=True):
+    def __init__(self, clock, script, id_ok=True, reg_ok=True, build=BUILD):
         self.clock = clock
+        self.ident = (C.LINK_VERSION, build)
         self.script = list(script)
         self.pos = 0
         self.item = None

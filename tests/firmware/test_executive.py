@@ -178,6 +178,16 @@ def test_database_crc_failure_is_safe_until_another_slot():
     assert exe.tracker is good and good.settings.row_time_s == sensor.row
 
 
+def test_gateware_of_another_build_is_safe_at_boot():
+    exe, _clock, link, sensor, _tracker, _wdt, _records = build([fakes.OK_FRAME] * 3,
+                                                                build=fakes.BUILD ^ 1)
+    assert run(exe, 3) == ["SAFE", "SAFE", "SAFE"]
+    assert exe.reason == "gateware build 0x5A, expected 0x5B"
+    assert sensor.n_starts == 0 and link.writes == []
+    exe, *_ = build([fakes.OK_FRAME] * 3, build=fakes.BUILD)
+    assert run(exe, 2) == ["CONFIGURE", "ACQUIRE"]
+
+
 def test_watchdog_is_fed_inside_long_solves():
     """A 5 s lost-in-space solve (a slow F401 at its work budget) with six stage
     boundaries: the longest gap between feeds is one stage, not the solve."""
