@@ -50,6 +50,40 @@ def fov_from_horizontal(fov_h_deg, aspect=None, fov_v_deg=None):
     return float(fov_h_deg), float(fov_v_deg), math.degrees(2 * math.atan(math.hypot(th, tv)))
 
 
+def check_fov(fov_h_deg, what="the horizontal FOV"):
+    """Raise ``ValueError`` naming ``what`` unless ``fov_h_deg`` (deg) is a number within
+    :data:`lodestar.contract.stardb.FOV_RANGE_DEG`, the fields a database serves."""
+    lo, hi = stardb.FOV_RANGE_DEG
+    if isinstance(fov_h_deg, bool) or not isinstance(fov_h_deg, (int, float)) or \
+            not lo <= fov_h_deg <= hi:
+        shown = f"{fov_h_deg:.4g} deg" if isinstance(fov_h_deg, (int, float)) else \
+            repr(fov_h_deg)
+        raise ValueError(f"{what} {shown} is outside the {lo:g} .. {hi:g} deg a star "
+                         f"database serves")
+
+
+def check_density(stars_per_fov, fov_h_deg, fov_v_deg):
+    """Raise ``ValueError`` at once when about ``stars_per_fov`` stars in every field of
+    ``fov_h_deg`` x ``fov_v_deg`` (deg) add up to more stars over the sky than a database
+    holds (:data:`lodestar.contract.stardb.MAX_STARS`), naming the narrowest field of that
+    aspect that fits; the selection itself would take seconds to find out."""
+    def need(h):
+        v = math.degrees(2 * math.atan(math.tan(math.radians(h) / 2) * ratio))
+        return stars_per_fov * 4 * math.pi / field_solid_angle(h, v)
+
+    ratio = math.tan(math.radians(fov_v_deg) / 2) / math.tan(math.radians(fov_h_deg) / 2)
+    if need(fov_h_deg) <= stardb.MAX_STARS:
+        return
+    lo, hi = fov_h_deg, 179.0
+    for _ in range(60):                     # bisection: need() falls as the field widens
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if need(mid) > stardb.MAX_STARS else (lo, mid)
+    raise ValueError(f"a {fov_h_deg:.4g} x {fov_v_deg:.4g} deg field with {stars_per_fov:g} "
+                     f"stars per field needs about {need(fov_h_deg):,.0f} stars over the sky; "
+                     f"a database holds {stardb.MAX_STARS}: fields of this aspect from "
+                     f"{hi:.2f} deg, or give a magnitude limit (--mag, max_mag)")
+
+
 def resolve_fov(camera=None, fov_h_deg=None, aspect=None, fov_v_deg=None):
     """FOV ``(h, v, diag)`` in degrees from a :class:`lodestar.sim.camera.Camera` or numbers."""
     if camera is not None:
@@ -438,11 +472,14 @@ def build_database(catalogue=None, camera=None, *, fov_h_deg=None, aspect=None,
     """
     methods = _methods(method, methods)
     opts = _method_options(options)
+    fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
+    check_fov(fov_h)
+    if not 0 < fov_v < 180:
+        raise ValueError("the vertical FOV must be in (0, 180) degrees")
+    if verification_stars_per_fov is not None:
+        check_density(verification_stars_per_fov, fov_h, fov_v)
     if catalogue is None:
         catalogue = default_catalogue(mag_limit)
-    fov_h, fov_v, fov_d = resolve_fov(camera, fov_h_deg, aspect, fov_v_deg)
-    if not (0 < fov_h < 180 and 0 < fov_v < 180):
-        raise ValueError("FOV must be in (0, 180) degrees")
     if not 0 < max_pair_fraction <= 1:
         raise ValueError(f"max_pair_fraction must be in (0, 1], got {max_pair_fraction!r}")
     max_pair = math.radians(fov_d * max_pair_fraction if max_pair_angle_deg is None
@@ -512,8 +549,9 @@ def _table_rows(catalogue, mag_limit, stars_per_fov, fov_h, fov_v, per_region):
     if stars_per_fov is not None:
         sel = sel[select_density(catalogue.unit_vectors()[sel], catalogue.vmag[sel],
                                  stars_per_fov, fov_h, fov_v, per_region=per_region)[0]]
-    if not 4 <= len(sel) <= 0xFFFF:
-        raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: need 4..65535")
+    if not 4 <= len(sel) <= stardb.MAX_STARS:
+        raise ValueError(f"{len(sel)} stars with V <= {mag_limit}: a database holds 4.."
+                         f"{stardb.MAX_STARS}")
     return sel
 
 

@@ -16,11 +16,9 @@ from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.ground import fovsearch
 from lodestar.ground.cache import load_database
-from lodestar.ground.database import default_catalogue
+from lodestar.ground.database import check_fov, default_catalogue
 from lodestar.sim.attitude import to_radec_roll
 
-MIN_FOV_DEG = 1.0
-MAX_FOV_DEG = 90.0
 MIN_STARS = 4
 DEFAULT_DUPLICATE_PX = 0.5
 GROUND_MAX_WORK = 1_500_000
@@ -247,6 +245,7 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
         try:
             cam = make_camera(int(width), int(height), float(fov_deg), distortion)
             fov = camera_fov_deg(cam)
+            check_fov(fov[0], "the distorted camera's horizontal FOV")
         except (ValueError, TypeError) as exc:
             return SolveResult(S.BAD_INPUT, f"camera: {exc}", n_centroids=n_in)
 
@@ -282,10 +281,10 @@ def _fov_band(width, height, fov_deg, fov_error_deg, distortion):
         limit = C.MAX_WIDTH if name == "width" else C.MAX_HEIGHT
         if not _is_int(value) or not 1 <= value <= limit:
             return None, f"{name} must be an int in 1..{limit}, got {value!r}"
-    if fov_deg is not None and (not _is_number(fov_deg) or
-                                not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
-        return None, (f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
-                      f"got {fov_deg!r}")
+    if fov_deg is not None:
+        lo, hi = stardb.FOV_RANGE_DEG
+        if not _is_number(fov_deg) or not lo <= fov_deg <= hi:
+            return None, f"fov_deg must be a number in [{lo:g}, {hi:g}], got {fov_deg!r}"
     if fov_error_deg is not None:
         if fov_deg is None:
             return None, "fov_error_deg needs fov_deg"

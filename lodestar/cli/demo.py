@@ -248,16 +248,21 @@ def add_parser(sub):
                    help="camera settings (lodestar.ground.onboard; default tuned)")
     p.add_argument("--cosim", action="store_true",
                    help="detect with the Verilated gateware instead of the golden model")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="FILE.png",
-                   help=f"annotated picture (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=None, metavar="FILE.png",
+                   help=f"annotated picture (default {DEFAULT_OUT}, replaced on every run)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
 
 
 def run(args):
     """The ``demo`` command: print the report; 0 when solved right, else 1."""
-    check_output(args.out, (".png",), what="--out")
-    report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim, args.out,
+    out = args.out
+    if out is None:             # the demo's own picture, in its own folder
+        out = DEFAULT_OUT
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+    check_output(out, (".png",), what="--out", force=args.force or args.out is None)
+    report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim, out,
                       log=sys.stderr, settings=args.settings)
     if args.json:
         print(json.dumps(report, indent=1))

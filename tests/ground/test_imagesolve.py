@@ -3,6 +3,7 @@ and 16 bits, in colour, with a sky gradient and hot pixels, binned, solves to th
 images that cannot solve say so; bad input is refused with a message."""
 
 import contextlib
+import errno
 import json
 import math
 
@@ -14,7 +15,7 @@ from PIL import Image
 
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
-from lodestar.ground import imagesolve, solve
+from lodestar.ground import annotate, imagesolve, solve
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
 
@@ -190,13 +191,17 @@ def test_annotate_never_overwrites_an_input_or_writes_another_format(sky, tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.png", "sky.png"]
 
 
-def test_annotate_failure_after_a_solve_prints_the_solution(sky, tmp_path, capsys):
+def test_annotate_failure_after_a_solve_prints_the_solution(sky, tmp_path, capsys,
+                                                            monkeypatch):
     """Issue 19, item 11: the solution is printed, then the failure, exit 2."""
     d, _f, truth = sky
-    blocker = tmp_path / "file"
-    blocker.write_text("not a folder")
-    code, r, err = _solve(capsys, d / "frame.png", "--annotate", blocker / "out.png")
-    assert code == 2 and "--annotate" in err
+
+    def full_disk(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(annotate, "write_atomic", full_disk)
+    code, r, err = _solve(capsys, d / "frame.png", "--annotate", tmp_path / "out.png")
+    assert code == 2 and "--annotate" in err and "No space left" in err
     _check_right(r, truth, cross_arcsec=3.0, roll_arcsec=30.0)
     assert r["annotated"] is None
 
