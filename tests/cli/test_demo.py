@@ -47,7 +47,7 @@ def test_default_demo_solves_right_and_writes_the_picture(tmp_path, capsys, monk
     text = captured.out
     assert "status     OK" in text and "cross-boresight" in text and "Alderamin" in text
     assert out.stat().st_size > 100_000
-    assert main(["demo", "--out", str(out), "--json"]) == 0
+    assert main(["demo", "--out", str(out), "--json", "--force"]) == 0
     captured = capsys.readouterr()
     assert f"read the star database from the cache {cache_dir}" in captured.err
     r = json.loads(captured.out)
