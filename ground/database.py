@@ -62,11 +62,18 @@ def check_fov(fov_h_deg, what="the horizontal FOV"):
                          f"database serves")
 
 
+def _check_per_fov(stars_per_fov):
+    if not (isinstance(stars_per_fov, (int, float)) and 1 <= stars_per_fov <= 1000):
+        raise ValueError(f"stars per field must be in 1..1000, got {stars_per_fov!r}")
+
+
 def check_density(stars_per_fov, fov_h_deg, fov_v_deg):
     """Raise ``ValueError`` at once when about ``stars_per_fov`` stars in every field of
     ``fov_h_deg`` x ``fov_v_deg`` (deg) add up to more stars over the sky than a database
     holds (:data:`lodestar.contract.stardb.MAX_STARS`), naming the narrowest field of that
     aspect that fits; the selection itself would take seconds to find out."""
+    _check_per_fov(stars_per_fov)
+
     def need(h):
         v = math.degrees(2 * math.atan(math.tan(math.radians(h) / 2) * ratio))
         return stars_per_fov * 4 * math.pi / field_solid_angle(h, v)
@@ -136,8 +143,7 @@ def separation_for_density(stars_per_fov, fov_h_deg, fov_v_deg, per_region=1):
     """Separation (rad) for which :func:`select_uniform` with ``per_region`` leaves about
     ``stars_per_fov`` stars in every field of this size (:data:`RSA_DENSITY`; a disc
     holding ``per_region`` stars instead of one is ``sqrt(per_region)`` times wider)."""
-    if not (isinstance(stars_per_fov, (int, float)) and 1 <= stars_per_fov <= 1000):
-        raise ValueError(f"stars per field must be in 1..1000, got {stars_per_fov!r}")
+    _check_per_fov(stars_per_fov)
     return math.sqrt(RSA_DENSITY * per_region * field_solid_angle(fov_h_deg, fov_v_deg)
                      / stars_per_fov)
 

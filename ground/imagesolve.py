@@ -455,6 +455,10 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
     correction, or None."""
 
+    lo, hi = solve.MAG_RANGE
+    if max_mag is not None and not (math.isfinite(max_mag) and lo < max_mag <= hi):
+        raise ValueError(f"--mag must be a finite V magnitude in ({lo:g}, {hi:g}], got "
+                         f"{max_mag}")
     timings = {}
     cfg, sigma = detector_config(image, ksigma, min_pixels)
     t = time.perf_counter()

@@ -20,6 +20,9 @@ from lodestar.ground.database import check_fov, default_catalogue
 from lodestar.sim.attitude import to_radec_roll
 
 MIN_STARS = 4
+MAG_RANGE = (-2.0, 18.0)
+"""``max_mag`` (V) a database is built to: ``(lo, hi]``, within what a star record's
+magnitude code stores (-2 .. 18.47, ``docs/stardb.md``)."""
 DEFAULT_DUPLICATE_PX = 0.5
 GROUND_MAX_WORK = 1_500_000
 """Work budget of one ground identification (units of
@@ -181,8 +184,9 @@ def observer_velocity_km_s(obstime=None, velocity_km_s=None):
         try:
             t = obstime if isinstance(obstime, Time) else Time(obstime, scale="utc")
             vel = get_body_barycentric_posvel("earth", t)[1]
-        except Exception as exc:
-            raise ValueError(f"observation time {obstime!r}: {exc}") from None
+        except Exception as exc:          # astropy's messages run over several lines
+            raise ValueError(f"observation time {obstime!r}: {' '.join(str(exc).split())}") \
+                from None
         total += vel.xyz.to_value(u.km / u.s)
     if velocity_km_s is not None:
         v = np.asarray(velocity_km_s, dtype=np.float64) if _is_vector(velocity_km_s) else None
@@ -307,8 +311,10 @@ def _fov_band(width, height, fov_deg, fov_error_deg, distortion):
 def _option_error(max_mag, method, distortion, tolerance_px, max_stars, budget, max_work,
                   duplicate_px):
     """What is wrong with the database and identification options, or None."""
-    if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
-        return f"max_mag must be a finite magnitude, got {max_mag!r}"
+    if max_mag is not None and (not _is_number(max_mag) or
+                                not MAG_RANGE[0] < max_mag <= MAG_RANGE[1]):
+        return f"max_mag must be a finite magnitude in ({MAG_RANGE[0]:g}, {MAG_RANGE[1]:g}], " \
+            f"got {max_mag!r}"
     if method not in stardb.METHOD_NAMES:
         return f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})"
     if distortion is not None and not isinstance(distortion, dict):

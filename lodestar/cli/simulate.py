@@ -2,6 +2,7 @@
 truth (JSON) and a preview PNG with the stars marked."""
 
 import json
+import os
 
 import numpy as np
 
@@ -43,6 +44,8 @@ def add_parser(sub):
 def run(args):
     """The ``simulate`` command: 0 when the frame, its truth and the preview are written;
     2 with one line for bad options or an output that may not be written."""
+    if not os.path.basename(args.out):
+        raise ValueError(f"-o {args.out!r} must name the files' prefix, e.g. -o out/frame")
     for suffix in (".png", ".json", "_preview.png"):
         check_output(args.out + suffix, None, what="-o", force=args.force)
     cam = presets.load_preset(args.preset)

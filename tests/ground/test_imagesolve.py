@@ -369,10 +369,15 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
         (["--fov", "20", "--ksigma", "0"], "--ksigma must be a positive"),
         (["--fov", "20", "--time", "teatime"], "observation time 'teatime'"),
         (["--fov", "20", "--velocity", "0", "0", "1e3"], "is beyond 100 km/s"),
+        # issue 33: said before any database is built, in one line
+        (["--fov", "20", "--mag", "nan"], "--mag must be a finite V magnitude in (-2, 18]"),
+        (["--fov", "20", "--mag", "1e300"], "--mag must be a finite V magnitude"),
+        (["--fov", "20", "--time", "99999-01-01"], "observation time '99999-01-01'"),
     ]
     for extra, message in cases:
         assert main(["solve", png, *extra]) == 2, extra
-        assert message in capsys.readouterr().err, extra
+        err = [line for line in capsys.readouterr().err.splitlines() if " note: " not in line]
+        assert len(err) == 1 and message in err[0], (extra, err)
     blank = tmp_path / "blank.png"
     imageio.save_frame(blank, np.full((100, 100), 7, np.uint16))
     assert main(["solve", str(blank), "--fov", "10"]) == 2
