@@ -83,6 +83,9 @@ BAD_SETTINGS = [
     ({"velocity_km_s": (0, 0)}, VELOCITY),
     ({"velocity_km_s": (300, 0, 0)}, VELOCITY),
     ({"velocity_km_s": "fast"}, VELOCITY),
+    ({"velocity_km_s": (10 ** 400, 0, 0)}, VELOCITY),          # no float holds it
+    ({"tolerance_px": 10 ** 400}, "tolerance_px" + POSITIVE),
+    ({"row_time_s": -10 ** 400}, "row_time_s must be a finite number"),
     ({"extract_options": {"bogus": 1}},
      "extract_options must be a dict of min_pixels, min_sigma_px, max_elongation, "
      "smear_angle_tol, smear_length_ratio, join_across_px, not 'bogus'"),
