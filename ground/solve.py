@@ -113,9 +113,8 @@ def make_camera(width, height, fov_deg, distortion=None):
     for key, value in (distortion or {}).items():
         if key not in DISTORTION_KEYS:
             raise ValueError(f"unknown distortion key {key!r} (known: {DISTORTION_KEYS})")
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
-                                                              np.integer)):
-            raise ValueError(f"distortion {key} must be a number, got {value!r}")
+        if not _is_number(value):
+            raise ValueError(f"distortion {key} must be a finite number, got {value!r}")
         kwargs[key] = float(value)
     return Camera(width, height, f, f, **kwargs)
 
@@ -142,15 +141,21 @@ def _is_int(value):
 
 
 def _is_number(value):
-    return isinstance(value, (int, float, np.integer, np.floating)) and \
-        not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+    """A finite int or float (numpy's too), not a bool; an int no float holds is not."""
+    if not isinstance(value, (int, float, np.integer, np.floating)) or \
+            isinstance(value, (bool, np.bool_)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:                 # 10**400
+        return False
 
 
 def _centroid_array(centroids):
     """``(N, 2 or 3)`` float array, or a reason string."""
     try:
         arr = np.asarray(centroids, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return "centroids must be a sequence of (x, y) or (x, y, flux) numbers"
     if arr.size == 0:
         return np.zeros((0, 2))

@@ -253,6 +253,7 @@ def good_scene(catalogue):
     (None, S.BAD_INPUT),
     (5, S.BAD_INPUT),
     ([{"x": 1}] * 5, S.BAD_INPUT),
+    ([(10 ** 400, 1.0)] * 5, S.BAD_INPUT),
 ])
 def test_bad_centroids(cache, centroids, status):
     res = solve.solve_centroids(centroids, W, H, 20.0, cache_dir=cache)
@@ -272,6 +273,10 @@ def test_bad_centroids(cache, centroids, status):
     {"distortion": {"k1": -5.0}}, {"tolerance_px": 0}, {"max_stars": 3}, {"budget": 0},
     {"obstime": "yesterday"}, {"velocity_km_s": [1.0, 2.0]}, {"velocity_km_s": "fast"},
     {"velocity_km_s": [float("nan"), 0, 0]}, {"velocity_km_s": [0, 0, 200.0]},
+    # issue 33: ints no float holds raised OverflowError out of the solve
+    {"fov_deg": 10 ** 400}, {"fov_error_deg": 10 ** 400}, {"tolerance_px": 10 ** 400},
+    {"max_mag": 10 ** 400}, {"duplicate_px": 10 ** 400}, {"distortion": {"k1": 10 ** 400}},
+    {"velocity_km_s": [10 ** 400, 0, 0]},
 ])
 def test_bad_parameters(cache, catalogue, kwargs):
     args = dict(width=W, height=H, fov_deg=20.2, cache_dir=cache)
