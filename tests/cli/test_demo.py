@@ -71,6 +71,16 @@ def test_turning_frame_is_rate_compensated():
     assert r["rate_deg_s"] == [0.5, 0.3, 0.2]
 
 
+def test_the_default_picture_is_the_demos_own(tmp_path, capsys, monkeypatch):
+    """Without --out the demo makes its folder and replaces its own picture on every run
+    (a file the user names follows the --force rule: tests/ground/test_files.py)."""
+    monkeypatch.chdir(tmp_path)
+    for _run in range(2):
+        assert main(["demo", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["annotated"] == demo.DEFAULT_OUT
+    assert (tmp_path / demo.DEFAULT_OUT).stat().st_size > 100_000
+
+
 def test_no_stars_fails_with_exit_1(tmp_path, capsys):
     out = tmp_path / "dark.png"
     assert main(["demo", "--exposure", "0.0001", "--out", str(out)]) == 1
