@@ -28,7 +28,9 @@ def beta(velocity_km_s):
         if len(velocity_km_s) != 3:
             return None
         vx, vy, vz = float(velocity_km_s[0]), float(velocity_km_s[1]), float(velocity_km_s[2])
-    except (TypeError, ValueError):
+    except MemoryError:
+        raise
+    except Exception:       # not numbers, an int no float holds, an item that fails to read
         return None
     speed = math.sqrt(vx * vx + vy * vy + vz * vz)
     if not speed <= MAX_SPEED_KM_S:             # also NaN and inf

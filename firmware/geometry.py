@@ -45,26 +45,39 @@ def finite(x):
 
 
 _NUMBER_TYPES = (int, float)
+MAX_INT = 3.4e38
+"""Largest magnitude of an ``int`` taken as a number: about the largest float32 (the MCU's
+float), so ``float()`` of a number is finite on every build; a larger int (``10**400``)
+would raise ``OverflowError`` or become infinite where it is used as a float."""
 
 
 def is_number(x):
-    """True for an int or float (not a bool) that is finite.  An exact ``float`` or ``int``
-    takes the first test alone: this runs for every coordinate of every star, and on
-    MicroPython two ``isinstance`` calls and a ``finite`` call cost as much as twenty float
-    operations."""
+    """True for an int or float (not a bool) that is finite, an int at most
+    :data:`MAX_INT` in magnitude.  An exact ``float`` takes the first test alone: this runs
+    for every coordinate of every star, and on MicroPython two ``isinstance`` calls and a
+    ``finite`` call cost as much as twenty float operations."""
     t = type(x)
-    if t is float or t is int:
+    if t is float:
         return x - x == 0
-    return not isinstance(x, bool) and isinstance(x, _NUMBER_TYPES) and finite(x)
+    if t is int:
+        return -MAX_INT <= x <= MAX_INT
+    if isinstance(x, bool) or not isinstance(x, _NUMBER_TYPES):
+        return False
+    if isinstance(x, int):
+        return -MAX_INT <= x <= MAX_INT
+    return finite(x)
 
 
 def vector3(v):
-    """``v`` as a tuple of three floats, or None when it is not three finite numbers."""
+    """``v`` as a tuple of three floats, or None when it is not three finite numbers (also
+    when it has no length or an item fails to read: it comes from outside)."""
     try:
         if len(v) != 3:
             return None
         x, y, z = v[0], v[1], v[2]
-    except (TypeError, IndexError, KeyError):
+    except MemoryError:
+        raise
+    except Exception:
         return None
     if not (is_number(x) and is_number(y) and is_number(z)):
         return None

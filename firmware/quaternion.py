@@ -217,7 +217,9 @@ def unit_quaternion(q):
         if len(q) != 4:
             return None
         x, y, z, w = q[0], q[1], q[2], q[3]
-    except (TypeError, IndexError, KeyError):
+    except MemoryError:
+        raise
+    except Exception:             # no length, or an item that fails to read
         return None
     if not (is_number(x) and is_number(y) and is_number(z) and is_number(w)):
         return None

@@ -85,6 +85,64 @@ def _velocity(x):
         "None or 3 finite numbers, km/s, at most " + str(aberration.MAX_SPEED_KM_S) + " km/s"
 
 
+def _probability(x):
+    return None if is_number(x) and 0 < x < 1 else "a number in (0, 1)"
+
+
+EXTRACT_OPTIONS = (
+    ("min_pixels",         _count),
+    ("min_sigma_px",       _not_negative),
+    ("max_elongation",     _positive),
+    ("smear_angle_tol",    _positive),
+    ("smear_length_ratio", _positive),
+    ("join_across_px",     _not_negative),
+)
+"""The keywords ``extract_options`` may hold, those of
+:func:`lodestar.firmware.centroids.extract` the pipeline does not set itself, and their
+checks."""
+ID_OPTIONS = (
+    ("max_stars",          _star_count),
+    ("max_mismatch_prob",  _probability),
+    ("distinct_rad",       _positive_or_none),
+)
+"""The keywords ``id_options`` may hold (of every method's ``identify``) and their checks."""
+
+
+def _keywords(table):
+    """The check of a dict of keywords of ``table``: each key a name of it, each value
+    good by its check."""
+    names = ", ".join(name for name, _check in table)
+
+    def check(x):
+        if not isinstance(x, dict):
+            return "a dict of " + names
+        for key in x:
+            entry = None
+            for name, item in table:
+                if name == key:
+                    entry = item
+            if entry is None:
+                return "a dict of " + names + ", not " + repr(key)
+            must = entry(x[key])
+            if must is not None:
+                return "a dict whose " + key + " is " + must
+        return None
+    return check
+
+
+def _clock(x):
+    # called once here: a clock that raises or returns no number fails every frame
+    if x is None:
+        return None
+    try:
+        now = x()
+    except MemoryError:
+        raise
+    except Exception:
+        now = None
+    return None if is_number(now) else "None or a function returning a number"
+
+
 OPTIONS = (
     # name                default                     check (None: any value)
     ("tolerance_px",      DEFAULT_TOLERANCE_PX,       _positive),
@@ -107,9 +165,9 @@ OPTIONS = (
     ("fallback",          True,                       None),
     ("drop_border",       True,                       None),
     ("refine",            True,                       None),
-    ("extract_options",   None,                       None),   # None: {}
-    ("id_options",        None,                       None),   # None: {}
-    ("clock",             None,                       None),
+    ("extract_options",   None,                       _keywords(EXTRACT_OPTIONS)),
+    ("id_options",        None,                       _keywords(ID_OPTIONS)),
+    ("clock",             None,                       _clock),
 )
 """Every option of :class:`Settings`: ``(name, default, check)``, ``check(value)`` None for a
 good value, else what it must be; checked in this order (:meth:`Settings.check`)."""
@@ -133,11 +191,12 @@ class Settings:
     ``fallback``: run lost-in-space when tracking fails.  ``drop_border``: ignore blobs
     touching the frame edge.  ``refine``: grow a lost-in-space match set by tracking from
     its attitude.  ``max_smear_px``: longest expected smear solved (beyond: ``SMEAR_TOO_LONG``).
-    ``extract_options``: extra keywords of :func:`lodestar.firmware.centroids.extract`;
-    ``id_options``: extra keywords of the identification (``max_stars``,
-    ``max_mismatch_prob``, ``distinct_rad``).  ``clock``: optional function returning a
-    number (e.g. ``time.ticks_ms``) for ``result.timings``.  ``max_work``: work budget of a
-    lost-in-space identification (:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`).
+    ``extract_options``: extra keywords of :func:`lodestar.firmware.centroids.extract`
+    (:data:`EXTRACT_OPTIONS`); ``id_options``: extra keywords of the identification
+    (:data:`ID_OPTIONS`).  ``clock``: optional function returning a number (e.g.
+    ``time.ticks_ms``) for ``result.timings``, called once by :meth:`check`.  ``max_work``:
+    work budget of a lost-in-space identification
+    (:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`).
     ``velocity_km_s``: the observer's velocity, km/s, ICRS, for the aberration correction
     (None: none; ``process(velocity_km_s=...)`` overrides it per frame,
     ``docs/apparent_directions.md``).

@@ -107,7 +107,7 @@ def load_database(fov_h_deg, fov_v_deg, max_mag=6.0, method="pyramid", cache_dir
             raise ValueError(str(exc)) from None
         db = database.Database(image)
         try:
-            write_atomic(target, image)
+            write_atomic(target, image, folders=True)
             path = target
         except OSError:
             path = None            # read-only cache: keep the database in memory only

@@ -15,6 +15,7 @@ the residuals (``s^2 (J^T J)^-1``).  Units: pixels of the whole image (``docs/co
 residual angles in arcseconds.  Method and results: ``docs/calibration.md``.
 """
 
+import hashlib
 import math
 
 import numpy as np
@@ -45,6 +46,12 @@ MIN_FRAME_PAIRS = 3
 """A frame with fewer pairs fixes no attitude and is not used."""
 PAIRS_PER_PARAMETER = 1.5
 """At least this many pairs (two residuals each) per fitted parameter, attitudes included."""
+MAX_ROUNDS = 10
+"""Most solve -> fit rounds (``--rounds``): each one solves every frame again (about a
+second per frame), and a far-off start settles in two or three."""
+SETTLED_SIGMA = 0.01
+"""A coarse round whose parameters moved less than this many of their 1-sigma since the
+previous coarse round has converged: the next round is the last (the convergence stop)."""
 ARCSEC = math.degrees(1.0) * 3600.0
 
 
@@ -338,6 +345,32 @@ def _per_frame(fit):
 # Solve -> fit
 # --------------------------------------------------------------------------------------
 
+def _refuse_duplicates(images):
+    """Raise :class:`CalibrationError` when two of ``images`` (``[(name, SkyImage)]``) hold
+    the same pixels (the same file twice, a link or a copy): the fit would count its stars
+    as independent twice over."""
+    seen = {}
+    for name, image in images:
+        frame = np.ascontiguousarray(image.frame)
+        key = (frame.shape, str(frame.dtype), hashlib.sha256(frame.tobytes()).hexdigest())
+        if key in seen:
+            raise CalibrationError(f"{name} is the same frame as {seen[key]}: give each frame "
+                                   f"once (a frame counted twice halves every 1-sigma)")
+        seen[key] = name
+
+
+def _settled(fit, before):
+    """True when coarse ``fit`` moved none of its parameters by :data:`SETTLED_SIGMA` of
+    its 1-sigma since the coarse fit ``before`` (None: not yet two fits)."""
+    if fit is None or before is None or fit.cov_names != before.cov_names:
+        return False
+    for name in fit.cov_names:
+        i = INTRINSICS.index(name)
+        if not abs(fit.params[i] - before.params[i]) <= SETTLED_SIGMA * fit.sigma[name]:
+            return False
+    return True
+
+
 class Calibration:
     """Result of :func:`calibrate`: ``camera`` (firmware, whole image), ``sigma``, ``fit``
     (the last :class:`Fit`), ``before`` / ``after`` (:func:`residual_stats` of the starting
@@ -358,14 +391,22 @@ def calibrate(images, camera0, rounds=2, free=DEFAULT_FREE, one_focal=False, mag
     """Calibrate from ``images`` (``[(name, SkyImage)]``, one camera) starting at firmware
     ``camera0`` (whole image): ``rounds`` times solve every frame with the current camera
     and fit (:func:`fit_camera`); the rounds before the last fit only the :data:`COARSE`
-    parameters among ``free``, which a far-off start can determine from few stars.  A frame
-    that solves in no round raises :class:`CalibrationError` naming it, unless
-    ``skip_unsolved``.  ``log``: a text stream for one progress line per round."""
-    if not isinstance(rounds, int) or rounds < 1:
-        raise ValueError(f"--rounds must be an int >= 1, got {rounds!r}")
-    camera, fit, previous = camera0, None, {}
-    for rnd in range(rounds):
-        final = rnd == rounds - 1
+    parameters among ``free``, which a far-off start can determine from few stars, and once
+    they have settled (:data:`SETTLED_SIGMA`) the next round is the last.  ``rounds`` is at
+    most :data:`MAX_ROUNDS`.  A frame that solves in no round raises
+    :class:`CalibrationError` naming it, unless ``skip_unsolved``; so does a frame given
+    twice (the same pixels: counted twice it would halve every 1-sigma).  ``log``: a text
+    stream for one progress line per round."""
+    if isinstance(rounds, bool) or not isinstance(rounds, int) or \
+            not 1 <= rounds <= MAX_ROUNDS:
+        raise ValueError(f"--rounds must be an int in 1..{MAX_ROUNDS}, got {rounds!r}")
+    _refuse_duplicates(images)
+    camera, fit, previous, coarse_fit = camera0, None, {}, None
+    rnd, final = 0, False
+    while not final:
+        final = rnd == rounds - 1 or _settled(fit, coarse_fit)
+        coarse_fit = fit
+        rnd += 1
         frames, failed = [], []
         for name, image in images:
             got = frame_pairs(name, image, camera, mag, tolerance_px, ksigma, min_pixels,
@@ -385,7 +426,7 @@ def calibrate(images, camera0, rounds=2, free=DEFAULT_FREE, one_focal=False, mag
         previous.update((f.name, q) for f, q in zip(fit.frames, fit.q))
         camera = fit.camera
         if log is not None:
-            print(f"lodestar calibrate: round {rnd + 1}: {len(fit.frames)} frames, "
+            print(f"lodestar calibrate: round {rnd}: {len(fit.frames)} frames, "
                   f"{fit.n_pairs} pairs ({fit.n_rejected} rejected), residual "
                   f"{fit.scale_px:.3f} px per axis; fitted {' '.join(fit.free)}",
                   file=log, flush=True)
@@ -393,7 +434,7 @@ def calibrate(images, camera0, rounds=2, free=DEFAULT_FREE, one_focal=False, mag
         raise CalibrationError(f"{len(failed)} of {len(images)} frames do not solve: "
                                f"{'; '.join(failed)} (drop them or give --skip-unsolved)")
     out = Calibration()
-    out.camera, out.sigma, out.fit, out.rounds = fit.camera, fit.sigma, fit, rounds
+    out.camera, out.sigma, out.fit, out.rounds = fit.camera, fit.sigma, fit, rnd
     out.before = residual_stats(fit, camera0)
     out.after = residual_stats(fit)
     out.frames = []

@@ -19,7 +19,9 @@ import math
 from pathlib import Path
 
 from lodestar.firmware.camera import Camera
+from lodestar.ground.database import check_fov
 from lodestar.ground.files import write_atomic
+from lodestar.ground.solve import camera_fov_deg
 
 FORMAT_KEY = "lodestar_camera"
 FORMAT_VERSION = 1
@@ -31,7 +33,8 @@ MAX_BYTES = 1 << 20
 def read_camera_file(path):
     """The :class:`~lodestar.firmware.camera.Camera` of a camera file.  Raises ``ValueError``
     naming the file and the problem (not JSON, not a camera file, another version, a missing
-    or invalid parameter, a distortion that is not invertible over the frame) or ``OSError``
+    or invalid parameter, a distortion that is not invertible over the frame, a field of
+    view outside :data:`lodestar.contract.stardb.FOV_RANGE_DEG`) or ``OSError``
     when it cannot be read."""
     with open(path, "rb") as fh:
         data = fh.read(MAX_BYTES + 1)
@@ -41,6 +44,8 @@ def read_camera_file(path):
         doc = json.loads(data.decode("utf-8"), parse_constant=_no_constant)
     except (UnicodeDecodeError, json.JSONDecodeError, ValueError) as exc:
         raise ValueError(f"{path}: not a JSON camera file ({exc})") from None
+    except RecursionError:                  # [[[[...]]]] deeper than the parser goes
+        raise ValueError(f"{path}: not a JSON camera file (nested too deep)") from None
     if not isinstance(doc, dict) or FORMAT_KEY not in doc:
         raise ValueError(f"{path}: not a camera file (no \"{FORMAT_KEY}\" key)")
     if doc[FORMAT_KEY] != FORMAT_VERSION:
@@ -53,9 +58,11 @@ def read_camera_file(path):
     if unknown:
         raise ValueError(f"{path}: unknown camera parameter(s) {', '.join(unknown)}")
     try:
-        return Camera.from_dict(params)
+        camera = Camera.from_dict(params)
+        check_fov(camera_fov_deg(camera)[0], "the camera's horizontal FOV")
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{path}: {exc}") from None
+    return camera
 
 
 def _no_constant(name):

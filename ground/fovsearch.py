@@ -229,7 +229,7 @@ def load_index(cache_dir=None, log=None):
         buf = io.BytesIO()
         np.savez(buf, **arrays)
         try:
-            write_atomic(target, buf.getvalue())
+            write_atomic(target, buf.getvalue(), folders=True)
             where = f"cached in {target}"
         except OSError:            # read-only cache: keep the index in memory only
             where = "not cached (cache directory not writable)"

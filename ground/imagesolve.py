@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 
 from lodestar import contract as C
+from lodestar.contract import stardb
 from lodestar.firmware import centroids
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
@@ -334,11 +335,10 @@ def image_camera(image, preset=None, fov_deg=None, distortion=None, camera=None,
     elif fov_deg is not None:
         if preset is not None:
             raise ValueError("give --preset or --fov, not both")
-        if not (math.isfinite(fov_deg) and
-                solve.MIN_FOV_DEG <= fov_deg <= solve.MAX_FOV_DEG):
+        lo, hi = stardb.FOV_RANGE_DEG
+        if not (math.isfinite(fov_deg) and lo <= fov_deg <= hi):
             raise ValueError(f"--fov {fov_deg:g} is absurd: the horizontal field of view must "
-                             f"be in {solve.MIN_FOV_DEG:g} .. "
-                             f"{solve.MAX_FOV_DEG:g} degrees")
+                             f"be in {lo:g} .. {hi:g} degrees")
         keys = ("k1", "k2", "k3", "p1", "p2")
         dist = dict(zip(keys, distortion)) if distortion is not None else {}
         f = (image.width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
@@ -455,6 +455,10 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
     correction, or None."""
 
+    lo, hi = solve.MAG_RANGE
+    if max_mag is not None and not (math.isfinite(max_mag) and lo < max_mag <= hi):
+        raise ValueError(f"--mag must be a finite V magnitude in ({lo:g}, {hi:g}], got "
+                         f"{max_mag}")
     timings = {}
     cfg, sigma = detector_config(image, ksigma, min_pixels)
     t = time.perf_counter()

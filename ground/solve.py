@@ -16,12 +16,13 @@ from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.ground import fovsearch
 from lodestar.ground.cache import load_database
-from lodestar.ground.database import default_catalogue
+from lodestar.ground.database import check_fov, default_catalogue
 from lodestar.sim.attitude import to_radec_roll
 
-MIN_FOV_DEG = 1.0
-MAX_FOV_DEG = 90.0
 MIN_STARS = 4
+MAG_RANGE = (-2.0, 18.0)
+"""``max_mag`` (V) a database is built to: ``(lo, hi]``, within what a star record's
+magnitude code stores (-2 .. 18.47, ``docs/stardb.md``)."""
 DEFAULT_DUPLICATE_PX = 0.5
 GROUND_MAX_WORK = 1_500_000
 """Work budget of one ground identification (units of
@@ -112,9 +113,8 @@ def make_camera(width, height, fov_deg, distortion=None):
     for key, value in (distortion or {}).items():
         if key not in DISTORTION_KEYS:
             raise ValueError(f"unknown distortion key {key!r} (known: {DISTORTION_KEYS})")
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
-                                                              np.integer)):
-            raise ValueError(f"distortion {key} must be a number, got {value!r}")
+        if not _is_number(value):
+            raise ValueError(f"distortion {key} must be a finite number, got {value!r}")
         kwargs[key] = float(value)
     return Camera(width, height, f, f, **kwargs)
 
@@ -141,15 +141,21 @@ def _is_int(value):
 
 
 def _is_number(value):
-    return isinstance(value, (int, float, np.integer, np.floating)) and \
-        not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+    """A finite int or float (numpy's too), not a bool; an int no float holds is not."""
+    if not isinstance(value, (int, float, np.integer, np.floating)) or \
+            isinstance(value, (bool, np.bool_)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:                 # 10**400
+        return False
 
 
 def _centroid_array(centroids):
     """``(N, 2 or 3)`` float array, or a reason string."""
     try:
         arr = np.asarray(centroids, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return "centroids must be a sequence of (x, y) or (x, y, flux) numbers"
     if arr.size == 0:
         return np.zeros((0, 2))
@@ -183,8 +189,9 @@ def observer_velocity_km_s(obstime=None, velocity_km_s=None):
         try:
             t = obstime if isinstance(obstime, Time) else Time(obstime, scale="utc")
             vel = get_body_barycentric_posvel("earth", t)[1]
-        except Exception as exc:
-            raise ValueError(f"observation time {obstime!r}: {exc}") from None
+        except Exception as exc:          # astropy's messages run over several lines
+            raise ValueError(f"observation time {obstime!r}: {' '.join(str(exc).split())}") \
+                from None
         total += vel.xyz.to_value(u.km / u.s)
     if velocity_km_s is not None:
         v = np.asarray(velocity_km_s, dtype=np.float64) if _is_vector(velocity_km_s) else None
@@ -247,6 +254,7 @@ def solve_centroids(centroids, width, height, fov_deg=None, method="pyramid", ma
         try:
             cam = make_camera(int(width), int(height), float(fov_deg), distortion)
             fov = camera_fov_deg(cam)
+            check_fov(fov[0], "the distorted camera's horizontal FOV")
         except (ValueError, TypeError) as exc:
             return SolveResult(S.BAD_INPUT, f"camera: {exc}", n_centroids=n_in)
 
@@ -282,10 +290,10 @@ def _fov_band(width, height, fov_deg, fov_error_deg, distortion):
         limit = C.MAX_WIDTH if name == "width" else C.MAX_HEIGHT
         if not _is_int(value) or not 1 <= value <= limit:
             return None, f"{name} must be an int in 1..{limit}, got {value!r}"
-    if fov_deg is not None and (not _is_number(fov_deg) or
-                                not MIN_FOV_DEG <= fov_deg <= MAX_FOV_DEG):
-        return None, (f"fov_deg must be a number in [{MIN_FOV_DEG}, {MAX_FOV_DEG}], "
-                      f"got {fov_deg!r}")
+    if fov_deg is not None:
+        lo, hi = stardb.FOV_RANGE_DEG
+        if not _is_number(fov_deg) or not lo <= fov_deg <= hi:
+            return None, f"fov_deg must be a number in [{lo:g}, {hi:g}], got {fov_deg!r}"
     if fov_error_deg is not None:
         if fov_deg is None:
             return None, "fov_error_deg needs fov_deg"
@@ -308,8 +316,10 @@ def _fov_band(width, height, fov_deg, fov_error_deg, distortion):
 def _option_error(max_mag, method, distortion, tolerance_px, max_stars, budget, max_work,
                   duplicate_px):
     """What is wrong with the database and identification options, or None."""
-    if max_mag is not None and (not _is_number(max_mag) or not -2.0 < max_mag <= 18.0):
-        return f"max_mag must be a finite magnitude, got {max_mag!r}"
+    if max_mag is not None and (not _is_number(max_mag) or
+                                not MAG_RANGE[0] < max_mag <= MAG_RANGE[1]):
+        return f"max_mag must be a finite magnitude in ({MAG_RANGE[0]:g}, {MAG_RANGE[1]:g}], " \
+            f"got {max_mag!r}"
     if method not in stardb.METHOD_NAMES:
         return f"unknown method {method!r} (known: {sorted(stardb.METHOD_NAMES)})"
     if distortion is not None and not isinstance(distortion, dict):

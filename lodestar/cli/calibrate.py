@@ -5,7 +5,6 @@ Brown-Conrady distortion to solved sky frames of one camera and write a camera f
 import json
 import math
 import sys
-from pathlib import Path
 
 from lodestar import contract as C
 from lodestar.ground import calibrate
@@ -48,7 +47,8 @@ def add_parser(sub):
     fit.add_argument("--one-focal", action="store_true",
                      help="square pixels: one focal length (fy = fx)")
     fit.add_argument("--rounds", type=int, default=2,
-                     help="solve -> fit repetitions (default 2)")
+                     help="solve -> fit repetitions (default 2, at most "
+                          f"{calibrate.MAX_ROUNDS}; fewer once the camera settles)")
     fit.add_argument("--skip-unsolved", action="store_true",
                      help="leave out frames that do not solve instead of stopping")
     det = p.add_argument_group("detection and identification (as lodestar solve)")
@@ -69,9 +69,8 @@ def run(args):
         raise ValueError(f"--tolerance must be a positive number of pixels, got "
                          f"{args.tolerance}")
     inputs = list(args.frames) + ([args.camera] if args.camera else [])
-    check_output(args.out, SUFFIXES, inputs=inputs, what="--out")
-    if Path(args.out).exists() and not args.force:
-        raise ValueError(f"--out {args.out} exists; give --force to replace it")
+    check_output(args.out, SUFFIXES, inputs=inputs, what="--out", force=args.force)
+    given = read_camera_file(args.camera) if args.camera else None
     images = [(path, read_image(path, args.bits)) for path in args.frames]
     for path, image in images:
         for note in image.notes:
@@ -81,7 +80,6 @@ def run(args):
         if (image.width, image.height) != (first.width, first.height):
             raise ValueError(f"{path} is {image.width}x{image.height}, {args.frames[0]} "
                              f"{first.width}x{first.height}: frames of one camera needed")
-    given = read_camera_file(args.camera) if args.camera else None
     camera0, what = image_camera(first, args.preset, args.fov, args.distortion, camera=given)
     if given is not None:
         what = f"camera file {args.camera}"

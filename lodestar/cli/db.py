@@ -7,8 +7,8 @@ import math
 from lodestar.contract import stardb
 from lodestar.firmware.database import DatabaseError
 from lodestar.ground.camerafile import read_camera_file
-from lodestar.ground.database import build_database, describe
-from lodestar.ground.files import write_atomic
+from lodestar.ground.database import build_database, check_fov, describe
+from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.ground.solve import camera_fov_deg
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS, load_preset
@@ -41,6 +41,7 @@ def add_parser(sub):
                    choices=stardb.METHODS,
                    help="identification method(s) the image serves (default: pyramid)")
     b.add_argument("-o", "--out", required=True, help="output file")
+    b.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=run)
     i = dsub.add_parser("info", help="validate and describe a database image")
     i.add_argument("file")
@@ -70,6 +71,8 @@ def _magnitude(text):
 
 
 def _run_db_build(args):
+    check_output(args.out, None, inputs=[args.camera] if args.camera else (), what="-o",
+                 force=args.force)
     mag = None if args.mag == "none" else args.mag
     if args.flight:
         if args.mag is not None:
@@ -87,8 +90,7 @@ def _run_db_build(args):
         image = build_database(fov_h_deg=fov_h, fov_v_deg=fov_v, methods=tuple(args.method),
                                **depth)
     elif args.fov is not None:
-        if not 0 < args.fov < 180 or not math.isfinite(args.fov):
-            raise ValueError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+        check_fov(args.fov, "--fov")
         image = build_database(fov_h_deg=args.fov, aspect=args.aspect,
                                methods=tuple(args.method), **depth)
     else:

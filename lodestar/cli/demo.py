@@ -50,7 +50,8 @@ def _detect(frame, cfg, cosim):
 def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, cosim=False,
              out=DEFAULT_OUT, log=None, settings=DEFAULT_SETTINGS):
     """Run the demo (stages in the module docstring) and return the report dict.  ``out``:
-    the annotated PNG (None: none is written).  ``log``: text stream for the database notes
+    the annotated PNG (None: none is written; :data:`DEFAULT_OUT`, the demo's own, is
+    replaced and its folder made).  ``log``: text stream for the database notes
     (None: silent).  ``settings``: a name of :data:`lodestar.ground.onboard.SETTINGS`.
     Raises ``ValueError`` for bad arguments (unknown preset or settings, non-finite rates,
     exposure)."""
@@ -130,6 +131,8 @@ def run_demo(preset=None, seed=0, rate_deg_s=(0.0, 0.0, 0.0), exposure_s=None, c
     report["annotated"] = None
     if out is not None:
         t = time.perf_counter()
+        if out == DEFAULT_OUT:
+            os.makedirs(os.path.dirname(out), exist_ok=True)
         _annotate(out, sim, det, res, report, fw_cam, omega)
         timings["annotate"] = (time.perf_counter() - t) * 1e3
         report["annotated"] = out
@@ -248,16 +251,19 @@ def add_parser(sub):
                    help="camera settings (lodestar.ground.onboard; default tuned)")
     p.add_argument("--cosim", action="store_true",
                    help="detect with the Verilated gateware instead of the golden model")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="FILE.png",
-                   help=f"annotated picture (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=None, metavar="FILE.png",
+                   help=f"annotated picture (default {DEFAULT_OUT}, replaced on every run)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
 
 
 def run(args):
     """The ``demo`` command: print the report; 0 when solved right, else 1."""
-    check_output(args.out, (".png",), what="--out")
-    report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim, args.out,
+    if args.out is not None:    # a file the user names; the default is the demo's own
+        check_output(args.out, (".png",), what="--out", force=args.force)
+    report = run_demo(args.preset, args.seed, args.rate, args.exposure, args.cosim,
+                      args.out or DEFAULT_OUT,
                       log=sys.stderr, settings=args.settings)
     if args.json:
         print(json.dumps(report, indent=1))

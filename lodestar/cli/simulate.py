@@ -2,11 +2,12 @@
 truth (JSON) and a preview PNG with the stars marked."""
 
 import json
+import os
 
 import numpy as np
 
 from lodestar.golden import detect_frame
-from lodestar.ground.files import write_atomic
+from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.solve import observer_velocity_km_s
 from lodestar.sim import attitude, imageio, presets, scene, sensor
 from lodestar.sim.presets import DEFAULT_PRESET, PRESETS
@@ -36,12 +37,17 @@ def add_parser(sub):
                    help="observer velocity, km/s, ICRS (added to the Earth's with --time): "
                         "stars drawn aberrated (docs/apparent_directions.md)")
     p.add_argument("-o", "--out", default="frame", help="output prefix (default: frame)")
+    p.add_argument("--force", action="store_true", help="replace existing output files")
     p.set_defaults(func=run)
 
 
 def run(args):
-
-
+    """The ``simulate`` command: 0 when the frame, its truth and the preview are written;
+    2 with one line for bad options or an output that may not be written."""
+    if not os.path.basename(args.out):
+        raise ValueError(f"-o {args.out!r} must name the files' prefix, e.g. -o out/frame")
+    for suffix in (".png", ".json", "_preview.png"):
+        check_output(args.out + suffix, None, what="-o", force=args.force)
     cam = presets.load_preset(args.preset)
     if args.quaternion:
         q = np.asarray(args.quaternion, dtype=np.float64)

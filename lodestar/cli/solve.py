@@ -75,6 +75,8 @@ def add_parser(sub):
     p.add_argument("--wcs", metavar="FILE.wcs",
                    help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
                         ".wcs, .fits or .fit)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --annotate or --wcs file")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
@@ -84,13 +86,15 @@ def run(args):
     or an annotated picture or WCS file that cannot be written (after the solution is
     printed).  No WCS file is written for a frame that is not solved."""
     if args.annotate:
-        check_output(args.annotate, (".png",), inputs=[args.image], what="--annotate")
+        check_output(args.annotate, (".png",), inputs=[args.image], what="--annotate",
+                     force=args.force)
     if args.wcs:
-        check_output(args.wcs, WCS_SUFFIXES, inputs=[args.image], what="--wcs")
+        check_output(args.wcs, WCS_SUFFIXES, inputs=[args.image], what="--wcs",
+                     force=args.force)
+    given = read_camera_file(args.camera) if args.camera else None
     image = read_image(args.image, args.bits, args.bin)
     for note in image.notes:
         print(f"lodestar solve: note: {note}", file=sys.stderr)
-    given = read_camera_file(args.camera) if args.camera else None
     camera, what = image_camera(image, args.preset, args.fov, args.distortion, camera=given,
                                 fov_error=args.fov_error)
     if given is not None:

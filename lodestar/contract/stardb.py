@@ -15,6 +15,13 @@ MAGIC = b"LSDB"
 VERSION = 1
 HEADER_SIZE = 160
 
+FOV_RANGE_DEG = (1.0, 90.0)
+"""Horizontal fields of view (deg, edge to edge) a database is built for and a solve takes:
+the one range every ground tool checks (``lodestar.ground.database.check_fov``), so no
+database is written for a field no solve accepts."""
+MAX_STARS = 65535
+"""Most stars of an image: star indices are 16-bit (``PAIR_FORMAT``, ``CELL_FORMAT``)."""
+
 # Fixed header fields before the section directory (88 bytes, little endian).
 HEADER_FORMAT = "<4sHHIIHHfffffIIIfffIffHHff"
 HEADER_FIELDS = ("magic", "version", "header_size", "image_size", "payload_crc",

@@ -102,7 +102,7 @@ def cache_image(image, cache_dir=None):
     directory = _cache_dir(cache_dir)
     target = _cache_path(directory, sha256(image))
     try:
-        write_atomic(target, image)
+        write_atomic(target, image, folders=True)
         return target
     except OSError:
         fd, tmp = tempfile.mkstemp(prefix="lodestar-regress-", suffix=".lsdb")

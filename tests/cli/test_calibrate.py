@@ -98,7 +98,9 @@ def test_frames_that_do_not_solve_are_named(frames, fov, tmp_path, capsys):
     (["--camera", "{bad}"], "not a JSON camera file"),
     (["--fov", "30", "--camera", "{good}"], "give one camera"),
     (["--fov", "30", "-o", "{dir}/c.toml"], "must end in .json"),
-    (["--fov", "30", "--rounds", "0"], "--rounds must be an int >= 1"),
+    (["--fov", "30", "--rounds", "0"], "--rounds must be an int in 1..10"),
+    (["--fov", "30", "--rounds", "100000"], "--rounds must be an int in 1..10, got 100000"),
+    (["{frame}", "--fov", "30"], "is the same frame as"),          # the same file twice
     (["--fov", "30", "--tolerance", "nan"], "--tolerance must be a positive number"),
     (["--fov", "30", "--ksigma", "-1"], "--ksigma must be a positive number"),
     (["--preset", "estcube2"], "the estcube2 camera 2592x1944"),
@@ -109,7 +111,7 @@ def test_bad_input_exits_2_with_one_line(frames, tmp_path, capsys, extra, messag
     good = tmp_path / "good.json"
     good.write_text(json.dumps({"lodestar_camera": 1,
                                 "camera": lohmann_frames.truth_camera().as_dict()}))
-    extra = [a.format(bad=bad, good=good, dir=tmp_path) for a in extra]
+    extra = [a.format(bad=bad, good=good, dir=tmp_path, frame=frames[0]) for a in extra]
     argv = ["calibrate", frames[0], *extra]
     if "-o" not in extra:
         argv += ["-o", str(tmp_path / "cam.json")]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lodestar.cli import main
+from lodestar.firmware.camera import Camera
 
 
 def test_detect_table_on_builtin_frame(capsys):
@@ -58,6 +59,20 @@ def test_bad_input_exits_2_with_message(tmp_path, capsys):
     (["detect", "--frame", "{json}"], "not a .npy array file"),
     (["db", "build", "--fov", "20", "--aspect", "0", "-o", "{out}"], "aspect"),
     (["db", "build", "--fov", "20", "--aspect", "1e-9", "-o", "{out}"], "aspect"),
+    # issue 33: one FOV range for every camera, a deep camera file, a missing folder
+    (["db", "build", "--fov", "0.05", "-o", "{out}"], "--fov 0.05 deg is outside the 1 .. 90"),
+    (["db", "build", "--fov", "95", "-o", "{out}"], "--fov 95 deg is outside the 1 .. 90"),
+    (["db", "build", "--fov", "179.99", "-o", "{out}"], "--fov 180 deg is outside the 1 .. 90"),
+    (["db", "build", "--camera", "{wide}", "-o", "{out}"], "horizontal FOV 164.9 deg is "
+     "outside the 1 .. 90 deg"),
+    (["db", "build", "--camera", "{deep}", "-o", "{out}"], "(nested too deep)"),
+    (["db", "build", "-o", "{nowhere}"], "nowhere does not exist"),
+    (["db", "build", "--fov", "20", "--density", "nan", "5", "-o", "{out}"],
+     "stars per field must be in 1..1000, got nan"),
+    (["simulate", "-o", ""], "-o '' must name the files' prefix"),
+    (["solve", "{png}", "--camera", "{wide}"], "horizontal FOV 164.9 deg is outside"),
+    (["solve", "{png}", "--camera", "{deep}"], "(nested too deep)"),
+    (["calibrate", "{png}", "--camera", "{wide}", "-o", "{cam}"], "horizontal FOV 164.9 deg"),
     (["cosim", "{png}", "--config", "{list}"], "expected an object of DetectorConfig"),
     (["cosim", "{png}", "--config", "{unknown}"], "unknown fields colour"),
     (["cosim", "{png}", "--config", "{partial}"], "missing fields height"),
@@ -75,6 +90,12 @@ def test_bad_arguments_name_themselves_and_exit_2(tmp_path, capsys, argv, messag
     files["list"].write_text("[1, 2]")
     files["unknown"].write_text('{"width": 8, "height": 8, "colour": 1}')
     files["partial"].write_text('{"width": 8}')
+    files.update(wide=tmp_path / "wide.json", deep=tmp_path / "deep.json",
+                 cam=tmp_path / "cam.json", nowhere=tmp_path / "nowhere" / "db.bin")
+    files["wide"].write_text(json.dumps({"lodestar_camera": 1,
+                                         "camera": Camera(752, 480, 50.0, 50.0).as_dict()}))
+    files["deep"].write_text('{"lodestar_camera": 1, "camera": ' + "[" * 100000 +
+                             "]" * 100000 + "}")
     code = main([a.format(**files) for a in argv])
     err = capsys.readouterr().err
     assert code == 2 and message in err and "Traceback" not in err
@@ -156,7 +177,7 @@ def test_db_build_and_info(tmp_path, capsys):
     (tmp_path / "bad.bin").write_bytes(bytes(data))
     assert main(["db", "info", str(tmp_path / "bad.bin")]) == 2
     assert "CRC" in capsys.readouterr().err
-    assert main(["db", "build", "--fov", "0", "-o", str(out)]) == 2
+    assert main(["db", "build", "--fov", "0", "-o", str(out), "--force"]) == 2
 
 
 def test_db_build_by_density(tmp_path, capsys):
@@ -178,9 +199,9 @@ def test_db_build_by_density(tmp_path, capsys):
     assert flight.stat().st_size <= 256 * 1024 and db.mag_limit == 6.0
     assert db.pattern_per_region == FLIGHT_DENSITY["pattern_stars_per_fov"]
     capsys.readouterr()
-    assert main(["db", "build", "--fov", "20", "--mag", "none", "-o", str(out)]) == 2
+    assert main(["db", "build", "--fov", "20", "--mag", "none", "-o", str(out), "--force"]) == 2
     assert "needs --density" in capsys.readouterr().err
-    assert main(["db", "build", "--flight", "--mag", "5", "-o", str(out)]) == 2
+    assert main(["db", "build", "--flight", "--mag", "5", "-o", str(out), "--force"]) == 2
 
 
 def _minimal_args(command):

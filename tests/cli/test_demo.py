@@ -47,7 +47,7 @@ def test_default_demo_solves_right_and_writes_the_picture(tmp_path, capsys, monk
     text = captured.out
     assert "status     OK" in text and "cross-boresight" in text and "Alderamin" in text
     assert out.stat().st_size > 100_000
-    assert main(["demo", "--out", str(out), "--json"]) == 0
+    assert main(["demo", "--out", str(out), "--json", "--force"]) == 0
     captured = capsys.readouterr()
     assert f"read the star database from the cache {cache_dir}" in captured.err
     r = json.loads(captured.out)
@@ -69,6 +69,16 @@ def test_turning_frame_is_rate_compensated():
     assert r["status"] == "OK" and r["annotated"] is None
     assert r["error_arcsec"]["cross"] < 10 and abs(r["error_arcsec"]["roll"]) < 60
     assert r["rate_deg_s"] == [0.5, 0.3, 0.2]
+
+
+def test_the_default_picture_is_the_demos_own(tmp_path, capsys, monkeypatch):
+    """Without --out the demo makes its folder and replaces its own picture on every run
+    (a file the user names follows the --force rule: tests/ground/test_files.py)."""
+    monkeypatch.chdir(tmp_path)
+    for _run in range(2):
+        assert main(["demo", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["annotated"] == demo.DEFAULT_OUT
+    assert (tmp_path / demo.DEFAULT_OUT).stat().st_size > 100_000
 
 
 def test_no_stars_fails_with_exit_1(tmp_path, capsys):

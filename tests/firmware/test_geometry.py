@@ -86,3 +86,27 @@ def test_is_number_takes_subclasses_and_rejects_bools():
     assert not G.is_number(True) and not G.is_number(float("nan"))
     assert not G.is_number(float("inf"))
     assert not G.is_number("1") and not G.is_number(None)
+
+
+def test_is_number_refuses_integers_no_float_holds():
+    """An int a float (the MCU's float32) cannot hold is not a number: ``float()`` of it
+    would raise or be infinite."""
+    class Count(int):
+        pass
+
+    largest = int(G.MAX_INT)
+    assert G.is_number(largest) and G.is_number(-largest) and G.MAX_INT < 3.4029e38
+    for big in (largest + 1, -largest - 1, 10 ** 400, Count(10 ** 400)):
+        assert not G.is_number(big), big
+    assert G.vector3([10 ** 400, 0, 0]) is None
+
+
+def test_vector3_of_a_sequence_that_fails_to_read_is_none():
+    class Unreadable:
+        def __len__(self):
+            return 3
+
+        def __getitem__(self, i):
+            raise RuntimeError("unreadable")
+
+    assert G.vector3(Unreadable()) is None

@@ -520,6 +520,19 @@ def test_too_few_stars_and_foreign_frames():
     assert res.status == S.BAD_INPUT and "640x480" in res.reason
 
 
+class _Unreadable:
+    """A sequence of ``n`` items whose every item fails to read."""
+
+    def __init__(self, n=3):
+        self.n = n
+
+    def __len__(self):
+        return self.n
+
+    def __getitem__(self, i):
+        raise RuntimeError("unreadable")
+
+
 def test_malformed_optional_inputs_are_ignored_with_a_note():
     tracker = sim_frames.tracker()
     frame = sim_frames.frames()[0]
@@ -531,7 +544,16 @@ def test_malformed_optional_inputs_are_ignored_with_a_note():
                          ({"prior": list(frame.q), "dt": "soon"}, "dt ignored"),
                          ({"exposure_s": -1.0}, "exposure_s ignored"),
                          ({"velocity_km_s": [1e5, 0, 0]}, "velocity_km_s ignored"),
-                         ({"velocity_km_s": "fast"}, "velocity_km_s ignored")):
+                         ({"velocity_km_s": "fast"}, "velocity_km_s ignored"),
+                         # integers no float holds, and a sequence that fails to index
+                         ({"omega": [10 ** 400, 0, 0]}, "omega ignored"),
+                         ({"prior": [10 ** 400, 0, 0, 1]}, "prior ignored"),
+                         ({"prior": list(frame.q), "dt": 10 ** 400}, "dt ignored"),
+                         ({"exposure_s": 10 ** 400}, "exposure_s ignored"),
+                         ({"velocity_km_s": [10 ** 400, 0, 0]}, "velocity_km_s ignored"),
+                         ({"omega": _Unreadable()}, "omega ignored"),
+                         ({"prior": _Unreadable(4)}, "prior ignored"),
+                         ({"velocity_km_s": _Unreadable()}, "velocity_km_s ignored")):
         res = tracker.process(frame.packet, **kwargs)
         assert res.ok, (kwargs, res)
         assert note in res.reason

@@ -179,6 +179,20 @@ def test_bad_quaternions_raise(bad, match):
             f(bad)
 
 
+def test_unit_quaternion_is_none_for_anything_but_four_usable_numbers():
+    class Unreadable:
+        def __len__(self):
+            return 4
+
+        def __getitem__(self, i):
+            raise RuntimeError("unreadable")
+
+    assert Q.unit_quaternion([0, 0, 3, -4]) == pytest.approx([0.0, 0.0, -0.6, 0.8])
+    for bad in (None, "junk", [0, 0, 0, 0], [float("nan"), 0, 0, 1], [0, 0, 1],
+                [10 ** 400, 0, 0, 1], Unreadable()):
+        assert Q.unit_quaternion(bad) is None, bad
+
+
 def test_angle_between_matches_scipy_and_is_accurate_for_tiny_angles():
     rng = np.random.default_rng(RNG_SEED + 8)
     qs = _random_quats(rng, 200)

@@ -1,9 +1,18 @@
 """lodestar.firmware.settings: the StarTracker's settings object."""
 
+import inspect
+import time
+
+from lodestar.firmware import centroids, starid, tracking
 from lodestar.firmware import status as S
-from lodestar.firmware import tracking
 from lodestar.firmware.pipeline import StarTracker
-from lodestar.firmware.settings import DEFAULT_MAX_STARS, DEFAULT_TOLERANCE_PX, Settings
+from lodestar.firmware.settings import (
+    DEFAULT_MAX_STARS,
+    DEFAULT_TOLERANCE_PX,
+    EXTRACT_OPTIONS,
+    ID_OPTIONS,
+    Settings,
+)
 from tests import sim_frames
 
 
@@ -27,6 +36,12 @@ def test_no_settings_is_the_defaults():
 
 
 NAN, INF = float("nan"), float("inf")
+
+
+def _failing_clock():
+    raise OSError("no timer")
+
+
 POSITIVE = " must be a positive number"
 VELOCITY = "velocity_km_s must be None or 3 finite numbers, km/s, at most 100.0 km/s"
 BAD_SETTINGS = [
@@ -68,6 +83,32 @@ BAD_SETTINGS = [
     ({"velocity_km_s": (0, 0)}, VELOCITY),
     ({"velocity_km_s": (300, 0, 0)}, VELOCITY),
     ({"velocity_km_s": "fast"}, VELOCITY),
+    ({"velocity_km_s": (10 ** 400, 0, 0)}, VELOCITY),          # no float holds it
+    ({"tolerance_px": 10 ** 400}, "tolerance_px" + POSITIVE),
+    ({"row_time_s": -10 ** 400}, "row_time_s must be a finite number"),
+    ({"extract_options": {"bogus": 1}},
+     "extract_options must be a dict of min_pixels, min_sigma_px, max_elongation, "
+     "smear_angle_tol, smear_length_ratio, join_across_px, not 'bogus'"),
+    ({"extract_options": {"max_stars": 5}}, "extract_options must be a dict of min_pixels, "
+     "min_sigma_px, max_elongation, smear_angle_tol, smear_length_ratio, join_across_px, "
+     "not 'max_stars'"),                 # the pipeline sets it
+    ({"extract_options": {"min_pixels": 0}},
+     "extract_options must be a dict whose min_pixels is an int >= 1"),
+    ({"extract_options": {"max_elongation": NAN}},
+     "extract_options must be a dict whose max_elongation is a positive number"),
+    ({"extract_options": [("min_pixels", 2)]}, "extract_options must be a dict of min_pixels, "
+     "min_sigma_px, max_elongation, smear_angle_tol, smear_length_ratio, join_across_px"),
+    ({"id_options": {"bogus": 1}},
+     "id_options must be a dict of max_stars, max_mismatch_prob, distinct_rad, not 'bogus'"),
+    ({"id_options": {"max_mismatch_prob": 1.0}},
+     "id_options must be a dict whose max_mismatch_prob is a number in (0, 1)"),
+    ({"id_options": {"max_stars": 2}},
+     "id_options must be a dict whose max_stars is an int in 4..256"),
+    ({"id_options": {"distinct_rad": -1.0}},
+     "id_options must be a dict whose distinct_rad is a positive number or None"),
+    ({"clock": "ticks"}, "clock must be None or a function returning a number"),
+    ({"clock": _failing_clock}, "clock must be None or a function returning a number"),
+    ({"clock": lambda: None}, "clock must be None or a function returning a number"),
     ({"method": "nonsense"}, "unknown method 'nonsense'"),
     ({"method": None}, "unknown method None"),
     # the first bad setting in the order above is the one reported
@@ -89,9 +130,23 @@ def test_each_bad_setting_has_its_status_and_reason():
         ("DATABASE_UNSUPPORTED", "the database does not serve method 'triangle'")
 
 
+def test_the_keyword_options_are_the_functions_keywords():
+    """``EXTRACT_OPTIONS`` and ``ID_OPTIONS`` name keywords the functions take, so every
+    accepted dict is one the pipeline can pass."""
+    extract = inspect.signature(centroids.extract).parameters
+    assert all(name in extract for name, _check in EXTRACT_OPTIONS)
+    for method in starid.METHODS:
+        identify = inspect.signature(starid.method(method).identify).parameters
+        assert all(name in identify for name, _check in ID_OPTIONS), method
+
+
 def test_edge_settings_are_accepted():
     image, cam = sim_frames.flight_image(), sim_frames.firmware_camera()
     for options, track_stars in (({"budget": True}, 8), ({"track_search_deg": 0}, 8),
+                                 ({"extract_options": {"min_pixels": 2, "join_across_px": 0},
+                                   "id_options": {"max_mismatch_prob": 1e-6,
+                                                  "distinct_rad": None},
+                                   "clock": time.perf_counter}, 8),
                                  ({"track_stars": None, "centroid_sigma_px": None,
                                    "exposure_s": None}, None),
                                  ({"max_stars": 256, "track_stars": 300}, 256)):

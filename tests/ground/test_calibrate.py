@@ -122,6 +122,54 @@ def test_match_records_refuses_ambiguous_and_shared_stars():
     assert calibrate.match_records(np.array([folded]), cam, q, Stars(far), 2.0) == []
 
 
+def _sky_image(seed):
+    """A small 10-bit frame of a few blobs (never solved: the tests stop before)."""
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(60, 80, (48, 64)).astype(np.uint16)
+    return imagesolve.SkyImage(frame, 10, "png", 64, 48, 1, [])
+
+
+def test_rounds_are_capped_and_duplicate_frames_refused(monkeypatch):
+    """Issue 33: ``--rounds 100000`` ran for hours; the same frame four times (another path,
+    a link, a copy) halved every 1-sigma.  Both refused before any solve."""
+    def no_solve(*args, **kwargs):
+        raise AssertionError("solved")
+
+    monkeypatch.setattr(calibrate, "frame_pairs", no_solve)
+    start = lohmann_frames.start_camera()
+    one = [("a.png", _sky_image(1))]
+    for rounds in (0, calibrate.MAX_ROUNDS + 1, 100000, 2.0, True):
+        with pytest.raises(ValueError,
+                           match=f"--rounds must be an int in 1..{calibrate.MAX_ROUNDS}"):
+            calibrate.calibrate(one, start, rounds=rounds)
+    same = [("a.png", _sky_image(1)), ("b.png", _sky_image(2)), ("copy.png", _sky_image(1))]
+    with pytest.raises(calibrate.CalibrationError,
+                       match="copy.png is the same frame as a.png: give each frame once"):
+        calibrate.calibrate(same, start)
+
+
+def test_rounds_stop_once_the_camera_settles(monkeypatch):
+    """The convergence stop: once a coarse round leaves the camera where the previous one
+    did, the next round is the last; ``rounds`` reports the rounds run."""
+    truth_cam = lohmann_frames.truth_camera()
+    pairs = {f"f{k}": f for k, f in enumerate(_synthetic_frames(truth_cam, 4, 30, 0.1, 11))}
+    solved = []
+
+    def frame_pairs(name, image, camera, *args, **kwargs):
+        solved.append(name)
+        return pairs[name]
+
+    monkeypatch.setattr(calibrate, "frame_pairs", frame_pairs)
+    images = [(name, _sky_image(k)) for k, name in enumerate(pairs)]
+    result = calibrate.calibrate(images, lohmann_frames.start_camera(),
+                                 rounds=calibrate.MAX_ROUNDS)
+    assert result.rounds < calibrate.MAX_ROUNDS and len(solved) == 4 * result.rounds
+    assert result.fit.free == calibrate.DEFAULT_FREE            # the last round fitted all
+    assert abs(result.camera.k1 - truth_cam.k1) < 4 * result.sigma["k1"]
+    two = calibrate.calibrate(images, lohmann_frames.start_camera(), rounds=2)
+    assert two.rounds == 2
+
+
 @pytest.fixture(scope="module")
 def lohmann_calibration(tmp_path_factory):
     paths = lohmann_frames.write_frames(tmp_path_factory.mktemp("lohmann"))

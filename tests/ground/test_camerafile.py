@@ -55,6 +55,13 @@ GOOD = {"lodestar_camera": 1, "camera": CAMERA.as_dict()}
     (json.dumps(dict(GOOD, camera=dict(CAMERA.as_dict(), width=752.0))), "width must be"),
     (json.dumps(GOOD).replace("-0.378", "NaN"), "NaN is not a number"),
     (json.dumps(dict(GOOD, camera=dict(CAMERA.as_dict(), k1=-5.0))), "not invertible"),
+    # issue 33: a traceback (RecursionError) before; fields no database serves passed
+    ('{"lodestar_camera": 1, "camera": ' + "[" * 100000 + "]" * 100000 + "}",
+     "not a JSON camera file \\(nested too deep\\)"),
+    (json.dumps(dict(GOOD, camera=dict(CAMERA.as_dict(), fx=50.0, fy=50.0, k1=0.0))),
+     "the camera's horizontal FOV 119.3 deg is outside the 1 .. 90 deg"),
+    (json.dumps(dict(GOOD, camera=dict(CAMERA.as_dict(), fx=1e6, fy=1e6))),
+     "the camera's horizontal FOV 0.04.* deg is outside the 1 .. 90 deg"),
 ])
 def test_bad_files_are_refused_naming_the_file(tmp_path, text, message):
     path = tmp_path / "cam.json"

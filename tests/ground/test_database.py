@@ -5,6 +5,7 @@ determinism, the FOV inputs and the CLI."""
 import functools
 import math
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -188,6 +189,33 @@ def test_fov_inputs():
         database.resolve_fov(cam, fov_h_deg=10.0)
     with pytest.raises(ValueError):
         database.fov_from_horizontal(10.0)
+
+
+def test_one_fov_range_for_every_database():
+    """Issue 33: a database is built only for a field a solve takes
+    (``stardb.FOV_RANGE_DEG``); 0.04 and 180 deg databases were written before."""
+    lo, hi = stardb.FOV_RANGE_DEG
+    database.check_fov(lo)
+    database.check_fov(hi)
+    for bad in (0.04, 0.999, 90.001, 95.0, 179.99, float("nan"), True, "20", None):
+        with pytest.raises(ValueError, match="a star database serves"):
+            database.check_fov(bad)
+    for fov in (0.05, 95.0, 179.99):
+        with pytest.raises(ValueError, match=f"is outside the {lo:g} .. {hi:g} deg"):
+            database.build_database(fov_h_deg=fov, aspect=4 / 3, mag_limit=4.5)
+
+
+def test_a_density_no_database_holds_fails_at_once():
+    """Issue 33: 30 stars in every 3 deg field is more stars than a database holds; said at
+    once, with the narrowest field that fits, not after seconds of selection."""
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"needs at least 177,\d+ stars over the sky; a "
+                       r"database holds 65535: fields of this aspect from 4.94 deg"):
+        database.build_database(fov_h_deg=3.0, aspect=4 / 3, mag_limit=None,
+                                verification_stars_per_fov=30, pattern_stars_per_fov=10)
+    assert time.perf_counter() - start < 0.5
+    # 5 deg (the fov campaign's narrowest) selects 65,115 stars: it must pass
+    database.check_density(30, 5.0, database.fov_from_horizontal(5.0, aspect=4 / 3)[1])
 
 
 def test_bad_requests():

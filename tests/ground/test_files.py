@@ -23,7 +23,10 @@ def test_write_atomic_replaces_whole_or_leaves_the_old_file(tmp_path, monkeypatc
     monkeypatch.setattr(os, "fsync", real_fsync)
     assert target.read_bytes() == b"good" * 1000
     assert [p.name for p in tmp_path.iterdir()] == ["db.bin"]        # no temporary left
-    files.write_atomic(tmp_path / "sub" / "t.txt", "text")
+    with pytest.raises(FileNotFoundError, match="the folder .*sub does not exist"):
+        files.write_atomic(tmp_path / "sub" / "t.txt", "text")
+    assert not (tmp_path / "sub").exists()                         # no folder made
+    files.write_atomic(tmp_path / "sub" / "t.txt", "text", folders=True)   # a cache's
     assert (tmp_path / "sub" / "t.txt").read_text() == "text"
     umask = os.umask(0o022)
     try:
@@ -46,7 +49,8 @@ def test_db_build_on_a_full_disk_keeps_the_database_it_would_replace(tmp_path, m
     monkeypatch.setattr(os, "fsync", lambda fd: (_ for _ in ()).throw(
         OSError(errno.ENOSPC, "No space left on device")))
     capsys.readouterr()
-    assert main(["db", "build", "--fov", "21", "--mag", "4.5", "-o", str(out)]) == 2
+    assert main(["db", "build", "--fov", "21", "--mag", "4.5", "-o", str(out),
+                 "--force"]) == 2
     assert "No space left" in capsys.readouterr().err
     assert out.read_bytes() == before
 
@@ -60,3 +64,44 @@ def test_check_output(tmp_path):
         files.check_output(tmp_path / "out.tif", (".png",))
     with pytest.raises(ValueError, match="is an input of this command"):
         files.check_output(tmp_path / "." / "in.png", (".png",), inputs=[source])
+    files.check_output(tmp_path / "other.png", (".png",), force=True)
+    (tmp_path / "old.png").write_bytes(b"y")
+    with pytest.raises(ValueError, match="old.png exists; give --force to replace it"):
+        files.check_output(tmp_path / "old.png", (".png",), inputs=[source])
+    files.check_output(tmp_path / "old.png", (".png",), inputs=[source], force=True)
+    with pytest.raises(ValueError, match="the folder .*missing does not exist"):
+        files.check_output(tmp_path / "missing" / "out.png", (".png",), force=True)
+    (tmp_path / "d.png").mkdir()
+    with pytest.raises(ValueError, match="d.png is a folder"):
+        files.check_output(tmp_path / "d.png", (".png",), force=True)
+    files.check_output(tmp_path / "any.name", None)
+
+
+COMMANDS = [          # every output a user names; each is checked before any work
+    (["solve", "{image}", "--annotate", "{out}.png"], "--annotate"),
+    (["solve", "{image}", "--wcs", "{out}.wcs"], "--wcs"),
+    (["calibrate", "{image}", "--fov", "20", "-o", "{out}.json"], "--out"),
+    (["db", "build", "--fov", "20", "--mag", "4.5", "-o", "{out}.bin"], "-o"),
+    (["simulate", "-o", "{out}"], "-o"),
+    (["demo", "--out", "{out}.png"], "--out"),
+]
+
+
+@pytest.mark.parametrize("args, what", COMMANDS, ids=lambda a: " ".join(a[:2]))
+def test_every_named_output_is_refused_over_a_file_or_into_a_missing_folder(
+        args, what, tmp_path, capsys):
+    """Issue 33: one rule for every output a user names: an existing file is replaced only
+    with --force, and a missing folder is an error (exit 2, one line), never created."""
+    image = tmp_path / "in.png"
+    image.write_bytes(b"not read")
+    existing = tmp_path / "old"
+    for suffix in (".png", ".wcs", ".json", ".bin", "_preview.png"):
+        existing.with_name("old" + suffix).write_bytes(b"keep")
+    for out, message in ((existing, "exists; give --force to replace it"),
+                         (tmp_path / "nowhere" / "new", "nowhere does not exist")):
+        argv = [a.format(image=image, out=out) for a in args]
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and what in err, err
+    assert not (tmp_path / "nowhere").exists()
+    assert all(p.read_bytes() == b"keep" for p in tmp_path.glob("old*"))

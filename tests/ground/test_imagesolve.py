@@ -3,6 +3,7 @@ and 16 bits, in colour, with a sky gradient and hot pixels, binned, solves to th
 images that cannot solve say so; bad input is refused with a message."""
 
 import contextlib
+import errno
 import json
 import math
 
@@ -14,7 +15,7 @@ from PIL import Image
 
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
-from lodestar.ground import imagesolve, solve
+from lodestar.ground import annotate, imagesolve, solve
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
 
@@ -190,13 +191,17 @@ def test_annotate_never_overwrites_an_input_or_writes_another_format(sky, tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.png", "sky.png"]
 
 
-def test_annotate_failure_after_a_solve_prints_the_solution(sky, tmp_path, capsys):
+def test_annotate_failure_after_a_solve_prints_the_solution(sky, tmp_path, capsys,
+                                                            monkeypatch):
     """Issue 19, item 11: the solution is printed, then the failure, exit 2."""
     d, _f, truth = sky
-    blocker = tmp_path / "file"
-    blocker.write_text("not a folder")
-    code, r, err = _solve(capsys, d / "frame.png", "--annotate", blocker / "out.png")
-    assert code == 2 and "--annotate" in err
+
+    def full_disk(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(annotate, "write_atomic", full_disk)
+    code, r, err = _solve(capsys, d / "frame.png", "--annotate", tmp_path / "out.png")
+    assert code == 2 and "--annotate" in err and "No space left" in err
     _check_right(r, truth, cross_arcsec=3.0, roll_arcsec=30.0)
     assert r["annotated"] is None
 
@@ -364,10 +369,15 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
         (["--fov", "20", "--ksigma", "0"], "--ksigma must be a positive"),
         (["--fov", "20", "--time", "teatime"], "observation time 'teatime'"),
         (["--fov", "20", "--velocity", "0", "0", "1e3"], "is beyond 100 km/s"),
+        # issue 33: said before any database is built, in one line
+        (["--fov", "20", "--mag", "nan"], "--mag must be a finite V magnitude in (-2, 18]"),
+        (["--fov", "20", "--mag", "1e300"], "--mag must be a finite V magnitude"),
+        (["--fov", "20", "--time", "99999-01-01"], "observation time '99999-01-01'"),
     ]
     for extra, message in cases:
         assert main(["solve", png, *extra]) == 2, extra
-        assert message in capsys.readouterr().err, extra
+        err = [line for line in capsys.readouterr().err.splitlines() if " note: " not in line]
+        assert len(err) == 1 and message in err[0], (extra, err)
     blank = tmp_path / "blank.png"
     imageio.save_frame(blank, np.full((100, 100), 7, np.uint16))
     assert main(["solve", str(blank), "--fov", "10"]) == 2
