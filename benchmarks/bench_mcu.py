@@ -14,8 +14,9 @@ with ``-icount``), against a baseline revision built the same way in the same ru
   with the database read from the SPI F-RAM (its reads' Python side measured, their wire
   time at :data:`FRAM_SCK_HZ` added).  Estimates: QEMU has no flash wait states or caches.
 * **memory**: the ELF's statics, heap and stack in the 96 KiB; the heap after the imports,
-  the live peak per class, the smallest heap the executive's loop runs the set in (a
-  ballast held in the 64 KiB build, 2 KiB steps), the stack's high-water mark (painted).
+  the live peak per class, the smallest heap the loop runs the frames in, plain and through
+  the executive (a ballast held in an 80 KiB build, 2 KiB steps), the stack's high-water
+  mark (painted).
 * **flash**: the image against the F401's 512 KiB; where each flight database lives.
 
 Needs ``build-qemu.sh`` beside MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or
@@ -45,6 +46,9 @@ METHOD = "pyramid"
 CAMERA = "estcube2"
 FRAM_SCK_HZ = 21_000_000
 """The F-RAM's SPI clock: SPI2 of the F401 at APB1 (42 MHz) / 2; the chip allows 40 MHz."""
+BIG_HEAP = qemu.EXPECTATION_HEAP
+"""The heap of the build the smallest heaps are found in (the expectations' build: it links
+in 96 KiB with a 15 KiB stack; not a flight configuration)."""
 CLASSES = ("rest", "moving", "tracking, steady", "tracking, record budget",
            "tracking, coarse prior", "bad packet")
 
@@ -80,6 +84,20 @@ def builds(manifest, db_files, baseline):
     return old, new, qemu.reference_build(cache, REPO)
 
 
+def _link_checked(case, method):
+    """Whether the link master checks ``case``'s packet before the decoder does (a packet the
+    decoder refuses for its framing: the link refuses it or, for a trailing byte, reads the
+    packet its header delimits and leaves the byte to the next resynchronisation)."""
+    return case["expected"][method]["status_name"].startswith("PACKET_") and \
+        case["expected"][method]["status_name"] not in ("PACKET_BAD_HEADER",
+                                                        "PACKET_BAD_RECORD")
+
+
+def _expected(runs, key):
+    """The recorded status of run ``key``."""
+    return next(c["expected"][m]["status"] for c, m in runs if (c["name"], m) == key)
+
+
 def _ms(ticks, scale):
     return ticks * scale / 1000.0
 
@@ -89,9 +107,12 @@ def _row_stats(values):
     return statistics.median(values), values[-1]
 
 
-def time_table(loops, runs, scale):
+def time_table(loops, runs, scale, read_ticks):
     """Per class: F401 ms p50 / max of ``process`` on the baseline and now, the executive's
-    step and the F-RAM database; the slowest frame's stages now."""
+    step (frames it solved; the build of the expectations, 80 KiB of heap) and the F-RAM
+    database (the frame from flash plus its reads through the F-RAM model, counted, times
+    ``read_ticks`` and their wire time at :data:`FRAM_SCK_HZ`); the slowest frame's stages
+    now."""
     print("\n## Time on the Cortex-M4F build, F401 estimate (ms), estcube2, Pyramid")
     print("| class | frames | baseline p50 / max | now p50 / max | now through the executive "
           "p50 / max | now, database in F-RAM p50 / max | slowest frame's stages now |")
@@ -102,22 +123,26 @@ def time_table(loops, runs, scale):
             continue
         cells = []
         for name in ("baseline", "now", "executive", "fram"):
-            times = loops[name]["times"]
-            got = [times[k]["step" if name == "executive" else "process"] for k in keys
-                   if k in times]
+            times, results = loops[name]["times"], loops[name]["results"]
+            ok = [k for k in keys if k in times and results[k][0] is not None and
+                  results[k][0]["status"] == _expected(runs, k)]
+            got = [times[k]["step" if name == "executive" else "process"] for k in ok]
             if name == "fram":
-                io = loops[name]["io"]
-                got = [times[k]["process"] + fram.wire_us(*io.get(k, (0, 0)), FRAM_SCK_HZ) /
-                       scale for k in keys if k in times]
+                io, now = loops[name]["io"], loops["now"]["times"]
+                got = [now[k]["process"] + io.get(k, (0, 0))[0] * read_ticks +
+                       fram.wire_us(*io.get(k, (0, 0)), FRAM_SCK_HZ) / scale for k in ok]
             p50, top = _row_stats(got) if got else (None, None)
-            cells.append("-" if p50 is None else f"{_ms(p50, scale):.0f} / {_ms(top, scale):.0f}")
+            text = "-" if p50 is None else f"{_ms(p50, scale):.0f} / {_ms(top, scale):.0f}"
+            if len(ok) < len(keys):
+                text += f" ({len(keys) - len(ok)} other status)"
+            cells.append(text)
         slow = max(keys, key=lambda k: loops["now"]["times"][k]["process"])
         stages = ", ".join(f"{s} {_ms(v, scale):.0f}" for s, v in
                            loops["now"]["times"][slow].items() if s not in ("process", "total"))
         print(f"| {cls} | {len(keys)} | " + " | ".join(cells) + f" | {stages} |")
 
 
-def memory_table(elf, loops, runs, manifest, db_files):
+def memory_table(elf, big, loops, runs, manifest, db_files):
     """RAM budgets from the ELF, heap figures from the runs, the executive's smallest heap."""
     layout = qemu.memory_map(elf, qemu.FLIGHT_HEAP)
     print("\n## Memory (bytes): the F401's 96 KiB")
@@ -131,61 +156,73 @@ def memory_table(elf, loops, runs, manifest, db_files):
         loop = loops[name]
         print(f"| stack used, {name} loop (painted high-water mark) | "
               f"{loop['stack']['used']:,} | |")
-        print(f"| heap in use before the first frame, {name} loop | "
-              f"{loop['heap']['alloc']:,} | firmware, harness and set modules imported |")
+        print(f"| heap in use after the imports, {name} loop | {loop['heap']['alloc']:,} | "
+              "firmware, harness and set modules |")
+        print(f"| heap in use with the database open, {name} loop | "
+              f"{loop['resident'][CAMERA]:,} | and the loop's buffers (the link's) |")
     peaks = loops["peak"]["results"]
     for cls in CLASSES:
         got = [peaks[(c["name"], m)][1] for c, m in runs if frame_class(c) == cls and
                (c["name"], m) in peaks and peaks[(c["name"], m)][1] is not None]
         if got:
             print(f"| live peak of one frame, {cls} | {max(got):,} | above the heap before it |")
-    smallest = smallest_heap(elf, manifest, db_files, runs)
-    print(f"| smallest heap of the executive's loop over the set | "
-          f"{'-' if smallest is None else format(smallest, ',')} | ballast in the 64 KiB "
-          "build, 2 KiB steps |")
+    for executive in (False, True):
+        smallest = smallest_heap(big, BIG_HEAP, manifest, db_files, runs, executive)
+        print(f"| smallest heap, {'executive' if executive else 'plain'} loop over the set | "
+              f"{'-' if smallest is None else format(smallest, ',')} | a ballast in a "
+              f"{BIG_HEAP // 1024} KiB build, 2 KiB steps |")
 
 
-def smallest_heap(elf, manifest, db_files, runs, step=2048):
-    """The smallest heap (``FLIGHT_HEAP`` less a ballast, ``step`` resolution) with which
-    the executive's loop gives every recorded status and star; None if 64 KiB does not."""
+def smallest_heap(elf, heap, manifest, db_files, runs, executive, step=2048):
+    """The smallest heap (``heap`` of the build ``elf`` less a ballast, ``step`` resolution)
+    with which the loop (``executive``: through the executive and its link) gives every
+    recorded status and star; None if ``heap`` does not."""
     def fits(ballast):
-        loop = qemu.flight_loop(elf, manifest, db_files, runs, ballast=ballast,
-                                executive=True)
+        loop = qemu.flight_loop(elf, manifest, db_files, runs, heap=heap, ballast=ballast,
+                                executive=executive)
         got = loop["results"]
         return loop["finished"] and all(
-            got[(c["name"], m)][0] is None or
+            got.get((c["name"], m), (0,))[0] is None or
             (got[(c["name"], m)][0]["status"], got[(c["name"], m)][0]["matches"]) ==
-            (c["expected"][m]["status"], c["expected"][m]["matches"]) for c, m in runs)
+            (c["expected"][m]["status"], c["expected"][m]["matches"]) for c, m in runs
+            if not (executive and _link_checked(c, m)))
 
     if not fits(0):
         return None
-    low, high = 0, 16              # ballast steps: high does not fit (a 32 KiB heap)
+    low, high = 0, heap // step // 2           # ballast steps; high: half the heap
     while high - low > 1:
         mid = (low + high) // 2
         if fits(mid * step):
             low = mid
         else:
             high = mid
-    return qemu.FLIGHT_HEAP - low * step
+    return heap - low * step
 
 
-def flash_table(elf, db_files):
+def flash_table(elf, db_files, manifest):
     """The image against the F401's flash, and where each flight database lives."""
     layout = qemu.memory_map(elf, qemu.FLIGHT_HEAP)
     frozen = Path(db_files[CAMERA]).stat().st_size
+    data = Path(elf).parent / "data" / "regset" / "__init__.py"
+    namespace = {}
+    exec(data.read_text(), namespace)           # the staged set: its bytes constants
+    regset = len(namespace["PACKETS"]) + sum(len(c) for c in namespace["CASES"]) + \
+        sum(len(c) for c in namespace["CAMERAS"])
+    flight = layout["flash"] - frozen - regset
     print("\n## Flash (bytes)")
     print("| item | bytes | where |")
     print("|---|---|---|")
-    print(f"| image: MicroPython, frozen firmware, regression packets, the set's estcube2 "
-          f"database | {layout['flash']:,} | the emulated 1 MiB |")
+    print(f"| the Cortex-M4F image with the regression set | {layout['flash']:,} | the "
+          "emulated 1 MiB |")
     print(f"| of which the set's estcube2 database (all three methods) | {frozen:,} | |")
-    print(f"| image without that database | {layout['flash'] - frozen:,} | internal flash, "
-          f"{qemu.FLASH_BYTES:,} |")
+    print(f"| of which the set's packets, cases and camera settings | {regset:,} | |")
+    print(f"| MicroPython and the frozen firmware (the flight image) | {flight:,} | internal "
+          f"flash, {qemu.FLASH_BYTES:,} |")
     for preset in ("estcube2", "lohmann"):
         camera = presets.load_preset(preset)
         size = len(build_database(camera=camera, methods=(METHOD,), mag_limit=DEFAULT_MAX_MAG,
                                   **FLIGHT_DENSITY))
-        room = qemu.FLASH_BYTES - (layout["flash"] - frozen)
+        room = qemu.FLASH_BYTES - flight
         where = "internal flash or F-RAM" if size <= room else "F-RAM"
         print(f"| {preset} flight database (`db build --flight`), Pyramid | {size:,} | {where} "
               f"(internal room {room:,}; F-RAM {fram.CAPACITY:,}) |")
@@ -209,10 +246,12 @@ def main():
         f"{cal['ratio'][n]:.3f}" for n, t in cal["ticks"].items()) + f"; "
         f"{qemu.mcutime.F401_SOURCE})")
     runs = [(c, METHOD) for c in manifest["cases"] if c["camera"] == CAMERA]
+    big = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, default_cache_dir(),
+                                 REPO)
     loops = {"baseline": qemu.flight_loop(old, manifest, db_files, runs, timing=True),
              "now": qemu.flight_loop(new, manifest, db_files, runs, timing=True),
-             "executive": qemu.flight_loop(new, manifest, db_files, runs, timing=True,
-                                           executive=True),
+             "executive": qemu.flight_loop(big, manifest, db_files, runs, timing=True,
+                                           executive=True, heap=BIG_HEAP),
              "fram": qemu.flight_loop(new, manifest, db_files, runs, timing=True,
                                       frozen=()),
              "peak": qemu.flight_loop(new, manifest, db_files, runs, peak=True)}
@@ -220,9 +259,12 @@ def main():
         bad = unixport.disagreements(loop, runs) if name != "executive" else []
         print(f"{name}: {'finished' if loop['finished'] else 'DID NOT FINISH'}"
               f"{', differs: ' + str(bad) if bad else ''}")
-    time_table(loops, runs, cal["scale"])
-    memory_table(new, loops, runs, manifest, db_files)
-    flash_table(new, db_files)
+    read_ticks = qemu.fram_read_ticks(new)
+    print(f"F-RAM: a read costs {read_ticks:.3f} ticks more than from flash (the reader's "
+          f"side), plus its wire time at {FRAM_SCK_HZ / 1e6:.0f} MHz")
+    time_table(loops, runs, cal["scale"], read_ticks)
+    memory_table(new, big, loops, runs, manifest, db_files)
+    flash_table(new, db_files, manifest)
     print(f"\n(packet buffer {unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records)")
 
 

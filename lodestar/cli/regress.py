@@ -40,6 +40,10 @@ def add_parser(sub):
                         "qemu-system-arm; default: yes)")
     p.add_argument("--record", action="store_true",
                    help="(re)generate the set in --set instead of replaying it")
+    p.add_argument("--record-float32", action="store_true",
+                   help="record only the float32 expectations of the set in --set again, on "
+                        "the flight build (after a change of its arithmetic; the packets "
+                        "and double expectations stay)")
     p.set_defaults(func=run)
 
 
@@ -47,9 +51,18 @@ def run(args):
     """The ``regress`` command: 0 when every replay agrees, 1 when any differs, the set is
     unusable or a MicroPython run fails, 2 for a folder with no set or a missing MicroPython
     or Cortex-M4F build (recording always needs the Cortex-M4F build)."""
-    if args.record:
+    missing = not (Path(args.set_dir) / "manifest.json").is_file()
+    if missing and not args.record:
+        print(f"lodestar regress: error: no regression set in {args.set_dir} (no "
+              "manifest.json; `lodestar regress --record --set DIR` makes one)",
+              file=sys.stderr)
+        return 2
+    if args.record or args.record_float32:
         try:
-            manifest = record.record(args.set_dir, log=sys.stderr)
+            if args.record_float32:
+                manifest = record.record_float32(args.set_dir)
+            else:
+                manifest = record.record(args.set_dir, log=sys.stderr)
         except qemu.Unavailable as exc:
             print(f"lodestar regress: {exc}; nothing recorded", file=sys.stderr)
             return 2
@@ -59,11 +72,6 @@ def run(args):
         print(f"recorded {len(manifest['cases'])} packets x {len(manifest['methods'])} "
               f"methods in {args.set_dir}")
         return 0
-    if not (Path(args.set_dir) / "manifest.json").is_file():
-        print(f"lodestar regress: error: no regression set in {args.set_dir} (no "
-              "manifest.json; `lodestar regress --record --set DIR` makes one)",
-              file=sys.stderr)
-        return 2
     try:
         rows, mp = regress(args.set_dir, args.micropython, float32=args.float32)
     except RegressionError as exc:

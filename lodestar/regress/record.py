@@ -16,7 +16,7 @@ before anything is written:
 * each case's ``expect`` holds (``"solve"``: every method solves; ``"fail"``: none does;
   ``"any"``: no condition; a status name: every method returns it);
 * replayed on the flight MCU's build, the Cortex-M4F image under QEMU
-  (:func:`lodestar.regress.qemu.flight_build`, its outcomes recorded as each case's
+  (:func:`lodestar.regress.qemu.expectation_build`, its outcomes recorded as each case's
   ``expected_float32``), every packet gives the double status and identified stars, the
   attitude and the 1-sigma figures within :data:`lodestar.regress.replay.FLOAT32_BOUND` of
   the double ones.  Recording needs the build: where it cannot be made,
@@ -40,6 +40,7 @@ from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import codec, onboard
 from lodestar.ground import truth as _truth
+from lodestar.ground.files import write_atomic
 from lodestar.regress import mcu, qemu, replay
 from lodestar.sim import attitude, goldenset, presets
 from lodestar.sim.goldenset import DENSE, ORION
@@ -191,7 +192,7 @@ def derive(kind, det):
         return codec.encode(det.replace(width=0))
     if kind == "bad_record":
         blobs = list(det.blobs)
-        first = type(blobs[0])(*blobs[0].as_tuple())
+        first = type(blobs[0])(**dict(zip(C.RECORD_NAMES, blobs[0].as_tuple())))
         first.n = 0
         return codec.encode(det.replace(blobs=[first] + blobs[1:]))
     if kind == "frame_truncated":
@@ -277,7 +278,7 @@ def frame_entry(case, budget=None):
 def add_float32(manifest, files, db_files, cache_dir=None):
     """Replay every case of ``manifest`` (its packets ``files``, ``{path in the set: bytes}``;
     its databases ``db_files``) with each method on the Cortex-M4F build
-    (:func:`lodestar.regress.qemu.flight_build` into ``cache_dir``,
+    (:func:`lodestar.regress.qemu.expectation_build` into ``cache_dir``,
     :func:`lodestar.regress.qemu.float32_outcomes`), add each case's ``expected_float32``
     and return the problems: every outcome that differs from the double one (``expected``)
     beyond the manifest's ``float32.bound`` (:func:`lodestar.regress.replay.float32_vs_double`)."""
@@ -285,7 +286,7 @@ def add_float32(manifest, files, db_files, cache_dir=None):
         for path, data in files.items():
             (Path(tmp) / path).parent.mkdir(parents=True, exist_ok=True)
             (Path(tmp) / path).write_bytes(data)
-        elf = qemu.flight_build(manifest, tmp, db_files, cache_dir)
+        elf = qemu.expectation_build(manifest, tmp, db_files, cache_dir)
         outcomes = qemu.float32_outcomes(elf, manifest, db_files)
     bound = manifest["float32"]["bound"]
     problems = []
@@ -296,6 +297,27 @@ def add_float32(manifest, files, db_files, cache_dir=None):
                          for d in replay.float32_vs_double(out, case["expected"][method],
                                                             bound)]
     return problems
+
+
+def record_float32(set_dir, cache_dir=None):
+    """Record the float32 expectations of the set in ``set_dir`` again on the flight build
+    (:func:`add_float32`; its packets and double expectations stay as they are): what a
+    change of the flight build's arithmetic (compiler, libm, FPU) needs.  Rewrites
+    ``manifest.json`` atomically and returns the manifest; raises as :func:`record`
+    (nothing is written when an outcome breaks the bound)."""
+    manifest = replay.load_set(set_dir)
+    qemu.check_available()
+    files = {case["packet"]: (Path(set_dir) / case["packet"]).read_bytes()
+             for case in manifest["cases"]}
+    problems = add_float32(manifest, files, replay.database_files(manifest, cache_dir),
+                           cache_dir)
+    if problems:
+        raise replay.RegressionError("nothing written: the float32 outcomes break the set's "
+                                     "bound:\n  " + "\n  ".join(problems))
+    manifest["float32"]["build"] = qemu.BUILD_NAME
+    write_atomic(Path(set_dir) / "manifest.json",
+                 (json.dumps(manifest, indent=1) + "\n").encode())
+    return manifest
 
 
 def record(set_dir, cache_dir=None, log=None):

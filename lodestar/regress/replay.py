@@ -382,7 +382,7 @@ def format_resident(micropython):
 def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True):
     """Replay the set: ``(rows, micropython result or None)`` (:func:`compare`,
     :func:`lodestar.regress.micropython.replay`); ``float32``: also on the flight MCU's
-    build, the Cortex-M4F image under QEMU (:func:`lodestar.regress.qemu.flight_build`,
+    build, the Cortex-M4F image under QEMU (:func:`lodestar.regress.qemu.expectation_build`,
     built into ``cache_dir``, the database cache), in one QEMU run.  Raises
     :class:`RegressionError` for an unusable set,
     :class:`lodestar.regress.qemu.Unavailable` when that build cannot be made here and
@@ -403,7 +403,7 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True)
     cpython = replay_cpython(manifest, set_dir, db_files)
     f32 = None
     if float32:
-        elf = qemu.flight_build(manifest, set_dir, db_files, cache_dir)
+        elf = qemu.expectation_build(manifest, set_dir, db_files, cache_dir)
         f32 = qemu.float32_outcomes(elf, manifest, db_files)
     mp = None
     if micropython:

@@ -50,16 +50,20 @@ def regression_set():
     return manifest, replay.database_files(manifest)
 
 
-@pytest.fixture(scope="session")
-def cortex_m4f(regression_set):
-    """The flight image of the Cortex-M4F build with the set frozen
-    (:func:`lodestar.regress.qemu.flight_build`; skips, or fails under
-    ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU)."""
+def _qemu_buildable():
     reason = qemu.unavailable_reason(REPO)
     if reason is not None:
         if os.environ.get("LODESTAR_REQUIRE_MICROPYTHON"):
             pytest.fail(reason)
         pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def cortex_m4f(regression_set):
+    """The flight image of the Cortex-M4F build (64 KiB heap) with the set frozen
+    (:func:`lodestar.regress.qemu.flight_build`; skips, or fails under
+    ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU)."""
+    _qemu_buildable()
     manifest, db_files = regression_set
     return qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
 
@@ -71,3 +75,13 @@ def cortex_m4f_set(cortex_m4f, regression_set):
     manifest, db_files = regression_set
     runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
     return qemu.flight_loop(cortex_m4f, manifest, db_files, runs)
+
+
+@pytest.fixture(scope="session")
+def cortex_m4f_outcomes(regression_set):
+    """The whole set on the build of the expectations (the flight image with an 80 KiB
+    heap, :func:`lodestar.regress.qemu.expectation_build`) in one QEMU run."""
+    _qemu_buildable()
+    manifest, db_files = regression_set
+    elf = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
+    return qemu.float32_outcomes(elf, manifest, db_files)
