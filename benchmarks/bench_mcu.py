@@ -1,28 +1,27 @@
-"""The flight firmware as the STM32F401 runs it: heap, time and flash, measured on MicroPython
-1.27's unix port built as the flight build (32-bit, single-precision floats in the object word,
-``MICROPY_OBJ_REPR_C``, the firmware frozen: ``lodestar.regress.unixport``), against a
-baseline revision built the same way in the same run.
+"""The flight firmware on its own instruction set: time, heap, stack and flash on MicroPython
+1.27 built for a Cortex-M4F with the STM32F401's memory map (``lodestar.regress.qemu``: the
+firmware, the estcube2 database and the regression packets frozen into flash, run on QEMU
+with ``-icount``), against a baseline revision built the same way in the same run.
 
-    .venv/bin/python benchmarks/bench_mcu.py [--baseline REV] [--repeats 3]
+    .venv/bin/python benchmarks/bench_mcu.py [--baseline 4641f47]
 
-* **heap**: per method and camera, the smallest heap (2 KiB steps) with which the regression
-  packets, one after another in one process with the camera's database open, give the
-  recorded results; and the largest live peak of one solve per packet class (rest and moving
-  lost-in-space, tracking), baseline beside current.
-* **time**: per packet class and method, the wall time of ``StarTracker.process`` at a 64 KiB
-  heap (best of ``--repeats``; the collector's work included) and the stage times of the
-  slowest solve, on this machine; then an **estimate** for an STM32F401 at 84 MHz: the
-  time here times how much slower a NUCLEO-F401RE ran two of MicroPython's own benchmarks
-  (published figures, run here on the same MicroPython in the published run's object
-  representation A, ``unixport.reference_build``: :mod:`lodestar.regress.mcutime`).
-* **instructions**: per packet class and method, the instructions of ``process`` (valgrind's
-  count of the build's x86 instructions: the same under any load) and each stage's, scaled to
-  the F401 by the same benchmarks' microseconds per instruction on the representation-A
-  build (needs ``valgrind``).
-* **flash**: the frozen firmware's bytecode (``mpy-cross`` of the build) and the estcube2
-  database of each method, with where each lives.
+* **time**: per frame class of the estcube2 regression packets (the flight method, Pyramid),
+  ``StarTracker.process`` in guest ticks (instructions / 1000), as F401 milliseconds: ticks
+  x the published NUCLEO-F401RE time of ``bm_float`` and ``bm_nqueens`` over their ticks on
+  the representation-A build of the same sources (``qemu.calibrate``); the slowest frame's
+  stages through ``Settings.clock``; the same frames through the flight executive and its
+  link (``step``: waiting for ``irq`` excluded, status, packet, process, telemetry), and
+  with the database read from the SPI F-RAM (its reads' Python side measured, their wire
+  time at :data:`FRAM_SCK_HZ` added).  Estimates: QEMU has no flash wait states or caches.
+* **memory**: the ELF's statics, heap and stack in the 96 KiB; the heap after the imports,
+  the live peak per class, the smallest heap the loop runs the frames in, plain and through
+  the executive (a ballast held in an 80 KiB build, 2 KiB steps), the stack's high-water
+  mark (painted).
+* **flash**: the image against the F401's 512 KiB; where each flight database lives.
 
-Needs MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or ``../shared``) and git.
+Needs ``build-qemu.sh`` beside MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or
+``../shared``), ``arm-none-eabi-gcc``, ``qemu-system-arm`` and git.  About 15 minutes of
+builds the first time on 2 busy cores, then a few minutes.
 """
 
 import argparse
@@ -34,194 +33,239 @@ import time
 from pathlib import Path
 
 from lodestar import contract as C
-from lodestar.contract.stardb import METHODS
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
 from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
-from lodestar.regress import mcutime, replay, unixport
+from lodestar.regress import fram, qemu, replay, unixport
 from lodestar.sim import presets
 
 REPO = Path(__file__).resolve().parents[1]
-BASELINE = "1118c7c"
-"""The firmware before the heap work of issue 16."""
-HEAP = 64 * 1024
-def packet_class(case):
-    """``tracking`` (a prior given), ``bad packet`` (a decoder status), ``moving`` (a body
-    rate given) or ``rest``."""
+BASELINE = "4641f47"
+"""Main when issue 29 was filed (its figures)."""
+METHOD = "pyramid"
+CAMERA = "estcube2"
+FRAM_SCK_HZ = 21_000_000
+"""The F-RAM's SPI clock: SPI2 of the F401 at APB1 (42 MHz) / 2; the chip allows 40 MHz."""
+BIG_HEAP = qemu.EXPECTATION_HEAP
+"""The heap of the build the smallest heaps are found in (the expectations' build: it links
+in 96 KiB with a 15 KiB stack; not a flight configuration)."""
+CLASSES = ("rest", "moving", "tracking, steady", "tracking, record budget",
+           "tracking, coarse prior", "bad packet")
+
+
+def frame_class(case):
+    """The class of a regression case (:data:`CLASSES`)."""
+    name = case["name"]
     if case["inputs"].get("prior") is not None:
-        return "tracking"
-    if 1 <= case["expected"]["pyramid"]["status"] <= 7:
+        if "budget" in name:
+            return "tracking, record budget"
+        return "tracking, steady" if "steady" in name else "tracking, coarse prior"
+    if case["expected"][METHOD]["status_name"] != "OK" and \
+            case["expected"][METHOD]["n_stars"] == 0:
         return "bad packet"
     omega = case["inputs"].get("omega")
     return "moving" if omega and any(omega) else "rest"
 
 
-def build(checkout, out_dir):
-    script = unixport.build_script(REPO)
-    if script is None:
-        sys.exit(f"bench_mcu: no MicroPython build script (set {unixport.BUILD_ENV})")
-    return unixport.build(script, REPO / "manifest.py", out_dir, "float32", checkout=checkout)
-
-
-def heap_table(binaries, manifest, db_files):
-    print(f"\n## Heap (32-bit float32, REPR_C, frozen): smallest working heap (packet buffer "
-          f"{unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records) and live peak, KiB")
-    print("| method | camera | smallest heap, baseline -> now | live peak rest / moving / "
-          "tracking, baseline -> now |")
-    print("|---|---|---|---|")
-    for method in manifest["methods"]:
-        for camera in manifest["cameras"]:
-            runs = [(c, method) for c in manifest["cases"] if c["camera"] == camera]
-            cells = []
-            for binary in binaries:
-                low = unixport.min_heap(binary, manifest, replay.DEFAULT_SET, db_files, runs,
-                                        buffer_bytes=unixport.FLIGHT_BUFFER)
-                loop = unixport.flight_loop(binary, manifest, replay.DEFAULT_SET, db_files,
-                                            runs, 4 << 20, peak=True)
-                peaks = {}
-                for case, _ in runs:
-                    cls = packet_class(case)
-                    peaks[cls] = max(peaks.get(cls, 0),
-                                     loop["results"][(case["name"], method)][1])
-                cells.append((low, peaks))
-            (low0, p0), (low1, p1) = cells
-            peak_text = " / ".join(f"{p0[k] / 1024:.1f} -> {p1[k] / 1024:.1f}" if k in p1
-                                   else "-" for k in ("rest", "moving", "tracking"))
-            print(f"| {method} | {camera} | {low0 / 1024:.0f} -> {low1 / 1024:.0f} | "
-                  f"{peak_text} |")
-
-
-def time_table(binary, reference, manifest, db_files, repeats):
-    """Per method and packet class: the wall time of ``process`` on the flight ``binary``
-    and the F401 estimate, scaled by the benchmarks on the ``reference`` build."""
-    cal = mcutime.calibrate(reference)
-    scale = cal["scale"]
-    ratios = ", ".join(f"{name} {mcutime.F401_US[name]:,.0f} us there / {min(us)} us here = "
-                       f"{cal['ratio'][name]:.0f}x" for name, us in cal["runs"].items())
-    print(f"\n## Time: F401 estimate = time here x {scale:.0f} (geometric mean of {ratios}, "
-          f"on the representation-A build; {mcutime.F401_SOURCE})")
-    print("| method | class | solves | here p50 / p95 / max, ms | F401 estimate p50 / p95 / "
-          "max, ms | slowest solve's stages here, ms |")
-    print("|---|---|---|---|---|---|")
-    for method in manifest["methods"]:
-        runs = [(c, method) for c in manifest["cases"]]
-        best = {}
-        for _ in range(repeats):
-            for camera in manifest["cameras"]:
-                part = [r for r in runs if r[0]["camera"] == camera]
-                loop = unixport.flight_loop(binary, manifest, replay.DEFAULT_SET, db_files,
-                                            part, HEAP, timing=True)
-                for key, times in loop["times"].items():
-                    if key not in best or times["process"] < best[key]["process"]:
-                        best[key] = times
-        for cls in ("rest", "moving", "tracking"):
-            cases = [c for c, _ in runs if packet_class(c) == cls]
-            ms = sorted(best[(c["name"], method)]["process"] / 1000 for c in cases)
-            if not ms:
-                continue
-            p95 = ms[min(len(ms) - 1, int(round(0.95 * (len(ms) - 1))))]
-            slowest = max(cases, key=lambda c: best[(c["name"], method)]["process"])
-            stages = best[(slowest["name"], method)]
-            stage_text = ", ".join(f"{k} {v / 1000:.0f}" for k, v in stages.items()
-                                   if k not in ("process", "total"))
-            print(f"| {method} | {cls} | {len(ms)} | {statistics.median(ms):.0f} / {p95:.0f} / "
-                  f"{ms[-1]:.0f} | {statistics.median(ms) * scale:.0f} / {p95 * scale:.0f} / "
-                  f"{ms[-1] * scale:.0f} | {stage_text} |")
-
-
-def instruction_table(binary, reference, manifest, db_files):
-    """Per method and packet class: the instructions of ``process`` on the flight ``binary``
-    (valgrind, the second of two frames) and the F401 estimate from them (ns per
-    instruction of the benchmarks on the ``reference`` build); the slowest frame's stages."""
-    if mcutime.valgrind() is None:
-        print("\n## Instructions: skipped (valgrind is not installed)")
-        return
-    cal = mcutime.calibrate_instructions(reference)
-    per = ", ".join(f"{name} {cal['ir'][name] / 1e6:.2f} M instructions on A here, "
-                    f"{mcutime.F401_US[name]:,.0f} us there" for name in cal["ir"])
-    us_per = cal["us_per_ir_mean"]
-    print(f"\n## Instructions at a {HEAP // 1024} KiB heap: F401 estimate = instructions x "
-          f"{us_per * 1e3:.2f} ns ({per}; {mcutime.F401_SOURCE})")
-    print("| method | class | solves | instructions p50 / p95 / max, M | F401 estimate p50 / "
-          "p95 / max, ms | slowest frame's stages, F401 ms |")
-    print("|---|---|---|---|---|---|")
-    for method in manifest["methods"]:
-        stages = {}
-        for case in manifest["cases"]:
-            if packet_class(case) == "bad packet":
-                continue
-            camera = manifest["cameras"][case["camera"]]
-            _, stages[case["name"]] = mcutime.frame_instructions(
-                binary, case, method, db_files[camera["database"]], camera,
-                replay.DEFAULT_SET / case["packet"], HEAP)
-        for cls in ("rest", "moving", "tracking"):
-            names = [c["name"] for c in manifest["cases"] if packet_class(c) == cls]
-            ir = sorted(stages[n]["process"] for n in names)
-            if not ir:
-                continue
-            p95 = ir[min(len(ir) - 1, int(round(0.95 * (len(ir) - 1))))]
-            slowest = max(names, key=lambda n: stages[n]["process"])
-            split = ", ".join(f"{k} {v * us_per / 1e3:.0f}" for k, v in stages[slowest].items()
-                              if k != "process")
-            print(f"| {method} | {cls} | {len(ir)} | {statistics.median(ir) / 1e6:.1f} / "
-                  f"{p95 / 1e6:.1f} / {ir[-1] / 1e6:.1f} | "
-                  f"{statistics.median(ir) * us_per / 1e3:.0f} / {p95 * us_per / 1e3:.0f} / "
-                  f"{ir[-1] * us_per / 1e3:.0f} | {split} |")
-
-
-def flash_table(binary):
-    """The frozen bytecode of the MCU image ``binary`` froze (its build folder's ``mpy-cross``
-    and staged image) and the estcube2 databases."""
-    out_dir = Path(binary).parent
-    mpy_cross = next(out_dir.glob("micropython-*/mpy-cross/build/mpy-cross"))
-    image = out_dir / "mcu-image"
-    total = 0
+def builds(manifest, db_files, baseline):
+    """The current and baseline flight images and the representation-A reference."""
+    cache = default_cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
-        for py in sorted(image.rglob("*.py")):
-            mpy = Path(tmp) / (py.stem + ".mpy")
-            subprocess.run([str(mpy_cross), "-march=armv7emsp", "-o", str(mpy), str(py)],
-                           check=True)
-            total += mpy.stat().st_size
-    print("\n## Flash")
+        tree = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-q", "--detach",
+                        str(tree), baseline], check=True)
+        try:
+            old = qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, cache, REPO,
+                                    checkout=tree, name="bench-baseline")
+        finally:
+            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
+                            str(tree)], check=True)
+    new = qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, cache, REPO)
+    return old, new, qemu.reference_build(cache, REPO)
+
+
+def _link_checked(case, method):
+    """Whether the link master checks ``case``'s packet before the decoder does (a packet the
+    decoder refuses for its framing: the link refuses it or, for a trailing byte, reads the
+    packet its header delimits and leaves the byte to the next resynchronisation)."""
+    return case["expected"][method]["status_name"].startswith("PACKET_") and \
+        case["expected"][method]["status_name"] not in ("PACKET_BAD_HEADER",
+                                                        "PACKET_BAD_RECORD")
+
+
+def _expected(runs, key):
+    """The recorded status of run ``key``."""
+    return next(c["expected"][m]["status"] for c, m in runs if (c["name"], m) == key)
+
+
+def _ms(ticks, scale):
+    return ticks * scale / 1000.0
+
+
+def _row_stats(values):
+    values = sorted(values)
+    return statistics.median(values), values[-1]
+
+
+def time_table(loops, runs, scale, read_ticks):
+    """Per class: F401 ms p50 / max of ``process`` on the baseline and now, the executive's
+    step (frames it solved; the build of the expectations, 80 KiB of heap) and the F-RAM
+    database (the frame from flash plus its reads through the F-RAM model, counted, times
+    ``read_ticks`` and their wire time at :data:`FRAM_SCK_HZ`); the slowest frame's stages
+    now."""
+    print("\n## Time on the Cortex-M4F build, F401 estimate (ms), estcube2, Pyramid")
+    print("| class | frames | baseline p50 / max | now p50 / max | now through the executive "
+          "p50 / max | now, database in F-RAM p50 / max | slowest frame's stages now |")
+    print("|---|---|---|---|---|---|---|")
+    for cls in CLASSES:
+        keys = [(c["name"], m) for c, m in runs if frame_class(c) == cls]
+        if not keys:
+            continue
+        cells = []
+        for name in ("baseline", "now", "executive", "fram"):
+            times, results = loops[name]["times"], loops[name]["results"]
+            ok = [k for k in keys if k in times and results[k][0] is not None and
+                  results[k][0]["status"] == _expected(runs, k)]
+            got = [times[k]["step" if name == "executive" else "process"] for k in ok]
+            if name == "fram":
+                io, now = loops[name]["io"], loops["now"]["times"]
+                got = [now[k]["process"] + io.get(k, (0, 0))[0] * read_ticks +
+                       fram.wire_us(*io.get(k, (0, 0)), FRAM_SCK_HZ) / scale for k in ok]
+            p50, top = _row_stats(got) if got else (None, None)
+            text = "-" if p50 is None else f"{_ms(p50, scale):.0f} / {_ms(top, scale):.0f}"
+            if len(ok) < len(keys):
+                text += f" ({len(keys) - len(ok)} other status)"
+            cells.append(text)
+        slow = max(keys, key=lambda k: loops["now"]["times"][k]["process"])
+        stages = ", ".join(f"{s} {_ms(v, scale):.0f}" for s, v in
+                           loops["now"]["times"][slow].items() if s not in ("process", "total"))
+        print(f"| {cls} | {len(keys)} | " + " | ".join(cells) + f" | {stages} |")
+
+
+def memory_table(elf, big, loops, runs, manifest, db_files):
+    """RAM budgets from the ELF, heap figures from the runs, the executive's smallest heap."""
+    layout = qemu.memory_map(elf, qemu.FLIGHT_HEAP)
+    print("\n## Memory (bytes): the F401's 96 KiB")
+    print("| item | bytes | note |")
+    print("|---|---|---|")
+    print(f"| statics (data + bss without the heap) | {layout['statics']:,} | the qemu port's; "
+          "the STM32 port's are larger |")
+    print(f"| GC heap | {layout['heap']:,} | fixed at build time |")
+    print(f"| stack (RAM above them) | {layout['stack']:,} | budget {qemu.STACK_BUDGET:,} |")
+    for name in ("now", "executive"):
+        loop = loops[name]
+        print(f"| stack used, {name} loop (painted high-water mark) | "
+              f"{loop['stack']['used']:,} | |")
+        print(f"| heap in use after the imports, {name} loop | {loop['heap']['alloc']:,} | "
+              "firmware, harness and set modules |")
+        print(f"| heap in use with the database open, {name} loop | "
+              f"{loop['resident'][CAMERA]:,} | and the loop's buffers (the link's) |")
+    peaks = loops["peak"]["results"]
+    for cls in CLASSES:
+        got = [peaks[(c["name"], m)][1] for c, m in runs if frame_class(c) == cls and
+               (c["name"], m) in peaks and peaks[(c["name"], m)][1] is not None]
+        if got:
+            print(f"| live peak of one frame, {cls} | {max(got):,} | above the heap before it |")
+    for executive in (False, True):
+        smallest = smallest_heap(big, BIG_HEAP, manifest, db_files, runs, executive)
+        print(f"| smallest heap, {'executive' if executive else 'plain'} loop over the set | "
+              f"{'-' if smallest is None else format(smallest, ',')} | a ballast in a "
+              f"{BIG_HEAP // 1024} KiB build, 2 KiB steps |")
+
+
+def smallest_heap(elf, heap, manifest, db_files, runs, executive, step=2048):
+    """The smallest heap (``heap`` of the build ``elf`` less a ballast, ``step`` resolution)
+    with which the loop (``executive``: through the executive and its link) gives every
+    recorded status and star; None if ``heap`` does not."""
+    def fits(ballast):
+        loop = qemu.flight_loop(elf, manifest, db_files, runs, heap=heap, ballast=ballast,
+                                executive=executive)
+        got = loop["results"]
+        return loop["finished"] and all(
+            got.get((c["name"], m), (0,))[0] is None or
+            (got[(c["name"], m)][0]["status"], got[(c["name"], m)][0]["matches"]) ==
+            (c["expected"][m]["status"], c["expected"][m]["matches"]) for c, m in runs
+            if not (executive and _link_checked(c, m)))
+
+    if not fits(0):
+        return None
+    low, high = 0, heap // step // 2           # ballast steps; high: half the heap
+    while high - low > 1:
+        mid = (low + high) // 2
+        if fits(mid * step):
+            low = mid
+        else:
+            high = mid
+    return heap - low * step
+
+
+def flash_table(elf, db_files, manifest):
+    """The image against the F401's flash, and where each flight database lives."""
+    layout = qemu.memory_map(elf, qemu.FLIGHT_HEAP)
+    frozen = Path(db_files[CAMERA]).stat().st_size
+    data = Path(elf).parent / "data" / "regset" / "__init__.py"
+    namespace = {}
+    exec(data.read_text(), namespace)           # the staged set: its bytes constants
+    regset = len(namespace["PACKETS"]) + sum(len(c) for c in namespace["CASES"]) + \
+        sum(len(c) for c in namespace["CAMERAS"])
+    flight = layout["flash"] - frozen - regset
+    print("\n## Flash (bytes)")
     print("| item | bytes | where |")
     print("|---|---|---|")
-    print(f"| firmware + contract, frozen bytecode (mpy-cross, armv7emsp) | {total:,} | "
-          "MCU internal flash (512 KiB, with MicroPython itself) |")
-    camera = presets.load_preset("estcube2")
-    for method in METHODS:
-        size = len(build_database(camera=camera, methods=(method,), mag_limit=DEFAULT_MAX_MAG,
+    print(f"| the Cortex-M4F image with the regression set | {layout['flash']:,} | the "
+          "emulated 1 MiB |")
+    print(f"| of which the set's estcube2 database (all three methods) | {frozen:,} | |")
+    print(f"| of which the set's packets, cases and camera settings | {regset:,} | |")
+    print(f"| MicroPython and the frozen firmware (the flight image) | {flight:,} | internal "
+          f"flash, {qemu.FLASH_BYTES:,} |")
+    for preset in ("estcube2", "lohmann"):
+        camera = presets.load_preset(preset)
+        size = len(build_database(camera=camera, methods=(METHOD,), mag_limit=DEFAULT_MAX_MAG,
                                   **FLIGHT_DENSITY))
-        print(f"| estcube2 flight database (`db build --flight`), {method} | {size:,} | "
-              "F-RAM (512 KiB) behind the FPGA, or internal flash when it fits beside the "
-              "firmware |")
+        room = qemu.FLASH_BYTES - flight
+        where = "internal flash or F-RAM" if size <= room else "F-RAM"
+        print(f"| {preset} flight database (`db build --flight`), Pyramid | {size:,} | {where} "
+              f"(internal room {room:,}; F-RAM {fram.CAPACITY:,}) |")
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--baseline", default=BASELINE, help="git revision to compare with")
-    p.add_argument("--repeats", type=int, default=3)
     args = p.parse_args()
+    if qemu.unavailable_reason(REPO) is not None:
+        sys.exit(f"bench_mcu: {qemu.unavailable_reason(REPO)}")
     manifest = replay.load_set(replay.DEFAULT_SET)
     db_files = replay.database_files(manifest)
-    cache = default_cache_dir() / "micropython-bench"   # not replaced by a test run
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        base_tree = Path(tmp) / "baseline"
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-q", "--detach",
-                        str(base_tree), args.baseline], check=True)
-        try:
-            baseline = build(base_tree, default_cache_dir() / "micropython-baseline")
-        finally:
-            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
-                            str(base_tree)], check=True)
-    current = build(None, cache)
-    reference = unixport.reference_build(repo=REPO)
+    old, new, reference = builds(manifest, db_files, args.baseline)
+    cal = qemu.calibrate(reference)
     print(f"# bench_mcu: baseline {args.baseline} -> working tree; builds "
           f"{time.perf_counter() - t0:.0f} s")
-    heap_table((baseline, current), manifest, db_files)
-    time_table(current, reference, manifest, db_files, args.repeats)
-    instruction_table(current, reference, manifest, db_files)
-    flash_table(current)
+    print(f"F401 estimate = ticks x {cal['scale']:.3f} us (" + ", ".join(
+        f"{n}: {qemu.mcutime.F401_US[n]:,.0f} us published / {t:,} ticks on A = "
+        f"{cal['ratio'][n]:.3f}" for n, t in cal["ticks"].items()) + f"; "
+        f"{qemu.mcutime.F401_SOURCE})")
+    runs = [(c, METHOD) for c in manifest["cases"] if c["camera"] == CAMERA]
+    big = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, default_cache_dir(),
+                                 REPO)
+    loops = {"baseline": qemu.flight_loop(old, manifest, db_files, runs, timing=True),
+             "now": qemu.flight_loop(new, manifest, db_files, runs, timing=True),
+             "executive": qemu.flight_loop(big, manifest, db_files, runs, timing=True,
+                                           executive=True, heap=BIG_HEAP),
+             "fram": qemu.flight_loop(new, manifest, db_files, runs, timing=True,
+                                      frozen=()),
+             "peak": qemu.flight_loop(new, manifest, db_files, runs, peak=True)}
+    for name, loop in loops.items():
+        bad = unixport.disagreements(loop, runs) if name != "executive" else []
+        print(f"{name}: {'finished' if loop['finished'] else 'DID NOT FINISH'}"
+              f"{', differs: ' + str(bad) if bad else ''}")
+    read_ticks = qemu.fram_read_ticks(new)
+    print(f"F-RAM: a read costs {read_ticks:.3f} ticks more than from flash (the reader's "
+          f"side), plus its wire time at {FRAM_SCK_HZ / 1e6:.0f} MHz")
+    time_table(loops, runs, cal["scale"], read_ticks)
+    memory_table(new, big, loops, runs, manifest, db_files)
+    flash_table(new, db_files, manifest)
+    print(f"\n(packet buffer {unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records)")
 
 
 if __name__ == "__main__":

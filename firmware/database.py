@@ -3,8 +3,9 @@
 The layout is ``docs/stardb.md`` (built on the ground by ``lodestar.ground.database``).
 ``Database(buffer)`` reads ``bytes``, ``bytearray`` or a ``memoryview`` (a memory-mapped flash
 region) with ``struct.unpack_from``; ``Database.open(path)`` reads a file by ``seek`` +
-``readinto`` into one preallocated scratch buffer, never whole.  The validation order and the
-``DATABASE_*`` status of each failure: ``docs/firmware.md``, Database reader.
+``readinto`` into one preallocated scratch buffer, never whole; ``Database.fram(spi, cs)``
+reads the board's SPI F-RAM the same way, one ``READ`` transaction per read.  The validation
+order and the ``DATABASE_*`` status of each failure: ``docs/firmware.md``, Database reader.
 **Error policy**: the reader raises :class:`DatabaseError` (``status``, ``reason``); the flight
 API calls :func:`load` or :func:`check`, which return ``(status, reason)``, so no exception
 reaches the flight loop.  Every method of the contract's table is served
@@ -166,6 +167,76 @@ class _FileSource:
         self.f.close()
 
 
+FRAM_READ = 0x03
+"""``READ`` opcode of the board's SPI F-RAM (a 4-Mbit FM25V-/CY15B104Q-class part): the
+opcode, a 24-bit big-endian address, then data while CS stays low."""
+FRAM_BYTES = 512 * 1024
+"""The F-RAM's size (bytes): the end of any image read from it."""
+
+
+class _FramSource:
+    """The image at byte ``base`` of the SPI F-RAM on ``spi`` (``machine.SPI``: ``write``,
+    ``readinto``) selected by ``cs`` (a ``machine.Pin``, active low): one ``READ``
+    transaction per :meth:`unpack` into a scratch buffer as the file source's, the CRC in
+    :data:`_CHUNK`-byte reads; nothing of the image is copied whole.  ``size`` (None: the
+    header's ``image_size``), at most what lies between ``base`` and :data:`FRAM_BYTES`."""
+
+    def __init__(self, spi, cs, base, size):
+        self.spi = spi
+        self.cs = cs
+        self.base = base
+        self.command = bytearray(4)
+        self.command[0] = FRAM_READ
+        self.scratch = bytearray(_SCRATCH_BYTES)
+        self.mv = memoryview(self.scratch)
+        if not 0 <= base < FRAM_BYTES:
+            raise DatabaseError(S.DATABASE_IO, "F-RAM base " + str(base) + " outside 0.." +
+                                str(FRAM_BYTES - 1))
+        if size is None:
+            self.size = stardb.HEADER_SIZE      # enough to read the header's image size
+            size = self.unpack(stardb.HEADER_FORMAT, 0, stardb.DIRECTORY_OFFSET)[
+                stardb.HEADER_FIELDS.index("image_size")]
+        self.size = min(size, FRAM_BYTES - base)
+
+    def _read(self, offset, view):
+        address = self.base + offset
+        command = self.command
+        command[1] = (address >> 16) & 0xFF
+        command[2] = (address >> 8) & 0xFF
+        command[3] = address & 0xFF
+        cs = self.cs
+        try:
+            cs.value(0)
+            try:
+                self.spi.write(command)
+                self.spi.readinto(view, 0)
+            finally:
+                cs.value(1)
+        except OSError as exc:
+            raise DatabaseError(S.DATABASE_IO, "F-RAM read at " + str(address) + " failed (" +
+                                repr(exc) + ")") from None
+
+    def unpack(self, fmt, offset, size):
+        if offset + size > self.size:
+            raise DatabaseError(S.DATABASE_IO, "read past the image at offset " + str(offset))
+        self._read(offset, self.mv[:size])
+        return struct.unpack_from(fmt, self.scratch, 0)
+
+    def crc(self, start, stop):
+        chunk = bytearray(_CHUNK)
+        mv = memoryview(chunk)
+        c = 0
+        while start < stop:
+            want = _CHUNK if stop - start > _CHUNK else stop - start
+            self._read(start, mv[:want])
+            c = crc32(mv[:want], c)
+            start += want
+        return c
+
+    def close(self):
+        pass
+
+
 # --------------------------------------------------------------------------------------
 # The reader
 # --------------------------------------------------------------------------------------
@@ -222,6 +293,15 @@ class Database:
         except Exception:
             f.close()
             raise
+
+    @classmethod
+    def fram(cls, spi, cs, base=0, size=None, expected_fov_h=None, fov_tolerance=0.02):
+        """The image at byte ``base`` of the board's SPI F-RAM (:data:`FRAM_READ`) on
+        ``spi`` with chip select ``cs``; ``size`` (bytes, None: the header's image size).
+        Every read is one bus transaction when it is needed, as a file's; a bus ``OSError``
+        is ``DATABASE_IO``."""
+        return cls(expected_fov_h=expected_fov_h, fov_tolerance=fov_tolerance,
+                   _source=_FramSource(spi, cs, base, size))
 
     def close(self):
         """Release the file of :meth:`open` (no-op for buffers)."""

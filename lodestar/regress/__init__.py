@@ -1,10 +1,14 @@
 """Firmware regression: recorded FPGA packets replayed through the flight API on CPython,
-on the flight MCU's float32 MicroPython build and on MicroPython's WebAssembly port.
+on the flight MCU's own build and on MicroPython's WebAssembly port.
 :mod:`.mcu` and :mod:`.loop` are the replay that runs in the MCU image (MicroPython-safe, frozen
 into it), :mod:`.replay` loads a set and compares, :mod:`.record` regenerates it,
-:mod:`.micropython` runs the WebAssembly port, :mod:`.unixport` the float32 unix-port build
-(floats in the object word, the firmware frozen) and :mod:`.mcutime` estimates its time on
-the F401 (with :mod:`.perfbench`; :mod:`.reprprobe` tells a build's object representation).
+:mod:`.micropython` runs the WebAssembly port, :mod:`.qemu` the MCU reference: MicroPython for
+a Cortex-M4F with the STM32F401's memory map on QEMU, the set frozen into flash (with
+:mod:`.qemuloop`, its loop, :mod:`.linkmodel`, the gateware's side of the SPI link for the
+executive, :mod:`.fram`, the star database's F-RAM chip, and :mod:`.semihost`, host files),
+:mod:`.unixport` the float32 unix-port build (floats in the object word, the firmware frozen:
+heap bisection, instruction counts) and :mod:`.mcutime` the F401 time estimate from it (with
+:mod:`.perfbench`; :mod:`.reprprobe` tells a build's object representation).
 
 A set is a folder with ``packets/NAME.bin`` and ``manifest.json`` (``format`` 2,
 :data:`.replay.SET_FORMAT`): ``tolerances`` (double comparisons), ``float32`` (``build``,

@@ -123,20 +123,49 @@ def _resident(config, clock):
     print("LIVE_END " + str(_live()))
 
 
-def _flight(config):
+class FileRuns(object):
+    """The runs of a flight loop from the JSON-lines file ``path`` (the unix port): databases
+    opened by path, packets read from their files.  :mod:`lodestar.regress.qemuloop` has the
+    same methods over the data frozen into the Cortex-M4F build."""
+
+    def __init__(self, path):
+        self.f = open(path)
+
+    def next(self):
+        """The next run (``[case, method, camera, database, path, settings, packet,
+        inputs]``), None at the end."""
+        return _next_run(self.f)
+
+    def open_database(self, _name, path):
+        return mcu.open_database(path)
+
+    def read_into(self, buf, packet):
+        return _read_into(buf, packet)
+
+    def io(self):
+        """Bus figures of the last run (None: nothing read over a bus)."""
+        return None
+
+    def close(self):
+        self.f.close()
+
+
+def _flight(config, runs=None):
     """The flight loop: only the current camera's database open (the heap with it open at
     its opening, ``OPENED``), a new tracker per run, one packet buffer; per solve its live
-    peak above the heap before it (``peak``) and its stage times (``timing``)."""
+    peak above the heap before it (``peak``) and its stage times (``timing``).  ``runs``:
+    where the runs come from (default :class:`FileRuns` of the config's ``runs``)."""
     peak, timing = config.get("peak"), config.get("timing")
     if peak:
         gc.threshold(512)
     elif config.get("threshold"):
         gc.threshold(config["threshold"])
     buf = bytearray(config["buffer_bytes"])       # one packet buffer, reused (as the SPI loop's)
-    runs = open(config["runs"])
+    if runs is None:
+        runs = FileRuns(config["runs"])
     config = database = opened = None
     while True:
-        run = _next_run(runs)
+        run = runs.next()
         if run is None:
             break
         case, method, _camera, name, path, settings, packet, inputs = run
@@ -144,14 +173,14 @@ def _flight(config):
         if name != opened:
             database = None
             gc.collect()
-            database = mcu.open_database(path)
+            database = runs.open_database(name, path)
             opened = name
             gc.collect()
             print("OPENED " + json.dumps([name, _live()]))
         tracker = mcu.make_tracker(database, settings, method)
         if timing:
             tracker.settings.clock = time.ticks_us
-        packet = _read_into(buf, packet)
+        packet = runs.read_into(buf, packet)
         settings = None
         if peak:
             gc.collect()
@@ -170,7 +199,7 @@ def _flight(config):
                 times[stage] = result.timings[stage] % 1073741824      # ticks_us wrap
         result = None
         print("RESULT " + json.dumps({"case": case, "method": method, "out": out,
-                                      "peak": peak_bytes, "times": times}))
+                                      "peak": peak_bytes, "times": times, "io": runs.io()}))
         out = times = None
         yield
     runs.close()

@@ -52,7 +52,7 @@ F401_SOURCE = ("micropython/micropython pull request #18069 (NUCLEO-F401RE, 84 M
 F401_US = {"bm_float": 37841.00, "bm_nqueens": 375490.00}
 """Published time of one run on the NUCLEO-F401RE, microseconds (:data:`F401_SOURCE`)."""
 
-_CALLS = {"bm_float": ("benchmark(150)", "<Point: x=0.89387"),
+CALLS = {"bm_float": ("benchmark(150)", "<Point: x=0.89387"),
           "bm_nqueens": ("len(list(n_queens(6)))", "4")}
 """Per benchmark: the call the suite times at ``N=84 M=80``, and the start of its printed
 result (a check that the workload is the published one, in single or double precision)."""
@@ -106,7 +106,7 @@ def calibrate(binary, runs=7, timeout=120):
     _check_reference(binary)
     times = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, (call, expect) in _CALLS.items():
+        for name, (call, expect) in CALLS.items():
             source = Path(tmp) / f"{name}.py"
             source.write_text(benchmark_source(name), encoding="utf-8")
             times[name] = []
@@ -168,7 +168,7 @@ def calibrate_instructions(binary):
     _check_reference(binary)
     ir = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, (call, expect) in _CALLS.items():
+        for name, (call, expect) in CALLS.items():
             source = Path(tmp) / f"{name}.py"
             source.write_text(benchmark_source(name), encoding="utf-8")
             argv = [binary, "-X", f"heapsize={HEAP}", _PERFBENCH, source, call]

@@ -15,12 +15,12 @@ before anything is written:
   box); a derived packet never solves;
 * each case's ``expect`` holds (``"solve"``: every method solves; ``"fail"``: none does;
   ``"any"``: no condition; a status name: every method returns it);
-* replayed on the flight MCU's float32 build (:func:`lodestar.regress.unixport.float32_build`,
-  its outcomes recorded as each case's ``expected_float32``), every packet gives the double
-  status and identified stars, the attitude and the 1-sigma figures within
-  :data:`lodestar.regress.replay.FLOAT32_BOUND` of the double ones.  Recording needs the
-  build: where it cannot be made, :class:`lodestar.regress.unixport.Unavailable` is raised
-  before anything else is done.
+* replayed on the flight MCU's build, the Cortex-M4F image under QEMU
+  (:func:`lodestar.regress.qemu.expectation_build`, its outcomes recorded as each case's
+  ``expected_float32``), every packet gives the double status and identified stars, the
+  attitude and the 1-sigma figures within :data:`lodestar.regress.replay.FLOAT32_BOUND` of
+  the double ones.  Recording needs the build: where it cannot be made,
+  :class:`lodestar.regress.qemu.Unavailable` is raised before anything else is done.
 
 A case that breaks them is a firmware finding to report, not an expected output: the
 recorder lists every such problem and writes nothing.  The manifest layout is documented in
@@ -40,7 +40,8 @@ from lodestar.firmware.settings import Settings
 from lodestar.golden import detect_frame
 from lodestar.ground import codec, onboard
 from lodestar.ground import truth as _truth
-from lodestar.regress import mcu, replay, unixport
+from lodestar.ground.files import write_atomic
+from lodestar.regress import mcu, qemu, replay
 from lodestar.sim import attitude, goldenset, presets
 from lodestar.sim.goldenset import DENSE, ORION
 
@@ -191,7 +192,7 @@ def derive(kind, det):
         return codec.encode(det.replace(width=0))
     if kind == "bad_record":
         blobs = list(det.blobs)
-        first = type(blobs[0])(*blobs[0].as_tuple())
+        first = type(blobs[0])(**dict(zip(C.RECORD_NAMES, blobs[0].as_tuple())))
         first.n = 0
         return codec.encode(det.replace(blobs=[first] + blobs[1:]))
     if kind == "frame_truncated":
@@ -274,18 +275,19 @@ def frame_entry(case, budget=None):
     return det, truth, codec.encode(det), inputs, truth_doc
 
 
-def add_float32(manifest, files, binary, db_files):
+def add_float32(manifest, files, db_files, cache_dir=None):
     """Replay every case of ``manifest`` (its packets ``files``, ``{path in the set: bytes}``;
-    its databases ``db_files``) with each method on the float32 ``binary``
-    (:func:`lodestar.regress.unixport.float32_outcomes`), add each case's
-    ``expected_float32`` and return the problems: every outcome that differs from the
-    double one (``expected``) beyond the manifest's ``float32.bound``
-    (:func:`lodestar.regress.replay.float32_vs_double`)."""
+    its databases ``db_files``) with each method on the Cortex-M4F build
+    (:func:`lodestar.regress.qemu.expectation_build` into ``cache_dir``,
+    :func:`lodestar.regress.qemu.float32_outcomes`), add each case's ``expected_float32``
+    and return the problems: every outcome that differs from the double one (``expected``)
+    beyond the manifest's ``float32.bound`` (:func:`lodestar.regress.replay.float32_vs_double`)."""
     with tempfile.TemporaryDirectory() as tmp:
         for path, data in files.items():
             (Path(tmp) / path).parent.mkdir(parents=True, exist_ok=True)
             (Path(tmp) / path).write_bytes(data)
-        outcomes = unixport.float32_outcomes(binary, manifest, tmp, db_files)
+        elf = qemu.expectation_build(manifest, tmp, db_files, cache_dir)
+        outcomes = qemu.float32_outcomes(elf, manifest, db_files)
     bound = manifest["float32"]["bound"]
     problems = []
     for case in manifest["cases"]:
@@ -297,16 +299,37 @@ def add_float32(manifest, files, binary, db_files):
     return problems
 
 
+def record_float32(set_dir, cache_dir=None):
+    """Record the float32 expectations of the set in ``set_dir`` again on the flight build
+    (:func:`add_float32`; its packets and double expectations stay as they are): what a
+    change of the flight build's arithmetic (compiler, libm, FPU) needs.  Rewrites
+    ``manifest.json`` atomically and returns the manifest; raises as :func:`record`
+    (nothing is written when an outcome breaks the bound)."""
+    manifest = replay.load_set(set_dir)
+    qemu.check_available()
+    files = {case["packet"]: (Path(set_dir) / case["packet"]).read_bytes()
+             for case in manifest["cases"]}
+    problems = add_float32(manifest, files, replay.database_files(manifest, cache_dir),
+                           cache_dir)
+    if problems:
+        raise replay.RegressionError("nothing written: the float32 outcomes break the set's "
+                                     "bound:\n  " + "\n  ".join(problems))
+    manifest["float32"]["build"] = qemu.BUILD_NAME
+    write_atomic(Path(set_dir) / "manifest.json",
+                 (json.dumps(manifest, indent=1) + "\n").encode())
+    return manifest
+
+
 def record(set_dir, cache_dir=None, log=None):
     """Make the set and write it into ``set_dir`` (``manifest.json`` and ``packets/``; other
-    files there are left alone).  ``cache_dir``: the database cache and the float32 build's
+    files there are left alone).  ``cache_dir``: the database cache and the Cortex-M4F build's
     folder (default :func:`lodestar.ground.cache.default_cache_dir`).  ``log``: a text stream
     for progress (None: silent).  Returns the manifest.  Raises
-    :class:`lodestar.regress.unixport.Unavailable` when the float32 build cannot be made here,
+    :class:`lodestar.regress.qemu.Unavailable` when the Cortex-M4F build cannot be made here,
     ``MicroPythonError`` when it fails, and :class:`lodestar.regress.RegressionError` listing
     every wrong solution, broken ``expect`` and float32 outcome beyond the bound (nothing is
     written in any of these cases)."""
-    binary = unixport.float32_build(cache_dir)
+    qemu.check_available()
     presets_used = sorted({c.preset for c in CASES} | {d.camera for d in DERIVED if d.camera})
     cameras, databases = {}, {}
     for preset in presets_used:
@@ -318,7 +341,7 @@ def record(set_dir, cache_dir=None, log=None):
         replay.cache_image(image, cache_dir)
     manifest = {"format": replay.SET_FORMAT, "generator": "lodestar regress --record",
                 "tolerances": dict(replay.TOLERANCES),
-                "float32": {"build": binary.name.rsplit("-", 1)[0],
+                "float32": {"build": qemu.BUILD_NAME,
                             "tolerances": dict(replay.FLOAT32_TOLERANCES),
                             "bound": dict(replay.FLOAT32_BOUND)},
                 "methods": list(replay.METHODS),
@@ -373,8 +396,9 @@ def record(set_dir, cache_dir=None, log=None):
                                                for m, o in outcomes.items()),
                   file=log, flush=True)
     if log is not None:
-        print(f"float32 build {binary.name}: replaying every packet", file=log, flush=True)
-    problems += add_float32(manifest, files, binary, db_files)
+        print(f"float32 build {qemu.BUILD_NAME}: replaying every packet", file=log,
+              flush=True)
+    problems += add_float32(manifest, files, db_files, cache_dir)
     if problems:
         raise replay.RegressionError(
             "nothing written: the firmware's outputs break the set's rules (firmware "

@@ -16,7 +16,7 @@ from lodestar.ground import cache, solve
 from lodestar.ground.database import build_database
 from lodestar.ground.files import write_atomic
 from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
-from lodestar.regress import mcu, unixport
+from lodestar.regress import mcu, qemu
 from lodestar.regress import micropython as _micropython
 
 SET_FORMAT = 2
@@ -348,7 +348,7 @@ def format_table(rows, micropython, float32=False):
             for p in r["problems"]:
                 lines.append(f"  {r['case']} / {r['method']}: {p}")
     else:
-        names = ["CPython"] + (["the float32 build"] if float32 else []) + \
+        names = ["CPython"] + (["the Cortex-M4F build"] if float32 else []) + \
             (["MicroPython"] if micropython is not None else [])
         names = ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else names[0]
         lines.append(f"all {len(rows)} replays agree with the recorded outputs on {names}")
@@ -381,18 +381,19 @@ def format_resident(micropython):
 
 def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True):
     """Replay the set: ``(rows, micropython result or None)`` (:func:`compare`,
-    :func:`lodestar.regress.micropython.replay`); ``float32``: also on the float32 build
-    (:func:`lodestar.regress.unixport.float32_build`, built into ``cache_dir``, the database
-    cache).  Raises :class:`RegressionError` for an unusable set,
-    :class:`lodestar.regress.unixport.Unavailable` when the float32 build cannot be made here
-    and ``_micropython.MicroPythonError`` when MicroPython is asked for and
-    unavailable or fails (the float32 build or replay included)."""
+    :func:`lodestar.regress.micropython.replay`); ``float32``: also on the flight MCU's
+    build, the Cortex-M4F image under QEMU (:func:`lodestar.regress.qemu.expectation_build`,
+    built into ``cache_dir``, the database cache), in one QEMU run.  Raises
+    :class:`RegressionError` for an unusable set,
+    :class:`lodestar.regress.qemu.Unavailable` when that build cannot be made here and
+    ``_micropython.MicroPythonError`` when MicroPython is asked for and unavailable or
+    fails (the Cortex-M4F build or replay included)."""
     manifest = load_set(set_dir)
     if float32:
-        reason = unixport.unavailable_reason()
+        reason = qemu.unavailable_reason()
         if reason is not None:
-            raise unixport.Unavailable(f"the float32 MicroPython build is unavailable: "
-                                       f"{reason} (or run with --no-float32)")
+            raise qemu.Unavailable(f"the Cortex-M4F build is unavailable: {reason} (or run "
+                                   "with --no-float32)")
     if micropython:
         reason = _micropython.unavailable_reason()
         if reason is not None:
@@ -402,8 +403,8 @@ def regress(set_dir=DEFAULT_SET, micropython=True, cache_dir=None, float32=True)
     cpython = replay_cpython(manifest, set_dir, db_files)
     f32 = None
     if float32:
-        f32 = unixport.float32_outcomes(unixport.float32_build(cache_dir), manifest, set_dir,
-                                        db_files)
+        elf = qemu.expectation_build(manifest, set_dir, db_files, cache_dir)
+        f32 = qemu.float32_outcomes(elf, manifest, db_files)
     mp = None
     if micropython:
         mp = _micropython.replay(manifest, set_dir, db_files, manifest["methods"])

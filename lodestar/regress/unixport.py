@@ -323,10 +323,10 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
                                   capture_output=True, text=True, timeout=timeout, cwd=tmp)
         except subprocess.TimeoutExpired:
             raise MicroPythonError(f"the flight loop ran more than {timeout} s") from None
-    return _loop_output(proc)
+    return loop_output(proc)
 
 
-def _loop_output(proc):
+def loop_output(proc):
     """The :func:`flight_loop` dict of a finished flight-loop process."""
     out = {"finished": False, "results": {}, "times": {}, "resident": {},
            "error": (proc.stdout + proc.stderr).strip()[-2000:]}

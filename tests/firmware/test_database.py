@@ -3,6 +3,7 @@ byte is refused with a clear status, mismatches (version, magic, method, FOV, la
 named, cone queries equal brute force, and the module keeps to the firmware rules."""
 
 import functools
+import io
 import math
 import pathlib
 import struct
@@ -16,6 +17,7 @@ from lodestar.firmware import database
 from lodestar.firmware import status as S
 from lodestar.firmware.database import STAR_BLOCK, Database, DatabaseError, check, load
 from lodestar.ground.database import build_database
+from lodestar.regress import fram
 from lodestar.sim.presets import load_preset
 from tests.firmware.db_images import reseal, status_of
 
@@ -126,6 +128,66 @@ def test_block_reads_equal_star_by_star(tmp_path):
             assert db.cell_range(3) == (mem._cell_start(3), mem._cell_start(4))
     finally:
         f.close()
+
+
+# --------------------------------------------------------------------------------------
+# The SPI F-RAM source
+# --------------------------------------------------------------------------------------
+
+def _fram(image, base=0):
+    """The F-RAM model (:class:`lodestar.regress.fram.Fram`) holding ``image`` at ``base``,
+    the rest erased (``0xFF``)."""
+    store = bytearray(b"\xff" * fram.CAPACITY)
+    store[base:base + len(image)] = image
+    return fram.Fram(io.BytesIO(bytes(store)))
+
+
+@pytest.mark.parametrize("base", [0, 1, 65537, fram.CAPACITY - 40000])
+def test_fram_reader_equals_buffer_reader(base):
+    """``Database.fram`` over the chip's bus reads every record, cone and pair range as the
+    buffer reader, at any base address (one ``READ`` per read, 4 command bytes each); the
+    size defaults to the header's."""
+    image = tiny_image() if base else estcube2_image()
+    mem = Database(image)
+    chip = _fram(image, base)
+    db = Database.fram(chip, chip.cs, base=base)
+    assert db.info() == mem.info() and chip.errors == 0 and chip.cs.value() == 1
+    opened = chip.reads
+    assert opened >= len(image) // 512       # the header, the directory, the CRC in chunks
+    assert all_records(db) == all_records(mem)
+    assert db.stars_in_cone((0.0, 0.6, 0.8), 0.3) == mem.stars_in_cone((0.0, 0.6, 0.8), 0.3)
+    assert db.pairs_in_range(0.1, 0.12) == mem.pairs_in_range(0.1, 0.12)
+    assert chip.reads > opened and chip.errors == 0
+
+
+def test_fram_reader_refuses_what_the_buffer_reader_refuses():
+    """A corrupted byte in F-RAM is the buffer reader's status; an image longer than what
+    lies past ``base``, a base outside the chip and a bus error are ``DATABASE_IO`` (as
+    statuses through ``DatabaseError``, never another exception)."""
+    image = tiny_image()
+    bad = bytearray(image)
+    bad[len(image) // 2] ^= 0x10
+    chip = _fram(bytes(bad))
+    with pytest.raises(DatabaseError) as exc:
+        Database.fram(chip, chip.cs)
+    assert exc.value.status == status_of(bytes(bad)) == S.DATABASE_CORRUPT
+    chip = _fram(image, fram.CAPACITY - len(image) + 1)
+    with pytest.raises(DatabaseError) as exc:
+        Database.fram(chip, chip.cs, base=fram.CAPACITY - len(image) + 1)
+    assert exc.value.status in (S.DATABASE_IO, S.DATABASE_BAD_LENGTH)
+    with pytest.raises(DatabaseError) as exc:
+        Database.fram(chip, chip.cs, base=fram.CAPACITY)
+    assert exc.value.status == S.DATABASE_IO
+
+    class Broken(fram.Fram):
+        def readinto(self, buf, write=0):
+            raise OSError(5)
+
+    chip = Broken(io.BytesIO(image))
+    with pytest.raises(DatabaseError) as exc:
+        Database.fram(chip, chip.cs)
+    assert exc.value.status == S.DATABASE_IO and "F-RAM read at 0" in exc.value.reason
+    assert chip.cs.value() == 1                       # CS released after the failure
 
 
 # --------------------------------------------------------------------------------------

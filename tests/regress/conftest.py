@@ -10,13 +10,16 @@ Needs MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD``, else
 ``-m32`` (Debian ``gcc-multilib``): tests that use a build skip with the reason otherwise,
 and fail instead under ``LODESTAR_REQUIRE_MICROPYTHON`` (CI).  The flight interpreter is
 built once into the cache folder and rebuilt incrementally; the reference one is built once
-(about 30 s) and reused."""
+(about 30 s) and reused.  The Cortex-M4F build (:mod:`lodestar.regress.qemu`) needs
+``build-qemu.sh`` beside the build script, ``arm-none-eabi-gcc`` with newlib and
+``qemu-system-arm``, and skips or fails the same way; the whole set runs on it once per
+session."""
 
 import os
 
 import pytest
 
-from lodestar.regress import replay, unixport
+from lodestar.regress import qemu, replay, unixport
 from tests import REPO
 
 
@@ -45,3 +48,40 @@ def reference():
 def regression_set():
     manifest = replay.load_set(replay.DEFAULT_SET)
     return manifest, replay.database_files(manifest)
+
+
+def _qemu_buildable():
+    reason = qemu.unavailable_reason(REPO)
+    if reason is not None:
+        if os.environ.get("LODESTAR_REQUIRE_MICROPYTHON"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def cortex_m4f(regression_set):
+    """The flight image of the Cortex-M4F build (64 KiB heap) with the set frozen
+    (:func:`lodestar.regress.qemu.flight_build`; skips, or fails under
+    ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU)."""
+    _qemu_buildable()
+    manifest, db_files = regression_set
+    return qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
+
+
+@pytest.fixture(scope="session")
+def cortex_m4f_set(cortex_m4f, regression_set):
+    """The whole set, every method, in one QEMU run of the flight image at its 64 KiB heap
+    with the flight packet buffer (:func:`lodestar.regress.qemu.flight_loop`)."""
+    manifest, db_files = regression_set
+    runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
+    return qemu.flight_loop(cortex_m4f, manifest, db_files, runs)
+
+
+@pytest.fixture(scope="session")
+def cortex_m4f_outcomes(regression_set):
+    """The whole set on the build of the expectations (the flight image with an 80 KiB
+    heap, :func:`lodestar.regress.qemu.expectation_build`) in one QEMU run."""
+    _qemu_buildable()
+    manifest, db_files = regression_set
+    elf = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
+    return qemu.float32_outcomes(elf, manifest, db_files)

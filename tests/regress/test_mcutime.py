@@ -28,7 +28,7 @@ def test_calibration_on_the_reference_build(reference):
 
 
 def test_a_wrong_workload_is_refused(reference, monkeypatch):
-    monkeypatch.setitem(mcutime._CALLS, "bm_nqueens", ("len(list(n_queens(5)))", "4"))
+    monkeypatch.setitem(mcutime.CALLS, "bm_nqueens", ("len(list(n_queens(5)))", "4"))
     with pytest.raises(mcutime.CalibrationError, match="bm_nqueens"):
         mcutime.calibrate(reference, runs=1)
 

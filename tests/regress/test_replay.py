@@ -4,7 +4,7 @@ recipe is reported with exit status 1.
 
 MicroPython runs through ``tools/micropython/run.mjs`` (skipped without Node.js and the npm
 package unless ``LODESTAR_REQUIRE_MICROPYTHON`` is set, as ``tests/conftest.py`` says).  The
-float32 build's replay and recording: ``test_unixport.py`` (these tests pass
+float32 build's replay and recording: ``test_qemu.py`` (these tests pass
 ``--no-float32``).
 """
 
@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from lodestar.cli import main
 from lodestar.contract.stardb import METHODS
 from lodestar.firmware.settings import DEFAULT_TRACK_STARS
-from lodestar.regress import mcu, micropython, record, replay, unixport
+from lodestar.regress import mcu, micropython, qemu, record, replay, unixport
 
 
 @pytest.fixture(autouse=True)
@@ -114,13 +114,13 @@ def test_cpython_only_and_missing_micropython(monkeypatch, capsys):
 
 
 def test_missing_float32_build(monkeypatch, capsys, tmp_path):
-    """Without the float32 build the replay stops with one line (exit status 2) unless told
-    ``--no-float32``, and recording writes nothing."""
-    monkeypatch.setattr(unixport, "unavailable_reason", lambda repo=None: "make is not installed")
+    """Without the Cortex-M4F build (the float32 expectations' build) the replay stops with
+    one line (exit status 2) unless told ``--no-float32``, and recording writes nothing."""
+    monkeypatch.setattr(qemu, "unavailable_reason", lambda repo=None: "make is not installed")
     assert main(["regress", "--no-micropython"]) == 2
     err = capsys.readouterr().err
-    assert err == ("lodestar regress: the float32 MicroPython build is unavailable: make is "
-                   "not installed (or run with --no-float32)\n")
+    assert err == ("lodestar regress: the Cortex-M4F build is unavailable: make is not "
+                   "installed (or run with --no-float32)\n")
     assert main(["regress", "--record", "--set", str(tmp_path / "set")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "make is not installed; nothing recorded" in err
