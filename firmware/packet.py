@@ -5,9 +5,9 @@
 Layout: ``lodestar.contract`` (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES``; CRC
 :func:`lodestar.contract.packet.crc32`).  The checks, their order and their messages are the
 ground codec's (``docs/contract.md``, Packet checks): a failure returns its ``PACKET_*``
-status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read MSB
-first through byte windows precomputed at import, so a field that fits a MicroPython small
-int never allocates a long int (``docs/firmware.md``, Packet decoder).
+status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read as
+``int.from_bytes`` of byte windows precomputed at import (``docs/firmware.md``, Packet
+decoder).
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
@@ -19,14 +19,14 @@ from lodestar.firmware import status as S
 # --------------------------------------------------------------------------------------
 
 def _plan(fields):
-    """``(first, last, head_mask, tail_drop)`` per ``(name, bits)`` field of a section whose
-    fields are packed MSB first: the field occupies bytes ``first .. last`` (from the section
-    start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
-    ``tail_drop`` bits above the least significant bit of byte ``last``."""
+    """``(name, first, stop, drop, mask)`` per ``(name, bits)`` field of a section whose
+    fields are packed MSB first: the field lies in bytes ``first .. stop - 1`` (from the
+    section start), its last bit ``drop`` bits above the least significant bit of byte
+    ``stop - 1``, and ``mask`` keeps its ``bits``."""
     out = []
-    for _name, offset, bits in C.field_offsets(fields):
+    for name, offset, bits in C.field_offsets(fields):
         end = offset + bits - 1                 # the field's last bit
-        out.append((offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
+        out.append((name, offset // 8, end // 8 + 1, 7 - end % 8, (1 << bits) - 1))
     return tuple(out)
 
 
@@ -37,29 +37,21 @@ _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 
-def _read(data, base, plan, names, into):
-    """Set attribute ``names[k]`` of ``into`` to field ``k`` of the section starting at byte
-    ``base`` of ``data`` (``plan``: :func:`_plan`); returns ``into``.  Bytes are accumulated
-    MSB first with the neighbouring fields' bits removed before they are shifted in, so no
-    intermediate exceeds the field's value: a value that fits a MicroPython small int is read
-    without allocating a long int.  One loop without calls: it runs for every field of every
-    record."""
-    k = 0
-    for first, last, head_mask, tail_drop in plan:
-        i = base + first
-        end = base + last
-        value = data[i] & head_mask
-        if i == end:
-            value >>= tail_drop
-        else:
-            i += 1
-            while i < end:
-                value = (value << 8) | data[i]
-                i += 1
-            value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
-        setattr(into, names[k], value)
-        k += 1
+def _read(view, base, plan, into):
+    """Set each field of ``plan`` (:func:`_plan`) as an attribute of ``into`` from the
+    section starting at byte ``base`` of ``view`` (a ``memoryview``: a window of it is no
+    copy); returns ``into``.  Each field is ``int.from_bytes`` of its byte window, shifted
+    and masked: one loop of few bytecodes, as it runs for every field of every record (a
+    window wider than a small int allocates a long int for the moment)."""
+    put = setattr
+    from_bytes = int.from_bytes
+    for name, first, stop, drop, mask in plan:
+        put(into, name, (from_bytes(view[base + first:base + stop], "big") >> drop) & mask)
     return into
+
+
+def _view(data):
+    return data if isinstance(data, memoryview) else memoryview(data)
 
 
 class _Header:
@@ -68,7 +60,7 @@ class _Header:
 
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
-    fields = _read(data, 0, _HEADER_PLAN, C.HEADER_NAMES, _Header())
+    fields = _read(_view(data), 0, _HEADER_PLAN, _Header())
     header = {}
     for name in C.HEADER_NAMES:
         header[name] = getattr(fields, name)
@@ -82,8 +74,7 @@ def record(data, index, into=None):
     after record into one object allocates nothing but large moments)."""
     if into is None:
         into = C.BlobRecord()
-    return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, C.RECORD_NAMES,
-                 into)
+    return _read(_view(data), C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, into)
 
 
 # --------------------------------------------------------------------------------------
@@ -231,12 +222,40 @@ def checked_records(data, header, into=None):
     :class:`BadRecord` at the first bad record, so a consumer that reads them all has
     checked the packet as :func:`check` does, with one decoding of each record."""
     limits = moment_limits(header["pixel_bits"])
+    bounds = _record_bounds(header, limits)
+    view = _view(data)
+    if into is None:
+        into = C.BlobRecord()
+    base = C.HEADER_BYTES
     for index in range(header["n_records"]):
-        into = record(data, index, into)
-        reason = record_problem(into, header, limits)
-        if reason:
-            raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
+        _read(view, base, _RECORD_PLAN, into)
+        base += C.RECORD_BYTES
+        if not _record_good(into, bounds):
+            reason = record_problem(into, header, limits)
+            if reason:
+                raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
         yield into
+
+
+def _record_bounds(header, limits):
+    """What :func:`_record_good` compares a record of the frame ``header`` describes with:
+    ``(width, height, full scale, moment limits in contract.MOMENTS order)``."""
+    return (header["width"], header["height"], C.full_scale(header["pixel_bits"]),
+            tuple(limits[name] for name in C.MOMENTS))
+
+
+def _record_good(rec, bounds):
+    """True when :func:`record_problem` finds nothing, with no saturated moments: the
+    common case in one expression, without the messages (any other record goes through
+    :func:`record_problem`, which names its problem)."""
+    width, height, full, (l0, l1, l2, l3, l4, l5) = bounds
+    n, nsat, peak = rec.n, rec.nsat, rec.peak
+    xmin, xmax, ymin, ymax = rec.xmin, rec.xmax, rec.ymin, rec.ymax
+    return (not rec.flags and xmin <= xmax < width and ymin <= ymax < height and
+            peak <= full and nsat <= n and (not nsat or peak == full) and
+            0 < n <= (xmax - xmin + 1) * (ymax - ymin + 1) and rec.s0 <= l0 and
+            rec.sx <= l1 and rec.sy <= l2 and rec.sxx <= l3 and rec.syy <= l4 and
+            rec.sxy <= l5)
 
 
 def check(data, records=True):
