@@ -126,7 +126,8 @@ def build(label, checkout, work, db, manifest, repeats, script):
 
 
 def run(elf, script):
-    """Replay on QEMU: ``{(case, repeat): {"status", "mode", "matches", "total", stage: units}}``."""
+    """Replay on QEMU: ``{(case, repeat): {"status", "mode", "matches", "call", stage:
+    units}}``."""
     runner = script.parent / "run-qemu.py"
     with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
         f.write(SCRIPT)

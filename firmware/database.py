@@ -475,9 +475,10 @@ class Database:
 
     def stars_in_cone(self, d, radius, out=None, vecs=None):
         """Indices of the stars within ``radius`` (rad) of the unit vector ``d``, appended
-        to ``out`` (a new list when ``None``) in table order; ``vecs``: an ``array`` to
-        which each such star's vector ``x, y, z`` is appended as well (one read of the
-        table for both).  Only the cells of each face's rows and columns the cone can reach
+        to ``out`` (a new list when ``None``) in table order; ``vecs``: a list to which
+        each such star's vector ``x, y, z`` is appended as well (one read of the table for
+        both; a list, as MicroPython grows an ``array`` 8 entries at a time, each move
+        leaving a hole).  Only the cells of each face's rows and columns the cone can reach
         (:func:`cell_span`) are tested, then each cell's centre, then its stars."""
         if out is None:
             out = []

@@ -5,9 +5,9 @@
 Layout: ``lodestar.contract`` (``HEADER_FIELDS``, ``RECORD_FIELDS``, ``CRC_BYTES``; CRC
 :func:`lodestar.contract.packet.crc32`).  The checks, their order and their messages are the
 ground codec's (``docs/contract.md``, Packet checks): a failure returns its ``PACKET_*``
-status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read as
-``int.from_bytes`` of byte windows precomputed at import (``docs/firmware.md``, Packet
-decoder).
+status (``BAD_INPUT`` for non-bytes) and the message the codec raises.  Fields are read MSB
+first through byte windows precomputed at import, so a field that fits a MicroPython small
+int never allocates a long int (``docs/firmware.md``, Packet decoder).
 Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 """
 
@@ -18,16 +18,35 @@ from lodestar.firmware import status as S
 # Layout: each field as a byte window, from the contract
 # --------------------------------------------------------------------------------------
 
+SMALL_BITS = 30
+"""Widest value a MicroPython small int holds on a 32-bit MCU (31-bit signed)."""
+
+
+def _window(offset, bits, shift):
+    end = offset + bits - 1                     # the window's last bit
+    return offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8, shift
+
+
 def _plan(fields):
-    """``(name, first, stop, drop, mask)`` per ``(name, bits)`` field of a section whose
-    fields are packed MSB first: the field lies in bytes ``first .. stop - 1`` (from the
-    section start), its last bit ``drop`` bits above the least significant bit of byte
-    ``stop - 1``, and ``mask`` keeps its ``bits``."""
-    out = []
+    """Byte windows ``(first, last, head_mask, tail_drop, shift)`` of the ``(name, bits)``
+    fields of a section packed MSB first, and ``names`` (one per field): a window occupies
+    bytes ``first .. last`` (from the section start), ``head_mask`` keeps its bits of byte
+    ``first`` and its last bit is ``tail_drop`` bits above the least significant bit of
+    byte ``last``.  A field wider than :data:`SMALL_BITS` is two windows of at most that
+    many bits, the high one with ``shift`` (the low one's width) and the low one after it
+    with ``shift`` 0; every other field is one window with ``shift`` 0.  Returns ``(windows,
+    names)``."""
+    windows = []
+    names = []
     for name, offset, bits in C.field_offsets(fields):
-        end = offset + bits - 1                 # the field's last bit
-        out.append((name, offset // 8, end // 8 + 1, 7 - end % 8, (1 << bits) - 1))
-    return tuple(out)
+        if bits > SMALL_BITS:
+            low = bits // 2
+            windows.append(_window(offset, bits - low, low))
+            windows.append(_window(offset + bits - low, low, 0))
+        else:
+            windows.append(_window(offset, bits, 0))
+        names.append(name)
+    return tuple(windows), tuple(names)
 
 
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
@@ -37,21 +56,40 @@ _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 
-def _read(view, base, plan, into):
+def _read(data, base, plan, into):
     """Set each field of ``plan`` (:func:`_plan`) as an attribute of ``into`` from the
-    section starting at byte ``base`` of ``view`` (a ``memoryview``: a window of it is no
-    copy); returns ``into``.  Each field is ``int.from_bytes`` of its byte window, shifted
-    and masked: one loop of few bytecodes, as it runs for every field of every record (a
-    window wider than a small int allocates a long int for the moment)."""
+    section starting at byte ``base`` of ``data``; returns ``into``.  Each window's bytes
+    are accumulated MSB first with the neighbouring fields' bits removed before they are
+    shifted in, so no intermediate exceeds a small int: only a field wider than one
+    allocates, its two halves joined by one shift and one ``or`` (on the MCU every long int
+    is heap that costs collections: a wide field accumulated byte by byte would allocate at
+    every step).  One loop without calls but ``setattr``, bound locally: it runs for every
+    field of every record."""
     put = setattr
-    from_bytes = int.from_bytes
-    for name, first, stop, drop, mask in plan:
-        put(into, name, (from_bytes(view[base + first:base + stop], "big") >> drop) & mask)
+    windows, names = plan
+    k = 0
+    high = 0
+    for first, last, head_mask, tail_drop, shift in windows:
+        i = base + first
+        end = base + last
+        value = data[i] & head_mask
+        if i == end:
+            value >>= tail_drop
+        else:
+            i += 1
+            while i < end:
+                value = (value << 8) | data[i]
+                i += 1
+            value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
+        if shift:                       # the high half of a wide field: the low one next
+            high = value << shift
+            continue
+        if high:
+            value |= high
+            high = 0
+        put(into, names[k], value)
+        k += 1
     return into
-
-
-def _view(data):
-    return data if isinstance(data, memoryview) else memoryview(data)
 
 
 class _Header:
@@ -60,7 +98,7 @@ class _Header:
 
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
-    fields = _read(_view(data), 0, _HEADER_PLAN, _Header())
+    fields = _read(data, 0, _HEADER_PLAN, _Header())
     header = {}
     for name in C.HEADER_NAMES:
         header[name] = getattr(fields, name)
@@ -74,7 +112,7 @@ def record(data, index, into=None):
     after record into one object allocates nothing but large moments)."""
     if into is None:
         into = C.BlobRecord()
-    return _read(_view(data), C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, into)
+    return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, into)
 
 
 # --------------------------------------------------------------------------------------
@@ -223,12 +261,11 @@ def checked_records(data, header, into=None):
     checked the packet as :func:`check` does, with one decoding of each record."""
     limits = moment_limits(header["pixel_bits"])
     bounds = _record_bounds(header, limits)
-    view = _view(data)
     if into is None:
         into = C.BlobRecord()
     base = C.HEADER_BYTES
     for index in range(header["n_records"]):
-        _read(view, base, _RECORD_PLAN, into)
+        _read(data, base, _RECORD_PLAN, into)
         base += C.RECORD_BYTES
         if not _record_good(into, bounds):
             reason = record_problem(into, header, limits)

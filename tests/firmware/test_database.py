@@ -6,7 +6,6 @@ import functools
 import math
 import pathlib
 import struct
-from array import array
 
 import numpy as np
 import pytest
@@ -119,7 +118,7 @@ def test_stars_in_cone_spans_miss_no_star():
             d[rng.integers(3)] = np.sign(d[0]) * abs(d[1])
         d /= np.linalg.norm(d)
         radius = float(np.exp(rng.uniform(math.log(0.003), math.log(1.6))))
-        vecs = array("f")
+        vecs = []
         got = db.stars_in_cone(tuple(d), radius, vecs=vecs)
         expected = np.flatnonzero(vec @ d >= np.float64(math.cos(radius)))
         assert sorted(got) == expected.tolist() and got == sorted(got), (d, radius)
