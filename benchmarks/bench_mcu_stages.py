@@ -116,7 +116,11 @@ def build(label, checkout, work, db, manifest, repeats, script):
     frozen.write_text(f"package('lodestar', base_path={str(image)!r})\n"
                       f"module('lodestar_bench.py', base_path={str(data)!r})\n")
     env = dict(os.environ, FROZEN_MANIFEST=str(frozen))
-    proc = subprocess.run(["bash", str(script), str(work / "mp"), "C", str(HEAP)], env=env,
+    out = side / "mp"           # built from clean: an incremental build keeps the last
+    for old in out.glob("build-*"):     # image's qstrs, which moves every time by a few %
+        if old.is_dir():
+            shutil.rmtree(old)
+    proc = subprocess.run(["bash", str(script), str(out), "C", str(HEAP)], env=env,
                           capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"bench_mcu_stages: the {label} build failed:\n{proc.stderr[-2000:]}")
