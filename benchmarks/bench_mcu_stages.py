@@ -30,10 +30,16 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
+from lodestar.firmware import starid
 from lodestar.ground.database import build_database
 from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.regress import replay, unixport
 from lodestar.sim import presets
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import centroid_scene
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINE = "4641f47"
@@ -62,6 +68,13 @@ for name, pkt, prior, omega, exposure in B.CASES:
         t = r.timings
         print('RUN', name, rep, r.status, r.mode, len(r.matches), time.ticks_diff(t1, t0),
               ' '.join([k + '=' + str(t[k]) for k in t]))
+from lodestar.firmware import starid
+for label, tol, vecs in B.BUDGET:
+    gc.collect()
+    t0 = clock()
+    sol = starid.identify(vecs, tr.database, method='pyramid', tolerance_rad=tol,
+                          budget=1000000)
+    print('WORK', label, sol.status, sol.work, time.ticks_diff(clock(), t0))
 print('DONE')
 """
 
@@ -84,9 +97,31 @@ def flight_database():
                                 mag_limit=DEFAULT_MAX_MAG, **FLIGHT_DENSITY))
 
 
+BUDGET_TOLERANCES_PX = (100.0, None)
+"""Match tolerances (px) of the work-budget cases; None: the widest the firmware accepts."""
+
+
+def budget_cases():
+    """The hostile search of ``benchmarks/bench_budget.py`` (30 estcube2 stars, 10 of them
+    false, 1 px noise, seed 7) at wide tolerances: ``[(label, tolerance_rad, vectors)]``,
+    searches that spend the whole work budget."""
+    cam = presets.load_preset("estcube2")
+    rng = np.random.default_rng(7)
+    scene = centroid_scene(cam, random_attitude(rng), rng, load(), noise_px=1.0, n_false=10,
+                           max_stars=30)
+    vectors = [tuple(v) for v in scene.vectors.tolist()]
+    fov_h = np.radians(cam.fov_deg()[0])
+    px = fov_h / cam.width
+    out = []
+    for tol_px in BUDGET_TOLERANCES_PX:
+        tol = starid.max_tolerance_rad(fov_h) if tol_px is None else tol_px * px
+        out.append((f"tolerance_{tol / px:.0f}px", float(tol), vectors))
+    return out
+
+
 def data_module(path, db, manifest, repeats):
-    """Write the frozen data module: the database, the camera, the settings and the estcube2
-    packets with their inputs."""
+    """Write the frozen data module: the database, the camera, the settings, the estcube2
+    packets with their inputs and the work-budget cases."""
     cam = manifest["cameras"]["estcube2"]
     cases = []
     for case in manifest["cases"]:
@@ -101,7 +136,7 @@ def data_module(path, db, manifest, repeats):
     path.write_text(f"DB = {db!r}\nCAMERA = {cam['camera']!r}\n"
                     f"SETTINGS = ({cam['exposure_s']!r}, {cam['row_time_s']!r}, "
                     f"{cam['tolerance_px']!r})\nREPEATS = {repeats}\nCASES = [\n" +
-                    "\n".join(cases) + "\n]\n")
+                    "\n".join(cases) + f"\n]\nBUDGET = {budget_cases()!r}\n")
 
 
 def build(label, checkout, work, db, manifest, repeats, script):
@@ -146,6 +181,9 @@ def run(elf, script):
     out = {}
     for line in proc.stdout.splitlines():
         parts = line.split()
+        if parts and parts[0] == "WORK":
+            out[("work " + parts[1], 0)] = {"status": int(parts[2]), "work": int(parts[3]),
+                                            "call": int(parts[4])}
         if not parts or parts[0] != "RUN":
             continue
         row = {"status": int(parts[3]), "mode": parts[4], "matches": int(parts[5]),
@@ -169,7 +207,8 @@ def frame_class(name):
 
 def report(results, labels):
     """Print the per-packet table and the per-class summary."""
-    names = sorted({k[0] for k in results[labels[0]]}, key=lambda n: (frame_class(n), n))
+    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith("work ")},
+                   key=lambda n: (frame_class(n), n))
     repeats = max(k[1] for k in results[labels[0]]) + 1
     print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
           "a later call")
@@ -194,9 +233,18 @@ def report(results, labels):
     print("|---|---|---|---|")
     for lab in labels:
         t = sorted(ms(r["call"]) for k, r in results[lab].items()
-                   if frame_class(k[0]) == "lost in space")
+                   if frame_class(k[0]) == "lost in space" and not k[0].startswith("work "))
         p95 = t[min(len(t) - 1, int(0.95 * len(t)))]
         print(f"| {lab} | {statistics.median(t):.0f} | {p95:.0f} | {t[-1]:.0f} |")
+    print("\n## The work budget's worst case: a hostile Pyramid search (bench_budget.py's), "
+          "F401 ms (estimate)")
+    print("| build | case | status | work units | F401 ms | F401 ms per million units |")
+    print("|---|---|---|---|---|---|")
+    for lab in labels:
+        for (name, _r), row in sorted(results[lab].items()):
+            if name.startswith("work "):
+                print(f"| {lab} | {name[5:]} | {row['status']} | {row['work']:,} | "
+                      f"{ms(row['call']):.0f} | {ms(row['call']) / row['work'] * 1e6:.0f} |")
 
 
 def main():

@@ -18,35 +18,16 @@ from lodestar.firmware import status as S
 # Layout: each field as a byte window, from the contract
 # --------------------------------------------------------------------------------------
 
-SMALL_BITS = 30
-"""Widest value a MicroPython small int holds on a 32-bit MCU (31-bit signed)."""
-
-
-def _window(offset, bits, shift):
-    end = offset + bits - 1                     # the window's last bit
-    return offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8, shift
-
-
 def _plan(fields):
-    """Byte windows ``(first, last, head_mask, tail_drop, shift)`` of the ``(name, bits)``
-    fields of a section packed MSB first, and ``names`` (one per field): a window occupies
-    bytes ``first .. last`` (from the section start), ``head_mask`` keeps its bits of byte
-    ``first`` and its last bit is ``tail_drop`` bits above the least significant bit of
-    byte ``last``.  A field wider than :data:`SMALL_BITS` is two windows of at most that
-    many bits, the high one with ``shift`` (the low one's width) and the low one after it
-    with ``shift`` 0; every other field is one window with ``shift`` 0.  Returns ``(windows,
-    names)``."""
-    windows = []
-    names = []
+    """``(name, first, last, head_mask, tail_drop)`` per ``(name, bits)`` field of a section
+    whose fields are packed MSB first: the field occupies bytes ``first .. last`` (from the
+    section start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
+    ``tail_drop`` bits above the least significant bit of byte ``last``."""
+    out = []
     for name, offset, bits in C.field_offsets(fields):
-        if bits > SMALL_BITS:
-            low = bits // 2
-            windows.append(_window(offset, bits - low, low))
-            windows.append(_window(offset + bits - low, low, 0))
-        else:
-            windows.append(_window(offset, bits, 0))
-        names.append(name)
-    return tuple(windows), tuple(names)
+        end = offset + bits - 1                 # the field's last bit
+        out.append((name, offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
+    return tuple(out)
 
 
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
@@ -58,18 +39,15 @@ _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 def _read(data, base, plan, into):
     """Set each field of ``plan`` (:func:`_plan`) as an attribute of ``into`` from the
-    section starting at byte ``base`` of ``data``; returns ``into``.  Each window's bytes
-    are accumulated MSB first with the neighbouring fields' bits removed before they are
-    shifted in, so no intermediate exceeds a small int: only a field wider than one
-    allocates, its two halves joined by one shift and one ``or`` (on the MCU every long int
-    is heap that costs collections: a wide field accumulated byte by byte would allocate at
-    every step).  One loop without calls but ``setattr``, bound locally: it runs for every
-    field of every record."""
+    section starting at byte ``base`` of ``data``; returns ``into``.  Bytes are accumulated
+    MSB first with the neighbouring fields' bits removed before they are shifted in, so no
+    intermediate exceeds the field's value: a value that fits a MicroPython small int is read
+    without allocating a long int (``int.from_bytes`` of a window would allocate the window
+    and often a long int: on the MCU's heap that costs collections).  One loop without
+    calls but ``setattr``, bound locally, the field's name in its plan entry: it runs for
+    every field of every record."""
     put = setattr
-    windows, names = plan
-    k = 0
-    high = 0
-    for first, last, head_mask, tail_drop, shift in windows:
+    for name, first, last, head_mask, tail_drop in plan:
         i = base + first
         end = base + last
         value = data[i] & head_mask
@@ -81,14 +59,7 @@ def _read(data, base, plan, into):
                 value = (value << 8) | data[i]
                 i += 1
             value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
-        if shift:                       # the high half of a wide field: the low one next
-            high = value << shift
-            continue
-        if high:
-            value |= high
-            high = 0
-        put(into, names[k], value)
-        k += 1
+        put(into, name, value)
     return into
 
 
