@@ -97,14 +97,14 @@ def flight_database():
                                 mag_limit=DEFAULT_MAX_MAG, **FLIGHT_DENSITY))
 
 
-BUDGET_TOLERANCES_PX = (100.0, None)
+BUDGET_TOLERANCES_PX = (30.0, 100.0, None)
 """Match tolerances (px) of the work-budget cases; None: the widest the firmware accepts."""
 
 
 def budget_cases():
     """The hostile search of ``benchmarks/bench_budget.py`` (30 estcube2 stars, 10 of them
     false, 1 px noise, seed 7) at wide tolerances: ``[(label, tolerance_rad, vectors)]``,
-    searches that spend the whole work budget."""
+    searches that spend the whole work budget or the heap."""
     cam = presets.load_preset("estcube2")
     rng = np.random.default_rng(7)
     scene = centroid_scene(cam, random_attitude(rng), rng, load(), noise_px=1.0, n_false=10,
