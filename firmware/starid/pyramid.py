@@ -176,10 +176,17 @@ class _Search(Search):
             rec = db.pair_stars(p0, PAIR_BLOCK if p0 + PAIR_BLOCK < stop else stop - p0)
             self.spend(len(rec))
             for t in range(0, len(rec), 2):
+                a = rec[t]
+                c = rec[t + 1]
+                ea = ij_head[a & ij_mask]
+                ec = ij_head[c & ij_mask]
+                if ea == NONE and ec == NONE:
+                    continue            # neither star starts an ij chain: most pairs
                 for side in (0, 1):     # (a, c), then (c, a): a constant, no tuple per pair
-                    ii = rec[t + side]
-                    kk = rec[t + 1 - side]
-                    e = ij_head[ii & ij_mask]
+                    if side:
+                        ii, kk, e = c, a, ec
+                    else:
+                        ii, kk, e = a, c, ea
                     while e != NONE:
                         if ij_st[e] == ii:
                             jj = ij_st[e ^ 1]
