@@ -11,7 +11,8 @@ flash; one :class:`StarTracker` over ``Database(buffer)`` of the frozen bytes re
 packet ``--repeats`` times in a row (the first call of a tracking packet queries the
 database's cone, later ones reuse it), timed by ``time.ticks_us`` under ``run-qemu.py
 --icount`` (deterministic: proportional to executed instructions) and per stage through
-``Settings.clock``.  F401 ms is an **estimate**: units × :data:`US_PER_UNIT`, the published
+``Settings.clock``; then the hostile Pyramid searches of ``bench_budget.py`` (work units
+spent and time: the work budget in MCU time).  F401 ms is an **estimate**: units × :data:`US_PER_UNIT`, the published
 NUCLEO-F401RE times of ``bm_float`` and ``bm_nqueens`` over their units on the
 representation-A twin of this build (``docs/mcu_board.md``, Measured on the Cortex-M4F
 build); QEMU models no flash wait states.
