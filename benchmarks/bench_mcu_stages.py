@@ -12,10 +12,10 @@ packet ``--repeats`` times in a row (the first call of a tracking packet queries
 database's cone, later ones reuse it), timed by ``time.ticks_us`` under ``run-qemu.py
 --icount`` (deterministic: proportional to executed instructions) and per stage through
 ``Settings.clock``; then the hostile Pyramid searches of ``bench_budget.py`` (work units
-spent and time: the work budget in MCU time).  F401 ms is an **estimate**: units × :data:`US_PER_UNIT`, the published
-NUCLEO-F401RE times of ``bm_float`` and ``bm_nqueens`` over their units on the
-representation-A twin of this build (``docs/mcu_board.md``, Measured on the Cortex-M4F
-build); QEMU models no flash wait states.
+spent and time: the work budget in MCU time).  F401 ms is an **estimate**: units ×
+:data:`US_PER_UNIT`, the published NUCLEO-F401RE times of ``bm_float`` and ``bm_nqueens``
+over their units on the representation-A twin of this build (``docs/mcu_board.md``,
+Measured on the Cortex-M4F build); QEMU models no flash wait states.
 
 Needs ``arm-none-eabi-gcc``, newlib, ``qemu-system-arm`` and ``build-qemu.sh`` beside
 MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or ``../shared/micropython``).
