@@ -108,6 +108,34 @@ def cell_centre(c, n):
     return u / norm, v / norm, s / norm
 
 
+_QUARTER = 0.25 * math.pi
+"""Largest angle of a face coordinate's direction from the face centre (``u = tan(angle)``,
+``|u| <= 1``)."""
+
+
+def cell_span(towards, along, radius, n):
+    """``(lo, hi)``: the cell rows ``lo <= i < hi`` along one axis of a face (of ``n``) that
+    can hold a direction within ``radius`` (rad) of the unit vector ``d``; ``towards``: the
+    component of ``d`` along the face's outward axis, ``along``: along the face axis ``u``
+    (or ``v``).  A face coordinate is ``u = tan(l)``, ``l`` the longitude about the other
+    face axis, and a cone of radius ``r`` around a direction of longitude ``l0`` and
+    latitude ``b`` spans ``l0 +- asin(sin r / cos b)`` (the whole circle when ``sin r >= cos
+    b``); :data:`_CELL_ERROR` more on each side covers rounding (here and in the cells the
+    ground assigned).  ``(0, 0)`` when the cone misses the face's rows."""
+    h = math.sqrt(towards * towards + along * along)      # cos b
+    reach = math.sin(radius) if radius < 0.5 * math.pi else 2.0
+    if towards <= 0.0 or not reach < h:
+        return 0, n
+    centre = math.atan2(along, towards)
+    spread = math.asin(reach / h) + _CELL_ERROR
+    lo, hi = centre - spread, centre + spread
+    if hi <= -_QUARTER or lo >= _QUARTER:
+        return 0, 0
+    i_lo = 0 if lo <= -_QUARTER else int((math.tan(lo) + 1.0) * 0.5 * n)
+    i_hi = n if hi >= _QUARTER else int((math.tan(hi) + 1.0) * 0.5 * n) + 1
+    return (i_lo if i_lo > 0 else 0), (i_hi if i_hi < n else n)
+
+
 def n_cells(n):
     """Number of cells of the ``n x n`` cube grid."""
     return 6 * n * n
@@ -494,25 +522,6 @@ class Database:
         return self._src.unpack("<" + _STAR_VECTOR * n, self._stars_off + start * stardb.STAR_SIZE,
                                 n * stardb.STAR_SIZE)
 
-    def read_vectors(self, ids, vecs):
-        """Set ``vecs[3 k], vecs[3 k + 1], vecs[3 k + 2]`` to the vector of star ``ids[k]``
-        for every ``k``: a run of ascending ids within :data:`STAR_BLOCK` (a cone's stars,
-        stored by sky cell) shares one read."""
-        n = len(ids)
-        k = 0
-        while k < n:
-            first = ids[k]
-            block = self.star_vectors(first)
-            m = len(block) // 3
-            while k < n:
-                t = ids[k] - first
-                if t < 0 or t >= m:
-                    break
-                t *= 3
-                j = 3 * k
-                vecs[j], vecs[j + 1], vecs[j + 2] = block[t], block[t + 1], block[t + 2]
-                k += 1
-
     def _star_word(self, i):
         return self._src.unpack("<HH", self._stars_off + i * stardb.STAR_SIZE + 12, 4)
 
@@ -544,9 +553,13 @@ class Database:
         """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
         return self._src.unpack(_CELL_RANGE_FORMAT, self._cells_off + 2 * c, 4)
 
-    def stars_in_cone(self, d, radius, out=None):
+    def stars_in_cone(self, d, radius, out=None, vecs=None):
         """Indices of the stars within ``radius`` (rad) of the unit vector ``d``, appended
-        to ``out`` (a new list when ``None``) in table order."""
+        to ``out`` (a new list when ``None``) in table order; ``vecs``: a list to which
+        each such star's vector ``x, y, z`` is appended as well (one read of the table for
+        both; a list, as MicroPython grows an ``array`` 8 entries at a time, each move
+        leaving a hole).  Only the cells of each face's rows and columns the cone can reach
+        (:func:`cell_span`) are tested, then each cell's centre, then its stars."""
         if out is None:
             out = []
         dx, dy, dz = d
@@ -556,25 +569,38 @@ class Database:
         far = reach + _FACE_RADIUS + _CELL_ERROR
         cos_face = math.cos(far) if far < math.pi else -2.0
         cells = self._cells
-        per_face = len(cells) // 18
+        n = self.cells_per_face
         for face in range(6):           # cells are stored face by face (cell_of)
-            towards = d[face >> 1]
-            if (-towards if face & 1 else towards) < cos_face:
+            a = face >> 1
+            towards = -d[a] if face & 1 else d[a]
+            if towards < cos_face:
                 continue                # the whole face is out of reach
-            for c in range(face * per_face, (face + 1) * per_face):
-                j = 3 * c
-                if cells[j] * dx + cells[j + 1] * dy + cells[j + 2] * dz < cos_reach:
-                    continue
-                a, b = self.cell_range(c)
-                while a < b:            # the cell's stars, a block per read
-                    v = self.star_vectors(a)
-                    n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
-                    for k in range(n):
-                        j = 3 * k
-                        if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:
-                            out.append(a + k)
-                    a += n
+            u_lo, u_hi = cell_span(towards, d[(a + 1) % 3], radius, n)
+            v_lo, v_hi = cell_span(towards, d[(a + 2) % 3], radius, n)
+            for iu in range(u_lo, u_hi):
+                row = (face * n + iu) * n
+                for c in range(row + v_lo, row + v_hi):
+                    j = 3 * c
+                    if cells[j] * dx + cells[j + 1] * dy + cells[j + 2] * dz >= cos_reach:
+                        self._cone_cell(c, dx, dy, dz, cos_r, out, vecs)
         return out
+
+    def _cone_cell(self, c, dx, dy, dz, cos_r, out, vecs):
+        """The stars of cell ``c`` within ``cos_r`` of ``d``, appended to ``out`` (and their
+        vectors to ``vecs``, unless None)."""
+        a, b = self.cell_range(c)
+        while a < b:                    # the cell's stars, a block per read
+            v = self.star_vectors(a)
+            n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
+            for k in range(n):
+                j = 3 * k
+                if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:
+                    out.append(a + k)
+                    if vecs is not None:
+                        vecs.append(v[j])
+                        vecs.append(v[j + 1])
+                        vecs.append(v[j + 2])
+            a += n
 
     # ---- pairs ----------------------------------------------------------------------
 

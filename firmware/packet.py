@@ -19,14 +19,14 @@ from lodestar.firmware import status as S
 # --------------------------------------------------------------------------------------
 
 def _plan(fields):
-    """``(first, last, head_mask, tail_drop)`` per ``(name, bits)`` field of a section whose
-    fields are packed MSB first: the field occupies bytes ``first .. last`` (from the section
-    start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
+    """``(name, first, last, head_mask, tail_drop)`` per ``(name, bits)`` field of a section
+    whose fields are packed MSB first: the field occupies bytes ``first .. last`` (from the
+    section start), ``head_mask`` keeps its bits of byte ``first`` and its last bit is
     ``tail_drop`` bits above the least significant bit of byte ``last``."""
     out = []
-    for _name, offset, bits in C.field_offsets(fields):
+    for name, offset, bits in C.field_offsets(fields):
         end = offset + bits - 1                 # the field's last bit
-        out.append((offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
+        out.append((name, offset // 8, end // 8, 0xFF >> (offset % 8), 7 - end % 8))
     return tuple(out)
 
 
@@ -37,15 +37,17 @@ _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 
-def _read(data, base, plan, names, into):
-    """Set attribute ``names[k]`` of ``into`` to field ``k`` of the section starting at byte
-    ``base`` of ``data`` (``plan``: :func:`_plan`); returns ``into``.  Bytes are accumulated
+def _read(data, base, plan, into):
+    """Set each field of ``plan`` (:func:`_plan`) as an attribute of ``into`` from the
+    section starting at byte ``base`` of ``data``; returns ``into``.  Bytes are accumulated
     MSB first with the neighbouring fields' bits removed before they are shifted in, so no
     intermediate exceeds the field's value: a value that fits a MicroPython small int is read
-    without allocating a long int.  One loop without calls: it runs for every field of every
-    record."""
-    k = 0
-    for first, last, head_mask, tail_drop in plan:
+    without allocating a long int (``int.from_bytes`` of a window would allocate the window
+    and often a long int: on the MCU's heap that costs collections).  One loop without
+    calls but ``setattr``, bound locally, the field's name in its plan entry: it runs for
+    every field of every record."""
+    put = setattr
+    for name, first, last, head_mask, tail_drop in plan:
         i = base + first
         end = base + last
         value = data[i] & head_mask
@@ -57,8 +59,7 @@ def _read(data, base, plan, names, into):
                 value = (value << 8) | data[i]
                 i += 1
             value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
-        setattr(into, names[k], value)
-        k += 1
+        put(into, name, value)
     return into
 
 
@@ -68,7 +69,7 @@ class _Header:
 
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
-    fields = _read(data, 0, _HEADER_PLAN, C.HEADER_NAMES, _Header())
+    fields = _read(data, 0, _HEADER_PLAN, _Header())
     header = {}
     for name in C.HEADER_NAMES:
         header[name] = getattr(fields, name)
@@ -82,8 +83,7 @@ def record(data, index, into=None):
     after record into one object allocates nothing but large moments)."""
     if into is None:
         into = C.BlobRecord()
-    return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, C.RECORD_NAMES,
-                 into)
+    return _read(data, C.HEADER_BYTES + index * C.RECORD_BYTES, _RECORD_PLAN, into)
 
 
 # --------------------------------------------------------------------------------------
@@ -231,12 +231,39 @@ def checked_records(data, header, into=None):
     :class:`BadRecord` at the first bad record, so a consumer that reads them all has
     checked the packet as :func:`check` does, with one decoding of each record."""
     limits = moment_limits(header["pixel_bits"])
+    bounds = _record_bounds(header, limits)
+    if into is None:
+        into = C.BlobRecord()
+    base = C.HEADER_BYTES
     for index in range(header["n_records"]):
-        into = record(data, index, into)
-        reason = record_problem(into, header, limits)
-        if reason:
-            raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
+        _read(data, base, _RECORD_PLAN, into)
+        base += C.RECORD_BYTES
+        if not _record_good(into, bounds):
+            reason = record_problem(into, header, limits)
+            if reason:
+                raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
         yield into
+
+
+def _record_bounds(header, limits):
+    """What :func:`_record_good` compares a record of the frame ``header`` describes with:
+    ``(width, height, full scale, moment limits in contract.MOMENTS order)``."""
+    return (header["width"], header["height"], C.full_scale(header["pixel_bits"]),
+            tuple(limits[name] for name in C.MOMENTS))
+
+
+def _record_good(rec, bounds):
+    """True when :func:`record_problem` finds nothing, with no saturated moments: the
+    common case in one expression, without the messages (any other record goes through
+    :func:`record_problem`, which names its problem)."""
+    width, height, full, (l0, l1, l2, l3, l4, l5) = bounds
+    n, nsat, peak = rec.n, rec.nsat, rec.peak
+    xmin, xmax, ymin, ymax = rec.xmin, rec.xmax, rec.ymin, rec.ymax
+    return (not rec.flags and xmin <= xmax < width and ymin <= ymax < height and
+            peak <= full and nsat <= n and (not nsat or peak == full) and
+            0 < n <= (xmax - xmin + 1) * (ymax - ymin + 1) and rec.s0 <= l0 and
+            rec.sx <= l1 and rec.sy <= l2 and rec.sxx <= l3 and rec.syy <= l4 and
+            rec.sxy <= l5)
 
 
 def check(data, records=True):

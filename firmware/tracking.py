@@ -154,9 +154,10 @@ def candidates(database, q, margin_rad, cone=None):
     else:
         cone.clear()                                # its heap is free for the new query
         radius += CONE_REUSE_RAD
-    ids = array("H", database.stars_in_cone(d, radius))
-    vecs = array("f", range(3 * len(ids)))         # its final size (overwritten below)
-    database.read_vectors(ids, vecs)
+    found = []                                     # filled by the same read as the ids
+    ids = array("H", database.stars_in_cone(d, radius, vecs=found))
+    vecs = array("f", found)
+    found = None
     where = {}
     for i in range(len(ids)):
         where[ids[i]] = i

@@ -35,10 +35,13 @@ _HEAD = 512
 
 
 def _side():
-    """The buffers of one side's index, ``(head, st, nxt)`` (``array('H')``, 4 *
-    :data:`CHUNK` + 2 * :data:`_HEAD` bytes)."""
-    return (array("H", range(_HEAD)), array("H", range(2 * CHUNK)),
-            array("H", range(2 * CHUNK)))          # sized by the ranges: no temporary
+    """The buffers of one side's index, ``(head, st, nxt, used)`` (``array('H')``, 4 *
+    :data:`CHUNK` + 2 * :data:`_HEAD` bytes, and ``used``: the entries its last index
+    filed), every chain empty."""
+    head = array("H", range(_HEAD))                 # sized by the ranges: no temporary
+    for h in range(_HEAD):
+        head[h] = NONE
+    return head, array("H", range(2 * CHUNK)), array("H", range(2 * CHUNK)), array("H", [0])
 
 
 DEFAULT_MAX_STARS = 16
@@ -104,27 +107,31 @@ class _Search(Search):
 
     def _index(self, start, stop, side):
         """Index the pairs ``start <= p < stop`` (at most :data:`CHUNK`) by star in the
-        buffers ``side`` (:func:`_side`): returns them, ``(head, st, nxt)``.
+        buffers ``side`` (:func:`_side`): returns them, ``(head, st, nxt, used)``.
 
         ``st`` lists the pairs' stars ``a, b, a, b, ...``: entry ``e`` is filed under star
         ``st[e]`` with partner ``st[e ^ 1]``.  ``head[star & (_HEAD - 1)]`` starts a chain
         through ``nxt`` (ended by :data:`NONE`) holding the entries of every star with
-        those low bits; a reader skips the entries of other stars."""
+        those low bits; a reader skips the entries of other stars.  Only the chains the
+        last index of these buffers started are emptied first (``used``: its entries), not
+        all :data:`_HEAD`."""
         db = self.db
-        head, st, nxt = side
-        for h in range(_HEAD):
-            head[h] = NONE
+        head, st, nxt, used = side
+        mask = _HEAD - 1
+        for e in range(used[0]):
+            head[st[e] & mask] = NONE
+        used[0] = 0
         self.spend(stop - start)
         e = 0
         for p in range(start, stop, PAIR_BLOCK):
             for star in db.pair_stars(p, PAIR_BLOCK if p + PAIR_BLOCK < stop else stop - p):
                 st[e] = star
                 e += 1
-        mask = _HEAD - 1
         for e in range(2 * (stop - start)):
             h = st[e] & mask
             nxt[e] = head[h]
             head[h] = e
+        used[0] = 2 * (stop - start)
         return side
 
     def triangles(self, i, j, k):
@@ -160,8 +167,8 @@ class _Search(Search):
         ``order`` sorts them as :meth:`triangles` returns them (``e0``: the ``ij`` chunk's
         first entry number)."""
         db = self.db
-        ij_head, ij_st, ij_nxt = ij
-        jk_head, jk_st, jk_nxt = jk
+        ij_head, ij_st, ij_nxt, _used = ij
+        jk_head, jk_st, jk_nxt, _used = jk
         ij_mask = jk_mask = _HEAD - 1
         start, stop = s_ik
         n_ik = stop - start
@@ -171,8 +178,15 @@ class _Search(Search):
             for t in range(0, len(rec), 2):
                 a = rec[t]
                 c = rec[t + 1]
-                for ii, kk in ((a, c), (c, a)):
-                    e = ij_head[ii & ij_mask]
+                ea = ij_head[a & ij_mask]
+                ec = ij_head[c & ij_mask]
+                if ea == NONE and ec == NONE:
+                    continue            # neither star starts an ij chain: most pairs
+                for side in (0, 1):     # (a, c), then (c, a): a constant, no tuple per pair
+                    if side:
+                        ii, kk, e = c, a, ec
+                    else:
+                        ii, kk, e = a, c, ea
                     while e != NONE:
                         if ij_st[e] == ii:
                             jj = ij_st[e ^ 1]

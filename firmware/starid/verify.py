@@ -101,31 +101,25 @@ def predicted_stars(database, q, margin=0.0):
     half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
-    cone = database.stars_in_cone((m6, m7, m8), half_diag)     # around the boresight
+    cat = []                            # the cone's vectors, read with its stars
+    cone = database.stars_in_cone((m6, m7, m8), half_diag, vecs=cat)   # around the boresight
     inside = bytearray(len(cone))       # count and mark, then fill arrays of the final size:
-    n = 0                               # two passes over the cone, its vectors read in blocks
+    n = 0                               # two passes over the cone's vectors
     for fill in (False, True):
         if fill:
             ids = array("H", range(n))              # sized by the range, then overwritten
             vecs = G.zeros(3 * n)
             k = 0
-        first = nb = 0
-        block = None
         for i in range(len(cone)):
             if fill and not inside[i]:
                 continue
-            s = cone[i]
-            t = s - first
-            if block is None or t < 0 or t >= nb:
-                block = database.star_vectors(s)
-                first, nb, t = s, len(block) // 3, 0
-            t *= 3
-            r0, r1, r2 = block[t], block[t + 1], block[t + 2]
+            t = 3 * i
+            r0, r1, r2 = cat[t], cat[t + 1], cat[t + 2]
             z = m6 * r0 + m7 * r1 + m8 * r2
             x = m0 * r0 + m1 * r1 + m2 * r2
             y = m3 * r0 + m4 * r1 + m5 * r2
             if fill:
-                ids[k] = s
+                ids[k] = cone[i]
                 vecs[3 * k], vecs[3 * k + 1], vecs[3 * k + 2] = x, y, z
                 k += 1
             elif z > 0.0 and abs(x) <= tan_h * z and abs(y) <= tan_v * z:

@@ -7,7 +7,6 @@ import io
 import math
 import pathlib
 import struct
-from array import array
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ import pytest
 from lodestar.contract import stardb
 from lodestar.firmware import database
 from lodestar.firmware import status as S
-from lodestar.firmware.database import STAR_BLOCK, Database, DatabaseError, check, load
+from lodestar.firmware.database import STAR_BLOCK, Database, DatabaseError, cell_span, check, load
 from lodestar.ground.database import build_database
 from lodestar.regress import fram
 from lodestar.sim.presets import load_preset
@@ -108,9 +107,33 @@ def test_stars_in_cone_equals_brute_force():
             assert got == expected.tolist(), (d, radius)
 
 
+def test_stars_in_cone_spans_miss_no_star():
+    """The cells a query tests (:func:`cell_span` per face axis) hold every star of the cone
+    at any direction and radius, face edges and corners included; ``vecs`` gets each found
+    star's vector."""
+    db = Database(estcube2_image())
+    vec = np.array([db.star_vector(i) for i in range(db.n_stars)])
+    rng = np.random.default_rng(11)
+    for k in range(300):
+        d = rng.normal(size=3)
+        if k % 3 == 0:                  # near an edge or a corner of the cube
+            d[rng.integers(3)] = np.sign(d[0]) * abs(d[1])
+        d /= np.linalg.norm(d)
+        radius = float(np.exp(rng.uniform(math.log(0.003), math.log(1.6))))
+        vecs = []
+        got = db.stars_in_cone(tuple(d), radius, vecs=vecs)
+        expected = np.flatnonzero(vec @ d >= np.float64(math.cos(radius)))
+        assert sorted(got) == expected.tolist() and got == sorted(got), (d, radius)
+        assert [tuple(vecs[3 * j:3 * j + 3]) for j in range(len(got))] == \
+            [db.star_vector(i) for i in got]
+    assert cell_span(1.0, 0.0, 0.01, 8) == (3, 5)     # the centre rows of a face
+    assert cell_span(-0.5, 0.0, 0.01, 8) == (0, 8)    # behind the face: every row
+    assert cell_span(0.6, 0.8, 0.01, 8) == (0, 0)     # beyond the face's edge
+
+
 def test_block_reads_equal_star_by_star(tmp_path):
-    """``star_vectors`` and ``read_vectors`` give ``star_vector``'s values, from a buffer and
-    from a file, at the end of the table and for ids in runs, gaps and out of order."""
+    """``star_vectors`` gives ``star_vector``'s values, from a buffer and from a file, at the
+    end of the table."""
     mem, f = _both_readers(estcube2_image(), tmp_path)
     try:
         n = mem.n_stars
@@ -120,11 +143,6 @@ def test_block_reads_equal_star_by_star(tmp_path):
                 assert len(block) == 3 * min(STAR_BLOCK, n - start)
                 for k in range(len(block) // 3):
                     assert tuple(block[3 * k:3 * k + 3]) == mem.star_vector(start + k)
-            ids = array("H", [0, 1, 2, 40, 41, STAR_BLOCK + 60, 7, n - 1, n - 2, 3])
-            vecs = array("d", range(3 * len(ids)))
-            db.read_vectors(ids, vecs)
-            assert [tuple(vecs[3 * k:3 * k + 3]) for k in range(len(ids))] == \
-                [mem.star_vector(i) for i in ids]
             assert db.cell_range(3) == (mem._cell_start(3), mem._cell_start(4))
     finally:
         f.close()

@@ -186,9 +186,9 @@ class _CountingDatabase:
         self.reads += 1
         return self._db.star_vector(i)
 
-    def read_vectors(self, ids, vecs):
-        self.reads += len(ids)
-        return self._db.read_vectors(ids, vecs)
+    def stars_in_cone(self, d, radius, out=None, vecs=None):
+        self.reads += 1
+        return self._db.stars_in_cone(d, radius, out, vecs)
 
     def __getattr__(self, name):
         return getattr(self._db, name)
