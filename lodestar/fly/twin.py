@@ -162,12 +162,20 @@ class Store:
 def flight_settings(cam, exposure_s=EXPOSURE_S, frame_s=FRAME_S):
     """``(sensor settings, detector registers)`` of the flight loop for ``cam``: the
     MT9P031 settings of a ``frame_s`` period and ``exposure_s`` for the camera's window
-    (``sensor.p031_flight``) and the preset's tuned fixed-threshold registers
-    (``ground.onboard``)."""
-    st, reason, settings = sensor.p031_flight(exposure_s, frame_s,
-                                              window=(16, 54, cam.width, cam.height))
+    (``sensor.p031_flight``; a window too small for the period at the longest vertical
+    blanking gets a longer row, horizontal blanking, instead) and the preset's tuned
+    fixed-threshold registers (``ground.onboard``)."""
+    window = (16, 54, cam.width, cam.height)
+    st, reason, settings = sensor.p031_flight(exposure_s, frame_s, window=window)
     if st != S.OK:
         raise ValueError(reason)
+    pix = sensor.p031_pll(sensor.EXTCLK_HZ, sensor.PIXCLK_HZ)[3]
+    rows = cam.height + settings["vblank"]
+    units = int(math.ceil(frame_s * pix / 2 / rows))
+    if settings["vblank"] >= 4096 and units > cam.width // 2 + settings["hblank"]:
+        settings["hblank"] = units - cam.width // 2
+        so = 2.0 * (sensor.P031_SO_BASE + 1) / pix
+        settings["exposure"] = int((exposure_s + so) / (2.0 * units / pix) + 0.5)
     chosen = onboard.camera_settings(cam.name)
     cfg = onboard.detector_config(cam, chosen, exposure_s)
     return settings, cfg.registers()
@@ -177,10 +185,11 @@ class Twin:
     """The loop (module docstring).  ``cam``: a ``lodestar.sim`` camera whose frame is the
     gateware's; ``engine``: a ``VerilatedTop`` or ``GoldenTop``; ``trajectory``,
     ``gyro``: :mod:`lodestar.fly.trajectory`; ``faults``: scenario names
-    (:data:`lodestar.fly.faults.SCENARIOS`) started at ``fault_frame``."""
+    (:data:`lodestar.fly.faults.SCENARIOS`) started at ``fault_frame``; ``wrong_arcsec``:
+    the error beyond which a reported attitude is wrong."""
 
     def __init__(self, cam, engine, trajectory, gyro, faults_=(), fault_frame=10, seed=0,
-                 database=None, capacity=C.FLIGHT_RECORD_CAPACITY):
+                 database=None, capacity=C.FLIGHT_RECORD_CAPACITY, wrong_arcsec=WRONG_ARCSEC):
         self.schedule = faults.Schedule(faults_, fault_frame)
         self.world = World(cam, engine, trajectory, seed, self.schedule)
         self.gyro = gyro
@@ -192,6 +201,7 @@ class Twin:
         self.sensor_settings, self.registers = flight_settings(cam)
         self.store = Store()
         self.reboots = 0
+        self.wrong_arcsec = wrong_arcsec
         self._boot()
 
     def _tracker(self, slot=0):
@@ -261,7 +271,7 @@ class Twin:
         if result.status == S.OK and result.q is not None and truth is not None:
             err = attitude_error_arcsec(result.q, truth["q"])["total"]
             row["error_arcsec"] = round(err, 3)
-            row["wrong"] = err > WRONG_ARCSEC
+            row["wrong"] = err > self.wrong_arcsec
 
     def run(self, n_frames, progress=None):
         """Step until ``n_frames`` sensor frames were played (at most 20 steps a frame):
