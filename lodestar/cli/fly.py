@@ -34,8 +34,8 @@ def add_parser(sub):
                    help="slew: seconds to reach the rate from rest (default 0: under way)")
     p.add_argument("--faults", nargs="+", default=[], choices=tuple(faults.SCENARIOS),
                    metavar="NAME", help="fault scenarios: " + ", ".join(faults.SCENARIOS))
-    p.add_argument("--fault-frame", type=int, default=10,
-                   help="sensor period at which the first fault starts (default 10)")
+    p.add_argument("--fault-frame", type=int, default=20,
+                   help="sensor period at which the first fault starts (default 20)")
     p.add_argument("--mcu", choices=MCUS, default="cpython")
     p.add_argument("--engine", choices=ENGINES, default="verilator")
     p.add_argument("--seed", type=int, default=0, help="attitude, noise and gyro seed")

@@ -1,8 +1,9 @@
 """Named fault scenarios of the twin, when they act and how the run recovered from each.
 
-A scenario starts at a nominal time (``fault_frame`` x 0.1 s, then every ``SPACING``
-frames for the next one) and lasts ``frames`` sensor periods (0.1 s each) of the twin's
-clock; a one-shot scenario acts on the first frame played from its start.
+A scenario starts at a nominal time (``fault_frame`` x 0.1 s, default 2 s, when the loop
+tracks at the frame rate; then every ``SPACING`` frames for the next one) and lasts its
+:data:`SCENARIOS` number of sensor periods (0.1 s each) of the twin's clock; a one-shot
+scenario acts on the first frame played from its start.
 
 - ``miso-flip``: one bit flipped inside every packet read on MISO (CRC-32 refuses it; the
   link resynchronises).
@@ -27,7 +28,7 @@ from pathlib import Path
 
 from lodestar.firmware import executive
 
-SCENARIOS = {"miso-flip": 2, "mosi-flip": 2, "irq-stuck-high": 3, "irq-stuck-low": 3,
+SCENARIOS = {"miso-flip": 3, "mosi-flip": 3, "irq-stuck-high": 3, "irq-stuck-low": 3,
              "pll-loss": 1, "truncated": 1, "soft-reset": 1, "sensor-silent": 3,
              "db-crc": 0, "watchdog": 1}
 """Scenario name -> sensor periods it lasts (0: from boot, one-shots 1)."""
@@ -57,7 +58,7 @@ def check(names):
 class Schedule:
     """When each scenario of ``names`` acts (module docstring)."""
 
-    def __init__(self, names, fault_frame=10):
+    def __init__(self, names, fault_frame=20):
         self.names = check(names)
         self.windows = {}
         k = 0

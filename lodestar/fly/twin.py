@@ -188,7 +188,7 @@ class Twin:
     (:data:`lodestar.fly.faults.SCENARIOS`) started at ``fault_frame``; ``wrong_arcsec``:
     the error beyond which a reported attitude is wrong."""
 
-    def __init__(self, cam, engine, trajectory, gyro, faults_=(), fault_frame=10, seed=0,
+    def __init__(self, cam, engine, trajectory, gyro, faults_=(), fault_frame=20, seed=0,
                  database=None, capacity=C.FLIGHT_RECORD_CAPACITY, wrong_arcsec=WRONG_ARCSEC):
         self.schedule = faults.Schedule(faults_, fault_frame)
         self.world = World(cam, engine, trajectory, seed, self.schedule)

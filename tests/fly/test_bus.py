@@ -69,7 +69,7 @@ def test_faults_on_the_wires():
     spi.readinto(into)
     spi.cs.value(1)
     assert w.engine.sent[0][0] == C.OP_READ_STATUS ^ 1 and into[40] == 40 ^ 0x10
-    assert spi.irq.value() == 0 and w.counted == ["mosi-flip", "miso-flip"]
+    assert spi.irq.value() == 0 and w.counted == ["mosi-flip", "miso-flip", "irq-stuck-low"]
     w.faults = {"irq-stuck-high"}
     assert spi.irq.value() == 1
 

@@ -11,10 +11,10 @@ def test_windows_and_one_shots():
     with pytest.raises(ValueError, match="--faults 'gremlin'"):
         faults.Schedule(["gremlin"])
     s = faults.Schedule(["miso-flip", "truncated", "db-crc"], fault_frame=4)
-    assert s.windows["miso-flip"] == pytest.approx((0.4, 0.6))
+    assert s.windows["miso-flip"] == pytest.approx((0.4, 0.7))
     assert s.windows["truncated"] == pytest.approx((1.9, 2.0))
     assert s.windows["db-crc"] == (0.0, 0.0) and s.has("db-crc") and not s.has("pll-loss")
-    assert s.active("miso-flip", 0.5) and not s.active("miso-flip", 0.61)
+    assert s.active("miso-flip", 0.5) and not s.active("miso-flip", 0.71)
     assert not s.active("truncated", 1.95)                 # a one-shot is not a window
     assert s.starting(1.0) is None and s.starting(1.95) == "truncated"
     assert s.starting(3.0) is None
