@@ -23,7 +23,6 @@ struct Twin {
     uint64_t next_pix;     // next edge of pix_clk, ps
     uint32_t sync_half;
     uint32_t pix_half;
-    uint64_t evals;
 };
 
 // Run every clock edge up to and including time `until` (ps).
@@ -41,7 +40,6 @@ static void run_until(Twin* t, uint64_t until) {
             t->next_pix += t->pix_half;
         }
         top->eval();
-        t->evals++;
     }
     t->now = until;
 }
@@ -65,7 +63,6 @@ Twin* twin_new(uint32_t sync_period_ps, uint32_t pix_period_ps, uint32_t pix_off
     t->pix_half = pix_period_ps / 2;
     t->next_sync = t->sync_half;
     t->next_pix = t->pix_half + pix_offset_ps;
-    t->evals = 0;
     Vtop* top = t->top;
     top->clk = 0;
     top->pix_clk = 0;
@@ -92,11 +89,7 @@ void twin_free(Twin* t) {
     delete t;
 }
 
-uint64_t twin_now(Twin* t) { return t->now; }
-uint64_t twin_evals(Twin* t) { return t->evals; }
 int twin_irq(Twin* t) { return t->top->irq; }
-
-void twin_idle(Twin* t, uint64_t ps) { run_until(t, t->now + ps); }
 
 void twin_pll_losses(Twin* t, uint32_t gray) { t->top->pll_losses = gray; }
 

@@ -70,9 +70,6 @@ class GoldenTop:
     def irq(self):
         return bool(self.delivering or self.queue)
 
-    def idle(self, seconds):
-        pass
-
     def frame(self, pixels, rows=None):
         """Detect ``pixels`` (its first ``rows`` rows, the rest dark and flagged) and queue
         its packet."""

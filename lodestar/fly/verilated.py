@@ -32,6 +32,7 @@ from lodestar.cache import default_cache_dir
 from lodestar.cosim import runner
 from lodestar.hdl.boards import BOARDS, GatewareTop
 from lodestar.hdl.detector import min_vblank
+from lodestar.hdl.frontend import STALL_TIMEOUT
 from lodestar.hdl.export import to_verilog
 
 HARNESS = Path(runner.__file__).with_name("top_native.cpp")
@@ -93,10 +94,9 @@ def build(top, root=None, log=None):
 
 
 def _bind(lib):
-    p, u32, u64 = ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64
-    sigs = {"twin_new": ([u32, u32, u32], p), "twin_free": ([p], None), "twin_now": ([p], u64),
-            "twin_evals": ([p], u64), "twin_irq": ([p], ctypes.c_int),
-            "twin_idle": ([p, u64], None), "twin_pll_losses": ([p, u32], None),
+    p, u32 = ctypes.c_void_p, ctypes.c_uint32
+    sigs = {"twin_new": ([u32, u32, u32], p), "twin_free": ([p], None),
+            "twin_irq": ([p], ctypes.c_int), "twin_pll_losses": ([p, u32], None),
             "twin_frame": ([p, p, u32, u32, u32, u32], None),
             "twin_cs": ([p, ctypes.c_int, u32, u32, u32], None),
             "twin_xfer": ([p, p, p, u32, u32], None)}
@@ -142,24 +142,19 @@ class VerilatedTop:
 
     # ---- the engine interface (lodestar.fly.bus) -----------------------------------------
 
-    def now_ps(self):
-        return self._lib.twin_now(self._h)
-
-    def evals(self):
-        return self._lib.twin_evals(self._h)
-
     def irq(self):
         return bool(self._lib.twin_irq(self._h))
 
-    def idle(self, seconds):
-        self._lib.twin_idle(self._h, int(seconds * 1e12))
-
     def frame(self, pixels, rows=None):
-        """Play ``pixels`` (``height x width``), only its first ``rows`` rows if given."""
+        """Play ``pixels`` (``height x width``), only its first ``rows`` rows if given; a
+        frame cut short is followed by the frame watchdog's stall timeout of idle clocks (the
+        sensor's next frame comes 100 ms later, long after it: compressed time must not
+        join the two)."""
         data = np.ascontiguousarray(pixels, dtype=np.uint16)
         h, w = data.shape
         rows = h if rows is None else max(0, min(rows, h))
-        self._lib.twin_frame(self._h, data.ctypes.data, w, rows, HBLANK, self.vblank)
+        vblank = self.vblank if rows == h else self.vblank + STALL_TIMEOUT + 1024
+        self._lib.twin_frame(self._h, data.ctypes.data, w, rows, HBLANK, vblank)
 
     def accepts(self):
         """Every frame is played (the gateware decides what it keeps)."""
