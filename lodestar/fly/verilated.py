@@ -32,8 +32,8 @@ from lodestar.cache import default_cache_dir
 from lodestar.cosim import runner
 from lodestar.hdl.boards import BOARDS, GatewareTop
 from lodestar.hdl.detector import min_vblank
-from lodestar.hdl.frontend import STALL_TIMEOUT
 from lodestar.hdl.export import to_verilog
+from lodestar.hdl.frontend import STALL_TIMEOUT
 
 HARNESS = Path(runner.__file__).with_name("top_native.cpp")
 SYNC_PS = 10000
