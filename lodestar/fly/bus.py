@@ -124,17 +124,24 @@ class Spi:
 
 
 class I2c:
-    """``machine.I2C`` to the world's sensor chip, each access costing its wire time."""
+    """``machine.I2C`` to the world's sensor chip, each access costing its wire time; the
+    chip does not answer while the ``sensor-silent`` fault is active."""
 
     def __init__(self, world):
         self.world = world
 
-    def writeto_mem(self, addr, reg, buf):
+    def _chip(self):
         self.world.catch_up()
         self.world.spend(I2C_BITS / I2C_HZ)
-        self.world.chip.writeto_mem(addr, reg, buf)
+        silent = self.world.active("sensor-silent")
+        if silent:
+            self.world.count_fault("sensor-silent")
+        self.world.chip.answering = not silent
+        return self.world.chip
+
+    def writeto_mem(self, addr, reg, buf):
+        self._chip().writeto_mem(addr, reg, buf)
 
     def readfrom_mem(self, addr, reg, n):
-        self.world.spend(I2C_BITS / I2C_HZ)
-        return self.world.chip.readfrom_mem(addr, reg, n)
+        return self._chip().readfrom_mem(addr, reg, n)
 

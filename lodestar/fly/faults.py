@@ -36,14 +36,19 @@ ONE_SHOT = ("pll-loss", "truncated", "soft-reset", "watchdog")
 PERIOD_S = 0.1
 SPACING = 15
 """Sensor periods between the starts of two scenarios of one run."""
-HANG_MS = 3000
+HANG_MS = 2500
+"""The ``watchdog`` scenario's hang (ms), beyond the twin's 2 s watchdog."""
 SAFE_GROUND_S = 1.0
-RECOVERY_FRAMES = {"miso-flip": 3, "mosi-flip": 6, "irq-stuck-high": 8, "irq-stuck-low": 8,
-                   "pll-loss": 8, "truncated": 3, "soft-reset": 3, "sensor-silent": 20,
-                   "db-crc": 25, "watchdog": 8}
+RECOVERY_FRAMES = {"miso-flip": 3, "mosi-flip": 16, "irq-stuck-high": 3, "irq-stuck-low": 3,
+                   "pll-loss": 6, "truncated": 3, "soft-reset": 3, "sensor-silent": 3,
+                   "db-crc": 25, "watchdog": 30}
 """Sensor periods from a fault's end to the next tracking solve that ``docs/fly.md``
-states for each scenario (the executive's escalation: a frame, a resync, a detector reset,
-a sensor start and a lost-in-space solve of up to 0.9 s on the F401)."""
+states for each scenario, from the executive's design: a refused packet or frame costs
+itself and a resync, so tracking is back within the packets queued meanwhile (3); a clock
+loss restarts the sensor (6); a fault that reaches ``SAFE`` waits for the ground's command
+(1 s), a configuration and a lost-in-space solve (16; ``db-crc``: from boot, 25); a
+watchdog reset runs boot and configuration and tracks from the stored prior, after the hang
+itself (25 periods) and the frames that queued during it (30)."""
 
 
 def check(names):

@@ -90,6 +90,8 @@ class World:
         while True:
             s = self.chip.frame_settings()
             if s is None or self.active("sensor-silent"):
+                if s is not None:
+                    self.count_fault("sensor-silent")
                 self.next_start = max(self.next_start, self.now)
                 return
             start = self.next_start

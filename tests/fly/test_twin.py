@@ -54,7 +54,7 @@ is counted nowhere by the executive and link; the telemetry's frame counter rest
 @pytest.mark.parametrize("name", sorted(faults.SCENARIOS))
 def test_fault_scenario_recovers_with_no_wrong_attitude(small_camera, name):
     loop = make_twin(small_camera, faults=[name])
-    rows = loop.run(45)
+    rows = loop.run(45 + (faults.HANG_MS // 100 if name == "watchdog" else 0))
     s = twin.summary(rows, loop)
     assert s["wrong"] == 0
     where, counter = COUNTED[name]
