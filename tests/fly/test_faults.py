@@ -52,9 +52,11 @@ def test_corrupt_flips_one_byte(tmp_path):
 
 
 def test_recovery_counts_periods_to_the_next_tracking_solve():
-    s = faults.Schedule(["irq-stuck-low"], fault_frame=10)
+    s = faults.Schedule(["irq-stuck-low"], fault_frame=10)      # 1.0 .. 1.3 s
     rows = [{"t_s": 1.05, "status": "OK", "mode": "TRACK"},
             {"t_s": 1.5, "status": "IRQ_TIMEOUT", "mode": "COAST"},
-            {"t_s": 1.71, "status": "OK", "mode": "TRACK"}]
+            {"t_s": 1.51, "status": "OK", "mode": "TRACK"}]
     rec = faults.recovery(rows, s)["irq-stuck-low"]
-    assert rec["frames_to_recovery"] == 5 and rec["recovered_s"] == 1.71 and rec["within"]
+    assert rec["frames_to_recovery"] == 3 and rec["recovered_s"] == 1.51 and rec["within"]
+    rows[2]["t_s"] = 1.71
+    assert not faults.recovery(rows, s)["irq-stuck-low"]["within"]
