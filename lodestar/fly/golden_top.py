@@ -54,6 +54,7 @@ class GoldenTop:
         self.losses = self.losses_seen = 0
         self._selected = False
         self._rx = bytearray()
+        self._status_bytes = b""       # the status word captured at a READ_STATUS opcode
 
     @classmethod
     def for_board(cls, board):
