@@ -46,19 +46,24 @@ def camera(width, height):
 
 
 def engine(name, cam):
+    """The gateware engine of ``cam``'s frame with the estcube2 board's capacities (the
+    board's own top at its frame)."""
     from lodestar.hdl.boards import BOARDS, GatewareTop
 
     board = BOARDS["estcube2"]
+    if (cam.width, cam.height) == (board.width, board.height):
+        top = board.gateware_top()
+    else:
+        top = GatewareTop("mt9p031", cam.width, cam.height,
+                          record_capacity=board.record_capacity, record_depth=board.record_depth)
     if name == "golden":
         from lodestar.fly.golden_top import GoldenTop
 
-        return GoldenTop(cam.width, cam.height, cam.pixel_bits, board.record_capacity,
-                         board.label_capacity, 0x21)
+        return GoldenTop(cam.width, cam.height, cam.pixel_bits, top.detector.record_capacity,
+                         top.detector.label_capacity, top.build)
     from lodestar.fly.verilated import VerilatedTop
 
-    return VerilatedTop(GatewareTop("mt9p031", cam.width, cam.height,
-                                    record_capacity=board.record_capacity,
-                                    record_depth=board.record_depth))
+    return VerilatedTop(top)
 
 
 def run_one(args, cam, scenario, seed):

@@ -63,24 +63,24 @@ def _check(args):
 
 
 def _engine(name, cam):
-    """The gateware engine for ``cam``'s frame: the estcube2 board's capacities."""
+    """The gateware engine for ``cam``'s frame with the estcube2 board's capacities (the
+    board's own top at its frame)."""
     from lodestar.hdl.boards import BOARDS, GatewareTop
 
     board = BOARDS["estcube2"]
+    if (cam.width, cam.height) == (board.width, board.height):
+        top = board.gateware_top()
+    else:
+        top = GatewareTop("mt9p031", cam.width, cam.height,
+                          record_capacity=board.record_capacity, record_depth=board.record_depth)
     if name == "golden":
         from lodestar.fly.golden_top import GoldenTop
 
-        top = board.gateware_top()
         return GoldenTop(cam.width, cam.height, cam.pixel_bits, top.detector.record_capacity,
-                         board.label_capacity, top.build)
+                         top.detector.label_capacity, top.build)
     from lodestar.fly.verilated import VerilatedTop
 
-    log = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731
-    if (cam.width, cam.height) == (board.width, board.height):
-        return VerilatedTop(board.gateware_top(), log=log)
-    return VerilatedTop(GatewareTop("mt9p031", cam.width, cam.height,
-                                    record_capacity=board.record_capacity,
-                                    record_depth=board.record_depth), log=log)
+    return VerilatedTop(top, log=lambda text: print(text, file=sys.stderr, flush=True))
 
 
 def run(args):

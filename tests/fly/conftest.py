@@ -28,7 +28,7 @@ def small_camera():
 def golden_engine(cam):
     board = BOARDS["estcube2"]
     return golden_top.GoldenTop(cam.width, cam.height, cam.pixel_bits, board.record_capacity,
-                                board.label_capacity, 0x21)
+                                None, 0x21)
 
 
 def make_twin(cam, engine=None, kind="rest", rate=(0.0, 0.0, 0.0), faults=(), seed=0,
