@@ -56,12 +56,6 @@ class GoldenTop:
         self._rx = bytearray()
         self._status_bytes = b""       # the status word captured at a READ_STATUS opcode
 
-    @classmethod
-    def for_board(cls, board):
-        top = board.gateware_top()
-        return cls(top.width, top.height, top.pixel_bits, top.detector.record_capacity,
-                   board.label_capacity, top.build)
-
     def _config(self):
         return config_of(self.bank, self.width, self.height, self.pixel_bits,
                          self.record_capacity, self.label_capacity)

@@ -3,7 +3,7 @@ sensor front end, frame watchdog, detector, packetizer and SPI slave) built once
 configuration with Verilator into a shared library (``lodestar/cosim/top_native.cpp``) and
 driven pin by pin through ctypes.
 
-    top = VerilatedTop.for_board("estcube2")          # built and cached on first use
+    top = VerilatedTop(BOARDS["estcube2"].gateware_top())   # built and cached once
     top.frame(pixels)                                  # PIXCLK, LINE_VALID, FRAME_VALID, D
     top.cs(0); miso = top.xfer(b"S" + bytes(9)); top.cs(1)
 
@@ -30,7 +30,7 @@ from lodestar import contract as C
 from lodestar import hdl
 from lodestar.cache import default_cache_dir
 from lodestar.cosim import runner
-from lodestar.hdl.boards import BOARDS, GatewareTop
+from lodestar.hdl.boards import GatewareTop
 from lodestar.hdl.detector import min_vblank
 from lodestar.hdl.export import to_verilog
 from lodestar.hdl.frontend import STALL_TIMEOUT
@@ -121,10 +121,6 @@ class VerilatedTop:
                           for mode in range(len(C.MODE_NAMES))) + 64
         self.half_ps = int(round(0.5e12 / sck_hz))
         self.losses = 0
-
-    @classmethod
-    def for_board(cls, name, root=None, log=None):
-        return cls(BOARDS[name].gateware_top(), root, log)
 
     @classmethod
     def small(cls, width, height, record_capacity, root=None, log=None):
