@@ -48,7 +48,6 @@ class GoldenTop:
         self.detector = Detector(self._config())
         self.queue = []
         self.delivering = bytearray()
-        self.frames = 0
         self.errors = self.underruns = 0
         self.sticky = 0
         self.losses = self.losses_seen = 0
@@ -82,7 +81,6 @@ class GoldenTop:
         self.detector.configure(self._config())
         result = self.detector.process(frame)
         result.flags |= flags
-        self.frames += 1
         if len(self.queue) + bool(self.delivering) >= QUEUE:
             self.sticky |= 1 << C.OVF_TRAILER_LOST
             return
@@ -98,7 +96,6 @@ class GoldenTop:
     def skip(self):
         """A frame whose packet is lost: counted, not detected (``OVF_TRAILER_LOST``)."""
         self.detector.frame_counter = (self.detector.frame_counter + 1) & 0xFFFFFFFF
-        self.frames += 1
         self.sticky |= 1 << C.OVF_TRAILER_LOST
 
     # ---- the SPI slave ---------------------------------------------------------------------
