@@ -52,9 +52,6 @@ def _check(args):
                          f"preset's sensor")
     if not 1 <= args.frames <= 100000:
         raise ValueError(f"--frames {args.frames}: give 1 .. 100000")
-    if args.mcu == "micropython":
-        raise ValueError("--mcu micropython: the executive on the MicroPython unix port is not "
-                         "in the twin yet (docs/fly.md); use --mcu cpython")
     if not (math.isfinite(args.ramp) and args.ramp >= 0):
         raise ValueError(f"--ramp {args.ramp}: give seconds >= 0")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
@@ -83,6 +80,17 @@ def _engine(name, cam):
     return VerilatedTop(top, log=lambda text: print(text, file=sys.stderr, flush=True))
 
 
+def _micropython():
+    """The flight MCU's MicroPython (the 32-bit unix port, float32, firmware frozen), built
+    once and cached; ``ValueError`` naming why when it cannot be built here."""
+    from lodestar.regress import unixport
+
+    try:
+        return unixport.float32_build()
+    except (unixport.Unavailable, unixport.MicroPythonError) as exc:
+        raise ValueError(f"--mcu micropython: {exc}") from None
+
+
 def run(args):
     from tqdm import tqdm
 
@@ -93,13 +101,18 @@ def run(args):
     q0 = attitude.random_attitude(np.random.default_rng(args.seed))
     path = trajectory.Trajectory(kind, q0, args.rate, args.ramp)
     gyro = trajectory.Gyro(path, args.seed)
+    binary = _micropython() if args.mcu == "micropython" else None
     engine = _engine(args.engine, cam)
-    loop = twin.Twin(cam, engine, path, gyro, args.faults, args.fault_frame, args.seed)
-    with tqdm(total=args.frames, desc="fly", unit="frame", file=sys.stderr,
-              disable=None) as bar:
-        def progress(done):
-            bar.update(done - bar.n)
-        rows = loop.run(args.frames, progress)
+    loop = twin.Twin(cam, engine, path, gyro, args.faults, args.fault_frame, args.seed,
+                     micropython=binary)
+    try:
+        with tqdm(total=args.frames, desc="fly", unit="frame", file=sys.stderr,
+                  disable=None) as bar:
+            def progress(done):
+                bar.update(done - bar.n)
+            rows = loop.run(args.frames, progress)
+    finally:
+        loop.close()
     summary = twin.summary(rows, loop)
     meta = {"preset": cam.name, "trajectory": kind, "rate_deg_s": [float(w) for w in args.rate],
             "ramp_s": args.ramp, "faults": args.faults, "seed": args.seed,

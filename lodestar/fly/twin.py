@@ -19,6 +19,8 @@ packet the golden engine would drop (its queue full) is counted but not rendered
 
 import dataclasses
 import math
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
@@ -28,7 +30,7 @@ from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
-from lodestar.fly import bus, faults, mcu
+from lodestar.fly import bus, faults, mcu, mpy
 from lodestar.fly.mt9p031 import MT9P031
 from lodestar.ground import onboard
 from lodestar.ground.truth import attitude_error_arcsec
@@ -193,7 +195,8 @@ class Twin:
     the error beyond which a reported attitude is wrong."""
 
     def __init__(self, cam, engine, trajectory, gyro, faults_=(), fault_frame=20, seed=0,
-                 database=None, capacity=C.FLIGHT_RECORD_CAPACITY, wrong_arcsec=WRONG_ARCSEC):
+                 database=None, capacity=C.FLIGHT_RECORD_CAPACITY, wrong_arcsec=WRONG_ARCSEC,
+                 micropython=None):
         self.schedule = faults.Schedule(faults_, fault_frame)
         self.world = World(cam, engine, trajectory, seed, self.schedule)
         self.gyro = gyro
@@ -206,6 +209,9 @@ class Twin:
         self.store = Store()
         self.reboots = 0
         self.wrong_arcsec = wrong_arcsec
+        self.micropython = micropython
+        self.exe_dir = tempfile.TemporaryDirectory(prefix="lodestar-fly-")
+        self.exe = None
         self._boot()
 
     def _tracker(self, slot=0):
@@ -221,21 +227,75 @@ class Twin:
                                 lambda ms: self.world.spend(ms / 1000.0))
 
     def _boot(self):
-        """Power-up or watchdog reset of the MCU: new peripherals, link and executive; the
-        store (the prior) and the gateware and sensor keep their state."""
+        """Power-up or watchdog reset of the MCU: new peripherals, link and executive (on
+        CPython here, or a new MicroPython process: ``micropython``, its binary); the store
+        (the prior), the gateware and the sensor keep their state."""
         w = self.world
         self.clock = bus.Clock(w)
         self.spi = bus.Spi(w)
+        self.i2c = bus.I2c(w)
         self.watchdog = bus.Watchdog(w, WATCHDOG_MS)
+        if self.micropython is not None:
+            if self.exe is not None:
+                self.exe.close()
+            self.exe = mpy.Remote(self.micropython, self._mcu_config(), self._serve)
+            self.link = self.exe.link
+            return
         self.link = _link.Link(self.spi, self.spi.cs, self.spi.irq, self.clock,
                                capacity=self.capacity)
-        cam = sensor.Sensor(bus.I2c(w), sensor.MT9P031, sleep_ms=self.clock.sleep_ms)
+        cam = sensor.Sensor(self.i2c, sensor.MT9P031, sleep_ms=self.clock.sleep_ms)
         self.exe = executive.Executive(
             self.link, self._tracker(), self.clock, sensor=cam,
             sensor_settings=dict(self.sensor_settings), registers=dict(self.registers),
             watchdog=self.watchdog, store=self.store, gyro=lambda: self.gyro.measure(w.now),
             now_ms=lambda: int(w.now * 1000), select_database=self._tracker,
             frame_s=FRAME_S)
+
+    def _mcu_config(self):
+        """What the MicroPython MCU builds its executive from (``mpy.MCU_SCRIPT``)."""
+        if self.db_path is None:
+            raise ValueError("--mcu micropython needs the star database's cache file")
+        slot0 = str(self.db_path)
+        if self.schedule.has("db-crc"):
+            slot0 = str(Path(self.exe_dir.name) / "slot0.lsdb")
+            Path(slot0).write_bytes(faults.corrupt(self.db_path))
+        return {"databases": [slot0, str(self.db_path)], "camera": self.fw_cam.as_dict(),
+                "exposure_s": EXPOSURE_S, "row_time_s": self.world.cam.row_time_s,
+                "tolerance_px": onboard.default_tolerance_px(self.fw_cam),
+                "capacity": self.capacity, "sensor_settings": dict(self.sensor_settings),
+                "registers": dict(self.registers), "frame_s": FRAME_S}
+
+    def _serve(self, remote, line):
+        """The answer to one request of the MicroPython MCU (``mpy.MCU_SCRIPT``)."""
+        op, _, rest = line.partition(" ")
+        w = self.world
+        if op == "x":
+            data = bytes.fromhex(rest)
+            into = bytearray(len(data))
+            self.spi.write_readinto(data, into)
+            return into.hex()
+        if op in ("w", "r"):
+            addr, reg, arg = rest.split()
+            try:
+                if op == "w":
+                    self.i2c.writeto_mem(int(addr), int(reg), bytes.fromhex(arg))
+                    return ""
+                return bytes(self.i2c.readfrom_mem(int(addr), int(reg), int(arg))).hex()
+            except OSError:
+                return "E"
+        if op == "p":
+            n, prior, moving = rest.split()
+            w.spend(remote.process_ms(int(n), prior == "1", float(moving)) / 1000.0)
+            return ""
+        simple = {"t": lambda: self.clock.ticks_ms(), "i": lambda: self.spi.irq.value(),
+                  "f": self.watchdog.feed, "n": lambda: int(w.now * 1000),
+                  "g": lambda: " ".join(repr(v) for v in self.gyro.measure(w.now)),
+                  "sr": lambda: "-" if self.store.data is None else self.store.data.hex(),
+                  "s": lambda: self.clock.sleep_ms(int(rest)),
+                  "c": lambda: self.spi.cs.value(int(rest)),
+                  "sw": lambda: self.store.write(bytes.fromhex(rest))}
+        got = simple[op]()
+        return "" if got is None else str(got)
 
     def step(self):
         """One executive step: its row (telemetry and truth)."""
@@ -248,7 +308,7 @@ class Twin:
         if w.hang:
             w.hang = False
             w.count_fault("watchdog")
-            exe.tracker.hang_ms = faults.HANG_MS
+            (exe if self.micropython is not None else exe.tracker).hang_ms = faults.HANG_MS
         exe.step()
         row = {"index": 0, "t_s": round(w.now, 6), "status": "NO_FRAME",
                "mode": executive.STATE_NAMES[exe.state], "error_arcsec": None,
@@ -275,6 +335,12 @@ class Twin:
             err = attitude_error_arcsec(result.q, truth["q"])["total"]
             row["error_arcsec"] = round(err, 3)
             row["wrong"] = err > self.wrong_arcsec
+
+    def close(self):
+        """End the MicroPython MCU's process, if any, and remove the run's files."""
+        if self.micropython is not None and self.exe is not None:
+            self.exe.close()
+        self.exe_dir.cleanup()
 
     def run(self, n_frames, progress=None):
         """Step until ``n_frames`` sensor frames were played (at most 20 steps a frame):

@@ -9,7 +9,6 @@ from lodestar.cli import main
 
 
 @pytest.mark.parametrize("argv, says", [
-    (["--mcu", "micropython"], "--mcu micropython"),
     (["--preset", "lohmann"], "MT9P031"),
     (["--frames", "0"], "--frames 0"),
     (["--trajectory", "rest", "--rate", "0", "1", "0"], "--trajectory rest"),

@@ -32,8 +32,9 @@ def golden_engine(cam):
 
 
 def make_twin(cam, engine=None, kind="rest", rate=(0.0, 0.0, 0.0), faults=(), seed=0,
-              fault_frame=20):
+              fault_frame=20, micropython=None):
     q0 = attitude.random_attitude(np.random.default_rng(seed))
     path = trajectory.Trajectory(kind, q0, rate)
     return twin.Twin(cam, engine or golden_engine(cam), path, trajectory.Gyro(path, seed),
-                     faults, fault_frame, seed, wrong_arcsec=WRONG_ARCSEC)
+                     faults, fault_frame, seed, wrong_arcsec=WRONG_ARCSEC,
+                     micropython=micropython)
