@@ -14,7 +14,7 @@ import lodestar
 from lodestar.regress.micropython import IMAGE_REGRESS
 from tests import REPO
 
-PACKAGES = ("lodestar", "lodestar.contract", "lodestar.cli", "lodestar.cosim",
+PACKAGES = ("lodestar", "lodestar.contract", "lodestar.cli", "lodestar.cosim", "lodestar.fly",
             "lodestar.regress", "lodestar.golden", "lodestar.hdl", "lodestar.firmware",
             "lodestar.sim", "lodestar.ground", "lodestar.ground.campaign")
 MCU_PACKAGES = ("lodestar.contract", "lodestar.firmware")

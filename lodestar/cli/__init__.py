@@ -7,7 +7,7 @@ import importlib
 import sys
 
 COMMANDS = ("detect", "simulate", "goldenset", "db", "demo", "solve", "calibrate", "cosim",
-            "regress", "campaign", "synth")
+            "regress", "campaign", "synth", "fly")
 """Subcommands, in help order; each is the module ``lodestar.cli.<name>``."""
 
 

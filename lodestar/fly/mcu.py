@@ -1,0 +1,64 @@
+"""The MCU's time per frame in the twin: F401 estimates from the Cortex-M4F build's
+measurements in the docs, per frame class, so that the slow frames make the loop miss sensor
+frames as the flight loop would.  Every figure is an estimate (the docs carry ±30-50 %).
+
+- Lost in space (``process`` without a prior): Pyramid's p50 on estcube2, 348 ms at rest and
+  412 ms moving (``docs/firmware.md``, F401 estimate per packet class).
+- Tracking (with a prior): ``TRACK_BASE_MS + TRACK_PER_RECORD_MS x records``, the line through
+  the budgeted frame (10 records, 73 ms) and the frame with every blob (50 records, 243 ms)
+  of ``docs/firmware.md`` (tracking frame by frame).
+- The executive's step around ``process`` (status, packet, prior, telemetry, watchdog):
+  ``LOOP_MS`` (``docs/mcu_board.md``, measured on the Cortex-M4F build: about 4.9 ms, and
+  0.95 ms more with ``min_sum`` written back).  The SPI wire time is the bus's own
+  (``lodestar.fly.bus``), the two-wire bus's likewise.
+"""
+
+LIS_REST_MS = 348.0
+LIS_MOVING_MS = 412.0
+MOVING_RAD_S = 0.0017
+"""Above this gyro rate (0.1 deg/s) a lost-in-space frame costs the moving class's time."""
+TRACK_BASE_MS = 30.5
+TRACK_PER_RECORD_MS = 4.25
+LOOP_MS = 5.9
+
+
+def process_ms(result, prior, omega):
+    """Estimated F401 milliseconds of one ``StarTracker.process`` call."""
+    if prior is None:
+        moving = omega is not None and sum(w * w for w in omega) > MOVING_RAD_S ** 2
+        return LIS_MOVING_MS if moving else LIS_REST_MS
+    return TRACK_BASE_MS + TRACK_PER_RECORD_MS * getattr(result, "n_records", 0)
+
+
+class TimedTracker:
+    """A ``StarTracker`` whose ``process`` also spends the estimated MCU time on the twin's
+    clock (``advance(ms)``), plus ``hang_ms`` once when set (a stuck loop that does not feed
+    the watchdog).  ``settings``, ``status`` and ``reason`` are the tracker's."""
+
+    def __init__(self, tracker, advance):
+        self.tracker = tracker
+        self.advance = advance
+        self.hang_ms = 0
+        self.last_ms = 0.0
+
+    @property
+    def settings(self):
+        return self.tracker.settings
+
+    @property
+    def status(self):
+        return self.tracker.status
+
+    @property
+    def reason(self):
+        return self.tracker.reason
+
+    def process(self, packet, prior=None, omega=None, dt=None):
+        result = self.tracker.process(packet, prior=prior, omega=omega, dt=dt)
+        ms = process_ms(result, prior, omega) + LOOP_MS
+        if self.hang_ms:
+            ms += self.hang_ms
+            self.hang_ms = 0
+        self.last_ms = ms
+        self.advance(ms)
+        return result

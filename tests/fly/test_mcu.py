@@ -1,0 +1,38 @@
+"""The MCU time model: per frame class, from the docs' F401 estimates, spent on the twin's
+clock around the real ``process``."""
+
+import pytest
+
+from lodestar.fly import mcu
+
+
+class _Result:
+    n_records = 10
+
+
+class _Tracker:
+    settings, status, reason = "settings", 0, ""
+
+    def process(self, packet, prior=None, omega=None, dt=None):
+        return _Result()
+
+
+def test_classes():
+    assert mcu.process_ms(_Result(), None, None) == mcu.LIS_REST_MS
+    assert mcu.process_ms(_Result(), None, (0.0, 0.01, 0.0)) == mcu.LIS_MOVING_MS
+    # the docs' budgeted tracking frame (10 records, 73 ms) and every blob (50, 243 ms)
+    assert mcu.process_ms(_Result(), (0, 0, 0, 1), None) == pytest.approx(73, abs=0.5)
+    fifty = _Result()
+    fifty.n_records = 50
+    assert mcu.process_ms(fifty, (0, 0, 0, 1), None) == pytest.approx(243, abs=0.5)
+
+
+def test_timed_tracker_spends_the_time_and_a_hang_once():
+    spent = []
+    t = mcu.TimedTracker(_Tracker(), spent.append)
+    assert t.settings == "settings" and t.status == 0
+    t.hang_ms = 3000
+    t.process(b"", prior=(0, 0, 0, 1))
+    t.process(b"", prior=(0, 0, 0, 1))
+    assert spent == [pytest.approx(73 + mcu.LOOP_MS + 3000, abs=0.5),
+                     pytest.approx(73 + mcu.LOOP_MS, abs=0.5)]
