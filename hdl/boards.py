@@ -40,7 +40,7 @@ from amaranth.vendor import AlteraPlatform
 from lodestar import contract as C
 
 from .detector import Detector
-from .frontend import STALL_TIMEOUT, FrameWatchdog
+from .frontend import MASTER_DOMAIN, STALL_TIMEOUT, FrameWatchdog, input_buffer, io_domain
 from .layouts import trailer_layout
 from .mt9p031 import MT9P031Frontend
 from .mt9v022 import MT9V022Frontend
@@ -558,10 +558,12 @@ _REGISTERED_OUTPUTS = ("miso", "irq")
 
 
 def _resources(board):
-    """Pins as Amaranth resources: each sampled input gets ``FAST_INPUT_REGISTER`` (its first
-    flip-flop has no reset, so the fitter can pack it into the I/O element), each output
-    from a bare flip-flop ``FAST_OUTPUT_REGISTER``; the front end's ``LVDS_PINS`` the LVDS
-    standard, its ``CLOCK_PINS`` the pixel rate as their clock."""
+    """Pins as Amaranth resources: each sensor input the front end captures gets
+    ``FAST_INPUT_REGISTER`` (its ``io.FFBuffer`` flip-flop has no reset, so the fitter packs
+    it into the I/O element), each output from a bare flip-flop ``FAST_OUTPUT_REGISTER``;
+    the SPI inputs get none (their first flip-flop is a synchronizer's, which keeps its
+    resolution time in the fabric); the front end's ``LVDS_PINS`` the LVDS standard, its
+    ``CLOCK_PINS`` the pixel rate as their clock."""
     resources = [Resource("clk_osc", 0, Pins(board.osc_pin, dir="i"), Clock(board.osc_hz),
                           Attrs(io_standard=_LVCMOS))]
     fe = board.frontend
@@ -571,12 +573,13 @@ def _resources(board):
         subs = []
         for sub, (pins, direction, _assumed) in signals.items():
             if sub in lvds_pins:
-                subs.append(Subsignal(sub, Pins(pins, dir=direction),
+                extra = [Clock(board.pixel_hz)] if sub in clock_pins else []
+                subs.append(Subsignal(sub, Pins(pins, dir=direction), *extra,
                                       Attrs(io_standard=_LVDS)))
             else:
                 extra = [Clock(board.pixel_hz)] if sub in clock_pins else []
                 attrs = {"io_standard": board.io_standard[name]}
-                if direction == "i" and sub not in clock_pins:
+                if direction == "i" and name == board.sensor and sub not in clock_pins:
                     attrs["FAST_INPUT_REGISTER"] = "ON"
                 if sub in _REGISTERED_OUTPUTS:
                     attrs["FAST_OUTPUT_REGISTER"] = "ON"
@@ -626,23 +629,15 @@ def _ratio(out_hz, in_hz, limit=64):
     return best[1], best[2]
 
 
-def _buffers(m, platform, name, signals):
-    """Request resource ``name`` (``dir="-"``) and give each of its ``signals`` (a
-    :attr:`Board.pins` entry) an ``io.Buffer`` (``"oe"`` pins: an output with its ``oe``);
-    returns ``{subsignal: buffer}``."""
-    ports = platform.request(name, 0, dir="-")
-    buffers = {}
-    for sub, (_pins, direction, _assumed) in signals.items():
-        buffer = io.Buffer("i" if direction == "i" else "o", getattr(ports, sub))
-        m.submodules[f"pin_{name}_0__{sub}"] = buffers[sub] = buffer
-    return buffers
-
-
 class BoardTop(Elaboratable):
     """:class:`GatewareTop` on a board (see :data:`BOARDS`): clocks, resets and pins.
 
-    The board makes ``sync`` (the oscillator or a PLL) and the sensor's master clock, and
-    leaves the capture domain and the sensor's pins to the front end's ``board_clocks``.
+    The board makes ``sync`` (the oscillator or a PLL) and the sensor's master clock
+    (``MASTER_DOMAIN``), and leaves the capture domain and the sensor's pins to the front
+    end's ``board_clocks``.  Every pin goes through an ``amaranth.lib.io`` buffer of a
+    resource requested with ``dir="-"``: the sensor's bus through input flip-flops, its
+    master clock through a DDR output, IRQ through an output flip-flop (their domains are
+    reset-less twins, ``frontend.io_domain``: an I/O element's register has no reset).
 
     Parameters
     ----------
@@ -664,23 +659,23 @@ class BoardTop(Elaboratable):
         b = self.board
         m.submodules.core = core = self.core
         fe = core.frontend
-        m.submodules.pin_clk_osc_0 = osc_buffer = io.Buffer(
-            "i", platform.request("clk_osc", 0, dir="-"))
-        osc = osc_buffer.i
-        sensor = _buffers(m, platform, b.sensor, b.pins[b.sensor])
-        mcu = _buffers(m, platform, "mcu", b.pins["mcu"])
+        osc = input_buffer(m, "pin_clk_osc_0", platform.request("clk_osc", 0, dir="-")).i
+        sensor = platform.request(b.sensor, 0, dir="-")
+        mcu = platform.request("mcu", 0, dir="-")
 
         # ---- clocks: sync, the sensor's master clock, the capture domain ----------------
         m.domains.sync = ClockDomain("sync")
         m.domains.osc = ClockDomain("osc", reset_less=True)
-        m.d.comb += ClockSignal("osc").eq(osc)
+        m.domains += [ClockDomain(MASTER_DOMAIN, reset_less=True),
+                      ClockDomain(io_domain("sync"), reset_less=True)]
+        m.d.comb += [ClockSignal("osc").eq(osc),
+                     ClockSignal(io_domain("sync")).eq(ClockSignal("sync"))]
         if b.sync_hz == b.osc_hz:
             outputs = []
             m.d.comb += ClockSignal("sync").eq(osc)
         else:
             outputs = [(ClockSignal("sync"), *_ratio(b.sync_hz, b.osc_hz))]
-        sensor_clk = Signal()
-        outputs.append((sensor_clk, *_ratio(b.sensor_clk_hz, b.osc_hz)))
+        outputs.append((ClockSignal(MASTER_DOMAIN), *_ratio(b.sensor_clk_hz, b.osc_hz)))
         # power-up reset only: a later lock loss is counted, not a reset (ClockGuard)
         m.submodules.clock_guard = guard = ClockGuard()
         m.d.comb += guard.locked.eq(_altpll(m, "pll", osc, b.osc_hz, outputs))
@@ -689,16 +684,24 @@ class BoardTop(Elaboratable):
         m.domains += ClockDomain(fe.domain)
         capture_up = Signal()
         m.submodules.capture_reset = ResetSynchronizer(~capture_up, domain=fe.domain)
-        running = fe.board_clocks(m, b, sensor, core, sensor_clk)
+        running = fe.board_clocks(m, b, sensor, core)
         m.d.comb += capture_up.eq(guard.ever_locked & running)
         # the sensor is held in reset until the clocks first come up, never after (it
         # keeps the configuration the MCU wrote)
-        m.d.comb += sensor["reset_n"].o.eq(guard.ever_locked)
+        reset_n = io.Buffer("o", sensor.reset_n)
+        m.submodules[f"pin_{b.sensor}_0__reset_n"] = reset_n
+        m.d.comb += reset_n.o.eq(guard.ever_locked)
 
-        # ---- MCU ----------------------------------------------------------------------
-        m.d.comb += [core.sck.eq(mcu["sck"].i), core.mosi.eq(mcu["mosi"].i),
-                     core.cs_n.eq(mcu["cs_n"].i), mcu["miso"].o.eq(core.miso),
-                     mcu["miso"].oe.eq(core.miso_oe), mcu["irq"].o.eq(core.irq)]
+        # ---- MCU: SCK, MOSI and CS_N into the slave's synchronizers; MISO straight from
+        # the slave's shift register (FAST_OUTPUT_REGISTER; an output flip-flop more would
+        # cost a sync clock of every SCK period); IRQ from an output flip-flop ------------
+        spi_in = {sub: input_buffer(m, f"pin_mcu_0__{sub}", getattr(mcu, sub)).i
+                  for sub in ("sck", "mosi", "cs_n")}
+        m.submodules.pin_mcu_0__miso = miso = io.Buffer("o", mcu.miso)
+        m.submodules.pin_mcu_0__irq = irq = io.FFBuffer("o", mcu.irq, o_domain=io_domain("sync"))
+        m.d.comb += [core.sck.eq(spi_in["sck"]), core.mosi.eq(spi_in["mosi"]),
+                     core.cs_n.eq(spi_in["cs_n"]), miso.o.eq(core.miso),
+                     miso.oe.eq(core.miso_oe), irq.o.eq(core.irq)]
         return m
 
 

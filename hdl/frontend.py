@@ -1,6 +1,7 @@
 """What every sensor front end shares: the clock-domain crossing into ``sync``, the frame
 watchdog after it, the geometry check, and :class:`SensorFrontend`, the base class that
-declares the stream and status ports and the board hooks each front end implements.
+declares the stream and status ports and the board hooks each front end implements, and the
+pin buffers the hooks use (:func:`capture_buffer`, :func:`clock_output`, :func:`input_buffer`).
 
 A front end delivers an always-ready ``lib.stream`` in ``sync`` of
 ``threshold.pixel_layout(PIXEL_BITS)`` (``data``, ``sof`` on a frame's first pixel, ``eol`` on
@@ -13,7 +14,7 @@ the frame is cut until the next ``sof``, never delivered shifted.  :class:`Frame
 """
 
 from amaranth import Module, Mux, Signal
-from amaranth.lib import stream, wiring
+from amaranth.lib import io, stream, wiring
 from amaranth.lib.cdc import PulseSynchronizer
 from amaranth.lib.fifo import AsyncFIFO
 from amaranth.lib.wiring import In, Out
@@ -25,6 +26,42 @@ from lodestar.hdl.threshold import pixel_layout
 FIFO_DEPTH = 8
 """Entries of the pixel-clock -> sync FIFO when the sync clock is at least the pixel rate
 (module docstring: at most 6 are ever counted by the write side)."""
+
+
+def io_domain(domain):
+    """Name of the reset-less twin of clock domain ``domain`` (same clock, no reset) that a
+    board clocks its pin flip-flops with: a register in an I/O element has no reset."""
+    return f"{domain}_io"
+
+
+def input_buffer(m, name, port):
+    """An ``io.Buffer`` input on ``port`` (a clock pin, or a pin a synchronizer or a
+    receiver registers), added to ``m`` as ``name``; returns the buffer."""
+    m.submodules[name] = buffer = io.Buffer("i", port)
+    return buffer
+
+
+def capture_buffer(m, name, port, domain):
+    """An ``io.FFBuffer`` input on ``port`` sampled on the rising edge of ``domain``'s
+    reset-less twin (:func:`io_domain`): the pin's capture register, which the platform
+    places in the I/O element; returns the buffer."""
+    m.submodules[name] = buffer = io.FFBuffer("i", port, i_domain=io_domain(domain))
+    return buffer
+
+
+MASTER_DOMAIN = "master"
+"""The reset-less clock domain of the sensor's master clock (EXTCLK, SYSCLK), made by the
+board's PLL."""
+
+
+def clock_output(m, name, port, domain=MASTER_DOMAIN):
+    """Forward the clock of ``domain`` (reset-less) to ``port`` through an ``io.DDRBuffer``
+    (high after the rising edge, low after the falling one): the pin toggles from the I/O
+    element's DDR register, not from a clock net routed out through the fabric, so its
+    duty cycle and delay are the I/O element's; returns the buffer."""
+    m.submodules[name] = buffer = io.DDRBuffer("o", port, o_domain=domain)
+    m.d.comb += [buffer.o[0].eq(1), buffer.o[1].eq(0)]
+    return buffer
 
 
 class PixelCrossing(wiring.Component):
@@ -228,10 +265,12 @@ class SensorFrontend(wiring.Component):
     standard, registered by the receiver).  Board hooks: ``pins`` (the ``wiring.Signature``
     of the top level's sensor ports), ``connect_pins(m, top)`` (drive the front end from
     them), ``status(top, since_read)`` (``{OVF_* bit: value}`` beyond ``OVF_PIXEL_FIFO``),
-    ``board_clocks(m, board, pins, top, master_clk)`` (on a board: clock the capture domain,
-    drive the sensor's master clock and the top level's sensor ports from the pin buffers;
-    returns the capture clock's "running" signal) and ``sdc_constraints(board)`` (SDC lines).
-    The board's sensor resource has the subsignal ``reset_n`` besides the subclass's own.
+    ``board_clocks(m, board, ports, top)`` (on a board: give the sensor resource's ``ports``
+    (requested with ``dir="-"``) their buffers, clock the capture domain, forward the
+    :data:`MASTER_DOMAIN` clock to the sensor with :func:`clock_output`, drive the top level's
+    sensor ports; returns the capture clock's "running" signal) and ``sdc_constraints(board)``
+    (SDC lines).  The board's sensor resource has the subsignal ``reset_n`` besides the
+    subclass's own (the board drives it).
 
     Parameters
     ----------

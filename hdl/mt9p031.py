@@ -4,16 +4,26 @@ pixel stream out in ``sync`` (the stream contract of :mod:`lodestar.hdl.frontend
 Capture runs in the pixel clock domain (default ``"pix"``), whose edge the board top level
 chooses (R0x0A[15]); ``width x height`` are checked, not enforced (the detector flags bad
 frames).  The crossing into ``sync`` is :class:`lodestar.hdl.frontend.PixelCrossing`.  On a
-board, PIXCLK clocks ``pix`` and the board's PLL makes EXTCLK (:meth:`board_clocks`).
+board, PIXCLK clocks ``pix``, D/LINE_VALID/FRAME_VALID are sampled by the pins' own
+flip-flops (``io.FFBuffer``, no reset, in the I/O elements) and the board's PLL makes EXTCLK,
+forwarded through a DDR output (:meth:`board_clocks`); the front end's inputs are those
+flip-flops' outputs.
 Derivation: ``docs/sensors_and_link.md``.
 """
 
-from amaranth import ClockSignal, Const, Module, Signal
+from amaranth import ClockDomain, ClockSignal, Const, Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from lodestar import contract as C
-from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend
+from lodestar.hdl.frontend import (
+    FIFO_DEPTH,
+    SensorFrontend,
+    capture_buffer,
+    clock_output,
+    input_buffer,
+    io_domain,
+)
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9p031"]
 """MT9P031 pixel width (the contract's ``SENSOR_PIXEL_BITS``)."""
@@ -34,9 +44,9 @@ class MT9P031Frontend(SensorFrontend):
     Members
     -------
     d : ``In(PIXEL_BITS)``
-        The data bus D[11:0], in ``domain``.
+        The data bus D[11:0], in ``domain``, from registers (the pins' capture flip-flops).
     line_valid, frame_valid : ``In(1)``
-        LINE_VALID and FRAME_VALID, in ``domain``.
+        LINE_VALID and FRAME_VALID, in ``domain``, from registers.
     out, overflow, overflow_clear, fifo_level
         As :class:`lodestar.hdl.frontend.SensorFrontend`.
     """
@@ -65,14 +75,20 @@ class MT9P031Frontend(SensorFrontend):
         m.d.comb += [self.d.eq(top.pix_d), self.line_valid.eq(top.line_valid),
                      self.frame_valid.eq(top.frame_valid)]
 
-    def board_clocks(self, m, board, pins, top, master_clk):
-        """PIXCLK clocks ``domain``, ``master_clk`` drives EXTCLK (the sensor's own PLL makes
-        PIXCLK from it), the bus goes to the top level; the capture clock runs once the board
-        is up (returns 1)."""
-        m.d.comb += [ClockSignal(self.domain).eq(pins["pixclk"].i),
-                     pins["extclk"].o.eq(master_clk),
-                     top.pix_d.eq(pins["d"].i), top.line_valid.eq(pins["line_valid"].i),
-                     top.frame_valid.eq(pins["frame_valid"].i)]
+    def board_clocks(self, m, board, ports, top):
+        """PIXCLK clocks ``domain`` (and its reset-less twin, which clocks the capture
+        flip-flops of D, LINE_VALID and FRAME_VALID), the master clock is forwarded to EXTCLK
+        (the sensor's own PLL makes PIXCLK from it), the captured bus goes to the top level;
+        the capture clock runs once the board is up (returns 1)."""
+        pixclk = input_buffer(m, "pin_mt9p031_0__pixclk", ports.pixclk)
+        m.domains += ClockDomain(io_domain(self.domain), reset_less=True)
+        m.d.comb += [ClockSignal(self.domain).eq(pixclk.i),
+                     ClockSignal(io_domain(self.domain)).eq(pixclk.i)]
+        clock_output(m, "pin_mt9p031_0__extclk", ports.extclk)
+        bus = {sub: capture_buffer(m, f"pin_mt9p031_0__{sub}", getattr(ports, sub),
+                                   self.domain) for sub in ("d", "line_valid", "frame_valid")}
+        m.d.comb += [top.pix_d.eq(bus["d"].i), top.line_valid.eq(bus["line_valid"].i),
+                     top.frame_valid.eq(bus["frame_valid"].i)]
         return Const(1)
 
     @staticmethod
@@ -95,13 +111,11 @@ class MT9P031Frontend(SensorFrontend):
         pix = self.domain
         cross = self.crossing(m)
 
-        # ---- input registers (I/O cells): no reset, so that each is a bare flip-flop the
-        # fitter can pack into the pin's I/O element (FAST_INPUT_REGISTER in the QSF) ------
-        d = Signal(PIXEL_BITS, reset_less=True)
-        lv = Signal(reset_less=True)
-        fv = Signal(init=1, reset_less=True)   # at configuration, assume a frame is under way
-        m.d[pix] += [d.eq(self.d), lv.eq(self.line_valid), fv.eq(self.frame_valid)]
-        valid = lv & fv
+        # the inputs come from registers (on a board the pins' capture flip-flops): a frame
+        # under way when the domain leaves reset has FRAME_VALID high, so ``armed`` stays low
+        # and its pixels are not taken for a frame start
+        d, fv = self.d, self.frame_valid
+        valid = self.line_valid & fv
 
         # ---- one-pixel delay: the held pixel learns eol from the next sample ------------
         held = Signal(PIXEL_BITS)

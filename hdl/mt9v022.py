@@ -19,7 +19,7 @@ from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
-from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend
+from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend, clock_output, input_buffer
 from lodestar.hdl.threshold import pixel_layout
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9v022"]
@@ -245,6 +245,7 @@ class MT9V022Frontend(SensorFrontend):
     IO_VOLTS = (3.0, 3.6)
     """VDD 3.3 V +- 0.3 V (datasheet)."""
     LVDS_PINS = ("ser_clk", "ser_data")
+    CLOCK_PINS = ("ser_clk",)
 
     def __init__(self, width, height, *, lanes=LVDS_LANES, domain="ser",
                  fifo_depth=FIFO_DEPTH):
@@ -274,11 +275,14 @@ class MT9V022Frontend(SensorFrontend):
         return {C.OVF_LINK_DOWN: ~self.locked | ~top.rx_locked,
                 C.OVF_LINK_ERROR: since_read(self.framing_errors, "framing_errors")}
 
-    def board_clocks(self, m, board, pins, top, master_clk):
+    def board_clocks(self, m, board, ports, top):
         """An ALTLVDS_RX (factor ``lanes``) deserializes ``ser_data`` on the returned
-        ``ser_clk`` and clocks ``domain``; ``master_clk`` drives SYSCLK; the capture clock
-        runs while the receiver's PLL is locked (returned; also synchronized into
-        ``top.rx_locked``)."""
+        ``ser_clk`` and clocks ``domain``; the master clock is forwarded to SYSCLK through a
+        DDR output; the capture clock runs while the receiver's PLL is locked (returned; also
+        synchronized into ``top.rx_locked``)."""
+        pins = {sub: input_buffer(m, f"pin_mt9v022_0__{sub}", getattr(ports, sub))
+                for sub in self.LVDS_PINS}
+        clock_output(m, "pin_mt9v022_0__sysclk", ports.sysclk)
         ser_clk = Signal()
         rx_locked = Signal()
         bit_ps = 1e12 / (board.pixel_hz * PACKET_BITS)
@@ -295,18 +299,17 @@ class MT9V022Frontend(SensorFrontend):
             p_registered_output="ON", p_use_external_pll="OFF",
             i_rx_in=pins["ser_data"].i, i_rx_inclock=pins["ser_clk"].i,
             o_rx_out=top.lvds_bits, o_rx_outclock=ser_clk, o_rx_locked=rx_locked)
-        m.d.comb += [ClockSignal(self.domain).eq(ser_clk), pins["sysclk"].o.eq(master_clk)]
+        m.d.comb += ClockSignal(self.domain).eq(ser_clk)
         m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)
         return rx_locked
 
     @staticmethod
     def sdc_constraints(board):
-        """The returned LVDS clock, asynchronous to ``sync`` with the receiver's PLL."""
-        return ["# the LVDS receiver's reference clock (its PLL's outputs come from "
-                "derive_pll_clocks)",
-                f"create_clock -name mt9v022_ser_clk -period {1e9 / board.pixel_hz:.3f} "
-                "[get_ports {mt9v022_0__ser_clk__io}]",
-                "set_clock_groups -asynchronous -group [get_clocks {mt9v022_ser_clk "
+        """The returned LVDS clock (created by the platform from the pin's ``Clock``, before
+        ``derive_pll_clocks`` derives the receiver PLL's outputs from it) and those outputs,
+        asynchronous to ``sync``."""
+        return ["# the returned LVDS clock and the receiver PLL's outputs",
+                "set_clock_groups -asynchronous -group [get_clocks {*mt9v022_0__ser_clk* "
                 "*lvds_rx*}]"]
 
     def elaborate(self, platform):

@@ -108,23 +108,55 @@ def test_bad_names_are_refused():
 
 @pytest.mark.parametrize("name", sorted(BOARDS))
 def test_fast_io_registers_and_miso_tristate(projects, name):
-    """Every sampled input has FAST_INPUT_REGISTER (the PIXCLK clock pin and the LVDS pins
-    excepted), MISO and IRQ FAST_OUTPUT_REGISTER; MISO's buffer has an output enable that
-    the SPI slave's ``miso_oe`` (CS low) drives."""
+    """Every sensor input the front end captures has FAST_INPUT_REGISTER (the clock pins and
+    the LVDS pins excepted; the SPI inputs go to synchronizers), MISO and IRQ
+    FAST_OUTPUT_REGISTER; MISO's buffer has an output enable that the SPI slave's
+    ``miso_oe`` (CS low) drives."""
     board, files = BOARDS[name], projects[name]
     qsf, verilog = files["lodestar.qsf"], files["lodestar.v"]
     fast_in = set(re.findall(r'-to "([^"]+?)__io(?:\\\[\d+\])?" -name FAST_INPUT_REGISTER "ON"',
                              qsf))
     fast_out = set(re.findall(r'-to "([^"]+?)__io" -name FAST_OUTPUT_REGISTER "ON"', qsf))
     unregistered = board.frontend.CLOCK_PINS + board.frontend.LVDS_PINS
-    inputs = {f"{res}_0__{sub}" for res, signals in board.pins.items()
-              for sub, (_pins, direction, _a) in signals.items()
+    inputs = {f"{board.sensor}_0__{sub}"
+              for sub, (_pins, direction, _a) in board.pins[board.sensor].items()
               if direction == "i" and sub not in unregistered}
     assert fast_in == inputs
     assert fast_out == {"mcu_0__miso", "mcu_0__irq"}
     miso_buf = re.search(r"module \\lodestar\.pin_mcu_0__miso .*?endmodule", verilog, re.S)
     assert miso_buf and '.use_oe("TRUE")' in miso_buf.group(0)
     assert re.search(r"assign miso_oe = ~ cs_n;", verilog)     # SPIByteSlave: selected
+
+
+def _module(verilog, name):
+    """The text of Verilog module ``lodestar.<name>``."""
+    found = re.search(rf"module \\lodestar\.{re.escape(name)} .*?endmodule", verilog, re.S)
+    assert found, name
+    return found.group(0)
+
+
+def test_capture_flip_flops_and_forwarded_clock(projects):
+    """The MT9P031's D, LINE_VALID and FRAME_VALID go through ``io.FFBuffer``: each port is
+    marked ``useioff`` and its flip-flop, clocked by PIXCLK, has no reset (a reset would put
+    a multiplexer between the pin and the I/O element's register); EXTCLK (and the
+    MT9V022's SYSCLK) leave through a DDR output (altddio_out) clocked by the master clock
+    with constant data 1/0; IRQ leaves from an output flip-flop without reset."""
+    verilog = projects["de0-nano"]["lodestar.v"]
+    for sub in ("d", "line_valid", "frame_valid"):
+        assert re.search(rf"\(\* useioff = 32'd1 \*\)\n\s*input (\[\d+:0\] )?"
+                         rf"mt9p031_0__{sub}__io;", verilog), sub
+        buf = _module(verilog, f"pin_mt9p031_0__{sub}")
+        assert re.search(r"always @\(posedge pix_io_clk\)\n\s*\S+ <= \S+;", buf), sub
+        assert "rst" not in buf, sub
+    for name, sub in (("de0-nano", "mt9p031_0__extclk"), ("de2-115", "mt9v022_0__sysclk")):
+        text = projects[name]["lodestar.v"]
+        ddr = _module(text, f"pin_{sub}")
+        assert "altddio_out" in ddr and ".outclock(master_clk)" in ddr, name
+        # the instance's DDR data: bit 0 (rising edge) 1, bit 1 (falling edge) 0
+        inst = re.search(rf"\\lodestar\.pin_{sub}  pin_{sub} \((.*?)\);", text, re.S)
+        assert re.search(r"\.\\o\$\d+ \(2'h1\)", inst.group(1)), name
+    irq = _module(verilog, "pin_mcu_0__irq")
+    assert re.search(r"always @\(posedge sync_io_clk\)", irq) and "rst" not in irq
 
 
 def test_sensor_outputs_within_the_sensor_io_range():
