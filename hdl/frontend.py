@@ -13,7 +13,7 @@ the frame is cut until the next ``sof``, never delivered shifted.  :class:`Frame
 ``docs/sensors_and_link.md``.
 """
 
-from amaranth import Module, Mux, Signal
+from amaranth import Module, Mux, ResetSignal, Signal
 from amaranth.lib import io, stream, wiring
 from amaranth.lib.cdc import PulseSynchronizer
 from amaranth.lib.fifo import AsyncFIFO
@@ -62,6 +62,27 @@ def clock_output(m, name, port, domain=MASTER_DOMAIN):
     m.submodules[name] = buffer = io.DDRBuffer("o", port, o_domain=domain)
     m.d.comb += [buffer.o[0].eq(1), buffer.o[1].eq(0)]
     return buffer
+
+
+def gray_skew_constraints(source, target, limit_ns):
+    """SDC lines that bound a Gray-coded bus crossing clock domains: from the ``source``
+    registers (a Quartus name pattern) to the first stage of their synchronizer ``target``,
+    ``set_net_delay`` and ``set_max_skew`` of ``limit_ns`` (0.8 x the faster clock's period):
+    the bits then arrive within one destination clock of each other, so the synchronizer
+    never samples a value two codes apart, which the clock groups' false path alone would
+    allow."""
+    keys = f"-from [get_keepers {{{source}}}] -to [get_keepers {{{target}}}]"
+    return [f"set_net_delay -max {limit_ns:.3f} {keys}", f"set_max_skew {limit_ns:.3f} {keys}"]
+
+
+def crossing_constraints(board, capture_hz):
+    """The Gray pointers of the board's :class:`PixelCrossing` (both directions), its capture
+    domain clocked at ``capture_hz``."""
+    limit = 0.8e9 / max(board.sync_hz, capture_hz)
+    fifo = "*|frontend|crossing|fifo"
+    return (gray_skew_constraints(f"{fifo}|produce_w_gry*", f"{fifo}|produce_cdc|*", limit)
+            + gray_skew_constraints(f"{fifo}|consume_r_gry*", f"{fifo}|consume_cdc|*",
+                                    limit))
 
 
 class PixelCrossing(wiring.Component):
@@ -116,7 +137,10 @@ class PixelCrossing(wiring.Component):
 
         # ---- write side: drop the rest of a frame once a pixel is lost ------------------
         broken = Signal(init=1)      # wait for a frame start (also after reset)
-        take = p.valid & (p.payload.sof | ~broken)
+        # nothing is taken while the write side is in reset (the FIFO drops it: it would be
+        # counted lost)
+        in_reset = ResetSignal(w, allow_reset_less=True)
+        take = p.valid & ~in_reset & (p.payload.sof | ~broken)
         lost = take & ~fifo.w_rdy
         m.d.comb += [fifo.w_en.eq(take), fifo.w_data.eq(p.payload), lost_cdc.i.eq(lost)]
         with m.If(lost):

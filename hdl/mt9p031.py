@@ -21,12 +21,22 @@ from lodestar.hdl.frontend import (
     SensorFrontend,
     capture_buffer,
     clock_output,
+    crossing_constraints,
     input_buffer,
     io_domain,
 )
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9p031"]
 """MT9P031 pixel width (the contract's ``SENSOR_PIXEL_BITS``)."""
+TPD_NS = (-2.0, 2.0)
+"""Estimate, to replace from the datasheet: the MT9P031's output valid times of D,
+LINE_VALID and FRAME_VALID about the PIXCLK falling edge that launches them (min, max), at
+2.8 V VDD_IO.  The datasheet's I/O timing table (tPD) could not be retrieved here; the
+window is the +-3.2 ns valid window about the rising edge at 96 MHz that the gateware review
+read from it (5.2 ns half period - 3.2 ns = 2.0 ns)."""
+BOARD_SKEW_NS = 0.5
+"""Estimate: the largest difference between the PIXCLK trace and a data trace from the
+sensor to the FPGA (about 75 mm of mismatch on FR-4), added on both sides of ``TPD_NS``."""
 
 
 class MT9P031Frontend(SensorFrontend):
@@ -93,18 +103,24 @@ class MT9P031Frontend(SensorFrontend):
 
     @staticmethod
     def sdc_constraints(board):
-        """PIXCLK's domain is asynchronous to ``sync``; the bus's input delay."""
-        ports = "mt9p031_0__d* mt9p031_0__line_valid* mt9p031_0__frame_valid*"
-        delay = "set_input_delay -clock [get_clocks {*mt9p031_0__pixclk*}] -clock_fall"
+        """PIXCLK's domain is asynchronous to ``sync`` (the crossing's Gray pointers
+        skew-bounded); the bus's input delays: the sensor's output valid times ``TPD_NS``
+        about PIXCLK's falling edge, widened by ``BOARD_SKEW_NS``; EXTCLK, a forwarded clock
+        with no data relation to any FPGA clock (PIXCLK comes back from the sensor's own
+        PLL), is not timed."""
+        ports = "mt9p031_0__d__io* mt9p031_0__line_valid__io mt9p031_0__frame_valid__io"
+        delay = "set_input_delay -clock [get_clocks {mt9p031_0__pixclk__io}] -clock_fall"
+        low, high = TPD_NS[0] - BOARD_SKEW_NS, TPD_NS[1] + BOARD_SKEW_NS
         return ["# the sensor clock domain meets sync only through the AsyncFIFO and "
                 "synchronizers",
-                "set_clock_groups -asynchronous -group [get_clocks {*mt9*}]",
-                "# MT9P031 launches D/LV/FV on PIXCLK's falling edge; the FPGA samples on the "
-                "rising edge.",
-                "# Output delay window assumed +-2 ns around the falling edge (datasheet "
-                "tPD, to verify).",
-                f"{delay} -max 2.0 [get_ports {{{ports}}}]",
-                f"{delay} -min -2.0 [get_ports {{{ports}}}]"]
+                "set_clock_groups -asynchronous -group [get_clocks {mt9p031_0__pixclk__io}]",
+                *crossing_constraints(board, board.pixel_hz),
+                "# D/LV/FV: launched on PIXCLK's falling edge (output valid TPD_NS, an "
+                "estimate) plus board skew; sampled on the rising edge",
+                f"{delay} -max {high:.3f} [get_ports {{{ports}}}]",
+                f"{delay} -min {low:.3f} [get_ports {{{ports}}}]",
+                "# EXTCLK: the forwarded master clock (DDR output), no data relation",
+                "set_false_path -to [get_ports {mt9p031_0__extclk__io}]"]
 
     def elaborate(self, platform):
         m = Module()

@@ -19,7 +19,14 @@ from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
-from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend, clock_output, input_buffer
+from lodestar.hdl.frontend import (
+    FIFO_DEPTH,
+    SensorFrontend,
+    clock_output,
+    crossing_constraints,
+    gray_skew_constraints,
+    input_buffer,
+)
 from lodestar.hdl.threshold import pixel_layout
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9v022"]
@@ -308,9 +315,20 @@ class MT9V022Frontend(SensorFrontend):
         """The returned LVDS clock (created by the platform from the pin's ``Clock``, before
         ``derive_pll_clocks`` derives the receiver PLL's outputs from it) and those outputs,
         asynchronous to ``sync``."""
+        ser_hz = board.pixel_hz * PACKET_BITS / LVDS_LANES
         return ["# the returned LVDS clock and the receiver PLL's outputs",
-                "set_clock_groups -asynchronous -group [get_clocks {*mt9v022_0__ser_clk* "
-                "*lvds_rx*}]"]
+                "set_clock_groups -asynchronous -group [get_clocks {mt9v022_0__ser_clk__io "
+                "*lvds_rx*}]",
+                *crossing_constraints(board, ser_hz),
+                *gray_skew_constraints("*|frontend|errors_gray*", "*|frontend|errors_cdc|*",
+                                       0.8e9 / max(board.sync_hz, ser_hz)),
+                "# ser_data: sampled by the receiver's PLL; the MT9V022 does not specify its "
+                "LVDS clock-to-data relation,",
+                "# so the sampling phase is set on the board (inclock_phase_shift), not timed "
+                "against a datasheet window",
+                "set_false_path -from [get_ports {mt9v022_0__ser_data__io}]",
+                "# SYSCLK: the forwarded master clock (DDR output), no data relation",
+                "set_false_path -to [get_ports {mt9v022_0__sysclk__io}]"]
 
     def elaborate(self, platform):
         m = Module()
