@@ -13,7 +13,7 @@ Datasheet sources, the points not yet verified, decoding and lock rules:
 ``docs/sensors_and_link.md`` (MT9V022).
 """
 
-from amaranth import Array, Cat, ClockSignal, Instance, Module, Mux, Signal
+from amaranth import Array, Cat, ClockDomain, ClockSignal, Instance, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
@@ -46,6 +46,12 @@ LOCK_PACKETS = 8
 """Consecutive well-framed packets an alignment needs before it may be locked on."""
 ERROR_COUNT_BITS = 16
 """Width of the saturating framing-error counter."""
+ACTIVE_CLOCKS = 64
+"""Oscillator clocks within which the returned LVDS clock must show an edge (seen through a
+toggle flip-flop it clocks) to count as running (:class:`ReceiverPllReset`)."""
+LOCK_TIMEOUT_CLOCKS = 1 << 17
+"""Oscillator clocks the receiver's PLL gets to lock after its reset is released (2.6 ms at
+50 MHz, over twice the Cyclone IV PLL's 1 ms lock time) before it is reset and retried."""
 LVDS_LANES = 6
 """Bits per ``ser`` clock from the board's LVDS deserializer (ALTLVDS_RX, factor 6)."""
 
@@ -219,6 +225,72 @@ class WordDecoder(wiring.Component):
         return m
 
 
+class ReceiverPllReset(wiring.Component):
+    """``pll_areset`` of the LVDS receiver's PLL, whose input clock (the sensor's returned
+    LVDS clock) only starts once the MCU enables the sensor's LVDS: held in reset while that
+    clock is not running, released once it has run for ``active_clocks``, and reset again
+    (a retry) if the PLL has not locked ``lock_timeout`` clocks later or whenever the clock
+    stops.  Everything in the always-running ``osc`` domain.
+
+    Parameters
+    ----------
+    active_clocks : int
+        Clocks within which a running clock shows an edge of ``toggle``.
+    lock_timeout : int
+        Clocks the PLL gets to lock after each release.
+
+    Members
+    -------
+    toggle : ``In(1)``
+        A flip-flop the returned clock toggles, synchronized into ``osc``.
+    locked : ``In(1)``
+        The receiver PLL's ``rx_locked``, synchronized into ``osc``.
+    areset : ``Out(1, init=1)``
+        The PLL's ``pll_areset``.
+    retries : ``Out(8)``
+        Releases that timed out (saturating), for bring-up.
+    """
+
+    def __init__(self, active_clocks=ACTIVE_CLOCKS, lock_timeout=LOCK_TIMEOUT_CLOCKS):
+        if active_clocks < 2 or lock_timeout < 1:
+            raise ValueError("active_clocks must be >= 2 and lock_timeout >= 1")
+        self.active_clocks, self.lock_timeout = active_clocks, lock_timeout
+        super().__init__({"toggle": In(1), "locked": In(1), "areset": Out(1, init=1),
+                          "retries": Out(8)})
+
+    def elaborate(self, platform):
+        m = Module()
+        last = Signal()
+        quiet = Signal(range(self.active_clocks + 1))     # clocks since the last edge
+        running = Signal(range(self.active_clocks + 1))   # clocks the clock has run
+        m.d.osc += last.eq(self.toggle)
+        edge = self.toggle != last
+        active = quiet < self.active_clocks
+        with m.If(edge):
+            m.d.osc += quiet.eq(0)
+        with m.Elif(active):
+            m.d.osc += quiet.eq(quiet + 1)
+        with m.If(~active):
+            m.d.osc += running.eq(0)
+        with m.Elif(running != self.active_clocks):
+            m.d.osc += running.eq(running + 1)
+        waited = Signal(range(self.lock_timeout + 1))
+        with m.If(~active):
+            m.d.osc += [self.areset.eq(1), waited.eq(0)]
+        with m.Elif(self.areset):
+            with m.If(running == self.active_clocks):
+                m.d.osc += [self.areset.eq(0), waited.eq(0)]
+        with m.Elif(~self.locked):
+            with m.If(waited == self.lock_timeout - 1):
+                m.d.osc += [self.areset.eq(1), waited.eq(0),
+                            self.retries.eq(Mux(self.retries == 0xFF, 0xFF, self.retries + 1))]
+            with m.Else():
+                m.d.osc += waited.eq(waited + 1)
+        with m.Else():
+            m.d.osc += waited.eq(0)
+        return m
+
+
 class MT9V022Frontend(SensorFrontend):
     """MT9V022 LVDS bits, ``lanes`` per ``domain`` clock, to the detector's pixel stream in
     ``sync``: :class:`WordAligner`, :class:`WordDecoder`, then the crossing.  See
@@ -284,15 +356,26 @@ class MT9V022Frontend(SensorFrontend):
 
     def board_clocks(self, m, board, ports, top):
         """An ALTLVDS_RX (factor ``lanes``) deserializes ``ser_data`` on the returned
-        ``ser_clk`` and clocks ``domain``; the master clock is forwarded to SYSCLK through a
-        DDR output; the capture clock runs while the receiver's PLL is locked (returned; also
-        synchronized into ``top.rx_locked``)."""
+        ``ser_clk`` and clocks ``domain``, its PLL reset by :class:`ReceiverPllReset` until
+        ``ser_clk`` runs (and retried if it does not lock); the master clock is forwarded to
+        SYSCLK through a DDR output; the capture clock runs while the receiver's PLL is locked
+        (returned; also synchronized into ``top.rx_locked``)."""
         pins = {sub: input_buffer(m, f"pin_mt9v022_0__{sub}", getattr(ports, sub))
                 for sub in self.LVDS_PINS}
         clock_output(m, "pin_mt9v022_0__sysclk", ports.sysclk)
         ser_clk = Signal()
         rx_locked = Signal()
         bit_ps = 1e12 / (board.pixel_hz * PACKET_BITS)
+        # pll_areset: a flip-flop the returned clock toggles tells the oscillator domain
+        # whether that clock runs (ReceiverPllReset)
+        m.domains += ClockDomain("ser_probe", reset_less=True)
+        m.d.comb += ClockSignal("ser_probe").eq(pins["ser_clk"].i)
+        probe = Signal()
+        m.d.ser_probe += probe.eq(~probe)
+        m.submodules.rx_pll_reset = pll_reset = ReceiverPllReset()
+        m.submodules.rx_probe_cdc = FFSynchronizer(probe, pll_reset.toggle, o_domain="osc")
+        m.submodules.rx_locked_osc_cdc = FFSynchronizer(rx_locked, pll_reset.locked,
+                                                        o_domain="osc")
         m.submodules.lvds_rx = Instance(
             "altlvds_rx",
             p_intended_device_family="Cyclone IV E", p_lpm_type="altlvds_rx",
@@ -305,6 +388,7 @@ class MT9V022Frontend(SensorFrontend):
             p_inclock_phase_shift=round(bit_ps / 2),
             p_registered_output="ON", p_use_external_pll="OFF",
             i_rx_in=pins["ser_data"].i, i_rx_inclock=pins["ser_clk"].i,
+            i_pll_areset=pll_reset.areset,
             o_rx_out=top.lvds_bits, o_rx_outclock=ser_clk, o_rx_locked=rx_locked)
         m.d.comb += ClockSignal(self.domain).eq(ser_clk)
         m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)

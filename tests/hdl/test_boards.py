@@ -198,6 +198,7 @@ def test_lvds_receiver_centred_and_locked(projects):
     params, ports = rx.group(1), rx.group(2)
     assert ".inclock_phase_shift(32'd1667)" in params      # half of the 3333 ps bit
     assert re.search(r"\.rx_locked\(\w+\)", ports)
+    assert re.search(r"\.pll_areset\(\w+\)", ports)       # ReceiverPllReset
 
 
 def test_spi_sck_limit_from_the_slave_rule():
