@@ -34,10 +34,10 @@ no overflow) after the last frame.
 A second test cuts the link inside a frame (``board_lvds_link_stops``): the frame watchdog
 completes the frame after its stall timeout and its packet is flagged ``FRAME_TIMEOUT``.
 
-Clocks: the DE2-115 ratios at twice its rates (Verilated time is free; the SPI master model
-assumes a 10 ns ``sync``): ``sync`` ``T_NS`` = 10 ns (board 50 MHz), ``ser`` = ``sync`` x
-(board sync / (board pixel clock x 12 / ``LVDS_LANES``)) = 9.374 ns (board 53.33 MHz, 2 x
-the 26.67 MHz pixel clock), asynchronous to ``sync``; SCK 5 x ``sync`` (board: 10 MHz).
+Clocks: the DE2-115's (the SPI master model assumes a 10 ns ``sync``): ``sync`` ``T_NS`` =
+10 ns (board 100 MHz), ``ser`` = ``sync`` x (board sync / (board pixel clock x 12 /
+``LVDS_LANES``)) = 20 ns (board 50 MHz, 2 x the 25 MHz pixel clock), asynchronous to
+``sync``; SCK 5 x ``sync``.
 Parameters from the environment: ``TB_WIDTH``, ``TB_HEIGHT``, ``TB_SEED``,
 ``TB_RECORD_CAPACITY``.
 """
@@ -47,7 +47,13 @@ from collections import deque
 
 import cocotb
 import numpy as np
-from board_top_tb import check_idle, frame_and_packet, read_packet, release_resets
+from board_top_tb import (
+    board_inputs,
+    check_idle,
+    frame_and_packet,
+    read_packet,
+    release_resets,
+)
 from cocotb.clock import Clock
 from cocotb.triggers import Event, FallingEdge, Timer
 from spi_slave_tb import T_NS, Master
@@ -189,6 +195,7 @@ async def board_lvds_frames(dut):
     dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
     dut.lvds_bits.value = 0
     dut.rx_locked.value = 1                        # the LVDS receiver PLL is locked
+    board_inputs(dut)
     cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
     await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
     cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
@@ -252,6 +259,7 @@ async def board_lvds_link_stops(dut):
     dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
     dut.lvds_bits.value = 0
     dut.rx_locked.value = 1
+    board_inputs(dut)
     cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
     await Timer(int(rng.integers(1, SER_PS)), unit="ps")
     cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())

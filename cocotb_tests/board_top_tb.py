@@ -94,6 +94,12 @@ async def frame_and_packet(master, sensor, index, image, during=None):
     return data
 
 
+def board_inputs(dut):
+    """The board's inputs of a ``GatewareTop`` as after power-up: the PLL's lock qualified
+    (``clock_ok``), no lock loss counted, the sensor out of reset."""
+    dut.clock_ok.value, dut.pll_losses.value, dut.sensor_in_reset.value = 1, 0, 0
+
+
 async def release_resets(dut, sensor_clock, sensor_reset):
     """Hold both clock domains in reset for 100 ns, then release ``sync`` on a falling
     ``clk`` edge and the sensor domain on a falling edge of its own clock."""
@@ -115,18 +121,23 @@ async def check_idle(master, frames):
     assert status["underruns"] == 1, status
 
 
+async def power_up(dut):
+    """Start the clocks, hold and release both domains' resets, board inputs idle."""
+    cocotb.start_soon(Clock(dut.clk, 10, unit="ns").start())
+    cocotb.start_soon(Clock(dut.pix_clk, PIX_NS, unit="ns").start())
+    dut.rst.value, dut.pix_rst.value = 1, 1
+    board_inputs(dut)
+    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
+    dut.line_valid.value, dut.frame_valid.value, dut.pix_d.value = 0, 0, 0
+    await release_resets(dut, dut.pix_clk, dut.pix_rst)
+
+
 @cocotb.test()
 async def board_top_frames(dut):
     w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
     rng = np.random.default_rng(int(os.environ["TB_SEED"]))
     cap = int(os.environ["TB_RECORD_CAPACITY"])
-    cocotb.start_soon(Clock(dut.clk, 10, unit="ns").start())
-    cocotb.start_soon(Clock(dut.pix_clk, PIX_NS, unit="ns").start())
-    dut.rst.value, dut.pix_rst.value = 1, 1
-    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
-    dut.line_valid.value, dut.frame_valid.value, dut.pix_d.value = 0, 0, 0
-    await release_resets(dut, dut.pix_clk, dut.pix_rst)
-
+    await power_up(dut)
     master = Master(dut, SCK_NS)
     for name, value in (("threshold", 50), ("background", 40), ("min_pixels", 1)):
         await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
@@ -155,3 +166,50 @@ async def board_top_frames(dut):
     await check_idle(master, len(frames))
     dut._log.info("board top: %d frames, %d records, all packets equal the golden results",
                   len(frames), sum(len(codec.decode(p).blobs) for p in packets))
+
+
+@cocotb.test()
+async def board_top_lock_loss(dut):
+    """The PLL loses lock in the middle of a frame, as ``BoardTop`` shows it to the top
+    level: ``clock_ok`` falls, the capture domain is held in reset, the Gray loss count
+    steps; after the qualified relock the rest of that frame is ignored, and the next frame
+    (whole) gives the golden packet with the frame counter restarted at 0, the registers
+    written before the loss still in force; the status shows ``OVF_CLOCK_LOST`` once."""
+    w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
+    rng = np.random.default_rng(int(os.environ["TB_SEED"]) + 1)
+    cap = int(os.environ["TB_RECORD_CAPACITY"])
+    await power_up(dut)
+    master = Master(dut, SCK_NS)
+    for name, value in (("threshold", 60), ("background", 40), ("min_pixels", 1)):
+        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    sensor = Sensor(dut, vblank=2 * w + 60)
+    await sensor.idle(20)
+    frames = [frame_of(rng, w, h, 0.2) for _ in range(3)]
+    cfg = DetectorConfig(width=w, height=h, pixel_bits=12, threshold=60, background=40,
+                         min_pixels=1, record_capacity=cap)
+
+    first = codec.decode(await frame_and_packet(master, sensor, 0, frames[0]))
+    assert first == detect_frame(frames[0], cfg)
+    assert (await master.read_status())["overflow"] == 0
+
+    cut = cocotb.start_soon(sensor.send(1, frames[1]))
+    while not (sensor.frame == 1 and sensor.row >= h // 2):
+        await FallingEdge(dut.pix_clk)
+    dut.clock_ok.value, dut.pix_rst.value, dut.pll_losses.value = 0, 1, 1
+    await Timer(300, unit="ns")                     # unlocked, then relocked and qualified
+    dut.clock_ok.value = 1
+    await FallingEdge(dut.pix_clk)
+    dut.pix_rst.value = 0
+    assert sensor.frame == 1, "the relock must come inside the frame it cut"
+    await cut
+    assert not int(dut.irq.value), "no packet of the cut frame"
+
+    after = codec.decode(await frame_and_packet(master, sensor, 2, frames[2]))
+    expected = detect_frame(frames[2], cfg)
+    expected.frame_counter = 0
+    assert after == expected, (after, expected)
+    status = await master.read_status()
+    assert status["overflow"] == 1 << C.OVF_CLOCK_LOST and status["frame_counter"] == 1, status
+    await check_idle(master, 1)
+    dut._log.info("lock loss: the frame after the relock (%d records) equals the golden one",
+                  len(after.blobs))

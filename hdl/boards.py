@@ -9,15 +9,21 @@ at least ``IRQ_MIN_CLOCKS`` (the MCU reads one packet per rising edge with ``REA
 register writes take effect on the next frame.  The status word's ``overflow`` bits are the
 contract's ``OVF_*``.  A frame the sensor stops sending is completed by
 :class:`lodestar.hdl.frontend.FrameWatchdog` and its trailer flagged ``FRAME_TIMEOUT``.  Only
-power-up resets the whole design: a later PLL lock loss sets ``OVF_CLOCK_LOST`` and keeps the
-registers and the sensor's configuration; the MCU's ``SOFT_RESET`` resets the detector
-datapath only (registers kept), ``FLUSH`` drops the queued packets, ``READ_REG`` reads the
-register bank back and ``READ_ID`` names the build (:class:`GatewareTop`).
+the first qualified PLL lock resets the whole design (:class:`ClockGuard`); a later lock
+loss holds the detector datapath and the capture domain in reset until the lock is qualified
+again and sets ``OVF_CLOCK_LOST``, keeping the registers and the sensor's configuration; the
+sensor's RESET_BAR is the MCU's (register ``sensor_reset``, at least
+``contract.SENSOR_RESET_S`` with its clock running: :class:`SensorReset`); the MCU's
+``SOFT_RESET`` resets the detector datapath only (registers kept), ``FLUSH`` drops the
+queued packets, ``READ_REG`` reads the register bank back and ``READ_ID`` names the build
+(:class:`GatewareTop`).
 :data:`FRONTENDS` gives each sensor its front end, which supplies the sensor's pins, board
 clocking and constraints.  Every pin marked
 *assumed* in :data:`BOARDS` must be checked against the board's schematic before the
 bitstream is loaded.  Details: ``docs/sensors_and_link.md`` (Board top levels).
 """
+
+import math
 
 from amaranth import (
     Cat,
@@ -40,13 +46,20 @@ from amaranth.vendor import AlteraPlatform
 from lodestar import contract as C
 
 from .detector import Detector
-from .frontend import STALL_TIMEOUT, FrameWatchdog
+from .frontend import (
+    MASTER_DOMAIN,
+    STALL_TIMEOUT,
+    FrameWatchdog,
+    gray_skew_constraints,
+    input_buffer,
+    io_domain,
+)
 from .layouts import trailer_layout
 from .mt9p031 import MT9P031Frontend
 from .mt9v022 import MT9V022Frontend
 from .packetizer import Packetizer
 from .registers import RegisterBank
-from .spi_slave import SPI_PINS, SPISlave, max_sck_hz
+from .spi_slave import MISO_TCO_NS, SPI_PINS, SPISlave, max_sck_hz
 
 FRONTENDS = {frontend.SENSOR: frontend for frontend in (MT9P031Frontend, MT9V022Frontend)}
 """The hdl side of the contract's ``C.SENSORS``: each sensor's front-end class
@@ -58,6 +71,9 @@ IRQ_MIN_CLOCKS = 16
 PLL_LOSS_BITS = 2
 """Width of the Gray-coded count of PLL lock losses (``OVF_CLOCK_LOST`` compares it with its
 value at the last status read, so 4 losses between two reads would go unseen)."""
+LOCK_QUALIFY_CLOCKS = 1 << 16
+"""Oscillator clocks the PLL's ``locked`` must stay high before the board releases the
+datapath (1.3 ms at 50 MHz, beyond the Cyclone IV PLL's 1 ms lock time: ``ClockGuard``)."""
 TIMEOUT_SLOTS = 8
 """Frames whose ``FRAME_TIMEOUT`` mark is remembered until their trailer goes out (indexed by
 the frame counter's low bits)."""
@@ -116,39 +132,97 @@ class IrqLine(wiring.Component):
 
 
 class ClockGuard(Elaboratable):
-    """Resets from the PLL's ``locked`` (asynchronous) for power-up only, in the always-running
-    oscillator domain ``osc``.  ``ever_locked`` rises at the first lock and stays high: the
-    board holds ``sync``, the capture domain and the sensor in reset until then.  A later lock
-    loss does not reset anything (the MCU's registers and the sensor's configuration are
-    kept); it increments ``losses``, a ``PLL_LOSS_BITS``-bit Gray count in ``osc`` that the
-    board synchronizes into ``sync`` for ``OVF_CLOCK_LOST``.
+    """Qualifies the PLL's ``locked`` (asynchronous) in the always-running oscillator domain
+    ``osc``: ``qualified`` rises once ``locked`` has stayed high for ``qualify_clocks``
+    clocks (a PLL's lock indicator can chatter while it acquires) and falls the clock after
+    a loss is seen.  ``ever_qualified`` rises with the first qualification and stays high:
+    the board's power-up reset of ``sync`` (the register bank's only reset).  The board holds
+    the detector datapath and the capture domain in reset while ``qualified`` is low, so a
+    lock loss ends in a clean restart after the next qualified lock, and each loss steps
+    ``losses``, a ``PLL_LOSS_BITS``-bit Gray count for ``OVF_CLOCK_LOST``.
+
+    Parameters
+    ----------
+    qualify_clocks : int
+        ``osc`` clocks ``locked`` must stay high before ``qualified`` rises.
 
     Members
     -------
     locked : ``Signal()``
         The PLL's ``locked``, asynchronous.
-    ever_locked : ``Signal()``
-        In ``osc``: the PLL has locked since power-up.
+    qualified, ever_qualified : ``Signal()``
+        In ``osc``: the lock is qualified; it has been since power-up.
     losses : ``Signal(PLL_LOSS_BITS)``
-        In ``osc``: Gray count of lock losses.
+        In ``osc``: Gray count of lock losses (of a qualified lock).
     """
 
-    def __init__(self):
+    def __init__(self, qualify_clocks=LOCK_QUALIFY_CLOCKS):
+        if qualify_clocks < 1:
+            raise ValueError(f"qualify_clocks must be at least 1, got {qualify_clocks}")
+        self.qualify_clocks = qualify_clocks
         self.locked = Signal()
-        self.ever_locked = Signal()
+        self.qualified = Signal()
+        self.ever_qualified = Signal()
         self.losses = Signal(PLL_LOSS_BITS)
 
     def elaborate(self, platform):
         m = Module()
         locked = Signal()
         m.submodules.locked_cdc = FFSynchronizer(self.locked, locked, o_domain="osc")
-        was = Signal()
+        stable = Signal(range(self.qualify_clocks + 1))     # clocks locked without a break
         count = Signal(PLL_LOSS_BITS)
-        m.d.osc += was.eq(locked)
-        with m.If(locked):
-            m.d.osc += self.ever_locked.eq(1)
-        with m.If(was & ~locked):
-            m.d.osc += [count.eq(count + 1), self.losses.eq((count + 1) ^ ((count + 1) >> 1))]
+        with m.If(~locked):
+            m.d.osc += [stable.eq(0), self.qualified.eq(0)]
+            with m.If(self.qualified):
+                m.d.osc += [count.eq(count + 1),
+                            self.losses.eq((count + 1) ^ ((count + 1) >> 1))]
+        with m.Elif(stable == self.qualify_clocks - 1):
+            m.d.osc += [self.qualified.eq(1), self.ever_qualified.eq(1)]
+        with m.Else():
+            m.d.osc += stable.eq(stable + 1)
+        return m
+
+
+class SensorReset(wiring.Component):
+    """The sensor's RESET_BAR in the always-running ``osc`` domain: low at power-up, and low
+    while ``request`` is high; after the request ends it rises only once ``clocks`` ``osc``
+    clocks have passed with ``clock_ok`` high (the sensor's master clock running) without a
+    new request; a break of ``clock_ok`` while it is low restarts the count.  A lock loss
+    while it is high does not pull it low (the sensor keeps the configuration the MCU
+    wrote; the MCU resets it through ``request`` if it must).
+
+    Parameters
+    ----------
+    clocks : int
+        ``osc`` clocks of the shortest low time with the master clock running
+        (``contract.SENSOR_RESET_S`` times the oscillator).
+
+    Members
+    -------
+    request : ``In(1)``
+        Hold RESET_BAR low (``osc``, synchronized by the board).
+    clock_ok : ``In(1)``
+        The master clock runs (``ClockGuard.qualified``).
+    reset_n : ``Out(1)``
+        RESET_BAR, from a flip-flop.
+    """
+
+    def __init__(self, clocks):
+        if clocks < 1:
+            raise ValueError(f"the sensor reset must last at least 1 clock, got {clocks}")
+        self.clocks = clocks
+        super().__init__({"request": In(1), "clock_ok": In(1), "reset_n": Out(1)})
+
+    def elaborate(self, platform):
+        m = Module()
+        left = Signal(range(self.clocks + 1), init=self.clocks)
+        with m.If(self.request | (~self.reset_n & ~self.clock_ok)):
+            m.d.osc += [left.eq(self.clocks), self.reset_n.eq(0)]
+        with m.Elif(~self.reset_n):
+            with m.If(left == 0):
+                m.d.osc += self.reset_n.eq(1)
+            with m.Else():
+                m.d.osc += left.eq(left - 1)
         return m
 
 
@@ -157,6 +231,10 @@ class GatewareTop(wiring.Component):
 
     The sensor's front end (:data:`FRONTENDS`), :class:`FrameWatchdog`, the detector, the
     packetizer and the SPI slave; the front end's clock domain and ``sync``.
+
+    A lock loss of the board's PLL (``clock_ok`` low) holds the datapath in reset until the
+    lock is qualified again, and then as long as a ``SOFT_RESET`` does; the register bank,
+    the SPI slave and the counts of the status word are not reset.
 
     The SPI slave's commands: ``SOFT_RESET`` holds the datapath (watchdog, threshold,
     labeller, features, output stage, packetizer, the ``FRAME_TIMEOUT`` marks) in reset for
@@ -196,6 +274,13 @@ class GatewareTop(wiring.Component):
         A packet is being delivered (:class:`IrqLine`).
     pll_losses : ``In(PLL_LOSS_BITS)``
         The board's Gray count of PLL lock losses in ``sync`` (``OVF_CLOCK_LOST``).
+    clock_ok : ``In(1, init=1)``
+        The board's PLL lock is qualified (``ClockGuard``, synchronized into ``sync``); while
+        it is low the datapath is held in reset as by ``SOFT_RESET``.
+    sensor_reset : ``Out(1)``
+        The ``sensor_reset`` register (the board stretches it into RESET_BAR).
+    sensor_in_reset : ``In(1)``
+        The board holds the sensor's RESET_BAR low (``sync``): ``OVF_LINK_DOWN``.
     datapath_reset, flushing : ``Signal()``
         Not ports: high while the soft reset is held, and while a flush drains.
     """
@@ -227,6 +312,9 @@ class GatewareTop(wiring.Component):
             **SPI_PINS,
             "irq": Out(1),
             "pll_losses": In(PLL_LOSS_BITS),
+            "clock_ok": In(1, init=1),
+            "sensor_reset": Out(1),
+            "sensor_in_reset": In(1),
         })
 
     def flush_clocks(self):
@@ -263,20 +351,22 @@ class GatewareTop(wiring.Component):
             spi.reg_rdata.eq(mirror.rdata),
             spi.busy.eq(det.busy), spi.frame_counter.eq(det.frame_counter),
             fe.overflow_clear.eq(spi.status_read), det.reg_error_clear.eq(spi.status_read),
-            self.irq.eq(irq.irq),
+            self.irq.eq(irq.irq), self.sensor_reset.eq(mirror.sensor_reset),
         ]
         self._overflow(m, fe, det, spi)
         return m
 
     def _soft_reset(self, m, fe, wd):
-        """``datapath_reset`` for :data:`SOFT_RESET_CLOCKS` from ``spi.soft_reset``; then the
-        front end's pixels reach the watchdog only from the next frame start on."""
+        """``datapath_reset`` while ``clock_ok`` is low and for :data:`SOFT_RESET_CLOCKS` after
+        it rises or after ``spi.soft_reset``; then the front end's pixels reach the watchdog
+        only from the next frame start on."""
         hold = Signal(range(SOFT_RESET_CLOCKS), name="soft_reset_hold")
-        with m.If(self.spi.soft_reset):
+        request = self.spi.soft_reset | ~self.clock_ok
+        with m.If(request):
             m.d.sync += hold.eq(SOFT_RESET_CLOCKS - 1)
         with m.Elif(hold != 0):
             m.d.sync += hold.eq(hold - 1)
-        m.d.comb += self.datapath_reset.eq(self.spi.soft_reset | (hold != 0))
+        m.d.comb += self.datapath_reset.eq(request | (hold != 0))
         waiting = Signal(name="wait_for_sof")       # after a soft reset, until a frame start
         sof = fe.out.valid & fe.out.payload.sof
         with m.If(self.datapath_reset):
@@ -347,6 +437,7 @@ class GatewareTop(wiring.Component):
         overflow[C.OVF_CLOCK_LOST] = since_read(self.pll_losses, "pll_losses")
         for bit, value in fe.status(self, since_read).items():
             overflow[bit] = value
+        overflow[C.OVF_LINK_DOWN] = overflow[C.OVF_LINK_DOWN] | self.sensor_in_reset
         m.d.comb += spi.overflow.eq(Cat(*overflow))
 
 
@@ -446,10 +537,10 @@ class DE2115Board(Board):
     device, package, speed = "EP4CE115", "F29", "C7"
     les, m9k, multipliers = 114480, 432, 266
     osc_pin = "Y2"
-    sync_hz = 50e6
+    sync_hz = 100e6
     sensor = "mt9v022"
     width, height = 752, 480
-    pixel_hz = sensor_clk_hz = 26.667e6
+    pixel_hz = sensor_clk_hz = 25e6
     # MT9V022 LVDS on the HSMC connector (Lohmann's custom PCB), MCU on GPIO (JP5).
     pins = {
         "mt9v022": {
@@ -471,9 +562,10 @@ class DE2115Board(Board):
     io_standard = {"mt9v022": "2.5 V", "mcu": _LVCMOS}
     sensor_io_volts = 3.3
     level_translated = ("sysclk", "reset_n")
-    notes = ("Terasic DE2-115, EP4CE115F29C7, CLOCK_50 on Y2 (board manual).  sync runs "
-             "from CLOCK_50 directly (50 MHz >= the 26.67 MHz pixel rate).  A PLL makes "
-             "the sensor's 26.67 MHz SYSCLK (50 x 8 / 15).  MT9V022 LVDS (Lohmann's custom "
+    notes = ("Terasic DE2-115, EP4CE115F29C7, CLOCK_50 on Y2 (board manual).  A PLL makes "
+             "sync = 100 MHz (so that the MCU's 10.5 MHz SCK is within 0.8 x the SPI "
+             "slave's limit) and the sensor's 25 MHz SYSCLK (below its 26.6 MHz maximum; "
+             "300 Mbit/s on the link).  MT9V022 LVDS (Lohmann's custom "
              "PCB) on the HSMC connector, pins from Terasic's System Builder QSF: the "
              "returned LVDS clock on HSMC_CLKIN_P1/N1, the data on the receiver pair "
              "HSMC_RX_D_P/N[3] (100 ohm termination on the PCB, Cyclone IV E inputs have "
@@ -481,7 +573,7 @@ class DE2115Board(Board):
              "2.5 V, the HSMC bank's VCCIO set by JP7 (2.5 V "
              "default, which the LVDS inputs also need); the 3.3-V sensor sees them through "
              "level translators on the PCB (assumed).  The ALTLVDS_RX receiver (factor 6, "
-             "320 Mbit/s, inclock phase shifted half a bit so that an edge-aligned clock "
+             "300 Mbit/s, inclock phase shifted half a bit so that an edge-aligned clock "
              "samples mid-bit) is instantiated as documented and must be checked in the "
              "Quartus MegaWizard.  MCU SPI and IRQ on GPIO header JP5 pins 1-5 "
              "(GPIO[0..4], Terasic QSF), 3.3-V LVTTL.")
@@ -558,10 +650,12 @@ _REGISTERED_OUTPUTS = ("miso", "irq")
 
 
 def _resources(board):
-    """Pins as Amaranth resources: each sampled input gets ``FAST_INPUT_REGISTER`` (its first
-    flip-flop has no reset, so the fitter can pack it into the I/O element), each output
-    from a bare flip-flop ``FAST_OUTPUT_REGISTER``; the front end's ``LVDS_PINS`` the LVDS
-    standard, its ``CLOCK_PINS`` the pixel rate as their clock."""
+    """Pins as Amaranth resources: each sensor input the front end captures gets
+    ``FAST_INPUT_REGISTER`` (its ``io.FFBuffer`` flip-flop has no reset, so the fitter packs
+    it into the I/O element), each output from a bare flip-flop ``FAST_OUTPUT_REGISTER``;
+    the SPI inputs get none (their first flip-flop is a synchronizer's, which keeps its
+    resolution time in the fabric); the front end's ``LVDS_PINS`` the LVDS standard, its
+    ``CLOCK_PINS`` the pixel rate as their clock."""
     resources = [Resource("clk_osc", 0, Pins(board.osc_pin, dir="i"), Clock(board.osc_hz),
                           Attrs(io_standard=_LVCMOS))]
     fe = board.frontend
@@ -571,12 +665,13 @@ def _resources(board):
         subs = []
         for sub, (pins, direction, _assumed) in signals.items():
             if sub in lvds_pins:
-                subs.append(Subsignal(sub, Pins(pins, dir=direction),
+                extra = [Clock(board.pixel_hz)] if sub in clock_pins else []
+                subs.append(Subsignal(sub, Pins(pins, dir=direction), *extra,
                                       Attrs(io_standard=_LVDS)))
             else:
                 extra = [Clock(board.pixel_hz)] if sub in clock_pins else []
                 attrs = {"io_standard": board.io_standard[name]}
-                if direction == "i" and sub not in clock_pins:
+                if direction == "i" and name == board.sensor and sub not in clock_pins:
                     attrs["FAST_INPUT_REGISTER"] = "ON"
                 if sub in _REGISTERED_OUTPUTS:
                     attrs["FAST_OUTPUT_REGISTER"] = "ON"
@@ -626,23 +721,15 @@ def _ratio(out_hz, in_hz, limit=64):
     return best[1], best[2]
 
 
-def _buffers(m, platform, name, signals):
-    """Request resource ``name`` (``dir="-"``) and give each of its ``signals`` (a
-    :attr:`Board.pins` entry) an ``io.Buffer`` (``"oe"`` pins: an output with its ``oe``);
-    returns ``{subsignal: buffer}``."""
-    ports = platform.request(name, 0, dir="-")
-    buffers = {}
-    for sub, (_pins, direction, _assumed) in signals.items():
-        buffer = io.Buffer("i" if direction == "i" else "o", getattr(ports, sub))
-        m.submodules[f"pin_{name}_0__{sub}"] = buffers[sub] = buffer
-    return buffers
-
-
 class BoardTop(Elaboratable):
     """:class:`GatewareTop` on a board (see :data:`BOARDS`): clocks, resets and pins.
 
-    The board makes ``sync`` (the oscillator or a PLL) and the sensor's master clock, and
-    leaves the capture domain and the sensor's pins to the front end's ``board_clocks``.
+    The board makes ``sync`` (the oscillator or a PLL) and the sensor's master clock
+    (``MASTER_DOMAIN``), and leaves the capture domain and the sensor's pins to the front
+    end's ``board_clocks``.  Every pin goes through an ``amaranth.lib.io`` buffer of a
+    resource requested with ``dir="-"``: the sensor's bus through input flip-flops, its
+    master clock through a DDR output, IRQ through an output flip-flop (their domains are
+    reset-less twins, ``frontend.io_domain``: an I/O element's register has no reset).
 
     Parameters
     ----------
@@ -664,50 +751,97 @@ class BoardTop(Elaboratable):
         b = self.board
         m.submodules.core = core = self.core
         fe = core.frontend
-        m.submodules.pin_clk_osc_0 = osc_buffer = io.Buffer(
-            "i", platform.request("clk_osc", 0, dir="-"))
-        osc = osc_buffer.i
-        sensor = _buffers(m, platform, b.sensor, b.pins[b.sensor])
-        mcu = _buffers(m, platform, "mcu", b.pins["mcu"])
+        osc = input_buffer(m, "pin_clk_osc_0", platform.request("clk_osc", 0, dir="-")).i
+        sensor = platform.request(b.sensor, 0, dir="-")
+        mcu = platform.request("mcu", 0, dir="-")
 
         # ---- clocks: sync, the sensor's master clock, the capture domain ----------------
         m.domains.sync = ClockDomain("sync")
         m.domains.osc = ClockDomain("osc", reset_less=True)
-        m.d.comb += ClockSignal("osc").eq(osc)
+        m.domains += [ClockDomain(MASTER_DOMAIN, reset_less=True),
+                      ClockDomain(io_domain("sync"), reset_less=True)]
+        m.d.comb += [ClockSignal("osc").eq(osc),
+                     ClockSignal(io_domain("sync")).eq(ClockSignal("sync"))]
         if b.sync_hz == b.osc_hz:
             outputs = []
             m.d.comb += ClockSignal("sync").eq(osc)
         else:
             outputs = [(ClockSignal("sync"), *_ratio(b.sync_hz, b.osc_hz))]
-        sensor_clk = Signal()
-        outputs.append((sensor_clk, *_ratio(b.sensor_clk_hz, b.osc_hz)))
-        # power-up reset only: a later lock loss is counted, not a reset (ClockGuard)
+        outputs.append((ClockSignal(MASTER_DOMAIN), *_ratio(b.sensor_clk_hz, b.osc_hz)))
+        # power-up reset of sync (the register bank) at the first qualified lock; the
+        # datapath and the capture domain are held in reset while the lock is not qualified
         m.submodules.clock_guard = guard = ClockGuard()
         m.d.comb += guard.locked.eq(_altpll(m, "pll", osc, b.osc_hz, outputs))
-        m.submodules.sync_reset = ResetSynchronizer(~guard.ever_locked, domain="sync")
+        m.submodules.sync_reset = ResetSynchronizer(~guard.ever_qualified, domain="sync")
         m.submodules.pll_losses_cdc = FFSynchronizer(guard.losses, core.pll_losses)
+        m.submodules.clock_ok_cdc = FFSynchronizer(guard.qualified, core.clock_ok)
         m.domains += ClockDomain(fe.domain)
         capture_up = Signal()
         m.submodules.capture_reset = ResetSynchronizer(~capture_up, domain=fe.domain)
-        running = fe.board_clocks(m, b, sensor, core, sensor_clk)
-        m.d.comb += capture_up.eq(guard.ever_locked & running)
-        # the sensor is held in reset until the clocks first come up, never after (it
-        # keeps the configuration the MCU wrote)
-        m.d.comb += sensor["reset_n"].o.eq(guard.ever_locked)
+        running = fe.board_clocks(m, b, sensor, core)
+        m.d.comb += capture_up.eq(guard.qualified & running)
+        # RESET_BAR: low at power-up and on the MCU's request, each time for at least
+        # SENSOR_RESET_S with the master clock running (SensorReset, in osc)
+        m.submodules.sensor_reset = sensor_reset = SensorReset(
+            math.ceil(C.SENSOR_RESET_S * b.osc_hz))
+        m.submodules.sensor_reset_cdc = FFSynchronizer(core.sensor_reset, sensor_reset.request,
+                                                       o_domain="osc")
+        m.submodules.sensor_in_reset_cdc = FFSynchronizer(~sensor_reset.reset_n,
+                                                          core.sensor_in_reset, init=1)
+        reset_n = io.FFBuffer("o", sensor.reset_n, o_domain="osc")
+        m.submodules[f"pin_{b.sensor}_0__reset_n"] = reset_n
+        m.d.comb += [sensor_reset.clock_ok.eq(guard.qualified),
+                     reset_n.o.eq(sensor_reset.reset_n)]
 
-        # ---- MCU ----------------------------------------------------------------------
-        m.d.comb += [core.sck.eq(mcu["sck"].i), core.mosi.eq(mcu["mosi"].i),
-                     core.cs_n.eq(mcu["cs_n"].i), mcu["miso"].o.eq(core.miso),
-                     mcu["miso"].oe.eq(core.miso_oe), mcu["irq"].o.eq(core.irq)]
+        # ---- MCU: SCK, MOSI and CS_N into the slave's synchronizers; MISO straight from
+        # the slave's shift register (FAST_OUTPUT_REGISTER; an output flip-flop more would
+        # cost a sync clock of every SCK period); IRQ from an output flip-flop ------------
+        spi_in = {sub: input_buffer(m, f"pin_mcu_0__{sub}", getattr(mcu, sub)).i
+                  for sub in ("sck", "mosi", "cs_n")}
+        m.submodules.pin_mcu_0__miso = miso = io.Buffer("o", mcu.miso)
+        m.submodules.pin_mcu_0__irq = irq = io.FFBuffer("o", mcu.irq, o_domain=io_domain("sync"))
+        m.d.comb += [core.sck.eq(spi_in["sck"]), core.mosi.eq(spi_in["mosi"]),
+                     core.cs_n.eq(spi_in["cs_n"]), miso.o.eq(core.miso),
+                     miso.oe.eq(core.miso_oe), irq.o.eq(core.irq)]
         return m
 
 
 def sdc_constraints(board):
-    """Extra SDC lines (after the platform's ``create_clock`` of the oscillator and the sensor
-    clock pin): PLL clocks, MCU pins through synchronizers, then the front end's lines (its
-    clock domain asynchronous to ``sync``)."""
+    """Extra SDC lines, after the platform's ``create_clock`` of every clock pin (the
+    oscillator and the front end's ``CLOCK_PINS``, from their resources' ``Clock``), so that
+    ``derive_pll_clocks`` derives the PLLs' outputs from created clocks: the MCU pins (SCK,
+    MOSI, CS_N into synchronizers and IRQ, an asynchronous event, not timed; MISO bounded to
+    the clock-to-pin the slave's SCK rule assumes, ``spi_slave.MISO_TCO_NS``), the Gray count
+    of PLL losses skew-bounded, RESET_BAR (from the oscillator domain, asynchronous to the
+    sensor) not timed, then the front end's lines."""
+    miso = "[get_ports {mcu_0__miso__io}]"
     lines = ["derive_pll_clocks", "derive_clock_uncertainty",
-             "# SPI and IRQ pins are asynchronous to every clock (2-flop synchronizers)",
-             "set_false_path -from [get_ports {mcu_0__*}]",
-             "set_false_path -to [get_ports {mcu_0__*}]"]
+             "# SCK, MOSI and CS_N pass 2-flop synchronizers; IRQ is an asynchronous event",
+             "set_false_path -from [get_ports {mcu_0__sck__io mcu_0__mosi__io "
+             "mcu_0__cs_n__io}]",
+             "set_false_path -to [get_ports {mcu_0__irq__io}]",
+             "# MISO: the master samples it T_sck - 4 T after the slave acts (its SCK rule); "
+             "the FPGA's part is the clock-to-pin",
+             f"set_max_delay {MISO_TCO_NS:.3f} -to {miso}",
+             "# hold: MISO changes >= 2 sync clocks after the SCK edge the master samples on",
+             f"set_min_delay 0.000 -to {miso}",
+             *gray_skew_constraints("*|clock_guard|losses*", "*|pll_losses_cdc|*",
+                                    0.8e9 / max(board.osc_hz, board.sync_hz)),
+             f"set_false_path -to [get_ports {{{board.sensor}_0__reset_n__io}}]"]
     return "\n".join(lines + board.frontend.sdc_constraints(board))
+
+
+QSF_SETTINGS = (
+    "set_global_assignment -name ENABLE_CRC_ERROR_CHECK ON",
+    'set_global_assignment -name RESERVE_ALL_UNUSED_PINS_WEAK_PULLUP "AS INPUT TRI-STATED"',
+)
+"""Global QSF settings of every board: configuration RAM upsets checked in the background
+(``ENABLE_CRC_ERROR_CHECK``, the flight board's single-event-upset detector), and unused pins
+tri-stated inputs with weak pull-ups (a board's other devices wired to FPGA pins, such as the
+DE0-Nano's ADC, accelerometer and SDRAM, are never driven)."""
+
+
+def project_overrides(board):
+    """The ``prepare`` overrides of a board's Quartus project: its SDC lines and QSF
+    settings."""
+    return {"add_constraints": sdc_constraints(board), "add_settings": "\n".join(QSF_SETTINGS)}

@@ -1,6 +1,7 @@
 """What every sensor front end shares: the clock-domain crossing into ``sync``, the frame
 watchdog after it, the geometry check, and :class:`SensorFrontend`, the base class that
-declares the stream and status ports and the board hooks each front end implements.
+declares the stream and status ports and the board hooks each front end implements, and the
+pin buffers the hooks use (:func:`capture_buffer`, :func:`clock_output`, :func:`input_buffer`).
 
 A front end delivers an always-ready ``lib.stream`` in ``sync`` of
 ``threshold.pixel_layout(PIXEL_BITS)`` (``data``, ``sof`` on a frame's first pixel, ``eol`` on
@@ -12,8 +13,8 @@ the frame is cut until the next ``sof``, never delivered shifted.  :class:`Frame
 ``docs/sensors_and_link.md``.
 """
 
-from amaranth import Module, Mux, Signal
-from amaranth.lib import stream, wiring
+from amaranth import Module, Mux, ResetSignal, Signal
+from amaranth.lib import io, stream, wiring
 from amaranth.lib.cdc import PulseSynchronizer
 from amaranth.lib.fifo import AsyncFIFO
 from amaranth.lib.wiring import In, Out
@@ -25,6 +26,63 @@ from lodestar.hdl.threshold import pixel_layout
 FIFO_DEPTH = 8
 """Entries of the pixel-clock -> sync FIFO when the sync clock is at least the pixel rate
 (module docstring: at most 6 are ever counted by the write side)."""
+
+
+def io_domain(domain):
+    """Name of the reset-less twin of clock domain ``domain`` (same clock, no reset) that a
+    board clocks its pin flip-flops with: a register in an I/O element has no reset."""
+    return f"{domain}_io"
+
+
+def input_buffer(m, name, port):
+    """An ``io.Buffer`` input on ``port`` (a clock pin, or a pin a synchronizer or a
+    receiver registers), added to ``m`` as ``name``; returns the buffer."""
+    m.submodules[name] = buffer = io.Buffer("i", port)
+    return buffer
+
+
+def capture_buffer(m, name, port, domain):
+    """An ``io.FFBuffer`` input on ``port`` sampled on the rising edge of ``domain``'s
+    reset-less twin (:func:`io_domain`): the pin's capture register, which the platform
+    places in the I/O element; returns the buffer."""
+    m.submodules[name] = buffer = io.FFBuffer("i", port, i_domain=io_domain(domain))
+    return buffer
+
+
+MASTER_DOMAIN = "master"
+"""The reset-less clock domain of the sensor's master clock (EXTCLK, SYSCLK), made by the
+board's PLL."""
+
+
+def clock_output(m, name, port, domain=MASTER_DOMAIN):
+    """Forward the clock of ``domain`` (reset-less) to ``port`` through an ``io.DDRBuffer``
+    (high after the rising edge, low after the falling one): the pin toggles from the I/O
+    element's DDR register, not from a clock net routed out through the fabric, so its
+    duty cycle and delay are the I/O element's; returns the buffer."""
+    m.submodules[name] = buffer = io.DDRBuffer("o", port, o_domain=domain)
+    m.d.comb += [buffer.o[0].eq(1), buffer.o[1].eq(0)]
+    return buffer
+
+
+def gray_skew_constraints(source, target, limit_ns):
+    """SDC lines that bound a Gray-coded bus crossing clock domains: from the ``source``
+    registers (a Quartus name pattern) to the first stage of their synchronizer ``target``,
+    ``set_net_delay`` and ``set_max_skew`` of ``limit_ns`` (0.8 x the faster clock's period):
+    the bits then arrive within one destination clock of each other, so the synchronizer
+    never samples a value two codes apart, which the clock groups' false path alone would
+    allow."""
+    keys = f"-from [get_keepers {{{source}}}] -to [get_keepers {{{target}}}]"
+    return [f"set_net_delay -max {limit_ns:.3f} {keys}", f"set_max_skew {limit_ns:.3f} {keys}"]
+
+
+def crossing_constraints(board, capture_hz):
+    """The Gray pointers of the board's :class:`PixelCrossing` (both directions), its capture
+    domain clocked at ``capture_hz``."""
+    limit = 0.8e9 / max(board.sync_hz, capture_hz)
+    fifo = "*|frontend|crossing|fifo"
+    return (gray_skew_constraints(f"{fifo}|produce_w_gry*", f"{fifo}|produce_cdc|*", limit)
+            + gray_skew_constraints(f"{fifo}|consume_r_gry*", f"{fifo}|consume_cdc|*",
+                                    limit))
 
 
 class PixelCrossing(wiring.Component):
@@ -79,7 +137,10 @@ class PixelCrossing(wiring.Component):
 
         # ---- write side: drop the rest of a frame once a pixel is lost ------------------
         broken = Signal(init=1)      # wait for a frame start (also after reset)
-        take = p.valid & (p.payload.sof | ~broken)
+        # nothing is taken while the write side is in reset (the FIFO drops it: it would be
+        # counted lost)
+        in_reset = ResetSignal(w, allow_reset_less=True)
+        take = p.valid & ~in_reset & (p.payload.sof | ~broken)
         lost = take & ~fifo.w_rdy
         m.d.comb += [fifo.w_en.eq(take), fifo.w_data.eq(p.payload), lost_cdc.i.eq(lost)]
         with m.If(lost):
@@ -228,10 +289,12 @@ class SensorFrontend(wiring.Component):
     standard, registered by the receiver).  Board hooks: ``pins`` (the ``wiring.Signature``
     of the top level's sensor ports), ``connect_pins(m, top)`` (drive the front end from
     them), ``status(top, since_read)`` (``{OVF_* bit: value}`` beyond ``OVF_PIXEL_FIFO``),
-    ``board_clocks(m, board, pins, top, master_clk)`` (on a board: clock the capture domain,
-    drive the sensor's master clock and the top level's sensor ports from the pin buffers;
-    returns the capture clock's "running" signal) and ``sdc_constraints(board)`` (SDC lines).
-    The board's sensor resource has the subsignal ``reset_n`` besides the subclass's own.
+    ``board_clocks(m, board, ports, top)`` (on a board: give the sensor resource's ``ports``
+    (requested with ``dir="-"``) their buffers, clock the capture domain, forward the
+    :data:`MASTER_DOMAIN` clock to the sensor with :func:`clock_output`, drive the top level's
+    sensor ports; returns the capture clock's "running" signal) and ``sdc_constraints(board)``
+    (SDC lines).  The board's sensor resource has the subsignal ``reset_n`` besides the
+    subclass's own (the board drives it).
 
     Parameters
     ----------

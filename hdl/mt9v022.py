@@ -13,13 +13,20 @@ Datasheet sources, the points not yet verified, decoding and lock rules:
 ``docs/sensors_and_link.md`` (MT9V022).
 """
 
-from amaranth import Array, Cat, ClockSignal, Instance, Module, Mux, Signal
+from amaranth import Array, Cat, ClockDomain, ClockSignal, Instance, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
 
 from lodestar import contract as C
-from lodestar.hdl.frontend import FIFO_DEPTH, SensorFrontend
+from lodestar.hdl.frontend import (
+    FIFO_DEPTH,
+    SensorFrontend,
+    clock_output,
+    crossing_constraints,
+    gray_skew_constraints,
+    input_buffer,
+)
 from lodestar.hdl.threshold import pixel_layout
 
 PIXEL_BITS = C.SENSOR_PIXEL_BITS["mt9v022"]
@@ -39,6 +46,12 @@ LOCK_PACKETS = 8
 """Consecutive well-framed packets an alignment needs before it may be locked on."""
 ERROR_COUNT_BITS = 16
 """Width of the saturating framing-error counter."""
+ACTIVE_CLOCKS = 64
+"""Oscillator clocks within which the returned LVDS clock must show an edge (seen through a
+toggle flip-flop it clocks) to count as running (:class:`ReceiverPllReset`)."""
+LOCK_TIMEOUT_CLOCKS = 1 << 17
+"""Oscillator clocks the receiver's PLL gets to lock after its reset is released (2.6 ms at
+50 MHz, over twice the Cyclone IV PLL's 1 ms lock time) before it is reset and retried."""
 LVDS_LANES = 6
 """Bits per ``ser`` clock from the board's LVDS deserializer (ALTLVDS_RX, factor 6)."""
 
@@ -212,6 +225,72 @@ class WordDecoder(wiring.Component):
         return m
 
 
+class ReceiverPllReset(wiring.Component):
+    """``pll_areset`` of the LVDS receiver's PLL, whose input clock (the sensor's returned
+    LVDS clock) only starts once the MCU enables the sensor's LVDS: held in reset while that
+    clock is not running, released once it has run for ``active_clocks``, and reset again
+    (a retry) if the PLL has not locked ``lock_timeout`` clocks later or whenever the clock
+    stops.  Everything in the always-running ``osc`` domain.
+
+    Parameters
+    ----------
+    active_clocks : int
+        Clocks within which a running clock shows an edge of ``toggle``.
+    lock_timeout : int
+        Clocks the PLL gets to lock after each release.
+
+    Members
+    -------
+    toggle : ``In(1)``
+        A flip-flop the returned clock toggles, synchronized into ``osc``.
+    locked : ``In(1)``
+        The receiver PLL's ``rx_locked``, synchronized into ``osc``.
+    areset : ``Out(1, init=1)``
+        The PLL's ``pll_areset``.
+    retries : ``Out(8)``
+        Releases that timed out (saturating), for bring-up.
+    """
+
+    def __init__(self, active_clocks=ACTIVE_CLOCKS, lock_timeout=LOCK_TIMEOUT_CLOCKS):
+        if active_clocks < 2 or lock_timeout < 1:
+            raise ValueError("active_clocks must be >= 2 and lock_timeout >= 1")
+        self.active_clocks, self.lock_timeout = active_clocks, lock_timeout
+        super().__init__({"toggle": In(1), "locked": In(1), "areset": Out(1, init=1),
+                          "retries": Out(8)})
+
+    def elaborate(self, platform):
+        m = Module()
+        last = Signal()
+        quiet = Signal(range(self.active_clocks + 1))     # clocks since the last edge
+        running = Signal(range(self.active_clocks + 1))   # clocks the clock has run
+        m.d.osc += last.eq(self.toggle)
+        edge = self.toggle != last
+        active = quiet < self.active_clocks
+        with m.If(edge):
+            m.d.osc += quiet.eq(0)
+        with m.Elif(active):
+            m.d.osc += quiet.eq(quiet + 1)
+        with m.If(~active):
+            m.d.osc += running.eq(0)
+        with m.Elif(running != self.active_clocks):
+            m.d.osc += running.eq(running + 1)
+        waited = Signal(range(self.lock_timeout + 1))
+        with m.If(~active):
+            m.d.osc += [self.areset.eq(1), waited.eq(0)]
+        with m.Elif(self.areset):
+            with m.If(running == self.active_clocks):
+                m.d.osc += [self.areset.eq(0), waited.eq(0)]
+        with m.Elif(~self.locked):
+            with m.If(waited == self.lock_timeout - 1):
+                m.d.osc += [self.areset.eq(1), waited.eq(0),
+                            self.retries.eq(Mux(self.retries == 0xFF, 0xFF, self.retries + 1))]
+            with m.Else():
+                m.d.osc += waited.eq(waited + 1)
+        with m.Else():
+            m.d.osc += waited.eq(0)
+        return m
+
+
 class MT9V022Frontend(SensorFrontend):
     """MT9V022 LVDS bits, ``lanes`` per ``domain`` clock, to the detector's pixel stream in
     ``sync``: :class:`WordAligner`, :class:`WordDecoder`, then the crossing.  See
@@ -245,6 +324,7 @@ class MT9V022Frontend(SensorFrontend):
     IO_VOLTS = (3.0, 3.6)
     """VDD 3.3 V +- 0.3 V (datasheet)."""
     LVDS_PINS = ("ser_clk", "ser_data")
+    CLOCK_PINS = ("ser_clk",)
 
     def __init__(self, width, height, *, lanes=LVDS_LANES, domain="ser",
                  fifo_depth=FIFO_DEPTH):
@@ -274,14 +354,28 @@ class MT9V022Frontend(SensorFrontend):
         return {C.OVF_LINK_DOWN: ~self.locked | ~top.rx_locked,
                 C.OVF_LINK_ERROR: since_read(self.framing_errors, "framing_errors")}
 
-    def board_clocks(self, m, board, pins, top, master_clk):
+    def board_clocks(self, m, board, ports, top):
         """An ALTLVDS_RX (factor ``lanes``) deserializes ``ser_data`` on the returned
-        ``ser_clk`` and clocks ``domain``; ``master_clk`` drives SYSCLK; the capture clock
-        runs while the receiver's PLL is locked (returned; also synchronized into
-        ``top.rx_locked``)."""
+        ``ser_clk`` and clocks ``domain``, its PLL reset by :class:`ReceiverPllReset` until
+        ``ser_clk`` runs (and retried if it does not lock); the master clock is forwarded to
+        SYSCLK through a DDR output; the capture clock runs while the receiver's PLL is locked
+        (returned; also synchronized into ``top.rx_locked``)."""
+        pins = {sub: input_buffer(m, f"pin_mt9v022_0__{sub}", getattr(ports, sub))
+                for sub in self.LVDS_PINS}
+        clock_output(m, "pin_mt9v022_0__sysclk", ports.sysclk)
         ser_clk = Signal()
         rx_locked = Signal()
         bit_ps = 1e12 / (board.pixel_hz * PACKET_BITS)
+        # pll_areset: a flip-flop the returned clock toggles tells the oscillator domain
+        # whether that clock runs (ReceiverPllReset)
+        m.domains += ClockDomain("ser_probe", reset_less=True)
+        m.d.comb += ClockSignal("ser_probe").eq(pins["ser_clk"].i)
+        probe = Signal()
+        m.d.ser_probe += probe.eq(~probe)
+        m.submodules.rx_pll_reset = pll_reset = ReceiverPllReset()
+        m.submodules.rx_probe_cdc = FFSynchronizer(probe, pll_reset.toggle, o_domain="osc")
+        m.submodules.rx_locked_osc_cdc = FFSynchronizer(rx_locked, pll_reset.locked,
+                                                        o_domain="osc")
         m.submodules.lvds_rx = Instance(
             "altlvds_rx",
             p_intended_device_family="Cyclone IV E", p_lpm_type="altlvds_rx",
@@ -294,20 +388,31 @@ class MT9V022Frontend(SensorFrontend):
             p_inclock_phase_shift=round(bit_ps / 2),
             p_registered_output="ON", p_use_external_pll="OFF",
             i_rx_in=pins["ser_data"].i, i_rx_inclock=pins["ser_clk"].i,
+            i_pll_areset=pll_reset.areset,
             o_rx_out=top.lvds_bits, o_rx_outclock=ser_clk, o_rx_locked=rx_locked)
-        m.d.comb += [ClockSignal(self.domain).eq(ser_clk), pins["sysclk"].o.eq(master_clk)]
+        m.d.comb += ClockSignal(self.domain).eq(ser_clk)
         m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)
         return rx_locked
 
     @staticmethod
     def sdc_constraints(board):
-        """The returned LVDS clock, asynchronous to ``sync`` with the receiver's PLL."""
-        return ["# the LVDS receiver's reference clock (its PLL's outputs come from "
-                "derive_pll_clocks)",
-                f"create_clock -name mt9v022_ser_clk -period {1e9 / board.pixel_hz:.3f} "
-                "[get_ports {mt9v022_0__ser_clk__io}]",
-                "set_clock_groups -asynchronous -group [get_clocks {mt9v022_ser_clk "
-                "*lvds_rx*}]"]
+        """The returned LVDS clock (created by the platform from the pin's ``Clock``, before
+        ``derive_pll_clocks`` derives the receiver PLL's outputs from it) and those outputs,
+        asynchronous to ``sync``."""
+        ser_hz = board.pixel_hz * PACKET_BITS / LVDS_LANES
+        return ["# the returned LVDS clock and the receiver PLL's outputs",
+                "set_clock_groups -asynchronous -group [get_clocks {mt9v022_0__ser_clk__io "
+                "*lvds_rx*}]",
+                *crossing_constraints(board, ser_hz),
+                *gray_skew_constraints("*|frontend|errors_gray*", "*|frontend|errors_cdc|*",
+                                       0.8e9 / max(board.sync_hz, ser_hz)),
+                "# ser_data: sampled by the receiver's PLL; the MT9V022 does not specify its "
+                "LVDS clock-to-data relation,",
+                "# so the sampling phase is set on the board (inclock_phase_shift), not timed "
+                "against a datasheet window",
+                "set_false_path -from [get_ports {mt9v022_0__ser_data__io}]",
+                "# SYSCLK: the forwarded master clock (DDR output), no data relation",
+                "set_false_path -to [get_ports {mt9v022_0__sysclk__io}]"]
 
     def elaborate(self, platform):
         m = Module()

@@ -21,7 +21,7 @@ from pathlib import Path
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.files import write_atomic
 from lodestar.hdl import estimate, pnr
-from lodestar.hdl.boards import BOARDS, BoardTop, board_platform, sdc_constraints
+from lodestar.hdl.boards import BOARDS, BoardTop, board_platform, project_overrides
 from lodestar.hdl.detector import Detector
 
 DEFAULT_BOARD = "estcube2"
@@ -81,7 +81,7 @@ def write_project(board, out):
 
     top = BoardTop(board)
     platform = board_platform(board.name)
-    plan = platform.prepare(top, name=QUARTUS_NAME, add_constraints=sdc_constraints(board))
+    plan = platform.prepare(top, name=QUARTUS_NAME, **project_overrides(board))
     folder = Path(out)
     plan.extract(str(folder))
     return folder

@@ -175,8 +175,18 @@ REGISTERS = (
              "filter: emit only blobs with s0 >= min_sum"),
     Register("max_pixels", 8, COUNT_BITS, (1 << COUNT_BITS) - 1,
              "filter: emit only blobs with n <= max_pixels (reset: no limit)"),
+    Register("sensor_reset", 9, 1, 0,
+             "1: hold the image sensor's RESET_BAR low; acts at once, not at a frame start; "
+             "the board keeps RESET_BAR low SENSOR_RESET_S after the request ends, counted "
+             "while the sensor's master clock runs (status: OVF_LINK_DOWN while it is low)"),
 )
-"""The runtime register bank, written by the MCU between frames."""
+"""The runtime register bank, written by the MCU (the detector's registers between frames)."""
+
+SENSOR_RESET_S = 1e-3
+"""Shortest time the board holds the sensor's RESET_BAR low with its master clock running:
+at power-up once the clock is up, and after every ``sensor_reset`` request (MT9P031: the
+datasheet's power-up sequence wants RESET_BAR low with EXTCLK running before it rises; the
+MCU then waits its own settling time before the first two-wire access)."""
 
 REGISTER_BY_NAME = {}
 for _r in REGISTERS:

@@ -37,6 +37,15 @@ KEYED_BYTES = 2
 def command_key(opcode):
     """The key byte that must follow a keyed opcode: its complement."""
     return opcode ^ 0xFF
+MCU_SCK_HZ = 10500000
+"""The MCU's SCK: the STM32F401's SPI1 at 84 MHz / 8 (its power-of-two prescalers give 42,
+21, 10.5 MHz); every board's slave must allow it with a 20 % margin (``hdl.boards``)."""
+MCU_MISO_SETUP_NS = 5.0
+MCU_MISO_HOLD_NS = 5.0
+"""The master's MISO input setup and hold about its sampling SCK edge, tsu(MI) and th(MI):
+5 ns each, from the STM32 SPI characteristics table found here (STM32F103x8/B datasheet
+DocID13587 Rev 16, Table 42, master mode); the STM32F401's own table (datasheet DS9716) was
+not available and must replace them.  The board SDC checks MISO against them."""
 FILLER = 0x00
 """MISO byte wherever no reply byte is defined, and in place of missing packet bytes."""
 TURNAROUND_BYTES = 1
@@ -149,13 +158,16 @@ OVF_REG_REFUSED = 2
 OVF_FAULT = 3
 """The detector's internal-bound fault (never expected)."""
 OVF_LINK_DOWN = 4
-"""LVDS front end: not word-locked or the LVDS receiver's PLL not locked (live, not sticky);
-parallel front end: 0."""
+"""The sensor delivers no frames (live, not sticky): its RESET_BAR is held low (the
+``sensor_reset`` register, or the board's power-up hold), or, LVDS front end, not
+word-locked or the LVDS receiver's PLL not locked."""
 OVF_LINK_ERROR = 5
 """LVDS front end: framing errors since the last status read."""
 OVF_CLOCK_LOST = 6
-"""The board's PLL lost lock since the last status read.  Registers keep their values (only
-power-up resets them); the frame under way may be truncated or timed out."""
+"""The board's PLL lost lock since the last status read.  The detector datapath was held in
+reset until the PLL had relocked and stayed locked (the frame under way and the queued
+packets are lost, the frame counter restarts at 0); registers and the sensor's
+configuration keep their values (only power-up resets them)."""
 
 FRAME_COUNTER_BITS = dict(HEADER_FIELDS)["frame_counter"]
 """Width of the frame counter (the packet header's)."""

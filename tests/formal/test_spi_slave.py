@@ -28,8 +28,8 @@ one that shows a wrong address (100 clocks, the length of a write: opt-in, ``--r
 """
 
 import pytest
-from amaranth import Cat, Const, Elaboratable, Module, Mux, Signal
-from amaranth.hdl import Assert
+from amaranth import Cat, Const, Elaboratable, Module, Mux, ResetSignal, Signal
+from amaranth.hdl import Assert, Assume
 
 from lodestar import contract as C
 from lodestar.hdl import spi_slave
@@ -275,4 +275,125 @@ def test_long_mutant_fails(tmp_path, mutant, depth):
     s); a read's value starts at byte 3 (60 clocks)."""
     spi = mutant(build=BUILD)
     result = prove(CheckedSPI(spi), "bmc", depth, tmp_path, ports=inputs(spi))
+    assert result.failed, result.log
+
+
+# ---- the byte layer at the pins ---------------------------------------------------------
+
+class PinsSPI(Elaboratable):
+    """The byte layer (``SPIByteSlave``) seen from its pins by an SPI mode 0 master that
+    keeps the slave's documented timing (assumed on the free pins, one step = one ``sync``
+    clock: SCK high and low at least 2 clocks, the first rising edge at least 4 clocks
+    after CS_N falls, CS_N rising at least 2 clocks after the last rising edge and with SCK
+    low, CS_N high at least 3 clocks).  The master samples MISO at each SCK rising edge at
+    the pin and raises CS_N only between bytes.  The byte stream ``tx`` offers, whenever its
+    free ``valid`` is high, the number of bytes consumed so far (mod 256) XOR 0xA5.  Asserted: each
+    byte the master completes (8 rising edges in one chip-select) whose first edge consumed
+    a stream byte is that byte, MSB first; a byte consumes at most one stream byte; and no
+    consumed byte is left incomplete when CS_N rises, so a byte offered but not yet clocked
+    when a chip-select ends is the next one sent (none dropped or repeated across CS
+    edges)."""
+
+    def __init__(self, byte):
+        self.byte = byte
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.byte = byte = self.byte
+        tx = byte.tx
+        sent = Signal(8)                                # stream bytes consumed
+        with m.If(tx.valid & tx.ready):
+            m.d.sync += sent.eq(sent + 1)
+        m.d.comb += tx.payload.eq(sent ^ 0xA5)          # no byte is all zeros or ones
+
+        # ---- the master's timing, assumed -------------------------------------------------
+        sck_prev, cs_prev = Signal(), Signal(init=1)
+        sck_age, cs_age, rise_age = Signal(range(8)), Signal(range(8)), Signal(range(8))
+        m.d.sync += [sck_prev.eq(byte.sck), cs_prev.eq(byte.cs_n),
+                     sck_age.eq(Mux(byte.sck != sck_prev, 0, Mux(sck_age == 7, 7, sck_age + 1))),
+                     cs_age.eq(Mux(byte.cs_n != cs_prev, 0, Mux(cs_age == 7, 7, cs_age + 1)))]
+        pin_rise = byte.sck & ~sck_prev
+        with m.If(pin_rise):
+            m.d.sync += rise_age.eq(0)
+        with m.Elif(rise_age != 7):
+            m.d.sync += rise_age.eq(rise_age + 1)
+        first_edge = Signal()                           # no rising edge yet in this select
+        with m.If(byte.cs_n):
+            m.d.sync += first_edge.eq(1)
+        with m.Elif(pin_rise):
+            m.d.sync += first_edge.eq(0)
+        m.d.comb += [
+            Assume(~ResetSignal()),
+            Assume((byte.sck == sck_prev) | (sck_age >= 1)),      # levels >= 2 clocks
+            Assume(~byte.cs_n | ~cs_prev | ~byte.sck),            # SCK low at CS fall
+            Assume(~pin_rise | ~first_edge | (cs_age >= 3)),     # CS setup >= 4 clocks
+            Assume(byte.cs_n | ~pin_rise | ~cs_prev),
+            Assume(~byte.cs_n | cs_prev | (~byte.sck & (rise_age >= 1))),   # CS hold
+            Assume(~byte.cs_n | ~byte.sck),                       # SCK idles low
+            Assume(byte.cs_n | ~cs_prev | (cs_age >= 2)),        # CS high >= 3 clocks
+        ]
+
+        # ---- the master's bytes against the consumed ones ---------------------------------
+        bits = Signal(range(9))                         # bits of this byte sampled
+        got = Signal(8)
+        pending = Signal()                              # this byte's first edge consumed one
+        value = Signal(8)                               # the consumed byte
+        with m.If(tx.valid & tx.ready):
+            m.d.sync += [pending.eq(1), value.eq(tx.payload)]
+        with m.If(byte.cs_n):
+            m.d.sync += [bits.eq(0), pending.eq(0)]
+        with m.Elif(pin_rise):
+            m.d.sync += [got.eq(Cat(byte.miso, got[:7])), bits.eq(Mux(bits == 8, 1, bits + 1))]
+        complete = pin_rise & (bits == 7) & ~byte.cs_n
+        with m.If(complete):
+            m.d.sync += pending.eq(0)
+        m.d.comb += [
+            Assume(~byte.cs_n | cs_prev | (bits == 0) | (bits == 8)),   # whole bytes only
+            Assert(~complete | ~pending | (Cat(byte.miso, got[:7]) == value)),
+            Assert(~(tx.valid & tx.ready) | ~pending),   # one consumption per byte
+            Assert(~byte.cs_n | cs_prev | ~pending),     # none left incomplete at CS rise
+        ]
+        return m
+
+
+class LoadConsumesByteSlave(spi_slave.SPIByteSlave):
+    """Mutant: a byte counts as consumed when it is loaded into the shift register, so a
+    chip-select that ends before its first SCK edge drops it."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        start = self.selected & ~internals(m)["sel_prev"]
+        m.d.comb += self.tx.ready.eq(start | self.rx.valid)
+        return m
+
+
+class ShortByteSlave(spi_slave.SPIByteSlave):
+    """Mutant: MISO shows the shift register's bit 6, so every bit leaves one edge early
+    (a whole byte must be clocked to see it)."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        m.d.comb += self.miso.eq(internals(m)["tx_bits"][6])
+        return m
+
+
+PINS_DEPTH = 44
+"""BMC steps: a chip-select with one whole byte (8 SCK periods of at least 4 clocks) and a
+second chip-select opening."""
+
+
+def pins_inputs(byte):
+    return [byte.sck, byte.mosi, byte.cs_n, byte.tx.valid]
+
+
+def test_byte_layer_at_the_pins(tmp_path):
+    byte = spi_slave.SPIByteSlave()
+    result = prove(PinsSPI(byte), "bmc", PINS_DEPTH, tmp_path, ports=pins_inputs(byte))
+    assert result.passed, result.log
+
+
+@pytest.mark.parametrize("mutant", [LoadConsumesByteSlave, ShortByteSlave])
+def test_byte_layer_at_the_pins_mutant_fails(tmp_path, mutant):
+    byte = mutant()
+    result = prove(PinsSPI(byte), "bmc", PINS_DEPTH, tmp_path, ports=pins_inputs(byte))
     assert result.failed, result.log

@@ -7,6 +7,7 @@ out flagged.  (The top level's behaviour is checked on Verilator in
 ``cocotb_tests/test_board_top.py``.)"""
 
 import copy
+import fnmatch
 import gc
 import re
 import warnings
@@ -27,11 +28,12 @@ from lodestar.hdl.boards import (
     ClockGuard,
     GatewareTop,
     IrqLine,
+    SensorReset,
     board_platform,
-    sdc_constraints,
+    project_overrides,
 )
 from lodestar.hdl.frontend import STALL_TIMEOUT
-from lodestar.hdl.spi_slave import MISO_OUT_NS
+from lodestar.hdl.spi_slave import MISO_BOARD_NS, MISO_OUT_NS, MISO_TCO_NS
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +45,7 @@ def projects(tmp_path_factory):
         small = copy.copy(board)
         small.width, small.height, small.record_capacity, small.record_depth = 16, 8, 4, 4
         top = BoardTop(small)
-        plan = board_platform(name).prepare(top, name="lodestar",
-                                            add_constraints=sdc_constraints(board))
+        plan = board_platform(name).prepare(top, name="lodestar", **project_overrides(board))
         folder = tmp_path_factory.mktemp(name)
         plan.extract(str(folder))
         out[name] = {p.name: p.read_text() for p in folder.iterdir()}
@@ -108,23 +109,55 @@ def test_bad_names_are_refused():
 
 @pytest.mark.parametrize("name", sorted(BOARDS))
 def test_fast_io_registers_and_miso_tristate(projects, name):
-    """Every sampled input has FAST_INPUT_REGISTER (the PIXCLK clock pin and the LVDS pins
-    excepted), MISO and IRQ FAST_OUTPUT_REGISTER; MISO's buffer has an output enable that
-    the SPI slave's ``miso_oe`` (CS low) drives."""
+    """Every sensor input the front end captures has FAST_INPUT_REGISTER (the clock pins and
+    the LVDS pins excepted; the SPI inputs go to synchronizers), MISO and IRQ
+    FAST_OUTPUT_REGISTER; MISO's buffer has an output enable that the SPI slave's
+    ``miso_oe`` (CS low) drives."""
     board, files = BOARDS[name], projects[name]
     qsf, verilog = files["lodestar.qsf"], files["lodestar.v"]
     fast_in = set(re.findall(r'-to "([^"]+?)__io(?:\\\[\d+\])?" -name FAST_INPUT_REGISTER "ON"',
                              qsf))
     fast_out = set(re.findall(r'-to "([^"]+?)__io" -name FAST_OUTPUT_REGISTER "ON"', qsf))
     unregistered = board.frontend.CLOCK_PINS + board.frontend.LVDS_PINS
-    inputs = {f"{res}_0__{sub}" for res, signals in board.pins.items()
-              for sub, (_pins, direction, _a) in signals.items()
+    inputs = {f"{board.sensor}_0__{sub}"
+              for sub, (_pins, direction, _a) in board.pins[board.sensor].items()
               if direction == "i" and sub not in unregistered}
     assert fast_in == inputs
     assert fast_out == {"mcu_0__miso", "mcu_0__irq"}
     miso_buf = re.search(r"module \\lodestar\.pin_mcu_0__miso .*?endmodule", verilog, re.S)
     assert miso_buf and '.use_oe("TRUE")' in miso_buf.group(0)
     assert re.search(r"assign miso_oe = ~ cs_n;", verilog)     # SPIByteSlave: selected
+
+
+def _module(verilog, name):
+    """The text of Verilog module ``lodestar.<name>``."""
+    found = re.search(rf"module \\lodestar\.{re.escape(name)} .*?endmodule", verilog, re.S)
+    assert found, name
+    return found.group(0)
+
+
+def test_capture_flip_flops_and_forwarded_clock(projects):
+    """The MT9P031's D, LINE_VALID and FRAME_VALID go through ``io.FFBuffer``: each port is
+    marked ``useioff`` and its flip-flop, clocked by PIXCLK, has no reset (a reset would put
+    a multiplexer between the pin and the I/O element's register); EXTCLK (and the
+    MT9V022's SYSCLK) leave through a DDR output (altddio_out) clocked by the master clock
+    with constant data 1/0; IRQ leaves from an output flip-flop without reset."""
+    verilog = projects["de0-nano"]["lodestar.v"]
+    for sub in ("d", "line_valid", "frame_valid"):
+        assert re.search(rf"\(\* useioff = 32'd1 \*\)\n\s*input (\[\d+:0\] )?"
+                         rf"mt9p031_0__{sub}__io;", verilog), sub
+        buf = _module(verilog, f"pin_mt9p031_0__{sub}")
+        assert re.search(r"always @\(posedge pix_io_clk\)\n\s*\S+ <= \S+;", buf), sub
+        assert "rst" not in buf, sub
+    for name, sub in (("de0-nano", "mt9p031_0__extclk"), ("de2-115", "mt9v022_0__sysclk")):
+        text = projects[name]["lodestar.v"]
+        ddr = _module(text, f"pin_{sub}")
+        assert "altddio_out" in ddr and ".outclock(master_clk)" in ddr, name
+        # the instance's DDR data: bit 0 (rising edge) 1, bit 1 (falling edge) 0
+        inst = re.search(rf"\\lodestar\.pin_{sub}  pin_{sub} \((.*?)\);", text, re.S)
+        assert re.search(r"\.\\o\$\d+ \(2'h1\)", inst.group(1)), name
+    irq = _module(verilog, "pin_mcu_0__irq")
+    assert re.search(r"always @\(posedge sync_io_clk\)", irq) and "rst" not in irq
 
 
 def test_sensor_outputs_within_the_sensor_io_range():
@@ -163,14 +196,102 @@ def test_lvds_receiver_centred_and_locked(projects):
     verilog = projects["de2-115"]["lodestar.v"]
     rx = re.search(r"altlvds_rx #\((.*?)\) \S+ \((.*?)\);", verilog, re.S)
     params, ports = rx.group(1), rx.group(2)
-    assert ".inclock_phase_shift(32'd1562)" in params      # half of the 3125 ps bit
+    assert ".inclock_phase_shift(32'd1667)" in params      # half of the 3333 ps bit
     assert re.search(r"\.rx_locked\(\w+\)", ports)
+    assert re.search(r"\.pll_areset\(\w+\)", ports)       # ReceiverPllReset
 
 
 def test_spi_sck_limit_from_the_slave_rule():
+    """The slave's limit (``T_sck >= 4 T + t_out``, t_out = clock-to-pin + board + the
+    master's tsu(MI)); every board allows the MCU's SCK with a 20 % margin, and MISO, which
+    changes at least 2 sync clocks after the SCK edge the master samples on, holds past the
+    master's th(MI)."""
+    assert MISO_OUT_NS == MISO_TCO_NS + MISO_BOARD_NS + C.MCU_MISO_SETUP_NS
     assert BOARDS["de0-nano"].spi_sck_max_hz == pytest.approx(1e9 / (40 + MISO_OUT_NS))
     assert 16e6 < BOARDS["de0-nano"].spi_sck_max_hz < 20e6
-    assert 10e6 < BOARDS["de2-115"].spi_sck_max_hz < 11e6
+    for board in BOARDS.values():
+        assert C.MCU_SCK_HZ <= 0.8 * board.spi_sck_max_hz, board.name
+        assert 2e9 / board.sync_hz >= C.MCU_MISO_HOLD_NS, board.name
+    # the sensor's master clock within its limit (MT9V022: 26.6 MHz)
+    assert BOARDS["de2-115"].sensor_clk_hz <= 26.6e6
+
+
+def _sdc_commands(sdc, command):
+    """``(line number, ports or clocks argument, line)`` of each ``command`` line."""
+    out = []
+    for k, line in enumerate(sdc.splitlines()):
+        if line.split(" ", 1)[0] == command:
+            found = re.search(r'\[get_(?:ports|keepers|clocks) (?:\{([^}]*)\}|"([^"]*)")\]\s*$',
+                              line)
+            out.append((k, (found.group(1) or found.group(2)).split() if found else [], line))
+    return out
+
+
+def _covered(port, commands):
+    return any(fnmatch.fnmatchcase(port, pattern) for _, patterns, _ in commands
+               for pattern in patterns)
+
+
+@pytest.mark.parametrize("name", sorted(BOARDS))
+def test_sdc_constrains_every_clock_and_pin(projects, name):
+    """The generated SDC: every clock pin has its ``create_clock`` and every one comes
+    before ``derive_pll_clocks`` (a PLL fed by a clock created later is never derived); each
+    captured sensor input has an input delay both ways, within half a pixel clock of the
+    sampling edge; MISO a maximum and a minimum delay; every other pin an explicit false path
+    (synchronized inputs, forwarded clocks, IRQ, RESET_BAR); the Gray pointers of the pixel
+    crossing are skew-bounded.  The QSF checks its configuration CRC and reserves unused
+    pins."""
+    board, files = BOARDS[name], projects[name]
+    sdc, qsf = files["lodestar.sdc"], files["lodestar.qsf"]
+    created = _sdc_commands(sdc, "create_clock")
+    derive = [k for k, line in enumerate(sdc.splitlines()) if line == "derive_pll_clocks"]
+    assert len(derive) == 1 and all(k < derive[0] for k, _, _ in created)
+    clocks = {"clk_osc_0__io"} | {f"{board.sensor}_0__{sub}__io"
+                                  for sub in board.frontend.CLOCK_PINS}
+    assert all(_covered(c, created) for c in clocks), created
+    ports = set(re.findall(r'set_location_assignment -to "([^"\\]+)', qsf))
+    captured = {f"{board.sensor}_0__{sub}__io"
+                for sub, (_p, direction, _a) in board.pins[board.sensor].items()
+                if direction == "i" and sub not in board.frontend.CLOCK_PINS
+                and sub not in board.frontend.LVDS_PINS}
+    period = 1e9 / board.pixel_hz
+    delays = _sdc_commands(sdc, "set_input_delay")
+    for port in captured:
+        bounds = {}
+        for _, patterns, line in delays:
+            if any(fnmatch.fnmatchcase(port, pattern) for pattern in patterns):
+                kind, value = re.search(r"-(max|min) (-?[\d.]+)", line).groups()
+                bounds[kind] = float(value)
+        assert set(bounds) == {"max", "min"}, (port, bounds)
+        assert -period / 2 < bounds["min"] < bounds["max"] < period / 2, (port, bounds)
+    miso = {"mcu_0__miso__io"}
+    assert all(_covered(p, _sdc_commands(sdc, c)) for p in miso
+               for c in ("set_max_delay", "set_min_delay"))
+    false = _sdc_commands(sdc, "set_false_path")
+    rest = ports - clocks - captured - miso
+    assert rest and all(_covered(p, false) for p in rest), sorted(
+        p for p in rest if not _covered(p, false))
+    skews = " ".join(line for _, _, line in _sdc_commands(sdc, "set_max_skew"))
+    assert "produce_w_gry" in skews and "consume_r_gry" in skews
+    assert "set_global_assignment -name ENABLE_CRC_ERROR_CHECK ON" in qsf
+    assert "RESERVE_ALL_UNUSED_PINS_WEAK_PULLUP" in qsf
+
+
+def test_sdc_check_fails_on_a_bad_constraint_file(projects):
+    """The checks above are not vacuous: the DE2-115 SDC with ``derive_pll_clocks`` moved
+    first, or without the input delays of the DE0-Nano, or without a false path, fails."""
+    sdc = projects["de2-115"]["lodestar.sdc"]
+    moved = "derive_pll_clocks\n" + sdc.replace("derive_pll_clocks\n", "")
+    created = _sdc_commands(moved, "create_clock")
+    derive = [k for k, line in enumerate(moved.splitlines()) if line == "derive_pll_clocks"]
+    assert not all(k < derive[0] for k, _, _ in created)
+    nano = projects["de0-nano"]["lodestar.sdc"]
+    stripped = "\n".join(line for line in nano.splitlines()
+                         if not line.startswith("set_input_delay"))
+    assert not _covered("mt9p031_0__d__io[3]", _sdc_commands(stripped, "set_input_delay"))
+    assert _covered("mt9p031_0__d__io[3]", _sdc_commands(nano, "set_input_delay"))
+    no_false = "\n".join(line for line in nano.splitlines() if "extclk" not in line)
+    assert not _covered("mt9p031_0__extclk__io", _sdc_commands(no_false, "set_false_path"))
 
 
 def _sim(dut, bench, domains=("sync",)):
@@ -209,27 +330,64 @@ def test_irq_is_registered_with_minimum_pulses():
     assert trace[5] == 0 and trace[6] == 1            # one clock after busy rose
 
 
-def test_clock_guard_resets_at_power_up_only():
-    """``ever_locked`` rises after the first lock and stays up through a lock loss; each loss
-    steps the Gray count ``losses`` (one bit changes)."""
-    guard = ClockGuard()
+def test_clock_guard_qualifies_lock_and_counts_losses():
+    """``qualified`` rises only after ``locked`` stayed high for ``qualify_clocks`` clocks (a
+    chattering lock restarts the wait), falls right after a loss (each loss of a qualified
+    lock steps the Gray count ``losses`` by one bit), and rises again only after a new
+    qualified lock; ``ever_qualified`` rises with the first and stays up."""
+    guard = ClockGuard(qualify_clocks=5)
     top = Module()
     top.domains.osc = ClockDomain("osc", reset_less=True)
     top.submodules.guard = guard
+    locked = [0] * 3 + [1] * 3 + [0] + [1] * 10 + [0] * 2 + [1] * 4 + [0] + [1] * 10
     seen = []
 
     async def bench(ctx):
-        for locked in [0] * 4 + [1] * 6 + [0] * 5 + [1] * 5 + [0] * 5 + [1] * 5:
-            ctx.set(guard.locked, locked)
+        for level in locked:
+            ctx.set(guard.locked, level)
             await ctx.tick("osc")
-            seen.append((ctx.get(guard.ever_locked), ctx.get(guard.losses)))
+            seen.append((ctx.get(guard.qualified), ctx.get(guard.ever_qualified),
+                         ctx.get(guard.losses)))
 
     _sim(top, bench, domains=("osc",))
-    ever = [e for e, _ in seen]
-    assert ever[:4] == [0] * 4 and ever.index(1) < 8 and all(ever[ever.index(1):])
-    codes = [g for _, g in seen]
-    changes = [(a, b) for a, b in zip(codes, codes[1:]) if a != b]
-    assert changes == [(0, 1), (1, 3)]
+    qualified = [q for q, _, _ in seen]
+    # locked reaches the guard 2 clocks late (synchronizer); 5 clocks of lock before release
+    assert qualified.index(1) == 7 + 2 + 4
+    assert [e for _, e, _ in seen][13:] == [1] * (len(seen) - 13)
+    runs = "".join(map(str, qualified))
+    # the 4-clock lock after the loss is not enough; the last one is
+    assert runs == "0" * 13 + "1" * 6 + "0" * 11 + "1" * 4, runs
+    codes = [g for _, _, g in seen]
+    assert [(a, b) for a, b in zip(codes, codes[1:]) if a != b] == [(0, 1)]
+
+
+def test_sensor_reset_holds_reset_bar_with_the_clock_running():
+    """RESET_BAR is low at power-up until ``clocks`` clocks with the master clock running
+    have passed (a clock break restarts the count); a request pulls it low at once and it
+    stays low ``clocks`` clocks after the request ends; a clock loss while it is high does
+    not touch it."""
+    dut = SensorReset(clocks=6)
+    top = Module()
+    top.domains.osc = ClockDomain("osc", reset_less=True)
+    top.submodules.dut = dut
+    # (request, clock_ok) per clock
+    steps = ([(0, 0)] * 3 + [(0, 1)] * 4 + [(0, 0)] + [(0, 1)] * 8 + [(0, 0)] * 3
+             + [(0, 1)] * 3 + [(1, 1)] + [(0, 1)] * 9)
+    levels = []
+
+    async def bench(ctx):
+        for request, clock_ok in steps:
+            ctx.set(dut.request, request)
+            ctx.set(dut.clock_ok, clock_ok)
+            await ctx.tick("osc")
+            levels.append(ctx.get(dut.reset_n))
+
+    _sim(top, bench, domains=("osc",))
+    trace = "".join(map(str, levels))
+    # power-up: the 4 clocks with the clock running before the break do not count
+    assert trace[:14] == "0" * 14 and trace[14:22] == "1" * 8, trace
+    # the clock loss while high: still high; the 1-clock request: low for 1 + 6 clocks
+    assert trace[22:] == "0" * 7 + "1" * 3, trace
 
 
 def _pix_frame(rows, cut=None, hblank=4):

@@ -4,7 +4,8 @@ sending frames and an SPI master in mode 0.  The commands issue 30 added, wired 
 the next frame is detected bit-exactly as the golden model says; ``FLUSH`` drops the queued
 packets (one half read) and the next read is a whole packet; ``READ_REG`` returns what was
 written (refused writes leave the old value); ``READ_ID`` carries the build's
-``contract.build_id``."""
+``contract.build_id``; the ``sensor_reset`` register reaches the board at once and RESET_BAR
+held low shows as ``OVF_LINK_DOWN``.  (A PLL lock loss mid-frame: ``cocotb_tests``.)"""
 
 import gc
 import inspect
@@ -283,3 +284,32 @@ def test_flight_board_record_capacity_is_the_links():
                                        C.FLIGHT_RECORD_CAPACITY, board.record_depth)
         del top
         gc.collect()
+
+
+def test_sensor_reset_register_and_link_down_status():
+    """``sensor_reset`` acts at once (no frame start needed): writing 1 raises the top's
+    ``sensor_reset`` output for the board, 0 lowers it; while the board reports RESET_BAR
+    low (``sensor_in_reset``) the status shows ``OVF_LINK_DOWN``, live."""
+    top = GatewareTop("mt9p031", W, H, record_capacity=CAP, record_depth=2 * CAP)
+    got = {}
+
+    async def master(ctx):
+        got["idle"] = ctx.get(top.sensor_reset)
+        await write_reg(ctx, top, "sensor_reset", 1)
+        got["requested"] = ctx.get(top.sensor_reset)
+        got["read_back"] = await read_reg(ctx, top, "sensor_reset")
+        ctx.set(top.sensor_in_reset, 1)
+        got["down"] = (await read_status(ctx, top))["overflow"]
+        await write_reg(ctx, top, "sensor_reset", 0)
+        got["released"] = ctx.get(top.sensor_reset)
+        ctx.set(top.sensor_in_reset, 0)
+        await ctx.tick().repeat(4)
+        got["up"] = (await read_status(ctx, top))["overflow"]
+
+    async def idle_sensor(ctx):
+        while True:
+            await ctx.tick("pix")
+
+    _run(top, idle_sensor, master)
+    assert (got["idle"], got["requested"], got["read_back"], got["released"]) == (0, 1, 1, 0)
+    assert got["down"] == 1 << C.OVF_LINK_DOWN and got["up"] == 0

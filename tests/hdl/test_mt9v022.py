@@ -23,6 +23,7 @@ from lodestar.hdl.mt9v022 import (
     PACKET_BITS,
     RESERVED_WORDS,
     MT9V022Frontend,
+    ReceiverPllReset,
     packet_bits,
 )
 from tests.hdl.streams import stream_collect
@@ -232,3 +233,42 @@ def test_bad_parameters():
             MT9V022Frontend(0, 4)
         gc.collect()
     assert PACKET_BITS == 12
+
+
+def test_receiver_pll_reset_waits_for_the_clock_and_retries():
+    """``pll_areset`` stays high while the returned LVDS clock does not run, is released once
+    it has run ``active_clocks``, is pulsed again (a retry, counted) when the PLL has not
+    locked ``lock_timeout`` clocks later, stays low once locked, and rises when the clock
+    stops."""
+    dut = ReceiverPllReset(active_clocks=4, lock_timeout=10)
+    top = Module()
+    top.domains.osc = ClockDomain("osc", reset_less=True)
+    top.submodules.dut = dut
+    trace = []
+
+    async def bench(ctx):
+        toggle = 0
+        # (clocks, the clock runs, locked): off; on without lock for two timeouts; locks;
+        # stops
+        for clocks, runs, locked in ((12, 0, 0), (40, 1, 0), (20, 1, 1), (12, 0, 1)):
+            for _ in range(clocks):
+                if runs:
+                    toggle ^= 1
+                ctx.set(dut.toggle, toggle)
+                ctx.set(dut.locked, locked)
+                await ctx.tick("osc")
+                trace.append(ctx.get(dut.areset))
+        trace.append(ctx.get(dut.retries))
+
+    sim = Simulator(top)
+    sim.add_clock(20e-9, domain="osc")
+    sim.add_testbench(bench)
+    sim.run()
+    retries = trace.pop()
+    levels = "".join(map(str, trace))
+    assert levels[:12] == "1" * 12                     # no clock: held in reset
+    on = levels[12:52]
+    assert on.startswith("1111") and "0" * 10 in on    # released after 4 clocks of clock
+    assert retries >= 2 and on.count("01") >= 2        # two timeouts: two retries
+    assert levels[52:72].endswith("0" * 10)            # locked: released
+    assert levels[-4:] == "1111"                       # the clock stopped
