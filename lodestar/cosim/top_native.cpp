@@ -72,6 +72,8 @@ Twin* twin_new(uint32_t sync_period_ps, uint32_t pix_period_ps, uint32_t pix_off
     top->sck = 0;
     top->mosi = 0;
     top->pll_losses = 0;
+    top->clock_ok = 1;           // the board's qualified PLL lock
+    top->sensor_in_reset = 0;
     top->pix_d = 0;
     top->line_valid = 0;
     top->frame_valid = 0;
