@@ -26,6 +26,7 @@ from . import centroids, packet, starid, tracking
 from . import database as _database
 from . import geometry as G
 from . import quaternion as Q
+from . import smear as _smear
 from . import status as S
 from .settings import Settings
 from .starid import verify
@@ -132,6 +133,13 @@ identification uses; a frame that has too few stars without any smeared away is
 ``TOO_FEW_STARS`` as ever)."""
 
 
+MAX_BOUNDED_SMEAR_PX = 6.0
+"""Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
+frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
+streaks bound its smear by about 3.5 px, and the shear this bound allows over the read-out
+is folded into the sigma; beyond it the frame is ``RATE_UNKNOWN``."""
+
+
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike): when it is within the limit no
@@ -189,7 +197,8 @@ def _residuals2(q, b, r):
 class Result:
     """Outcome of :meth:`StarTracker.process` (fields in ``docs/firmware.md``)."""
 
-    __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
+    __slots__ = ("status", "reason", "mode", "q", "t_epoch_s", "rate_rad_s",
+                 "sigma_rate_rad_s", "matches", "n_stars", "n_records",
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
                  "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
@@ -198,6 +207,9 @@ class Result:
         self.reason = reason
         self.mode = None
         self.q = None
+        self.t_epoch_s = None
+        self.rate_rad_s = None
+        self.sigma_rate_rad_s = None
         self.matches = []
         self.n_stars = 0
         self.n_records = 0
@@ -261,6 +273,7 @@ class StarTracker:
         self.beta = None
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
+        self._frame = None              # process(): (instants, smear bound px, exposure)
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -644,6 +657,12 @@ class StarTracker:
             res.status = S.NO_MATCH
             _note(res, "degenerate attitude fit")
             return res
+        solved, again = self._at_instant(res, vectors, star_ids, fluxes, streaks, omega,
+                                         solved)
+        if again is not star_ids:
+            star_ids, hips = again, None
+        if solved is None:
+            return res
         q, cross, roll, sigma = solved
         res.status = S.OK
         res.centroid_sigma_px = sigma * self.focal_px
@@ -656,6 +675,123 @@ class StarTracker:
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
         self._tick(timings, "attitude", start)
         return res
+
+    def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
+        """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
+        its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
+        with ``omega``, ``epoch_s``, the rate checked against the frame's
+        (:func:`lodestar.firmware.smear.rate_fit`; a contradicted one is replaced by the
+        frame's, with a note); without, the matched stars' weighted mean instant, the rate
+        fitted with the attitude, or with too few stars bounded by the streaks (else
+        ``RATE_UNKNOWN``: None).  A fitted rate is then used to match again the stars its
+        shear kept out.  Returns ``(solved, star_ids)``; frames of :meth:`solve_vectors`
+        have no instants."""
+        frame = self._frame
+        if frame is None:
+            return solved, star_ids
+        times, bound_px, exposure = frame
+        res.rate_rad_s = omega
+        w = self._rate_weights(star_ids, fluxes, streaks)
+        ts = [times[o] for o, _s in star_ids]
+        total = mean = 0.0
+        for i in range(len(w)):
+            total += w[i]
+            mean += w[i] * ts[i]
+        mean /= total
+        ref = self.settings.epoch_s if omega is not None else mean
+        res.t_epoch_s = ref
+        if self.settings.row_time_s == 0:       # every star seen at one instant: no shear
+            return solved, star_ids
+        fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
+        if fit is None:
+            if omega is None:
+                solved = self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure)
+            return solved, star_ids
+        q, rate, p, p_rate, s = fit
+        if omega is not None:
+            chi2 = _smear.chi2_rate(rate, p_rate)
+            if chi2 is not None and chi2 <= _smear.RATE_CHI2:
+                return solved, star_ids
+            _note(res, "omega contradicted by the frame's rate (off by " + _deg3(rate) +
+                  " deg/s): the frame's used")
+            rate = (omega[0] + rate[0], omega[1] + rate[1], omega[2] + rate[2])
+        turned = self._turned(vectors, times, ref, rate, omega)
+        again = self._track(turned, q, None, None, None)
+        if again.status == S.OK and len(again.star_ids) > len(star_ids):
+            ids = again.star_ids
+            fit2 = self._rate_fit(turned, ids, self._rate_weights(ids, fluxes, None), times,
+                                  ref, again.q)
+            if fit2 is not None:
+                star_ids = ids
+                q, extra, p, p_rate, s = fit2
+                rate = (rate[0] + extra[0], rate[1] + extra[1], rate[2] + extra[2])
+        res.rate_rad_s = rate
+        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return (q, cross, roll, s), star_ids
+
+    def _rate_weights(self, star_ids, fluxes, streaks):
+        """Relative weights of the matched stars for the rate fit: the photon model
+        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
+        n = len(star_ids)
+        w = [1.0] * n if fluxes is None else self.weights([fluxes[o] for o, _s in star_ids])
+        if streaks is not None:
+            s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
+            w = [1.0 / (1.0 / w[i] + verify.streak_variance(streaks[star_ids[i][0]]) /
+                        (s0 * s0)) for i in range(n)]
+        return w
+
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q):
+        """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
+        counted from ``ref``."""
+        db, cone = self.database, self._cone
+        return _smear.rate_fit([vectors[o] for o, _s in star_ids],
+                               [cone.star_vector(db, s) for _o, s in star_ids],
+                               [times[o] - ref for o, _s in star_ids], w, q,
+                               self.min_sigma_rad, self.sigma_rad)
+
+    def _turned(self, vectors, times, ref, rate, omega):
+        """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s), undoing the turn by
+        ``omega`` (None: none) they had."""
+        d = rate if omega is None else \
+            (rate[0] - omega[0], rate[1] - omega[1], rate[2] - omega[2])
+        speed = G.norm(d)
+        if not speed > 0:
+            return vectors
+        axis = (d[0] / speed, d[1] / speed, d[2] / speed)
+        return [G.rotate_about(vectors[o], axis, speed * (times[o] - ref))
+                for o in range(len(vectors))]
+
+    def _bounded(self, res, solved, star_ids, ts, mean, bound_px, exposure):
+        """``solved`` without a rate fit (too few stars) and without ``omega``: its
+        covariance grown by the shear of the fastest rate the streaks allow
+        (:func:`lodestar.firmware.smear.smear_bound_px`, across the boresight and, for the
+        stars' median distance from the centre, about it) over the stars' instants;
+        ``RATE_UNKNOWN`` (None) when the streaks allow a smear beyond
+        :data:`MAX_BOUNDED_SMEAR_PX` or the exposure is unknown."""
+        if bound_px is None or exposure is None or bound_px > MAX_BOUNDED_SMEAR_PX:
+            res.status = S.RATE_UNKNOWN
+            _note(res, "too few stars (" + str(len(star_ids)) + ") to fit the rate, and "
+                  "the streaks do not bound it")
+            return None
+        cam, xy = self.camera, self._xy
+        radii = []
+        span = 0.0
+        for i in range(len(star_ids)):
+            o = star_ids[i][0]
+            dx, dy = xy[2 * o] - cam.cx, xy[2 * o + 1] - cam.cy
+            radii.append(math.sqrt(dx * dx + dy * dy))
+            if abs(ts[i] - mean) > span:
+                span = abs(ts[i] - mean)
+        radii.sort()
+        rate_cross = bound_px / (self.focal_px * exposure)
+        rate_roll = bound_px / (max(radii[len(radii) // 2], 1.0) * exposure)
+        q, cross, roll, s = solved
+        cross = math.sqrt(cross * cross + (rate_cross * span) ** 2)
+        roll = math.sqrt(roll * roll + (rate_roll * span) ** 2)
+        _note(res, "rate not fitted (" + str(len(star_ids)) + " stars): sigma grown by the "
+              "shear of the streaks' bound")
+        return q, cross, roll, s
 
     # ---- the flight entry point --------------------------------------------------------
 
@@ -740,11 +876,15 @@ class StarTracker:
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         self._keep(stars, used)
+        self._frame = self._instants(stars, used, w, exposure)
         stars = used = None
         if prior is None:
             _collect()
-        res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
-                                  streaks, beta)
+        try:
+            res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
+                                      streaks, beta)
+        finally:
+            self._frame = None
         if res.status == S.OK:
             index, xy = self._index, self._xy
             matches = []
@@ -754,6 +894,21 @@ class StarTracker:
             res.min_sum = budget
         self._tick(timings, "total", first)
         return res
+
+    def _instants(self, stars, used, omega, exposure):
+        """``(times, smear bound px, exposure)`` of the used stars (``_keep`` order): each
+        one's mean instant, s after the start of row 0's exposure (``exposure / 2 + y
+        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and without
+        ``omega`` the streaks' smear bound (:func:`lodestar.firmware.smear.smear_bound_px`)."""
+        half = 0.5 * exposure if exposure is not None else 0.0
+        row_time = self.settings.row_time_s
+        xy = self._xy
+        times = [half + xy[2 * o + 1] * row_time for o in range(len(used))]
+        bound = None
+        if omega is None:
+            bound = _smear.smear_bound_px([(stars[i].sigma_major, stars[i].sigma_minor)
+                                          for i in used])
+        return times, bound, exposure
 
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
@@ -821,6 +976,11 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
+
+
+def _deg3(v):
+    """A rate (rad/s) as text in deg/s, to 0.01."""
+    return "(" + ", ".join([str(round(math.degrees(x), 2)) for x in v]) + ")"
 
 
 def _note(res, text):

@@ -28,6 +28,7 @@ from lodestar.firmware import status as S
 from lodestar.firmware.centroids import Star
 from lodestar.firmware.database import Database
 from lodestar.firmware.settings import Settings
+from lodestar.firmware.tracking import propagate
 from lodestar.golden import detect_frame
 from lodestar.ground import codec, onboard
 from lodestar.ground.database import build_database
@@ -126,6 +127,76 @@ def test_rate_compensation_refers_the_attitude_to_the_frame_epoch():
     truth = (Rotation.from_rotvec(-np.asarray(frame.omega) * 0.05) *
              Rotation.from_quat(frame.q)).as_quat()
     assert attitude_error_deg(late.q, truth) < 0.02
+
+
+def test_without_a_rate_the_attitude_holds_at_its_reported_instant():
+    """Without ``omega`` (no gyro) the rolling shutter's shear gives the frame's own rate
+    (``lodestar.firmware.smear``): the attitude holds at ``t_epoch_s`` (the matched stars'
+    mean instant) within 5 sigma, and the rate found is the truth's; with the gyro the
+    instant is ``epoch_s`` and the rate the gyro's."""
+    tracker = sim_frames.tracker()
+    moving = [f for f in sim_frames.frames() if f.moving]
+    solved = 0
+    for frame in moving:
+        res = tracker.process(frame.packet)
+        if not res.ok:
+            continue
+        solved += 1
+        assert 0.05 < res.t_epoch_s < 0.14
+        x, y, roll = camera_frame_error_arcsec(res.q, propagate(list(frame.q), frame.omega,
+                                                                res.t_epoch_s))
+        assert max(abs(x), abs(y)) < 5 * res.sigma_cross_arcsec
+        assert abs(roll) < 5 * res.sigma_roll_arcsec
+        miss = np.subtract(res.rate_rad_s, frame.omega)
+        assert np.all(np.abs(miss) < 5 * np.asarray(res.sigma_rate_rad_s))
+    assert solved >= len(moving) - 1
+    frame = moving[0]
+    res = tracker.process(frame.packet, omega=frame.omega)
+    assert res.ok and res.reason == "" and res.t_epoch_s == 0.0
+    assert list(res.rate_rad_s) == list(frame.omega) and res.sigma_rate_rad_s is None
+    # at rest the fitted rate is zero within its sigma
+    still = tracker.process(sim_frames.frames()[0].packet)
+    assert still.ok and np.all(np.abs(still.rate_rad_s) < 5 * np.asarray(still.sigma_rate_rad_s))
+
+
+@pytest.mark.parametrize("factor", [-1.0, 2.0])
+def test_a_gyro_rate_the_frame_contradicts_is_reported_and_replaced(factor):
+    """A gyro rate of the wrong sign or twice the truth is checked against the frame's shear:
+    noted in ``reason`` and replaced by the frame's rate, the attitude right at ``epoch_s``."""
+    tracker = sim_frames.tracker()
+    for frame in [f for f in sim_frames.frames() if f.moving][:3]:
+        res = tracker.process(frame.packet, omega=[factor * w for w in frame.omega])
+        if not res.ok:
+            continue
+        assert "omega contradicted" in res.reason and res.t_epoch_s == 0.0
+        x, y, roll = camera_frame_error_arcsec(res.q, frame.q)
+        assert max(abs(x), abs(y)) < 5 * res.sigma_cross_arcsec
+        assert abs(roll) < 5 * res.sigma_roll_arcsec
+        assert np.linalg.norm(np.subtract(res.rate_rad_s, frame.omega)) < \
+            0.2 * np.linalg.norm(frame.omega)
+
+
+def test_too_few_stars_to_fit_a_rate():
+    """With fewer matched stars than a rate fit needs and no ``omega``: a still frame's
+    streaks bound the rate (sigma grown, noted); a smeared frame's do not: ``RATE_UNKNOWN``."""
+    few = sim_frames.tracker(max_stars=5)
+    still = few.process(sim_frames.frames()[0].packet)
+    assert still.ok and "rate not fitted" in still.reason
+    assert still.sigma_cross_arcsec > sim_frames.tracker(max_stars=5).process(
+        sim_frames.frames()[0].packet, omega=[0.0, 0.0, 0.0]).sigma_cross_arcsec
+    statuses = []
+    for frame in [f for f in sim_frames.frames() if f.moving]:
+        res = few.process(frame.packet)
+        statuses.append(res.status)
+        if res.ok:          # a rate mostly about the boresight smears the inner stars little
+            assert "rate not fitted" in res.reason
+            x, y, roll = camera_frame_error_arcsec(res.q, propagate(
+                list(frame.q), frame.omega, res.t_epoch_s))
+            assert max(abs(x), abs(y)) < 5 * res.sigma_cross_arcsec
+            assert abs(roll) < 5 * res.sigma_roll_arcsec
+        elif res.status == S.RATE_UNKNOWN:
+            assert res.q is None and few.process(frame.packet, omega=frame.omega).ok
+    assert S.RATE_UNKNOWN in statuses
 
 
 def boresight_error_arcsec(q_est, q_true):

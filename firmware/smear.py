@@ -1,0 +1,185 @@
+"""The body rate a frame shows, and the attitude at one instant: no gyro needed.
+
+A rolling shutter sees row ``y`` at ``t = exposure / 2 + y * row_time`` after the start of
+row 0's exposure (a centroid is its star's mean position over the exposure), and a turning
+camera shows each star where it was at its row's instant: the rate shears the matched stars
+against their catalogue directions (a rate across the boresight as a scale or skew along the
+columns, a roll as a rotation growing down the rows).  :func:`rate_fit` fits the attitude at
+a reference instant and the rate together to the matched pairs (six unknowns, least
+squares), so the attitude's covariance includes what the rate's uncertainty does to it.
+:func:`smear_bound_px` reads the stars' own streaks (their second moments) for the frames
+with too few stars to fit a rate: how long a smear they allow.  Rates in rad/s in the camera
+frame, angles in rad, times in s (``docs/conventions.md``); ``docs/firmware.md`` (Epoch and
+rate) tells how the pipeline uses them.  Pure Python for CPython and MicroPython, accurate in
+single precision (the rate's unknowns are scaled by the stars' time spread).
+"""
+
+import math
+
+from . import geometry as G
+from . import quaternion as Q
+
+MIN_RATE_STARS = 6
+"""Fewest matched stars :func:`rate_fit` fits a rate to: six unknowns, and at least
+``2n - 8 >= 4`` residual degrees of freedom for the noise it scales the covariance by."""
+RATE_ITERATIONS = 3
+"""Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
+the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
+over a frame."""
+RATE_CHI2 = 30.0
+"""Largest ``chi^2`` (3 degrees of freedom) of the frame's rate against a given one before the
+given rate is called contradicted: about 5 sigma."""
+STILL_ELONGATION_PX2 = 1.0
+"""Median excess second moment ``sigma_major^2 - sigma_minor^2`` (px^2) of a still frame's
+stars: noise and pixelisation make a round star look a little elongated (estcube2 at rest,
+``docs/firmware.md``).  A smear ``L`` adds ``L^2 / 12``."""
+
+
+def _solve(n, a, h):
+    """``x`` with ``a x = h`` for a symmetric positive-definite ``n x n`` ``a`` (a flat row-major
+    list, overwritten by its Cholesky factor), or None when it is not positive definite."""
+    for j in range(n):
+        d = a[j * n + j]
+        for k in range(j):
+            d -= a[j * n + k] * a[j * n + k]
+        if not d > 0:
+            return None
+        d = math.sqrt(d)
+        a[j * n + j] = d
+        for i in range(j + 1, n):
+            s = a[i * n + j]
+            for k in range(j):
+                s -= a[i * n + k] * a[j * n + k]
+            a[i * n + j] = s / d
+    x = list(h)
+    for i in range(n):
+        s = x[i]
+        for k in range(i):
+            s -= a[i * n + k] * x[k]
+        x[i] = s / a[i * n + i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= a[k * n + i] * x[k]
+        x[i] = s / a[i * n + i]
+    return x
+
+
+def _normal(b, r, dts, w, q, omega, tau):
+    """The normal equations of the linearised model at attitude ``q`` and rate ``omega``:
+    ``(N, h, chi2)`` with ``N`` 6x6 (flat), ``h`` 6 and ``chi2 = sum w_i |e_i|^2`` of the
+    residuals ``e_i = R(omega dt_i) b_i - A(q) r_i`` (the star turned back to the reference
+    instant).  Unknowns: the attitude's small rotation and the rate times ``tau``."""
+    m = Q.matrix(q)
+    rate = G.norm(omega)
+    axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate) if rate > 0 else None
+    nn = [0.0] * 36
+    h = [0.0] * 6
+    chi2 = 0.0
+    for i in range(len(b)):
+        a = G.mat_vec(m, r[i])
+        v = b[i] if axis is None else G.rotate_about(b[i], axis, rate * dts[i])
+        e = (v[0] - a[0], v[1] - a[1], v[2] - a[2])
+        wi = w[i]
+        x = dts[i] / tau
+        chi2 += wi * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+        c = G.cross(a, e)
+        for j in range(3):
+            h[j] += wi * c[j]
+            h[3 + j] -= wi * x * c[j]
+            for k in range(3):
+                p = wi * ((1.0 if j == k else 0.0) - a[j] * a[k])
+                nn[j * 6 + k] += p
+                nn[j * 6 + 3 + k] -= x * p
+                nn[(3 + j) * 6 + k] -= x * p
+                nn[(3 + j) * 6 + 3 + k] += x * x * p
+    return nn, h, chi2
+
+
+def _inverse(nn):
+    """The inverse of a 6x6 symmetric positive-definite flat ``nn`` (rows), or None."""
+    cols = []
+    for j in range(6):
+        e = [0.0] * 6
+        e[j] = 1.0
+        x = _solve(6, list(nn), e)
+        if x is None:
+            return None
+        cols.append(x)
+    return [[cols[j][i] for j in range(6)] for i in range(6)]
+
+
+def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
+    """The attitude at the reference instant and the rate, fitted to matched pairs.
+
+    ``b``: camera-frame unit vectors, each seen ``dts[i]`` s after the reference instant (a
+    star's mean instant less the reference; already turned to the reference by a rate
+    ``omega0``, if any, so that this fits what remains); ``r``: their catalogue unit vectors;
+    ``w``: relative weights (``sigma_i = s / sqrt(w_i)``); ``q``: an attitude near the fit.
+    Returns ``(q, omega, P, P_omega, s)``: the attitude at the reference instant, the rate
+    (rad/s, camera frame, on top of ``omega0``), the attitude's 3x3 covariance (rad^2, as
+    :func:`lodestar.firmware.attitude.covariance`, with the rate's uncertainty in it), the
+    rate's (rad^2/s^2) and the per-axis noise ``s`` (rad) of a unit-weight star, estimated from
+    the residuals over ``2n - 8`` degrees of freedom (six unknowns; the Student-t correction of
+    ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
+    configured ``centroid_sigma_px``), not estimated.  None with fewer than
+    :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
+    n = len(b)
+    if n < MIN_RATE_STARS:
+        return None
+    total = 0.0
+    spread = 0.0
+    for i in range(n):
+        total += w[i]
+        spread += w[i] * dts[i] * dts[i]
+    tau = math.sqrt(spread / total) if total > 0 else 0.0
+    if not tau > 0:
+        return None
+    omega = (0.0, 0.0, 0.0)
+    for k in range(RATE_ITERATIONS + 1):
+        nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau)
+        if k == RATE_ITERATIONS:
+            break
+        u = _solve(6, list(nn), h)
+        if u is None:
+            return None
+        q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
+        omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
+    inv = _inverse(nn)
+    if inv is None:
+        return None
+    s2 = chi2 / max(2 * n - 8, 1) if sigma_rad is None else sigma_rad * sigma_rad
+    if not s2 >= min_sigma_rad * min_sigma_rad:
+        s2 = min_sigma_rad * min_sigma_rad
+    t2 = tau * tau
+    p = [[s2 * inv[i][j] for j in range(3)] for i in range(3)]
+    p_omega = [[s2 * inv[3 + i][3 + j] / t2 for j in range(3)] for i in range(3)]
+    return q, omega, p, p_omega, math.sqrt(s2)
+
+
+def chi2_rate(omega, p_omega):
+    """``omega^T P^-1 omega`` of a rate difference ``omega`` with covariance ``p_omega``
+    (3x3), or None when ``p_omega`` is singular."""
+    a = [p_omega[i][j] for i in range(3) for j in range(3)]
+    x = _solve(3, a, omega)
+    if x is None:
+        return None
+    return omega[0] * x[0] + omega[1] * x[1] + omega[2] * x[2]
+
+
+def smear_bound_px(stars):
+    """The longest smear (px) the stars' second moments allow, from the median excess
+    ``sigma_major^2 - sigma_minor^2`` over the still frame's (:data:`STILL_ELONGATION_PX2`):
+    ``sqrt(12 (excess + STILL_ELONGATION_PX2))``, so a still frame bounds its smear by about
+    3.5 px.  ``stars``: ``(sigma_major, sigma_minor)`` pairs; None without any."""
+    excess = []
+    for major, minor in stars:
+        excess.append(major * major - minor * minor)
+    if not excess:
+        return None
+    excess.sort()
+    k = len(excess)
+    median = excess[k // 2] if k % 2 else 0.5 * (excess[k // 2 - 1] + excess[k // 2])
+    if median < 0:
+        median = 0.0
+    return math.sqrt(12.0 * (median + STILL_ELONGATION_PX2))
