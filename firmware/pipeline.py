@@ -684,14 +684,14 @@ class StarTracker:
         frame's, with a note); without, the matched stars' weighted mean instant, the rate
         fitted with the attitude, or with too few stars bounded by the streaks (else
         ``RATE_UNKNOWN``: None).  A fitted rate is then used to match again the stars its
-        shear kept out.  Returns ``(solved, star_ids)``; frames of :meth:`solve_vectors`
-        have no instants."""
+        shear kept out.  Last, :meth:`_radial`.  Returns ``(solved, star_ids)``; frames of
+        :meth:`solve_vectors` have no instants."""
         frame = self._frame
+        w = self._rate_weights(star_ids, fluxes, streaks)
         if frame is None:
-            return solved, star_ids
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
         times, bound_px, exposure = frame
         res.rate_rad_s = omega
-        w = self._rate_weights(star_ids, fluxes, streaks)
         ts = [times[o] for o, _s in star_ids]
         total = mean = 0.0
         for i in range(len(w)):
@@ -700,35 +700,68 @@ class StarTracker:
         mean /= total
         ref = self.settings.epoch_s if omega is not None else mean
         res.t_epoch_s = ref
-        if self.settings.row_time_s == 0:       # every star seen at one instant: no shear
-            return solved, star_ids
-        fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
+        fit = None
+        if self.settings.row_time_s != 0:       # else every star seen at one instant
+            fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
+        if fit is None and omega is None and self.settings.row_time_s != 0:
+            return self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure), star_ids
+        if fit is not None and omega is not None:
+            chi2 = _smear.chi2_rate(fit[1], fit[3])
+            if chi2 is not None and chi2 <= _smear.RATE_CHI2:
+                fit = None              # the gyro agrees with the frame: its result stands
+            else:
+                _note(res, "omega contradicted by the frame's rate (off by " +
+                      _deg3(fit[1]) + " deg/s): the frame's used")
         if fit is None:
-            if omega is None:
-                solved = self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure)
-            return solved, star_ids
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
         q, rate, p, p_rate, s = fit
         if omega is not None:
-            chi2 = _smear.chi2_rate(rate, p_rate)
-            if chi2 is not None and chi2 <= _smear.RATE_CHI2:
-                return solved, star_ids
-            _note(res, "omega contradicted by the frame's rate (off by " + _deg3(rate) +
-                  " deg/s): the frame's used")
             rate = (omega[0] + rate[0], omega[1] + rate[1], omega[2] + rate[2])
         turned = self._turned(vectors, times, ref, rate, omega)
         again = self._track(turned, q, None, None, None)
         if again.status == S.OK and len(again.star_ids) > len(star_ids):
             ids = again.star_ids
-            fit2 = self._rate_fit(turned, ids, self._rate_weights(ids, fluxes, None), times,
-                                  ref, again.q)
+            w2 = self._rate_weights(ids, fluxes, None)
+            fit2 = self._rate_fit(turned, ids, w2, times, ref, again.q)
             if fit2 is not None:
-                star_ids = ids
+                star_ids, w = ids, w2
                 q, extra, p, p_rate, s = fit2
                 rate = (rate[0] + extra[0], rate[1] + extra[1], rate[2] + extra[2])
         res.rate_rad_s = rate
         res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
         cross, roll = _attitude.sigmas_cross_roll(p)
-        return (q, cross, roll, s), star_ids
+        return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
+            star_ids
+
+    def _radial(self, res, vectors, star_ids, w, times, ref, solved):
+        """``solved``, or when the matched stars' residuals show a radial pattern (a lens
+        distortion or focal length the camera model lacks:
+        :func:`lodestar.firmware.smear.radial_fit`, its coefficients beyond
+        ``RADIAL_CHI2``) the attitude fitted with it, its sigma grown by it, noted in
+        ``reason``.  ``times``: the stars' instants when the rate is fitted too (counted from
+        ``ref``; the fitted rate then corrected in ``res``), else None."""
+        if len(star_ids) < _smear.MIN_RADIAL_STARS:
+            return solved
+        db, cone = self.database, self._cone
+        rate = times is not None
+        fit = _smear.radial_fit([vectors[o] for o, _s in star_ids],
+                                [cone.star_vector(db, s) for _o, s in star_ids],
+                                [times[o] - ref if rate else 0.0 for o, _s in star_ids], w,
+                                solved[0], rate, self.min_sigma_rad, self.sigma_rad)
+        if fit is None:
+            return solved
+        q, extra, p, p_rate, s, c, p_c = fit
+        chi2 = _smear.chi2_rate(c, p_c)
+        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+            return solved
+        _note(res, "the residuals show a radial pattern (chi2 " + str(int(chi2)) + "): an "
+              "unmodelled lens distortion or focal length, fitted; sigma grown")
+        if rate:
+            r0 = res.rate_rad_s
+            res.rate_rad_s = (r0[0] + extra[0], r0[1] + extra[1], r0[2] + extra[2])
+            res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return q, max(cross, solved[1]), max(roll, solved[2]), s
 
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model

@@ -22,6 +22,11 @@ from . import quaternion as Q
 MIN_RATE_STARS = 6
 """Fewest matched stars :func:`rate_fit` fits a rate to: six unknowns, and at least
 ``2n - 8 >= 4`` residual degrees of freedom for the noise it scales the covariance by."""
+MIN_RADIAL_STARS = 8
+"""Fewest matched stars :func:`radial_fit` fits a radial displacement to."""
+RADIAL_CHI2 = 30.0
+"""Largest ``chi^2`` of the radial displacement's two coefficients (about 5 sigma) before a
+solution's residuals are said to show an unmodelled radial pattern."""
 RATE_ITERATIONS = 3
 """Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
 the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
@@ -65,48 +70,67 @@ def _solve(n, a, h):
     return x
 
 
-def _normal(b, r, dts, w, q, omega, tau):
+def _columns(a, x, rate, radial, rho2):
+    """The model's derivatives at catalogue direction ``a`` (camera frame) for a star seen
+    ``x`` (scaled) after the reference: three 3-vectors for the attitude's small rotation
+    (``e_j x a``), three for the rate when ``rate`` (``-x e_j x a``), two for a radial
+    displacement when ``radial`` (``g`` and ``|g|^2 / rho2 g``, ``g = a_z a - z`` pointing
+    away from the boresight, of length the sine of the star's angle from it)."""
+    ax, ay, az = a
+    cols = [(0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)]
+    if rate:
+        cols += [(0.0, x * az, -x * ay), (-x * az, 0.0, x * ax), (x * ay, -x * ax, 0.0)]
+    if radial:
+        g = (az * ax, az * ay, az * az - 1.0)
+        k = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) / rho2
+        cols += [g, (k * g[0], k * g[1], k * g[2])]
+    return cols
+
+
+def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     """The normal equations of the linearised model at attitude ``q`` and rate ``omega``:
-    ``(N, h, chi2)`` with ``N`` 6x6 (flat), ``h`` 6 and ``chi2 = sum w_i |e_i|^2`` of the
-    residuals ``e_i = R(omega dt_i) b_i - A(q) r_i`` (the star turned back to the reference
-    instant).  Unknowns: the attitude's small rotation and the rate times ``tau``."""
+    ``(N, h, chi2)`` with ``N`` ``m x m`` (flat; ``m`` the unknowns of :func:`_columns`),
+    ``h`` and ``chi2 = sum w_i |e_i|^2`` of the residuals ``e_i = R(omega dt_i) b_i - A(q)
+    r_i`` (the star turned back to the reference instant).  The rate's unknowns are the rate
+    times ``tau``."""
     m = Q.matrix(q)
-    rate = G.norm(omega)
-    axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate) if rate > 0 else None
-    nn = [0.0] * 36
-    h = [0.0] * 6
+    speed = G.norm(omega)
+    axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed) if speed > 0 else None
+    size = 3 + (3 if rate else 0) + (2 if radial else 0)
+    nn = [0.0] * (size * size)
+    h = [0.0] * size
     chi2 = 0.0
     for i in range(len(b)):
         a = G.mat_vec(m, r[i])
-        v = b[i] if axis is None else G.rotate_about(b[i], axis, rate * dts[i])
+        v = b[i] if axis is None else G.rotate_about(b[i], axis, speed * dts[i])
         e = (v[0] - a[0], v[1] - a[1], v[2] - a[2])
         wi = w[i]
-        x = dts[i] / tau
         chi2 += wi * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-        c = G.cross(a, e)
-        for j in range(3):
-            h[j] += wi * c[j]
-            h[3 + j] -= wi * x * c[j]
-            for k in range(3):
-                p = wi * ((1.0 if j == k else 0.0) - a[j] * a[k])
-                nn[j * 6 + k] += p
-                nn[j * 6 + 3 + k] -= x * p
-                nn[(3 + j) * 6 + k] -= x * p
-                nn[(3 + j) * 6 + 3 + k] += x * x * p
+        cols = _columns(a, dts[i] / tau if rate else 0.0, rate, radial, rho2)
+        for j in range(size):
+            cj = cols[j]
+            h[j] += wi * (cj[0] * e[0] + cj[1] * e[1] + cj[2] * e[2])
+            for k in range(j, size):
+                ck = cols[k]
+                nn[j * size + k] += wi * (cj[0] * ck[0] + cj[1] * ck[1] + cj[2] * ck[2])
+    for j in range(size):
+        for k in range(j):
+            nn[j * size + k] = nn[k * size + j]
     return nn, h, chi2
 
 
-def _inverse(nn):
-    """The inverse of a 6x6 symmetric positive-definite flat ``nn`` (rows), or None."""
+def _inverse(n, nn):
+    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (rows), or
+    None."""
     cols = []
-    for j in range(6):
-        e = [0.0] * 6
+    for j in range(n):
+        e = [0.0] * n
         e[j] = 1.0
-        x = _solve(6, list(nn), e)
+        x = _solve(n, list(nn), e)
         if x is None:
             return None
         cols.append(x)
-    return [[cols[j][i] for j in range(6)] for i in range(6)]
+    return [[cols[j][i] for j in range(n)] for i in range(n)]
 
 
 def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
@@ -124,47 +148,81 @@ def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
     ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
     configured ``centroid_sigma_px``), not estimated.  None with fewer than
     :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
-    n = len(b)
-    if n < MIN_RATE_STARS:
+    if len(b) < MIN_RATE_STARS:
         return None
-    total = 0.0
-    spread = 0.0
+    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad)
+    return None if out is None else out[:5]
+
+
+def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None):
+    """:func:`rate_fit` (``rate`` True; else the attitude alone) with a radial displacement
+    ``(c1 + c3 rho^2 / rho_m^2) g`` of every star as well (``g`` of :func:`_columns`; ``rho_m``
+    the stars' RMS angle from the boresight): a lens distortion or focal length the camera
+    model lacks.  Returns ``(q, omega, P, P_omega, s, c, P_c)`` (``omega``, ``P_omega`` None
+    without ``rate``; ``c = (c1, c3)`` and its covariance), or None with fewer than
+    :data:`MIN_RADIAL_STARS` pairs or when degenerate."""
+    if len(b) < MIN_RADIAL_STARS:
+        return None
+    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad)
+
+
+def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
+    """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
+    ``rate``, ``radial``: which unknowns besides the attitude)."""
+    n = len(b)
+    total = spread = rho2 = 0.0
     for i in range(n):
         total += w[i]
         spread += w[i] * dts[i] * dts[i]
+        z = b[i][2]
+        rho2 += 1.0 - z * z
     tau = math.sqrt(spread / total) if total > 0 else 0.0
-    if not tau > 0:
+    rho2 /= n
+    if (rate and not tau > 0) or (radial and not rho2 > 0):
         return None
+    size = 3 + (3 if rate else 0) + (2 if radial else 0)
     omega = (0.0, 0.0, 0.0)
     for k in range(RATE_ITERATIONS + 1):
-        nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau)
+        nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2)
         if k == RATE_ITERATIONS:
             break
-        u = _solve(6, list(nn), h)
+        u = _solve(size, list(nn), h)
         if u is None:
             return None
         q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
-        omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
-    inv = _inverse(nn)
-    if inv is None:
+        if rate:
+            omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
+    inv = _inverse(size, nn)
+    d = _solve(size, list(nn), h)       # what the last linearisation still takes out
+    if inv is None or d is None:
         return None
-    s2 = chi2 / max(2 * n - 8, 1) if sigma_rad is None else sigma_rad * sigma_rad
+    for j in range(size):
+        chi2 -= h[j] * d[j]
+    s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
     if not s2 >= min_sigma_rad * min_sigma_rad:
         s2 = min_sigma_rad * min_sigma_rad
-    t2 = tau * tau
     p = [[s2 * inv[i][j] for j in range(3)] for i in range(3)]
-    p_omega = [[s2 * inv[3 + i][3 + j] / t2 for j in range(3)] for i in range(3)]
-    return q, omega, p, p_omega, math.sqrt(s2)
+    p_omega = c = p_c = None
+    if rate:
+        t2 = tau * tau
+        p_omega = [[s2 * inv[3 + i][3 + j] / t2 for j in range(3)] for i in range(3)]
+    if radial:
+        c = (d[size - 2], d[size - 1])
+        p_c = [[s2 * inv[size - 2 + i][size - 2 + j] for j in range(2)] for i in range(2)]
+    return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
 
 
-def chi2_rate(omega, p_omega):
-    """``omega^T P^-1 omega`` of a rate difference ``omega`` with covariance ``p_omega``
-    (3x3), or None when ``p_omega`` is singular."""
-    a = [p_omega[i][j] for i in range(3) for j in range(3)]
-    x = _solve(3, a, omega)
+def chi2_rate(v, p):
+    """``v^T P^-1 v`` of a difference ``v`` (a rate, or the radial coefficients) with
+    covariance ``p`` (``len(v)`` square), or None when ``p`` is singular."""
+    n = len(v)
+    x = _solve(n, [p[i][j] for i in range(n) for j in range(n)], v)
     if x is None:
         return None
-    return omega[0] * x[0] + omega[1] * x[1] + omega[2] * x[2]
+    total = 0.0
+    for i in range(n):
+        total += v[i] * x[i]
+    return total
 
 
 def smear_bound_px(stars):

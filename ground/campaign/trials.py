@@ -122,12 +122,14 @@ class Frame:
     def database(self, method):
         return onboard.star_database(self.fw_cam, method=method)[0]
 
-    def solve(self, method="pyramid", det=None, gyro=True):
+    def solve(self, method="pyramid", det=None, gyro=1.0):
         """The firmware on this frame's packet (or on ``det``): :func:`verdict`.  ``gyro``:
-        the true rate is given (else the firmware fits it from the frame)."""
+        the rate given, as a multiple of the true rate (a wrong gyro: -1, 2); None: none
+        (the firmware fits it from the frame)."""
         det = self.det if det is None else det
+        omega = None if gyro is None else [gyro * w for w in self.omega_rad_s]
         _data, res, _timings = onboard.process(
-            det, self.fw_cam, self.database(method), omega=self.omega_rad_s if gyro else None,
+            det, self.fw_cam, self.database(method), omega=omega,
             exposure_s=self.truth["exposure_s"], row_time_s=self.truth["row_time_s"],
             method=method)
         return verdict(res, det.blobs, self)
@@ -168,7 +170,7 @@ def verdict(res, records, frame):
 def rate_trial(preset, level, seed, config):
     """``rate``: one frame at ``level`` deg/s, solved with the campaign's method."""
     frame = Frame(preset, config["camera"], seed, float(level), config["axis"])
-    return frame.solve(config["method"], gyro=config.get("gyro", True))
+    return frame.solve(config["method"], gyro=1.0 if config.get("gyro", True) else None)
 
 
 def falsestars_trial(preset, level, seed, config):

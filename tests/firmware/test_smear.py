@@ -93,3 +93,29 @@ def test_smear_bound_from_the_streaks_second_moments():
     # a 20 px streak over a 2 px PSF: sigma_major^2 = 4 + 400 / 12
     streak = smear.smear_bound_px([(math.sqrt(4 + 400 / 12), 2.0)] * 3)
     assert 20.0 < streak < 21.0
+
+
+def distorted(scene_out, k1):
+    """The stars of a :func:`scene` displaced radially as a lens of ``k1`` (on the tangent
+    plane, ``p (1 + k1 |p|^2)``) the model lacks."""
+    b, r, dts, q = scene_out
+    out = []
+    for v in b:
+        x, y = v[0] / v[2], v[1] / v[2]
+        f = 1 + k1 * (x * x + y * y)
+        u = np.array([x * f, y * f, 1.0])
+        out.append(tuple(u / np.linalg.norm(u)))
+    return out, r, dts, q
+
+
+def test_radial_fit_finds_an_unmodelled_distortion_and_covers_the_truth():
+    b, r, dts, q_true = distorted(scene([0.0, 0.0, 0.0], n=25, seed=3), -0.3)
+    q, omega, p, _po, s, c, p_c = smear.radial_fit(b, r, dts, [1.0] * len(b), q_true, False)
+    assert omega is None and smear.chi2_rate(c, p_c) > smear.RADIAL_CHI2
+    assert np.all(np.abs(error_rad(q, q_true)) < 5 * np.sqrt(np.diag(p)))
+    assert s * FOCAL_PX < 0.4
+    # without a distortion the coefficients are noise
+    b, r, dts, q_true = scene([0.0, 0.0, math.radians(2.0)], n=25, seed=3)
+    q, omega, p, _po, _s, c, p_c = smear.radial_fit(b, r, dts, [1.0] * len(b), q_true, True)
+    assert smear.chi2_rate(c, p_c) < smear.RADIAL_CHI2 and omega is not None
+    assert smear.radial_fit(b[:7], r[:7], dts[:7], [1.0] * 7, q_true, False) is None
