@@ -26,6 +26,7 @@ from . import centroids, packet, starid, tracking
 from . import database as _database
 from . import geometry as G
 from . import quaternion as Q
+from . import screen as _screen
 from . import smear as _smear
 from . import status as S
 from .settings import Settings
@@ -133,6 +134,9 @@ identification uses; a frame that has too few stars without any smeared away is
 ``TOO_FEW_STARS`` as ever)."""
 
 
+MIN_SCREENED_STARS = 4
+"""Fewest matches the match screen leaves (:meth:`StarTracker._screened`); a screen that would
+leave fewer drops none (the identification's own probability stands)."""
 MAX_BOUNDED_SMEAR_PX = 6.0
 """Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
 frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
@@ -274,6 +278,7 @@ class StarTracker:
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
         self._frame = None              # process(): (instants, smear bound px, exposure)
+        self._last_fit = None           # the final fit's (vectors, weights), for the screen
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -651,17 +656,13 @@ class StarTracker:
         sol = ref = predicted = None     # only star_ids goes on to the fit
         if mode == "lost_in_space":
             _collect()
-        solved = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
-                               streaks, q0, fitted) if len(star_ids) >= 2 else None
-        if solved is None:
-            res.status = S.NO_MATCH
-            _note(res, "degenerate attitude fit")
-            return res
-        solved, again = self._at_instant(res, vectors, star_ids, fluxes, streaks, omega,
-                                         solved)
+        status, solved, again = self._fit(res, vectors, star_ids, fluxes,
+                                          smear_px <= FLOOR_MAX_SMEAR_PX, streaks, q0, fitted,
+                                          omega)
         if again is not star_ids:
             star_ids, hips = again, None
-        if solved is None:
+        if status != S.OK:
+            res.status = status
             return res
         q, cross, roll, sigma = solved
         res.status = S.OK
@@ -675,6 +676,53 @@ class StarTracker:
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
         self._tick(timings, "attitude", start)
         return res
+
+    def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
+        """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
+        (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
+        the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
+        ``OK``."""
+        for attempt in range(2):
+            solved = self.attitude(vectors, star_ids, fluxes, floor, streaks, q0,
+                                   fitted) if len(star_ids) >= 2 else None
+            if solved is None:
+                _note(res, "degenerate attitude fit")
+                return S.NO_MATCH, None, star_ids
+            self._last_fit = None
+            solved, star_ids = self._at_instant(res, vectors, star_ids, fluxes, streaks,
+                                                omega, solved)
+            if solved is None:
+                return res.status, None, star_ids
+            drop = self._screened(star_ids, fluxes, solved[0]) if attempt == 0 else None
+            if not drop:
+                break
+            _note(res, str(len(drop)) + " matches dropped by the screen (HIP " +
+                  ", ".join([str(self.database.star_hip(star_ids[i][1])) for i in drop]) + ")")
+            star_ids = [star_ids[i] for i in range(len(star_ids)) if i not in drop]
+            q0, fitted = solved[0], False
+        return S.OK, solved, star_ids
+
+    def _screened(self, star_ids, fluxes, q):
+        """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
+        the final fit (its vectors and weights, kept by :meth:`_radial`; not when it fitted a
+        radial pattern) and brightness outliers (the observed ``fluxes`` against the
+        catalogue magnitudes); None when fewer than :data:`MIN_SCREENED_STARS` would stay."""
+        if self._last_fit is None:
+            return None
+        vectors, w, radial = self._last_fit
+        self._last_fit = None
+        db, cone = self.database, self._cone
+        drop = []
+        if not radial:              # a fitted radial pattern is not in these residuals
+            m = Q.matrix(q)
+            drop = _screen.residual_outliers([G.residual2(m, vectors[o], cone.star_vector(
+                db, s)) * w[i] for i, (o, s) in enumerate(star_ids)])
+        if fluxes is not None:
+            for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
+                                                     [db.star_mag(s) for _o, s in star_ids]):
+                if i not in drop:
+                    drop.append(i)
+        return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
 
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
@@ -740,6 +788,7 @@ class StarTracker:
         ``RADIAL_CHI2``) the attitude fitted with it, its sigma grown by it, noted in
         ``reason``.  ``times``: the stars' instants when the rate is fitted too (counted from
         ``ref``; the fitted rate then corrected in ``res``), else None."""
+        self._last_fit = (vectors, w, False)
         if len(star_ids) < _smear.MIN_RADIAL_STARS:
             return solved
         db, cone = self.database, self._cone
@@ -756,6 +805,7 @@ class StarTracker:
             return solved
         _note(res, "the residuals show a radial pattern (chi2 " + str(int(chi2)) + "): an "
               "unmodelled lens distortion or focal length, fitted; sigma grown")
+        self._last_fit = (vectors, w, True)
         if rate:
             r0 = res.rate_rad_s
             res.rate_rad_s = (r0[0] + extra[0], r0[1] + extra[1], r0[2] + extra[2])

@@ -233,6 +233,36 @@ def test_a_radial_residual_pattern_is_fitted_and_said():
     assert abs(roll) < 5 * res.sigma_roll_arcsec
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_false_star_beside_an_unseen_faint_star_is_not_named(seed):
+    """A bright false star 1.9 px (within the match tolerance) from a catalogue star too
+    faint to be among the seen ones: the match screen drops it (a 6-sigma residual against
+    the seen stars' 0.3 px noise, brighter than it should be), the attitude stands."""
+    db, cam = sim_frames.flight_database(), sim_frames.firmware_camera()
+    f = math.sqrt(cam.fx * cam.fy)
+    rng = np.random.default_rng(seed)
+    rot = Rotation.random(random_state=seed)
+    stars = []
+    for s in db.stars_in_cone(tuple(rot.inv().apply([0.0, 0.0, 1.0])), math.radians(12.0)):
+        v = rot.apply(db.star_vector(s))
+        if abs(cam.fx * v[0] / v[2]) < 0.45 * cam.width and \
+                abs(cam.fy * v[1] / v[2]) < 0.45 * cam.height:
+            stars.append((db.star_mag(s), db.star_hip(s), v))
+    stars.sort(key=lambda t: t[0])
+    seen, unseen = stars[:20], stars[20:]
+    _mag, hip, v = unseen[len(unseen) // 2]
+    side = np.cross(v, [0.0, 0.0, 1.0])
+    false = v + side / np.linalg.norm(side) * 1.9 / f
+    vectors = [tuple(u / np.linalg.norm(u)) for u in
+               (u + rng.normal(0.0, 0.3 / f, 3) for _m, _h, u in seen)]
+    vectors.insert(2, tuple(false / np.linalg.norm(false)))
+    res = sim_frames.tracker().solve_vectors(vectors, fluxes=[100.0 - i for i in
+                                                              range(len(vectors))])
+    assert res.ok and "dropped by the screen (HIP " + str(hip) + ")" in res.reason
+    assert 2 not in [o for o, _x, _y, _h in res.matches]
+    assert np.abs(camera_frame_error_arcsec(res.q, rot.as_quat())[:2]).max() < 5.0
+
+
 def boresight_error_arcsec(q_est, q_true):
     """Angle (arcsec) between the boresights (camera +z in ICRS) of two attitudes."""
     a = Rotation.from_quat(q_est).inv().apply([0.0, 0.0, 1.0])
