@@ -728,12 +728,13 @@ class StarTracker:
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
         its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
         with ``omega``, ``epoch_s``, the rate checked against the frame's
-        (:func:`lodestar.firmware.smear.rate_fit`; a contradicted one is replaced by the
-        frame's, with a note); without, the matched stars' weighted mean instant, the rate
-        fitted with the attitude, or with too few stars bounded by the streaks (else
-        ``RATE_UNKNOWN``: None).  A fitted rate is then used to match again the stars its
-        shear kept out.  Last, :meth:`_radial`.  Returns ``(solved, star_ids)``; frames of
-        :meth:`solve_vectors` have no instants."""
+        (:func:`lodestar.firmware.smear.rate_fit`; one beyond ``RATE_CHI2`` or further from
+        the frame's than its opposite is contradicted and replaced by the frame's, with a
+        note; one the frame cannot confirm, :meth:`_at_mean`); without, the matched stars'
+        weighted mean instant, the rate fitted with the attitude, or with too few stars
+        bounded by the streaks (else ``RATE_UNKNOWN``: None).  A fitted rate is then used to
+        match again the stars its shear kept out.  Last, :meth:`_radial`.  Returns ``(solved,
+        star_ids)``; frames of :meth:`solve_vectors` have no instants."""
         frame = self._frame
         w = self._rate_weights(star_ids, fluxes, streaks)
         if frame is None:
@@ -751,12 +752,33 @@ class StarTracker:
         fit = None
         if self.settings.row_time_s != 0:       # else every star seen at one instant
             fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
-        if fit is None and omega is None and self.settings.row_time_s != 0:
-            return self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure), star_ids
+        if fit is None and self.settings.row_time_s != 0:
+            if omega is None:
+                return self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure), \
+                    star_ids
+            # the given rate cannot be checked: the attitude at the stars' mean instant, where
+            # the rate's error moves it least, bounded as without a rate (the rate the
+            # streaks allow plus the given one's own smear: a wrong given rate's error)
+            _note(res, "omega not checked (" + str(len(star_ids)) + " stars): the attitude "
+                  "at the stars' mean instant")
+            res.t_epoch_s = mean
+            q = tracking.propagate(solved[0], omega, mean - ref)
+            given_px = G.norm(omega) * self.focal_px * exposure if exposure is not None \
+                else None
+            bound = None if bound_px is None or given_px is None else bound_px + given_px
+            return self._bounded(res, (q, solved[1], solved[2], solved[3]), star_ids, ts,
+                                 mean, bound, exposure), star_ids
         if fit is not None and omega is not None:
-            chi2 = _smear.chi2_rate(fit[1], fit[3])
-            if chi2 is not None and chi2 <= _smear.RATE_CHI2:
-                fit = None              # the gyro agrees with the frame: its result stands
+            d = fit[1]
+            chi2 = _smear.chi2_rate(d, fit[3])
+            flip = _smear.chi2_rate((d[0] + 2 * omega[0], d[1] + 2 * omega[1],
+                                     d[2] + 2 * omega[2]), fit[3])
+            if chi2 is not None and chi2 <= _smear.RATE_CHI2 and not flip < chi2:
+                if self._confirmed(omega, fit[3], mean - ref, solved):
+                    fit = None          # the gyro agrees with the frame: its result stands
+                else:                   # ... or the frame cannot tell: at the mean instant
+                    return self._at_mean(res, vectors, star_ids, w, times, omega, ref, mean,
+                                         solved), star_ids
             else:
                 _note(res, "omega contradicted by the frame's rate (off by " +
                       _deg3(fit[1]) + " deg/s): the frame's used")
@@ -812,6 +834,41 @@ class StarTracker:
             res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
         cross, roll = _attitude.sigmas_cross_roll(p)
         return q, max(cross, solved[1]), max(roll, solved[2]), s
+
+    def _confirmed(self, omega, p_rate, dt, solved):
+        """Whether the frame's rate fit (covariance ``p_rate``) confirms a given ``omega`` it
+        did not contradict: it would have told the wrong sign (``2 omega`` beyond
+        ``RATE_CHI2``), or a wrong sign would move the attitude by less than
+        :data:`UNCHECKED_SIGMAS` of its sigmas (``2 omega dt``, ``dt`` from the epoch to the
+        stars' mean instant)."""
+        twice = (2 * omega[0], 2 * omega[1], 2 * omega[2])
+        chi2 = _smear.chi2_rate(twice, p_rate)
+        if chi2 is not None and chi2 > _smear.RATE_CHI2:
+            return True
+        _q, cross, roll, _s = solved
+        lim = UNCHECKED_SIGMAS
+        return abs(twice[0] * dt) <= lim * cross and abs(twice[1] * dt) <= lim * cross and \
+            abs(twice[2] * dt) <= lim * roll
+
+    def _at_mean(self, res, vectors, star_ids, w, times, omega, ref, mean, solved):
+        """A given ``omega`` the frame can neither confirm nor contradict (:meth:`_confirmed`):
+        the attitude and the rate fitted at the stars' ``mean`` instant, where the rate's
+        error moves the attitude least (``vectors`` were turned to ``ref`` by ``omega``),
+        noted; ``solved`` as it was when that fit is degenerate."""
+        speed = G.norm(omega)
+        axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed)
+        moved = [G.rotate_about(v, axis, speed * (ref - mean)) for v in vectors]
+        q0 = tracking.propagate(solved[0], omega, mean - ref)
+        fit = self._rate_fit(moved, star_ids, w, times, mean, q0)
+        if fit is None:
+            return solved
+        q, extra, p, p_rate, s = fit
+        _note(res, "omega not confirmed by the frame: the attitude at the stars' mean instant")
+        res.t_epoch_s = mean
+        res.rate_rad_s = (omega[0] + extra[0], omega[1] + extra[1], omega[2] + extra[2])
+        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return self._radial(res, moved, star_ids, w, times, mean, (q, cross, roll, s))
 
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
@@ -959,7 +1016,7 @@ class StarTracker:
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         self._keep(stars, used)
-        self._frame = self._instants(stars, used, w, exposure)
+        self._frame = self._instants(stars, used, exposure)
         stars = used = None
         if prior is None:
             _collect()
@@ -978,19 +1035,17 @@ class StarTracker:
         self._tick(timings, "total", first)
         return res
 
-    def _instants(self, stars, used, omega, exposure):
+    def _instants(self, stars, used, exposure):
         """``(times, smear bound px, exposure)`` of the used stars (``_keep`` order): each
         one's mean instant, s after the start of row 0's exposure (``exposure / 2 + y
-        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and without
-        ``omega`` the streaks' smear bound (:func:`lodestar.firmware.smear.smear_bound_px`)."""
+        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and the
+        streaks' smear bound (:func:`lodestar.firmware.smear.smear_bound_px`)."""
         half = 0.5 * exposure if exposure is not None else 0.0
         row_time = self.settings.row_time_s
         xy = self._xy
         times = [half + xy[2 * o + 1] * row_time for o in range(len(used))]
-        bound = None
-        if omega is None:
-            bound = _smear.smear_bound_px([(stars[i].sigma_major, stars[i].sigma_minor)
-                                          for i in used])
+        bound = _smear.smear_bound_px([(stars[i].sigma_major, stars[i].sigma_minor)
+                                      for i in used])
         return times, bound, exposure
 
     def _check_frame(self, header, res):
@@ -1059,6 +1114,11 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
+
+
+UNCHECKED_SIGMAS = 5.0
+"""A given rate the frame cannot confirm stands when a rate of the wrong sign would move the
+attitude by less than this many of its sigmas (:meth:`StarTracker._confirmed`)."""
 
 
 def _deg3(v):

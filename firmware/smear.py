@@ -31,9 +31,11 @@ RATE_ITERATIONS = 3
 """Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
 the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
 over a frame."""
-RATE_CHI2 = 30.0
+RATE_CHI2 = 16.0
 """Largest ``chi^2`` (3 degrees of freedom) of the frame's rate against a given one before the
-given rate is called contradicted: about 5 sigma."""
+given rate is called contradicted (chance 1e-3 for a right one): a false alarm costs only
+precision (the frame's own rate is then used, its uncertainty in the covariance), a missed
+wrong rate an attitude off by the rate error times the time to the epoch."""
 STILL_ELONGATION_PX2 = 1.0
 """Median excess second moment ``sigma_major^2 - sigma_minor^2`` (px^2) of a still frame's
 stars: noise and pixelisation make a round star look a little elongated (estcube2 at rest,

@@ -89,8 +89,8 @@ _TABLE = (
     (SMEAR_TOO_LONG, "SMEAR_TOO_LONG",
      "the body rate smears all but fewer than 3 stars beyond max_smear_px: no attitude"),
     (RATE_UNKNOWN, "RATE_UNKNOWN",
-     "no body rate given and too few stars to fit one, while their streaks allow a rate "
-     "whose rolling-shutter shear the attitude cannot cover: no attitude"),
+     "too few stars to fit or check the body rate, and streaks (with a given rate's own "
+     "smear) that allow a rate whose shear the attitude cannot cover: no attitude"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",
