@@ -192,7 +192,7 @@ def derive(kind, det):
         return codec.encode(det.replace(width=0))
     if kind == "bad_record":
         blobs = list(det.blobs)
-        first = type(blobs[0])(*blobs[0].as_tuple())
+        first = type(blobs[0])(**dict(zip(C.RECORD_NAMES, blobs[0].as_tuple())))
         first.n = 0
         return codec.encode(det.replace(blobs=[first] + blobs[1:]))
     if kind == "frame_truncated":
