@@ -18,6 +18,9 @@ from lodestar import contract as C
 from .layouts import FRAME_TAG_BITS, op_layout, record_fields, record_layout
 
 _HEADER_BITS = dict(C.HEADER_FIELDS)
+PRODUCT_SPLIT = 18
+"""Bits of a second moment's wide factor (``w x``, ``w y``) that one embedded multiplier
+takes (18 x 18 on Cyclone IV and on the ECP5 proxy); the rest go to a second one."""
 
 
 def _sums(m, acc, slot, use, pix, empties, fields):
@@ -157,31 +160,32 @@ class FeatureEngine(wiring.Component):
         v2 = Signal()
         m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
                      wy1.eq(w1 * op1.y)]
-        # read-during-write bypass (the memory is read at stage 1 and written at stage 4):
-        # a read sees the writes of its own clock (``hit_a``) and of the next (``hit_b``,
-        # the later one wins); ``bypass3`` holds the newest of them, registered from the
-        # written data (``acc_next``) or its register (``acc``)
+        # read-during-write bypass (read at stage 1, written at stage 4): a read sees the
+        # writes of its clock (``hit_a``) and of the next (``hit_b``, which wins), i.e. at
+        # stage 3 ``acc`` (``hit_b3``) or ``acc`` a clock before: no adder feeds the bypass
         hit_a2 = Signal(reset_less=True)
         hit3 = Signal(reset_less=True)
-        bypass3 = Signal(layout, reset_less=True)
+        hit_b3 = Signal(reset_less=True)
+        acc_prev3 = Signal(layout, reset_less=True)
         acc = Signal(layout, reset_less=True)
         acc_next = Signal(layout)
         m.d.sync += hit_a2.eq(wp.en & (wp.addr == op1.rd_addr))
         hit_b2 = wp.en & (wp.addr == op2.rd_addr)
 
         # ---- stage 2: second products, the pixel's terms, slot data registered -------
-        # pixf: the pixel's record (empty without an op with a pixel)
+        # pixf: the pixel's record (empty without an op with a pixel), its second moments
+        # as registered partial products (``parts``), added at stage 3
         pix2 = v2 & op2.pix
         pixf = Signal(layout, reset_less=True)
+        parts = self._partial_products(m, wx1, wy1, op2)
         op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
         raw3 = Signal(layout, reset_less=True)
         m.d.sync += [
             op3.eq(op2), v3.eq(v2), raw3.eq(rp.data),
-            hit3.eq(hit_a2 | hit_b2), bypass3.eq(Mux(hit_b2, acc_next, acc)),
+            hit3.eq(hit_a2 | hit_b2), hit_b3.eq(hit_b2), acc_prev3.eq(acc),
             pixf.n.eq(pix2), pixf.nsat.eq(pix2 & (op2.p == fs)),
             pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
-            pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
             pixf.flags.eq(0),
         ]
 
@@ -190,7 +194,7 @@ class FeatureEngine(wiring.Component):
         # adds if use4); best4: for the box and the peak, the better of the slot (if used)
         # and the pixel (the slot's box, as it holds the pixel's upper neighbour)
         slot3 = Signal(layout)
-        m.d.comb += slot3.eq(Mux(hit3, bypass3, raw3))
+        m.d.comb += slot3.eq(Mux(hit3, Mux(hit_b3, acc, acc_prev3), raw3))
         pix3 = v3 & op3.pix
         use3 = v3 & op3.rd
         pix4 = Signal(layout, reset_less=True)
@@ -202,6 +206,7 @@ class FeatureEngine(wiring.Component):
         passes = Signal(reset_less=True)  # the slot read passes the filters
         m.d.sync += [
             op4.eq(op3), v4.eq(v3), slot4.eq(slot3), use4.eq(use3), pix4.eq(pixf),
+            *[pix4[name].eq(lo + (hi << PRODUCT_SPLIT)) for name, (lo, hi) in parts.items()],
             passes.eq(~_below(slot3.n, self.min_pixels) & ~_above(slot3.n, self.max_pixels) &
                       ~_below(slot3.s0, self.min_sum)),
         ]
@@ -228,6 +233,19 @@ class FeatureEngine(wiring.Component):
         self._complete(m, live & op4.complete, passes, slot4)
         m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)
         return m
+
+    @staticmethod
+    def _partial_products(m, wx1, wy1, op2):
+        """``{moment: (lo, hi)}``: the second moments' products split at the wide factor's
+        bit PRODUCT_SPLIT, each part one 18 x 18 multiplier with its output registered (the
+        moment is ``lo + (hi << PRODUCT_SPLIT)``, a plain adder a stage later)."""
+        parts = {}
+        for name, a, b in (("sxx", wx1, op2.x), ("syy", wy1, op2.y), ("sxy", wx1, op2.y)):
+            lo = Signal(PRODUCT_SPLIT + len(b), reset_less=True, name=f"{name}_lo")
+            hi = Signal(len(a) - PRODUCT_SPLIT + len(b), reset_less=True, name=f"{name}_hi")
+            m.d.sync += [lo.eq(a[:PRODUCT_SPLIT] * b), hi.eq(a[PRODUCT_SPLIT:] * b)]
+            parts[name] = (lo, hi)
+        return parts
 
     def _accumulate(self, m, acc, acc_next, slot4, use4, pix4, best4, empties, ymax):
         """``acc_next = acc (+) slot4 (+) pix4`` (``slot4`` taken if ``use4``; ``best4``: the
