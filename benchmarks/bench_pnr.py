@@ -30,8 +30,6 @@ from lodestar.hdl.boards import BOARDS
 
 BASELINE = "4641f47"
 """main before issue 31 (the review's 63/68 MHz tops)."""
-MARGIN = 1.25
-"""The worst seed must reach this multiple of each clock (``docs/synthesis.md``)."""
 ROOT = Path(__file__).resolve().parent.parent
 
 _BUILD = """
@@ -73,9 +71,10 @@ def verilog_of(board, tree, scratch):
 
 
 def requirement_mhz(board, clock):
-    """1.25 x the board's frequency of ``clock`` (``sync`` or the capture domain), MHz."""
+    """``hdl.pnr.MARGIN`` x the board's frequency of ``clock`` (``sync`` or the capture
+    domain), MHz."""
     b = BOARDS[board]
-    return MARGIN * (b.sync_hz if clock == "sync" else b.pixel_hz) / 1e6
+    return _pnr_module().MARGIN * (b.sync_hz if clock == "sync" else b.pixel_hz) / 1e6
 
 
 def _measure(args, tmp):

@@ -494,10 +494,10 @@ class DE0NanoBoard(Board):
     device, package, speed = "EP4CE22", "F17", "C6"
     les, m9k, multipliers = 22320, 66, 66
     osc_pin = "R8"
-    sync_hz = 100e6
+    sync_hz = 75e6
     sensor = "mt9p031"
     width, height = 2592, 1944
-    pixel_hz, sensor_clk_hz = 96e6, 25e6
+    pixel_hz, sensor_clk_hz = 70e6, 25e6
     label_capacity, record_capacity, record_depth = 254, 256, 128
     # MT9P031 and MCU on the 40-pin header GPIO-0 (JP1), whose pins follow the
     # amaranth-boards DE0NanoPlatform connector table ("gpio", 0); which header pin carries
@@ -523,8 +523,9 @@ class DE0NanoBoard(Board):
     sensor_io_volts = 2.8
     level_translated = ("extclk", "reset_n")
     notes = ("Terasic DE0-Nano, EP4CE22F17C6, CLOCK_50 on R8 (amaranth-boards "
-             "DE0NanoPlatform).  A PLL makes sync = 100 MHz (>= the 96 MHz pixel rate) "
-             "and the sensor's EXTCLK = 25 MHz (its own PLL makes the 96 MHz PIXCLK).  "
+             "DE0NanoPlatform).  A PLL makes sync = 75 MHz (50 x 3 / 2, >= the 70 MHz "
+             "pixel rate) and the sensor's EXTCLK = 25 MHz (its own PLL makes the 70 MHz "
+             "PIXCLK: M 28, N 2, P1 5; 10 frames/s at full frame, docs/synthesis.md).  "
              "MT9P031 and MCU on GPIO-0 (JP1), whose bank is 3.3 V (3.3-V LVTTL); the "
              "header wiring is assumed (custom sensor board).  The sensor runs its I/O at "
              "2.8 V (needed for 96 MHz; range 1.7-3.1 V): its 2.8-V outputs meet the "
@@ -546,7 +547,7 @@ class ESTCube2Board(DE0NanoBoard):
              "MT9P031.  The flight board is custom: the package (F17), the industrial "
              "speed grade I7, the 50 MHz oscillator and every pin are assumptions that "
              "mirror the DE0-Nano layout; replace them from the flight schematic.  Clocks "
-             "as on the DE0-Nano (sync 100 MHz from a PLL, EXTCLK 25 MHz).")
+             "as on the DE0-Nano (sync 75 MHz from a PLL, EXTCLK 25 MHz, PIXCLK 70 MHz).")
 
 
 BOARDS = {board.name: board() for board in (DE2115Board, DE0NanoBoard, ESTCube2Board)}

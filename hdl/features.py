@@ -241,9 +241,12 @@ class FeatureEngine(wiring.Component):
         moment is ``lo + (hi << PRODUCT_SPLIT)``, a plain adder a stage later)."""
         parts = {}
         for name, a, b in (("sxx", wx1, op2.x), ("syy", wy1, op2.y), ("sxy", wx1, op2.y)):
-            lo = Signal(PRODUCT_SPLIT + len(b), reset_less=True, name=f"{name}_lo")
-            hi = Signal(len(a) - PRODUCT_SPLIT + len(b), reset_less=True, name=f"{name}_hi")
-            m.d.sync += [lo.eq(a[:PRODUCT_SPLIT] * b), hi.eq(a[PRODUCT_SPLIT:] * b)]
+            split = min(PRODUCT_SPLIT, len(a))
+            lo = Signal(split + len(b), reset_less=True, name=f"{name}_lo")
+            hi = Signal(max(1, len(a) - split + len(b)), reset_less=True, name=f"{name}_hi")
+            m.d.sync += lo.eq(a[:split] * b)
+            if len(a) > split:          # a narrow factor (a small frame) needs one part
+                m.d.sync += hi.eq(a[split:] * b)
             parts[name] = (lo, hi)
         return parts
 

@@ -30,6 +30,10 @@ ECP5_PACKAGE = "CABGA381"
 TARGET_MHZ = 100
 FLOW_VERSION = 2
 """Bumped when the harness or the flow changes (invalidates cached results)."""
+MARGIN = 1.25
+"""A design meets a clock on the proxy when its worst placement seed reaches this multiple
+of the clock at speed 6 (the margin for the Cyclone IV C8/I7 grades, Quartus' slow corner
+and placement spread: ``docs/synthesis.md``, operating point)."""
 
 
 class ShiftHarness(Elaboratable):
