@@ -269,14 +269,17 @@ class GatewareTop(wiring.Component):
         return m
 
     def _soft_reset(self, m, fe, wd):
-        """``datapath_reset`` for :data:`SOFT_RESET_CLOCKS` from ``spi.soft_reset``; then the
-        front end's pixels reach the watchdog only from the next frame start on."""
+        """``datapath_reset`` for :data:`SOFT_RESET_CLOCKS` from the clock after
+        ``spi.soft_reset``; then the front end's pixels reach the watchdog only from the next
+        frame start on.  The reset is a register (its fan-out into every datapath flip-flop
+        starts at one) and does not gate the pixels (the watchdog is in reset meanwhile):
+        timing, ``docs/synthesis.md``."""
         hold = Signal(range(SOFT_RESET_CLOCKS), name="soft_reset_hold")
         with m.If(self.spi.soft_reset):
             m.d.sync += hold.eq(SOFT_RESET_CLOCKS - 1)
         with m.Elif(hold != 0):
             m.d.sync += hold.eq(hold - 1)
-        m.d.comb += self.datapath_reset.eq(self.spi.soft_reset | (hold != 0))
+        m.d.sync += self.datapath_reset.eq(self.spi.soft_reset | (hold != 0))
         waiting = Signal(name="wait_for_sof")       # after a soft reset, until a frame start
         sof = fe.out.valid & fe.out.payload.sof
         with m.If(self.datapath_reset):
@@ -284,7 +287,7 @@ class GatewareTop(wiring.Component):
         with m.Elif(sof):
             m.d.sync += waiting.eq(0)
         m.d.comb += [wd.pixels.payload.eq(fe.out.payload),
-                     wd.pixels.valid.eq(fe.out.valid & ~self.datapath_reset & (~waiting | sof))]
+                     wd.pixels.valid.eq(fe.out.valid & (~waiting | sof))]
 
     def _flush(self, m, pkt, spi, irq):
         """From ``spi.flush`` until the packetizer is idle with no trailer offered, take its
