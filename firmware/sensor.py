@@ -234,8 +234,10 @@ P031_PLL = {"ext": (6000000, 27000000), "int": (2000000, 13500000),
 PIXCLK = EXTCLK x M / (N x P1), EXTCLK / N and EXTCLK x M / N within ``int`` and ``vco``."""
 EXTCLK_HZ = 25000000
 """The board's EXTCLK (the FPGA's sensor clock output)."""
-PIXCLK_HZ = 96000000
-"""Pixel clock asked of the PLL: the MT9P031's maximum (25 MHz gives 95.83 MHz)."""
+PIXCLK_HZ = 70000000
+"""Pixel clock asked of the PLL: the gateware's operating point (M 28, N 2, P1 5 from 25 MHz;
+the boards' ``sync`` is 75 MHz, ``docs/synthesis.md``): a full frame every 97.4 ms at the
+least blanking, 10 Hz with 60 rows of it (the MT9P031 reaches 96 MHz; 25 MHz gives 95.83)."""
 P031_HB_MIN = 450
 """HBmin without binning: 346 x (Row_Bin + 1) + 64 + Wdc / 2, Wdc = 80 dark columns."""
 P031_VB_MIN = 9

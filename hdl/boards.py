@@ -358,15 +358,17 @@ class GatewareTop(wiring.Component):
 
     def _soft_reset(self, m, fe, wd):
         """``datapath_reset`` while ``clock_ok`` is low and for :data:`SOFT_RESET_CLOCKS` after
-        it rises or after ``spi.soft_reset``; then the front end's pixels reach the watchdog
-        only from the next frame start on."""
+        it rises or after ``spi.soft_reset``, from the clock after; then the front end's
+        pixels reach the watchdog only from the next frame start on.  The reset is a register
+        (its fan-out into every datapath flip-flop starts at one) and does not gate the pixels
+        (the watchdog is in reset meanwhile): timing, ``docs/synthesis.md``."""
         hold = Signal(range(SOFT_RESET_CLOCKS), name="soft_reset_hold")
         request = self.spi.soft_reset | ~self.clock_ok
         with m.If(request):
             m.d.sync += hold.eq(SOFT_RESET_CLOCKS - 1)
         with m.Elif(hold != 0):
             m.d.sync += hold.eq(hold - 1)
-        m.d.comb += self.datapath_reset.eq(request | (hold != 0))
+        m.d.sync += self.datapath_reset.eq(request | (hold != 0))
         waiting = Signal(name="wait_for_sof")       # after a soft reset, until a frame start
         sof = fe.out.valid & fe.out.payload.sof
         with m.If(self.datapath_reset):
@@ -374,7 +376,7 @@ class GatewareTop(wiring.Component):
         with m.Elif(sof):
             m.d.sync += waiting.eq(0)
         m.d.comb += [wd.pixels.payload.eq(fe.out.payload),
-                     wd.pixels.valid.eq(fe.out.valid & ~self.datapath_reset & (~waiting | sof))]
+                     wd.pixels.valid.eq(fe.out.valid & (~waiting | sof))]
 
     def _flush(self, m, pkt, spi, irq):
         """From ``spi.flush`` until the packetizer is idle with no trailer offered, take its
@@ -586,10 +588,10 @@ class DE0NanoBoard(Board):
     device, package, speed = "EP4CE22", "F17", "C6"
     les, m9k, multipliers = 22320, 66, 66
     osc_pin = "R8"
-    sync_hz = 100e6
+    sync_hz = 75e6
     sensor = "mt9p031"
     width, height = 2592, 1944
-    pixel_hz, sensor_clk_hz = 96e6, 25e6
+    pixel_hz, sensor_clk_hz = 70e6, 25e6
     label_capacity, record_capacity, record_depth = 254, 256, 128
     # MT9P031 and MCU on the 40-pin header GPIO-0 (JP1), whose pins follow the
     # amaranth-boards DE0NanoPlatform connector table ("gpio", 0); which header pin carries
@@ -615,8 +617,9 @@ class DE0NanoBoard(Board):
     sensor_io_volts = 2.8
     level_translated = ("extclk", "reset_n")
     notes = ("Terasic DE0-Nano, EP4CE22F17C6, CLOCK_50 on R8 (amaranth-boards "
-             "DE0NanoPlatform).  A PLL makes sync = 100 MHz (>= the 96 MHz pixel rate) "
-             "and the sensor's EXTCLK = 25 MHz (its own PLL makes the 96 MHz PIXCLK).  "
+             "DE0NanoPlatform).  A PLL makes sync = 75 MHz (50 x 3 / 2, >= the 70 MHz "
+             "pixel rate) and the sensor's EXTCLK = 25 MHz (its own PLL makes the 70 MHz "
+             "PIXCLK: M 28, N 2, P1 5; 10 frames/s at full frame, docs/synthesis.md).  "
              "MT9P031 and MCU on GPIO-0 (JP1), whose bank is 3.3 V (3.3-V LVTTL); the "
              "header wiring is assumed (custom sensor board).  The sensor runs its I/O at "
              "2.8 V (needed for 96 MHz; range 1.7-3.1 V): its 2.8-V outputs meet the "
@@ -638,7 +641,7 @@ class ESTCube2Board(DE0NanoBoard):
              "MT9P031.  The flight board is custom: the package (F17), the industrial "
              "speed grade I7, the 50 MHz oscillator and every pin are assumptions that "
              "mirror the DE0-Nano layout; replace them from the flight schematic.  Clocks "
-             "as on the DE0-Nano (sync 100 MHz from a PLL, EXTCLK 25 MHz).")
+             "as on the DE0-Nano (sync 75 MHz from a PLL, EXTCLK 25 MHz, PIXCLK 70 MHz).")
 
 
 BOARDS = {board.name: board() for board in (DE2115Board, DE0NanoBoard, ESTCube2Board)}

@@ -539,6 +539,26 @@ def board_report(board, component, *, yosys=True, workdir=None):
     return report
 
 
+def _pnr_lines(r):
+    """The report's lines of a ``lodestar synth --pnr`` result (``cli.synth.place_and_route``):
+    per clock the worst and median post-route Fmax over the seeds against the requirement,
+    and the worst seed's critical path."""
+    lines = [f"  P&R        {r['device']} speed {r['speed']} (nextpnr, the Cyclone IV proxy), "
+             f"whole gateware top, {r['seeds']} placement seeds"
+             f"{' (cached)' if r.get('cached') else ''}"]
+    for clock, c in r["clocks"].items():
+        p = c["path"]
+        lines.append(f"    {clock} ({c['clock_mhz']:g} MHz): worst {c['worst_mhz']} MHz, median "
+                     f"{c['median_mhz']} MHz; needs {c['needs_mhz']} MHz: "
+                     f"{'meets' if c['meets'] else 'SHORT'}")
+        if "path_ns" in p:
+            lines.append(f"      seed {c['worst_seed']}: {p['path_ns']} ns = block-RAM "
+                         f"clock-to-output {p['bram_clk_to_q_ns']} + logic {p['logic_ns']} + "
+                         f"routing {p['routing_ns']} ns, {p['cells']} cells; from {p['from']} "
+                         f"to {p['to']}")
+    return lines
+
+
 def format_report(report):
     """Human-readable text of :func:`board_report`'s dict."""
     lines = [f"lodestar synth: {report['board']} ({report['part']}), {report['sensor']} "
@@ -576,15 +596,7 @@ def format_report(report):
                          f"{len(path['cells'])} cells, {len(chains)} carry chains; from "
                          f"{path['cells'][0]} to {path['cells'][-1]}")
     if "pnr" in report:
-        r = report["pnr"]
-        lines.append(f"  P&R        {r['device']} speed {r['speed']} (nextpnr, the Cyclone IV "
-                     f"proxy): Fmax {r['fmax_mhz']} MHz post-route"
-                     f"{' (cached)' if r.get('cached') else ''}")
-        if "path_ns" in r:
-            lines.append(f"    critical path {r['path_ns']} ns = block-RAM clock-to-output "
-                         f"{r['bram_clk_to_q_ns']} + logic {r['logic_ns']} + routing "
-                         f"{r['routing_ns']} ns, {r['cells']} cells; from {r['from']} to "
-                         f"{r['to']}")
+        lines += _pnr_lines(report["pnr"])
     if "quartus" in report:
         lines.append("  Quartus    " + json.dumps(report["quartus"]))
     lines += ["  notes"] + [f"    - {n}" for n in report["notes"]]

@@ -8,7 +8,7 @@ explicit, so that it maps to a synchronous-read block RAM and its output starts 
 path.  The op fields, frame tags and the arithmetic: ``docs/gateware.md``.
 """
 
-from amaranth import Cat, Module, Mux, Signal
+from amaranth import Cat, Const, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -18,14 +18,19 @@ from lodestar import contract as C
 from .layouts import FRAME_TAG_BITS, op_layout, record_fields, record_layout
 
 _HEADER_BITS = dict(C.HEADER_FIELDS)
+PRODUCT_SPLIT = 18
+"""Bits of a second moment's wide factor (``w x``, ``w y``) that one embedded multiplier
+takes (18 x 18 on Cyclone IV and on the ECP5 proxy); the rest go to a second one."""
 
 
 def _sums(m, acc, slot, use, pix, empties, fields):
-    """Counts and moments of ``acc (+) slot (+) pix``, the slot taken if ``use``, all zero
+    """Counts and moments of ``acc (+) slot (+) pix``, the slot taken if ``use`` (the engine
+    passes the slot already masked and ``use`` 1, so the sums start at registers), all zero
     if ``empties``; returns ``({name: sum}, saturated)``.  Each sum is one carry-save layer
     and one carry chain; a moment saturates once (``min(a + b + c, max)``: the chain's
-    carry-out or the top carry bit), a count never overflows.  ``saturated`` is the OR of
-    the operands' flags and of every saturating sum (0 if ``empties``)."""
+    carry-out or the top carry bit), a count never overflows; ``empties`` only masks the
+    results (its fan-out comes after the chains).  ``saturated`` is the OR of the operands'
+    flags and of every saturating sum (0 if ``empties``)."""
     out = {}
     keep = ~empties
     sat = acc.flags | (use & slot.flags) | pix.flags
@@ -33,8 +38,6 @@ def _sums(m, acc, slot, use, pix, empties, fields):
         if not (name in C.MOMENTS or name in ("n", "nsat")):
             continue
         x, y, z = acc[name], slot[name] & use.replicate(bits), pix[name]
-        if name in ("n", "nsat"):
-            x, y, z = (t & keep.replicate(bits) for t in (x, y, z))
         half = x ^ y ^ z                                 # a + b + c = half + 2 carry
         carry = (x & y) | (x & z) | (y & z)
         high = Signal(bits, name=f"sum_{name}")          # bits 1.. of the sum, carry-out
@@ -45,7 +48,7 @@ def _sums(m, acc, slot, use, pix, empties, fields):
             out[name] = (total | over.replicate(bits)) & keep.replicate(bits)
             sat = sat | over
         else:                                            # counts never exceed their width
-            out[name] = Cat(half[0], high[:bits - 1])
+            out[name] = Cat(half[0], high[:bits - 1]) & keep.replicate(bits)
     return out, sat & keep
 
 
@@ -157,51 +160,53 @@ class FeatureEngine(wiring.Component):
         v2 = Signal()
         m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
                      wy1.eq(w1 * op1.y)]
-        # read-during-write bypass (the memory is read at stage 1 and written at stage 4):
-        # a read sees the writes of its own clock (``hit_a``) and of the next (``hit_b``,
-        # the later one wins); ``bypass3`` holds the newest of them, registered from the
-        # written data (``acc_next``) or its register (``acc``)
+        # read-during-write bypass (read at stage 1, written at stage 4): a read sees the
+        # writes of its clock (``hit_a``) and of the next (``hit_b``, which wins), i.e. at
+        # stage 3 ``acc`` (``hit_b3``) or ``acc`` a clock before: no adder feeds the bypass
         hit_a2 = Signal(reset_less=True)
         hit3 = Signal(reset_less=True)
-        bypass3 = Signal(layout, reset_less=True)
+        hit_b3 = Signal(reset_less=True)
+        acc_prev3 = Signal(layout, reset_less=True)
         acc = Signal(layout, reset_less=True)
         acc_next = Signal(layout)
         m.d.sync += hit_a2.eq(wp.en & (wp.addr == op1.rd_addr))
         hit_b2 = wp.en & (wp.addr == op2.rd_addr)
 
         # ---- stage 2: second products, the pixel's terms, slot data registered -------
-        # pixf: the pixel's record (empty without an op with a pixel)
+        # pixf: the pixel's record (empty without an op with a pixel), its second moments
+        # as registered partial products (``parts``), added at stage 3
         pix2 = v2 & op2.pix
         pixf = Signal(layout, reset_less=True)
+        parts = self._partial_products(m, wx1, wy1, op2)
         op3 = Signal.like(op1, reset_less=True)
         v3 = Signal()
         raw3 = Signal(layout, reset_less=True)
         m.d.sync += [
             op3.eq(op2), v3.eq(v2), raw3.eq(rp.data),
-            hit3.eq(hit_a2 | hit_b2), bypass3.eq(Mux(hit_b2, acc_next, acc)),
+            hit3.eq(hit_a2 | hit_b2), hit_b3.eq(hit_b2), acc_prev3.eq(acc),
             pixf.n.eq(pix2), pixf.nsat.eq(pix2 & (op2.p == fs)),
             pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
-            pixf.sxx.eq(wx1 * op2.x), pixf.syy.eq(wy1 * op2.y), pixf.sxy.eq(wx1 * op2.y),
             pixf.flags.eq(0),
         ]
 
         # ---- stage 3: slot data, filters, box and peak terms -------------------------
-        # slot4: the slot read as it is (the completed record, or the term the accumulator
-        # adds if use4); best4: for the box and the peak, the better of the slot (if used)
-        # and the pixel (the slot's box, as it holds the pixel's upper neighbour)
+        # slot4: the slot read (a completed record); term4: it if used, else 0; best4: box and
+        # peak terms, the better of the slot (if used; the upper neighbour's) and the pixel
         slot3 = Signal(layout)
-        m.d.comb += slot3.eq(Mux(hit3, bypass3, raw3))
+        m.d.comb += slot3.eq(Mux(hit3, Mux(hit_b3, acc, acc_prev3), raw3))
         pix3 = v3 & op3.pix
         use3 = v3 & op3.rd
         pix4 = Signal(layout, reset_less=True)
         op4 = Signal.like(op1, reset_less=True)
         v4 = Signal()
         slot4 = Signal(layout, reset_less=True)
-        use4 = Signal(reset_less=True)
+        term4 = Signal(layout, reset_less=True)
         best4 = Signal(layout, reset_less=True)
         passes = Signal(reset_less=True)  # the slot read passes the filters
         m.d.sync += [
-            op4.eq(op3), v4.eq(v3), slot4.eq(slot3), use4.eq(use3), pix4.eq(pixf),
+            op4.eq(op3), v4.eq(v3), slot4.eq(slot3), pix4.eq(pixf),
+            term4.eq(Mux(use3, slot3.as_value(), 0)),
+            *[pix4[name].eq(lo + (hi << PRODUCT_SPLIT)) for name, (lo, hi) in parts.items()],
             passes.eq(~_below(slot3.n, self.min_pixels) & ~_above(slot3.n, self.max_pixels) &
                       ~_below(slot3.s0, self.min_sum)),
         ]
@@ -211,9 +216,9 @@ class FeatureEngine(wiring.Component):
         m.d.sync += best4.peak.eq(Mux(use3 & better, slot3.peak, Mux(pix3, op3.p, 0)))
 
         # ---- stage 4: accumulator, slot write, completion ---------------------------
-        # acc (+) slot4 (+) pix4, slot4 taken if use4.  A dark op, a stale op, and a clock
-        # without an op after the row's last column or a clear empty the accumulator; any
-        # other clock without an op adds nothing to it (use4 = 0, pix4 empty)
+        # acc (+) term4 (+) pix4.  A dark op, a stale op, and a clock without an op after
+        # the row's last column or a clear empty the accumulator; any other clock without
+        # an op adds nothing to it (term4 zero, pix4 empty)
         live = v4 & (op4.tag == self.tag)
         run_open = Signal()           # the last op was a pixel that may continue its run
         with m.If(self.clear):
@@ -221,7 +226,7 @@ class FeatureEngine(wiring.Component):
         with m.Elif(v4):
             m.d.sync += run_open.eq(live & op4.pix & (op4.x != W - 1))
         empties = Mux(v4, ~(live & op4.pix), ~run_open)
-        self._accumulate(m, acc, acc_next, slot4, use4, pix4, best4, empties,
+        self._accumulate(m, acc, acc_next, term4, pix4, best4, empties,
                          Mux(v4, op4.y, acc.ymax))
         m.d.comb += [wp.addr.eq(op4.wr_addr), wp.data.eq(acc_next),
                      wp.en.eq(live & op4.wr)]
@@ -229,12 +234,29 @@ class FeatureEngine(wiring.Component):
         m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)
         return m
 
-    def _accumulate(self, m, acc, acc_next, slot4, use4, pix4, best4, empties, ymax):
-        """``acc_next = acc (+) slot4 (+) pix4`` (``slot4`` taken if ``use4``; ``best4``: the
+    @staticmethod
+    def _partial_products(m, wx1, wy1, op2):
+        """``{moment: (lo, hi)}``: the second moments' products split at the wide factor's
+        bit PRODUCT_SPLIT, each part one 18 x 18 multiplier with its output registered (the
+        moment is ``lo + (hi << PRODUCT_SPLIT)``, a plain adder a stage later)."""
+        parts = {}
+        for name, a, b in (("sxx", wx1, op2.x), ("syy", wy1, op2.y), ("sxy", wx1, op2.y)):
+            split = min(PRODUCT_SPLIT, len(a))
+            lo = Signal(split + len(b), reset_less=True, name=f"{name}_lo")
+            hi = Signal(max(1, len(a) - split + len(b)), reset_less=True, name=f"{name}_hi")
+            m.d.sync += lo.eq(a[:split] * b)
+            if len(a) > split:          # a narrow factor (a small frame) needs one part
+                m.d.sync += hi.eq(a[split:] * b)
+            parts[name] = (lo, hi)
+        return parts
+
+    def _accumulate(self, m, acc, acc_next, term4, pix4, best4, empties, ymax):
+        """``acc_next = acc (+) term4 (+) pix4`` (``term4``: the slot if used; ``best4``: the
         box and peak terms; the row ``ymax``), empty if ``empties``; ``acc`` registers it."""
         W, H, pb = self.width, self.height, self.pixel_bits
         empty = record_layout(W, H, pb).const(empty_features(W, H))
-        sums, sat = _sums(m, acc, slot4, use4, pix4, empties, record_fields(W, H, pb))
+        sums, sat = _sums(m, acc, term4, Const(1, 1), pix4, empties,
+                          record_fields(W, H, pb))
         for name, total in sums.items():
             m.d.comb += acc_next[name].eq(total)
         for name, smaller in (("xmin", True), ("xmax", False), ("ymin", True),

@@ -4,10 +4,11 @@ Input: the detector's ``records`` and ``trailer`` streams (a frame's records are
 ``n_records`` before its trailer).  Output: ``packet``, a valid/ready byte stream
 (``lib.stream``) for the SPI slave's ``READ_STREAM``, byte-exact with
 ``lodestar.ground.codec.encode`` (layout and CRC: ``docs/contract.md``).  At most one byte per
-clock; ``valid`` falls for two clocks between records, which the SPI reader never sees;
-``busy`` is high from the trailer's acceptance until the CRC's last byte is taken.  Records
-are sent from the record stream's payload, so the detector's record buffer holds a frame's
-records until its packet is read (``docs/gateware.md``, Packetizer).
+clock, from a register (no path from the record buffer's memory or the CRC reaches the
+reader); ``valid`` falls for one clock before each record (it is copied from the record
+stream and taken) and one before the CRC (the last byte is folded into it), which the SPI
+reader never sees; ``busy`` is high from the trailer's acceptance until the CRC's last byte
+is taken (``docs/gateware.md``, Packetizer).
 """
 
 from amaranth import Cat, Const, Module, Signal, Value
@@ -72,20 +73,20 @@ class Packetizer(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         # the trailer of the packet being sent (the header's source); its ``n_records``
-        # counts the records still to send once the header is out
+        # counts the records not yet copied once the header is out
         tr = Signal(trailer_layout(), reset_less=True)
         crc = Signal(C.CRC_BITS, reset_less=True)           # loaded with C.CRC_INIT per packet
+        rec = Signal(record_layout(self.width, self.height, self.pixel_bits), reset_less=True)
 
         values = dict(self.constants)
         values.update({name: Value.cast(tr[name]) for name in TRAILER_NAMES})
         header = _msb_first([(Const(values[n], b) if isinstance(values[n], int) else values[n],
                               b) for n, b in C.HEADER_FIELDS])
         compact = dict(record_fields(self.width, self.height, self.pixel_bits))
-        rec = self.records.payload
         record = _msb_first([(Value.cast(rec[n]) if n in compact else Const(0, b), b)
                              for n, b in C.RECORD_FIELDS])
         sections = [header, record, crc ^ C.CRC_INIT]
-        # every byte of the packet's sections in sending order; ``pos`` is the byte sent
+        # every byte of the packet's sections in sending order; ``pos`` is the next byte
         in_order = Cat(*[v.word_select(len(v) // 8 - 1 - k, 8)
                          for v in sections for k in range(len(v) // 8)])
         first_record = C.HEADER_BYTES
@@ -93,11 +94,30 @@ class Packetizer(wiring.Component):
         end = first_crc + C.CRC_BYTES
         pos = Signal(range(end), reset_less=True)
 
+        # the output register: ``load`` puts byte ``pos`` into it when it is empty or taken;
+        # a header or record byte is folded into the CRC in the clock after its load, from
+        # the register
         out = self.packet
-        take = out.valid & out.ready
-        crc_next = crc32_byte(crc, out.payload)
-        m.d.comb += out.payload.eq(in_order.word_select(pos, 8))
+        load = Signal()
+        fold = Signal()
+        with m.If(out.valid & out.ready):
+            m.d.sync += out.valid.eq(0)
+        with m.If(load):
+            m.d.sync += [out.payload.eq(in_order.word_select(pos, 8)), out.valid.eq(1),
+                         pos.eq(pos + 1)]
+        with m.If(fold):
+            m.d.sync += crc.eq(crc32_byte(crc, out.payload))
+        room = ~out.valid | out.ready
+        self._sequence(m, tr, rec, crc, pos, (load, fold, room), (first_record, first_crc, end))
+        return m
 
+    def _sequence(self, m, tr, rec, crc, pos, strobes, marks):
+        """The header, then each record (copied from the record stream, which is taken in
+        that clock), one clock to fold the last byte, then the CRC."""
+        first_record, first_crc, end = marks
+        load, fold, room = strobes
+        busy = Signal()
+        m.d.comb += self.busy.eq(busy | self.packet.valid)
         with m.FSM():
             with m.State("IDLE"):
                 m.d.comb += self.trailer.ready.eq(1)
@@ -105,27 +125,27 @@ class Packetizer(wiring.Component):
                     m.d.sync += [tr.eq(self.trailer.payload), pos.eq(0), crc.eq(C.CRC_INIT)]
                     m.next = "BODY"
             with m.State("BODY"):              # header and record bytes: into the CRC
-                in_record = pos >= first_record
-                m.d.comb += [out.valid.eq(~in_record | self.records.valid), self.busy.eq(1)]
-                with m.If(take):
-                    m.d.sync += [crc.eq(crc_next), pos.eq(pos + 1)]
-                    with m.If(pos == first_crc - 1):
-                        m.next = "POP"
-                    with m.Elif((pos == first_record - 1) & (tr.n_records == 0)):
+                m.d.comb += [load.eq(room), busy.eq(1)]
+                m.d.sync += fold.eq(room)
+                with m.If(room & ((pos == first_record - 1) | (pos == first_crc - 1))):
+                    with m.If(tr.n_records == 0):
                         m.d.sync += pos.eq(first_crc)
-                        m.next = "CRC"
-            with m.State("POP"):               # the record is sent: take it from the stream
-                m.d.comb += [self.records.ready.eq(1), self.busy.eq(1)]
-                m.d.sync += tr.n_records.eq(tr.n_records - 1)
-                with m.If(tr.n_records == 1):
-                    m.next = "CRC"
-                with m.Else():
-                    m.d.sync += pos.eq(first_record)
+                        m.next = "SEAL"
+                    with m.Else():
+                        m.d.sync += pos.eq(first_record)
+                        m.next = "FETCH"
+            with m.State("FETCH"):             # the next record: copied and taken
+                m.d.comb += [self.records.ready.eq(1), busy.eq(1)]
+                m.d.sync += fold.eq(0)
+                with m.If(self.records.valid):
+                    m.d.sync += [rec.eq(self.records.payload),
+                                 tr.n_records.eq(tr.n_records - 1)]
                     m.next = "BODY"
+            with m.State("SEAL"):              # the last byte is folded into the CRC now
+                m.d.comb += busy.eq(1)
+                m.d.sync += fold.eq(0)
+                m.next = "CRC"
             with m.State("CRC"):
-                m.d.comb += [out.valid.eq(1), self.busy.eq(1)]
-                with m.If(take):
-                    m.d.sync += pos.eq(pos + 1)
-                    with m.If(pos == end - 1):
-                        m.next = "IDLE"
-        return m
+                m.d.comb += [load.eq(room), busy.eq(1)]
+                with m.If(room & (pos == end - 1)):
+                    m.next = "IDLE"

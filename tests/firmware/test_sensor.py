@@ -8,6 +8,7 @@ import pytest
 
 from lodestar.firmware import sensor
 from lodestar.firmware import status as S
+from lodestar.hdl.boards import BOARDS
 
 
 class Field:
@@ -363,11 +364,11 @@ def test_mt9p031_start_runs_the_power_up_sequence_and_gives_10_hz():
     # soft reset, PLL powered, configured, locked (1 ms), used; restart last
     assert regs[:6] == [0x0D, 0x0D, 0x10, 0x11, 0x12, 0x10]
     assert fake.writes[-1] == (0x0B, 1)
-    assert abs(fake.pixclk() - 95_833_333) < 1 and cam.pixclk_hz == 95_833_333
+    assert abs(fake.pixclk() - 70_000_000) < 1 and cam.pixclk_hz == 70_000_000
     row, exposure, frame = fake.frame_timing()
     assert frame <= 0.1 and frame > 0.099                       # 10 Hz at full frame
     assert abs(exposure - 0.1) < 2 * row
-    assert row == pytest.approx(2 * (1296 + 450) / 95_833_333)
+    assert row == pytest.approx(2 * (1296 + 450) / 70_000_000)
     st, _reason, got = cam.timing()
     assert st == S.OK and got == pytest.approx((row, exposure, frame), rel=1e-8)
     assert cam.stop() == (S.OK, "") and fake.regs[0x0B] == 3
@@ -384,7 +385,18 @@ def test_mt9p031_exposure_change_is_synchronized_not_stopped():
     assert not fake.output_stopped and fake.violations == []
     row, exposure, frame = fake.frame_timing()
     assert row == before[0] and frame == before[2]
-    assert exposure == pytest.approx(1000 * row - 2 * 213 / 95_833_333)
+    assert exposure == pytest.approx(1000 * row - 2 * 213 / 70_000_000)
+
+
+def test_pixel_clock_is_the_boards():
+    """The PLL setting the firmware programs gives the pixel clock the MT9P031 boards'
+    gateware is built for (``hdl.boards``), below their ``sync``."""
+    pix = sensor.p031_pll(sensor.EXTCLK_HZ, sensor.PIXCLK_HZ)
+    assert pix == (28, 2, 5, 70_000_000)
+    for board in BOARDS.values():
+        if board.sensor == sensor.MT9P031:
+            assert (board.pixel_hz, board.sensor_clk_hz) == (pix[3], sensor.EXTCLK_HZ)
+            assert board.sync_hz > board.pixel_hz
 
 
 def test_default_timing_without_the_pll_is_quarter_speed():
