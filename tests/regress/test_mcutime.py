@@ -1,10 +1,15 @@
 """The MCU time calibration (:mod:`lodestar.regress.mcutime`): the published benchmarks run
 unchanged on the reference build (the published run's object representation) and give the
-published results; the flight build is refused for calibration and counts its frames."""
+published results; the flight build is refused for calibration and counts its frames.  The
+x86 reference build's calibration is opt-in (``--runslow``): the F401 figures come from the
+Cortex-M4F build (``tests/regress/test_qemu.py``)."""
 
 import pytest
 
 from lodestar.regress import mcutime, replay
+
+# one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("unixport")
 
 
 def test_sources_are_pyperformance_functions_without_the_runner():
@@ -16,6 +21,7 @@ def test_sources_are_pyperformance_functions_without_the_runner():
     assert len(list(namespace["n_queens"](6))) == 4
 
 
+@pytest.mark.slow
 def test_calibration_on_the_reference_build(reference):
     cal = mcutime.calibrate(reference, runs=2)
     assert set(cal["ratio"]) == set(mcutime.F401_US)
@@ -27,6 +33,7 @@ def test_calibration_on_the_reference_build(reference):
     assert cal["scale"] == pytest.approx((lo * hi) ** 0.5)
 
 
+@pytest.mark.slow
 def test_a_wrong_workload_is_refused(reference, monkeypatch):
     monkeypatch.setitem(mcutime.CALLS, "bm_nqueens", ("len(list(n_queens(5)))", "4"))
     with pytest.raises(mcutime.CalibrationError, match="bm_nqueens"):
@@ -47,6 +54,7 @@ def valgrind():
         pytest.skip("valgrind is not installed (Debian package valgrind)")
 
 
+@pytest.mark.slow
 def test_instruction_calibration_agrees_between_the_benchmarks(reference, valgrind):
     cal = mcutime.calibrate_instructions(reference)
     lo, hi = sorted(cal["us_per_ir"].values())

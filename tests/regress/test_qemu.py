@@ -16,6 +16,9 @@ from lodestar.cli import main
 from lodestar.regress import qemu, record, replay
 from tests import REPO
 
+# one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("cortex_m4f")
+
 
 def _runs_all(manifest):
     return [(case, method) for method in manifest["methods"] for case in manifest["cases"]]

@@ -15,6 +15,9 @@ from lodestar.contract.stardb import METHODS
 from lodestar.regress import replay, unixport
 from tests import REPO
 
+# one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("unixport")
+
 HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the flight build with the
 firmware's own collector setting, the STM32F401's, and a packet buffer for the flight
@@ -31,6 +34,7 @@ def _runs_all(manifest):
     return [run for method in manifest["methods"] for run in _runs(manifest, method)]
 
 
+@pytest.mark.slow
 def test_the_flight_build_stores_floats_in_the_object_word(float32_frozen, reference):
     """The flight build is 32-bit with ``MICROPY_OBJ_REPR_C``: float products allocate
     nothing and a float keeps 22 significand bits; the reference build (``A``, the STM32
