@@ -45,27 +45,6 @@ def camera(width, height):
     return dataclasses.replace(cam, aperture_mm=base.aperture_mm)
 
 
-def engine(name, cam):
-    """The gateware engine of ``cam``'s frame with the estcube2 board's capacities (the
-    board's own top at its frame)."""
-    from lodestar.hdl.boards import BOARDS, GatewareTop
-
-    board = BOARDS["estcube2"]
-    if (cam.width, cam.height) == (board.width, board.height):
-        top = board.gateware_top()
-    else:
-        top = GatewareTop("mt9p031", cam.width, cam.height,
-                          record_capacity=board.record_capacity, record_depth=board.record_depth)
-    if name == "golden":
-        from lodestar.fly.golden_top import GoldenTop
-
-        return GoldenTop(cam.width, cam.height, cam.pixel_bits, top.detector.record_capacity,
-                         top.detector.label_capacity, top.build)
-    from lodestar.fly.verilated import VerilatedTop
-
-    return VerilatedTop(top)
-
-
 def run_one(args, cam, scenario, seed):
     from lodestar.fly import faults, trajectory, twin
     from lodestar.sim import attitude
@@ -74,7 +53,7 @@ def run_one(args, cam, scenario, seed):
     path = trajectory.Trajectory("rest", q0)
     wrong = twin.WRONG_ARCSEC * 2592 / cam.width
     t0, c0 = time.perf_counter(), _cpu()
-    loop = twin.Twin(cam, engine(args.engine, cam), path, trajectory.Gyro(path, seed),
+    loop = twin.Twin(cam, twin.make_engine(args.engine, cam), path, trajectory.Gyro(path, seed),
                      [scenario] if scenario else [], args.fault_frame, seed,
                      wrong_arcsec=wrong)
     frames = args.frames + (faults.HANG_MS // 100 if scenario == "watchdog" else 0)

@@ -148,6 +148,7 @@ class DetectorConfig:
             "min_pixels": self.min_pixels,
             "min_sum": self.min_sum,
             "max_pixels": self.max_pixels_reg,
+            "sensor_reset": 0,          # the board's, not the detector's: the sensor runs
         }
 
     def replace(self, **changes):

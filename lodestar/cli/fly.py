@@ -56,28 +56,10 @@ def _check(args):
         raise ValueError(f"--ramp {args.ramp}: give seconds >= 0")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out} is a file; give a folder")
+    parent = os.path.dirname(os.path.abspath(args.out))
+    if args.out != DEFAULT_OUT and not os.path.isdir(parent):     # the default is the tool's
+        raise ValueError(f"--out {args.out}: the folder {parent} does not exist")
     return cam
-
-
-def _engine(name, cam):
-    """The gateware engine for ``cam``'s frame with the estcube2 board's capacities (the
-    board's own top at its frame)."""
-    from lodestar.hdl.boards import BOARDS, GatewareTop
-
-    board = BOARDS["estcube2"]
-    if (cam.width, cam.height) == (board.width, board.height):
-        top = board.gateware_top()
-    else:
-        top = GatewareTop("mt9p031", cam.width, cam.height,
-                          record_capacity=board.record_capacity, record_depth=board.record_depth)
-    if name == "golden":
-        from lodestar.fly.golden_top import GoldenTop
-
-        return GoldenTop(cam.width, cam.height, cam.pixel_bits, top.detector.record_capacity,
-                         top.detector.label_capacity, top.build)
-    from lodestar.fly.verilated import VerilatedTop
-
-    return VerilatedTop(top, log=lambda text: print(text, file=sys.stderr, flush=True))
 
 
 def _micropython():
@@ -102,7 +84,8 @@ def run(args):
     path = trajectory.Trajectory(kind, q0, args.rate, args.ramp)
     gyro = trajectory.Gyro(path, args.seed)
     binary = _micropython() if args.mcu == "micropython" else None
-    engine = _engine(args.engine, cam)
+    engine = twin.make_engine(args.engine, cam,
+                              log=lambda text: print(text, file=sys.stderr, flush=True))
     loop = twin.Twin(cam, engine, path, gyro, args.faults, args.fault_frame, args.seed,
                      micropython=binary)
     try:
@@ -120,7 +103,7 @@ def run(args):
     doc = report.document(rows, summary, args.engine, args.mcu, meta)
     title = (f"lodestar fly: {cam.name}, {kind} {' '.join(f'{w:g}' for w in args.rate)} deg/s, "
              f"{args.engine}, faults {', '.join(args.faults) or 'none'}")
-    paths = report.write(args.out, rows, doc, title)
+    paths = report.write(args.out, rows, doc, title, parents=args.out == DEFAULT_OUT)
     if args.json:
         print(json.dumps(doc))
     else:

@@ -57,6 +57,8 @@ class Watchdog:
 
 
 class Pin:
+    """``machine.Pin``'s ``value()``: read through ``read()``, written through ``write(v)``."""
+
     def __init__(self, read=None, write=None):
         self._read, self._write = read, write
 

@@ -76,9 +76,12 @@ def plot_png(rows, title):
     return buf.getvalue()
 
 
-def write(out, rows, doc, title):
-    """``telemetry.csv``, ``telemetry.json`` and ``fly.png`` in folder ``out``: the paths."""
+def write(out, rows, doc, title, parents=False):
+    """``telemetry.csv``, ``telemetry.json`` and ``fly.png`` in folder ``out`` (made if
+    missing; its parent must exist, as for every output the user names, unless
+    ``parents``: the command's own default folder): the paths."""
     out = Path(out)
+    out.mkdir(parents=parents, exist_ok=True)
     paths = [out / "telemetry.csv", out / "telemetry.json", out / "fly.png"]
     write_atomic(paths[0], csv_text(rows))
     write_atomic(paths[1], json.dumps(doc, indent=1))

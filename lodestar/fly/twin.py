@@ -165,6 +165,28 @@ class Store:
         self.data = bytes(data)
 
 
+def make_engine(name, cam, log=None):
+    """The gateware engine ``name`` (``golden`` or ``verilator``) for ``cam``'s frame with
+    the estcube2 board's capacities (the board's own top at its frame); ``log(text)`` hears
+    of a Verilator build."""
+    from lodestar.hdl.boards import BOARDS, GatewareTop
+
+    board = BOARDS["estcube2"]
+    if (cam.width, cam.height) == (board.width, board.height):
+        top = board.gateware_top()
+    else:
+        top = GatewareTop("mt9p031", cam.width, cam.height,
+                          record_capacity=board.record_capacity, record_depth=board.record_depth)
+    if name == "golden":
+        from lodestar.fly.golden_top import GoldenTop
+
+        return GoldenTop(cam.width, cam.height, cam.pixel_bits, top.detector.record_capacity,
+                         top.detector.label_capacity, top.build)
+    from lodestar.fly.verilated import VerilatedTop
+
+    return VerilatedTop(top, log=log)
+
+
 def flight_settings(cam, exposure_s=EXPOSURE_S, frame_s=FRAME_S):
     """``(sensor settings, detector registers)`` of the flight loop for ``cam``: the
     MT9P031 settings of a ``frame_s`` period and ``exposure_s`` for the camera's window

@@ -10,20 +10,10 @@ from collections import deque
 from amaranth.sim import Simulator
 
 from lodestar import contract as C
+from lodestar.fly.bus import Pin
 from lodestar.hdl.spi_slave import SPISlave
 
 NS = 1e-9
-
-
-class _Pin:
-    def __init__(self, read=None, write=None):
-        self._read, self._write = read, write
-
-    def value(self, v=None):
-        if v is None:
-            return self._read()
-        self._write(v)
-        return None
 
 
 class AmaranthBus:
@@ -48,8 +38,8 @@ class AmaranthBus:
         sim.add_clock(T, phase=0.43 * T)
         self._benches = [self._master, self._fabric]
         self.spi = self
-        self.cs = _Pin(read=lambda: self._cs, write=self._set_cs)
-        self.irq = _Pin(read=lambda: int(bool(self.current or self.packets)))
+        self.cs = Pin(read=lambda: self._cs, write=self._set_cs)
+        self.irq = Pin(read=lambda: int(bool(self.current or self.packets)))
 
     # ---- the far end: packet source, register bank, strobes ---------------------------
 
@@ -186,8 +176,8 @@ class GatewareTopBus(AmaranthBus):
         sim.add_clock(1.04 * T, domain="pix")
         self._benches = [self._master, self._watch]
         self.spi = self
-        self.cs = _Pin(read=lambda: self._cs, write=self._set_cs)
-        self.irq = _Pin(read=lambda: self._irq)
+        self.cs = Pin(read=lambda: self._cs, write=self._set_cs)
+        self.irq = Pin(read=lambda: self._irq)
 
     async def _watch(self, ctx):
         async for _, _, irq in ctx.tick().sample(self.dut.irq):

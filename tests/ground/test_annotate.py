@@ -75,8 +75,9 @@ def test_bad_arguments(tmp_path):
         annotate.save_annotated(tmp_path / "x.png", frame, markers={"stars": []})
     with pytest.raises(ValueError, match="2-D"):
         annotate.save_annotated(tmp_path / "x.png", np.zeros((3, 4, 5), np.uint16))
-    annotate.save_annotated(tmp_path / "new" / "x.png", frame)        # the folder is made
-    assert (tmp_path / "new" / "x.png").is_file()
+    with pytest.raises(FileNotFoundError, match="does not exist"):    # never made
+        annotate.save_annotated(tmp_path / "new" / "x.png", frame)
+    assert not (tmp_path / "new").exists()
     (tmp_path / "file").write_text("not a folder")
     with pytest.raises(OSError):
         annotate.save_annotated(tmp_path / "file" / "x.png", frame)
