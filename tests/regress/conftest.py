@@ -60,7 +60,7 @@ def _qemu_buildable():
 
 @pytest.fixture(scope="session")
 def cortex_m4f(regression_set):
-    """The flight image of the Cortex-M4F build (64 KiB heap) with the set frozen
+    """The flight image of the Cortex-M4F build (72 KiB heap) with the set frozen
     (:func:`lodestar.regress.qemu.flight_build`; skips, or fails under
     ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU)."""
     _qemu_buildable()
@@ -70,7 +70,7 @@ def cortex_m4f(regression_set):
 
 @pytest.fixture(scope="session")
 def cortex_m4f_set(cortex_m4f, regression_set):
-    """The whole set, every method, in one QEMU run of the flight image at its 64 KiB heap
+    """The whole set, every method, in one QEMU run of the flight image at its 72 KiB heap
     with the flight packet buffer (:func:`lodestar.regress.qemu.flight_loop`)."""
     manifest, db_files = regression_set
     runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]

@@ -2,7 +2,7 @@
 MicroPython built for a Cortex-M4F with the F401's RAM map, the firmware and the set frozen
 into flash, run on QEMU.  The build and when these tests skip: ``tests/regress/conftest.py``;
 the whole set runs in one QEMU run on each of its two images per session: the flight image
-(64 KiB heap, ``cortex_m4f_set``) and the build of the expectations (80 KiB,
+(72 KiB heap, ``cortex_m4f_set``) and the build of the expectations (80 KiB,
 ``cortex_m4f_outcomes``)."""
 
 import copy
@@ -37,7 +37,7 @@ def test_the_build_reproduces_its_float32_expectations(cortex_m4f_outcomes, regr
 
 
 def test_every_packet_solves_within_the_flight_heap(cortex_m4f_set, regression_set):
-    """Every case and method in one QEMU run of the flight image at its 64 KiB heap with
+    """Every case and method in one QEMU run of the flight image at its 72 KiB heap with
     the flight packet buffer: the recorded status and identified stars, none out of heap,
     the attitude within the float32 bound of the expectations (a frame short of heap in
     tracking may solve lost in space instead)."""
@@ -55,7 +55,7 @@ def test_every_packet_solves_within_the_flight_heap(cortex_m4f_set, regression_s
 
 
 def test_the_image_fits_the_f401(cortex_m4f, cortex_m4f_set):
-    """Statics, the 64 KiB heap and the stack fill the F401's 96 KiB; the stack the set
+    """Statics, the 72 KiB heap and the stack fill the F401's 96 KiB; the stack the set
     needed (painted, read back) stays within the 16 KiB budget, which the stack left beside
     the heap covers; the image with the estcube2 database fits the emulated 1 MiB."""
     layout = qemu.memory_map(cortex_m4f, qemu.FLIGHT_HEAP)
