@@ -20,10 +20,17 @@ and a CRC in the persistent ``store``.
 
 Recovery escalates while faults persist (``recover_after`` link faults in a row per level):
 1 resynchronise the link (flush + drain), 2 soft-reset the detector, 3 start the sensor
-again (PLL, settings; also at once on the status word's ``OVF_CLOCK_LOST``), 4 ``SAFE``:
-no frames are processed until a ``CMD_RESET`` or ``CMD_MODE`` command.  A good frame
-resets the level.  The watchdog (``feed()``; ``machine.WDT`` on the MCU) is fed at every
-stage boundary and, through ``Settings.clock``, at every stage boundary inside ``process``.
+again (PLL, settings, ``min_sum`` of the track kept; also at once on the status word's
+``OVF_CLOCK_LOST``), 4 ``SAFE``: no frames are processed until a ``CMD_RESET`` or
+``CMD_MODE`` command.  A good frame resets the level.  After a failed attempt the next one
+waits for the next frame (one frame period), so each level gets a new frame before the next.
+A detector reset the MCU did not command (its frame counter restarts) is counted
+(``uncommanded_reset``).  The gyro is sampled into a ring while the loop waits and at every
+watchdog feed; a frame's rate is the ring's at the frame's epoch (dated from its IRQ edge,
+or by the frame counter from the last frame seen arriving, minus read-out and exposure),
+and the attitude's time tag is that epoch.  The watchdog (``feed()``; ``machine.WDT`` on the
+MCU) is fed at every stage boundary and, through ``Settings.clock``, at every stage boundary
+inside ``process``.
 
 Telemetry: one record of :data:`TELEMETRY_BYTES` per step, packed into one preallocated
 buffer (:data:`TELEMETRY_FORMAT`, fields :data:`TELEMETRY_FIELDS`) and handed to
@@ -96,21 +103,34 @@ H_SENSOR_FAULT = 12    # sensor start-ups or writes that failed (NACK, read-back
 H_REG_FAULT = 13       # gateware register writes that did not read back
 H_COMMANDS = 14        # commands applied
 H_INTERNAL = 15        # exceptions caught in a step
+H_RESTART = 16         # detector resets the MCU did not command (frame counter restarted)
 HEALTH_NAMES = ("frames", "ok", "bad", "irq_timeout", "link_fault", "coasted", "lost",
                 "resync", "detector_reset", "sensor_init", "safe", "clock_lost",
-                "sensor_fault", "reg_fault", "commands", "internal")
-N_HEALTH = 16
+                "sensor_fault", "reg_fault", "commands", "internal", "uncommanded_reset")
+N_HEALTH = 17
+
+GYRO_RING = 32
+GYRO_EVERY_MS = 20
+"""Gyro samples kept (at most one every ``GYRO_EVERY_MS``, taken while waiting for a frame
+and at every watchdog feed): 0.64 s or more of rate history, so a frame's rate is read at
+its exposure, not when its packet is processed (up to half a second later after a lost in
+space solve)."""
+REF_FRAMES = 1000
+"""Frames after the last frame seen arriving (its IRQ edge) whose arrival is still dated
+from it by the frame counter."""
+PACE_MAX_MS = 1000
+"""Longest wait between a failed attempt and the next (one frame period, capped)."""
 
 HEAP_EVERY = 16
 """Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
 more than the rest of a step's telemetry); the records between repeat the last figure."""
 TELEMETRY_MAGIC = 0x4C54        # "LT"
-TELEMETRY_VERSION = 1
-TELEMETRY_FORMAT = ">HBBIQIBBBBHI4f2f16HII"
-"""Big endian: magic, version, state, sequence, the attitude's time tag (ms) and FPGA frame
-counter,
+TELEMETRY_VERSION = 2
+TELEMETRY_FORMAT = ">HBBIQIBBBBHI4f2f17HII"
+"""Big endian: magic, version, state, sequence, the attitude's time tag (ms, its frame's
+epoch) and FPGA frame counter,
 result status, link code, matches, recovery level, records, min_sum, q (x, y, z, w;
-NaN without an attitude), sigma cross and roll (arcsec; NaN), the 16 health counters,
+NaN without an attitude), sigma cross and roll (arcsec; NaN), the 17 health counters,
 heap free (bytes; 0 unknown), CRC-32 (``contract.crc32``, native ``binascii``: a CRC-8 in
 Python costs more than the rest of the record on the MCU) of everything before it."""
 TELEMETRY_FIELDS = ("magic", "version", "state", "sequence", "time_ms", "frame_counter",
@@ -188,6 +208,15 @@ class Executive(object):
         self.last_command = (0, S.OK)
         self.configured = False       # CONFIGURE completed since BOOT
         self.heap_free = 0            # the last mem_free() figure
+        self._gyro_t = array("l", [0] * GYRO_RING)         # ticks of each sample
+        self._gyro_w = array("f", [0.0] * (3 * GYRO_RING))  # rad/s, 3 per sample
+        self._gyro_n = 0              # samples held
+        self._gyro_at = 0             # the next slot
+        self._tick = self._sample_gyro   # wait_irq's poll hook, bound once
+        self._attempt = 0             # ticks the current attempt began (its IRQ seen)
+        self._retry = None            # a failed attempt's ticks: the next waits a frame
+        self._ref = None              # frame counter of the last frame seen arriving
+        self._ref_ticks = 0           # its arrival (the IRQ edge), ticks
         self._wrapped = None
         self._wrap_clock()
 
@@ -217,6 +246,93 @@ class Executive(object):
                 self.watchdog.feed()
             except Exception:
                 pass
+        self._sample_gyro()
+
+    def _sample_gyro(self):
+        """Keep a gyro sample in the ring (at most one every ``GYRO_EVERY_MS``)."""
+        if self.gyro is None:
+            return
+        clock = self.clock
+        now = clock.ticks_ms()
+        last = (self._gyro_at - 1) % GYRO_RING
+        if self._gyro_n and clock.ticks_diff(now, self._gyro_t[last]) < GYRO_EVERY_MS:
+            return
+        try:
+            w = self.gyro()
+            k = 3 * self._gyro_at
+            self._gyro_w[k] = w[0]
+            self._gyro_w[k + 1] = w[1]
+            self._gyro_w[k + 2] = w[2]
+        except Exception:
+            return
+        self._gyro_t[self._gyro_at] = now
+        self._gyro_at = (self._gyro_at + 1) % GYRO_RING
+        if self._gyro_n < GYRO_RING:
+            self._gyro_n += 1
+
+    def _rate_at(self, age_ms, now):
+        """The gyro's rate ``age_ms`` before ticks ``now``: linear between the two samples
+        around that instant, the nearest sample outside them; None without a sample."""
+        clock = self.clock
+        ts = self._gyro_t
+        ws = self._gyro_w
+        after = None
+        j = (self._gyro_at - 1) % GYRO_RING
+        for _ in range(self._gyro_n):
+            if clock.ticks_diff(now, ts[j]) >= age_ms:
+                break
+            after = j
+            j = (j - 1) % GYRO_RING
+        else:
+            j = None
+        if j is None and after is None:
+            return None
+        if j is None or after is None:
+            k = 3 * (after if j is None else j)
+            return (ws[k], ws[k + 1], ws[k + 2])
+        span = clock.ticks_diff(ts[after], ts[j])
+        f = (clock.ticks_diff(now, ts[j]) - age_ms) / span if span > 0 else 0.0
+        a = 3 * j
+        b = 3 * after
+        return (ws[a] + f * (ws[b] - ws[a]), ws[a + 1] + f * (ws[b + 1] - ws[a + 1]),
+                ws[a + 2] + f * (ws[b + 2] - ws[a + 2]))
+
+    def _frame_age_ms(self, counter, edge, now):
+        """How long before ticks ``now`` the frame of ``counter`` had its epoch (the start
+        of row 0's exposure plus ``epoch_s``): its arrival (the IRQ edge when this wait saw
+        it rise, else dated by the frame counter from the last frame seen arriving; now if
+        neither) minus its read-out (rows x row time) and exposure."""
+        clock = self.clock
+        end = 0.0
+        if edge:
+            end = clock.ticks_diff(now, self._attempt)
+            self._ref = counter
+            self._ref_ticks = self._attempt
+        elif self._ref is not None:
+            frames = (counter - self._ref) & 0xFFFFFFFF
+            if frames < REF_FRAMES:
+                end = clock.ticks_diff(now, self._ref_ticks) - frames * 1000.0 * self.frame_s
+        try:
+            s = self.tracker.settings
+            back = self.link.last_height * s.row_time_s + (s.exposure_s or 0.0) - s.epoch_s
+        except Exception:
+            back = 0.0
+        return end + 1000.0 * back if end + 1000.0 * back > 0 else 0.0
+
+    def _pace(self):
+        """After a failed attempt the next one waits for the next frame (one frame period
+        after the failed one began, at most ``PACE_MAX_MS``): a burst of link errors then
+        costs a frame per attempt and is ridden out by coasting, instead of running through
+        every recovery level in microseconds while the IRQ stays high."""
+        if self._retry is None:
+            return
+        clock = self.clock
+        left = int(self.frame_s * 1000) - clock.ticks_diff(clock.ticks_ms(), self._retry)
+        self._retry = None
+        if left > 0:
+            self.feed()
+            clock.sleep_ms(min(left, PACE_MAX_MS))
+            self.feed()
 
     def time_ms(self):
         if self.now_ms is not None:
@@ -327,7 +443,7 @@ class Executive(object):
             return
         buf = self._prior_buf
         q = self.q
-        struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], self.q_time,
+        struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
                          (self.q_counter or 0) & 0xFFFFFFFF, 0)
         struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
         try:
@@ -366,6 +482,9 @@ class Executive(object):
             self.feed()
             self._apply_commands()
             state = self.state
+            if state != SAFE and state != RECOVER:
+                self._pace()
+            self._attempt = self.clock.ticks_ms()
             if state == BOOT:
                 self._boot()
             elif state == CONFIGURE:
@@ -446,21 +565,26 @@ class Executive(object):
                 self._fault(LEVEL_SENSOR)
                 return
             self._read_timing()
+        # min_sum: the track's own budget while there is an attitude (a re-init keeps it)
+        min_sum = self.min_sum if self.q is not None else self.registers.get("min_sum", 0)
         for name in self.registers:
-            code = self.link.write_reg(name, self.registers[name])
+            value = min_sum if name == "min_sum" else self.registers[name]
+            code = self.link.write_reg(name, value)
             if code != _link.OK:
                 _count(self.health, H_REG_FAULT)
                 self.last_link = code
                 self.reason = "register " + name + ": " + _link.CODE_NAMES[code]
                 self._fault()
                 return
-        self.min_sum = self.registers.get("min_sum", 0)
+        self.min_sum = min_sum
         self.link.resync()                     # start at a packet boundary
         self.configured = True
         self._enter(TRACK if self.q is not None else ACQUIRE)
 
     def _fault(self, at_least=LEVEL_NONE):
-        """A link or system fault: escalate after ``recover_after`` in a row."""
+        """A link or system fault: escalate after ``recover_after`` in a row (the next
+        attempt waits for the next frame: :meth:`_pace`)."""
+        self._retry = self._attempt
         self.faults += 1
         level = self.level
         if self.faults >= self.recover_after:
@@ -496,16 +620,30 @@ class Executive(object):
         """No frames: the watchdog fed, telemetry emitted, one frame period slept."""
         self.clock.sleep_ms(int(self.frame_s * 1000))
 
+    def _restarted(self):
+        """Count a detector reset the MCU did not command (the link saw the frame counter
+        restart): the frame counters before it no longer date frames."""
+        link = self.link
+        if link.restarted:
+            link.restarted = False
+            _count(self.health, H_RESTART)
+            self.q_counter = None
+            self._ref = None
+
     def _frame(self):
         link = self.link
-        if not link.wait_irq(self.irq_timeout_ms):
+        clock = self.clock
+        if not link.wait_irq(self.irq_timeout_ms, self._tick):
             _count(self.health, H_IRQ_TIMEOUT)
             self.last_link = _link.IRQ_TIMEOUT
             self._bad_frame()
             self._fault()
             return
+        self._attempt = clock.ticks_ms()
+        edge = link.irq_edge
         self.feed()
         code = link.read_status()
+        self._restarted()
         if code == _link.OK and link.clock_lost():
             _count(self.health, H_CLOCK_LOST)
             self.last_link = code
@@ -516,6 +654,7 @@ class Executive(object):
             return
         if code == _link.OK:
             code, n = link.read_packet()
+            self._restarted()
         self.last_link = code
         if code != _link.OK:
             _count(self.health, H_LINK_FAULT)
@@ -525,9 +664,11 @@ class Executive(object):
         _count(self.health, H_FRAMES)
         self.faults = 0
         counter = link.last_frame_counter
-        now = self.time_ms()
-        omega = None
-        if self.gyro is not None:
+        ticks = clock.ticks_ms()
+        age = self._frame_age_ms(counter, edge, ticks)
+        now = self.time_ms() - int(age + 0.5)          # the frame's epoch, spacecraft ms
+        omega = self._rate_at(age, ticks)
+        if omega is None and self.gyro is not None:
             try:
                 omega = self.gyro()
             except Exception:
@@ -538,7 +679,8 @@ class Executive(object):
             frames = 0
             if self.q_counter is not None:
                 frames = (counter - self.q_counter) & 0xFFFFFFFF
-            dt = frames * self.frame_s if 0 < frames < 1000 else (now - self.q_time) / 1000.0
+            dt = frames * self.frame_s if 0 < frames < REF_FRAMES else \
+                (now - self.q_time) / 1000.0
         self.feed()
         result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
         self.feed()
@@ -611,12 +753,12 @@ class Executive(object):
         h = self.health
         buf = self.record
         struct.pack_into(TELEMETRY_FORMAT, buf, 0, TELEMETRY_MAGIC, TELEMETRY_VERSION,
-                         self.state, self.sequence, self.q_time,
+                         self.state, self.sequence, max(0, self.q_time),
                          (self.q_counter or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
                          self.last_link & 0xFF, matches, self.level, n_records,
                          self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
-                         h[11], h[12], h[13], h[14], h[15], heap & 0xFFFFFFFF, 0)
+                         h[11], h[12], h[13], h[14], h[15], h[16], heap & 0xFFFFFFFF, 0)
         struct.pack_into(">I", buf, TELEMETRY_BYTES - 4, C.crc32(self._record_body))
         if self.telemetry is not None:
             try:

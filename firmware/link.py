@@ -61,10 +61,13 @@ C_OVERFLOW = 12          # status reads with any overflow flag
 C_CLOCK_LOST = 13        # status reads with OVF_CLOCK_LOST
 C_PACKETS = 14           # packets read whole with a good CRC
 C_STATUS = 15            # status reads accepted
+C_RESTARTS = 16          # frame counter restarts the MCU did not command (no soft reset,
+                         # no OVF_CLOCK_LOST): the detector was reset behind its back
 COUNTER_NAMES = ("bus", "status_bad", "irq_timeout", "header_bad", "length_bad",
                  "packet_crc", "verify", "resync", "resync_failed", "slave_errors",
-                 "underruns", "frames_skipped", "overflow", "clock_lost", "packets", "status")
-N_COUNTERS = 16
+                 "underruns", "frames_skipped", "overflow", "clock_lost", "packets", "status",
+                 "restarts")
+N_COUNTERS = 17
 COUNTER_MAX = 0xFFFF
 
 _REPLY = 1 + C.TURNAROUND_BYTES                # MISO bytes before a read's reply
@@ -144,8 +147,12 @@ class Link(object):
         self.busy = 0
         self.last_frame_counter = None   # the frame counter of the last good packet
         self.n_records = 0
+        self.last_height = 0             # the rows of the last good packet's frame
         self.ident = None                # (link_version, build) after read_id() == OK
+        self.irq_edge = False            # the last wait_irq() saw irq rise (not high at once)
+        self.restarted = False           # an uncommanded restart seen; the caller clears it
         self._drain_underruns = False
+        self._reset_sent = False         # a soft reset since the last status read
 
     # ---- counters ----------------------------------------------------------------------
 
@@ -185,9 +192,12 @@ class Link(object):
         for i in range(n):
             tx[i] = 0
 
-    def wait_irq(self, timeout_ms):
-        """Wait until ``irq`` is high, at most ``timeout_ms``: True if it is."""
+    def wait_irq(self, timeout_ms, tick=None):
+        """Wait until ``irq`` is high, at most ``timeout_ms``: True if it is.  ``irq_edge``
+        says whether it rose during the wait (its ticks are then the frame's arrival) rather
+        than being high at once; ``tick()``, if given, is called after every 1 ms poll."""
         clock = self.clock
+        self.irq_edge = False
         try:
             if self.irq.value():
                 return True
@@ -195,7 +205,10 @@ class Link(object):
             while clock.ticks_diff(clock.ticks_ms(), start) < timeout_ms:
                 clock.sleep_ms(1)
                 if self.irq.value():
+                    self.irq_edge = True
                     return True
+                if tick is not None:
+                    tick()
         except OSError:
             self.count(C_BUS)
             return False
@@ -235,10 +248,15 @@ class Link(object):
             self.count(C_OVERFLOW)
         if self.overflow & (1 << C.OVF_CLOCK_LOST):
             self.count(C_CLOCK_LOST)
+        commanded = self._reset_sent
+        self._reset_sent = False
         if previous is not None:
             step = (self.frame_counter - previous) & 0xFFFFFFFF
             if 1 < step < 0x80000000:
                 self.count(C_FRAMES_SKIPPED, min(step - 1, COUNTER_MAX))
+            elif step >= 0x80000000 and not commanded and not self.clock_lost():
+                self.count(C_RESTARTS)
+                self.restarted = True
         return OK
 
     def clock_lost(self):
@@ -294,6 +312,7 @@ class Link(object):
         self.count(C_PACKETS)
         self.n_records = n
         self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
+        self.last_height = _field(head, 0, _HEADER["height"])
         return OK, n
 
     def packet(self, n_records):
@@ -344,6 +363,7 @@ class Link(object):
 
     def soft_reset(self):
         """Reset the detector datapath (registers kept), then resynchronise: a code."""
+        self._reset_sent = True
         code = self.command(C.OP_SOFT_RESET)
         if code != OK:
             return code

@@ -45,6 +45,7 @@ TIMEOUT = "timeout"        # no irq within the wait
 STATUS_BAD = "status"      # the status word fails its CRC
 CRC = "crc"                # the packet fails its CRC-32
 CLOCK_LOST = "clock"       # the status word shows OVF_CLOCK_LOST
+RESTART = "restart"        # a good packet after a detector reset the MCU did not command
 READ_MS = 6                # a frame's status + packet read
 BUILD = 0x5A               # the gateware build byte the link reads
 
@@ -68,6 +69,9 @@ class Link(object):
         self.soft_resets = 0
         self.overflow = 0
         self.counters = [0] * _link.N_COUNTERS
+        self.irq_edge = False
+        self.restarted = False
+        self.last_height = 0
 
     def read_id(self):
         return _link.OK if self.id_ok else _link.ID_BAD
@@ -84,7 +88,9 @@ class Link(object):
         self.soft_resets += 1
         return _link.OK
 
-    def wait_irq(self, timeout_ms):
+    def wait_irq(self, timeout_ms, tick=None):
+        """The irq rises 1 ms into the wait (``irq_edge``), or never (a timeout)."""
+        self.irq_edge = False
         if self.pos >= len(self.script):
             self.item = TIMEOUT
         else:
@@ -95,10 +101,14 @@ class Link(object):
             self.clock.sleep_ms(timeout_ms)
             return False
         self.clock.sleep_ms(1)
+        self.irq_edge = True
         return True
 
     def read_status(self):
         self.overflow = 64 if self.item == CLOCK_LOST else 0
+        if self.item == RESTART:
+            self.counter = 0
+            self.restarted = True
         return _link.STATUS_BAD if self.item == STATUS_BAD else _link.OK
 
     def clock_lost(self):
@@ -147,6 +157,7 @@ class Settings(object):
         self.clock = None
         self.row_time_s = 0.0
         self.exposure_s = None
+        self.epoch_s = 0.0
         self.max_stars = 30
 
 

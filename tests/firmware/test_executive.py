@@ -18,7 +18,7 @@ WDT_MS = 1000
 
 
 def build(script=(), outcomes=(), starts=(), tracker_status=S.OK, store=None, now=None,
-          **kw):
+          gyro=(0.001, 0.0, 0.0), **kw):
     clock = fakes.Clock()
     if now is not None:
         clock.now = now
@@ -30,7 +30,8 @@ def build(script=(), outcomes=(), starts=(), tracker_status=S.OK, store=None, no
     exe = executive.Executive(link, tracker, clock, sensor=sensor, sensor_settings={"gain": 8},
                       registers={"min_sum": 0, "mode": 0}, watchdog=wdt,
                       store=store if store is not None else fakes.Store(),
-                      gyro=lambda: (0.001, 0.0, 0.0), telemetry=lambda b: records.append(bytes(b)),
+                      gyro=(lambda: gyro) if gyro else None,
+                      telemetry=lambda b: records.append(bytes(b)),
                       mem_free=lambda: 31000, **kw)
     return exe, clock, link, sensor, tracker, wdt, records
 
@@ -52,7 +53,9 @@ def test_nominal_boot_configure_acquire_track():
     assert tracker.settings.exposure_s == 2743 * sensor.row
     assert exe.frame_s == 0.09998
     # lost in space first, then the prior with the frame counter's dt and the gyro
-    assert tracker.calls[0] == (None, (0.001, 0.0, 0.0), None)
+    assert tracker.calls[0][0] is None and tracker.calls[0][2] is None
+    assert all(math.isclose(a, b, rel_tol=1e-6)                    # float32 in the ring
+               for a, b in zip(tracker.calls[0][1], (0.001, 0.0, 0.0)))
     assert tracker.calls[1][0] == fakes.Q0 and math.isclose(tracker.calls[1][2], 0.09998)
     # min_sum written back (read back by the link) after every solved frame
     assert link.writes[:2] == [("min_sum", 0), ("mode", 0)]
@@ -145,6 +148,92 @@ def test_clock_lost_restarts_the_sensor():
     assert states == ["CONFIGURE", "ACQUIRE", "TRACK", "RECOVER", "CONFIGURE", "TRACK", "TRACK"]
     assert sensor.n_starts == 2 and health(exe)["clock_lost"] == 1
     assert tracker.calls[1][0] == fakes.Q0                     # tracking resumed on the prior
+
+
+def test_reinit_keeps_the_tracks_min_sum():
+    """A sensor start-up after a clock loss writes the registers again, ``min_sum`` with the
+    executive's current value (the track's record budget), not the configured 0."""
+    exe, clock, link, sensor, tracker, wdt, _ = build(
+        [fakes.OK_FRAME, fakes.OK_FRAME, fakes.CLOCK_LOST, fakes.OK_FRAME])
+    run(exe, 8)
+    assert sensor.n_starts == 2 and exe.state == executive.TRACK
+    assert link.writes[4:6] == [("min_sum", 1001), ("mode", 0)]
+    assert ("min_sum", 0) not in link.writes[1:]
+
+
+class BurstLink(fakes.Link):
+    """The status word refused while the clock is inside ``burst`` (ms), the irq high all
+    along: a burst of MOSI bit errors, as the twin's ``mosi-flip``."""
+
+    def __init__(self, clock, script, burst):
+        fakes.Link.__init__(self, clock, script)
+        self.burst = burst
+        self.tries = []
+
+    def _inside(self):
+        return self.burst[0] <= self.clock.now < self.burst[1]
+
+    def wait_irq(self, timeout_ms, tick=None):
+        if self._inside():
+            self.irq_edge = False
+            return True
+        return fakes.Link.wait_irq(self, timeout_ms, tick)
+
+    def read_status(self):
+        if self._inside():
+            self.tries.append(self.clock.now)
+            return _link.STATUS_BAD
+        return fakes.Link.read_status(self)
+
+
+def test_a_burst_of_link_errors_gets_a_frame_per_attempt_and_coasts():
+    """A quarter second of refused status words with the irq high: one attempt per frame
+    period, so the burst ends at the first recovery level, coasted over, never SAFE."""
+    exe, clock, _link_, sensor, tracker, wdt, _ = build()
+    link = exe.link = BurstLink(clock, [fakes.OK_FRAME] * 12, (10 ** 9, 0))
+    run(exe, 4)
+    link.burst = (clock.now, clock.now + 250)
+    trace = escalation(exe, 8)
+    states = [s for s, _ in trace]
+    assert "SAFE" not in states and max(level for _, level in trace) == executive.LEVEL_RESYNC
+    gaps = [b - a for a, b in zip(link.tries, link.tries[1:])]
+    assert len(link.tries) == 3 and min(gaps) >= 0.9 * exe.frame_s * 1000
+    assert states[-1] == "TRACK" and sensor.n_starts == 1
+    h = health(exe)
+    assert h["link_fault"] == 3 and h["coasted"] == 3 and "lost" not in h
+    assert wdt.max_gap < WDT_MS
+
+
+def test_uncommanded_detector_reset_is_counted_and_dated_by_time():
+    exe, clock, link, sensor, tracker, wdt, records = build(
+        [fakes.OK_FRAME, fakes.OK_FRAME, fakes.RESTART, fakes.OK_FRAME])
+    run(exe, 5)
+    assert health(exe)["uncommanded_reset"] == 1
+    assert executive.decode_telemetry(records[-1])["uncommanded_reset"] == 1
+    # the frame after the restart: dt from the time tags, not the restarted counter (1 - 2)
+    assert 0.05 < tracker.calls[2][2] < 0.2
+
+
+def test_the_gyro_is_read_at_the_frames_exposure():
+    """A rate that ramps with time (1 rad/s per s): each frame gets the rate of its epoch,
+    its IRQ edge less its exposure (no rows here), not the rate when it is processed."""
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 6,
+                                                            gyro=None)
+    exe.gyro = lambda: (clock.now / 1000.0, 0.0, 0.0)
+    edges = []
+    wait = link.wait_irq
+
+    def timed(timeout_ms, tick=None):
+        got = wait(timeout_ms, tick)
+        edges.append(clock.now)
+        return got
+    link.wait_irq = timed
+    run(exe, 6)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    for (_prior, omega, _dt), edge in zip(tracker.calls[1:], edges[1:]):
+        assert abs(omega[0] - (edge - exposure_ms) / 1000.0) < 0.002
+    # the time tag of the attitude is the last frame's epoch too
+    assert exe.q_time == round(edges[-1] - exposure_ms)
 
 
 def test_sensor_nack_retries_then_safe_and_recovers_on_reset():
@@ -267,7 +356,7 @@ def test_never_raises():
 
 
 def test_link_codes_and_health_names_fit_the_record():
-    assert len(executive.HEALTH_NAMES) == executive.N_HEALTH == 16
+    assert len(executive.HEALTH_NAMES) == executive.N_HEALTH == 17
     empty = bytes(executive.TELEMETRY_BYTES)
     assert len(executive.TELEMETRY_FIELDS) == len(struct.unpack(executive.TELEMETRY_FORMAT, empty))
     assert len(_link.CODE_NAMES) < 256 and len(executive.STATE_NAMES) == 7

@@ -72,6 +72,27 @@ def test_status_id_registers_and_keyed_commands():
     assert counters(link) == {"status": 2, "overflow": 1, "clock_lost": 1}
 
 
+def test_uncommanded_counter_restart_is_counted():
+    """The frame counter going back is a detector reset; counted unless the MCU commanded
+    it (soft reset) or the PLL's loss explains it (``OVF_CLOCK_LOST``)."""
+    bus, link, _ = new_link()
+
+    def status(counter, overflow=0):
+        bus.status_in.update(frame_counter=counter, overflow=overflow)
+        assert link.read_status() == _link.OK
+    status(10)
+    status(11)
+    status(0)
+    assert link.restarted and counters(link)["restarts"] == 1
+    link.restarted = False
+    status(5)
+    bus.status_in["frame_counter"] = 0
+    assert link.soft_reset() == _link.OK                # its resync reads the status
+    status(3)
+    status(0, overflow=1 << C.OVF_CLOCK_LOST)
+    assert not link.restarted and counters(link)["restarts"] == 1
+
+
 def test_packets_read_whole_and_frames_skipped(packets):
     bus, link, _ = new_link()
     bus.packets.extend(packets[:2])
