@@ -118,10 +118,15 @@ def corrupt(path):
 def recovery(rows, schedule):
     """Per scenario: ``{"start_s", "end_s", "recovered_s", "frames_to_recovery",
     "stated", "within"}``: the first solve in ``TRACK`` after the fault's end, in sensor
-    periods after it."""
+    periods after it.  The end is the window's, or the last step the fault acted in if
+    later (a one-shot acts on a step after its start: the ``watchdog`` hang ends with the
+    step that hung)."""
     out = {}
     for name, (start, end) in schedule.windows.items():
-        back = next((r for r in rows if r["t_s"] >= end and r["status"] == "OK"
+        last = max((i for i, r in enumerate(rows) if name in r["faults"]), default=-1)
+        if last >= 0:
+            end = max(end, rows[last]["t_s"])
+        back = next((r for r in rows[last + 1:] if r["t_s"] >= end and r["status"] == "OK"
                      and r["mode"] == "TRACK"), None)
         frames = None if back is None else max(0, int((back["t_s"] - end) / PERIOD_S + 0.999))
         out[name] = {"start_s": start, "end_s": end,

@@ -53,10 +53,22 @@ def test_corrupt_flips_one_byte(tmp_path):
 
 def test_recovery_counts_periods_to_the_next_tracking_solve():
     s = faults.Schedule(["irq-stuck-low"], fault_frame=10)      # 1.0 .. 1.3 s
-    rows = [{"t_s": 1.05, "status": "OK", "mode": "TRACK"},
-            {"t_s": 1.5, "status": "IRQ_TIMEOUT", "mode": "COAST"},
-            {"t_s": 1.51, "status": "OK", "mode": "TRACK"}]
+    rows = [{"t_s": 1.05, "status": "OK", "mode": "TRACK", "faults": ["irq-stuck-low"]},
+            {"t_s": 1.5, "status": "IRQ_TIMEOUT", "mode": "COAST", "faults": []},
+            {"t_s": 1.51, "status": "OK", "mode": "TRACK", "faults": []}]
     rec = faults.recovery(rows, s)["irq-stuck-low"]
     assert rec["frames_to_recovery"] == 3 and rec["recovered_s"] == 1.51 and rec["within"]
     rows[2]["t_s"] = 1.71
     assert not faults.recovery(rows, s)["irq-stuck-low"]["within"]
+
+
+def test_recovery_of_a_one_shot_counts_from_the_step_it_acted_in():
+    """The watchdog hang acts in a step after its start and that step still solves: the
+    recovery is the next tracking solve after it."""
+    s = faults.Schedule(["watchdog"], fault_frame=10)           # 1.0 .. 1.1 s
+    rows = [{"t_s": 1.2, "status": "OK", "mode": "TRACK", "faults": []},
+            {"t_s": 3.8, "status": "OK", "mode": "TRACK", "faults": ["watchdog"]},
+            {"t_s": 3.8, "status": "NO_FRAME", "mode": "CONFIGURE", "faults": []},
+            {"t_s": 4.25, "status": "OK", "mode": "TRACK", "faults": []}]
+    rec = faults.recovery(rows, s)["watchdog"]
+    assert rec["end_s"] == 3.8 and rec["recovered_s"] == 4.25 and rec["frames_to_recovery"] == 5
