@@ -161,6 +161,8 @@ async def board_top_frames(dut):
         got = codec.decode(data)
         assert got == expected, (i, got, expected)
     assert any(len(codec.decode(p).blobs) for p in packets)
+    stamps = [codec.decode(p).timestamp for p in packets]      # the frames' first pixels
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), stamps
     assert codec.decode(packets[2]).threshold == 200 and codec.decode(packets[1]).threshold == 50
 
     await check_idle(master, len(frames))

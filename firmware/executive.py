@@ -126,14 +126,16 @@ HEAP_EVERY = 16
 more than the rest of a step's telemetry); the records between repeat the last figure."""
 TELEMETRY_MAGIC = 0x4C54        # "LT"
 TELEMETRY_VERSION = 2
-TELEMETRY_FORMAT = ">HBBIQIBBBBHI4f2f17HII"
+TELEMETRY_FORMAT = ">HBBIQIIBBBBHI4f2f17HII"
 """Big endian: magic, version, state, sequence, the attitude's time tag (ms, its frame's
-epoch) and FPGA frame counter,
+epoch), FPGA frame counter and FPGA timestamp (us, the packet header's: the frame's first
+pixel on the gateware's clock),
 result status, link code, matches, recovery level, records, min_sum, q (x, y, z, w;
 NaN without an attitude), sigma cross and roll (arcsec; NaN), the 17 health counters,
 heap free (bytes; 0 unknown), CRC-32 (``contract.crc32``, native ``binascii``: a CRC-8 in
 Python costs more than the rest of the record on the MCU) of everything before it."""
 TELEMETRY_FIELDS = ("magic", "version", "state", "sequence", "time_ms", "frame_counter",
+                    "frame_timestamp",
                     "status", "link_code", "matches", "level", "n_records", "min_sum",
                     "qx", "qy", "qz", "qw", "sigma_cross", "sigma_roll") + HEALTH_NAMES + (
                         "heap_free", "crc")
@@ -199,6 +201,7 @@ class Executive(object):
         self.q = None                 # last good attitude
         self.q_time = 0               # its time tag, ms
         self.q_counter = 0            # its FPGA frame counter
+        self.q_stamp = 0              # its FPGA timestamp (us)
         self.sequence = 0
         self.reason = ""
         self.last_status = S.OK
@@ -691,6 +694,7 @@ class Executive(object):
             self.q = result.q
             self.q_time = now
             self.q_counter = counter
+            self.q_stamp = link.last_timestamp
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -754,7 +758,8 @@ class Executive(object):
         buf = self.record
         struct.pack_into(TELEMETRY_FORMAT, buf, 0, TELEMETRY_MAGIC, TELEMETRY_VERSION,
                          self.state, self.sequence, max(0, self.q_time),
-                         (self.q_counter or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
+                         (self.q_counter or 0) & 0xFFFFFFFF, (self.q_stamp or 0) & 0xFFFFFFFF,
+                         self.last_status & 0xFF,
                          self.last_link & 0xFF, matches, self.level, n_records,
                          self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],

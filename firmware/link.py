@@ -146,6 +146,7 @@ class Link(object):
         self.overflow = 0
         self.busy = 0
         self.last_frame_counter = None   # the frame counter of the last good packet
+        self.last_timestamp = None       # its timestamp (the gateware's us counter)
         self.n_records = 0
         self.last_height = 0             # the rows of the last good packet's frame
         self.ident = None                # (link_version, build) after read_id() == OK
@@ -312,6 +313,7 @@ class Link(object):
         self.count(C_PACKETS)
         self.n_records = n
         self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
+        self.last_timestamp = _field(head, 0, _HEADER["timestamp"])
         self.last_height = _field(head, 0, _HEADER["height"])
         return OK, n
 

@@ -262,6 +262,10 @@ class GatewareTop(wiring.Component):
     stall_timeout : int
         Clocks without a pixel inside a frame before the frame is completed with dark pixels
         and flagged ``FRAME_TIMEOUT`` (:class:`FrameWatchdog`).
+    sync_hz : float
+        The ``sync`` clock, for the packet header's microsecond ``timestamp``: a counter of
+        ``contract.timestamp_divider(sync_hz)`` clocks per count, free-running from power-up
+        (not reset by ``SOFT_RESET`` or a PLL loss), latched at each frame's first pixel.
 
     Members
     -------
@@ -287,8 +291,9 @@ class GatewareTop(wiring.Component):
 
     def __init__(self, sensor, width, height, *, label_capacity=None,
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None,
-                 stall_timeout=STALL_TIMEOUT):
+                 stall_timeout=STALL_TIMEOUT, sync_hz=100e6):
         frontend = frontend_class(sensor)
+        self.timestamp_divider = C.timestamp_divider(sync_hz)
         # the contract's check before any part is built (a part built for a refused frame
         # would warn UnusedElaboratable)
         C.check_geometry(width, height, frontend.PIXEL_BITS)
@@ -341,6 +346,7 @@ class GatewareTop(wiring.Component):
         wiring.connect(m, det.records, pkt.records)
         self._flush(m, pkt, spi, irq)
         self._timeouts(m, det, wd, pkt)
+        self._timestamp(m, det)
         m.d.comb += [
             spi.sck.eq(self.sck), spi.mosi.eq(self.mosi), spi.cs_n.eq(self.cs_n),
             self.miso.eq(spi.miso), self.miso_oe.eq(spi.miso_oe),
@@ -355,6 +361,20 @@ class GatewareTop(wiring.Component):
         ]
         self._overflow(m, fe, det, spi)
         return m
+
+    def _timestamp(self, m, det):
+        """The free-running microsecond counter (``sync``, outside the datapath's reset)."""
+        ticks = Signal(C.TIMESTAMP_BITS)
+        div = self.timestamp_divider
+        if div > 1:
+            pre = Signal(range(div))
+            with m.If(pre == div - 1):
+                m.d.sync += [pre.eq(0), ticks.eq(ticks + 1)]
+            with m.Else():
+                m.d.sync += pre.eq(pre + 1)
+        else:
+            m.d.sync += ticks.eq(ticks + 1)
+        m.d.comb += det.timestamp.eq(ticks)
 
     def _soft_reset(self, m, fe, wd):
         """``datapath_reset`` while ``clock_ok`` is low and for :data:`SOFT_RESET_CLOCKS` after
@@ -529,7 +549,8 @@ class Board:
         C.check_geometry(self.width, self.height, self.pixel_bits)
         return GatewareTop(self.sensor, self.width, self.height,
                            label_capacity=self.label_capacity,
-                           record_capacity=self.record_capacity, record_depth=self.record_depth)
+                           record_capacity=self.record_capacity, record_depth=self.record_depth,
+                           sync_hz=self.sync_hz)
 
 
 class DE2115Board(Board):

@@ -7,7 +7,8 @@ frame's first pixel, ``eol`` on each line's last; rows need ``MIN_HBLANK`` idle 
 frames :func:`min_vblank`.  ``records`` and ``trailer`` (valid/ready): compact records in the
 contract's order, then the frame's trailer (``hdl.layouts.TRAILER_NAMES``); a frame's records
 are the ``n_records`` before its trailer.  Registers written between frames are latched at a
-frame's first pixel.  The record buffer, the held trailer and lost trailers are the output
+frame's first pixel, and so is the ``timestamp`` input (the frame's time tag in its
+trailer).  The record buffer, the held trailer and lost trailers are the output
 stage's (:class:`lodestar.hdl.output.OutputStage`); these, ``reg_error`` and the status
 outputs are described in ``docs/gateware.md``.
 """
@@ -68,6 +69,7 @@ class Detector(wiring.Component):
             "reg_error_clear": In(1),
             "busy": Out(1),
             "frame_counter": Out(dict(C.HEADER_FIELDS)["frame_counter"]),
+            "timestamp": In(C.TIMESTAMP_BITS),
             "trailer_lost": Out(TRAILER_LOST_BITS),
             "fault": Out(1),
         })
@@ -95,10 +97,13 @@ class Detector(wiring.Component):
                      lab.feat_busy.eq(feat.busy), self.fault.eq(lab.fault),
                      self.busy.eq(lab.busy)]
 
-        # registers latched when a frame enters, then handed to the labeller's frame
+        # registers and the time latched when a frame enters, then handed to the labeller's
+        # frame (the timestamp from a register: no path from the counter's carry chain)
         entry = Signal(frame_registers_layout(("mode",) + _FILTERS), reset_less=True)
         frame = Signal.like(entry, reset_less=True)
+        entry_time = Signal(C.TIMESTAMP_BITS, reset_less=True)
         with m.If(self.pixels.valid & self.pixels.payload.sof):
+            m.d.sync += entry_time.eq(self.timestamp)
             m.d.sync += entry.mode.eq(regs.mode)
             m.d.sync += [entry[n].eq(getattr(regs, n)) for n in _FILTERS]
         m.d.comb += [getattr(feat, n).eq(frame[n]) for n in _FILTERS]
@@ -111,6 +116,7 @@ class Detector(wiring.Component):
                 frame.eq(entry),
                 head.mode.eq(entry.mode),
                 head.frame_counter.eq(self.frame_counter),
+                head.timestamp.eq(entry_time),
                 head.threshold.eq(thr.frame_threshold),
                 head.background.eq(thr.frame_background),
                 fallback.eq(thr.frame_fallback | thr.frame_local_fallback),

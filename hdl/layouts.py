@@ -13,7 +13,8 @@ from amaranth.lib import data, enum
 
 from lodestar import contract as C
 
-TRAILER_NAMES = ("mode", "frame_counter", "flags", "threshold", "background", "n_blobs",
+TRAILER_NAMES = ("mode", "frame_counter", "timestamp", "flags", "threshold", "background",
+                 "n_blobs",
                  "n_filtered", "dropped_records", "dropped_labels", "n_records")
 """Header fields the gateware produces per frame (the others are build constants)."""
 

@@ -171,6 +171,23 @@ configuration keep their values (only power-up resets them)."""
 
 FRAME_COUNTER_BITS = dict(HEADER_FIELDS)["frame_counter"]
 """Width of the frame counter (the packet header's)."""
+TIMESTAMP_HZ = 1000000
+"""The packet header's ``timestamp`` counts microseconds: a free-running counter of
+``contract.TIMESTAMP_BITS`` (wrapping after 71.6 min; differences modulo ``2**TIMESTAMP_BITS``) in
+the gateware's ``sync`` domain, one count every ``timestamp_divider(sync_hz)`` clocks,
+started at power-up and never reset by a soft reset or a PLL loss, latched when a frame's
+first pixel enters the detector.  The MCU dates frames by its differences; the frame
+counter numbers them."""
+
+
+def timestamp_divider(sync_hz):
+    """``sync`` clocks per timestamp count: ``sync_hz / TIMESTAMP_HZ``, which must be a whole
+    number (``ValueError`` otherwise: the time tags would drift)."""
+    div = int(round(sync_hz / TIMESTAMP_HZ))
+    if div < 1 or abs(div * TIMESTAMP_HZ - sync_hz) > 1e-6 * sync_hz:
+        raise ValueError("sync clock {} Hz is not a whole number of {} Hz".format(
+            sync_hz, TIMESTAMP_HZ))
+    return div
 
 STATUS_FIELDS = (
     ("frame_counter", FRAME_COUNTER_BITS),

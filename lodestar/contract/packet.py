@@ -100,13 +100,17 @@ RECORD_BITS = sum(bits for _, bits in RECORD_FIELDS)
 RECORD_BYTES = RECORD_BITS // 8
 
 PACKET_MAGIC = 0x4C53  # "LS"
-PACKET_VERSION = 1
+PACKET_VERSION = 2
+"""2: the header's ``timestamp`` (1: no time tag)."""
+TIMESTAMP_BITS = 32
+"""Width of the header's ``timestamp`` (its unit and meaning: ``contract.link``)."""
 
 HEADER_FIELDS = (
     ("magic", 16),
     ("version", 8),
     ("mode", 8),
     ("frame_counter", 32),
+    ("timestamp", TIMESTAMP_BITS),
     ("width", 16),
     ("height", 16),
     ("pixel_bits", 8),
@@ -121,6 +125,8 @@ HEADER_FIELDS = (
 )
 """Frame header, first in the packet: (field, bits), MSB first.
 
+``timestamp`` is the gateware's free-running microsecond counter latched when the frame's
+first pixel entered the detector (``contract.link.TIMESTAMP_HZ``): the frame's time tag.
 ``threshold``/``background`` are T and B in effect for the frame (in local mode, where they
 vary per pixel, ``threshold`` carries the ``local_offset`` register and ``background`` 0).
 ``n_blobs`` counts tracked blobs that completed (measured), ``n_filtered`` those of them the
@@ -199,17 +205,19 @@ class DetectionResult(object):
     ``blobs`` are :class:`BlobRecord` in emission order (raster order of each blob's last
     pixel).  ``threshold``/``background`` are T and B in effect (see :data:`HEADER_FIELDS`
     for local mode).  Counts as the header's.  Results compare equal when the records and
-    every header field but the geometry (``width``, ``height``, ``pixel_bits``) are equal.
+    every header field but the geometry (``width``, ``height``, ``pixel_bits``) and the
+    ``timestamp`` (the gateware's clock, which no model of the detection predicts) are
+    equal.
     """
 
     FIELDS = ("blobs", "mode", "threshold", "background", "n_blobs", "n_filtered",
               "dropped_records", "dropped_labels", "flags", "frame_counter", "width", "height",
-              "pixel_bits")
+              "pixel_bits", "timestamp")
     COMPARED = FIELDS[:10]
 
     def __init__(self, blobs, mode, threshold, background, n_blobs, n_filtered,
                  dropped_records, dropped_labels, flags, frame_counter=0, width=0, height=0,
-                 pixel_bits=0):
+                 pixel_bits=0, timestamp=0):
         self.blobs = blobs
         self.mode = mode
         self.threshold = threshold
@@ -223,6 +231,7 @@ class DetectionResult(object):
         self.width = width
         self.height = height
         self.pixel_bits = pixel_bits
+        self.timestamp = timestamp
 
     def replace(self, **changes):
         """A copy with ``changes`` (field names) applied."""

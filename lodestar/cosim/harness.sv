@@ -24,7 +24,7 @@
 module cosim_harness #(
     parameter PB = 12,
     parameter REC_W = 345,
-    parameter TR_W = 224,
+    parameter TR_W = 256,
     parameter ADDR_W = 4,
     parameter RUN_MAX = 4096
 ) (
@@ -95,6 +95,7 @@ module cosim_harness #(
         .reg_error(),
         .busy(),
         .frame_counter(),
+        .timestamp(32'd0),
         .trailer_lost(),
         .fault()
     );

@@ -418,7 +418,7 @@ def group_frames(records, trailers, width, height, pixel_bits):
             background=t["background"], n_blobs=t["n_blobs"], n_filtered=t["n_filtered"],
             dropped_records=t["dropped_records"], dropped_labels=t["dropped_labels"],
             flags=t["flags"], frame_counter=t["frame_counter"], width=width, height=height,
-            pixel_bits=pixel_bits))
+            pixel_bits=pixel_bits, timestamp=t["timestamp"]))
     if k != len(records):
         raise ValueError(f"{len(records) - k} records after the last trailer")
     return out

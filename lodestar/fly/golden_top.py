@@ -64,9 +64,10 @@ class GoldenTop:
     def irq(self):
         return bool(self.delivering or self.queue)
 
-    def frame(self, pixels, rows=None):
+    def frame(self, pixels, rows=None, start_us=0):
         """Detect ``pixels`` (its first ``rows`` rows, the rest dark and flagged) and queue
-        its packet."""
+        its packet, stamped ``start_us`` (its first pixel on the gateware's microsecond
+        counter)."""
         frame = np.asarray(pixels, dtype=np.uint16)
         flags = 0
         if frame.shape != (self.height, self.width):      # another window: a line error
@@ -81,6 +82,7 @@ class GoldenTop:
         self.detector.configure(self._config())
         result = self.detector.process(frame)
         result.flags |= flags
+        result.timestamp = int(start_us) & ((1 << C.TIMESTAMP_BITS) - 1)
         if len(self.queue) + bool(self.delivering) >= QUEUE:
             self.sticky |= 1 << C.OVF_TRAILER_LOST
             return

@@ -138,7 +138,7 @@ class World:
         w, h = s["window"][2:]
         frame = np.zeros((h, w), dtype=np.uint16)
         frame[:min(h, cam.height), :min(w, cam.width)] = sim.frame[:h, :w]
-        self.engine.frame(frame, rows)
+        self.engine.frame(frame, rows, start_us=round(start * 1e6))
 
     def soft_reset(self):
         """The gateware's frame counter restarts: the next frame played is counter 0."""

@@ -141,11 +141,12 @@ class VerilatedTop:
     def irq(self):
         return bool(self._lib.twin_irq(self._h))
 
-    def frame(self, pixels, rows=None):
+    def frame(self, pixels, rows=None, start_us=0):
         """Play ``pixels`` (``height x width``), only its first ``rows`` rows if given; a
         frame cut short is followed by the frame watchdog's stall timeout of idle clocks (the
         sensor's next frame comes 100 ms later, long after it: compressed time must not
-        join the two)."""
+        join the two).  ``start_us`` is the golden model's: the gateware stamps the frame
+        with its own counter (in its compressed time)."""
         data = np.ascontiguousarray(pixels, dtype=np.uint16)
         h, w = data.shape
         rows = h if rows is None else max(0, min(rows, h))

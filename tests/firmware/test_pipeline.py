@@ -439,7 +439,8 @@ def bad_packets(data):
     # semantically wrong with a correct CRC: header width 0; record 0 with n = 0
     word = int.from_bytes(data[:-C.CRC_BYTES], "big")
     body_bits = 8 * (len(data) - C.CRC_BYTES)
-    for code, offset, bits in ((S.PACKET_BAD_HEADER, 64, 16),
+    width_at = next(at for name, at, _ in C.field_offsets(C.HEADER_FIELDS) if name == "width")
+    for code, offset, bits in ((S.PACKET_BAD_HEADER, width_at, 16),
                                (S.PACKET_BAD_RECORD, 8 * C.HEADER_BYTES, 25)):
         shift = body_bits - offset - bits
         patched = word & ~(((1 << bits) - 1) << shift)

@@ -15,6 +15,12 @@ def to_record(fields):
     return C.BlobRecord(**{name: fields[name] for name in C.RECORD_NAMES})
 
 
+def frame_stamp(index):
+    """The ``timestamp`` the bench drives at frame ``index``'s first pixel (every bit of the
+    field used); between first pixels it drives another value, which no trailer may carry."""
+    return (0x9E3779B1 * (index + 1)) & ((1 << C.TIMESTAMP_BITS) - 1)
+
+
 def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None,
                   record_ready=lambda cycle: True, trailer_ready=lambda cycle: True,
                   trailer_first=False, status=None):
@@ -25,7 +31,8 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
     ``stop_after``: ``{frame index: pixels}`` streams only that many pixels of a frame.
     ``record_ready``/``trailer_ready``: when the reader is ready, by clock.  ``trailer_first``:
     read as the packetizer does, a trailer first and then its ``n_records`` records.
-    ``status``: a dict that receives the detector's final ``trailer_lost``.
+    ``status``: a dict that receives the detector's final ``trailer_lost``.  ``timestamp``
+    is :func:`frame_stamp` of the frame at each first pixel, its complement after it.
     Returns ``(records, trailers, leftover)``: the ``BlobRecord`` list, the trailer dicts in
     output order, each with its frame's records in ``["records"]`` (the ``n_records``
     records before it in the record stream), and records no trailer claimed.
@@ -48,6 +55,8 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
             limit = (stop_after or {}).get(i, h * w)
             for k in range(limit):
                 y, x = divmod(k, w)
+                stamp = frame_stamp(i)
+                ctx.set(dut.timestamp, stamp if k == 0 else stamp ^ 0xFFFFFFFF)
                 await stream_put(ctx, dut.pixels, {"data": int(frame[y, x]), "sof": int(k == 0),
                                                    "eol": int(x == w - 1)})
                 if x == w - 1:

@@ -11,7 +11,7 @@ import pytest
 from lodestar import contract as C
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.hdl.detector import Detector, min_vblank
-from tests.hdl.bench import stream_frames
+from tests.hdl.bench import frame_stamp, stream_frames
 
 
 def frame_of(mask, rng, bits=12):
@@ -20,12 +20,15 @@ def frame_of(mask, rng, bits=12):
                     rng.integers(0, 51, size=mask.shape)).astype(np.uint16)
 
 
-def golden_trailer(res, counter):
+def golden_trailer(res, counter, index=None):
+    """The trailer of frame ``counter``, streamed as frame ``index`` (default: the counter;
+    the bench's timestamp of that frame)."""
     head = res.header()
     head["frame_counter"] = counter
-    return {k: head[k] for k in ("mode", "frame_counter", "flags", "threshold", "background",
-                                 "n_blobs", "n_filtered", "dropped_records", "dropped_labels",
-                                 "n_records")}
+    head["timestamp"] = frame_stamp(counter if index is None else index)
+    return {k: head[k] for k in ("mode", "frame_counter", "timestamp", "flags", "threshold",
+                                 "background", "n_blobs", "n_filtered", "dropped_records",
+                                 "dropped_labels", "n_records")}
 
 
 def trailer_fields(t):
@@ -110,7 +113,7 @@ def test_local_frame_cut_early_says_its_tail_was_dropped():
     for i, t in ((0, trailers[0]), (2, trailers[2]), (4, trailers[4]), (6, trailers[5])):
         res = detect_frame(frames[i], cfg)
         assert t["records"] == list(res.blobs)
-        want = golden_trailer(res, t["frame_counter"])
+        want = golden_trailer(res, t["frame_counter"], i)
         want["flags"] |= t["flags"] & C.FRAME_TAIL_DROPPED
         assert trailer_fields(t) == want
     assert [t["frame_counter"] for t in trailers] == [0, 1, 2, 3, 4, 5] and pending == []

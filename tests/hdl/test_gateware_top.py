@@ -222,6 +222,56 @@ def test_soft_reset_mid_frame_then_next_frame_is_golden():
     assert got["status"]["overflow"] == 0 and got["status"]["errors"] == 0
 
 
+def test_timestamp_counts_microseconds_from_the_first_pixel_through_a_soft_reset():
+    """The header's ``timestamp`` is the top's free-running counter (one count every
+    ``sync_hz / TIMESTAMP_HZ`` clocks: 3 here) as the frame's first pixel entered the
+    detector; a ``SOFT_RESET`` restarts the frame counter, not the time."""
+    top = GatewareTop("mt9p031", W, H, record_capacity=CAP, record_depth=2 * CAP, sync_hz=3e6)
+    frames = _frames(2)
+    progress = {"pixels": 0, "frame": -1, "done": 0}
+    ready = {"configured": False, "reset": False}
+    got = {"sof": [], "packets": []}
+
+    async def master(ctx):
+        await ctx.tick().repeat(4)
+        await _configure(ctx, top)
+        ready["configured"] = True
+        assert await wait_irq(ctx, top, 40000)
+        got["packets"].append(await read_packet(ctx, top))
+        before = ctx.get(top.detector.timestamp)
+        await spi(ctx, top, C.keyed_command(C.OP_SOFT_RESET))
+        got["across_reset"] = (before, ctx.get(top.detector.timestamp))
+        ready["reset"] = True
+        assert await wait_irq(ctx, top, 40000)
+        got["packets"].append(await read_packet(ctx, top))
+
+    async def watch(ctx):
+        clock = 0
+        while True:
+            if ctx.get(top.detector.pixels.valid) and ctx.get(top.detector.pixels.payload.sof):
+                got["sof"].append((clock, ctx.get(top.detector.timestamp)))
+            await ctx.tick()
+            clock += 1
+
+    sim = Simulator(top)
+    sim.add_clock(10e-9)
+    sim.add_clock(10.4e-9, domain="pix")
+    sim.add_testbench(_sensor(top, frames, progress, gaps=[lambda p: ready["configured"],
+                                                           lambda p: ready["reset"]]),
+                      background=True)
+    sim.add_testbench(watch, background=True)
+    sim.add_testbench(master)
+    sim.run()
+    decoded = [codec.decode(p) for p in got["packets"]]
+    assert [d.frame_counter for d in decoded] == [0, 0]
+    assert [d.timestamp for d in decoded] == [t for _, t in got["sof"]]
+    (c0, t0), (c1, t1) = got["sof"]
+    assert abs((t1 - t0) - (c1 - c0) / top.timestamp_divider) <= 1 and t1 > t0 > 0
+    before, after = got["across_reset"]
+    assert after >= before > t0
+    assert decoded[1] == _golden(frames[1], 0)
+
+
 def test_flush_drops_queued_packets_and_next_read_is_whole():
     """Two frames end unread (the first's packet is being delivered, the second's trailer is
     held); the MCU reads part of the first packet, then ``FLUSH``: within ``flush_clocks()``
