@@ -35,6 +35,10 @@ from lodestar.sim import attitude, scene
 from lodestar.sim.centroids import attitude_error_deg
 from tests import sim_frames
 
+# the frames and the flight database are made once per worker: one worker runs them
+# (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("sim_frames")
+
 MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 
 

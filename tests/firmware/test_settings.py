@@ -3,6 +3,8 @@
 import inspect
 import time
 
+import pytest
+
 from lodestar.firmware import centroids, starid, tracking
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
@@ -14,6 +16,10 @@ from lodestar.firmware.settings import (
     Settings,
 )
 from tests import sim_frames
+
+# the frames and the flight database are made once per worker: one worker runs them
+# (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("sim_frames")
 
 
 def test_defaults():
