@@ -144,7 +144,7 @@ def build(label, checkout, work, db, manifest, repeats, script):
     """Stage ``checkout``'s image (None: this installation's) with the data module, build it
     and return a copy of its ``firmware.elf``."""
     side = work / label
-    image = unixport.stage_mcu_image(side / "image", checkout)
+    image = unixport.stage_mcu_image(side / "image", checkout, native=True)
     data = side / "data"
     data.mkdir(parents=True, exist_ok=True)
     data_module(data / "lodestar_bench.py", db, manifest, repeats)

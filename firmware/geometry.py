@@ -9,6 +9,8 @@ single precision, where ``acos`` of a dot product would not.  Pure Python (``mat
 import math
 from array import array
 
+from .emit import native
+
 
 def _machine_epsilon():
     e = 1.0
@@ -134,12 +136,14 @@ def is_unit_tuple(v):
         abs(x * x + y * y + z * z - 1.0) <= 4.0 * EPS
 
 
+@native
 def chord(a, b):
     """``|a - b|``: the chord between two unit vectors."""
     dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+@native
 def angle(a, b):
     """Angle between unit vectors ``a`` and ``b`` (rad), ``2 asin(|a - b| / 2)``."""
     h = 0.5 * chord(a, b)
@@ -159,6 +163,7 @@ def mat_vec(m, v):
             m[6] * v[0] + m[7] * v[1] + m[8] * v[2])
 
 
+@native
 def residual2(m, b, r):
     """``|b - m r|^2`` (rad^2 for unit vectors): a camera vector ``b`` against a catalogue
     vector ``r`` under the attitude matrix ``m``."""
@@ -168,6 +173,7 @@ def residual2(m, b, r):
     return dx * dx + dy * dy + dz * dz
 
 
+@native
 def rotate_about(v, axis, angle):
     """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues),
     as a tuple."""

@@ -138,7 +138,7 @@ def stage_set(folder, manifest, set_dir, db_files, frozen=FROZEN_DATABASES):
 
 def _stage_image(folder, checkout):
     """The MCU image of ``checkout`` (None: this installation's) and :data:`QEMU_MODULES`."""
-    image = unixport.stage_mcu_image(Path(folder), checkout)
+    image = unixport.stage_mcu_image(Path(folder), checkout, native=True)
     here = Path(__file__).parent
     for name in QEMU_MODULES:
         _write(image / "lodestar" / "regress" / f"{name}.py",
