@@ -86,11 +86,13 @@ def vector3(v):
     return float(x), float(y), float(z)
 
 
+@native
 def dot(u, v):
     """Dot product of two 3-vectors."""
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
+@native
 def cross(u, v):
     """Cross product ``u x v`` of two 3-vectors."""
     return (u[1] * v[2] - u[2] * v[1],
@@ -98,6 +100,7 @@ def cross(u, v):
             u[0] * v[1] - u[1] * v[0])
 
 
+@native
 def norm(v):
     """Euclidean length of a 3-vector (no overflow protection: star vectors are ~unit)."""
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
@@ -116,6 +119,7 @@ def normalise_vector(v):
     return [x / n, y / n, z / n]
 
 
+@native
 def unit(v):
     """Unit vector of ``v`` (a 3-sequence) as a tuple; None if zero or not finite."""
     x, y, z = float(v[0]), float(v[1]), float(v[2])
@@ -125,6 +129,7 @@ def unit(v):
     return x / n, y / n, z / n
 
 
+@native
 def is_unit_tuple(v):
     """True when ``v`` is a tuple of three floats of unit norm (to a few ulp): such a vector
     can be shared instead of normalised into a copy (an MCU heap then holds the observed

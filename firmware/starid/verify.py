@@ -93,6 +93,7 @@ class Verification:
         return len(self.pairs)
 
 
+@native
 def predicted_stars(database, q, margin=0.0):
     """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
     vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
