@@ -28,10 +28,12 @@ SQRT2 = 1.4142135623730951
 NONE = 0xFFFF
 """End of a chain in the ``array('H')`` pair index of :meth:`_Search._index`."""
 
-CHUNK = 256
+CHUNK = 128
 """Most candidate pairs of one side indexed at once (:meth:`_Search._index`; longer ranges are
-joined chunk by chunk); entry numbers stay below :data:`NONE`."""
-_HEAD = 512
+joined chunk by chunk); entry numbers stay below :data:`NONE`.  128, not 256: the index's
+blocks are allocated per search (half a KiB each), and at 256 the lost-in-space frames of
+the regression set ran out of the 64 KiB flight heap."""
+_HEAD = 256
 """Chain heads of a side's index: a power of two, at least the ``2 * CHUNK`` entries."""
 
 
@@ -76,9 +78,9 @@ class _Search(Search):
     def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
         # the search's buffers (the observed angles, the pair ranges, the two sides' pair
-        # index: 9 KiB at 16 stars) live while it runs: the pipeline collects before a
-        # lost-in-space search, so they come from a heap without holes, and a tracking
-        # frame's heap does not hold them
+        # index: 6 KiB at 16 stars, no block above 2 KiB) live while it runs: the pipeline
+        # collects before a lost-in-space search, and a tracking frame's heap does not
+        # hold them
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
         size = 2 * self.n * self.n

@@ -18,11 +18,11 @@ from tests import REPO
 # one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
 pytestmark = pytest.mark.xdist_group("unixport")
 
-HEAP_BUDGET = 72 * 1024
+HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the flight build with the
 firmware's own collector setting, the STM32F401's, and a packet buffer for the flight
-gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``; the set
-needs a little more than 64 KiB since issues 29-33 landed together, ``docs/mcu_board.md``)."""
+gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``,
+``docs/mcu_board.md``)."""
 
 
 def _runs(manifest, method, camera=None):
