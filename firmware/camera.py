@@ -311,6 +311,7 @@ class Camera(object):
         pinhole = self._pinhole
         cx, cy, fx, fy = self.cx, self.cy, self.fx, self.fy
 
+        @native
         def smear(x, y):
             if pinhole:
                 # a homogeneous direction: the turn is linear and the projection divides by Z

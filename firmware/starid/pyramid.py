@@ -51,8 +51,8 @@ DEFAULT_MAX_STARS = 16
 """Observed stars a search uses for patterns by default (:func:`identify`)."""
 MAX_WORK = 20000
 """Pyramid's work budget (:data:`.search.DEFAULT_MAX_WORK`'s units): a search that spends it,
-its mirror check and its conclusion end within 2 s of F401 time (measured on the Cortex-M4F
-build at 15-25 guest ticks per unit, ``docs/starid.md``, Work budget)."""
+its mirror check (a third more) and its conclusion end within 2 s of F401 time (measured on
+the Cortex-M4F build, ``docs/firmware.md``, The work budget on the MCU)."""
 PATTERN_WORK = 100
 """Work units of a triple beyond its pair candidates (its three k-vector queries, the
 triangles' sort, the handedness tests: about 1,500 guest ticks on the Cortex-M4F build)."""
