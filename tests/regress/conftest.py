@@ -73,8 +73,10 @@ def cortex_m4f(regression_set):
 @pytest.fixture(scope="session")
 def cortex_m4f_set(cortex_m4f, regression_set):
     """The whole set, every method, in one QEMU run at the flight heap
-    (:data:`~lodestar.regress.qemu.FLIGHT_HEAP`: the build's heap less a ballast held from
-    the start) with the flight packet buffer (:func:`lodestar.regress.qemu.flight_loop`)."""
+    (:data:`~lodestar.regress.qemu.FLIGHT_HEAP`: the build's heap less a ballast of the
+    difference held from the start; a few hundred bytes less than the flight build's own
+    pool, whose allocation tables are smaller) with the flight packet buffer
+    (:func:`lodestar.regress.qemu.flight_loop`)."""
     manifest, db_files = regression_set
     runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
     return qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,

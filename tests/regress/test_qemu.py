@@ -37,7 +37,7 @@ def test_the_build_reproduces_its_float32_expectations(cortex_m4f_outcomes, regr
 
 
 def test_every_packet_solves_within_the_flight_heap(cortex_m4f_set, regression_set):
-    """Every case and method in one QEMU run at the flight heap (72 KiB) with
+    """Every case and method in one QEMU run at the flight heap (``qemu.FLIGHT_HEAP``) with
     the flight packet buffer: the recorded status and identified stars, none out of heap,
     the attitude within the float32 bound of the expectations (a frame short of heap in
     tracking may solve lost in space instead)."""
@@ -56,7 +56,7 @@ def test_every_packet_solves_within_the_flight_heap(cortex_m4f_set, regression_s
 
 def test_the_image_fits_the_f401(cortex_m4f, cortex_m4f_set):
     """Statics, the heap and the stack fill the F401's 96 KiB; at the flight heap (the same
-    statics, 8 KiB less heap) the stack left is at least the 16 KiB budget, and the stack the
+    statics, less heap) the stack left is at least the 16 KiB budget, and the stack the
     set needed (painted, read back) stays within it; the image with the estcube2 database
     fits the emulated 1 MiB."""
     layout = qemu.memory_map(cortex_m4f, qemu.EXPECTATION_HEAP)
