@@ -19,6 +19,7 @@ from lodestar.contract.stardb import METHODS
 from lodestar.firmware import centroids
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
+from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
 from lodestar.golden import detect_frame
 from lodestar.ground import onboard
 from lodestar.ground.onboard import detector_config
@@ -176,8 +177,10 @@ def falsestars_trial(preset, level, seed, config):
     unit = np.random.default_rng(seed).standard_normal((len(stars), 2))
     out = {}
     for method in METHODS:
-        tracker = StarTracker(frame.database(method), frame.fw_cam, Settings(method=method,
-                              tolerance_px=onboard.default_tolerance_px(frame.fw_cam)))
+        # the ground budget, as every other trial (onboard.process): the study is of noise
+        tracker = StarTracker(frame.database(method), frame.fw_cam, Settings(
+            method=method, tolerance_px=onboard.default_tolerance_px(frame.fw_cam),
+            max_work=DEFAULT_MAX_WORK))
         out[method] = {}
         for sigma in NOISE_PX:
             vectors, used = [], []
