@@ -146,8 +146,12 @@ def _golden_set(pattern):
     return [d[0] for d in docs], [d[2] for d in docs]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pattern", ["estcube2_*.json", "lohmann_*.json"])
 def test_committed_golden_image_set(tmp_path, pattern):
+    """The committed 640 x 480 and 752 x 480 golden frames on the cocotb build (opt in:
+    --runslow; by default the native build plays them bit-exact,
+    ``tests/cosim/test_runner.py``, and writes what the cocotb build writes)."""
     frames, cfgs = _golden_set(pattern)
     c = cfgs[0]
     build = Build(c.width, c.height, c.pixel_bits, c.label_capacity, c.record_capacity)

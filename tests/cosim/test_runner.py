@@ -128,9 +128,9 @@ def test_native_build_plays_as_the_cocotb_build(tmp_path):
 
 def test_golden_set_bit_exact_on_the_native_build(tmp_path):
     """Every committed golden frame, back to back per geometry, on the native build (what
-    ``run_frames`` uses): bit-exact with the golden model.  The cocotb build plays the same
-    set in ``cocotb_tests/test_detector.py`` and writes what the native build writes
-    (``test_native_build_plays_as_the_cocotb_build``)."""
+    ``run_frames`` uses): bit-exact with the golden model.  The cocotb build writes what the
+    native build writes (``test_native_build_plays_as_the_cocotb_build``) and plays the
+    same set with --runslow (``cocotb_tests/test_detector.py``)."""
     from lodestar.hdl.labeller import MIN_HBLANK
     from lodestar.sim.goldenset import load_frame_doc
 

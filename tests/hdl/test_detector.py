@@ -35,8 +35,12 @@ def trailer_fields(t):
     return {k: v for k, v in t.items() if k != "records"}
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", [0, 1] + [pytest.param(s, marks=pytest.mark.slow)
+                                          for s in (2, 3)])
 def test_random_frames_random_capacities(seed):
+    """Five random geometries and capacities per seed, four frames each, in the Amaranth
+    simulator (two seeds by default, four with --runslow; the broad random campaign is
+    Verilated, ``cocotb_tests/test_detector.py``)."""
     rng = np.random.default_rng(seed)
     for _ in range(5):
         h, w = int(rng.integers(1, 9)), int(rng.integers(3, 10))
