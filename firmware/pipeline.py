@@ -26,6 +26,8 @@ from . import centroids, packet, starid, tracking
 from . import database as _database
 from . import geometry as G
 from . import quaternion as Q
+from . import screen as _screen
+from . import smear as _smear
 from . import status as S
 from .settings import Settings
 from .starid import verify
@@ -132,6 +134,16 @@ identification uses; a frame that has too few stars without any smeared away is
 ``TOO_FEW_STARS`` as ever)."""
 
 
+MIN_SCREENED_STARS = 4
+"""Fewest matches the match screen leaves (:meth:`StarTracker._screened`); a screen that would
+leave fewer drops none (the identification's own probability stands)."""
+MAX_BOUNDED_SMEAR_PX = 6.0
+"""Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
+frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
+streaks bound its smear by about 3.5 px, and the shear this bound allows over the read-out
+is folded into the sigma; beyond it the frame is ``RATE_UNKNOWN``."""
+
+
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike): when it is within the limit no
@@ -189,7 +201,8 @@ def _residuals2(q, b, r):
 class Result:
     """Outcome of :meth:`StarTracker.process` (fields in ``docs/firmware.md``)."""
 
-    __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
+    __slots__ = ("status", "reason", "mode", "q", "t_epoch_s", "rate_rad_s",
+                 "sigma_rate_rad_s", "matches", "n_stars", "n_records",
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
                  "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
@@ -198,6 +211,9 @@ class Result:
         self.reason = reason
         self.mode = None
         self.q = None
+        self.t_epoch_s = None
+        self.rate_rad_s = None
+        self.sigma_rate_rad_s = None
         self.matches = []
         self.n_stars = 0
         self.n_records = 0
@@ -261,6 +277,8 @@ class StarTracker:
         self.beta = None
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
+        self._frame = None              # process(): (instants, smear bound px, exposure)
+        self._last_fit = None           # the final fit's (vectors, weights), for the screen
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -638,11 +656,13 @@ class StarTracker:
         sol = ref = predicted = None     # only star_ids goes on to the fit
         if mode == "lost_in_space":
             _collect()
-        solved = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
-                               streaks, q0, fitted) if len(star_ids) >= 2 else None
-        if solved is None:
-            res.status = S.NO_MATCH
-            _note(res, "degenerate attitude fit")
+        status, solved, again = self._fit(res, vectors, star_ids, fluxes,
+                                          smear_px <= FLOOR_MAX_SMEAR_PX, streaks, q0, fitted,
+                                          omega)
+        if again is not star_ids:
+            star_ids, hips = again, None
+        if status != S.OK:
+            res.status = status
             return res
         q, cross, roll, sigma = solved
         res.status = S.OK
@@ -656,6 +676,262 @@ class StarTracker:
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
         self._tick(timings, "attitude", start)
         return res
+
+    def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
+        """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
+        (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
+        the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
+        ``OK``."""
+        for attempt in range(2):
+            solved = self.attitude(vectors, star_ids, fluxes, floor, streaks, q0,
+                                   fitted) if len(star_ids) >= 2 else None
+            if solved is None:
+                _note(res, "degenerate attitude fit")
+                return S.NO_MATCH, None, star_ids
+            self._last_fit = None
+            solved, star_ids = self._at_instant(res, vectors, star_ids, fluxes, streaks,
+                                                omega, solved)
+            if solved is None:
+                return res.status, None, star_ids
+            drop = self._screened(star_ids, fluxes, solved[0]) if attempt == 0 else None
+            if not drop:
+                break
+            _note(res, str(len(drop)) + " matches dropped by the screen (HIP " +
+                  ", ".join([str(self.database.star_hip(star_ids[i][1])) for i in drop]) + ")")
+            star_ids = [star_ids[i] for i in range(len(star_ids)) if i not in drop]
+            q0, fitted = solved[0], False
+        return S.OK, solved, star_ids
+
+    def _screened(self, star_ids, fluxes, q):
+        """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
+        the final fit (its vectors and weights, kept by :meth:`_radial`; not when it fitted a
+        radial pattern) and brightness outliers (the observed ``fluxes`` against the
+        catalogue magnitudes); None when fewer than :data:`MIN_SCREENED_STARS` would stay."""
+        if self._last_fit is None:
+            return None
+        vectors, w, radial = self._last_fit
+        self._last_fit = None
+        db, cone = self.database, self._cone
+        drop = []
+        if not radial:              # a fitted radial pattern is not in these residuals
+            m = Q.matrix(q)
+            drop = _screen.residual_outliers([G.residual2(m, vectors[o], cone.star_vector(
+                db, s)) * w[i] for i, (o, s) in enumerate(star_ids)])
+        if fluxes is not None:
+            for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
+                                                     [db.star_mag(s) for _o, s in star_ids]):
+                if i not in drop:
+                    drop.append(i)
+        return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
+
+    def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
+        """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
+        its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
+        with ``omega``, ``epoch_s``, the rate checked against the frame's
+        (:func:`lodestar.firmware.smear.rate_fit`; one beyond ``RATE_CHI2`` or further from
+        the frame's than its opposite is contradicted and replaced by the frame's, with a
+        note; one the frame cannot confirm, :meth:`_at_mean`); without, the matched stars'
+        weighted mean instant, the rate fitted with the attitude, or with too few stars
+        bounded by the streaks (else ``RATE_UNKNOWN``: None).  A fitted rate is then used to
+        match again the stars its shear kept out.  Last, :meth:`_radial`.  Returns ``(solved,
+        star_ids)``; frames of :meth:`solve_vectors` have no instants."""
+        frame = self._frame
+        w = self._rate_weights(star_ids, fluxes, streaks)
+        if frame is None:
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        times, bound_px, exposure = frame
+        res.rate_rad_s = omega
+        ts = [times[o] for o, _s in star_ids]
+        total = mean = 0.0
+        for i in range(len(w)):
+            total += w[i]
+            mean += w[i] * ts[i]
+        mean /= total
+        ref = self.settings.epoch_s if omega is not None else mean
+        res.t_epoch_s = ref
+        fit = None
+        if self.settings.row_time_s != 0:       # else every star seen at one instant
+            fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
+        if fit is None and self.settings.row_time_s != 0:
+            if omega is None:
+                return self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure), \
+                    star_ids
+            # the given rate cannot be checked: the attitude at the stars' mean instant, where
+            # the rate's error moves it least, bounded as without a rate (the rate the
+            # streaks allow plus the given one's own smear: a wrong given rate's error)
+            _note(res, "omega not checked (" + str(len(star_ids)) + " stars): the attitude "
+                  "at the stars' mean instant")
+            res.t_epoch_s = mean
+            q = tracking.propagate(solved[0], omega, mean - ref)
+            given_px = G.norm(omega) * self.focal_px * exposure if exposure is not None \
+                else None
+            bound = None if bound_px is None or given_px is None else bound_px + given_px
+            return self._bounded(res, (q, solved[1], solved[2], solved[3]), star_ids, ts,
+                                 mean, bound, exposure), star_ids
+        if fit is not None and omega is not None:
+            d = fit[1]
+            chi2 = _smear.chi2_rate(d, fit[3])
+            flip = _smear.chi2_rate((d[0] + 2 * omega[0], d[1] + 2 * omega[1],
+                                     d[2] + 2 * omega[2]), fit[3])
+            if chi2 is not None and chi2 <= _smear.RATE_CHI2 and not flip < chi2:
+                if self._confirmed(omega, fit[3], mean - ref, solved):
+                    fit = None          # the gyro agrees with the frame: its result stands
+                else:                   # ... or the frame cannot tell: at the mean instant
+                    return self._at_mean(res, vectors, star_ids, w, times, omega, ref, mean,
+                                         solved), star_ids
+            else:
+                _note(res, "omega contradicted by the frame's rate (off by " +
+                      _deg3(fit[1]) + " deg/s): the frame's used")
+        if fit is None:
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        q, rate, p, p_rate, s = fit
+        if omega is not None:
+            rate = (omega[0] + rate[0], omega[1] + rate[1], omega[2] + rate[2])
+        turned = self._turned(vectors, times, ref, rate, omega)
+        again = self._track(turned, q, None, None, None)
+        if again.status == S.OK and len(again.star_ids) > len(star_ids):
+            ids = again.star_ids
+            w2 = self._rate_weights(ids, fluxes, None)
+            fit2 = self._rate_fit(turned, ids, w2, times, ref, again.q)
+            if fit2 is not None:
+                star_ids, w = ids, w2
+                q, extra, p, p_rate, s = fit2
+                rate = (rate[0] + extra[0], rate[1] + extra[1], rate[2] + extra[2])
+        res.rate_rad_s = rate
+        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
+            star_ids
+
+    def _radial(self, res, vectors, star_ids, w, times, ref, solved):
+        """``solved``, or when the matched stars' residuals show a radial pattern (a lens
+        distortion or focal length the camera model lacks:
+        :func:`lodestar.firmware.smear.radial_fit`, its coefficients beyond
+        ``RADIAL_CHI2``) the attitude fitted with it, its sigma grown by it, noted in
+        ``reason``.  ``times``: the stars' instants when the rate is fitted too (counted from
+        ``ref``; the fitted rate then corrected in ``res``), else None."""
+        self._last_fit = (vectors, w, False)
+        if len(star_ids) < _smear.MIN_RADIAL_STARS:
+            return solved
+        db, cone = self.database, self._cone
+        rate = times is not None
+        fit = _smear.radial_fit([vectors[o] for o, _s in star_ids],
+                                [cone.star_vector(db, s) for _o, s in star_ids],
+                                [times[o] - ref if rate else 0.0 for o, _s in star_ids], w,
+                                solved[0], rate, self.min_sigma_rad, self.sigma_rad)
+        if fit is None:
+            return solved
+        q, extra, p, p_rate, s, c, p_c = fit
+        chi2 = _smear.chi2_rate(c, p_c)
+        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+            return solved
+        _note(res, "the residuals show a radial pattern (chi2 " + str(int(chi2)) + "): an "
+              "unmodelled lens distortion or focal length, fitted; sigma grown")
+        self._last_fit = (vectors, w, True)
+        if rate:
+            r0 = res.rate_rad_s
+            res.rate_rad_s = (r0[0] + extra[0], r0[1] + extra[1], r0[2] + extra[2])
+            res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return q, max(cross, solved[1]), max(roll, solved[2]), s
+
+    def _confirmed(self, omega, p_rate, dt, solved):
+        """Whether the frame's rate fit (covariance ``p_rate``) confirms a given ``omega`` it
+        did not contradict: it would have told the wrong sign (``2 omega`` beyond
+        ``RATE_CHI2``), or a wrong sign would move the attitude by less than
+        :data:`UNCHECKED_SIGMAS` of its sigmas (``2 omega dt``, ``dt`` from the epoch to the
+        stars' mean instant)."""
+        twice = (2 * omega[0], 2 * omega[1], 2 * omega[2])
+        chi2 = _smear.chi2_rate(twice, p_rate)
+        if chi2 is not None and chi2 > _smear.RATE_CHI2:
+            return True
+        _q, cross, roll, _s = solved
+        lim = UNCHECKED_SIGMAS
+        return abs(twice[0] * dt) <= lim * cross and abs(twice[1] * dt) <= lim * cross and \
+            abs(twice[2] * dt) <= lim * roll
+
+    def _at_mean(self, res, vectors, star_ids, w, times, omega, ref, mean, solved):
+        """A given ``omega`` the frame can neither confirm nor contradict (:meth:`_confirmed`):
+        the attitude and the rate fitted at the stars' ``mean`` instant, where the rate's
+        error moves the attitude least (``vectors`` were turned to ``ref`` by ``omega``),
+        noted; ``solved`` as it was when that fit is degenerate."""
+        speed = G.norm(omega)
+        axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed)
+        moved = [G.rotate_about(v, axis, speed * (ref - mean)) for v in vectors]
+        q0 = tracking.propagate(solved[0], omega, mean - ref)
+        fit = self._rate_fit(moved, star_ids, w, times, mean, q0)
+        if fit is None:
+            return solved
+        q, extra, p, p_rate, s = fit
+        _note(res, "omega not confirmed by the frame: the attitude at the stars' mean instant")
+        res.t_epoch_s = mean
+        res.rate_rad_s = (omega[0] + extra[0], omega[1] + extra[1], omega[2] + extra[2])
+        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return self._radial(res, moved, star_ids, w, times, mean, (q, cross, roll, s))
+
+    def _rate_weights(self, star_ids, fluxes, streaks):
+        """Relative weights of the matched stars for the rate fit: the photon model
+        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
+        n = len(star_ids)
+        w = [1.0] * n if fluxes is None else self.weights([fluxes[o] for o, _s in star_ids])
+        if streaks is not None:
+            s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
+            w = [1.0 / (1.0 / w[i] + verify.streak_variance(streaks[star_ids[i][0]]) /
+                        (s0 * s0)) for i in range(n)]
+        return w
+
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q):
+        """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
+        counted from ``ref``."""
+        db, cone = self.database, self._cone
+        return _smear.rate_fit([vectors[o] for o, _s in star_ids],
+                               [cone.star_vector(db, s) for _o, s in star_ids],
+                               [times[o] - ref for o, _s in star_ids], w, q,
+                               self.min_sigma_rad, self.sigma_rad)
+
+    def _turned(self, vectors, times, ref, rate, omega):
+        """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s), undoing the turn by
+        ``omega`` (None: none) they had."""
+        d = rate if omega is None else \
+            (rate[0] - omega[0], rate[1] - omega[1], rate[2] - omega[2])
+        speed = G.norm(d)
+        if not speed > 0:
+            return vectors
+        axis = (d[0] / speed, d[1] / speed, d[2] / speed)
+        return [G.rotate_about(vectors[o], axis, speed * (times[o] - ref))
+                for o in range(len(vectors))]
+
+    def _bounded(self, res, solved, star_ids, ts, mean, bound_px, exposure):
+        """``solved`` without a rate fit (too few stars) and without ``omega``: its
+        covariance grown by the shear of the fastest rate the streaks allow
+        (:func:`lodestar.firmware.smear.smear_bound_px`, across the boresight and, for the
+        stars' median distance from the centre, about it) over the stars' instants;
+        ``RATE_UNKNOWN`` (None) when the streaks allow a smear beyond
+        :data:`MAX_BOUNDED_SMEAR_PX` or the exposure is unknown."""
+        if bound_px is None or exposure is None or bound_px > MAX_BOUNDED_SMEAR_PX:
+            res.status = S.RATE_UNKNOWN
+            _note(res, "too few stars (" + str(len(star_ids)) + ") to fit the rate, and "
+                  "the streaks do not bound it")
+            return None
+        cam, xy = self.camera, self._xy
+        radii = []
+        span = 0.0
+        for i in range(len(star_ids)):
+            o = star_ids[i][0]
+            dx, dy = xy[2 * o] - cam.cx, xy[2 * o + 1] - cam.cy
+            radii.append(math.sqrt(dx * dx + dy * dy))
+            if abs(ts[i] - mean) > span:
+                span = abs(ts[i] - mean)
+        radii.sort()
+        rate_cross = bound_px / (self.focal_px * exposure)
+        rate_roll = bound_px / (max(radii[len(radii) // 2], 1.0) * exposure)
+        q, cross, roll, s = solved
+        cross = math.sqrt(cross * cross + (rate_cross * span) ** 2)
+        roll = math.sqrt(roll * roll + (rate_roll * span) ** 2)
+        _note(res, "rate not fitted (" + str(len(star_ids)) + " stars): sigma grown by the "
+              "shear of the streaks' bound")
+        return q, cross, roll, s
 
     # ---- the flight entry point --------------------------------------------------------
 
@@ -740,11 +1016,15 @@ class StarTracker:
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         self._keep(stars, used)
+        self._frame = self._instants(stars, used, exposure)
         stars = used = None
         if prior is None:
             _collect()
-        res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
-                                  streaks, beta)
+        try:
+            res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
+                                      streaks, beta)
+        finally:
+            self._frame = None
         if res.status == S.OK:
             index, xy = self._index, self._xy
             matches = []
@@ -754,6 +1034,19 @@ class StarTracker:
             res.min_sum = budget
         self._tick(timings, "total", first)
         return res
+
+    def _instants(self, stars, used, exposure):
+        """``(times, smear bound px, exposure)`` of the used stars (``_keep`` order): each
+        one's mean instant, s after the start of row 0's exposure (``exposure / 2 + y
+        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and the
+        streaks' smear bound (:func:`lodestar.firmware.smear.smear_bound_px`)."""
+        half = 0.5 * exposure if exposure is not None else 0.0
+        row_time = self.settings.row_time_s
+        xy = self._xy
+        times = [half + xy[2 * o + 1] * row_time for o in range(len(used))]
+        bound = _smear.smear_bound_px([(stars[i].sigma_major, stars[i].sigma_minor)
+                                      for i in used])
+        return times, bound, exposure
 
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
@@ -821,6 +1114,16 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
+
+
+UNCHECKED_SIGMAS = 5.0
+"""A given rate the frame cannot confirm stands when a rate of the wrong sign would move the
+attitude by less than this many of its sigmas (:meth:`StarTracker._confirmed`)."""
+
+
+def _deg3(v):
+    """A rate (rad/s) as text in deg/s, to 0.01."""
+    return "(" + ", ".join([str(round(math.degrees(x), 2)) for x in v]) + ")"
 
 
 def _note(res, text):

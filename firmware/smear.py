@@ -1,0 +1,245 @@
+"""The body rate a frame shows, and the attitude at one instant: no gyro needed.
+
+A rolling shutter sees row ``y`` at ``t = exposure / 2 + y * row_time`` after the start of
+row 0's exposure (a centroid is its star's mean position over the exposure), and a turning
+camera shows each star where it was at its row's instant: the rate shears the matched stars
+against their catalogue directions (a rate across the boresight as a scale or skew along the
+columns, a roll as a rotation growing down the rows).  :func:`rate_fit` fits the attitude at
+a reference instant and the rate together to the matched pairs (six unknowns, least
+squares), so the attitude's covariance includes what the rate's uncertainty does to it.
+:func:`smear_bound_px` reads the stars' own streaks (their second moments) for the frames
+with too few stars to fit a rate: how long a smear they allow.  Rates in rad/s in the camera
+frame, angles in rad, times in s (``docs/conventions.md``); ``docs/firmware.md`` (Epoch and
+rate) tells how the pipeline uses them.  Pure Python for CPython and MicroPython, accurate in
+single precision (the rate's unknowns are scaled by the stars' time spread).
+"""
+
+import math
+
+from . import geometry as G
+from . import quaternion as Q
+
+MIN_RATE_STARS = 6
+"""Fewest matched stars :func:`rate_fit` fits a rate to: six unknowns, and at least
+``2n - 8 >= 4`` residual degrees of freedom for the noise it scales the covariance by."""
+MIN_RADIAL_STARS = 8
+"""Fewest matched stars :func:`radial_fit` fits a radial displacement to."""
+RADIAL_CHI2 = 30.0
+"""Largest ``chi^2`` of the radial displacement's two coefficients (about 5 sigma) before a
+solution's residuals are said to show an unmodelled radial pattern."""
+RATE_ITERATIONS = 3
+"""Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
+the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
+over a frame."""
+RATE_CHI2 = 16.0
+"""Largest ``chi^2`` (3 degrees of freedom) of the frame's rate against a given one before the
+given rate is called contradicted (chance 1e-3 for a right one): a false alarm costs only
+precision (the frame's own rate is then used, its uncertainty in the covariance), a missed
+wrong rate an attitude off by the rate error times the time to the epoch."""
+STILL_ELONGATION_PX2 = 1.0
+"""Median excess second moment ``sigma_major^2 - sigma_minor^2`` (px^2) of a still frame's
+stars: noise and pixelisation make a round star look a little elongated (estcube2 at rest,
+``docs/firmware.md``).  A smear ``L`` adds ``L^2 / 12``."""
+
+
+def _solve(n, a, h):
+    """``x`` with ``a x = h`` for a symmetric positive-definite ``n x n`` ``a`` (a flat row-major
+    list, overwritten by its Cholesky factor), or None when it is not positive definite."""
+    for j in range(n):
+        d = a[j * n + j]
+        for k in range(j):
+            d -= a[j * n + k] * a[j * n + k]
+        if not d > 0:
+            return None
+        d = math.sqrt(d)
+        a[j * n + j] = d
+        for i in range(j + 1, n):
+            s = a[i * n + j]
+            for k in range(j):
+                s -= a[i * n + k] * a[j * n + k]
+            a[i * n + j] = s / d
+    x = list(h)
+    for i in range(n):
+        s = x[i]
+        for k in range(i):
+            s -= a[i * n + k] * x[k]
+        x[i] = s / a[i * n + i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= a[k * n + i] * x[k]
+        x[i] = s / a[i * n + i]
+    return x
+
+
+def _columns(a, x, rate, radial, rho2):
+    """The model's derivatives at catalogue direction ``a`` (camera frame) for a star seen
+    ``x`` (scaled) after the reference: three 3-vectors for the attitude's small rotation
+    (``e_j x a``), three for the rate when ``rate`` (``-x e_j x a``), two for a radial
+    displacement when ``radial`` (``g`` and ``|g|^2 / rho2 g``, ``g = a_z a - z`` pointing
+    away from the boresight, of length the sine of the star's angle from it)."""
+    ax, ay, az = a
+    cols = [(0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)]
+    if rate:
+        cols += [(0.0, x * az, -x * ay), (-x * az, 0.0, x * ax), (x * ay, -x * ax, 0.0)]
+    if radial:
+        g = (az * ax, az * ay, az * az - 1.0)
+        k = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) / rho2
+        cols += [g, (k * g[0], k * g[1], k * g[2])]
+    return cols
+
+
+def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
+    """The normal equations of the linearised model at attitude ``q`` and rate ``omega``:
+    ``(N, h, chi2)`` with ``N`` ``m x m`` (flat; ``m`` the unknowns of :func:`_columns`),
+    ``h`` and ``chi2 = sum w_i |e_i|^2`` of the residuals ``e_i = R(omega dt_i) b_i - A(q)
+    r_i`` (the star turned back to the reference instant).  The rate's unknowns are the rate
+    times ``tau``."""
+    m = Q.matrix(q)
+    speed = G.norm(omega)
+    axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed) if speed > 0 else None
+    size = 3 + (3 if rate else 0) + (2 if radial else 0)
+    nn = [0.0] * (size * size)
+    h = [0.0] * size
+    chi2 = 0.0
+    for i in range(len(b)):
+        a = G.mat_vec(m, r[i])
+        v = b[i] if axis is None else G.rotate_about(b[i], axis, speed * dts[i])
+        e = (v[0] - a[0], v[1] - a[1], v[2] - a[2])
+        wi = w[i]
+        chi2 += wi * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+        cols = _columns(a, dts[i] / tau if rate else 0.0, rate, radial, rho2)
+        for j in range(size):
+            cj = cols[j]
+            h[j] += wi * (cj[0] * e[0] + cj[1] * e[1] + cj[2] * e[2])
+            for k in range(j, size):
+                ck = cols[k]
+                nn[j * size + k] += wi * (cj[0] * ck[0] + cj[1] * ck[1] + cj[2] * ck[2])
+    for j in range(size):
+        for k in range(j):
+            nn[j * size + k] = nn[k * size + j]
+    return nn, h, chi2
+
+
+def _inverse(n, nn):
+    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (rows), or
+    None."""
+    cols = []
+    for j in range(n):
+        e = [0.0] * n
+        e[j] = 1.0
+        x = _solve(n, list(nn), e)
+        if x is None:
+            return None
+        cols.append(x)
+    return [[cols[j][i] for j in range(n)] for i in range(n)]
+
+
+def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
+    """The attitude at the reference instant and the rate, fitted to matched pairs.
+
+    ``b``: camera-frame unit vectors, each seen ``dts[i]`` s after the reference instant (a
+    star's mean instant less the reference; already turned to the reference by a rate
+    ``omega0``, if any, so that this fits what remains); ``r``: their catalogue unit vectors;
+    ``w``: relative weights (``sigma_i = s / sqrt(w_i)``); ``q``: an attitude near the fit.
+    Returns ``(q, omega, P, P_omega, s)``: the attitude at the reference instant, the rate
+    (rad/s, camera frame, on top of ``omega0``), the attitude's 3x3 covariance (rad^2, as
+    :func:`lodestar.firmware.attitude.covariance`, with the rate's uncertainty in it), the
+    rate's (rad^2/s^2) and the per-axis noise ``s`` (rad) of a unit-weight star, estimated from
+    the residuals over ``2n - 8`` degrees of freedom (six unknowns; the Student-t correction of
+    ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
+    configured ``centroid_sigma_px``), not estimated.  None with fewer than
+    :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
+    if len(b) < MIN_RATE_STARS:
+        return None
+    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad)
+    return None if out is None else out[:5]
+
+
+def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None):
+    """:func:`rate_fit` (``rate`` True; else the attitude alone) with a radial displacement
+    ``(c1 + c3 rho^2 / rho_m^2) g`` of every star as well (``g`` of :func:`_columns`; ``rho_m``
+    the stars' RMS angle from the boresight): a lens distortion or focal length the camera
+    model lacks.  Returns ``(q, omega, P, P_omega, s, c, P_c)`` (``omega``, ``P_omega`` None
+    without ``rate``; ``c = (c1, c3)`` and its covariance), or None with fewer than
+    :data:`MIN_RADIAL_STARS` pairs or when degenerate."""
+    if len(b) < MIN_RADIAL_STARS:
+        return None
+    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad)
+
+
+def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
+    """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
+    ``rate``, ``radial``: which unknowns besides the attitude)."""
+    n = len(b)
+    total = spread = rho2 = 0.0
+    for i in range(n):
+        total += w[i]
+        spread += w[i] * dts[i] * dts[i]
+        z = b[i][2]
+        rho2 += 1.0 - z * z
+    tau = math.sqrt(spread / total) if total > 0 else 0.0
+    rho2 /= n
+    if (rate and not tau > 0) or (radial and not rho2 > 0):
+        return None
+    size = 3 + (3 if rate else 0) + (2 if radial else 0)
+    omega = (0.0, 0.0, 0.0)
+    for k in range(RATE_ITERATIONS + 1):
+        nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2)
+        if k == RATE_ITERATIONS:
+            break
+        u = _solve(size, list(nn), h)
+        if u is None:
+            return None
+        q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
+        if rate:
+            omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
+    inv = _inverse(size, nn)
+    d = _solve(size, list(nn), h)       # what the last linearisation still takes out
+    if inv is None or d is None:
+        return None
+    for j in range(size):
+        chi2 -= h[j] * d[j]
+    s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
+    if not s2 >= min_sigma_rad * min_sigma_rad:
+        s2 = min_sigma_rad * min_sigma_rad
+    p = [[s2 * inv[i][j] for j in range(3)] for i in range(3)]
+    p_omega = c = p_c = None
+    if rate:
+        t2 = tau * tau
+        p_omega = [[s2 * inv[3 + i][3 + j] / t2 for j in range(3)] for i in range(3)]
+    if radial:
+        c = (d[size - 2], d[size - 1])
+        p_c = [[s2 * inv[size - 2 + i][size - 2 + j] for j in range(2)] for i in range(2)]
+    return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
+
+
+def chi2_rate(v, p):
+    """``v^T P^-1 v`` of a difference ``v`` (a rate, or the radial coefficients) with
+    covariance ``p`` (``len(v)`` square), or None when ``p`` is singular."""
+    n = len(v)
+    x = _solve(n, [p[i][j] for i in range(n) for j in range(n)], v)
+    if x is None:
+        return None
+    total = 0.0
+    for i in range(n):
+        total += v[i] * x[i]
+    return total
+
+
+def smear_bound_px(stars):
+    """The longest smear (px) the stars' second moments allow, from the median excess
+    ``sigma_major^2 - sigma_minor^2`` over the still frame's (:data:`STILL_ELONGATION_PX2`):
+    ``sqrt(12 (excess + STILL_ELONGATION_PX2))``, so a still frame bounds its smear by about
+    3.5 px.  ``stars``: ``(sigma_major, sigma_minor)`` pairs; None without any."""
+    excess = []
+    for major, minor in stars:
+        excess.append(major * major - minor * minor)
+    if not excess:
+        return None
+    excess.sort()
+    k = len(excess)
+    median = excess[k // 2] if k % 2 else 0.5 * (excess[k // 2 - 1] + excess[k // 2])
+    if median < 0:
+        median = 0.0
+    return math.sqrt(12.0 * (median + STILL_ELONGATION_PX2))
