@@ -277,7 +277,7 @@ class StarTracker:
         self.beta = None
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
-        self._frame = None              # process(): (instants, smear bound px, exposure)
+        self._frame = None              # process(): (instants, moments, exposure)
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         _threshold(GC_THRESHOLD)
         try:
@@ -727,67 +727,42 @@ class StarTracker:
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
         its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
-        with ``omega``, ``epoch_s``, the rate checked against the frame's
-        (:func:`lodestar.firmware.smear.rate_fit`; one beyond ``RATE_CHI2`` or further from
-        the frame's than its opposite is contradicted and replaced by the frame's, with a
-        note; one the frame cannot confirm, :meth:`_at_mean`); without, the matched stars'
-        weighted mean instant, the rate fitted with the attitude, or with too few stars
-        bounded by the streaks (else ``RATE_UNKNOWN``: None).  A fitted rate is then used to
-        match again the stars its shear kept out.  Last, :meth:`_radial`.  Returns ``(solved,
-        star_ids)``; frames of :meth:`solve_vectors` have no instants."""
+        with ``omega``, ``epoch_s`` and the gyro's rate, kept unless the frame contradicts it
+        (:meth:`_contradicted`: ``RATE_CONTRADICTED``, None); without, the matched stars'
+        weighted mean instant, the rate fitted with the attitude
+        (:func:`lodestar.firmware.smear.rate_fit`), or with too few stars bounded by the
+        streaks (else ``RATE_UNKNOWN``: None).  A fitted rate is then used to match again the
+        stars its shear kept out.  Last, :meth:`_radial`.  Returns ``(solved, star_ids)``;
+        frames of :meth:`solve_vectors` have no instants."""
         frame = self._frame
         w = self._rate_weights(star_ids, fluxes, streaks)
         if frame is None:
             return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
-        times, bound_px, exposure = frame
+        times, moments, exposure = frame
         res.rate_rad_s = omega
+        if omega is not None:
+            res.t_epoch_s = self.settings.epoch_s
+            if self._contradicted(res, vectors, star_ids, w, omega, solved):
+                return None, star_ids
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
         ts = [times[o] for o, _s in star_ids]
-        total = mean = 0.0
+        total = ref = 0.0
         for i in range(len(w)):
             total += w[i]
-            mean += w[i] * ts[i]
-        mean /= total
-        ref = self.settings.epoch_s if omega is not None else mean
+            ref += w[i] * ts[i]
+        ref /= total
         res.t_epoch_s = ref
         fit = None
         if self.settings.row_time_s != 0:       # else every star seen at one instant
             fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
-        if fit is None and self.settings.row_time_s != 0:
-            if omega is None:
-                return self._bounded(res, solved, star_ids, ts, mean, bound_px, exposure), \
+            if fit is None:
+                bound = _smear.smear_bound_px(moments)
+                return self._bounded(res, solved, star_ids, ts, ref, bound, exposure), \
                     star_ids
-            # the given rate cannot be checked: the attitude at the stars' mean instant, where
-            # the rate's error moves it least, bounded as without a rate (the rate the
-            # streaks allow plus the given one's own smear: a wrong given rate's error)
-            _note(res, "omega not checked (" + str(len(star_ids)) + " stars): the attitude "
-                  "at the stars' mean instant")
-            res.t_epoch_s = mean
-            q = tracking.propagate(solved[0], omega, mean - ref)
-            given_px = G.norm(omega) * self.focal_px * exposure if exposure is not None \
-                else None
-            bound = None if bound_px is None or given_px is None else bound_px + given_px
-            return self._bounded(res, (q, solved[1], solved[2], solved[3]), star_ids, ts,
-                                 mean, bound, exposure), star_ids
-        if fit is not None and omega is not None:
-            d = fit[1]
-            chi2 = _smear.chi2_rate(d, fit[3])
-            flip = _smear.chi2_rate((d[0] + 2 * omega[0], d[1] + 2 * omega[1],
-                                     d[2] + 2 * omega[2]), fit[3])
-            if chi2 is not None and chi2 <= _smear.RATE_CHI2 and not flip < chi2:
-                if self._confirmed(omega, fit[3], mean - ref, solved):
-                    fit = None          # the gyro agrees with the frame: its result stands
-                else:                   # ... or the frame cannot tell: at the mean instant
-                    return self._at_mean(res, vectors, star_ids, w, times, omega, ref, mean,
-                                         solved), star_ids
-            else:
-                _note(res, "omega contradicted by the frame's rate (off by " +
-                      _deg3(fit[1]) + " deg/s): the frame's used")
         if fit is None:
             return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
         q, rate, p, p_rate, s = fit
-        if omega is not None:
-            rate = (omega[0] + rate[0], omega[1] + rate[1], omega[2] + rate[2])
-        turned = self._turned(vectors, times, ref, rate, omega)
+        turned = self._turned(vectors, times, ref, rate)
         again = self._track(turned, q, None, None, None)
         if again.status == S.OK and len(again.star_ids) > len(star_ids):
             ids = again.star_ids
@@ -802,6 +777,38 @@ class StarTracker:
         cross, roll = _attitude.sigmas_cross_roll(p)
         return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
             star_ids
+
+    def _contradicted(self, res, vectors, star_ids, w, omega, solved):
+        """Whether the frame contradicts the gyro's ``omega`` (``vectors`` turned to
+        ``epoch_s`` by it), setting ``RATE_CONTRADICTED`` with the difference in ``reason``:
+        only when all of :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a
+        residual rate (:func:`lodestar.firmware.smear.rate_fit`) beyond ``RATE_CHI2`` of its
+        own covariance, that difference moves the median star over the exposure by more than
+        the stars' own width (their median ``sigma_minor``: the PSF's second moment, which a
+        smear leaves alone), and the stars' streaks (second moments) do not fit the gyro's
+        rate better than the frame's (:func:`lodestar.firmware.smear.streak_votes`).  A rate
+        from few, short or noisy streaks never overrides the gyro."""
+        times, moments, exposure = self._frame
+        st = self.settings
+        if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
+            return False
+        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0])
+        if fit is None:
+            return False
+        d = fit[1]
+        chi2 = _smear.chi2_rate(d, fit[3])
+        if chi2 is None or not chi2 > _smear.RATE_CHI2:
+            return False
+        stars = [(vectors[o], moments[o]) for o, _s in star_ids]
+        frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
+        scale = self.focal_px * exposure
+        if not _smear.visible(stars, d, scale) or _smear.streak_votes(stars, omega, frame,
+                                                                       scale) < 0:
+            return False
+        res.status = S.RATE_CONTRADICTED
+        _note(res, "omega contradicted by the frame's rate (off by " + _deg3(d) +
+              " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
+        return True
 
     def _radial(self, res, vectors, star_ids, w, times, ref, solved):
         """``solved``, or when the matched stars' residuals show a radial pattern (a lens
@@ -835,41 +842,6 @@ class StarTracker:
         cross, roll = _attitude.sigmas_cross_roll(p)
         return q, max(cross, solved[1]), max(roll, solved[2]), s
 
-    def _confirmed(self, omega, p_rate, dt, solved):
-        """Whether the frame's rate fit (covariance ``p_rate``) confirms a given ``omega`` it
-        did not contradict: it would have told the wrong sign (``2 omega`` beyond
-        ``RATE_CHI2``), or a wrong sign would move the attitude by less than
-        :data:`UNCHECKED_SIGMAS` of its sigmas (``2 omega dt``, ``dt`` from the epoch to the
-        stars' mean instant)."""
-        twice = (2 * omega[0], 2 * omega[1], 2 * omega[2])
-        chi2 = _smear.chi2_rate(twice, p_rate)
-        if chi2 is not None and chi2 > _smear.RATE_CHI2:
-            return True
-        _q, cross, roll, _s = solved
-        lim = UNCHECKED_SIGMAS
-        return abs(twice[0] * dt) <= lim * cross and abs(twice[1] * dt) <= lim * cross and \
-            abs(twice[2] * dt) <= lim * roll
-
-    def _at_mean(self, res, vectors, star_ids, w, times, omega, ref, mean, solved):
-        """A given ``omega`` the frame can neither confirm nor contradict (:meth:`_confirmed`):
-        the attitude and the rate fitted at the stars' ``mean`` instant, where the rate's
-        error moves the attitude least (``vectors`` were turned to ``ref`` by ``omega``),
-        noted; ``solved`` as it was when that fit is degenerate."""
-        speed = G.norm(omega)
-        axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed)
-        moved = [G.rotate_about(v, axis, speed * (ref - mean)) for v in vectors]
-        q0 = tracking.propagate(solved[0], omega, mean - ref)
-        fit = self._rate_fit(moved, star_ids, w, times, mean, q0)
-        if fit is None:
-            return solved
-        q, extra, p, p_rate, s = fit
-        _note(res, "omega not confirmed by the frame: the attitude at the stars' mean instant")
-        res.t_epoch_s = mean
-        res.rate_rad_s = (omega[0] + extra[0], omega[1] + extra[1], omega[2] + extra[2])
-        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
-        cross, roll = _attitude.sigmas_cross_roll(p)
-        return self._radial(res, moved, star_ids, w, times, mean, (q, cross, roll, s))
-
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
         (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
@@ -890,15 +862,12 @@ class StarTracker:
                                [times[o] - ref for o, _s in star_ids], w, q,
                                self.min_sigma_rad, self.sigma_rad)
 
-    def _turned(self, vectors, times, ref, rate, omega):
-        """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s), undoing the turn by
-        ``omega`` (None: none) they had."""
-        d = rate if omega is None else \
-            (rate[0] - omega[0], rate[1] - omega[1], rate[2] - omega[2])
-        speed = G.norm(d)
+    def _turned(self, vectors, times, ref, rate):
+        """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""
+        speed = G.norm(rate)
         if not speed > 0:
             return vectors
-        axis = (d[0] / speed, d[1] / speed, d[2] / speed)
+        axis = (rate[0] / speed, rate[1] / speed, rate[2] / speed)
         return [G.rotate_about(vectors[o], axis, speed * (times[o] - ref))
                 for o in range(len(vectors))]
 
@@ -1036,17 +1005,17 @@ class StarTracker:
         return res
 
     def _instants(self, stars, used, exposure):
-        """``(times, smear bound px, exposure)`` of the used stars (``_keep`` order): each
-        one's mean instant, s after the start of row 0's exposure (``exposure / 2 + y
-        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and the
-        streaks' smear bound (:func:`lodestar.firmware.smear.smear_bound_px`)."""
+        """``(times, moments, exposure)`` of the used stars (``_keep`` order): each one's
+        mean instant, s after the start of row 0's exposure (``exposure / 2 + y
+        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and its second
+        moments ``(sigma_major, sigma_minor, orientation)`` (px, rad): its streak."""
         half = 0.5 * exposure if exposure is not None else 0.0
         row_time = self.settings.row_time_s
         xy = self._xy
         times = [half + xy[2 * o + 1] * row_time for o in range(len(used))]
-        bound = _smear.smear_bound_px([(stars[i].sigma_major, stars[i].sigma_minor)
-                                      for i in used])
-        return times, bound, exposure
+        moments = [(stars[i].sigma_major, stars[i].sigma_minor, stars[i].orientation)
+                   for i in used]
+        return times, moments, exposure
 
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
@@ -1114,11 +1083,6 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
-
-
-UNCHECKED_SIGMAS = 5.0
-"""A given rate the frame cannot confirm stands when a rate of the wrong sign would move the
-attitude by less than this many of its sigmas (:meth:`StarTracker._confirmed`)."""
 
 
 def _deg3(v):

@@ -16,6 +16,7 @@ single precision (the rate's unknowns are scaled by the stars' time spread).
 
 import math
 
+from . import centroids
 from . import geometry as G
 from . import quaternion as Q
 
@@ -31,15 +32,23 @@ RATE_ITERATIONS = 3
 """Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
 the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
 over a frame."""
-RATE_CHI2 = 16.0
+RATE_CHI2 = 25.0
 """Largest ``chi^2`` (3 degrees of freedom) of the frame's rate against a given one before the
-given rate is called contradicted (chance 1e-3 for a right one): a false alarm costs only
-precision (the frame's own rate is then used, its uncertainty in the covariance), a missed
-wrong rate an attitude off by the rate error times the time to the epoch."""
+given rate can be called contradicted: 3e-4 for a right one with the noise known, under 3e-3
+with it estimated from :data:`MIN_CHECK_STARS` stars' residuals (``3 F(3, 12)``).  A false
+alarm costs a frame (``RATE_CONTRADICTED``), a missed wrong rate an attitude off by the rate
+error times the time to the epoch; the streaks must agree too (``firmware.md``)."""
+MIN_CHECK_STARS = 10
+"""Fewest matched stars whose shear may contradict a given rate: 12 residual degrees of
+freedom for the noise the rate's covariance is scaled by (fewer leave a covariance too
+uncertain: the closed-loop twin's 9-star frames at rest "found" 3-8 deg/s)."""
 STILL_ELONGATION_PX2 = 1.0
 """Median excess second moment ``sigma_major^2 - sigma_minor^2`` (px^2) of a still frame's
 stars: noise and pixelisation make a round star look a little elongated (estcube2 at rest,
 ``docs/firmware.md``).  A smear ``L`` adds ``L^2 / 12``."""
+ROUND_EXCESS_PX2 = 3.0 * STILL_ELONGATION_PX2
+"""Largest excess second moment (px^2) of a star that looks round (three times the still
+frame's median: a smear up to 6 px hides in the noise and the PSF)."""
 
 
 def _solve(n, a, h):
@@ -227,19 +236,76 @@ def chi2_rate(v, p):
     return total
 
 
-def smear_bound_px(stars):
+def smear_bound_px(moments):
     """The longest smear (px) the stars' second moments allow, from the median excess
     ``sigma_major^2 - sigma_minor^2`` over the still frame's (:data:`STILL_ELONGATION_PX2`):
     ``sqrt(12 (excess + STILL_ELONGATION_PX2))``, so a still frame bounds its smear by about
-    3.5 px.  ``stars``: ``(sigma_major, sigma_minor)`` pairs; None without any."""
+    3.5 px.  ``moments``: ``(sigma_major, sigma_minor, ...)`` per star; None without any."""
     excess = []
-    for major, minor in stars:
-        excess.append(major * major - minor * minor)
+    for m in moments:
+        excess.append(m[0] * m[0] - m[1] * m[1])
     if not excess:
         return None
-    excess.sort()
-    k = len(excess)
-    median = excess[k // 2] if k % 2 else 0.5 * (excess[k // 2 - 1] + excess[k // 2])
+    median = _median(excess)
     if median < 0:
         median = 0.0
     return math.sqrt(12.0 * (median + STILL_ELONGATION_PX2))
+
+
+def _median(values):
+    v = sorted(values)
+    k = len(v)
+    return v[k // 2] if k % 2 else 0.5 * (v[k // 2 - 1] + v[k // 2])
+
+
+def smear_vector(v, omega, scale):
+    """The pixel displacement ``(dx, dy)`` over the exposure of a star at camera-frame unit
+    vector ``v`` under the rate ``omega`` (rad/s): ``dv/dt = -omega x v`` through a pinhole
+    of ``scale`` = focal length (px) times exposure (s)."""
+    x, y, z = v
+    wx, wy, wz = omega
+    dx = wz * y - wy * z
+    dy = wx * z - wz * x
+    dz = wy * x - wx * y
+    k = scale / (z * z)
+    return k * (dx * z - x * dz), k * (dy * z - y * dz)
+
+
+def visible(stars, d, scale):
+    """Whether a rate difference ``d`` (rad/s) moves the median of ``stars`` (``(v,
+    moments)`` pairs: camera-frame unit vector and ``(sigma_major, sigma_minor,
+    orientation)``) by more than their median ``sigma_minor`` (the PSF's second moment, px)
+    over the exposure (``scale`` of :func:`smear_vector`): a difference the streaks could
+    show."""
+    moved = []
+    width = []
+    for v, m in stars:
+        u = smear_vector(v, d, scale)
+        moved.append(math.sqrt(u[0] * u[0] + u[1] * u[1]))
+        width.append(m[1])
+    return _median(moved) > _median(width)
+
+
+def explains(m, u):
+    """Whether the smear ``u`` (px over the exposure) explains a star's second moments ``m``
+    (``(sigma_major, sigma_minor, orientation)``): a smear whose excess ``|u|^2 / 12`` is
+    within :data:`ROUND_EXCESS_PX2` a star that looks round (its excess ``sigma_major^2 -
+    sigma_minor^2`` within it too), a longer one a streak along it within a factor 2 of its
+    length (:func:`lodestar.firmware.centroids.smear_consistent`: thresholding shortens a
+    faint streak)."""
+    if (u[0] * u[0] + u[1] * u[1]) / 12.0 <= ROUND_EXCESS_PX2:
+        return m[0] * m[0] - m[1] * m[1] <= ROUND_EXCESS_PX2
+    return centroids.smear_consistent(m[0], m[1], m[2], u)
+
+
+def streak_votes(stars, gyro, frame, scale):
+    """How many of ``stars`` (as :func:`visible`) have a streak (second moments) the rate
+    ``frame`` explains and ``gyro`` does not (:func:`explains`), less how many the reverse:
+    negative when the streaks side with the gyro.  A sign error ties (a streak has no
+    sense)."""
+    votes = 0
+    for v, m in stars:
+        g = explains(m, smear_vector(v, gyro, scale))
+        if explains(m, smear_vector(v, frame, scale)) != g:
+            votes += -1 if g else 1
+    return votes

@@ -1,6 +1,6 @@
 """Tests of ``lodestar.firmware.smear``: the attitude at an instant and the body rate fitted
 together to matched stars seen by a rolling shutter, the chi-square of a rate difference and
-the streaks' smear bound."""
+the streaks' smear bound and whether they side with a given rate or the frame's."""
 
 import math
 
@@ -86,13 +86,54 @@ def test_rate_fit_needs_stars_and_a_spread_of_instants():
 def test_smear_bound_from_the_streaks_second_moments():
     assert smear.smear_bound_px([]) is None
     # the median excess (negative ones count as 0) plus the still frame's
-    still = smear.smear_bound_px([(2.0, 2.0), (2.1, 1.9), (1.9, 2.0)])
+    still = smear.smear_bound_px([(2.0, 2.0, 0.0), (2.1, 1.9, 0.0), (1.9, 2.0, 0.0)])
     assert still == pytest.approx(math.sqrt(12 * smear.STILL_ELONGATION_PX2))
-    some = smear.smear_bound_px([(2.0, 2.0), (2.1, 1.9), (2.2, 1.9)])
+    some = smear.smear_bound_px([(2.0, 2.0, 0.0), (2.1, 1.9, 0.0), (2.2, 1.9, 0.0)])
     assert some == pytest.approx(math.sqrt(12 * (2.1 ** 2 - 1.9 ** 2 + 1.0)))
     # a 20 px streak over a 2 px PSF: sigma_major^2 = 4 + 400 / 12
-    streak = smear.smear_bound_px([(math.sqrt(4 + 400 / 12), 2.0)] * 3)
+    streak = smear.smear_bound_px([(math.sqrt(4 + 400 / 12), 2.0, 0.0)] * 3)
     assert 20.0 < streak < 21.0
+
+
+def test_smear_vector_is_the_pixel_motion_over_the_exposure():
+    """A roll moves a star at radius r by r omega T tangentially; a rate about x moves the
+    boresight along +y by f omega T (``dv/dt = -omega x v``)."""
+    scale = FOCAL_PX * EXPOSURE_S
+    v = (0.1, 0.0, 1.0)
+    v = tuple(np.asarray(v) / np.linalg.norm(v))
+    dx, dy = smear.smear_vector(v, (0.0, 0.0, 0.01), scale)
+    assert abs(dx) < 1e-9 and dy == pytest.approx(-0.1 * FOCAL_PX * 0.01 * EXPOSURE_S)
+    dx, dy = smear.smear_vector((0.0, 0.0, 1.0), (0.01, 0.0, 0.0), scale)
+    assert abs(dx) < 1e-9 and dy == pytest.approx(FOCAL_PX * 0.01 * EXPOSURE_S)
+
+
+def streak(u, psf=1.5):
+    """The second moments ``(sigma_major, sigma_minor, orientation)`` of a star of PSF sigma
+    ``psf`` smeared along ``u`` (px)."""
+    length2 = u[0] * u[0] + u[1] * u[1]
+    return math.sqrt(psf * psf + length2 / 12), psf, math.atan2(u[1], u[0])
+
+
+def test_streaks_side_with_the_rate_that_explains_them():
+    """Streaks 10 px long along x: a rate that makes them wins over a gyro that says the
+    camera is still, and the reverse for round stars; a sign error ties, and a rate
+    difference that moves the stars by less than their width is not visible."""
+    scale = FOCAL_PX * EXPOSURE_S
+    vs = [tuple(np.asarray(v) / np.linalg.norm(v)) for v in
+          ([0.0, 0.0, 1.0], [0.05, 0.02, 1.0], [-0.04, 0.06, 1.0], [0.03, -0.05, 1.0])]
+    rate = (0.0, -10.0 / scale, 0.0)            # 10 px along +x at the boresight
+    still = (0.0, 0.0, 0.0)
+    streaks = [(v, streak(smear.smear_vector(v, rate, scale))) for v in vs]
+    round_ = [(v, streak((0.0, 0.0))) for v in vs]
+    assert smear.streak_votes(streaks, still, rate, scale) == len(vs)
+    assert smear.streak_votes(round_, still, rate, scale) == -len(vs)
+    assert smear.streak_votes(streaks, (0.0, 10.0 / scale, 0.0), rate, scale) == 0
+    assert smear.visible(round_, rate, scale)
+    assert not smear.visible(round_, (0.0, -1.0 / scale, 0.0), scale)
+    # a faint streak measured at 70 % of its length still counts for its rate
+    short = [(v, streak((7.0, 0.0))) for v in vs]
+    assert smear.explains(short[0][1], (10.0, 0.0)) and \
+        not smear.explains(short[0][1], (0.0, 0.0))
 
 
 def distorted(scene_out, k1):
