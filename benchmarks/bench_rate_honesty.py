@@ -11,7 +11,8 @@ gyro), none (the firmware fits the rate from the frame, ``lodestar.firmware.smea
 rate of the wrong sign and twice the rate.  The verdict is the campaign's
 (``trials.verdict``): wrong = a wrong identity, or more than 180" from the truth at the
 solution's ``t_epoch_s`` *and* beyond 5 sigma on an axis.  Prints per rate and way: solved,
-wrong, imprecise (beyond 180" but covered), the RMS and largest error over sigma (z) per
+wrong, imprecise (beyond 180" but covered), the issue's stricter counts (an axis beyond
+5 sigma; beyond 180" total), the RMS and largest error over sigma (z) per
 axis, the median ``t_epoch_s`` and the statuses of the frames not solved.
 """
 
@@ -53,9 +54,14 @@ def summary(results, rates):
             zc = [max(abs(v["error_arcsec"][0]), abs(v["error_arcsec"][1])) /
                   v["sigma_arcsec"][0] for v in ok]
             zr = [abs(v["error_arcsec"][2]) / v["sigma_arcsec"][1] for v in ok]
+            beyond = [max(a, b) > 5.0 for a, b in zip(zc, zr)]
+            far = [math.sqrt(sum(e * e for e in v["error_arcsec"])) > 180.0 for v in ok]
             rows.append({
                 "rate_deg_s": rate, "way": name, "trials": len(vs), "solved": len(ok),
                 "wrong": sum(v["wrong"] for v in vs),
+                "issue_wrong": sum(a or b for a, b in zip(beyond, far)),
+                "beyond_5_sigma": sum(beyond), "beyond_180": sum(far),
+                "contradicted": sum(v["status"] == "RATE_CONTRADICTED" for v in vs),
                 "imprecise": sum(v["imprecise"] for v in vs),
                 "max_z_cross": max(zc) if zc else None, "max_z_roll": max(zr) if zr else None,
                 "rms_z_cross": math.sqrt(statistics.fmean(z * z for z in zc)) if zc else None,
@@ -79,12 +85,14 @@ def main():
         results = list(pool.imap_unordered(trial, tasks))
     rows = summary(results, args.rates)
     print(f"{args.axis} axis, {args.trials} trials per rate")
-    print("rate  way    solved wrong imprecise  z cross (rms/max)  z roll (rms/max)  t_epoch")
+    print("rate  way    solved wrong imprecise >5sig >180\"  z cross (rms/max)  z roll (rms/max)  "
+          "t_epoch")
     for r in rows:
         z = (f"{r['rms_z_cross']:.2f}/{r['max_z_cross']:.1f}  {r['rms_z_roll']:.2f}/"
              f"{r['max_z_roll']:.1f}  {r['median_t_epoch_s']:.3f}" if r["solved"] else "-")
         print(f"{r['rate_deg_s']:>4g}  {r['way']:<6} {r['solved']:>3}/{r['trials']:<3} "
-              f"{r['wrong']:>4} {r['imprecise']:>6}    {z}  {','.join(r['statuses'])}")
+              f"{r['wrong']:>4} {r['imprecise']:>6} {r['beyond_5_sigma']:>5} {r['beyond_180']:>5}"
+              f"    {z}  {','.join(r['statuses'])}")
     if args.out:
         with open(args.out, "w") as f:
             json.dump({"axis": args.axis, "trials": args.trials, "rows": rows,

@@ -781,12 +781,15 @@ class StarTracker:
     def _contradicted(self, res, vectors, star_ids, w, omega, solved):
         """Whether the frame contradicts the gyro's ``omega`` (``vectors`` turned to
         ``epoch_s`` by it), setting ``RATE_CONTRADICTED`` with the difference in ``reason``:
-        only when all of :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a
-        residual rate (:func:`lodestar.firmware.smear.rate_fit`) beyond ``RATE_CHI2`` of its
-        own covariance, that difference moves the median star over the exposure by more than
-        the stars' own width (their median ``sigma_minor``: the PSF's second moment, which a
-        smear leaves alone), and the stars' streaks (second moments) do not fit the gyro's
-        rate better than the frame's (:func:`lodestar.firmware.smear.streak_votes`).  A rate
+        only when at least :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a
+        residual rate (:func:`lodestar.firmware.smear.rate_fit`) beyond its covariance's
+        limit (:func:`lodestar.firmware.smear.rate_chi2_limit`; ``STREAK_RATE_CHI2`` when
+        most stars' streaks side with the frame), that difference moves the median star over
+        the exposure by more than the stars' own width (their median ``sigma_minor``: the
+        PSF's second moment, which a smear leaves alone), and the streaks (second moments)
+        do not side with the gyro (:func:`lodestar.firmware.smear.streak_votes`: more than a
+        third of the stars, net; the frame's rate has its own noise, so a sign error's votes
+        are near zero, not exactly zero).  A rate
         from few, short or noisy streaks never overrides the gyro."""
         times, moments, exposure = self._frame
         st = self.settings
@@ -797,13 +800,16 @@ class StarTracker:
             return False
         d = fit[1]
         chi2 = _smear.chi2_rate(d, fit[3])
-        if chi2 is None or not chi2 > _smear.RATE_CHI2:
+        if chi2 is None or not chi2 > _smear.STREAK_RATE_CHI2:
             return False
         stars = [(vectors[o], moments[o]) for o, _s in star_ids]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
         scale = self.focal_px * exposure
-        if not _smear.visible(stars, d, scale) or _smear.streak_votes(stars, omega, frame,
-                                                                       scale) < 0:
+        if not _smear.visible(stars, d, scale):
+            return False
+        votes = _smear.streak_votes(stars, omega, frame, scale)
+        if 3 * votes < -len(stars) or (2 * votes < len(stars) and
+                                       not chi2 > _smear.rate_chi2_limit(len(stars))):
             return False
         res.status = S.RATE_CONTRADICTED
         _note(res, "omega contradicted by the frame's rate (off by " + _deg3(d) +

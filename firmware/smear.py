@@ -32,16 +32,23 @@ RATE_ITERATIONS = 3
 """Gauss-Newton rounds of :func:`rate_fit` (each turns the stars back by the rate so far):
 the model is linear in the attitude and the rate to ``(rate * dt)^2``, 1e-5 rad at 10 deg/s
 over a frame."""
-RATE_CHI2 = 25.0
-"""Largest ``chi^2`` (3 degrees of freedom) of the frame's rate against a given one before the
-given rate can be called contradicted: 3e-4 for a right one with the noise known, under 3e-3
-with it estimated from :data:`MIN_CHECK_STARS` stars' residuals (``3 F(3, 12)``).  A false
-alarm costs a frame (``RATE_CONTRADICTED``), a missed wrong rate an attitude off by the rate
-error times the time to the epoch; the streaks must agree too (``firmware.md``)."""
-MIN_CHECK_STARS = 10
-"""Fewest matched stars whose shear may contradict a given rate: 12 residual degrees of
-freedom for the noise the rate's covariance is scaled by (fewer leave a covariance too
-uncertain: the closed-loop twin's 9-star frames at rest "found" 3-8 deg/s)."""
+RATE_CHI2 = ((6, 71.1), (8, 47.5), (10, 37.7), (12, 32.4), (16, 27.0), (20, 24.3),
+             (30, 21.2), (40, 19.8), (60, 18.5), (120, 17.3))
+"""``(degrees of freedom, limit)``: the largest ``chi^2`` of the frame's rate against a given
+one before the given rate can be called contradicted, ``3 F(3, d)`` at 1e-3 (the noise is
+estimated from ``d = 2n - 8`` residual degrees of freedom of ``n`` stars, so a chi-square of
+3 degrees of freedom would understate the tail: 16.3 at infinite ``d``); a ``d`` between two
+rows takes the lower row's.  A false alarm costs a frame (``RATE_CONTRADICTED``), a missed
+wrong rate an attitude off by the rate error times the time to the epoch; the streaks must
+agree too (``firmware.md``, Epoch and rate)."""
+STREAK_RATE_CHI2 = 16.3
+"""The limit instead when most matched stars' streaks side with the frame's rate
+(:func:`streak_votes` at least half of them): a chi-square of 3 degrees of freedom at 1e-3,
+the streaks being evidence the noise estimate does not enter (a gyro reading zero while
+the stars trail 10 px: a 7-star frame at 1 deg/s has chi^2 30)."""
+MIN_CHECK_STARS = 7
+"""Fewest matched stars whose shear may contradict a given rate: 6 residual degrees of
+freedom for the noise the rate's covariance is scaled by."""
 STILL_ELONGATION_PX2 = 1.0
 """Median excess second moment ``sigma_major^2 - sigma_minor^2`` (px^2) of a still frame's
 stars: noise and pixelisation make a round star look a little elongated (estcube2 at rest,
@@ -221,6 +228,20 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
         c = (d[size - 2], d[size - 1])
         p_c = [[s2 * inv[size - 2 + i][size - 2 + j] for j in range(2)] for i in range(2)]
     return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
+
+
+def rate_chi2_limit(n):
+    """The :data:`RATE_CHI2` limit for a rate fitted to ``n`` stars (None below
+    :data:`MIN_CHECK_STARS`)."""
+    if n < MIN_CHECK_STARS:
+        return None
+    d = 2 * n - 8
+    limit = None
+    for dof, value in RATE_CHI2:
+        if dof > d:
+            break
+        limit = value
+    return limit
 
 
 def chi2_rate(v, p):

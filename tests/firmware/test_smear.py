@@ -48,7 +48,8 @@ def test_rate_fit_recovers_attitude_and_rate_within_their_sigmas(rate_deg_s):
     assert np.all(np.abs(err) < 5 * np.sqrt(np.diag(p)))
     assert np.all(np.abs(np.asarray(omega) - rate) < 5 * np.sqrt(np.diag(p_omega)))
     assert s * FOCAL_PX == pytest.approx(0.2, rel=0.5)
-    assert smear.chi2_rate([w - x for w, x in zip(omega, rate)], p_omega) < smear.RATE_CHI2
+    assert smear.chi2_rate([w - x for w, x in zip(omega, rate)], p_omega) < \
+        smear.rate_chi2_limit(len(b))
 
 
 def test_rate_fit_sigma_covers_the_error_over_many_scenes():
@@ -69,7 +70,18 @@ def test_a_wrong_given_rate_shows_as_a_large_chi2():
               zip(b, dts)]
     _q, rest, _p, p_omega, _s = smear.rate_fit(turned, r, dts, [1.0] * len(b), q_true)
     assert rest[2] == pytest.approx(2 * rate[2], rel=0.05)
-    assert smear.chi2_rate(rest, p_omega) > smear.RATE_CHI2
+    assert smear.chi2_rate(rest, p_omega) > smear.rate_chi2_limit(len(b))
+
+
+def test_the_contradiction_limit_grows_as_the_stars_get_fewer():
+    """``3 F(3, 2n - 8)`` at 1e-3: none below MIN_CHECK_STARS, 71 for 7 stars, the lower
+    tabled row between rows, 17.3 from 64 stars on."""
+    assert smear.rate_chi2_limit(smear.MIN_CHECK_STARS - 1) is None
+    assert smear.rate_chi2_limit(7) == 71.1 and smear.rate_chi2_limit(8) == 47.5
+    assert smear.rate_chi2_limit(11) == smear.rate_chi2_limit(10) == 32.4
+    assert smear.rate_chi2_limit(200) == 17.3
+    limits = [smear.rate_chi2_limit(n) for n in range(7, 80)]
+    assert limits == sorted(limits, reverse=True)
 
 
 def test_rate_fit_needs_stars_and_a_spread_of_instants():
