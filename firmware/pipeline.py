@@ -137,6 +137,9 @@ identification uses; a frame that has too few stars without any smeared away is
 MIN_SCREENED_STARS = 4
 """Fewest matches the match screen leaves (:meth:`StarTracker._screened`); a screen that would
 leave fewer drops none (the identification's own probability stands)."""
+MIN_FREEDOM = 0.1
+"""Smallest ``1 - h_i`` a match's residual variance is scaled by in the match screen (a star
+that is most of the fit says little about itself)."""
 MAX_BOUNDED_SMEAR_PX = 6.0
 """Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
 frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
@@ -704,8 +707,9 @@ class StarTracker:
 
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
-        the final fit (its vectors and weights, kept by :meth:`_radial`; not when it fitted a
-        radial pattern) and brightness outliers (the observed ``fluxes`` against the
+        the final fit (its vectors and weights, kept by :meth:`_radial`; each residual over
+        its variance less the fit's share, ``1 - h_i`` of :func:`screen.leverages`; not when
+        it fitted a radial pattern) and brightness outliers (the observed ``fluxes`` against the
         catalogue magnitudes); None when fewer than :data:`MIN_SCREENED_STARS` would stay."""
         if self._last_fit is None:
             return None
@@ -715,8 +719,10 @@ class StarTracker:
         drop = []
         if not radial:              # a fitted radial pattern is not in these residuals
             m = Q.matrix(q)
+            h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
             drop = _screen.residual_outliers([G.residual2(m, vectors[o], cone.star_vector(
-                db, s)) * w[i] for i, (o, s) in enumerate(star_ids)])
+                db, s)) * w[i] / max(1.0 - h[i], MIN_FREEDOM) for i, (o, s) in
+                enumerate(star_ids)])
         if fluxes is not None:
             for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
                                                      [db.star_mag(s) for _o, s in star_ids]):

@@ -7,8 +7,9 @@ tests catch it (``docs/firmware.md``, Match screen):
 
 * :func:`residual_outliers`: the tolerance is several centroid sigmas wide, so a chance
   neighbour lies anywhere in it while the real stars cluster near their predicted places: a
-  match whose squared residual over its expected variance exceeds :data:`OUTLIER_CHI2` times
-  the matches' median (a robust noise scale) is an outlier;
+  match whose squared residual over its expected variance (the fit's share of it taken out:
+  :func:`leverages`) exceeds :data:`OUTLIER_CHI2` times the matches' median (a robust noise
+  scale) is an outlier;
 * :func:`brightness_outliers`: a match observed brighter than several matched stars that the
   catalogue makes far brighter than it (:data:`MAG_SLACK`) contradicts the sky's brightness
   order.
@@ -34,6 +35,35 @@ def _median(values):
     v = sorted(values)
     k = len(v)
     return v[k // 2] if k % 2 else 0.5 * (v[k // 2 - 1] + v[k // 2])
+
+
+def leverages(vectors, w):
+    """Each match's leverage ``h_i`` in an attitude fit (its share of the fit, which absorbs
+    that share of its own error: a residual's variance is ``sigma^2 (1 - h_i)``): the
+    weight's share ``w_i / sum w`` of the two cross-boresight axes, which move every star
+    alike, plus half (one of a star's two axes is tangential) its share ``w_i rho_i^2 /
+    sum w rho^2`` of the roll about the weighted mean direction, ``rho_i`` a star's angle
+    from it.  ``vectors``: unit vectors of the matches, ``w``: their relative weights."""
+    n = len(vectors)
+    total = cx = cy = cz = 0.0
+    for i in range(n):
+        v, wi = vectors[i], w[i]
+        total += wi
+        cx += wi * v[0]
+        cy += wi * v[1]
+        cz += wi * v[2]
+    norm = (cx * cx + cy * cy + cz * cz) ** 0.5
+    if not total > 0 or not norm > 0:
+        return [0.0] * n
+    rho2 = []
+    spread = 0.0
+    for i in range(n):
+        v = vectors[i]
+        c = (v[0] * cx + v[1] * cy + v[2] * cz) / norm
+        rho2.append(max(1.0 - c * c, 0.0))
+        spread += w[i] * rho2[-1]
+    return [w[i] / total + (0.5 * w[i] * rho2[i] / spread if spread > 0 else 0.0)
+            for i in range(n)]
 
 
 def residual_outliers(chi2s):
