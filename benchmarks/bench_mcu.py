@@ -3,7 +3,7 @@
 firmware, the estcube2 database and the regression packets frozen into flash, run on QEMU
 with ``-icount``), against a baseline revision built the same way in the same run.
 
-    .venv/bin/python benchmarks/bench_mcu.py [--baseline 4641f47]
+    .venv/bin/python benchmarks/bench_mcu.py [--baseline 4641f47] [--repeats 3]
 
 * **time**: per frame class of the estcube2 regression packets (the flight method, Pyramid),
   ``StarTracker.process`` in guest ticks (instructions / 1000), as F401 milliseconds: ticks
@@ -18,6 +18,12 @@ with ``-icount``), against a baseline revision built the same way in the same ru
   the executive (a ballast held in an 80 KiB build, 2 KiB steps), the stack's high-water
   mark (painted).
 * **flash**: the image against the F401's 512 KiB; where each flight database lives.
+* **stages**: one :class:`StarTracker` over the frozen estcube2 flight Pyramid database
+  (``db build --flight``) replays every estcube2 packet ``--repeats`` times in a row (the
+  first call of a tracking packet queries its cone, later ones reuse it), per stage through
+  ``Settings.clock``, on this checkout and the baseline built alike; lost in space p50 /
+  p95 / max over every call; then the hostile Pyramid searches of ``bench_budget.py`` (work
+  units spent and time: the work budget in F401 milliseconds).
 
 Needs ``build-qemu.sh`` beside MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or
 ``../shared``), ``arm-none-eabi-gcc``, ``qemu-system-arm`` and git.  About 15 minutes of
@@ -25,6 +31,8 @@ builds the first time on 2 busy cores, then a few minutes.
 """
 
 import argparse
+import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -32,12 +40,18 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from lodestar import contract as C
+from lodestar.firmware import starid
 from lodestar.ground.cache import default_cache_dir
 from lodestar.ground.database import build_database
 from lodestar.ground.onboard import DEFAULT_MAX_MAG, FLIGHT_DENSITY
 from lodestar.regress import fram, qemu, replay, unixport
 from lodestar.sim import presets
+from lodestar.sim.attitude import random_attitude
+from lodestar.sim.catalogue import load
+from lodestar.sim.centroids import centroid_scene
 
 REPO = Path(__file__).resolve().parents[1]
 BASELINE = "4641f47"
@@ -49,6 +63,9 @@ FRAM_SCK_HZ = 21_000_000
 BIG_HEAP = qemu.EXPECTATION_HEAP
 """The heap of the build the smallest heaps are found in (the expectations' build: it links
 in 96 KiB with a 15 KiB stack; not a flight configuration)."""
+SCALE = [3.169]
+"""F401 microseconds per guest tick: :func:`lodestar.regress.qemu.calibrate`'s scale, set by
+:func:`main` before any table (``docs/mcu_board.md``, Measured on the Cortex-M4F build)."""
 CLASSES = ("rest", "moving", "tracking, steady", "tracking, record budget",
            "tracking, coarse prior", "bad packet")
 
@@ -228,17 +245,242 @@ def flash_table(elf, db_files, manifest):
               f"(internal room {room:,}; F-RAM {fram.CAPACITY:,}) |")
 
 
+STAGES = ("decode", "centroids", "directions", "identify", "attitude")
+
+SCRIPT = """\
+import gc, time
+from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import Settings
+import lodestar_bench as B
+clock = time.ticks_us
+s = B.SETTINGS
+tr = StarTracker(B.DB, B.CAMERA, Settings(method='pyramid', exposure_s=s[0],
+                 row_time_s=s[1], tolerance_px=s[2], clock=clock))
+print('CONFIG', tr.status, gc.mem_free())
+for name, pkt, prior, omega, exposure in B.CASES:
+    for rep in range(B.REPEATS):
+        t0 = clock()
+        r = tr.process(pkt, prior=prior, omega=omega, exposure_s=exposure)
+        t1 = clock()
+        t = r.timings
+        print('RUN', name, rep, r.status, r.mode, len(r.matches), time.ticks_diff(t1, t0),
+              ' '.join([k + '=' + str(t[k]) for k in t]))
+from lodestar.firmware import starid
+for label, tol, vecs in B.BUDGET:
+    gc.collect()
+    t0 = clock()
+    sol = starid.identify(vecs, tr.database, method='pyramid', tolerance_rad=tol,
+                          budget=1000000)
+    print('WORK', label, sol.status, sol.work, time.ticks_diff(clock(), t0))
+print('DONE')
+"""
+
+
+def flight_database():
+    """The estcube2 flight Pyramid database image (bytes)."""
+    return bytes(build_database(camera=presets.load_preset("estcube2"), methods=("pyramid",),
+                                mag_limit=DEFAULT_MAX_MAG, **FLIGHT_DENSITY))
+
+
+BUDGET_TOLERANCES_PX = (30.0, 100.0, None)
+"""Match tolerances (px) of the work-budget cases; None: the widest the firmware accepts."""
+
+
+def budget_cases():
+    """The hostile search of ``benchmarks/bench_budget.py`` (30 estcube2 stars, 10 of them
+    false, 1 px noise, seed 7) at wide tolerances: ``[(label, tolerance_rad, vectors)]``,
+    searches that spend the whole work budget or the heap."""
+    cam = presets.load_preset("estcube2")
+    rng = np.random.default_rng(7)
+    scene = centroid_scene(cam, random_attitude(rng), rng, load(), noise_px=1.0, n_false=10,
+                           max_stars=30)
+    vectors = [tuple(v) for v in scene.vectors.tolist()]
+    fov_h = np.radians(cam.fov_deg()[0])
+    px = fov_h / cam.width
+    out = []
+    for tol_px in BUDGET_TOLERANCES_PX:
+        tol = starid.max_tolerance_rad(fov_h) if tol_px is None else tol_px * px
+        out.append((f"tolerance_{tol / px:.0f}px", float(tol), vectors))
+    return out
+
+
+def data_module(path, db, manifest, repeats):
+    """Write the frozen data module: the database, the camera, the settings, the estcube2
+    packets with their inputs and the work-budget cases."""
+    cam = manifest["cameras"]["estcube2"]
+    cases = []
+    for case in manifest["cases"]:
+        if case["camera"] != "estcube2" or not case["name"].startswith("estcube2"):
+            continue
+        packet = (replay.DEFAULT_SET / case["packet"]).read_bytes()
+        i = case["inputs"]
+        omega = tuple(i["omega"]) if i.get("omega") is not None else None
+        prior = tuple(i["prior"]) if i.get("prior") is not None else None
+        cases.append(f"({case['name']!r}, {packet!r}, {prior!r}, {omega!r}, "
+                     f"{i.get('exposure_s')!r}),")
+    path.write_text(f"DB = {db!r}\nCAMERA = {cam['camera']!r}\n"
+                    f"SETTINGS = ({cam['exposure_s']!r}, {cam['row_time_s']!r}, "
+                    f"{cam['tolerance_px']!r})\nREPEATS = {repeats}\nCASES = [\n" +
+                    "\n".join(cases) + f"\n]\nBUDGET = {budget_cases()!r}\n")
+
+
+def stage_build(label, checkout, work, db, manifest, repeats, script):
+    """Stage ``checkout``'s image (None: this installation's) with the data module, build it
+    and return a copy of its ``firmware.elf``."""
+    side = work / label
+    image = unixport.stage_mcu_image(side / "image", checkout, native=True)
+    data = side / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    data_module(data / "lodestar_bench.py", db, manifest, repeats)
+    frozen = side / "manifest.py"
+    frozen.write_text(f"package('lodestar', base_path={str(image)!r})\n"
+                      f"module('lodestar_bench.py', base_path={str(data)!r})\n")
+    env = dict(os.environ, FROZEN_MANIFEST=str(frozen))
+    out = side / "mp"           # built from clean: an incremental build keeps the last
+    for old in out.glob("build-*"):     # image's qstrs, which moves every time by a few %
+        if old.is_dir():
+            shutil.rmtree(old)
+    proc = subprocess.run(["bash", str(script), str(out), "C", str(qemu.FLIGHT_HEAP)], env=env,
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.exit(f"bench_mcu: the {label} build failed:\n{proc.stderr[-2000:]}")
+    elf = side / "firmware.elf"
+    shutil.copyfile(proc.stdout.strip().splitlines()[-1], elf)
+    return elf
+
+
+def stage_run(elf, script):
+    """Replay on QEMU: ``{(case, repeat): {"status", "mode", "matches", "call", stage:
+    units}}``."""
+    runner = script.parent / "run-qemu.py"
+    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
+        f.write(SCRIPT)
+    try:
+        proc = subprocess.run([sys.executable, str(runner), str(elf), f.name, "--icount",
+                               "--timeout", "3000"], capture_output=True, text=True)
+    finally:
+        os.unlink(f.name)
+    if proc.returncode != 0 or "DONE" not in proc.stdout:
+        sys.exit(f"bench_mcu: the run on {elf} failed:\n{proc.stdout[-1500:]}"
+                 f"{proc.stderr[-1500:]}")
+    out = {}
+    for line in proc.stdout.splitlines():
+        parts = line.split()
+        if parts and parts[0] == "WORK":
+            out[("work " + parts[1], 0)] = {"status": int(parts[2]), "work": int(parts[3]),
+                                            "call": int(parts[4])}
+        if not parts or parts[0] != "RUN":
+            continue
+        row = {"status": int(parts[3]), "mode": parts[4], "matches": int(parts[5]),
+               "call": int(parts[6])}
+        for kv in parts[7:]:
+            k, _, v = kv.partition("=")
+            row[k] = int(v)
+        out[(parts[1], int(parts[2]))] = row
+    return out
+
+
+def ms(units):
+    return units * SCALE[0] / 1000.0
+
+
+def stage_class(name):
+    if "tracking" in name:
+        return "tracking"
+    return "lost in space"
+
+
+def stage_report(results, labels):
+    """Print the per-packet table and the per-class summary."""
+    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith("work ")},
+                   key=lambda n: (stage_class(n), n))
+    repeats = max(k[1] for k in results[labels[0]]) + 1
+    print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
+          "a later call")
+    print("| packet | " + " | ".join(f"{lab} first / later" for lab in labels) + " | " +
+          " | ".join(f"{labels[-1]} {s}" for s in STAGES) + " | status |")
+    print("|---|" + "---|" * (len(labels) + len(STAGES) + 1))
+    for name in names:
+        cells = []
+        for lab in labels:
+            rows = [results[lab][(name, r)] for r in range(repeats)]
+            later = statistics.median(r["call"] for r in rows[1:]) if repeats > 1 else None
+            cells.append(f"{ms(rows[0]['call']):.1f} / " +
+                         ("–" if later is None else f"{ms(later):.1f}"))
+        last = results[labels[-1]][(name, repeats - 1)]
+        stages = [f"{ms(last[s]):.1f}" if s in last else "–" for s in STAGES]
+        status = " → ".join(str(results[lab][(name, 0)]["status"]) + "/" +
+                            str(results[lab][(name, 0)]["matches"]) for lab in labels)
+        print(f"| {name} | " + " | ".join(cells) + " | " + " | ".join(stages) +
+              f" | {status} |")
+    print("\n## Lost in space over the packets (every call), F401 ms (estimate)")
+    print("| build | p50 | p95 | max |")
+    print("|---|---|---|---|")
+    for lab in labels:
+        t = sorted(ms(r["call"]) for k, r in results[lab].items()
+                   if stage_class(k[0]) == "lost in space" and not k[0].startswith("work "))
+        p95 = t[min(len(t) - 1, int(0.95 * len(t)))]
+        print(f"| {lab} | {statistics.median(t):.0f} | {p95:.0f} | {t[-1]:.0f} |")
+    print("\n## The work budget's worst case: a hostile Pyramid search (bench_budget.py's), "
+          "F401 ms (estimate)")
+    print("| build | case | status | work units | F401 ms | F401 ms per million units |")
+    print("|---|---|---|---|---|---|")
+    for lab in labels:
+        for (name, _r), row in sorted(results[lab].items()):
+            if name.startswith("work "):
+                print(f"| {lab} | {name[5:]} | {row['status']} | {row['work']:,} | "
+                      f"{ms(row['call']):.0f} | {ms(row['call']) / row['work'] * 1e6:.0f} |")
+
+
+def stages(baseline, repeats, keep):
+    """Build this checkout and ``baseline`` with the stage data module (in ``keep``, or a
+    temporary folder) and print :func:`stage_report`."""
+    script = qemu.script_dir(REPO) / "build-qemu.sh"
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work.mkdir(parents=True, exist_ok=True)
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    db = flight_database()
+    base = work / "baseline-src"
+    shutil.rmtree(base, ignore_errors=True)
+    base.mkdir()
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", baseline,
+                              "lodestar/__init__.py", "lodestar/contract", "firmware"],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+    results = {}
+    for label, checkout in ((baseline, base), ("now", None)):
+        elf = stage_build(label, checkout, work, db, manifest, repeats, script)
+        results[label] = stage_run(elf, script)
+    stage_report(results, [baseline, "now"])
+    if keep is None:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--baseline", default=BASELINE, help="git revision to compare with")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="calls per packet in the stage table (default 3)")
+    p.add_argument("--stages-only", action="store_true",
+                   help="only the stage and work-budget tables (a few minutes)")
+    p.add_argument("--work", help="build folder of the stage table kept between runs")
     args = p.parse_args()
     if qemu.unavailable_reason(REPO) is not None:
         sys.exit(f"bench_mcu: {qemu.unavailable_reason(REPO)}")
+    if args.repeats < 1:
+        sys.exit("bench_mcu: --repeats must be at least 1")
     manifest = replay.load_set(replay.DEFAULT_SET)
     db_files = replay.database_files(manifest)
     t0 = time.perf_counter()
+    if args.stages_only:
+        cal = qemu.calibrate(qemu.reference_build(default_cache_dir(), REPO))
+        SCALE[0] = cal["scale"]
+        print(f"F401 estimate = ticks x {cal['scale']:.3f} us")
+        stages(args.baseline, args.repeats, args.work)
+        return
     old, new, reference = builds(manifest, db_files, args.baseline)
     cal = qemu.calibrate(reference)
+    SCALE[0] = cal["scale"]
     print(f"# bench_mcu: baseline {args.baseline} -> working tree; builds "
           f"{time.perf_counter() - t0:.0f} s")
     print(f"F401 estimate = ticks x {cal['scale']:.3f} us (" + ", ".join(
@@ -266,6 +508,7 @@ def main():
     memory_table(new, big, loops, runs, manifest, db_files)
     flash_table(new, db_files, manifest)
     print(f"\n(packet buffer {unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records)")
+    stages(args.baseline, args.repeats, args.work)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,11 @@ from lodestar.cosim.runner import Build, Stimulus, frame_gap, scenario
 from lodestar.golden import DetectorConfig, shapes
 from lodestar.hdl.labeller import MIN_HBLANK
 
+# the Verilated detector builds are shared (cached, one build per parameter set): one
+# worker runs every test that plays them, so none waits on the other's build (pyproject:
+# loadgroup)
+pytestmark = pytest.mark.xdist_group("cosim")
+
 HERE = Path(__file__).parent
 GOLDEN_SET = HERE.parent / "tests" / "data" / "golden_small"
 

@@ -15,6 +15,7 @@ import math
 
 from . import geometry as G
 from . import quaternion as Q
+from .emit import native
 
 MIN_SEPARATION = 1e-6
 """Smallest accepted ``sin`` of the largest angle between body (or reference) vectors."""
@@ -83,6 +84,7 @@ def _unit(v, name, i=None):
     return [x / n, y / n, z / n]
 
 
+@native
 def _check_spread(vs, name):
     """``ValueError`` unless two of the unit vectors ``vs`` are neither parallel nor opposite."""
     ax, ay, az = vs[0]
@@ -121,6 +123,7 @@ def _positive(values, name, n):
     return out
 
 
+@native
 def _prepare(b, r, w, wname="w", min_pairs=2, shared=False):
     """Validated ``(unit b, unit r, weights)`` as lists of floats (weights not rescaled);
     ``r`` None: not checked, and None is returned for it.  ``shared``: a unit tuple of ``b``
@@ -158,6 +161,7 @@ def _unit_weights(ws):
 # Shuster's quantities (B is a flat list of 9: B[3*i + j] = sum a b_i r_j)
 # ---------------------------------------------------------------------------------------------
 
+@native
 def _profile(bs, rs, ws):
     B = [0.0] * 9
     for k in range(len(bs)):
@@ -220,6 +224,7 @@ def _coefficients(B):
             sigma)
 
 
+@native
 def _lambda_max(B, lam0):
     """``(lambda_max, psi'(lambda_max))``: Newton-Raphson on ``psi`` from ``lam0 = sum a``.
 
@@ -253,6 +258,7 @@ def _lambda_max(B, lam0):
                      % (NEWTON_MAX_ITERATIONS, lam))
 
 
+@native
 def _quest_column(B, lam):
     """Shuster's ``(x, gamma)`` for ``lambda``: ``x = [alpha I + (lambda - sigma) S + S^2] z``,
     ``gamma = alpha (lambda + sigma) - det S``, ``alpha = lambda^2 - sigma^2 + tr adj S``.
@@ -350,6 +356,7 @@ def _rayleigh(B, vec, scalar):
     return num / (vv + scalar * scalar)
 
 
+@native
 def quest(b, r, w=None, refine=True):
     """Shuster's QUEST; returns our quaternion ``[x, y, z, w]`` (``rotate(q, r_i) ~ b_i``).
 
@@ -379,6 +386,7 @@ def quest(b, r, w=None, refine=True):
     return _ours(x, gamma, axis)
 
 
+@native
 def refine(q, b, r, w=None, max_iterations=REFINE_MAX_ITERATIONS):
     """Wahba's least-squares attitude near ``q`` (our quaternion, within a few degrees) by
     Gauss-Newton on the small rotation ``phi`` with ``A = exp([phi x]) A(q)``: each step
@@ -594,6 +602,7 @@ def triad(b1, b2, r1, r2):
 # Covariance
 # ---------------------------------------------------------------------------------------------
 
+@native
 def covariance(b, r, sigmas):
     """Shuster's QUEST measurement-model attitude covariance in the **body** frame, rad^2.
 

@@ -17,6 +17,8 @@ from lodestar import contract as C
 from lodestar.firmware import status as S
 from lodestar.firmware.geometry import EPS, finite, is_number, norm
 
+from .emit import native
+
 _INF = float("inf")
 
 NEWTON_MAX_ITER = 50
@@ -215,6 +217,7 @@ class Camera(object):
 
     # ---- pixel <-> vector ---------------------------------------------------------------
 
+    @native
     def pixel_to_vector(self, x, y):
         """Unit vector ``(X, Y, Z)`` (camera frame) of pixel ``(x, y)``, or None when the
         undistortion fails (``last_status`` says why)."""
@@ -248,6 +251,7 @@ class Camera(object):
             return None
         return self._project(X, Y, Z)
 
+    @native
     def _project(self, X, Y, Z):
         """:meth:`vector_to_pixel` of finite numbers."""
         if not Z > 0:
@@ -307,6 +311,7 @@ class Camera(object):
         pinhole = self._pinhole
         cx, cy, fx, fy = self.cx, self.cy, self.fx, self.fy
 
+        @native
         def smear(x, y):
             if pinhole:
                 # a homogeneous direction: the turn is linear and the projection divides by Z
@@ -341,6 +346,7 @@ class Camera(object):
             return end[0] - start[0], end[1] - start[1]
         return smear
 
+    @native
     def pixel_tangent(self, x, y, ex, ey):
         """``(ux, uy, uz, rad_per_px)``: the camera-frame unit tangent of the direction of
         pixel ``(x, y)`` as the pixel moves along the unit ``(ex, ey)``, and how many radians

@@ -14,6 +14,7 @@ Python for CPython and MicroPython: no numpy, typing, dataclasses or itertools.
 import math
 
 from lodestar import contract as C
+from lodestar.firmware.emit import native
 from lodestar.firmware.geometry import finite
 
 DEFAULT_MAX_STARS = 32
@@ -101,6 +102,7 @@ class Star(object):
 _INT = type(0)      # exactly int (a bool is not): ``type(v) is _INT`` costs no call
 
 
+@native
 def moments(rec):
     """``(x, y, cxx, cyy, cxy, det)`` of a record, or None when it has no valid centroid.
 
@@ -160,6 +162,7 @@ def moments(rec):
     return x, y, cxx, cyy, cxy, det
 
 
+@native
 def shape(cxx, cyy, cxy, det=None):
     """``(sigma_major, sigma_minor, elongation, orientation)`` of central second moments.
 
@@ -187,6 +190,7 @@ def shape(cxx, cyy, cxy, det=None):
     return sigma_major, sigma_minor, elongation, orientation
 
 
+@native
 def smear_consistent(sigma_major, sigma_minor, orientation, smear,
                      angle_tol=DEFAULT_SMEAR_ANGLE_TOL, length_ratio=DEFAULT_SMEAR_LENGTH_RATIO):
     """True when a blob's elongation is explained by the expected smear ``(dx, dy)`` (px).
@@ -216,6 +220,7 @@ def smear_consistent(sigma_major, sigma_minor, orientation, smear,
     return length / length_ratio <= measured <= length * length_ratio
 
 
+@native
 def unseen_px(sigma_major, sigma_minor, orientation, smear):
     """Half the expected track (px) a blob of this shape did not show: ``max(0, (L - l) /
     2)`` with ``L`` the length of the expected smear ``(dx, dy)`` (px) and ``l =
@@ -243,6 +248,7 @@ def _root(parent, i):
     return i
 
 
+@native
 def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
     """Join the pieces of broken smeared tracks (``docs/centroids_and_tracking.md``):
     returns the list of stars with each group of pieces replaced by one joined
@@ -368,6 +374,7 @@ def _on_border(rec, border):
                 rec.ymax < border[1] - 1)
 
 
+@native
 def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
             min_sigma_px=DEFAULT_MIN_SIGMA_PX, max_elongation=DEFAULT_MAX_ELONGATION,
             expected_smear_px=None, smear_angle_tol=DEFAULT_SMEAR_ANGLE_TOL,

@@ -24,6 +24,7 @@ from lodestar.contract.packet import crc32
 
 from . import kvector
 from . import status as S
+from .emit import native
 
 SUPPORTED_METHODS = stardb.METHOD_MASK
 """The methods this reader serves: every method of ``lodestar.contract.stardb.METHOD_TABLE``."""
@@ -73,6 +74,7 @@ class DatabaseError(Exception):
 # Sky cells: a gnomonic cube, cells_per_face**2 cells per face
 # --------------------------------------------------------------------------------------
 
+@native
 def cell_of(x, y, z, n):
     """Cell index of the direction ``(x, y, z)`` (any non-zero length) on the ``n x n``
     gnomonic cube: ``(face * n + iu) * n + iv``; face ``2a + (1 if negative)`` for major axis
@@ -113,6 +115,7 @@ _QUARTER = 0.25 * math.pi
 ``|u| <= 1``)."""
 
 
+@native
 def cell_span(towards, along, radius, n):
     """``(lo, hi)``: the cell rows ``lo <= i < hi`` along one axis of a face (of ``n``) that
     can hold a direction within ``radius`` (rad) of the unit vector ``d``; ``towards``: the
@@ -553,6 +556,7 @@ class Database:
         """``(start, stop)`` star indices of sky cell ``c`` (stars are stored by cell)."""
         return self._src.unpack(_CELL_RANGE_FORMAT, self._cells_off + 2 * c, 4)
 
+    @native
     def stars_in_cone(self, d, radius, out=None, vecs=None):
         """Indices of the stars within ``radius`` (rad) of the unit vector ``d``, appended
         to ``out`` (a new list when ``None``) in table order; ``vecs``: a list to which
@@ -585,6 +589,7 @@ class Database:
                         self._cone_cell(c, dx, dy, dz, cos_r, out, vecs)
         return out
 
+    @native
     def _cone_cell(self, c, dx, dy, dz, cos_r, out, vecs):
         """The stars of cell ``c`` within ``cos_r`` of ``d``, appended to ``out`` (and their
         vectors to ``vecs``, unless None)."""

@@ -9,6 +9,8 @@ single precision, where ``acos`` of a dot product would not.  Pure Python (``mat
 import math
 from array import array
 
+from .emit import native
+
 
 def _machine_epsilon():
     e = 1.0
@@ -84,11 +86,13 @@ def vector3(v):
     return float(x), float(y), float(z)
 
 
+@native
 def dot(u, v):
     """Dot product of two 3-vectors."""
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
+@native
 def cross(u, v):
     """Cross product ``u x v`` of two 3-vectors."""
     return (u[1] * v[2] - u[2] * v[1],
@@ -96,6 +100,7 @@ def cross(u, v):
             u[0] * v[1] - u[1] * v[0])
 
 
+@native
 def norm(v):
     """Euclidean length of a 3-vector (no overflow protection: star vectors are ~unit)."""
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
@@ -114,6 +119,7 @@ def normalise_vector(v):
     return [x / n, y / n, z / n]
 
 
+@native
 def unit(v):
     """Unit vector of ``v`` (a 3-sequence) as a tuple; None if zero or not finite."""
     x, y, z = float(v[0]), float(v[1]), float(v[2])
@@ -123,6 +129,7 @@ def unit(v):
     return x / n, y / n, z / n
 
 
+@native
 def is_unit_tuple(v):
     """True when ``v`` is a tuple of three floats of unit norm (to a few ulp): such a vector
     can be shared instead of normalised into a copy (an MCU heap then holds the observed
@@ -134,12 +141,14 @@ def is_unit_tuple(v):
         abs(x * x + y * y + z * z - 1.0) <= 4.0 * EPS
 
 
+@native
 def chord(a, b):
     """``|a - b|``: the chord between two unit vectors."""
     dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+@native
 def angle(a, b):
     """Angle between unit vectors ``a`` and ``b`` (rad), ``2 asin(|a - b| / 2)``."""
     h = 0.5 * chord(a, b)
@@ -159,6 +168,7 @@ def mat_vec(m, v):
             m[6] * v[0] + m[7] * v[1] + m[8] * v[2])
 
 
+@native
 def residual2(m, b, r):
     """``|b - m r|^2`` (rad^2 for unit vectors): a camera vector ``b`` against a catalogue
     vector ``r`` under the attitude matrix ``m``."""
@@ -168,6 +178,7 @@ def residual2(m, b, r):
     return dx * dx + dy * dy + dz * dz
 
 
+@native
 def rotate_about(v, axis, angle):
     """``v`` rotated by ``angle`` (rad, right-handed) about the unit ``axis`` (Rodrigues),
     as a tuple."""

@@ -12,6 +12,8 @@ Pure Python for CPython and MicroPython (only ``math``).
 
 import math
 
+from .emit import native
+
 
 def build(keys, n_bins=None, margin=None):
     """Build the k-vector of ``keys`` (a sorted sequence of numbers, ascending).
@@ -59,6 +61,7 @@ def table(keys, m, q, n_bins):
     return out
 
 
+@native
 def _bin_floor(x, n_bins):
     """``floor(x)`` clamped to ``[-1, n_bins + 1]`` (safe for huge or infinite x)."""
     if x != x:               # NaN
@@ -70,6 +73,7 @@ def _bin_floor(x, n_bins):
     return int(math.floor(x))
 
 
+@native
 def query(lo, hi, m, q, n_bins, table_at, key_at, n):
     """Exact index range ``(start, stop)`` of the sorted keys with ``lo <= key <= hi``.
 

@@ -13,6 +13,7 @@ Pure Python for CPython and MicroPython: no numpy, typing, dataclasses or iterto
 
 from lodestar import contract as C
 from lodestar.firmware import status as S
+from lodestar.firmware.emit import native
 
 # --------------------------------------------------------------------------------------
 # Layout: each field as a byte window, from the contract
@@ -37,6 +38,7 @@ _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
 
 
+@native
 def _read(data, base, plan, into):
     """Set each field of ``plan`` (:func:`_plan`) as an attribute of ``into`` from the
     section starting at byte ``base`` of ``data``; returns ``into``.  Bytes are accumulated
@@ -224,6 +226,7 @@ class BadRecord(Exception):
     (``PACKET_BAD_RECORD`` and the message :func:`check` gives)."""
 
 
+@native
 def checked_records(data, header, into=None):
     """The records of a packet whose framing and header :func:`check` accepted (with
     ``records=False``), in order, each checked as it is read and yielded in one
@@ -252,6 +255,7 @@ def _record_bounds(header, limits):
             tuple(limits[name] for name in C.MOMENTS))
 
 
+@native
 def _record_good(rec, bounds):
     """True when :func:`record_problem` finds nothing, with no saturated moments: the
     common case in one expression, without the messages (any other record goes through

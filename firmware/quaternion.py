@@ -22,6 +22,7 @@ Inputs may be any indexable sequences of numbers (lists, tuples, numpy arrays on
 
 import math
 
+from .emit import native
 from .geometry import EPS, finite, is_number, normalise_vector
 
 ORTHONORMAL_TOLERANCE = max(1e-6, 64.0 * EPS)
@@ -69,6 +70,7 @@ def conjugate(q):
     return [-q[0], -q[1], -q[2], q[3]]
 
 
+@native
 def multiply(p, q):
     """Hamilton product ``p (x) q`` (scalar last): the rotation ``q`` followed by ``p``.
 
@@ -83,6 +85,7 @@ def multiply(p, q):
             pw * qw - px * qx - py * qy - pz * qz]
 
 
+@native
 def matrix(q):
     """Attitude matrix ``A`` of a **unit** ``q`` as a row-major 9-tuple (``v_cam = A v_in``):
     ``A = (w^2 - |v|^2) I + 2 v v^T + 2 w [v x]`` for ``q = [v, w]``, in the form the flight

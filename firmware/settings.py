@@ -12,7 +12,6 @@ Pure Python for CPython and MicroPython.
 
 from . import status as S
 from .geometry import is_number
-from .starid.search import DEFAULT_MAX_WORK
 from .tracking import DEFAULT_MAX_MISMATCH_PROB, DEFAULT_MIN_MATCHES
 
 DEFAULT_TOLERANCE_PX = 2.5
@@ -150,7 +149,7 @@ OPTIONS = (
     ("min_sigma_px",      DEFAULT_MIN_SIGMA_PX,       _positive),
     ("max_stars",         DEFAULT_MAX_STARS,          _star_count),
     ("track_stars",       DEFAULT_TRACK_STARS,        _count_or_none),
-    ("max_work",          DEFAULT_MAX_WORK,           _count),
+    ("max_work",          None,                       _count_or_none),
     ("budget",            DEFAULT_BUDGET,             _budget),
     ("max_smear_px",      DEFAULT_MAX_SMEAR_PX,       _positive),
     ("track_search_deg",  DEFAULT_TRACK_SEARCH_DEG,   _not_negative),
@@ -195,8 +194,8 @@ class Settings:
     (:data:`EXTRACT_OPTIONS`); ``id_options``: extra keywords of the identification
     (:data:`ID_OPTIONS`).  ``clock``: optional function returning a number (e.g.
     ``time.ticks_ms``) for ``result.timings``, called once by :meth:`check`.  ``max_work``:
-    work budget of a lost-in-space identification
-    (:data:`lodestar.firmware.starid.search.DEFAULT_MAX_WORK`).
+    work budget of a lost-in-space identification (None: the method's own, ``MAX_WORK`` of
+    its module: Pyramid's is 2 s of F401 time, :data:`lodestar.firmware.starid.pyramid.MAX_WORK`).
     ``velocity_km_s``: the observer's velocity, km/s, ICRS, for the aberration correction
     (None: none; ``process(velocity_km_s=...)`` overrides it per frame,
     ``docs/apparent_directions.md``).

@@ -17,6 +17,7 @@ from array import array
 
 from . import attitude
 from . import status as S
+from .emit import native
 from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
@@ -168,6 +169,7 @@ def candidates(database, q, margin_rad, cone=None):
     return cone
 
 
+@native
 def predict(database, q, margin_rad=0.0, cone=None):
     """Catalogue stars in the FOV at attitude ``q`` (a unit quaternion):
     ``(predicted, n_fov)`` with ``predicted`` the stars inside the FOV rectangle widened by
@@ -209,6 +211,7 @@ def predict(database, q, margin_rad=0.0, cone=None):
     return (keep[:n_out], cam[:3 * n_out]), n_fov
 
 
+@native
 def _claim(near):
     """The matching rule of :func:`match_nearest` over ``near``, a list of ``(observed
     index, star index, squared distance)`` of the pairs within their match regions, in
@@ -233,6 +236,7 @@ def _claim(near):
     return pairs
 
 
+@native
 def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=None,
                   order=None):
     """Unique nearest-neighbour matches ``[(observed index, star index)]`` (sorted by observed
@@ -260,6 +264,7 @@ def match_nearest(observed, predicted, tolerance_rad, streaks=None, slack_rad=No
     return pairs if candidates is None else (pairs, candidates)
 
 
+@native
 def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone=None):
     """:func:`match_nearest` at attitude ``q`` from the ``candidates`` it returned at an
     attitude within its ``slack_rad`` of ``q``: the same matches as predicting anew, from
@@ -283,6 +288,7 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone
     return _claim(near)
 
 
+@native
 def _to_inertial(vectors, q):
     """Camera-frame ``vectors`` turned into the inertial frame by attitude ``q``: ``A^T v``
     (distances and in-region tests are the same in either frame)."""
@@ -323,6 +329,7 @@ def _within(q, q0, angle):
     return vx * vx + vy * vy + vz * vz <= h * h
 
 
+@native
 def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     """Displacement-consensus association (step 4 of ``docs/centroids_and_tracking.md``):
     ``[(observed index, star index)]``."""
@@ -392,6 +399,7 @@ def fit(observed, database, pairs, q, weights=None, cone=None):
         return None
 
 
+@native
 def residual_rms(observed, database, q, pairs, cone=None):
     """RMS angle (rad) between matched observed stars and their catalogue stars at ``q``
     (``cone``: as for :func:`fit`)."""

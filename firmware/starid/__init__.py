@@ -11,14 +11,16 @@ returns a :class:`Solution` (``status``, ``q``, ``matches``, ``patterns_tried``,
 * ``tolerance_rad``: largest direction error of one observed star: the verification's match
   radius and the base of every pattern tolerance.  Default ``fov_h / 1000``.
 * ``budget``: deterministic cap on the patterns tried.
+* ``max_work``: the work budget (:mod:`.search` units); None: the method's ``MAX_WORK``.
 * ``options``: ``max_stars``, ``max_mismatch_prob``, ``distinct_rad``, ``streaks``.
 
 :data:`METHODS` names the methods of the contract's one table
 (:data:`lodestar.contract.stardb.METHOD_TABLE`, which also names each method's module):
 ``'pyramid'`` (Mortari's Pyramid, :mod:`.pyramid`), ``'triangle'`` (Lohmann's planar
 triangles, :mod:`.triangle`), ``'hashing'`` (Astrometry.net's geometric hash, :mod:`.hashing`).
-A method module exports ``DATABASE_BIT`` and ``identify``, which calls
-:func:`.search.identify_with` with its :class:`.search.Search` subclass.  Statuses are
+A method module exports ``DATABASE_BIT``, ``MAX_WORK`` (its default work budget) and
+``identify``, which calls :func:`.search.identify_with` with its :class:`.search.Search`
+subclass.  Statuses are
 :mod:`lodestar.firmware.status` codes: ``BAD_INPUT`` for an unknown method,
 ``DATABASE_UNSUPPORTED`` for a database without the method's section.
 Pure Python for CPython and MicroPython.
@@ -27,7 +29,7 @@ Pure Python for CPython and MicroPython.
 from lodestar.contract.stardb import METHOD_TABLE, METHODS
 
 from .. import status as S
-from .search import DEFAULT_MAX_WORK, Solution
+from .search import Solution
 
 MAX_TOLERANCE_FRACTION = 0.05
 """Largest match tolerance as a fraction of the horizontal field (1 deg of a 20 deg field):
@@ -53,12 +55,14 @@ _method = method        # identify's parameter ``method`` shadows the name
 
 
 def identify(vectors, database, method="pyramid", tolerance_rad=None, budget=2000,
-             max_work=DEFAULT_MAX_WORK, **options):
+             max_work=None, **options):
     """Identify the observed stars; returns a :class:`Solution` (bad input: ``BAD_INPUT``;
     a method the database does not serve: ``DATABASE_UNSUPPORTED``; ``budget`` patterns or
     ``max_work`` units of work spent: ``BUDGET_EXHAUSTED``).  A tolerance wider than
     :data:`MAX_TOLERANCE_FRACTION` of the field is ``BAD_INPUT``: it would match anything."""
     module = _method(method)
+    if module is not None and max_work is None:
+        max_work = module.MAX_WORK              # the method's own budget
     if module is None or isinstance(max_work, bool) or not isinstance(max_work, int) or \
             max_work < 1:
         return Solution(S.BAD_INPUT)

@@ -20,6 +20,8 @@ from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, handed, identify_with
 
 DATABASE_BIT = METHOD_HASHING
 """The database's ``methods`` bit this method reads."""
+MAX_WORK = DEFAULT_MAX_WORK
+"""The method's work budget: the shared default (not calibrated in MCU time)."""
 
 BOUND_MARGIN = 1.1
 """Factor on the first-order hash tolerance (covers the projection's curvature terms)."""
@@ -378,7 +380,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK):
+             max_work=MAX_WORK):
     """Geometric-hashing identification (:func:`.search.identify_with`; ``budget`` counts
     groups); returns a :class:`.search.Solution`.  A streak's star is matched over its
     stretched region by the verification, but the hash boxes stay those of

@@ -17,7 +17,8 @@ from lodestar.contract.stardb import METHOD_PYRAMID
 
 from .. import geometry as G
 from ..database import PAIR_BLOCK
-from .search import DEFAULT_MAX_WORK, Search, handed, identify_with
+from ..emit import native
+from .search import Search, handed, identify_with
 
 DATABASE_BIT = METHOD_PYRAMID
 """The database's ``methods`` bit this method reads."""
@@ -27,10 +28,12 @@ SQRT2 = 1.4142135623730951
 NONE = 0xFFFF
 """End of a chain in the ``array('H')`` pair index of :meth:`_Search._index`."""
 
-CHUNK = 256
+CHUNK = 128
 """Most candidate pairs of one side indexed at once (:meth:`_Search._index`; longer ranges are
-joined chunk by chunk); entry numbers stay below :data:`NONE`."""
-_HEAD = 512
+joined chunk by chunk); entry numbers stay below :data:`NONE`.  128, not 256: the index's
+blocks are allocated per search (half a KiB each), and at 256 the lost-in-space frames of
+the regression set ran out of the 64 KiB flight heap."""
+_HEAD = 256
 """Chain heads of a side's index: a power of two, at least the ``2 * CHUNK`` entries."""
 
 
@@ -46,20 +49,19 @@ def _side():
 
 DEFAULT_MAX_STARS = 16
 """Observed stars a search uses for patterns by default (:func:`identify`)."""
+MAX_WORK = 20000
+"""Pyramid's work budget (:data:`.search.DEFAULT_MAX_WORK`'s units): a search that spends it,
+its mirror check (a third more) and its conclusion end within 2 s of F401 time (measured on
+the Cortex-M4F build, ``docs/firmware.md``, The work budget on the MCU)."""
+PATTERN_WORK = 100
+"""Work units of a triple beyond its pair candidates (its three k-vector queries, the
+triangles' sort, the handedness tests: about 1,500 guest ticks on the Cortex-M4F build)."""
 
-_SIDES = (_side(), _side())
-_ANGLES = G.zeros(DEFAULT_MAX_STARS * DEFAULT_MAX_STARS)
-_RANGES = array("i", range(2 * DEFAULT_MAX_STARS * DEFAULT_MAX_STARS))
-"""A search's buffers (the two sides' pair index, the observed angles, the pair ranges:
-6 KiB), allocated when the method is imported (when a tracker is made, before any frame)
-and reused by every search of at most :data:`DEFAULT_MAX_STARS` stars: a search then needs
-no large block of a heap its frames have fragmented."""
 
-
+@native
 def _observed_angles(b, n):
-    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``
-    (:data:`_ANGLES` when it is large enough)."""
-    ang = _ANGLES if n <= DEFAULT_MAX_STARS else G.zeros(n * n)
+    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``."""
+    ang = G.zeros(n * n)
     for i in range(n):
         for j in range(i + 1, n):
             a = G.angle(b[i], b[j])
@@ -68,24 +70,30 @@ def _observed_angles(b, n):
     return ang
 
 
-
 class _Search(Search):
     BIT = DATABASE_BIT
     MIN_STARS = 4           # a triple and the fourth star that confirms it
+    PATTERN_WORK = PATTERN_WORK
 
     def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
+        # the search's buffers (the observed angles, the pair ranges, the two sides' pair
+        # index: 6 KiB at 16 stars, no block above 2 KiB) live while it runs: the pipeline
+        # collects before a lost-in-space search, and a tracking frame's heap does not
+        # hold them
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
         size = 2 * self.n * self.n
-        self.ranges = _RANGES if self.n <= DEFAULT_MAX_STARS else array("i", range(size))
+        self.ranges = array("i", range(size))
         for c in range(size):
             self.ranges[c] = -1                     # not queried yet
+        self.sides = (_side(), _side())
 
     def ptol(self, i, j):
         """Tolerance (rad) of the observed angle between stars ``i`` and ``j``."""
         return self.ptol0 + self.half[i] + self.half[j]
 
+    @native
     def candidates(self, i, j):
         """``(start, stop)``: the database pairs within ``ptol`` of the observed angle
         ``i``-``j`` (k-vector query, remembered per observed pair for the whole search)."""
@@ -98,6 +106,7 @@ class _Search(Search):
             r[c], r[c + 1] = self.db.pairs_in_range(t - tol, t + tol)
         return r[c], r[c + 1]
 
+    @native
     def bound(self, i, j, k):
         a = self.ang
         n = self.n
@@ -105,6 +114,7 @@ class _Search(Search):
         tol = self.tol + max(h[i], h[j], h[k])
         return tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) + math.sin(a[k * n + i]))
 
+    @native
     def _index(self, start, stop, side):
         """Index the pairs ``start <= p < stop`` (at most :data:`CHUNK`) by star in the
         buffers ``side`` (:func:`_side`): returns them, ``(head, st, nxt, used)``.
@@ -134,6 +144,7 @@ class _Search(Search):
         used[0] = 2 * (stop - start)
         return side
 
+    @native
     def triangles(self, i, j, k):
         """Consistent catalogue triangles ``(I, J, K)`` of the observed triple, in the order
         of the ``ij`` candidates (``(a, b)`` before ``(b, a)``), then of the ``ik`` ones.
@@ -153,14 +164,15 @@ class _Search(Search):
         found = []
         for lo in range(s_ij[0], s_ij[1], CHUNK):
             ij = self._index(lo, lo + CHUNK if lo + CHUNK < s_ij[1] else s_ij[1],
-                             _SIDES[0])
+                             self.sides[0])
             for lo2 in range(s_jk[0], s_jk[1], CHUNK):
                 jk = self._index(lo2, lo2 + CHUNK if lo2 + CHUNK < s_jk[1] else s_jk[1],
-                                 _SIDES[1])
+                                 self.sides[1])
                 self._join(ij, jk, s_ik, (lo - s_ij[0]) << 1, found)
         found.sort()
         return [t[1:] for t in found]
 
+    @native
     def _join(self, ij, jk, s_ik, e0, found):
         """Append ``(order, I, J, K)`` to ``found`` for every ``ik`` pair ``{I, K}`` closing a
         triangle with an indexed ``ij`` entry ``(I, J)`` and ``jk`` entry ``(J, K)``;
@@ -200,6 +212,7 @@ class _Search(Search):
                                     f = jk_nxt[f]
                         e = ij_nxt[e]
 
+    @native
     def fourth_star(self, i, j, k, cat):
         """``(r, R)``: the first observed star confirming the catalogue triangle, or None."""
         db = self.db
@@ -265,7 +278,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=DEFAULT_MAX_STARS,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK):
+             max_work=MAX_WORK):
     """Pyramid identification (:func:`.search.identify_with`; ``budget`` counts triples);
     returns a :class:`.search.Solution`."""
     return identify_with(_Search, vectors, database, tolerance_rad, budget, max_stars,

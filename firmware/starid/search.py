@@ -18,13 +18,17 @@ from ..quaternion import angle_between
 from .verify import streak_variance, verify
 
 DEFAULT_MAX_WORK = 5000000
-"""Work budget of one identification, in units of one catalogue candidate examined (a
-verification costs :data:`VERIFY_WORK` plus one per observed star).  A search that spends
-it ends with ``BUDGET_EXHAUSTED`` whatever its input; measurements in ``docs/starid.md``
-(Work budget)."""
-VERIFY_WORK = 8192
-"""Work units of one hypothesis verification beyond its observed stars (a cone of the
-catalogue read and matched: about as long as 8,000 pair candidates)."""
+"""Work budget of one identification by a method without a budget of its own (Triangle,
+geometric hashing; Pyramid's is :data:`lodestar.firmware.starid.pyramid.MAX_WORK`), in units
+of one catalogue pair candidate examined (15-25 guest ticks on the Cortex-M4F build, 50-80
+us of F401 time; a verification and a Pyramid pattern are charged as the pair candidates
+their time buys, :data:`VERIFY_WORK`, :attr:`Search.PATTERN_WORK`).  A search that spends
+its budget ends with ``BUDGET_EXHAUSTED`` whatever its input (``docs/starid.md``, Work
+budget)."""
+VERIFY_WORK = 1600
+"""Work units of one hypothesis verification beyond its observed stars: its fit and a cone of
+the catalogue read and matched, about 24,000 guest ticks on the Cortex-M4F build, as long as
+1,600 pair candidates."""
 RECORD_WORK = 32
 """Work units of one stored triangle or hash group examined (its stars read and compared:
 about as long as 32 pair candidates)."""
@@ -38,8 +42,10 @@ MIRROR_SHARE = 4
 tried (all of them up to :data:`MIRROR_SMALL`) ..."""
 MIRROR_SMALL = 32
 """... and the patterns of a search that tried no more than this."""
-MIRROR_WORK_SHARE = 10
-"""The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units."""
+MIRROR_WORK_SHARE = 3
+"""The mirror check spends at most ``max_work // MIRROR_WORK_SHARE`` work units (it was a
+tenth of a 5 M budget; of Pyramid's 20,000 units a mirrored estcube2 scene needed up to
+5,916 in the firmware tests)."""
 MIRROR_EARLY = 32
 """Patterns kept for the mirror check in :data:`_EARLY` (64 bytes, allocated at import); a
 search that goes on allocates room for :data:`MIRROR_PATTERNS` (1 KiB, :func:`_keep`)."""
@@ -206,6 +212,9 @@ class Search:
 
     BIT = 0
     """The database's ``methods`` bit the method reads."""
+    PATTERN_WORK = 0
+    """Work units charged per observed pattern tried, beyond what the method charges for
+    its candidates (a method whose patterns cost time of their own sets it)."""
     MIN_STARS = 3
     """Fewest observed stars the method searches (fewer: ``TOO_FEW_STARS``)."""
 
@@ -346,6 +355,7 @@ class Search:
                     if first is not None:
                         size = len(pattern)
                         kept += 1
+                self.spend(self.PATTERN_WORK)
                 accepted = self.try_pattern(pattern)
                 if accepted:
                     return self.conclude(accepted, tried)
@@ -377,6 +387,7 @@ class Search:
         try:
             for k in range(kept):
                 code = first[2 * k] | first[2 * k + 1] << 8
+                self.spend(self.PATTERN_WORK)
                 if self.try_pattern(tuple((code >> 4 * t) & 15 for t in range(size))):
                     failed.status = S.MIRRORED
                     break

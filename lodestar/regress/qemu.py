@@ -29,11 +29,11 @@ from lodestar.cache import default_cache_dir
 from lodestar.regress import mcutime, unixport
 from lodestar.regress.micropython import MicroPythonError
 
-FLIGHT_HEAP = 72 * 1024
+FLIGHT_HEAP = 64 * 1024
 """The flight build's GC heap (bytes): the F401's 96 KiB less a 16 KiB stack and at most
-8 KiB of statics (0.8 KiB on this port; the STM32 port's are to be measured).  It was
-64 KiB until the firmware of issues 29-33 landed together and the Pyramid runs of the set
-ran out of heap at 64 KiB (issue 29: cut the module globals back to 64, then 48 KiB)."""
+16 KiB of statics (0.8 KiB on this port; the STM32 port's are to be measured).  It was
+72 KiB while Pyramid's search buffers were module globals (issue 29: they now live only
+while a lost-in-space search runs)."""
 RAM_BYTES = 96 * 1024
 """The F401's RAM (the build's link map)."""
 FLASH_BYTES = 512 * 1024
@@ -138,7 +138,7 @@ def stage_set(folder, manifest, set_dir, db_files, frozen=FROZEN_DATABASES):
 
 def _stage_image(folder, checkout):
     """The MCU image of ``checkout`` (None: this installation's) and :data:`QEMU_MODULES`."""
-    image = unixport.stage_mcu_image(Path(folder), checkout)
+    image = unixport.stage_mcu_image(Path(folder), checkout, native=True)
     here = Path(__file__).parent
     for name in QEMU_MODULES:
         _write(image / "lodestar" / "regress" / f"{name}.py",

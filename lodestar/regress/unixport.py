@@ -18,6 +18,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shlex
 import shutil
 import subprocess
@@ -162,11 +163,30 @@ def build_script(repo):
     return path if path.is_file() else None
 
 
-def stage_mcu_image(folder, checkout=None):
+_NATIVE_IMPORT = re.compile(rb"^from (\.+|lodestar\.firmware\.)emit import native$")
+
+
+def native_source(data):
+    """The module source ``data`` (bytes) for a build whose compiler emits machine code
+    (:mod:`lodestar.firmware.emit`): each line ``@native`` becomes ``@micropython.native``
+    (same indentation) and ``from .emit import native`` (or ``lodestar.firmware.emit``)
+    becomes ``import micropython``; every other line, and the line numbers, stay."""
+    lines = data.split(b"\n")
+    for i, line in enumerate(lines):
+        if line.strip() == b"@native":
+            lines[i] = line[:len(line) - len(line.lstrip())] + b"@micropython.native"
+        elif _NATIVE_IMPORT.match(line):
+            lines[i] = b"import micropython"
+    return b"\n".join(lines)
+
+
+def stage_mcu_image(folder, checkout=None, native=False):
     """Copy :func:`lodestar.regress.micropython.mcu_image` of ``checkout`` (None: this
     installation's) into ``folder`` as the tree ``lodestar/...`` that a freeze manifest
     packages (only changed files are rewritten and files no longer in the image removed, so
-    an incremental build re-freezes only what changed); returns ``folder``."""
+    an incremental build re-freezes only what changed); returns ``folder``.  ``native``: for
+    a build with a native emitter (the Cortex-M4F build), each module through
+    :func:`native_source`."""
     folder = Path(folder)
     wanted = {folder / target: Path(host) for host, target in mcu_image(checkout)}
     if folder.exists():
@@ -177,6 +197,8 @@ def stage_mcu_image(folder, checkout=None):
                 old.rmdir()
     for dest, host in wanted.items():
         data = host.read_bytes()
+        if native:
+            data = native_source(data)
         if not dest.is_file() or dest.read_bytes() != data:   # unchanged files keep their
             dest.parent.mkdir(parents=True, exist_ok=True)     # time: no re-freeze
             dest.write_bytes(data)

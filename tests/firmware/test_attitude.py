@@ -495,7 +495,8 @@ def test_firmware_source_is_micropython_subset(name):
             assert not node.kwonlyargs and node.vararg is None and node.kwarg is None
             assert all(a.annotation is None for a in node.args)
         elif isinstance(node, ast.FunctionDef):
-            assert node.returns is None and not node.decorator_list
+            assert node.returns is None    # and no decorator but the native marker
+            assert all(isinstance(d, ast.Name) and d.id == "native" for d in node.decorator_list)
 
 
 SMOKE = r"""

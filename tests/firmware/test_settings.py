@@ -3,6 +3,8 @@
 import inspect
 import time
 
+import pytest
+
 from lodestar.firmware import centroids, starid, tracking
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
@@ -14,6 +16,10 @@ from lodestar.firmware.settings import (
     Settings,
 )
 from tests import sim_frames
+
+# the frames and the flight database are made once per worker: one worker runs them
+# (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("sim_frames")
 
 
 def test_defaults():
@@ -64,9 +70,9 @@ BAD_SETTINGS = [
     ({"track_stars": 0}, "track_stars must be None or an int >= 1"),
     ({"track_stars": True}, "track_stars must be None or an int >= 1"),
     ({"track_stars": 1.5}, "track_stars must be None or an int >= 1"),
-    ({"max_work": 0}, "max_work must be an int >= 1"),
-    ({"max_work": True}, "max_work must be an int >= 1"),
-    ({"max_work": 1.0}, "max_work must be an int >= 1"),
+    ({"max_work": 0}, "max_work must be None or an int >= 1"),
+    ({"max_work": True}, "max_work must be None or an int >= 1"),
+    ({"max_work": 1.0}, "max_work must be None or an int >= 1"),
     ({"budget": 0}, "budget must be an int >= 1"),
     ({"budget": 1.5}, "budget must be an int >= 1"),
     ({"budget": "2000"}, "budget must be an int >= 1"),

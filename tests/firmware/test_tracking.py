@@ -22,6 +22,10 @@ from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.presets import load_preset
 from tests import sim_frames
 
+# the frames and the flight database are made once per worker: one worker runs them
+# (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("sim_frames")
+
 TOL = 3.4e-4            # rad: 2.5 px of estcube2
 MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 

@@ -19,6 +19,10 @@ from lodestar.sim.centroids import attitude_error_deg, centroid_scene
 from lodestar.sim.goldenset import window_camera
 from tests import sim_frames
 
+# the frames and the flight database are made once per worker: one worker runs them
+# (pyproject: loadgroup)
+pytestmark = pytest.mark.xdist_group("sim_frames")
+
 MAX_ERR_DEG = sim_frames.MAX_ERR_DEG
 W, H = 2592, 1944
 

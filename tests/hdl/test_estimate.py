@@ -2,6 +2,8 @@
 design, netlist analysis (units, carry-chain LEs, logic depth) on a hand-made netlist, and
 one real Yosys run on a small build."""
 
+import json
+
 import pytest
 
 from lodestar.hdl.boards import BOARDS, GatewareTop
@@ -15,7 +17,6 @@ from lodestar.hdl.estimate import (
     memories,
     multiplier_elements,
     multiplier_les,
-    run_yosys,
 )
 from lodestar.hdl.layouts import record_layout
 
@@ -106,11 +107,17 @@ def test_a_path_out_of_a_memory_outweighs_a_deeper_one():
                                        2 * ROUTING_NS_PER_HOP)
 
 
-def test_board_report_of_a_small_build(tmp_path):
-    """A real Yosys run (small frame): logic, multipliers and depth are present and sane."""
-    board = BOARDS["de0-nano"]
+@pytest.fixture(scope="module")
+def small_build(tmp_path_factory):
+    """One real Yosys run of a small board top (32 x 8): its report and its work folder."""
+    workdir = tmp_path_factory.mktemp("small_build")
     top = GatewareTop("mt9p031", 32, 8, label_capacity=4, record_capacity=4)
-    report = board_report(board, top, workdir=tmp_path)
+    return board_report(BOARDS["de0-nano"], top, workdir=workdir), workdir
+
+
+def test_board_report_of_a_small_build(small_build):
+    """A real Yosys run (small frame): logic, multipliers and depth are present and sane."""
+    report, _workdir = small_build
     logic = report["logic"]
     assert logic["les"] == logic["luts"] + logic["arith_les"] > 500
     assert logic["ffs"] > 300
@@ -121,12 +128,11 @@ def test_board_report_of_a_small_build(tmp_path):
     assert "estimate" in format_report(report).lower()
 
 
-def test_boxed_cells_keep_their_outputs(tmp_path):
+def test_boxed_cells_keep_their_outputs(small_build):
     """Memories, multipliers and adders are boxed out of Yosys' mapping; their outputs must
     stay driven (undeclared box ports were once tied to 0 and all logic behind them
     optimised away, halving the LE estimate)."""
-    top = GatewareTop("mt9p031", 32, 8, label_capacity=4, record_capacity=4)
-    netlist, _ = run_yosys(top, "star_tracker", tmp_path)
+    netlist = json.loads((small_build[1] / "star_tracker.json").read_text())
     cells = netlist["modules"]["star_tracker"]["cells"]
     boxes = [c for c in cells.values() if c["type"].startswith("lodestar_")]
     assert len(boxes) > 20

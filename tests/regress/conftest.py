@@ -60,28 +60,31 @@ def _qemu_buildable():
 
 @pytest.fixture(scope="session")
 def cortex_m4f(regression_set):
-    """The flight image of the Cortex-M4F build (72 KiB heap) with the set frozen
-    (:func:`lodestar.regress.qemu.flight_build`; skips, or fails under
-    ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU)."""
+    """The Cortex-M4F image of the set's expectations (:data:`~lodestar.regress.qemu.
+    EXPECTATION_HEAP` of heap, the set frozen, :func:`lodestar.regress.qemu.
+    expectation_build`): the flight image but for a larger heap, so one build serves the
+    session (the flight heap is this one less a ballast); skips, or fails under
+    ``LODESTAR_REQUIRE_MICROPYTHON``, without the ARM toolchain and QEMU."""
     _qemu_buildable()
     manifest, db_files = regression_set
-    return qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
+    return qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
 
 
 @pytest.fixture(scope="session")
 def cortex_m4f_set(cortex_m4f, regression_set):
-    """The whole set, every method, in one QEMU run of the flight image at its 72 KiB heap
-    with the flight packet buffer (:func:`lodestar.regress.qemu.flight_loop`)."""
+    """The whole set, every method, in one QEMU run at the flight heap
+    (:data:`~lodestar.regress.qemu.FLIGHT_HEAP`: the build's heap less a ballast of the
+    difference held from the start; a few hundred bytes less than the flight build's own
+    pool, whose allocation tables are smaller) with the flight packet buffer
+    (:func:`lodestar.regress.qemu.flight_loop`)."""
     manifest, db_files = regression_set
     runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
-    return qemu.flight_loop(cortex_m4f, manifest, db_files, runs)
+    return qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
+                            ballast=qemu.EXPECTATION_HEAP - qemu.FLIGHT_HEAP)
 
 
 @pytest.fixture(scope="session")
-def cortex_m4f_outcomes(regression_set):
-    """The whole set on the build of the expectations (the flight image with an 80 KiB
-    heap, :func:`lodestar.regress.qemu.expectation_build`) in one QEMU run."""
-    _qemu_buildable()
+def cortex_m4f_outcomes(cortex_m4f, regression_set):
+    """The whole set on the build of the expectations in one QEMU run."""
     manifest, db_files = regression_set
-    elf = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, repo=REPO)
-    return qemu.float32_outcomes(elf, manifest, db_files)
+    return qemu.float32_outcomes(cortex_m4f, manifest, db_files)

@@ -18,11 +18,11 @@ from tests import REPO
 # one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
 pytestmark = pytest.mark.xdist_group("unixport")
 
-HEAP_BUDGET = 72 * 1024
+HEAP_BUDGET = 64 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the flight build with the
 firmware's own collector setting, the STM32F401's, and a packet buffer for the flight
-gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``; the set
-needs a little more than 64 KiB since issues 29-33 landed together, ``docs/mcu_board.md``)."""
+gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``,
+``docs/mcu_board.md``)."""
 
 
 def _runs(manifest, method, camera=None):
@@ -165,3 +165,34 @@ def test_restaging_rewrites_only_what_changed(tmp_path):
     assert keep.stat().st_mtime_ns == before
     assert changed.read_text() != "edited\n"
     assert not stale.exists() and not stale.parent.exists()
+
+
+def test_a_native_image_marks_the_same_functions_machine_code(tmp_path):
+    """``native=True`` turns each ``@native`` of the firmware into ``@micropython.native``
+    and its import into ``import micropython``, line for line, and changes nothing else; a
+    plain image keeps the source as it is."""
+    plain = unixport.stage_mcu_image(tmp_path / "plain")
+    native = unixport.stage_mcu_image(tmp_path / "native", native=True)
+    marked = 0
+    for path in sorted(plain.rglob("*.py")):
+        old = path.read_text().split("\n")
+        new = (native / path.relative_to(plain)).read_text().split("\n")
+        assert len(new) == len(old)
+        for a, b in zip(old, new):
+            if a.strip() == "@native":
+                marked += 1
+                assert b == a.replace("@native", "@micropython.native")
+            elif a.endswith("emit import native") and a.startswith("from "):
+                assert b == "import micropython"
+            else:
+                assert b == a
+        assert "@native" not in new and "emit import native" not in "\n".join(new)
+    assert marked >= 10
+
+
+def test_native_source_rewrites_only_the_marker_lines():
+    src = (b"from .emit import native\nfrom ..emit import natives\n\n@native\ndef f():\n"
+           b"    @native\n    def g():\n        return '@native'\n    return g\n")
+    assert unixport.native_source(src) == (
+        b"import micropython\nfrom ..emit import natives\n\n@micropython.native\ndef f():\n"
+        b"    @micropython.native\n    def g():\n        return '@native'\n    return g\n")

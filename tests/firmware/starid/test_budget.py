@@ -10,6 +10,7 @@ from lodestar.firmware import starid
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import MAX_STARS, Settings
+from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
 from lodestar.ground.solve import solve_centroids
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import centroid_scene
@@ -42,8 +43,25 @@ def test_exhausting_the_work_budget_is_a_status(starid_setup, method):
         S.BUDGET_EXHAUSTED
     ok = starid.identify(vectors, db, method=method)
     assert ok.status == S.OK
-    for bad in (0, -5, 2.5, True, None):
+    for bad in (0, -5, 2.5, True):
         assert starid.identify(vectors, db, method=method, max_work=bad).status == S.BAD_INPUT
+
+
+def test_each_method_has_its_default_work_budget(starid_setup, method):
+    """``max_work=None`` (the default) is the method's own ``MAX_WORK``: Pyramid's bounds a
+    search at 2 s of F401 time, the others keep the shared default."""
+    camera, catalogue, db = starid_setup
+    module = starid.method(method)
+    assert module.MAX_WORK == (20000 if method == "pyramid" else DEFAULT_MAX_WORK)
+    if method != "pyramid":
+        return                  # a hostile search within 5 M units takes minutes here
+    vectors = _scene(camera, catalogue, 3, noise_px=1.0, n_false=10, max_stars=30)
+    tolerance = 0.02 * db.fov_h
+    sol = starid.identify(vectors, db, method=method, tolerance_rad=tolerance, budget=10 ** 6)
+    assert sol.status == S.BUDGET_EXHAUSTED and module.MAX_WORK < sol.work
+    same = starid.identify(vectors, db, method=method, tolerance_rad=tolerance, budget=10 ** 6,
+                           max_work=module.MAX_WORK)
+    assert (same.status, same.work) == (sol.status, sol.work)
 
 
 def test_a_tolerance_that_matches_anything_is_refused(starid_setup, method):
