@@ -282,6 +282,8 @@ class StarTracker:
         self._tracker = None            # tracking, with these settings and that cone
         self._frame = None              # process(): (instants, moments, exposure)
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
+        self._mode = None               # the frame's mode, while it is fitted
+        self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -619,6 +621,7 @@ class StarTracker:
             _note(res, str(len(vectors)) + " usable stars")
             return res
         sol, mode = self.identify(vectors, prior, omega, dt, streaks)
+        self._mode = mode
         start = self._tick(timings, "identify", start)
         res.mode = mode
         res.patterns_tried = sol.patterns_tried
@@ -801,7 +804,7 @@ class StarTracker:
         st = self.settings
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
-        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0])
+        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0)
         if fit is None:
             return False
         d = fit[1]
@@ -828,16 +831,32 @@ class StarTracker:
         :func:`lodestar.firmware.smear.radial_fit`, its coefficients beyond
         ``RADIAL_CHI2``) the attitude fitted with it, its sigma grown by it, noted in
         ``reason``.  ``times``: the stars' instants when the rate is fitted too (counted from
-        ``ref``; the fitted rate then corrected in ``res``), else None."""
+        ``ref``; the fitted rate then corrected in ``res``), else None.  The lens does not
+        change between frames: once a check finds no pattern, tracking frames skip it (lost
+        in space checks every frame); the verdict is one linear solve, and only a pattern
+        is fitted in full (``docs/firmware.md``, Epoch and rate)."""
         self._last_fit = (vectors, w, False)
-        if len(star_ids) < _smear.MIN_RADIAL_STARS:
+        if len(star_ids) < _smear.MIN_RADIAL_STARS or (self._lens_clean and
+                                                        self._mode == "tracking"):
             return solved
         db, cone = self.database, self._cone
         rate = times is not None
-        fit = _smear.radial_fit([vectors[o] for o, _s in star_ids],
-                                [cone.star_vector(db, s) for _o, s in star_ids],
-                                [times[o] - ref if rate else 0.0 for o, _s in star_ids], w,
-                                solved[0], rate, self.min_sigma_rad, self.sigma_rad)
+        b = [vectors[o] for o, _s in star_ids]
+        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        dts = [times[o] - ref if rate else 0.0 for o, _s in star_ids]
+        # the verdict from one linear solve (the radial terms enter linearly and the
+        # attitude and rate are fitted already); the full fit only for a pattern
+        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
+                                self.sigma_rad, 0)
+        if fit is None:
+            return solved
+        chi2 = _smear.chi2_rate(fit[5], fit[6])
+        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+            self._lens_clean = True
+            return solved
+        self._lens_clean = False
+        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
+                                self.sigma_rad)
         if fit is None:
             return solved
         q, extra, p, p_rate, s, c, p_c = fit
@@ -865,14 +884,15 @@ class StarTracker:
                         (s0 * s0)) for i in range(n)]
         return w
 
-    def _rate_fit(self, vectors, star_ids, w, times, ref, q):
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q,
+                  rounds=_smear.RATE_ITERATIONS):
         """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
-        counted from ``ref``."""
+        counted from ``ref`` (``rounds`` as there: 0 for the check of a given rate)."""
         db, cone = self.database, self._cone
         return _smear.rate_fit([vectors[o] for o, _s in star_ids],
                                [cone.star_vector(db, s) for _o, s in star_ids],
                                [times[o] - ref for o, _s in star_ids], w, q,
-                               self.min_sigma_rad, self.sigma_rad)
+                               self.min_sigma_rad, self.sigma_rad, rounds)
 
     def _turned(self, vectors, times, ref, rate):
         """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""

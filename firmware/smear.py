@@ -19,6 +19,7 @@ import math
 from . import centroids
 from . import geometry as G
 from . import quaternion as Q
+from .emit import native
 
 MIN_RATE_STARS = 6
 """Fewest matched stars :func:`rate_fit` fits a rate to: six unknowns, and at least
@@ -88,52 +89,98 @@ def _solve(n, a, h):
     return x
 
 
-def _columns(a, x, rate, radial, rho2):
+@native
+def _columns(c, ax, ay, az, x, rate, radial, rho2):
     """The model's derivatives at catalogue direction ``a`` (camera frame) for a star seen
-    ``x`` (scaled) after the reference: three 3-vectors for the attitude's small rotation
-    (``e_j x a``), three for the rate when ``rate`` (``-x e_j x a``), two for a radial
-    displacement when ``radial`` (``g`` and ``|g|^2 / rho2 g``, ``g = a_z a - z`` pointing
-    away from the boresight, of length the sine of the star's angle from it)."""
-    ax, ay, az = a
-    cols = [(0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)]
+    ``x`` (scaled) after the reference, written into the flat list ``c`` (3 per unknown):
+    three 3-vectors for the attitude's small rotation (``e_j x a``), three for the rate when
+    ``rate`` (``-x e_j x a``), two for a radial displacement when ``radial`` (``g`` and
+    ``|g|^2 / rho2 g``, ``g = a_z a - z`` pointing away from the boresight, of length the
+    sine of the star's angle from it; ``a = (ax, ay, az)``).  No allocation: :func:`_normal`
+    calls it per star."""
+    c[0] = 0.0
+    c[1] = -az
+    c[2] = ay
+    c[3] = az
+    c[4] = 0.0
+    c[5] = -ax
+    c[6] = -ay
+    c[7] = ax
+    c[8] = 0.0
+    j = 9
     if rate:
-        cols += [(0.0, x * az, -x * ay), (-x * az, 0.0, x * ax), (x * ay, -x * ax, 0.0)]
+        for k in range(9):
+            c[j + k] = -x * c[k]
+        j = 18
     if radial:
-        g = (az * ax, az * ay, az * az - 1.0)
-        k = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) / rho2
-        cols += [g, (k * g[0], k * g[1], k * g[2])]
-    return cols
+        gx = az * ax
+        gy = az * ay
+        gz = az * az - 1.0
+        k = (gx * gx + gy * gy + gz * gz) / rho2
+        c[j] = gx
+        c[j + 1] = gy
+        c[j + 2] = gz
+        c[j + 3] = k * gx
+        c[j + 4] = k * gy
+        c[j + 5] = k * gz
 
 
+@native
 def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     """The normal equations of the linearised model at attitude ``q`` and rate ``omega``:
     ``(N, h, chi2)`` with ``N`` ``m x m`` (flat; ``m`` the unknowns of :func:`_columns`),
     ``h`` and ``chi2 = sum w_i |e_i|^2`` of the residuals ``e_i = R(omega dt_i) b_i - A(q)
     r_i`` (the star turned back to the reference instant).  The rate's unknowns are the rate
-    times ``tau``."""
+    times ``tau``.  One pass over the stars, no allocation per star."""
     m = Q.matrix(q)
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
     speed = G.norm(omega)
-    axis = (omega[0] / speed, omega[1] / speed, omega[2] / speed) if speed > 0 else None
+    turn = speed > 0
+    ux = uy = uz = 0.0
+    if turn:
+        ux = omega[0] / speed
+        uy = omega[1] / speed
+        uz = omega[2] / speed
     size = 3 + (3 if rate else 0) + (2 if radial else 0)
     nn = [0.0] * (size * size)
     h = [0.0] * size
+    c = [0.0] * (3 * size)
     chi2 = 0.0
     for i in range(len(b)):
-        a = G.mat_vec(m, r[i])
-        v = b[i] if axis is None else G.rotate_about(b[i], axis, speed * dts[i])
-        e = (v[0] - a[0], v[1] - a[1], v[2] - a[2])
+        ri = r[i]
+        r0, r1, r2 = ri[0], ri[1], ri[2]
+        a0 = m0 * r0 + m1 * r1 + m2 * r2
+        a1 = m3 * r0 + m4 * r1 + m5 * r2
+        a2 = m6 * r0 + m7 * r1 + m8 * r2
+        bi = b[i]
+        vx, vy, vz = bi[0], bi[1], bi[2]
+        if turn:
+            angle = speed * dts[i]
+            co = math.cos(angle)
+            si = math.sin(angle)
+            k = (ux * vx + uy * vy + uz * vz) * (1.0 - co)
+            vx, vy, vz = (vx * co + (uy * vz - uz * vy) * si + ux * k,
+                          vy * co + (uz * vx - ux * vz) * si + uy * k,
+                          vz * co + (ux * vy - uy * vx) * si + uz * k)
+        e0 = vx - a0
+        e1 = vy - a1
+        e2 = vz - a2
         wi = w[i]
-        chi2 += wi * (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-        cols = _columns(a, dts[i] / tau if rate else 0.0, rate, radial, rho2)
+        chi2 += wi * (e0 * e0 + e1 * e1 + e2 * e2)
+        _columns(c, a0, a1, a2, dts[i] / tau if rate else 0.0, rate, radial, rho2)
         for j in range(size):
-            cj = cols[j]
-            h[j] += wi * (cj[0] * e[0] + cj[1] * e[1] + cj[2] * e[2])
-            for k in range(j, size):
-                ck = cols[k]
-                nn[j * size + k] += wi * (cj[0] * ck[0] + cj[1] * ck[1] + cj[2] * ck[2])
+            j3 = 3 * j
+            c0 = wi * c[j3]
+            c1 = wi * c[j3 + 1]
+            c2 = wi * c[j3 + 2]
+            h[j] += c0 * e0 + c1 * e1 + c2 * e2
+            row = j * size
+            for kk in range(j, size):
+                k3 = 3 * kk
+                nn[row + kk] += c0 * c[k3] + c1 * c[k3 + 1] + c2 * c[k3 + 2]
     for j in range(size):
-        for k in range(j):
-            nn[j * size + k] = nn[k * size + j]
+        for kk in range(j):
+            nn[j * size + kk] = nn[kk * size + j]
     return nn, h, chi2
 
 
@@ -151,7 +198,7 @@ def _inverse(n, nn):
     return [[cols[j][i] for j in range(n)] for i in range(n)]
 
 
-def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
+def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS):
     """The attitude at the reference instant and the rate, fitted to matched pairs.
 
     ``b``: camera-frame unit vectors, each seen ``dts[i]`` s after the reference instant (a
@@ -164,29 +211,36 @@ def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None):
     rate's (rad^2/s^2) and the per-axis noise ``s`` (rad) of a unit-weight star, estimated from
     the residuals over ``2n - 8`` degrees of freedom (six unknowns; the Student-t correction of
     ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
-    configured ``centroid_sigma_px``), not estimated.  None with fewer than
+    configured ``centroid_sigma_px``), not estimated; ``rounds``: Gauss-Newton rounds before
+    the last linearisation (0: one linear solve at ``q`` and no rate, the cheap check of a
+    given rate: the model's nonlinearity is ``(rate dt)^2``).  None with fewer than
     :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
     if len(b) < MIN_RATE_STARS:
         return None
-    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad)
+    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad, rounds)
     return None if out is None else out[:5]
 
 
-def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None):
+def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None,
+               rounds=RATE_ITERATIONS):
     """:func:`rate_fit` (``rate`` True; else the attitude alone) with a radial displacement
     ``(c1 + c3 rho^2 / rho_m^2) g`` of every star as well (``g`` of :func:`_columns`; ``rho_m``
     the stars' RMS angle from the boresight): a lens distortion or focal length the camera
     model lacks.  Returns ``(q, omega, P, P_omega, s, c, P_c)`` (``omega``, ``P_omega`` None
     without ``rate``; ``c = (c1, c3)`` and its covariance), or None with fewer than
-    :data:`MIN_RADIAL_STARS` pairs or when degenerate."""
+    :data:`MIN_RADIAL_STARS` pairs or when degenerate.  ``rounds`` as :func:`rate_fit`: 0
+    gives the radial coefficients of one linear solve (they enter the model linearly), the
+    verdict's cheap form."""
     if len(b) < MIN_RADIAL_STARS:
         return None
-    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad)
+    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds)
 
 
-def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
+def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
+        rounds=RATE_ITERATIONS):
     """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
-    ``rate``, ``radial``: which unknowns besides the attitude)."""
+    ``rate``, ``radial``: which unknowns besides the attitude; ``rounds``: Gauss-Newton
+    rounds before the last linearisation, whose solution is then applied too)."""
     n = len(b)
     total = spread = rho2 = 0.0
     for i in range(n):
@@ -200,9 +254,9 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
         return None
     size = 3 + (3 if rate else 0) + (2 if radial else 0)
     omega = (0.0, 0.0, 0.0)
-    for k in range(RATE_ITERATIONS + 1):
+    for k in range(rounds + 1):
         nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2)
-        if k == RATE_ITERATIONS:
+        if k == rounds:
             break
         u = _solve(size, list(nn), h)
         if u is None:
@@ -216,6 +270,10 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
         return None
     for j in range(size):
         chi2 -= h[j] * d[j]
+    if rounds == 0:         # the one linear solve is the fit: apply it
+        q = Q.normalise(Q.multiply(Q.from_rotation_vector((d[0], d[1], d[2])), q))
+        if rate:
+            omega = (d[3] / tau, d[4] / tau, d[5] / tau)
     s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
     if not s2 >= min_sigma_rad * min_sigma_rad:
         s2 = min_sigma_rad * min_sigma_rad
