@@ -283,6 +283,7 @@ class StarTracker:
         self._frame = None              # process(): (instants, moments, exposure)
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         self._mode = None               # the frame's mode, while it is fitted
+        self._held = None               # _catalogue(): (star_ids, catalogue vectors)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -532,8 +533,7 @@ class StarTracker:
         match tolerance), then ``s`` scales all as without tracks (no floor)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
-        db, cone = self.database, self._cone            # a tracking frame's stars are held
-        r = [cone.star_vector(db, s) for o, s in star_ids]
+        r = self._catalogue(star_ids)
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
@@ -688,6 +688,15 @@ class StarTracker:
         (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
         the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
         ``OK``."""
+        try:
+            return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
+                                      fitted, omega)
+        finally:
+            self._held = None
+
+    def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
+                      omega):
+        """:meth:`_fit`'s work."""
         for attempt in range(2):
             solved = self.attitude(vectors, star_ids, fluxes, floor, streaks, q0,
                                    fitted) if len(star_ids) >= 2 else None
@@ -708,6 +717,18 @@ class StarTracker:
             q0, fitted = solved[0], False
         return S.OK, solved, star_ids
 
+    def _catalogue(self, star_ids):
+        """The catalogue vectors of ``star_ids`` (``[(vector index, star)]``), read once per
+        list: the attitude, the rate and radial checks and the screen of one fit share them
+        (:meth:`_fit` drops them)."""
+        held = self._held
+        if held is not None and held[0] is star_ids:
+            return held[1]
+        db, cone = self.database, self._cone
+        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        self._held = (star_ids, r)
+        return r
+
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
         the final fit (its vectors and weights, kept by :meth:`_radial`; each residual over
@@ -718,14 +739,15 @@ class StarTracker:
             return None
         vectors, w, radial = self._last_fit
         self._last_fit = None
-        db, cone = self.database, self._cone
+        db = self.database
         drop = []
         if not radial:              # a fitted radial pattern is not in these residuals
             m = Q.matrix(q)
             h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
-            drop = _screen.residual_outliers([G.residual2(m, vectors[o], cone.star_vector(
-                db, s)) * w[i] / max(1.0 - h[i], MIN_FREEDOM) for i, (o, s) in
-                enumerate(star_ids)])
+            r = self._catalogue(star_ids)
+            drop = _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
+                                              w[i] / max(1.0 - h[i], MIN_FREEDOM)
+                                              for i in range(len(star_ids))])
         if fluxes is not None:
             for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
                                                      [db.star_mag(s) for _o, s in star_ids]):
@@ -839,10 +861,9 @@ class StarTracker:
         if len(star_ids) < _smear.MIN_RADIAL_STARS or (self._lens_clean and
                                                         self._mode == "tracking"):
             return solved
-        db, cone = self.database, self._cone
         rate = times is not None
         b = [vectors[o] for o, _s in star_ids]
-        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        r = self._catalogue(star_ids)
         dts = [times[o] - ref if rate else 0.0 for o, _s in star_ids]
         # the verdict from one linear solve (the radial terms enter linearly and the
         # attitude and rate are fitted already); the full fit only for a pattern
@@ -888,9 +909,7 @@ class StarTracker:
                   rounds=_smear.RATE_ITERATIONS):
         """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
         counted from ``ref`` (``rounds`` as there: 0 for the check of a given rate)."""
-        db, cone = self.database, self._cone
-        return _smear.rate_fit([vectors[o] for o, _s in star_ids],
-                               [cone.star_vector(db, s) for _o, s in star_ids],
+        return _smear.rate_fit([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
                                [times[o] - ref for o, _s in star_ids], w, q,
                                self.min_sigma_rad, self.sigma_rad, rounds)
 

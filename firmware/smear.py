@@ -59,34 +59,52 @@ ROUND_EXCESS_PX2 = 3.0 * STILL_ELONGATION_PX2
 frame's median: a smear up to 6 px hides in the noise and the PSF)."""
 
 
-def _solve(n, a, h):
-    """``x`` with ``a x = h`` for a symmetric positive-definite ``n x n`` ``a`` (a flat row-major
-    list, overwritten by its Cholesky factor), or None when it is not positive definite."""
+@native
+def _factor(n, a):
+    """Overwrite the symmetric positive-definite ``n x n`` flat row-major ``a`` by its
+    Cholesky factor (lower triangle); False when it is not positive definite."""
     for j in range(n):
-        d = a[j * n + j]
+        jn = j * n
+        d = a[jn + j]
         for k in range(j):
-            d -= a[j * n + k] * a[j * n + k]
+            d -= a[jn + k] * a[jn + k]
         if not d > 0:
-            return None
+            return False
         d = math.sqrt(d)
-        a[j * n + j] = d
+        a[jn + j] = d
         for i in range(j + 1, n):
-            s = a[i * n + j]
+            i_n = i * n
+            s = a[i_n + j]
             for k in range(j):
-                s -= a[i * n + k] * a[j * n + k]
-            a[i * n + j] = s / d
+                s -= a[i_n + k] * a[jn + k]
+            a[i_n + j] = s / d
+    return True
+
+
+@native
+def _substitute(n, a, h):
+    """``x`` with ``L L^T x = h`` for the Cholesky factor ``L`` of :func:`_factor` in ``a``."""
     x = list(h)
     for i in range(n):
         s = x[i]
+        i_n = i * n
         for k in range(i):
-            s -= a[i * n + k] * x[k]
-        x[i] = s / a[i * n + i]
+            s -= a[i_n + k] * x[k]
+        x[i] = s / a[i_n + i]
     for i in range(n - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, n):
             s -= a[k * n + i] * x[k]
         x[i] = s / a[i * n + i]
     return x
+
+
+def _solve(n, a, h):
+    """``x`` with ``a x = h`` for a symmetric positive-definite ``n x n`` ``a`` (a flat row-major
+    list, overwritten by its Cholesky factor), or None when it is not positive definite."""
+    if not _factor(n, a):
+        return None
+    return _substitute(n, a, h)
 
 
 @native
@@ -184,18 +202,18 @@ def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     return nn, h, chi2
 
 
-def _inverse(n, nn):
-    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (rows), or
-    None."""
+def _inverse(n, nn, h):
+    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (rows) and
+    ``nn^-1 h``, from one Cholesky factorisation: ``(inverse, x)``, or None."""
+    a = list(nn)
+    if not _factor(n, a):
+        return None
     cols = []
     for j in range(n):
         e = [0.0] * n
         e[j] = 1.0
-        x = _solve(n, list(nn), e)
-        if x is None:
-            return None
-        cols.append(x)
-    return [[cols[j][i] for j in range(n)] for i in range(n)]
+        cols.append(_substitute(n, a, e))
+    return [[cols[j][i] for j in range(n)] for i in range(n)], _substitute(n, a, h)
 
 
 def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS):
@@ -264,10 +282,10 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
         q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
         if rate:
             omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
-    inv = _inverse(size, nn)
-    d = _solve(size, list(nn), h)       # what the last linearisation still takes out
-    if inv is None or d is None:
+    out = _inverse(size, nn, h)     # and what the last linearisation still takes out
+    if out is None:
         return None
+    inv, d = out
     for j in range(size):
         chi2 -= h[j] * d[j]
     if rounds == 0:         # the one linear solve is the fit: apply it
