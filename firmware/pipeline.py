@@ -826,7 +826,7 @@ class StarTracker:
         st = self.settings
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
-        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0)
+        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0, False)
         if fit is None:
             return False
         d = fit[1]
@@ -868,7 +868,7 @@ class StarTracker:
         # the verdict from one linear solve (the radial terms enter linearly and the
         # attitude and rate are fitted already); the full fit only for a pattern
         fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
-                                self.sigma_rad, 0)
+                                self.sigma_rad, 0, False)
         if fit is None:
             return solved
         chi2 = _smear.chi2_rate(fit[5], fit[6])
@@ -906,12 +906,13 @@ class StarTracker:
         return w
 
     def _rate_fit(self, vectors, star_ids, w, times, ref, q,
-                  rounds=_smear.RATE_ITERATIONS):
+                  rounds=_smear.RATE_ITERATIONS, attitude=True):
         """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
-        counted from ``ref`` (``rounds`` as there: 0 for the check of a given rate)."""
+        counted from ``ref`` (``rounds``, ``attitude`` as there: 0 and False for the check
+        of a given rate)."""
         return _smear.rate_fit([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
                                [times[o] - ref for o, _s in star_ids], w, q,
-                               self.min_sigma_rad, self.sigma_rad, rounds)
+                               self.min_sigma_rad, self.sigma_rad, rounds, attitude)
 
     def _turned(self, vectors, times, ref, rate):
         """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""

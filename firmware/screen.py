@@ -14,8 +14,11 @@ tests catch it (``docs/firmware.md``, Match screen):
   catalogue makes far brighter than it (:data:`MAG_SLACK`) contradicts the sky's brightness
   order.
 
-Pure Python for CPython and MicroPython.
+Pure Python for CPython and MicroPython; the per-match loops are ``@native``
+(:mod:`lodestar.firmware.emit`).
 """
+
+from .emit import native
 
 MEDIAN_CHI2_2 = 1.386
 """The median of a chi-square of 2 degrees of freedom (a residual's two axes): the median of
@@ -37,6 +40,7 @@ def _median(values):
     return v[k // 2] if k % 2 else 0.5 * (v[k // 2 - 1] + v[k // 2])
 
 
+@native
 def leverages(vectors, w):
     """Each match's leverage ``h_i`` in an attitude fit (its share of the fit, which absorbs
     that share of its own error: a residual's variance is ``sigma^2 (1 - h_i)``): the
@@ -62,8 +66,10 @@ def leverages(vectors, w):
         c = (v[0] * cx + v[1] * cy + v[2] * cz) / norm
         rho2.append(max(1.0 - c * c, 0.0))
         spread += w[i] * rho2[-1]
-    return [w[i] / total + (0.5 * w[i] * rho2[i] / spread if spread > 0 else 0.0)
-            for i in range(n)]
+    out = []
+    for i in range(n):
+        out.append(w[i] / total + (0.5 * w[i] * rho2[i] / spread if spread > 0 else 0.0))
+    return out
 
 
 def residual_outliers(chi2s):
@@ -77,9 +83,14 @@ def residual_outliers(chi2s):
     if not scale > 0:
         return []
     limit = OUTLIER_CHI2 * scale
-    return [i for i in range(len(chi2s)) if chi2s[i] > limit]
+    out = []
+    for i in range(len(chi2s)):
+        if chi2s[i] > limit:
+            out.append(i)
+    return out
 
 
+@native
 def brightness_outliers(fluxes, mags):
     """Indices of the matches observed brighter (``fluxes``) than at least
     :data:`MIN_CONTRADICTIONS`, and more than half, of the matched stars observed fainter,

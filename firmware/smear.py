@@ -202,21 +202,23 @@ def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     return nn, h, chi2
 
 
-def _inverse(n, nn, h):
-    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (rows) and
-    ``nn^-1 h``, from one Cholesky factorisation: ``(inverse, x)``, or None."""
+def _inverse(n, nn, h, first=0):
+    """Columns ``first..n-1`` of the inverse of an ``n x n`` symmetric positive-definite flat
+    ``nn`` (rows) and ``nn^-1 h``, from one Cholesky factorisation: ``(columns, x)`` (column
+    ``j`` at ``columns[j - first]``), or None."""
     a = list(nn)
     if not _factor(n, a):
         return None
     cols = []
-    for j in range(n):
+    for j in range(first, n):
         e = [0.0] * n
         e[j] = 1.0
         cols.append(_substitute(n, a, e))
-    return [[cols[j][i] for j in range(n)] for i in range(n)], _substitute(n, a, h)
+    return cols, _substitute(n, a, h)
 
 
-def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS):
+def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS,
+             attitude=True):
     """The attitude at the reference instant and the rate, fitted to matched pairs.
 
     ``b``: camera-frame unit vectors, each seen ``dts[i]`` s after the reference instant (a
@@ -231,16 +233,17 @@ def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITE
     ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
     configured ``centroid_sigma_px``), not estimated; ``rounds``: Gauss-Newton rounds before
     the last linearisation (0: one linear solve at ``q`` and no rate, the cheap check of a
-    given rate: the model's nonlinearity is ``(rate dt)^2``).  None with fewer than
+    given rate: the model's nonlinearity is ``(rate dt)^2``); ``attitude`` as :func:`fit`.
+    None with fewer than
     :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
     if len(b) < MIN_RATE_STARS:
         return None
-    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad, rounds)
+    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad, rounds, attitude)
     return None if out is None else out[:5]
 
 
 def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None,
-               rounds=RATE_ITERATIONS):
+               rounds=RATE_ITERATIONS, attitude=True):
     """:func:`rate_fit` (``rate`` True; else the attitude alone) with a radial displacement
     ``(c1 + c3 rho^2 / rho_m^2) g`` of every star as well (``g`` of :func:`_columns`; ``rho_m``
     the stars' RMS angle from the boresight): a lens distortion or focal length the camera
@@ -251,14 +254,17 @@ def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None,
     verdict's cheap form."""
     if len(b) < MIN_RADIAL_STARS:
         return None
-    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds)
+    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds, attitude)
 
 
 def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
-        rounds=RATE_ITERATIONS):
+        rounds=RATE_ITERATIONS, attitude=True):
     """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
     ``rate``, ``radial``: which unknowns besides the attitude; ``rounds``: Gauss-Newton
-    rounds before the last linearisation, whose solution is then applied too)."""
+    rounds before the last linearisation, whose solution is then applied too;
+    ``attitude`` False: a check's cheap form, ``q`` returned as given and ``P`` None, and of
+    the rate's and the radial coefficients' covariances only the last unknowns' (the
+    radial's when ``radial``, else the rate's))."""
     n = len(b)
     total = spread = rho2 = 0.0
     for i in range(n):
@@ -282,27 +288,32 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
         q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
         if rate:
             omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
-    out = _inverse(size, nn, h)     # and what the last linearisation still takes out
+    # the covariance's columns wanted, and what the last linearisation still takes out
+    first = 3 if rate and not attitude else (size - 2 if radial and not attitude else 0)
+    out = _inverse(size, nn, h, first)
     if out is None:
         return None
-    inv, d = out
+    cols, d = out
     for j in range(size):
         chi2 -= h[j] * d[j]
     if rounds == 0:         # the one linear solve is the fit: apply it
-        q = Q.normalise(Q.multiply(Q.from_rotation_vector((d[0], d[1], d[2])), q))
+        if attitude:
+            q = Q.normalise(Q.multiply(Q.from_rotation_vector((d[0], d[1], d[2])), q))
         if rate:
             omega = (d[3] / tau, d[4] / tau, d[5] / tau)
     s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
     if not s2 >= min_sigma_rad * min_sigma_rad:
         s2 = min_sigma_rad * min_sigma_rad
-    p = [[s2 * inv[i][j] for j in range(3)] for i in range(3)]
-    p_omega = c = p_c = None
-    if rate:
+    p = p_omega = c = p_c = None
+    if first == 0:
+        p = [[s2 * cols[j][i] for j in range(3)] for i in range(3)]
+    if rate and first <= 3:
         t2 = tau * tau
-        p_omega = [[s2 * inv[3 + i][3 + j] / t2 for j in range(3)] for i in range(3)]
+        p_omega = [[s2 * cols[3 + j - first][3 + i] / t2 for j in range(3)] for i in range(3)]
     if radial:
         c = (d[size - 2], d[size - 1])
-        p_c = [[s2 * inv[size - 2 + i][size - 2 + j] for j in range(2)] for i in range(2)]
+        k = size - 2 - first
+        p_c = [[s2 * cols[k + j][size - 2 + i] for j in range(2)] for i in range(2)]
     return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
 
 
