@@ -280,7 +280,7 @@ class StarTracker:
         self.beta = None
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
-        self._frame = None              # process(): (instants, moments, exposure)
+        self._frame = None              # process(): (flat second moments, exposure)
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
@@ -769,7 +769,8 @@ class StarTracker:
         w = self._rate_weights(star_ids, fluxes, streaks)
         if frame is None:
             return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
-        times, moments, exposure = frame
+        flat, exposure = frame
+        times = self._times(exposure, len(flat) // 3)
         res.rate_rad_s = omega
         if omega is not None:
             res.t_epoch_s = self.settings.epoch_s
@@ -787,7 +788,7 @@ class StarTracker:
         if self.settings.row_time_s != 0:       # else every star seen at one instant
             fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
             if fit is None:
-                bound = _smear.smear_bound_px(moments)
+                bound = _smear.smear_bound_px(_moments(flat, range(len(flat) // 3)))
                 return self._bounded(res, solved, star_ids, ts, ref, bound, exposure), \
                     star_ids
         if fit is None:
@@ -822,7 +823,8 @@ class StarTracker:
         third of the stars, net; the frame's rate has its own noise, so a sign error's votes
         are near zero, not exactly zero).  A rate
         from few, short or noisy streaks never overrides the gyro."""
-        times, moments, exposure = self._frame
+        flat, exposure = self._frame
+        times = self._times(exposure, len(flat) // 3)
         st = self.settings
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
@@ -833,7 +835,8 @@ class StarTracker:
         chi2 = _smear.chi2_rate(d, fit[3])
         if chi2 is None or not chi2 > _smear.STREAK_RATE_CHI2:
             return False
-        stars = [(vectors[o], moments[o]) for o, _s in star_ids]
+        stars = [(vectors[o], m) for (o, _s), m in zip(star_ids, _moments(
+            flat, [o for o, _s in star_ids]))]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
         scale = self.focal_px * exposure
         if not _smear.visible(stars, d, scale):
@@ -1057,17 +1060,26 @@ class StarTracker:
         return res
 
     def _instants(self, stars, used, exposure):
-        """``(times, moments, exposure)`` of the used stars (``_keep`` order): each one's
-        mean instant, s after the start of row 0's exposure (``exposure / 2 + y
-        row_time_s``; an unknown exposure counts from row 0's mid-exposure), and its second
-        moments ``(sigma_major, sigma_minor, orientation)`` (px, rad): its streak."""
+        """``(moments, exposure)`` of the used stars (``_keep`` order): their second moments
+        ``sigma_major, sigma_minor, orientation`` (px, rad: the streak) three floats per star
+        in one flat list (held through the identification: no object per star), read by
+        :func:`_moments`; :meth:`_times` gives their instants."""
+        flat = [0.0] * (3 * len(used))
+        for k in range(len(used)):
+            star = stars[used[k]]
+            flat[3 * k] = star.sigma_major
+            flat[3 * k + 1] = star.sigma_minor
+            flat[3 * k + 2] = star.orientation
+        return flat, exposure
+
+    def _times(self, exposure, n):
+        """Each of the ``n`` used stars' mean instant, s after the start of row 0's exposure
+        (``exposure / 2 + y row_time_s``; an unknown exposure counts from row 0's
+        mid-exposure)."""
         half = 0.5 * exposure if exposure is not None else 0.0
         row_time = self.settings.row_time_s
         xy = self._xy
-        times = [half + xy[2 * o + 1] * row_time for o in range(len(used))]
-        moments = [(stars[i].sigma_major, stars[i].sigma_minor, stars[i].orientation)
-                   for i in used]
-        return times, moments, exposure
+        return [half + xy[2 * o + 1] * row_time for o in range(n)]
 
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
@@ -1135,6 +1147,12 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
+
+
+def _moments(flat, indices):
+    """The second moments ``(sigma_major, sigma_minor, orientation)`` of the stars
+    ``indices`` from :meth:`StarTracker._instants`'s flat list."""
+    return [(flat[3 * o], flat[3 * o + 1], flat[3 * o + 2]) for o in indices]
 
 
 def _deg3(v):
