@@ -692,7 +692,7 @@ class StarTracker:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
         finally:
-            self._held = None
+            self._held = self._last_fit = None      # none of the frame's lists outlive it
 
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
