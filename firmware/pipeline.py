@@ -770,13 +770,13 @@ class StarTracker:
         if frame is None:
             return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
         flat, exposure = frame
-        times = self._times(exposure, len(flat) // 3)
         res.rate_rad_s = omega
         if omega is not None:
             res.t_epoch_s = self.settings.epoch_s
             if self._contradicted(res, vectors, star_ids, w, omega, solved):
                 return None, star_ids
             return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        times = self._times(exposure, len(flat) // 3)
         ts = [times[o] for o, _s in star_ids]
         total = ref = 0.0
         for i in range(len(w)):
@@ -824,10 +824,10 @@ class StarTracker:
         are near zero, not exactly zero).  A rate
         from few, short or noisy streaks never overrides the gyro."""
         flat, exposure = self._frame
-        times = self._times(exposure, len(flat) // 3)
         st = self.settings
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
+        times = self._times(exposure, len(flat) // 3)
         fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0, False)
         if fit is None:
             return False
