@@ -396,9 +396,9 @@ def stage_report(results, labels):
                    key=lambda n: (stage_class(n), n))
     repeats = max(k[1] for k in results[labels[0]]) + 1
     print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
-          "a later call")
+          "the last call, baseline → now")
     print("| packet | " + " | ".join(f"{lab} first / later" for lab in labels) + " | " +
-          " | ".join(f"{labels[-1]} {s}" for s in STAGES) + " | status |")
+          " | ".join(f"{s} {labels[0]} → {labels[-1]}" for s in STAGES) + " | status |")
     print("|---|" + "---|" * (len(labels) + len(STAGES) + 1))
     for name in names:
         cells = []
@@ -408,7 +408,9 @@ def stage_report(results, labels):
             cells.append(f"{ms(rows[0]['call']):.1f} / " +
                          ("–" if later is None else f"{ms(later):.1f}"))
         last = results[labels[-1]][(name, repeats - 1)]
-        stages = [f"{ms(last[s]):.1f}" if s in last else "–" for s in STAGES]
+        base = results[labels[0]][(name, repeats - 1)]
+        stages = [(f"{ms(base[s]):.1f} → " if s in base else "") +
+                  (f"{ms(last[s]):.1f}" if s in last else "–") for s in STAGES]
         status = " → ".join(str(results[lab][(name, 0)]["status"]) + "/" +
                             str(results[lab][(name, 0)]["matches"]) for lab in labels)
         print(f"| {name} | " + " | ".join(cells) + " | " + " | ".join(stages) +

@@ -386,7 +386,7 @@ class Database:
         for name in ("fov_h", "fov_v", "fov_diag", "cell_radius"):
             if not _finite_positive(getattr(self, name)) or getattr(self, name) > math.pi:
                 bad(name + " is not an angle in (0, pi]")
-        if not 0 < self.n_stars <= 65535 or self.n_pattern_stars > self.n_stars:
+        if not 0 < self.n_stars <= stardb.MAX_STARS or self.n_pattern_stars > self.n_stars:
             bad("star counts " + str(self.n_stars) + "/" + str(self.n_pattern_stars))
         if not 1 <= self.cells_per_face <= 64:
             bad("cells_per_face " + str(self.cells_per_face))

@@ -26,6 +26,8 @@ from . import centroids, packet, starid, tracking
 from . import database as _database
 from . import geometry as G
 from . import quaternion as Q
+from . import screen as _screen
+from . import smear as _smear
 from . import status as S
 from .settings import Settings
 from .starid import verify
@@ -132,6 +134,19 @@ identification uses; a frame that has too few stars without any smeared away is
 ``TOO_FEW_STARS`` as ever)."""
 
 
+MIN_SCREENED_STARS = 4
+"""Fewest matches the match screen leaves (:meth:`StarTracker._screened`); a screen that would
+leave fewer drops none (the identification's own probability stands)."""
+MIN_FREEDOM = 0.1
+"""Smallest ``1 - h_i`` a match's residual variance is scaled by in the match screen (a star
+that is most of the fit says little about itself)."""
+MAX_BOUNDED_SMEAR_PX = 6.0
+"""Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
+frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
+streaks bound its smear by about 3.5 px, and the shear this bound allows over the read-out
+is folded into the sigma; beyond it the frame is ``RATE_UNKNOWN``."""
+
+
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike): when it is within the limit no
@@ -189,7 +204,8 @@ def _residuals2(q, b, r):
 class Result:
     """Outcome of :meth:`StarTracker.process` (fields in ``docs/firmware.md``)."""
 
-    __slots__ = ("status", "reason", "mode", "q", "matches", "n_stars", "n_records",
+    __slots__ = ("status", "reason", "mode", "q", "t_epoch_s", "rate_rad_s",
+                 "sigma_rate_rad_s", "matches", "n_stars", "n_records",
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
                  "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
@@ -198,6 +214,9 @@ class Result:
         self.reason = reason
         self.mode = None
         self.q = None
+        self.t_epoch_s = None
+        self.rate_rad_s = None
+        self.sigma_rate_rad_s = None
         self.matches = []
         self.n_stars = 0
         self.n_records = 0
@@ -261,6 +280,11 @@ class StarTracker:
         self.beta = None
         self._cone = tracking.Cone()   # tracking's catalogue stars, kept between frames
         self._tracker = None            # tracking, with these settings and that cone
+        self._frame = None              # process(): (flat second moments, exposure)
+        self._last_fit = None           # the final fit's (vectors, weights), for the screen
+        self._mode = None               # the frame's mode, while it is fitted
+        self._held = None               # _catalogue(): (star_ids, catalogue vectors)
+        self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
             self._configure(database, camera)
@@ -509,8 +533,7 @@ class StarTracker:
         match tolerance), then ``s`` scales all as without tracks (no floor)."""
         n = len(star_ids)
         b = [vectors[o] for o, s in star_ids]
-        db, cone = self.database, self._cone            # a tracking frame's stars are held
-        r = [cone.star_vector(db, s) for o, s in star_ids]
+        r = self._catalogue(star_ids)
         extra = [0.0] * n
         if streaks is not None:
             for i in range(n):
@@ -598,6 +621,7 @@ class StarTracker:
             _note(res, str(len(vectors)) + " usable stars")
             return res
         sol, mode = self.identify(vectors, prior, omega, dt, streaks)
+        self._mode = mode
         start = self._tick(timings, "identify", start)
         res.mode = mode
         res.patterns_tried = sol.patterns_tried
@@ -638,11 +662,13 @@ class StarTracker:
         sol = ref = predicted = None     # only star_ids goes on to the fit
         if mode == "lost_in_space":
             _collect()
-        solved = self.attitude(vectors, star_ids, fluxes, smear_px <= FLOOR_MAX_SMEAR_PX,
-                               streaks, q0, fitted) if len(star_ids) >= 2 else None
-        if solved is None:
-            res.status = S.NO_MATCH
-            _note(res, "degenerate attitude fit")
+        status, solved, again = self._fit(res, vectors, star_ids, fluxes,
+                                          smear_px <= FLOOR_MAX_SMEAR_PX, streaks, q0, fitted,
+                                          omega)
+        if again is not star_ids:
+            star_ids, hips = again, None
+        if status != S.OK:
+            res.status = status
             return res
         q, cross, roll, sigma = solved
         res.status = S.OK
@@ -656,6 +682,280 @@ class StarTracker:
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
         self._tick(timings, "attitude", start)
         return res
+
+    def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
+        """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
+        (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
+        the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
+        ``OK``."""
+        try:
+            return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
+                                      fitted, omega)
+        finally:
+            self._held = self._last_fit = None      # none of the frame's lists outlive it
+
+    def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
+                      omega):
+        """:meth:`_fit`'s work."""
+        for attempt in range(2):
+            solved = self.attitude(vectors, star_ids, fluxes, floor, streaks, q0,
+                                   fitted) if len(star_ids) >= 2 else None
+            if solved is None:
+                _note(res, "degenerate attitude fit")
+                return S.NO_MATCH, None, star_ids
+            self._last_fit = None
+            solved, star_ids = self._at_instant(res, vectors, star_ids, fluxes, streaks,
+                                                omega, solved)
+            if solved is None:
+                return res.status, None, star_ids
+            drop = self._screened(star_ids, fluxes, solved[0]) if attempt == 0 else None
+            if not drop:
+                break
+            _note(res, str(len(drop)) + " matches dropped by the screen (HIP " +
+                  ", ".join([str(self.database.star_hip(star_ids[i][1])) for i in drop]) + ")")
+            star_ids = [star_ids[i] for i in range(len(star_ids)) if i not in drop]
+            q0, fitted = solved[0], False
+        return S.OK, solved, star_ids
+
+    def _catalogue(self, star_ids):
+        """The catalogue vectors of ``star_ids`` (``[(vector index, star)]``), read once per
+        list: the attitude, the rate and radial checks and the screen of one fit share them
+        (:meth:`_fit` drops them)."""
+        held = self._held
+        if held is not None and held[0] is star_ids:
+            return held[1]
+        db, cone = self.database, self._cone
+        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        self._held = (star_ids, r)
+        return r
+
+    def _screened(self, star_ids, fluxes, q):
+        """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
+        the final fit (its vectors and weights, kept by :meth:`_radial`; each residual over
+        its variance less the fit's share, ``1 - h_i`` of :func:`screen.leverages`; not when
+        it fitted a radial pattern) and brightness outliers (the observed ``fluxes`` against the
+        catalogue magnitudes); None when fewer than :data:`MIN_SCREENED_STARS` would stay."""
+        if self._last_fit is None:
+            return None
+        vectors, w, radial = self._last_fit
+        self._last_fit = None
+        db = self.database
+        drop = []
+        if not radial:              # a fitted radial pattern is not in these residuals
+            m = Q.matrix(q)
+            h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
+            r = self._catalogue(star_ids)
+            drop = _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
+                                              w[i] / max(1.0 - h[i], MIN_FREEDOM)
+                                              for i in range(len(star_ids))])
+        if fluxes is not None:
+            for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
+                                                     [db.star_mag(s) for _o, s in star_ids]):
+                if i not in drop:
+                    drop.append(i)
+        return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
+
+    def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
+        """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
+        its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
+        with ``omega``, ``epoch_s`` and the gyro's rate, kept unless the frame contradicts it
+        (:meth:`_contradicted`: ``RATE_CONTRADICTED``, None); without, the matched stars'
+        weighted mean instant, the rate fitted with the attitude
+        (:func:`lodestar.firmware.smear.rate_fit`), or with too few stars bounded by the
+        streaks (else ``RATE_UNKNOWN``: None).  A fitted rate is then used to match again the
+        stars its shear kept out.  Last, :meth:`_radial`.  Returns ``(solved, star_ids)``;
+        frames of :meth:`solve_vectors` have no instants."""
+        frame = self._frame
+        w = self._rate_weights(star_ids, fluxes, streaks)
+        if frame is None:
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        flat, exposure = frame
+        res.rate_rad_s = omega
+        if omega is not None:
+            res.t_epoch_s = self.settings.epoch_s
+            if self._contradicted(res, vectors, star_ids, w, omega, solved):
+                return None, star_ids
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        times = self._times(exposure, len(flat) // 3)
+        ts = [times[o] for o, _s in star_ids]
+        total = ref = 0.0
+        for i in range(len(w)):
+            total += w[i]
+            ref += w[i] * ts[i]
+        ref /= total
+        res.t_epoch_s = ref
+        fit = None
+        if self.settings.row_time_s != 0:       # else every star seen at one instant
+            fit = self._rate_fit(vectors, star_ids, w, times, ref, solved[0])
+            if fit is None:
+                bound = _smear.smear_bound_px(_moments(flat, range(len(flat) // 3)))
+                return self._bounded(res, solved, star_ids, ts, ref, bound, exposure), \
+                    star_ids
+        if fit is None:
+            return self._radial(res, vectors, star_ids, w, None, 0.0, solved), star_ids
+        q, rate, p, p_rate, s = fit
+        turned = self._turned(vectors, times, ref, rate)
+        again = self._track(turned, q, None, None, None)
+        if again.status == S.OK and len(again.star_ids) > len(star_ids):
+            ids = again.star_ids
+            w2 = self._rate_weights(ids, fluxes, None)
+            fit2 = self._rate_fit(turned, ids, w2, times, ref, again.q)
+            if fit2 is not None:
+                star_ids, w = ids, w2
+                q, extra, p, p_rate, s = fit2
+                rate = (rate[0] + extra[0], rate[1] + extra[1], rate[2] + extra[2])
+        res.rate_rad_s = rate
+        res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
+            star_ids
+
+    def _contradicted(self, res, vectors, star_ids, w, omega, solved):
+        """Whether the frame contradicts the gyro's ``omega`` (``vectors`` turned to
+        ``epoch_s`` by it), setting ``RATE_CONTRADICTED`` with the difference in ``reason``:
+        only when at least :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a
+        residual rate (:func:`lodestar.firmware.smear.rate_fit`) beyond its covariance's
+        limit (:func:`lodestar.firmware.smear.rate_chi2_limit`; ``STREAK_RATE_CHI2`` when
+        most stars' streaks side with the frame), that difference moves the median star over
+        the exposure by more than the stars' own width (their median ``sigma_minor``: the
+        PSF's second moment, which a smear leaves alone), and the streaks (second moments)
+        do not side with the gyro (:func:`lodestar.firmware.smear.streak_votes`: more than a
+        third of the stars, net; the frame's rate has its own noise, so a sign error's votes
+        are near zero, not exactly zero).  A rate
+        from few, short or noisy streaks never overrides the gyro."""
+        flat, exposure = self._frame
+        st = self.settings
+        if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
+            return False
+        times = self._times(exposure, len(flat) // 3)
+        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0, False)
+        if fit is None:
+            return False
+        d = fit[1]
+        chi2 = _smear.chi2_rate(d, fit[3])
+        if chi2 is None or not chi2 > _smear.STREAK_RATE_CHI2:
+            return False
+        stars = [(vectors[o], m) for (o, _s), m in zip(star_ids, _moments(
+            flat, [o for o, _s in star_ids]))]
+        frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
+        scale = self.focal_px * exposure
+        if not _smear.visible(stars, d, scale):
+            return False
+        votes = _smear.streak_votes(stars, omega, frame, scale)
+        if 3 * votes < -len(stars) or (2 * votes < len(stars) and
+                                       not chi2 > _smear.rate_chi2_limit(len(stars))):
+            return False
+        res.status = S.RATE_CONTRADICTED
+        _note(res, "omega contradicted by the frame's rate (off by " + _deg3(d) +
+              " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
+        return True
+
+    def _radial(self, res, vectors, star_ids, w, times, ref, solved):
+        """``solved``, or when the matched stars' residuals show a radial pattern (a lens
+        distortion or focal length the camera model lacks:
+        :func:`lodestar.firmware.smear.radial_fit`, its coefficients beyond
+        ``RADIAL_CHI2``) the attitude fitted with it, its sigma grown by it, noted in
+        ``reason``.  ``times``: the stars' instants when the rate is fitted too (counted from
+        ``ref``; the fitted rate then corrected in ``res``), else None.  The lens does not
+        change between frames: once a check finds no pattern, tracking frames skip it (lost
+        in space checks every frame); the verdict is one linear solve, and only a pattern
+        is fitted in full (``docs/firmware.md``, Epoch and rate)."""
+        self._last_fit = (vectors, w, False)
+        if len(star_ids) < _smear.MIN_RADIAL_STARS or (self._lens_clean and
+                                                        self._mode == "tracking"):
+            return solved
+        rate = times is not None
+        b = [vectors[o] for o, _s in star_ids]
+        r = self._catalogue(star_ids)
+        dts = [times[o] - ref if rate else 0.0 for o, _s in star_ids]
+        # the verdict from one linear solve (the radial terms enter linearly and the
+        # attitude and rate are fitted already); the full fit only for a pattern
+        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
+                                self.sigma_rad, 0, False)
+        if fit is None:
+            return solved
+        chi2 = _smear.chi2_rate(fit[5], fit[6])
+        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+            self._lens_clean = True
+            return solved
+        self._lens_clean = False
+        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
+                                self.sigma_rad)
+        if fit is None:
+            return solved
+        q, extra, p, p_rate, s, c, p_c = fit
+        chi2 = _smear.chi2_rate(c, p_c)
+        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+            return solved
+        _note(res, "the residuals show a radial pattern (chi2 " + str(int(chi2)) + "): an "
+              "unmodelled lens distortion or focal length, fitted; sigma grown")
+        self._last_fit = (vectors, w, True)
+        if rate:
+            r0 = res.rate_rad_s
+            res.rate_rad_s = (r0[0] + extra[0], r0[1] + extra[1], r0[2] + extra[2])
+            res.sigma_rate_rad_s = tuple(math.sqrt(p_rate[i][i]) for i in range(3))
+        cross, roll = _attitude.sigmas_cross_roll(p)
+        return q, max(cross, solved[1]), max(roll, solved[2]), s
+
+    def _rate_weights(self, star_ids, fluxes, streaks):
+        """Relative weights of the matched stars for the rate fit: the photon model
+        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
+        n = len(star_ids)
+        w = [1.0] * n if fluxes is None else self.weights([fluxes[o] for o, _s in star_ids])
+        if streaks is not None:
+            s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
+            w = [1.0 / (1.0 / w[i] + verify.streak_variance(streaks[star_ids[i][0]]) /
+                        (s0 * s0)) for i in range(n)]
+        return w
+
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q,
+                  rounds=_smear.RATE_ITERATIONS, attitude=True):
+        """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
+        counted from ``ref`` (``rounds``, ``attitude`` as there: 0 and False for the check
+        of a given rate)."""
+        return _smear.rate_fit([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
+                               [times[o] - ref for o, _s in star_ids], w, q,
+                               self.min_sigma_rad, self.sigma_rad, rounds, attitude)
+
+    def _turned(self, vectors, times, ref, rate):
+        """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""
+        speed = G.norm(rate)
+        if not speed > 0:
+            return vectors
+        axis = (rate[0] / speed, rate[1] / speed, rate[2] / speed)
+        return [G.rotate_about(vectors[o], axis, speed * (times[o] - ref))
+                for o in range(len(vectors))]
+
+    def _bounded(self, res, solved, star_ids, ts, mean, bound_px, exposure):
+        """``solved`` without a rate fit (too few stars) and without ``omega``: its
+        covariance grown by the shear of the fastest rate the streaks allow
+        (:func:`lodestar.firmware.smear.smear_bound_px`, across the boresight and, for the
+        stars' median distance from the centre, about it) over the stars' instants;
+        ``RATE_UNKNOWN`` (None) when the streaks allow a smear beyond
+        :data:`MAX_BOUNDED_SMEAR_PX` or the exposure is unknown."""
+        if bound_px is None or exposure is None or bound_px > MAX_BOUNDED_SMEAR_PX:
+            res.status = S.RATE_UNKNOWN
+            _note(res, "too few stars (" + str(len(star_ids)) + ") to fit the rate, and "
+                  "the streaks do not bound it")
+            return None
+        cam, xy = self.camera, self._xy
+        radii = []
+        span = 0.0
+        for i in range(len(star_ids)):
+            o = star_ids[i][0]
+            dx, dy = xy[2 * o] - cam.cx, xy[2 * o + 1] - cam.cy
+            radii.append(math.sqrt(dx * dx + dy * dy))
+            if abs(ts[i] - mean) > span:
+                span = abs(ts[i] - mean)
+        radii.sort()
+        rate_cross = bound_px / (self.focal_px * exposure)
+        rate_roll = bound_px / (max(radii[len(radii) // 2], 1.0) * exposure)
+        q, cross, roll, s = solved
+        cross = math.sqrt(cross * cross + (rate_cross * span) ** 2)
+        roll = math.sqrt(roll * roll + (rate_roll * span) ** 2)
+        _note(res, "rate not fitted (" + str(len(star_ids)) + " stars): sigma grown by the "
+              "shear of the streaks' bound")
+        return q, cross, roll, s
 
     # ---- the flight entry point --------------------------------------------------------
 
@@ -740,11 +1040,15 @@ class StarTracker:
         if len(used) < len(stars):
             _note(res, str(len(stars) - len(used)) + " centroids outside the camera model")
         self._keep(stars, used)
+        self._frame = self._instants(stars, used, exposure)
         stars = used = None
         if prior is None:
             _collect()
-        res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
-                                  streaks, beta)
+        try:
+            res = self._solve_vectors(vectors, prior, w, dt, self._flux, res, start, longest,
+                                      streaks, beta)
+        finally:
+            self._frame = None
         if res.status == S.OK:
             index, xy = self._index, self._xy
             matches = []
@@ -754,6 +1058,28 @@ class StarTracker:
             res.min_sum = budget
         self._tick(timings, "total", first)
         return res
+
+    def _instants(self, stars, used, exposure):
+        """``(moments, exposure)`` of the used stars (``_keep`` order): their second moments
+        ``sigma_major, sigma_minor, orientation`` (px, rad: the streak) three floats per star
+        in one flat list (held through the identification: no object per star), read by
+        :func:`_moments`; :meth:`_times` gives their instants."""
+        flat = [0.0] * (3 * len(used))
+        for k in range(len(used)):
+            star = stars[used[k]]
+            flat[3 * k] = star.sigma_major
+            flat[3 * k + 1] = star.sigma_minor
+            flat[3 * k + 2] = star.orientation
+        return flat, exposure
+
+    def _times(self, exposure, n):
+        """Each of the ``n`` used stars' mean instant, s after the start of row 0's exposure
+        (``exposure / 2 + y row_time_s``; an unknown exposure counts from row 0's
+        mid-exposure)."""
+        half = 0.5 * exposure if exposure is not None else 0.0
+        row_time = self.settings.row_time_s
+        xy = self._xy
+        return [half + xy[2 * o + 1] * row_time for o in range(n)]
 
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
@@ -821,6 +1147,17 @@ def _deaberrate(vectors, q, beta):
     bc = G.mat_vec(Q.matrix(q), beta)
     for i in range(len(vectors)):
         vectors[i] = deaberrate(vectors[i], bc)
+
+
+def _moments(flat, indices):
+    """The second moments ``(sigma_major, sigma_minor, orientation)`` of the stars
+    ``indices`` from :meth:`StarTracker._instants`'s flat list."""
+    return [(flat[3 * o], flat[3 * o + 1], flat[3 * o + 2]) for o in indices]
+
+
+def _deg3(v):
+    """A rate (rad/s) as text in deg/s, to 0.01."""
+    return "(" + ", ".join([str(round(math.degrees(x), 2)) for x in v]) + ")"
 
 
 def _note(res, text):

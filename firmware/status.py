@@ -42,6 +42,8 @@ TOO_FEW_STARS = const(20)
 CAMERA_NOT_CONVERGED = const(21)
 CAMERA_OUT_OF_VIEW = const(22)
 SMEAR_TOO_LONG = const(23)
+RATE_UNKNOWN = const(24)
+RATE_CONTRADICTED = const(25)
 
 # --- star identification ----------------------------------------------------------------
 NO_MATCH = const(30)
@@ -87,6 +89,12 @@ _TABLE = (
      "camera model: direction behind the camera or beyond the distortion fold radius"),
     (SMEAR_TOO_LONG, "SMEAR_TOO_LONG",
      "the body rate smears all but fewer than 3 stars beyond max_smear_px: no attitude"),
+    (RATE_UNKNOWN, "RATE_UNKNOWN",
+     "no gyro rate, too few stars to fit the body rate, and streaks that allow a rate "
+     "whose shear the attitude cannot cover: no attitude"),
+    (RATE_CONTRADICTED, "RATE_CONTRADICTED",
+     "the frame's shear and streaks contradict the given gyro rate beyond their own "
+     "uncertainty: no attitude"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",

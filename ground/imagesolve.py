@@ -443,9 +443,23 @@ def fits_date_obs(path):
     return None
 
 
+def frame_timing(image, what, exposure_s=None, row_time_s=None):
+    """``(exposure_s, row_time_s)`` of the detector's frame: the given ones, else the preset's
+    when the camera is a preset's (``what`` of :func:`image_camera`), else an unknown
+    exposure (None) and one instant for every row (0: the rate is not fitted, the attitude
+    holds at mid-exposure).  A binned frame's row spans ``image.bin`` rows."""
+    preset = what.split()[1].rstrip(",") if what.startswith("preset ") else None
+    cam = presets.load_preset(preset) if preset is not None else None
+    if exposure_s is None and cam is not None:
+        exposure_s = cam.exposure_s
+    if row_time_s is None:
+        row_time_s = cam.row_time_s if cam is not None and cam.shutter == "rolling" else 0.0
+    return exposure_s, row_time_s * image.bin
+
+
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
                 ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None,
-                velocity_km_s=None):
+                velocity_km_s=None, motion=(None, None, 0.0)):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame (None:
     the FOV is searched over ``fov_band``, deg, :func:`blind_camera`):
     ``(report dict, DetectionResult, pipeline Result, camera)`` (report fields in the module
@@ -453,7 +467,9 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     field of :data:`lodestar.ground.solve.DEFAULT_DENSITY` from the whole Hipparcos.
     ``log``: text stream for the database notes (None: silent).  ``velocity_km_s``: the
     observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
-    correction, or None."""
+    correction, or None.  ``motion``: ``(omega, exposure_s, row_time_s)``, the body rate
+    (rad/s, camera frame; None: fitted from the frame) and the frame's timing
+    (:func:`frame_timing`)."""
 
     lo, hi = solve.MAG_RANGE
     if max_mag is not None and not (math.isfinite(max_mag) and lo < max_mag <= hi):
@@ -475,7 +491,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         for attempt in range(2 if search else 1):   # the estimate, then the fitted scale
             db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
                                                 log, timings, blind=search is not None,
-                                                velocity_km_s=velocity_km_s)
+                                                velocity_km_s=velocity_km_s, motion=motion)
             if search is None or not res.ok or attempt:
                 break
             idx = [(x, y, hip) for _i, x, y, hip in res.matches]
@@ -494,7 +510,8 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         (f"no field of view in {search['range_deg'][0]:g} .. {search['range_deg'][1]:g} deg "
          f"verified ({search['candidates']} candidate quads)"),
         "ra_deg": None, "dec_deg": None,
-        "roll_deg": None, "q": None, "fov_deg": fov_h, "fov_vertical_deg": fov_v,
+        "roll_deg": None, "q": None, "t_epoch_s": None, "rate_deg_s": None,
+        "sigma_rate_deg_s": None, "fov_deg": fov_h, "fov_vertical_deg": fov_v,
         "pixel_scale_arcsec": None if camera is None else
         solve.ARCSEC_PER_RAD / math.sqrt(camera.fx * camera.fy) / image.bin,
         "fov_search": search,
@@ -515,7 +532,9 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         cat = default_catalogue(max_mag)
         ra, dec, roll = to_radec_roll(np.asarray(res.q))
         report.update(ra_deg=float(ra), dec_deg=float(dec), roll_deg=float(roll),
-                      q=[float(v) for v in res.q],
+                      q=[float(v) for v in res.q], t_epoch_s=res.t_epoch_s,
+                      rate_deg_s=_degrees(res.rate_rad_s),
+                      sigma_rate_deg_s=_degrees(res.sigma_rate_rad_s),
                       sigma_cross_arcsec=res.sigma_cross_arcsec,
                       sigma_roll_arcsec=res.sigma_roll_arcsec)
         for _index, x, y, hip in res.matches:
@@ -529,12 +548,17 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     return report, det, res, camera
 
 
+def _degrees(rate):
+    """A rate (rad/s) in deg/s as a list, or None."""
+    return None if rate is None else [math.degrees(float(w)) for w in rate]
+
+
 def _pinhole(width, height, f_px):
     return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 
 def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
-              velocity_km_s=None):
+              velocity_km_s=None, motion=(None, None, 0.0)):
     """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
     the FOV grid of :func:`lodestar.ground.solve.database_fov`), aberration corrected for
     ``velocity_km_s`` when given."""
@@ -548,9 +572,11 @@ def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
         db_camera, max_mag, log=log,
         density=solve.DEFAULT_DENSITY if max_mag is None else None)
     timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
-    _data, res, stage = onboard.process(det, camera, db, tolerance_px=tolerance_px,
-                                            max_work=solve.GROUND_MAX_WORK,
-                                            velocity_km_s=velocity_km_s)
+    omega, exposure_s, row_time_s = motion
+    _data, res, stage = onboard.process(det, camera, db, omega=omega, exposure_s=exposure_s,
+                                        row_time_s=row_time_s, tolerance_px=tolerance_px,
+                                        max_work=solve.GROUND_MAX_WORK,
+                                        velocity_km_s=velocity_km_s)
     for key in ("packet", "solve"):
         timings[key] = timings.get(key, 0.0) + stage[key]
     return db, db_path, res, stage

@@ -48,8 +48,10 @@ def levels(study, rates=None, false_stars=trials.FALSE_STARS):
 
 
 def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyramid",
-                settings="tuned", quick=False):
-    """The campaign settings (the journal's header; JSON-ready).  Raises ``ValueError``."""
+                settings="tuned", quick=False, gyro=True):
+    """The campaign settings (the journal's header; JSON-ready); ``gyro`` False: the rate
+    study's frames are solved without the rate (the firmware fits it).  Raises
+    ``ValueError``."""
 
     if study not in trials.STUDIES:
         raise ValueError(f"unknown study {study!r} (known: {', '.join(trials.STUDIES)})")
@@ -70,9 +72,11 @@ def make_config(study, presets, seed=0, rates=None, axis="cross", method="pyrami
         raise ValueError(f"unknown method {method!r} (known: {', '.join(trials.METHODS)})")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"--seed must be a non-negative integer, got {seed!r}")
+    if not gyro and study != "rate":
+        raise ValueError(f"--no-gyro applies to the rate study, not {study}")
     if quick and rates is None:
         rates = QUICK["rates"]
-    return {"study": study, "seed": seed, "presets": list(presets),
+    return {"study": study, "seed": seed, "presets": list(presets), "gyro": bool(gyro),
             "levels": levels(study, rates, QUICK["false_stars"] if quick else trials.FALSE_STARS),
             "axis": axis, "method": method, "settings": settings,
             "camera": {p: camera_settings(p, settings) for p in presets}}
@@ -378,7 +382,8 @@ def write_outputs(config, tasks, results, out_dir):
                               "schumann_smear_model": tables.SCHUMANN_SMEAR}}
     write_atomic(base + ".json", json.dumps(summary, indent=1))
     tables.write_csv(base + ".csv", rows)
-    title = f"{per_level} trials/level, seed {config['seed']}, {config['axis']} axis"
+    title = f"{per_level} trials/level, seed {config['seed']}, {config['axis']} axis" + \
+        ("" if config.get("gyro", True) else ", no gyro")
     pngs = plots.PLOTS[study](rows, out_dir, title)
     return rows, [base + ".json", base + ".csv"] + pngs
 

@@ -20,6 +20,7 @@ from lodestar.firmware import centroids
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
+from lodestar.firmware.tracking import propagate
 from lodestar.golden import detect_frame
 from lodestar.ground import onboard
 from lodestar.ground.onboard import detector_config
@@ -122,26 +123,38 @@ class Frame:
     def database(self, method):
         return onboard.star_database(self.fw_cam, method=method)[0]
 
-    def solve(self, method="pyramid", det=None):
-        """The firmware on this frame's packet (or on ``det``): :func:`verdict`."""
+    def solve(self, method="pyramid", det=None, gyro=1.0):
+        """The firmware on this frame's packet (or on ``det``): :func:`verdict`.  ``gyro``:
+        the rate given, as a multiple of the true rate (a wrong gyro: -1, 2); None: none
+        (the firmware fits it from the frame)."""
         det = self.det if det is None else det
+        omega = None if gyro is None else [gyro * w for w in self.omega_rad_s]
         _data, res, _timings = onboard.process(
-            det, self.fw_cam, self.database(method), omega=self.omega_rad_s,
+            det, self.fw_cam, self.database(method), omega=omega,
             exposure_s=self.truth["exposure_s"], row_time_s=self.truth["row_time_s"],
             method=method)
         return verdict(res, det.blobs, self)
 
 
+def truth_at(frame, t_s):
+    """The true attitude of ``frame`` ``t_s`` s after the start of row 0's exposure (the
+    simulator's instant; None: that instant), turned by its constant rate."""
+    if not t_s:
+        return frame.q
+    return propagate(list(frame.q), frame.omega_rad_s, t_s)
+
+
 def verdict(res, records, frame):
-    """The outcome of a firmware ``Result`` on ``frame``; ``records``
-    are the records its ``matches`` index."""
+    """The outcome of a firmware ``Result`` on ``frame``, judged at the instant it holds for
+    (``t_epoch_s``); ``records`` are the records its ``matches`` index."""
     out = {"status": res.status_name, "solved": bool(res.ok), "wrong": False,
            "imprecise": False,
            "wrong_matches": 0, "n_matches": 0, "n_records": len(records),
            "error_arcsec": None, "sigma_arcsec": None}
     if not res.ok:
         return out
-    error = attitude_error_arcsec(res.q, frame.q)
+    out["t_epoch_s"] = res.t_epoch_s
+    error = attitude_error_arcsec(res.q, truth_at(frame, res.t_epoch_s))
     rows = match_rows(res.matches, records, frame.truth["sources"])
     out["n_matches"] = len(rows)
     out["wrong_matches"] = sum(not r["right"] for r in rows)
@@ -158,7 +171,7 @@ def verdict(res, records, frame):
 def rate_trial(preset, level, seed, config):
     """``rate``: one frame at ``level`` deg/s, solved with the campaign's method."""
     frame = Frame(preset, config["camera"], seed, float(level), config["axis"])
-    return frame.solve(config["method"])
+    return frame.solve(config["method"], gyro=1.0 if config.get("gyro", True) else None)
 
 
 def falsestars_trial(preset, level, seed, config):

@@ -39,6 +39,9 @@ def add_parser(sub):
                    help="rates of the rate and limiting studies, deg/s")
     p.add_argument("--axis", choices=trials.AXES, default="cross",
                    help="rate axis: cross-boresight (default), random, roll")
+    p.add_argument("--no-gyro", action="store_true",
+                   help="rate study: solve without the rate (the firmware fits it from the "
+                        "frame; each solution judged at the instant it reports)")
     p.add_argument("--method", choices=trials.METHODS, default="pyramid",
                    help="identification method of the rate, accuracy and fov studies")
     p.add_argument("--settings", choices=tuple(SETTINGS), default=DEFAULT_SETTINGS,
@@ -64,7 +67,7 @@ def _interrupt(signum, frame):
 def run(args):
     """The ``campaign`` command: run, print the table and the files written."""
     config = make_config(args.name, args.presets, args.seed, args.rates, args.axis,
-                         args.method, args.settings, args.quick)
+                         args.method, args.settings, args.quick, gyro=not args.no_gyro)
     n_trials = args.trials if args.trials is not None else \
         QUICK["trials"] if args.quick else DEFAULT_TRIALS[args.name]
     out = args.out or os.path.join("out", f"campaign-{args.name}")

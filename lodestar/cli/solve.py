@@ -15,6 +15,7 @@ from lodestar.ground.imagesolve import (
     fits_date_obs,
     format_report,
     fov_band,
+    frame_timing,
     image_camera,
     read_image,
     solve_image,
@@ -71,6 +72,17 @@ def add_parser(sub):
     app.add_argument("--velocity", nargs=3, type=float, metavar=("VX", "VY", "VZ"),
                      help="observer velocity, km/s, ICRS: added to the Earth's with --time "
                           "(a satellite's), else the whole velocity")
+    mot = p.add_argument_group("motion (docs/image_solving.md, Motion)")
+    mot.add_argument("--rate", nargs=3, type=float, metavar=("WX", "WY", "WZ"),
+                     help="body rate, deg/s, camera frame (a gyro's): the attitude then "
+                          "holds at the start of row 0's exposure; without it the rate is "
+                          "fitted from the frame and the attitude holds at the reported "
+                          "t_epoch_s")
+    mot.add_argument("--exposure", type=float, metavar="S",
+                     help="exposure, s (default: a preset's; else unknown)")
+    mot.add_argument("--row-time", type=float, metavar="S",
+                     help="rolling-shutter line time, s (default: a preset's; else 0, one "
+                          "instant for every row)")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
     p.add_argument("--wcs", metavar="FILE.wcs",
                    help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
@@ -79,6 +91,29 @@ def add_parser(sub):
                    help="replace an existing --annotate or --wcs file")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
+
+
+MAX_RATE_DEG_S = 360.0
+"""Largest ``--rate`` component, deg/s."""
+
+
+def _motion(args, image, what):
+    """``(omega rad/s or None, exposure_s, row_time_s)`` of ``--rate``, ``--exposure`` and
+    ``--row-time`` (:func:`lodestar.ground.imagesolve.frame_timing`); ``ValueError`` naming
+    the option for a value out of range."""
+    if args.rate is not None and not all(math.isfinite(w) and abs(w) <= MAX_RATE_DEG_S
+                                         for w in args.rate):
+        raise ValueError(f"--rate must be three numbers of at most {MAX_RATE_DEG_S:g} deg/s, "
+                         f"got {args.rate}")
+    if args.exposure is not None and not (math.isfinite(args.exposure) and
+                                          0 < args.exposure <= 1000):
+        raise ValueError(f"--exposure must be in (0, 1000] s, got {args.exposure}")
+    if args.row_time is not None and not (math.isfinite(args.row_time) and
+                                          0 <= args.row_time <= 1):
+        raise ValueError(f"--row-time must be in [0, 1] s, got {args.row_time}")
+    exposure, row_time = frame_timing(image, what, args.exposure, args.row_time)
+    omega = None if args.rate is None else [math.radians(w) for w in args.rate]
+    return omega, exposure, row_time
 
 
 def run(args):
@@ -115,9 +150,11 @@ def run(args):
                                            0 < args.tolerance <= widest):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
                          f"of the field), got {args.tolerance}")
+    motion = _motion(args, image, what)
     report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
                                            args.ksigma, args.min_pixels, log=sys.stderr,
-                                           fov_band=band, velocity_km_s=velocity)
+                                           fov_band=band, velocity_km_s=velocity,
+                                           motion=motion)
     report["time"] = obstime
     report["camera"] = what
     failure = None

@@ -39,6 +39,8 @@ def outcome(result):
         "reason": result.reason, "mode": result.mode, "n_records": result.n_records,
         "n_stars": result.n_stars, "matches": matches,
         "q": None if result.q is None else [float(c) for c in result.q],
+        # the instant q holds for (a baseline firmware from before it has none)
+        "t_epoch_s": getattr(result, "t_epoch_s", None),
         "sigma_cross_arcsec": result.sigma_cross_arcsec,
         "sigma_roll_arcsec": result.sigma_roll_arcsec,
         "centroid_sigma_px": result.centroid_sigma_px,

@@ -37,6 +37,7 @@ import numpy as np
 
 from lodestar import contract as C
 from lodestar.firmware.settings import Settings
+from lodestar.firmware.tracking import propagate
 from lodestar.golden import detect_frame
 from lodestar.ground import codec, onboard
 from lodestar.ground import truth as _truth
@@ -223,10 +224,12 @@ def _camera_settings(preset):
 
 def check_truth(out, det, truth):
     """``(error, problem)``: the attitude error of a solution against the truth
-    (``{"cross", "roll"}``, arcsec; :mod:`lodestar.ground.truth`) and None, or the problem
-    when the solution is wrong."""
+    at the instant it holds for (``t_epoch_s``) (``{"cross", "roll"}``, arcsec;
+    :mod:`lodestar.ground.truth`) and None, or the problem when the solution is wrong."""
 
-    err = _truth.attitude_error_arcsec(out["q"], truth["quaternion_xyzw"])
+    err = _truth.attitude_error_arcsec(out["q"], propagate(
+        truth["quaternion_xyzw"], [math.radians(w) for w in truth["omega_deg_s"]],
+        out.get("t_epoch_s") or 0.0))
     matches = [(i, det.blobs[i].sx / det.blobs[i].s0, det.blobs[i].sy / det.blobs[i].s0, hip)
                for i, hip in out["matches"]]
     wrong = [row for row in _truth.match_rows(matches, det.blobs, truth["sources"])

@@ -206,7 +206,9 @@ def rotation_angle(q1, q2):
 
 EXACT_FIELDS = ("status", "mode", "n_records", "n_stars", "matches", "patterns_tried",
                 "min_sum")
-SIGMA_FIELDS = ("sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px")
+SIGMA_FIELDS = ("sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px", "t_epoch_s")
+"""Fields compared within ``sigma_relative``: the 1-sigma figures and the instant the attitude
+holds for (``t_epoch_s``, a weighted mean of the stars' instants without a gyro)."""
 IDENTIFICATION_FIELDS = ("status", "mode", "matches", "min_sum")
 """The fields a float32 outcome shares exactly with the double one (:func:`float32_vs_double`):
 the status, the identified stars and the next frame's record budget (integers)."""
@@ -235,7 +237,7 @@ def differences(a, b, tolerances, exact=EXACT_FIELDS):
             out.append(f"attitude differs by {angle:.3g} rad (tolerance "
                        f"{tolerances['q_rad']:g})")
     for name in SIGMA_FIELDS:
-        x, y = a[name], b[name]
+        x, y = a.get(name), b.get(name)
         if (x is None) != (y is None):
             out.append(f"{name} {x!r} vs {y!r}")
         elif x is not None and not abs(x - y) <= tolerances["sigma_relative"] * max(abs(x),

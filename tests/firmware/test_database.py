@@ -269,6 +269,9 @@ def test_named_mismatches():
     # a missing required section
     assert status_of(reseal(image, lambda b: struct.pack_into(
         "<II", b, stardb.DIRECTORY_OFFSET + 8 * stardb.SEC_PAIRS, 0, 0))) == S.DATABASE_BAD_LAYOUT
+    # more stars than a 16-bit index names (the contract's MAX_STARS)
+    assert status_of(reseal(image, lambda b: struct.pack_into(
+        "<I", b, 40, stardb.MAX_STARS + 1))) == S.DATABASE_BAD_LAYOUT      # n_stars
     # a NaN field of view
     assert status_of(reseal(image, lambda b: struct.pack_into("<f", b, 20, float("nan")))) == \
         S.DATABASE_BAD_LAYOUT

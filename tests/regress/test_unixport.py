@@ -18,7 +18,7 @@ from tests import REPO
 # one worker runs the file: the build's session fixtures run once (pyproject: loadgroup)
 pytestmark = pytest.mark.xdist_group("unixport")
 
-HEAP_BUDGET = 64 * 1024
+HEAP_BUDGET = 66 * 1024
 """Heap (bytes) within which every flight loop of the set runs on the flight build with the
 firmware's own collector setting, the STM32F401's, and a packet buffer for the flight
 gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``,

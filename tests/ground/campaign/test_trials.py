@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import Result
-from lodestar.ground.campaign import trials
+from lodestar.ground.campaign import runner, trials
 from lodestar.ground.onboard import camera_settings
 from lodestar.ground.truth import WRONG_ARCSEC
 from lodestar.sim import presets
@@ -37,8 +37,9 @@ def test_rate_axes():
 
 
 class FakeFrame:
-    def __init__(self, q):
+    def __init__(self, q, omega_rad_s=(0.0, 0.0, 0.0)):
         self.q = q
+        self.omega_rad_s = list(omega_rad_s)
         self.truth = {"sources": []}
 
 
@@ -61,6 +62,28 @@ def test_verdict_tells_wrong_from_failed():
         assert out["status"] == ("WRONG" if wrong else "OK")
         assert out["error_arcsec"][1] == pytest.approx(angle, rel=1e-6)
         assert out["sigma_arcsec"] == [sigma, 10.0]
+
+
+def test_verdict_judges_the_attitude_at_its_instant():
+    """A solution reporting ``t_epoch_s`` is compared with the truth turned by the frame's rate
+    to that instant: right there, wrong against the start of the exposure."""
+    q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
+    frame = FakeFrame(q, (0.0, 0.0, math.radians(10.0)))
+    res = Result(S.OK)
+    res.sigma_cross_arcsec, res.sigma_roll_arcsec = 1.0, 10.0
+    res.q = trials.truth_at(frame, 0.09)
+    res.t_epoch_s = 0.09
+    out = trials.verdict(res, [], frame)
+    assert not out["wrong"] and out["t_epoch_s"] == 0.09 and out["error_arcsec"][2] < 1e-6
+    res.t_epoch_s = 0.0
+    assert trials.verdict(res, [], frame)["wrong"]
+    assert trials.truth_at(frame, None) is q
+
+
+def test_no_gyro_applies_to_the_rate_study():
+    assert runner.make_config("rate", ["estcube2"], gyro=False)["gyro"] is False
+    with pytest.raises(ValueError, match="--no-gyro applies to the rate study"):
+        runner.make_config("accuracy", ["estcube2"], gyro=False)
 
 
 def test_noise_trial_identifies_at_small_noise():

@@ -1,0 +1,103 @@
+"""Never a wrong attitude while turning: each frame of the rate campaign solved with the gyro,
+without it, and with a wrong gyro, every solution judged at the instant it holds for.
+
+    .venv/bin/python benchmarks/bench_rate_honesty.py --axis roll [--rates 1 2 5 10 20 30]
+        [--trials 10] [--workers 2] [--out FILE.json]
+
+Each trial is the ``rate`` campaign's frame (``lodestar.ground.campaign.trials.Frame``: its
+seeds, estcube2 with the tuned settings, 0.1 s exposure, rolling shutter) at ``--rates`` deg/s
+about ``--axis``, rendered and detected once and solved four ways: the true rate given (the
+gyro), none (the firmware fits the rate from the frame, ``lodestar.firmware.smear``), the
+rate of the wrong sign and twice the rate.  The verdict is the campaign's
+(``trials.verdict``): wrong = a wrong identity, or more than 180" from the truth at the
+solution's ``t_epoch_s`` *and* beyond 5 sigma on an axis.  Prints per rate and way: solved,
+wrong, imprecise (beyond 180" but covered), the issue's stricter counts (an axis beyond
+5 sigma; beyond 180" total), the RMS and largest error over sigma (z) per
+axis, the median ``t_epoch_s`` and the statuses of the frames not solved.
+"""
+
+import argparse
+import json
+import math
+import multiprocessing
+import statistics
+
+from lodestar.ground.campaign import trials
+from lodestar.ground.onboard import camera_settings
+
+WAYS = (("gyro", 1.0), ("none", None), ("minus", -1.0), ("twice", 2.0))
+"""How each frame is solved: the name and the given rate as a multiple of the truth."""
+
+
+def trial(task):
+    """One frame, solved every way of :data:`WAYS`: ``{way: verdict + contradicted}``."""
+    axis, rate, i = task
+    frame = trials.Frame("estcube2", camera_settings("estcube2", "tuned"),
+                         trials.trial_seed(0, "rate", "estcube2", i), rate, axis)
+    out = {}
+    for name, factor in WAYS:
+        if factor is not None and rate == 0:
+            continue
+        out[name] = frame.solve("pyramid", gyro=factor)
+    return axis, rate, i, out
+
+
+def summary(results, rates):
+    """Per rate and way: counts and the error over sigma."""
+    rows = []
+    for rate in rates:
+        for name, _factor in WAYS:
+            vs = [r[name] for _a, rr, _i, r in results if rr == rate and name in r]
+            if not vs:
+                continue
+            ok = [v for v in vs if v["solved"] or v["wrong"]]
+            zc = [max(abs(v["error_arcsec"][0]), abs(v["error_arcsec"][1])) /
+                  v["sigma_arcsec"][0] for v in ok]
+            zr = [abs(v["error_arcsec"][2]) / v["sigma_arcsec"][1] for v in ok]
+            beyond = [max(a, b) > 5.0 for a, b in zip(zc, zr)]
+            far = [math.sqrt(sum(e * e for e in v["error_arcsec"])) > 180.0 for v in ok]
+            rows.append({
+                "rate_deg_s": rate, "way": name, "trials": len(vs), "solved": len(ok),
+                "wrong": sum(v["wrong"] for v in vs),
+                "issue_wrong": sum(a or b for a, b in zip(beyond, far)),
+                "beyond_5_sigma": sum(beyond), "beyond_180": sum(far),
+                "contradicted": sum(v["status"] == "RATE_CONTRADICTED" for v in vs),
+                "imprecise": sum(v["imprecise"] for v in vs),
+                "max_z_cross": max(zc) if zc else None, "max_z_roll": max(zr) if zr else None,
+                "rms_z_cross": math.sqrt(statistics.fmean(z * z for z in zc)) if zc else None,
+                "rms_z_roll": math.sqrt(statistics.fmean(z * z for z in zr)) if zr else None,
+                "median_t_epoch_s": statistics.median(v["t_epoch_s"] for v in ok)
+                if ok else None,
+                "statuses": sorted({v["status"] for v in vs if not v["solved"]})})
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--axis", choices=trials.AXES, default="roll")
+    ap.add_argument("--rates", nargs="+", type=float, default=[1, 2, 5, 10, 20, 30])
+    ap.add_argument("--trials", type=int, default=10)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", help="write the rows and every verdict as JSON")
+    args = ap.parse_args()
+    tasks = [(args.axis, r, i) for r in args.rates for i in range(args.trials)]
+    with multiprocessing.Pool(args.workers) as pool:
+        results = list(pool.imap_unordered(trial, tasks))
+    rows = summary(results, args.rates)
+    print(f"{args.axis} axis, {args.trials} trials per rate")
+    print("rate  way    solved wrong imprecise >5sig >180\"  z cross (rms/max)  z roll (rms/max)  "
+          "t_epoch")
+    for r in rows:
+        z = (f"{r['rms_z_cross']:.2f}/{r['max_z_cross']:.1f}  {r['rms_z_roll']:.2f}/"
+             f"{r['max_z_roll']:.1f}  {r['median_t_epoch_s']:.3f}" if r["solved"] else "-")
+        print(f"{r['rate_deg_s']:>4g}  {r['way']:<6} {r['solved']:>3}/{r['trials']:<3} "
+              f"{r['wrong']:>4} {r['imprecise']:>6} {r['beyond_5_sigma']:>5} {r['beyond_180']:>5}"
+              f"    {z}  {','.join(r['statuses'])}")
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump({"axis": args.axis, "trials": args.trials, "rows": rows,
+                       "results": results}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
