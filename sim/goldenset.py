@@ -125,8 +125,11 @@ def config_dict(cfg):
 
 
 def result_dict(res):
-    """A ``DetectionResult`` as a JSON-ready dict: header fields and records."""
-    return {"header": res.header(),
+    """A ``DetectionResult`` as a JSON-ready dict: header fields and records.  The header's
+    ``timestamp`` is left out: it is the gateware's clock, which no model of the detection
+    predicts (``DetectionResult`` equality leaves it out too)."""
+    header = {k: v for k, v in res.header().items() if k != "timestamp"}
+    return {"header": header,
             "records": [dict(zip(C.RECORD_NAMES, b.as_tuple())) for b in res.blobs]}
 
 
