@@ -19,7 +19,9 @@ HERE = Path(__file__).parent
 def run(component, name, test_module, build_dir, env=None):
     """Build ``component`` as Verilog module ``name`` and run ``test_module`` against it.
     The model's code is compiled with ``-O1``: a board top's compile at ``-O3`` costs more
-    than its short cocotb run saves."""
+    than its short cocotb run saves.  Only the top level's signals are public (the
+    testbenches drive and read ports): cocotb's runner asks for every signal, which doubles
+    a board top's compile and slows its model."""
     verilator_env(opt_fast="-O1")
     build_dir = Path(build_dir)
     build_dir.mkdir(parents=True, exist_ok=True)
@@ -27,7 +29,8 @@ def run(component, name, test_module, build_dir, env=None):
     source.write_text(to_verilog(component, name))
     runner = get_runner("verilator")
     runner.build(sources=[source], hdl_toplevel=name, build_dir=build_dir,
-                 build_args=["-Wno-fatal", "-O2"], timescale=("1ns", "1ps"))
+                 build_args=["-Wno-fatal", "-O2", "--no-public-flat-rw", "--public-depth", "1"],
+                 timescale=("1ns", "1ps"))
     results = runner.test(test_module=test_module, hdl_toplevel=name, build_dir=build_dir,
                           test_dir=HERE, results_xml=str(build_dir / "results.xml"),
                           extra_env={k: str(v) for k, v in (env or {}).items()})

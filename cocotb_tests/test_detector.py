@@ -78,17 +78,6 @@ def random_frames(rng, n, w, h, bits, cap=None, rcap=C.DEFAULT_RECORD_CAPACITY):
     return frames, cfgs
 
 
-def test_every_mask_up_to_4x4(tmp_path):
-    """All 65536 binary 4x4 images (every smaller image is one of them with dark margins)."""
-    rng = np.random.default_rng(44)
-    bits = np.arange(1 << 16, dtype=np.uint32)
-    masks = ((bits[:, None] >> np.arange(16)) & 1).astype(bool).reshape(-1, 4, 4)
-    values = np.where(masks, rng.integers(51, 4096, masks.shape),
-                      rng.integers(0, 51, masks.shape)).astype(np.uint16)
-    cfg = DetectorConfig(width=4, height=4, threshold=50, background=40)
-    play(Build(4, 4, 12).ensure(), list(values), [cfg] * len(values), tmp_path)
-
-
 def test_shapes_random_frames_and_faults_32x24(tmp_path):
     """Adversarial shapes (three orientations, random registers), 600 random frames in all
     three modes (global mode carries state across frames), and faults."""
