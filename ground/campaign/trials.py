@@ -98,7 +98,8 @@ def rate_vector(rng, rate_deg_s, axis):
 
 class Frame:
     """One simulated and detected frame: ``cam`` (the preset), ``q`` (truth), ``omega_deg_s``,
-    ``truth`` (the simulator's), ``det`` (``DetectionResult``) and ``fw_cam``.  The catalogue
+    ``truth`` (the simulator's), ``image`` (its ADU, for the ground's own solve), ``det``
+    (``DetectionResult``) and ``fw_cam``.  The catalogue
     is rendered to ``mag_limit`` (V), with ``false_stars`` extra point sources; ``cam``
     replaces the preset's camera (a sim ``Camera``), ``cat`` the shipped catalogue."""
 
@@ -113,6 +114,7 @@ class Frame:
                              extras=scene.Extras(false_stars=false_stars),
                              mag_limit=mag_limit, cat=cat)
         self.truth = sim.truth
+        self.image = sim.frame
         self.det = detect_frame(sim.frame, detector_config(self.cam, settings))
         self.fw_cam = onboard.firmware_camera(self.cam)
 
