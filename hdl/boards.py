@@ -540,6 +540,14 @@ class Board:
         return max_sck_hz(self.sync_hz)
 
     @property
+    def master_clock_hz(self):
+        """The sensor's master clock as the board's PLL makes it: the ratio nearest
+        ``sensor_clk_hz`` (it may differ from it; must not exceed the front end's
+        ``MASTER_CLOCK_MAX_HZ``)."""
+        mul, div = _ratio(self.sensor_clk_hz, self.osc_hz)
+        return self.osc_hz * mul / div
+
+    @property
     def part(self):
         return f"{self.device}{self.package}{self.speed}"
 

@@ -282,13 +282,14 @@ class SensorFrontend(wiring.Component):
     the board hooks, which :mod:`lodestar.hdl.boards` calls without knowing the sensor.
 
     Class attributes of a subclass: ``SENSOR`` (its name in ``C.SENSORS``), ``PIXEL_BITS``
-    (``C.SENSOR_PIXEL_BITS[SENSOR]``), ``IO_VOLTS`` (the sensor's digital I/O supply range in
-    V, low and high: an FPGA output above it must reach the sensor through a level
-    translator), ``CLOCK_PINS`` (board pins that clock the capture domain: given the pixel
-    rate as their clock, no input register) and ``LVDS_PINS`` (pins with the LVDS I/O
-    standard, registered by the receiver).  Board hooks: ``pins`` (the ``wiring.Signature``
-    of the top level's sensor ports), ``connect_pins(m, top)`` (drive the front end from
-    them), ``status(top, since_read)`` (``{OVF_* bit: value}`` beyond ``OVF_PIXEL_FIFO``),
+    (``C.SENSOR_PIXEL_BITS[SENSOR]``), ``IO_VOLTS`` (the sensor's digital I/O supply range in V,
+    low and high: an FPGA output above it must reach the sensor through a level translator),
+    ``MASTER_CLOCK_MAX_HZ`` (the highest master clock the sensor accepts: the board's PLL output
+    must not exceed it), ``CLOCK_PINS`` (board pins that clock the capture domain: given the
+    pixel rate as their clock, no input register) and ``LVDS_PINS`` (pins with the LVDS I/O
+    standard, registered by the receiver).  Board hooks: ``pins`` (the ``wiring.Signature`` of
+    the top level's sensor ports), ``connect_pins(m, top)`` (drive the front end from them),
+    ``status(top, since_read)`` (``{OVF_* bit: value}`` beyond ``OVF_PIXEL_FIFO``),
     ``board_clocks(m, board, ports, top)`` (on a board: give the sensor resource's ``ports``
     (requested with ``dir="-"``) their buffers, clock the capture domain, forward the
     :data:`MASTER_DOMAIN` clock to the sensor with :func:`clock_output`, drive the top level's

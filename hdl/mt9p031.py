@@ -64,6 +64,9 @@ class MT9P031Frontend(SensorFrontend):
     SENSOR = "mt9p031"
     PIXEL_BITS = PIXEL_BITS
     IO_VOLTS = (1.7, 3.1)
+    MASTER_CLOCK_MAX_HZ = 96e6
+    """EXTCLK at most 96 MHz (datasheet; the Linux device-tree binding's
+    ``input-clock-frequency`` maximum)."""
     """VDD_IO 1.7-3.1 V (datasheet); 96 MHz PIXCLK needs 2.8 V."""
     CLOCK_PINS = ("pixclk",)
 

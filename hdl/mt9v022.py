@@ -322,6 +322,8 @@ class MT9V022Frontend(SensorFrontend):
     SENSOR = "mt9v022"
     PIXEL_BITS = PIXEL_BITS
     IO_VOLTS = (3.0, 3.6)
+    MASTER_CLOCK_MAX_HZ = 26.6e6
+    """SYSCLK at most 26.6 MHz (datasheet; ``docs/sensors_and_link.md``, MT9V022)."""
     """VDD 3.3 V +- 0.3 V (datasheet)."""
     LVDS_PINS = ("ser_clk", "ser_data")
     CLOCK_PINS = ("ser_clk",)

@@ -213,8 +213,17 @@ def test_spi_sck_limit_from_the_slave_rule():
     for board in BOARDS.values():
         assert C.MCU_SCK_HZ <= 0.8 * board.spi_sck_max_hz, board.name
         assert 2e9 / board.sync_hz >= C.MCU_MISO_HOLD_NS, board.name
-    # the sensor's master clock within its limit (MT9V022: 26.6 MHz)
-    assert BOARDS["de2-115"].sensor_clk_hz <= 26.6e6
+
+
+@pytest.mark.parametrize("name", sorted(BOARDS))
+def test_master_clock_within_the_sensor_limit(name):
+    """The master clock the board's PLL makes (the nearest ratio to ``sensor_clk_hz``, not the
+    nominal value: 26.667 MHz once exceeded the MT9V022's 26.6 MHz) is within the sensor's
+    ``MASTER_CLOCK_MAX_HZ``, and ``sync`` keeps up with the pixel rate."""
+    board = BOARDS[name]
+    assert board.master_clock_hz == pytest.approx(board.sensor_clk_hz, rel=0.01)
+    assert board.master_clock_hz <= board.frontend.MASTER_CLOCK_MAX_HZ
+    assert board.sync_hz >= board.pixel_hz
 
 
 def _sdc_commands(sdc, command):
