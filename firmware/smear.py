@@ -202,6 +202,72 @@ def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     return nn, h, chi2
 
 
+@native
+def _normal_rate(b, r, dts, w, q, tau):
+    """:func:`_normal` of the rate check's form (attitude and rate, no radial terms, the
+    stars not turned: ``omega`` zero), from its structure: an attitude column ``j`` is
+    ``e_j x a`` and the rate's ``-x`` times it, so the blocks of ``N`` are ``sum w M``, ``-sum
+    w x M`` and ``sum w x^2 M`` with ``M = |a|^2 I - a a^T``, and ``h`` is ``sum w (a x e)``
+    and ``-sum w x (a x e)``.  About a quarter of :func:`_normal`'s operations per star, in
+    18 running sums; the same values to rounding (the check's verdict only reads them)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = Q.matrix(q)
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0          # sum w M
+    t00 = t01 = t02 = t11 = t12 = t22 = 0.0          # sum w x M
+    u00 = u01 = u02 = u11 = u12 = u22 = 0.0          # sum w x^2 M
+    h0 = h1 = h2 = g0 = g1 = g2 = chi2 = 0.0
+    for i in range(len(b)):
+        ri = r[i]
+        r0, r1, r2 = ri[0], ri[1], ri[2]
+        ax = m0 * r0 + m1 * r1 + m2 * r2
+        ay = m3 * r0 + m4 * r1 + m5 * r2
+        az = m6 * r0 + m7 * r1 + m8 * r2
+        bi = b[i]
+        e0 = bi[0] - ax
+        e1 = bi[1] - ay
+        e2 = bi[2] - az
+        wi = w[i]
+        chi2 += wi * (e0 * e0 + e1 * e1 + e2 * e2)
+        wx = wi * (dts[i] / tau)
+        wxx = wx * (dts[i] / tau)
+        xx, yy, zz = ax * ax, ay * ay, az * az
+        k00, k11, k22 = yy + zz, xx + zz, xx + yy
+        k01, k02, k12 = -ax * ay, -ax * az, -ay * az
+        s00 += wi * k00
+        s01 += wi * k01
+        s02 += wi * k02
+        s11 += wi * k11
+        s12 += wi * k12
+        s22 += wi * k22
+        t00 += wx * k00
+        t01 += wx * k01
+        t02 += wx * k02
+        t11 += wx * k11
+        t12 += wx * k12
+        t22 += wx * k22
+        u00 += wxx * k00
+        u01 += wxx * k01
+        u02 += wxx * k02
+        u11 += wxx * k11
+        u12 += wxx * k12
+        u22 += wxx * k22
+        c0 = ay * e2 - az * e1
+        c1 = az * e0 - ax * e2
+        c2 = ax * e1 - ay * e0
+        h0 += wi * c0
+        h1 += wi * c1
+        h2 += wi * c2
+        g0 += wx * c0
+        g1 += wx * c1
+        g2 += wx * c2
+    nn = [s00, s01, s02, -t00, -t01, -t02,
+          s01, s11, s12, -t01, -t11, -t12,
+          s02, s12, s22, -t02, -t12, -t22,
+          -t00, -t01, -t02, u00, u01, u02,
+          -t01, -t11, -t12, u01, u11, u12,
+          -t02, -t12, -t22, u02, u12, u22]
+    return nn, [h0, h1, h2, -g0, -g1, -g2], chi2
+
+
 def _inverse(n, nn, h, first=0):
     """Columns ``first..n-1`` of the inverse of an ``n x n`` symmetric positive-definite flat
     ``nn`` (rows) and ``nn^-1 h``, from one Cholesky factorisation: ``(columns, x)`` (column
@@ -278,8 +344,12 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
         return None
     size = 3 + (3 if rate else 0) + (2 if radial else 0)
     omega = (0.0, 0.0, 0.0)
+    check = rate and not radial and not attitude and rounds == 0     # a given rate's check
     for k in range(rounds + 1):
-        nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2)
+        if check:
+            nn, h, chi2 = _normal_rate(b, r, dts, w, q, tau)
+        else:
+            nn, h, chi2 = _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2)
         if k == rounds:
             break
         u = _solve(size, list(nn), h)

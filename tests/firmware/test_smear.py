@@ -172,3 +172,19 @@ def test_radial_fit_finds_an_unmodelled_distortion_and_covers_the_truth():
     q, omega, p, _po, _s, c, p_c = smear.radial_fit(b, r, dts, [1.0] * len(b), q_true, True)
     assert smear.chi2_rate(c, p_c) < smear.RADIAL_CHI2 and omega is not None
     assert smear.radial_fit(b[:7], r[:7], dts[:7], [1.0] * 7, q_true, False) is None
+
+
+def test_the_rate_checks_normal_equations_are_the_general_ones():
+    """The check's normal equations from their structure (``_normal_rate``) equal the general
+    ones of attitude and rate at a zero rate, to rounding, and give the same check."""
+    b, r, dts, q = scene([0.0, 0.01, 0.0], n=12, seed=3)
+    w = [0.5 + 0.1 * i for i in range(len(b))]
+    tau = math.sqrt(sum(wi * t * t for wi, t in zip(w, dts)) / sum(w))
+    fast = smear._normal_rate(b, r, dts, w, q, tau)
+    general = smear._normal(b, r, dts, w, q, (0.0, 0.0, 0.0), tau, True, False, 1.0)
+    for got, want in zip(fast, general):
+        assert np.allclose(got, want, rtol=1e-12, atol=1e-15)
+    check = smear.rate_fit(b, r, dts, w, q, rounds=0, attitude=False)
+    assert check[0] == q and check[2] is None
+    assert np.allclose(check[1], np.asarray(smear.rate_fit(b, r, dts, w, q, rounds=0)[1]),
+                       rtol=1e-9)
