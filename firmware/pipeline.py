@@ -840,13 +840,12 @@ class StarTracker:
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
         times = self._times(exposure, len(flat) // 3)
-        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0, False)
-        if fit is None:
+        verdict = _smear.check([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
+                               [times[o] - st.epoch_s for o, _s in star_ids], w, solved[0],
+                               True, False, self.min_sigma_rad, self.sigma_rad)
+        if verdict is None or verdict[1] is None or not verdict[1] > _smear.STREAK_RATE_CHI2:
             return False
-        d = fit[1]
-        chi2 = _smear.chi2_rate(d, fit[3])
-        if chi2 is None or not chi2 > _smear.STREAK_RATE_CHI2:
-            return False
+        d, chi2 = verdict
         stars = [(vectors[o], m) for (o, _s), m in zip(star_ids, _moments(
             flat, [o for o, _s in star_ids]))]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
@@ -882,12 +881,11 @@ class StarTracker:
         dts = [times[o] - ref if rate else 0.0 for o, _s in star_ids]
         # the verdict from one linear solve (the radial terms enter linearly and the
         # attitude and rate are fitted already); the full fit only for a pattern
-        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
-                                self.sigma_rad, 0, False)
-        if fit is None:
+        verdict = _smear.check(b, r, dts, w, solved[0], rate, True, self.min_sigma_rad,
+                               self.sigma_rad)
+        if verdict is None:
             return solved
-        chi2 = _smear.chi2_rate(fit[5], fit[6])
-        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+        if verdict[1] is None or verdict[1] <= _smear.RADIAL_CHI2:
             self._lens_clean = True
             return solved
         self._lens_clean = False
@@ -920,14 +918,12 @@ class StarTracker:
                         (s0 * s0)) for i in range(n)]
         return w
 
-    def _rate_fit(self, vectors, star_ids, w, times, ref, q,
-                  rounds=_smear.RATE_ITERATIONS, attitude=True):
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q):
         """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
-        counted from ``ref`` (``rounds``, ``attitude`` as there: 0 and False for the check
-        of a given rate)."""
+        counted from ``ref``."""
         return _smear.rate_fit([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
                                [times[o] - ref for o, _s in star_ids], w, q,
-                               self.min_sigma_rad, self.sigma_rad, rounds, attitude)
+                               self.min_sigma_rad, self.sigma_rad)
 
     def _turned(self, vectors, times, ref, rate):
         """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""
