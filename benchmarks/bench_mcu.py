@@ -501,10 +501,13 @@ clock = time.ticks_us
 s = B.SETTINGS
 tr = StarTracker(B.DB, B.CAMERA, Settings(method='pyramid', exposure_s=s[0],
                  row_time_s=s[1], tolerance_px=s[2], clock=clock))
+B.CASES = B.BUDGET = None          # the stage tables' data: not the flight loop's heap
 f = semihost.HostFile('lis_frames.bin')
 head = bytearray(16)
 buf = bytearray(BUFFER)
 view = memoryview(buf)
+gc.collect()
+print('FREE', gc.mem_free())
 k = 0
 while f.readinto(head) == 16:
     n, wx, wy, wz = struct.unpack('<I3f', head)
@@ -573,6 +576,8 @@ def lis(n, keep):
         sys.exit(f"bench_mcu: the lost-in-space run failed:\n{proc.stdout[-1500:]}"
                  f"{proc.stderr[-1500:]}")
     rows = [line.split() for line in proc.stdout.splitlines() if line.startswith("LIS ")]
+    free = next(line.split()[1] for line in proc.stdout.splitlines() if line.startswith("FREE"))
+    print(f"heap free before the first frame: {int(free):,} of {qemu.FLIGHT_HEAP:,} bytes")
     print(f"\n## Lost in space over {n} simulated estcube2 frames at rest and {n} at "
           f"{LIS_RATE_DEG_S:g} deg/s (Pyramid, flight database), F401 ms (estimate)")
     print("| frames | n | p50 | p95 | max | OK | statuses |")
@@ -585,6 +590,8 @@ def lis(n, keep):
         print(f"| {label} | {len(t)} | {statistics.median(t):.0f} | {p95:.0f} | {t[-1]:.0f} | "
               f"{codes.get(0, 0)} | " + ", ".join(f"{k}: {v}" for k, v in sorted(codes.items()))
               + " |")
+    other = [f"{r[1]} ({labels[int(r[1])]}): {r[2]}" for r in rows if int(r[2]) != 0]
+    print("frames with another status (index, class: status): " + (", ".join(other) or "none"))
     if keep is None:
         shutil.rmtree(work, ignore_errors=True)
 
