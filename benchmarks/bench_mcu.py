@@ -4,6 +4,7 @@ firmware, the estcube2 database and the regression packets frozen into flash, ru
 with ``-icount``), against a baseline revision built the same way in the same run.
 
     .venv/bin/python benchmarks/bench_mcu.py [--baseline 4641f47] [--repeats 3]
+    .venv/bin/python benchmarks/bench_mcu.py --lis 100 [--work DIR]
 
 * **time**: per frame class of the estcube2 regression packets (the flight method, Pyramid),
   ``StarTracker.process`` in guest ticks (instructions / 1000), as F401 milliseconds: ticks
@@ -24,6 +25,10 @@ with ``-icount``), against a baseline revision built the same way in the same ru
   ``Settings.clock``, on this checkout and the baseline built alike; lost in space p50 /
   p95 / max over every call; then the hostile Pyramid searches of ``bench_budget.py`` (work
   units spent and time: the work budget in F401 milliseconds).
+* **lost in space on simulated frames** (``--lis N``, opt-in): ``N`` estcube2 frames at rest
+  and ``N`` at 1 deg/s (``lodestar.sim`` scenes through the golden detector with the flight
+  settings), each solved lost in space with the gyro's rate on the same stage image, the
+  packets read from a host file; p50 / p95 / max F401 ms per class and the statuses.
 
 Needs ``build-qemu.sh`` beside MicroPython's ``build.sh`` (``$LODESTAR_MICROPYTHON_BUILD`` or
 ``../shared``), ``arm-none-eabi-gcc``, ``qemu-system-arm`` and git.  About 15 minutes of
@@ -31,9 +36,11 @@ builds the first time on 2 busy cores, then a few minutes.
 """
 
 import argparse
+import hashlib
 import os
 import shutil
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -324,17 +331,26 @@ def data_module(path, db, manifest, repeats):
                     "\n".join(cases) + f"\n]\nBUDGET = {budget_cases()!r}\n")
 
 
-def stage_build(label, checkout, work, db, manifest, repeats, script):
-    """Stage ``checkout``'s image (None: this installation's) with the data module, build it
-    and return a copy of its ``firmware.elf``."""
+def stage_build(label, checkout, work, db, manifest, repeats, script, extra=()):
+    """Stage ``checkout``'s image (None: this installation's) with the data module and the
+    ``extra`` modules of :mod:`lodestar.regress` (this installation's), build it and return
+    a copy of its ``firmware.elf``."""
     side = work / label
     image = unixport.stage_mcu_image(side / "image", checkout, native=True)
+    for name in extra:
+        shutil.copyfile(REPO / "lodestar" / "regress" / f"{name}.py",
+                        image / "lodestar" / "regress" / f"{name}.py")
     data = side / "data"
     data.mkdir(parents=True, exist_ok=True)
     data_module(data / "lodestar_bench.py", db, manifest, repeats)
     frozen = side / "manifest.py"
     frozen.write_text(f"package('lodestar', base_path={str(image)!r})\n"
                       f"module('lodestar_bench.py', base_path={str(data)!r})\n")
+    elf = side / "firmware.elf"
+    stamp = side / "firmware.key"
+    key = _tree_key([script] + sorted(image.rglob("*.py")) + [data / "lodestar_bench.py"])
+    if elf.is_file() and stamp.is_file() and stamp.read_text() == key:
+        return elf                  # the same sources and data: the same image
     env = dict(os.environ, FROZEN_MANIFEST=str(frozen))
     out = side / "mp"           # built from clean: an incremental build keeps the last
     for old in out.glob("build-*"):     # image's qstrs, which moves every time by a few %
@@ -344,9 +360,18 @@ def stage_build(label, checkout, work, db, manifest, repeats, script):
                           capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"bench_mcu: the {label} build failed:\n{proc.stderr[-2000:]}")
-    elf = side / "firmware.elf"
     shutil.copyfile(proc.stdout.strip().splitlines()[-1], elf)
+    stamp.write_text(key)
     return elf
+
+
+def _tree_key(paths):
+    """A content hash of ``paths`` (names and bytes): a kept stage build (``--work``) is
+    reused while it matches."""
+    h = hashlib.sha256(str(qemu.FLIGHT_HEAP).encode())
+    for path in paths:
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
 
 
 def stage_run(elf, script):
@@ -458,6 +483,126 @@ def stages(baseline, repeats, keep):
         shutil.rmtree(work, ignore_errors=True)
 
 
+LIS_RATE_DEG_S = 1.0
+"""The moving frames' rate (deg/s, about a random axis) of the simulated lost-in-space
+frames (:func:`lis_frames`)."""
+LIS_SEED = 29
+LIS_HEADER = "<I3f"
+"""Each frame in the host file of :func:`lis_frames`: its packet's length and ``omega``
+(rad/s), then the packet."""
+
+LIS_SCRIPT = """\
+import gc, struct, time
+from lodestar.firmware.pipeline import StarTracker
+from lodestar.firmware.settings import Settings
+from lodestar.regress import semihost
+import lodestar_bench as B
+clock = time.ticks_us
+s = B.SETTINGS
+tr = StarTracker(B.DB, B.CAMERA, Settings(method='pyramid', exposure_s=s[0],
+                 row_time_s=s[1], tolerance_px=s[2], clock=clock))
+B.CASES = B.BUDGET = None          # the stage tables' data: not the flight loop's heap
+f = semihost.HostFile('lis_frames.bin')
+head = bytearray(16)
+buf = bytearray(BUFFER)
+view = memoryview(buf)
+gc.collect()
+print('FREE', gc.mem_free())
+k = 0
+while f.readinto(head) == 16:
+    n, wx, wy, wz = struct.unpack('<I3f', head)
+    f.readinto(view[:n])
+    omega = (wx, wy, wz)
+    gc.collect()
+    t0 = clock()
+    r = tr.process(view[:n], omega=omega)
+    t1 = clock()
+    print('LIS', k, r.status, len(r.matches), time.ticks_diff(t1, t0))
+    r = None
+    k += 1
+print('DONE')
+"""
+
+
+def lis_frames(n, path, seed=LIS_SEED):
+    """Simulate ``n`` estcube2 frames at rest and ``n`` at :data:`LIS_RATE_DEG_S` about a
+    random axis (uniformly random attitudes, ``lodestar.sim.scene``; the golden detector with
+    the preset's flight settings, ``lodestar.ground.onboard``, and the flight record
+    capacity) and write their packets with ``omega`` (the gyro's rate, exact) to ``path``
+    (:data:`LIS_HEADER` per frame; a file already there is kept: the frames are the same).
+    Returns the labels (``rest``/``1dps``) in order."""
+    from lodestar.golden import detect_frame
+    from lodestar.ground import codec, onboard
+    from lodestar.sim import scene
+    labels = ["rest"] * n + [f"{LIS_RATE_DEG_S:g}dps"] * n
+    if Path(path).is_file():
+        return labels
+    cam = presets.load_preset(CAMERA)
+    chosen = onboard.camera_settings(CAMERA)
+    rng = np.random.default_rng(seed)
+    with open(str(path) + ".tmp", "wb") as out:
+        for i in range(2 * n):
+            q = random_attitude(rng)
+            axis = rng.normal(size=3)
+            rate = (0.0, 0.0, 0.0) if i < n else \
+                tuple(float(a) for a in LIS_RATE_DEG_S * axis / np.linalg.norm(axis))
+            sim = scene.simulate(cam, q, rate, seed=seed + i)
+            cfg = onboard.detector_config(cam, chosen, sim.truth["exposure_s"]).replace(
+                record_capacity=C.FLIGHT_RECORD_CAPACITY)
+            packet = codec.encode(detect_frame(sim.frame, cfg))
+            out.write(struct.pack(LIS_HEADER, len(packet), *np.radians(rate)) + packet)
+    os.replace(str(path) + ".tmp", path)
+    return labels
+
+
+def lis(n, keep):
+    """Lost in space over :func:`lis_frames` on this checkout's stage image (the estcube2
+    flight Pyramid database frozen, the packets read from a host file by semihosting, which
+    costs the guest no ticks): per class p50 / p95 / max F401 ms of ``process`` and the
+    statuses."""
+    script = qemu.script_dir(REPO) / "build-qemu.sh"
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work.mkdir(parents=True, exist_ok=True)
+    frames = work / f"lis_frames-{n}-{LIS_SEED}.bin"
+    t0 = time.perf_counter()
+    labels = lis_frames(n, frames)
+    print(f"\n{len(labels)} frames in {time.perf_counter() - t0:.0f} s")
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    elf = stage_build("lis", None, work, flight_database(), manifest, 1, script,
+                      extra=("semihost",))
+    proc = qemu.run(elf, LIS_SCRIPT.replace("BUFFER", str(unixport.FLIGHT_BUFFER)).replace(
+        "lis_frames.bin", frames.name), files=[frames], timeout=6000, repo=REPO)
+    if proc.returncode != 0 or "DONE" not in proc.stdout:
+        sys.exit(f"bench_mcu: the lost-in-space run failed:\n{proc.stdout[-1500:]}"
+                 f"{proc.stderr[-1500:]}")
+    rows = [line.split() for line in proc.stdout.splitlines() if line.startswith("LIS ")]
+    free = next(line.split()[1] for line in proc.stdout.splitlines() if line.startswith("FREE"))
+    print(f"heap free before the first frame: {int(free):,} of {qemu.FLIGHT_HEAP:,} bytes")
+    print(f"\n## Lost in space over {n} simulated estcube2 frames at rest and {n} at "
+          f"{LIS_RATE_DEG_S:g} deg/s (Pyramid, flight database), F401 ms (estimate)")
+    print("| frames | n | p50 | p95 | max | OK | statuses |")
+    print("|---|---|---|---|---|---|---|")
+    for label in sorted(set(labels), key=labels.index) + ["all"]:
+        got = [r for r in rows if label == "all" or labels[int(r[1])] == label]
+        t = sorted(ms(int(r[4])) for r in got)
+        p95 = t[min(len(t) - 1, int(0.95 * len(t)))]
+        codes = _count(int(r[2]) for r in got)
+        print(f"| {label} | {len(t)} | {statistics.median(t):.0f} | {p95:.0f} | {t[-1]:.0f} | "
+              f"{codes.get(0, 0)} | " + ", ".join(f"{k}: {v}" for k, v in sorted(codes.items()))
+              + " |")
+    other = [f"{r[1]} ({labels[int(r[1])]}): {r[2]}" for r in rows if int(r[2]) != 0]
+    print("frames with another status (index, class: status): " + (", ".join(other) or "none"))
+    if keep is None:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _count(values):
+    out = {}
+    for v in values:
+        out[v] = out.get(v, 0) + 1
+    return out
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--baseline", default=BASELINE, help="git revision to compare with")
@@ -466,6 +611,9 @@ def main():
     p.add_argument("--stages-only", action="store_true",
                    help="only the stage and work-budget tables (a few minutes)")
     p.add_argument("--work", help="build folder of the stage table kept between runs")
+    p.add_argument("--lis", type=int, metavar="N",
+                   help="only lost in space over N simulated frames at rest and N at 1 deg/s "
+                        "(opt-in: about a minute of QEMU per 20 frames)")
     args = p.parse_args()
     if qemu.unavailable_reason(REPO) is not None:
         sys.exit(f"bench_mcu: {qemu.unavailable_reason(REPO)}")
@@ -474,6 +622,12 @@ def main():
     manifest = replay.load_set(replay.DEFAULT_SET)
     db_files = replay.database_files(manifest)
     t0 = time.perf_counter()
+    if args.lis:
+        cal = qemu.calibrate(qemu.reference_build(default_cache_dir(), REPO))
+        SCALE[0] = cal["scale"]
+        print(f"F401 estimate = ticks x {cal['scale']:.3f} us")
+        lis(args.lis, args.work)
+        return
     if args.stages_only:
         cal = qemu.calibrate(qemu.reference_build(default_cache_dir(), REPO))
         SCALE[0] = cal["scale"]

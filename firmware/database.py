@@ -514,15 +514,20 @@ class Database:
         r = self._src.unpack("<fff", self._stars_off + i * stardb.STAR_SIZE, 12)
         return r[0], r[1], r[2]
 
-    def star_vectors(self, start):
+    def star_vectors(self, start, n=STAR_BLOCK):
         """The vectors of stars ``start, start + 1, ...`` as one flat tuple ``(x, y, z, x,
-        ...)``: :data:`STAR_BLOCK` of them (fewer at the end of the table) in one read."""
-        n = self.n_stars - start
+        ...)``: ``n`` of them, at most :data:`STAR_BLOCK` (fewer at the end of the table),
+        in one read.  Unpacking costs per value read: a cone query reads a cell's stars, not
+        a whole block (on the Cortex-M4F build a block of 32 took most of a query)."""
+        left = self.n_stars - start
+        if n > left:
+            n = left
         if n >= STAR_BLOCK:
             return self._src.unpack(_STAR_VECTORS_FORMAT,
                                     self._stars_off + start * stardb.STAR_SIZE,
                                     STAR_BLOCK * stardb.STAR_SIZE)
-        return self._src.unpack("<" + _STAR_VECTOR * n, self._stars_off + start * stardb.STAR_SIZE,
+        return self._src.unpack(_STAR_VECTORS_FORMAT[:1 + len(_STAR_VECTOR) * n],
+                                self._stars_off + start * stardb.STAR_SIZE,
                                 n * stardb.STAR_SIZE)
 
     def _star_word(self, i):
@@ -595,8 +600,8 @@ class Database:
         vectors to ``vecs``, unless None)."""
         a, b = self.cell_range(c)
         while a < b:                    # the cell's stars, a block per read
-            v = self.star_vectors(a)
             n = b - a if b - a < STAR_BLOCK else STAR_BLOCK
+            v = self.star_vectors(a, n)
             for k in range(n):
                 j = 3 * k
                 if v[j] * dx + v[j + 1] * dy + v[j + 2] * dz >= cos_r:

@@ -29,6 +29,7 @@ from . import quaternion as Q
 from . import screen as _screen
 from . import smear as _smear
 from . import status as S
+from .emit import native
 from .settings import Settings
 from .starid import verify
 
@@ -199,6 +200,35 @@ def _residuals2(q, b, r):
     catalogue vectors ``r`` under attitude ``q``."""
     m = Q.matrix(q)
     return [G.residual2(m, b[i], r[i]) for i in range(len(b))]
+
+
+@native
+def _floor_share(u, e2):
+    """The share of :data:`FLOOR_SHARES` whose variances ``g_i = (1 - rho) u_i + rho`` give
+    the squared residuals ``e2`` the largest likelihood (:meth:`StarTracker.noise_shares`),
+    or None when the residuals are all zero.  One pass per share without a list of its
+    ``g`` (the chosen one is made once by the caller, with the same arithmetic)."""
+    n = len(u)
+    best, best_rho = None, 0.0
+    for rho in FLOOR_SHARES:
+        keep = 1.0 - rho
+        total = 0.0
+        logs = 0.0
+        prod = 1.0
+        for i in range(n):
+            g = keep * u[i] + rho
+            total += e2[i] / g
+            prod *= g
+            if i & 3 == 3:              # one log per 4 stars: a product of 4 shares (each
+                logs += math.log(prod)  # within 1e-9..1e9 of the median star's) stays
+                prod = 1.0              # inside single precision's range
+        logs += math.log(prod)
+        if not total > 0:
+            return None
+        score = -logs - n * math.log(total) - (FLOOR_EVIDENCE if rho > 0 else 0.0)
+        if best is None or score > best:
+            best, best_rho = score, rho
+    return best_rho
 
 
 class Result:
@@ -492,30 +522,12 @@ class StarTracker:
         (:func:`lodestar.firmware.attitude.refine` from it; None: QUEST); ``fitted``: ``q0``
         is that fit already (a tracking solution's), used as it is.  Raises ``ValueError``
         when the fit is degenerate."""
-        n = len(b)
         u = [1.0 / p for p in photon]
-        if n < MIN_STARS_NOISE_MODEL:
+        if len(b) < MIN_STARS_NOISE_MODEL:
             return u
         e2 = _residuals2(q0 if fitted else _fit(b, r, None, q0), b, r)
-        best, best_g = None, u
-        for rho in FLOOR_SHARES:
-            g = [(1.0 - rho) * ui + rho for ui in u]
-            total = 0.0
-            logs = 0.0
-            prod = 1.0
-            for i in range(n):
-                total += e2[i] / g[i]
-                prod *= g[i]
-                if i & 3 == 3:          # one log per 4 stars: a product of 4 shares (each
-                    logs += math.log(prod)      # within 1e-9..1e9 of the median star's)
-                    prod = 1.0                  # stays inside single precision's range
-            logs += math.log(prod)
-            if not total > 0:
-                return u
-            score = -logs - n * math.log(total) - (FLOOR_EVIDENCE if rho > 0 else 0.0)
-            if best is None or score > best:
-                best, best_g = score, g
-        return best_g
+        rho = _floor_share(u, e2)
+        return u if rho is None else [(1.0 - rho) * ui + rho for ui in u]
 
     def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None,
                  fitted=False):
@@ -828,13 +840,12 @@ class StarTracker:
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
         times = self._times(exposure, len(flat) // 3)
-        fit = self._rate_fit(vectors, star_ids, w, times, st.epoch_s, solved[0], 0, False)
-        if fit is None:
+        verdict = _smear.check([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
+                               [times[o] - st.epoch_s for o, _s in star_ids], w, solved[0],
+                               True, False, self.min_sigma_rad, self.sigma_rad)
+        if verdict is None or verdict[1] is None or not verdict[1] > _smear.STREAK_RATE_CHI2:
             return False
-        d = fit[1]
-        chi2 = _smear.chi2_rate(d, fit[3])
-        if chi2 is None or not chi2 > _smear.STREAK_RATE_CHI2:
-            return False
+        d, chi2 = verdict
         stars = [(vectors[o], m) for (o, _s), m in zip(star_ids, _moments(
             flat, [o for o, _s in star_ids]))]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
@@ -870,12 +881,11 @@ class StarTracker:
         dts = [times[o] - ref if rate else 0.0 for o, _s in star_ids]
         # the verdict from one linear solve (the radial terms enter linearly and the
         # attitude and rate are fitted already); the full fit only for a pattern
-        fit = _smear.radial_fit(b, r, dts, w, solved[0], rate, self.min_sigma_rad,
-                                self.sigma_rad, 0, False)
-        if fit is None:
+        verdict = _smear.check(b, r, dts, w, solved[0], rate, True, self.min_sigma_rad,
+                               self.sigma_rad)
+        if verdict is None:
             return solved
-        chi2 = _smear.chi2_rate(fit[5], fit[6])
-        if chi2 is None or chi2 <= _smear.RADIAL_CHI2:
+        if verdict[1] is None or verdict[1] <= _smear.RADIAL_CHI2:
             self._lens_clean = True
             return solved
         self._lens_clean = False
@@ -908,14 +918,12 @@ class StarTracker:
                         (s0 * s0)) for i in range(n)]
         return w
 
-    def _rate_fit(self, vectors, star_ids, w, times, ref, q,
-                  rounds=_smear.RATE_ITERATIONS, attitude=True):
+    def _rate_fit(self, vectors, star_ids, w, times, ref, q):
         """:func:`lodestar.firmware.smear.rate_fit` of the matched stars, their instants
-        counted from ``ref`` (``rounds``, ``attitude`` as there: 0 and False for the check
-        of a given rate)."""
+        counted from ``ref``."""
         return _smear.rate_fit([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
                                [times[o] - ref for o, _s in star_ids], w, q,
-                               self.min_sigma_rad, self.sigma_rad, rounds, attitude)
+                               self.min_sigma_rad, self.sigma_rad)
 
     def _turned(self, vectors, times, ref, rate):
         """``vectors`` turned to the instant ``ref`` by ``rate`` (rad/s)."""

@@ -99,6 +99,32 @@ def _substitute(n, a, h):
     return x
 
 
+@native
+def _forward(n, a, h):
+    """``y`` with ``L y = h`` for the Cholesky factor ``L`` of :func:`_factor` in ``a``."""
+    y = list(h)
+    for i in range(n):
+        s = y[i]
+        i_n = i * n
+        for k in range(i):
+            s -= a[i_n + k] * y[k]
+        y[i] = s / a[i_n + i]
+    return y
+
+
+@native
+def _back(n, a, y, first):
+    """Unknowns ``first..n-1`` of ``x`` with ``L^T x = y`` (``L`` as :func:`_forward`'s):
+    the last ones need none of the others."""
+    x = list(y)
+    for i in range(n - 1, first - 1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= a[k * n + i] * x[k]
+        x[i] = s / a[i * n + i]
+    return x[first:]
+
+
 def _solve(n, a, h):
     """``x`` with ``a x = h`` for a symmetric positive-definite ``n x n`` ``a`` (a flat row-major
     list, overwritten by its Cholesky factor), or None when it is not positive definite."""
@@ -202,23 +228,87 @@ def _normal(b, r, dts, w, q, omega, tau, rate, radial, rho2):
     return nn, h, chi2
 
 
-def _inverse(n, nn, h, first=0):
-    """Columns ``first..n-1`` of the inverse of an ``n x n`` symmetric positive-definite flat
-    ``nn`` (rows) and ``nn^-1 h``, from one Cholesky factorisation: ``(columns, x)`` (column
-    ``j`` at ``columns[j - first]``), or None."""
+@native
+def _normal_rate(b, r, dts, w, q, tau):
+    """:func:`_normal` of the rate check's form (attitude and rate, no radial terms, the
+    stars not turned: ``omega`` zero), from its structure: an attitude column ``j`` is
+    ``e_j x a`` and the rate's ``-x`` times it, so the blocks of ``N`` are ``sum w M``, ``-sum
+    w x M`` and ``sum w x^2 M`` with ``M = |a|^2 I - a a^T``, and ``h`` is ``sum w (a x e)``
+    and ``-sum w x (a x e)``.  About a quarter of :func:`_normal`'s operations per star, in
+    18 running sums; the same values to rounding (the check's verdict only reads them)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = Q.matrix(q)
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0          # sum w M
+    t00 = t01 = t02 = t11 = t12 = t22 = 0.0          # sum w x M
+    u00 = u01 = u02 = u11 = u12 = u22 = 0.0          # sum w x^2 M
+    h0 = h1 = h2 = g0 = g1 = g2 = chi2 = 0.0
+    for i in range(len(b)):
+        ri = r[i]
+        r0, r1, r2 = ri[0], ri[1], ri[2]
+        ax = m0 * r0 + m1 * r1 + m2 * r2
+        ay = m3 * r0 + m4 * r1 + m5 * r2
+        az = m6 * r0 + m7 * r1 + m8 * r2
+        bi = b[i]
+        e0 = bi[0] - ax
+        e1 = bi[1] - ay
+        e2 = bi[2] - az
+        wi = w[i]
+        chi2 += wi * (e0 * e0 + e1 * e1 + e2 * e2)
+        wx = wi * (dts[i] / tau)
+        wxx = wx * (dts[i] / tau)
+        xx, yy, zz = ax * ax, ay * ay, az * az
+        k00, k11, k22 = yy + zz, xx + zz, xx + yy
+        k01, k02, k12 = -ax * ay, -ax * az, -ay * az
+        s00 += wi * k00
+        s01 += wi * k01
+        s02 += wi * k02
+        s11 += wi * k11
+        s12 += wi * k12
+        s22 += wi * k22
+        t00 += wx * k00
+        t01 += wx * k01
+        t02 += wx * k02
+        t11 += wx * k11
+        t12 += wx * k12
+        t22 += wx * k22
+        u00 += wxx * k00
+        u01 += wxx * k01
+        u02 += wxx * k02
+        u11 += wxx * k11
+        u12 += wxx * k12
+        u22 += wxx * k22
+        c0 = ay * e2 - az * e1
+        c1 = az * e0 - ax * e2
+        c2 = ax * e1 - ay * e0
+        h0 += wi * c0
+        h1 += wi * c1
+        h2 += wi * c2
+        g0 += wx * c0
+        g1 += wx * c1
+        g2 += wx * c2
+    nn = [s00, s01, s02, -t00, -t01, -t02,
+          s01, s11, s12, -t01, -t11, -t12,
+          s02, s12, s22, -t02, -t12, -t22,
+          -t00, -t01, -t02, u00, u01, u02,
+          -t01, -t11, -t12, u01, u11, u12,
+          -t02, -t12, -t22, u02, u12, u22]
+    return nn, [h0, h1, h2, -g0, -g1, -g2], chi2
+
+
+def _inverse(n, nn, h):
+    """The inverse of an ``n x n`` symmetric positive-definite flat ``nn`` (its columns) and
+    ``nn^-1 h``, from one Cholesky factorisation: ``(columns, x)``, or None."""
     a = list(nn)
     if not _factor(n, a):
         return None
     cols = []
-    for j in range(first, n):
+    for j in range(n):
         e = [0.0] * n
         e[j] = 1.0
         cols.append(_substitute(n, a, e))
     return cols, _substitute(n, a, h)
 
 
-def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS,
-             attitude=True):
+def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS):
     """The attitude at the reference instant and the rate, fitted to matched pairs.
 
     ``b``: camera-frame unit vectors, each seen ``dts[i]`` s after the reference instant (a
@@ -232,48 +322,96 @@ def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITE
     the residuals over ``2n - 8`` degrees of freedom (six unknowns; the Student-t correction of
     ``docs/firmware.md``), at least ``min_sigma_rad``; ``sigma_rad``: that noise known (the
     configured ``centroid_sigma_px``), not estimated; ``rounds``: Gauss-Newton rounds before
-    the last linearisation (0: one linear solve at ``q`` and no rate, the cheap check of a
-    given rate: the model's nonlinearity is ``(rate dt)^2``); ``attitude`` as :func:`fit`.
-    None with fewer than
+    the last linearisation (0: one linear solve at ``q`` and no rate).  None with fewer than
     :data:`MIN_RATE_STARS` pairs, without a spread of instants, or when degenerate."""
     if len(b) < MIN_RATE_STARS:
         return None
-    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad, rounds, attitude)
+    out = fit(b, r, dts, w, q, True, False, min_sigma_rad, sigma_rad, rounds)
     return None if out is None else out[:5]
 
 
 def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None,
-               rounds=RATE_ITERATIONS, attitude=True):
+               rounds=RATE_ITERATIONS):
     """:func:`rate_fit` (``rate`` True; else the attitude alone) with a radial displacement
     ``(c1 + c3 rho^2 / rho_m^2) g`` of every star as well (``g`` of :func:`_columns`; ``rho_m``
     the stars' RMS angle from the boresight): a lens distortion or focal length the camera
     model lacks.  Returns ``(q, omega, P, P_omega, s, c, P_c)`` (``omega``, ``P_omega`` None
     without ``rate``; ``c = (c1, c3)`` and its covariance), or None with fewer than
-    :data:`MIN_RADIAL_STARS` pairs or when degenerate.  ``rounds`` as :func:`rate_fit`: 0
-    gives the radial coefficients of one linear solve (they enter the model linearly), the
-    verdict's cheap form."""
+    :data:`MIN_RADIAL_STARS` pairs or when degenerate.  ``rounds`` as :func:`rate_fit`
+    (:func:`check` gives the verdict alone)."""
     if len(b) < MIN_RADIAL_STARS:
         return None
-    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds, attitude)
+    return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds)
 
 
-def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
-        rounds=RATE_ITERATIONS, attitude=True):
-    """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
-    ``rate``, ``radial``: which unknowns besides the attitude; ``rounds``: Gauss-Newton
-    rounds before the last linearisation, whose solution is then applied too;
-    ``attitude`` False: a check's cheap form, ``q`` returned as given and ``P`` None, and of
-    the rate's and the radial coefficients' covariances only the last unknowns' (the
-    radial's when ``radial``, else the rate's))."""
+def check(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
+    """A verdict of one linear solve at ``q`` (the arguments as :func:`fit`'s, the stars
+    not turned): the attitude with the rate (``rate``) and, with ``radial``, the radial
+    coefficients; the last unknowns, the radial coefficients with ``radial`` else the rate
+    (rad/s: what remains of a given rate the stars were turned by), ``x``, and their
+    chi-square against zero, ``x^T P_x^-1 x`` (None for a zero noise): ``(x, chi2)``;
+    None with fewer stars than
+    :func:`rate_fit` (:func:`radial_fit`) takes, without a spread of instants or when
+    degenerate.  The same values as :func:`fit`'s with ``rounds`` 0, to rounding, from
+    the Cholesky factor ``L`` of ``N`` alone: with ``y = L^-1 h``, ``x = L_x^-T y_x``
+    (``L_x`` the last unknowns' block), ``P_x = s^2 (L_x L_x^T)^-1``, so the chi-square is
+    ``|y_x|^2 / s^2``, and the residual is ``sum w |e|^2 - |y|^2``: no inverse, a
+    quarter of the operations per star for the rate (:func:`_normal_rate`)."""
     n = len(b)
+    if n < (MIN_RADIAL_STARS if radial else MIN_RATE_STARS):
+        return None
+    tau, rho2 = _scales(b, dts, w)
+    if (rate and not tau > 0) or (radial and not rho2 > 0):
+        return None
+    size = 3 + (3 if rate else 0) + (2 if radial else 0)
+    if rate and not radial:
+        nn, h, chi2 = _normal_rate(b, r, dts, w, q, tau)
+    else:
+        nn, h, chi2 = _normal(b, r, dts, w, q, (0.0, 0.0, 0.0), tau, rate, radial, rho2)
+    if not _factor(size, nn):
+        return None
+    y = _forward(size, nn, h)
+    last = 2 if radial else 3
+    head = size - last
+    chi2_x = 0.0
+    for j in range(size):
+        chi2 -= y[j] * y[j]
+        if j >= head:
+            chi2_x += y[j] * y[j]
+    s2 = _noise2(chi2, n, size, min_sigma_rad, sigma_rad)
+    x = _back(size, nn, y, head)
+    if not radial:
+        x = [v / tau for v in x]
+    return x, (chi2_x / s2 if s2 > 0 else None)
+
+
+def _scales(b, dts, w):
+    """``(tau, rho2)``: the stars' weighted RMS instant (s; the rate's unknowns are the rate
+    times it) and mean squared sine of their angle from the boresight."""
     total = spread = rho2 = 0.0
-    for i in range(n):
+    for i in range(len(b)):
         total += w[i]
         spread += w[i] * dts[i] * dts[i]
         z = b[i][2]
         rho2 += 1.0 - z * z
-    tau = math.sqrt(spread / total) if total > 0 else 0.0
-    rho2 /= n
+    return (math.sqrt(spread / total) if total > 0 else 0.0), rho2 / len(b)
+
+
+def _noise2(chi2, n, size, min_sigma_rad, sigma_rad):
+    """The per-axis noise variance of a unit-weight star (rad^2): the residual ``chi2`` over
+    ``2n - size - 2`` degrees of freedom (``docs/firmware.md``), or ``sigma_rad`` squared,
+    at least ``min_sigma_rad`` squared."""
+    s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
+    return s2 if s2 >= min_sigma_rad * min_sigma_rad else min_sigma_rad * min_sigma_rad
+
+
+def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
+        rounds=RATE_ITERATIONS):
+    """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;
+    ``rate``, ``radial``: which unknowns besides the attitude; ``rounds``: Gauss-Newton
+    rounds before the last linearisation, whose solution is then applied too)."""
+    n = len(b)
+    tau, rho2 = _scales(b, dts, w)
     if (rate and not tau > 0) or (radial and not rho2 > 0):
         return None
     size = 3 + (3 if rate else 0) + (2 if radial else 0)
@@ -288,32 +426,26 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
         q = Q.normalise(Q.multiply(Q.from_rotation_vector((u[0], u[1], u[2])), q))
         if rate:
             omega = (omega[0] + u[3] / tau, omega[1] + u[4] / tau, omega[2] + u[5] / tau)
-    # the covariance's columns wanted, and what the last linearisation still takes out
-    first = 3 if rate and not attitude else (size - 2 if radial and not attitude else 0)
-    out = _inverse(size, nn, h, first)
+    # the covariance, and what the last linearisation still takes out
+    out = _inverse(size, nn, h)
     if out is None:
         return None
     cols, d = out
     for j in range(size):
         chi2 -= h[j] * d[j]
     if rounds == 0:         # the one linear solve is the fit: apply it
-        if attitude:
-            q = Q.normalise(Q.multiply(Q.from_rotation_vector((d[0], d[1], d[2])), q))
+        q = Q.normalise(Q.multiply(Q.from_rotation_vector((d[0], d[1], d[2])), q))
         if rate:
             omega = (d[3] / tau, d[4] / tau, d[5] / tau)
-    s2 = chi2 / max(2 * n - size - 2, 1) if sigma_rad is None else sigma_rad * sigma_rad
-    if not s2 >= min_sigma_rad * min_sigma_rad:
-        s2 = min_sigma_rad * min_sigma_rad
-    p = p_omega = c = p_c = None
-    if first == 0:
-        p = [[s2 * cols[j][i] for j in range(3)] for i in range(3)]
-    if rate and first <= 3:
+    s2 = _noise2(chi2, n, size, min_sigma_rad, sigma_rad)
+    p = [[s2 * cols[j][i] for j in range(3)] for i in range(3)]
+    p_omega = c = p_c = None
+    if rate:
         t2 = tau * tau
-        p_omega = [[s2 * cols[3 + j - first][3 + i] / t2 for j in range(3)] for i in range(3)]
+        p_omega = [[s2 * cols[3 + j][3 + i] / t2 for j in range(3)] for i in range(3)]
     if radial:
         c = (d[size - 2], d[size - 1])
-        k = size - 2 - first
-        p_c = [[s2 * cols[k + j][size - 2 + i] for j in range(2)] for i in range(2)]
+        p_c = [[s2 * cols[size - 2 + j][size - 2 + i] for j in range(2)] for i in range(2)]
     return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
 
 

@@ -552,8 +552,10 @@ class Tracker:
         the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
         predicted inside the FOV at ``q``; ``coarse``: ``pairs`` are a coarse association, never
         final (the fine matching always runs at least once); ``near``: the candidates of
-        :func:`match_nearest` at ``q``, which confirm the first fit's matches when it lies
-        within ``slack`` (``n_fov`` then stays the direct match's, from the cone's density)."""
+        :func:`match_nearest` at ``q``, which confirm a fit's matches while it lies within
+        ``slack`` of ``q`` (``n_fov`` then stays the direct match's, from the cone's density);
+        each new prediction gives the candidates of the fits after it (:func:`confirm`: the
+        same matches as predicting anew)."""
         b, database, cone = self.b, self.database, self.cone     # (more than three: a tuple)
         tol, streaks = self.tol, self.streaks
         q0 = q
@@ -566,10 +568,10 @@ class Tracker:
         for _ in range(self.iterations):
             if near is not None and _within(q, q0, self.slack):
                 new = confirm(b, database, q, near, tol, streaks, cone)
-            else:
+            else:               # a new prediction, whose candidates serve the next fits
                 predicted, n_fov = predict(database, q, 2.0 * tol, cone)
-                new = match_nearest(b, predicted, tol, streaks)
-            near = None
+                new, near = match_nearest(b, predicted, tol, streaks, self.slack)
+                predicted, q0 = None, q
             if new == pairs:
                 converged = True        # the matches at q are pairs: the check below holds
                 break

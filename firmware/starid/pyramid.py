@@ -77,13 +77,13 @@ class _Search(Search):
 
     def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
-        # the search's buffers (the observed angles, the pair ranges, the two sides' pair
-        # index: 6 KiB at 16 stars, no block above 2 KiB) live while it runs: the pipeline
-        # collects before a lost-in-space search, and a tracking frame's heap does not
-        # hold them
+        # the search's buffers (the observed angles, the pair ranges of the pairs i < j,
+        # the two sides' pair index: 5 KiB at 16 stars, no block above 1 KiB) live while it
+        # runs: the pipeline collects before a lost-in-space search, and a tracking frame's
+        # heap does not hold them
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
-        size = 2 * self.n * self.n
+        size = self.n * (self.n - 1)                # two per observed pair i < j
         self.ranges = array("i", range(size))
         for c in range(size):
             self.ranges[c] = -1                     # not queried yet
@@ -98,7 +98,9 @@ class _Search(Search):
         """``(start, stop)``: the database pairs within ``ptol`` of the observed angle
         ``i``-``j`` (k-vector query, remembered per observed pair for the whole search)."""
         n = self.n
-        c = 2 * (i * n + j if i < j else j * n + i)
+        if i > j:
+            i, j = j, i
+        c = i * (2 * n - i - 1) + 2 * (j - i - 1)       # the pair's place, i < j, times 2
         r = self.ranges
         if r[c] < 0:
             t = self.ang[i * n + j]

@@ -133,7 +133,7 @@ def test_stars_in_cone_spans_miss_no_star():
 
 def test_block_reads_equal_star_by_star(tmp_path):
     """``star_vectors`` gives ``star_vector``'s values, from a buffer and from a file, at the
-    end of the table."""
+    end of the table, a whole block or fewer."""
     mem, f = _both_readers(estcube2_image(), tmp_path)
     try:
         n = mem.n_stars
@@ -143,6 +143,9 @@ def test_block_reads_equal_star_by_star(tmp_path):
                 assert len(block) == 3 * min(STAR_BLOCK, n - start)
                 for k in range(len(block) // 3):
                     assert tuple(block[3 * k:3 * k + 3]) == mem.star_vector(start + k)
+                for size in (1, 7):             # a cell's stars: fewer than a block
+                    assert db.star_vectors(start, size) == \
+                        block[:3 * min(size, n - start)]
             assert db.cell_range(3) == (mem._cell_start(3), mem._cell_start(4))
     finally:
         f.close()

@@ -172,3 +172,28 @@ def test_radial_fit_finds_an_unmodelled_distortion_and_covers_the_truth():
     q, omega, p, _po, _s, c, p_c = smear.radial_fit(b, r, dts, [1.0] * len(b), q_true, True)
     assert smear.chi2_rate(c, p_c) < smear.RADIAL_CHI2 and omega is not None
     assert smear.radial_fit(b[:7], r[:7], dts[:7], [1.0] * 7, q_true, False) is None
+
+
+def test_the_checks_verdict_is_the_one_linear_solves():
+    """``check``: the normal equations of the rate check from their structure equal the
+    general ones at a zero rate, and the verdict from the Cholesky factor alone (the last
+    unknowns and their chi-square) equals the one linear solve's (``rounds`` 0) with its
+    covariance, for the rate and for the radial coefficients, to rounding."""
+    b, r, dts, q = scene([0.0, 0.01, 0.0], n=12, seed=3)
+    w = [0.5 + 0.1 * i for i in range(len(b))]
+    tau = math.sqrt(sum(wi * t * t for wi, t in zip(w, dts)) / sum(w))
+    fast = smear._normal_rate(b, r, dts, w, q, tau)
+    general = smear._normal(b, r, dts, w, q, (0.0, 0.0, 0.0), tau, True, False, 1.0)
+    for got, want in zip(fast, general):
+        assert np.allclose(got, want, rtol=1e-12, atol=1e-15)
+    x, chi2 = smear.check(b, r, dts, w, q, True, False)
+    _q, omega, _p, p_omega, _s = smear.rate_fit(b, r, dts, w, q, rounds=0)
+    assert np.allclose(x, omega, rtol=1e-9) and chi2 > 1.0
+    assert chi2 == pytest.approx(smear.chi2_rate(omega, p_omega), rel=1e-9)
+    for rate in (True, False):
+        x, chi2 = smear.check(b, r, dts if rate else [0.0] * len(b), w, q, rate, True)
+        fit = smear.radial_fit(b, r, dts if rate else [0.0] * len(b), w, q, rate, rounds=0)
+        assert np.allclose(x, fit[5], rtol=1e-9)
+        assert chi2 == pytest.approx(smear.chi2_rate(fit[5], fit[6]), rel=1e-9)
+    assert smear.check(b[:5], r[:5], dts[:5], w[:5], q, True, False) is None
+    assert smear.check(b, r, dts, w, q, True, False, sigma_rad=0.0)[1] is None
