@@ -7,6 +7,7 @@ the frames ``docs/fly.md`` states."""
 import pytest
 
 from lodestar import contract as C
+from lodestar.contract import telemetry
 from lodestar.firmware import executive, sensor
 from lodestar.fly import faults, twin
 from tests.fly.conftest import make_twin
@@ -37,7 +38,7 @@ def test_short_loop_acquires_tracks_and_writes_min_sum_back(small_camera):
     assert loop.exe.frame_s == pytest.approx(timing["frame_s"], rel=1e-6)
     h = s["health"]
     assert h["ok"] == len(solved) and h["sensor_init"] == 1 and h["bad"] == 0
-    t = executive.decode_telemetry(loop.exe.record)
+    t = telemetry.decode(loop.exe.record)
     assert t["state"] == executive.TRACK and t["ok"] == len(solved)
 
 
