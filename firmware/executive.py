@@ -150,10 +150,10 @@ PACE_MAX_MS = 1000
 HEAP_EVERY = 16
 """Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
 more than the rest of a step's telemetry); the records between repeat the last figure."""
-PRIOR_FORMAT = ">4fQIBI"
-"""The record kept across a reset (RTC backup registers or F-RAM): q (x, y, z, w; NaN
-without an attitude), its time tag (ms), FPGA frame counter, the star-database slot the
-ground selected (0 at first boot), CRC-32 (``contract.crc32``) of the bytes before it."""
+PRIOR_FORMAT = ">4fQII"
+"""The record kept across a reset (32 bytes: 8 of the RTC's backup registers, or F-RAM): q
+(x, y, z, w; NaN without an attitude), its time tag (ms), the star-database slot the ground
+selected (0 until it selects one), CRC-32 (``contract.crc32``) of the bytes before it."""
 PRIOR_BYTES = struct.calcsize(PRIOR_FORMAT)
 _RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
@@ -487,7 +487,7 @@ class Executive(object):
         buf = self._prior_buf
         q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
-                         (self.q_counter or 0) & 0xFFFFFFFF, self.slot & 0xFF, 0)
+                         self.slot & 0xFFFFFFFF, 0)
         struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
         try:
             self.store.write(buf)
@@ -505,7 +505,7 @@ class Executive(object):
             return
         if data is None or len(data) != PRIOR_BYTES:
             return
-        x, y, z, w, t, counter, slot, crc = struct.unpack(PRIOR_FORMAT, data)
+        x, y, z, w, t, slot, crc = struct.unpack(PRIOR_FORMAT, data)
         if C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
             return
         self.slot = slot
@@ -519,6 +519,7 @@ class Executive(object):
         self.q_time = t
         self.q_counter = None         # the FPGA may have restarted: dt from the time tags
         self.q_epoch_us = None
+        self.q_stamp = None
 
     def _select(self, slot):
         """Open database ``slot`` through ``select_database``: ``S.OK`` and the new tracker

@@ -383,7 +383,7 @@ def test_the_database_slot_survives_a_watchdog_reset():
     exe._wrapped = slots[2]
     run(exe, 1)
     assert wdt.max_gap > WDT_MS                            # the watchdog fires: a reset
-    for flip, expected in ((None, ["CONFIGURE", "TRACK", "TRACK"]), (28, ["SAFE"] * 3)):
+    for flip, expected in ((None, ["CONFIGURE", "TRACK", "TRACK"]), (27, ["SAFE"] * 3)):
         data = bytearray(store.data)
         if flip is not None:
             data[flip] ^= 1
@@ -450,7 +450,7 @@ def test_prior_kept_across_a_reset_with_its_crc_and_age():
     store = fakes.Store()
     exe, clock, *_ = build([fakes.OK_FRAME] * 3, store=store, now_ms=lambda: 1_000_000)
     run(exe, 5)
-    assert store.writes == 3 and len(store.data) == executive.PRIOR_BYTES
+    assert store.writes == 3 and len(store.data) == executive.PRIOR_BYTES == 32    # 8 RTC words
     # a reset 2 s later: the stored attitude is the prior of the first frame
     exe2, clock2, link2, _s, tracker2, *_ = build([fakes.OK_FRAME] * 2, store=store,
                                                   now_ms=lambda: 1_002_000)

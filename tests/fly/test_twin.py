@@ -76,3 +76,18 @@ def test_fault_scenario_recovers_with_no_wrong_attitude(small_camera, name):
     rec = s["recovery"][name]
     assert rec["within"], rec
     assert any(name in r["faults"] for r in rows) or name == "db-crc"
+
+
+@pytest.mark.slow
+def test_the_database_slot_survives_the_watchdog_reset(small_camera):
+    """``db-crc`` and ``watchdog`` in one run: the ground selects slot 1 once, the MCU hangs
+    and the watchdog resets it, and the new executive boots slot 1 from its persistent
+    record (never ``SAFE`` again, no second command) and tracks on the stored prior."""
+    loop = make_twin(small_camera, faults=["db-crc", "watchdog"])
+    rows = loop.run(45 + faults.HANG_MS // 100)
+    s = twin.summary(rows, loop)
+    assert s["wrong"] == 0 and s["reboots"] == 1
+    reset = next(i for i, r in enumerate(rows) if "watchdog-reset" in r["faults"])
+    assert all(r["mode"] != "SAFE" for r in rows[reset + 1:])
+    assert loop.exe.slot == 1 and loop.exe.health[executive.H_COMMANDS] == 0
+    assert s["recovery"]["watchdog"]["within"]
