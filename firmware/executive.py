@@ -136,8 +136,8 @@ TIME_TOLERANCE_MS = 5
 """Largest disagreement between the first pixel dated by the header's ``timestamp`` (through
 the correlation of the gateware's microseconds with the MCU's ticks) and by the frame's IRQ
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
-of a millisecond after the last row): beyond it the timestamp is counted as a mismatch
-(``time_mismatch``) and the correlation taken again from the edge."""
+of a millisecond after the last row): beyond it the edge is counted as a mismatch
+(``time_mismatch``) and the timestamp's date kept."""
 HALF_RANGE = 0x80000000
 """Half the range of the 32-bit frame counter and timestamp: differences below it count
 forwards (the timestamp wraps after 71.6 min)."""
@@ -318,9 +318,11 @@ class Executive(object):
     def _first_pixel_age(self, stamp, edge, now):
         """How long before ticks ``now`` the frame stamped ``stamp`` had its first pixel (ms):
         by the timestamp through the correlation (module docstring), cross-checked against
-        the IRQ edge when this wait saw it rise (less the read-out: rows x row time), which
-        then renews the correlation; from the edge when there is no correlation or the two
-        disagree; 0 (now) without either."""
+        the IRQ edge when this wait saw it rise (less the read-out: rows x row time).  An
+        edge that agrees renews the correlation (the two clocks drift); one that does not is
+        counted and ignored (an edge can only be late: a packet seen after a poll that found
+        the line low between two packets); without a correlation the edge makes one; 0
+        (now) without either."""
         clock = self.clock
         settings = getattr(self.tracker, "settings", None)
         try:
@@ -339,7 +341,7 @@ class Executive(object):
         at_edge = clock.ticks_diff(now, self._attempt) + readout
         if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
             _count(self.health, H_TIME_MISMATCH)
-            age = None
+            return age
         self._sync = (stamp, self._attempt, readout)
         return age if age is not None else at_edge
 

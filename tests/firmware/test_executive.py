@@ -250,10 +250,11 @@ class QueuedLink(fakes.Link):
     edge) while an older frame waits, else at the next frame's edge.  ``stamp(t)``: the
     header timestamp (us) of a frame at ``t`` ms."""
 
-    def __init__(self, clock, at, stamp=lambda t: 1000 * t):
+    def __init__(self, clock, at, stamp=lambda t: 1000 * t, late=None):
         fakes.Link.__init__(self, clock, [fakes.OK_FRAME] * len(at))
         self.at = list(at)
         self.stamp_of = stamp
+        self.late = late or {}     # frame index -> ms its IRQ edge comes after its first pixel
         self.read = 0
 
     def wait_irq(self, timeout_ms, tick=None):
@@ -263,8 +264,9 @@ class QueuedLink(fakes.Link):
             self.item = fakes.TIMEOUT
             return False
         t = self.at[self.read]
-        if t > self.clock.now:
-            self.clock.sleep_ms(t - self.clock.now)
+        edge = t + self.late.get(self.read, 0)
+        if edge > self.clock.now:
+            self.clock.sleep_ms(edge - self.clock.now)
             self.irq_edge = True
         self.item = fakes.OK_FRAME
         self.read += 1
@@ -295,6 +297,22 @@ def test_frames_are_dated_by_their_header_timestamps():
         assert abs(omega[0] - (t - exposure_ms) / 1000.0) < 0.0025     # the ring's 20 ms
     dts = [round(dt, 6) for _p, _w, dt in tracker.calls[1:]]
     assert dts == [0.12, 0.12, 0.12, 0.84, 0.12]
+    assert exe.q_time == round(at[-1] - exposure_ms)
+
+
+def test_a_late_irq_edge_is_counted_and_the_timestamp_kept():
+    """A frame whose IRQ edge comes 30 ms after its first pixel (the line seen low between
+    two packets): the edge disagrees with the timestamp's date, is counted, and the frame is
+    still dated by its timestamp (its gyro rate, dt and time tag)."""
+    at = [100, 200, 300, 400, 500, 600]
+    exe, clock, link, tracker, records = queued(at, late={3: 30})
+    tracker.solve_ms = 60
+    run(exe, 8)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    assert health(exe)["time_mismatch"] == 1
+    omega = tracker.calls[3][1][0]
+    assert abs(omega - (at[3] - exposure_ms) / 1000.0) < 0.0025
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1] * 5
     assert exe.q_time == round(at[-1] - exposure_ms)
 
 
