@@ -7,6 +7,7 @@ solve), wrong attitudes and how the fault shows in the telemetry; plus the twin'
     .venv/bin/python benchmarks/bench_fly.py [--engine golden|verilator] [--window W H]
         [--frames N] [--seeds N] [--first-seed K] [--scenarios NAME...] [--combined]
         [--json FILE]
+    .venv/bin/python benchmarks/bench_fly.py --table FILE.json...   # saved runs' table
 
 Default: the golden engine on a 640 x 480 window of the estcube2 camera (the field and
 aperture of the flight camera: ``tests/fly/conftest.py``), 45 sensor frames, the first
@@ -150,7 +151,7 @@ def table(results):
     for r in results:
         shown = ", ".join(f"{k} {v}" for k, v in {**r["health"], **r["link"]}.items()
                           if k not in ("frames", "ok", "packets", "status", "sensor_init",
-                                       "frames_skipped", "overflow", "resync"))
+                                       "frames_skipped", "overflow", "resync", "missed"))
         rec = "-" if r["scenario"] == "none" else f"{r['frames_to_recovery']} ({r['stated']})"
         lines.append(f"| {r['scenario']} | {r['seed']} | {rec} | "
                      f"{100 * r['availability']:.0f} % | {r['wrong']} | {shown or '-'} | "
@@ -175,7 +176,12 @@ def main():
     p.add_argument("--combined", action="store_true",
                    help="every scenario in one run, each --fault-frame + 15 k periods")
     p.add_argument("--json", default=None)
+    p.add_argument("--table", nargs="+", default=None, metavar="FILE",
+                   help="print the table of the results saved by earlier --json runs")
     args = p.parse_args()
+    if args.table:
+        print(table([r for f in args.table for r in json.loads(Path(f).read_text())]))
+        return
     cam = camera(*args.window)
     results = []
     if args.combined:
