@@ -70,6 +70,7 @@ class Link(object):
         self.counter = 0
         self.base = 0              # frames before the last restart
         self.stamp = 0
+        self.offset_us = 0         # the gateware's microsecond counter at the clock's 0
         self.last_frame_counter = None
         self.last_timestamp = None
         self.writes = []
@@ -111,7 +112,7 @@ class Link(object):
         k = self.clock.now // FRAME_MS + 1
         self.clock.sleep_ms(k * FRAME_MS - self.clock.now)
         self.counter = k - self.base
-        self.stamp = k * FRAME_MS * 1000
+        self.stamp = k * FRAME_MS * 1000 + self.offset_us
         self.irq_edge = True
         return True
 

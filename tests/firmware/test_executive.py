@@ -534,7 +534,6 @@ def test_link_codes_and_health_names_fit_the_record():
 
 
 _MP = r'''
-from lodestar.contract import telemetry
 from lodestar.firmware import executive
 from lodestar.firmware import status as S
 import binascii
@@ -543,6 +542,7 @@ SCRIPT = [fakes.OK_FRAME, fakes.OK_FRAME, fakes.CRC, fakes.CRC, fakes.CLOCK_LOST
 OUT = [S.OK, S.TOO_FEW_STARS, S.OK, S.OK]
 clock = fakes.Clock()
 link = fakes.Link(clock, SCRIPT)
+link.offset_us = 4294967296 - 1250000          # the 32-bit timestamp wraps during the run
 records = []
 exe = executive.Executive(link, fakes.Tracker(clock, OUT), clock, sensor=fakes.Sensor(clock),
                           registers={"min_sum": 0}, watchdog=fakes.Watchdog(clock),
@@ -568,6 +568,8 @@ def test_same_records_on_micropython(micropython):
                              "LINES.append(binascii.hexlify(r).decode())"), "mp", "exec"),
          {"fakes": fakes, "LINES": lines})
     assert out.split("\n")[:24] == lines
+    stamps = {telemetry.decode(bytes.fromhex(line))["frame_timestamp"] for line in lines}
+    assert min(stamps - {0}) < 1_000_000 < 4_290_000_000 < max(stamps)    # it wrapped
 
 
 def test_executive_over_the_amaranth_slave():
