@@ -315,56 +315,76 @@ class Executive(object):
         return (ws[a] + f * (ws[b] - ws[a]), ws[a + 1] + f * (ws[b + 1] - ws[a + 1]),
                 ws[a + 2] + f * (ws[b + 2] - ws[a + 2]))
 
-    def _first_pixel_age(self, stamp, edge, now):
-        """How long before ticks ``now`` the frame stamped ``stamp`` had its first pixel (ms):
-        by the timestamp through the correlation (module docstring), cross-checked against
-        the IRQ edge when this wait saw it rise (less the read-out: rows x row time).  An
-        edge that agrees renews the correlation (the two clocks drift); one that does not is
-        counted and ignored (an edge can only be late: a packet seen after a poll that found
-        the line low between two packets); without a correlation the edge makes one; 0
-        (now) without either."""
-        clock = self.clock
-        settings = getattr(self.tracker, "settings", None)
-        try:
-            readout = self.link.last_height * settings.row_time_s * 1000.0
-        except Exception:
-            readout = 0.0
-        age = None
-        sync = self._sync
-        if stamp is not None and sync is not None:
-            d = (stamp - sync[0]) & 0xFFFFFFFF
-            if d >= HALF_RANGE:
-                d -= 0x100000000
-            age = clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
-        if not edge or stamp is None:
-            return age if age is not None else 0.0
-        at_edge = clock.ticks_diff(now, self._attempt) + readout
-        if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
-            _count(self.health, H_TIME_MISMATCH)
+    def _date(self, counter, stamp, edge, now):
+        """How long before ticks ``now`` the frame of ``counter`` stamped ``stamp`` had its
+        first pixel (ms): by the timestamp through the correlation (module docstring), else by
+        its IRQ edge (when this wait saw the line rise) less the read-out (rows x row time),
+        else 0 (now).  Cross-checks, each counted as ``time_mismatch``: a timestamp that goes
+        back, or that shows fewer frame periods since the last packet than the frame counter
+        numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
+        next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
+        than :data:`TIME_TOLERANCE_MS` off the timestamp's date is ignored (an edge can only
+        be late: a poll that found the line low between two queued packets) unless the
+        timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
+        frame).  An agreeing edge renews the correlation (the clocks drift).  The periods
+        between two packets, less one, are the sensor frames never read (``missed``)."""
+        frames, step = self._periods(counter, stamp)
+        age = self._stamp_age(stamp, now)
+        at_edge = None
+        if edge and stamp is not None:
+            try:
+                settings = self.tracker.settings
+                readout = self.link.last_height * settings.row_time_s * 1000.0
+            except Exception:
+                readout = 0.0
+            at_edge = self.clock.ticks_diff(now, self._attempt) + readout
+            if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
+                _count(self.health, H_TIME_MISMATCH)
+                if frames is None or frames <= step:
+                    at_edge = None                         # a late edge: the stamp dates
+                else:
+                    self._stamp_wrong()                    # the stamp jumped ahead
+                    frames = age = None
+            if at_edge is not None:
+                self._sync = (stamp, self._attempt, readout)
+        if frames is not None and frames > 1:
+            _count(self.health, H_MISSED, frames - 1)
+        if age is not None:
             return age
-        self._sync = (stamp, self._attempt, readout)
-        return age if age is not None else at_edge
+        return at_edge if at_edge is not None else 0.0
 
-    def _check_sequence(self, counter, stamp):
-        """Tell the sensor frames never read from the gap between this packet's timestamp and
-        the last one's (``missed``); a timestamp that goes back, or a frame-counter step the
-        timestamps do not show (not across a restart of the counter), is counted
-        (``time_mismatch``) and the timestamps before it no longer date anything: the
-        correlation is taken again at the next IRQ edge, ``dt`` from the time tags."""
+    def _periods(self, counter, stamp):
+        """``(frame periods, frame-counter step)`` since the last packet read, from the
+        timestamps (None when they cannot tell, or are wrong: counted and dropped) and the
+        counters (``HALF_RANGE`` or more: the counter restarted)."""
         last = self._last
         self._last = (counter, stamp)
         if last is None or stamp is None or last[1] is None or not self.frame_s > 0:
-            return
+            return None, HALF_RANGE
         gap = (stamp - last[1]) & 0xFFFFFFFF
-        frames = int(gap / (1e6 * self.frame_s) + 0.5)
         step = (counter - last[0]) & 0xFFFFFFFF
-        if gap >= HALF_RANGE or (step < HALF_RANGE and step != frames):
+        frames = int(gap / (1e6 * self.frame_s) + 0.5)
+        if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
             _count(self.health, H_TIME_MISMATCH)
-            self._sync = None
-            self.q_epoch_us = None
-            return
-        if frames > 1:
-            _count(self.health, H_MISSED, frames - 1)
+            self._stamp_wrong()
+            return None, step
+        return frames, step
+
+    def _stamp_age(self, stamp, now):
+        """Ms before ticks ``now`` of the first pixel stamped ``stamp``, through the
+        correlation; None without one."""
+        sync = self._sync
+        if stamp is None or sync is None:
+            return None
+        d = (stamp - sync[0]) & 0xFFFFFFFF
+        if d >= HALF_RANGE:
+            d -= 0x100000000
+        return self.clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
+
+    def _stamp_wrong(self):
+        """The timestamps before this one no longer date anything."""
+        self._sync = None
+        self.q_epoch_us = None
 
     def _pace(self):
         """After a failed attempt the next one waits for the next frame (one frame period
@@ -747,8 +767,7 @@ class Executive(object):
         stamp = link.last_timestamp
         ticks = clock.ticks_ms()
         now_ms = self.time_ms()
-        self._check_sequence(counter, stamp)
-        first = self._first_pixel_age(stamp, edge, ticks)
+        first = self._date(counter, stamp, edge, ticks)
         exposure_ms, epoch_s = self._exposure_ms()
         age = first + exposure_ms - 1000.0 * epoch_s        # the epoch process refers to
         omega = self._rate_at(age, ticks)

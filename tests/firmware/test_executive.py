@@ -316,6 +316,19 @@ def test_a_late_irq_edge_is_counted_and_the_timestamp_kept():
     assert exe.q_time == round(at[-1] - exposure_ms)
 
 
+def test_a_sensor_gap_is_no_mismatch():
+    """The sensor delivers nothing for three periods (the frame counter steps by one, the
+    timestamps by four periods): not a timestamp error, the periods count as ``missed``
+    and ``dt`` spans the gap."""
+    at = [100, 200, 300, 700, 800]
+    exe, clock, link, tracker, records = queued(at)
+    tracker.solve_ms = 60
+    run(exe, 7)
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1, 0.1, 0.4, 0.1]
+    h = health(exe)
+    assert h["missed"] == 3 and "time_mismatch" not in h
+
+
 def test_the_time_tag_is_the_results_epoch():
     """The attitude's time tag is its result's ``t_epoch_s`` (0.05 s after the start of row
     0's exposure: mid-exposure), in spacecraft ms and on the gateware's clock, and the next
