@@ -5,7 +5,9 @@ solve), wrong attitudes and how the fault shows in the telemetry; plus the twin'
 (wall and CPU seconds per sensor frame).
 
     .venv/bin/python benchmarks/bench_fly.py [--engine golden|verilator] [--window W H]
-        [--frames N] [--seeds N] [--scenarios NAME...] [--combined] [--json FILE]
+        [--frames N] [--seeds N] [--first-seed K] [--scenarios NAME...] [--combined]
+        [--json FILE]
+    .venv/bin/python benchmarks/bench_fly.py --table FILE.json...   # saved runs' table
 
 Default: the golden engine on a 640 x 480 window of the estcube2 camera (the field and
 aperture of the flight camera: ``tests/fly/conftest.py``), 45 sensor frames, the first
@@ -149,7 +151,7 @@ def table(results):
     for r in results:
         shown = ", ".join(f"{k} {v}" for k, v in {**r["health"], **r["link"]}.items()
                           if k not in ("frames", "ok", "packets", "status", "sensor_init",
-                                       "frames_skipped", "overflow", "resync"))
+                                       "frames_skipped", "overflow", "resync", "missed"))
         rec = "-" if r["scenario"] == "none" else f"{r['frames_to_recovery']} ({r['stated']})"
         lines.append(f"| {r['scenario']} | {r['seed']} | {rec} | "
                      f"{100 * r['availability']:.0f} % | {r['wrong']} | {shown or '-'} | "
@@ -168,23 +170,30 @@ def main():
                         "scenario's end)")
     p.add_argument("--fault-frame", type=int, default=20)
     p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="the first sky seed (the runs take seeds FIRST .. FIRST + SEEDS - 1)")
     p.add_argument("--scenarios", nargs="+", default=[None] + list(faults.SCENARIOS))
     p.add_argument("--combined", action="store_true",
                    help="every scenario in one run, each --fault-frame + 15 k periods")
     p.add_argument("--json", default=None)
+    p.add_argument("--table", nargs="+", default=None, metavar="FILE",
+                   help="print the table of the results saved by earlier --json runs")
     args = p.parse_args()
+    if args.table:
+        print(table([r for f in args.table for r in json.loads(Path(f).read_text())]))
+        return
     cam = camera(*args.window)
     results = []
     if args.combined:
         names = [n for n in args.scenarios if n not in (None, "none")]
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             got, rows = run_combined(args, cam, names, seed)
             results += got
             if args.json:
                 Path(args.json).with_suffix(f".rows{seed}.json").write_text(json.dumps(rows))
         args.scenarios = []
     for scenario in args.scenarios:
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             results.append(run_one(args, cam, None if scenario in (None, "none") else scenario,
                                    seed))
             print(json.dumps(results[-1]), file=sys.stderr, flush=True)

@@ -25,26 +25,41 @@ again (PLL, settings, ``min_sum`` of the track kept; also at once on the status 
 ``CMD_MODE`` command.  A good frame resets the level.  After a failed attempt the next one
 waits for the next frame (one frame period), so each level gets a new frame before the next.
 A detector reset the MCU did not command (its frame counter restarts) is counted
-(``uncommanded_reset``).  The gyro is sampled into a ring while the loop waits and at every
-watchdog feed; a frame's rate is the ring's at the frame's epoch (dated from its IRQ edge,
-or by the frame counter from the last frame seen arriving, minus read-out and exposure),
-and the attitude's time tag is that epoch.  The watchdog (``feed()``; ``machine.WDT`` on the
-MCU) is fed at every stage boundary and, through ``Settings.clock``, at every stage boundary
-inside ``process``.
+(``uncommanded_reset``).
 
-Telemetry: one record of :data:`TELEMETRY_BYTES` per step, packed into one preallocated
-buffer (:data:`TELEMETRY_FORMAT`, fields :data:`TELEMETRY_FIELDS`) and handed to
+Time: every frame is dated by its packet header's ``timestamp`` (the gateware's microsecond
+counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; differences modulo 2**32),
+mapped to the MCU's ticks by a correlation taken from the frames whose IRQ edge the wait saw
+(the edge less the read-out); the edge and the frame counter are cross-checks (a
+disagreement beyond :data:`TIME_TOLERANCE_MS`, or a counter step the timestamps do not
+show, is counted: ``time_mismatch``), and the timestamps tell the frames never read
+(``missed``).  The gyro is sampled into a ring while the loop waits and at every watchdog
+feed; a frame's rate is the ring's at the frame's epoch (its first pixel less the exposure,
+plus ``Settings.epoch_s``).  An attitude's time tag is the instant of its result's
+``t_epoch_s`` (spacecraft ms, and ``epoch_us`` on the gateware's clock), and ``dt`` of the
+next frame's prior runs from that instant (by the timestamps; by the time tags for a prior
+restored after a reset).  A frame whose stars contradict the gyro's rate
+(``RATE_CONTRADICTED``) is counted and coasted over like a bad frame (the prior is kept:
+the stars matched, only the rate is in doubt), and the next :data:`DISTRUST_FRAMES` frames
+go without the gyro's rate (each fits its own).  The watchdog (``feed()``;
+``machine.WDT`` on the MCU) is fed at every stage boundary and, through ``Settings.clock``,
+at every stage boundary inside ``process``.
+
+Telemetry: one record of ``contract.telemetry.BYTES`` per step, packed into one
+preallocated buffer (its layout: :mod:`lodestar.contract.telemetry`) and handed to
 ``telemetry(buf)``.  Commands (:meth:`Executive.command`, queued, applied at the next step):
 ``CMD_MODE`` (``MODE_AUTO``, ``MODE_SAFE``, ``MODE_ACQUIRE``), ``CMD_EXPOSURE`` (seconds),
 ``CMD_GAIN`` (sensor steps), ``CMD_SETTING`` (a tracker setting by name), ``CMD_DATABASE``
-(a slot, through ``select_database(slot)`` that returns a new tracker or None), ``CMD_RESET``.
+(a slot, through ``select_database(slot)`` that returns a new tracker or None; the slot is
+kept in the persistent record, so a reset boots the ground's choice), ``CMD_RESET``.
 
 Injected objects (all optional but ``link``, ``tracker`` and ``clock``): ``clock`` with
 ``ticks_ms``/``ticks_diff``/``sleep_ms``; ``now_ms()`` spacecraft time in integer ms (the
 time tags; the clock's ticks when absent; integers, as a float32 cannot hold it);
 ``gyro()`` the body rate (rad/s, camera frame) or None;
 ``store`` with ``read()`` -> bytes or None and ``write(bytes)`` (RTC backup registers or
-F-RAM; :data:`PRIOR_FORMAT`); ``mem_free()`` for the heap figure (``gc.mem_free``).
+F-RAM; :data:`PRIOR_FORMAT`: the last attitude and the database slot); ``mem_free()`` for
+the heap figure (``gc.mem_free``).
 Pure Python for CPython and MicroPython; its buffers are allocated once, and a step allocates
 only short-lived small objects besides ``process`` (about 0.7 KB on the Cortex-M4F build, the
 link's share included).  Board wiring, formats and measurements: ``docs/mcu_board.md``.
@@ -54,6 +69,7 @@ import struct
 from array import array
 
 from lodestar import contract as C
+from lodestar.contract import telemetry
 
 from . import link as _link
 from . import status as S
@@ -104,10 +120,11 @@ H_REG_FAULT = 13       # gateware register writes that did not read back
 H_COMMANDS = 14        # commands applied
 H_INTERNAL = 15        # exceptions caught in a step
 H_RESTART = 16         # detector resets the MCU did not command (frame counter restarted)
-HEALTH_NAMES = ("frames", "ok", "bad", "irq_timeout", "link_fault", "coasted", "lost",
-                "resync", "detector_reset", "sensor_init", "safe", "clock_lost",
-                "sensor_fault", "reg_fault", "commands", "internal", "uncommanded_reset")
-N_HEALTH = 17
+H_RATE_CONTRADICTED = 17   # frames whose stars contradicted the gyro's rate (RATE_CONTRADICTED)
+H_TIME_MISMATCH = 18   # header timestamps that disagree with the IRQ edge or frame counter
+H_MISSED = 19          # sensor frames never read (gaps between the timestamps of two packets)
+HEALTH_NAMES = telemetry.HEALTH_NAMES
+N_HEALTH = telemetry.N_HEALTH
 
 GYRO_RING = 32
 GYRO_EVERY_MS = 20
@@ -115,36 +132,30 @@ GYRO_EVERY_MS = 20
 and at every watchdog feed): 0.64 s or more of rate history, so a frame's rate is read at
 its exposure, not when its packet is processed (up to half a second later after a lost in
 space solve)."""
-REF_FRAMES = 1000
-"""Frames after the last frame seen arriving (its IRQ edge) whose arrival is still dated
-from it by the frame counter."""
+TIME_TOLERANCE_MS = 5
+"""Largest disagreement between the first pixel dated by the header's ``timestamp`` (through
+the correlation of the gateware's microseconds with the MCU's ticks) and by the frame's IRQ
+edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
+of a millisecond after the last row): beyond it the edge is counted as a mismatch
+(``time_mismatch``) and the timestamp's date kept."""
+HALF_RANGE = 0x80000000
+"""Half the range of the 32-bit frame counter and timestamp: differences below it count
+forwards (the timestamp wraps after 71.6 min)."""
+DISTRUST_FRAMES = 10
+"""Frames processed without the gyro's rate after one whose stars contradicted it
+(``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
 PACE_MAX_MS = 1000
 """Longest wait between a failed attempt and the next (one frame period, capped)."""
 
 HEAP_EVERY = 16
 """Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
 more than the rest of a step's telemetry); the records between repeat the last figure."""
-TELEMETRY_MAGIC = 0x4C54        # "LT"
-TELEMETRY_VERSION = 2
-TELEMETRY_FORMAT = ">HBBIQIIBBBBHI4f2f17HII"
-"""Big endian: magic, version, state, sequence, the attitude's time tag (ms, its frame's
-epoch), FPGA frame counter and FPGA timestamp (us, the packet header's: the frame's first
-pixel on the gateware's clock),
-result status, link code, matches, recovery level, records, min_sum, q (x, y, z, w;
-NaN without an attitude), sigma cross and roll (arcsec; NaN), the 17 health counters,
-heap free (bytes; 0 unknown), CRC-32 (``contract.crc32``, native ``binascii``: a CRC-8 in
-Python costs more than the rest of the record on the MCU) of everything before it."""
-TELEMETRY_FIELDS = ("magic", "version", "state", "sequence", "time_ms", "frame_counter",
-                    "frame_timestamp",
-                    "status", "link_code", "matches", "level", "n_records", "min_sum",
-                    "qx", "qy", "qz", "qw", "sigma_cross", "sigma_roll") + HEALTH_NAMES + (
-                        "heap_free", "crc")
-TELEMETRY_BYTES = struct.calcsize(TELEMETRY_FORMAT)
-
 PRIOR_FORMAT = ">4fQII"
-"""The prior kept across a reset: q (x, y, z, w), time tag (ms), FPGA frame counter, CRC-32
-(``contract.crc32``) of the bytes before it."""
+"""The record kept across a reset (32 bytes: 8 of the RTC's backup registers, or F-RAM): q
+(x, y, z, w; NaN without an attitude), its time tag (ms), the star-database slot the ground
+selected (0 until it selects one), CRC-32 (``contract.crc32``) of the bytes before it."""
 PRIOR_BYTES = struct.calcsize(PRIOR_FORMAT)
+_RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
 
 
@@ -188,8 +199,8 @@ class Executive(object):
         self.recover_after = recover_after
         self.max_prior_age_s = max_prior_age_s
         self.health = array("H", [0] * N_HEALTH)
-        self.record = bytearray(TELEMETRY_BYTES)
-        self._record_body = memoryview(self.record)[:TELEMETRY_BYTES - 4]
+        self.record = bytearray(_RECORD_BYTES)
+        self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
         self._prior_buf = bytearray(PRIOR_BYTES)
         self._commands = [None] * COMMAND_QUEUE
         self._n_commands = 0
@@ -199,9 +210,12 @@ class Executive(object):
         self.faults = 0               # link faults in a row
         self.bad = 0                  # bad frames in a row (solve failures included)
         self.q = None                 # last good attitude
-        self.q_time = 0               # its time tag, ms
+        self.q_time = 0               # its time tag (its result's t_epoch_s), spacecraft ms
         self.q_counter = 0            # its FPGA frame counter
-        self.q_stamp = 0              # its FPGA timestamp (us)
+        self.q_stamp = 0              # its frame's FPGA timestamp (us)
+        self.q_epoch_us = None        # its time tag on the FPGA's clock (us; None: unknown)
+        self.slot = 0                 # the star-database slot (kept across a reset)
+        self.distrust = 0             # frames left to process without the gyro's rate
         self.sequence = 0
         self.reason = ""
         self.last_status = S.OK
@@ -218,8 +232,9 @@ class Executive(object):
         self._tick = self._sample_gyro   # wait_irq's poll hook, bound once
         self._attempt = 0             # ticks the current attempt began (its IRQ seen)
         self._retry = None            # a failed attempt's ticks: the next waits a frame
-        self._ref = None              # frame counter of the last frame seen arriving
-        self._ref_ticks = 0           # its arrival (the IRQ edge), ticks
+        self._sync = None             # (timestamp, ticks, ms): a first pixel's stamp and
+                                      # its MCU ticks (an IRQ edge less ms of read-out)
+        self._last = None             # (frame counter, timestamp) of the last packet read
         self._wrapped = None
         self._wrap_clock()
 
@@ -300,27 +315,76 @@ class Executive(object):
         return (ws[a] + f * (ws[b] - ws[a]), ws[a + 1] + f * (ws[b + 1] - ws[a + 1]),
                 ws[a + 2] + f * (ws[b + 2] - ws[a + 2]))
 
-    def _frame_age_ms(self, counter, edge, now):
-        """How long before ticks ``now`` the frame of ``counter`` had its epoch (the start
-        of row 0's exposure plus ``epoch_s``): its arrival (the IRQ edge when this wait saw
-        it rise, else dated by the frame counter from the last frame seen arriving; now if
-        neither) minus its read-out (rows x row time) and exposure."""
-        clock = self.clock
-        end = 0.0
-        if edge:
-            end = clock.ticks_diff(now, self._attempt)
-            self._ref = counter
-            self._ref_ticks = self._attempt
-        elif self._ref is not None:
-            frames = (counter - self._ref) & 0xFFFFFFFF
-            if frames < REF_FRAMES:
-                end = clock.ticks_diff(now, self._ref_ticks) - frames * 1000.0 * self.frame_s
-        try:
-            s = self.tracker.settings
-            back = self.link.last_height * s.row_time_s + (s.exposure_s or 0.0) - s.epoch_s
-        except Exception:
-            back = 0.0
-        return end + 1000.0 * back if end + 1000.0 * back > 0 else 0.0
+    def _date(self, counter, stamp, edge, now):
+        """How long before ticks ``now`` the frame of ``counter`` stamped ``stamp`` had its
+        first pixel (ms): by the timestamp through the correlation (module docstring), else by
+        its IRQ edge (when this wait saw the line rise) less the read-out (rows x row time),
+        else 0 (now).  Cross-checks, each counted as ``time_mismatch``: a timestamp that goes
+        back, or that shows fewer frame periods since the last packet than the frame counter
+        numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
+        next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
+        than :data:`TIME_TOLERANCE_MS` off the timestamp's date is ignored (an edge can only
+        be late: a poll that found the line low between two queued packets) unless the
+        timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
+        frame).  An agreeing edge renews the correlation (the clocks drift).  The periods
+        between two packets, less one, are the sensor frames never read (``missed``)."""
+        frames, step = self._periods(counter, stamp)
+        age = self._stamp_age(stamp, now)
+        at_edge = None
+        if edge and stamp is not None:
+            try:
+                settings = self.tracker.settings
+                readout = self.link.last_height * settings.row_time_s * 1000.0
+            except Exception:
+                readout = 0.0
+            at_edge = self.clock.ticks_diff(now, self._attempt) + readout
+            if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
+                _count(self.health, H_TIME_MISMATCH)
+                if frames is None or frames <= step:
+                    at_edge = None                         # a late edge: the stamp dates
+                else:
+                    self._stamp_wrong()                    # the stamp jumped ahead
+                    frames = age = None
+            if at_edge is not None:
+                self._sync = (stamp, self._attempt, readout)
+        if frames is not None and frames > 1:
+            _count(self.health, H_MISSED, frames - 1)
+        if age is not None:
+            return age
+        return at_edge if at_edge is not None else 0.0
+
+    def _periods(self, counter, stamp):
+        """``(frame periods, frame-counter step)`` since the last packet read, from the
+        timestamps (None when they cannot tell, or are wrong: counted and dropped) and the
+        counters (``HALF_RANGE`` or more: the counter restarted)."""
+        last = self._last
+        self._last = (counter, stamp)
+        if last is None or stamp is None or last[1] is None or not self.frame_s > 0:
+            return None, HALF_RANGE
+        gap = (stamp - last[1]) & 0xFFFFFFFF
+        step = (counter - last[0]) & 0xFFFFFFFF
+        frames = int(gap / (1e6 * self.frame_s) + 0.5)
+        if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
+            _count(self.health, H_TIME_MISMATCH)
+            self._stamp_wrong()
+            return None, step
+        return frames, step
+
+    def _stamp_age(self, stamp, now):
+        """Ms before ticks ``now`` of the first pixel stamped ``stamp``, through the
+        correlation; None without one."""
+        sync = self._sync
+        if stamp is None or sync is None:
+            return None
+        d = (stamp - sync[0]) & 0xFFFFFFFF
+        if d >= HALF_RANGE:
+            d -= 0x100000000
+        return self.clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
+
+    def _stamp_wrong(self):
+        """The timestamps before this one no longer date anything."""
+        self._sync = None
+        self.q_epoch_us = None
 
     def _pace(self):
         """After a failed attempt the next one waits for the next frame (one frame period
@@ -411,15 +475,11 @@ class Executive(object):
             setattr(settings, arg, value)
             return S.OK
         if code == CMD_DATABASE:
-            if self.select_database is None:
-                return S.BAD_INPUT
-            tracker = self.select_database(arg)
-            if tracker is None or getattr(tracker, "status", S.OK) != S.OK:
-                return S.DATABASE_CORRUPT
-            self.tracker = tracker
-            self._wrap_clock()
+            st = self._select(arg)
+            if st != S.OK:
+                return st
             self.q = None
-            self._read_timing()
+            self._save_prior()
             if self.state in (TRACK, COAST):
                 self._enter(ACQUIRE)
             return S.OK
@@ -442,12 +502,14 @@ class Executive(object):
     # ---- persistent prior --------------------------------------------------------------
 
     def _save_prior(self):
-        if self.store is None or self.q is None:
+        """Keep the attitude (NaN without one), its time tag and the database slot, with a
+        CRC, in the persistent store."""
+        if self.store is None:
             return
         buf = self._prior_buf
-        q = self.q
+        q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
-                         (self.q_counter or 0) & 0xFFFFFFFF, 0)
+                         self.slot & 0xFFFFFFFF, 0)
         struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
         try:
             self.store.write(buf)
@@ -455,7 +517,8 @@ class Executive(object):
             pass
 
     def _load_prior(self):
-        """Restore the stored attitude if its CRC matches and it is young enough."""
+        """Restore the database slot from the store if its CRC matches, and the attitude too
+        if it is young enough."""
         if self.store is None:
             return
         try:
@@ -464,9 +527,10 @@ class Executive(object):
             return
         if data is None or len(data) != PRIOR_BYTES:
             return
-        x, y, z, w, t, counter, crc = struct.unpack(PRIOR_FORMAT, data)
+        x, y, z, w, t, slot, crc = struct.unpack(PRIOR_FORMAT, data)
         if C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
             return
+        self.slot = slot
         age = self.time_ms() - t
         if not 0 <= age <= 1000 * self.max_prior_age_s:
             return
@@ -476,6 +540,23 @@ class Executive(object):
         self.q = (x, y, z, w)
         self.q_time = t
         self.q_counter = None         # the FPGA may have restarted: dt from the time tags
+        self.q_epoch_us = None
+        self.q_stamp = None
+
+    def _select(self, slot):
+        """Open database ``slot`` through ``select_database``: ``S.OK`` and the new tracker
+        in use, or ``S.DATABASE_CORRUPT`` (or ``S.BAD_INPUT`` without the hook) and the
+        tracker kept."""
+        if self.select_database is None:
+            return S.BAD_INPUT
+        tracker = self.select_database(slot)
+        if tracker is None or getattr(tracker, "status", S.OK) != S.OK:
+            return S.DATABASE_CORRUPT
+        self.tracker = tracker
+        self.slot = slot
+        self._wrap_clock()
+        self._read_timing()
+        return S.OK
 
     # ---- states --------------------------------------------------------------------------
 
@@ -516,6 +597,8 @@ class Executive(object):
     def _boot(self):
         self.configured = False
         self._load_prior()
+        if self.slot and self._select(self.slot) != S.OK:    # the ground's choice, kept
+            self.slot = 0
         tracker = self.tracker
         if getattr(tracker, "status", S.OK) != S.OK:
             self.last_status = tracker.status
@@ -625,13 +708,12 @@ class Executive(object):
 
     def _restarted(self):
         """Count a detector reset the MCU did not command (the link saw the frame counter
-        restart): the frame counters before it no longer date frames."""
+        restart): the counters before it no longer number frames (the timestamp runs on)."""
         link = self.link
         if link.restarted:
             link.restarted = False
             _count(self.health, H_RESTART)
-            self.q_counter = None
-            self._ref = None
+            self._last = None
 
     def _frame(self):
         link = self.link
@@ -666,24 +748,45 @@ class Executive(object):
             return
         _count(self.health, H_FRAMES)
         self.faults = 0
+        self._solve(n, edge)
+
+    def _exposure_ms(self):
+        """``(exposure ms, Settings.epoch_s)`` of the tracker's settings."""
+        settings = getattr(self.tracker, "settings", None)
+        try:
+            return 1000.0 * (settings.exposure_s or 0.0), settings.epoch_s
+        except Exception:
+            return 0.0, 0.0
+
+    def _solve(self, n, edge):
+        """``process`` the packet read (``n`` records) with the prior carried from its time
+        tag to this frame's epoch and the gyro's rate at that epoch (module docstring)."""
+        link = self.link
+        clock = self.clock
         counter = link.last_frame_counter
+        stamp = link.last_timestamp
         ticks = clock.ticks_ms()
-        age = self._frame_age_ms(counter, edge, ticks)
-        now = self.time_ms() - int(age + 0.5)          # the frame's epoch, spacecraft ms
+        now_ms = self.time_ms()
+        first = self._date(counter, stamp, edge, ticks)
+        exposure_ms, epoch_s = self._exposure_ms()
+        age = first + exposure_ms - 1000.0 * epoch_s        # the epoch process refers to
         omega = self._rate_at(age, ticks)
         if omega is None and self.gyro is not None:
             try:
                 omega = self.gyro()
             except Exception:
                 omega = None
+        if self.distrust:
+            self.distrust -= 1
+            omega = None
         prior = self.q
         dt = None
         if prior is not None:
-            frames = 0
-            if self.q_counter is not None:
-                frames = (counter - self.q_counter) & 0xFFFFFFFF
-            dt = frames * self.frame_s if 0 < frames < REF_FRAMES else \
-                (now - self.q_time) / 1000.0
+            if self.q_epoch_us is not None and stamp is not None:
+                d = (stamp - self.q_epoch_us) & 0xFFFFFFFF
+                dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < HALF_RANGE else None
+            if dt is None:                                # integers: a float32 cannot hold ms
+                dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
         self.feed()
         result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
         self.feed()
@@ -691,10 +794,14 @@ class Executive(object):
         self.last_status = result.status
         if result.status == S.OK and result.q is not None:
             _count(self.health, H_OK)
+            t_epoch = result.t_epoch_s if result.t_epoch_s is not None else epoch_s
+            tag = first + exposure_ms - 1000.0 * t_epoch     # ms before ticks
             self.q = result.q
-            self.q_time = now
+            self.q_time = now_ms - int(tag + 0.5)
             self.q_counter = counter
-            self.q_stamp = link.last_timestamp
+            self.q_stamp = stamp
+            self.q_epoch_us = None if stamp is None else \
+                (stamp - int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)) & 0xFFFFFFFF
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -702,6 +809,9 @@ class Executive(object):
             if result.min_sum != self.min_sum:
                 self._write_min_sum(result.min_sum)
             return
+        if result.status == S.RATE_CONTRADICTED:
+            _count(self.health, H_RATE_CONTRADICTED)
+            self.distrust = DISTRUST_FRAMES
         self._bad_frame()
 
     def _bad_frame(self):
@@ -756,33 +866,19 @@ class Executive(object):
                 heap = 0
         h = self.health
         buf = self.record
-        struct.pack_into(TELEMETRY_FORMAT, buf, 0, TELEMETRY_MAGIC, TELEMETRY_VERSION,
+        struct.pack_into(telemetry.FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
                          self.state, self.sequence, max(0, self.q_time),
                          (self.q_counter or 0) & 0xFFFFFFFF, (self.q_stamp or 0) & 0xFFFFFFFF,
-                         self.last_status & 0xFF,
+                         (self.q_epoch_us or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
                          self.last_link & 0xFF, matches, self.level, n_records,
                          self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
-                         h[11], h[12], h[13], h[14], h[15], h[16], heap & 0xFFFFFFFF, 0)
-        struct.pack_into(">I", buf, TELEMETRY_BYTES - 4, C.crc32(self._record_body))
+                         h[11], h[12], h[13], h[14], h[15], h[16], h[17], h[18], h[19],
+                         heap & 0xFFFFFFFF, 0)
+        struct.pack_into(">I", buf, telemetry.BYTES - 4, C.crc32(self._record_body))
         if self.telemetry is not None:
             try:
                 self.telemetry(buf)
             except Exception:
                 pass
 
-
-def decode_telemetry(data):
-    """The telemetry record as a dict of :data:`TELEMETRY_FIELDS` (ground side), or None
-    when its length, magic or CRC-32 is wrong."""
-    if len(data) != TELEMETRY_BYTES:
-        return None
-    values = struct.unpack(TELEMETRY_FORMAT, bytes(data))
-    if C.crc32(bytes(data)[:TELEMETRY_BYTES - 4]) != values[-1]:
-        return None
-    if values[0] != TELEMETRY_MAGIC:
-        return None
-    out = {}
-    for i in range(len(TELEMETRY_FIELDS)):
-        out[TELEMETRY_FIELDS[i]] = values[i]
-    return out

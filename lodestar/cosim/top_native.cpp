@@ -9,10 +9,15 @@
 // The SPI master drives SCK, MOSI and CS_N (mode 0: MOSI set half an SCK period before the
 // rising edge, MISO sampled just before it), between the pixel activity (a frame is played
 // whole, then transactions run while the sensor bus idles).  Every function returns after
-// a whole number of picoseconds; time only moves forward.
+// a whole number of picoseconds; time only moves forward.  Time is compressed where the
+// gateware idles (short blanking, transactions between frames), so before each frame the
+// board's free-running microsecond counter (`timestamp`, with its prescaler `pre`; public
+// through top.vlt) is set to the frame's instant on the twin's clock: the header timestamps
+// the gateware latches are then the ones the board would latch.
 #include <cstdint>
 
 #include "Vtop.h"
+#include "Vtop___024root.h"
 #include "verilated.h"
 
 struct Twin {
@@ -94,6 +99,12 @@ void twin_free(Twin* t) {
 int twin_irq(Twin* t) { return t->top->irq; }
 
 void twin_pll_losses(Twin* t, uint32_t gray) { t->top->pll_losses = gray; }
+
+// Set the microsecond counter to `us` at the start of a count (prescaler 0).
+void twin_set_time(Twin* t, uint32_t us) {
+    t->top->rootp->top__DOT__timestamp = us;
+    t->top->rootp->top__DOT__pre = 0;
+}
 
 // Play one frame: `rows` rows of `width` pixels from `pixels` (row-major uint16), each
 // followed by `hblank` PIXCLKs with LINE_VALID low, FRAME_VALID high from the first pixel to

@@ -17,7 +17,7 @@ scenario acts on the first frame played from its start.
 - ``sensor-silent``: the sensor stops answering on the two-wire bus and streaming.
 - ``db-crc``: the star database in slot 0 fails its CRC at boot; the ground selects slot 1.
 - ``watchdog``: the MCU hangs for :data:`HANG_MS` inside a frame without feeding the
-  watchdog, which resets it (the prior survives in the store).
+  watchdog, which resets it (the prior and the database slot survive in the store).
 
 The ground's part (:meth:`Schedule.ground`): a tracker that stays in ``SAFE`` for
 :data:`SAFE_GROUND_S` gets a command to start again (the database slot 1 first when the

@@ -7,11 +7,36 @@ frames as the flight loop would.  Every figure is an estimate (the docs carry ±
 - Tracking (with a prior): ``TRACK_BASE_MS + TRACK_PER_RECORD_MS x records``, the line through
   the budgeted frame (10 records, 73 ms) and the frame with every blob (50 records, 243 ms)
   of ``docs/firmware.md`` (tracking frame by frame).
-- The executive's step around ``process`` (status, packet, prior, telemetry, watchdog):
-  ``LOOP_MS`` (``docs/mcu_board.md``, measured on the Cortex-M4F build: about 4.9 ms, and
-  0.95 ms more with ``min_sum`` written back).  The SPI wire time is the bus's own
+- The executive's step around ``process`` (status, packet, prior, telemetry, watchdog, the
+  ``min_sum`` write-back and the gyro ring): ``LOOP_MS``, derived from the icount units
+  measured on the Cortex-M4F build (:data:`STEP_UNITS`, ``docs/mcu_board.md``) with that
+  build's F401 calibration (:func:`f401_ms`).  The SPI wire time is the bus's own
   (``lodestar.fly.bus``), the two-wire bus's likewise.
 """
+
+import math
+
+from lodestar.regress import mcutime
+
+STEP_UNITS = {"step": 1550, "min_sum": 298, "gyro_ring": 297}
+"""icount units (``time.ticks_us`` under ``-icount shift=0``) of the executive on the
+Cortex-M4F build, measured through the test fakes with their share subtracted
+(``docs/mcu_board.md``, the table of the link and executive): one step around a ``process``
+that returns at once, ``min_sum`` written back, the gyro ring (a sample at most every 20
+ms, the frame's rate interpolated at its epoch)."""
+REFERENCE_UNITS = {"bm_float": 11759, "bm_nqueens": 119831}
+"""icount units of the two calibration calls (``mcutime.CALLS``) on the representation-A
+twin of the same build (``docs/mcu_board.md``): with ``mcutime.F401_US`` the F401's time per
+unit."""
+
+
+def f401_ms(units):
+    """F401 estimate (ms) of ``units`` icount units on the Cortex-M4F build: scaled by the
+    geometric mean over the calibration calls of the published F401 time over their units
+    (about 3.18 us per unit)."""
+    logs = [math.log(mcutime.F401_US[name] / REFERENCE_UNITS[name]) for name in REFERENCE_UNITS]
+    return units * math.exp(sum(logs) / len(logs)) / 1000.0
+
 
 LIS_REST_MS = 348.0
 LIS_MOVING_MS = 412.0
@@ -19,7 +44,8 @@ MOVING_RAD_S = 0.0017
 """Above this gyro rate (0.1 deg/s) a lost-in-space frame costs the moving class's time."""
 TRACK_BASE_MS = 30.5
 TRACK_PER_RECORD_MS = 4.25
-LOOP_MS = 5.9
+LOOP_MS = f401_ms(sum(STEP_UNITS.values()))
+"""The executive's share of a frame (about 6.8 ms)."""
 
 
 def process_ms(result, prior, omega):

@@ -11,7 +11,10 @@ Every byte the MCU side reads is the gateware's; the registers it writes change 
 detector does.  Clocks: ``sync`` at the board's 100 MHz and PIXCLK (:data:`PIX_PS`).
 Time is compressed where the gateware idles: a row's horizontal blanking is :data:`HBLANK`
 PIXCLKs (not the sensor's 900) and the vertical blanking the detector's ``min_vblank`` plus
-a margin; transactions run between frames (``docs/fly.md``).  Build cache:
+a margin; transactions run between frames (``docs/fly.md``).  The board's microsecond
+counter is set to each frame's instant on the twin's clock before the frame
+(:data:`PUBLIC`), so the header timestamps are the board's, not the compressed time's.
+Build cache:
 ``<cache>/fly/``, keyed by the parameters, the gateware sources and the harness; a lock
 serialises processes wanting the same build.
 """
@@ -52,13 +55,19 @@ CS_HOLD_PS = 3 * SYNC_PS
 CS_GAP_PS = 4 * SYNC_PS
 """Chip-select timing above the slave's minimums (setup 4, hold 2, high 3 clocks)."""
 
+PUBLIC = """`verilator_config
+public_flat_rw -module "top" -var "timestamp"
+public_flat_rw -module "top" -var "pre"
+"""
+"""Verilator configuration: the board's microsecond counter and its prescaler, which the
+harness sets before each frame (``twin_set_time``: compressed time, module docstring)."""
 _ARGS = ["-Wno-fatal", "-Wno-lint", "-O3", "--x-assign", "fast", "--x-initial", "fast",
          "--cc", "--exe", "--build", "--top-module", "top", "--prefix", "Vtop",
          "-CFLAGS", "-fPIC", "-LDFLAGS", "-shared", "-o", "libtop.so"]
 
 
 def _digest(params):
-    h = hashlib.sha256(repr(params).encode() + repr(_ARGS).encode())
+    h = hashlib.sha256(repr(params).encode() + repr(_ARGS).encode() + PUBLIC.encode())
     files = [p for package in (hdl, C)
              for p in sorted(Path(package.__file__).resolve().parent.rglob("*.py"))]
     for f in files + [HARNESS]:
@@ -82,9 +91,11 @@ def build(top, root=None, log=None):
             if log:
                 log(f"fly: building the gateware top with Verilator in {folder} (once)")
             (folder / "top.v").write_text(to_verilog(top, "top"))
+            (folder / "top.vlt").write_text(PUBLIC)
             shutil.copy(HARNESS, folder / HARNESS.name)
             jobs = str(len(os.sched_getaffinity(0)))
-            cmd = ["verilator", *_ARGS, "-j", jobs, "-Mdir", str(folder), HARNESS.name, "top.v"]
+            cmd = ["verilator", *_ARGS, "-j", jobs, "-Mdir", str(folder), HARNESS.name,
+                   "top.vlt", "top.v"]
             with open(folder / "build.log", "w") as out:
                 done = subprocess.run(cmd, cwd=folder, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode:
@@ -97,6 +108,7 @@ def _bind(lib):
     p, u32 = ctypes.c_void_p, ctypes.c_uint32
     sigs = {"twin_new": ([u32, u32, u32], p), "twin_free": ([p], None),
             "twin_irq": ([p], ctypes.c_int), "twin_pll_losses": ([p, u32], None),
+            "twin_set_time": ([p, u32], None),
             "twin_frame": ([p, p, u32, u32, u32, u32], None),
             "twin_cs": ([p, ctypes.c_int, u32, u32, u32], None),
             "twin_xfer": ([p, p, p, u32, u32], None)}
@@ -145,12 +157,14 @@ class VerilatedTop:
         """Play ``pixels`` (``height x width``), only its first ``rows`` rows if given; a
         frame cut short is followed by the frame watchdog's stall timeout of idle clocks (the
         sensor's next frame comes 100 ms later, long after it: compressed time must not
-        join the two).  ``start_us`` is the golden model's: the gateware stamps the frame
-        with its own counter (in its compressed time)."""
+        join the two).  ``start_us``: the frame's first pixel on the twin's clock, where the
+        board's microsecond counter is set before the frame (compressed time), so the
+        gateware stamps it with that instant."""
         data = np.ascontiguousarray(pixels, dtype=np.uint16)
         h, w = data.shape
         rows = h if rows is None else max(0, min(rows, h))
         vblank = self.vblank if rows == h else self.vblank + STALL_TIMEOUT + 1024
+        self._lib.twin_set_time(self._h, int(start_us) & ((1 << C.TIMESTAMP_BITS) - 1))
         self._lib.twin_frame(self._h, data.ctypes.data, w, rows, HBLANK, vblank)
 
     def accepts(self):

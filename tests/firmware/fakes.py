@@ -48,11 +48,16 @@ CLOCK_LOST = "clock"       # the status word shows OVF_CLOCK_LOST
 RESTART = "restart"        # a good packet after a detector reset the MCU did not command
 READ_MS = 6                # a frame's status + packet read
 BUILD = 0x5A               # the gateware build byte the link reads
+FRAME_MS = 100             # the sensor's frame period: frame k's first pixel at k x 100 ms
 
 
 class Link(object):
-    """Plays ``script`` (a list of the items above), one per frame; past its end the irq is
-    dead.  Frame counters count up by one per item, so a timed-out frame is a skipped one."""
+    """Plays ``script`` (a list of the items above), one per frame read; past its end the irq
+    is dead.  The sensor's frame ``k`` has its first pixel (and, with no rows, its IRQ edge)
+    at ``k * FRAME_MS`` of the clock: a wait ends at the next one (its frame counter ``k``
+    less the frames before a restart, its header timestamp ``k * FRAME_MS`` ms in us), so
+    the frames that pass while the MCU works are skipped ones, as the gateware numbers and
+    stamps them."""
 
     def __init__(self, clock, script, id_ok=True, reg_ok=True, build=BUILD):
         self.clock = clock
@@ -63,6 +68,9 @@ class Link(object):
         self.id_ok = id_ok
         self.reg_ok = reg_ok
         self.counter = 0
+        self.base = 0              # frames before the last restart
+        self.stamp = 0
+        self.offset_us = 0         # the gateware's microsecond counter at the clock's 0
         self.last_frame_counter = None
         self.last_timestamp = None
         self.writes = []
@@ -90,24 +98,28 @@ class Link(object):
         return _link.OK
 
     def wait_irq(self, timeout_ms, tick=None):
-        """The irq rises 1 ms into the wait (``irq_edge``), or never (a timeout)."""
+        """The irq rises at the next frame's first pixel (``irq_edge``), or never (a
+        timeout)."""
         self.irq_edge = False
         if self.pos >= len(self.script):
             self.item = TIMEOUT
         else:
             self.item = self.script[self.pos]
             self.pos += 1
-        self.counter += 1
         if self.item == TIMEOUT:
             self.clock.sleep_ms(timeout_ms)
             return False
-        self.clock.sleep_ms(1)
+        k = self.clock.now // FRAME_MS + 1
+        self.clock.sleep_ms(k * FRAME_MS - self.clock.now)
+        self.counter = k - self.base
+        self.stamp = k * FRAME_MS * 1000 + self.offset_us
         self.irq_edge = True
         return True
 
     def read_status(self):
         self.overflow = 64 if self.item == CLOCK_LOST else 0
         if self.item == RESTART:
+            self.base += self.counter
             self.counter = 0
             self.restarted = True
         return _link.STATUS_BAD if self.item == STATUS_BAD else _link.OK
@@ -120,7 +132,7 @@ class Link(object):
         if self.item == CRC:
             return _link.PACKET_CRC, 0
         self.last_frame_counter = self.counter
-        self.last_timestamp = 100000 * self.counter
+        self.last_timestamp = self.stamp & 0xFFFFFFFF
         return _link.OK, 3
 
     def packet(self, n):
@@ -164,9 +176,10 @@ class Settings(object):
 
 
 class Result(object):
-    def __init__(self, status, q=None, min_sum=0):
+    def __init__(self, status, q=None, min_sum=0, t_epoch_s=None):
         self.status = status
         self.q = q
+        self.t_epoch_s = t_epoch_s
         self.min_sum = min_sum
         self.matches = [(0, None, None, 1)] * (12 if q is not None else 0)
         self.n_records = 20
@@ -181,7 +194,8 @@ Q0 = (0.0, 0.0, 0.6, 0.8)
 class Tracker(object):
     """``outcomes``: per frame a status (``S.OK`` gives ``Q0``) or ``"raise"``; past its end
     every frame solves.  A solve takes ``solve_ms`` (lost in space) or ``track_ms`` (with
-    a prior), calling ``settings.clock`` at ``stages`` boundaries as the pipeline does."""
+    a prior), calling ``settings.clock`` at ``stages`` boundaries as the pipeline does; an
+    attitude holds for ``t_epoch_s`` (s after the start of row 0's exposure)."""
 
     def __init__(self, clock, outcomes=(), status=S.OK, solve_ms=700, track_ms=80, stages=6):
         self.clock = clock
@@ -193,6 +207,7 @@ class Tracker(object):
         self.track_ms = track_ms
         self.stages = stages
         self.calls = []
+        self.t_epoch_s = 0.0
 
     def process(self, packet, prior=None, omega=None, dt=None):
         self.calls.append((prior, omega, dt))
@@ -206,7 +221,7 @@ class Tracker(object):
         if outcome == "raise":
             raise ValueError("scripted")
         if outcome == S.OK:
-            return Result(S.OK, Q0, min_sum=1000 + k)
+            return Result(S.OK, Q0, min_sum=1000 + k, t_epoch_s=self.t_epoch_s)
         return Result(outcome)
 
 

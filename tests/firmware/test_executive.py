@@ -9,6 +9,7 @@ import math
 import struct
 from pathlib import Path
 
+from lodestar.contract import telemetry
 from lodestar.firmware import executive
 from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
@@ -52,28 +53,33 @@ def test_nominal_boot_configure_acquire_track():
     assert tracker.settings.row_time_s == sensor.row
     assert tracker.settings.exposure_s == 2743 * sensor.row
     assert exe.frame_s == 0.09998
-    # lost in space first, then the prior with the frame counter's dt and the gyro
+    # lost in space first (0.7 s: the next frame read is 8 periods later, 7 missed), then the
+    # prior with the header timestamps' dt and the gyro
     assert tracker.calls[0][0] is None and tracker.calls[0][2] is None
     assert all(math.isclose(a, b, rel_tol=1e-6)                    # float32 in the ring
                for a, b in zip(tracker.calls[0][1], (0.001, 0.0, 0.0)))
-    assert tracker.calls[1][0] == fakes.Q0 and math.isclose(tracker.calls[1][2], 0.09998)
+    assert tracker.calls[1][0] == fakes.Q0 and math.isclose(tracker.calls[1][2], 0.8, abs_tol=1e-6)
+    assert [round(c[2], 6) for c in tracker.calls[2:]] == [0.1] * 3
     # min_sum written back (read back by the link) after every solved frame
     assert link.writes[:2] == [("min_sum", 0), ("mode", 0)]
     assert link.writes[2:] == [("min_sum", 1000 + k) for k in range(5)]
     assert exe.min_sum == 1004
-    assert health(exe) == {"frames": 5, "ok": 5, "sensor_init": 1}
+    assert health(exe) == {"frames": 5, "ok": 5, "sensor_init": 1, "missed": 7}
     # one fixed-size record per step, decodable, with the attitude and its time tag
-    assert len(records) == 7 and {len(r) for r in records} == {executive.TELEMETRY_BYTES}
-    t = executive.decode_telemetry(records[-1])
+    assert len(records) == 7 and {len(r) for r in records} == {telemetry.BYTES}
+    t = telemetry.decode(records[-1])
     assert t["state"] == executive.TRACK and t["status"] == S.OK and t["matches"] == 12
     assert (t["qx"], t["qy"], t["qz"], t["qw"]) == (0.0, 0.0, 0.6000000238418579,
                                                     0.800000011920929)
-    assert t["frame_counter"] == 5 and t["time_ms"] == exe.q_time and t["heap_free"] == 31000
+    assert t["frame_counter"] == 12 and t["heap_free"] == 31000
+    # the time tag: frame 12's first pixel (its header timestamp, 1.2 s) less the exposure
+    assert t["frame_timestamp"] == 1_200_000 and t["epoch_us"] == 1_200_000 - 99_845
+    assert t["time_ms"] == exe.q_time == 1100
     assert t["min_sum"] == 1004 and t["ok"] == 5 and t["sequence"] == 7
-    assert math.isnan(executive.decode_telemetry(records[0])["qx"])
+    assert math.isnan(telemetry.decode(records[0])["qx"])
     bad = bytearray(records[-1])
     bad[20] ^= 1
-    assert executive.decode_telemetry(bad) is None
+    assert telemetry.decode(bad) is None
     assert wdt.max_gap < WDT_MS
 
 
@@ -209,9 +215,11 @@ def test_uncommanded_detector_reset_is_counted_and_dated_by_time():
         [fakes.OK_FRAME, fakes.OK_FRAME, fakes.RESTART, fakes.OK_FRAME])
     run(exe, 5)
     assert health(exe)["uncommanded_reset"] == 1
-    assert executive.decode_telemetry(records[-1])["uncommanded_reset"] == 1
-    # the frame after the restart: dt from the time tags, not the restarted counter (1 - 2)
-    assert 0.05 < tracker.calls[2][2] < 0.2
+    assert telemetry.decode(records[-1])["uncommanded_reset"] == 1
+    # the frame after the restart: dt from the header timestamps (which run on), exactly one
+    # period, not from the restarted counter; no mismatch counted for the restart
+    assert math.isclose(tracker.calls[2][2], 0.1, abs_tol=1e-6)
+    assert "time_mismatch" not in health(exe)
 
 
 def test_the_gyro_is_read_at_the_frames_exposure():
@@ -234,6 +242,125 @@ def test_the_gyro_is_read_at_the_frames_exposure():
         assert abs(omega[0] - (edge - exposure_ms) / 1000.0) < 0.002
     # the time tag of the attitude is the last frame's epoch too
     assert exe.q_time == round(edges[-1] - exposure_ms)
+
+
+class QueuedLink(fakes.Link):
+    """Frames whose first pixels come at the times ``at`` (ms; no rows, so each IRQ edge is
+    its first pixel) and queue in the gateware while the MCU works: a wait ends at once (no
+    edge) while an older frame waits, else at the next frame's edge.  ``stamp(t)``: the
+    header timestamp (us) of a frame at ``t`` ms."""
+
+    def __init__(self, clock, at, stamp=lambda t: 1000 * t, late=None):
+        fakes.Link.__init__(self, clock, [fakes.OK_FRAME] * len(at))
+        self.at = list(at)
+        self.stamp_of = stamp
+        self.late = late or {}     # frame index -> ms its IRQ edge comes after its first pixel
+        self.read = 0
+
+    def wait_irq(self, timeout_ms, tick=None):
+        self.irq_edge = False
+        if self.read >= len(self.at):
+            self.clock.sleep_ms(timeout_ms)
+            self.item = fakes.TIMEOUT
+            return False
+        t = self.at[self.read]
+        edge = t + self.late.get(self.read, 0)
+        if edge > self.clock.now:
+            self.clock.sleep_ms(edge - self.clock.now)
+            self.irq_edge = True
+        self.item = fakes.OK_FRAME
+        self.read += 1
+        self.counter = self.read
+        self.stamp = self.stamp_of(t)
+        return True
+
+
+def queued(at, **kw):
+    exe, clock, _link_, sensor, tracker, wdt, records = build(gyro=None)
+    link = exe.link = QueuedLink(clock, at, **kw)
+    exe.gyro = lambda: (clock.now / 1000.0, 0.0, 0.0)        # 1 rad/s per s: a clock
+    return exe, clock, link, tracker, records
+
+
+def test_frames_are_dated_by_their_header_timestamps():
+    """Frames 120 ms apart (not the 100 ms period the registers gave: the frame counter
+    would misdate them), three queued behind a lost-in-space solve (no IRQ edge): each
+    frame's gyro rate is read at its own first pixel less the exposure (its header
+    timestamp), the prior's ``dt`` is the timestamps' difference, and the attitude's time
+    tag that instant."""
+    at = [120, 240, 360, 480, 1320, 1440]
+    exe, clock, link, tracker, records = queued(at)
+    run(exe, 8)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    assert len(tracker.calls) == 6
+    for (_prior, omega, _dt), t in zip(tracker.calls, at):
+        assert abs(omega[0] - (t - exposure_ms) / 1000.0) < 0.0025     # the ring's 20 ms
+    dts = [round(dt, 6) for _p, _w, dt in tracker.calls[1:]]
+    assert dts == [0.12, 0.12, 0.12, 0.84, 0.12]
+    assert exe.q_time == round(at[-1] - exposure_ms)
+
+
+def test_a_late_irq_edge_is_counted_and_the_timestamp_kept():
+    """A frame whose IRQ edge comes 30 ms after its first pixel (the line seen low between
+    two packets): the edge disagrees with the timestamp's date, is counted, and the frame is
+    still dated by its timestamp (its gyro rate, dt and time tag)."""
+    at = [100, 200, 300, 400, 500, 600]
+    exe, clock, link, tracker, records = queued(at, late={3: 30})
+    tracker.solve_ms = 60
+    run(exe, 8)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    assert health(exe)["time_mismatch"] == 1
+    omega = tracker.calls[3][1][0]
+    assert abs(omega - (at[3] - exposure_ms) / 1000.0) < 0.0025
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1] * 5
+    assert exe.q_time == round(at[-1] - exposure_ms)
+
+
+def test_a_sensor_gap_is_no_mismatch():
+    """The sensor delivers nothing for three periods (the frame counter steps by one, the
+    timestamps by four periods): not a timestamp error, the periods count as ``missed``
+    and ``dt`` spans the gap."""
+    at = [100, 200, 300, 700, 800]
+    exe, clock, link, tracker, records = queued(at)
+    tracker.solve_ms = 60
+    run(exe, 7)
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1, 0.1, 0.4, 0.1]
+    h = health(exe)
+    assert h["missed"] == 3 and "time_mismatch" not in h
+
+
+def test_the_time_tag_is_the_results_epoch():
+    """The attitude's time tag is its result's ``t_epoch_s`` (0.05 s after the start of row
+    0's exposure: mid-exposure), in spacecraft ms and on the gateware's clock, and the next
+    frame's ``dt`` runs from it to the frame's epoch (``Settings.epoch_s`` = 0)."""
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 4)
+    tracker.t_epoch_s = 0.05
+    run(exe, 6)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    t = telemetry.decode(records[-1])
+    stamp = t["frame_timestamp"]
+    assert t["epoch_us"] == stamp - round(1000 * exposure_ms) + 50_000
+    assert t["time_ms"] == round(stamp / 1000 - exposure_ms + 50)
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[2:]] == [0.05, 0.05]
+
+
+def test_timestamps_wrap_and_a_jump_is_a_mismatch():
+    """The 32-bit microsecond counter wraps (71.6 min) between two frames: dates and ``dt``
+    run on (differences modulo 2**32); a timestamp that jumps (the gateware's clock
+    restarted) is counted once, and the IRQ edge dates the frame."""
+    top = 1 << 32
+    at = [100, 200, 300, 400, 500, 600, 700]
+    exe, clock, link, tracker, records = queued(
+        at, stamp=lambda t: (top - 250_000 + 1000 * t) % top if t < 500 else 7_000 + 1000 * t)
+    tracker.solve_ms = 60                           # every frame waited for: an IRQ edge
+    run(exe, 9)
+    assert len(tracker.calls) == 7
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1] * 6
+    h = health(exe)
+    assert "missed" not in h and h["time_mismatch"] == 1
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    assert exe.q_time == round(at[-1] - exposure_ms)
+    assert telemetry.decode(records[-1])["epoch_us"] == 707_000 - round(1000 * exposure_ms)
 
 
 def test_sensor_nack_retries_then_safe_and_recovers_on_reset():
@@ -267,6 +394,63 @@ def test_database_crc_failure_is_safe_until_another_slot():
     assert exe.tracker is good and good.settings.row_time_s == sensor.row
 
 
+def test_the_database_slot_survives_a_watchdog_reset():
+    """Slot 0 fails its CRC, the ground selects slot 2 and the loop tracks; then a solve
+    hangs past the watchdog and the MCU resets: the new executive (slot 0's tracker again,
+    as at power-up) boots the slot kept in the store and tracks on the stored prior, never
+    in ``SAFE``.  A record with a flipped bit (in its slot byte) is ignored: slot 0, ``SAFE``."""
+    store = fakes.Store()
+    slots = {}
+    exe, clock, link, sensor, tracker, wdt, _ = build([fakes.OK_FRAME] * 3, store=store,
+                                                      tracker_status=S.DATABASE_CORRUPT)
+    slots[2] = fakes.Tracker(clock)
+    exe.select_database = slots.get
+    run(exe, 2)
+    exe.command(executive.CMD_DATABASE, 2)
+    exe.command(executive.CMD_MODE, executive.MODE_AUTO)
+    assert run(exe, 3) == ["ACQUIRE", "TRACK", "TRACK"] and exe.slot == 2
+    slots[2].solve_ms = slots[2].track_ms = 3 * WDT_MS     # a hang without a feed
+    slots[2].settings.clock = None
+    exe._wrapped = slots[2]
+    run(exe, 1)
+    assert wdt.max_gap > WDT_MS                            # the watchdog fires: a reset
+    for flip, expected in ((None, ["CONFIGURE", "TRACK", "TRACK"]), (27, ["SAFE"] * 3)):
+        data = bytearray(store.data)
+        if flip is not None:
+            data[flip] ^= 1
+        store2 = fakes.Store()
+        store2.data = bytes(data)
+        exe2, clock2, link2, _s, slot0, *_ = build(
+            [fakes.OK_FRAME] * 2, store=store2, tracker_status=S.DATABASE_CORRUPT,
+            now_ms=lambda: clock.now + 500)
+        good = fakes.Tracker(clock2)
+        exe2.select_database = {2: good}.get
+        assert run(exe2, 3) == expected
+        if flip is None:
+            assert exe2.tracker is good and exe2.slot == 2
+            assert good.calls[0][0] == (0.0, 0.0, 0.6000000238418579, 0.800000011920929)
+        else:
+            assert exe2.tracker is slot0 and exe2.slot == 0
+
+
+def test_rate_contradicted_keeps_the_prior_and_rests_the_gyro():
+    """``RATE_CONTRADICTED`` (the stars matched, their smear contradicts the gyro): counted,
+    coasted over on the prior (not a lost track), and the next ``DISTRUST_FRAMES`` frames
+    are processed without the gyro's rate; then the gyro is used again."""
+    outcomes = [S.OK, S.OK, S.RATE_CONTRADICTED] + [S.OK] * 12
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 15, outcomes)
+    states = run(exe, 17)
+    assert states[2:6] == ["TRACK", "TRACK", "COAST", "TRACK"]
+    assert all(c[0] == fakes.Q0 for c in tracker.calls[1:])      # the prior kept throughout
+    omegas = [c[1] is not None for c in tracker.calls]
+    n = executive.DISTRUST_FRAMES
+    assert omegas == [True] * 3 + [False] * n + [True] * (15 - 3 - n)
+    h = health(exe)
+    assert h["rate_contradicted"] == 1 and h["coasted"] == 1 and "lost" not in h
+    assert telemetry.decode(records[-1])["rate_contradicted"] == 1
+    assert exe.level == executive.LEVEL_NONE
+
+
 def test_gateware_of_another_build_is_safe_at_boot():
     exe, _clock, link, sensor, _tracker, _wdt, _records = build([fakes.OK_FRAME] * 3,
                                                                 build=fakes.BUILD ^ 1)
@@ -297,7 +481,7 @@ def test_prior_kept_across_a_reset_with_its_crc_and_age():
     store = fakes.Store()
     exe, clock, *_ = build([fakes.OK_FRAME] * 3, store=store, now_ms=lambda: 1_000_000)
     run(exe, 5)
-    assert store.writes == 3 and len(store.data) == executive.PRIOR_BYTES
+    assert store.writes == 3 and len(store.data) == executive.PRIOR_BYTES == 32    # 8 RTC words
     # a reset 2 s later: the stored attitude is the prior of the first frame
     exe2, clock2, link2, _s, tracker2, *_ = build([fakes.OK_FRAME] * 2, store=store,
                                                   now_ms=lambda: 1_002_000)
@@ -356,9 +540,9 @@ def test_never_raises():
 
 
 def test_link_codes_and_health_names_fit_the_record():
-    assert len(executive.HEALTH_NAMES) == executive.N_HEALTH == 17
-    empty = bytes(executive.TELEMETRY_BYTES)
-    assert len(executive.TELEMETRY_FIELDS) == len(struct.unpack(executive.TELEMETRY_FORMAT, empty))
+    assert len(executive.HEALTH_NAMES) == executive.N_HEALTH == 20
+    empty = bytes(telemetry.BYTES)
+    assert len(telemetry.FIELDS) == len(struct.unpack(telemetry.FORMAT, empty))
     assert len(_link.CODE_NAMES) < 256 and len(executive.STATE_NAMES) == 7
 
 
@@ -371,6 +555,7 @@ SCRIPT = [fakes.OK_FRAME, fakes.OK_FRAME, fakes.CRC, fakes.CRC, fakes.CLOCK_LOST
 OUT = [S.OK, S.TOO_FEW_STARS, S.OK, S.OK]
 clock = fakes.Clock()
 link = fakes.Link(clock, SCRIPT)
+link.offset_us = 4294967296 - 1250000          # the 32-bit timestamp wraps during the run
 records = []
 exe = executive.Executive(link, fakes.Tracker(clock, OUT), clock, sensor=fakes.Sensor(clock),
                           registers={"min_sum": 0}, watchdog=fakes.Watchdog(clock),
@@ -396,6 +581,8 @@ def test_same_records_on_micropython(micropython):
                              "LINES.append(binascii.hexlify(r).decode())"), "mp", "exec"),
          {"fakes": fakes, "LINES": lines})
     assert out.split("\n")[:24] == lines
+    stamps = {telemetry.decode(bytes.fromhex(line))["frame_timestamp"] for line in lines}
+    assert min(stamps - {0}) < 1_000_000 < 4_290_000_000 < max(stamps)    # it wrapped
 
 
 def test_executive_over_the_amaranth_slave():
@@ -422,7 +609,8 @@ def test_executive_over_the_amaranth_slave():
     assert run(exe, 2) == ["CONFIGURE", "ACQUIRE"]
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == 5
     assert bus.bank[REGISTER_BY_NAME["mode"].address] == 1
-    packets = [make_packet(seed, frame_counter=seed) for seed in (1, 2, 3, 4)]
+    packets = [make_packet(seed, frame_counter=seed, timestamp=100000 * seed)
+               for seed in (1, 2, 3, 4)]
     states = []
     for k, p in enumerate(packets):
         bus.packets.append(p)
@@ -432,7 +620,7 @@ def test_executive_over_the_amaranth_slave():
     assert seen == [packets[0], packets[2], packets[3]]
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == exe.min_sum == 1002
     assert lnk.counter("packet_crc") == 1 and exe.health[executive.H_LINK_FAULT] == 1
-    assert tracker.calls[1][2] == 2 * exe.frame_s          # dt from the frame counters
+    assert tracker.calls[1][2] == 2 * exe.frame_s          # dt from the timestamps
 
 
 def test_executive_tracks_recorded_packets_with_the_real_tracker():
@@ -460,7 +648,7 @@ def test_executive_tracks_recorded_packets_with_the_real_tracker():
                       telemetry=lambda b: records.append(bytes(b)))
     assert run(exe, 5) == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "TRACK"]
     expected = case["expected"]["pyramid"]
-    t = executive.decode_telemetry(records[-1])
+    t = telemetry.decode(records[-1])
     q = (t["qx"], t["qy"], t["qz"], t["qw"])
     assert rotation_angle(q, expected["q"]) * 206264.8 < 0.1        # float32 in the record
     assert exe.last_result.mode == "tracking" and t["matches"] >= 20

@@ -15,7 +15,7 @@ from lodestar.ground import codec
 from tests.firmware.amaranth_bus import AmaranthBus, GatewareTopBus, SimClock
 
 
-def make_packet(seed, n_stars=6, capacity=64, frame_counter=None):
+def make_packet(seed, n_stars=6, capacity=64, frame_counter=None, timestamp=None):
     frame, _ = star_frame(width=64, height=48, pixel_bits=12, n_stars=n_stars, seed=seed,
                           sigma=1.2)
     cfg = DetectorConfig(width=64, height=48, pixel_bits=12, threshold=80, background=40,
@@ -23,6 +23,8 @@ def make_packet(seed, n_stars=6, capacity=64, frame_counter=None):
     res = Detector(cfg).process(frame)
     if frame_counter is not None:
         res.frame_counter = frame_counter
+    if timestamp is not None:
+        res.timestamp = timestamp
     return codec.encode(res)
 
 

@@ -1,5 +1,9 @@
 """The MCU time model: per frame class, from the docs' F401 estimates, spent on the twin's
-clock around the real ``process``."""
+clock around the real ``process``; the executive's share derived from the units measured on
+the Cortex-M4F build, which ``docs/mcu_board.md`` reports."""
+
+import re
+from pathlib import Path
 
 import pytest
 
@@ -36,3 +40,21 @@ def test_timed_tracker_spends_the_time_and_a_hang_once():
     t.process(b"", prior=(0, 0, 0, 1))
     assert spent == [pytest.approx(73 + mcu.LOOP_MS + 3000, abs=0.5),
                      pytest.approx(73 + mcu.LOOP_MS, abs=0.5)]
+
+
+def test_loop_ms_is_the_measured_step_min_sum_and_gyro_ring():
+    """``LOOP_MS`` is the sum of the three measured figures (the gyro ring's included), each
+    the units ``docs/mcu_board.md`` reports with the F401 estimate it prints."""
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "mcu_board.md").read_text()
+    rows = {"step": r"\| one executive step around a `process`[^|]*\| about ([\d,]+) \| about "
+                    r"([\d.]+) ms",
+            "min_sum": r"\| the same with `min_sum` written back \| \+([\d,]+) \| \+([\d.]+) ms",
+            "gyro_ring": r"\| the gyro ring [^|]*\| \+([\d,]+) \| \+([\d.]+) ms"}
+    for name, pattern in rows.items():
+        units, ms = re.search(pattern, doc).groups()
+        assert mcu.STEP_UNITS[name] == int(units.replace(",", ""))
+        assert mcu.f401_ms(mcu.STEP_UNITS[name]) == pytest.approx(float(ms), abs=0.05)
+    ref = re.search(r"\(([\d,]+) and ([\d,]+) units: ", doc).groups()
+    assert tuple(mcu.REFERENCE_UNITS.values()) == tuple(int(u.replace(",", "")) for u in ref)
+    assert mcu.LOOP_MS == pytest.approx(mcu.f401_ms(1550 + 298 + 297))
+    assert 6.7 < mcu.LOOP_MS < 6.9

@@ -7,6 +7,7 @@ the frames ``docs/fly.md`` states."""
 import pytest
 
 from lodestar import contract as C
+from lodestar.contract import telemetry
 from lodestar.firmware import executive, sensor
 from lodestar.fly import faults, twin
 from tests.fly.conftest import make_twin
@@ -37,7 +38,7 @@ def test_short_loop_acquires_tracks_and_writes_min_sum_back(small_camera):
     assert loop.exe.frame_s == pytest.approx(timing["frame_s"], rel=1e-6)
     h = s["health"]
     assert h["ok"] == len(solved) and h["sensor_init"] == 1 and h["bad"] == 0
-    t = executive.decode_telemetry(loop.exe.record)
+    t = telemetry.decode(loop.exe.record)
     assert t["state"] == executive.TRACK and t["ok"] == len(solved)
 
 
@@ -75,3 +76,18 @@ def test_fault_scenario_recovers_with_no_wrong_attitude(small_camera, name):
     rec = s["recovery"][name]
     assert rec["within"], rec
     assert any(name in r["faults"] for r in rows) or name == "db-crc"
+
+
+@pytest.mark.slow
+def test_the_database_slot_survives_the_watchdog_reset(small_camera):
+    """``db-crc`` and ``watchdog`` in one run: the ground selects slot 1 once, the MCU hangs
+    and the watchdog resets it, and the new executive boots slot 1 from its persistent
+    record (never ``SAFE`` again, no second command) and tracks on the stored prior."""
+    loop = make_twin(small_camera, faults=["db-crc", "watchdog"])
+    rows = loop.run(45 + faults.HANG_MS // 100)
+    s = twin.summary(rows, loop)
+    assert s["wrong"] == 0 and s["reboots"] == 1
+    reset = next(i for i, r in enumerate(rows) if "watchdog-reset" in r["faults"])
+    assert all(r["mode"] != "SAFE" for r in rows[reset + 1:])
+    assert loop.exe.slot == 1 and loop.exe.health[executive.H_COMMANDS] == 0
+    assert s["recovery"]["watchdog"]["within"]
