@@ -148,10 +148,12 @@ class _Nodes:
     flags memory and a label memory: a sequential write port, a patch port and a read
     port.  The previous row's nodes are prefetched into registers (``flags``/``label``:
     the next node to start, ``fetched`` when it is there; one more behind it), so no read
-    port drives the decision.  A row's node 0 is also kept in registers as it is written
-    and patched, so it is there a clock after the row's last decision (one idle clock
-    between rows); nodes 1 on are read after the bank swap, when the bank is written no
-    more."""
+    port drives the decision.  Every write (sequential and patches) is registered and
+    reaches its memory a clock after the decision, so no write port is on the decision's
+    path either.  A row's node 0 is also kept in registers as it is written and patched,
+    so it is there a clock after the row's last decision (one idle clock between rows);
+    nodes 1 on are read from two clocks after the bank swap, when the bank's last write
+    has landed."""
 
     def __init__(self, m, nodes, node_bits, label, bank_written):
         flags = node_flags_layout()
@@ -178,6 +180,21 @@ class _Nodes:
         self.last_reg = Signal(name="prev_node_last")  # last flag of the node under the scan
 
         issue = Signal(name="node_issue")           # read read_ptr this clock
+        # the decision's writes, registered: they reach the memories a clock later
+        w_bank = Signal(name="node_w_bank")
+        w_addr = Signal.like(self.write_ptr, name="node_w_addr")
+        w_en = Signal(name="node_w_en")
+        w_flags = Signal(flags, name="node_w_flags")
+        w_label = Signal(label, name="node_w_label")
+        p_en, u_en = Signal(name="node_p_en"), Signal(name="node_u_en")
+        p_addr = Signal(node_bits, name="node_p_addr")
+        u_addr = Signal(node_bits, name="node_u_addr")
+        p_flags = Signal(flags, name="node_p_flags")
+        m.d.sync += [w_bank.eq(bank_written), w_addr.eq(self.write_ptr), w_en.eq(self.write_en),
+                     w_flags.eq(self.write_flags), w_label.eq(self.write_label),
+                     p_en.eq(self.flags_patch_en), p_addr.eq(self.flags_patch_addr),
+                     p_flags.eq(self.flags_patch), u_en.eq(self.untrack_en),
+                     u_addr.eq(self.untrack_addr)]
         banks = []
         for b in range(2):
             flag_mem = Memory(shape=flags, depth=nodes, init=[])
@@ -188,10 +205,10 @@ class _Nodes:
                      "label_seq": label_mem.write_port(),
                      "label_patch": label_mem.write_port(),
                      "flags_read": flag_mem.read_port(), "label_read": label_mem.read_port()}
-            writing = bank_written == b
+            writing = w_bank == b
             # the read port shares its address with the sequential write port (one
             # block-RAM port each way): it reads only the bank not being written
-            addr = Mux(writing, self.write_ptr, self.read_ptr)
+            addr = Mux(writing, w_addr, self.read_ptr)
             m.d.comb += [ports[name].addr.eq(addr) for name in
                          ("flags_seq", "label_seq", "flags_read", "label_read")]
             m.d.comb += [ports["flags_read"].en.eq(issue & ~writing),
@@ -199,23 +216,25 @@ class _Nodes:
             banks.append((writing, ports))
         for writing, ports in banks:
             m.d.comb += [
-                ports["flags_seq"].data.eq(self.write_flags),
-                ports["flags_seq"].en.eq(writing & self.write_en),
-                ports["label_seq"].data.eq(self.write_label),
-                ports["label_seq"].en.eq(writing & self.write_en),
-                ports["flags_patch"].addr.eq(self.flags_patch_addr),
-                ports["flags_patch"].data.eq(self.flags_patch),
-                ports["flags_patch"].en.eq(writing & self.flags_patch_en),
-                ports["label_patch"].addr.eq(self.untrack_addr),
+                ports["flags_seq"].data.eq(w_flags),
+                ports["flags_seq"].en.eq(writing & w_en),
+                ports["label_seq"].data.eq(w_label),
+                ports["label_seq"].en.eq(writing & w_en),
+                ports["flags_patch"].addr.eq(p_addr),
+                ports["flags_patch"].data.eq(p_flags),
+                ports["flags_patch"].en.eq(writing & p_en),
+                ports["label_patch"].addr.eq(u_addr),
                 ports["label_patch"].data.eq(0),
-                ports["label_patch"].en.eq(writing & self.untrack_en),
+                ports["label_patch"].en.eq(writing & u_en),
             ]
         self._prefetch(m, nodes, flags, label, bank_written, banks, issue)
 
     def _prefetch(self, m, nodes, flags, label, bank_written, banks, issue):
         """Two node registers (head, behind it) fed by the read ports a clock after the
         read; reads issued from registered state only (at most two nodes held or in
-        flight: a decision takes at most one node per two clocks)."""
+        flight: a decision takes at most one node per two clocks), none in the clock
+        after a bank swap (the swapped bank's last writes land then; node 1 is needed
+        four clocks after the swap at the earliest)."""
         in_flight = Signal(name="node_in_flight")
         bypass = Signal(name="node_bypass")          # the node in flight is a row's node 0
         behind = Signal(name="node_behind_valid")
@@ -239,7 +258,8 @@ class _Nodes:
         m.d.comb += [in_flags.eq(Mux(bypass, flags0, read_flags)),
                      in_label.eq(Mux(bypass, label0, read_label))]
         # at most two nodes held or in flight (``behind`` implies ``fetched``)
-        m.d.comb += issue.eq(~(self.fetched & (behind | in_flight)) & (self.read_ptr != nodes))
+        m.d.comb += issue.eq(~(self.fetched & (behind | in_flight)) & (self.read_ptr != nodes) &
+                             ~bypass)
         m.d.sync += [in_flight.eq(issue), bypass.eq(0)]
         with m.If(issue):
             m.d.sync += self.read_ptr.eq(self.read_ptr + 1)
