@@ -84,13 +84,7 @@ def _factor(n, a):
 @native
 def _substitute(n, a, h):
     """``x`` with ``L L^T x = h`` for the Cholesky factor ``L`` of :func:`_factor` in ``a``."""
-    x = list(h)
-    for i in range(n):
-        s = x[i]
-        i_n = i * n
-        for k in range(i):
-            s -= a[i_n + k] * x[k]
-        x[i] = s / a[i_n + i]
+    x = _forward(n, a, h)
     for i in range(n - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, n):
