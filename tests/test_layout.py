@@ -1,11 +1,13 @@
 """The package layout's rules: no import cycle, no path into the checkout, an MCU-safe root
 and contract, firmware that imports only what the MCU image holds, and a docs index that
-reaches every page."""
+reaches every page, and a test run that keeps each ``xdist_group`` on one worker."""
 
 import ast
 import importlib
 import pkgutil
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -236,3 +238,24 @@ def test_docs_index_links_every_page():
     assert sorted(p.name for p in pages - linked) == []
     assert all(p.exists() for p in linked), sorted(str(p) for p in linked if not p.exists())
     assert index.resolve() in _linked_files(REPO / "README.md")
+
+
+def test_xdist_groups_keep_to_one_worker(tmp_path):
+    """The README's ``pytest -n 2`` runs with ``--dist loadgroup`` (pyproject): the tests of
+    an ``xdist_group`` (one Verilated build, one QEMU image, one set of simulated frames)
+    must run on one worker.  pytest 9.2 with pytest-xdist 3.8 silently spreads them
+    (pytest-xdist#1386), so two workers build the same thing or wait on each other's lock;
+    pyproject pins pytest below 9.2."""
+    (tmp_path / "test_grouped.py").write_text(
+        "import os, pytest\n"
+        "pytestmark = pytest.mark.xdist_group('g')\n"
+        "@pytest.mark.parametrize('i', range(8))\n"
+        "def test_a(i):\n"
+        "    with open('workers.txt', 'a') as f:\n"
+        "        f.write(os.environ['PYTEST_XDIST_WORKER'] + '\\n')\n")
+    run = subprocess.run([sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadgroup",
+                          "-q", "-p", "no:cacheprovider", "test_grouped.py"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    workers = (tmp_path / "workers.txt").read_text().split()
+    assert len(workers) == 8 and len(set(workers)) == 1, workers
