@@ -374,17 +374,10 @@ def _tree_key(paths):
     return h.hexdigest()
 
 
-def stage_run(elf, script):
-    """Replay on QEMU: ``{(case, repeat): {"status", "mode", "matches", "call", stage:
-    units}}``."""
-    runner = script.parent / "run-qemu.py"
-    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
-        f.write(SCRIPT)
-    try:
-        proc = subprocess.run([sys.executable, str(runner), str(elf), f.name, "--icount",
-                               "--timeout", "3000"], capture_output=True, text=True)
-    finally:
-        os.unlink(f.name)
+def stage_run(elf):
+    """Replay on QEMU (``qemu.run``: the guest's clock restarted, so a run repeats exactly):
+    ``{(case, repeat): {"status", "mode", "matches", "call", stage: units}}``."""
+    proc = qemu.run(elf, SCRIPT, timeout=3000, repo=REPO)
     if proc.returncode != 0 or "DONE" not in proc.stdout:
         sys.exit(f"bench_mcu: the run on {elf} failed:\n{proc.stdout[-1500:]}"
                  f"{proc.stderr[-1500:]}")
@@ -477,7 +470,7 @@ def stages(baseline, repeats, keep):
     results = {}
     for label, checkout in ((baseline, base), ("now", None)):
         elf = stage_build(label, checkout, work, db, manifest, repeats, script)
-        results[label] = stage_run(elf, script)
+        results[label] = stage_run(elf)
     stage_report(results, [baseline, "now"])
     if keep is None:
         shutil.rmtree(work, ignore_errors=True)
