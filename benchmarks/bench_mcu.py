@@ -456,7 +456,7 @@ def stages(baseline, repeats, keep):
     """Build this checkout and ``baseline`` with the stage data module (in ``keep``, or a
     temporary folder) and print :func:`stage_report`."""
     script = qemu.script_dir(REPO) / "build-qemu.sh"
-    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-")).resolve()
     work.mkdir(parents=True, exist_ok=True)
     manifest = replay.load_set(replay.DEFAULT_SET)
     db = flight_database()
@@ -554,7 +554,7 @@ def lis(n, keep):
     costs the guest no ticks): per class p50 / p95 / max F401 ms of ``process`` and the
     statuses."""
     script = qemu.script_dir(REPO) / "build-qemu.sh"
-    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-")).resolve()
     work.mkdir(parents=True, exist_ok=True)
     frames = work / f"lis_frames-{n}-{LIS_SEED}.bin"
     t0 = time.perf_counter()
