@@ -374,17 +374,10 @@ def _tree_key(paths):
     return h.hexdigest()
 
 
-def stage_run(elf, script):
-    """Replay on QEMU: ``{(case, repeat): {"status", "mode", "matches", "call", stage:
-    units}}``."""
-    runner = script.parent / "run-qemu.py"
-    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
-        f.write(SCRIPT)
-    try:
-        proc = subprocess.run([sys.executable, str(runner), str(elf), f.name, "--icount",
-                               "--timeout", "3000"], capture_output=True, text=True)
-    finally:
-        os.unlink(f.name)
+def stage_run(elf):
+    """Replay on QEMU (``qemu.run``: the guest's clock restarted, so a run repeats exactly):
+    ``{(case, repeat): {"status", "mode", "matches", "call", stage: units}}``."""
+    proc = qemu.run(elf, SCRIPT, timeout=3000, repo=REPO)
     if proc.returncode != 0 or "DONE" not in proc.stdout:
         sys.exit(f"bench_mcu: the run on {elf} failed:\n{proc.stdout[-1500:]}"
                  f"{proc.stderr[-1500:]}")
@@ -463,7 +456,7 @@ def stages(baseline, repeats, keep):
     """Build this checkout and ``baseline`` with the stage data module (in ``keep``, or a
     temporary folder) and print :func:`stage_report`."""
     script = qemu.script_dir(REPO) / "build-qemu.sh"
-    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-")).resolve()
     work.mkdir(parents=True, exist_ok=True)
     manifest = replay.load_set(replay.DEFAULT_SET)
     db = flight_database()
@@ -477,7 +470,7 @@ def stages(baseline, repeats, keep):
     results = {}
     for label, checkout in ((baseline, base), ("now", None)):
         elf = stage_build(label, checkout, work, db, manifest, repeats, script)
-        results[label] = stage_run(elf, script)
+        results[label] = stage_run(elf)
     stage_report(results, [baseline, "now"])
     if keep is None:
         shutil.rmtree(work, ignore_errors=True)
@@ -561,7 +554,7 @@ def lis(n, keep):
     costs the guest no ticks): per class p50 / p95 / max F401 ms of ``process`` and the
     statuses."""
     script = qemu.script_dir(REPO) / "build-qemu.sh"
-    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-"))
+    work = Path(keep or tempfile.mkdtemp(prefix="bench_mcu-")).resolve()
     work.mkdir(parents=True, exist_ok=True)
     frames = work / f"lis_frames-{n}-{LIS_SEED}.bin"
     t0 = time.perf_counter()

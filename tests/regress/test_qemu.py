@@ -69,6 +69,23 @@ def test_the_image_fits_the_f401(cortex_m4f, cortex_m4f_set):
     assert qemu.FLASH_BYTES < layout["flash"] < 1024 * 1024       # 469 KB of database in it
 
 
+def test_a_run_repeats_exactly(cortex_m4f, regression_set):
+    """Under ``-icount`` the same image and script give the same run, whatever the host did
+    while ``run-qemu.py`` fed the script (``qemu.clock_restart``): the guest's clock starts
+    from zero at the script, and a tracking frame run twice has the same ticks per stage,
+    live heap peak, heap before it and stack high-water mark."""
+    manifest, db_files = regression_set
+    clock = "import time\nprint('T', time.ticks_us())\n"
+    starts = [qemu.run(cortex_m4f, clock).stdout for _ in range(2)]
+    assert starts[0] == starts[1] and 0 <= int(starts[0].split()[1]) < 1000
+    runs = [(case, "pyramid") for case in manifest["cases"]
+            if case["name"] == "estcube2_tracking_steady"]
+    loops = [qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
+                              peak=True, timing=True) for _ in range(2)]
+    figures = [(loop["times"], loop["results"], loop["heap"], loop["stack"]) for loop in loops]
+    assert loops[0]["finished"] and figures[0] == figures[1]
+
+
 def test_databases_outside_flash_are_read_through_the_fram_model(cortex_m4f_set,
                                                                   regression_set):
     """The lohmann database is not frozen: its runs read it through ``Database.fram`` over
