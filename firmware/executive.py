@@ -138,6 +138,10 @@ the correlation of the gateware's microseconds with the MCU's ticks) and by the 
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
 of a millisecond after the last row): beyond it the edge is counted as a mismatch
 (``time_mismatch``) and the timestamp's date kept."""
+CUT_FLAGS = C.FRAME_TRUNCATED | C.FRAME_TIMEOUT | C.FRAME_LINE_ERROR
+"""Frame flags of a frame the sensor did not deliver whole: the gateware ended it itself (its
+stall timeout's dark rows, or the next frame's start), so its IRQ edge is not its first
+pixel plus the read-out and neither checks nor renews the timestamp's correlation."""
 HALF_RANGE = 0x80000000
 """Half the range of the 32-bit frame counter and timestamp: differences below it count
 forwards (the timestamp wraps after 71.6 min)."""
@@ -326,12 +330,13 @@ class Executive(object):
         than :data:`TIME_TOLERANCE_MS` off the timestamp's date is ignored (an edge can only
         be late: a poll that found the line low between two queued packets) unless the
         timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
-        frame).  An agreeing edge renews the correlation (the clocks drift).  The periods
+        frame); the edge of a frame the gateware ended itself (:data:`CUT_FLAGS`) is no
+        date.  An agreeing edge renews the correlation (the clocks drift).  The periods
         between two packets, less one, are the sensor frames never read (``missed``)."""
         frames, step = self._periods(counter, stamp)
         age = self._stamp_age(stamp, now)
         at_edge = None
-        if edge and stamp is not None:
+        if edge and stamp is not None and not self.link.last_flags & CUT_FLAGS:
             try:
                 settings = self.tracker.settings
                 readout = self.link.last_height * settings.row_time_s * 1000.0

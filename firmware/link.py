@@ -149,6 +149,7 @@ class Link(object):
         self.last_timestamp = None       # its timestamp (the gateware's us counter)
         self.n_records = 0
         self.last_height = 0             # the rows of the last good packet's frame
+        self.last_flags = 0              # its frame flags (contract FRAME_*)
         self.ident = None                # (link_version, build) after read_id() == OK
         self.irq_edge = False            # the last wait_irq() saw irq rise (not high at once)
         self.restarted = False           # an uncommanded restart seen; the caller clears it
@@ -315,6 +316,7 @@ class Link(object):
         self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
         self.last_timestamp = _field(head, 0, _HEADER["timestamp"])
         self.last_height = _field(head, 0, _HEADER["height"])
+        self.last_flags = _field(head, 0, _HEADER["flags"])
         return OK, n
 
     def packet(self, n_records):

@@ -9,6 +9,7 @@ import math
 import struct
 from pathlib import Path
 
+from lodestar import contract as C
 from lodestar.contract import telemetry
 from lodestar.firmware import executive
 from lodestar.firmware import link as _link
@@ -250,11 +251,12 @@ class QueuedLink(fakes.Link):
     edge) while an older frame waits, else at the next frame's edge.  ``stamp(t)``: the
     header timestamp (us) of a frame at ``t`` ms."""
 
-    def __init__(self, clock, at, stamp=lambda t: 1000 * t, late=None):
+    def __init__(self, clock, at, stamp=lambda t: 1000 * t, late=None, cut=()):
         fakes.Link.__init__(self, clock, [fakes.OK_FRAME] * len(at))
         self.at = list(at)
         self.stamp_of = stamp
         self.late = late or {}     # frame index -> ms its IRQ edge comes after its first pixel
+        self.cut = cut             # frame indices the gateware ended itself (FRAME_TIMEOUT)
         self.read = 0
 
     def wait_irq(self, timeout_ms, tick=None):
@@ -269,6 +271,7 @@ class QueuedLink(fakes.Link):
             self.clock.sleep_ms(edge - self.clock.now)
             self.irq_edge = True
         self.item = fakes.OK_FRAME
+        self.flags = C.FRAME_TIMEOUT if self.read in self.cut else 0
         self.read += 1
         self.counter = self.read
         self.stamp = self.stamp_of(t)
@@ -314,6 +317,21 @@ def test_a_late_irq_edge_is_counted_and_the_timestamp_kept():
     assert abs(omega - (at[3] - exposure_ms) / 1000.0) < 0.0025
     assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1] * 5
     assert exe.q_time == round(at[-1] - exposure_ms)
+
+
+def test_the_edge_of_a_frame_the_gateware_ended_is_no_date():
+    """A frame the sensor cut short (``FRAME_TIMEOUT``: the gateware completed it after its
+    stall timeout, or the next frame's start ended it) raises its IRQ when the gateware ends
+    it, not at its first pixel plus the read-out: its edge, 30 ms off here, is no timestamp
+    mismatch (before: counted, the twin's ``truncated`` fault), and the timestamp dates it."""
+    at = [100, 200, 300, 400, 500, 600]
+    exe, clock, link, tracker, records = queued(at, late={3: 30}, cut={3})
+    tracker.solve_ms = 60
+    run(exe, 8)
+    exposure_ms = 1000 * tracker.settings.exposure_s
+    assert "time_mismatch" not in health(exe)
+    assert abs(tracker.calls[3][1][0] - (at[3] - exposure_ms) / 1000.0) < 0.0025
+    assert [round(dt, 6) for _p, _w, dt in tracker.calls[1:]] == [0.1] * 5
 
 
 def test_a_sensor_gap_is_no_mismatch():
