@@ -159,6 +159,8 @@ PRIOR_FORMAT = ">4fQII"
 (x, y, z, w; NaN without an attitude), its time tag (ms), the star-database slot the ground
 selected (0 until it selects one), CRC-32 (``contract.crc32``) of the bytes before it."""
 PRIOR_BYTES = struct.calcsize(PRIOR_FORMAT)
+SLOT_MAX = 0xFFFF
+"""Largest star-database slot a ``CMD_DATABASE`` selects (``BAD_INPUT`` beyond)."""
 _RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
 
@@ -206,6 +208,7 @@ class Executive(object):
         self.record = bytearray(_RECORD_BYTES)
         self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
         self._prior_buf = bytearray(PRIOR_BYTES)
+        self._prior_body = memoryview(self._prior_buf)[:PRIOR_BYTES - 4]
         self._commands = [None] * COMMAND_QUEUE
         self._n_commands = 0
         self.state = BOOT
@@ -514,8 +517,8 @@ class Executive(object):
         buf = self._prior_buf
         q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
-                         self.slot & 0xFFFFFFFF, 0)
-        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
+                         self.slot, 0)
+        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(self._prior_body))
         try:
             self.store.write(buf)
         except Exception:
@@ -550,9 +553,10 @@ class Executive(object):
 
     def _select(self, slot):
         """Open database ``slot`` through ``select_database``: ``S.OK`` and the new tracker
-        in use, or ``S.DATABASE_CORRUPT`` (or ``S.BAD_INPUT`` without the hook) and the
-        tracker kept."""
-        if self.select_database is None:
+        in use, or ``S.DATABASE_CORRUPT`` (or ``S.BAD_INPUT`` without the hook or for a slot
+        outside 0..``SLOT_MAX``) and the tracker kept."""
+        if self.select_database is None or not isinstance(slot, int) or \
+                not 0 <= slot <= SLOT_MAX:
             return S.BAD_INPUT
         tracker = self.select_database(slot)
         if tracker is None or getattr(tracker, "status", S.OK) != S.OK:
@@ -847,7 +851,7 @@ class Executive(object):
     # ---- telemetry -----------------------------------------------------------------------
 
     def _emit(self):
-        self.sequence = (self.sequence + 1) & 0xFFFFFFFF
+        self.sequence = self.sequence + 1 if self.sequence < 0x3FFFFFFF else 0
         res = self.last_result
         q = self.q
         if q is None:
@@ -873,13 +877,12 @@ class Executive(object):
         buf = self.record
         struct.pack_into(telemetry.FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
                          self.state, self.sequence, max(0, self.q_time),
-                         (self.q_counter or 0) & 0xFFFFFFFF, (self.q_stamp or 0) & 0xFFFFFFFF,
-                         (self.q_epoch_us or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
-                         self.last_link & 0xFF, matches, self.level, n_records,
-                         self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
+                         self.q_counter or 0, self.q_stamp or 0, self.q_epoch_us or 0,
+                         self.last_status & 0xFF, self.last_link & 0xFF, matches, self.level,
+                         n_records, self.min_sum, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
                          h[11], h[12], h[13], h[14], h[15], h[16], h[17], h[18], h[19],
-                         heap & 0xFFFFFFFF, 0)
+                         heap, 0)
         struct.pack_into(">I", buf, telemetry.BYTES - 4, C.crc32(self._record_body))
         if self.telemetry is not None:
             try:

@@ -76,23 +76,30 @@ _READ_LEN = C.READ_REG_BYTES
 _ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
 
 
-def _offsets(fields):
-    """``{name: (bit offset from the MSB, bits)}`` of a field table."""
-    out = {}
-    at = 0
-    for name, bits in fields:
-        out[name] = (at, bits)
-        at += bits
+def _specs(fields, names):
+    """Fields ``names`` of a field table (``contract.field_offsets``), each as one small
+    int: its bit offset from the MSB << 8 | its bits (a dict of tuples per table kept 600
+    bytes of heap on the MCU)."""
+    table = C.field_offsets(fields)
+    out = []
+    for name in names:
+        for field, at, bits in table:
+            if field == name:
+                out.append(at << 8 | bits)
     return out
 
 
-_HEADER = _offsets(C.HEADER_FIELDS)
-_STATUS = _offsets(C.STATUS_FIELDS)
+_H_MAGIC, _H_VERSION, _H_COUNTER, _H_TIMESTAMP, _H_HEIGHT, _H_FLAGS, _H_RECORDS = _specs(
+    C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp", "height", "flags",
+                      "n_records"))
+_S_COUNTER, _S_ERRORS, _S_UNDERRUNS, _S_OVERFLOW, _S_BUSY = _specs(
+    C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow", "busy"))
 
 
 def _field(data, base, spec):
-    """Unsigned field ``spec`` = (bit offset, bits) of the big-endian bytes at ``base``."""
-    at, bits = spec
+    """Unsigned field ``spec`` (:func:`_specs`) of the big-endian bytes at ``base``."""
+    at = spec >> 8
+    bits = spec & 0xFF
     first = base + at // 8
     last = base + (at + bits - 1) // 8
     value = 0
@@ -235,11 +242,11 @@ class Link(object):
             self.count(C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter
-        self.frame_counter = _field(rx, _REPLY, _STATUS["frame_counter"])
-        self.errors = _field(rx, _REPLY, _STATUS["errors"])
-        self.underruns = _field(rx, _REPLY, _STATUS["underruns"])
-        self.overflow = _field(rx, _REPLY, _STATUS["overflow"])
-        self.busy = _field(rx, _REPLY, _STATUS["busy"])
+        self.frame_counter = _field(rx, _REPLY, _S_COUNTER)
+        self.errors = _field(rx, _REPLY, _S_ERRORS)
+        self.underruns = _field(rx, _REPLY, _S_UNDERRUNS)
+        self.overflow = _field(rx, _REPLY, _S_OVERFLOW)
+        self.busy = _field(rx, _REPLY, _S_BUSY)
         self.count(C_STATUS)
         self.count(C_SLAVE_ERRORS, self.errors)
         if self._drain_underruns:
@@ -290,12 +297,12 @@ class Link(object):
         if not self._stream(head):
             self.resync()
             return BUS_ERROR, 0
-        if _field(head, 0, _HEADER["magic"]) != C.PACKET_MAGIC or \
-                _field(head, 0, _HEADER["version"]) != C.PACKET_VERSION:
+        if _field(head, 0, _H_MAGIC) != C.PACKET_MAGIC or \
+                _field(head, 0, _H_VERSION) != C.PACKET_VERSION:
             self.count(C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
-        n = _field(head, 0, _HEADER["n_records"])
+        n = _field(head, 0, _H_RECORDS)
         if n > self.capacity:
             self.count(C_LENGTH_BAD)
             self.resync()
@@ -313,10 +320,10 @@ class Link(object):
             return PACKET_CRC, 0
         self.count(C_PACKETS)
         self.n_records = n
-        self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
-        self.last_timestamp = _field(head, 0, _HEADER["timestamp"])
-        self.last_height = _field(head, 0, _HEADER["height"])
-        self.last_flags = _field(head, 0, _HEADER["flags"])
+        self.last_frame_counter = _field(head, 0, _H_COUNTER)
+        self.last_timestamp = _field(head, 0, _H_TIMESTAMP)
+        self.last_height = _field(head, 0, _H_HEIGHT)
+        self.last_flags = _field(head, 0, _H_FLAGS)
         return OK, n
 
     def packet(self, n_records):

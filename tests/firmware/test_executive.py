@@ -406,6 +406,12 @@ def test_database_crc_failure_is_safe_until_another_slot():
     exe.command(executive.CMD_DATABASE, 1)
     exe.step()
     assert exe.last_command == (executive.CMD_DATABASE, S.DATABASE_CORRUPT)
+    # a slot the persistent record cannot hold is refused before the hook is asked
+    for slot in (-1, executive.SLOT_MAX + 1, 1 << 40, "2"):
+        slots[slot] = good
+        exe.command(executive.CMD_DATABASE, slot)
+        exe.step()
+        assert exe.last_command == (executive.CMD_DATABASE, S.BAD_INPUT) and exe.slot == 0
     exe.command(executive.CMD_DATABASE, 2)
     exe.command(executive.CMD_MODE, executive.MODE_AUTO)
     assert run(exe, 3) == ["ACQUIRE", "TRACK", "TRACK"]
