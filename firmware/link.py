@@ -137,15 +137,14 @@ class Link(object):
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
         self._rxv = memoryview(self._rx)
-        # the views of each fixed-length transaction, made once (a slice is a heap object)
-        self._views = {}
-        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES):
-            self._views[n] = (self._txv[:n], self._rxv[:n])
+        # the (tx, rx) views of each fixed-length transaction, made once (a slice is a heap
+        # object)
+        self._v_status = self._views(_STATUS_LEN)
+        self._v_read = self._views(_READ_LEN)
+        self._v_id = self._views(_ID_LEN)
+        self._v_write = self._views(C.WRITE_REG_BYTES)
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
         self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
-        self._keyed = {}
-        for op in C.KEYED_OPCODES:
-            self._keyed[op] = bytearray(C.keyed_command(op))
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
         self.errors = 0
@@ -181,13 +180,15 @@ class Link(object):
     def _select(self, on):
         self.cs.value(0 if on else 1)
 
-    def _exchange(self, n):
-        """One transaction of ``n`` bytes from ``_tx``, the reply in ``_rx``: True if the
-        bus did not fail."""
+    def _views(self, n):
+        return self._txv[:n], self._rxv[:n]
+
+    def _exchange(self, views):
+        """One transaction of ``views`` = (the first bytes of ``_tx``, as many of ``_rx``)
+        for the reply: True if the bus did not fail."""
         try:
             self._select(True)
             try:
-                views = self._views[n]
                 self.spi.write_readinto(views[0], views[1])
             finally:
                 self._select(False)
@@ -231,7 +232,7 @@ class Link(object):
         values)."""
         self._clear(_STATUS_LEN)
         self._tx[0] = C.OP_READ_STATUS
-        if not self._exchange(_STATUS_LEN):
+        if not self._exchange(self._v_status):
             return BUS_ERROR
         rx = self._rx
         for i in range(_REPLY):
@@ -357,10 +358,11 @@ class Link(object):
         return OK
 
     def command(self, opcode):
-        """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code."""
-        data = self._keyed.get(opcode)
-        if data is None:
+        """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code.  Its two bytes
+        are made per command (rare: a resynchronisation or a reset), not kept."""
+        if opcode not in C.KEYED_OPCODES:
             return BAD_ARGUMENT
+        data = C.keyed_command(opcode)
         try:
             self._select(True)
             try:
@@ -385,7 +387,7 @@ class Link(object):
         self._clear(_READ_LEN)
         self._tx[0] = C.OP_READ_REG
         self._tx[1] = address & 0xFF
-        if not self._exchange(_READ_LEN):
+        if not self._exchange(self._v_read):
             return BUS_ERROR, 0
         rx = self._rx
         at = C.READ_REG_FIRST_REPLY
@@ -408,7 +410,7 @@ class Link(object):
             tx[1] = reg.address
             for i in range(C.VALUE_BYTES):
                 tx[2 + i] = (value >> (8 * (C.VALUE_BYTES - 1 - i))) & 0xFF
-            if not self._exchange(C.WRITE_REG_BYTES):
+            if not self._exchange(self._v_write):
                 code = BUS_ERROR
                 continue
             code, back = self.read_reg(reg.address)
@@ -424,7 +426,7 @@ class Link(object):
         link version); ``ident`` = ``(link_version, build)``."""
         self._clear(_ID_LEN)
         self._tx[0] = C.OP_READ_ID
-        if not self._exchange(_ID_LEN):
+        if not self._exchange(self._v_id):
             return BUS_ERROR
         rx = self._rx
         at = C.ID_FIRST_REPLY

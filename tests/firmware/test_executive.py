@@ -560,7 +560,7 @@ def test_never_raises():
     exe2 = executive.Executive(Broken(), Broken(), fakes.Clock(), telemetry=Broken())
     for _ in range(5):
         exe2.step()
-    assert exe2.health[executive.H_INTERNAL] == 5
+    assert health(exe2)["internal"] == 5
 
 
 def test_link_codes_and_health_names_fit_the_record():
@@ -643,7 +643,7 @@ def test_executive_over_the_amaranth_slave():
     assert states == ["TRACK", "COAST", "TRACK", "TRACK"]
     assert seen == [packets[0], packets[2], packets[3]]
     assert bus.bank[REGISTER_BY_NAME["min_sum"].address] == exe.min_sum == 1002
-    assert lnk.counter("packet_crc") == 1 and exe.health[executive.H_LINK_FAULT] == 1
+    assert lnk.counter("packet_crc") == 1 and health(exe)["link_fault"] == 1
     assert tracker.calls[1][2] == 2 * exe.frame_s          # dt from the timestamps
 
 

@@ -89,5 +89,5 @@ def test_the_database_slot_survives_the_watchdog_reset(small_camera):
     assert s["wrong"] == 0 and s["reboots"] == 1
     reset = next(i for i, r in enumerate(rows) if "watchdog-reset" in r["faults"])
     assert all(r["mode"] != "SAFE" for r in rows[reset + 1:])
-    assert loop.exe.slot == 1 and loop.exe.health[executive.H_COMMANDS] == 0
+    assert loop.exe.slot == 1 and loop.exe.health[executive.HEALTH_NAMES.index("commands")] == 0
     assert s["recovery"]["watchdog"]["within"]
