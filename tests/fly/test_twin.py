@@ -38,6 +38,7 @@ def test_short_loop_acquires_tracks_and_writes_min_sum_back(small_camera):
     assert loop.exe.frame_s == pytest.approx(timing["frame_s"], rel=1e-6)
     h = s["health"]
     assert h["ok"] == len(solved) and h["sensor_init"] == 1 and h["bad"] == 0
+    assert h["time_mismatch"] == 0             # a clean run: every frame's date agrees
     t = telemetry.decode(loop.exe.record)
     assert t["state"] == executive.TRACK and t["ok"] == len(solved)
 
