@@ -337,11 +337,13 @@ class Executive(object):
         back, or that shows fewer frame periods since the last packet than the frame counter
         numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
         next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
-        than :data:`TIME_TOLERANCE_MS` off the timestamp's date is ignored (an edge can only
-        be late: a poll that found the line low between two queued packets) unless the
+        than :data:`TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
+        only be late: a poll that found the line low between two queued packets) unless the
         timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
-        frame); the edge of a frame the gateware ended itself (:data:`CUT_FLAGS`) is no
-        date.  An agreeing edge renews the correlation (the clocks drift).  The periods
+        frame); an edge that much earlier shows the correlation's own edge was late (a packet
+        that emerged after a start-up's flush): this one dates the frame and anchors anew;
+        the edge of a frame the gateware ended itself (:data:`CUT_FLAGS`) is no date.  An
+        agreeing edge renews the correlation (the clocks drift).  The periods
         between two packets, less one, are the sensor frames never read (``missed``)."""
         frames, step = self._periods(counter, stamp)
         age = self._stamp_age(stamp, now)
@@ -355,11 +357,13 @@ class Executive(object):
             at_edge = self.clock.ticks_diff(now, self._attempt) + readout
             if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
                 _count(self.health, _H_TIME_MISMATCH)
-                if frames is None or frames <= step:
-                    at_edge = None                         # a late edge: the stamp dates
-                else:
+                if frames is not None and frames > step:
                     self._stamp_wrong()                    # the stamp jumped ahead
                     frames = age = None
+                elif at_edge > age:
+                    age = None                             # the anchor's edge was late
+                else:
+                    at_edge = None                         # a late edge: the stamp dates
             if at_edge is not None:
                 self._sync = (stamp, self._attempt, readout)
         if frames is not None and frames > 1:
