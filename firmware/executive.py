@@ -68,6 +68,12 @@ link's share included).  Board wiring, formats and measurements: ``docs/mcu_boar
 import struct
 from array import array
 
+try:
+    from micropython import const
+except ImportError:         # CPython
+    def const(value):
+        return value
+
 from lodestar import contract as C
 from lodestar.contract import telemetry
 
@@ -102,27 +108,28 @@ LEVEL_DETECTOR = 2
 LEVEL_SENSOR = 3
 LEVEL_SAFE = 4
 
-# health counters (indices into Executive.health)
-H_FRAMES = 0           # frames read whole
-H_OK = 1               # frames solved
-H_BAD = 2              # frames not solved (any status)
-H_IRQ_TIMEOUT = 3      # waits for a frame that timed out
-H_LINK_FAULT = 4       # status or packet reads refused
-H_COASTED = 5          # frames carried on the gyro
-H_LOST = 6             # tracks dropped to lost in space
-H_RESYNC = 7           # recoveries at level 1
-H_DETECTOR_RESET = 8   # recoveries at level 2
-H_SENSOR_INIT = 9      # sensor start-ups (the first included)
-H_SAFE = 10            # entries into SAFE
-H_CLOCK_LOST = 11      # status words with OVF_CLOCK_LOST
-H_SENSOR_FAULT = 12    # sensor start-ups or writes that failed (NACK, read-back)
-H_REG_FAULT = 13       # gateware register writes that did not read back
-H_COMMANDS = 14        # commands applied
-H_INTERNAL = 15        # exceptions caught in a step
-H_RESTART = 16         # detector resets the MCU did not command (frame counter restarted)
-H_RATE_CONTRADICTED = 17   # frames whose stars contradicted the gyro's rate (RATE_CONTRADICTED)
-H_TIME_MISMATCH = 18   # header timestamps that disagree with the IRQ edge or frame counter
-H_MISSED = 19          # sensor frames never read (gaps between the timestamps of two packets)
+# health counters (indices into Executive.health, in telemetry.HEALTH_NAMES' order; const:
+# not kept in the module's globals on the MCU)
+_H_FRAMES = const(0)           # frames read whole
+_H_OK = const(1)               # frames solved
+_H_BAD = const(2)              # frames not solved (any status)
+_H_IRQ_TIMEOUT = const(3)      # waits for a frame that timed out
+_H_LINK_FAULT = const(4)       # status or packet reads refused
+_H_COASTED = const(5)          # frames carried on the gyro
+_H_LOST = const(6)             # tracks dropped to lost in space
+_H_RESYNC = const(7)           # recoveries at level 1
+_H_DETECTOR_RESET = const(8)   # recoveries at level 2
+_H_SENSOR_INIT = const(9)      # sensor start-ups (the first included)
+_H_SAFE = const(10)            # entries into SAFE
+_H_CLOCK_LOST = const(11)      # status words with OVF_CLOCK_LOST
+_H_SENSOR_FAULT = const(12)    # sensor start-ups or writes that failed (NACK, read-back)
+_H_REG_FAULT = const(13)       # gateware register writes that did not read back
+_H_COMMANDS = const(14)        # commands applied
+_H_INTERNAL = const(15)        # exceptions caught in a step
+_H_RESTART = const(16)         # detector resets the MCU did not command (frame counter restarted)
+_H_RATE_CONTRADICTED = const(17)   # frames whose stars contradicted the gyro's rate
+_H_TIME_MISMATCH = const(18)   # header timestamps that disagree with the IRQ edge or frame counter
+_H_MISSED = const(19)          # sensor frames never read (timestamp gaps between two packets)
 HEALTH_NAMES = telemetry.HEALTH_NAMES
 N_HEALTH = telemetry.N_HEALTH
 
@@ -138,6 +145,10 @@ the correlation of the gateware's microseconds with the MCU's ticks) and by the 
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
 of a millisecond after the last row): beyond it the edge is counted as a mismatch
 (``time_mismatch``) and the timestamp's date kept."""
+CUT_FLAGS = C.FRAME_TRUNCATED | C.FRAME_TIMEOUT | C.FRAME_LINE_ERROR
+"""Frame flags of a frame the sensor did not deliver whole: the gateware ended it itself (its
+stall timeout's dark rows, or the next frame's start), so its IRQ edge is not its first
+pixel plus the read-out and neither checks nor renews the timestamp's correlation."""
 HALF_RANGE = 0x80000000
 """Half the range of the 32-bit frame counter and timestamp: differences below it count
 forwards (the timestamp wraps after 71.6 min)."""
@@ -155,6 +166,8 @@ PRIOR_FORMAT = ">4fQII"
 (x, y, z, w; NaN without an attitude), its time tag (ms), the star-database slot the ground
 selected (0 until it selects one), CRC-32 (``contract.crc32``) of the bytes before it."""
 PRIOR_BYTES = struct.calcsize(PRIOR_FORMAT)
+SLOT_MAX = 0xFFFF
+"""Largest star-database slot a ``CMD_DATABASE`` selects (``BAD_INPUT`` beyond)."""
 _RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
 
@@ -202,6 +215,7 @@ class Executive(object):
         self.record = bytearray(_RECORD_BYTES)
         self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
         self._prior_buf = bytearray(PRIOR_BYTES)
+        self._prior_body = memoryview(self._prior_buf)[:PRIOR_BYTES - 4]
         self._commands = [None] * COMMAND_QUEUE
         self._n_commands = 0
         self.state = BOOT
@@ -323,15 +337,18 @@ class Executive(object):
         back, or that shows fewer frame periods since the last packet than the frame counter
         numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
         next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
-        than :data:`TIME_TOLERANCE_MS` off the timestamp's date is ignored (an edge can only
-        be late: a poll that found the line low between two queued packets) unless the
+        than :data:`TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
+        only be late: a poll that found the line low between two queued packets) unless the
         timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
-        frame).  An agreeing edge renews the correlation (the clocks drift).  The periods
+        frame); an edge that much earlier shows the correlation's own edge was late (a packet
+        that emerged after a start-up's flush): this one dates the frame and anchors anew;
+        the edge of a frame the gateware ended itself (:data:`CUT_FLAGS`) is no date.  An
+        agreeing edge renews the correlation (the clocks drift).  The periods
         between two packets, less one, are the sensor frames never read (``missed``)."""
         frames, step = self._periods(counter, stamp)
         age = self._stamp_age(stamp, now)
         at_edge = None
-        if edge and stamp is not None:
+        if edge and stamp is not None and not self.link.last_flags & CUT_FLAGS:
             try:
                 settings = self.tracker.settings
                 readout = self.link.last_height * settings.row_time_s * 1000.0
@@ -339,16 +356,18 @@ class Executive(object):
                 readout = 0.0
             at_edge = self.clock.ticks_diff(now, self._attempt) + readout
             if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
-                _count(self.health, H_TIME_MISMATCH)
-                if frames is None or frames <= step:
-                    at_edge = None                         # a late edge: the stamp dates
-                else:
+                _count(self.health, _H_TIME_MISMATCH)
+                if frames is not None and frames > step:
                     self._stamp_wrong()                    # the stamp jumped ahead
                     frames = age = None
+                elif at_edge > age:
+                    age = None                             # the anchor's edge was late
+                else:
+                    at_edge = None                         # a late edge: the stamp dates
             if at_edge is not None:
                 self._sync = (stamp, self._attempt, readout)
         if frames is not None and frames > 1:
-            _count(self.health, H_MISSED, frames - 1)
+            _count(self.health, _H_MISSED, frames - 1)
         if age is not None:
             return age
         return at_edge if at_edge is not None else 0.0
@@ -365,7 +384,7 @@ class Executive(object):
         step = (counter - last[0]) & 0xFFFFFFFF
         frames = int(gap / (1e6 * self.frame_s) + 0.5)
         if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
-            _count(self.health, H_TIME_MISMATCH)
+            _count(self.health, _H_TIME_MISMATCH)
             self._stamp_wrong()
             return None, step
         return frames, step
@@ -411,7 +430,7 @@ class Executive(object):
 
     def _enter(self, state, reason=""):
         if state == SAFE and self.state != SAFE:
-            _count(self.health, H_SAFE)
+            _count(self.health, _H_SAFE)
         self.state = state
         if reason:
             self.reason = reason
@@ -431,7 +450,7 @@ class Executive(object):
             code, arg, value = self._commands[i]
             self._commands[i] = None
             self.last_command = (code, self._apply(code, arg, value))
-            _count(self.health, H_COMMANDS)
+            _count(self.health, _H_COMMANDS)
         self._n_commands = 0
 
     def _apply(self, code, arg, value):
@@ -461,7 +480,7 @@ class Executive(object):
                 settings = {"gain": arg}
             st, reason = self.sensor.configure(**settings)
             if st != S.OK:
-                _count(self.health, H_SENSOR_FAULT)
+                _count(self.health, _H_SENSOR_FAULT)
                 self.reason = reason
                 return st
             self.sensor_settings.update(settings)
@@ -509,8 +528,8 @@ class Executive(object):
         buf = self._prior_buf
         q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
-                         self.slot & 0xFFFFFFFF, 0)
-        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(memoryview(buf)[:PRIOR_BYTES - 4]))
+                         self.slot, 0)
+        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(self._prior_body))
         try:
             self.store.write(buf)
         except Exception:
@@ -545,9 +564,10 @@ class Executive(object):
 
     def _select(self, slot):
         """Open database ``slot`` through ``select_database``: ``S.OK`` and the new tracker
-        in use, or ``S.DATABASE_CORRUPT`` (or ``S.BAD_INPUT`` without the hook) and the
-        tracker kept."""
-        if self.select_database is None:
+        in use, or ``S.DATABASE_CORRUPT`` (or ``S.BAD_INPUT`` without the hook or for a slot
+        outside 0..``SLOT_MAX``) and the tracker kept."""
+        if self.select_database is None or not isinstance(slot, int) or \
+                not 0 <= slot <= SLOT_MAX:
             return S.BAD_INPUT
         tracker = self.select_database(slot)
         if tracker is None or getattr(tracker, "status", S.OK) != S.OK:
@@ -580,11 +600,11 @@ class Executive(object):
             else:
                 self._safe()
         except MemoryError:
-            _count(self.health, H_INTERNAL)
+            _count(self.health, _H_INTERNAL)
             self.reason = "out of heap"
             self._fault()
         except Exception as exc:
-            _count(self.health, H_INTERNAL)
+            _count(self.health, _H_INTERNAL)
             try:
                 self.reason = "internal: " + repr(exc)
             except Exception:
@@ -641,12 +661,12 @@ class Executive(object):
 
     def _configure(self):
         if self.sensor is not None:
-            _count(self.health, H_SENSOR_INIT)
+            _count(self.health, _H_SENSOR_INIT)
             self.feed()
             st, reason = self.sensor.start(self.sensor_settings)
             self.feed()
             if st != S.OK:
-                _count(self.health, H_SENSOR_FAULT)
+                _count(self.health, _H_SENSOR_FAULT)
                 self.reason = "sensor: " + reason
                 self._fault(LEVEL_SENSOR)
                 return
@@ -657,7 +677,7 @@ class Executive(object):
             value = min_sum if name == "min_sum" else self.registers[name]
             code = self.link.write_reg(name, value)
             if code != _link.OK:
-                _count(self.health, H_REG_FAULT)
+                _count(self.health, _H_REG_FAULT)
                 self.last_link = code
                 self.reason = "register " + name + ": " + _link.CODE_NAMES[code]
                 self._fault()
@@ -688,10 +708,10 @@ class Executive(object):
             self._enter(SAFE, self.reason)
             return
         if level == LEVEL_RESYNC:
-            _count(self.health, H_RESYNC)
+            _count(self.health, _H_RESYNC)
             code = self.link.resync()
         elif level == LEVEL_DETECTOR:
-            _count(self.health, H_DETECTOR_RESET)
+            _count(self.health, _H_DETECTOR_RESET)
             code = self.link.soft_reset()
         else:
             self._enter(CONFIGURE)
@@ -712,14 +732,14 @@ class Executive(object):
         link = self.link
         if link.restarted:
             link.restarted = False
-            _count(self.health, H_RESTART)
+            _count(self.health, _H_RESTART)
             self._last = None
 
     def _frame(self):
         link = self.link
         clock = self.clock
         if not link.wait_irq(self.irq_timeout_ms, self._tick):
-            _count(self.health, H_IRQ_TIMEOUT)
+            _count(self.health, _H_IRQ_TIMEOUT)
             self.last_link = _link.IRQ_TIMEOUT
             self._bad_frame()
             self._fault()
@@ -730,7 +750,7 @@ class Executive(object):
         code = link.read_status()
         self._restarted()
         if code == _link.OK and link.clock_lost():
-            _count(self.health, H_CLOCK_LOST)
+            _count(self.health, _H_CLOCK_LOST)
             self.last_link = code
             self.reason = "clock lost"
             self._bad_frame()
@@ -742,11 +762,11 @@ class Executive(object):
             self._restarted()
         self.last_link = code
         if code != _link.OK:
-            _count(self.health, H_LINK_FAULT)
+            _count(self.health, _H_LINK_FAULT)
             self._bad_frame()
             self._fault()
             return
-        _count(self.health, H_FRAMES)
+        _count(self.health, _H_FRAMES)
         self.faults = 0
         self._solve(n, edge)
 
@@ -788,12 +808,13 @@ class Executive(object):
             if dt is None:                                # integers: a float32 cannot hold ms
                 dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
         self.feed()
+        self.last_result = None          # the last frame's result is not held through this one
         result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
         self.feed()
         self.last_result = result
         self.last_status = result.status
         if result.status == S.OK and result.q is not None:
-            _count(self.health, H_OK)
+            _count(self.health, _H_OK)
             t_epoch = result.t_epoch_s if result.t_epoch_s is not None else epoch_s
             tag = first + exposure_ms - 1000.0 * t_epoch     # ms before ticks
             self.q = result.q
@@ -810,22 +831,22 @@ class Executive(object):
                 self._write_min_sum(result.min_sum)
             return
         if result.status == S.RATE_CONTRADICTED:
-            _count(self.health, H_RATE_CONTRADICTED)
+            _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
 
     def _bad_frame(self):
         """A frame without an attitude: coast on the prior, then drop to lost in space with
         every record admitted again."""
-        _count(self.health, H_BAD)
+        _count(self.health, _H_BAD)
         self.bad += 1
         if self.q is not None and self.bad <= self.coast_frames:
-            _count(self.health, H_COASTED)
+            _count(self.health, _H_COASTED)
             if self.state in (TRACK, COAST):
                 self._enter(COAST)
             return
         if self.q is not None:
-            _count(self.health, H_LOST)
+            _count(self.health, _H_LOST)
             self.q = None
         if self.state in (TRACK, COAST):
             self._enter(ACQUIRE)
@@ -837,12 +858,12 @@ class Executive(object):
         if code == _link.OK:
             self.min_sum = value
         else:
-            _count(self.health, H_REG_FAULT)
+            _count(self.health, _H_REG_FAULT)
 
     # ---- telemetry -----------------------------------------------------------------------
 
     def _emit(self):
-        self.sequence = (self.sequence + 1) & 0xFFFFFFFF
+        self.sequence = self.sequence + 1 if self.sequence < 0x3FFFFFFF else 0
         res = self.last_result
         q = self.q
         if q is None:
@@ -868,13 +889,12 @@ class Executive(object):
         buf = self.record
         struct.pack_into(telemetry.FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
                          self.state, self.sequence, max(0, self.q_time),
-                         (self.q_counter or 0) & 0xFFFFFFFF, (self.q_stamp or 0) & 0xFFFFFFFF,
-                         (self.q_epoch_us or 0) & 0xFFFFFFFF, self.last_status & 0xFF,
-                         self.last_link & 0xFF, matches, self.level, n_records,
-                         self.min_sum & 0xFFFFFFFF, q[0], q[1], q[2], q[3], sc, sr,
+                         self.q_counter or 0, self.q_stamp or 0, self.q_epoch_us or 0,
+                         self.last_status & 0xFF, self.last_link & 0xFF, matches, self.level,
+                         n_records, self.min_sum, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
                          h[11], h[12], h[13], h[14], h[15], h[16], h[17], h[18], h[19],
-                         heap & 0xFFFFFFFF, 0)
+                         heap, 0)
         struct.pack_into(">I", buf, telemetry.BYTES - 4, C.crc32(self._record_body))
         if self.telemetry is not None:
             try:

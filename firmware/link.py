@@ -76,23 +76,30 @@ _READ_LEN = C.READ_REG_BYTES
 _ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
 
 
-def _offsets(fields):
-    """``{name: (bit offset from the MSB, bits)}`` of a field table."""
-    out = {}
-    at = 0
-    for name, bits in fields:
-        out[name] = (at, bits)
-        at += bits
+def _specs(fields, names):
+    """Fields ``names`` of a field table (``contract.field_offsets``), each as one small
+    int: its bit offset from the MSB << 8 | its bits (a dict of tuples per table kept 600
+    bytes of heap on the MCU)."""
+    table = C.field_offsets(fields)
+    out = []
+    for name in names:
+        for field, at, bits in table:
+            if field == name:
+                out.append(at << 8 | bits)
     return out
 
 
-_HEADER = _offsets(C.HEADER_FIELDS)
-_STATUS = _offsets(C.STATUS_FIELDS)
+_H_MAGIC, _H_VERSION, _H_COUNTER, _H_TIMESTAMP, _H_HEIGHT, _H_FLAGS, _H_RECORDS = _specs(
+    C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp", "height", "flags",
+                      "n_records"))
+_S_COUNTER, _S_ERRORS, _S_UNDERRUNS, _S_OVERFLOW, _S_BUSY = _specs(
+    C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow", "busy"))
 
 
 def _field(data, base, spec):
-    """Unsigned field ``spec`` = (bit offset, bits) of the big-endian bytes at ``base``."""
-    at, bits = spec
+    """Unsigned field ``spec`` (:func:`_specs`) of the big-endian bytes at ``base``."""
+    at = spec >> 8
+    bits = spec & 0xFF
     first = base + at // 8
     last = base + (at + bits - 1) // 8
     value = 0
@@ -130,15 +137,14 @@ class Link(object):
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
         self._rxv = memoryview(self._rx)
-        # the views of each fixed-length transaction, made once (a slice is a heap object)
-        self._views = {}
-        for n in (_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES):
-            self._views[n] = (self._txv[:n], self._rxv[:n])
+        # the (tx, rx) views of each fixed-length transaction, made once (a slice is a heap
+        # object)
+        self._v_status = self._views(_STATUS_LEN)
+        self._v_read = self._views(_READ_LEN)
+        self._v_id = self._views(_ID_LEN)
+        self._v_write = self._views(C.WRITE_REG_BYTES)
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
         self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
-        self._keyed = {}
-        for op in C.KEYED_OPCODES:
-            self._keyed[op] = bytearray(C.keyed_command(op))
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
         self.errors = 0
@@ -149,6 +155,7 @@ class Link(object):
         self.last_timestamp = None       # its timestamp (the gateware's us counter)
         self.n_records = 0
         self.last_height = 0             # the rows of the last good packet's frame
+        self.last_flags = 0              # its frame flags (contract FRAME_*)
         self.ident = None                # (link_version, build) after read_id() == OK
         self.irq_edge = False            # the last wait_irq() saw irq rise (not high at once)
         self.restarted = False           # an uncommanded restart seen; the caller clears it
@@ -173,13 +180,15 @@ class Link(object):
     def _select(self, on):
         self.cs.value(0 if on else 1)
 
-    def _exchange(self, n):
-        """One transaction of ``n`` bytes from ``_tx``, the reply in ``_rx``: True if the
-        bus did not fail."""
+    def _views(self, n):
+        return self._txv[:n], self._rxv[:n]
+
+    def _exchange(self, views):
+        """One transaction of ``views`` = (the first bytes of ``_tx``, as many of ``_rx``)
+        for the reply: True if the bus did not fail."""
         try:
             self._select(True)
             try:
-                views = self._views[n]
                 self.spi.write_readinto(views[0], views[1])
             finally:
                 self._select(False)
@@ -223,7 +232,7 @@ class Link(object):
         values)."""
         self._clear(_STATUS_LEN)
         self._tx[0] = C.OP_READ_STATUS
-        if not self._exchange(_STATUS_LEN):
+        if not self._exchange(self._v_status):
             return BUS_ERROR
         rx = self._rx
         for i in range(_REPLY):
@@ -234,11 +243,11 @@ class Link(object):
             self.count(C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter
-        self.frame_counter = _field(rx, _REPLY, _STATUS["frame_counter"])
-        self.errors = _field(rx, _REPLY, _STATUS["errors"])
-        self.underruns = _field(rx, _REPLY, _STATUS["underruns"])
-        self.overflow = _field(rx, _REPLY, _STATUS["overflow"])
-        self.busy = _field(rx, _REPLY, _STATUS["busy"])
+        self.frame_counter = _field(rx, _REPLY, _S_COUNTER)
+        self.errors = _field(rx, _REPLY, _S_ERRORS)
+        self.underruns = _field(rx, _REPLY, _S_UNDERRUNS)
+        self.overflow = _field(rx, _REPLY, _S_OVERFLOW)
+        self.busy = _field(rx, _REPLY, _S_BUSY)
         self.count(C_STATUS)
         self.count(C_SLAVE_ERRORS, self.errors)
         if self._drain_underruns:
@@ -289,12 +298,12 @@ class Link(object):
         if not self._stream(head):
             self.resync()
             return BUS_ERROR, 0
-        if _field(head, 0, _HEADER["magic"]) != C.PACKET_MAGIC or \
-                _field(head, 0, _HEADER["version"]) != C.PACKET_VERSION:
+        if _field(head, 0, _H_MAGIC) != C.PACKET_MAGIC or \
+                _field(head, 0, _H_VERSION) != C.PACKET_VERSION:
             self.count(C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
-        n = _field(head, 0, _HEADER["n_records"])
+        n = _field(head, 0, _H_RECORDS)
         if n > self.capacity:
             self.count(C_LENGTH_BAD)
             self.resync()
@@ -312,9 +321,10 @@ class Link(object):
             return PACKET_CRC, 0
         self.count(C_PACKETS)
         self.n_records = n
-        self.last_frame_counter = _field(head, 0, _HEADER["frame_counter"])
-        self.last_timestamp = _field(head, 0, _HEADER["timestamp"])
-        self.last_height = _field(head, 0, _HEADER["height"])
+        self.last_frame_counter = _field(head, 0, _H_COUNTER)
+        self.last_timestamp = _field(head, 0, _H_TIMESTAMP)
+        self.last_height = _field(head, 0, _H_HEIGHT)
+        self.last_flags = _field(head, 0, _H_FLAGS)
         return OK, n
 
     def packet(self, n_records):
@@ -348,10 +358,11 @@ class Link(object):
         return OK
 
     def command(self, opcode):
-        """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code."""
-        data = self._keyed.get(opcode)
-        if data is None:
+        """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code.  Its two bytes
+        are made per command (rare: a resynchronisation or a reset), not kept."""
+        if opcode not in C.KEYED_OPCODES:
             return BAD_ARGUMENT
+        data = C.keyed_command(opcode)
         try:
             self._select(True)
             try:
@@ -376,7 +387,7 @@ class Link(object):
         self._clear(_READ_LEN)
         self._tx[0] = C.OP_READ_REG
         self._tx[1] = address & 0xFF
-        if not self._exchange(_READ_LEN):
+        if not self._exchange(self._v_read):
             return BUS_ERROR, 0
         rx = self._rx
         at = C.READ_REG_FIRST_REPLY
@@ -399,7 +410,7 @@ class Link(object):
             tx[1] = reg.address
             for i in range(C.VALUE_BYTES):
                 tx[2 + i] = (value >> (8 * (C.VALUE_BYTES - 1 - i))) & 0xFF
-            if not self._exchange(C.WRITE_REG_BYTES):
+            if not self._exchange(self._v_write):
                 code = BUS_ERROR
                 continue
             code, back = self.read_reg(reg.address)
@@ -415,7 +426,7 @@ class Link(object):
         link version); ``ident`` = ``(link_version, build)``."""
         self._clear(_ID_LEN)
         self._tx[0] = C.OP_READ_ID
-        if not self._exchange(_ID_LEN):
+        if not self._exchange(self._v_id):
             return BUS_ERROR
         rx = self._rx
         at = C.ID_FIRST_REPLY

@@ -15,29 +15,31 @@ VERSION = 3
 clock, ``epoch_us`` added, health counters ``time_mismatch`` and ``missed``; 2: the header
 timestamp and ``uncommanded_reset``."""
 
-HEALTH_NAMES = ("frames", "ok", "bad", "irq_timeout", "link_fault", "coasted", "lost",
-                "resync", "detector_reset", "sensor_init", "safe", "clock_lost",
-                "sensor_fault", "reg_fault", "commands", "internal", "uncommanded_reset",
-                "rate_contradicted", "time_mismatch", "missed")
-"""The executive's health counters, in record order (``executive.H_*`` index them): each a
-saturating 16-bit count since boot."""
-N_HEALTH = len(HEALTH_NAMES)
-
-FORMAT = ">HBBIQIIIBBBBHI4f2f" + str(N_HEALTH) + "HII"
-"""Big endian: magic, version, state, sequence, the attitude's time tag (ms of spacecraft
-time, the instant its result's ``t_epoch_s`` names), FPGA frame counter and FPGA timestamp
-of its frame (us, the packet header's: the frame's first pixel on the gateware's clock),
-``epoch_us`` (the attitude's instant on that clock, modulo 2**32), result status, link
-code, matches, recovery level, records, min_sum, q (x, y, z, w; NaN without an attitude),
-sigma cross and roll (arcsec; NaN), the health counters (:data:`HEALTH_NAMES`), heap free
-(bytes; 0 unknown), CRC-32 (``contract.crc32``) of everything before it."""
 FIELDS = ("magic", "version", "state", "sequence", "time_ms", "frame_counter",
           "frame_timestamp", "epoch_us", "status", "link_code", "matches", "level",
-          "n_records", "min_sum", "qx", "qy", "qz", "qw", "sigma_cross",
-          "sigma_roll") + HEALTH_NAMES + ("heap_free", "crc")
-BYTES = struct.calcsize(FORMAT)
-HEALTH_AT = FIELDS.index(HEALTH_NAMES[0])
+          "n_records", "min_sum", "qx", "qy", "qz", "qw", "sigma_cross", "sigma_roll",
+          "frames", "ok", "bad", "irq_timeout", "link_fault", "coasted", "lost", "resync",
+          "detector_reset", "sensor_init", "safe", "clock_lost", "sensor_fault", "reg_fault",
+          "commands", "internal", "uncommanded_reset", "rate_contradicted", "time_mismatch",
+          "missed", "heap_free", "crc")
+"""The record's values in order (one literal: a constant tuple in the MCU's flash): magic,
+version, state, sequence, the attitude's time tag (ms of spacecraft time, the instant its
+result's ``t_epoch_s`` names), FPGA frame counter and FPGA timestamp of its frame (us, the
+packet header's: the frame's first pixel on the gateware's clock), ``epoch_us`` (the
+attitude's instant on that clock, modulo 2**32), result status, link code, matches, recovery
+level, records, min_sum, q (x, y, z, w; NaN without an attitude), sigma cross and roll
+(arcsec; NaN), the health counters ``frames`` .. ``missed`` (:data:`HEALTH_NAMES`), heap free
+(bytes; 0 unknown), CRC-32 (``contract.crc32``) of everything before it."""
+HEALTH_AT = FIELDS.index("frames")
 """Index of the first health counter among the packed values."""
+N_HEALTH = FIELDS.index("heap_free") - HEALTH_AT
+HEALTH_NAMES = FIELDS[HEALTH_AT:HEALTH_AT + N_HEALTH]
+"""The executive's health counters, in record order (its ``_H_*`` constants index them):
+each a saturating 16-bit count since boot."""
+
+FORMAT = ">HBBIQIIIBBBBHI4f2f" + str(N_HEALTH) + "HII"
+"""Big endian, :data:`FIELDS` in order: 16-bit counters, float32 q and sigmas."""
+BYTES = struct.calcsize(FORMAT)
 
 
 def decode(data):

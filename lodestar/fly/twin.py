@@ -36,6 +36,8 @@ from lodestar.ground import onboard
 from lodestar.ground.truth import attitude_error_arcsec
 from lodestar.sim import catalogue, scene
 
+_FRAMES = executive.HEALTH_NAMES.index("frames")
+"""The executive's health counter of the frames read whole."""
 WRONG_ARCSEC = 60.0
 """A reported attitude farther than this from the truth is wrong (issue 32)."""
 WATCHDOG_MS = 2000
@@ -323,7 +325,7 @@ class Twin:
         """One executive step: its row (telemetry and truth)."""
         w = self.world
         exe = self.exe
-        frames_before = exe.health[executive.H_FRAMES]
+        frames_before = exe.health[_FRAMES]
         busy0 = w.busy
         w.fault_log = []
         self.schedule.ground(self, w.now)
@@ -336,7 +338,7 @@ class Twin:
                "mode": executive.STATE_NAMES[exe.state], "error_arcsec": None,
                "mcu_ms": round((w.busy - busy0) * 1000, 3), "records": 0, "faults": [],
                "frame": None, "solve": None, "level": exe.level, "wrong": False}
-        if exe.health[executive.H_FRAMES] != frames_before:
+        if exe.health[_FRAMES] != frames_before:
             self._judge(row, exe.last_result)
         elif exe.last_link != _link.OK:
             row["status"] = _link.CODE_NAMES[exe.last_link]

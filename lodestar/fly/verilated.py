@@ -37,6 +37,7 @@ from lodestar.hdl.boards import GatewareTop
 from lodestar.hdl.detector import min_vblank
 from lodestar.hdl.export import to_verilog
 from lodestar.hdl.frontend import STALL_TIMEOUT
+from lodestar.hdl.labeller import MIN_HBLANK
 
 HARNESS = Path(runner.__file__).with_name("top_native.cpp")
 SYNC_PS = 10000
@@ -155,15 +156,21 @@ class VerilatedTop:
 
     def frame(self, pixels, rows=None, start_us=0):
         """Play ``pixels`` (``height x width``), only its first ``rows`` rows if given; a
-        frame cut short is followed by the frame watchdog's stall timeout of idle clocks (the
-        sensor's next frame comes 100 ms later, long after it: compressed time must not
-        join the two).  ``start_us``: the frame's first pixel on the twin's clock, where the
-        board's microsecond counter is set before the frame (compressed time), so the
-        gateware stamps it with that instant."""
+        frame cut short is followed by the idle clocks in which the frame watchdog completes
+        it as on the board (its stall timeout, then the missing rows in dark pixels, one per
+        clock with ``MIN_HBLANK`` after each row: at 2592 x 1944 and 100 MHz, 10.5 + 25 ms,
+        long before the sensor's next frame), so it ends ``FRAME_TIMEOUT`` and raises the
+        IRQ before the next frame starts (too few clocks and the next frame's first pixel
+        ends it ``FRAME_TRUNCATED`` a period late: compressed time must not join the two).
+        ``start_us``: the frame's first pixel on the twin's clock, where the board's
+        microsecond counter is set before the frame (compressed time), so the gateware
+        stamps it with that instant."""
         data = np.ascontiguousarray(pixels, dtype=np.uint16)
         h, w = data.shape
         rows = h if rows is None else max(0, min(rows, h))
-        vblank = self.vblank if rows == h else self.vblank + STALL_TIMEOUT + 1024
+        vblank = self.vblank
+        if rows < h:
+            vblank += STALL_TIMEOUT + (h - rows) * (w + MIN_HBLANK)
         self._lib.twin_set_time(self._h, int(start_us) & ((1 << C.TIMESTAMP_BITS) - 1))
         self._lib.twin_frame(self._h, data.ctypes.data, w, rows, HBLANK, vblank)
 

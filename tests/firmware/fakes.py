@@ -81,6 +81,8 @@ class Link(object):
         self.irq_edge = False
         self.restarted = False
         self.last_height = 0
+        self.flags = 0             # the frame flags of the next packet read
+        self.last_flags = 0
 
     def read_id(self):
         return _link.OK if self.id_ok else _link.ID_BAD
@@ -133,6 +135,7 @@ class Link(object):
             return _link.PACKET_CRC, 0
         self.last_frame_counter = self.counter
         self.last_timestamp = self.stamp & 0xFFFFFFFF
+        self.last_flags = self.flags
         return _link.OK, 3
 
     def packet(self, n):

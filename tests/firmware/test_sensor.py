@@ -372,6 +372,14 @@ def test_mt9p031_start_runs_the_power_up_sequence_and_gives_10_hz():
     st, _reason, got = cam.timing()
     assert st == S.OK and got == pytest.approx((row, exposure, frame), rel=1e-8)
     assert cam.stop() == (S.OK, "") and fake.regs[0x0B] == 3
+    # the driver's own defaults (PLL to 70 MHz, every other register at its reset value,
+    # full frame) support 10 Hz too: 98.3 ms
+    fake = FakeSensor("mt9p031")
+    cam = sensor.Sensor(fake, "mt9p031", sleep_ms=fake.sleep_ms)
+    assert cam.start({}) == (S.OK, "") and fake.window() == (16, 54, 2592, 1944)
+    st, _reason, got = cam.timing()
+    assert st == S.OK and got[2] == pytest.approx(fake.frame_timing()[2], rel=1e-8)
+    assert 0.098 < got[2] <= 0.1
 
 
 def test_mt9p031_exposure_change_is_synchronized_not_stopped():

@@ -38,6 +38,7 @@ def test_short_loop_acquires_tracks_and_writes_min_sum_back(small_camera):
     assert loop.exe.frame_s == pytest.approx(timing["frame_s"], rel=1e-6)
     h = s["health"]
     assert h["ok"] == len(solved) and h["sensor_init"] == 1 and h["bad"] == 0
+    assert h["time_mismatch"] == 0             # a clean run: every frame's date agrees
     t = telemetry.decode(loop.exe.record)
     assert t["state"] == executive.TRACK and t["ok"] == len(solved)
 
@@ -89,5 +90,5 @@ def test_the_database_slot_survives_the_watchdog_reset(small_camera):
     assert s["wrong"] == 0 and s["reboots"] == 1
     reset = next(i for i, r in enumerate(rows) if "watchdog-reset" in r["faults"])
     assert all(r["mode"] != "SAFE" for r in rows[reset + 1:])
-    assert loop.exe.slot == 1 and loop.exe.health[executive.H_COMMANDS] == 0
+    assert loop.exe.slot == 1 and loop.exe.health[executive.HEALTH_NAMES.index("commands")] == 0
     assert s["recovery"]["watchdog"]["within"]

@@ -62,3 +62,26 @@ def test_link_against_the_verilated_top_equals_golden():
     assert got[0] == got[1] and codec.decode(got[0]).timestamp == at[2]
     assert links[0].soft_reset() == _link.OK and links[0].read_status() == _link.OK
     assert links[0].frame_counter == 0
+
+
+def test_a_frame_cut_short_ends_by_the_watchdog_before_the_next():
+    """A frame whose FRAME_VALID falls after its first row: the board's frame watchdog
+    completes it with dark rows after its stall timeout, long before the sensor's next frame,
+    so its IRQ is high when the twin has played it and its packet is the golden engine's
+    (``FRAME_TIMEOUT``; before, too few idle clocks were played for a 256-pixel row and the
+    next frame's start ended it a period late, the twin's ``truncated`` time mismatches)."""
+    from lodestar.fly.verilated import VerilatedTop
+
+    top = VerilatedTop.small(256, 32, 20)
+    gold = golden_top.GoldenTop(256, 32, 12, 20, build_id=top.build_id)
+    got = []
+    for engine in (top, gold):
+        b = _PinBus(engine)
+        link = _link.Link(b, b.cs, b.irq, _Clock(), capacity=20)
+        assert link.write_reg("threshold", 100) == _link.OK
+        engine.frame(_frame(0, w=256), rows=1, start_us=5000)
+        assert engine.irq()
+        assert link.read_status() == _link.OK and link.read_packet()[0] == _link.OK
+        got.append(bytes(link.packet(link.n_records)))
+    assert got[0] == got[1]
+    assert codec.decode(got[0]).flags & C.FRAME_TIMEOUT
