@@ -14,8 +14,9 @@ each row's flux falls with its rank.  Each is solved by
 HIP is not among the stars blended into that centroid (a false star named is wrong).
 Prints per FOV and configuration: scenes, solved, matches, wrong matches, scenes with a
 wrong match; and the total wrong-identity rate with its one-sided 95 % Clopper-Pearson upper
-bound (:func:`upper_bound`: the issue asks for below 1 in 2,000 with that confidence).  Run it with another checkout's
-interpreter to compare firmware versions on the same scenes (the seeds are fixed).
+bound (:func:`upper_bound`: the issue asks for below 1 in 2,000 with that confidence).  Run
+it with another checkout's interpreter to compare firmware versions on the same scenes (the
+seeds are fixed).
 """
 
 import argparse
