@@ -13,14 +13,17 @@ each row's flux falls with its rank.  Each is solved by
 ``lodestar.ground.solve.solve_centroids(rows, 1024, 768, fov)``.  A match is wrong when its
 HIP is not among the stars blended into that centroid (a false star named is wrong).
 Prints per FOV and configuration: scenes, solved, matches, wrong matches, scenes with a
-wrong match; and the total wrong-identity rate.  Run it with another checkout's
-interpreter to compare firmware versions on the same scenes (the seeds are fixed).
+wrong match; and the total wrong-identity rate with its one-sided 95 % Clopper-Pearson upper
+bound (:func:`upper_bound`: the issue asks for below 1 in 2,000 with that confidence).  Run
+it with another checkout's interpreter to compare firmware versions on the same scenes (the
+seeds are fixed).
 """
 
 import argparse
 import json
 
 import numpy as np
+from scipy import stats
 
 from lodestar.ground.solve import solve_centroids
 from lodestar.sim import attitude, catalogue, centroids, presets
@@ -34,6 +37,17 @@ CONFIGS = {
           "mag_jitter": 0.8},
 }
 WIDTH, HEIGHT, MAX_STARS = 1024, 768, 40
+CONFIDENCE = 0.95
+"""One-sided confidence of the wrong-identity rate's upper bound."""
+
+
+def upper_bound(wrong, matches, confidence=CONFIDENCE):
+    """One-sided Clopper-Pearson upper bound of a rate of ``wrong`` in ``matches`` (the
+    ``confidence`` quantile of Beta(wrong + 1, matches - wrong)): 1 of 9,500 gives
+    1 / 2,003."""
+    if wrong >= matches:
+        return 1.0
+    return float(stats.beta.ppf(confidence, wrong + 1, matches - wrong))
 
 
 def run(fov, name, scenes, cat):
@@ -79,6 +93,9 @@ def main():
     wrong = sum(r["wrong"] for r in rows)
     print(f"total: {wrong} wrong of {matches} matches ({100.0 * wrong / max(matches, 1):.3f} %)"
           f" in {sum(r['solved'] for r in rows)} solved scenes")
+    bound = upper_bound(wrong, matches)
+    print(f"{100 * CONFIDENCE:g} % upper bound (Clopper-Pearson, one-sided): "
+          f"{100.0 * bound:.4f} % (1 in {1.0 / bound:,.0f})")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(rows, f, indent=1)

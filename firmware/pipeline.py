@@ -141,6 +141,8 @@ leave fewer drops none (the identification's own probability stands)."""
 MIN_FREEDOM = 0.1
 """Smallest ``1 - h_i`` a match's residual variance is scaled by in the match screen (a star
 that is most of the fit says little about itself)."""
+BOUND_SIGMAS = 5.0
+"""Sigmas of the bound ``max_error_arcsec`` limits (:meth:`StarTracker._precise`)."""
 MAX_BOUNDED_SMEAR_PX = 6.0
 """Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
 frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
@@ -692,8 +694,25 @@ class StarTracker:
         res.matches = [(star_ids[i][0], None, None, hips[i]) for i in range(len(star_ids))]
         res.sigma_cross_arcsec = cross * RAD_TO_ARCSEC
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
+        self._precise(res)
         self._tick(timings, "attitude", start)
         return res
+
+    def _precise(self, res):
+        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on an axis (cross
+        or roll) exceeds ``max_error_arcsec``: an ``OK`` attitude is then never further off
+        than the limit on an axis without being beyond its own bound there (issue 33's two
+        criteria of a wrong attitude become one per axis).  Its attitude, matches and sigmas
+        stay in ``res`` for diagnostics."""
+        limit = self.settings.max_error_arcsec
+        if limit is None:
+            return
+        c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
+        bound = BOUND_SIGMAS * (c if c > r else r)
+        if not bound <= limit:
+            res.status = S.IMPRECISE
+            _note(res, "{:g}-sigma bound {:.0f} arcsec beyond max_error_arcsec {:g}".format(
+                BOUND_SIGMAS, bound, limit))
 
     def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
         """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
@@ -1057,7 +1076,7 @@ class StarTracker:
                                       streaks, beta)
         finally:
             self._frame = None
-        if res.status == S.OK:
+        if res.status == S.OK or res.status == S.IMPRECISE:
             index, xy = self._index, self._xy
             matches = []
             for o, _x, _y, hip in res.matches:

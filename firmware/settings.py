@@ -20,16 +20,24 @@ DEFAULT_MAX_STARS = 32
 """Brightest stars used per frame (identification patterns use the first 16)."""
 DEFAULT_MIN_SIGMA_PX = 0.02
 """Floor of the residual-based centroid noise estimate, px."""
-DEFAULT_MAX_SMEAR_PX = 50.0
-"""Longest expected smear (px) the pipeline solves: beyond it a threshold breaks a star's
-track into pieces the fragment joining cannot all recover, with centroid errors the
-covariance does not describe (``docs/firmware.md``)."""
+DEFAULT_MAX_SMEAR_PX = 100.0
+"""Longest expected smear (px) the pipeline solves (each star its own,
+``docs/campaigns.md``, Spin about the boresight).  A threshold breaks a long track into
+pieces; the joined pieces are centred on their extent and carry an unseen half-track of a
+tenth of the track (:mod:`lodestar.firmware.centroids`), which covers their centroid errors
+to 45 deg/s about the boresight on estcube2 (corners 130 px); beyond 100 px the tracks are
+faint pieces the detector mostly loses, and long ones cost the joining time."""
 DEFAULT_BUDGET = 2000
 """Lost-in-space pattern budget (deterministic cap on the search)."""
 MAX_STARS = 256
 """Most stars a frame may keep (``max_stars``): verification work grows with it."""
 DEFAULT_TRACK_SEARCH_DEG = 0.3
 """Largest expected error of the propagated prior, deg."""
+DEFAULT_MAX_ERROR_ARCSEC = DEFAULT_TRACK_SEARCH_DEG * 3600.0
+"""Largest 5-sigma bound on an axis (arcsec) of an ``OK`` attitude; beyond it ``IMPRECISE``
+(``docs/firmware.md``, Result, epoch and statuses).  The tracking window: an attitude less
+certain than the window the next frame searches is no prior.  Issue 33's 180" would refuse
+half the estcube2 frames at 20 deg/s about the boresight (5 sigma of roll 80-920")."""
 DEFAULT_TRACK_STARS = 8
 """Brightest blobs a tracking frame is budgeted for (``track_stars``): the ``min_sum`` a
 solved frame returns lets 8 to 10 of them into the next packet (``docs/firmware.md``,
@@ -152,6 +160,7 @@ OPTIONS = (
     ("max_work",          None,                       _count_or_none),
     ("budget",            DEFAULT_BUDGET,             _budget),
     ("max_smear_px",      DEFAULT_MAX_SMEAR_PX,       _positive),
+    ("max_error_arcsec",  DEFAULT_MAX_ERROR_ARCSEC,   _positive_or_none),
     ("track_search_deg",  DEFAULT_TRACK_SEARCH_DEG,   _not_negative),
     ("row_time_s",        0.0,                        _finite),
     ("epoch_s",           0.0,                        _finite),
@@ -190,6 +199,8 @@ class Settings:
     ``fallback``: run lost-in-space when tracking fails.  ``drop_border``: ignore blobs
     touching the frame edge.  ``refine``: grow a lost-in-space match set by tracking from
     its attitude.  ``max_smear_px``: longest expected smear solved (beyond: ``SMEAR_TOO_LONG``).
+    ``max_error_arcsec``: largest 5-sigma bound of an ``OK`` attitude, arcsec (beyond:
+    ``IMPRECISE``; None: any).
     ``extract_options``: extra keywords of :func:`lodestar.firmware.centroids.extract`
     (:data:`EXTRACT_OPTIONS`); ``id_options``: extra keywords of the identification
     (:data:`ID_OPTIONS`).  ``clock``: optional function returning a number (e.g.

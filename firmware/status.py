@@ -44,6 +44,7 @@ CAMERA_OUT_OF_VIEW = const(22)
 SMEAR_TOO_LONG = const(23)
 RATE_UNKNOWN = const(24)
 RATE_CONTRADICTED = const(25)
+IMPRECISE = const(26)
 
 # --- star identification ----------------------------------------------------------------
 NO_MATCH = const(30)
@@ -95,6 +96,9 @@ _TABLE = (
     (RATE_CONTRADICTED, "RATE_CONTRADICTED",
      "the frame's shear and streaks contradict the given gyro rate beyond their own "
      "uncertainty: no attitude"),
+    (IMPRECISE, "IMPRECISE",
+     "the solution's 5-sigma bound exceeds max_error_arcsec: its attitude and sigmas are "
+     "in the result for diagnostics, not for use"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),
     (BUDGET_EXHAUSTED, "BUDGET_EXHAUSTED",

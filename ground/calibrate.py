@@ -23,6 +23,7 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
 from lodestar.ground import imagesolve, onboard
 from lodestar.ground.database import default_catalogue
@@ -169,7 +170,10 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     binned, _ = imagesolve.image_camera(image, camera=camera)
     report, det, res, _ = imagesolve.solve_image(image, binned, mag, tolerance_px, ksigma,
                                                  min_pixels)
-    if res.ok:
+    # an IMPRECISE solve named its stars right: only its attitude is loose, as an
+    # uncalibrated lens makes it, and the fit below is what tightens it
+    identified = res is not None and (res.ok or res.status == S.IMPRECISE)
+    if identified:
         q = np.asarray(res.q, dtype=np.float64)
     elif q_fallback is not None:
         q = np.asarray(q_fallback, dtype=np.float64)
@@ -178,9 +182,9 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     cat = default_catalogue(mag).brighter_than(report["mag_limit"] + 1e-6)
     xy_all = _records_xy(image, det)
     xy, hips = [], []
-    for m in report["matches"]:
-        xy.append((m["x"], m["y"]))
-        hips.append(m["hip"])
+    for _index, x, y, hip in (res.matches if identified else ()):
+        xy.append(image.to_original(x, y))
+        hips.append(hip)
     n_solver = len(xy)
     if radius_px is None:
         radius_px = (tolerance_px if tolerance_px is not None else
@@ -197,7 +201,8 @@ def frame_pairs(name, image, camera, mag=None, tolerance_px=None, ksigma=None,
     full = default_catalogue(mag)
     v = full.unit_vectors()[[full.by_hip(h) for h in hips]] if hips else np.zeros((0, 3))
     return FramePairs(name, xy, v, hips, q, n_solver,
-                      "OK" if res.ok else f"{report['status']} (previous attitude)")
+                      report["status"] if identified else
+                      f"{report['status']} (previous attitude)")
 
 
 # --------------------------------------------------------------------------------------

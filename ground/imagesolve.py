@@ -11,6 +11,7 @@ import numpy as np
 from lodestar import contract as C
 from lodestar.contract import stardb
 from lodestar.firmware import centroids
+from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.ground import annotate, fovsearch, onboard, solve
@@ -492,7 +493,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
             db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
                                                 log, timings, blind=search is not None,
                                                 velocity_km_s=velocity_km_s, motion=motion)
-            if search is None or not res.ok or attempt:
+            if search is None or attempt or not (res.ok or res.status == S.IMPRECISE):
                 break
             idx = [(x, y, hip) for _i, x, y, hip in res.matches]
             f_new = solve.refit_focal([(x, y) for x, y, _h in idx],

@@ -83,7 +83,7 @@ def default_tolerance_px(camera):
 
 def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.0,
             tolerance_px=None, method="pyramid", max_work=DEFAULT_MAX_WORK,
-            velocity_km_s=None):
+            velocity_km_s=None, prior=None, dt=None):
     """Send a detection ``result`` (``lodestar.golden.DetectionResult``) through the packet
     codec and the flight pipeline.
 
@@ -91,7 +91,8 @@ def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.
     :class:`lodestar.firmware.pipeline.Result` and ``{"packet": ms, "solve": ms,
     "firmware": {stage: ms}}``.  ``omega``: body rate (rad/s, camera frame; the gyro) or
     None; ``exposure_s``, ``row_time_s``: s, for smear and rate compensation;
-    ``velocity_km_s``: the observer's (ICRS) for the aberration, or None.  Raises
+    ``velocity_km_s``: the observer's (ICRS) for the aberration, or None; ``prior``, ``dt``:
+    the flight loop's previous attitude and the time since it (tracking), or None.  Raises
     ``AssertionError`` if the packet does not decode to ``result`` (a codec bug)."""
     t0 = time.perf_counter()
     data = codec.encode(result)
@@ -103,7 +104,8 @@ def process(result, camera, database, omega=None, exposure_s=None, row_time_s=0.
                           row_time_s=row_time_s, clock=time.perf_counter, max_work=max_work,
                           tolerance_px=(default_tolerance_px(camera) if tolerance_px is None
                                         else tolerance_px)))
-    res = tracker.process(data, omega=omega, velocity_km_s=velocity_km_s)
+    res = tracker.process(data, prior=prior, omega=omega, dt=dt,
+                          velocity_km_s=velocity_km_s)
     t2 = time.perf_counter()
     timings = {"packet": (t1 - t0) * 1e3, "solve": (t2 - t1) * 1e3,
                "firmware": {k: v * 1e3 for k, v in res.timings.items()}}

@@ -125,17 +125,37 @@ class Frame:
     def database(self, method):
         return onboard.star_database(self.fw_cam, method=method)[0]
 
-    def solve(self, method="pyramid", det=None, gyro=1.0):
+    def solve(self, method="pyramid", det=None, gyro=1.0, track=None):
         """The firmware on this frame's packet (or on ``det``): :func:`verdict`.  ``gyro``:
         the rate given, as a multiple of the true rate (a wrong gyro: -1, 2); None: none
-        (the firmware fits it from the frame)."""
+        (the firmware fits it from the frame).  ``track``: ``(dt_s, seed)`` to track as the
+        flight loop does, from a prior :func:`tracking_prior`; None: lost in space."""
         det = self.det if det is None else det
         omega = None if gyro is None else [gyro * w for w in self.omega_rad_s]
+        prior = dt = None
+        if track is not None:
+            dt = track[0]
+            prior = tracking_prior(self, dt, np.random.default_rng(track[1]))
         _data, res, _timings = onboard.process(
             det, self.fw_cam, self.database(method), omega=omega,
             exposure_s=self.truth["exposure_s"], row_time_s=self.truth["row_time_s"],
-            method=method)
+            method=method, prior=prior, dt=dt)
         return verdict(res, det.blobs, self)
+
+
+TRACK_PRIOR_ERROR_ARCSEC = (30.0, 200.0)
+"""1-sigma error (cross per axis, roll; arcsec) of :func:`tracking_prior`: about the reported
+1 sigma of a solution at 30 deg/s about the boresight (``docs/campaigns.md``)."""
+
+
+def tracking_prior(frame, dt_s, rng):
+    """The flight loop's prior for ``frame``: the true attitude ``dt_s`` s before the frame's
+    epoch, turned by a random error of :data:`TRACK_PRIOR_ERROR_ARCSEC` (Gaussian, per axis,
+    camera frame), as the previous frame's solution would be; the firmware propagates it
+    over ``dt_s`` with the gyro."""
+    sigma = np.radians(np.array(TRACK_PRIOR_ERROR_ARCSEC)[[0, 0, 1]] / 3600.0)
+    error = sigma * rng.standard_normal(3)
+    return propagate(list(truth_at(frame, -dt_s)), list(-error), 1.0)
 
 
 def truth_at(frame, t_s):

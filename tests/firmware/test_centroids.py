@@ -266,9 +266,10 @@ def test_cosmic_ray_and_smear(angle):
         return smear
     assert len(centroids.extract([track], expected_smear_px=smear_at)[0]) == 1
     assert calls and calls[0] == pytest.approx(centroids.moments(track)[:2])
-    # wrong direction, wrong length, no motion: still a cosmic ray
-    for wrong in [(-smear[1], smear[0]),
-                  (smear[0] * 3, smear[1] * 3), (smear[0] / 3, smear[1] / 3),
+    # a third of a longer expected track alone: a cosmic ray along the smear as likely as
+    # a piece of a track; with another piece of the same track, joined to it (below)
+    for wrong in [(-smear[1], smear[0]), (smear[0] * 3, smear[1] * 3),
+                  (smear[0] / 3, smear[1] / 3),
                   (0.0, 0.0), (float("nan"), 1.0)]:
         _, rejected = centroids.extract([track], expected_smear_px=wrong)
         assert rejected["cosmic_ray"] == 1, wrong
@@ -323,6 +324,26 @@ def test_broken_track_is_joined_into_one_star():
     far = record_from_weights(np.where((along > 0) & ~gap, w, 0), 560, 375)
     stars, rejected = centroids.extract([left, far], expected_smear_px=(dx, dy))
     assert rejected["fragment"] == 0 and len(stars) == 2
+
+
+def test_broken_track_centred_on_its_extent():
+    # a cut off the middle of a track (a third of it from one end, a fifth of it wide)
+    # leaves more light on one side: the joined star lies at the middle of the pieces'
+    # extent along the smear, where the star was at mid-exposure, not at their light's mean
+    # (the firmware before this rule: 3 px off along this 60 px track)
+    dx, dy = 48.0, -36.0
+    w = smeared_star_weights(1.5, dx, dy, size=81)
+    c = (w.shape[0] - 1) / 2
+    y, x = np.mgrid[0:w.shape[0], 0:w.shape[1]]
+    along = ((x - c) * dx + (y - c) * dy) / (dx * dx + dy * dy)      # -0.5 .. 0.5
+    gap = np.abs(along - 0.2) < 0.1
+    left = record_from_weights(np.where((along < 0.2) & ~gap, w, 0), 500, 400)
+    right = record_from_weights(np.where((along > 0.2) & ~gap, w, 0), 500, 400)
+    stars, rejected = centroids.extract([left, right], expected_smear_px=(dx, dy))
+    assert len(stars) == 1 and rejected["fragment"] == 1
+    mean_x = (left.sx + right.sx) / (left.s0 + right.s0)
+    assert abs(mean_x - 500 - c) > 2.0                 # the light's mean is off
+    assert (stars[0].x, stars[0].y) == pytest.approx((500 + c, 400 + c), abs=0.3)
 
 
 def _groups_by_every_pair(stars, smear, across_px):
@@ -426,6 +447,11 @@ def test_smear_consistent_tolerances():
     assert centroids.smear_consistent(smaj, smin, 0.0, (5.1, 0.0))
     assert not centroids.smear_consistent(smaj, smin, 0.0, (4.9, 0.0))
     assert not centroids.smear_consistent(smaj, smin, 0.0, None)
+    # a part of a longer track: any shorter length, the same direction and upper bound
+    assert not centroids.smear_consistent(smaj, smin, 0.0, (60.0, 0.0))
+    assert centroids.smear_consistent(smaj, smin, 0.0, (60.0, 0.0), partial=True)
+    assert not centroids.smear_consistent(smaj, smin, 0.4, (60.0, 0.0), partial=True)
+    assert not centroids.smear_consistent(smaj, smin, 0.0, (4.9, 0.0), partial=True)
 
 
 def test_brightest_kept_in_order():

@@ -203,10 +203,13 @@ def test_few_near_round_records_keep_the_gyro():
 def test_too_few_stars_to_fit_a_rate():
     """With fewer matched stars than a rate fit needs and no gyro: a still frame's streaks
     bound the rate (sigma grown, noted); a smeared frame's do not: ``RATE_UNKNOWN``, which
-    the gyro's rate solves."""
-    few = sim_frames.tracker(max_stars=5)
+    the gyro's rate solves.  (The bound's shear makes a 5-star roll loose: at the default
+    ``max_error_arcsec`` the still frame is ``IMPRECISE``, with the same attitude.)"""
+    few = sim_frames.tracker(max_stars=5, max_error_arcsec=None)
     still = few.process(sim_frames.frames()[0].packet)
     assert still.ok and "rate not fitted" in still.reason
+    loose = sim_frames.tracker(max_stars=5).process(sim_frames.frames()[0].packet)
+    assert loose.status in (S.OK, S.IMPRECISE) and loose.q == still.q
     statuses = []
     for frame in [f for f in sim_frames.frames() if f.moving]:
         res = few.process(frame.packet)
@@ -906,9 +909,27 @@ def test_smear_beyond_the_limit_gets_no_attitude():
         assert sim_frames.tracker(max_smear_px=bad).status == S.BAD_INPUT
 
 
+def test_a_bound_beyond_max_error_is_imprecise():
+    """A solution whose 5-sigma bound on an axis exceeds ``max_error_arcsec`` is
+    ``IMPRECISE``, its attitude, matches and sigmas kept for diagnostics; None admits any."""
+    frame = sim_frames.frames()[0]
+    res = sim_frames.tracker().process(frame.packet)
+    assert res.ok
+    bound = pipeline.BOUND_SIGMAS * max(res.sigma_cross_arcsec, res.sigma_roll_arcsec)
+    loose = sim_frames.tracker(max_error_arcsec=None).process(frame.packet)
+    assert loose.ok and loose.q == res.q
+    tight = sim_frames.tracker(max_error_arcsec=0.9 * bound).process(frame.packet)
+    assert tight.status == S.IMPRECISE and not tight.ok and "max_error_arcsec" in tight.reason
+    assert tight.q == res.q and tight.matches == res.matches
+    assert tight.sigma_roll_arcsec == res.sigma_roll_arcsec
+    assert sim_frames.tracker(max_error_arcsec=1.1 * bound).process(frame.packet).ok
+
+
 ROLL_DEG_S = 20.0
 """The spin about the boresight of the seed mission's E-sail after slow-down: 17 px of smear
-500 px from the centre, 56 px in the corners of estcube2 (beyond ``max_smear_px``)."""
+500 px from the centre, 56 px in the corners of estcube2 (beyond :data:`ROLL_LIMIT_PX`)."""
+ROLL_LIMIT_PX = 50.0
+"""A ``max_smear_px`` the corners of a :data:`ROLL_DEG_S` frame pass and its centre not."""
 
 
 @functools.lru_cache(maxsize=None)
@@ -956,9 +977,10 @@ def test_a_roll_uses_the_stars_whose_own_smear_is_short():
         assert res.n_stars + sum(res.rejected.values()) == res.n_records
 
     for frame in roll_frames():
-        limit = tracker.settings.max_smear_px
+        limit = ROLL_LIMIT_PX
         assert smear(frame, 0, 0) > limit > smear(frame, cam.cx, cam.cy) + limit / 2
-        check(frame, tracker.process(frame.packet, omega=frame.omega), limit)
+        check(frame, sim_frames.tracker(max_smear_px=limit).process(frame.packet,
+                                                                   omega=frame.omega), limit)
         # a limit 500 px from the boresight: the outer stars go, the inner ones solve (tracks
         # of up to 30 px widen Pyramid's pair tolerances: roll0 takes 107,000 work units,
         # about 6 s of F401 time, beyond Pyramid's flight budget: the shared one here)

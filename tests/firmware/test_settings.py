@@ -78,6 +78,8 @@ BAD_SETTINGS = [
     ({"budget": "2000"}, "budget must be an int >= 1"),
     ({"max_smear_px": 0}, "max_smear_px" + POSITIVE),
     ({"max_smear_px": INF}, "max_smear_px" + POSITIVE),
+    ({"max_error_arcsec": 0}, "max_error_arcsec" + POSITIVE + " or None"),
+    ({"max_error_arcsec": NAN}, "max_error_arcsec" + POSITIVE + " or None"),
     ({"track_search_deg": -0.1}, "track_search_deg must be a number >= 0"),
     ({"track_search_deg": NAN}, "track_search_deg must be a number >= 0"),
     ({"row_time_s": INF}, "row_time_s must be a finite number"),

@@ -65,3 +65,8 @@ def test_process_solves_a_simulated_frame(tmp_path, monkeypatch):
     assert set(timings) == {"packet", "solve", "firmware"} and "identify" in timings["firmware"]
     ra, dec, roll = attitude.to_radec_roll(res.q)
     assert abs(ra - 83.8) < 0.01 and abs(dec + 5.4) < 0.01 and abs(roll - 10.0) < 0.05
+    assert res.mode == "lost_in_space"
+    # the flight loop's prior: tracking
+    _data, tracked, _t = onboard.process(det, fw, db, exposure_s=cam.exposure_s,
+                                         prior=list(q), dt=0.1)
+    assert tracked.status_name == "OK" and tracked.mode == "tracking"

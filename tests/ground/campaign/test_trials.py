@@ -10,7 +10,7 @@ from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import Result
 from lodestar.ground.campaign import runner, trials
 from lodestar.ground.onboard import camera_settings
-from lodestar.ground.truth import WRONG_ARCSEC
+from lodestar.ground.truth import WRONG_ARCSEC, attitude_error_arcsec
 from lodestar.sim import presets
 
 
@@ -78,6 +78,25 @@ def test_verdict_judges_the_attitude_at_its_instant():
     res.t_epoch_s = 0.0
     assert trials.verdict(res, [], frame)["wrong"]
     assert trials.truth_at(frame, None) is q
+
+
+def test_tracking_prior_is_the_truth_before_turned_by_its_error():
+    """The flight loop's prior: the truth ``dt`` before the frame, off by about
+    ``TRACK_PRIOR_ERROR_ARCSEC`` (across per axis, in roll), the same for the same seed."""
+    q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
+    frame = FakeFrame(q, (0.0, 0.0, math.radians(30.0)))
+    cross, roll = [], []
+    for seed in range(200):
+        prior = trials.tracking_prior(frame, 0.1, np.random.default_rng(seed))
+        e = attitude_error_arcsec(prior, trials.truth_at(frame, -0.1))
+        cross += [e["x"], e["y"]]
+        roll.append(e["roll"])
+    assert np.std(cross) == pytest.approx(trials.TRACK_PRIOR_ERROR_ARCSEC[0], rel=0.2)
+    assert np.std(roll) == pytest.approx(trials.TRACK_PRIOR_ERROR_ARCSEC[1], rel=0.2)
+    again = trials.tracking_prior(frame, 0.1, np.random.default_rng(0))
+    assert np.allclose(again, trials.tracking_prior(frame, 0.1, np.random.default_rng(0)))
+    # 0.1 s at 30 deg/s turns it by 3 deg: far from the frame's own truth at 0
+    assert abs(attitude_error_arcsec(again, q)["roll"]) > 3600.0
 
 
 def test_no_gyro_applies_to_the_rate_study():
