@@ -41,7 +41,9 @@ next frame's prior runs from that instant (by the timestamps; by the time tags f
 restored after a reset).  A frame whose stars contradict the gyro's rate
 (``RATE_CONTRADICTED``) is counted and coasted over like a bad frame (the prior is kept:
 the stars matched, only the rate is in doubt), and the next :data:`DISTRUST_FRAMES` frames
-go without the gyro's rate (each fits its own).  The watchdog (``feed()``;
+go without the gyro's rate (each fits its own).  An ``IMPRECISE`` frame (its attitude's
+5 sigma beyond ``Settings.max_error_arcsec``) has no attitude: coasted over, its attitude,
+kept in the result for diagnostics, never adopted.  The watchdog (``feed()``;
 ``machine.WDT`` on the MCU) is fed at every stage boundary and, through ``Settings.clock``,
 at every stage boundary inside ``process``.
 

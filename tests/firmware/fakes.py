@@ -192,6 +192,7 @@ class Result(object):
 
 
 Q0 = (0.0, 0.0, 0.6, 0.8)
+Q_IMPRECISE = (0.0, 0.6, 0.0, 0.8)
 
 
 class Tracker(object):
@@ -225,7 +226,10 @@ class Tracker(object):
             raise ValueError("scripted")
         if outcome == S.OK:
             return Result(S.OK, Q0, min_sum=1000 + k, t_epoch_s=self.t_epoch_s)
-        return Result(outcome)
+        res = Result(outcome)
+        if outcome == S.IMPRECISE:      # the pipeline keeps its attitude for diagnostics
+            res.q, res.min_sum = Q_IMPRECISE, 2000 + k
+        return res
 
 
 class Store(object):

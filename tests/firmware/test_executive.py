@@ -493,6 +493,22 @@ def test_rate_contradicted_keeps_the_prior_and_rests_the_gyro():
     assert exe.level == executive.LEVEL_NONE
 
 
+def test_an_imprecise_attitude_is_never_adopted():
+    """``IMPRECISE`` (an attitude whose 5 sigma exceeds ``Settings.max_error_arcsec``, kept in
+    the result for diagnostics): a frame without an attitude, coasted over on the prior; its
+    attitude is neither the prior, nor saved, nor reported, and its status is in telemetry."""
+    outcomes = [S.OK, S.IMPRECISE, S.OK]
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 3, outcomes)
+    states = run(exe, 5)
+    assert states[2:5] == ["TRACK", "COAST", "TRACK"]
+    assert [c[0] for c in tracker.calls[1:]] == [fakes.Q0, fakes.Q0]
+    h = health(exe)
+    assert h["bad"] == 1 and h["coasted"] == 1 and "lost" not in h
+    decoded = [telemetry.decode(r) for r in records]
+    assert [d["status"] for d in decoded].count(S.IMPRECISE) == 1
+    assert exe.q == fakes.Q0 and exe.min_sum != 2001
+
+
 def test_gateware_of_another_build_is_safe_at_boot():
     exe, _clock, link, sensor, _tracker, _wdt, _records = build([fakes.OK_FRAME] * 3,
                                                                 build=fakes.BUILD ^ 1)
