@@ -150,8 +150,7 @@ class FeatureEngine(wiring.Component):
         rp = table.read_port()          # not transparent: the bypass is written below
 
         # ---- stage 1: op registered, slot read issued, first products --------------
-        # a clock without an op with a pixel has weight 0: its products, and so its terms,
-        # are 0
+        # a clock without an op with a pixel has weight 0: its products and terms are 0
         op1 = Signal.like(self.ops.payload, reset_less=True)
         v1 = Signal()
         m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
@@ -163,7 +162,7 @@ class FeatureEngine(wiring.Component):
         wy1 = Signal(pb + len(op1.y), reset_less=True)
         op2 = Signal.like(op1, reset_less=True)
         v2 = Signal()
-        # the op's write slot arrives a clock after the op (``wr_slot``), used at stage 4
+        # the op's write slot comes a clock after it (``wr_slot``), for stage 4
         wr_slot2, wr_slot3, wr_slot4 = (Signal(len(self.wr_slot), reset_less=True,
                                                name=f"wr_slot{k}") for k in (2, 3, 4))
         m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
@@ -180,7 +179,6 @@ class FeatureEngine(wiring.Component):
         acc_next = Signal(layout)
         m.d.sync += hit_a2.eq(wp.en & (wp.addr == op1.rd_addr))
         hit_b2 = wp.en & (wp.addr == op2.rd_addr)
-
         # ---- stage 2: second products, the pixel's terms, slot data registered -------
         # pixf: the pixel's record (empty without an op with a pixel), its second moments
         # as registered partial products (``parts``), added at stage 3
@@ -197,7 +195,6 @@ class FeatureEngine(wiring.Component):
             pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
             pixf.flags.eq(0),
         ]
-
         # ---- stage 3: slot data, filters, box and peak terms -------------------------
         # slot4: the slot read (a completed record); term4: it if used, else 0; best4: box and
         # peak terms, the better of the slot (if used; the upper neighbour's) and the pixel
@@ -223,7 +220,6 @@ class FeatureEngine(wiring.Component):
             m.d.sync += best4[name].eq(Mux(use3, slot3[name], Mux(pix3, value, empty[name])))
         better = slot3.peak > op3.p
         m.d.sync += best4.peak.eq(Mux(use3 & better, slot3.peak, Mux(pix3, op3.p, 0)))
-
         # ---- stage 4: accumulator, slot write, completion ---------------------------
         # acc (+) term4 (+) pix4.  A dark op, a stale op, and a clock without an op after
         # the row's last column or a clear empty the accumulator; any other clock without
