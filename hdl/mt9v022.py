@@ -192,6 +192,9 @@ class PhaseTrainer(wiring.Component):
         The bit clock domain.
     settle : int
         Clocks from a ``tap`` change to its first sample at the aligner.
+    dwell_packets : int
+        Packets each phase is checked for (and without a framed alignment before a
+        retraining).
 
     Members
     -------
@@ -210,33 +213,35 @@ class PhaseTrainer(wiring.Component):
         The last sweep's error-free phases.
     """
 
-    def __init__(self, taps, packet_clocks, domain, settle=4):
-        if taps < 2 or packet_clocks < 1:
-            raise ValueError(f"PhaseTrainer needs taps >= 2 and packet_clocks >= 1, got "
-                             f"{taps}, {packet_clocks}")
+    def __init__(self, taps, packet_clocks, domain, settle=4, dwell_packets=4 * LOCK_PACKETS):
+        if taps < 2 or packet_clocks < 1 or dwell_packets < 1:
+            raise ValueError(f"PhaseTrainer needs taps >= 2, packet_clocks >= 1 and "
+                             f"dwell_packets >= 1, got {taps}, {packet_clocks}, "
+                             f"{dwell_packets}")
         self.taps, self.domain = taps, domain
-        self.warmup, self.dwell = self.timing(packet_clocks, settle)
+        self.warmup, self.dwell = self.timing(packet_clocks, settle, dwell_packets)
         super().__init__({"framed": In(1), "tap": Out(range(taps)), "trained": Out(1),
                           "forget": Out(1), "eye_width": Out(range(taps + 1)),
                           "good": Out(taps)})
 
     @staticmethod
-    def timing(packet_clocks, settle=4):
+    def timing(packet_clocks, settle=4, dwell_packets=4 * LOCK_PACKETS):
         """``(warmup, dwell)``: clocks at a new phase before its check (the receiver's
-        ``settle`` and the aligner's runs rebuilt), and clocks checked (``4 LOCK_PACKETS``
-        packets; also the clocks without a framed alignment that start a retraining).  A
-        training takes ``taps (warmup + dwell) + 2 taps + 1`` clocks."""
-        return settle + (LOCK_PACKETS + 1) * packet_clocks, 4 * LOCK_PACKETS * packet_clocks
+        ``settle`` and the aligner's runs rebuilt), and clocks checked (``dwell_packets``;
+        also the clocks without a framed alignment that start a retraining).  A training
+        takes ``taps (warmup + dwell) + 2 taps + 1`` clocks."""
+        return settle + (LOCK_PACKETS + 1) * packet_clocks, dwell_packets * packet_clocks
 
     def elaborate(self, platform):
         m = Module()
         d, T = m.d[self.domain], self.taps
-        count = Signal(range(max(self.warmup, self.dwell) + 1))
-        bad = Signal()                        # the phase under test failed a check
-        scan = Signal(range(2 * T))           # phases scanned twice (the run may wrap)
-        pos = Signal(range(T))                # scan mod T
-        run, best = Signal(range(T + 1)), Signal(range(T + 1))
-        best_end = Signal(range(T))           # the widest run's last phase
+        count = Signal(range(max(self.warmup, self.dwell) + 1), name="count")
+        bad = Signal(name="bad")              # the phase under test failed a check
+        scan = Signal(range(2 * T), name="scan")  # phases scanned twice (the run may wrap)
+        pos = Signal(range(T), name="pos")    # scan mod T
+        run = Signal(range(T + 1), name="run")    # error-free phases ending before pos
+        best = Signal(range(T + 1), name="best")
+        best_end = Signal(range(T), name="best_end")  # the widest run's last phase
         with m.FSM(domain=self.domain):
             with m.State("WARMUP"):
                 d += count.eq(count + 1)
