@@ -63,8 +63,11 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
                 if x == w - 1:
                     await stream_idle(ctx, dut.pixels, hblank)
             await stream_idle(ctx, dut.pixels, vblank)
-        # the record buffer drains (records follow the trailer when trailer_first)
-        await ctx.tick().repeat(max(64 if trailer_first else 8, idle_bound(dut.record_depth)))
+        await ctx.tick().repeat(64 if trailer_first else 8)   # records follow the trailer
+        for _ in range(idle_bound(dut.record_depth)):   # the record buffer drains
+            if len(pending) >= sum(t["n_records"] for t in trailers):
+                break
+            await ctx.tick()
         done["flag"] = True
 
     async def monitor(ctx):
