@@ -14,9 +14,10 @@ words, so 128 records of 345 bits need 5 blocks (256 x 173).
   (``docs/gateware.md``, output buffers).
 * read: the head item's low half is read into a register, then its high half is read and
   held on the memory's read port; ``r_data`` is the two together and ``r_rdy`` rises two
-  clocks after an item became available or the previous one was taken, so a reader that is
-  always ready takes one item per two clocks.  An item is readable from the clock after its
-  high half was written.
+  clocks after an item became available or three after the previous one was taken, so a
+  reader that is always ready takes one item per three clocks.  The next read starts in
+  the clock after a take, from registers only (no path from the reader's ``r_en`` to the
+  memory's address).  An item is readable from the clock after its high half was written.
 """
 
 from amaranth import Cat, Module, Mux, Signal
@@ -72,17 +73,15 @@ class HalfWordFIFO(wiring.Component):
         fetch = Signal()                            # the low half arrives this clock
         pop = self.r_en & self.r_rdy
         m.d.comb += self.r_data.eq(Cat(lo_reg, rp.data[:self.width - lo]))
-        next_item = Mux(pop, advance(r_item), r_item)
-        more = (count != 0) & ~(pop & (count == 1))     # an item is left after this pop
-        start = ~fetch & (~self.r_rdy | pop) & more
-        m.d.comb += [rp.addr.eq(Cat(fetch, next_item)), rp.en.eq(start | fetch)]
+        start = ~fetch & ~self.r_rdy & (count != 0)
+        m.d.comb += [rp.addr.eq(Cat(fetch, r_item)), rp.en.eq(start | fetch)]
         m.d.sync += fetch.eq(start)
         with m.If(fetch):
             m.d.sync += [lo_reg.eq(rp.data), self.r_rdy.eq(1)]
         with m.Elif(pop):
             m.d.sync += self.r_rdy.eq(0)
         with m.If(pop):
-            m.d.sync += r_item.eq(next_item)
+            m.d.sync += r_item.eq(advance(r_item))
         with m.If(second ^ pop):
             m.d.sync += count.eq(count + Mux(pop, -1, 1))
         return m

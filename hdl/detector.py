@@ -93,6 +93,7 @@ class Detector(wiring.Component):
             m.d.comb += getattr(thr, name).eq(getattr(regs, name))
         connect(m, thr.out, lab.pixels)
         connect(m, lab.ops, feat.ops)
+        m.d.comb += feat.wr_slot.eq(lab.wr_slot)
         m.d.comb += [feat.tag.eq(lab.tag), feat.clear.eq(lab.clear),
                      lab.feat_busy.eq(feat.busy), self.fault.eq(lab.fault),
                      self.busy.eq(lab.busy)]

@@ -94,6 +94,10 @@ class FeatureEngine(wiring.Component):
     -------
     ops : ``In(stream.Signature(op_layout(...), always_ready=True))``
         The labeller's ops: one per decided column, at most one per clock, in raster order.
+    wr_slot : ``In(bits_for(slots - 1))``
+        The write slot of the op of the previous clock (its ``wr``): a clock late, so the
+        labeller delivers it from a register (its column decision ends at fewer flip-flops);
+        the slot is written at stage 4 only.
     tag : ``In(FRAME_TAG_BITS)``
         The current frame's tag: ops with another tag are stale and ignored.
     clear : ``In(1)``
@@ -120,6 +124,7 @@ class FeatureEngine(wiring.Component):
         super().__init__({
             "ops": In(stream.Signature(op_layout(width, height, pixel_bits, slots),
                                        always_ready=True)),
+            "wr_slot": In(C.bits_for(slots - 1)),
             "tag": In(FRAME_TAG_BITS),
             "clear": In(1),
             "min_pixels": In(reg["min_pixels"].bits),
@@ -145,8 +150,7 @@ class FeatureEngine(wiring.Component):
         rp = table.read_port()          # not transparent: the bypass is written below
 
         # ---- stage 1: op registered, slot read issued, first products --------------
-        # a clock without an op with a pixel has weight 0: its products, and so its terms,
-        # are 0
+        # a clock without an op with a pixel has weight 0: its products and terms are 0
         op1 = Signal.like(self.ops.payload, reset_less=True)
         v1 = Signal()
         m.d.sync += [op1.eq(self.ops.payload), v1.eq(self.ops.valid)]
@@ -158,8 +162,12 @@ class FeatureEngine(wiring.Component):
         wy1 = Signal(pb + len(op1.y), reset_less=True)
         op2 = Signal.like(op1, reset_less=True)
         v2 = Signal()
+        # the op's write slot comes a clock after it (``wr_slot``), for stage 4
+        wr_slot2, wr_slot3, wr_slot4 = (Signal(len(self.wr_slot), reset_less=True,
+                                               name=f"wr_slot{k}") for k in (2, 3, 4))
         m.d.sync += [op2.eq(op1), v2.eq(v1), w2.eq(w1), wx1.eq(w1 * op1.x),
-                     wy1.eq(w1 * op1.y)]
+                     wy1.eq(w1 * op1.y), wr_slot2.eq(self.wr_slot), wr_slot3.eq(wr_slot2),
+                     wr_slot4.eq(wr_slot3)]
         # read-during-write bypass (read at stage 1, written at stage 4): a read sees the
         # writes of its clock (``hit_a``) and of the next (``hit_b``, which wins), i.e. at
         # stage 3 ``acc`` (``hit_b3``) or ``acc`` a clock before: no adder feeds the bypass
@@ -171,7 +179,6 @@ class FeatureEngine(wiring.Component):
         acc_next = Signal(layout)
         m.d.sync += hit_a2.eq(wp.en & (wp.addr == op1.rd_addr))
         hit_b2 = wp.en & (wp.addr == op2.rd_addr)
-
         # ---- stage 2: second products, the pixel's terms, slot data registered -------
         # pixf: the pixel's record (empty without an op with a pixel), its second moments
         # as registered partial products (``parts``), added at stage 3
@@ -188,7 +195,6 @@ class FeatureEngine(wiring.Component):
             pixf.s0.eq(w2), pixf.sx.eq(wx1), pixf.sy.eq(wy1),
             pixf.flags.eq(0),
         ]
-
         # ---- stage 3: slot data, filters, box and peak terms -------------------------
         # slot4: the slot read (a completed record); term4: it if used, else 0; best4: box and
         # peak terms, the better of the slot (if used; the upper neighbour's) and the pixel
@@ -214,7 +220,6 @@ class FeatureEngine(wiring.Component):
             m.d.sync += best4[name].eq(Mux(use3, slot3[name], Mux(pix3, value, empty[name])))
         better = slot3.peak > op3.p
         m.d.sync += best4.peak.eq(Mux(use3 & better, slot3.peak, Mux(pix3, op3.p, 0)))
-
         # ---- stage 4: accumulator, slot write, completion ---------------------------
         # acc (+) term4 (+) pix4.  A dark op, a stale op, and a clock without an op after
         # the row's last column or a clear empty the accumulator; any other clock without
@@ -228,7 +233,7 @@ class FeatureEngine(wiring.Component):
         empties = Mux(v4, ~(live & op4.pix), ~run_open)
         self._accumulate(m, acc, acc_next, term4, pix4, best4, empties,
                          Mux(v4, op4.y, acc.ymax))
-        m.d.comb += [wp.addr.eq(op4.wr_addr), wp.data.eq(acc_next),
+        m.d.comb += [wp.addr.eq(wr_slot4), wp.data.eq(acc_next),
                      wp.en.eq(live & op4.wr)]
         self._complete(m, live & op4.complete, passes, slot4)
         m.d.comb += self.busy.eq(v1 | v2 | v3 | v4)

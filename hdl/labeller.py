@@ -150,10 +150,10 @@ class _Nodes:
     the next node to start, ``fetched`` when it is there; one more behind it), so no read
     port drives the decision.  Every write (sequential and patches) is registered and
     reaches its memory a clock after the decision, so no write port is on the decision's
-    path either.  A row's nodes 0 and 1 are also kept in registers as they are written and
-    patched, so node 0 is there a clock after the row's last decision (one idle clock
-    between rows) and node 1 a clock later; nodes 2 on are read from the memory
-    (``_prefetch``)."""
+    path either.  A row's nodes 0 and 1 are also kept in registers, loaded from the
+    registered writes and patches (read with the write landing in that clock bypassed), so
+    node 0 is there a clock after the row's last decision (one idle clock between rows) and
+    node 1 a clock later; nodes 2 on are read from the memory (``_prefetch``)."""
 
     def __init__(self, m, nodes, node_bits, label, bank_written):
         flags = node_flags_layout()
@@ -190,6 +190,7 @@ class _Nodes:
         p_addr = Signal(node_bits, name="node_p_addr")
         u_addr = Signal(node_bits, name="node_u_addr")
         p_flags = Signal(flags, name="node_p_flags")
+        self.written_label = w_label
         m.d.sync += [w_bank.eq(bank_written), w_addr.eq(self.write_ptr), w_en.eq(self.write_en),
                      w_flags.eq(self.write_flags), w_label.eq(self.write_label),
                      p_en.eq(self.flags_patch_en), p_addr.eq(self.flags_patch_addr),
@@ -227,9 +228,33 @@ class _Nodes:
                 ports["label_patch"].data.eq(0),
                 ports["label_patch"].en.eq(writing & u_en),
             ]
-        self._prefetch(m, nodes, flags, label, bank_written, banks, issue)
+        writes = _Writes(w_en=w_en, w_addr=w_addr, w_flags=w_flags, w_label=w_label,
+                         p_en=p_en, p_addr=p_addr, p_flags=p_flags, u_en=u_en, u_addr=u_addr)
+        self._prefetch(m, nodes, (flags, label), bank_written, banks, (issue, writes))
 
-    def _prefetch(self, m, nodes, flags, label, bank_written, banks, issue):
+    @staticmethod
+    def _kept(m, flags, label, writes):
+        """Nodes 0 and 1 of the row being written, kept in registers loaded from the
+        registered writes (``writes``, a ``_Writes``): returns each node's ``(flags,
+        label)`` with the writes landing this clock applied (the bypass the prefetch reads
+        a clock after a row's last decision)."""
+        w = writes
+        kept = []
+        for k in range(2):
+            kept_flags = Signal(flags, name=f"node{k}_flags")
+            kept_label = Signal(label, name=f"node{k}_label")
+            now_flags = Signal(flags, name=f"node{k}_flags_now")
+            now_label = Signal(label, name=f"node{k}_label_now")
+            m.d.comb += [
+                now_flags.eq(Mux(w.p_en & (w.p_addr == k), w.p_flags,
+                                 Mux(w.w_en & (w.w_addr == k), w.w_flags, kept_flags))),
+                now_label.eq(Mux(w.u_en & (w.u_addr == k), 0,
+                                 Mux(w.w_en & (w.w_addr == k), w.w_label, kept_label)))]
+            m.d.sync += [kept_flags.eq(now_flags), kept_label.eq(now_label)]
+            kept.append((now_flags, now_label))
+        return kept
+
+    def _prefetch(self, m, nodes, shapes, bank_written, banks, issue_writes):
         """Two node registers (head, behind it) fed from the read ports two clocks after
         the read: each bank's read data goes straight into a register (no logic after a
         block RAM's output), the bank is selected after it.  Reads are issued from
@@ -238,6 +263,8 @@ class _Nodes:
         of the swapped bank come from registers kept as they were written and patched
         (there in the two clocks after the swap); the memory is read from node 2 on, from
         the third clock after the swap, when the bank's last writes have landed."""
+        flags, label = shapes
+        issue, writes = issue_writes
         flight1 = Signal(name="node_flight1")   # a node's read data is on the read port
         flight2 = Signal(name="node_flight2")   # a node is in ``in_flags``/``in_label``
         # where the node of each flight stage comes from: 0 the memory, 1 node 0's
@@ -247,18 +274,7 @@ class _Nodes:
         behind = Signal(name="node_behind_valid")
         behind_flags = Signal(flags, name="node_behind_flags")
         behind_label = Signal(label, name="node_behind_label")
-        # nodes 0 and 1 of the row being written, kept in registers with every write to them
-        kept = []
-        for k in range(2):
-            kept_flags = Signal(flags, name=f"node{k}_flags")
-            kept_label = Signal(label, name=f"node{k}_label")
-            with m.If(self.write_en & (self.write_ptr == k)):
-                m.d.sync += [kept_flags.eq(self.write_flags), kept_label.eq(self.write_label)]
-            with m.If(self.flags_patch_en & (self.flags_patch_addr == k)):
-                m.d.sync += kept_flags.eq(self.flags_patch)
-            with m.If(self.untrack_en & (self.untrack_addr == k)):
-                m.d.sync += kept_label.eq(0)
-            kept.append((kept_flags, kept_label))
+        kept = self._kept(m, flags, label, writes)
         read = []
         for b, (_, ports) in enumerate(banks):
             read_flags = Signal(flags, name=f"node_read{b}_flags")
@@ -297,6 +313,12 @@ class _Nodes:
             m.d.sync += [self.read_ptr.eq(nodes), flight1.eq(0), flight2.eq(0),
                          self.fetched.eq(0), behind.eq(0)]
 
+
+_Writes = namedtuple("_Writes", ["w_en", "w_addr", "w_flags", "w_label", "p_en", "p_addr",
+                                 "p_flags", "u_en", "u_addr"])
+_Writes.__doc__ = """The node memories' writes of the last decision, registered: the
+sequential write (``w_*``), the first/last patch (``p_*``) and the untracking patch
+(``u_*``)."""
 
 _Registers = namedtuple("_Registers", [
     "active", "prev_lit", "open_tracked", "dropped", "row_parity", "line_error", "fault"])
@@ -374,6 +396,9 @@ class Labeller(wiring.Component):
         ``(0, 0)``.  The next frame is exact.
     ops : ``Out(stream.Signature(op_layout(...), always_ready=True))``
         One op per column decision, to the feature engine (``hdl/features.py``).
+    wr_slot : ``Out(bits_for(slots - 1))``
+        The slot the op of the previous clock writes (``wr``), from the register of the
+        node write (the decision's slot ends there, not at the engine's op register).
     tag : ``Out(FRAME_TAG_BITS)``
         The frame's tag: ops of an aborted frame carry an older one.
     clear, frame_start : ``Out(1)``
@@ -406,6 +431,7 @@ class Labeller(wiring.Component):
                                           always_ready=True)),
             "ops": Out(stream.Signature(op_layout(width, height, pixel_bits, self.slots),
                                         always_ready=True)),
+            "wr_slot": Out(C.bits_for(self.slots - 1)),
             "tag": Out(FRAME_TAG_BITS),
             "clear": Out(1),
             "feat_busy": In(1),
@@ -438,7 +464,8 @@ class Labeller(wiring.Component):
                        stack=_Stack(m, stack_entry_layout(slot_bits, node_bits),
                                     max_stack(W)),
                        free=_FreeSlots(m, self.slots, slot_bits))
-        m.d.comb += [self.fault.eq(regs.fault), self.dropped_labels.eq(regs.dropped)]
+        m.d.comb += [self.fault.eq(regs.fault), self.dropped_labels.eq(regs.dropped),
+                     self.wr_slot.eq(parts.nodes.written_label.slot)]
 
         seq = self._frames(m, held, regs.line_error)
         above = self._previous_row(m, held, seq.decide)
@@ -627,7 +654,7 @@ class Labeller(wiring.Component):
                          nodes.write_flags.last.eq(~active.on_stack),
                          nodes.write_label.slot.eq(slot),
                          nodes.write_label.tracked.eq(active.tracked),
-                         op.wr.eq(active.tracked), op.wr_addr.eq(slot)]
+                         op.wr.eq(active.tracked)]
             with m.If(active.on_stack):
                 m.d.comb += [top.slot.eq(slot), top.tracked.eq(active.tracked),
                              top.in_row.eq(1),

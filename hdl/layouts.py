@@ -72,12 +72,13 @@ def lit_layout(width, height, pixel_bits):
 
 
 def op_layout(width, height, pixel_bits, slots):
-    """One labeller column decision for the feature engine (``hdl/features.py``)."""
+    """One labeller column decision for the feature engine (``hdl/features.py``); the slot
+    ``wr`` writes follows a clock later on the engine's ``wr_slot``."""
     sb = C.bits_for(slots - 1)
     return data.StructLayout({
         "tag": FRAME_TAG_BITS, "pix": 1, "x": C.bits_for(width - 1),
         "y": C.bits_for(height - 1), "p": pixel_bits, "w": pixel_bits,
-        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1, "wr_addr": sb,
+        "rd": 1, "rd_addr": sb, "complete": 1, "wr": 1,
     })
 
 

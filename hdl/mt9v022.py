@@ -86,6 +86,13 @@ class WordAligner(wiring.Component):
         The packet at the locked alignment is badly framed (lock is lost).
     locked : ``Out(1)``
         Locked on an alignment.
+    framed : ``Out(1)``
+        Some alignment has passed its last ``LOCK_PACKETS`` framing checks, lock or not
+        (on the blanking stream alone two alignments may: :class:`PhaseTrainer` needs no
+        lock).
+    forget : ``In(1)``
+        Drop lock and the preferred alignment (a lock taken while the sample phase was
+        being swept may be a false one); the next lock needs a unique alignment.
     """
 
     def __init__(self, lanes, domain):
@@ -95,6 +102,8 @@ class WordAligner(wiring.Component):
             "words": Out(stream.Signature(PIXEL_BITS, always_ready=True)),
             "framing_error": Out(1),
             "locked": Out(1),
+            "framed": Out(1),
+            "forget": In(1),
         })
 
     def elaborate(self, platform):
@@ -126,6 +135,7 @@ class WordAligner(wiring.Component):
         # The lock decision looks at the updated runs, so a lock taken on this clock's checks
         # is in force for the next clock's packet.
         sat = Cat(*[n == LOCK_PACKETS for n in nexts])
+        m.d.comb += self.framed.eq(sat != 0)
         # Runs grow in step (each candidate is checked once per packet period), so a rival
         # that passed as long as the first saturated candidate has at least LOCK_PACKETS - 1.
         near = Cat(*[n >= LOCK_PACKETS - 1 for n in nexts])
@@ -156,6 +166,121 @@ class WordAligner(wiring.Component):
             m.d[ser] += [locked.eq(0)] + [r.eq(0) for r in runs]
         with m.Else():
             m.d[ser] += [r.eq(n) for r, n in zip(runs, nexts)]
+        with m.If(self.forget):
+            m.d[ser] += [locked.eq(0), relock.eq(0)]
+        return m
+
+
+class PhaseTrainer(wiring.Component):
+    """Sample-phase training for a receiver without DPA (Cyclone IV): steps the sample
+    point through ``taps`` phases of a bit, counts per phase the clocks at which no
+    alignment is well framed (:class:`WordAligner`'s ``framed``, which the blanking
+    stream's fixed words keep high at a phase inside the eye), centres the sample point in
+    the widest error-free run of phases (circular: the eye may straddle the bit clock's
+    edge) and retrains when ``framed`` stays low for ``dwell`` clocks.  On the board a
+    phase is one dynamic phase step of the receiver PLL's sampling clock (ALTPLL
+    ``phasestep``; ``docs/gateware.md``, MT9V022); in simulation it selects a tap of an
+    oversampled stream.  Everything in ``domain``.
+
+    Parameters
+    ----------
+    taps : int
+        Sample phases per bit (>= 2).
+    packet_clocks : int
+        Clocks per packet (``PACKET_BITS // lanes``).
+    domain : str
+        The bit clock domain.
+    settle : int
+        Clocks from a ``tap`` change to its first sample at the aligner.
+    dwell_packets : int
+        Packets each phase is checked for (and without a framed alignment before a
+        retraining).
+
+    Members
+    -------
+    framed : ``In(1)``
+        The aligner's ``framed``.
+    tap : ``Out(range(taps))``
+        The sample phase.
+    trained : ``Out(1)``
+        ``tap`` is the centre of an error-free run of ``eye_width`` phases.
+    forget : ``Out(1)``
+        A training ends: the aligner's lock and preferred alignment are dropped (its
+        ``forget``).
+    eye_width : ``Out(range(taps + 1))``
+        Error-free phases found by the last training (held while retraining).
+    good : ``Out(taps)``
+        The last sweep's error-free phases.
+    """
+
+    def __init__(self, taps, packet_clocks, domain, settle=4, dwell_packets=4 * LOCK_PACKETS):
+        if taps < 2 or packet_clocks < 1 or dwell_packets < 1:
+            raise ValueError(f"PhaseTrainer needs taps >= 2, packet_clocks >= 1 and "
+                             f"dwell_packets >= 1, got {taps}, {packet_clocks}, "
+                             f"{dwell_packets}")
+        self.taps, self.domain = taps, domain
+        self.warmup, self.dwell = self.timing(packet_clocks, settle, dwell_packets)
+        super().__init__({"framed": In(1), "tap": Out(range(taps)), "trained": Out(1),
+                          "forget": Out(1), "eye_width": Out(range(taps + 1)),
+                          "good": Out(taps)})
+
+    @staticmethod
+    def timing(packet_clocks, settle=4, dwell_packets=4 * LOCK_PACKETS):
+        """``(warmup, dwell)``: clocks at a new phase before its check (the receiver's
+        ``settle`` and the aligner's runs rebuilt), and clocks checked (``dwell_packets``;
+        also the clocks without a framed alignment that start a retraining).  A training
+        takes ``taps (warmup + dwell) + 2 taps + 1`` clocks."""
+        return settle + (LOCK_PACKETS + 1) * packet_clocks, dwell_packets * packet_clocks
+
+    def elaborate(self, platform):
+        m = Module()
+        d, T = m.d[self.domain], self.taps
+        count = Signal(range(max(self.warmup, self.dwell) + 1), name="count")
+        bad = Signal(name="bad")              # the phase under test failed a check
+        scan = Signal(range(2 * T), name="scan")  # phases scanned twice (the run may wrap)
+        pos = Signal(range(T), name="pos")    # scan mod T
+        run = Signal(range(T + 1), name="run")    # error-free phases ending before pos
+        best = Signal(range(T + 1), name="best")
+        best_end = Signal(range(T), name="best_end")  # the widest run's last phase
+        with m.FSM(domain=self.domain):
+            with m.State("WARMUP"):
+                d += count.eq(count + 1)
+                with m.If(count == self.warmup - 1):
+                    d += [count.eq(0), bad.eq(0)]
+                    m.next = "DWELL"
+            with m.State("DWELL"):
+                d += [count.eq(count + 1), bad.eq(bad | ~self.framed)]
+                with m.If(count == self.dwell - 1):
+                    d += [count.eq(0), self.good.bit_select(self.tap, 1).eq(~bad & self.framed)]
+                    with m.If(self.tap == T - 1):
+                        d += [scan.eq(0), pos.eq(0), run.eq(0), best.eq(0)]
+                        m.next = "SCAN"
+                    with m.Else():
+                        d += self.tap.eq(self.tap + 1)
+                        m.next = "WARMUP"
+            with m.State("SCAN"):
+                run_next = Mux(self.good.bit_select(pos, 1), Mux(run == T, T, run + 1), 0)
+                d += [run.eq(run_next), scan.eq(scan + 1), pos.eq(Mux(pos == T - 1, 0, pos + 1))]
+                with m.If(run_next > best):
+                    d += [best.eq(run_next), best_end.eq(pos)]
+                with m.If(scan == 2 * T - 1):
+                    m.next = "CENTRE"
+            with m.State("CENTRE"):
+                back = (best - 1) >> 1            # the run's centre, best_end - back (mod T)
+                with m.If(best == 0):             # no eye: sweep again
+                    d += self.tap.eq(0)
+                    m.next = "WARMUP"
+                with m.Else():
+                    d += [self.tap.eq(Mux(best_end >= back, best_end - back,
+                                          best_end + T - back)),
+                          self.eye_width.eq(best), self.trained.eq(1)]
+                    m.d.comb += self.forget.eq(1)
+                    m.next = "TRACK"
+            with m.State("TRACK"):                # lost: no alignment framed for dwell
+                d += count.eq(Mux(self.framed, 0, count + 1))
+                with m.If(count == self.dwell - 1):
+                    d += [count.eq(0), self.tap.eq(0), self.trained.eq(0)]
+                    m.next = "WARMUP"
         return m
 
 
@@ -306,6 +431,8 @@ class MT9V022Frontend(SensorFrontend):
         The bit clock domain.
     fifo_depth : int
         Entries of the crossing's FIFO.
+    taps : int
+        Sample phases per bit the receiver can select (1: a fixed phase, no training).
 
     Members
     -------
@@ -315,6 +442,11 @@ class MT9V022Frontend(SensorFrontend):
         The aligner is locked (``sync``, synchronized).
     framing_errors : ``Out(ERROR_COUNT_BITS)``
         Saturating count of framing errors (``sync``, through a Gray code).
+    tap, trained, eye_width : ``Out``, with ``taps`` > 1
+        :class:`PhaseTrainer`'s: ``tap`` in ``domain`` (to the receiver's sampling phase);
+        ``trained`` synchronized into ``sync``, ``eye_width`` too (it changes only while
+        ``trained`` is low, so read it while ``trained``).  Words reach the decoder only
+        while trained.
     out, overflow, overflow_clear, fifo_level
         As :class:`lodestar.hdl.frontend.SensorFrontend`.
     """
@@ -329,14 +461,19 @@ class MT9V022Frontend(SensorFrontend):
     CLOCK_PINS = ("ser_clk",)
 
     def __init__(self, width, height, *, lanes=LVDS_LANES, domain="ser",
-                 fifo_depth=FIFO_DEPTH):
+                 fifo_depth=FIFO_DEPTH, taps=1):
         if lanes < 1 or PACKET_BITS % lanes:
             raise ValueError(f"lanes must divide the {PACKET_BITS}-bit packet, got {lanes}")
-        self.lanes = lanes
+        if taps < 1:
+            raise ValueError(f"taps must be >= 1, got {taps}")
+        self.lanes, self.taps = lanes, taps
+        training = {"tap": Out(range(taps)), "trained": Out(1),
+                    "eye_width": Out(range(taps + 1))} if taps > 1 else {}
         super().__init__(width, height, {
             "bits": In(lanes),
             "locked": Out(1),
             "framing_errors": Out(ERROR_COUNT_BITS),
+            **training,
         }, domain=domain, fifo_depth=fifo_depth)
 
     @property
@@ -423,7 +560,10 @@ class MT9V022Frontend(SensorFrontend):
         m.submodules.aligner = aligner = WordAligner(self.lanes, ser)
         m.submodules.decoder = decoder = WordDecoder(ser)
         m.d.comb += aligner.bits.eq(self.bits)
-        wiring.connect(m, aligner.words, decoder.words)
+        if self.taps > 1:
+            self._training(m, aligner, decoder)
+        else:
+            wiring.connect(m, aligner.words, decoder.words)
         m.d.comb += decoder.framing_error.eq(aligner.framing_error)
         wiring.connect(m, decoder.pixels, cross.pixels)
 
@@ -441,3 +581,18 @@ class MT9V022Frontend(SensorFrontend):
             binary.insert(0, binary[0] ^ gray[i])
         m.d.sync += self.framing_errors.eq(Cat(*binary))
         return m
+
+    def _training(self, m, aligner, decoder):
+        """The :class:`PhaseTrainer` on the aligner's ``framed``; words reach the decoder
+        only while trained; its status into ``sync``."""
+        ser = self.domain
+        m.submodules.trainer = trainer = PhaseTrainer(self.taps, PACKET_BITS // self.lanes,
+                                                      ser)
+        m.d.comb += [trainer.framed.eq(aligner.framed), self.tap.eq(trainer.tap),
+                     aligner.forget.eq(trainer.forget),
+                     decoder.words.payload.eq(aligner.words.payload),
+                     decoder.words.valid.eq(aligner.words.valid & trainer.trained)]
+        m.submodules.trained_cdc = FFSynchronizer(trainer.trained, self.trained,
+                                                  o_domain="sync")
+        m.submodules.eye_cdc = FFSynchronizer(trainer.eye_width, self.eye_width,
+                                              o_domain="sync")

@@ -30,9 +30,9 @@ def idle_bound(record_depth):
     """Clocks after the last ``done`` or offered record within which the stage is idle (no
     trailer held, none owed to the reader) if the reader takes what it is owed at once: the
     buffer's at most ``record_depth`` records, orphans and the held trailer's, go out at one
-    per two clocks (``HalfWordFIFO``), the trailer's take overlapping the buffer's fetch.
+    per three clocks (``HalfWordFIFO``), the trailer's take overlapping the buffer's fetch.
     Proved tight (``docs/formal.md``, return to idle)."""
-    return 2 * record_depth
+    return 3 * record_depth - 1
 
 
 class OutputStage(wiring.Component):

@@ -45,9 +45,10 @@ def _pass_bits(width, height, pixel_bits):
 
 def ksigma_cycles(width, height, pixel_bits):
     """Clocks from a ``ksigma`` write to levels computed with it: the ``D`` search (one
-    trial per bit of ``D``) and the rest of the trial under way when it was written."""
+    trial per bit of ``D``), the rest of the trial under way when it was written, and the
+    clock of the registered compare that notices the write."""
     _, ld = _pass_bits(width, height, pixel_bits)
-    return (pixel_bits + 1) * ld
+    return (pixel_bits + 1) * ld + 1
 
 
 def global_cycles(width, height, pixel_bits):
@@ -667,7 +668,11 @@ class GlobalLevels(wiring.Component):
         have_sums = Signal()   # S1, S2 hold a complete frame and ``background`` its B
         m.d.comb += [self.threshold.eq(threshold), self.background.eq(background),
                      self.valid.eq(valid), self.valid_ksigma.eq(ksigma)]
-        ksigma_same = ksigma == self.ksigma
+        # the compare registered (a timing cut between the ksigma registers and the
+        # search's control): a write is noticed a clock late; the search reads it only at
+        # a trial's last clock or while idle, never the clock after loading ``ksigma``
+        ksigma_same = Signal(name="ksigma_same")
+        m.d.sync += ksigma_same.eq(ksigma == self.ksigma)
         b_bits, d_bits = _pass_bits(W, H, pb)
         run = Signal(name="search_run")      # a trial is under way
         searching_d = Signal()               # else B

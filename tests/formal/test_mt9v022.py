@@ -19,6 +19,10 @@ The depth (``bmc_depth``) covers a lock from reset, a framing error and a full r
 window.  Mutants (12 lanes): an aligner that does not prefer its previous alignment when
 relocking (relock fails with the blanking word) and one whose decoder keeps its frame across
 a framing error (delivers pixels after the loss without a new frame start).
+
+Phase training (``PhaseTrainer``, ``framed`` free, k-induction): while trained, the
+``eye_width`` phases centred on ``tap`` were all error-free in the last sweep.  Mutant: the
+phase set on the far side of the best run's end (BMC through a whole sweep).
 """
 
 import gc
@@ -33,9 +37,18 @@ from lodestar.hdl.mt9v022 import (
     PACKET_BITS,
     PIXEL_BITS,
     MT9V022Frontend,
+    PhaseTrainer,
 )
 
-from .sby import available, elaborate_submodule, internals, prove, submodule
+from .sby import (
+    available,
+    elaborate,
+    elaborate_submodule,
+    fsm_states,
+    internals,
+    prove,
+    submodule,
+)
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -205,4 +218,99 @@ def test_pixels_mutant_fails(tmp_path):
 def test_relock_bound_is_tight(tmp_path, lanes):
     """One clock less than ``relock_bound(lanes)`` is not enough."""
     result = run(tmp_path, frontend(lanes=lanes), "relock", slack=-1)
+    assert result.failed, result.log
+
+
+# ---- phase training: the chosen phase is the centre of an error-free run ---------------------
+TRAIN_TAPS = 4
+"""Phases of the trainer's proof (4: a run of 3 has a centre other than its ends)."""
+
+
+def all_good(good, phases):
+    """``good`` has every phase of ``phases``."""
+    ok = 1
+    for p in phases:
+        ok = ok & good[p]
+    return ok
+
+
+class CheckedTrainer(Elaboratable):
+    """``trainer`` (``domain="sync"``, a ``PhaseTrainer`` or a mutant) with ``framed`` free:
+    while ``trained``, the ``eye_width`` phases centred on ``tap`` (its upper middle) are
+    all error-free in ``good``.  ``helpers``: the induction's invariants (off for the
+    mutant's BMC)."""
+
+    def __init__(self, trainer, helpers=True):
+        self.trainer, self.helpers = trainer, helpers
+
+    def elaborate(self, platform):
+        m = Module()
+        t = self.trainer
+        T = t.taps
+        m.submodules.trainer = unit = elaborate(t, platform)
+
+        def centred(tap, width):
+            return [(tap - width // 2 + k) % T for k in range(width)]
+        for tap in range(T):
+            for width in range(1, T + 1):
+                at = t.trained & (t.tap == tap) & (t.eye_width == width)
+                m.d.comb += Assert(~at | all_good(t.good, centred(tap, width)))
+        m.d.comb += Assert(~t.trained | (t.eye_width != 0))
+        if self.helpers:
+            m.d.comb += self.invariants(unit, t)
+        return m
+
+    @staticmethod
+    def invariants(unit, t):
+        """The scan's run and best run are error-free phases ending before ``pos`` and at
+        ``best_end``; in ``TRACK`` the phase is the best run's centre."""
+        T = t.taps
+        s = internals(unit)
+        _, ongoing = fsm_states(unit)
+        run, best, pos, best_end = s["run"], s["best"], s["pos"], s["best_end"]
+        after = ongoing["SCAN"] | ongoing["CENTRE"] | ongoing["TRACK"]
+        out = [Assert(run <= T), Assert(best <= T), Assert(pos < T), Assert(best_end < T),
+               Assert(t.trained == ongoing["TRACK"]),
+               Assert(~ongoing["TRACK"] | ((t.eye_width == best) & (best != 0)))]
+        for end in range(T):
+            for n in range(1, T + 1):
+                ending = [(end - k) % T for k in range(n)]
+                out.append(Assert(~(after & (best_end == end) & (best == n))
+                                  | all_good(t.good, ending)))
+                out.append(Assert(~(ongoing["SCAN"] & (pos == (end + 1) % T) & (run == n))
+                                  | all_good(t.good, ending)))
+                out.append(Assert(~(ongoing["TRACK"] & (best_end == end) & (best == n))
+                                  | (t.tap == (end - (n - 1) // 2) % T)))
+        return out
+
+
+class OffCentreTrainer(PhaseTrainer):
+    """Mutant: the phase goes the other way from the best run's end (past it)."""
+
+    def elaborate(self, platform):
+        m = super().elaborate(platform)
+        s = internals(m)
+        _, ongoing = fsm_states(m)
+        best, best_end = s["best"], s["best_end"]
+        back = (best - 1) >> 1
+        with m.If(ongoing["CENTRE"] & (best != 0)):
+            m.d.sync += self.tap.eq((best_end + back) % self.taps)
+        return m
+
+
+def trainer(cls=PhaseTrainer):
+    """A small trainer: ``TRAIN_TAPS`` phases, one clock per packet, no settling, two
+    packets checked per phase (a sweep of 44 clocks)."""
+    return cls(TRAIN_TAPS, 1, "sync", settle=0, dwell_packets=2)
+
+
+def test_trained_phase_is_the_centre_of_an_error_free_run(tmp_path):
+    t = trainer()
+    result = prove(CheckedTrainer(t), "prove", 3, tmp_path, ports=[t.framed])
+    assert result.passed, result.log
+
+
+def test_trained_phase_mutant_fails(tmp_path):
+    t = trainer(OffCentreTrainer)
+    result = prove(CheckedTrainer(t, helpers=False), "bmc", 60, tmp_path, ports=[t.framed])
     assert result.failed, result.log

@@ -48,9 +48,9 @@ RECORD_BITS = 2
 
 def response_bound(depth):
     """Consecutive clocks a reader may wait for an owed trailer or record: at most
-    ``depth - 1`` orphans ahead of it read out and discarded (two clocks each,
+    ``depth - 1`` orphans ahead of it read out and discarded (three clocks each,
     ``HalfWordFIFO``), then one clock.  Tight: the proof fails for one clock less."""
-    return 2 * depth - 1
+    return 3 * depth - 2
 
 
 class CheckedOutput(Elaboratable):
@@ -250,7 +250,7 @@ def test_sequencing_mutant_fails(tmp_path):
 
 
 # k-induction needs a trace as long as the bound and a little more
-@pytest.mark.parametrize("depth, k", [(3, 8), pytest.param(4, 10, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("depth, k", [(3, 11), pytest.param(4, 14, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("check", ["response", "idle"])
 def test_bounded(tmp_path, check, depth, k):
     result = run(tmp_path, OutputStage(RECORD_BITS, depth), check, "prove", k)

@@ -12,19 +12,18 @@ BMC proves:
   and record the packetizer took, for the 40 header bytes (default run, depth
   ``HEADER_DEPTH``) and the 48 record bytes too (``--runslow``, depth ``PACKET_DEPTH``);
 * **length**: at most ``packet_bytes(1)`` bytes are taken, and once the trailer is taken
-  ``busy`` falls only after all of them are (``--runslow``).
-
-The CRC bytes are counted, not proved: their values are affine in the ~500 free field bits,
-and yices (the bit-blasting solver SBY runs here) does not prove such XOR identities in
-reasonable time (one ``crc32_byte`` step against the zlib-derived affine step, 40 free bits:
-88 s; the packet's 88-byte fold: no answer in 10 minutes).  The CRC is simulated against
-``zlib.crc32`` and ``codec.encode`` (``tests/hdl/test_packetizer.py``), as are a reader that
-stalls and frames of 0 to 3 records.
+  ``busy`` falls only after all of them are (``--runslow``);
+* **CRC** (k-induction, ``CheckedCrc``): the 4 CRC bytes taken are ``zlib.crc32`` of the
+  body bytes taken, big-endian, folded by an observer with ``crc32_byte`` (zlib's step on
+  every input: ``tests/hdl/test_packetizer.py``).  A BMC of the 88-byte fold against an
+  affine formula gets no answer from yices in 10 minutes; with a helper tying the
+  packetizer's ``crc`` to the observer's the induction step is one local fold (9 s).
 
 Mutants (the real packetizer elaborated under a contract table with one change, so that they
 stay valid however the packetizer is pipelined): two 8-bit header fields swapped
 (``pixel_bits`` and ``flags``: a swapped byte; default run), a record field one bit wider and
-its neighbour one narrower (``xmin``/``xmax``: an off-by-one field; ``--runslow``).
+its neighbour one narrower (``xmin``/``xmax``: an off-by-one field; ``--runslow``), a CRC
+polynomial with one more bit (``--runslow``).
 """
 
 from unittest import mock
@@ -32,14 +31,15 @@ from unittest import mock
 import pytest
 from amaranth import Cat, Const, Elaboratable, Module, ResetSignal, Signal, Value
 from amaranth.hdl import Assert, Assume
+from amaranth.lib import data
 
 from lodestar import contract as C
 from lodestar.contract import BlobRecord, DetectionResult
 from lodestar.ground import codec
-from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields
-from lodestar.hdl.packetizer import Packetizer
+from lodestar.hdl.layouts import TRAILER_NAMES, record_fields, trailer_fields, trailer_layout
+from lodestar.hdl.packetizer import Packetizer, crc32_byte
 
-from .sby import available, elaborate, prove
+from .sby import available, elaborate, fsm_states, internals, prove
 
 pytestmark = pytest.mark.skipif(not available(), reason="yowasp-sby or yices-smt2 missing")
 
@@ -131,6 +131,74 @@ class CheckedPacketizer(Elaboratable):
         return m
 
 
+class CheckedCrc(Elaboratable):
+    """``unit`` (a ``Packetizer`` or a mutant) in the environment of ``CheckedPacketizer``,
+    its CRC bytes checked: the ``k``-th of them is byte ``k`` (big-endian) of
+    ``zlib.crc32`` of the body bytes the reader took, folded by an observer register from
+    ``CRC_INIT`` with ``crc32_byte`` (zlib's step on every input:
+    ``tests/hdl/test_packetizer.py``).  ``helpers``: the induction's invariants on the
+    unit's state (off for the mutant's BMC)."""
+
+    def __init__(self, unit, helpers=True):
+        self.unit, self.helpers = unit, helpers
+
+    def elaborate(self, platform):
+        m = Module()
+        unit = self.unit
+        m.submodules.unit = elaborated = elaborate(unit, platform)
+        got_trailer = Signal()
+        m.d.comb += [Assume(~ResetSignal()), Assume(unit.packet.ready),
+                     Assume(unit.records.valid), Assume(unit.trailer.valid == ~got_trailer),
+                     Assume(unit.trailer.payload.n_records == 1)]
+        with m.If(unit.trailer.valid & unit.trailer.ready):
+            m.d.sync += got_trailer.eq(1)
+        count = Signal(range(PACKET_BYTES + 2))
+        crc = Signal(C.CRC_BITS, init=C.CRC_INIT)
+        take = unit.packet.valid & unit.packet.ready
+        with m.If(take):
+            m.d.sync += count.eq(count + (count <= PACKET_BYTES))
+        with m.If(take & (count < BODY_BYTES)):
+            m.d.sync += crc.eq(crc32_byte(crc, unit.packet.payload))
+        sent = crc ^ C.CRC_INIT
+        for j in range(C.CRC_BYTES):
+            m.d.comb += Assert(~take | (count != BODY_BYTES + j) |
+                               (unit.packet.payload == sent.word_select(C.CRC_BYTES - 1 - j, 8)))
+        if self.helpers:
+            m.d.comb += self.invariants(elaborated, got_trailer, count, crc)
+        return m
+
+    def invariants(self, elaborated, got_trailer, count, crc):
+        """Before the trailer nothing is sent; after it ``count`` is the bytes loaded
+        (``pos``) less the one in the output register, a byte is folded exactly when a body
+        byte is taken, so the unit's CRC is the observer's, and a CRC byte in the output
+        register is the unit's CRC's."""
+        unit = self.unit
+        s = internals(elaborated)
+        _, st = fsm_states(elaborated)
+        pos, fold = s["pos"], s["fold"]
+        n_left = data.View(trailer_layout(), s["tr"]).n_records
+        out = unit.packet
+        first_record, first_crc = C.HEADER_BYTES, BODY_BYTES
+        loaded = pos - out.valid                      # bytes taken before the one held
+        which = (first_crc + C.CRC_BYTES - 1 - loaded).as_unsigned()[:2]   # big-endian
+        crc_byte = (s["crc"] ^ C.CRC_INIT).word_select(which, 8)
+        return [
+            Assert(st["IDLE"] | st["BODY"] | st["FETCH"] | st["SEAL"] | st["CRC"]),
+            Assert(got_trailer | (st["IDLE"] & (count == 0) & ~out.valid)),
+            Assert(~got_trailer | ((count == loaded) & (pos <= PACKET_BYTES))),
+            Assert(~(got_trailer & st["IDLE"]) | (pos == PACKET_BYTES)),
+            Assert(fold == (got_trailer & out.valid & (loaded < first_crc))),
+            Assert(~got_trailer | (s["crc"] == crc)),
+            Assert(~st["BODY"] | (pos < first_crc)),
+            Assert(~st["BODY"] | (n_left == (pos < first_record))),
+            Assert(~st["FETCH"] | (n_left == 1)),
+            Assert(~st["FETCH"] | ((pos == first_record) & out.valid)),
+            Assert(~(st["SEAL"] | st["CRC"]) | (pos >= first_crc)),
+            Assert(~st["SEAL"] | ((pos == first_crc) & out.valid)),
+            Assert(~(got_trailer & out.valid & (loaded >= first_crc)) | (out.payload == crc_byte)),
+        ]
+
+
 def _swapped(fields, a, b, widen=0):
     """``fields`` (``(name, bits)`` pairs) with the fields ``a`` and ``b`` swapped, or, with
     ``widen``, ``a`` that many bits wider and ``b`` that many narrower in place."""
@@ -188,4 +256,20 @@ def test_bytes_equal_codec(tmp_path, depth):
 def test_mutant_fails(tmp_path, table, a, b, widen):
     unit = MutantPacketizer(table, _swapped(getattr(C, table), a, b, widen))
     result = run(tmp_path, unit, PACKET_DEPTH)
+    assert result.failed, result.log
+
+
+def test_crc_bytes_are_zlibs_of_the_body(tmp_path):
+    unit = Packetizer(*GEOMETRY)
+    result = prove(CheckedCrc(unit), "prove", 3, tmp_path, ports=inputs(unit))
+    assert result.passed, result.log
+
+
+@pytest.mark.slow
+def test_crc_mutant_fails(tmp_path):
+    """A packetizer whose CRC polynomial has one more bit (the contract's ``CRC_POLY``
+    patched while it is built) sends other CRC bytes."""
+    unit = MutantPacketizer("CRC_POLY", C.CRC_POLY ^ 0x20)
+    result = prove(CheckedCrc(unit, helpers=False), "bmc", PACKET_DEPTH, tmp_path,
+                   ports=inputs(unit))
     assert result.failed, result.log

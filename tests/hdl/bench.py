@@ -7,6 +7,7 @@ from lodestar import contract as C
 from lodestar.cosim.runner import unpack
 from lodestar.hdl.labeller import vblank_cycles
 from lodestar.hdl.layouts import record_fields, trailer_fields
+from lodestar.hdl.output import idle_bound
 from tests.hdl.streams import stream_idle, stream_put
 
 
@@ -63,6 +64,10 @@ def stream_frames(dut, frames, regs=None, hblank=1, vblank=None, stop_after=None
                     await stream_idle(ctx, dut.pixels, hblank)
             await stream_idle(ctx, dut.pixels, vblank)
         await ctx.tick().repeat(64 if trailer_first else 8)   # records follow the trailer
+        for _ in range(idle_bound(dut.record_depth)):   # the record buffer drains
+            if len(pending) >= sum(t["n_records"] for t in trailers):
+                break
+            await ctx.tick()
         done["flag"] = True
 
     async def monitor(ctx):

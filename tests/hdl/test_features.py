@@ -41,7 +41,11 @@ def run(ops, min_pixels=1, min_sum=0, max_pixels=C.MAX_PIXELS_UNLIMITED, capacit
         ctx.set(dut.min_pixels, min_pixels)
         ctx.set(dut.min_sum, min_sum)
         ctx.set(dut.max_pixels, max_pixels)
+        slot = 0                          # an op's wr_addr goes on wr_slot a clock later
         for op in ops + [None] * 6:
+            ctx.set(dut.wr_slot, slot)
+            op = dict(op) if op is not None else None
+            slot = op.pop("wr_addr", 0) if op is not None else 0
             if op is None:
                 await stream_idle(ctx, dut.ops, 1)
             else:

@@ -3,7 +3,9 @@
 packets, delivered ``lanes`` bits per clock of a testbench-made ``ser`` clock.  Checked: exact
 frames at several clock ratios and lane counts after a misaligned start, pixels near the
 reserved values, both frame-end variants, a corrupted stop bit (counted, lock re-acquired,
-next frame exact), a too-slow sync clock (overflow flagged, next frame exact)."""
+next frame exact), a too-slow sync clock (overflow flagged, next frame exact), and phase
+training on a skewed stream (eye found and centred, frames exact, retrained when the eye
+moves)."""
 
 import gc
 import warnings
@@ -23,6 +25,7 @@ from lodestar.hdl.mt9v022 import (
     PACKET_BITS,
     RESERVED_WORDS,
     MT9V022Frontend,
+    PhaseTrainer,
     ReceiverPllReset,
     packet_bits,
 )
@@ -272,3 +275,74 @@ def test_receiver_pll_reset_waits_for_the_clock_and_retries():
     assert retries >= 2 and on.count("01") >= 2        # two timeouts: two retries
     assert levels[52:72].endswith("0" * 10)            # locked: released
     assert levels[-4:] == "1111"                       # the clock stopped
+
+
+TAPS = 8
+
+
+def run_skewed(dut, segments, ser_period, sync_period, rng):
+    """Drive ``segments`` = [(bits, (first, width))] like :func:`run`, each bit sampled at
+    the front end's ``tap``: correctly inside the eye (``width`` phases from ``first``,
+    modulo ``TAPS``), at random outside it (a sample on the transition).  Returns the beats
+    and after each segment (trained, eye_width, tap)."""
+    L = dut.lanes
+    top = Module()
+    top.domains.ser = ser = ClockDomain("ser")
+    top.domains.sync = ClockDomain("sync")
+    top.submodules.dut = dut
+    beats, status = [], []
+
+    async def sensor(ctx):
+        for bits, (first, width) in segments:
+            bits = bits + [0] * (-len(bits) % L)
+            for k in range(0, len(bits), L):
+                inside = (ctx.get(dut.tap) - first) % TAPS < width
+                chunk = [b if inside else int(rng.integers(2)) for b in bits[k:k + L]]
+                ctx.set(dut.bits, sum(b << (L - 1 - j) for j, b in enumerate(chunk)))
+                await ctx.delay(ser_period / 2)
+                ctx.set(ser.clk, 1)
+                await ctx.delay(ser_period / 2)
+                ctx.set(ser.clk, 0)
+            await ctx.delay(30 * sync_period)
+            status.append((ctx.get(dut.trained), ctx.get(dut.eye_width), ctx.get(dut.tap)))
+
+    sim = Simulator(top)
+    sim.add_clock(sync_period, phase=0.29 * sync_period)
+    sim.add_testbench(sensor)
+    stream_collect(sim, dut.out, beats, lambda p: (p.data, p.sof, p.eol))
+    sim.run()
+    return beats, status
+
+
+@pytest.mark.parametrize("eye,moved", [((2, 4), (6, 3)), ((6, 4), (1, 5))])
+def test_phase_training_centres_the_eye_and_retrains(eye, moved):
+    """On the blanking stream the trainer sweeps the phases, finds the eye (also one that
+    wraps around the bit's edge) and samples at its centre; the frames after it are exact.
+    The eye then moves off the sample point: the trainer sees no framed alignment, retrains
+    on the blanking, centres the new eye, and the next frames are exact."""
+    w, h = 8, 3
+    rng = np.random.default_rng(eye[0])
+    frames = [random_frame(rng, w, h) for _ in range(4)]
+    dut = MT9V022Frontend(w, h, lanes=6, taps=TAPS)
+    warmup, dwell = PhaseTrainer.timing(PACKET_BITS // 6)
+    train_words = (TAPS * (warmup + dwell) + 2 * TAPS + 1) // 2 + 8     # 2 clocks a word
+    lost_words = dwell // 2 + 8
+    segments = [(to_bits([BLANK] * train_words), eye),
+                (to_bits(frame_words(frames[0]) + frame_words(frames[1])), eye),
+                (to_bits([BLANK] * (lost_words + train_words)), moved),
+                (to_bits(frame_words(frames[2]) + frame_words(frames[3])), moved)]
+    beats, status = run_skewed(dut, segments, 20 * NS, 10 * NS, rng)
+    assert split_frames(beats) == [expected_beats(f) for f in frames]
+    centre = [(first + width // 2) % TAPS for first, width in (eye, moved)]
+    assert status == [(1, eye[1], centre[0]), (1, eye[1], centre[0]),
+                      (1, moved[1], centre[1]), (1, moved[1], centre[1])]
+
+
+def test_phase_trainer_bad_parameters():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnusedElaboratable)
+        with pytest.raises(ValueError, match="taps >= 2"):
+            PhaseTrainer(1, 2, "ser")
+        with pytest.raises(ValueError, match="taps must be >= 1"):
+            MT9V022Frontend(8, 4, taps=0)
+        gc.collect()
