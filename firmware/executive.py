@@ -31,7 +31,7 @@ Time: every frame is dated by its packet header's ``timestamp`` (the gateware's 
 counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; differences modulo 2**32),
 mapped to the MCU's ticks by a correlation taken from the frames whose IRQ edge the wait saw
 (the edge less the read-out); the edge and the frame counter are cross-checks (a
-disagreement beyond :data:`TIME_TOLERANCE_MS`, or a counter step the timestamps do not
+disagreement beyond :data:`_TIME_TOLERANCE_MS`, or a counter step the timestamps do not
 show, is counted: ``time_mismatch``), and the timestamps tell the frames never read
 (``missed``).  The gyro is sampled into a ring while the loop waits and at every watchdog
 feed; a frame's rate is the ring's at the frame's epoch (its first pixel less the exposure,
@@ -100,8 +100,7 @@ CMD_RESET = 6
 MODE_AUTO = 0
 MODE_SAFE = 1
 MODE_ACQUIRE = 2
-COMMAND_QUEUE = 4
-"""Commands held between two steps (more are refused: ``command`` returns False)."""
+_COMMAND_QUEUE = const(4)    # commands held between two steps (more: ``command`` -> False)
 
 # recovery levels
 LEVEL_NONE = 0
@@ -135,13 +134,13 @@ _H_MISSED = const(19)          # sensor frames never read (timestamp gaps betwee
 HEALTH_NAMES = telemetry.HEALTH_NAMES
 N_HEALTH = telemetry.N_HEALTH
 
-GYRO_RING = 32
-GYRO_EVERY_MS = 20
-"""Gyro samples kept (at most one every ``GYRO_EVERY_MS``, taken while waiting for a frame
+_GYRO_RING = const(32)
+_GYRO_EVERY_MS = const(20)
+"""Gyro samples kept (at most one every ``_GYRO_EVERY_MS``, taken while waiting for a frame
 and at every watchdog feed): 0.64 s or more of rate history, so a frame's rate is read at
 its exposure, not when its packet is processed (up to half a second later after a lost in
 space solve)."""
-TIME_TOLERANCE_MS = 5
+_TIME_TOLERANCE_MS = const(5)
 """Largest disagreement between the first pixel dated by the header's ``timestamp`` (through
 the correlation of the gateware's microseconds with the MCU's ticks) and by the frame's IRQ
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
@@ -157,10 +156,10 @@ forwards (the timestamp wraps after 71.6 min)."""
 DISTRUST_FRAMES = 10
 """Frames processed without the gyro's rate after one whose stars contradicted it
 (``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
-PACE_MAX_MS = 1000
+_PACE_MAX_MS = const(1000)
 """Longest wait between a failed attempt and the next (one frame period, capped)."""
 
-HEAP_EVERY = 16
+_HEAP_EVERY = const(16)
 """Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
 more than the rest of a step's telemetry); the records between repeat the last figure."""
 PRIOR_FORMAT = ">4fQII"
@@ -172,6 +171,8 @@ SLOT_MAX = 0xFFFF
 """Largest star-database slot a ``CMD_DATABASE`` selects (``BAD_INPUT`` beyond)."""
 _RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
+_NO_Q = (NAN, NAN, NAN, NAN)
+"""The quaternion of the records without an attitude (made once: no tuple per step)."""
 
 
 def _count(array_, index, n=1):
@@ -218,7 +219,7 @@ class Executive(object):
         self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
         self._prior_buf = bytearray(PRIOR_BYTES)
         self._prior_body = memoryview(self._prior_buf)[:PRIOR_BYTES - 4]
-        self._commands = [None] * COMMAND_QUEUE
+        self._commands = [None] * _COMMAND_QUEUE
         self._n_commands = 0
         self.state = BOOT
         self.mode = MODE_AUTO
@@ -241,16 +242,18 @@ class Executive(object):
         self.last_command = (0, S.OK)
         self.configured = False       # CONFIGURE completed since BOOT
         self.heap_free = 0            # the last mem_free() figure
-        self._gyro_t = array("l", [0] * GYRO_RING)         # ticks of each sample
-        self._gyro_w = array("f", [0.0] * (3 * GYRO_RING))  # rad/s, 3 per sample
+        self._gyro_t = array("l", [0] * _GYRO_RING)         # ticks of each sample
+        self._gyro_w = array("f", [0.0] * (3 * _GYRO_RING))  # rad/s, 3 per sample
         self._gyro_n = 0              # samples held
         self._gyro_at = 0             # the next slot
         self._tick = self._sample_gyro   # wait_irq's poll hook, bound once
         self._attempt = 0             # ticks the current attempt began (its IRQ seen)
         self._retry = None            # a failed attempt's ticks: the next waits a frame
-        self._sync = None             # (timestamp, ticks, ms): a first pixel's stamp and
-                                      # its MCU ticks (an IRQ edge less ms of read-out)
-        self._last = None             # (frame counter, timestamp) of the last packet read
+        self._sync = [None, 0, 0.0]   # [timestamp, ticks, ms]: a first pixel's stamp and
+                                      # its MCU ticks (an IRQ edge less ms of read-out);
+                                      # stamp None: no correlation (updated in place)
+        self._last = [None, None]     # [frame counter, timestamp] of the last packet read
+                                      # (counter None: none; updated in place)
         self._wrapped = None
         self._wrap_clock()
 
@@ -283,13 +286,13 @@ class Executive(object):
         self._sample_gyro()
 
     def _sample_gyro(self):
-        """Keep a gyro sample in the ring (at most one every ``GYRO_EVERY_MS``)."""
+        """Keep a gyro sample in the ring (at most one every ``_GYRO_EVERY_MS``)."""
         if self.gyro is None:
             return
         clock = self.clock
         now = clock.ticks_ms()
-        last = (self._gyro_at - 1) % GYRO_RING
-        if self._gyro_n and clock.ticks_diff(now, self._gyro_t[last]) < GYRO_EVERY_MS:
+        last = (self._gyro_at - 1) % _GYRO_RING
+        if self._gyro_n and clock.ticks_diff(now, self._gyro_t[last]) < _GYRO_EVERY_MS:
             return
         try:
             w = self.gyro()
@@ -300,8 +303,8 @@ class Executive(object):
         except Exception:
             return
         self._gyro_t[self._gyro_at] = now
-        self._gyro_at = (self._gyro_at + 1) % GYRO_RING
-        if self._gyro_n < GYRO_RING:
+        self._gyro_at = (self._gyro_at + 1) % _GYRO_RING
+        if self._gyro_n < _GYRO_RING:
             self._gyro_n += 1
 
     def _rate_at(self, age_ms, now):
@@ -311,12 +314,12 @@ class Executive(object):
         ts = self._gyro_t
         ws = self._gyro_w
         after = None
-        j = (self._gyro_at - 1) % GYRO_RING
+        j = (self._gyro_at - 1) % _GYRO_RING
         for _ in range(self._gyro_n):
             if clock.ticks_diff(now, ts[j]) >= age_ms:
                 break
             after = j
-            j = (j - 1) % GYRO_RING
+            j = (j - 1) % _GYRO_RING
         else:
             j = None
         if j is None and after is None:
@@ -339,7 +342,7 @@ class Executive(object):
         back, or that shows fewer frame periods since the last packet than the frame counter
         numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
         next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
-        than :data:`TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
+        than :data:`_TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
         only be late: a poll that found the line low between two queued packets) unless the
         timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
         frame); an edge that much earlier shows the correlation's own edge was late (a packet
@@ -357,7 +360,7 @@ class Executive(object):
             except Exception:
                 readout = 0.0
             at_edge = self.clock.ticks_diff(now, self._attempt) + readout
-            if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
+            if age is not None and abs(age - at_edge) > _TIME_TOLERANCE_MS:
                 _count(self.health, _H_TIME_MISMATCH)
                 if frames is not None and frames > step:
                     self._stamp_wrong()                    # the stamp jumped ahead
@@ -367,7 +370,10 @@ class Executive(object):
                 else:
                     at_edge = None                         # a late edge: the stamp dates
             if at_edge is not None:
-                self._sync = (stamp, self._attempt, readout)
+                sync = self._sync
+                sync[0] = stamp
+                sync[1] = self._attempt
+                sync[2] = readout
         if frames is not None and frames > 1:
             _count(self.health, _H_MISSED, frames - 1)
         if age is not None:
@@ -379,11 +385,19 @@ class Executive(object):
         timestamps (None when they cannot tell, or are wrong: counted and dropped) and the
         counters (``HALF_RANGE`` or more: the counter restarted)."""
         last = self._last
-        self._last = (counter, stamp)
-        if last is None or stamp is None or last[1] is None or not self.frame_s > 0:
+        last_counter = last[0]
+        last_stamp = last[1]
+        last[0] = counter
+        last[1] = stamp
+        if last_counter is None or stamp is None or last_stamp is None or \
+                not self.frame_s > 0:
             return None, HALF_RANGE
-        gap = (stamp - last[1]) & 0xFFFFFFFF
-        step = (counter - last[0]) & 0xFFFFFFFF
+        gap = stamp - last_stamp         # modulo 2**32; a long int only when it wraps
+        if gap < 0:
+            gap += 0x100000000
+        step = counter - last_counter
+        if step < 0:
+            step += 0x100000000
         frames = int(gap / (1e6 * self.frame_s) + 0.5)
         if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
             _count(self.health, _H_TIME_MISMATCH)
@@ -395,21 +409,23 @@ class Executive(object):
         """Ms before ticks ``now`` of the first pixel stamped ``stamp``, through the
         correlation; None without one."""
         sync = self._sync
-        if stamp is None or sync is None:
+        if stamp is None or sync[0] is None:
             return None
-        d = (stamp - sync[0]) & 0xFFFFFFFF
+        d = stamp - sync[0]                  # signed, within half the 32-bit range
         if d >= HALF_RANGE:
             d -= 0x100000000
+        elif d < -0x80000000:
+            d += 0x100000000
         return self.clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
 
     def _stamp_wrong(self):
         """The timestamps before this one no longer date anything."""
-        self._sync = None
+        self._sync[0] = None
         self.q_epoch_us = None
 
     def _pace(self):
         """After a failed attempt the next one waits for the next frame (one frame period
-        after the failed one began, at most ``PACE_MAX_MS``): a burst of link errors then
+        after the failed one began, at most ``_PACE_MAX_MS``): a burst of link errors then
         costs a frame per attempt and is ridden out by coasting, instead of running through
         every recovery level in microseconds while the IRQ stays high."""
         if self._retry is None:
@@ -419,7 +435,7 @@ class Executive(object):
         self._retry = None
         if left > 0:
             self.feed()
-            clock.sleep_ms(min(left, PACE_MAX_MS))
+            clock.sleep_ms(min(left, _PACE_MAX_MS))
             self.feed()
 
     def time_ms(self):
@@ -441,7 +457,7 @@ class Executive(object):
 
     def command(self, code, arg=None, value=None):
         """Queue a command for the next step: True if queued (False: the queue is full)."""
-        if self._n_commands >= COMMAND_QUEUE:
+        if self._n_commands >= _COMMAND_QUEUE:
             return False
         self._commands[self._n_commands] = (code, arg, value)
         self._n_commands += 1
@@ -528,7 +544,7 @@ class Executive(object):
         if self.store is None:
             return
         buf = self._prior_buf
-        q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
+        q = self.q if self.q is not None else _NO_Q
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
                          self.slot, 0)
         struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(self._prior_body))
@@ -735,7 +751,7 @@ class Executive(object):
         if link.restarted:
             link.restarted = False
             _count(self.health, _H_RESTART)
-            self._last = None
+            self._last[0] = None
 
     def _frame(self):
         link = self.link
@@ -805,7 +821,9 @@ class Executive(object):
         dt = None
         if prior is not None:
             if self.q_epoch_us is not None and stamp is not None:
-                d = (stamp - self.q_epoch_us) & 0xFFFFFFFF
+                d = stamp - self.q_epoch_us
+                if d < 0:                                 # modulo 2**32
+                    d += 0x100000000
                 dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < HALF_RANGE else None
             if dt is None:                                # integers: a float32 cannot hold ms
                 dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
@@ -823,8 +841,11 @@ class Executive(object):
             self.q_time = now_ms - int(tag + 0.5)
             self.q_counter = counter
             self.q_stamp = stamp
-            self.q_epoch_us = None if stamp is None else \
-                (stamp - int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)) & 0xFFFFFFFF
+            epoch_us = None if stamp is None else \
+                stamp - int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)
+            if epoch_us is not None and epoch_us < 0:     # modulo 2**32
+                epoch_us += 0x100000000
+            self.q_epoch_us = epoch_us
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -869,7 +890,7 @@ class Executive(object):
         res = self.last_result
         q = self.q
         if q is None:
-            q = (NAN, NAN, NAN, NAN)
+            q = _NO_Q
         sc = NAN
         sr = NAN
         matches = 0
@@ -882,7 +903,7 @@ class Executive(object):
             matches = min(255, len(res.matches))
             n_records = min(0xFFFF, res.n_records)
         heap = self.heap_free
-        if self.mem_free is not None and self.sequence % HEAP_EVERY == 1:
+        if self.mem_free is not None and self.sequence % _HEAP_EVERY == 1:
             try:
                 heap = self.heap_free = self.mem_free()
             except Exception:
