@@ -63,8 +63,10 @@ time tags; the clock's ticks when absent; integers, as a float32 cannot hold it)
 F-RAM; :data:`PRIOR_FORMAT`: the last attitude and the database slot); ``mem_free()`` for
 the heap figure (``gc.mem_free``).
 Pure Python for CPython and MicroPython; its buffers are allocated once, and a step allocates
-only short-lived small objects besides ``process`` (about 0.7 KB on the Cortex-M4F build, the
-link's share included).  Board wiring, formats and measurements: ``docs/mcu_board.md``.
+only short-lived small objects besides ``process`` (320 bytes on the Cortex-M4F build, the
+link's share included: views, the CRC-32s, the gyro's rate; the 32-bit timestamps are taken
+modulo 2**32 without a long mask, so they make long ints only above 2**30).  Board wiring,
+formats and measurements: ``docs/mcu_board.md``.
 """
 
 import struct

@@ -21,7 +21,8 @@ mid-packet, so the link resynchronises: FLUSH (the gateware drops what is queued
 drains ``READ_STREAM`` while ``irq`` stays high (bounded by the longest packet and a time
 limit), then a status read absorbs the underruns of the drain.  Buffers are allocated once
 here; a frame allocates only a few small objects (views of the packet's variable-length parts,
-the long ints of 32-bit values: about 330 bytes on the Cortex-M4F build, ``docs/mcu_board.md``).
+the CRC-32 the port's ``binascii`` returns, compared byte by byte; 32-bit values are long ints
+only above 2**30: a timestamp after 17.9 min of the gateware's clock), ``docs/mcu_board.md``.
 Pure Python for CPython and MicroPython (docs/mcu_board.md).
 """
 
