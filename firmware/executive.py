@@ -28,7 +28,8 @@ A detector reset the MCU did not command (its frame counter restarts) is counted
 (``uncommanded_reset``).
 
 Time: every frame is dated by its packet header's ``timestamp`` (the gateware's microsecond
-counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; differences modulo 2**32),
+counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; the link gives its low 30 bits,
+small ints on the MCU, and differences are taken modulo 2**30: valid up to 2**29 us, 537 s),
 mapped to the MCU's ticks by a correlation taken from the frames whose IRQ edge the wait saw
 (the edge less the read-out); the edge and the frame counter are cross-checks (a
 disagreement beyond :data:`_TIME_TOLERANCE_MS`, or a counter step the timestamps do not
@@ -153,8 +154,9 @@ CUT_FLAGS = C.FRAME_TRUNCATED | C.FRAME_TIMEOUT | C.FRAME_LINE_ERROR
 stall timeout's dark rows, or the next frame's start), so its IRQ edge is not its first
 pixel plus the read-out and neither checks nor renews the timestamp's correlation."""
 HALF_RANGE = 0x80000000
-"""Half the range of the 32-bit frame counter and timestamp: differences below it count
-forwards (the timestamp wraps after 71.6 min)."""
+"""Half the range of the 32-bit frame counter: differences below it count forwards."""
+_STAMP_MASK = const(0x3FFFFFFF)    # timestamps are kept modulo 2**30 (small ints on the MCU)
+_STAMP_HALF = const(0x20000000)    # differences below 2**29 us (537 s) count forwards
 DISTRUST_FRAMES = 10
 """Frames processed without the gyro's rate after one whose stars contradicted it
 (``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
@@ -231,7 +233,8 @@ class Executive(object):
         self.q = None                 # last good attitude
         self.q_time = 0               # its time tag (its result's t_epoch_s), spacecraft ms
         self.q_counter = 0            # its FPGA frame counter
-        self.q_stamp = 0              # its frame's FPGA timestamp (us)
+        self.q_stamp = 0              # its frame's FPGA timestamp (us), low 30 bits
+        self._tops = 0                # the top 2 bits of q_stamp's and of q_epoch_us' (<< 2)
         self.q_epoch_us = None        # its time tag on the FPGA's clock (us; None: unknown)
         self.slot = 0                 # the star-database slot (kept across a reset)
         self.distrust = 0             # frames left to process without the gyro's rate
@@ -394,14 +397,12 @@ class Executive(object):
         if last_counter is None or stamp is None or last_stamp is None or \
                 not self.frame_s > 0:
             return None, HALF_RANGE
-        gap = stamp - last_stamp         # modulo 2**32; a long int only when it wraps
-        if gap < 0:
-            gap += 0x100000000
+        gap = (stamp - last_stamp) & _STAMP_MASK
         step = counter - last_counter
         if step < 0:
             step += 0x100000000
         frames = int(gap / (1e6 * self.frame_s) + 0.5)
-        if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
+        if gap >= _STAMP_HALF or (step < HALF_RANGE and frames < step):
             _count(self.health, _H_TIME_MISMATCH)
             self._stamp_wrong()
             return None, step
@@ -413,11 +414,9 @@ class Executive(object):
         sync = self._sync
         if stamp is None or sync[0] is None:
             return None
-        d = stamp - sync[0]                  # signed, within half the 32-bit range
-        if d >= HALF_RANGE:
-            d -= 0x100000000
-        elif d < -0x80000000:
-            d += 0x100000000
+        d = (stamp - sync[0]) & _STAMP_MASK
+        if d >= _STAMP_HALF:                 # signed, within half the 30-bit range
+            d = d - _STAMP_MASK - 1
         return self.clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
 
     def _stamp_wrong(self):
@@ -804,7 +803,8 @@ class Executive(object):
         link = self.link
         clock = self.clock
         counter = link.last_frame_counter
-        stamp = link.last_timestamp
+        stamp = link.last_stamp
+        top = link.last_stamp_top
         ticks = clock.ticks_ms()
         now_ms = self.time_ms()
         first = self._date(counter, stamp, edge, ticks)
@@ -823,10 +823,8 @@ class Executive(object):
         dt = None
         if prior is not None:
             if self.q_epoch_us is not None and stamp is not None:
-                d = stamp - self.q_epoch_us
-                if d < 0:                                 # modulo 2**32
-                    d += 0x100000000
-                dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < HALF_RANGE else None
+                d = (stamp - self.q_epoch_us) & _STAMP_MASK
+                dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < _STAMP_HALF else None
             if dt is None:                                # integers: a float32 cannot hold ms
                 dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
         self.feed()
@@ -843,11 +841,8 @@ class Executive(object):
             self.q_time = now_ms - int(tag + 0.5)
             self.q_counter = counter
             self.q_stamp = stamp
-            epoch_us = None if stamp is None else \
-                stamp - int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)
-            if epoch_us is not None and epoch_us < 0:     # modulo 2**32
-                epoch_us += 0x100000000
-            self.q_epoch_us = epoch_us
+            self._tops = top
+            self._epoch(stamp, top, int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5))
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -859,6 +854,21 @@ class Executive(object):
             _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
+
+    def _epoch(self, stamp, top, before_us):
+        """``q_epoch_us``: ``before_us`` before the first pixel stamped ``stamp`` (low 30 bits,
+        ``top`` the top 2), modulo 2**32 as a low 30 and a top 2 bits (``_tops``)."""
+        if stamp is None:
+            self.q_epoch_us = None
+            return
+        raw = stamp - before_us
+        epoch = raw & _STAMP_MASK
+        if raw < 0:
+            top -= 1
+        elif raw > _STAMP_MASK:
+            top += 1
+        self.q_epoch_us = epoch
+        self._tops = (self._tops & 3) | (top & 3) << 2
 
     def _bad_frame(self):
         """A frame without an attitude: coast on the prior, then drop to lost in space with
@@ -912,9 +922,14 @@ class Executive(object):
                 heap = 0
         h = self.health
         buf = self.record
-        struct.pack_into(telemetry.FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
-                         self.state, self.sequence, max(0, self.q_time),
-                         self.q_counter or 0, self.q_stamp or 0, self.q_epoch_us or 0,
+        stamp = self.q_stamp or 0           # 32-bit stamps as 16-bit halves (PACK_FORMAT)
+        epoch = self.q_epoch_us
+        tops = self._tops if self.q_stamp is not None else 0
+        e_hi = 0 if epoch is None else (tops >> 2) << 14 | epoch >> 16
+        struct.pack_into(telemetry.PACK_FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
+                         self.state, self.sequence, max(0, self.q_time), self.q_counter or 0,
+                         (tops & 3) << 14 | stamp >> 16, stamp & 0xFFFF, e_hi,
+                         0 if epoch is None else epoch & 0xFFFF,
                          self.last_status & 0xFF, self.last_link & 0xFF, matches, self.level,
                          n_records, self.min_sum, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],

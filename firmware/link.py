@@ -178,7 +178,9 @@ class Link(object):
         self.overflow = 0
         self.busy = 0
         self.last_frame_counter = None   # the frame counter of the last good packet
-        self.last_timestamp = None       # its timestamp (the gateware's us counter)
+        self.last_stamp = None           # its timestamp's low 30 bits (the gateware's us
+                                         # counter: a small int on the MCU, _read_stamp)
+        self.last_stamp_top = 0          # and its top 2 bits
         self.n_records = 0
         self.last_height = 0             # the rows of the last good packet's frame
         self.last_flags = 0              # its frame flags (contract FRAME_*)
@@ -352,10 +354,29 @@ class Link(object):
         self.count(_C_PACKETS)
         self.n_records = n
         self.last_frame_counter = _field(head, 0, _H_COUNTER)
-        self.last_timestamp = _field(head, 0, _H_TIMESTAMP)
+        self._read_stamp(head)
         self.last_height = _field(head, 0, _H_HEIGHT)
         self.last_flags = _field(head, 0, _H_FLAGS)
         return OK, n
+
+    def _read_stamp(self, head):
+        """The header's 32-bit ``timestamp`` as its low 30 bits (``last_stamp``) and its top 2
+        (``last_stamp_top``): MicroPython's small ints hold 30 bits and a sign on this port,
+        so a whole stamp above 2**30 (after 17.9 min of the gateware's clock) would be a long
+        int, made on the heap in every frame.  The field is 32 bits on a byte boundary
+        (``contract.HEADER_FIELDS``, checked by the tests)."""
+        at = _SPECS[_H_TIMESTAMP] >> 11
+        top = head[at]
+        self.last_stamp = ((top & 0x3F) << 24) | (head[at + 1] << 16) | \
+            (head[at + 2] << 8) | head[at + 3]
+        self.last_stamp_top = top >> 6
+
+    def timestamp(self):
+        """The last good packet's whole 32-bit ``timestamp`` (None before one; a long int
+        above 2**30 on the MCU: for the ground and tests, the loop uses ``last_stamp``)."""
+        if self.last_stamp is None:
+            return None
+        return (self.last_stamp_top << 30) | self.last_stamp
 
     def packet(self, n_records):
         """The packet of ``n_records`` records in the buffer, as a memoryview."""
