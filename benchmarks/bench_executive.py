@@ -3,7 +3,7 @@ heap their imports keep and their cost, the heap a ``Link`` and an ``Executive``
 step's time and allocation around a ``process`` that returns at once, beside a baseline
 revision built the same way.
 
-    .venv/bin/python benchmarks/bench_executive.py [--baseline REV] [--steps N]
+    .venv/bin/python benchmarks/bench_executive.py [--baseline REV] [--steps N] [--smallest]
 
 Each build freezes the MCU image of its checkout (``lodestar.regress.qemu.build``, nothing
 else frozen; the ``exec`` and ``exec-baseline`` folders of the cache) and runs one script
@@ -17,6 +17,9 @@ collector off (steps that write ``min_sum`` back and steps that do not, apart). 
 model's own share (its status word and its copies) is measured alone and subtracted.  Ticks:
 ``time.ticks_us()`` under ``-icount shift=0``, 1,000 guest instructions each; F401 ms:
 ``lodestar.fly.mcu.f401_ms`` (about 3.18 us per tick, an estimate: ``docs/mcu_board.md``).
+``--smallest`` adds the smallest heap the executive loop runs the set's estcube2 Pyramid frames
+in (``bench_mcu.smallest_heap`` in 512-byte steps on the working tree's build of the
+expectations: a ballast in its 80 KiB heap; about 7 QEMU runs of the set, several minutes).
 """
 
 import argparse
@@ -33,6 +36,9 @@ sys.path.insert(0, str(REPO))
 HEAP = 73728
 """The build's GC heap (the figures are allocations, not limits: any heap that runs)."""
 RECORDS = 10
+BASE_US = [0]
+"""The packets' first timestamp less 100 ms (``--timestamps-from``): above 2**30 the 32-bit
+values are long ints on the MCU."""
 
 GUEST = r"""
 import gc, time
@@ -173,7 +179,7 @@ def packets(n):
                              min_pixels=2, record_capacity=100)
         res = Detector(cfg).process(frame)
         res.frame_counter = k + 1
-        res.timestamp = 100_000 * (k + 1)
+        res.timestamp = (BASE_US[0] + 100_000 * (k + 1)) % (1 << 32)
         out.append(codec.encode(res).hex())
     return out
 
@@ -248,9 +254,14 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--baseline", default=None, help="git revision to compare with")
     p.add_argument("--steps", type=int, default=24)
+    p.add_argument("--timestamps-from", type=int, default=0, metavar="US",
+                   help="the packets' timestamps start here (us; default 0)")
+    p.add_argument("--smallest", action="store_true",
+                   help="also the executive loop's smallest heap (several minutes of QEMU)")
     args = p.parse_args()
     if qemu.unavailable_reason(REPO) is not None:
         sys.exit(f"bench_executive: {qemu.unavailable_reason(REPO)}")
+    BASE_US[0] = args.timestamps_from
     if args.steps < 6:
         sys.exit("bench_executive: --steps must be at least 6")
     results = {}
@@ -267,6 +278,26 @@ def main():
         results[f"baseline {args.baseline}"] = measure(elf, args.steps)
     results["working tree"] = measure(build(None, "exec"), args.steps)
     print(table(results))
+    if args.smallest:
+        print(f"smallest heap, executive loop over the set: {smallest():,} B (512-byte steps)")
+
+
+def smallest():
+    """The executive loop's smallest heap over the set's estcube2 Pyramid runs (module
+    docstring)."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_mcu
+
+    from lodestar.cache import default_cache_dir
+    from lodestar.regress import qemu, replay
+
+    manifest = replay.load_set(replay.DEFAULT_SET)
+    db_files = replay.database_files(manifest)
+    runs = [(c, bench_mcu.METHOD) for c in manifest["cases"] if c["camera"] == bench_mcu.CAMERA]
+    big = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, default_cache_dir(),
+                                 REPO)
+    return bench_mcu.smallest_heap(big, bench_mcu.BIG_HEAP, manifest, db_files, runs, True,
+                                   step=512)
 
 
 if __name__ == "__main__":

@@ -28,10 +28,11 @@ A detector reset the MCU did not command (its frame counter restarts) is counted
 (``uncommanded_reset``).
 
 Time: every frame is dated by its packet header's ``timestamp`` (the gateware's microsecond
-counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; differences modulo 2**32),
+counter latched at its first pixel, ``contract.TIMESTAMP_HZ``; the link gives its low 30 bits,
+small ints on the MCU, and differences are taken modulo 2**30: valid up to 2**29 us, 537 s),
 mapped to the MCU's ticks by a correlation taken from the frames whose IRQ edge the wait saw
 (the edge less the read-out); the edge and the frame counter are cross-checks (a
-disagreement beyond :data:`TIME_TOLERANCE_MS`, or a counter step the timestamps do not
+disagreement beyond :data:`_TIME_TOLERANCE_MS`, or a counter step the timestamps do not
 show, is counted: ``time_mismatch``), and the timestamps tell the frames never read
 (``missed``).  The gyro is sampled into a ring while the loop waits and at every watchdog
 feed; a frame's rate is the ring's at the frame's epoch (its first pixel less the exposure,
@@ -63,8 +64,10 @@ time tags; the clock's ticks when absent; integers, as a float32 cannot hold it)
 F-RAM; :data:`PRIOR_FORMAT`: the last attitude and the database slot); ``mem_free()`` for
 the heap figure (``gc.mem_free``).
 Pure Python for CPython and MicroPython; its buffers are allocated once, and a step allocates
-only short-lived small objects besides ``process`` (about 0.7 KB on the Cortex-M4F build, the
-link's share included).  Board wiring, formats and measurements: ``docs/mcu_board.md``.
+only short-lived small objects besides ``process`` (320 bytes on the Cortex-M4F build, the
+link's share included: views, the CRC-32s, the gyro's rate; the 32-bit timestamps are taken
+modulo 2**32 without a long mask, so they make long ints only above 2**30).  Board wiring,
+formats and measurements: ``docs/mcu_board.md``.
 """
 
 import struct
@@ -100,8 +103,7 @@ CMD_RESET = 6
 MODE_AUTO = 0
 MODE_SAFE = 1
 MODE_ACQUIRE = 2
-COMMAND_QUEUE = 4
-"""Commands held between two steps (more are refused: ``command`` returns False)."""
+_COMMAND_QUEUE = const(4)    # commands held between two steps (more: ``command`` -> False)
 
 # recovery levels
 LEVEL_NONE = 0
@@ -135,13 +137,13 @@ _H_MISSED = const(19)          # sensor frames never read (timestamp gaps betwee
 HEALTH_NAMES = telemetry.HEALTH_NAMES
 N_HEALTH = telemetry.N_HEALTH
 
-GYRO_RING = 32
-GYRO_EVERY_MS = 20
-"""Gyro samples kept (at most one every ``GYRO_EVERY_MS``, taken while waiting for a frame
+_GYRO_RING = const(32)
+_GYRO_EVERY_MS = const(20)
+"""Gyro samples kept (at most one every ``_GYRO_EVERY_MS``, taken while waiting for a frame
 and at every watchdog feed): 0.64 s or more of rate history, so a frame's rate is read at
 its exposure, not when its packet is processed (up to half a second later after a lost in
 space solve)."""
-TIME_TOLERANCE_MS = 5
+_TIME_TOLERANCE_MS = const(5)
 """Largest disagreement between the first pixel dated by the header's ``timestamp`` (through
 the correlation of the gateware's microseconds with the MCU's ticks) and by the frame's IRQ
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
@@ -152,15 +154,16 @@ CUT_FLAGS = C.FRAME_TRUNCATED | C.FRAME_TIMEOUT | C.FRAME_LINE_ERROR
 stall timeout's dark rows, or the next frame's start), so its IRQ edge is not its first
 pixel plus the read-out and neither checks nor renews the timestamp's correlation."""
 HALF_RANGE = 0x80000000
-"""Half the range of the 32-bit frame counter and timestamp: differences below it count
-forwards (the timestamp wraps after 71.6 min)."""
+"""Half the range of the 32-bit frame counter: differences below it count forwards."""
+_STAMP_MASK = const(0x3FFFFFFF)    # timestamps are kept modulo 2**30 (small ints on the MCU)
+_STAMP_HALF = const(0x20000000)    # differences below 2**29 us (537 s) count forwards
 DISTRUST_FRAMES = 10
 """Frames processed without the gyro's rate after one whose stars contradicted it
 (``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
-PACE_MAX_MS = 1000
+_PACE_MAX_MS = const(1000)
 """Longest wait between a failed attempt and the next (one frame period, capped)."""
 
-HEAP_EVERY = 16
+_HEAP_EVERY = const(16)
 """Steps between two ``mem_free()`` calls (it walks the heap: on the Cortex-M4F build it costs
 more than the rest of a step's telemetry); the records between repeat the last figure."""
 PRIOR_FORMAT = ">4fQII"
@@ -172,6 +175,8 @@ SLOT_MAX = 0xFFFF
 """Largest star-database slot a ``CMD_DATABASE`` selects (``BAD_INPUT`` beyond)."""
 _RECORD_BYTES = telemetry.BYTES     # (``telemetry`` is a parameter name in the constructor)
 NAN = float("nan")
+_NO_Q = (NAN, NAN, NAN, NAN)
+"""The quaternion of the records without an attitude (made once: no tuple per step)."""
 
 
 def _count(array_, index, n=1):
@@ -218,7 +223,7 @@ class Executive(object):
         self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
         self._prior_buf = bytearray(PRIOR_BYTES)
         self._prior_body = memoryview(self._prior_buf)[:PRIOR_BYTES - 4]
-        self._commands = [None] * COMMAND_QUEUE
+        self._commands = [None] * _COMMAND_QUEUE
         self._n_commands = 0
         self.state = BOOT
         self.mode = MODE_AUTO
@@ -228,7 +233,8 @@ class Executive(object):
         self.q = None                 # last good attitude
         self.q_time = 0               # its time tag (its result's t_epoch_s), spacecraft ms
         self.q_counter = 0            # its FPGA frame counter
-        self.q_stamp = 0              # its frame's FPGA timestamp (us)
+        self.q_stamp = 0              # its frame's FPGA timestamp (us), low 30 bits
+        self._tops = 0                # the top 2 bits of q_stamp's and of q_epoch_us' (<< 2)
         self.q_epoch_us = None        # its time tag on the FPGA's clock (us; None: unknown)
         self.slot = 0                 # the star-database slot (kept across a reset)
         self.distrust = 0             # frames left to process without the gyro's rate
@@ -241,16 +247,18 @@ class Executive(object):
         self.last_command = (0, S.OK)
         self.configured = False       # CONFIGURE completed since BOOT
         self.heap_free = 0            # the last mem_free() figure
-        self._gyro_t = array("l", [0] * GYRO_RING)         # ticks of each sample
-        self._gyro_w = array("f", [0.0] * (3 * GYRO_RING))  # rad/s, 3 per sample
+        self._gyro_t = array("l", [0] * _GYRO_RING)         # ticks of each sample
+        self._gyro_w = array("f", [0.0] * (3 * _GYRO_RING))  # rad/s, 3 per sample
         self._gyro_n = 0              # samples held
         self._gyro_at = 0             # the next slot
         self._tick = self._sample_gyro   # wait_irq's poll hook, bound once
         self._attempt = 0             # ticks the current attempt began (its IRQ seen)
         self._retry = None            # a failed attempt's ticks: the next waits a frame
-        self._sync = None             # (timestamp, ticks, ms): a first pixel's stamp and
-                                      # its MCU ticks (an IRQ edge less ms of read-out)
-        self._last = None             # (frame counter, timestamp) of the last packet read
+        self._sync = [None, 0, 0.0]   # [timestamp, ticks, ms]: a first pixel's stamp and
+                                      # its MCU ticks (an IRQ edge less ms of read-out);
+                                      # stamp None: no correlation (updated in place)
+        self._last = [None, None]     # [frame counter, timestamp] of the last packet read
+                                      # (counter None: none; updated in place)
         self._wrapped = None
         self._wrap_clock()
 
@@ -283,13 +291,13 @@ class Executive(object):
         self._sample_gyro()
 
     def _sample_gyro(self):
-        """Keep a gyro sample in the ring (at most one every ``GYRO_EVERY_MS``)."""
+        """Keep a gyro sample in the ring (at most one every ``_GYRO_EVERY_MS``)."""
         if self.gyro is None:
             return
         clock = self.clock
         now = clock.ticks_ms()
-        last = (self._gyro_at - 1) % GYRO_RING
-        if self._gyro_n and clock.ticks_diff(now, self._gyro_t[last]) < GYRO_EVERY_MS:
+        last = (self._gyro_at - 1) % _GYRO_RING
+        if self._gyro_n and clock.ticks_diff(now, self._gyro_t[last]) < _GYRO_EVERY_MS:
             return
         try:
             w = self.gyro()
@@ -300,8 +308,8 @@ class Executive(object):
         except Exception:
             return
         self._gyro_t[self._gyro_at] = now
-        self._gyro_at = (self._gyro_at + 1) % GYRO_RING
-        if self._gyro_n < GYRO_RING:
+        self._gyro_at = (self._gyro_at + 1) % _GYRO_RING
+        if self._gyro_n < _GYRO_RING:
             self._gyro_n += 1
 
     def _rate_at(self, age_ms, now):
@@ -311,12 +319,12 @@ class Executive(object):
         ts = self._gyro_t
         ws = self._gyro_w
         after = None
-        j = (self._gyro_at - 1) % GYRO_RING
+        j = (self._gyro_at - 1) % _GYRO_RING
         for _ in range(self._gyro_n):
             if clock.ticks_diff(now, ts[j]) >= age_ms:
                 break
             after = j
-            j = (j - 1) % GYRO_RING
+            j = (j - 1) % _GYRO_RING
         else:
             j = None
         if j is None and after is None:
@@ -339,7 +347,7 @@ class Executive(object):
         back, or that shows fewer frame periods since the last packet than the frame counter
         numbers frames, is wrong (the correlation and the prior's timestamp are dropped: the
         next edge makes a new one, ``dt`` comes from the time tags meanwhile); an edge more
-        than :data:`TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
+        than :data:`_TIME_TOLERANCE_MS` later than the timestamp's date is ignored (an edge can
         only be late: a poll that found the line low between two queued packets) unless the
         timestamp also ran ahead of the counter (it jumped: dropped, the edge dates the
         frame); an edge that much earlier shows the correlation's own edge was late (a packet
@@ -357,7 +365,7 @@ class Executive(object):
             except Exception:
                 readout = 0.0
             at_edge = self.clock.ticks_diff(now, self._attempt) + readout
-            if age is not None and abs(age - at_edge) > TIME_TOLERANCE_MS:
+            if age is not None and abs(age - at_edge) > _TIME_TOLERANCE_MS:
                 _count(self.health, _H_TIME_MISMATCH)
                 if frames is not None and frames > step:
                     self._stamp_wrong()                    # the stamp jumped ahead
@@ -367,7 +375,10 @@ class Executive(object):
                 else:
                     at_edge = None                         # a late edge: the stamp dates
             if at_edge is not None:
-                self._sync = (stamp, self._attempt, readout)
+                sync = self._sync
+                sync[0] = stamp
+                sync[1] = self._attempt
+                sync[2] = readout
         if frames is not None and frames > 1:
             _count(self.health, _H_MISSED, frames - 1)
         if age is not None:
@@ -379,13 +390,19 @@ class Executive(object):
         timestamps (None when they cannot tell, or are wrong: counted and dropped) and the
         counters (``HALF_RANGE`` or more: the counter restarted)."""
         last = self._last
-        self._last = (counter, stamp)
-        if last is None or stamp is None or last[1] is None or not self.frame_s > 0:
+        last_counter = last[0]
+        last_stamp = last[1]
+        last[0] = counter
+        last[1] = stamp
+        if last_counter is None or stamp is None or last_stamp is None or \
+                not self.frame_s > 0:
             return None, HALF_RANGE
-        gap = (stamp - last[1]) & 0xFFFFFFFF
-        step = (counter - last[0]) & 0xFFFFFFFF
+        gap = (stamp - last_stamp) & _STAMP_MASK
+        step = counter - last_counter
+        if step < 0:
+            step += 0x100000000
         frames = int(gap / (1e6 * self.frame_s) + 0.5)
-        if gap >= HALF_RANGE or (step < HALF_RANGE and frames < step):
+        if gap >= _STAMP_HALF or (step < HALF_RANGE and frames < step):
             _count(self.health, _H_TIME_MISMATCH)
             self._stamp_wrong()
             return None, step
@@ -395,21 +412,21 @@ class Executive(object):
         """Ms before ticks ``now`` of the first pixel stamped ``stamp``, through the
         correlation; None without one."""
         sync = self._sync
-        if stamp is None or sync is None:
+        if stamp is None or sync[0] is None:
             return None
-        d = (stamp - sync[0]) & 0xFFFFFFFF
-        if d >= HALF_RANGE:
-            d -= 0x100000000
+        d = (stamp - sync[0]) & _STAMP_MASK
+        if d >= _STAMP_HALF:                 # signed, within half the 30-bit range
+            d = d - _STAMP_MASK - 1
         return self.clock.ticks_diff(now, sync[1]) + sync[2] - d / 1000.0
 
     def _stamp_wrong(self):
         """The timestamps before this one no longer date anything."""
-        self._sync = None
+        self._sync[0] = None
         self.q_epoch_us = None
 
     def _pace(self):
         """After a failed attempt the next one waits for the next frame (one frame period
-        after the failed one began, at most ``PACE_MAX_MS``): a burst of link errors then
+        after the failed one began, at most ``_PACE_MAX_MS``): a burst of link errors then
         costs a frame per attempt and is ridden out by coasting, instead of running through
         every recovery level in microseconds while the IRQ stays high."""
         if self._retry is None:
@@ -419,7 +436,7 @@ class Executive(object):
         self._retry = None
         if left > 0:
             self.feed()
-            clock.sleep_ms(min(left, PACE_MAX_MS))
+            clock.sleep_ms(min(left, _PACE_MAX_MS))
             self.feed()
 
     def time_ms(self):
@@ -441,7 +458,7 @@ class Executive(object):
 
     def command(self, code, arg=None, value=None):
         """Queue a command for the next step: True if queued (False: the queue is full)."""
-        if self._n_commands >= COMMAND_QUEUE:
+        if self._n_commands >= _COMMAND_QUEUE:
             return False
         self._commands[self._n_commands] = (code, arg, value)
         self._n_commands += 1
@@ -528,7 +545,7 @@ class Executive(object):
         if self.store is None:
             return
         buf = self._prior_buf
-        q = self.q if self.q is not None else (NAN, NAN, NAN, NAN)
+        q = self.q if self.q is not None else _NO_Q
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
                          self.slot, 0)
         struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(self._prior_body))
@@ -735,7 +752,7 @@ class Executive(object):
         if link.restarted:
             link.restarted = False
             _count(self.health, _H_RESTART)
-            self._last = None
+            self._last[0] = None
 
     def _frame(self):
         link = self.link
@@ -786,7 +803,8 @@ class Executive(object):
         link = self.link
         clock = self.clock
         counter = link.last_frame_counter
-        stamp = link.last_timestamp
+        stamp = link.last_stamp
+        top = link.last_stamp_top
         ticks = clock.ticks_ms()
         now_ms = self.time_ms()
         first = self._date(counter, stamp, edge, ticks)
@@ -805,8 +823,8 @@ class Executive(object):
         dt = None
         if prior is not None:
             if self.q_epoch_us is not None and stamp is not None:
-                d = (stamp - self.q_epoch_us) & 0xFFFFFFFF
-                dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < HALF_RANGE else None
+                d = (stamp - self.q_epoch_us) & _STAMP_MASK
+                dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < _STAMP_HALF else None
             if dt is None:                                # integers: a float32 cannot hold ms
                 dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
         self.feed()
@@ -823,8 +841,8 @@ class Executive(object):
             self.q_time = now_ms - int(tag + 0.5)
             self.q_counter = counter
             self.q_stamp = stamp
-            self.q_epoch_us = None if stamp is None else \
-                (stamp - int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)) & 0xFFFFFFFF
+            self._tops = top
+            self._epoch(stamp, top, int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5))
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -836,6 +854,21 @@ class Executive(object):
             _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
+
+    def _epoch(self, stamp, top, before_us):
+        """``q_epoch_us``: ``before_us`` before the first pixel stamped ``stamp`` (low 30 bits,
+        ``top`` the top 2), modulo 2**32 as a low 30 and a top 2 bits (``_tops``)."""
+        if stamp is None:
+            self.q_epoch_us = None
+            return
+        raw = stamp - before_us
+        epoch = raw & _STAMP_MASK
+        if raw < 0:
+            top -= 1
+        elif raw > _STAMP_MASK:
+            top += 1
+        self.q_epoch_us = epoch
+        self._tops = (self._tops & 3) | (top & 3) << 2
 
     def _bad_frame(self):
         """A frame without an attitude: coast on the prior, then drop to lost in space with
@@ -869,7 +902,7 @@ class Executive(object):
         res = self.last_result
         q = self.q
         if q is None:
-            q = (NAN, NAN, NAN, NAN)
+            q = _NO_Q
         sc = NAN
         sr = NAN
         matches = 0
@@ -882,16 +915,21 @@ class Executive(object):
             matches = min(255, len(res.matches))
             n_records = min(0xFFFF, res.n_records)
         heap = self.heap_free
-        if self.mem_free is not None and self.sequence % HEAP_EVERY == 1:
+        if self.mem_free is not None and self.sequence % _HEAP_EVERY == 1:
             try:
                 heap = self.heap_free = self.mem_free()
             except Exception:
                 heap = 0
         h = self.health
         buf = self.record
-        struct.pack_into(telemetry.FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
-                         self.state, self.sequence, max(0, self.q_time),
-                         self.q_counter or 0, self.q_stamp or 0, self.q_epoch_us or 0,
+        stamp = self.q_stamp or 0           # 32-bit stamps as 16-bit halves (PACK_FORMAT)
+        epoch = self.q_epoch_us
+        tops = self._tops if self.q_stamp is not None else 0
+        e_hi = 0 if epoch is None else (tops >> 2) << 14 | epoch >> 16
+        struct.pack_into(telemetry.PACK_FORMAT, buf, 0, telemetry.MAGIC, telemetry.VERSION,
+                         self.state, self.sequence, max(0, self.q_time), self.q_counter or 0,
+                         (tops & 3) << 14 | stamp >> 16, stamp & 0xFFFF, e_hi,
+                         0 if epoch is None else epoch & 0xFFFF,
                          self.last_status & 0xFF, self.last_link & 0xFF, matches, self.level,
                          n_records, self.min_sum, q[0], q[1], q[2], q[3], sc, sr,
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],

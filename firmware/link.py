@@ -13,19 +13,27 @@ object with ``ticks_ms()``, ``ticks_diff(a, b)`` and ``sleep_ms(n)`` (MicroPytho
 module; tests pass a simulated clock).  A bus call that raises ``OSError`` is a bus error.
 
 Every result is a code of this module (:data:`OK` ... ), and every kind of error increments
-its counter in :attr:`Link.counters` (an ``array('H')``, saturating, indexed by the ``C_*``
-constants, names in :data:`COUNTER_NAMES`).  The packet buffer holds ``capacity`` records;
+its counter in :attr:`Link.counters` (an ``array('H')``, saturating, indexed in the order of
+:data:`COUNTER_NAMES`).  The packet buffer holds ``capacity`` records;
 a packet is trusted only after its header's magic, version and ``n_records`` (at most
 ``capacity``) pass and its CRC-32 matches; any other read leaves the stream possibly
 mid-packet, so the link resynchronises: FLUSH (the gateware drops what is queued), then it
 drains ``READ_STREAM`` while ``irq`` stays high (bounded by the longest packet and a time
 limit), then a status read absorbs the underruns of the drain.  Buffers are allocated once
 here; a frame allocates only a few small objects (views of the packet's variable-length parts,
-the long ints of 32-bit values: about 330 bytes on the Cortex-M4F build, ``docs/mcu_board.md``).
+the CRC-32 the port's ``binascii`` returns, compared byte by byte; 32-bit values are long ints
+only above 2**30: a timestamp after 17.9 min of the gateware's clock), ``docs/mcu_board.md``.
 Pure Python for CPython and MicroPython (docs/mcu_board.md).
 """
 
+import struct
 from array import array
+
+try:
+    from micropython import const
+except ImportError:         # CPython
+    def const(value):
+        return value
 
 from lodestar import contract as C
 
@@ -44,31 +52,33 @@ BAD_ARGUMENT = 10        # unknown register, value out of its field
 CODE_NAMES = ("OK", "BUS_ERROR", "STATUS_BAD", "IRQ_TIMEOUT", "HEADER_BAD", "LENGTH_BAD",
               "PACKET_CRC", "VERIFY_FAILED", "ID_BAD", "RESYNC_FAILED", "BAD_ARGUMENT")
 
-# counters (indices into Link.counters)
-C_BUS = 0                # bus errors
-C_STATUS_BAD = 1         # status replies rejected (CRC-8, turnaround)
-C_IRQ_TIMEOUT = 2        # waits for irq that timed out
-C_HEADER_BAD = 3         # packets with a wrong magic or version
-C_LENGTH_BAD = 4         # packets whose n_records exceeds the buffer or the contract
-C_PACKET_CRC = 5         # packets with a wrong CRC-32
-C_VERIFY = 6             # register read-backs that differed
-C_RESYNC = 7             # resynchronisations (flush + drain)
-C_RESYNC_FAILED = 8      # drains that did not see irq fall
-C_SLAVE_ERRORS = 9       # the slave's own ``errors`` count, accumulated
-C_UNDERRUNS = 10         # the slave's ``underruns`` (bytes read past the stream's end)
-C_FRAMES_SKIPPED = 11    # frames between two status reads beyond one (frame_counter jumps)
-C_OVERFLOW = 12          # status reads with any overflow flag
-C_CLOCK_LOST = 13        # status reads with OVF_CLOCK_LOST
-C_PACKETS = 14           # packets read whole with a good CRC
-C_STATUS = 15            # status reads accepted
-C_RESTARTS = 16          # frame counter restarts the MCU did not command (no soft reset,
-                         # no OVF_CLOCK_LOST): the detector was reset behind its back
+# counters (indices into Link.counters, in COUNTER_NAMES' order; const with private names:
+# not kept in the module's globals on the MCU)
+_C_BUS = const(0)                # bus errors
+_C_STATUS_BAD = const(1)         # status replies rejected (CRC-8, turnaround)
+_C_IRQ_TIMEOUT = const(2)        # waits for irq that timed out
+_C_HEADER_BAD = const(3)         # packets with a wrong magic or version
+_C_LENGTH_BAD = const(4)         # packets whose n_records exceeds the buffer or the contract
+_C_PACKET_CRC = const(5)         # packets with a wrong CRC-32
+_C_VERIFY = const(6)             # register read-backs that differed
+_C_RESYNC = const(7)             # resynchronisations (flush + drain)
+_C_RESYNC_FAILED = const(8)      # drains that did not see irq fall
+_C_SLAVE_ERRORS = const(9)       # the slave's own ``errors`` count, accumulated
+_C_UNDERRUNS = const(10)         # the slave's ``underruns`` (bytes read past the stream's end)
+_C_FRAMES_SKIPPED = const(11)    # frames between two status reads beyond one (counter jumps)
+_C_OVERFLOW = const(12)          # status reads with any overflow flag
+_C_CLOCK_LOST = const(13)        # status reads with OVF_CLOCK_LOST
+_C_PACKETS = const(14)           # packets read whole with a good CRC
+_C_STATUS = const(15)            # status reads accepted
+_C_RESTARTS = const(16)          # frame counter restarts the MCU did not command (no soft
+                                 # reset, no OVF_CLOCK_LOST): the detector was reset behind
+                                 # its back
 COUNTER_NAMES = ("bus", "status_bad", "irq_timeout", "header_bad", "length_bad",
                  "packet_crc", "verify", "resync", "resync_failed", "slave_errors",
                  "underruns", "frames_skipped", "overflow", "clock_lost", "packets", "status",
                  "restarts")
 N_COUNTERS = 17
-COUNTER_MAX = 0xFFFF
+_COUNTER_MAX = const(0xFFFF)
 
 _REPLY = 1 + C.TURNAROUND_BYTES                # MISO bytes before a read's reply
 _STATUS_LEN = _REPLY + C.STATUS_BYTES
@@ -78,8 +88,7 @@ _ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
 
 def _specs(fields, names):
     """Fields ``names`` of a field table (``contract.field_offsets``), each as one small
-    int: its bit offset from the MSB << 8 | its bits (a dict of tuples per table kept 600
-    bytes of heap on the MCU)."""
+    int: its bit offset from the MSB << 8 | its bits."""
     table = C.field_offsets(fields)
     out = []
     for name in names:
@@ -89,15 +98,30 @@ def _specs(fields, names):
     return out
 
 
-_H_MAGIC, _H_VERSION, _H_COUNTER, _H_TIMESTAMP, _H_HEIGHT, _H_FLAGS, _H_RECORDS = _specs(
-    C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp", "height", "flags",
-                      "n_records"))
-_S_COUNTER, _S_ERRORS, _S_UNDERRUNS, _S_OVERFLOW, _S_BUSY = _specs(
-    C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow", "busy"))
+_SPECS = array("l", _specs(C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp",
+                                            "height", "flags", "n_records")) +
+               _specs(C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow",
+                                        "busy")))
+"""The header's and the status word's fields the master reads (:func:`_specs`), indexed by
+the ``_H_*`` and ``_S_*`` constants: one array, where a dict of tuples per table kept 600
+bytes of heap on the MCU and a global per field 16 more each."""
+_H_MAGIC = const(0)
+_H_VERSION = const(1)
+_H_COUNTER = const(2)
+_H_TIMESTAMP = const(3)
+_H_HEIGHT = const(4)
+_H_FLAGS = const(5)
+_H_RECORDS = const(6)
+_S_COUNTER = const(7)
+_S_ERRORS = const(8)
+_S_UNDERRUNS = const(9)
+_S_OVERFLOW = const(10)
+_S_BUSY = const(11)
 
 
-def _field(data, base, spec):
-    """Unsigned field ``spec`` (:func:`_specs`) of the big-endian bytes at ``base``."""
+def _field(data, base, k):
+    """Unsigned field ``_SPECS[k]`` of the big-endian bytes at ``base``."""
+    spec = _SPECS[k]
     at = spec >> 8
     bits = spec & 0xFF
     first = base + at // 8
@@ -145,6 +169,8 @@ class Link(object):
         self._v_write = self._views(C.WRITE_REG_BYTES)
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
         self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
+        self._crc = bytearray(C.CRC_BYTES)   # the CRC-32 computed, big endian (compared
+                                             # byte by byte: no long ints built)
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
         self.errors = 0
@@ -152,7 +178,9 @@ class Link(object):
         self.overflow = 0
         self.busy = 0
         self.last_frame_counter = None   # the frame counter of the last good packet
-        self.last_timestamp = None       # its timestamp (the gateware's us counter)
+        self.last_stamp = None           # its timestamp's low 30 bits (the gateware's us
+                                         # counter: a small int on the MCU, _read_stamp)
+        self.last_stamp_top = 0          # and its top 2 bits
         self.n_records = 0
         self.last_height = 0             # the rows of the last good packet's frame
         self.last_flags = 0              # its frame flags (contract FRAME_*)
@@ -166,7 +194,7 @@ class Link(object):
 
     def count(self, index, n=1):
         value = self.counters[index] + n
-        self.counters[index] = value if value < COUNTER_MAX else COUNTER_MAX
+        self.counters[index] = value if value < _COUNTER_MAX else _COUNTER_MAX
 
     def counter(self, name):
         """A counter by its name in :data:`COUNTER_NAMES` (0 for an unknown name)."""
@@ -193,7 +221,7 @@ class Link(object):
             finally:
                 self._select(False)
         except OSError:
-            self.count(C_BUS)
+            self.count(_C_BUS)
             return False
         return True
 
@@ -220,9 +248,9 @@ class Link(object):
                 if tick is not None:
                     tick()
         except OSError:
-            self.count(C_BUS)
+            self.count(_C_BUS)
             return False
-        self.count(C_IRQ_TIMEOUT)
+        self.count(_C_IRQ_TIMEOUT)
         return False
 
     def read_status(self):
@@ -237,10 +265,10 @@ class Link(object):
         rx = self._rx
         for i in range(_REPLY):
             if rx[i] != C.FILLER:
-                self.count(C_STATUS_BAD)
+                self.count(_C_STATUS_BAD)
                 return STATUS_BAD
         if C.crc8(self._status_data, C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
-            self.count(C_STATUS_BAD)
+            self.count(_C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter
         self.frame_counter = _field(rx, _REPLY, _S_COUNTER)
@@ -248,24 +276,26 @@ class Link(object):
         self.underruns = _field(rx, _REPLY, _S_UNDERRUNS)
         self.overflow = _field(rx, _REPLY, _S_OVERFLOW)
         self.busy = _field(rx, _REPLY, _S_BUSY)
-        self.count(C_STATUS)
-        self.count(C_SLAVE_ERRORS, self.errors)
+        self.count(_C_STATUS)
+        self.count(_C_SLAVE_ERRORS, self.errors)
         if self._drain_underruns:
             self._drain_underruns = False        # the drain's own reads past the end
         else:
-            self.count(C_UNDERRUNS, self.underruns)
+            self.count(_C_UNDERRUNS, self.underruns)
         if self.overflow:
-            self.count(C_OVERFLOW)
+            self.count(_C_OVERFLOW)
         if self.overflow & (1 << C.OVF_CLOCK_LOST):
-            self.count(C_CLOCK_LOST)
+            self.count(_C_CLOCK_LOST)
         commanded = self._reset_sent
         self._reset_sent = False
         if previous is not None:
-            step = (self.frame_counter - previous) & 0xFFFFFFFF
+            step = self.frame_counter - previous
+            if step < 0:                         # modulo 2**32 (a long int only here)
+                step += 0x100000000
             if 1 < step < 0x80000000:
-                self.count(C_FRAMES_SKIPPED, min(step - 1, COUNTER_MAX))
+                self.count(_C_FRAMES_SKIPPED, min(step - 1, _COUNTER_MAX))
             elif step >= 0x80000000 and not commanded and not self.clock_lost():
-                self.count(C_RESTARTS)
+                self.count(_C_RESTARTS)
                 self.restarted = True
         return OK
 
@@ -284,7 +314,7 @@ class Link(object):
             finally:
                 self._select(False)
         except OSError:
-            self.count(C_BUS)
+            self.count(_C_BUS)
             return False
         return True
 
@@ -300,12 +330,12 @@ class Link(object):
             return BUS_ERROR, 0
         if _field(head, 0, _H_MAGIC) != C.PACKET_MAGIC or \
                 _field(head, 0, _H_VERSION) != C.PACKET_VERSION:
-            self.count(C_HEADER_BAD)
+            self.count(_C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
         n = _field(head, 0, _H_RECORDS)
         if n > self.capacity:
-            self.count(C_LENGTH_BAD)
+            self.count(_C_LENGTH_BAD)
             self.resync()
             return LENGTH_BAD, 0
         total = C.packet_bytes(n)
@@ -314,18 +344,39 @@ class Link(object):
             return BUS_ERROR, 0
         body = total - C.CRC_BYTES
         buf = self.buf
-        want = (buf[body] << 24) | (buf[body + 1] << 16) | (buf[body + 2] << 8) | buf[body + 3]
-        if C.crc32(self._mv[:body]) != want:
-            self.count(C_PACKET_CRC)
+        crc = self._crc
+        struct.pack_into(">I", crc, 0, C.crc32(self._mv[:body]))
+        if crc[0] != buf[body] or crc[1] != buf[body + 1] or crc[2] != buf[body + 2] or \
+                crc[3] != buf[body + 3]:
+            self.count(_C_PACKET_CRC)
             self.resync()
             return PACKET_CRC, 0
-        self.count(C_PACKETS)
+        self.count(_C_PACKETS)
         self.n_records = n
         self.last_frame_counter = _field(head, 0, _H_COUNTER)
-        self.last_timestamp = _field(head, 0, _H_TIMESTAMP)
+        self._read_stamp(head)
         self.last_height = _field(head, 0, _H_HEIGHT)
         self.last_flags = _field(head, 0, _H_FLAGS)
         return OK, n
+
+    def _read_stamp(self, head):
+        """The header's 32-bit ``timestamp`` as its low 30 bits (``last_stamp``) and its top 2
+        (``last_stamp_top``): MicroPython's small ints hold 30 bits and a sign on this port,
+        so a whole stamp above 2**30 (after 17.9 min of the gateware's clock) would be a long
+        int, made on the heap in every frame.  The field is 32 bits on a byte boundary
+        (``contract.HEADER_FIELDS``, checked by the tests)."""
+        at = _SPECS[_H_TIMESTAMP] >> 11
+        top = head[at]
+        self.last_stamp = ((top & 0x3F) << 24) | (head[at + 1] << 16) | \
+            (head[at + 2] << 8) | head[at + 3]
+        self.last_stamp_top = top >> 6
+
+    def timestamp(self):
+        """The last good packet's whole 32-bit ``timestamp`` (None before one; a long int
+        above 2**30 on the MCU: for the ground and tests, the loop uses ``last_stamp``)."""
+        if self.last_stamp is None:
+            return None
+        return (self.last_stamp_top << 30) | self.last_stamp
 
     def packet(self, n_records):
         """The packet of ``n_records`` records in the buffer, as a memoryview."""
@@ -335,7 +386,7 @@ class Link(object):
         """Put the stream back at a packet start: FLUSH, then drain ``READ_STREAM`` while
         ``irq`` is high (at most the longest packet and :data:`DRAIN_MS`), then read the
         status (its underruns are the drain's).  Returns ``OK`` or ``RESYNC_FAILED``."""
-        self.count(C_RESYNC)
+        self.count(_C_RESYNC)
         self.command(C.OP_FLUSH)
         limit = C.packet_bytes(C.MAX_RECORD_CAPACITY)
         drained = 0
@@ -345,13 +396,13 @@ class Link(object):
             start = clock.ticks_ms()
             while self.irq.value():
                 if drained >= limit or clock.ticks_diff(clock.ticks_ms(), start) > DRAIN_MS:
-                    self.count(C_RESYNC_FAILED)
+                    self.count(_C_RESYNC_FAILED)
                     return RESYNC_FAILED
                 if not self._stream(scratch):
                     return RESYNC_FAILED
                 drained += len(scratch)
         except OSError:
-            self.count(C_BUS)
+            self.count(_C_BUS)
             return RESYNC_FAILED
         self._drain_underruns = True
         self.read_status()
@@ -370,7 +421,7 @@ class Link(object):
             finally:
                 self._select(False)
         except OSError:
-            self.count(C_BUS)
+            self.count(_C_BUS)
             return BUS_ERROR
         return OK
 
@@ -417,7 +468,7 @@ class Link(object):
             if code == OK and back == value:
                 return OK
             if code == OK:
-                self.count(C_VERIFY)
+                self.count(_C_VERIFY)
                 code = VERIFY_FAILED
         return code
 

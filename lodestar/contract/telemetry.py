@@ -40,6 +40,10 @@ each a saturating 16-bit count since boot."""
 FORMAT = ">HBBIQIIIBBBBHI4f2f" + str(N_HEALTH) + "HII"
 """Big endian, :data:`FIELDS` in order: 16-bit counters, float32 q and sigmas."""
 BYTES = struct.calcsize(FORMAT)
+PACK_FORMAT = FORMAT.replace("QIII", "QIHHHH", 1)
+"""The same bytes as the MCU packs them: ``frame_timestamp`` and ``epoch_us`` each as two
+16-bit halves (high, low), since the executive keeps 32-bit timestamps as small ints of 30
+bits and 2 (a whole one above 2**30 would be a long int on the heap in every record)."""
 
 
 def decode(data):

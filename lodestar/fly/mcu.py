@@ -8,7 +8,7 @@ frames as the flight loop would.  Every figure is an estimate (the docs carry ±
   the budgeted frame (10 records, 73 ms) and the frame with every blob (50 records, 243 ms)
   of ``docs/firmware.md`` (tracking frame by frame).
 - The executive's step around ``process`` (status, packet, prior, telemetry, watchdog, the
-  ``min_sum`` write-back and the gyro ring): ``LOOP_MS``, derived from the icount units
+  gyro ring and the ``min_sum`` write-back): ``LOOP_MS``, derived from the icount units
   measured on the Cortex-M4F build (:data:`STEP_UNITS`, ``docs/mcu_board.md``) with that
   build's F401 calibration (:func:`f401_ms`).  The SPI wire time is the bus's own
   (``lodestar.fly.bus``), the two-wire bus's likewise.
@@ -18,12 +18,12 @@ import math
 
 from lodestar.regress import mcutime
 
-STEP_UNITS = {"step": 1550, "min_sum": 298, "gyro_ring": 297}
+STEP_UNITS = {"step": 2350, "min_sum": 514}
 """icount units (``time.ticks_us`` under ``-icount shift=0``) of the executive on the
-Cortex-M4F build, measured through the test fakes with their share subtracted
-(``docs/mcu_board.md``, the table of the link and executive): one step around a ``process``
-that returns at once, ``min_sum`` written back, the gyro ring (a sample at most every 20
-ms, the frame's rate interpolated at its epoch)."""
+Cortex-M4F build (``benchmarks/bench_executive.py``: its link reading a 10-record packet from
+the link model, whose own share is subtracted; ``docs/mcu_board.md``, the table of the link
+and executive): one step around a ``process`` that returns at once, the gyro ring's sample
+included, and ``min_sum`` written back."""
 REFERENCE_UNITS = {"bm_float": 11759, "bm_nqueens": 119831}
 """icount units of the two calibration calls (``mcutime.CALLS``) on the representation-A
 twin of the same build (``docs/mcu_board.md``): with ``mcutime.F401_US`` the F401's time per
@@ -45,7 +45,7 @@ MOVING_RAD_S = 0.0017
 TRACK_BASE_MS = 30.5
 TRACK_PER_RECORD_MS = 4.25
 LOOP_MS = f401_ms(sum(STEP_UNITS.values()))
-"""The executive's share of a frame (about 6.8 ms)."""
+"""The executive's share of a frame (about 9.1 ms)."""
 
 
 def process_ms(result, prior, omega):

@@ -36,3 +36,13 @@ def test_decode_round_trip_and_refusals():
         assert telemetry.decode(other) is None
     data[30] ^= 0x01
     assert telemetry.decode(data) is None
+
+
+def test_the_mcus_format_packs_the_same_bytes():
+    """``PACK_FORMAT`` (the 32-bit stamps as 16-bit halves, small ints on the MCU) lays out
+    the bytes of ``FORMAT``."""
+    values = [telemetry.MAGIC, telemetry.VERSION, 3, 7, 2 ** 40, 9, 0xC0012345, 0xBFFF0001]
+    values += [0] * (len(telemetry.FIELDS) - len(values))
+    halves = values[:6] + [0xC001, 0x2345, 0xBFFF, 0x0001] + values[8:]
+    assert struct.calcsize(telemetry.PACK_FORMAT) == telemetry.BYTES
+    assert struct.pack(telemetry.PACK_FORMAT, *halves) == struct.pack(telemetry.FORMAT, *values)

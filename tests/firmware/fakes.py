@@ -72,7 +72,8 @@ class Link(object):
         self.stamp = 0
         self.offset_us = 0         # the gateware's microsecond counter at the clock's 0
         self.last_frame_counter = None
-        self.last_timestamp = None
+        self.last_stamp = None
+        self.last_stamp_top = 0
         self.writes = []
         self.resyncs = 0
         self.soft_resets = 0
@@ -134,7 +135,8 @@ class Link(object):
         if self.item == CRC:
             return _link.PACKET_CRC, 0
         self.last_frame_counter = self.counter
-        self.last_timestamp = self.stamp & 0xFFFFFFFF
+        self.last_stamp = self.stamp & 0x3FFFFFFF          # as the link gives it
+        self.last_stamp_top = (self.stamp >> 30) & 3
         self.last_flags = self.flags
         return _link.OK, 3
 

@@ -112,6 +112,23 @@ def test_packets_read_whole_and_frames_skipped(packets):
     assert link.last_frame_counter == 2
 
 
+def test_timestamps_come_as_small_ints_of_30_and_2_bits():
+    """A header timestamp above 2**30 (after 17.9 min of the gateware's clock) is given as its
+    low 30 bits and its top 2, both small ints on the MCU; ``timestamp()`` joins them.  The
+    link reads the field as 32 bits on a byte boundary: the contract's header must keep it
+    there."""
+    (at, bits), = [(a, b) for name, a, b in C.field_offsets(C.HEADER_FIELDS)
+                   if name == "timestamp"]
+    assert bits == 32 and at % 8 == 0
+    bus, link, _ = new_link()
+    assert link.timestamp() is None
+    for stamp in (0xC0000123, 0x3FFFFFFF, 0x40000000, 5):
+        bus.packets.append(make_packet(1, timestamp=stamp))
+        assert link.read_packet()[0] == _link.OK
+        assert link.last_stamp == stamp & 0x3FFFFFFF and link.last_stamp_top == stamp >> 30
+        assert link.timestamp() == stamp
+
+
 def test_packet_longer_than_the_buffer_is_refused_and_flushed(packets):
     big = make_packet(9, n_stars=12)
     assert records(big) > 8

@@ -52,14 +52,14 @@ def test_corrupt_flips_one_byte(tmp_path):
 
 
 def test_recovery_counts_periods_to_the_next_tracking_solve():
-    s = faults.Schedule(["irq-stuck-low"], fault_frame=10)      # 1.0 .. 1.3 s
-    rows = [{"t_s": 1.05, "status": "OK", "mode": "TRACK", "faults": ["irq-stuck-low"]},
+    s = faults.Schedule(["irq-stuck-high"], fault_frame=10)      # 1.0 .. 1.3 s
+    rows = [{"t_s": 1.05, "status": "OK", "mode": "TRACK", "faults": ["irq-stuck-high"]},
             {"t_s": 1.5, "status": "IRQ_TIMEOUT", "mode": "COAST", "faults": []},
             {"t_s": 1.51, "status": "OK", "mode": "TRACK", "faults": []}]
-    rec = faults.recovery(rows, s)["irq-stuck-low"]
+    rec = faults.recovery(rows, s)["irq-stuck-high"]
     assert rec["frames_to_recovery"] == 3 and rec["recovered_s"] == 1.51 and rec["within"]
     rows[2]["t_s"] = 1.71
-    assert not faults.recovery(rows, s)["irq-stuck-low"]["within"]
+    assert not faults.recovery(rows, s)["irq-stuck-high"]["within"]
 
 
 def test_recovery_of_a_one_shot_counts_from_the_step_it_acted_in():
