@@ -15,7 +15,7 @@ from .. import attitude
 from .. import geometry as G
 from .. import status as S
 from ..quaternion import angle_between
-from .verify import streak_variance, verify
+from .verify import fov_solid_angle, least_chance, streak_variance, verify
 
 DEFAULT_MAX_WORK = 5000000
 """Work budget of one identification by a method without a budget of its own (Triangle,
@@ -66,7 +66,8 @@ class Solution:
     sorted by observed index; ``patterns_tried``: observed patterns examined (star triples
     for Pyramid and Triangle, star groups for Hashing);
     ``probability``: the binomial false-match probability of the accepted hypothesis (or of
-    the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
+    the best rejected one, ``1.0`` if none was verified; the smallest any could reach when no
+    hypothesis could verify); ``hypotheses``: hypotheses
     verified; ``star_ids``: ``(observed_index, database star index)`` pairs; ``work``: work
     units spent (:data:`DEFAULT_MAX_WORK`).
     """
@@ -138,7 +139,8 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
                   max_mismatch_prob, distinct_rad, streaks, max_work):
     """The identification of every method (LOST's ``StarIdAlgorithm::Go``): checks the input
     (:func:`observed`, ``search_class.refuses``), makes the method's :class:`Search`
-    subclass and runs its patterns; returns a :class:`Solution`.
+    subclass and runs its patterns (none, ``NO_MATCH``, when even every observed star matched
+    could not verify: :func:`.verify.least_chance`); returns a :class:`Solution`.
 
     ``tolerance_rad``: largest direction error of one observed star (the verification match
     radius).  ``budget``: most patterns tried.  ``max_stars``: observed stars the patterns
@@ -153,6 +155,10 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
     code = search_class.refuses(b, database, max_stars)
     if code is not None:
         return Solution(code)
+    least = least_chance(len(b), fov_solid_angle(database.fov_h, database.fov_v),
+                         tolerance_rad, max_mismatch_prob, streaks)
+    if least is not None:           # no hypothesis could verify: no pattern tried
+        return Solution(S.NO_MATCH, probability=least)
     search = search_class(b, database, tolerance_rad, max_mismatch_prob,
                           20.0 * tolerance_rad if distinct_rad is None else distinct_rad,
                           streaks, max_stars)

@@ -312,6 +312,41 @@ def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks
     return ps[-1], poisson_binomial_tail(ps[free_matches:], n_matched - free_matches)
 
 
+FUTILE_MARGIN = 1.000001
+""":func:`least_chance` calls a search futile only this far above the threshold: the
+probability's rounding, not its model."""
+
+
+def least_chance(n_observed, omega, tolerance_rad, max_prob, streaks=None, free_matches=2):
+    """None when some hypothesis of ``n_observed`` stars could be accepted (probability below
+    ``max_prob``), else the smallest probability any could reach: a search that cannot
+    succeed ends before its first pattern (a frame of a few long tracks, whose match regions
+    are wide).  Exact, not a heuristic: ``k`` one-to-one matches need ``n_fov >= k``
+    predicted stars and :func:`chance_agreement` grows with ``n_fov``, so ``n_fov = k``
+    bounds every hypothesis with ``k`` matches from below.  A usual frame costs O(n): all
+    its stars matched among as many predicted, the probability is the product of the
+    largest ``n - free_matches`` chances."""
+    n = n_observed
+    if streaks is None or not any(streaks):
+        ps = [n * math.pi * tolerance_rad * tolerance_rad / omega] * n
+    else:
+        ps = chance_probabilities(n, omega, tolerance_rad, streaks, n)
+        ps.sort()
+    prod = 1.0
+    for p in ps[free_matches:]:
+        prod *= p if p < 1.0 else 1.0
+    if prod * 2.0 < max_prob:
+        return None
+    least = 1.0
+    for k in range(n, 0, -1):
+        prob = chance_agreement(k, omega, tolerance_rad, n, k, streaks, free_matches)[1]
+        if prob < max_prob * FUTILE_MARGIN:
+            return None
+        if prob < least:
+            least = prob
+    return least
+
+
 def streak_variance(streak):
     """Per-axis variance (rad^2) a streak adds to its star's direction: a uniform offset over
     ``+-half`` along one axis (``half^2 / 3``) shared by two, ``half^2 / 6``; 0 for None."""
