@@ -68,6 +68,7 @@ class TrackSolution(Solution):
 # Propagation
 # --------------------------------------------------------------------------------------
 
+@native
 def propagate(q, omega=None, dt=None):
     """The attitude ``dt`` seconds after ``q`` at constant body rate ``omega`` (rad/s, camera
     frame): ``R(-omega dt) (x) q``; ``q`` itself (normalised) when ``omega`` or ``dt`` is
@@ -138,6 +139,7 @@ class Cone:
         return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
 
 
+@native
 def candidates(database, q, margin_rad, cone=None):
     """A :class:`Cone` of the catalogue stars within the FOV's half-diagonal plus
     ``margin_rad`` of the boresight of ``q``: the stars :func:`predict` can find at any
@@ -197,17 +199,22 @@ def predict(database, q, margin_rad=0.0, cone=None):
         if z <= 0.0:
             continue
         x = m0 * r0 + m1 * r1 + m2 * r2
-        if abs(x) > tan_hm * z:
+        lim = tan_hm * z
+        if x > lim or -x > lim:         # abs(x) > lim without the call to abs
             continue
         y = m3 * r0 + m4 * r1 + m5 * r2
-        if abs(y) > tan_vm * z:
+        lim = tan_vm * z
+        if y > lim or -y > lim:
             continue
         keep[n_out] = ids[i]
         j = 3 * n_out
         cam[j], cam[j + 1], cam[j + 2] = x, y, z
         n_out += 1
-        if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-            n_fov += 1
+        lim = tan_h * z
+        if -lim <= x <= lim:
+            lim = tan_v * z
+            if -lim <= y <= lim:
+                n_fov += 1
     return (keep[:n_out], cam[:3 * n_out]), n_fov
 
 
@@ -301,6 +308,7 @@ def _to_inertial(vectors, q):
     return out
 
 
+@native
 def _streaks_to_inertial(streaks, q):
     """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays)."""
     if streaks is None:
@@ -379,6 +387,7 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     return pairs
 
 
+@native
 def fit(observed, database, pairs, q, weights=None, cone=None):
     """Least-squares attitude of ``pairs`` ``[(observed index, star index)]`` refined from
     ``q`` (:func:`lodestar.firmware.attitude.refine`: the pairs were matched near ``q``), or
@@ -413,6 +422,7 @@ def residual_rms(observed, database, q, pairs, cone=None):
     return math.sqrt(total / len(pairs))
 
 
+@native
 def _unit_vectors(vectors):
     """Unit tuples of ``vectors`` (a unit tuple is shared), or None unless
     it is a sequence of finite, non-zero 3-vectors of numbers."""
@@ -500,6 +510,7 @@ class Tracker:
     def _fail(self, status, n_fov=0):
         return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
 
+    @native
     def _track(self, vectors, database, q_prior, omega, dt, weights, streaks):
         tol, search = self.tol, self.search
         if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
@@ -547,6 +558,7 @@ class Tracker:
             return self._fail(S.NO_MATCH, n_fov)
         return self._settle(q_pred, pairs, n_fov, coarse=True)
 
+    @native
     def _settle(self, q, pairs, n_fov, coarse=False, near=None):
         """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
         the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars

@@ -14,6 +14,7 @@ Python for CPython and MicroPython (``math`` only).
 from .. import attitude
 from .. import geometry as G
 from .. import status as S
+from ..emit import native
 from ..quaternion import angle_between
 from .verify import fov_solid_angle, least_chance, streak_variance, verify
 
@@ -166,6 +167,7 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
     return search.run(search.patterns(), budget)
 
 
+@native
 def streak_weights(streaks, tolerance_rad):
     """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
     ``1 / (1 + streak_variance / (tolerance_rad / 3)^2)`` (:func:`streak_variance` against
@@ -176,6 +178,7 @@ def streak_weights(streaks, tolerance_rad):
     return [1.0 / (1.0 + streak_variance(streak) / s2) for streak in streaks]
 
 
+@native
 def streaks_valid(streaks, n):
     """True when ``streaks`` is None or ``n`` entries, each None or ``(ux, uy, uz, half)``
     of finite numbers with ``half >= 0`` (``u`` is used as given: a unit vector)."""

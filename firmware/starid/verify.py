@@ -20,6 +20,7 @@ from ..kvector import lower_bound
 from ..quaternion import matrix
 
 
+@native
 def binomial_tail(n, k, p):
     """``P(X >= k)`` for ``X ~ Binomial(n, p)`` (log-domain first term, no ``math.comb``)."""
     if k <= 0:
@@ -46,6 +47,7 @@ def binomial_tail(n, k, p):
     return out if out < 1.0 else 1.0
 
 
+@native
 def poisson_binomial_tail(ps, k):
     """``P(X >= k)`` for ``X`` the number of successes of independent trials of success
     probabilities ``ps`` (a recursion over the count distribution, every term positive: no
@@ -118,15 +120,21 @@ def predicted_stars(database, q, margin=0.0):
             t = 3 * i
             r0, r1, r2 = cat[t], cat[t + 1], cat[t + 2]
             z = m6 * r0 + m7 * r1 + m8 * r2
-            x = m0 * r0 + m1 * r1 + m2 * r2
-            y = m3 * r0 + m4 * r1 + m5 * r2
             if fill:
                 ids[k] = cone[i]
-                vecs[3 * k], vecs[3 * k + 1], vecs[3 * k + 2] = x, y, z
+                vecs[3 * k] = m0 * r0 + m1 * r1 + m2 * r2
+                vecs[3 * k + 1] = m3 * r0 + m4 * r1 + m5 * r2
+                vecs[3 * k + 2] = z
                 k += 1
-            elif z > 0.0 and abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-                inside[i] = 1
-                n += 1
+            elif z > 0.0:               # abs(x) <= tan_h z, ...: no call to abs, and no y
+                lim = tan_h * z         # for a star off the sides
+                x = m0 * r0 + m1 * r1 + m2 * r2
+                if -lim <= x <= lim:
+                    lim = tan_v * z
+                    y = m3 * r0 + m4 * r1 + m5 * r2
+                    if -lim <= y <= lim:
+                        inside[i] = 1
+                        n += 1
     return ids, vecs
 
 
@@ -269,6 +277,7 @@ def match_stars(observed, predicted, tolerance_rad, streaks=None):
     return pairs
 
 
+@native
 def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     """Per observed star, the probability that one of ``n_fov`` stars scattered over the
     solid angle ``omega`` falls in its match region (``docs/starid.md``)."""
@@ -317,6 +326,7 @@ FUTILE_MARGIN = 1.000001
 probability's rounding, not its model."""
 
 
+@native
 def least_chance(n_observed, omega, tolerance_rad, max_prob, streaks=None, free_matches=2):
     """None when some hypothesis of ``n_observed`` stars could be accepted (probability below
     ``max_prob``), else the smallest probability any could reach: a search that cannot
