@@ -16,7 +16,7 @@ from .. import geometry as G
 from .. import status as S
 from ..emit import native
 from ..quaternion import angle_between
-from .verify import fov_solid_angle, least_chance, streak_variance, verify
+from .verify import SkyCone, fov_solid_angle, least_chance, streak_variance, verify
 
 DEFAULT_MAX_WORK = 5000000
 """Work budget of one identification by a method without a budget of its own (Triangle,
@@ -212,7 +212,9 @@ class Search:
     Search), or None for none; ``max_stars``: observed stars the patterns use (``n``, the
     first of ``b``).  ``half`` lists each star's ``half`` (0 without a
     streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
-    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
+    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one;
+    ``sky`` the :class:`~.verify.SkyCone` of the last accepted hypothesis (its refinement's
+    verifications read it again).
 
     A method subclasses it (:func:`identify_with` makes and runs it): ``BIT`` (its database
     bit), ``MIN_STARS`` (fewest observed stars), :meth:`refuses`, :meth:`patterns` and
@@ -241,6 +243,7 @@ class Search:
         self.streaks = streaks if streaks is not None and any(streaks) else None
         self.half = [0.0] * len(b)
         self.weights = streak_weights(self.streaks, tol)
+        self.sky = SkyCone()        # a hypothesis's cone, read again by its refinement
         if self.streaks is not None:
             for o in range(len(b)):
                 if streaks[o] is not None:
@@ -275,7 +278,7 @@ class Search:
         if q is None:
             return None, None
         self.hypotheses += 1
-        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks, sky=self.sky)
 
     def test(self, obs_idx, cat_idx, accepted):
         """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
@@ -286,6 +289,7 @@ class Search:
         if ver.probability < self.max_prob:
             accepted.append((q, ver))
             return True
+        self.sky.clear()            # a rejected attitude's cone: not held through the search
         if ver.probability < self.best_rejected:
             self.best_rejected = ver.probability
         return False
@@ -300,7 +304,7 @@ class Search:
             q = self.fit(ver.pairs, start)
             if q is None:
                 break
-            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks, sky=self.sky)
             if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
                     ver2.pairs == ver.pairs:
                 return q, ver

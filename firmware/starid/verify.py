@@ -95,18 +95,62 @@ class Verification:
         return len(self.pairs)
 
 
+CONE_MARGIN_RAD = 0.01
+"""How much wider than the field (rad) a :class:`SkyCone` is queried: the refinement of a
+hypothesis turns the attitude by far less, so its verifications read the cone once."""
+
+
+class SkyCone:
+    """The catalogue stars of one cone query, kept for the next verifications at nearby
+    attitudes (:func:`predicted_stars`): ``centre`` (unit vector), ``radius`` (rad),
+    ``ids`` (star indices, table order) and ``vecs`` (their vectors ``x, y, z``); ``ids``
+    None when empty."""
+
+    __slots__ = ("centre", "radius", "ids", "vecs")
+
+    def __init__(self):
+        self.clear()
+
+    def clear(self):
+        """Drop the held stars (their heap is free)."""
+        self.centre = self.ids = self.vecs = None
+        self.radius = 0.0
+
+    def stars(self, database, d, radius):
+        """``(ids, vecs)`` of the stars within ``radius`` of ``d``, or more: the held ones
+        when their cone covers it (with a margin for rounding), else a query
+        :data:`CONE_MARGIN_RAD` wider, held.  Either way in table order, so the stars a
+        caller keeps are the same stars in the same order as from a query of its own."""
+        c = self.centre
+        if self.ids is not None and radius < self.radius:
+            dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
+            room = 2.0 * math.sin(0.45 * (self.radius - radius))      # 0.9 of the room
+            if dx * dx + dy * dy + dz * dz <= room * room:
+                return self.ids, self.vecs
+        self.ids = self.vecs = None                # the old cone's heap is free first
+        vecs = []
+        radius += CONE_MARGIN_RAD
+        self.ids = database.stars_in_cone(d, radius, vecs=vecs)
+        self.vecs, self.centre, self.radius = vecs, d, radius
+        return self.ids, vecs
+
+
 @native
-def predicted_stars(database, q, margin=0.0):
+def predicted_stars(database, q, margin=0.0, sky=None):
     """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
     vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
     per star (compact: no object per star).  ``margin`` (rad) widens the FOV rectangle on
-    every side."""
+    every side.  ``sky``: a :class:`SkyCone` to read the stars around the boresight from
+    (None: a query of their own; the same stars either way)."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
     half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
-    cat = []                            # the cone's vectors, read with its stars
-    cone = database.stars_in_cone((m6, m7, m8), half_diag, vecs=cat)   # around the boresight
+    if sky is None:
+        cat = []                        # the cone's vectors, read with its stars
+        cone = database.stars_in_cone((m6, m7, m8), half_diag, vecs=cat)   # the boresight's
+    else:
+        cone, cat = sky.stars(database, (m6, m7, m8), half_diag)
     inside = bytearray(len(cone))       # count and mark, then fill arrays of the final size:
     n = 0                               # two passes over the cone's vectors
     for fill in (False, True):
@@ -291,12 +335,12 @@ def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     return out
 
 
-def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
+def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None, sky=None):
     """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors (their
     match regions stretched along ``streaks``); returns a :class:`Verification` (accept
     when ``probability < max_mismatch_prob``; ``p_single``: the largest per-star chance
-    probability)."""
-    predicted = predicted_stars(database, q)
+    probability).  ``sky``: as for :func:`predicted_stars`."""
+    predicted = predicted_stars(database, q, sky=sky)
     pairs = match_stars(observed, predicted, tolerance_rad, streaks)
     n_fov = len(predicted[0])
     omega = fov_solid_angle(database.fov_h, database.fov_v)
