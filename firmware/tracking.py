@@ -53,15 +53,27 @@ one."""
 class TrackSolution(Solution):
     """Result of :func:`track`: a :class:`~lodestar.firmware.starid.search.Solution`
     (``patterns_tried`` 0, one hypothesis: the prior) plus ``q_predicted``, ``n_predicted``
-    and ``residual_rad`` (``docs/centroids_and_tracking.md``)."""
+    and ``residual_rad`` (``docs/centroids_and_tracking.md``).  ``residual``: ``(observed,
+    database, q, pairs, cone)`` of :func:`residual_rms`, which ``residual_rad`` computes
+    when first read (the flight pipeline never reads it: 2 ms of F401 time a frame saved),
+    or None."""
 
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
-                 q_predicted=None, n_predicted=0, residual_rad=None):
+                 q_predicted=None, n_predicted=0, residual=None):
         Solution.__init__(self, status, q=q, matches=matches, probability=probability,
                           hypotheses=1 if q_predicted is not None else 0, star_ids=star_ids)
         self.q_predicted = q_predicted
         self.n_predicted = n_predicted
-        self.residual_rad = residual_rad
+        self._residual = residual
+
+    @property
+    def residual_rad(self):
+        """RMS angle (rad) between the matched observed and catalogue stars at the fitted
+        attitude, or None (computed once, then kept)."""
+        r = self._residual
+        if isinstance(r, tuple):
+            r = self._residual = residual_rms(r[0], r[1], r[2], r[3], r[4])
+        return r
 
 
 # --------------------------------------------------------------------------------------
@@ -612,9 +624,9 @@ class Tracker:
         omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
         _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
         matches = [(o, database.star_hip(s)) for o, s in pairs]
-        rms = residual_rms(b, database, q, pairs, cone)
         status = S.OK if len(pairs) >= self.min_matches and prob < self.max_prob else S.NO_MATCH
         return TrackSolution(status, q=q if status == S.OK else None,
                              matches=matches if status == S.OK else [],
                              star_ids=list(pairs) if status == S.OK else [], probability=prob,
-                             q_predicted=self.q_pred, n_predicted=n_fov, residual_rad=rms)
+                             q_predicted=self.q_pred, n_predicted=n_fov,
+                             residual=(b, database, q, pairs, cone))
