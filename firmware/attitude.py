@@ -148,6 +148,7 @@ def _prepare(b, r, w, wname="w", min_pairs=2, shared=False):
     return bs, rs, ws
 
 
+@native
 def _unit_weights(ws):
     total = 0.0
     for a in ws:

@@ -256,6 +256,7 @@ def unseen_px(sigma_major, sigma_minor, orientation, smear, share=0.0):
 _TRACK, _PIECE, _RAY = 0, 1, 2
 
 
+@native
 def _elongated(sigma_major, sigma_minor, orientation, smear, joining, min_sigma_px,
                angle_tol, length_ratio):
     """What an elongated blob is (:func:`extract`): ``_TRACK`` when the expected ``smear``
@@ -359,6 +360,7 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
     return out
 
 
+@native
 def _joined(stars, central, members, smear):
     """One :class:`Star` with the moments of the union of ``members``' pieces (its flux the
     exact sum of integer ``s0``), its centroid moved along the smear to the middle of the
@@ -400,6 +402,7 @@ def _joined(stars, central, members, smear):
                 stars[best].index, parts)
 
 
+@native
 def _mid_shift(stars, central, members, x, y, smear):
     """How far (in units of the smear ``(dx, dy)``) the middle of the pieces' extent along
     the smear lies from their flux-weighted centroid ``(x, y)``: each piece spans its
@@ -556,6 +559,7 @@ def _joined_pieces(stars, pieces, rejected):
     return kept
 
 
+@native
 def _brightest_first(stars):
     """Sort ``stars`` in place by :func:`_sort_key`, computed once per star (MicroPython's
     ``sort(key=...)`` calls the key at every comparison)."""

@@ -40,6 +40,7 @@ def zeros(n):
     return out
 
 
+@native
 def finite(x):
     """True for a finite number: ``inf - inf`` and ``nan - nan`` are nan, and nan is not 0
     (MicroPython has no ``math.isfinite`` on every port)."""
@@ -53,6 +54,7 @@ float), so ``float()`` of a number is finite on every build; a larger int (``10*
 would raise ``OverflowError`` or become infinite where it is used as a float."""
 
 
+@native
 def is_number(x):
     """True for an int or float (not a bool) that is finite, an int at most
     :data:`MAX_INT` in magnitude.  An exact ``float`` takes the first test alone: this runs
@@ -155,6 +157,7 @@ def angle(a, b):
     return 2.0 * math.asin(h if h < 1.0 else 1.0)
 
 
+@native
 def triple(a, b, c):
     """Triple product ``(a x b) . c``."""
     return ((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1] +

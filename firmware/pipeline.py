@@ -76,6 +76,14 @@ collections, about 30 % fewer instructions per frame (``docs/firmware.md``, Memo
 fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
 
 
+SMEAR_MEMO = 48
+"""Pixels whose expected smear a moving frame remembers (:meth:`StarTracker._smear`); the
+rest are computed again when asked (about 0.1 ms each on the F401).  A frame with a rate
+keeps every record's star for the joining of broken tracks, and the memo of a 100-record
+frame (its keys, values and a dictionary grown to 2 KiB in one block) took the heap of a
+busy frame at 1 deg/s (``docs/mcu_board.md``); the regression set's frames stay within it."""
+
+
 TRACK_MARGIN_PERCENT = 85
 """The ``min_sum`` a solved frame returns admits blobs down to this share (percent) of the
 ``track_stars``-th brightest blob's ``s0``, which changes by a few percent from frame to
@@ -87,6 +95,7 @@ MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
 
+@native
 def min_sum(stars, track_stars):
     """The ``min_sum`` register value that budgets the next frame for ``track_stars`` to
     ``track_stars +`` :data:`TRACK_EXTRA_STARS` blobs, from this frame's ``stars``
@@ -424,6 +433,7 @@ class StarTracker:
             return G.rotate_about(v, axis, rate * (half + y * row_time - epoch))
         return turn
 
+    @native
     def directions(self, stars, omega=None, exposure_s=None):
         """Camera-frame unit vectors of ``stars`` (:class:`~lodestar.firmware.centroids.Star`)
         at the epoch: ``(vectors, used)`` with ``used`` the indices into ``stars`` of the
@@ -443,6 +453,7 @@ class StarTracker:
             used.append(i)
         return vectors, used
 
+    @native
     def streaks(self, stars, used, smear):
         """Per direction of :meth:`directions` (``used``), the partly seen track of its star
         for the identification (:mod:`lodestar.firmware.starid.verify`): None, or ``(ux, uy, uz,
@@ -494,6 +505,7 @@ class StarTracker:
                                **self.settings.id_options)
         return sol, "lost_in_space"
 
+    @native
     def weights(self, fluxes):
         """Relative QUEST weights of stars of the given fluxes: ``flux / median``
         (1 for a missing, non-positive or non-finite flux; all 1 without
@@ -1086,6 +1098,7 @@ class StarTracker:
         self._tick(timings, "total", first)
         return res
 
+    @native
     def _instants(self, stars, used, exposure):
         """``(moments, exposure)`` of the used stars (``_keep`` order): their second moments
         ``sigma_major, sigma_minor, orientation`` (px, rad: the streak) three floats per star
@@ -1099,6 +1112,7 @@ class StarTracker:
             flat[3 * k + 2] = star.orientation
         return flat, exposure
 
+    @native
     def _times(self, exposure, n):
         """Each of the ``n`` used stars' mean instant, s after the start of row 0's exposure
         (``exposure / 2 + y row_time_s``; an unknown exposure counts from row 0's
@@ -1130,8 +1144,9 @@ class StarTracker:
 
     def _smear(self, omega, exposure_s):
         """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
-        (:meth:`Camera.smear_function`), remembered per pixel (extraction, joining and
-        streaks ask again); None without a non-zero rate or an exposure."""
+        (:meth:`Camera.smear_function`), remembered per pixel for the first
+        :data:`SMEAR_MEMO` pixels (extraction, joining and streaks ask again); None without
+        a non-zero rate or an exposure."""
         if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
             return None
         known = {}
@@ -1141,10 +1156,13 @@ class StarTracker:
             key = (x, y)
             if key in known:
                 return known[key]
-            d = known[key] = smear_at(x, y)
+            d = smear_at(x, y)
+            if len(known) < SMEAR_MEMO:
+                known[key] = d
             return d
         return smear
 
+    @native
     def _keep(self, stars, used):
         """Copy the record index, centroid and flux of each used star into the tracker's
         buffers: the rest of a frame needs no more of them, so the star objects are dropped

@@ -302,6 +302,7 @@ def _inverse(n, nn, h):
     return cols, _substitute(n, a, h)
 
 
+@native
 def rate_fit(b, r, dts, w, q, min_sigma_rad=0.0, sigma_rad=None, rounds=RATE_ITERATIONS):
     """The attitude at the reference instant and the rate, fitted to matched pairs.
 
@@ -338,6 +339,7 @@ def radial_fit(b, r, dts, w, q, rate, min_sigma_rad=0.0, sigma_rad=None,
     return fit(b, r, dts, w, q, rate, True, min_sigma_rad, sigma_rad, rounds)
 
 
+@native
 def check(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
     """A verdict of one linear solve at ``q`` (the arguments as :func:`fit`'s, the stars
     not turned): the attitude with the rate (``rate``) and, with ``radial``, the radial
@@ -379,6 +381,7 @@ def check(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None):
     return x, (chi2_x / s2 if s2 > 0 else None)
 
 
+@native
 def _scales(b, dts, w):
     """``(tau, rho2)``: the stars' weighted RMS instant (s; the rate's unknowns are the rate
     times it) and mean squared sine of their angle from the boresight."""
@@ -399,6 +402,7 @@ def _noise2(chi2, n, size, min_sigma_rad, sigma_rad):
     return s2 if s2 >= min_sigma_rad * min_sigma_rad else min_sigma_rad * min_sigma_rad
 
 
+@native
 def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
         rounds=RATE_ITERATIONS):
     """The Gauss-Newton fit behind :func:`rate_fit` and :func:`radial_fit` (their arguments;

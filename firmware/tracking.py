@@ -53,21 +53,34 @@ one."""
 class TrackSolution(Solution):
     """Result of :func:`track`: a :class:`~lodestar.firmware.starid.search.Solution`
     (``patterns_tried`` 0, one hypothesis: the prior) plus ``q_predicted``, ``n_predicted``
-    and ``residual_rad`` (``docs/centroids_and_tracking.md``)."""
+    and ``residual_rad`` (``docs/centroids_and_tracking.md``).  ``residual``: ``(observed,
+    database, q, pairs, cone)`` of :func:`residual_rms`, which ``residual_rad`` computes
+    when first read (the flight pipeline never reads it: 2 ms of F401 time a frame saved),
+    or None."""
 
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
-                 q_predicted=None, n_predicted=0, residual_rad=None):
+                 q_predicted=None, n_predicted=0, residual=None):
         Solution.__init__(self, status, q=q, matches=matches, probability=probability,
                           hypotheses=1 if q_predicted is not None else 0, star_ids=star_ids)
         self.q_predicted = q_predicted
         self.n_predicted = n_predicted
-        self.residual_rad = residual_rad
+        self._residual = residual
+
+    @property
+    def residual_rad(self):
+        """RMS angle (rad) between the matched observed and catalogue stars at the fitted
+        attitude, or None (computed once, then kept)."""
+        r = self._residual
+        if isinstance(r, tuple):
+            r = self._residual = residual_rms(r[0], r[1], r[2], r[3], r[4])
+        return r
 
 
 # --------------------------------------------------------------------------------------
 # Propagation
 # --------------------------------------------------------------------------------------
 
+@native
 def propagate(q, omega=None, dt=None):
     """The attitude ``dt`` seconds after ``q`` at constant body rate ``omega`` (rad/s, camera
     frame): ``R(-omega dt) (x) q``; ``q`` itself (normalised) when ``omega`` or ``dt`` is
@@ -138,6 +151,7 @@ class Cone:
         return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
 
 
+@native
 def candidates(database, q, margin_rad, cone=None):
     """A :class:`Cone` of the catalogue stars within the FOV's half-diagonal plus
     ``margin_rad`` of the boresight of ``q``: the stars :func:`predict` can find at any
@@ -197,17 +211,22 @@ def predict(database, q, margin_rad=0.0, cone=None):
         if z <= 0.0:
             continue
         x = m0 * r0 + m1 * r1 + m2 * r2
-        if abs(x) > tan_hm * z:
+        lim = tan_hm * z
+        if x > lim or -x > lim:         # abs(x) > lim without the call to abs
             continue
         y = m3 * r0 + m4 * r1 + m5 * r2
-        if abs(y) > tan_vm * z:
+        lim = tan_vm * z
+        if y > lim or -y > lim:
             continue
         keep[n_out] = ids[i]
         j = 3 * n_out
         cam[j], cam[j + 1], cam[j + 2] = x, y, z
         n_out += 1
-        if abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-            n_fov += 1
+        lim = tan_h * z
+        if -lim <= x <= lim:
+            lim = tan_v * z
+            if -lim <= y <= lim:
+                n_fov += 1
     return (keep[:n_out], cam[:3 * n_out]), n_fov
 
 
@@ -301,6 +320,7 @@ def _to_inertial(vectors, q):
     return out
 
 
+@native
 def _streaks_to_inertial(streaks, q):
     """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays)."""
     if streaks is None:
@@ -379,6 +399,7 @@ def coarse_match(observed, predicted, search_rad, cluster_rad, max_stars):
     return pairs
 
 
+@native
 def fit(observed, database, pairs, q, weights=None, cone=None):
     """Least-squares attitude of ``pairs`` ``[(observed index, star index)]`` refined from
     ``q`` (:func:`lodestar.firmware.attitude.refine`: the pairs were matched near ``q``), or
@@ -413,6 +434,7 @@ def residual_rms(observed, database, q, pairs, cone=None):
     return math.sqrt(total / len(pairs))
 
 
+@native
 def _unit_vectors(vectors):
     """Unit tuples of ``vectors`` (a unit tuple is shared), or None unless
     it is a sequence of finite, non-zero 3-vectors of numbers."""
@@ -500,6 +522,7 @@ class Tracker:
     def _fail(self, status, n_fov=0):
         return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
 
+    @native
     def _track(self, vectors, database, q_prior, omega, dt, weights, streaks):
         tol, search = self.tol, self.search
         if not (is_number(tol) and tol > 0 and is_number(search) and search >= 0 and
@@ -547,6 +570,7 @@ class Tracker:
             return self._fail(S.NO_MATCH, n_fov)
         return self._settle(q_pred, pairs, n_fov, coarse=True)
 
+    @native
     def _settle(self, q, pairs, n_fov, coarse=False, near=None):
         """Fit ``pairs`` from ``q``, then predict, match and refit at the fitted attitude while
         the matches change; verify the final set as lost-in-space does.  ``n_fov``: the stars
@@ -600,9 +624,9 @@ class Tracker:
         omega_fov = fov_solid_angle(database.fov_h, database.fov_v)
         _p, prob = chance_agreement(n_fov, omega_fov, tol, len(b), len(pairs), streaks)
         matches = [(o, database.star_hip(s)) for o, s in pairs]
-        rms = residual_rms(b, database, q, pairs, cone)
         status = S.OK if len(pairs) >= self.min_matches and prob < self.max_prob else S.NO_MATCH
         return TrackSolution(status, q=q if status == S.OK else None,
                              matches=matches if status == S.OK else [],
                              star_ids=list(pairs) if status == S.OK else [], probability=prob,
-                             q_predicted=self.q_pred, n_predicted=n_fov, residual_rad=rms)
+                             q_predicted=self.q_pred, n_predicted=n_fov,
+                             residual=(b, database, q, pairs, cone))

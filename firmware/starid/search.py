@@ -14,8 +14,9 @@ Python for CPython and MicroPython (``math`` only).
 from .. import attitude
 from .. import geometry as G
 from .. import status as S
+from ..emit import native
 from ..quaternion import angle_between
-from .verify import streak_variance, verify
+from .verify import SkyCone, fov_solid_angle, least_chance, streak_variance, verify
 
 DEFAULT_MAX_WORK = 5000000
 """Work budget of one identification by a method without a budget of its own (Triangle,
@@ -66,7 +67,8 @@ class Solution:
     sorted by observed index; ``patterns_tried``: observed patterns examined (star triples
     for Pyramid and Triangle, star groups for Hashing);
     ``probability``: the binomial false-match probability of the accepted hypothesis (or of
-    the best rejected one, ``1.0`` if none was verified); ``hypotheses``: hypotheses
+    the best rejected one, ``1.0`` if none was verified; the smallest any could reach when no
+    hypothesis could verify); ``hypotheses``: hypotheses
     verified; ``star_ids``: ``(observed_index, database star index)`` pairs; ``work``: work
     units spent (:data:`DEFAULT_MAX_WORK`).
     """
@@ -138,7 +140,8 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
                   max_mismatch_prob, distinct_rad, streaks, max_work):
     """The identification of every method (LOST's ``StarIdAlgorithm::Go``): checks the input
     (:func:`observed`, ``search_class.refuses``), makes the method's :class:`Search`
-    subclass and runs its patterns; returns a :class:`Solution`.
+    subclass and runs its patterns (none, ``NO_MATCH``, when even every observed star matched
+    could not verify: :func:`.verify.least_chance`); returns a :class:`Solution`.
 
     ``tolerance_rad``: largest direction error of one observed star (the verification match
     radius).  ``budget``: most patterns tried.  ``max_stars``: observed stars the patterns
@@ -153,6 +156,10 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
     code = search_class.refuses(b, database, max_stars)
     if code is not None:
         return Solution(code)
+    least = least_chance(len(b), fov_solid_angle(database.fov_h, database.fov_v),
+                         tolerance_rad, max_mismatch_prob, streaks)
+    if least is not None:           # no hypothesis could verify: no pattern tried
+        return Solution(S.NO_MATCH, probability=least)
     search = search_class(b, database, tolerance_rad, max_mismatch_prob,
                           20.0 * tolerance_rad if distinct_rad is None else distinct_rad,
                           streaks, max_stars)
@@ -160,6 +167,7 @@ def identify_with(search_class, vectors, database, tolerance_rad, budget, max_st
     return search.run(search.patterns(), budget)
 
 
+@native
 def streak_weights(streaks, tolerance_rad):
     """Relative fit weights of observed stars with ``streaks`` (None: None, equal weights):
     ``1 / (1 + streak_variance / (tolerance_rad / 3)^2)`` (:func:`streak_variance` against
@@ -170,6 +178,7 @@ def streak_weights(streaks, tolerance_rad):
     return [1.0 / (1.0 + streak_variance(streak) / s2) for streak in streaks]
 
 
+@native
 def streaks_valid(streaks, n):
     """True when ``streaks`` is None or ``n`` entries, each None or ``(ux, uy, uz, half)``
     of finite numbers with ``half >= 0`` (``u`` is used as given: a unit vector)."""
@@ -203,7 +212,9 @@ class Search:
     Search), or None for none; ``max_stars``: observed stars the patterns use (``n``, the
     first of ``b``).  ``half`` lists each star's ``half`` (0 without a
     streak) and ``weights`` the fits' (:func:`streak_weights`).  ``hypotheses`` counts
-    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one.
+    verified hypotheses, ``best_rejected`` is the smallest probability of a rejected one;
+    ``sky`` the :class:`~.verify.SkyCone` of the last accepted hypothesis (its refinement's
+    verifications read it again).
 
     A method subclasses it (:func:`identify_with` makes and runs it): ``BIT`` (its database
     bit), ``MIN_STARS`` (fewest observed stars), :meth:`refuses`, :meth:`patterns` and
@@ -232,6 +243,7 @@ class Search:
         self.streaks = streaks if streaks is not None and any(streaks) else None
         self.half = [0.0] * len(b)
         self.weights = streak_weights(self.streaks, tol)
+        self.sky = SkyCone()        # a hypothesis's cone, read again by its refinement
         if self.streaks is not None:
             for o in range(len(b)):
                 if streaks[o] is not None:
@@ -266,7 +278,7 @@ class Search:
         if q is None:
             return None, None
         self.hypotheses += 1
-        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+        return q, verify(self.b, self.db, q, self.tol, streaks=self.streaks, sky=self.sky)
 
     def test(self, obs_idx, cat_idx, accepted):
         """:meth:`hypothesis`; appends ``(q, Verification)`` to ``accepted`` and returns True
@@ -277,6 +289,7 @@ class Search:
         if ver.probability < self.max_prob:
             accepted.append((q, ver))
             return True
+        self.sky.clear()            # a rejected attitude's cone: not held through the search
         if ver.probability < self.best_rejected:
             self.best_rejected = ver.probability
         return False
@@ -291,7 +304,7 @@ class Search:
             q = self.fit(ver.pairs, start)
             if q is None:
                 break
-            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks)
+            ver2 = verify(self.b, self.db, q, self.tol, streaks=self.streaks, sky=self.sky)
             if ver2.probability >= self.max_prob or ver2.n_matched < ver.n_matched or \
                     ver2.pairs == ver.pairs:
                 return q, ver

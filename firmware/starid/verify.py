@@ -20,6 +20,7 @@ from ..kvector import lower_bound
 from ..quaternion import matrix
 
 
+@native
 def binomial_tail(n, k, p):
     """``P(X >= k)`` for ``X ~ Binomial(n, p)`` (log-domain first term, no ``math.comb``)."""
     if k <= 0:
@@ -46,6 +47,7 @@ def binomial_tail(n, k, p):
     return out if out < 1.0 else 1.0
 
 
+@native
 def poisson_binomial_tail(ps, k):
     """``P(X >= k)`` for ``X`` the number of successes of independent trials of success
     probabilities ``ps`` (a recursion over the count distribution, every term positive: no
@@ -93,18 +95,62 @@ class Verification:
         return len(self.pairs)
 
 
+CONE_MARGIN_RAD = 0.01
+"""How much wider than the field (rad) a :class:`SkyCone` is queried: the refinement of a
+hypothesis turns the attitude by far less, so its verifications read the cone once."""
+
+
+class SkyCone:
+    """The catalogue stars of one cone query, kept for the next verifications at nearby
+    attitudes (:func:`predicted_stars`): ``centre`` (unit vector), ``radius`` (rad),
+    ``ids`` (star indices, table order) and ``vecs`` (their vectors ``x, y, z``); ``ids``
+    None when empty."""
+
+    __slots__ = ("centre", "radius", "ids", "vecs")
+
+    def __init__(self):
+        self.clear()
+
+    def clear(self):
+        """Drop the held stars (their heap is free)."""
+        self.centre = self.ids = self.vecs = None
+        self.radius = 0.0
+
+    def stars(self, database, d, radius):
+        """``(ids, vecs)`` of the stars within ``radius`` of ``d``, or more: the held ones
+        when their cone covers it (with a margin for rounding), else a query
+        :data:`CONE_MARGIN_RAD` wider, held.  Either way in table order, so the stars a
+        caller keeps are the same stars in the same order as from a query of its own."""
+        c = self.centre
+        if self.ids is not None and radius < self.radius:
+            dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
+            room = 2.0 * math.sin(0.45 * (self.radius - radius))      # 0.9 of the room
+            if dx * dx + dy * dy + dz * dz <= room * room:
+                return self.ids, self.vecs
+        self.ids = self.vecs = None                # the old cone's heap is free first
+        vecs = []
+        radius += CONE_MARGIN_RAD
+        self.ids = database.stars_in_cone(d, radius, vecs=vecs)
+        self.vecs, self.centre, self.radius = vecs, d, radius
+        return self.ids, vecs
+
+
 @native
-def predicted_stars(database, q, margin=0.0):
+def predicted_stars(database, q, margin=0.0, sky=None):
     """Catalogue stars inside the FOV at attitude ``q``, as *predicted stars*: ``(ids,
     vecs)``, ``array('H')`` star indices and ``array(FLOAT_CODE)`` camera vectors ``x, y, z``
     per star (compact: no object per star).  ``margin`` (rad) widens the FOV rectangle on
-    every side."""
+    every side.  ``sky``: a :class:`SkyCone` to read the stars around the boresight from
+    (None: a query of their own; the same stars either way)."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
     half_diag = 0.5 * database.fov_diag + margin
     tan_h = math.tan(0.5 * database.fov_h + margin)
     tan_v = math.tan(0.5 * database.fov_v + margin)
-    cat = []                            # the cone's vectors, read with its stars
-    cone = database.stars_in_cone((m6, m7, m8), half_diag, vecs=cat)   # around the boresight
+    if sky is None:
+        cat = []                        # the cone's vectors, read with its stars
+        cone = database.stars_in_cone((m6, m7, m8), half_diag, vecs=cat)   # the boresight's
+    else:
+        cone, cat = sky.stars(database, (m6, m7, m8), half_diag)
     inside = bytearray(len(cone))       # count and mark, then fill arrays of the final size:
     n = 0                               # two passes over the cone's vectors
     for fill in (False, True):
@@ -118,15 +164,21 @@ def predicted_stars(database, q, margin=0.0):
             t = 3 * i
             r0, r1, r2 = cat[t], cat[t + 1], cat[t + 2]
             z = m6 * r0 + m7 * r1 + m8 * r2
-            x = m0 * r0 + m1 * r1 + m2 * r2
-            y = m3 * r0 + m4 * r1 + m5 * r2
             if fill:
                 ids[k] = cone[i]
-                vecs[3 * k], vecs[3 * k + 1], vecs[3 * k + 2] = x, y, z
+                vecs[3 * k] = m0 * r0 + m1 * r1 + m2 * r2
+                vecs[3 * k + 1] = m3 * r0 + m4 * r1 + m5 * r2
+                vecs[3 * k + 2] = z
                 k += 1
-            elif z > 0.0 and abs(x) <= tan_h * z and abs(y) <= tan_v * z:
-                inside[i] = 1
-                n += 1
+            elif z > 0.0:               # abs(x) <= tan_h z, ...: no call to abs, and no y
+                lim = tan_h * z         # for a star off the sides
+                x = m0 * r0 + m1 * r1 + m2 * r2
+                if -lim <= x <= lim:
+                    lim = tan_v * z
+                    y = m3 * r0 + m4 * r1 + m5 * r2
+                    if -lim <= y <= lim:
+                        inside[i] = 1
+                        n += 1
     return ids, vecs
 
 
@@ -269,6 +321,7 @@ def match_stars(observed, predicted, tolerance_rad, streaks=None):
     return pairs
 
 
+@native
 def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     """Per observed star, the probability that one of ``n_fov`` stars scattered over the
     solid angle ``omega`` falls in its match region (``docs/starid.md``)."""
@@ -282,12 +335,12 @@ def chance_probabilities(n_fov, omega, tolerance_rad, streaks, n):
     return out
 
 
-def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None):
+def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None, sky=None):
     """Verify attitude ``q`` against all ``observed`` camera-frame unit vectors (their
     match regions stretched along ``streaks``); returns a :class:`Verification` (accept
     when ``probability < max_mismatch_prob``; ``p_single``: the largest per-star chance
-    probability)."""
-    predicted = predicted_stars(database, q)
+    probability).  ``sky``: as for :func:`predicted_stars`."""
+    predicted = predicted_stars(database, q, sky=sky)
     pairs = match_stars(observed, predicted, tolerance_rad, streaks)
     n_fov = len(predicted[0])
     omega = fov_solid_angle(database.fov_h, database.fov_v)
@@ -310,6 +363,42 @@ def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks
     ps = chance_probabilities(n_fov, omega, tolerance_rad, streaks, n_observed)
     ps.sort()
     return ps[-1], poisson_binomial_tail(ps[free_matches:], n_matched - free_matches)
+
+
+FUTILE_MARGIN = 1.000001
+""":func:`least_chance` calls a search futile only this far above the threshold: the
+probability's rounding, not its model."""
+
+
+@native
+def least_chance(n_observed, omega, tolerance_rad, max_prob, streaks=None, free_matches=2):
+    """None when some hypothesis of ``n_observed`` stars could be accepted (probability below
+    ``max_prob``), else the smallest probability any could reach: a search that cannot
+    succeed ends before its first pattern (a frame of a few long tracks, whose match regions
+    are wide).  Exact, not a heuristic: ``k`` one-to-one matches need ``n_fov >= k``
+    predicted stars and :func:`chance_agreement` grows with ``n_fov``, so ``n_fov = k``
+    bounds every hypothesis with ``k`` matches from below.  A usual frame costs O(n): all
+    its stars matched among as many predicted, the probability is the product of the
+    largest ``n - free_matches`` chances."""
+    n = n_observed
+    if streaks is None or not any(streaks):
+        ps = [n * math.pi * tolerance_rad * tolerance_rad / omega] * n
+    else:
+        ps = chance_probabilities(n, omega, tolerance_rad, streaks, n)
+        ps.sort()
+    prod = 1.0
+    for p in ps[free_matches:]:
+        prod *= p if p < 1.0 else 1.0
+    if prod * 2.0 < max_prob:
+        return None
+    least = 1.0
+    for k in range(n, 0, -1):
+        prob = chance_agreement(k, omega, tolerance_rad, n, k, streaks, free_matches)[1]
+        if prob < max_prob * FUTILE_MARGIN:
+            return None
+        if prob < least:
+            least = prob
+    return least
 
 
 def streak_variance(streak):

@@ -481,6 +481,21 @@ def test_weights_are_relative_inverse_variances():
     assert sim_frames.tracker(flux_weighting=False).weights([100.0, 300.0]) == [1.0, 1.0]
 
 
+def test_the_smear_memo_is_bounded_and_changes_no_value():
+    tracker = sim_frames.tracker()
+    omega, exposure = (0.01, -0.02, 0.005), 0.1
+    smear_at = tracker.camera.smear_function(omega, exposure)
+    smear_fn = tracker._smear(omega, exposure)
+    memo = next(c.cell_contents for c in smear_fn.__closure__
+                if isinstance(c.cell_contents, dict))
+    pixels = [(10.5 + 37 * k, 20.25 + 19 * k) for k in range(pipeline.SMEAR_MEMO + 20)]
+    for _ in range(2):                          # computed, then remembered or again
+        for x, y in pixels:
+            assert smear_fn(x, y) == smear_at(x, y)
+    assert len(memo) == pipeline.SMEAR_MEMO
+    assert tracker._smear((0.0, 0.0, 0.0), exposure) is None
+
+
 def _noisy_pairs(rng, sigmas):
     """Catalogue vectors in a 10-degree field and their images under a random attitude,
     each displaced by Gaussian noise of ``sigmas[i]`` rad per axis: ``(b, r)`` lists."""

@@ -250,6 +250,21 @@ def test_a_cone_is_not_shared_between_databases():
     assert other.reads > 0 and cone.database is other
 
 
+def test_the_residual_is_computed_when_read():
+    db = sim_frames.flight_database()
+    rng = np.random.default_rng(5)
+    q = random_attitude(rng)
+    scene = centroid_scene(sim_frames.sim_camera(), q, rng, catalogue(), noise_px=0.3,
+                           max_stars=20)
+    sol = tracking.track(scene.vectors.tolist(), db, q.tolist(), tolerance_rad=TOL)
+    assert sol.status == S.OK and isinstance(sol._residual, tuple)     # not yet computed
+    b = [tuple(v) for v in scene.vectors.tolist()]
+    want = tracking.residual_rms(b, db, sol.q, sol.star_ids)
+    assert sol.residual_rad == pytest.approx(want, rel=1e-12) and 0 < want < TOL
+    assert sol._residual == sol.residual_rad                     # kept
+    assert tracking.TrackSolution(S.NO_MATCH).residual_rad is None
+
+
 def test_tracking_recovers_a_prior_off_by_0p2_deg():
     db = sim_frames.flight_database()
     cam = sim_frames.sim_camera()

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from lodestar.contract import stardb
 from lodestar.firmware import quaternion, starid
+from lodestar.firmware import status as S
 from lodestar.firmware.starid import search
 from lodestar.sim.attitude import random_attitude
 from lodestar.sim.centroids import attitude_error_deg
@@ -56,3 +57,18 @@ def test_every_method_declares_the_search_interface():
         assert cls.try_pattern is not search.Search.try_pattern
         assert cls.patterns is not search.Search.patterns
         assert inspect.signature(cls.__init__) == inspect.signature(search.Search.__init__)
+
+
+def test_a_search_that_cannot_verify_tries_no_pattern(starid_database_of, tol):
+    _cam, _cat, db = starid_database_of("pyramid")
+    rng = np.random.default_rng(3)
+    d = rng.normal(0, 0.05, (4, 3)) + [0, 0, 1]
+    b = (d / np.linalg.norm(d, axis=1, keepdims=True)).tolist()
+    streaks = [tuple(v) + (h * tol,) for v, h in zip(([1.0, 0, 0],) * 4, (0.6, 1.5, 1.5, 6.9))]
+    sol = starid.identify(b, db, "pyramid", tol, streaks=streaks)
+    assert (sol.status, sol.patterns_tried, sol.work) == (S.NO_MATCH, 0, 0)
+    assert sol.probability >= 1e-9
+    # allowed a probability it can reach, the same stars are searched
+    sol = starid.identify(b, db, "pyramid", tol, streaks=streaks,
+                          max_mismatch_prob=2 * sol.probability)
+    assert sol.patterns_tried >= 1 and sol.work > 0

@@ -130,3 +130,52 @@ def test_near_pairs_finds_what_testing_every_pair_finds(seed):
         got = list(verify.near_pairs(observed, predicted, radius, streaks=s))
         assert got == list(every_pair(s))
         assert len(got) >= 30
+
+
+def test_least_chance_bounds_every_hypothesis_from_below():
+    omega = verify.fov_solid_angle(0.2, 0.15)
+    tol = 3.5e-4
+    # a usual frame: some hypothesis can verify
+    assert verify.least_chance(20, omega, tol, 1e-9) is None
+    assert verify.least_chance(5, omega, tol, 1e-9, [None] * 5) is None
+    # four long tracks: no hypothesis can (estcube2_3dps' stars, halves in tolerances)
+    streaks = [(1.0, 0.0, 0.0, h * tol) for h in (0.6, 1.5, 1.5, 6.9)]
+    least = verify.least_chance(4, omega, tol, 1e-9, streaks)
+    assert least is not None and least >= 1e-9
+    # exact: every (n_fov >= matched) a verification could meet is at least the bound, and
+    # the bound is met
+    got = [verify.chance_agreement(n_fov, omega, tol, 4, k, streaks)[1]
+           for k in range(5) for n_fov in range(k, k + 40)]
+    assert min(got) == least
+    # a threshold just above it: the search may succeed
+    assert verify.least_chance(4, omega, tol, least * 1.01, streaks) is None
+    # points only: six stars can verify; three cannot (one match beyond the free ones)
+    assert verify.least_chance(6, omega, tol, 1e-9) is None
+    assert verify.least_chance(3, omega, tol, 1e-9) is not None
+
+
+def test_a_sky_cone_predicts_the_stars_of_a_query_of_their_own(starid_database_of):
+    _cam, _cat, db = starid_database_of("pyramid")
+    rng = np.random.default_rng(11)
+    sky = verify.SkyCone()
+    queries = []
+    counted = db.stars_in_cone
+
+    def counting(*args, **kwargs):
+        queries.append(args[1])
+        return counted(*args, **kwargs)
+
+    db.stars_in_cone = counting
+    try:
+        for _ in range(5):
+            q0 = np.array(random_attitude(rng))
+            for step in (0.0, 2e-4, 5e-4, 0.05):    # a refinement's turns, then a jump
+                q = q0 + step * rng.normal(size=4)
+                q = tuple(float(c) for c in q / np.linalg.norm(q))
+                own = verify.predicted_stars(db, q)
+                held = verify.predicted_stars(db, q, sky=sky)
+                assert list(own[0]) == list(held[0]) and list(own[1]) == list(held[1])
+    finally:
+        del db.stars_in_cone
+    # per attitude: its own query each time; the sky cone once, again after the jump
+    assert len(queries) == 5 * 4 + 5 * 2
