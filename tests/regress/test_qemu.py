@@ -56,13 +56,15 @@ def test_every_packet_solves_within_the_flight_heap(cortex_m4f_set, regression_s
 
 def test_the_image_fits_the_f401(cortex_m4f, cortex_m4f_set):
     """Statics, the heap and the stack fill the F401's 96 KiB; at the flight heap (the same
-    statics, less heap) the stack left is at least the 16 KiB budget, and the stack the
+    statics, less heap) the stack left is at least the 16 KiB budget, the STM32 port's
+    statics (their estimate's room) fit beside the flight heap and stack, and the stack the
     set needed (painted, read back) stays within it; the image with the estcube2 database
     fits the emulated 1 MiB."""
     layout = qemu.memory_map(cortex_m4f, qemu.EXPECTATION_HEAP)
     assert layout["statics"] + layout["heap"] + layout["stack"] == qemu.RAM_BYTES
     flight_stack = qemu.RAM_BYTES - layout["statics"] - qemu.FLIGHT_HEAP
     assert flight_stack >= qemu.STACK_BUDGET
+    assert qemu.STM32_STATICS + qemu.FLIGHT_HEAP + qemu.STACK_BUDGET <= qemu.RAM_BYTES
     used = cortex_m4f_set["stack"]["used"]
     assert 1024 < used < qemu.STACK_BUDGET
     assert cortex_m4f_set["stack"]["painted"] > used

@@ -17,13 +17,13 @@ CASES = ("estcube2_rest_s1", "estcube2_tracking_steady", "estcube2_tracking_budg
 def test_the_executive_runs_on_the_flight_build(cortex_m4f, regression_set):
     """A lost-in-space frame, two tracking frames, a frame the gateware cut short and a
     packet with a flipped bit: every packet the link accepts gives its recorded status and
-    stars through the executive (the build's heap), the corrupt one is refused by the
+    stars through the executive in the flight heap, the corrupt one is refused by the
     link's CRC-32 before the decoder sees it, and the loop goes on."""
     manifest, db_files = regression_set
     runs = [(case, "pyramid") for case in manifest["cases"] if case["name"] in CASES]
     assert len(runs) == len(CASES)
     loop = qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
-                            executive=True)
+                            ballast=qemu.EXPECTATION_HEAP - qemu.FLIGHT_HEAP, executive=True)
     assert loop["finished"], loop["error"]
     for case, method in runs:
         out = loop["results"][case["name"], method][0]
@@ -41,21 +41,16 @@ DECODER_CHECKED = ("PACKET_BAD_HEADER", "PACKET_BAD_RECORD")
 the others first (it refuses such a packet, or reads the packet its header delimits and
 leaves a trailing byte to the next resynchronisation), as ``benchmarks/bench_mcu.py`` leaves
 them out."""
-EXECUTIVE_HEAP = 72 * 1024
-"""The flight heap the executive loop needs with margin (``docs/mcu_board.md``, "What the
-executive loop needs": 69,632 bytes measured in 512-byte steps; the F401's flight build, its
-filesystem off, has 76-78 KiB by the RAM map's estimate)."""
 
 
-@pytest.mark.slow
 def test_the_executive_loop_fits_its_flight_heap(cortex_m4f, regression_set):
-    """Every estcube2 Pyramid packet of the set through the executive and its link in
-    :data:`EXECUTIVE_HEAP` (a ballast in the session's image): the recorded status and stars
-    for every packet the link accepts, none out of heap."""
+    """Every estcube2 Pyramid packet of the set through the executive and its link in the
+    flight heap (``qemu.FLIGHT_HEAP``, a ballast in the session's image): the recorded status
+    and stars for every packet the link accepts, none out of heap."""
     manifest, db_files = regression_set
     runs = [(case, "pyramid") for case in manifest["cases"] if case["camera"] == "estcube2"]
     loop = qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
-                            ballast=qemu.EXPECTATION_HEAP - EXECUTIVE_HEAP, executive=True)
+                            ballast=qemu.EXPECTATION_HEAP - qemu.FLIGHT_HEAP, executive=True)
     assert loop["finished"], loop["error"]
     wrong = []
     for case, method in runs:

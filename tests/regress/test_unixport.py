@@ -19,12 +19,12 @@ from tests import REPO
 pytestmark = pytest.mark.xdist_group("unixport")
 
 HEAP_BUDGET = 66 * 1024
-"""Heap (bytes) within which every flight loop of the set runs on the flight build with the
-firmware's own collector setting, the STM32F401's, and a packet buffer for the flight
-gateware's record capacity: the Cortex-M4F build's flight heap (``qemu.FLIGHT_HEAP``,
-``docs/mcu_board.md``, checked there by ``test_qemu.py``).  This port runs the ``@native``
-loops as bytecode; since issue 30's telemetry table joined the contract, estcube2_1dps with
-Pyramid runs out of heap at 64 KiB here too."""
+"""Heap (bytes) within which every plain flight loop of the set runs on the 32-bit unix port
+with the firmware's own collector setting, the STM32F401's, and a packet buffer for the
+flight gateware's record capacity: the plain loop's figure on the Cortex-M4F build (whose
+flight heap, ``qemu.FLIGHT_HEAP``, is larger for the executive; ``docs/mcu_board.md``).
+This port runs the ``@native`` loops as bytecode; estcube2_1dps with Pyramid runs out of
+heap at 64 KiB here too."""
 
 
 def _runs(manifest, method, camera=None):
