@@ -699,16 +699,16 @@ class StarTracker:
         return res
 
     def _precise(self, res):
-        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on an axis (cross
-        or roll) exceeds ``max_error_arcsec``: an ``OK`` attitude is then never further off
-        than the limit on an axis without being beyond its own bound there (issue 33's two
-        criteria of a wrong attitude become one per axis).  Its attitude, matches and sigmas
-        stay in ``res`` for diagnostics."""
+        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on its total error,
+        ``5 sqrt(2 sigma_cross^2 + sigma_roll^2)`` (each axis at its own 5 sigma), exceeds
+        ``max_error_arcsec``: an ``OK`` attitude within 5 sigma on every axis is then within
+        the limit in total (issue 33's two criteria of a wrong attitude become one).  Its
+        attitude, matches and sigmas stay in ``res`` for diagnostics."""
         limit = self.settings.max_error_arcsec
         if limit is None:
             return
         c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
-        bound = BOUND_SIGMAS * (c if c > r else r)
+        bound = BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
         if not bound <= limit:
             res.status = S.IMPRECISE
             _note(res, "{:g}-sigma bound {:.0f} arcsec beyond max_error_arcsec {:g}".format(
