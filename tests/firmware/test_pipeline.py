@@ -32,6 +32,7 @@ from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
 from lodestar.firmware.tracking import propagate
 from lodestar.golden import detect_frame
 from lodestar.ground import codec, onboard
+from lodestar.ground.campaign import trials
 from lodestar.ground.database import build_database
 from lodestar.sim import attitude, scene
 from lodestar.sim.centroids import attitude_error_deg
@@ -186,6 +187,19 @@ def test_a_gyro_rate_the_frame_contradicts_is_refused(factor):
         # too few to check: OK, or IMPRECISE (a loose roll)
         assert res.status in (S.OK, S.IMPRECISE) and len(res.matches) < smear.MIN_CHECK_STARS
     assert refused >= 3
+
+
+def test_a_gyro_error_too_small_to_trail_is_refused_when_it_moves_the_attitude():
+    """Twice the true roll rate at 1 deg/s (the rate campaign's trial 2): the difference
+    moves the stars by under their width, so the streaks cannot show it, but 27 stars' shear
+    fit it (chi-square 110) and carried over the 0.09 s from the stars' mean instant to the
+    epoch it turns the attitude by 330" against a roll sigma of 11": ``RATE_CONTRADICTED``,
+    not ``OK`` and wrong; the true rate is kept."""
+    frame = trials.Frame("estcube2", onboard.camera_settings("estcube2", "tuned"),
+                         trials.trial_seed(0, "rate", "estcube2", 2), 1.0, "roll")
+    assert frame.solve(gyro=1.0)["status"] == "OK"
+    twice = frame.solve(gyro=2.0)
+    assert twice["status"] == "RATE_CONTRADICTED" and not twice["solved"]
 
 
 def test_few_near_round_records_keep_the_gyro():
