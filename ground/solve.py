@@ -487,7 +487,7 @@ def _blind_solve(frame, band):
         res.fov_search = search
         res.solve_ms += search["ms"]
         search["fitted_deg"] = fov_h if attempt else None
-        if not res.ok or attempt:
+        if attempt or not (res.ok or res.status == S.IMPRECISE):   # IMPRECISE: named right
             break
         idx = sorted(res.matches)
         f_new = refit_focal(arr[idx, :2], [res.matches[i] for i in idx], frame.width,
