@@ -175,6 +175,23 @@ def _longest_smear(cam, smear):
     return longest
 
 
+def _shifted(d, dts, w, solved):
+    """Whether a rate difference ``d`` (rad/s, camera frame) turns the attitude ``solved``
+    (:meth:`StarTracker.attitude`'s tuple) by more than its :data:`BOUND_SIGMAS` bound on
+    an axis when carried from the stars' weighted mean instant to the epoch (``dts``: the
+    stars' instants from the epoch, s; ``w`` their weights): the error a wrong gyro rate
+    makes there, which a difference too small to trail the stars still makes."""
+    total = mean = 0.0
+    for i in range(len(w)):
+        total += w[i]
+        mean += w[i] * dts[i]
+    if not total > 0:
+        return False
+    mean = abs(mean / total)
+    cross = math.sqrt(d[0] * d[0] + d[1] * d[1]) * mean
+    return cross > BOUND_SIGMAS * solved[1] or abs(d[2]) * mean > BOUND_SIGMAS * solved[2]
+
+
 def _short_smears(stars, smear, limit, max_stars, rejected):
     """The first ``max_stars`` of ``stars`` (brightest first) whose own expected smear
     ``smear(x, y)`` is at most ``limit`` px: a roll smears a star in proportion to its
@@ -711,16 +728,16 @@ class StarTracker:
         return res
 
     def _precise(self, res):
-        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on an axis (cross
-        or roll) exceeds ``max_error_arcsec``: an ``OK`` attitude is then never further off
-        than the limit on an axis without being beyond its own bound there (issue 33's two
-        criteria of a wrong attitude become one per axis).  Its attitude, matches and sigmas
-        stay in ``res`` for diagnostics."""
+        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on its total error,
+        ``5 sqrt(2 sigma_cross^2 + sigma_roll^2)`` (each axis at its own 5 sigma), exceeds
+        ``max_error_arcsec``: an ``OK`` attitude within 5 sigma on every axis is then within
+        the limit in total (issue 33's two criteria of a wrong attitude become one).  Its
+        attitude, matches and sigmas stay in ``res`` for diagnostics."""
         limit = self.settings.max_error_arcsec
         if limit is None:
             return
         c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
-        bound = BOUND_SIGMAS * (c if c > r else r)
+        bound = BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
         if not bound <= limit:
             res.status = S.IMPRECISE
             _note(res, "{:g}-sigma bound {:.0f} arcsec beyond max_error_arcsec {:g}".format(
@@ -861,7 +878,10 @@ class StarTracker:
         limit (:func:`lodestar.firmware.smear.rate_chi2_limit`; ``STREAK_RATE_CHI2`` when
         most stars' streaks side with the frame), that difference moves the median star over
         the exposure by more than the stars' own width (their median ``sigma_minor``: the
-        PSF's second moment, which a smear leaves alone), and the streaks (second moments)
+        PSF's second moment, which a smear leaves alone) or, too small for the streaks to
+        show, moves the attitude at the epoch beyond its own bound (:func:`_shifted`: a
+        roll rate twice the truth's at 1 deg/s, 330" off against a roll sigma of 12"), and
+        the streaks (second moments)
         do not side with the gyro (:func:`lodestar.firmware.smear.streak_votes`: more than a
         third of the stars, net; the frame's rate has its own noise, so a sign error's votes
         are near zero, not exactly zero).  A rate
@@ -871,9 +891,10 @@ class StarTracker:
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
             return False
         times = self._times(exposure, len(flat) // 3)
+        dts = [times[o] - st.epoch_s for o, _s in star_ids]
         verdict = _smear.check([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
-                               [times[o] - st.epoch_s for o, _s in star_ids], w, solved[0],
-                               True, False, self.min_sigma_rad, self.sigma_rad)
+                               dts, w, solved[0], True, False, self.min_sigma_rad,
+                               self.sigma_rad)
         if verdict is None or verdict[1] is None or not verdict[1] > _smear.STREAK_RATE_CHI2:
             return False
         d, chi2 = verdict
@@ -881,7 +902,7 @@ class StarTracker:
             flat, [o for o, _s in star_ids]))]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
         scale = self.focal_px * exposure
-        if not _smear.visible(stars, d, scale):
+        if not _smear.visible(stars, d, scale) and not _shifted(d, dts, w, solved):
             return False
         votes = _smear.streak_votes(stars, omega, frame, scale)
         if 3 * votes < -len(stars) or (2 * votes < len(stars) and

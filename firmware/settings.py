@@ -33,11 +33,13 @@ MAX_STARS = 256
 """Most stars a frame may keep (``max_stars``): verification work grows with it."""
 DEFAULT_TRACK_SEARCH_DEG = 0.3
 """Largest expected error of the propagated prior, deg."""
-DEFAULT_MAX_ERROR_ARCSEC = DEFAULT_TRACK_SEARCH_DEG * 3600.0
-"""Largest 5-sigma bound on an axis (arcsec) of an ``OK`` attitude; beyond it ``IMPRECISE``
-(``docs/firmware.md``, Result, epoch and statuses).  The tracking window: an attitude less
-certain than the window the next frame searches is no prior.  Issue 33's 180" would refuse
-half the estcube2 frames at 20 deg/s about the boresight (5 sigma of roll 80-920")."""
+DEFAULT_MAX_ERROR_ARCSEC = 180.0
+"""Largest 5-sigma bound (arcsec) of an ``OK`` attitude's total error; beyond it ``IMPRECISE``
+(``docs/firmware.md``, Result, epoch and statuses).  Issue 33's limit: an ``OK`` attitude
+within 5 sigma on every axis is then within 180" of the truth, so an ``OK`` frame is never
+wrong by either of its criteria.  It refuses frames whose roll is loose (estcube2 at 20 deg/s
+about the boresight: about half, 5 sigma of roll 80-920"; ``docs/campaigns.md``, The 180"
+rule); a user who accepts looser attitudes sets it higher (the tracking window, 1,080")."""
 DEFAULT_TRACK_STARS = 8
 """Brightest blobs a tracking frame is budgeted for (``track_stars``): the ``min_sum`` a
 solved frame returns lets 8 to 10 of them into the next packet (``docs/firmware.md``,
@@ -199,8 +201,8 @@ class Settings:
     ``fallback``: run lost-in-space when tracking fails.  ``drop_border``: ignore blobs
     touching the frame edge.  ``refine``: grow a lost-in-space match set by tracking from
     its attitude.  ``max_smear_px``: longest expected smear solved (beyond: ``SMEAR_TOO_LONG``).
-    ``max_error_arcsec``: largest 5-sigma bound of an ``OK`` attitude, arcsec (beyond:
-    ``IMPRECISE``; None: any).
+    ``max_error_arcsec``: largest 5-sigma bound of an ``OK`` attitude's total error, arcsec
+    (beyond: ``IMPRECISE``; None: any).
     ``extract_options``: extra keywords of :func:`lodestar.firmware.centroids.extract`
     (:data:`EXTRACT_OPTIONS`); ``id_options``: extra keywords of the identification
     (:data:`ID_OPTIONS`).  ``clock``: optional function returning a number (e.g.

@@ -97,7 +97,8 @@ _TABLE = (
      "the frame's shear and streaks contradict the given gyro rate beyond their own "
      "uncertainty: no attitude"),
     (IMPRECISE, "IMPRECISE",
-     "the solution's 5-sigma bound exceeds max_error_arcsec: its attitude and sigmas are "
+     "the 5-sigma bound of the solution's total error exceeds max_error_arcsec (default "
+     "180 arcsec): its attitude and sigmas are "
      "in the result for diagnostics, not for use"),
     (NO_MATCH, "NO_MATCH", "no catalogue pattern matches the observed stars"),
     (AMBIGUOUS, "AMBIGUOUS", "several catalogue patterns match equally well"),

@@ -423,6 +423,11 @@ def _firmware_solve(frame, cam, database_fov_deg=None):
     info["patterns_tried"] = res.patterns_tried
     info["probability"] = res.probability
     reason = "; ".join(r for r in (frame.note, res.reason) if r)
+    if res.status == S.IMPRECISE:       # named right, its attitude too loose to be one
+        return SolveResult(res.status, reason,
+                           matches={kept[o]: int(hip) for o, _x, _y, hip in res.matches},
+                           sigma_cross_arcsec=res.sigma_cross_arcsec,
+                           sigma_roll_arcsec=res.sigma_roll_arcsec, **info)
     if res.status != S.OK:
         return SolveResult(res.status, reason, **info)
     q = [float(v) for v in res.q]
@@ -482,7 +487,7 @@ def _blind_solve(frame, band):
         res.fov_search = search
         res.solve_ms += search["ms"]
         search["fitted_deg"] = fov_h if attempt else None
-        if not res.ok or attempt:
+        if attempt or not (res.ok or res.status == S.IMPRECISE):   # IMPRECISE: named right
             break
         idx = sorted(res.matches)
         f_new = refit_focal(arr[idx, :2], [res.matches[i] for i in idx], frame.width,

@@ -17,6 +17,7 @@ import numpy as np
 
 from lodestar.contract.stardb import METHODS
 from lodestar.firmware import centroids
+from lodestar.firmware import status as S
 from lodestar.firmware.pipeline import StarTracker
 from lodestar.firmware.settings import Settings
 from lodestar.firmware.starid.search import DEFAULT_MAX_WORK
@@ -168,11 +169,18 @@ def truth_at(frame, t_s):
 
 def verdict(res, records, frame):
     """The outcome of a firmware ``Result`` on ``frame``, judged at the instant it holds for
-    (``t_epoch_s``); ``records`` are the records its ``matches`` index."""
+    (``t_epoch_s``); ``records`` are the records its ``matches`` index.  An ``IMPRECISE``
+    result (an attitude whose error bound exceeds ``max_error_arcsec``) is not solved, but
+    its attitude's error and sigmas are kept under ``loose`` (the availability and the
+    wrong solutions another limit would give follow from them exactly)."""
     out = {"status": res.status_name, "solved": bool(res.ok), "wrong": False,
            "imprecise": False,
            "wrong_matches": 0, "n_matches": 0, "n_records": len(records),
            "error_arcsec": None, "sigma_arcsec": None}
+    if res.status == S.IMPRECISE and res.q is not None:
+        error = attitude_error_arcsec(res.q, truth_at(frame, res.t_epoch_s))
+        out["loose"] = {"error_arcsec": [error["x"], error["y"], error["roll"]],
+                        "sigma_arcsec": [res.sigma_cross_arcsec, res.sigma_roll_arcsec]}
     if not res.ok:
         return out
     out["t_epoch_s"] = res.t_epoch_s

@@ -10,7 +10,6 @@ import pytest
 
 from lodestar.cli import main
 from lodestar.firmware.database import Database
-from lodestar.firmware.settings import DEFAULT_MAX_ERROR_ARCSEC
 from lodestar.golden.starfield import star_frame
 from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.solve import camera_fov_deg
@@ -61,7 +60,7 @@ def test_calibrate_writes_a_camera_file_solve_and_db_build_take(frames, fov, tmp
     assert start["ra_deg"] is None and start["matches"] == []
     assert calibrated["status"] == "OK" and calibrated["camera"] == f"camera file {out}"
     assert len(calibrated["matches"]) >= 8
-    assert 5 * calibrated["sigma_roll_arcsec"] < DEFAULT_MAX_ERROR_ARCSEC / 2
+    assert 5 * calibrated["sigma_roll_arcsec"] < 143.0          # within a pixel (143")
 
     db = tmp_path / "db.bin"
     assert main(["db", "build", "--camera", str(out), "--density", "30", "10", "--mag",

@@ -179,7 +179,10 @@ def lohmann_calibration(tmp_path_factory):
 
 def test_calibration_recovers_the_lohmann_lens(lohmann_calibration):
     result = lohmann_calibration
-    assert [f["status"] for f in result.frames] == ["OK"] * lohmann_frames.N_FRAMES
+    # every frame identified; at most one of lohmann's few-star frames leaves a roll beyond
+    # issue 33's 180" (IMPRECISE: named right, its attitude loose)
+    statuses = [f["status"] for f in result.frames]
+    assert set(statuses) <= {"OK", "IMPRECISE"} and statuses.count("OK") >= len(statuses) - 1
     z, chi2 = _deviation(result.fit, calibrate.camera_params(lohmann_frames.truth_camera()))
     assert set(z) == set(calibrate.DEFAULT_FREE)
     assert max(abs(v) for v in z.values()) < 3.0, z

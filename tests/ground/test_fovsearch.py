@@ -96,11 +96,14 @@ def test_index_is_cached_on_disk_and_described(cache, monkeypatch, capsys):
 @pytest.mark.parametrize("fov, seed", [(10.0, 1), (15.0, 2), (25.0, 3)])
 def test_multiscale_solve_without_a_fov(cache, fov, seed):
     """Frames of three FOVs, no FOV given: solved, the right attitude, the fitted FOV within
-    0.5 % (the issue's bound; a few 1e-4 in fact) and the pixel scale that goes with it."""
+    0.5 % (the issue's bound; a few 1e-4 in fact) and the pixel scale that goes with it.
+    (Some scenes' roll is too loose for issue 33's 180": ``IMPRECISE``, the stars named, no
+    attitude.)"""
     sc, rows = rows_of(fov, seed)
     res = solve.solve_centroids(rows, W, H, cache_dir=cache)
-    assert res.ok, res
-    assert attitude_error_deg(res.q, sc.q) < MAX_ERR_DEG
+    assert res.status in (S.OK, S.IMPRECISE), res
+    assert res.q is None or attitude_error_deg(res.q, sc.q) < MAX_ERR_DEG
+    assert len(res.matches) >= 8
     assert all(hip in sc.components[i] for i, hip in res.matches.items())
     assert res.fov_deg[0] == pytest.approx(fov, rel=0.005)
     assert abs(res.fov_deg[0] / fov - 1) < 1e-3
@@ -159,4 +162,5 @@ def test_failing_solves_stop_at_the_ground_work_budget(cache, work_spent):
                               (work <= most or res.status == S.BUDGET_EXHAUSTED)
                               for work, limit in work_spent)
     sc, good = rows_of(10.0, 1)
-    assert solve.solve_centroids(good, W, H, 10.0, cache_dir=cache).ok
+    res = solve.solve_centroids(good, W, H, 10.0, cache_dir=cache)      # named (roll loose)
+    assert res.status in (S.OK, S.IMPRECISE) and len(res.matches) >= 8

@@ -15,7 +15,6 @@ from PIL import Image
 
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
-from lodestar.firmware.tracking import propagate
 from lodestar.ground import annotate, imagesolve, solve
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
@@ -451,20 +450,19 @@ def test_wcs_file_round_trips_the_matched_stars(sky, tmp_path, capsys):
 
 def test_a_turning_frame_holds_at_its_reported_instant(tmp_path, capsys):
     """A frame spinning at 10 deg/s about the boresight (``lodestar simulate --rate 0 0 10
-    --seed 4``): without ``--rate`` the rate is fitted and the attitude right at the reported
-    ``t_epoch_s``; with the true ``--rate`` it holds at the start of row 0's exposure."""
+    --seed 4``): without ``--rate`` the rate is fitted from 11 stars, which leaves the roll
+    too loose for issue 33's 180" (``IMPRECISE``, exit 1: never an attitude that may be
+    wrong; the fitted attitude's cover is tested in ``tests/firmware/test_pipeline.py``);
+    with the true ``--rate`` it holds at the start of row 0's exposure."""
     cam = load_preset("estcube2")
     rng = np.random.default_rng(4)
     q = attitude.random_attitude(rng)
     sim = scene.simulate(cam, q, (0.0, 0.0, 10.0), seed=4)
     png = tmp_path / "spin.png"
     _png(png, sim.frame)
-    omega = [0.0, 0.0, math.radians(10.0)]
     code, report, _err = _solve(capsys, png)
-    assert code == 0 and 0.05 < report["t_epoch_s"] < 0.14
-    assert report["rate_deg_s"][2] == pytest.approx(10.0, abs=5 * report["sigma_rate_deg_s"][2])
-    err = attitude_error_arcsec(report["q"], propagate(list(q), omega, report["t_epoch_s"]))
-    assert abs(err["roll"]) < 5 * report["sigma_roll_arcsec"] and err["total"] < 180.0
+    assert code == 1 and report["status"] == "IMPRECISE" and report["q"] is None
+    assert "max_error_arcsec 180" in report["reason"]
     code, report, _err = _solve(capsys, png, "--rate", 0, 0, 10)
     assert code == 0 and report["t_epoch_s"] == 0.0 and report["sigma_rate_deg_s"] is None
     assert attitude_error_arcsec(report["q"], q)["total"] < 180.0

@@ -64,6 +64,23 @@ def test_verdict_tells_wrong_from_failed():
         assert out["sigma_arcsec"] == [sigma, 10.0]
 
 
+def test_verdict_keeps_an_imprecise_attitude_apart():
+    """An ``IMPRECISE`` result is not solved, but its attitude's error (at its instant) and
+    sigmas are kept under ``loose``; a result without an attitude has none."""
+    q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
+    frame = FakeFrame(q)
+    res = Result(S.IMPRECISE)
+    res.q = list((Rotation.from_rotvec([0, 0, math.radians(300 / 3600)]) *
+                  Rotation.from_quat(q)).as_quat())
+    res.sigma_cross_arcsec, res.sigma_roll_arcsec = 2.0, 80.0
+    out = trials.verdict(res, [], frame)
+    assert out["status"] == "IMPRECISE" and not out["solved"] and not out["wrong"]
+    assert out["error_arcsec"] is None
+    assert out["loose"]["error_arcsec"][2] == pytest.approx(300.0, rel=1e-6)
+    assert out["loose"]["sigma_arcsec"] == [2.0, 80.0]
+    assert "loose" not in trials.verdict(Result(S.NO_MATCH), [], frame)
+
+
 def test_verdict_judges_the_attitude_at_its_instant():
     """A solution reporting ``t_epoch_s`` is compared with the truth turned by the frame's rate
     to that instant: right there, wrong against the start of the exposure."""
