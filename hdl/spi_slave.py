@@ -170,7 +170,12 @@ class SPISlave(wiring.Component):
             full = base == (1 << C.LINK_COUNT_BITS) - 1
             m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
 
-        count(errors, self._commands(m, byte, tr))
+        # the cycle's link-error event (a wide decode of the byte) is registered before its
+        # count: an error comes 8 SCK periods or a deselect before the next READ_STATUS
+        # opening, so the snapshot still counts it
+        error = Signal(name="link_error")
+        m.d.sync += error.eq(self._commands(m, byte, tr))
+        count(errors, error)
         count(underruns, byte.underrun)
         self._replies(m, byte.tx, tr, reply)
         return m
