@@ -149,6 +149,8 @@ class SPISlave(wiring.Component):
             "busy": In(1),
             "overflow": In(C.OVERFLOW_BITS),
             "frame_counter": In(C.FRAME_COUNTER_BITS),
+            "trained": In(1),
+            "eye_width": In(C.EYE_WIDTH_BITS),
             "status_read": Out(1),
             "soft_reset": Out(1),
             "flush": Out(1),
@@ -186,7 +188,8 @@ class SPISlave(wiring.Component):
         status = Signal(C.STATUS_DATA_BITS, reset_less=True)
         snapshot = tr.opening & (tr.rx.payload == C.OP_READ_STATUS)
         fields = {"frame_counter": self.frame_counter, "errors": errors,
-                  "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
+                  "underruns": underruns, "overflow": self.overflow, "busy": self.busy,
+                  "trained": self.trained, "eye_width": self.eye_width}
         live = Cat(*[fields[name] for name, _ in reversed(C.STATUS_FIELDS)])
         m.d.comb += self.status_read.eq(snapshot)
         with m.If(snapshot):
