@@ -115,7 +115,7 @@ async def check_idle(master, frames):
     packet is pending (a stream read gets filler and counts one underrun)."""
     status = await master.read_status()
     assert status == {"frame_counter": frames, "errors": 0, "underruns": 0,
-                      "overflow": 0, "busy": 0}, status
+                      "overflow": 0, "busy": 0, "trained": 0, "eye_width": 0}, status
     assert await master.read_stream(1) == [0], "no packet is pending"
     status = await master.read_status()
     assert status["underruns"] == 1, status
