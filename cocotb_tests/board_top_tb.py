@@ -110,12 +110,14 @@ async def release_resets(dut, sensor_clock, sensor_reset):
     sensor_reset.value = 0
 
 
-async def check_idle(master, frames):
-    """After ``frames`` frames whose packets were all read: the status word is clean, no
-    packet is pending (a stream read gets filler and counts one underrun)."""
+async def check_idle(master, frames, trained=0, eye_width=0):
+    """After ``frames`` frames whose packets were all read: the status word is clean (the
+    phase training's fields as given), no packet is pending (a stream read gets filler and
+    counts one underrun)."""
     status = await master.read_status()
     assert status == {"frame_counter": frames, "errors": 0, "underruns": 0,
-                      "overflow": 0, "busy": 0}, status
+                      "overflow": 0, "busy": 0, "trained": trained,
+                      "eye_width": eye_width}, status
     assert await master.read_stream(1) == [0], "no packet is pending"
     status = await master.read_status()
     assert status["underruns"] == 1, status

@@ -119,7 +119,8 @@ async def spi_transactions(dut):
         dut.busy.value, dut.overflow.value, dut.frame_counter.value = 1, 0b0000101, counter
         status = await m.read_status()
         assert status == {"frame_counter": counter, "errors": 0, "underruns": 0,
-                          "overflow": 0b0000101, "busy": 1}, status
+                          "overflow": 0b0000101, "busy": 1, "trained": 0,
+                          "eye_width": 0}, status
         dut.busy.value = 0
 
         packet = [int(b) for b in rng.integers(0, 256, 48)]

@@ -56,7 +56,7 @@ from .frontend import (
 )
 from .layouts import trailer_layout
 from .mt9p031 import MT9P031Frontend
-from .mt9v022 import MT9V022Frontend
+from .mt9v022 import LVDS_LANES, PACKET_BITS, MT9V022Frontend, PhaseStepper
 from .packetizer import Packetizer
 from .registers import RegisterBank
 from .spi_slave import MISO_TCO_NS, SPI_PINS, SPISlave, max_sck_hz
@@ -266,6 +266,11 @@ class GatewareTop(wiring.Component):
         The ``sync`` clock, for the packet header's microsecond ``timestamp``: a counter of
         ``contract.timestamp_divider(sync_hz)`` clocks per count, free-running from power-up
         (not reset by ``SOFT_RESET`` or a PLL loss), latched at each frame's first pixel.
+    taps : int
+        MT9V022: sample phases per bit of the LVDS receiver (> 1: the front end trains its
+        phase, ``rx_tap`` is a port and the status word carries ``trained`` and
+        ``eye_width``; 1: a fixed phase, both read 0), and ``tap_settle`` its clocks from a
+        tap change to the receiver sampling at it.
 
     Members
     -------
@@ -291,15 +296,18 @@ class GatewareTop(wiring.Component):
 
     def __init__(self, sensor, width, height, *, label_capacity=None,
                  record_capacity=C.DEFAULT_RECORD_CAPACITY, record_depth=None,
-                 stall_timeout=STALL_TIMEOUT, sync_hz=100e6):
+                 stall_timeout=STALL_TIMEOUT, sync_hz=100e6, taps=1, tap_settle=4):
         frontend = frontend_class(sensor)
+        if taps > 1 and not frontend.PHASE_TRAINING:
+            raise ValueError(f"taps > 1: the {sensor} front end has no phase training")
         self.timestamp_divider = C.timestamp_divider(sync_hz)
         # the contract's check before any part is built (a part built for a refused frame
         # would warn UnusedElaboratable)
         C.check_geometry(width, height, frontend.PIXEL_BITS)
         self.sensor, self.width, self.height = sensor, width, height
         self.pixel_bits = frontend.PIXEL_BITS
-        self.frontend = frontend(width, height)
+        self.frontend = frontend(width, height, **({"taps": taps, "settle": tap_settle}
+                                                   if taps > 1 else {}))
         self.watchdog = FrameWatchdog(width, height, self.pixel_bits, stall_timeout)
         self.detector = Detector(width, height, self.pixel_bits, label_capacity=label_capacity,
                                  record_capacity=record_capacity, record_depth=record_depth)
@@ -356,6 +364,8 @@ class GatewareTop(wiring.Component):
             mirror.en.eq(spi.reg_strobe), mirror.raddr.eq(spi.reg_addr),
             spi.reg_rdata.eq(mirror.rdata),
             spi.busy.eq(det.busy), spi.frame_counter.eq(det.frame_counter),
+            spi.trained.eq(getattr(fe, "trained", 0)),
+            spi.eye_width.eq(getattr(fe, "eye_width", 0)),
             fe.overflow_clear.eq(spi.status_read), det.reg_error_clear.eq(spi.status_read),
             self.irq.eq(irq.irq), self.sensor_reset.eq(mirror.sensor_reset),
         ]
@@ -520,6 +530,7 @@ class Board:
     """
 
     osc_hz = 50e6
+    lvds_taps = 1
     label_capacity = None
     record_capacity = C.DEFAULT_RECORD_CAPACITY
     record_depth = 2 * C.DEFAULT_RECORD_CAPACITY
@@ -558,7 +569,18 @@ class Board:
         return GatewareTop(self.sensor, self.width, self.height,
                            label_capacity=self.label_capacity,
                            record_capacity=self.record_capacity, record_depth=self.record_depth,
-                           sync_hz=self.sync_hz)
+                           sync_hz=self.sync_hz, **self.phase_training())
+
+    def phase_training(self):
+        """:class:`GatewareTop`'s ``taps`` and ``tap_settle`` of this board: ``lvds_taps``
+        phase steps per bit, each tap change settled within the receiver's
+        :class:`PhaseStepper` bound (in ``osc`` clocks, as clocks of the LVDS word clock);
+        none for a board without phase training."""
+        if self.lvds_taps <= 1:
+            return {}
+        word_hz = self.pixel_hz * PACKET_BITS / LVDS_LANES
+        scan = PhaseStepper.settle_bound(self.lvds_taps)
+        return {"taps": self.lvds_taps, "tap_settle": math.ceil(scan * word_hz / self.osc_hz) + 4}
 
 
 class DE2115Board(Board):
@@ -593,6 +615,9 @@ class DE2115Board(Board):
     io_standard = {"mt9v022": "2.5 V", "mcu": _LVCMOS}
     sensor_io_volts = 3.3
     level_translated = ("sysclk", "reset_n")
+    lvds_taps = 16
+    """Phase steps per bit: the receiver PLL's VCO at 600 MHz (the 300 Mbit/s bit clock x 2),
+    one dynamic phase step 1/8 of its period, 208 ps."""
     notes = ("Terasic DE2-115, EP4CE115F29C7, CLOCK_50 on Y2 (board manual).  A PLL makes "
              "sync = 100 MHz (so that the MCU's 10.5 MHz SCK is within 0.8 x the SPI "
              "slave's limit) and the sensor's 25 MHz SYSCLK (below its 26.6 MHz maximum; "

@@ -323,6 +323,8 @@ class SensorFrontend(wiring.Component):
 
     CLOCK_PINS = ()
     LVDS_PINS = ()
+    PHASE_TRAINING = False
+    """The front end takes ``taps`` and ``settle`` and trains its receiver's sample phase."""
 
     def __init__(self, width, height, members, *, domain, fifo_depth):
         C.check_geometry(width, height)

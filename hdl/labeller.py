@@ -321,11 +321,14 @@ sequential write (``w_*``), the first/last patch (``p_*``) and the untracking pa
 (``u_*``)."""
 
 _Registers = namedtuple("_Registers", [
-    "active", "prev_lit", "open_tracked", "dropped", "row_parity", "line_error", "fault"])
+    "active", "prev_lit", "open_tracked", "dropped", "drop_pending", "dropped_sum",
+    "row_parity", "line_error", "fault"])
 _Registers.__doc__ = """The registers a column decision updates (beside the node, stack and
 free-slot parts): the current run's component ``active`` (``active_layout``), ``prev_lit``
 (the decided pixel's left neighbour was lit), ``open_tracked`` (tracked blobs open),
-``dropped`` (untracked blobs completed this frame), ``row_parity`` (the node bank of the
+``dropped_sum`` = ``dropped`` + ``drop_pending`` (untracked blobs completed this frame;
+the last decision's drop is added a clock later, off the decision's path, by the adder
+that is also the port's value), ``row_parity`` (the node bank of the
 row decided next), ``line_error`` (a row started before its first node was fetched) and
 ``fault`` (sticky)."""
 
@@ -456,6 +459,8 @@ class Labeller(wiring.Component):
             open_tracked=Signal(range(self.label_capacity + 1), name="open_tracked"),
             # at most one blob per two pixels: the count is that wide, widened at the port
             dropped=Signal(C.bits_for((W * H + 1) // 2), name="dropped"),
+            drop_pending=Signal(name="drop_pending"),
+            dropped_sum=Signal(C.bits_for((W * H + 1) // 2), name="dropped_sum"),
             row_parity=Signal(name="row_parity"), line_error=Signal(name="line_error"),
             fault=Signal(name="fault_reg"))
         parts = _Parts(held=held,
@@ -464,7 +469,7 @@ class Labeller(wiring.Component):
                        stack=_Stack(m, stack_entry_layout(slot_bits, node_bits),
                                     max_stack(W)),
                        free=_FreeSlots(m, self.slots, slot_bits))
-        m.d.comb += [self.fault.eq(regs.fault), self.dropped_labels.eq(regs.dropped),
+        m.d.comb += [self.fault.eq(regs.fault), self.dropped_labels.eq(regs.dropped_sum),
                      self.wr_slot.eq(parts.nodes.written_label.slot)]
 
         seq = self._frames(m, held, regs.line_error)
@@ -681,12 +686,13 @@ class Labeller(wiring.Component):
                                                                Mux(popped & ~pushed, -1, 0)))]
         with m.If(stack.reload):
             m.d.sync += [stack.second.eq(stack.refilled), stack.reload.eq(0)]
+        m.d.comb += regs.dropped_sum.eq(regs.dropped + regs.drop_pending)
+        m.d.sync += [regs.dropped.eq(regs.dropped_sum), regs.drop_pending.eq(decide & pop.drops)]
         with m.If(decide):
             m.d.sync += [regs.active.eq(pop.active), stack.top.eq(run.top),
                          # a birth, a merge and a completion exclude each other: +1 or -1
                          count.eq(count + Cat(pixel.tracked_birth | closes,
                                               closes.replicate(len(count) - 1))),
-                         regs.dropped.eq(regs.dropped + pop.drops),
                          regs.prev_lit.eq(parts.held.lit & ~last_col)]
             with m.If(run.allocate & ~free.ready):
                 m.d.sync += free.fresh.eq(free.fresh + 1)
@@ -719,6 +725,7 @@ class Labeller(wiring.Component):
         with m.If(seq.start):
             m.d.comb += free.start.eq(1)
             m.d.sync += [count.eq(0), free.fresh.eq(0), regs.dropped.eq(0),
+                         regs.drop_pending.eq(0),
                          regs.row_parity.eq(0), regs.prev_lit.eq(0), stack.spilled.eq(-2),
                          nodes.write_ptr.eq(0), regs.line_error.eq(0), stack.reload.eq(0)]
 

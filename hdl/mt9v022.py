@@ -13,7 +13,7 @@ Datasheet sources, the points not yet verified, decoding and lock rules:
 ``docs/sensors_and_link.md`` (MT9V022).
 """
 
-from amaranth import Array, Cat, ClockDomain, ClockSignal, Instance, Module, Mux, Signal
+from amaranth import Array, Cat, ClockDomain, ClockSignal, Const, Instance, Module, Mux, Signal
 from amaranth.lib import stream, wiring
 from amaranth.lib.cdc import FFSynchronizer
 from amaranth.lib.wiring import In, Out
@@ -416,6 +416,109 @@ class ReceiverPllReset(wiring.Component):
         return m
 
 
+PHASE_STEP_TIMEOUT = 32
+"""Scan clocks a dynamic phase step waits for each edge of the PLL's ``phasedone`` (low once
+the step is taken, high once it is applied) before it is given up (:class:`PhaseStepper`)."""
+PHASE_COUNTER_ALL = 0b000
+"""ALTPLL ``phasecounterselect`` of Cyclone IV selecting all output counters (the fast,
+slow and enable clocks of the receiver move together)."""
+
+
+class PhaseStepper(wiring.Component):
+    """The receiver PLL's sampling phase moved to :class:`PhaseTrainer`'s ``tap`` through the
+    Cyclone IV ALTPLL dynamic phase shift (``phasestep``, ``phaseupdown``,
+    ``phasecounterselect``, ``phasedone``; one step is 1/8 of the VCO period, so a bit is
+    ``taps = 8 f_vco / bit rate`` steps).  It keeps ``phase``, the taps stepped since the
+    PLL's reset, and steps up (``(tap - phase) mod taps`` steps) until it equals ``tap``.
+    One step (Cyclone IV PLL handbook, "Dynamic Phase Shifting"): ``phaseupdown`` and
+    ``phasecounterselect`` held, ``phasestep`` high for at least two scan clocks and until
+    ``phasedone`` is seen low, then ``phasedone`` high.  Each wait is bounded by ``timeout``
+    clocks; a step whose edge never comes is counted in ``timeouts`` and taken as done (the
+    trainer's sweep then finds no eye or an offset one, and retrains).  Everything in
+    ``domain`` (the PLL's ``scanclk``, at most 100 MHz).
+
+    ``tap`` comes from the trainer's clock domain through a synchronizer; a target is taken
+    only when two successive samples agree (any number of its bits may change, the trainer
+    holds a tap for :meth:`settle_clocks` and more).  ``phasedone`` rises asynchronously and
+    is synchronized (two flip-flops): its low time must be at least a scan clock, or the
+    step times out.
+
+    Members
+    -------
+    tap : ``In(range(taps))``
+        The trainer's tap (any domain).
+    hold : ``In(1)``
+        The PLL is in reset or not locked: it returns to its configured phase, ``phase`` to
+        0, and no step is issued.
+    phasedone : ``In(1)``
+        The PLL's ``phasedone``.
+    phasestep, phaseupdown : ``Out(1)``; phasecounterselect : ``Out(3)``
+        To the PLL (``phaseupdown`` 1: up; all output counters).
+    phase : ``Out(range(taps))``
+        Taps stepped (modulo ``taps``).
+    timeouts : ``Out(8)``
+        Steps given up (saturating), for bring-up.
+    """
+
+    def __init__(self, taps, domain="osc", timeout=PHASE_STEP_TIMEOUT):
+        if taps < 2 or timeout < 2:
+            raise ValueError(f"PhaseStepper needs taps >= 2 and timeout >= 2, got {taps}, "
+                             f"{timeout}")
+        self.taps, self.domain, self.timeout = taps, domain, timeout
+        super().__init__({"tap": In(range(taps)), "hold": In(1), "phasedone": In(1),
+                          "phasestep": Out(1), "phaseupdown": Out(1), "phasecounterselect": Out(3),
+                          "phase": Out(range(taps)), "timeouts": Out(8)})
+
+    @staticmethod
+    def settle_bound(taps, timeout=PHASE_STEP_TIMEOUT):
+        """Most scan clocks from a ``tap`` change to ``phase`` equal to it: the synchronizer
+        and the agreeing sample, then up to ``taps - 1`` steps of at most ``2 timeout + 1``
+        clocks each (leaving idle to idle again)."""
+        return 4 + (taps - 1) * (2 * timeout + 1)
+
+    def settle_clocks(self):
+        """:meth:`settle_bound` of this stepper."""
+        return self.settle_bound(self.taps, self.timeout)
+
+    def elaborate(self, platform):
+        m = Module()
+        d = m.d[self.domain]
+        target, last, done = Signal.like(self.tap), Signal.like(self.tap), Signal(init=1)
+        m.submodules.tap_cdc = FFSynchronizer(self.tap, target, o_domain=self.domain)
+        m.submodules.done_cdc = FFSynchronizer(self.phasedone, done, o_domain=self.domain,
+                                               init=1)
+        d += last.eq(target)
+        count = Signal(range(self.timeout), name="step_count")
+        given_up = Mux(self.timeouts == 0xFF, 0xFF, self.timeouts + 1)
+        m.d.comb += [self.phaseupdown.eq(1), self.phasecounterselect.eq(PHASE_COUNTER_ALL)]
+        next_phase = Mux(self.phase == self.taps - 1, 0, self.phase + 1)
+        with m.FSM(domain=self.domain):
+            with m.State("IDLE"):
+                with m.If(self.hold):
+                    d += self.phase.eq(0)
+                with m.Elif((target == last) & (target != self.phase)):
+                    d += [self.phasestep.eq(1), count.eq(0)]
+                    m.next = "STEP"
+            with m.State("STEP"):             # phasestep high: until phasedone is seen low
+                d += count.eq(count + 1)
+                with m.If(self.hold | ((count != 0) & ~done) | (count == self.timeout - 1)):
+                    d += [self.phasestep.eq(0), count.eq(0)]
+                    with m.If(done & ~self.hold):
+                        d += self.timeouts.eq(given_up)
+                    m.next = "WAIT"
+            with m.State("WAIT"):             # phasestep low: until phasedone is high again
+                d += count.eq(count + 1)
+                with m.If(self.hold):
+                    d += self.phase.eq(0)
+                    m.next = "IDLE"
+                with m.Elif(done | (count == self.timeout - 1)):
+                    d += self.phase.eq(next_phase)
+                    with m.If(~done):
+                        d += self.timeouts.eq(given_up)
+                    m.next = "IDLE"
+        return m
+
+
 class MT9V022Frontend(SensorFrontend):
     """MT9V022 LVDS bits, ``lanes`` per ``domain`` clock, to the detector's pixel stream in
     ``sync``: :class:`WordAligner`, :class:`WordDecoder`, then the crossing.  See
@@ -433,6 +536,9 @@ class MT9V022Frontend(SensorFrontend):
         Entries of the crossing's FIFO.
     taps : int
         Sample phases per bit the receiver can select (1: a fixed phase, no training).
+    settle : int
+        ``domain`` clocks from a ``tap`` change to its first sample (the board's
+        :class:`PhaseStepper` moving the receiver's phase: :meth:`PhaseStepper.settle_bound`).
 
     Members
     -------
@@ -458,15 +564,16 @@ class MT9V022Frontend(SensorFrontend):
     """SYSCLK at most 26.6 MHz (datasheet; ``docs/sensors_and_link.md``, MT9V022)."""
     """VDD 3.3 V +- 0.3 V (datasheet)."""
     LVDS_PINS = ("ser_clk", "ser_data")
+    PHASE_TRAINING = True
     CLOCK_PINS = ("ser_clk",)
 
     def __init__(self, width, height, *, lanes=LVDS_LANES, domain="ser",
-                 fifo_depth=FIFO_DEPTH, taps=1):
+                 fifo_depth=FIFO_DEPTH, taps=1, settle=4):
         if lanes < 1 or PACKET_BITS % lanes:
             raise ValueError(f"lanes must divide the {PACKET_BITS}-bit packet, got {lanes}")
         if taps < 1:
             raise ValueError(f"taps must be >= 1, got {taps}")
-        self.lanes, self.taps = lanes, taps
+        self.lanes, self.taps, self.settle = lanes, taps, settle
         training = {"tap": Out(range(taps)), "trained": Out(1),
                     "eye_width": Out(range(taps + 1))} if taps > 1 else {}
         super().__init__(width, height, {
@@ -480,12 +587,18 @@ class MT9V022Frontend(SensorFrontend):
     def pins(self):
         """The top level's sensor ports: the deserializer's ``lvds_bits`` (``lanes`` bits,
         earliest first as ``bits``, in ``domain``) and its PLL's ``rx_locked``
-        (synchronized into ``sync`` by the board)."""
-        return wiring.Signature({"lvds_bits": In(self.lanes), "rx_locked": In(1)})
+        (synchronized into ``sync`` by the board); with ``taps`` > 1 also ``rx_tap``, the
+        trainer's sample phase (in ``domain``) to the receiver."""
+        members = {"lvds_bits": In(self.lanes), "rx_locked": In(1)}
+        if self.taps > 1:
+            members["rx_tap"] = Out(range(self.taps))
+        return wiring.Signature(members)
 
     def connect_pins(self, m, top):
-        """Drive the front end from the top level's ``pins``."""
+        """Drive the front end from the top level's ``pins`` (and ``rx_tap`` from it)."""
         m.d.comb += self.bits.eq(top.lvds_bits)
+        if self.taps > 1:
+            m.d.comb += top.rx_tap.eq(self.tap)
 
     def status(self, top, since_read):
         """``OVF_LINK_DOWN`` while the aligner or the receiver's PLL is unlocked;
@@ -515,6 +628,11 @@ class MT9V022Frontend(SensorFrontend):
         m.submodules.rx_probe_cdc = FFSynchronizer(probe, pll_reset.toggle, o_domain="osc")
         m.submodules.rx_locked_osc_cdc = FFSynchronizer(rx_locked, pll_reset.locked,
                                                         o_domain="osc")
+        if self.taps > 1:
+            self._stepped_receiver(m, board, pins, top, pll_reset, ser_clk, rx_locked, bit_ps)
+            m.d.comb += ClockSignal(self.domain).eq(ser_clk)
+            m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)
+            return rx_locked
         m.submodules.lvds_rx = Instance(
             "altlvds_rx",
             p_intended_device_family="Cyclone IV E", p_lpm_type="altlvds_rx",
@@ -532,6 +650,54 @@ class MT9V022Frontend(SensorFrontend):
         m.d.comb += ClockSignal(self.domain).eq(ser_clk)
         m.submodules.rx_locked_cdc = FFSynchronizer(rx_locked, top.rx_locked)
         return rx_locked
+
+    def _stepped_receiver(self, m, board, pins, top, pll_reset, ser_clk, rx_locked, bit_ps):
+        """The receiver with a trained phase: an ALTPLL on the returned clock makes the bit
+        clock (``c0``), the load enable (``c1``) and the word clock (``c2``, clocking
+        ``domain``) with dynamic phase shift (``vco_phase_shift_step`` = a bit / ``taps``);
+        a :class:`PhaseStepper` in ``osc`` (the PLL's ``scanclk``) moves all three to the
+        trainer's ``rx_tap``; an ALTLVDS_RX in external-PLL mode deserializes on them.  The
+        parameters follow the ALTPLL and ALTLVDS_RX user guides and must be checked in the
+        Quartus MegaWizard (``docs/gateware.md``, MT9V022)."""
+        clk = Signal(5, name="rx_pll_clk")
+        phasedone = Signal()
+        m.submodules.rx_stepper = stepper = PhaseStepper(self.taps, domain="osc")
+        m.d.comb += [stepper.tap.eq(top.rx_tap),
+                     stepper.hold.eq(pll_reset.areset | ~pll_reset.locked),
+                     stepper.phasedone.eq(phasedone), ser_clk.eq(clk[2])]
+        # (multiple of the returned pixel clock, phase in ps, duty %): the bit clock; the
+        # load enable, one bit wide in the word's last bit; the word clock
+        word = PACKET_BITS // self.lanes
+        outputs = [(PACKET_BITS, 0, 50), (word, round((self.lanes - 1) * bit_ps),
+                                          round(100 / self.lanes)), (word, 0, 50)]
+        params = {"p_intended_device_family": "Cyclone IV E", "p_lpm_type": "altpll",
+                  "p_operation_mode": "LVDS", "p_pll_type": "AUTO", "p_width_clock": 5,
+                  "p_inclk0_input_frequency": round(1e12 / board.pixel_hz),
+                  "p_vco_frequency_control": "MANUAL_PHASE",
+                  "p_vco_phase_shift_step": round(bit_ps / self.taps),
+                  "p_port_inclk0": "PORT_USED", "p_port_locked": "PORT_USED",
+                  "p_port_areset": "PORT_USED", "p_port_scanclk": "PORT_USED",
+                  "p_port_phasestep": "PORT_USED", "p_port_phaseupdown": "PORT_USED",
+                  "p_port_phasecounterselect": "PORT_USED", "p_port_phasedone": "PORT_USED"}
+        for k, (mul, phase_ps, duty) in enumerate(outputs):
+            params.update({f"p_clk{k}_multiply_by": mul, f"p_clk{k}_divide_by": 1,
+                           f"p_clk{k}_duty_cycle": duty, f"p_clk{k}_phase_shift": str(phase_ps),
+                           f"p_port_clk{k}": "PORT_USED"})
+        m.submodules.rx_pll = Instance(
+            "altpll", **params, i_inclk=Cat(pins["ser_clk"].i, Const(0, 1)),
+            i_areset=pll_reset.areset, i_scanclk=ClockSignal("osc"),
+            i_phasestep=stepper.phasestep, i_phaseupdown=stepper.phaseupdown,
+            i_phasecounterselect=stepper.phasecounterselect, o_phasedone=phasedone,
+            o_clk=clk, o_locked=rx_locked)
+        m.submodules.lvds_rx = Instance(
+            "altlvds_rx",
+            p_intended_device_family="Cyclone IV E", p_lpm_type="altlvds_rx",
+            p_number_of_channels=1, p_deserialization_factor=self.lanes,
+            p_data_rate=f"{1e6 / bit_ps:.1f} Mbps", p_input_data_rate=round(1e6 / bit_ps),
+            p_inclock_period=round(bit_ps), p_implement_in_les="ON",
+            p_registered_output="ON", p_use_external_pll="ON",
+            i_rx_in=pins["ser_data"].i, i_rx_inclock=clk[0], i_rx_enable=clk[1],
+            i_rx_syncclock=clk[2], o_rx_out=top.lvds_bits)
 
     @staticmethod
     def sdc_constraints(board):
@@ -587,7 +753,7 @@ class MT9V022Frontend(SensorFrontend):
         only while trained; its status into ``sync``."""
         ser = self.domain
         m.submodules.trainer = trainer = PhaseTrainer(self.taps, PACKET_BITS // self.lanes,
-                                                      ser)
+                                                      ser, settle=self.settle)
         m.d.comb += [trainer.framed.eq(aligner.framed), self.tap.eq(trainer.tap),
                      aligner.forget.eq(trainer.forget),
                      decoder.words.payload.eq(aligner.words.payload),

@@ -64,32 +64,40 @@ class OutputStage(wiring.Component):
         ``2**seq > 2 x record_depth``): ``wseq`` counts records into the buffer, ``rseq``
         records out of it (delivered or discarded); ``claimed`` is the number after the last
         record claimed by a taken trailer (or discarded).  The held trailer's records start
-        at ``held_first``; records between ``claimed`` and ``held_first`` are orphans."""
+        at ``held_first``; records between ``claimed`` and ``held_first`` are orphans
+        (``same``: there are none, a register)."""
         seq = C.bits_for(self.record_depth) + 1
         wseq, rseq, claimed = (Signal(seq, name=n) for n in ("wseq", "rseq", "claimed"))
         held_first = Signal(seq, reset_less=True)
         held = Signal(trailer_layout(), reset_less=True)
         held_valid = Signal()
+        # claimed == held_first, registered from both registers' next values: the trailer's
+        # valid (and the reader's take of its payload) starts at a flip-flop, not a compare
+        same = Signal(name="same")
+        claimed_next, first_next = Signal(seq), Signal(seq)
         taken = self.trailer.valid & self.trailer.ready
+        m.d.comb += [claimed_next.eq(claimed), first_next.eq(held_first)]
         with m.If(self.done & (~held_valid | taken)):
-            m.d.sync += [held.eq(self.trailer_in), held_valid.eq(1),
-                         held_first.eq(wseq - self.trailer_in.n_records[:seq])]
+            m.d.comb += first_next.eq(wseq - self.trailer_in.n_records[:seq])
+            m.d.sync += [held.eq(self.trailer_in), held_valid.eq(1)]
         with m.Elif(taken):
             m.d.sync += held_valid.eq(0)
         with m.If(self.done & held_valid & ~taken):
             m.d.sync += self.trailer_lost.eq(self.trailer_lost + 1)
 
-        orphans = held_valid & (claimed != held_first)
+        orphans = held_valid & ~same
         at_claimed = rseq == claimed
         behind = (rseq - claimed)[seq - 1]        # the reader still owes claimed records
         discard = orphans & at_claimed & rfifo.r_rdy
         rseq_next = rseq + 1
         with m.If(taken):
-            m.d.sync += claimed.eq(held_first + held.n_records[:seq])
+            m.d.comb += claimed_next.eq(held_first + held.n_records[:seq])
         with m.Elif(discard):
-            m.d.sync += claimed.eq(rseq_next)            # claimed == rseq here
+            m.d.comb += claimed_next.eq(rseq_next)       # claimed == rseq here
         with m.Elif(orphans & ~at_claimed & ~behind):   # the reader took them already
-            m.d.sync += claimed.eq(held_first)
+            m.d.comb += claimed_next.eq(held_first)
+        m.d.sync += [claimed.eq(claimed_next), held_first.eq(first_next),
+                     same.eq(claimed_next == first_next)]
         m.d.comb += [self.records.valid.eq(rfifo.r_rdy & ~(orphans & at_claimed)),
                      rfifo.r_en.eq(self.records.valid & self.records.ready | discard),
                      self.trailer.payload.eq(held), self.trailer.valid.eq(held_valid & ~orphans)]

@@ -149,6 +149,8 @@ class SPISlave(wiring.Component):
             "busy": In(1),
             "overflow": In(C.OVERFLOW_BITS),
             "frame_counter": In(C.FRAME_COUNTER_BITS),
+            "trained": In(1),
+            "eye_width": In(C.EYE_WIDTH_BITS),
             "status_read": Out(1),
             "soft_reset": Out(1),
             "flush": Out(1),
@@ -170,7 +172,12 @@ class SPISlave(wiring.Component):
             full = base == (1 << C.LINK_COUNT_BITS) - 1
             m.d.sync += counter.eq(Mux(event & ~full, base + 1, base))
 
-        count(errors, self._commands(m, byte, tr))
+        # the cycle's link-error event (a wide decode of the byte) is registered before its
+        # count: an error comes 8 SCK periods or a deselect before the next READ_STATUS
+        # opening, so the snapshot still counts it
+        error = Signal(name="link_error")
+        m.d.sync += error.eq(self._commands(m, byte, tr))
+        count(errors, error)
         count(underruns, byte.underrun)
         self._replies(m, byte.tx, tr, reply)
         return m
@@ -181,7 +188,8 @@ class SPISlave(wiring.Component):
         status = Signal(C.STATUS_DATA_BITS, reset_less=True)
         snapshot = tr.opening & (tr.rx.payload == C.OP_READ_STATUS)
         fields = {"frame_counter": self.frame_counter, "errors": errors,
-                  "underruns": underruns, "overflow": self.overflow, "busy": self.busy}
+                  "underruns": underruns, "overflow": self.overflow, "busy": self.busy,
+                  "trained": self.trained, "eye_width": self.eye_width}
         live = Cat(*[fields[name] for name, _ in reversed(C.STATUS_FIELDS)])
         m.d.comb += self.status_read.eq(snapshot)
         with m.If(snapshot):

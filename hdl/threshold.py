@@ -512,15 +512,21 @@ class LocalWindow(wiring.Component):
         unread = Signal(range(depth))         # pixels written and not yet read
         row_ended = Signal(range(depth))      # of them, those up to the last row end written
         read_addr = Signal(range(depth), reset_less=True)    # the oldest unread pixel
-        read = ((unread > window) | (row_ended != 0)) & ~drop
-        unread_next = unread + Cat(write ^ read, (read & ~write).replicate(len(unread) - 1))
+        # unread > window and row_ended != 0, registered from their next values: the read
+        # decision starts at two flip-flops (after a drop unread <= 1 < 2 <= window)
+        over, ended = Signal(name="read_over"), Signal(name="read_ended")
+        read = (over | ended) & ~drop
+        unread_next = (unread + Cat(write ^ read,
+                                    (read & ~write).replicate(len(unread) - 1)))[:len(unread)]
         row_end = write & self.pixels.payload.row_end
+        ended_next = Mux(row_end, unread_next, row_ended - (read & ended))[:len(row_ended)]
         with m.If(drop):
-            m.d.sync += [read_addr.eq(write_addr), unread.eq(write), row_ended.eq(row_end)]
+            m.d.sync += [read_addr.eq(write_addr), unread.eq(write), row_ended.eq(row_end),
+                         over.eq(0), ended.eq(row_end)]
         with m.Else():
             m.d.sync += [read_addr.eq(read_addr + read), unread.eq(unread_next),
-                         row_ended.eq(Mux(row_end, unread_next,
-                                          row_ended - (read & (row_ended != 0))))]
+                         row_ended.eq(ended_next), over.eq(unread_next > window),
+                         ended.eq(ended_next != 0)]
         return read, read_addr, unread
 
     def _stages(self, m, px_read, end_read, start_read, read, read_addr, window,

@@ -189,17 +189,28 @@ def timestamp_divider(sync_hz):
             sync_hz, TIMESTAMP_HZ))
     return div
 
+EYE_WIDTH_BITS = 7
+"""Width of the status word's ``eye_width`` (phase steps; a bit is at most 127 steps)."""
+
 STATUS_FIELDS = (
     ("frame_counter", FRAME_COUNTER_BITS),
     ("errors", LINK_COUNT_BITS),
     ("underruns", LINK_COUNT_BITS),
     ("overflow", OVERFLOW_BITS),
     ("busy", 1),
+    ("trained", 1),
+    ("eye_width", EYE_WIDTH_BITS),
 )
 """The status word's data fields, MSB first: ``(field, bits)``; sent big endian and followed
 by its CRC-8 byte (:func:`crc8`).  The overflow bits are sticky until the next status read
 (except ``OVF_LINK_DOWN``), and ``errors``/``underruns`` count since the previous status
-read."""
+read.  ``trained`` and ``eye_width`` are the LVDS receiver's phase training (live): it
+samples at the centre of an error-free run of ``eye_width`` phase steps of the bit found
+by its last training (``eye_width`` holds the last result while ``trained`` is low); a
+build without phase training sends both 0 (:data:`STATUS_DEFAULTS`)."""
+STATUS_DEFAULTS = {"trained": 0, "eye_width": 0}
+"""Status fields a build without the unit that reports them sends as these values
+(:func:`status_word` uses them for fields missing from its dict)."""
 STATUS_DATA_BITS = 0
 for _name, _bits in STATUS_FIELDS:
     STATUS_DATA_BITS += _bits
@@ -255,10 +266,11 @@ def crc8(data, n=None):
 
 
 def status_word(fields):
-    """The ``STATUS_DATA_BITS``-bit data word (an int) of a dict of :data:`STATUS_FIELDS`."""
+    """The ``STATUS_DATA_BITS``-bit data word (an int) of a dict of :data:`STATUS_FIELDS`
+    (those of :data:`STATUS_DEFAULTS` may be missing)."""
     word = 0
     for name, bits in STATUS_FIELDS:
-        value = fields[name]
+        value = fields[name] if name in fields else STATUS_DEFAULTS[name]
         if value < 0 or value >> bits:
             raise ValueError("status field {} holds {} bits, got {!r}".format(name, bits, value))
         word = (word << bits) | value

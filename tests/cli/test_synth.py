@@ -100,7 +100,9 @@ def test_default_board_yosys_report(tmp_path, capsys):
     about 700 LEs, the frame watchdog and registered IRQ, about 170, the pipelining for
     100 MHz of issue 17, and issue 31's registered packet byte and feature products, lock
     qualification and sensor reset, the timestamp counter, the labeller's registered node
-    writes and reads; measured 33.9 %) and half of the M9K; each unit's slowest path
+    writes and reads, the registered orphan compare, local-window read decision, drop count
+    and link-error event, and the status word's training byte; measured 33.9 %, 7,577 LEs,
+    11 below the bound) and half of the M9K; each unit's slowest path
     priced with routing, a path out of a memory with the block RAM's clock-to-output
     (``docs/resource_estimate.md``)."""
     assert main(["synth", "--out", str(tmp_path)]) == 0

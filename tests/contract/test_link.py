@@ -26,7 +26,7 @@ def test_register_addresses_fit_the_write_command():
 
 def test_decode_status_round_trips_every_field():
     values = {"frame_counter": 0xDEADBEEF, "errors": 3, "underruns": 255,
-              "overflow": 1 << C.OVF_FAULT, "busy": 1}
+              "overflow": 1 << C.OVF_FAULT, "busy": 1, "trained": 1, "eye_width": 9}
     word = 0
     for name, bits in C.STATUS_FIELDS:
         word = (word << bits) | values[name]
@@ -37,6 +37,12 @@ def test_decode_status_round_trips_every_field():
         C.decode_status(b"\x00")
     with pytest.raises(ValueError, match="holds"):
         C.encode_status(dict(values, errors=256))
+    # a build without phase training: its fields are the defaults (0)
+    untrained = {k: v for k, v in values.items() if k not in C.STATUS_DEFAULTS}
+    assert C.decode_status(C.encode_status(untrained)) == dict(untrained, trained=0,
+                                                                eye_width=0)
+    with pytest.raises(KeyError):
+        C.encode_status({k: v for k, v in values.items() if k != "busy"})
 
 
 def test_write_reg_command_sets_a_register_by_name():

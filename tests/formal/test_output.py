@@ -192,6 +192,7 @@ class CheckedOutput(Elaboratable):
             Assert(~fetch | (count != 0)),
             Assert(held_valid == owed_now),
             Assert(~held_valid | (held_first == owed_first_now)),
+            Assert(~held_valid | (s["same"] == (claimed == held_first))),
             Assert(~held_valid | (held == Value.cast(owed_tr_now))),
             Assert((remaining == 0) | ((rseq == next_rec)
                                        & (claimed == (next_rec + remaining)[:seq]))),
@@ -214,7 +215,7 @@ class ForgetfulOutput(OutputStage):
         m = super().elaborate(platform)
         s = internals(m)
         with m.If(self.done & ~s["held_valid"]):
-            m.d.sync += s["held_first"].eq(s["claimed"])
+            m.d.sync += [s["held_first"].eq(s["claimed"]), s["same"].eq(1)]
         return m
 
 

@@ -220,6 +220,8 @@ class LocalCheckedThreshold(Elaboratable):
             Assert(~local | ((log2_window >= C.LOCAL_LOG2_WINDOW_MIN) &
                              (log2_window <= lg_max))),
             Assert(~local | (unread <= window + 1)), Assert(row_ended <= unread),
+            Assert(delay["read_over"] == (unread > (1 << delay["log2_window"]))),
+            Assert(delay["read_ended"] == (row_ended != 0)),
             Assert(~ended | (local & ~in_frame & (row_ended == unread))),
             Assert(~ended | (unread == 0) | (unread + since <= window + 2)),
             *[Assert(~ended | ~stage | (since <= window + k + 2))

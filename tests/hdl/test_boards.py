@@ -102,6 +102,8 @@ def test_bad_names_are_refused():
             BoardTop("de1")
         with pytest.raises(ValueError, match="unknown sensor 'ov7670'.*mt9p031"):
             GatewareTop("ov7670", 16, 8)
+        with pytest.raises(ValueError, match="mt9p031 front end has no phase training"):
+            GatewareTop("mt9p031", 16, 8, taps=8)
         gc.collect()
 
 
@@ -192,13 +194,24 @@ def test_de2_115_lvds_pins_and_standards():
     assert board.io_standard["mt9v022"] == "2.5 V"
 
 
-def test_lvds_receiver_centred_and_locked(projects):
+def test_lvds_receiver_phase_stepped_and_locked(projects):
+    """The DE2-115 receiver samples on an ALTPLL whose phase the trainer steps: the PLL's
+    dynamic phase-shift ports driven by the stepper (a bit is 16 steps of 208 ps), its reset
+    by ReceiverPllReset, and the ALTLVDS_RX in external-PLL mode on its clocks."""
     verilog = projects["de2-115"]["lodestar.v"]
     rx = re.search(r"altlvds_rx #\((.*?)\) \S+ \((.*?)\);", verilog, re.S)
     params, ports = rx.group(1), rx.group(2)
-    assert ".inclock_phase_shift(32'd1667)" in params      # half of the 3333 ps bit
-    assert re.search(r"\.rx_locked\(\w+\)", ports)
-    assert re.search(r"\.pll_areset\(\w+\)", ports)       # ReceiverPllReset
+    assert '.use_external_pll("ON")' in params
+    assert all(re.search(rf"\.{p}\(\w+", ports) for p in ("rx_inclock", "rx_enable"))
+    pll = re.search(r"altpll #\(([^;]*?vco_frequency_control[^;]*?)\) \S+ \((.*?)\);",
+                    verilog, re.S)
+    params, ports = pll.group(1), pll.group(2)
+    assert '.vco_frequency_control("MANUAL_PHASE")' in params
+    assert ".vco_phase_shift_step(32'd208)" in params              # 3333 ps / 16 taps
+    assert BOARDS["de2-115"].phase_training()["taps"] == 16
+    for port in ("phasestep", "phaseupdown", "phasecounterselect", "scanclk", "areset",
+                 "phasedone", "locked"):
+        assert re.search(rf"\.{port}\(\S+", ports), port
 
 
 def test_spi_sck_limit_from_the_slave_rule():

@@ -23,8 +23,10 @@ from lodestar.hdl.mt9v022 import (
     LINE_START,
     LOCK_PACKETS,
     PACKET_BITS,
+    PHASE_COUNTER_ALL,
     RESERVED_WORDS,
     MT9V022Frontend,
+    PhaseStepper,
     PhaseTrainer,
     ReceiverPllReset,
     packet_bits,
@@ -345,4 +347,96 @@ def test_phase_trainer_bad_parameters():
             PhaseTrainer(1, 2, "ser")
         with pytest.raises(ValueError, match="taps must be >= 1"):
             MT9V022Frontend(8, 4, taps=0)
+        with pytest.raises(ValueError, match="taps >= 2 and timeout >= 2"):
+            PhaseStepper(1)
         gc.collect()
+
+
+def altpll_phase_shift(dut, low_clocks, log, dead=False):
+    """A Cyclone IV ALTPLL's dynamic phase-shift side (PLL handbook, "Dynamic Phase
+    Shifting"), as a background testbench in ``osc``: ``phasestep`` is latched at a clock; on the
+    second clock after, ``phaseupdown`` and ``phasecounterselect`` are latched and
+    ``phasedone`` falls; it rises ``low_clocks`` later with the phase moved one step.  Logs
+    ``("step", up, counters)`` and every violation of the handshake: ``phasestep`` released
+    before ``phasedone`` fell, still high when it rises (a second step), or the direction
+    or counters changed while latched.  ``dead``: ``phasedone`` never falls."""
+    async def process(ctx):
+        ctx.set(dut.phasedone, 1)
+        while True:
+            await ctx.tick("osc")
+            if not ctx.get(dut.phasestep):
+                continue
+            setting = (ctx.get(dut.phaseupdown), ctx.get(dut.phasecounterselect))
+            for _ in range(2):
+                await ctx.tick("osc")
+                if not ctx.get(dut.phasestep):
+                    log.append("released before phasedone fell")
+            if (ctx.get(dut.phaseupdown), ctx.get(dut.phasecounterselect)) != setting:
+                log.append("setting changed")
+            if dead:
+                while ctx.get(dut.phasestep):
+                    await ctx.tick("osc")
+                continue
+            ctx.set(dut.phasedone, 0)
+            for _ in range(low_clocks):
+                await ctx.tick("osc")
+            if ctx.get(dut.phasestep):
+                log.append("phasestep high when phasedone rose")
+            ctx.set(dut.phasedone, 1)
+            log.append(("step",) + setting)
+    return process
+
+
+def run_stepper(dut, script, low_clocks=4, dead=False):
+    """Drive ``dut`` (a :class:`PhaseStepper`) with ``script`` = [(tap, hold, clocks)];
+    returns the model's log and, after each entry, (phase, timeouts, clocks until
+    ``phase == tap`` or None)."""
+    top = Module()
+    top.domains.osc = ClockDomain("osc")
+    top.submodules.dut = dut
+    log, out = [], []
+
+    async def bench(ctx):
+        for tap, hold, clocks in script:
+            ctx.set(dut.tap, tap)
+            ctx.set(dut.hold, hold)
+            reached = None
+            for k in range(clocks):
+                await ctx.tick("osc")
+                if reached is None and ctx.get(dut.phase) == tap:
+                    reached = k + 1
+            out.append((ctx.get(dut.phase), ctx.get(dut.timeouts), reached))
+
+    sim = Simulator(top)
+    sim.add_clock(20e-9, domain="osc")
+    sim.add_testbench(altpll_phase_shift(dut, low_clocks, log, dead), background=True)
+    sim.add_testbench(bench)
+    sim.run()
+    return log, out
+
+
+def test_phase_stepper_steps_to_each_tap_within_its_bound():
+    """Each tap change is reached by (tap - phase) mod taps up-steps of all output counters,
+    each one a clean handshake, within ``settle_clocks``; a hold returns the phase to 0."""
+    dut = PhaseStepper(16, timeout=8)
+    bound = dut.settle_clocks()
+    script = [(5, 0, bound), (6, 0, bound), (2, 0, bound), (15, 0, bound), (0, 0, bound),
+              (9, 1, 40), (9, 0, bound)]
+    log, out = run_stepper(dut, script)
+    steps = [e for e in log if isinstance(e, tuple)]
+    assert [e for e in log if not isinstance(e, tuple)] == []
+    assert set(steps) == {("step", 1, PHASE_COUNTER_ALL)}
+    assert len(steps) == 5 + 1 + 12 + 13 + 1 + 9         # the hold: back to 0, then 9 steps
+    assert [(p, t) for p, t, _ in out] == [(5, 0), (6, 0), (2, 0), (15, 0), (0, 0), (0, 0),
+                                           (9, 0)]
+    assert all(r is not None and r <= bound for tap, hold, r in
+               ((s[0], s[1], o[2]) for s, o in zip(script, out)) if not hold)
+
+
+def test_phase_stepper_never_hangs_on_a_silent_pll():
+    """A PLL that never answers: every step gives up after its bound, is counted, and the
+    stepper still reaches the tap (it never waits for ever)."""
+    dut = PhaseStepper(8, timeout=6)
+    log, out = run_stepper(dut, [(3, 0, dut.settle_clocks())], dead=True)
+    assert out == [(3, 3, out[0][2])] and out[0][2] <= dut.settle_clocks()
+    assert "released before phasedone fell" not in log

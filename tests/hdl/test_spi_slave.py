@@ -150,6 +150,8 @@ def test_registers_status_and_stream(T, sck):
         state["set"]("busy", 1)
         state["set"]("overflow", 0b1010011)
         state["set"]("frame_counter", 0xDEADBEEF)
+        state["set"]("trained", 1)
+        state["set"]("eye_width", 11)
         result["status"] = await master.read_status()
         result["stream"] = [await master.read_stream(n) for n in chunks]
         result["status2"] = await master.read_status()
@@ -157,7 +159,8 @@ def test_registers_status_and_stream(T, sck):
     state = simulate(script, T * NS, sck * NS, packet)
     assert state["writes"] == [(r.address, values[r.address]) for r in C.REGISTERS]
     assert result["status"] == {"frame_counter": 0xDEADBEEF, "errors": 0, "underruns": 0,
-                                "overflow": 0b1010011, "busy": 1}
+                                "overflow": 0b1010011, "busy": 1, "trained": 1,
+                                "eye_width": 11}
     assert sum(result["stream"], []) == packet     # in order, nothing lost or repeated
     assert list(state["queue"]) == []
     assert result["status2"]["underruns"] == 0
@@ -251,11 +254,12 @@ def test_glitches_do_not_wedge():
 
 
 def test_status_layout_and_decode():
-    assert STATUS_BYTES * 8 == 32 + 8 + 8 + OVERFLOW_BITS + 1 + 8
-    word = bytes([0x12, 0x34, 0x56, 0x78, 0x05, 0x06, 0x83])
+    assert STATUS_BYTES * 8 == 32 + 8 + 8 + OVERFLOW_BITS + 1 + 1 + C.EYE_WIDTH_BITS + 8
+    word = bytes([0x12, 0x34, 0x56, 0x78, 0x05, 0x06, 0x83, 0x8A])
     word += bytes([C.crc8(word)])
     assert decode_status(word) == {"frame_counter": 0x12345678, "errors": 5, "underruns": 6,
-                                   "overflow": 0x41, "busy": 1}
+                                   "overflow": 0x41, "busy": 1, "trained": 1,
+                                   "eye_width": 10}
     with pytest.raises(ValueError, match="status word"):
         decode_status(word[:-1])
     with pytest.raises(ValueError, match="CRC"):
