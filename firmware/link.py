@@ -101,7 +101,7 @@ def _specs(fields, names):
 _SPECS = array("l", _specs(C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp",
                                             "height", "flags", "n_records")) +
                _specs(C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow",
-                                        "busy")))
+                                        "busy", "trained", "eye_width")))
 """The header's and the status word's fields the master reads (:func:`_specs`), indexed by
 the ``_H_*`` and ``_S_*`` constants: one array, where a dict of tuples per table kept 600
 bytes of heap on the MCU and a global per field 16 more each."""
@@ -117,6 +117,8 @@ _S_ERRORS = const(8)
 _S_UNDERRUNS = const(9)
 _S_OVERFLOW = const(10)
 _S_BUSY = const(11)
+_S_TRAINED = const(12)
+_S_EYE_WIDTH = const(13)
 
 
 def _field(data, base, k):
@@ -177,6 +179,8 @@ class Link(object):
         self.underruns = 0
         self.overflow = 0
         self.busy = 0
+        self.trained = 0                 # the LVDS receiver's phase training (DE2-115; 0 on
+        self.eye_width = 0               # the MT9P031 boards): its error-free phase steps
         self.last_frame_counter = None   # the frame counter of the last good packet
         self.last_stamp = None           # its timestamp's low 30 bits (the gateware's us
                                          # counter: a small int on the MCU, _read_stamp)
@@ -255,9 +259,10 @@ class Link(object):
 
     def read_status(self):
         """Read and check the status word; its fields land in ``frame_counter``, ``errors``,
-        ``underruns``, ``overflow``, ``busy``, and the counters add them up.  Returns a
-        code (``STATUS_BAD``: CRC-8 or turnaround wrong; the fields keep their old
-        values)."""
+        ``underruns``, ``overflow``, ``busy``, ``trained``, ``eye_width`` (the LVDS
+        receiver's eye, ``lodestar.contract.link.STATUS_FIELDS``), and the counters add
+        them up.  Returns a code (``STATUS_BAD``: CRC-8 or turnaround wrong; the fields
+        keep their old values)."""
         self._clear(_STATUS_LEN)
         self._tx[0] = C.OP_READ_STATUS
         if not self._exchange(self._v_status):
@@ -276,6 +281,8 @@ class Link(object):
         self.underruns = _field(rx, _REPLY, _S_UNDERRUNS)
         self.overflow = _field(rx, _REPLY, _S_OVERFLOW)
         self.busy = _field(rx, _REPLY, _S_BUSY)
+        self.trained = _field(rx, _REPLY, _S_TRAINED)
+        self.eye_width = _field(rx, _REPLY, _S_EYE_WIDTH)
         self.count(_C_STATUS)
         self.count(_C_SLAVE_ERRORS, self.errors)
         if self._drain_underruns:

@@ -52,10 +52,12 @@ def counters(link):
 
 def test_status_id_registers_and_keyed_commands():
     bus, link, _ = new_link()
-    bus.status_in.update(frame_counter=0xDEADBEEF, overflow=1 << C.OVF_CLOCK_LOST, busy=1)
+    bus.status_in.update(frame_counter=0xDEADBEEF, overflow=1 << C.OVF_CLOCK_LOST, busy=1,
+                         trained=1, eye_width=(1 << C.EYE_WIDTH_BITS) - 2)
     assert link.read_status() == _link.OK
-    assert (link.frame_counter, link.errors, link.underruns, link.overflow, link.busy) == \
-        (0xDEADBEEF, 0, 0, 1 << C.OVF_CLOCK_LOST, 1)
+    assert (link.frame_counter, link.errors, link.underruns, link.overflow, link.busy,
+            link.trained, link.eye_width) == \
+        (0xDEADBEEF, 0, 0, 1 << C.OVF_CLOCK_LOST, 1, 1, (1 << C.EYE_WIDTH_BITS) - 2)
     assert link.clock_lost()
     bus.status_in["overflow"] = 0
     assert link.read_id() == _link.OK and link.ident == (C.LINK_VERSION, 0x21)
