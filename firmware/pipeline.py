@@ -325,6 +325,7 @@ class StarTracker:
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
+        self._held_w = None             # _photon(): (star_ids, photon-model weights)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -566,10 +567,8 @@ class StarTracker:
                 extra[i] = verify.streak_variance(streaks[star_ids[i][0]])
         tracks = max(extra) > 0 if n else False
         try:
-            if fluxes is None:
-                w = [1.0] * n
-            else:
-                w = self.weights([fluxes[o] for o, s in star_ids])
+            w = self._photon(star_ids, fluxes)
+            if fluxes is not None:
                 if floor and not tracks:
                     w = [1.0 / gi for gi in self.noise_shares(b, r, w, q0, fitted)]
             if tracks:
@@ -735,7 +734,7 @@ class StarTracker:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
         finally:
-            self._held = self._last_fit = None      # none of the frame's lists outlive it
+            self._held = self._held_w = self._last_fit = None   # no list of the frame outlives it
 
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
@@ -771,6 +770,18 @@ class StarTracker:
         r = [cone.star_vector(db, s) for _o, s in star_ids]
         self._held = (star_ids, r)
         return r
+
+    def _photon(self, star_ids, fluxes):
+        """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights), computed
+        once per list as :meth:`_catalogue`'s vectors are: the attitude and the rate check of
+        one fit share them (a list read, never changed; 1.2 ms a fit on the F401)."""
+        held = self._held_w
+        if held is not None and held[0] is star_ids:
+            return held[1]
+        w = [1.0] * len(star_ids) if fluxes is None else \
+            self.weights([fluxes[o] for o, _s in star_ids])
+        self._held_w = (star_ids, w)
+        return w
 
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
@@ -942,7 +953,7 @@ class StarTracker:
         """Relative weights of the matched stars for the rate fit: the photon model
         (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
         n = len(star_ids)
-        w = [1.0] * n if fluxes is None else self.weights([fluxes[o] for o, _s in star_ids])
+        w = self._photon(star_ids, fluxes)
         if streaks is not None:
             s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
             w = [1.0 / (1.0 / w[i] + verify.streak_variance(streaks[star_ids[i][0]]) /
