@@ -325,7 +325,7 @@ class StarTracker:
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
-        self._held_w = None             # _photon(): (star_ids, photon-model weights)
+        self._held_w = None             # in _fit: (star_ids, photon, tracked weights)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -520,6 +520,8 @@ class StarTracker:
         good.sort()
         k = len(good)
         median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
+        if k == n:                      # every flux good (a frame's): no second test
+            return [f / median for f in fluxes]
         out = []
         for f in fluxes:
             out.append(f / median if G.is_number(f) and f > 0 else 1.0)
@@ -576,6 +578,9 @@ class StarTracker:
                 # the configured one or a third of the match tolerance
                 s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
                 w = [1.0 / (1.0 / w[i] + extra[i] / (s0 * s0)) for i in range(n)]
+                held = self._held_w
+                if held and held[0] is star_ids:    # the rate check's weights (_rate_weights)
+                    self._held_w = (star_ids, held[1], w)
             q = _fit(b, r, w, q0)
             s = self.sigma_rad
             if s is None:
@@ -730,6 +735,7 @@ class StarTracker:
         (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
         the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
         ``OK``."""
+        self._held_w = ()               # _photon() holds the fit's weights
         try:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
@@ -772,15 +778,17 @@ class StarTracker:
         return r
 
     def _photon(self, star_ids, fluxes):
-        """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights), computed
-        once per list as :meth:`_catalogue`'s vectors are: the attitude and the rate check of
-        one fit share them (a list read, never changed; 1.2 ms a fit on the F401)."""
+        """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights); within
+        :meth:`_fit` computed once per list as :meth:`_catalogue`'s vectors are: the attitude
+        and the rate check of one fit share them (a list read, never changed; 1.2 ms a fit on
+        the F401).  Outside it (:meth:`attitude` called alone) nothing is held."""
         held = self._held_w
-        if held is not None and held[0] is star_ids:
+        if held and held[0] is star_ids:
             return held[1]
         w = [1.0] * len(star_ids) if fluxes is None else \
             self.weights([fluxes[o] for o, _s in star_ids])
-        self._held_w = (star_ids, w)
+        if held is not None:
+            self._held_w = (star_ids, w, None)
         return w
 
     def _screened(self, star_ids, fluxes, q):
@@ -951,7 +959,11 @@ class StarTracker:
 
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
-        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
+        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`,
+        whose list it takes when that fit of ``star_ids`` added tracks)."""
+        held = self._held_w
+        if streaks is not None and held and held[0] is star_ids and held[2] is not None:
+            return held[2]              # attitude()'s, the same expression of the same values
         n = len(star_ids)
         w = self._photon(star_ids, fluxes)
         if streaks is not None:
