@@ -483,7 +483,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         if not (s0 - s0 == 0 and s0 > 0):   # finite(s0), inline
             rejected["empty"] += 1
             continue
-        if type(rec.flags) is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
+        if rec.flags.__class__ is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
             rejected["saturated"] += 1
             continue
         m = moments(rec)
