@@ -111,9 +111,11 @@ def min_sum(stars, track_stars):
         return 0
     levels = []
     for s in stars:
-        f = int(s.flux)
-        if s.parts:
-            levels += [f // len(s.parts)] * len(s.parts)
+        v = s._v                        # (x, y, flux, ..., parts): a property is a call
+        f = int(v[2])
+        parts = v[11]
+        if parts:
+            levels += [f // len(parts)] * len(parts)
         else:
             levels.append(f)
     levels.sort()
@@ -1129,10 +1131,10 @@ class StarTracker:
         :func:`_moments`; :meth:`_times` gives their instants."""
         flat = [0.0] * (3 * len(used))
         for k in range(len(used)):
-            star = stars[used[k]]
-            flat[3 * k] = star.sigma_major
-            flat[3 * k + 1] = star.sigma_minor
-            flat[3 * k + 2] = star.orientation
+            v = stars[used[k]]._v       # (..., sigma_major, sigma_minor, elongation,
+            flat[3 * k] = v[3]          # orientation, ...): a property is a call
+            flat[3 * k + 1] = v[4]
+            flat[3 * k + 2] = v[6]
         return flat, exposure
 
     @native
@@ -1192,11 +1194,11 @@ class StarTracker:
         before the identification (``docs/firmware.md``, Memory)."""
         index, xy, fluxes = self._index, self._xy, self._flux
         for o in range(len(used)):
-            s = stars[used[o]]
-            index[o] = s.index
-            xy[2 * o] = s.x
-            xy[2 * o + 1] = s.y
-            fluxes[o] = s.flux
+            v = stars[used[o]]._v       # (x, y, flux, ..., index, parts): a property is a
+            index[o] = v[10]            # call
+            xy[2 * o] = v[0]
+            xy[2 * o + 1] = v[1]
+            fluxes[o] = v[2]
 
 
 def _aberration():
