@@ -107,17 +107,24 @@ def _check_spread(vs, name):
                          % (name, best, MIN_SEPARATION))
 
 
+_FLOAT = float
+
+
 def _positive(values, name, n):
+    """``values`` as a list of positive finite floats, else ``ValueError`` naming the entry
+    (a float is taken as it is: ``float()`` and ``finite()`` would cost a call each)."""
     m = _length(values, name)
     if m != n:
         raise ValueError("%s must have one entry per vector pair (%d), got %d" % (name, n, m))
     out = []
     for i in range(n):
-        try:
-            a = float(values[i])
-        except (TypeError, ValueError):
-            raise ValueError("%s[%d] must be a number, got %r" % (name, i, values[i])) from None
-        if not G.finite(a) or not a > 0.0:
+        a = values[i]
+        if a.__class__ is not _FLOAT:
+            try:
+                a = float(a)
+            except (TypeError, ValueError):
+                raise ValueError("%s[%d] must be a number, got %r" % (name, i, a)) from None
+        if not a - a == 0 or not a > 0.0:
             raise ValueError("%s[%d] = %r must be positive and finite" % (name, i, a))
         out.append(a)
     return out

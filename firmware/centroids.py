@@ -106,7 +106,9 @@ class Star(object):
                 ).format(*self.as_tuple())
 
 
-_INT = type(0)      # exactly int (a bool is not): ``type(v) is _INT`` costs no call
+_INT = type(0)
+"""Exactly int (a bool is not), tested as ``v.__class__ is _INT``: ``type(v)`` is a call,
+about 3 ticks on the MCU, six per record."""
 
 
 @native
@@ -122,8 +124,8 @@ def moments(rec):
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
     if not (s0 - s0 == 0 and s0 > 0):       # finite(s0), inline: this runs for every record
         return None
-    if type(s0) is _INT and type(sx) is _INT and type(sy) is _INT and type(sxx) is _INT \
-            and type(syy) is _INT and type(sxy) is _INT:
+    if s0.__class__ is _INT and sx.__class__ is _INT and sy.__class__ is _INT and \
+            sxx.__class__ is _INT and syy.__class__ is _INT and sxy.__class__ is _INT:
         nxx = s0 * sxx - sx * sx          # s0^2 cxx, exact
         nyy = s0 * syy - sy * sy
         nxy = s0 * sxy - sx * sy
@@ -481,7 +483,7 @@ def extract(records, max_stars=DEFAULT_MAX_STARS, min_pixels=DEFAULT_MIN_PIXELS,
         if not (s0 - s0 == 0 and s0 > 0):   # finite(s0), inline
             rejected["empty"] += 1
             continue
-        if type(rec.flags) is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
+        if rec.flags.__class__ is _INT and rec.flags & C.BLOB_MOMENTS_SATURATED:
             rejected["saturated"] += 1
             continue
         m = moments(rec)

@@ -111,9 +111,11 @@ def min_sum(stars, track_stars):
         return 0
     levels = []
     for s in stars:
-        f = int(s.flux)
-        if s.parts:
-            levels += [f // len(s.parts)] * len(s.parts)
+        v = s._v                        # (x, y, flux, ..., parts): a property is a call
+        f = int(v[2])
+        parts = v[11]
+        if parts:
+            levels += [f // len(parts)] * len(parts)
         else:
             levels.append(f)
     levels.sort()
@@ -342,6 +344,7 @@ class StarTracker:
         self._last_fit = None           # the final fit's (vectors, weights), for the screen
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
+        self._held_w = None             # in _fit: (star_ids, photon, tracked weights)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -536,6 +539,8 @@ class StarTracker:
         good.sort()
         k = len(good)
         median = good[k // 2] if k % 2 else 0.5 * (good[k // 2 - 1] + good[k // 2])
+        if k == n:                      # every flux good (a frame's): no second test
+            return [f / median for f in fluxes]
         out = []
         for f in fluxes:
             out.append(f / median if G.is_number(f) and f > 0 else 1.0)
@@ -583,10 +588,8 @@ class StarTracker:
                 extra[i] = verify.streak_variance(streaks[star_ids[i][0]])
         tracks = max(extra) > 0 if n else False
         try:
-            if fluxes is None:
-                w = [1.0] * n
-            else:
-                w = self.weights([fluxes[o] for o, s in star_ids])
+            w = self._photon(star_ids, fluxes)
+            if fluxes is not None:
                 if floor and not tracks:
                     w = [1.0 / gi for gi in self.noise_shares(b, r, w, q0, fitted)]
             if tracks:
@@ -594,6 +597,9 @@ class StarTracker:
                 # the configured one or a third of the match tolerance
                 s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
                 w = [1.0 / (1.0 / w[i] + extra[i] / (s0 * s0)) for i in range(n)]
+                held = self._held_w
+                if held and held[0] is star_ids:    # the rate check's weights (_rate_weights)
+                    self._held_w = (star_ids, held[1], w)
             q = _fit(b, r, w, q0)
             s = self.sigma_rad
             if s is None:
@@ -748,11 +754,12 @@ class StarTracker:
         (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
         the rest fitted again.  ``(status, solved, star_ids)``; ``solved`` None unless
         ``OK``."""
+        self._held_w = ()               # _photon() holds the fit's weights
         try:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
         finally:
-            self._held = self._last_fit = None      # none of the frame's lists outlive it
+            self._held = self._held_w = self._last_fit = None   # no list of the frame outlives it
 
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
@@ -788,6 +795,20 @@ class StarTracker:
         r = [cone.star_vector(db, s) for _o, s in star_ids]
         self._held = (star_ids, r)
         return r
+
+    def _photon(self, star_ids, fluxes):
+        """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights); within
+        :meth:`_fit` computed once per list as :meth:`_catalogue`'s vectors are: the attitude
+        and the rate check of one fit share them (a list read, never changed; 1.2 ms a fit on
+        the F401).  Outside it (:meth:`attitude` called alone) nothing is held."""
+        held = self._held_w
+        if held and held[0] is star_ids:
+            return held[1]
+        w = [1.0] * len(star_ids) if fluxes is None else \
+            self.weights([fluxes[o] for o, _s in star_ids])
+        if held is not None:
+            self._held_w = (star_ids, w, None)
+        return w
 
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
@@ -961,9 +982,13 @@ class StarTracker:
 
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
-        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`)."""
+        (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`,
+        whose list it takes when that fit of ``star_ids`` added tracks)."""
+        held = self._held_w
+        if streaks is not None and held and held[0] is star_ids and held[2] is not None:
+            return held[2]              # attitude()'s, the same expression of the same values
         n = len(star_ids)
-        w = [1.0] * n if fluxes is None else self.weights([fluxes[o] for o, _s in star_ids])
+        w = self._photon(star_ids, fluxes)
         if streaks is not None:
             s0 = self.sigma_rad if self.sigma_rad is not None else self.tolerance_rad / 3.0
             w = [1.0 / (1.0 / w[i] + verify.streak_variance(streaks[star_ids[i][0]]) /
@@ -1127,10 +1152,10 @@ class StarTracker:
         :func:`_moments`; :meth:`_times` gives their instants."""
         flat = [0.0] * (3 * len(used))
         for k in range(len(used)):
-            star = stars[used[k]]
-            flat[3 * k] = star.sigma_major
-            flat[3 * k + 1] = star.sigma_minor
-            flat[3 * k + 2] = star.orientation
+            v = stars[used[k]]._v       # (..., sigma_major, sigma_minor, elongation,
+            flat[3 * k] = v[3]          # orientation, ...): a property is a call
+            flat[3 * k + 1] = v[4]
+            flat[3 * k + 2] = v[6]
         return flat, exposure
 
     @native
@@ -1190,11 +1215,11 @@ class StarTracker:
         before the identification (``docs/firmware.md``, Memory)."""
         index, xy, fluxes = self._index, self._xy, self._flux
         for o in range(len(used)):
-            s = stars[used[o]]
-            index[o] = s.index
-            xy[2 * o] = s.x
-            xy[2 * o + 1] = s.y
-            fluxes[o] = s.flux
+            v = stars[used[o]]._v       # (x, y, flux, ..., index, parts): a property is a
+            index[o] = v[10]            # call
+            xy[2 * o] = v[0]
+            xy[2 * o + 1] = v[1]
+            fluxes[o] = v[2]
 
 
 def _aberration():

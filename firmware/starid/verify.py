@@ -198,7 +198,9 @@ def in_region(dx, dy, dz, streak, lim):
     d2 = dx * dx + dy * dy + dz * dz
     if streak is None:
         return d2 <= lim * lim
-    a = abs(dx * streak[0] + dy * streak[1] + dz * streak[2])    # along the track
+    a = dx * streak[0] + dy * streak[1] + dz * streak[2]          # along the track
+    if a < 0.0:
+        a = -a                          # abs() would cost a call: it runs for every pair
     beyond = a - chord_of_angle(streak[3])                         # past the segment's end
     if beyond < 0.0:
         beyond = 0.0
