@@ -177,6 +177,15 @@ def _longest_smear(cam, smear):
     return longest
 
 
+SHIFT_CHI2_FACTOR = 2
+"""A rate difference the streaks cannot show contradicts the gyro by its shift alone
+(:func:`_shifted`) only beyond this many times the frame's ``rate_chi2_limit``: with no
+streak evidence the chi-square's tail is all there is, and it is heavier than its F model
+(the rate campaign at rest and 0.5 deg/s, the true gyro: 3 of 200 frames at chi-square
+21-29 against a limit of 19.8, each right within 4"), while the wrong rates the rule is
+for give 110 and 393."""
+
+
 def _shifted(d, dts, w, solved):
     """Whether a rate difference ``d`` (rad/s, camera frame) turns the attitude ``solved``
     (:meth:`StarTracker.attitude`'s tuple) by more than its :data:`BOUND_SIGMAS` bound on
@@ -923,7 +932,9 @@ class StarTracker:
             flat, [o for o, _s in star_ids]))]
         frame = (omega[0] + d[0], omega[1] + d[1], omega[2] + d[2])
         scale = self.focal_px * exposure
-        if not _smear.visible(stars, d, scale) and not _shifted(d, dts, w, solved):
+        if not _smear.visible(stars, d, scale) and not (
+                chi2 > SHIFT_CHI2_FACTOR * _smear.rate_chi2_limit(len(stars))
+                and _shifted(d, dts, w, solved)):
             return False
         votes = _smear.streak_votes(stars, omega, frame, scale)
         if 3 * votes < -len(stars) or (2 * votes < len(stars) and

@@ -202,6 +202,17 @@ def test_a_gyro_error_too_small_to_trail_is_refused_when_it_moves_the_attitude()
     assert twice["status"] == "RATE_CONTRADICTED" and not twice["solved"]
 
 
+def test_a_true_gyro_at_rest_is_kept_though_the_shear_fits_a_small_rate():
+    """The rate campaign's trial 55 at rest, the true (zero) gyro: 25 stars' shear fit
+    (-0.06, 0.01, -0.2) deg/s at chi-square 29, over the 19.8 limit but far under the
+    wrong rates' 110-393, too small to trail: the gyro is kept, ``OK`` within 5 sigma
+    (it was ``RATE_CONTRADICTED`` before ``SHIFT_CHI2_FACTOR``)."""
+    frame = trials.Frame("estcube2", onboard.camera_settings("estcube2", "tuned"),
+                         trials.trial_seed(0, "rate", "estcube2", 55), 0.0, "cross")
+    out = frame.solve(gyro=1.0)
+    assert out["status"] == "OK" and out["solved"] and not out["wrong"]
+
+
 def test_few_near_round_records_keep_the_gyro():
     """Frames at rest cut to 9 stars, the gyro's few-millidegree noise as ``omega``: the
     rate such a frame's shear gives is noise of several deg/s, which must never override
