@@ -204,6 +204,26 @@ async def release_sync(dut):
     dut.rst.value = 0
 
 
+async def bring_up(dut, rng):
+    """Power-up of the board top: both domains in reset, the SPI idle, the receiver's PLL
+    locked, ``sync``'s clock and ``ser``'s at a random phase against it; ``sync`` released
+    and the detector's registers written (fixed threshold 40, background 8, one pixel).
+    Returns the SPI master."""
+    dut.rst.value, dut.ser_rst.value = 1, 1
+    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
+    dut.lvds_bits.value = 0
+    dut.rx_locked.value = 1                        # the LVDS receiver PLL is locked
+    board_inputs(dut)
+    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
+    await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
+    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
+    await release_sync(dut)
+    master = Master(dut, SCK_NS)
+    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
+        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    return master
+
+
 async def start_link(dut, sensor):
     """The sensor's link starts (blanking) and the ``ser`` domain leaves reset: the trainer's
     first sweep sees the link at every phase."""
@@ -242,19 +262,7 @@ async def board_lvds_frames(dut):
     rng = np.random.default_rng(int(os.environ["TB_SEED"]))
     cap = int(os.environ["TB_RECORD_CAPACITY"])
     slip = int(rng.integers(0, PACKET_BITS))
-    dut.rst.value, dut.ser_rst.value = 1, 1
-    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
-    dut.lvds_bits.value = 0
-    dut.rx_locked.value = 1                        # the LVDS receiver PLL is locked
-    board_inputs(dut)
-    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
-    await Timer(int(rng.integers(1, SER_PS)), unit="ps")        # ser phase against sync
-    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
-    await release_sync(dut)
-
-    master = Master(dut, SCK_NS)
-    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
-        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    master = await bring_up(dut, rng)
     status = await master.read_status()
     assert status["overflow"] == 1 << OVF_LINK_DOWN, status
 
@@ -308,18 +316,7 @@ async def board_lvds_link_stops(dut):
     w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
     rng = np.random.default_rng(int(os.environ["TB_SEED"]) + 1)
     cap = int(os.environ["TB_RECORD_CAPACITY"])
-    dut.rst.value, dut.ser_rst.value = 1, 1
-    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
-    dut.lvds_bits.value = 0
-    dut.rx_locked.value = 1
-    board_inputs(dut)
-    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
-    await Timer(int(rng.integers(1, SER_PS)), unit="ps")
-    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
-    await release_sync(dut)
-    master = Master(dut, SCK_NS)
-    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
-        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    master = await bring_up(dut, rng)
     await master.read_status()                     # clears the link-down of the start
     sensor = LvdsSensor(dut, int(rng.integers(0, PACKET_BITS)), rng)
     await start_link(dut, sensor)
@@ -377,18 +374,7 @@ async def board_lvds_skewed_eye(dut):
     w, h = int(os.environ["TB_WIDTH"]), int(os.environ["TB_HEIGHT"])
     rng = np.random.default_rng(int(os.environ["TB_SEED"]) + 2)
     cap = int(os.environ["TB_RECORD_CAPACITY"])
-    dut.rst.value, dut.ser_rst.value = 1, 1
-    dut.cs_n.value, dut.sck.value, dut.mosi.value = 1, 0, 0
-    dut.lvds_bits.value = 0
-    dut.rx_locked.value = 1
-    board_inputs(dut)
-    cocotb.start_soon(Clock(dut.clk, T_NS, unit="ns").start())
-    await Timer(int(rng.integers(1, SER_PS)), unit="ps")
-    cocotb.start_soon(Clock(dut.ser_clk, SER_PS, unit="ps").start())
-    await release_sync(dut)
-    master = Master(dut, SCK_NS)
-    for name, value in (("threshold", 40), ("background", 8), ("min_pixels", 1)):
-        await master.write_reg(C.REGISTER_BY_NAME[name].address, value)
+    master = await bring_up(dut, rng)
     first, width = 6, 4
     sensor = LvdsSensor(dut, int(rng.integers(0, PACKET_BITS)), rng, eye=(first, width))
     await start_link(dut, sensor)
