@@ -161,6 +161,16 @@ def chord(a, b):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+def within_cone(centre, held, d, radius):
+    """True when the cone of ``radius`` (rad) about unit vector ``d`` lies inside the held
+    cone of radius ``held`` about ``centre``: ``angle(centre, d) + radius <= held``, tested
+    on the chord (accurate in single precision; no ``asin``).  Whether a cone query's stars
+    can be reused for a nearby one."""
+    dx, dy, dz = centre[0] - d[0], centre[1] - d[1], centre[2] - d[2]
+    room = 2.0 * math.sin(0.5 * (held - radius))
+    return dx * dx + dy * dy + dz * dz <= room * room
+
+
 @native
 def angle(a, b):
     """Angle between unit vectors ``a`` and ``b`` (rad), ``2 asin(|a - b| / 2)``."""

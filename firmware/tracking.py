@@ -18,7 +18,7 @@ from array import array
 from . import attitude
 from . import status as S
 from .emit import native
-from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3
+from .geometry import FLOAT_CODE, is_number, is_unit_tuple, residual2, unit, vector3, within_cone
 from .quaternion import from_rotation_vector, matrix, multiply, unit_quaternion
 from .starid.search import Solution, streak_weights, streaks_valid
 from .starid.verify import (
@@ -136,10 +136,7 @@ class Cone:
         accurate in single precision)."""
         if self.ids is None or database is not self.database or not radius <= self.radius:
             return False
-        c = self.centre
-        dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
-        room = 2.0 * math.sin(0.5 * (self.radius - radius))
-        return dx * dx + dy * dy + dz * dz <= room * room
+        return within_cone(self.centre, self.radius, d, radius)
 
     def star_vector(self, database, s):
         """Inertial vector of star ``s``: held, else read from ``database``."""

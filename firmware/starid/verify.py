@@ -118,15 +118,13 @@ class SkyCone:
 
     def stars(self, database, d, radius):
         """``(ids, vecs)`` of the stars within ``radius`` of ``d``, or more: the held ones
-        when their cone covers it (with a margin for rounding), else a query
+        when their cone covers it (:func:`~lodestar.firmware.geometry.within_cone`, as
+        :class:`~lodestar.firmware.tracking.Cone`), else a query
         :data:`CONE_MARGIN_RAD` wider, held.  Either way in table order, so the stars a
         caller keeps are the same stars in the same order as from a query of its own."""
-        c = self.centre
-        if self.ids is not None and radius < self.radius:
-            dx, dy, dz = c[0] - d[0], c[1] - d[1], c[2] - d[2]
-            room = 2.0 * math.sin(0.45 * (self.radius - radius))      # 0.9 of the room
-            if dx * dx + dy * dy + dz * dz <= room * room:
-                return self.ids, self.vecs
+        if self.ids is not None and radius <= self.radius and \
+                G.within_cone(self.centre, self.radius, d, radius):
+            return self.ids, self.vecs
         self.ids = self.vecs = None                # the old cone's heap is free first
         vecs = []
         radius += CONE_MARGIN_RAD
