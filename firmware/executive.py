@@ -44,7 +44,11 @@ restored after a reset).  A frame whose stars contradict the gyro's rate
 the stars matched, only the rate is in doubt), and the next :data:`DISTRUST_FRAMES` frames
 go without the gyro's rate (each fits its own).  An ``IMPRECISE`` frame (its attitude's
 5 sigma beyond ``Settings.max_error_arcsec``) has no attitude: coasted over, its attitude,
-kept in the result for diagnostics, never adopted.  The watchdog (``feed()``;
+kept in the result for diagnostics, never adopted (not reported, saved or coasted on).
+Without a good attitude (``ACQUIRE``) it guides the next frame only: that frame tracks from
+it (``guide``; a tracking frame verifies its own identification and falls back to lost in
+space), a tenth of a lost-in-space frame's time, so a fast spin that solves only loosely
+is still read at the frame rate.  The watchdog (``feed()``;
 ``machine.WDT`` on the MCU) is fed at every stage boundary and, through ``Settings.clock``,
 at every stage boundary inside ``process``.
 
@@ -236,6 +240,8 @@ class Executive(object):
         self.q_stamp = 0              # its frame's FPGA timestamp (us), low 30 bits
         self._tops = 0                # the top 2 bits of q_stamp's and of q_epoch_us' (<< 2)
         self.q_epoch_us = None        # its time tag on the FPGA's clock (us; None: unknown)
+        self.guide = None             # without q: the last frame's IMPRECISE attitude, its
+                                      # time tag (ms) and epoch (us, low 30 bits; or None)
         self.slot = 0                 # the star-database slot (kept across a reset)
         self.distrust = 0             # frames left to process without the gyro's rate
         self.sequence = 0
@@ -423,6 +429,7 @@ class Executive(object):
         """The timestamps before this one no longer date anything."""
         self._sync[0] = None
         self.q_epoch_us = None
+        self.guide = None
 
     def _pace(self):
         """After a failed attempt the next one waits for the next frame (one frame period
@@ -482,7 +489,7 @@ class Executive(object):
                 self.level = LEVEL_NONE
                 self.faults = 0
                 if arg == MODE_ACQUIRE:
-                    self.q = None
+                    self.q = self.guide = None
                 self._enter(CONFIGURE if self.state in (SAFE, BOOT) else ACQUIRE
                             if self.q is None else TRACK, "commanded")
             else:
@@ -516,7 +523,7 @@ class Executive(object):
             st = self._select(arg)
             if st != S.OK:
                 return st
-            self.q = None
+            self.q = self.guide = None
             self._save_prior()
             if self.state in (TRACK, COAST):
                 self._enter(ACQUIRE)
@@ -635,6 +642,7 @@ class Executive(object):
 
     def _boot(self):
         self.configured = False
+        self.guide = None
         self._load_prior()
         if self.slot and self._select(self.slot) != S.OK:    # the ground's choice, kept
             self.slot = 0
@@ -820,29 +828,37 @@ class Executive(object):
             self.distrust -= 1
             omega = None
         prior = self.q
+        p_time = self.q_time
+        p_epoch = self.q_epoch_us
+        guide = self.guide
+        self.guide = None
+        if prior is None and guide is not None:
+            prior, p_time, p_epoch = guide
         dt = None
         if prior is not None:
-            if self.q_epoch_us is not None and stamp is not None:
-                d = (stamp - self.q_epoch_us) & _STAMP_MASK
+            if p_epoch is not None and stamp is not None:
+                d = (stamp - p_epoch) & _STAMP_MASK
                 dt = d / 1e6 - (exposure_ms / 1000.0 - epoch_s) if d < _STAMP_HALF else None
             if dt is None:                                # integers: a float32 cannot hold ms
-                dt = (now_ms - int(age + 0.5) - self.q_time) / 1000.0
+                dt = (now_ms - int(age + 0.5) - p_time) / 1000.0
         self.feed()
         self.last_result = None          # the last frame's result is not held through this one
         result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
         self.feed()
         self.last_result = result
         self.last_status = result.status
-        if result.status == S.OK and result.q is not None:
-            _count(self.health, _H_OK)
+        if result.q is not None:
             t_epoch = result.t_epoch_s if result.t_epoch_s is not None else epoch_s
             tag = first + exposure_ms - 1000.0 * t_epoch     # ms before ticks
+            before_us = int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)
+        if result.status == S.OK and result.q is not None:
+            _count(self.health, _H_OK)
             self.q = result.q
             self.q_time = now_ms - int(tag + 0.5)
             self.q_counter = counter
             self.q_stamp = stamp
             self._tops = top
-            self._epoch(stamp, top, int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5))
+            self._epoch(stamp, top, before_us)
             self.bad = 0
             self.level = LEVEL_NONE
             self._enter(TRACK)
@@ -854,6 +870,9 @@ class Executive(object):
             _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
+        if result.status == S.IMPRECISE and result.q is not None and self.q is None:
+            self.guide = (result.q, now_ms - int(tag + 0.5),
+                          None if stamp is None else (stamp - before_us) & _STAMP_MASK)
 
     def _epoch(self, stamp, top, before_us):
         """``q_epoch_us``: ``before_us`` before the first pixel stamped ``stamp`` (low 30 bits,

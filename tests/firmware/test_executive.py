@@ -509,6 +509,29 @@ def test_an_imprecise_attitude_is_never_adopted():
     assert exe.q == fakes.Q0 and ("min_sum", 2001) not in link.writes   # its budget unused
 
 
+def test_an_imprecise_attitude_guides_the_next_frame_only_while_acquiring():
+    """In ``ACQUIRE`` (no good attitude) an ``IMPRECISE`` frame's attitude is the next
+    frame's prior, dated like an attitude (lost in space takes 0.7 s: 8 periods), and only
+    that frame's: never reported, saved or coasted on, and dropped by a commanded acquire."""
+    outcomes = [S.IMPRECISE, S.IMPRECISE, S.NO_MATCH, S.IMPRECISE, S.OK]
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 6, outcomes)
+    states = run(exe, 7)
+    assert states[1:] == ["ACQUIRE", "ACQUIRE", "ACQUIRE", "ACQUIRE", "ACQUIRE", "TRACK"]
+    priors = [c[0] for c in tracker.calls]
+    assert priors == [None, fakes.Q_IMPRECISE, fakes.Q_IMPRECISE, None, fakes.Q_IMPRECISE]
+    assert [round(c[2], 6) for c in tracker.calls[1:3]] == [0.8, 0.1]    # from its epoch
+    decoded = [telemetry.decode(r) for r in records]
+    assert all(math.isnan(d["qx"]) for d in decoded[:6])      # no attitude reported
+    assert exe.q == fakes.Q0 and exe.guide is None
+    assert health(exe)["bad"] == 4 and "coasted" not in health(exe)
+    exe2, _c, _l, _s, tracker2, *_ = build([fakes.OK_FRAME] * 3, [S.IMPRECISE])
+    run(exe2, 3)
+    assert exe2.guide is not None and exe2.guide[0] == fakes.Q_IMPRECISE
+    exe2.command(executive.CMD_MODE, executive.MODE_ACQUIRE)
+    run(exe2, 1)
+    assert [c[0] for c in tracker2.calls] == [None, None]
+
+
 def test_gateware_of_another_build_is_safe_at_boot():
     exe, _clock, link, sensor, _tracker, _wdt, _records = build([fakes.OK_FRAME] * 3,
                                                                 build=fakes.BUILD ^ 1)
