@@ -215,7 +215,9 @@ class Fit:
     named by ``cov_names``, :data:`INTRINSICS` order, no ``fy`` with ``one_focal``),
     ``frames`` (those used), ``q`` per frame, ``inlier`` mask per pair, ``residual_px``
     ``(N, 2)``, ``n_pairs``, ``n_rejected``, ``scale_px`` (per-axis RMS residual of the
-    inliers, the ``s`` of the covariance)."""
+    inliers, the ``s`` of the covariance), ``jac`` (the inliers' Jacobian at the solution:
+    the fitted parameters, then each frame's rotation vector, applied in the camera
+    frame)."""
 
 
 def _stack(frames):
@@ -304,6 +306,7 @@ def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
     fit.n_pairs = len(xy)
     fit.n_rejected = int(len(xy) - np.count_nonzero(mask))
     fit.scale_px = math.sqrt(scale2)
+    fit.jac = jac
     return fit
 
 

@@ -1,0 +1,122 @@
+"""The lens of a frame solved as a pinhole, fitted from its own matched stars (issue 33: a
+strongly distorted lens solves right, blind and with ``--fov``).
+
+After a first identification through a centred pinhole, the focal length ``f`` (``fx =
+fy``) and the radial ``k1`` (and ``k2`` when the stars support it) are fitted with the
+attitude to the matched stars' pixel residuals by least squares
+(:func:`lodestar.ground.calibrate.fit_camera`, one frame, principal point at the centre);
+the firmware then identifies and verifies again through the fitted lens
+(:func:`lodestar.ground.imagesolve.solve_image`).  A lens is used only when the stars
+determine it: at least :data:`MIN_STARS`, and the 1-sigma of its correction at the
+farthest matched star within :data:`MAX_SIGMA_PX`; else the pinhole (and the firmware's
+radial check's honest ``IMPRECISE``) stays.  The lens fit's own uncertainty enters the
+attitude's: the attitude's 1-sigma with the lens free over that with the lens held
+(:attr:`LensFit.inflation`) scales the firmware's.  Units: pixels of the detector's frame,
+``k1``/``k2`` of normalised radius (``docs/conventions.md``).  Method and figures:
+``docs/image_solving.md`` (Unknown lens)."""
+
+import math
+
+import numpy as np
+
+from lodestar.firmware.camera import Camera
+from lodestar.ground import calibrate
+
+MIN_STARS = 8
+"""Fewest matched stars a lens is fitted from (2 residuals each, 5 or 6 unknowns)."""
+K2_STARS = 20
+"""Fewest matched stars ``k2`` is fitted from as well."""
+K2_SIGNIFICANCE = 3.0
+"""A fitted ``k2`` within this many of its 1-sigma of 0 is dropped (``k1`` alone fitted)."""
+MAX_SIGMA_PX = 0.5
+"""Largest 1-sigma (px) of the fitted distortion's correction at the farthest matched star
+(``f r^3 sigma_k1``) for the lens to be used."""
+ROUNDS = 3
+"""Most fit -> identify rounds: each round's corrected directions match more stars towards
+the corners, and the next fit reaches further."""
+K1_GRID = (-0.15, -0.3, -0.45, 0.15)
+"""Radial ``k1`` tried, in this order, when a frame does not identify through the pinhole
+at all (a strong lens moves the corners beyond the match tolerance): each failure costs one
+firmware identification within the ground work budget."""
+
+
+class LensFit:
+    """A fitted lens: ``camera`` (firmware, of the detector's frame), ``k1``, ``sigma_k1``,
+    ``k2`` and ``sigma_k2`` (None when not fitted), ``f_px``, ``sigma_f_px``, ``n_stars``,
+    ``n_rejected``, ``scale_px`` (per-axis RMS residual), ``spread_px`` (1-sigma of the
+    correction at the farthest star), ``inflation`` ``(cross, roll)`` (>= 1: the attitude's
+    1-sigma with the lens fitted over that with it held)."""
+
+    def as_dict(self):
+        """The fit for the solve's JSON report."""
+        return {"k1": self.k1, "sigma_k1": self.sigma_k1, "k2": self.k2,
+                "sigma_k2": self.sigma_k2, "f_px": self.f_px, "sigma_f_px": self.sigma_f_px,
+                "n_stars": self.n_stars, "n_rejected": self.n_rejected,
+                "rms_px": self.scale_px, "sigma_at_edge_px": self.spread_px,
+                "sigma_inflation": list(self.inflation)}
+
+
+def pinhole(width, height, f_px, k1=0.0, k2=0.0):
+    """The centred camera of focal length ``f_px`` with radial ``k1``, ``k2``.  Raises
+    ``ValueError`` when that lens cannot be inverted over the frame."""
+    return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2, k1=k1, k2=k2)
+
+
+def _inflation(fit, n_free):
+    """``(cross, roll)``: the attitude's 1-sigma with the lens free over that with it held,
+    from the fit's Jacobian (rotation vector applied in the camera frame: x, y across the
+    boresight, z about it)."""
+    jac = fit.jac
+    full = np.linalg.pinv(jac.T @ jac)[n_free:, n_free:]
+    held = np.linalg.pinv(jac[:, n_free:].T @ jac[:, n_free:])
+    ratio = np.sqrt(np.maximum(np.diag(full), 0.0) / np.maximum(np.diag(held), 1e-300))
+    return max(1.0, float(max(ratio[0], ratio[1]))), max(1.0, float(ratio[2]))
+
+
+def fit_lens(xy, v, q, camera):
+    """The :class:`LensFit` of matched pixels ``xy`` ``(n, 2)`` (the detector's frame) of
+    catalogue unit vectors ``v`` ``(n, 3)`` at a first attitude ``q`` (scalar last) seen
+    through ``camera`` (its size and focal length the start), or None when the stars do not
+    determine it (:func:`_fit`).  ``k2`` is fitted too from :data:`K2_STARS` stars, and kept
+    when it is significant (beyond :data:`K2_SIGNIFICANCE` of its 1-sigma)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < MIN_STARS:
+        return None
+    frame = calibrate.FramePairs("frame", xy, v, np.zeros(len(xy), dtype=np.int64), q,
+                                 len(xy))
+    start = pinhole(camera.width, camera.height, math.sqrt(camera.fx * camera.fy))
+    if len(xy) >= K2_STARS:
+        fit = _fit(frame, start, ("fx", "k1", "k2"))
+        if fit is not None and abs(fit.k2) > K2_SIGNIFICANCE * fit.sigma_k2:
+            return fit
+    return _fit(frame, start, ("fx", "k1"))
+
+
+def _fit(frame, start, free):
+    """The :class:`LensFit` of ``free`` (``fx`` with ``fy = fx``, ``k1`` and maybe ``k2``)
+    from the pairs of ``frame`` starting at ``start``, or None: too few stars agree with one
+    lens, it folds over the frame, or the 1-sigma of its correction at the farthest star
+    exceeds :data:`MAX_SIGMA_PX`."""
+    try:
+        fit = calibrate.fit_camera([frame], start, free=free, one_focal=True)
+    except ValueError:              # too few agree with one lens, or it folds over the frame
+        return None
+    sigma = fit.sigma
+    inlier = frame.xy[fit.inlier]
+    f = float(fit.params[0])
+    r_max = float(np.max(np.hypot(inlier[:, 0] - start.cx, inlier[:, 1] - start.cy))) / f
+    spread = f * r_max ** 3 * math.hypot(sigma["k1"], sigma.get("k2", 0.0) * r_max ** 2)
+    if not spread <= MAX_SIGMA_PX or len(inlier) < MIN_STARS:
+        return None
+    k2 = "k2" in free
+    out = LensFit()
+    out.camera = fit.camera
+    out.f_px, out.sigma_f_px = f, sigma["fx"]
+    out.k1, out.sigma_k1 = float(fit.params[4]), sigma["k1"]
+    out.k2 = float(fit.params[5]) if k2 else None
+    out.sigma_k2 = sigma["k2"] if k2 else None
+    out.n_stars, out.n_rejected = int(len(inlier)), fit.n_rejected
+    out.scale_px = fit.scale_px
+    out.spread_px = spread
+    out.inflation = _inflation(fit, len(free))
+    return out
