@@ -578,9 +578,10 @@ def _fit_lens(image, det, camera, res, found, ctx):
     pinhole ``camera`` redone through the lens fitted to its matched stars
     (:func:`lodestar.ground.lensfit.fit_lens`), for at most :data:`lensfit.ROUNDS` rounds
     (each round's corrected directions match more stars towards the corners) until the fit
-    stands still; a frame the pinhole does not identify is tried through the radial ``k1``
-    of :data:`lensfit.K1_GRID` first.  A fit the stars do not determine, or a solve through
-    it that names no stars, keeps the previous camera and solution.  The lens fit's
+    stands still; a frame the pinhole does not identify with :data:`lensfit.MIN_STARS` is
+    tried through the radial ``k1`` of :data:`lensfit.K1_GRID` first.  A fit the stars do
+    not determine, or a solve through it that names no stars, keeps the previous camera and
+    solution.  The lens fit's
     uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  ``found``: ``(db,
     db_path)`` of ``res``; ``ctx``: :func:`_solve_at`'s ``(max_mag, tolerance_px, log,
     timings, velocity_km_s, motion)``."""
@@ -592,14 +593,15 @@ def _fit_lens(image, det, camera, res, found, ctx):
         return _solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
                          velocity_km_s=velocity_km_s, motion=motion)[:3]
 
-    if not _identified(res) and camera.k1 == 0.0:
+    few = lensfit.MIN_STARS
+    if camera.k1 == 0.0 and not (_identified(res) and len(res.matches) >= few):
         for k1 in lensfit.K1_GRID:
             try:
                 cam = lensfit.pinhole(camera.width, camera.height, camera.fx, k1)
             except ValueError:                  # folds over the frame
                 continue
             db_k, path_k, res_k = attempt(cam)
-            if _identified(res_k):
+            if _identified(res_k) and len(res_k.matches) >= few:
                 camera, res, db, db_path = cam, res_k, db_k, path_k
                 break
     lens = None

@@ -28,16 +28,21 @@ K2_STARS = 20
 """Fewest matched stars ``k2`` is fitted from as well."""
 K2_SIGNIFICANCE = 3.0
 """A fitted ``k2`` within this many of its 1-sigma of 0 is dropped (``k1`` alone fitted)."""
-MAX_SIGMA_PX = 0.5
+MAX_SIGMA_PX = 1.0
 """Largest 1-sigma (px) of the fitted distortion's correction at the farthest matched star
 (``f r^3 sigma_k1``) for the lens to be used."""
+MIN_SIGMA_PX = 0.2
+"""Floor of the fit's robust residual sigma, px: a matched star is dropped from the lens fit
+beyond 4 of these (0.8 px; a few stars' tight fit must not reject a star for centroid
+noise)."""
 ROUNDS = 3
 """Most fit -> identify rounds: each round's corrected directions match more stars towards
 the corners, and the next fit reaches further."""
 K1_GRID = (-0.15, -0.3, -0.45, 0.15)
 """Radial ``k1`` tried, in this order, when a frame does not identify through the pinhole
-at all (a strong lens moves the corners beyond the match tolerance): each failure costs one
-firmware identification within the ground work budget."""
+with :data:`MIN_STARS` (a strong lens moves the corners beyond the match tolerance): the
+first that does is fitted from; each costs one firmware identification within the ground
+work budget."""
 
 
 class LensFit:
@@ -98,7 +103,8 @@ def _fit(frame, start, free):
     lens, it folds over the frame, or the 1-sigma of its correction at the farthest star
     exceeds :data:`MAX_SIGMA_PX`."""
     try:
-        fit = calibrate.fit_camera([frame], start, free=free, one_focal=True)
+        fit = calibrate.fit_camera([frame], start, free=free, one_focal=True,
+                                     min_sigma_px=MIN_SIGMA_PX)
     except ValueError:              # too few agree with one lens, or it folds over the frame
         return None
     sigma = fit.sigma
