@@ -1,8 +1,8 @@
 """The lens of a frame solved as a pinhole, fitted from its own matched stars (issue 33: a
 strongly distorted lens solves right, blind and with ``--fov``).
 
-After a first identification through a centred pinhole, the focal length ``f`` (``fx =
-fy``) and the radial ``k1`` (and ``k2`` when the stars support it) are fitted with the
+After a first identification through a centred pinhole, the focal length ``f`` and the
+radial ``k1`` (``fy`` apart from ``fx`` and ``k2`` when the stars support them) are fitted with the
 attitude to the matched stars' pixel residuals by least squares
 (:func:`lodestar.ground.calibrate.fit_camera`, one frame, principal point at the centre);
 the firmware then identifies and verifies again through the fitted lens
@@ -26,8 +26,10 @@ MIN_STARS = 8
 """Fewest matched stars a lens is fitted from (2 residuals each, 5 or 6 unknowns)."""
 K2_STARS = 20
 """Fewest matched stars ``k2`` is fitted from as well."""
-K2_SIGNIFICANCE = 3.0
-"""A fitted ``k2`` within this many of its 1-sigma of 0 is dropped (``k1`` alone fitted)."""
+ASPECT_STARS = 10
+"""Fewest matched stars ``fy`` is fitted from apart from ``fx``."""
+SIGNIFICANCE = 3.0
+"""A fitted ``fy / fx - 1`` or ``k2`` within this many of its 1-sigma of 0 is dropped."""
 MAX_SIGMA_PX = 1.0
 """Largest 1-sigma (px) of the fitted distortion's correction at the farthest matched star
 (``f r^3 sigma_k1``) for the lens to be used."""
@@ -46,8 +48,10 @@ work budget."""
 
 
 class LensFit:
-    """A fitted lens: ``camera`` (firmware, of the detector's frame), ``k1``, ``sigma_k1``,
-    ``k2`` and ``sigma_k2`` (None when not fitted), ``f_px``, ``sigma_f_px``, ``n_stars``,
+    """A fitted lens: ``camera`` (firmware, of the detector's frame), ``free`` (its fitted
+    parameters), ``k1``, ``sigma_k1``, ``k2`` and ``sigma_k2`` (None when not fitted),
+    ``f_px`` (``fx``), ``sigma_f_px``, ``aspect`` (``fy / fx``), ``sigma_aspect`` (0 when
+    ``fy = fx`` was imposed), ``n_stars``,
     ``n_rejected``, ``scale_px`` (per-axis RMS residual), ``spread_px`` (1-sigma of the
     correction at the farthest star), ``inflation`` ``(cross, roll)`` (>= 1: the attitude's
     1-sigma with the lens fitted over that with it held)."""
@@ -56,6 +60,7 @@ class LensFit:
         """The fit for the solve's JSON report."""
         return {"k1": self.k1, "sigma_k1": self.sigma_k1, "k2": self.k2,
                 "sigma_k2": self.sigma_k2, "f_px": self.f_px, "sigma_f_px": self.sigma_f_px,
+                "aspect": self.aspect, "sigma_aspect": self.sigma_aspect,
                 "n_stars": self.n_stars, "n_rejected": self.n_rejected,
                 "rms_px": self.scale_px, "sigma_at_edge_px": self.spread_px,
                 "sigma_inflation": list(self.inflation)}
@@ -82,29 +87,37 @@ def fit_lens(xy, v, q, camera):
     """The :class:`LensFit` of matched pixels ``xy`` ``(n, 2)`` (the detector's frame) of
     catalogue unit vectors ``v`` ``(n, 3)`` at a first attitude ``q`` (scalar last) seen
     through ``camera`` (its size and focal length the start), or None when the stars do not
-    determine it (:func:`_fit`).  ``k2`` is fitted too from :data:`K2_STARS` stars, and kept
-    when it is significant (beyond :data:`K2_SIGNIFICANCE` of its 1-sigma)."""
+    determine it (:func:`_fit`).  ``f`` and ``k1`` first; from :data:`ASPECT_STARS` stars
+    ``fy`` apart from ``fx`` (pixels that are not square), and from :data:`K2_STARS` ``k2``,
+    each kept when it is significant (beyond :data:`SIGNIFICANCE` of its 1-sigma)."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if len(xy) < MIN_STARS:
         return None
     frame = calibrate.FramePairs("frame", xy, v, np.zeros(len(xy), dtype=np.int64), q,
                                  len(xy))
     start = pinhole(camera.width, camera.height, math.sqrt(camera.fx * camera.fy))
+    best = _fit(frame, start, ("fx", "k1"))
+    if best is None:
+        return None
+    if len(xy) >= ASPECT_STARS:
+        fit = _fit(frame, start, ("fx", "fy", "k1"))
+        if fit is not None and abs(fit.aspect - 1.0) > SIGNIFICANCE * fit.sigma_aspect:
+            best = fit
     if len(xy) >= K2_STARS:
-        fit = _fit(frame, start, ("fx", "k1", "k2"))
-        if fit is not None and abs(fit.k2) > K2_SIGNIFICANCE * fit.sigma_k2:
-            return fit
-    return _fit(frame, start, ("fx", "k1"))
+        fit = _fit(frame, start, best.free + ("k2",))
+        if fit is not None and abs(fit.k2) > SIGNIFICANCE * fit.sigma_k2:
+            best = fit
+    return best
 
 
 def _fit(frame, start, free):
-    """The :class:`LensFit` of ``free`` (``fx`` with ``fy = fx``, ``k1`` and maybe ``k2``)
-    from the pairs of ``frame`` starting at ``start``, or None: too few stars agree with one
-    lens, it folds over the frame, or the 1-sigma of its correction at the farthest star
-    exceeds :data:`MAX_SIGMA_PX`."""
+    """The :class:`LensFit` of ``free`` (``fx``, ``fy`` or with ``fy = fx``, ``k1`` and maybe
+    ``k2``) from the pairs of ``frame`` starting at ``start``, or None: too few stars agree
+    with one lens, it folds over the frame, or the 1-sigma of its correction at the farthest
+    star exceeds :data:`MAX_SIGMA_PX`."""
     try:
-        fit = calibrate.fit_camera([frame], start, free=free, one_focal=True,
-                                     min_sigma_px=MIN_SIGMA_PX)
+        fit = calibrate.fit_camera([frame], start, free=free, one_focal="fy" not in free,
+                                   min_sigma_px=MIN_SIGMA_PX)
     except ValueError:              # too few agree with one lens, or it folds over the frame
         return None
     sigma = fit.sigma
@@ -114,13 +127,17 @@ def _fit(frame, start, free):
     spread = f * r_max ** 3 * math.hypot(sigma["k1"], sigma.get("k2", 0.0) * r_max ** 2)
     if not spread <= MAX_SIGMA_PX or len(inlier) < MIN_STARS:
         return None
-    k2 = "k2" in free
     out = LensFit()
+    out.free = free
     out.camera = fit.camera
     out.f_px, out.sigma_f_px = f, sigma["fx"]
+    out.aspect, out.sigma_aspect = float(fit.params[1]) / f, 0.0
+    if "fy" in free:                # sigma of fy / fx from the covariance of fx, fy
+        grad = np.array([-fit.params[1] / f ** 2, 1.0 / f])
+        out.sigma_aspect = float(math.sqrt(max(grad @ fit.cov[:2, :2] @ grad, 0.0)))
     out.k1, out.sigma_k1 = float(fit.params[4]), sigma["k1"]
-    out.k2 = float(fit.params[5]) if k2 else None
-    out.sigma_k2 = sigma["k2"] if k2 else None
+    out.k2 = float(fit.params[5]) if "k2" in free else None
+    out.sigma_k2 = sigma["k2"] if "k2" in free else None
     out.n_stars, out.n_rejected = int(len(inlier)), fit.n_rejected
     out.scale_px = fit.scale_px
     out.spread_px = spread
