@@ -18,6 +18,7 @@ attitude's: the attitude's 1-sigma with the lens free over that with the lens he
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from lodestar.firmware.camera import Camera
 from lodestar.ground import calibrate
@@ -72,13 +73,22 @@ def pinhole(width, height, f_px, k1=0.0, k2=0.0):
     return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2, k1=k1, k2=k2)
 
 
-def _inflation(fit, n_free):
+def _inflation(fit, n_free, v):
     """``(cross, roll)``: the attitude's 1-sigma with the lens free over that with it held,
     from the fit's Jacobian (rotation vector applied in the camera frame: x, y across the
-    boresight, z about it)."""
-    jac = fit.jac
-    full = np.linalg.pinv(jac.T @ jac)[n_free:, n_free:]
-    held = np.linalg.pinv(jac[:, n_free:].T @ jac[:, n_free:])
+    boresight, z about it) with the columns of the tangential ``p1``, ``p2`` added (free too:
+    a decentring the fit leaves out must not hide in the attitude).  ``v``: the inliers'
+    catalogue unit vectors."""
+    fx, fy = fit.params[0], fit.params[1]
+    c = Rotation.from_quat(fit.q[0]).apply(v)
+    x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+    r2 = x * x + y * y
+    tangential = np.empty((2 * len(v), 2))
+    tangential[0::2] = np.column_stack([fx * 2 * x * y, fx * (r2 + 2 * x * x)])
+    tangential[1::2] = np.column_stack([fy * (r2 + 2 * y * y), fy * 2 * x * y])
+    jac = np.hstack([fit.jac[:, :n_free], tangential, fit.jac[:, n_free:]])
+    full = np.linalg.pinv(jac.T @ jac)[-3:, -3:]
+    held = np.linalg.pinv(jac[:, -3:].T @ jac[:, -3:])
     ratio = np.sqrt(np.maximum(np.diag(full), 0.0) / np.maximum(np.diag(held), 1e-300))
     return max(1.0, float(max(ratio[0], ratio[1]))), max(1.0, float(ratio[2]))
 
@@ -89,7 +99,10 @@ def fit_lens(xy, v, q, camera):
     through ``camera`` (its size and focal length the start), or None when the stars do not
     determine it (:func:`_fit`).  ``f`` and ``k1`` first; from :data:`ASPECT_STARS` stars
     ``fy`` apart from ``fx`` (pixels that are not square), and from :data:`K2_STARS` ``k2``,
-    each kept when it is significant (beyond :data:`SIGNIFICANCE` of its 1-sigma)."""
+    each kept when it is significant (beyond :data:`SIGNIFICANCE` of its 1-sigma).  The
+    lens's tangential ``p1``, ``p2`` are not fitted (they trade off against the attitude
+    across the boresight), but the attitude's inflation counts them free (:func:`_inflation`):
+    an undetermined decentring widens the sigma instead of shifting the attitude unseen."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if len(xy) < MIN_STARS:
         return None
@@ -141,5 +154,5 @@ def _fit(frame, start, free):
     out.n_stars, out.n_rejected = int(len(inlier)), fit.n_rejected
     out.scale_px = fit.scale_px
     out.spread_px = spread
-    out.inflation = _inflation(fit, len(free))
+    out.inflation = _inflation(fit, len(free), frame.v[fit.inlier])
     return out
