@@ -751,6 +751,14 @@ def format_report(path, r, camera_what):
         lines.append(f"  FOV        fitted {fs['fitted_deg']:.4f} deg (searched "
                      f"{fs['range_deg'][0]:g} .. {fs['range_deg'][1]:g} deg, "
                      f"{fs['candidates']} candidate quads, estimate {fs['estimate_deg']:.4f})")
+    if r.get("lens"):
+        ln = r["lens"]
+        lines.append(f"  lens       fitted from {ln['n_stars']} stars: k1 {ln['k1']:+.4f} +- "
+                     f"{ln['sigma_k1']:.4f}" + ("" if ln["k2"] is None else
+                                                 f", k2 {ln['k2']:+.4f} +- {ln['sigma_k2']:.4f}")
+                     + f", f {ln['f_px']:.2f} px, fy/fx {ln['aspect']:.5f}; sigma x"
+                     f"{ln['sigma_inflation'][0]:.2f} across, x{ln['sigma_inflation'][1]:.2f} "
+                     f"in roll")
     tm = r["timings_ms"]
     lines.append("  timings    ms: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()))
     lines.append(f"  status     {r['status']}" +

@@ -7,8 +7,9 @@ attitude to the matched stars' pixel residuals by least squares
 (:func:`lodestar.ground.calibrate.fit_camera`, one frame, principal point at the centre);
 the firmware then identifies and verifies again through the fitted lens
 (:func:`lodestar.ground.imagesolve.solve_image`).  A lens is used only when the stars
-determine it: at least :data:`MIN_STARS`, and the 1-sigma of its correction at the
-farthest matched star within :data:`MAX_SIGMA_PX`; else the pinhole (and the firmware's
+determine it: at least :data:`MIN_STARS`, and the 1-sigma of its correction within
+:data:`MAX_SIGMA_PX` at the farthest matched star and :data:`MAX_CORNER_SIGMA_PX` at the
+frame's corner; else the pinhole (and the firmware's
 radial check's honest ``IMPRECISE``) stays.  The lens fit's own uncertainty enters the
 attitude's: the attitude's 1-sigma with the lens free over that with the lens held
 (:attr:`LensFit.inflation`) scales the firmware's.  Units: pixels of the detector's frame,
@@ -38,6 +39,9 @@ MIN_SIGMA_PX = 0.2
 """Floor of the fit's robust residual sigma, px: a matched star is dropped from the lens fit
 beyond 4 of these (0.8 px; a few stars' tight fit must not reject a star for centroid
 noise)."""
+MAX_CORNER_SIGMA_PX = 2.5
+"""Largest 1-sigma (px) of the fitted correction extrapolated to the frame's corner (the
+firmware's default match tolerance): stars near the centre alone do not fix the lens."""
 ROUNDS = 3
 """Most fit -> identify rounds: each round's corrected directions match more stars towards
 the corners, and the next fit reaches further."""
@@ -126,8 +130,9 @@ def fit_lens(xy, v, q, camera):
 def _fit(frame, start, free):
     """The :class:`LensFit` of ``free`` (``fx``, ``fy`` or with ``fy = fx``, ``k1`` and maybe
     ``k2``) from the pairs of ``frame`` starting at ``start``, or None: too few stars agree
-    with one lens, it folds over the frame, or the 1-sigma of its correction at the farthest
-    star exceeds :data:`MAX_SIGMA_PX`."""
+    with one lens, it folds over the frame, or the 1-sigma of its correction exceeds
+    :data:`MAX_SIGMA_PX` at the farthest star or :data:`MAX_CORNER_SIGMA_PX` at the frame's
+    corner."""
     try:
         fit = calibrate.fit_camera([frame], start, free=free, one_focal="fy" not in free,
                                    min_sigma_px=MIN_SIGMA_PX)
@@ -136,9 +141,14 @@ def _fit(frame, start, free):
     sigma = fit.sigma
     inlier = frame.xy[fit.inlier]
     f = float(fit.params[0])
+    def spread(r):
+        """1-sigma (px) of the fitted lens's correction at normalised radius ``r``."""
+        return f * r ** 3 * math.hypot(sigma["k1"], sigma.get("k2", 0.0) * r ** 2)
+
     r_max = float(np.max(np.hypot(inlier[:, 0] - start.cx, inlier[:, 1] - start.cy))) / f
-    spread = f * r_max ** 3 * math.hypot(sigma["k1"], sigma.get("k2", 0.0) * r_max ** 2)
-    if not spread <= MAX_SIGMA_PX or len(inlier) < MIN_STARS:
+    r_corner = math.hypot(start.cx + 0.5, start.cy + 0.5) / f
+    if not (spread(r_max) <= MAX_SIGMA_PX and spread(r_corner) <= MAX_CORNER_SIGMA_PX and
+            len(inlier) >= MIN_STARS):
         return None
     out = LensFit()
     out.free = free
@@ -153,6 +163,6 @@ def _fit(frame, start, free):
     out.sigma_k2 = sigma["k2"] if "k2" in free else None
     out.n_stars, out.n_rejected = int(len(inlier)), fit.n_rejected
     out.scale_px = fit.scale_px
-    out.spread_px = spread
+    out.spread_px = spread(r_max)
     out.inflation = _inflation(fit, len(free), frame.v[fit.inlier])
     return out

@@ -40,7 +40,9 @@ def add_parser(sub):
     cam.add_argument("--preset", choices=PRESETS, default=None,
                      help="camera preset (the image must have its size)")
     cam.add_argument("--fov", type=float, metavar="DEG",
-                     help="horizontal field of view edge to edge, degrees")
+                     help="horizontal field of view edge to edge, degrees (without "
+                          "--distortion the focal length and radial distortion are fitted to "
+                          "the matched stars)")
     cam.add_argument("--fov-error", type=float, metavar="DEG",
                      help="search the FOV within --fov +- this (deg); without --fov, --preset "
                           "and an image not of the default preset's size the FOV is searched "
@@ -85,7 +87,7 @@ def add_parser(sub):
                           "instant for every row)")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
     p.add_argument("--wcs", metavar="FILE.wcs",
-                   help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
+                   help="write the solution's FITS WCS header (TAN, SIP with a distortion; "
                         ".wcs, .fits or .fit)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --annotate or --wcs file")
@@ -154,7 +156,9 @@ def run(args):
     report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
                                            args.ksigma, args.min_pixels, log=sys.stderr,
                                            fov_band=band, velocity_km_s=velocity,
-                                           motion=motion)
+                                           motion=motion,
+                                           fit_lens=args.fov is not None and
+                                           args.distortion is None)
     report["time"] = obstime
     report["camera"] = what
     failure = None
