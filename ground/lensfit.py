@@ -39,9 +39,10 @@ MIN_SIGMA_PX = 0.2
 """Floor of the fit's robust residual sigma, px: a matched star is dropped from the lens fit
 beyond 4 of these (0.8 px; a few stars' tight fit must not reject a star for centroid
 noise)."""
-MAX_CORNER_SIGMA_PX = 2.5
-"""Largest 1-sigma (px) of the fitted correction extrapolated to the frame's corner (the
-firmware's default match tolerance): stars near the centre alone do not fix the lens."""
+MAX_CORNER_SIGMA_PX = 10.0
+"""Largest 1-sigma (px) of the fitted correction extrapolated to the frame's corner (4 of
+the firmware's default match tolerances: the next round's identification through it still
+finds stars towards the corners): stars near the centre alone do not fix the lens."""
 ROUNDS = 3
 """Most fit -> identify rounds: each round's corrected directions match more stars towards
 the corners, and the next fit reaches further."""

@@ -70,7 +70,7 @@ def test_non_square_pixels_and_k2_only_when_significant():
 
 def test_stars_spanning_too_little_radius_or_too_few_keep_the_pinhole():
     """Stars within 300 px of the centre of estcube2's frame (normalised radius 0.04) leave
-    k1 undetermined (its correction's 1-sigma extrapolated to the corner beyond 2.5 px):
+    k1 undetermined (its correction's 1-sigma extrapolated to the corner beyond 10 px):
     None; so do fewer than :data:`lensfit.MIN_STARS` stars anywhere."""
     w, h, f = ESTCUBE2
     truth = lensfit.pinhole(w, h, f, -0.3)
