@@ -579,7 +579,8 @@ def _fit_lens(image, det, camera, res, found, ctx):
     (:func:`lodestar.ground.lensfit.fit_lens`), for at most :data:`lensfit.ROUNDS` rounds
     (each round's corrected directions match more stars towards the corners) until the fit
     stands still; a frame the pinhole does not identify with :data:`lensfit.MIN_STARS` is
-    tried through the radial ``k1`` of :data:`lensfit.K1_GRID` first.  A fit the stars do
+    tried through the radial ``k1`` of :data:`lensfit.K1_GRID` first (those whose FOV the
+    pinhole's database serves: no database is built for the grid).  A fit the stars do
     not determine, or a solve through it that names no stars, keeps the previous camera and
     solution.  The lens fit's
     uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  ``found``: ``(db,
@@ -589,9 +590,9 @@ def _fit_lens(image, det, camera, res, found, ctx):
     db, db_path = found
     t = time.perf_counter()
 
-    def attempt(cam):
+    def attempt(cam, database=None):
         return _solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
-                         velocity_km_s=velocity_km_s, motion=motion)[:3]
+                         velocity_km_s=velocity_km_s, motion=motion, database=database)[:3]
 
     few = lensfit.MIN_STARS
     if camera.k1 == 0.0 and not (_identified(res) and len(res.matches) >= few):
@@ -600,7 +601,10 @@ def _fit_lens(image, det, camera, res, found, ctx):
                 cam = lensfit.pinhole(camera.width, camera.height, camera.fx, k1)
             except ValueError:                  # folds over the frame
                 continue
-            db_k, path_k, res_k = attempt(cam)
+            fov = math.radians(solve.camera_fov_deg(cam)[0])
+            if abs(fov - db.fov_h) > pipeline.FOV_TOLERANCE * db.fov_h:
+                continue                        # another database: not worth its build
+            db_k, path_k, res_k = attempt(cam, (db, db_path))
             if _identified(res_k) and len(res_k.matches) >= few:
                 camera, res, db, db_path = cam, res_k, db_k, path_k
                 break
@@ -654,20 +658,23 @@ def _lens_sigma(res, lens):
 
 
 def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
-              velocity_km_s=None, motion=(None, None, 0.0)):
+              velocity_km_s=None, motion=(None, None, 0.0), database=None):
     """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
-    the FOV grid of :func:`lodestar.ground.solve.database_fov`), aberration corrected for
-    ``velocity_km_s`` when given."""
-    db_camera = camera
-    if blind:
-        fov_h = solve.database_fov(solve.camera_fov_deg(camera)[0])
-        db_camera = _pinhole(camera.width, camera.height,
-                             fovsearch.f_of_fov(camera.width, fov_h))
-    t = time.perf_counter()
-    db, db_path = onboard.star_database(
-        db_camera, max_mag, log=log,
-        density=solve.DEFAULT_DENSITY if max_mag is None else None)
-    timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
+    the FOV grid of :func:`lodestar.ground.solve.database_fov`; ``database``: ``(db,
+    db_path)`` given), aberration corrected for ``velocity_km_s`` when given."""
+    if database is not None:
+        db, db_path = database
+    else:
+        db_camera = camera
+        if blind:
+            fov_h = solve.database_fov(solve.camera_fov_deg(camera)[0])
+            db_camera = _pinhole(camera.width, camera.height,
+                                 fovsearch.f_of_fov(camera.width, fov_h))
+        t = time.perf_counter()
+        db, db_path = onboard.star_database(
+            db_camera, max_mag, log=log,
+            density=solve.DEFAULT_DENSITY if max_mag is None else None)
+        timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
     omega, exposure_s, row_time_s = motion
     _data, res, stage = onboard.process(det, camera, db, omega=omega, exposure_s=exposure_s,
                                         row_time_s=row_time_s, tolerance_px=tolerance_px,

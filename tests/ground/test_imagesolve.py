@@ -409,19 +409,23 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
 
 def test_unknown_fov_is_searched_and_fitted(sky, capsys):
     """``--fov F --fov-error E`` (here 8 .. 30 deg, as with no FOV on an image of another
-    size): the quad search finds the scale, the firmware solves, the FOV is fitted to the
-    matched stars (within 0.5 %, in fact 1e-4) and reported with the pixel scale."""
+    size): the quad search finds the scale, the firmware solves, the focal length and k1 are
+    fitted to the matched stars (the FOV within 0.1 %, k1 0 within 5 sigma) and reported
+    with the pixel scale."""
     d, _f, truth = sky
     code, r, _err = _solve(capsys, d / "frame.png", "--fov", "19", "--fov-error", "11")
     assert code == 0
     _check_right(r, truth)
     assert r["fov_deg"] == pytest.approx(FOV, rel=1e-3)
+    lens = r["lens"]                    # the pinhole's lens: k1 0 within 5 sigma
+    assert lens["n_stars"] >= 10 and abs(lens["k1"]) < 5 * lens["sigma_k1"]
+    assert lens["sigma_k1"] < 0.01
+    assert r["pixel_scale_arcsec"] == pytest.approx(3600 * math.degrees(1 / lens["f_px"]),
+                                                    rel=1e-9)
     assert r["pixel_scale_arcsec"] == pytest.approx(
-        3600 * math.degrees(2 * math.tan(math.radians(r["fov_deg"]) / 2) / 2592), rel=1e-9)
+        3600 * math.degrees(2 * math.tan(math.radians(r["fov_deg"]) / 2) / 2592), rel=1e-3)
     assert r["fov_search"]["range_deg"] == [8.0, 30.0]
     assert r["fov_search"]["fitted_deg"] == pytest.approx(r["fov_deg"], rel=1e-12)
-    lens = r["lens"]                    # the pinhole's lens: k1 0 within 5 sigma
-    assert lens["n_stars"] >= 10 and abs(lens["k1"]) < 5 * lens["sigma_k1"] < 0.01
 
 
 def test_wcs_file_round_trips_the_matched_stars(sky, tmp_path, capsys):
