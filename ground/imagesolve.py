@@ -578,9 +578,10 @@ def _fit_lens(image, det, camera, res, found, ctx):
     pinhole ``camera`` redone through the lens fitted to its matched stars
     (:func:`lodestar.ground.lensfit.fit_lens`), for at most :data:`lensfit.ROUNDS` rounds
     (each round's corrected directions match more stars towards the corners) until the fit
-    stands still; a frame the pinhole does not identify with :data:`lensfit.MIN_STARS` is
-    tried through the radial ``k1`` of :data:`lensfit.K1_GRID` first (those whose FOV the
-    pinhole's database serves: no database is built for the grid).  A fit the stars do
+    stands still; a frame the pinhole matches with fewer than :data:`lensfit.MIN_STARS`
+    (``NO_MATCH`` included) is tried through the radial ``k1`` of :data:`lensfit.K1_GRID`
+    first (those whose FOV the pinhole's database serves: no database is built for the
+    grid).  Each solve uses the pinhole's database where it serves the camera.  A fit the stars do
     not determine, or a solve through it that names no stars, keeps the previous camera and
     solution.  The lens fit's
     uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  ``found``: ``(db,
@@ -594,17 +595,24 @@ def _fit_lens(image, det, camera, res, found, ctx):
         return _solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
                          velocity_km_s=velocity_km_s, motion=motion, database=database)[:3]
 
+    def served(cam):
+        """The pinhole's database, when it serves ``cam`` (the firmware's FOV rule)."""
+        fov = math.radians(solve.camera_fov_deg(cam)[0])
+        return (db, db_path) if abs(fov - db.fov_h) <= pipeline.FOV_TOLERANCE * db.fov_h \
+            else None
+
     few = lensfit.MIN_STARS
-    if camera.k1 == 0.0 and not (_identified(res) and len(res.matches) >= few):
+    unmatched = res is not None and (res.status == S.NO_MATCH or _identified(res))
+    if camera.k1 == 0.0 and unmatched and not (_identified(res) and len(res.matches) >= few):
         for k1 in lensfit.K1_GRID:
             try:
                 cam = lensfit.pinhole(camera.width, camera.height, camera.fx, k1)
             except ValueError:                  # folds over the frame
                 continue
-            fov = math.radians(solve.camera_fov_deg(cam)[0])
-            if abs(fov - db.fov_h) > pipeline.FOV_TOLERANCE * db.fov_h:
+            database = served(cam)
+            if database is None:
                 continue                        # another database: not worth its build
-            db_k, path_k, res_k = attempt(cam, (db, db_path))
+            db_k, path_k, res_k = attempt(cam, database)
             if _identified(res_k) and len(res_k.matches) >= few:
                 camera, res, db, db_path = cam, res_k, db_k, path_k
                 break
@@ -623,7 +631,7 @@ def _fit_lens(image, det, camera, res, found, ctx):
             break
         if _round == lensfit.ROUNDS:
             break
-        db_f, path_f, res_f = attempt(fit.camera)
+        db_f, path_f, res_f = attempt(fit.camera, served(fit.camera))
         if not _identified(res_f):
             break
         camera, res, db, db_path, lens = fit.camera, res_f, db_f, path_f, fit
