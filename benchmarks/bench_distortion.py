@@ -31,7 +31,7 @@ import multiprocessing
 import time
 
 from lodestar.firmware import pipeline
-from lodestar.ground import imagesolve
+from lodestar.ground import imagesolve, lensfit
 from lodestar.ground.campaign import trials
 from lodestar.ground.files import write_atomic
 from lodestar.ground.onboard import camera_settings
@@ -78,7 +78,8 @@ def trial(task):
     for way in WAYS:
         t = time.process_time()
         camera = imagesolve.image_camera(image, fov_deg=fov)[0] if way == "fov" else None
-        report, det, res, _cam = imagesolve.solve_image(image, camera, fit_lens=True)
+        report, det, res, _cam = imagesolve.solve_image(image, camera,
+                                                        refine=lensfit.refine)
         if res is None:
             out[way] = {"status": "NO_MATCH", "solved": False, "wrong": False, "lens": None}
         else:

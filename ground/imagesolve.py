@@ -10,12 +10,11 @@ import numpy as np
 
 from lodestar import contract as C
 from lodestar.contract import stardb
-from lodestar.firmware import centroids, pipeline
+from lodestar.firmware import centroids
 from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
-from lodestar.firmware.settings import DEFAULT_MAX_ERROR_ARCSEC
 from lodestar.golden import DetectorConfig, detect_frame
-from lodestar.ground import annotate, fovsearch, lensfit, onboard, solve
+from lodestar.ground import annotate, fovsearch, onboard, solve
 from lodestar.ground.database import default_catalogue
 from lodestar.sim import presets
 from lodestar.sim.attitude import to_radec_roll
@@ -461,7 +460,7 @@ def frame_timing(image, what, exposure_s=None, row_time_s=None):
 
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
                 ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None,
-                velocity_km_s=None, motion=(None, None, 0.0), fit_lens=False):
+                velocity_km_s=None, motion=(None, None, 0.0), refine=None):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame (None:
     the FOV is searched over ``fov_band``, deg, :func:`blind_camera`):
     ``(report dict, DetectionResult, pipeline Result, camera)`` (report fields in the module
@@ -471,10 +470,12 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
     correction, or None.  ``motion``: ``(omega, exposure_s, row_time_s)``, the body rate
     (rad/s, camera frame; None: fitted from the frame) and the frame's timing
-    (:func:`frame_timing`).  ``fit_lens``: the lens is unknown (a searched FOV, or ``--fov``
-    without ``--distortion``): its focal length and radial distortion are fitted to the
-    matched stars and the frame solved again through it (:func:`_fit_lens`); a blind search
-    always does."""
+    (:func:`frame_timing`).  ``refine``: run after the first solve when the camera is
+    unknown, ``refine(image, det, camera, res, (db, db_path), ctx)`` with ``ctx`` the
+    ``(max_mag, tolerance_px, log, timings, velocity_km_s, motion)`` of :func:`solve_at`,
+    returning ``(camera, res, db, db_path, fit)`` (:func:`lodestar.ground.lensfit.refine`:
+    the lens fitted to the matched stars; ``fit.as_dict()`` is the report's ``lens``), or
+    None."""
 
     lo, hi = solve.MAG_RANGE
     if max_mag is not None and not (math.isfinite(max_mag) and lo < max_mag <= hi):
@@ -494,7 +495,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     res = db = db_path = None
     if camera is not None:
         for attempt in range(2 if search else 1):   # the estimate, then the fitted scale
-            db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
+            db, db_path, res, stage = solve_at(image, det, camera, max_mag, tolerance_px,
                                                 log, timings, blind=search is not None,
                                                 velocity_km_s=velocity_km_s, motion=motion)
             if search is None or attempt or not (res.ok or res.status == S.IMPRECISE):
@@ -507,8 +508,8 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
                 break
             camera = _pinhole(camera.width, camera.height, f_new)
     lens = None
-    if camera is not None and (fit_lens or search is not None):
-        camera, res, db, db_path, lens = _fit_lens(
+    if camera is not None and refine is not None:
+        camera, res, db, db_path, lens = refine(
             image, det, camera, res, (db, db_path),
             (max_mag, tolerance_px, log, timings, velocity_km_s, motion))
     if search is not None and camera is not None:
@@ -568,104 +569,7 @@ def _pinhole(width, height, f_px):
     return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 
-def _identified(res):
-    """The firmware named its stars: ``OK``, or ``IMPRECISE`` (only the attitude loose)."""
-    return res is not None and (res.ok or res.status == S.IMPRECISE)
-
-
-def _fit_lens(image, det, camera, res, found, ctx):
-    """``(camera, res, db, db_path, LensFit or None)``: the solve ``res`` through the
-    pinhole ``camera`` redone through the lens fitted to its matched stars
-    (:func:`lodestar.ground.lensfit.fit_lens`), for at most :data:`lensfit.ROUNDS` rounds
-    (each round's corrected directions match more stars towards the corners) until the fit
-    stands still; a frame the pinhole matches with fewer than :data:`lensfit.MIN_STARS`
-    (``NO_MATCH`` included) is tried through the radial ``k1`` of :data:`lensfit.K1_GRID`
-    first (those whose FOV the pinhole's database serves: no database is built for the
-    grid).  Each solve uses the pinhole's database where it serves the camera.  A fit the stars do
-    not determine, or a solve through it that names no stars, keeps the previous camera and
-    solution.  The lens fit's
-    uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  ``found``: ``(db,
-    db_path)`` of ``res``; ``ctx``: :func:`_solve_at`'s ``(max_mag, tolerance_px, log,
-    timings, velocity_km_s, motion)``."""
-    max_mag, tolerance_px, log, timings, velocity_km_s, motion = ctx
-    db, db_path = found
-    t = time.perf_counter()
-
-    def attempt(cam, database=None):
-        return _solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
-                         velocity_km_s=velocity_km_s, motion=motion, database=database)[:3]
-
-    def served(cam):
-        """The pinhole's database, when it serves ``cam`` (the firmware's FOV rule)."""
-        fov = math.radians(solve.camera_fov_deg(cam)[0])
-        return (db, db_path) if abs(fov - db.fov_h) <= pipeline.FOV_TOLERANCE * db.fov_h \
-            else None
-
-    few = lensfit.MIN_STARS
-    unmatched = res is not None and (res.status == S.NO_MATCH or _identified(res))
-    if camera.k1 == 0.0 and unmatched and not (_identified(res) and len(res.matches) >= few):
-        for k1 in lensfit.K1_GRID:
-            try:
-                cam = lensfit.pinhole(camera.width, camera.height, camera.fx, k1)
-            except ValueError:                  # folds over the frame
-                continue
-            database = served(cam)
-            if database is None:
-                continue                        # another database: not worth its build
-            db_k, path_k, res_k = attempt(cam, database)
-            if _identified(res_k) and len(res_k.matches) >= few:
-                camera, res, db, db_path = cam, res_k, db_k, path_k
-                break
-    lens = None
-    cat = default_catalogue(None)
-    for _round in range(lensfit.ROUNDS + 1):
-        if not _identified(res):
-            break
-        xy = [(x, y) for _i, x, y, _h in res.matches]
-        v = cat.unit_vectors()[[cat.by_hip(h) for _i, _x, _y, h in res.matches]]
-        fit = lensfit.fit_lens(xy, v, res.q, camera)
-        if fit is None:
-            break
-        if lens is not None and _same_lens(fit, camera):
-            lens = fit
-            break
-        if _round == lensfit.ROUNDS:
-            break
-        db_f, path_f, res_f = attempt(fit.camera, served(fit.camera))
-        if not _identified(res_f):
-            break
-        camera, res, db, db_path, lens = fit.camera, res_f, db_f, path_f, fit
-    if lens is not None:
-        _lens_sigma(res, lens)
-    timings["lens_fit"] = (time.perf_counter() - t) * 1e3
-    return camera, res, db, db_path, lens
-
-
-def _same_lens(fit, camera):
-    """A fit within a tenth of its 1-sigma of ``camera``'s focal length and ``k1``."""
-    return (abs(fit.f_px - camera.fx) <= 0.1 * fit.sigma_f_px and
-            abs(fit.k1 - camera.k1) <= 0.1 * fit.sigma_k1)
-
-
-def _lens_sigma(res, lens):
-    """Scale ``res``'s 1-sigma by the lens fit's :attr:`inflation` and, when its bound then
-    exceeds the default ``max_error_arcsec``, make an ``OK`` ``IMPRECISE`` (the firmware's
-    rule, ``lodestar.firmware.pipeline`` ``_precise``), noted in ``reason``."""
-    cross, roll = lens.inflation
-    res.sigma_cross_arcsec *= cross
-    res.sigma_roll_arcsec *= roll
-    note = (f"lens fitted from {lens.n_stars} stars (k1 {lens.k1:+.4f} +- "
-            f"{lens.sigma_k1:.4f}), sigma x{cross:.2f} across, x{roll:.2f} in roll")
-    c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
-    bound = pipeline.BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
-    if res.ok and not bound <= DEFAULT_MAX_ERROR_ARCSEC:
-        res.status = S.IMPRECISE
-        note += (f"; {pipeline.BOUND_SIGMAS:g}-sigma bound {bound:.0f} arcsec beyond "
-                 f"max_error_arcsec {DEFAULT_MAX_ERROR_ARCSEC:g}")
-    res.reason = note if not res.reason else res.reason + "; " + note
-
-
-def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
+def solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
               velocity_km_s=None, motion=(None, None, 0.0), database=None):
     """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
     the FOV grid of :func:`lodestar.ground.solve.database_fov`; ``database``: ``(db,

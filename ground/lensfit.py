@@ -5,24 +5,29 @@ After a first identification through a centred pinhole, the focal length ``f`` a
 radial ``k1`` (``fy`` apart from ``fx`` and ``k2`` when the stars support them) are fitted with the
 attitude to the matched stars' pixel residuals by least squares
 (:func:`lodestar.ground.calibrate.fit_camera`, one frame, principal point at the centre);
-the firmware then identifies and verifies again through the fitted lens
-(:func:`lodestar.ground.imagesolve.solve_image`).  A lens is used only when the stars
-determine it: at least :data:`MIN_STARS`, and the 1-sigma of its correction within
+the firmware then identifies and verifies again through the fitted lens (:func:`refine`,
+the ``refine`` of :func:`lodestar.ground.imagesolve.solve_image`).  A lens is used only when
+the stars determine it: at least :data:`MIN_STARS`, and the 1-sigma of its correction within
 :data:`MAX_SIGMA_PX` at the farthest matched star and :data:`MAX_CORNER_SIGMA_PX` at the
-frame's corner; else the pinhole (and the firmware's
-radial check's honest ``IMPRECISE``) stays.  The lens fit's own uncertainty enters the
+frame's corner; else the pinhole (and the firmware's radial check's honest ``IMPRECISE``)
+stays.  The lens fit's own uncertainty enters the
 attitude's: the attitude's 1-sigma with the lens free over that with the lens held
 (:attr:`LensFit.inflation`) scales the firmware's.  Units: pixels of the detector's frame,
 ``k1``/``k2`` of normalised radius (``docs/conventions.md``).  Method and figures:
 ``docs/image_solving.md`` (Unknown lens)."""
 
 import math
+import time
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lodestar.firmware import pipeline
+from lodestar.firmware import status as S
 from lodestar.firmware.camera import Camera
-from lodestar.ground import calibrate
+from lodestar.firmware.settings import DEFAULT_MAX_ERROR_ARCSEC
+from lodestar.ground import calibrate, imagesolve, solve
+from lodestar.ground.database import default_catalogue
 
 MIN_STARS = 8
 """Fewest matched stars a lens is fitted from (2 residuals each, 5 or 6 unknowns)."""
@@ -167,3 +172,102 @@ def _fit(frame, start, free):
     out.spread_px = spread(r_max)
     out.inflation = _inflation(fit, len(free), frame.v[fit.inlier])
     return out
+
+
+# --------------------------------------------------------------------------------------
+# The solve through the fitted lens
+# --------------------------------------------------------------------------------------
+
+def _identified(res):
+    """The firmware named its stars: ``OK``, or ``IMPRECISE`` (only the attitude loose)."""
+    return res is not None and (res.ok or res.status == S.IMPRECISE)
+
+
+def refine(image, det, camera, res, found, ctx):
+    """``(camera, res, db, db_path, LensFit or None)``: the solve ``res`` (``found``: its
+    ``(db, db_path)``) through the pinhole ``camera`` redone through the lens fitted to its
+    matched stars (:func:`fit_lens`), for at most :data:`ROUNDS` rounds (each round's
+    corrected directions match more stars towards the corners) until the fit stands still.
+    A frame the pinhole matches with fewer than :data:`MIN_STARS` (``NO_MATCH`` included) is
+    tried through the radial ``k1`` of :data:`K1_GRID` first (those whose FOV the pinhole's
+    database serves: no database is built for the grid); every solve uses the pinhole's
+    database where it serves the camera.  A fit the stars do not determine, or a solve
+    through it that names no stars, keeps the previous camera and solution.  The lens fit's
+    uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  The ``refine`` of
+    :func:`lodestar.ground.imagesolve.solve_image` (``ctx`` as it says)."""
+    max_mag, tolerance_px, log, timings, velocity_km_s, motion = ctx
+    db, db_path = found
+    t = time.perf_counter()
+
+    def attempt(cam, database=None):
+        return imagesolve.solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
+                         velocity_km_s=velocity_km_s, motion=motion, database=database)[:3]
+
+    def served(cam):
+        """The pinhole's database, when it serves ``cam`` (the firmware's FOV rule)."""
+        fov = math.radians(solve.camera_fov_deg(cam)[0])
+        return (db, db_path) if abs(fov - db.fov_h) <= pipeline.FOV_TOLERANCE * db.fov_h \
+            else None
+
+    few = MIN_STARS
+    unmatched = res is not None and (res.status == S.NO_MATCH or _identified(res))
+    if camera.k1 == 0.0 and unmatched and not (_identified(res) and len(res.matches) >= few):
+        for k1 in K1_GRID:
+            try:
+                cam = pinhole(camera.width, camera.height, camera.fx, k1)
+            except ValueError:                  # folds over the frame
+                continue
+            database = served(cam)
+            if database is None:
+                continue                        # another database: not worth its build
+            db_k, path_k, res_k = attempt(cam, database)
+            if _identified(res_k) and len(res_k.matches) >= few:
+                camera, res, db, db_path = cam, res_k, db_k, path_k
+                break
+    lens = None
+    cat = default_catalogue(None)
+    for _round in range(ROUNDS + 1):
+        if not _identified(res):
+            break
+        xy = [(x, y) for _i, x, y, _h in res.matches]
+        v = cat.unit_vectors()[[cat.by_hip(h) for _i, _x, _y, h in res.matches]]
+        fit = fit_lens(xy, v, res.q, camera)
+        if fit is None:
+            break
+        if lens is not None and _same_lens(fit, camera):
+            lens = fit
+            break
+        if _round == ROUNDS:
+            break
+        db_f, path_f, res_f = attempt(fit.camera, served(fit.camera))
+        if not _identified(res_f):
+            break
+        camera, res, db, db_path, lens = fit.camera, res_f, db_f, path_f, fit
+    if lens is not None:
+        _lens_sigma(res, lens)
+    timings["lens_fit"] = (time.perf_counter() - t) * 1e3
+    return camera, res, db, db_path, lens
+
+
+def _same_lens(fit, camera):
+    """A fit within a tenth of its 1-sigma of ``camera``'s focal length and ``k1``."""
+    return (abs(fit.f_px - camera.fx) <= 0.1 * fit.sigma_f_px and
+            abs(fit.k1 - camera.k1) <= 0.1 * fit.sigma_k1)
+
+
+def _lens_sigma(res, lens):
+    """Scale ``res``'s 1-sigma by the lens fit's :attr:`LensFit.inflation` and, when its bound then
+    exceeds the default ``max_error_arcsec``, make an ``OK`` ``IMPRECISE`` (the firmware's
+    rule, ``lodestar.firmware.pipeline`` ``_precise``), noted in ``reason``."""
+    cross, roll = lens.inflation
+    res.sigma_cross_arcsec *= cross
+    res.sigma_roll_arcsec *= roll
+    note = (f"lens fitted from {lens.n_stars} stars (k1 {lens.k1:+.4f} +- "
+            f"{lens.sigma_k1:.4f}), sigma x{cross:.2f} across, x{roll:.2f} in roll")
+    c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
+    bound = pipeline.BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
+    if res.ok and not bound <= DEFAULT_MAX_ERROR_ARCSEC:
+        res.status = S.IMPRECISE
+        note += (f"; {pipeline.BOUND_SIGMAS:g}-sigma bound {bound:.0f} arcsec beyond "
+                 f"max_error_arcsec {DEFAULT_MAX_ERROR_ARCSEC:g}")
+    res.reason = note if not res.reason else res.reason + "; " + note

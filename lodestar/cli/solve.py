@@ -7,6 +7,7 @@ import sys
 
 from lodestar import contract as C
 from lodestar.firmware import starid
+from lodestar.ground import lensfit
 from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
@@ -153,12 +154,13 @@ def run(args):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
                          f"of the field), got {args.tolerance}")
     motion = _motion(args, image, what)
+    # a lens not told (a searched FOV, or --fov alone) is fitted to the matched stars
+    unknown = camera is None or (args.fov is not None and args.distortion is None)
+    refine = lensfit.refine if unknown else None
     report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
                                            args.ksigma, args.min_pixels, log=sys.stderr,
                                            fov_band=band, velocity_km_s=velocity,
-                                           motion=motion,
-                                           fit_lens=args.fov is not None and
-                                           args.distortion is None)
+                                           motion=motion, refine=refine)
     report["time"] = obstime
     report["camera"] = what
     failure = None
