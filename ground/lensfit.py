@@ -62,10 +62,10 @@ class LensFit:
     """A fitted lens: ``camera`` (firmware, of the detector's frame), ``free`` (its fitted
     parameters), ``k1``, ``sigma_k1``, ``k2`` and ``sigma_k2`` (None when not fitted),
     ``f_px`` (``fx``), ``sigma_f_px``, ``aspect`` (``fy / fx``), ``sigma_aspect`` (0 when
-    ``fy = fx`` was imposed), ``n_stars``,
-    ``n_rejected``, ``scale_px`` (per-axis RMS residual), ``spread_px`` (1-sigma of the
-    correction at the farthest star), ``inflation`` ``(cross, roll)`` (>= 1: the attitude's
-    1-sigma with the lens fitted over that with it held)."""
+    ``fy = fx`` was imposed), ``n_stars``, ``n_rejected``, ``scale_px`` (per-axis RMS
+    residual), ``spread_px`` (1-sigma of the correction at the farthest star),
+    ``inflation`` ``(cross, roll)`` (>= 1: the attitude's 1-sigma with the lens, and the
+    tangential terms, free over that with them held)."""
 
     def as_dict(self):
         """The fit for the solve's JSON report."""
@@ -192,7 +192,8 @@ def refine(image, det, camera, res, found, ctx):
     tried through the radial ``k1`` of :data:`K1_GRID` first (those whose FOV the pinhole's
     database serves: no database is built for the grid); every solve uses the pinhole's
     database where it serves the camera.  A fit the stars do not determine, or a solve
-    through it that names no stars, keeps the previous camera and solution.  The lens fit's
+    through it that names no stars, keeps the previous camera and solution (without any fit,
+    the pinhole's, even when a grid lens identified).  The lens fit's
     uncertainty scales the attitude's 1-sigma (:func:`_lens_sigma`).  The ``refine`` of
     :func:`lodestar.ground.imagesolve.solve_image` (``ctx`` as it says)."""
     max_mag, tolerance_px, log, timings, velocity_km_s, motion = ctx
@@ -200,8 +201,9 @@ def refine(image, det, camera, res, found, ctx):
     t = time.perf_counter()
 
     def attempt(cam, database=None):
-        return imagesolve.solve_at(image, det, cam, max_mag, tolerance_px, log, timings, blind=True,
-                         velocity_km_s=velocity_km_s, motion=motion, database=database)[:3]
+        return imagesolve.solve_at(image, det, cam, max_mag, tolerance_px, log, timings,
+                                   blind=True, velocity_km_s=velocity_km_s, motion=motion,
+                                   database=database)[:3]
 
     def served(cam):
         """The pinhole's database, when it serves ``cam`` (the firmware's FOV rule)."""
@@ -209,9 +211,10 @@ def refine(image, det, camera, res, found, ctx):
         return (db, db_path) if abs(fov - db.fov_h) <= pipeline.FOV_TOLERANCE * db.fov_h \
             else None
 
-    few = MIN_STARS
+    first = camera, res, db, db_path
     unmatched = res is not None and (res.status == S.NO_MATCH or _identified(res))
-    if camera.k1 == 0.0 and unmatched and not (_identified(res) and len(res.matches) >= few):
+    if camera.k1 == 0.0 and unmatched and not (_identified(res) and
+                                               len(res.matches) >= MIN_STARS):
         for k1 in K1_GRID:
             try:
                 cam = pinhole(camera.width, camera.height, camera.fx, k1)
@@ -221,7 +224,7 @@ def refine(image, det, camera, res, found, ctx):
             if database is None:
                 continue                        # another database: not worth its build
             db_k, path_k, res_k = attempt(cam, database)
-            if _identified(res_k) and len(res_k.matches) >= few:
+            if _identified(res_k) and len(res_k.matches) >= MIN_STARS:
                 camera, res, db, db_path = cam, res_k, db_k, path_k
                 break
     lens = None
@@ -243,9 +246,10 @@ def refine(image, det, camera, res, found, ctx):
         if not _identified(res_f):
             break
         camera, res, db, db_path, lens = fit.camera, res_f, db_f, path_f, fit
-    if lens is not None:
-        _lens_sigma(res, lens)
     timings["lens_fit"] = (time.perf_counter() - t) * 1e3
+    if lens is None:                # a grid lens no fit confirmed is no better than none
+        return first + (None,)
+    _lens_sigma(res, lens)
     return camera, res, db, db_path, lens
 
 
@@ -256,9 +260,9 @@ def _same_lens(fit, camera):
 
 
 def _lens_sigma(res, lens):
-    """Scale ``res``'s 1-sigma by the lens fit's :attr:`LensFit.inflation` and, when its bound then
-    exceeds the default ``max_error_arcsec``, make an ``OK`` ``IMPRECISE`` (the firmware's
-    rule, ``lodestar.firmware.pipeline`` ``_precise``), noted in ``reason``."""
+    """Scale ``res``'s 1-sigma by the lens fit's :attr:`LensFit.inflation` and, when its
+    bound then exceeds the default ``max_error_arcsec``, make an ``OK`` ``IMPRECISE`` (the
+    firmware's rule, ``lodestar.firmware.pipeline`` ``_precise``), noted in ``reason``."""
     cross, roll = lens.inflation
     res.sigma_cross_arcsec *= cross
     res.sigma_roll_arcsec *= roll
