@@ -215,7 +215,9 @@ class Fit:
     named by ``cov_names``, :data:`INTRINSICS` order, no ``fy`` with ``one_focal``),
     ``frames`` (those used), ``q`` per frame, ``inlier`` mask per pair, ``residual_px``
     ``(N, 2)``, ``n_pairs``, ``n_rejected``, ``scale_px`` (per-axis RMS residual of the
-    inliers, the ``s`` of the covariance)."""
+    inliers, the ``s`` of the covariance), ``jac`` (the inliers' Jacobian at the solution:
+    the fitted parameters, then each frame's rotation vector, applied in the camera
+    frame)."""
 
 
 def _stack(frames):
@@ -226,9 +228,10 @@ def _stack(frames):
 
 
 def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
-               reject_sigma=REJECT_SIGMA):
+               reject_sigma=REJECT_SIGMA, min_sigma_px=MIN_SIGMA_PX):
     """Fit the ``free`` parameters of ``camera0`` (firmware camera, whole image) and one
-    attitude per frame to ``frames`` (:class:`FramePairs`); ``one_focal``: ``fy = fx``.
+    attitude per frame to ``frames`` (:class:`FramePairs`); ``one_focal``: ``fy = fx``;
+    ``min_sigma_px``: the floor of the rejection's robust sigma.
     Returns a :class:`Fit`; raises :class:`CalibrationError` when there are too few pairs
     and ``ValueError`` when the fitted distortion cannot be inverted over the frame."""
     free = tuple(name for name in INTRINSICS if name in free)
@@ -270,7 +273,7 @@ def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
                             loss="soft_l1" if robust else "linear", f_scale=1.0)
         theta = sol.x
         everyone = residuals(theta, np.ones(len(xy), dtype=bool)).reshape(-1, 2)
-        sigma = max(1.4826 * float(np.median(np.abs(everyone[mask]))), MIN_SIGMA_PX)
+        sigma = max(1.4826 * float(np.median(np.abs(everyone[mask]))), min_sigma_px)
         new_mask = np.hypot(everyone[:, 0], everyone[:, 1]) <= reject_sigma * sigma
         if not robust and np.array_equal(new_mask, mask):
             break
@@ -304,6 +307,7 @@ def fit_camera(frames, camera0, free=DEFAULT_FREE, one_focal=False,
     fit.n_pairs = len(xy)
     fit.n_rejected = int(len(xy) - np.count_nonzero(mask))
     fit.scale_px = math.sqrt(scale2)
+    fit.jac = jac
     return fit
 
 

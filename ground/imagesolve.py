@@ -460,7 +460,7 @@ def frame_timing(image, what, exposure_s=None, row_time_s=None):
 
 def solve_image(image, camera, max_mag=None, tolerance_px=None,
                 ksigma=DEFAULT_KSIGMA, min_pixels=DEFAULT_MIN_PIXELS, log=None, fov_band=None,
-                velocity_km_s=None, motion=(None, None, 0.0)):
+                velocity_km_s=None, motion=(None, None, 0.0), refine=None):
     """Detect and solve a :class:`SkyImage` with a firmware ``camera`` of its frame (None:
     the FOV is searched over ``fov_band``, deg, :func:`blind_camera`):
     ``(report dict, DetectionResult, pipeline Result, camera)`` (report fields in the module
@@ -470,7 +470,12 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     observer's (ICRS, :func:`lodestar.ground.solve.observer_velocity_km_s`) for the aberration
     correction, or None.  ``motion``: ``(omega, exposure_s, row_time_s)``, the body rate
     (rad/s, camera frame; None: fitted from the frame) and the frame's timing
-    (:func:`frame_timing`)."""
+    (:func:`frame_timing`).  ``refine``: run after the first solve when the camera is
+    unknown, ``refine(image, det, camera, res, (db, db_path), ctx)`` with ``ctx`` the
+    ``(max_mag, tolerance_px, log, timings, velocity_km_s, motion)`` of :func:`solve_at`,
+    returning ``(camera, res, db, db_path, fit)`` (:func:`lodestar.ground.lensfit.refine`:
+    the lens fitted to the matched stars; ``fit.as_dict()`` is the report's ``lens``), or
+    None."""
 
     lo, hi = solve.MAG_RANGE
     if max_mag is not None and not (math.isfinite(max_mag) and lo < max_mag <= hi):
@@ -490,7 +495,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
     res = db = db_path = None
     if camera is not None:
         for attempt in range(2 if search else 1):   # the estimate, then the fitted scale
-            db, db_path, res, stage = _solve_at(image, det, camera, max_mag, tolerance_px,
+            db, db_path, res, stage = solve_at(image, det, camera, max_mag, tolerance_px,
                                                 log, timings, blind=search is not None,
                                                 velocity_km_s=velocity_km_s, motion=motion)
             if search is None or attempt or not (res.ok or res.status == S.IMPRECISE):
@@ -502,6 +507,11 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
             if abs(f_new / camera.fx - 1) < 1e-6:
                 break
             camera = _pinhole(camera.width, camera.height, f_new)
+    lens = None
+    if camera is not None and refine is not None:
+        camera, res, db, db_path, lens = refine(
+            image, det, camera, res, (db, db_path),
+            (max_mag, tolerance_px, log, timings, velocity_km_s, motion))
     if search is not None and camera is not None:
         search["fitted_deg"] = solve.camera_fov_deg(camera)[0]
     fov_h, fov_v = solve.camera_fov_deg(camera) if camera is not None else (None, None)
@@ -516,6 +526,7 @@ def solve_image(image, camera, max_mag=None, tolerance_px=None,
         "pixel_scale_arcsec": None if camera is None else
         solve.ARCSEC_PER_RAD / math.sqrt(camera.fx * camera.fy) / image.bin,
         "fov_search": search,
+        "lens": None if lens is None else lens.as_dict(),
         "matches": [], "sigma_cross_arcsec": None, "sigma_roll_arcsec": None,
         "n_stars": res.n_stars if res is not None else 0,
         "image": {"format": image.format, "width": image.width, "height": image.height,
@@ -558,21 +569,24 @@ def _pinhole(width, height, f_px):
     return Camera(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 
-def _solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
-              velocity_km_s=None, motion=(None, None, 0.0)):
+def solve_at(image, det, camera, max_mag, tolerance_px, log, timings, blind,
+              velocity_km_s=None, motion=(None, None, 0.0), database=None):
     """One flight solve of ``det`` through ``camera`` (a blind solve's database is that of
-    the FOV grid of :func:`lodestar.ground.solve.database_fov`), aberration corrected for
-    ``velocity_km_s`` when given."""
-    db_camera = camera
-    if blind:
-        fov_h = solve.database_fov(solve.camera_fov_deg(camera)[0])
-        db_camera = _pinhole(camera.width, camera.height,
-                             fovsearch.f_of_fov(camera.width, fov_h))
-    t = time.perf_counter()
-    db, db_path = onboard.star_database(
-        db_camera, max_mag, log=log,
-        density=solve.DEFAULT_DENSITY if max_mag is None else None)
-    timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
+    the FOV grid of :func:`lodestar.ground.solve.database_fov`; ``database``: ``(db,
+    db_path)`` given), aberration corrected for ``velocity_km_s`` when given."""
+    if database is not None:
+        db, db_path = database
+    else:
+        db_camera = camera
+        if blind:
+            fov_h = solve.database_fov(solve.camera_fov_deg(camera)[0])
+            db_camera = _pinhole(camera.width, camera.height,
+                                 fovsearch.f_of_fov(camera.width, fov_h))
+        t = time.perf_counter()
+        db, db_path = onboard.star_database(
+            db_camera, max_mag, log=log,
+            density=solve.DEFAULT_DENSITY if max_mag is None else None)
+        timings["database"] = timings.get("database", 0.0) + (time.perf_counter() - t) * 1e3
     omega, exposure_s, row_time_s = motion
     _data, res, stage = onboard.process(det, camera, db, omega=omega, exposure_s=exposure_s,
                                         row_time_s=row_time_s, tolerance_px=tolerance_px,
@@ -656,6 +670,14 @@ def format_report(path, r, camera_what):
         lines.append(f"  FOV        fitted {fs['fitted_deg']:.4f} deg (searched "
                      f"{fs['range_deg'][0]:g} .. {fs['range_deg'][1]:g} deg, "
                      f"{fs['candidates']} candidate quads, estimate {fs['estimate_deg']:.4f})")
+    if r.get("lens"):
+        ln = r["lens"]
+        lines.append(f"  lens       fitted from {ln['n_stars']} stars: k1 {ln['k1']:+.4f} +- "
+                     f"{ln['sigma_k1']:.4f}" + ("" if ln["k2"] is None else
+                                                 f", k2 {ln['k2']:+.4f} +- {ln['sigma_k2']:.4f}")
+                     + f", f {ln['f_px']:.2f} px, fy/fx {ln['aspect']:.5f}; sigma x"
+                     f"{ln['sigma_inflation'][0]:.2f} across, x{ln['sigma_inflation'][1]:.2f} "
+                     f"in roll")
     tm = r["timings_ms"]
     lines.append("  timings    ms: " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()))
     lines.append(f"  status     {r['status']}" +

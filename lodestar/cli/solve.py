@@ -7,6 +7,7 @@ import sys
 
 from lodestar import contract as C
 from lodestar.firmware import starid
+from lodestar.ground import lensfit
 from lodestar.ground.camerafile import read_camera_file
 from lodestar.ground.files import check_output, write_atomic
 from lodestar.ground.imagesolve import (
@@ -40,7 +41,9 @@ def add_parser(sub):
     cam.add_argument("--preset", choices=PRESETS, default=None,
                      help="camera preset (the image must have its size)")
     cam.add_argument("--fov", type=float, metavar="DEG",
-                     help="horizontal field of view edge to edge, degrees")
+                     help="horizontal field of view edge to edge, degrees (without "
+                          "--distortion the focal length and radial distortion are fitted to "
+                          "the matched stars)")
     cam.add_argument("--fov-error", type=float, metavar="DEG",
                      help="search the FOV within --fov +- this (deg); without --fov, --preset "
                           "and an image not of the default preset's size the FOV is searched "
@@ -85,7 +88,7 @@ def add_parser(sub):
                           "instant for every row)")
     p.add_argument("--annotate", metavar="FILE.png", help="write an annotated picture")
     p.add_argument("--wcs", metavar="FILE.wcs",
-                   help="write the solution's FITS WCS header (TAN, SIP with --distortion; "
+                   help="write the solution's FITS WCS header (TAN, SIP with a distortion; "
                         ".wcs, .fits or .fit)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --annotate or --wcs file")
@@ -151,10 +154,13 @@ def run(args):
         raise ValueError(f"--tolerance must be a number of pixels in (0, {widest:.0f}] (5 % "
                          f"of the field), got {args.tolerance}")
     motion = _motion(args, image, what)
+    # a lens not told (a searched FOV, or --fov alone) is fitted to the matched stars
+    unknown = camera is None or (args.fov is not None and args.distortion is None)
+    refine = lensfit.refine if unknown else None
     report, det, res, camera = solve_image(image, camera, args.mag, args.tolerance,
                                            args.ksigma, args.min_pixels, log=sys.stderr,
                                            fov_band=band, velocity_km_s=velocity,
-                                           motion=motion)
+                                           motion=motion, refine=refine)
     report["time"] = obstime
     report["camera"] = what
     failure = None

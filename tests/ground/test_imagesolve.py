@@ -1,8 +1,10 @@
 """``lodestar solve IMAGE``: a simulated estcube2 frame written as PNG, TIFF and FITS in 8, 12
-and 16 bits, in colour, with a sky gradient and hot pixels, binned, solves to the truth;
-images that cannot solve say so; bad input is refused with a message."""
+and 16 bits, in colour, with a sky gradient and hot pixels, binned, solves to the truth; a
+distorted frame solves right through the lens fitted to its stars; images that cannot solve
+say so; bad input is refused with a message."""
 
 import contextlib
+import dataclasses
 import errno
 import json
 import math
@@ -15,7 +17,9 @@ from PIL import Image
 
 from lodestar.cli import main
 from lodestar.cli.demo import attitude_error_arcsec
-from lodestar.ground import annotate, imagesolve, solve
+from lodestar.ground import annotate, imagesolve, lensfit, solve
+from lodestar.ground.campaign import trials
+from lodestar.ground.onboard import camera_settings
 from lodestar.sim import attitude, imageio, scene
 from lodestar.sim.presets import load_preset
 
@@ -405,15 +409,21 @@ def test_bad_input_exits_2(sky, tmp_path, capsys):
 
 def test_unknown_fov_is_searched_and_fitted(sky, capsys):
     """``--fov F --fov-error E`` (here 8 .. 30 deg, as with no FOV on an image of another
-    size): the quad search finds the scale, the firmware solves, the FOV is fitted to the
-    matched stars (within 0.5 %, in fact 1e-4) and reported with the pixel scale."""
+    size): the quad search finds the scale, the firmware solves, the focal length and k1 are
+    fitted to the matched stars (the FOV within 0.1 %, k1 0 within 5 sigma) and reported
+    with the pixel scale."""
     d, _f, truth = sky
     code, r, _err = _solve(capsys, d / "frame.png", "--fov", "19", "--fov-error", "11")
     assert code == 0
     _check_right(r, truth)
     assert r["fov_deg"] == pytest.approx(FOV, rel=1e-3)
+    lens = r["lens"]                    # the pinhole's lens: k1 0 within 5 sigma
+    assert lens["n_stars"] >= 10 and abs(lens["k1"]) < 5 * lens["sigma_k1"]
+    assert lens["sigma_k1"] < 0.01
+    assert r["pixel_scale_arcsec"] == pytest.approx(3600 * math.degrees(1 / lens["f_px"]),
+                                                    rel=1e-9)
     assert r["pixel_scale_arcsec"] == pytest.approx(
-        3600 * math.degrees(2 * math.tan(math.radians(r["fov_deg"]) / 2) / 2592), rel=1e-9)
+        3600 * math.degrees(2 * math.tan(math.radians(r["fov_deg"]) / 2) / 2592), rel=1e-3)
     assert r["fov_search"]["range_deg"] == [8.0, 30.0]
     assert r["fov_search"]["fitted_deg"] == pytest.approx(r["fov_deg"], rel=1e-12)
 
@@ -472,3 +482,55 @@ def test_a_turning_frame_holds_at_its_reported_instant(tmp_path, capsys):
                            (["--row-time", "-1"], "--row-time must be in [0, 1]")):
         assert main(["solve", str(png), *extra]) == 2, extra
         assert message in capsys.readouterr().err, extra
+
+
+@pytest.fixture(scope="module")
+def distorted(tmp_path_factory):
+    """``(png, frame, fov)``: the distortion study's lohmann frame 2 at k1 -0.2
+    (``benchmarks/bench_distortion.py``: 6 px of barrel at the frame's edge), as a PNG, and
+    its pinhole FOV."""
+    cam = dataclasses.replace(load_preset("lohmann"), k1=-0.2, k2=0.0, k3=0.0, p1=0.0, p2=0.0)
+    frame = trials.Frame("lohmann", camera_settings("lohmann", "tuned"),
+                         trials.trial_seed(0, "distortion", "lohmann", 2), cam=cam)
+    png = tmp_path_factory.mktemp("distorted") / "lohmann.png"
+    _png(png, frame.image)
+    return png, frame, math.degrees(2.0 * math.atan(cam.width / 2.0 / cam.fx_px))
+
+
+def _check_within(report, frame, k1):
+    """``report`` solved right: ``OK``, every match within 1.5 px of its star's truth, the
+    attitude within 5 sigma on each axis and the fitted ``k1`` within 3 sigma of ``k1``."""
+    assert report["status"] == "OK", report["reason"]
+    err = attitude_error_arcsec(report["q"], frame.q)
+    assert max(abs(err["x"]), abs(err["y"])) < 5 * report["sigma_cross_arcsec"], err
+    assert abs(err["roll"]) < 5 * report["sigma_roll_arcsec"], err
+    by_hip = {s["hip"]: s for s in frame.truth["sources"] if s["kind"] == "star"}
+    assert len(report["matches"]) >= lensfit.MIN_STARS
+    for m in report["matches"]:
+        assert math.hypot(m["x"] - by_hip[m["hip"]]["x"], m["y"] - by_hip[m["hip"]]["y"]) < 1.5
+    lens = report["lens"]
+    assert abs(lens["k1"] - k1) < 3 * lens["sigma_k1"], lens
+    assert "lens fitted from" in report["reason"]
+
+
+def test_a_distorted_frame_with_its_fov_solves_right_through_the_fitted_lens(distorted,
+                                                                            capsys):
+    """``--fov`` without ``--distortion`` on a k1 -0.2 lohmann frame: the focal length and
+    k1 fitted to the matched stars, the frame solved again through them, ``OK`` and right;
+    the same FOV stated as a pinhole (``--distortion 0 0 0 0 0``) is not ``OK``."""
+    png, frame, fov = distorted
+    code, report, _err = _solve(capsys, png, "--fov", fov)
+    assert code == 0
+    _check_within(report, frame, -0.2)
+    code, report, _err = _solve(capsys, png, "--fov", fov, "--distortion", 0, 0, 0, 0, 0)
+    assert code == 1 and report["lens"] is None
+
+
+@pytest.mark.slow
+def test_a_distorted_frame_solves_right_blind(distorted, capsys):
+    """The same frame with no FOV (the quad index is built: slow): searched, the lens
+    fitted, ``OK`` and right."""
+    png, frame, _fov = distorted
+    code, report, _err = _solve(capsys, png)
+    assert code == 0 and report["fov_search"]["fitted_deg"] is not None
+    _check_within(report, frame, -0.2)
