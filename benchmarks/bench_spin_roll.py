@@ -17,8 +17,8 @@ attitude at the epoch it prints, per ``--ksigma``:
   ``unseen`` (a track's true middle lies within ``unseen`` of its extent's middle);
 * interval constraints: with the cross-boresight axes as fitted, each star bounds the roll
   to ``(a_i +- (unseen_i + m)) / k_i`` (``a_i`` its along-track residual, ``k_i`` the px a
-  radian of roll moves it along its track, ``m`` each ``--margins`` px); per frame the
-  intersection's half-width (median, range) and how many frames' intersections hold the
+  radian of roll moves it along its track, ``m`` each ``--margins`` px); how many frames'
+  intersections are empty, the others' half-width (median, range), and how many hold the
   truth;
 * an oracle covariance: each star's along-track sigma the RMS measured for its class,
   across 0.3 px, not scaled by the residuals: the roll sigma (range) and how many frames'
@@ -163,11 +163,11 @@ def report(k, rows, margins):
         print(f"  {label:<10} {n:>6}  {value:>12.2f}  {excess:>10.2f}")
     for m in margins:
         spans = [interval(f["stars"], m) for f in frames]
-        half = [0.5 * (h - lo) * ARCSEC for lo, h in spans]
+        half = [0.5 * (h - lo) * ARCSEC for lo, h in spans if h >= lo]
         held = sum(lo <= f["roll"] <= h for (lo, h), f in zip(spans, frames))
-        print(f"  intervals, margin {m:g} px: half-width median {statistics.median(half):.0f}\""
-              f" ({min(half):.0f}-{max(half):.0f}\"), hold the truth in {held} of "
-              f"{len(frames)}")
+        print(f"  intervals, margin {m:g} px: {len(frames) - len(half)} empty, half-width "
+              f"median {statistics.median(half):.0f}\" ({min(half):.0f}-{max(half):.0f}\"), "
+              f"hold the truth in {held} of {len(frames)}")
     sigmas = [oracle(f["stars"], rms) for f in frames]
     within = sum(5.0 * math.sqrt(2 * c * c + r * r) <= LIMIT_ARCSEC for c, r in sigmas)
     roll = [r for _c, r in sigmas]
