@@ -832,18 +832,24 @@ class StarTracker:
         db = self.database
         drop = []
         if not radial:              # a fitted radial pattern is not in these residuals
-            m = Q.matrix(q)
-            h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
-            r = self._catalogue(star_ids)
-            drop = _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
-                                              w[i] / max(1.0 - h[i], MIN_FREEDOM)
-                                              for i in range(len(star_ids))])
+            drop = self._outliers(vectors, star_ids, w, q)
         if fluxes is not None:
             for i in _screen.brightness_outliers([fluxes[o] for o, _s in star_ids],
                                                      [db.star_mag(s) for _o, s in star_ids]):
                 if i not in drop:
                     drop.append(i)
         return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
+
+    def _outliers(self, vectors, star_ids, w, q):
+        """Indices of the residual outliers among ``star_ids`` (weights ``w``) at attitude
+        ``q``: :func:`lodestar.firmware.screen.residual_outliers` of each residual over its
+        variance less the fit's share (``1 - h_i``, :func:`screen.leverages`)."""
+        m = Q.matrix(q)
+        h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
+        r = self._catalogue(star_ids)
+        return _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
+                                          w[i] / max(1.0 - h[i], MIN_FREEDOM)
+                                          for i in range(len(star_ids))])
 
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
@@ -901,32 +907,57 @@ class StarTracker:
             star_ids
 
     def _contradicted(self, res, vectors, star_ids, w, omega, solved):
-        """Whether the frame contradicts the gyro's ``omega`` (``vectors`` turned to
-        ``epoch_s`` by it), setting ``RATE_CONTRADICTED`` with the difference in ``reason``:
-        only when at least :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a
-        residual rate (:func:`lodestar.firmware.smear.rate_fit`) beyond its covariance's
-        limit (:func:`lodestar.firmware.smear.rate_chi2_limit`; ``STREAK_RATE_CHI2`` when
+        """Whether the frame contradicts the gyro's ``omega`` (:meth:`_contradicts`), setting
+        ``RATE_CONTRADICTED`` with the difference in ``reason``.  Not when the matches
+        without their residual outliers (:meth:`_outliers`, the match screen's test, which
+        runs after this check) no longer contradict it and still number
+        :data:`lodestar.firmware.smear.MIN_CHECK_STARS`: one star off along its track (a
+        blend, a cut track end) otherwise fits a rate of its own (estcube2 at 1 deg/s, the
+        exact gyro: 2 of 100 frames at chi-square 35 and 42 against 19.8, 1.2 and 1.8
+        without its outlier).  A wrong gyro shears every star, so its frames contradict it
+        without their outliers too."""
+        found = self._contradicts(vectors, star_ids, w, omega, solved)
+        if found is None:
+            return False
+        drop = self._outliers(vectors, star_ids, w, solved[0])
+        if drop and len(star_ids) - len(drop) >= _smear.MIN_CHECK_STARS:
+            keep = [i for i in range(len(star_ids)) if i not in drop]
+            if self._contradicts(vectors, [star_ids[i] for i in keep], [w[i] for i in keep],
+                                 omega, solved) is None:
+                return False
+        d, chi2 = found
+        res.status = S.RATE_CONTRADICTED
+        _note(res, "omega contradicted by the frame's rate (off by " + _deg3(d) +
+              " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
+        return True
+
+    def _contradicts(self, vectors, star_ids, w, omega, solved):
+        """``(d, chi2)``, the frame's rate difference from the gyro's ``omega`` (rad/s;
+        ``vectors`` turned to ``epoch_s`` by it) and its chi-square, when the matches
+        ``star_ids`` (weights ``w``) contradict it, else None: only when at least
+        :data:`lodestar.firmware.smear.MIN_CHECK_STARS` matched stars fit a residual rate
+        (:func:`lodestar.firmware.smear.rate_fit`) beyond its covariance's limit
+        (:func:`lodestar.firmware.smear.rate_chi2_limit`; ``STREAK_RATE_CHI2`` when
         most stars' streaks side with the frame), that difference moves the median star over
         the exposure by more than the stars' own width (their median ``sigma_minor``: the
         PSF's second moment, which a smear leaves alone) or, too small for the streaks to
         show, moves the attitude at the epoch beyond its own bound (:func:`_shifted`: a
         roll rate twice the truth's at 1 deg/s, 330" off against a roll sigma of 12"), and
-        the streaks (second moments)
-        do not side with the gyro (:func:`lodestar.firmware.smear.streak_votes`: more than a
-        third of the stars, net; the frame's rate has its own noise, so a sign error's votes
-        are near zero, not exactly zero).  A rate
-        from few, short or noisy streaks never overrides the gyro."""
+        the streaks (second moments) do not side with the gyro
+        (:func:`lodestar.firmware.smear.streak_votes`: more than a third of the stars, net;
+        the frame's rate has its own noise, so a sign error's votes are near zero, not
+        exactly zero).  A rate from few, short or noisy streaks never overrides the gyro."""
         flat, exposure = self._frame
         st = self.settings
         if st.row_time_s == 0 or exposure is None or len(star_ids) < _smear.MIN_CHECK_STARS:
-            return False
+            return None
         times = self._times(exposure, len(flat) // 3)
         dts = [times[o] - st.epoch_s for o, _s in star_ids]
         verdict = _smear.check([vectors[o] for o, _s in star_ids], self._catalogue(star_ids),
                                dts, w, solved[0], True, False, self.min_sigma_rad,
                                self.sigma_rad)
         if verdict is None or verdict[1] is None or not verdict[1] > _smear.STREAK_RATE_CHI2:
-            return False
+            return None
         d, chi2 = verdict
         stars = [(vectors[o], m) for (o, _s), m in zip(star_ids, _moments(
             flat, [o for o, _s in star_ids]))]
@@ -935,15 +966,12 @@ class StarTracker:
         if not _smear.visible(stars, d, scale) and not (
                 chi2 > SHIFT_CHI2_FACTOR * _smear.rate_chi2_limit(len(stars))
                 and _shifted(d, dts, w, solved)):
-            return False
+            return None
         votes = _smear.streak_votes(stars, omega, frame, scale)
         if 3 * votes < -len(stars) or (2 * votes < len(stars) and
                                        not chi2 > _smear.rate_chi2_limit(len(stars))):
-            return False
-        res.status = S.RATE_CONTRADICTED
-        _note(res, "omega contradicted by the frame's rate (off by " + _deg3(d) +
-              " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
-        return True
+            return None
+        return verdict
 
     def _radial(self, res, vectors, star_ids, w, times, ref, solved):
         """``solved``, or when the matched stars' residuals show a radial pattern (a lens
