@@ -99,16 +99,11 @@ def _read_wide(data, base, plan, limbs):
     return limbs
 
 
-def _wide(limbs, k):
-    """The value of wide field ``k`` (:data:`WIDE` order) from its limbs."""
-    return (limbs[3 * k] << 30) | (limbs[3 * k + 1] << 15) | limbs[3 * k + 2]
-
-
 class WideRecord(C.BlobRecord):
     """A ``contract.BlobRecord`` whose :data:`WIDE` fields are held as 15-bit limbs in
-    ``limbs`` (:func:`_read_wide`), read as ints through properties (which allocate the long
-    ones): what :func:`checked_records` yields, so that the flight pipeline reads a packet
-    without long ints (``centroids.moments`` reads the limbs)."""
+    ``limbs`` (:func:`_read_wide`) and read as ints (long ones allocated) when asked: what
+    :func:`checked_records` yields, so that the flight pipeline reads a packet without long
+    ints (``centroids.moments`` reads the limbs)."""
 
     __slots__ = ("limbs",)
 
@@ -118,11 +113,13 @@ class WideRecord(C.BlobRecord):
                 setattr(self, name, 0)
         self.limbs = [0] * (3 * len(WIDE))
 
-    sx = property(lambda self: _wide(self.limbs, 0))
-    sy = property(lambda self: _wide(self.limbs, 1))
-    sxx = property(lambda self: _wide(self.limbs, 2))
-    syy = property(lambda self: _wide(self.limbs, 3))
-    sxy = property(lambda self: _wide(self.limbs, 4))
+    def __getattr__(self, name):
+        """A wide field's value from its limbs (called for the attributes not held)."""
+        if name not in WIDE:
+            raise AttributeError(name)
+        k = 3 * WIDE.index(name)
+        limbs = self.limbs
+        return (limbs[k] << 30) | (limbs[k + 1] << 15) | limbs[k + 2]
 
 
 class _Header:
