@@ -60,15 +60,13 @@ triangles' sort, the handedness tests: about 1,500 guest ticks on the Cortex-M4F
 
 @native
 def _observed_angles(b, n):
-    """Angles between the first ``n`` observed vectors, one ``array`` row per star
-    (``[i][j]``): rows of 64 bytes at 16 stars, where one flat array is a 1 KiB block that a
-    fragmented heap may not have at the start of a search."""
-    ang = [G.zeros(n) for _i in range(n)]
+    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``."""
+    ang = G.zeros(n * n)
     for i in range(n):
         for j in range(i + 1, n):
             a = G.angle(b[i], b[j])
-            ang[i][j] = a
-            ang[j][i] = a
+            ang[i * n + j] = a
+            ang[j * n + i] = a
     return ang
 
 
@@ -80,16 +78,15 @@ class _Search(Search):
     def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
         # the search's buffers (the observed angles, the pair ranges of the pairs i < j,
-        # the two sides' pair index: 5 KiB at 16 stars, no block above 512 bytes) live while
-        # it runs: the pipeline collects before a lost-in-space search, and a tracking
-        # frame's heap does not hold them
+        # the two sides' pair index: 5 KiB at 16 stars, no block above 1 KiB) live while it
+        # runs: the pipeline collects before a lost-in-space search, and a tracking frame's
+        # heap does not hold them
         self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
-        size = self.n * (self.n - 1) // 2           # one per observed pair i < j
-        self.starts = array("i", range(size))
+        size = self.n * (self.n - 1)                # two per observed pair i < j
+        self.ranges = array("i", range(size))
         for c in range(size):
-            self.starts[c] = -1                     # not queried yet
-        self.stops = array("i", range(size))
+            self.ranges[c] = -1                     # not queried yet
         self.sides = (_side(), _side())
 
     def ptol(self, i, j):
@@ -103,20 +100,21 @@ class _Search(Search):
         n = self.n
         if i > j:
             i, j = j, i
-        c = (i * (2 * n - i - 1) >> 1) + j - i - 1       # the pair's place, i < j
-        starts = self.starts
-        if starts[c] < 0:
-            t = self.ang[i][j]
+        c = i * (2 * n - i - 1) + 2 * (j - i - 1)       # the pair's place, i < j, times 2
+        r = self.ranges
+        if r[c] < 0:
+            t = self.ang[i * n + j]
             tol = self.ptol(i, j)
-            starts[c], self.stops[c] = self.db.pairs_in_range(t - tol, t + tol)
-        return starts[c], self.stops[c]
+            r[c], r[c + 1] = self.db.pairs_in_range(t - tol, t + tol)
+        return r[c], r[c + 1]
 
     @native
     def bound(self, i, j, k):
         a = self.ang
+        n = self.n
         h = self.half
         tol = self.tol + max(h[i], h[j], h[k])
-        return tol * (math.sin(a[i][j]) + math.sin(a[j][k]) + math.sin(a[k][i]))
+        return tol * (math.sin(a[i * n + j]) + math.sin(a[j * n + k]) + math.sin(a[k * n + i]))
 
     @native
     def _index(self, start, stop, side):
@@ -222,15 +220,15 @@ class _Search(Search):
         db = self.db
         b = self.b
         n = self.n
-        ang_j, ang_k = self.ang[j], self.ang[k]
+        ang = self.ang
         ci, cj, ck = cat
         vi, vj, vk = db.star_vector(ci), db.star_vector(cj), db.star_vector(ck)
         for r in range(n):
             if r == i or r == j or r == k:
                 continue
             s = self.candidates(r, i)
-            t_rj = ang_j[r]
-            t_rk = ang_k[r]
+            t_rj = ang[r * n + j]
+            t_rk = ang[r * n + k]
             tol_rj = self.ptol(r, j)
             tol_rk = self.ptol(r, k)
             bound = self.bound(i, j, r)
