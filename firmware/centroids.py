@@ -16,6 +16,7 @@ import math
 from lodestar import contract as C
 from lodestar.firmware.emit import native
 from lodestar.firmware.geometry import finite
+from lodestar.firmware.packet import WideRecord
 
 DEFAULT_MAX_STARS = 32
 """Stars kept per frame: enough for identification and attitude, few enough for the MCU."""
@@ -116,10 +117,19 @@ def moments(rec):
     """``(x, y, cxx, cyy, cxy, det)`` of a record, or None when it has no valid centroid.
 
     ``det = cxx*cyy - cxy^2``.  Integer records are computed from exact integer numerators;
-    float records (another source, or tests) with the float formulas.  None when ``s0`` is
-    not a positive finite number, a moment is not finite, the centroid lies outside the
-    bounding box, or the moment matrix is not positive semi-definite.
+    float records (another source, or tests) with the float formulas; a
+    ``packet.WideRecord`` (the flight decoder's) from its limbs (:func:`_limb_moments`) when
+    its moments allow.  None when ``s0`` is not a positive finite number, a moment is not
+    finite, the centroid lies outside the bounding box, or the moment matrix is not positive
+    semi-definite.
     """
+    if rec.__class__ is _WIDE_RECORD:
+        m = _limb_moments(rec.s0, rec.limbs)
+        if m is not None:
+            x, y = m[0], m[1]
+            if rec.xmin <= x <= rec.xmax and rec.ymin <= y <= rec.ymax:
+                return m
+            return None
     s0, sx, sy = rec.s0, rec.sx, rec.sy
     sxx, syy, sxy = rec.sxx, rec.syy, rec.sxy
     if not (s0 - s0 == 0 and s0 > 0):       # finite(s0), inline: this runs for every record
@@ -169,6 +179,72 @@ def moments(rec):
     if not (rec.xmin <= x <= rec.xmax and rec.ymin <= y <= rec.ymax):
         return None
     return x, y, cxx, cyy, cxy, det
+
+
+_WIDE_RECORD = WideRecord
+_CLEAR = 0.01
+"""Least ``det / (cxx cyy)`` and ``cxx / (1 + cxx)`` (the same for ``cyy``) of a moment
+matrix :func:`_limb_moments` computes in floats: below, the float formulas' rounding (a few
+units of the last place of ``cxx + 1``) could matter to the sign or the minor axis, and the
+exact integer formulas decide (a single-row blob, a diagonal track of elongation above
+about 20)."""
+
+
+@native
+def _limb_moments(s0, limbs):
+    """``(x, y, cxx, cyy, cxy, det)`` of a record from ``s0`` and the 15-bit limbs of its
+    wide moments (``packet.WideRecord``: ``sx, sy, sxx, syy, sxy``), in small ints only, or
+    None when they do not allow it (then :func:`moments` computes from the integers).
+
+    The centroid is ``c + r / s0`` with ``(c, r) = divmod(sx, s0)`` exactly as
+    :func:`moments` computes it; the second moments about the integer point ``(cx, cy)``
+    (``kxx = sxx - cx (sx + rx)``, ``kyy``, ``kxy = sxy - cy sx - cx ry``) are exact small
+    ints (at most ``s0 (c + 1)``) and the central ones ``k / s0 - f f'`` with ``f = r / s0 <
+    1``: a few units of the last place of ``c + 1`` against the exact numerators' one of
+    ``c`` (:data:`_CLEAR`), and no long int (the exact numerators exceed a small int for every
+    star brighter than ``s0`` = 2**15: two heap blocks each, about 670 bytes a record)."""
+    if not s0 > 0 or limbs[0] or limbs[3]:
+        return None                         # sx or sy not below 2**30
+    sx = (limbs[1] << 15) | limbs[2]
+    sy = (limbs[4] << 15) | limbs[5]
+    cx = sx // s0
+    rx = sx - cx * s0
+    cy = sy // s0
+    ry = sy - cy * s0
+    kxx = _less(limbs, 6, cx, sx + rx, 0, 0)
+    kyy = _less(limbs, 9, cy, sy + ry, 0, 0)
+    kxy = _less(limbs, 12, cy, sx, cx, ry)
+    if kxx is None or kyy is None or kxy is None:
+        return None
+    fx = rx / s0
+    fy = ry / s0
+    cxx = kxx / s0 - fx * fx
+    cyy = kyy / s0 - fy * fy
+    cxy = kxy / s0 - fx * fy
+    det = cxx * cyy - cxy * cxy
+    if not (cxx > _CLEAR * (1.0 + cxx) and cyy > _CLEAR * (1.0 + cyy) and
+            det > _CLEAR * cxx * cyy):
+        return None
+    return cx + fx, cy + fy, cxx, cyy, cxy, det
+
+
+@native
+def _less(limbs, k, a, p, b, q):
+    """``v - a p - b q`` for the wide moment ``v`` at ``limbs[k:k + 3]`` (``h 2**30 + m
+    2**15 + l``), ``0 <= a, b < 2**15`` and ``0 <= p, q < 2**31``, when it is a small int
+    (``-2**30 <= . < 2**30``), else None: limb by limb with borrows, every intermediate
+    below ``2**30``."""
+    p1 = p >> 15
+    q1 = q >> 15
+    low = limbs[k + 2] - a * (p & 0x7FFF) - b * (q & 0x7FFF)
+    mid = limbs[k + 1] - a * p1 - b * q1 + (low >> 15)
+    high = limbs[k] + (mid >> 15)
+    value = ((mid & 0x7FFF) << 15) | (low & 0x7FFF)
+    if high == 0:
+        return value
+    if high == -1:
+        return value - 0x40000000
+    return None
 
 
 @native

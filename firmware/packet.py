@@ -33,6 +33,14 @@ def _plan(fields):
 
 _HEADER_PLAN = _plan(C.HEADER_FIELDS)
 _RECORD_PLAN = _plan(C.RECORD_FIELDS)
+SMALL_BITS = 30
+"""Bits of the widest unsigned value a MicroPython small int holds on a 32-bit MCU (31-bit
+signed small ints): a field wider than this is *wide*, read by :func:`checked_records` as
+15-bit limbs (:class:`WideRecord`)."""
+WIDE = tuple(name for name, bits in C.RECORD_FIELDS if bits > SMALL_BITS)
+"""The wide record fields (the moments but ``s0``), in record order."""
+_NARROW_PLAN = tuple(entry for entry in _RECORD_PLAN if entry[0] not in WIDE)
+_WIDE_PLAN = tuple(entry[1:] for entry in _RECORD_PLAN if entry[0] in WIDE)
 _MIN_BYTES = C.packet_bytes(0)
 _CRC_HEX = "{:0" + str(2 * C.CRC_BYTES) + "X}"
 _CRC_MASK = (1 << (8 * C.CRC_BYTES)) - 1
@@ -63,6 +71,55 @@ def _read(data, base, plan, into):
             value = (value << (8 - tail_drop)) | (data[end] >> tail_drop)
         put(into, name, value)
     return into
+
+
+@native
+def _read_wide(data, base, plan, limbs):
+    """Each wide field of ``plan`` (``(first, last, head_mask, tail_drop)`` per field,
+    :data:`WIDE` order) from the record starting at byte ``base`` of ``data`` as three limbs
+    ``h, m, l`` (``value = h 2**30 + m 2**15 + l``) stored at ``limbs[3k:3k + 3]``: the
+    field's last three bytes and the bytes before them are accumulated apart, so a value
+    below ``2**30`` at least (every moment of a star) is read without a long int (a long
+    int is two heap blocks, and every record has five such fields)."""
+    k = 0
+    for first, last, head_mask, tail_drop in plan:
+        i = base + first
+        tail = base + last - 2              # the last three bytes: 24 bits
+        hi = data[i] & head_mask
+        i += 1
+        while i < tail:
+            hi = (hi << 8) | data[i]
+            i += 1
+        lo = ((data[tail] << 16) | (data[tail + 1] << 8) | data[tail + 2]) >> tail_drop
+        rest = (lo >> 15) | (hi << (9 - tail_drop))     # value >> 15
+        limbs[k] = rest >> 15
+        limbs[k + 1] = rest & 0x7FFF
+        limbs[k + 2] = lo & 0x7FFF
+        k += 3
+    return limbs
+
+
+class WideRecord(C.BlobRecord):
+    """A ``contract.BlobRecord`` whose :data:`WIDE` fields are held as 15-bit limbs in
+    ``limbs`` (:func:`_read_wide`) and read as ints (long ones allocated) when asked: what
+    :func:`checked_records` yields, so that the flight pipeline reads a packet without long
+    ints (``centroids.moments`` reads the limbs)."""
+
+    __slots__ = ("limbs",)
+
+    def __init__(self):
+        for name in C.RECORD_NAMES:
+            if name not in WIDE:
+                setattr(self, name, 0)
+        self.limbs = [0] * (3 * len(WIDE))
+
+    def __getattr__(self, name):
+        """A wide field's value from its limbs (called for the attributes not held)."""
+        if name not in WIDE:
+            raise AttributeError(name)
+        k = 3 * WIDE.index(name)
+        limbs = self.limbs
+        return (limbs[k] << 30) | (limbs[k + 1] << 15) | limbs[k + 2]
 
 
 class _Header:
@@ -236,12 +293,14 @@ def checked_records(data, header, into=None):
     limits = moment_limits(header["pixel_bits"])
     bounds = _record_bounds(header, limits)
     if into is None:
-        into = C.BlobRecord()
+        into = WideRecord()
+    limbs = into.limbs
     base = C.HEADER_BYTES
     for index in range(header["n_records"]):
-        _read(data, base, _RECORD_PLAN, into)
+        _read(data, base, _NARROW_PLAN, into)
+        _read_wide(data, base, _WIDE_PLAN, limbs)
         base += C.RECORD_BYTES
-        if not _record_good(into, bounds):
+        if not _record_good(into, limbs, bounds):
             reason = record_problem(into, header, limits)
             if reason:
                 raise BadRecord(S.PACKET_BAD_RECORD, "record {}: {}".format(index, reason))
@@ -250,24 +309,27 @@ def checked_records(data, header, into=None):
 
 def _record_bounds(header, limits):
     """What :func:`_record_good` compares a record of the frame ``header`` describes with:
-    ``(width, height, full scale, moment limits in contract.MOMENTS order)``."""
+    ``(width, height, full scale, the limit of s0, the limits of the wide moments shifted
+    down by 30 bits)``: a wide moment's limit is ``2**k - 1`` with ``k >= 30``, so the
+    moment is within it exactly when its top limb is within the shifted limit."""
     return (header["width"], header["height"], C.full_scale(header["pixel_bits"]),
-            tuple(limits[name] for name in C.MOMENTS))
+            limits["s0"], tuple(limits[name] >> 30 for name in WIDE))
 
 
 @native
-def _record_good(rec, bounds):
+def _record_good(rec, limbs, bounds):
     """True when :func:`record_problem` finds nothing, with no saturated moments: the
     common case in one expression, without the messages (any other record goes through
-    :func:`record_problem`, which names its problem)."""
-    width, height, full, (l0, l1, l2, l3, l4, l5) = bounds
+    :func:`record_problem`, which names its problem).  ``limbs``: the record's wide moments
+    (:func:`_read_wide`)."""
+    width, height, full, l0, (l1, l2, l3, l4, l5) = bounds
     n, nsat, peak = rec.n, rec.nsat, rec.peak
     xmin, xmax, ymin, ymax = rec.xmin, rec.xmax, rec.ymin, rec.ymax
     return (not rec.flags and xmin <= xmax < width and ymin <= ymax < height and
             peak <= full and nsat <= n and (not nsat or peak == full) and
             0 < n <= (xmax - xmin + 1) * (ymax - ymin + 1) and rec.s0 <= l0 and
-            rec.sx <= l1 and rec.sy <= l2 and rec.sxx <= l3 and rec.syy <= l4 and
-            rec.sxy <= l5)
+            limbs[0] <= l1 and limbs[3] <= l2 and limbs[6] <= l3 and limbs[9] <= l4 and
+            limbs[12] <= l5)
 
 
 def check(data, records=True):

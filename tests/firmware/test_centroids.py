@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lodestar import contract as C
-from lodestar.firmware import centroids
+from lodestar.firmware import centroids, packet
 from lodestar.firmware.camera import Camera
 from lodestar.golden import DetectorConfig, detect_frame
 from lodestar.golden.starfield import star_frame
@@ -106,6 +106,46 @@ def test_moments_are_exact_for_golden_records():
         assert y == pytest.approx(float(ey), rel=1e-15, abs=1e-12)
         assert cxx == float(exx) and cyy == float(eyy) and cxy == float(exy)
         assert det == pytest.approx(float(exx * eyy - exy * exy), rel=1e-12, abs=1e-300)
+
+
+def wide_record(rec):
+    """``rec`` as the flight decoder yields it (``packet.WideRecord``, moments in limbs)."""
+    out = packet.WideRecord()
+    for name in C.RECORD_NAMES:
+        if name not in packet.WIDE:
+            setattr(out, name, getattr(rec, name))
+    for k, name in enumerate(packet.WIDE):
+        v = getattr(rec, name)
+        out.limbs[3 * k:3 * k + 3] = [v >> 30, (v >> 15) & 0x7FFF, v & 0x7FFF]
+    return out
+
+
+def test_wide_records_give_the_exact_moments_to_a_few_units_of_the_last_place():
+    """A ``packet.WideRecord``'s moments come from small ints (``_limb_moments``): the
+    centroid as the exact path's, the second moments within a few units of the last place of
+    ``1 + c``; a blob with no width falls back to the exact path (the same values)."""
+    records = star_records(1) + star_records(2, pixel_bits=16, flux_range=(1e4, 1e7))
+    records.append(record_from_weights(gaussian_weights(6.0, 1.0, -0.7), 3000, 1900))
+    fast = 0
+    for rec in records:
+        exact = centroids.moments(rec)
+        got = centroids.moments(wide_record(rec))
+        assert got[:2] == exact[:2]
+        for a, b in zip(got[2:5], exact[2:5]):
+            assert abs(a - b) <= 1e-14 * (1.0 + abs(b))
+        assert got[5] == pytest.approx(exact[5], rel=1e-12)
+        _, _, cxx, cyy, _, det = exact
+        clear = cxx > 0.02 * (1 + cxx) and cyy > 0.02 * (1 + cyy) and det > 0.02 * cxx * cyy
+        taken = centroids._limb_moments(rec.s0, wide_record(rec).limbs) is not None
+        assert taken or not clear       # every blob with a width takes the small-int path
+        fast += taken
+    assert fast > 60
+    row = record_from_weights(np.array([[5, 5, 5, 5]]), 10, 20)
+    assert centroids._limb_moments(row.s0, wide_record(row).limbs) is None
+    assert centroids.moments(wide_record(row)) == centroids.moments(row)
+    huge = record_from_weights(np.array([[60000, 60000], [60000, 60000]]) * 1000, 4000, 4000)
+    assert huge.sx >= 1 << 30           # beyond a small int: the exact path
+    assert centroids.moments(wide_record(huge)) == centroids.moments(huge)
 
 
 def test_moments_match_numpy_weighted_covariance():

@@ -287,6 +287,32 @@ def test_random_byte_corruption_never_passes(edits):
 # --------------------------------------------------------------------------------------
 
 
+def test_wide_records_hold_each_wide_moment_in_limbs():
+    """``checked_records`` reads the wide moments as 15-bit limbs (no long int), and the
+    record's properties give the decoder's ints, small and long, up to the field's top."""
+    data = codec.encode(base_result())
+    assert packet.WIDE == ("sx", "sy", "sxx", "syy", "sxy")
+    for name in packet.WIDE:
+        top = field_top(name, 1)
+        for value in (0, 1, (1 << 30) - 1, 1 << 30, (1 << 33) + 12345, top):
+            patched = patch(data, [(name, value, 1)])
+            code, header, _ = packet.check(patched, records=False)
+            got = []
+            try:
+                for rec in packet.checked_records(patched, header):
+                    h, m, low = rec.limbs[3 * packet.WIDE.index(name):][:3]
+                    got.append((getattr(rec, name), h, m, low))
+            except packet.BadRecord:
+                got = None      # beyond the moment's limit: check gives the same verdict
+            if got is None:
+                assert packet.check(patched)[0] == S.PACKET_BAD_RECORD
+                continue
+            v, h, m, low = got[1]
+            assert v == value and (h << 30) + (m << 15) + low == value
+            assert 0 <= m < 1 << 15 and 0 <= low < 1 << 15
+            assert isinstance(rec, C.BlobRecord)
+
+
 def test_checked_records_check_each_record_as_check_does():
     data = codec.encode(base_result())
     code, header, _ = packet.check(data, records=False)
