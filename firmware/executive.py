@@ -48,9 +48,19 @@ kept in the result for diagnostics, never adopted (not reported, saved or coaste
 Without a good attitude (``ACQUIRE``) it guides the next frame only: that frame tracks from
 it (``guide``; a tracking frame verifies its own identification and falls back to lost in
 space), a tenth of a lost-in-space frame's time, so a fast spin that solves only loosely
-is still read at the frame rate.  The watchdog (``feed()``;
-``machine.WDT`` on the MCU) is fed at every stage boundary and, through ``Settings.clock``,
-at every stage boundary inside ``process``.
+is still read at the frame rate.  Fused attitude: every verified frame (``OK`` or
+``IMPRECISE``, finite sigmas) updates ``fq``, the last one carried on the gyro to its epoch
+with its variances grown by the declared gyro error (``gyro_bias_rad_s`` linearly,
+``gyro_noise_rad_s`` in quadrature, times ``dt``) and combined per camera axis (x, y: sigma
+cross; z: sigma roll) with the frame's; an axis beyond the gate (``fuse_gate``, a chi-square)
+restarts it from the frame.  When its 5 sigma bound ``5 sqrt(2 sc^2 + sr^2)`` is within
+``Settings.max_error_arcsec`` it is adopted as the attitude (``adopted`` 2, ``TRACK``; the
+record's sigmas are the fused ones, its status the frame's); an ``OK`` frame is adopted fused
+(never looser).  Dropped by a frame without an attitude, ``RATE_CONTRADICTED``, a coast past
+``coast_frames``, a commanded acquire, a database change and a boot; restarted by a gap over
+``fuse_gap_s`` or a frame without the gyro's rate (``docs/mcu_board.md``).  The watchdog
+(``feed()``; ``machine.WDT`` on the MCU) is fed at every stage boundary and, through
+``Settings.clock``, at every stage boundary inside ``process``.
 
 Telemetry: one record of ``contract.telemetry.BYTES`` per step, packed into one
 preallocated buffer (its layout: :mod:`lodestar.contract.telemetry`) and handed to
@@ -214,7 +224,11 @@ class Executive(object):
     row before the next recovery level; ``max_prior_age_s``: oldest stored attitude used
     after a reset; ``build``: the gateware build byte this software expects
     (``contract.build_id`` of the board's configuration; None: not checked): a gateware of
-    another build puts the loop in ``SAFE`` at boot."""
+    another build puts the loop in ``SAFE`` at boot.  ``gyro_bias_rad_s``,
+    ``gyro_noise_rad_s``: the declared gyro error per axis (rad/s) that grows the fused
+    attitude's variances; ``fuse_gate``: the chi-square per axis beyond which a frame restarts
+    it; ``fuse_gap_s``: the longest time it is carried to the next frame (module
+    docstring)."""
 
     def __init__(self, link, tracker, clock, sensor=None, sensor_settings=None, registers=None,
                  watchdog=None, store=None, gyro=None, telemetry=None, now_ms=None,
