@@ -873,3 +873,41 @@ def test_a_time_gap_or_a_lost_track_drops_the_fused_estimate():
     assert exe.q is not None and exe.bad == 5 and exe.fq is not None
     run(exe, 1)
     assert exe.q is None and exe.fq is None and exe.state == executive.ACQUIRE
+
+
+_MP_FUSED = r'''
+from lodestar.firmware import executive
+from lodestar.firmware import status as S
+clock = fakes.Clock()
+OUT = [fakes.result(S.IMPRECISE, 60.0 * (-1) ** k) for k in range(10)] + \
+    [fakes.result(S.IMPRECISE, 5000.0)]
+tracker = fakes.Tracker(clock, OUT)
+tracker.settings.max_error_arcsec = 180.0
+exe = executive.Executive(fakes.Link(clock, [fakes.OK_FRAME] * 11), tracker, clock,
+                          sensor=fakes.Sensor(clock), gyro=lambda: (0.0, 0.0, 0.0),
+                          gyro_bias_rad_s=0.0, gyro_noise_rad_s=0.0)
+for k in range(13):
+    exe.step()
+    if k >= 11:
+        ROW = (exe.f_n, exe.adopted, exe.state, exe.f_var[0], exe.f_var[2], exe.fq[2], exe.fq[3])
+        print(*ROW)
+'''
+
+
+def test_the_same_fusion_on_micropython(micropython):
+    """The fusion in float32 (MicroPython's 30-bit floats): the same fused variances,
+    attitude and adoption as on CPython, and the same restart at a 5000" frame."""
+    source = Path(fakes.__file__).read_text()
+    script = "class _Fakes:\n    pass\n" + source + "\nfakes = _Fakes()\n" + "".join(
+        "fakes.{0} = {0}\n".format(name) for name in ("Clock", "Link", "Sensor", "Tracker",
+                                                      "OK_FRAME", "result")) + _MP_FUSED
+    code, out = micropython(script)
+    assert code == 0, out
+    lines = []
+    exec(compile(_MP_FUSED.replace("print(*ROW)", "LINES.append(ROW)"), "mp", "exec"),
+         {"fakes": fakes, "LINES": lines})
+    got = [[float(v) for v in line.split()] for line in out.strip().split("\n")]
+    assert [g[:3] for g in got] == [list(x[:3]) for x in lines]
+    assert [x[:2] for x in lines] == [(10, 2), (1, 0)]            # adopted, then restarted
+    for g, x in zip(got, lines):
+        assert all(math.isclose(a, b, rel_tol=1e-5, abs_tol=1e-6) for a, b in zip(g[3:], x[3:]))
