@@ -1019,8 +1019,8 @@ class Executive(object):
             return False
 
     def _adopt_fused(self, result):
-        """The fused attitude as the executive's (``q_sigma``: its sigmas), unless the frame
-        is ``OK`` and alone tighter (a restarted estimate is the frame itself)."""
+        """The fused attitude as the executive's (``q_sigma``: its sigmas); never looser than
+        the frame alone (a fusion only shrinks the variances, a restart is the frame)."""
         var = self.f_var
         self.q = self.fq
         self.adopted = 2
