@@ -108,8 +108,7 @@ def at_limit(v, limit):
     loose = v.get("loose")
     if loose is None:
         return None
-    c, r = loose["sigma_arcsec"]
-    if not pipeline.BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r) <= limit:
+    if not pipeline.error_bound(*loose["sigma_arcsec"]) <= limit:
         return None
     return loose
 

@@ -25,7 +25,7 @@ import math
 import multiprocessing
 import statistics
 
-from lodestar.firmware.pipeline import BOUND_SIGMAS
+from lodestar.firmware.pipeline import error_bound
 from lodestar.ground.campaign import trials
 from lodestar.ground.onboard import camera_settings
 from lodestar.ground.truth import WRONG_ARCSEC, WRONG_SIGMAS
@@ -57,12 +57,6 @@ LOOSE_LIMIT_ARCSEC = 1080.0
 the default before issue 33's 180"."""
 
 
-def bound(sigma):
-    """The 5-sigma bound on the total error of sigmas ``[cross, roll]`` (arcsec), as
-    ``StarTracker._precise`` computes it."""
-    return BOUND_SIGMAS * math.sqrt(2.0 * sigma[0] * sigma[0] + sigma[1] * sigma[1])
-
-
 def issue_wrong(error, sigma):
     """Issue 33's wrong: beyond 5 sigma on an axis, or beyond 180" in total."""
     return (max(abs(error[0]), abs(error[1])) > WRONG_SIGMAS * sigma[0] or
@@ -77,7 +71,7 @@ def at_limit(vs, limit):
     reported sigmas: exact)."""
     sols = [(v["error_arcsec"], v["sigma_arcsec"]) for v in vs if v["solved"] or v["wrong"]]
     sols += [(v["loose"]["error_arcsec"], v["loose"]["sigma_arcsec"]) for v in vs
-             if "loose" in v and bound(v["loose"]["sigma_arcsec"]) <= limit]
+             if "loose" in v and error_bound(*v["loose"]["sigma_arcsec"]) <= limit]
     return len(sols), sum(issue_wrong(e, s) for e, s in sols)
 
 

@@ -153,12 +153,34 @@ MIN_FREEDOM = 0.1
 """Smallest ``1 - h_i`` a match's residual variance is scaled by in the match screen (a star
 that is most of the fit says little about itself)."""
 BOUND_SIGMAS = 5.0
-"""Sigmas of the bound ``max_error_arcsec`` limits (:meth:`StarTracker._precise`)."""
+"""Sigmas of the bound ``max_error_arcsec`` limits (:func:`precise`)."""
 MAX_BOUNDED_SMEAR_PX = 6.0
 """Longest smear the streaks may allow (:func:`lodestar.firmware.smear.smear_bound_px`) for a
 frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
 streaks bound its smear by about 3.5 px, and the shear this bound allows over the read-out
 is folded into the sigma; beyond it the frame is ``RATE_UNKNOWN``."""
+
+
+def error_bound(sigma_cross, sigma_roll):
+    """The :data:`BOUND_SIGMAS` bound (arcsec) on the total error of an attitude of 1-sigma
+    ``sigma_cross`` (each axis across the boresight) and ``sigma_roll`` (arcsec),
+    ``5 sqrt(2 sigma_cross^2 + sigma_roll^2)``: each axis at its own 5 sigma."""
+    return BOUND_SIGMAS * math.sqrt(2.0 * sigma_cross * sigma_cross + sigma_roll * sigma_roll)
+
+
+def precise(res, limit):
+    """``IMPRECISE`` for the solution ``res`` whose :func:`error_bound` exceeds ``limit``
+    (``Settings.max_error_arcsec``, arcsec; None: any), noted in ``reason``: an ``OK``
+    attitude within 5 sigma on every axis is then within the limit in total (issue 33's two
+    criteria of a wrong attitude become one).  Its attitude, matches and sigmas stay in
+    ``res`` for diagnostics."""
+    if limit is None:
+        return
+    bound = error_bound(res.sigma_cross_arcsec, res.sigma_roll_arcsec)
+    if not bound <= limit:
+        res.status = S.IMPRECISE
+        _note(res, "{:g}-sigma bound {:.0f} arcsec beyond max_error_arcsec {:g}".format(
+            BOUND_SIGMAS, bound, limit))
 
 
 def _longest_smear(cam, smear):
@@ -738,25 +760,9 @@ class StarTracker:
         res.matches = [(star_ids[i][0], None, None, hips[i]) for i in range(len(star_ids))]
         res.sigma_cross_arcsec = cross * RAD_TO_ARCSEC
         res.sigma_roll_arcsec = roll * RAD_TO_ARCSEC
-        self._precise(res)
+        precise(res, self.settings.max_error_arcsec)
         self._tick(timings, "attitude", start)
         return res
-
-    def _precise(self, res):
-        """``IMPRECISE`` for a solution whose :data:`BOUND_SIGMAS` bound on its total error,
-        ``5 sqrt(2 sigma_cross^2 + sigma_roll^2)`` (each axis at its own 5 sigma), exceeds
-        ``max_error_arcsec``: an ``OK`` attitude within 5 sigma on every axis is then within
-        the limit in total (issue 33's two criteria of a wrong attitude become one).  Its
-        attitude, matches and sigmas stay in ``res`` for diagnostics."""
-        limit = self.settings.max_error_arcsec
-        if limit is None:
-            return
-        c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
-        bound = BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
-        if not bound <= limit:
-            res.status = S.IMPRECISE
-            _note(res, "{:g}-sigma bound {:.0f} arcsec beyond max_error_arcsec {:g}".format(
-                BOUND_SIGMAS, bound, limit))
 
     def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
         """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen

@@ -262,16 +262,12 @@ def _same_lens(fit, camera):
 def _lens_sigma(res, lens):
     """Scale ``res``'s 1-sigma by the lens fit's :attr:`LensFit.inflation` and, when its
     bound then exceeds the default ``max_error_arcsec``, make an ``OK`` ``IMPRECISE`` (the
-    firmware's rule, ``lodestar.firmware.pipeline`` ``_precise``), noted in ``reason``."""
+    firmware's rule, :func:`lodestar.firmware.pipeline.precise`), noted in ``reason``."""
     cross, roll = lens.inflation
     res.sigma_cross_arcsec *= cross
     res.sigma_roll_arcsec *= roll
     note = (f"lens fitted from {lens.n_stars} stars (k1 {lens.k1:+.4f} +- "
             f"{lens.sigma_k1:.4f}), sigma x{cross:.2f} across, x{roll:.2f} in roll")
-    c, r = res.sigma_cross_arcsec, res.sigma_roll_arcsec
-    bound = pipeline.BOUND_SIGMAS * math.sqrt(2.0 * c * c + r * r)
-    if res.ok and not bound <= DEFAULT_MAX_ERROR_ARCSEC:
-        res.status = S.IMPRECISE
-        note += (f"; {pipeline.BOUND_SIGMAS:g}-sigma bound {bound:.0f} arcsec beyond "
-                 f"max_error_arcsec {DEFAULT_MAX_ERROR_ARCSEC:g}")
     res.reason = note if not res.reason else res.reason + "; " + note
+    if res.ok:
+        pipeline.precise(res, DEFAULT_MAX_ERROR_ARCSEC)
