@@ -870,6 +870,9 @@ class Executive(object):
             _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
+        if result.status == S.IMPRECISE and self.q is not None and \
+                0 < result.min_sum < self.min_sum:
+            self._write_min_sum(result.min_sum)     # too few stars: the tracker widens it
         if result.status == S.IMPRECISE and result.q is not None and self.q is None:
             self.guide = (result.q, now_ms - int(tag + 0.5),
                           None if stamp is None else (stamp - before_us) & _STAMP_MASK)

@@ -91,6 +91,14 @@ frame at rest (``docs/firmware.md``, Record budget)."""
 TRACK_EXTRA_STARS = 2
 """... but no more than ``track_stars`` plus this many blobs of the frame: a group of stars
 of about the same brightness at the cut cannot swell the next frame."""
+WIDE_TRACK = 2
+"""A budgeted frame too loose for ``max_error_arcsec`` (:meth:`StarTracker._thin`) budgets
+the next for this many times ``track_stars``: few stars give a loose bound (the Student-t
+tail of their residuals, :func:`tail_factor`); in a 640 x 480 window at rest tracking frames
+of 8 records were ``IMPRECISE`` six in a row, with 16 each is ``OK``."""
+THIN_SHARE = 0.8
+"""A widened frame stays widened while its bound exceeds this share of
+``max_error_arcsec``."""
 MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
@@ -159,6 +167,43 @@ MAX_BOUNDED_SMEAR_PX = 6.0
 frame with too few stars to fit its rate to be solved without ``omega``: a still frame's
 streaks bound its smear by about 3.5 px, and the shear this bound allows over the read-out
 is folded into the sigma; beyond it the frame is ``RATE_UNKNOWN``."""
+
+
+T_TAIL = (1111000.0, 1321.0, 156.7, 56.85, 31.85, 22.02, 17.11, 14.25, 12.43, 11.17, 10.26,
+          9.573, 9.040, 8.614, 8.268, 7.980, 7.738, 7.531, 7.353, 7.198, 7.062, 6.941, 6.834,
+          6.737)
+"""The Student-t quantile of ``nu`` = 1, 2, ... degrees of freedom at the two-sided normal
+tail of :data:`BOUND_SIGMAS` (2.9e-7 each side), rounded up to 4 digits
+(``scipy.stats.t.isf``); beyond the table the Cornish-Fisher series of :func:`t_tail`
+(within 1e-4 of it from 25)."""
+
+
+def t_tail(nu):
+    """:data:`T_TAIL` at ``nu`` degrees of freedom (an int >= 1)."""
+    if nu <= len(T_TAIL):
+        return T_TAIL[nu - 1]
+    z = BOUND_SIGMAS
+    z2 = z * z
+    g1 = (z2 + 1.0) * z / 4.0
+    g2 = ((5.0 * z2 + 16.0) * z2 + 3.0) * z / 96.0
+    g3 = (((3.0 * z2 + 19.0) * z2 + 17.0) * z2 - 15.0) * z / 384.0
+    g4 = ((((79.0 * z2 + 776.0) * z2 + 1482.0) * z2 - 1920.0) * z2 - 945.0) * z / 92160.0
+    u = 1.0 / nu
+    return z + u * (g1 + u * (g2 + u * (g3 + u * g4)))
+
+
+def tail_factor(nu):
+    """How much a sigma scaled to the residuals' RMS grows so that :data:`BOUND_SIGMAS` of it
+    is the error's bound at the normal tail (``docs/firmware.md``, Covariance): the error
+    over a scale estimated from ``nu`` residual degrees of freedom is Student-t distributed,
+    whose tail is far heavier than its RMS says (4 stars with a gyro, ``nu`` 5: 4.9; 8
+    stars, 1.7; 30 stars, 1.1).  The RMS-scaled sigma divides by ``max(nu - 2, 1)``; the
+    factor is ``sqrt(max(nu - 2, 1) / nu) t_tail(nu) / 5``.  An ``OK`` attitude is then
+    within 5 of its sigma at the normal tail's odds however few stars fixed it (a blended
+    pair, 4 matches at 30 deg/s, was 6.3 sigma off: ``docs/fly.md``)."""
+    if nu < 1:
+        nu = 1
+    return math.sqrt(max(nu - 2, 1) / nu) * t_tail(nu) / BOUND_SIGMAS
 
 
 def error_bound(sigma_cross, sigma_roll):
@@ -751,6 +796,11 @@ class StarTracker:
             res.status = status
             return res
         q, cross, roll, sigma = solved
+        if self.sigma_rad is None:      # the scale came from the residuals: their tail
+            g = tail_factor(2 * len(star_ids) -
+                            (6 if res.sigma_rate_rad_s is not None else 3))
+            cross *= g
+            roll *= g
         res.status = S.OK
         res.centroid_sigma_px = sigma * self.focal_px
         res.q = q
@@ -1163,6 +1213,7 @@ class StarTracker:
             _collect()
         start = self._tick(timings, "centroids", start)
         budget = min_sum(stars, self.track_stars)
+        wide = min_sum(stars, WIDE_TRACK * self.track_stars) if budget else 0
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear) if smear is not None else None
         smear = None                    # the memo goes before the identification's peak
@@ -1185,9 +1236,27 @@ class StarTracker:
             for o, _x, _y, hip in res.matches:
                 matches.append((index[o], xy[2 * o], xy[2 * o + 1], hip))
             res.matches = matches
-            res.min_sum = budget
+            res.min_sum = wide if self._thin(res) else budget
         self._tick(timings, "total", first)
         return res
+
+    def _thin(self, res):
+        """Whether the next frame is budgeted for :data:`WIDE_TRACK` times ``track_stars``:
+        a frame of the budget's few records (at most that many) whose solution ``res`` is
+        ``IMPRECISE``, or stays within :data:`THIN_SHARE` of ``max_error_arcsec`` of it
+        while already widened (more records than ``track_stars`` plus
+        :data:`TRACK_EXTRA_STARS`: the hysteresis that keeps it from flapping).  Few stars
+        give a loose bound (the Student-t tail of their residuals, :func:`tail_factor`); a
+        frame of many records is not widened, its precision is not the budget's
+        (``docs/firmware.md``, Record budget)."""
+        limit = self.settings.max_error_arcsec
+        k = self.track_stars
+        if limit is None or k is None or res.n_records > WIDE_TRACK * k + TRACK_EXTRA_STARS:
+            return False
+        bound = error_bound(res.sigma_cross_arcsec, res.sigma_roll_arcsec)
+        if res.n_records > k + TRACK_EXTRA_STARS:
+            return bound > THIN_SHARE * limit
+        return bound > limit
 
     @native
     def _instants(self, stars, used, exposure):

@@ -104,8 +104,10 @@ CASES = (
     FrameCase("estcube2_tracking_1dps", "estcube2", 11, (0.0, 1.0, 0.0),
               prior_error_deg=0.1, note="tracking from a prior 0.1 deg off"),
     FrameCase("estcube2_tracking_steady", "estcube2", 18, (0.0, 1.0, 0.0),
-              prior_error_deg=0.002, note="steady tracking: a prior 7 arcsec off, as the last "
-              "attitude propagated by the gyro over 0.1 s"),
+              prior_error_deg=0.002, expect="IMPRECISE", note="steady tracking: a prior 7 "
+              "arcsec off, as the last attitude propagated by the gyro over 0.1 s; 6 stars "
+              "matched, whose residuals' Student-t tail puts the 5-sigma bound beyond 180 "
+              "arcsec"),
     FrameCase("estcube2_tracking_budget", "estcube2", 0, prior_error_deg=0.002, budgeted=True,
               note="steady tracking at rest with the record budget: the demo's frame, 50 "
               "blobs, detected with the min_sum its own replay returns"),
@@ -118,9 +120,11 @@ CASES = (
               note="smeared beyond detection"),
     FrameCase("estcube2_1ms", "estcube2", 14, exposure_s=0.001, expect="fail",
               note="1 ms exposure: too few stars"),
-    FrameCase("lohmann_orion", "lohmann", 21, exposure_s=0.1, pointing=ORION),
+    FrameCase("lohmann_orion", "lohmann", 21, exposure_s=0.1, pointing=ORION,
+              expect="IMPRECISE", note="7 stars matched: the bound's Student-t tail"),
     FrameCase("lohmann_cygnus", "lohmann", 22, exposure_s=0.2, pointing=DENSE),
-    FrameCase("lohmann_rest_s20", "lohmann", 20, exposure_s=0.2),
+    FrameCase("lohmann_rest_s20", "lohmann", 20, exposure_s=0.2, expect="IMPRECISE",
+              note="7 stars matched: the bound's Student-t tail"),
     FrameCase("lohmann_cygnus_1dps", "lohmann", 23, (0.7, 0.7, 0.0), exposure_s=0.2,
               pointing=DENSE, expect="any"),
 )

@@ -179,10 +179,11 @@ def lohmann_calibration(tmp_path_factory):
 
 def test_calibration_recovers_the_lohmann_lens(lohmann_calibration):
     result = lohmann_calibration
-    # every frame identified; at most one of lohmann's few-star frames leaves a roll beyond
-    # issue 33's 180" (IMPRECISE: named right, its attitude loose)
+    # every frame identified; lohmann's frames of 5-8 stars mostly leave a bound beyond
+    # issue 33's 180" with their residuals' Student-t tail (IMPRECISE: named right, the
+    # attitude loose); the calibration uses the matches either way
     statuses = [f["status"] for f in result.frames]
-    assert set(statuses) <= {"OK", "IMPRECISE"} and statuses.count("OK") >= len(statuses) - 1
+    assert set(statuses) <= {"OK", "IMPRECISE"} and "OK" in statuses
     z, chi2 = _deviation(result.fit, calibrate.camera_params(lohmann_frames.truth_camera()))
     assert set(z) == set(calibrate.DEFAULT_FREE)
     assert max(abs(v) for v in z.values()) < 3.0, z

