@@ -272,6 +272,17 @@ for name, pkt, prior, omega, exposure in B.CASES:
         t = r.timings
         print('RUN', name, rep, r.status, r.mode, len(r.matches), time.ticks_diff(t1, t0),
               ' '.join([k + '=' + str(t[k]) for k in t]))
+    if prior is None or not hasattr(tr, 'prefetch'):
+        continue
+    tr.prefetch(None)               # the same calls with the idle-time hook before each
+    for rep in range(B.REPEATS):
+        t0 = clock()
+        code = tr.prefetch(prior, omega)
+        t1 = clock()
+        r = tr.process(pkt, prior=prior, omega=omega, exposure_s=exposure)
+        t2 = clock()
+        print('PREFETCH', name, rep, code, time.ticks_diff(t1, t0), r.status,
+              len(r.matches), time.ticks_diff(t2, t1))
 from lodestar.firmware import starid
 for label, tol, vecs in B.BUDGET:
     gc.collect()
@@ -384,6 +395,10 @@ def stage_run(elf):
     out = {}
     for line in proc.stdout.splitlines():
         parts = line.split()
+        if parts and parts[0] == "PREFETCH":
+            out[("prefetch " + parts[1], int(parts[2]))] = {
+                "code": int(parts[3]), "prefetch": int(parts[4]), "status": int(parts[5]),
+                "matches": int(parts[6]), "call": int(parts[7])}
         if parts and parts[0] == "WORK":
             out[("work " + parts[1], 0)] = {"status": int(parts[2]), "work": int(parts[3]),
                                             "call": int(parts[4])}
@@ -410,7 +425,8 @@ def stage_class(name):
 
 def stage_report(results, labels):
     """Print the per-packet table and the per-class summary."""
-    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith("work ")},
+    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith(("work ",
+                                                                               "prefetch "))},
                    key=lambda n: (stage_class(n), n))
     repeats = max(k[1] for k in results[labels[0]]) + 1
     print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
@@ -433,6 +449,7 @@ def stage_report(results, labels):
                             str(results[lab][(name, 0)]["matches"]) for lab in labels)
         print(f"| {name} | " + " | ".join(cells) + " | " + " | ".join(stages) +
               f" | {status} |")
+    prefetch_report(results, labels, names)
     print("\n## Lost in space over the packets (every call), F401 ms (estimate)")
     print("| build | p50 | p95 | max |")
     print("|---|---|---|---|")
@@ -450,6 +467,34 @@ def stage_report(results, labels):
             if name.startswith("work "):
                 print(f"| {lab} | {name[5:]} | {row['status']} | {row['work']:,} | "
                       f"{ms(row['call']):.0f} | {ms(row['call']) / row['work'] * 1e6:.0f} |")
+
+
+def prefetch_report(results, labels, names):
+    """Print the tracking packets' calls with the flight loop's idle-time hook before each
+    (``StarTracker.prefetch``: the cone made beforehand, then a collection), first (the
+    cone made by that hook) / later, and the hook's own time (the most of any call); builds
+    without the hook show none."""
+    print("\n## Tracking with the idle-time hook (`StarTracker.prefetch`) before each call, "
+          "F401 ms (estimate): first / later (median) call; the hook, most")
+    print("| packet | " + " | ".join(f"{lab} first / later; hook" for lab in labels) +
+          " | status |")
+    print("|---|" + "---|" * (len(labels) + 1))
+    for name in names:
+        if stage_class(name) != "tracking":
+            continue
+        cells, status = [], "–"
+        for lab in labels:
+            rows = [row for (key, _r), row in sorted(results[lab].items())
+                    if key == "prefetch " + name]
+            if not rows:
+                cells.append("–")
+                continue
+            later = statistics.median(r["call"] for r in rows[1:]) if len(rows) > 1 else None
+            cells.append(f"**{ms(rows[0]['call']):.1f}** / " +
+                         ("–" if later is None else f"**{ms(later):.1f}**") +
+                         f"; {ms(max(r['prefetch'] for r in rows)):.1f}")
+            status = ", ".join(f"{r['code']}: {r['status']}/{r['matches']}" for r in rows)
+        print(f"| {name} | " + " | ".join(cells) + f" | {status} |")
 
 
 def stages(baseline, repeats, keep):
