@@ -31,7 +31,7 @@ NONE = 0xFFFF
 CHUNK = 128
 """Most candidate pairs of one side indexed at once (:meth:`_Search._index`; longer ranges are
 joined chunk by chunk); entry numbers stay below :data:`NONE`.  128, not 256: the index's
-blocks (half a KiB each, :data:`_KEPT`) are resident, and at 256 the lost-in-space frames of
+blocks are allocated per search (half a KiB each), and at 256 the lost-in-space frames of
 the regression set ran out of the 64 KiB flight heap."""
 _HEAD = 256
 """Chain heads of a side's index: a power of two, at least the ``2 * CHUNK`` entries."""
@@ -49,13 +49,6 @@ def _side():
 
 DEFAULT_MAX_STARS = 16
 """Observed stars a search uses for patterns by default (:func:`identify`)."""
-_KEPT = (G.zeros(DEFAULT_MAX_STARS * DEFAULT_MAX_STARS),
-         array("i", range(DEFAULT_MAX_STARS * (DEFAULT_MAX_STARS - 1))), (_side(), _side()))
-"""The buffers of a search of at most :data:`DEFAULT_MAX_STARS` stars (its observed angles,
-pair ranges and the two sides' pair index, 5.4 KiB), allocated at import and reused by every
-search (one runs at a time): made per search, after a frame's stages had fragmented the
-heap, their blocks of up to 1 KiB set the regression set's smallest heap (a larger search
-makes its own)."""
 MAX_WORK = 20000
 """Pyramid's work budget (:data:`.search.DEFAULT_MAX_WORK`'s units): a search that spends it,
 its mirror check (a third more) and its conclusion end within 2 s of F401 time (measured on
@@ -66,9 +59,9 @@ triangles' sort, the handedness tests: about 1,500 guest ticks on the Cortex-M4F
 
 
 @native
-def _observed_angles(b, n, ang):
-    """Angles between the first ``n`` observed vectors into the flat ``array`` ``ang``
-    (``[i * n + j]``, at least ``n * n`` long); returns it."""
+def _observed_angles(b, n):
+    """Angles between the first ``n`` observed vectors, as a flat ``array`` ``[i * n + j]``."""
+    ang = G.zeros(n * n)
     for i in range(n):
         for j in range(i + 1, n):
             a = G.angle(b[i], b[j])
@@ -85,18 +78,16 @@ class _Search(Search):
     def __init__(self, b, db, tol, max_prob, distinct, streaks, max_stars):
         Search.__init__(self, b, db, tol, max_prob, distinct, streaks, max_stars)
         # the search's buffers (the observed angles, the pair ranges of the pairs i < j,
-        # the two sides' pair index): the kept ones (_KEPT), or its own when larger
-        n = self.n
-        size = n * (n - 1)                          # two per observed pair i < j
-        if n <= DEFAULT_MAX_STARS:
-            ang, self.ranges, self.sides = _KEPT
-        else:
-            ang, self.ranges = G.zeros(n * n), array("i", range(size))
-            self.sides = (_side(), _side())
-        self.ang = _observed_angles(b, n, ang)
+        # the two sides' pair index: 5 KiB at 16 stars, no block above 1 KiB) live while it
+        # runs: the pipeline collects before a lost-in-space search, and a tracking frame's
+        # heap does not hold them
+        self.ang = _observed_angles(b, self.n)
         self.ptol0 = SQRT2 * tol + db.key_step
+        size = self.n * (self.n - 1)                # two per observed pair i < j
+        self.ranges = array("i", range(size))
         for c in range(size):
             self.ranges[c] = -1                     # not queried yet
+        self.sides = (_side(), _side())
 
     def ptol(self, i, j):
         """Tolerance (rad) of the observed angle between stars ``i`` and ``j``."""
