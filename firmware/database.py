@@ -582,6 +582,7 @@ class Database:
         cells = self._cells
         n = self.cells_per_face
         view = getattr(self._src, "buf", None)     # a buffer: unpacked in place
+        cells_off = self._cells_off
         for face in range(6):           # cells are stored face by face (cell_of)
             a = face >> 1
             towards = -d[a] if face & 1 else d[a]
@@ -598,9 +599,14 @@ class Database:
                         if first < 0:
                             first = c
                         last = c
-                if first >= 0:
-                    self._cone_run(self._cell_start(first), self._cell_start(last + 1),
-                                   dx, dy, dz, cos_r, out, vecs, view)
+                if first < 0:
+                    continue
+                if view is not None:
+                    a = struct.unpack_from(stardb.CELL_FORMAT, view, cells_off + 2 * first)[0]
+                    b = struct.unpack_from(stardb.CELL_FORMAT, view, cells_off + 2 * last + 2)[0]
+                else:
+                    a, b = self._cell_start(first), self._cell_start(last + 1)
+                self._cone_run(a, b, dx, dy, dz, cos_r, out, vecs, view)
         return out
 
     @native

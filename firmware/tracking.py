@@ -170,7 +170,7 @@ def candidates(database, q, margin_rad, cone=None):
     ids = array("H", database.stars_in_cone(d, radius, vecs=found))
     vecs = array("f", found)
     found = None
-    where = {}
+    where = dict.fromkeys(ids)      # sized once (no rehash as it fills), then each slot set
     for i in range(len(ids)):
         where[ids[i]] = i
     cone.database, cone.centre, cone.radius = database, d, radius
