@@ -524,10 +524,10 @@ class Tracker:
         whose prior differs queries its own cone.  Never raises: ``S.OK``, ``S.BAD_INPUT``
         (a malformed prior, rate or interval), else ``S.OUT_OF_MEMORY`` or
         ``S.INTERNAL_ERROR`` with the cone emptied (the next frame then queries it)."""
-        q = propagate(q_prior, omega, dt)
-        if q is None:
-            return S.BAD_INPUT
         try:
+            q = propagate(q_prior, omega, dt)
+            if q is None:
+                return S.BAD_INPUT
             self.cone = candidates(database, q, self._reach(), self.cone)
             return S.OK
         except MemoryError:

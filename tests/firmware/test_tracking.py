@@ -292,6 +292,7 @@ def test_a_prefetch_never_raises():
     assert tracker.prefetch(db, [0, 0, 0, 0]) == S.BAD_INPUT
     assert tracker.prefetch(db, [0, 0, 0, 1], omega=[1, 0], dt=0.1) == S.BAD_INPUT
     assert tracker.prefetch(db, [0, 0, 0, 1], omega=[0, 0, 0], dt="x") == S.BAD_INPUT
+    assert tracker.prefetch(db, object()) == S.BAD_INPUT
 
 
 def test_the_residual_is_computed_when_read():
