@@ -22,9 +22,12 @@ with ``-icount``), against a baseline revision built the same way in the same ru
 * **stages**: one :class:`StarTracker` over the frozen estcube2 flight Pyramid database
   (``db build --flight``) replays every estcube2 packet ``--repeats`` times in a row (the
   first call of a tracking packet queries its cone, later ones reuse it), per stage through
-  ``Settings.clock``, on this checkout and the baseline built alike; lost in space p50 /
-  p95 / max over every call; then the hostile Pyramid searches of ``bench_budget.py`` (work
-  units spent and time: the work budget in F401 milliseconds).
+  ``Settings.clock``, on this checkout and the baseline built alike; then (a build with
+  ``StarTracker.prefetch``) each tracking packet again as the flight loop runs it, the
+  idle-time hook before every call (the cone dropped first, so the first hook queries it),
+  the hook timed apart; lost in space p50 / p95 / max over every call; then the hostile
+  Pyramid searches of ``bench_budget.py`` (work units spent and time: the work budget in
+  F401 milliseconds).
 * **lost in space on simulated frames** (``--lis N``, opt-in): ``N`` estcube2 frames at rest
   and ``N`` at 1 deg/s (``lodestar.sim`` scenes through the golden detector with the flight
   settings), each solved lost in space with the gyro's rate on the same stage image, the
@@ -272,6 +275,17 @@ for name, pkt, prior, omega, exposure in B.CASES:
         t = r.timings
         print('RUN', name, rep, r.status, r.mode, len(r.matches), time.ticks_diff(t1, t0),
               ' '.join([k + '=' + str(t[k]) for k in t]))
+    if prior is None or not hasattr(tr, 'prefetch'):
+        continue
+    tr.prefetch(None)               # the same calls with the idle-time hook before each
+    for rep in range(B.REPEATS):
+        t0 = clock()
+        code = tr.prefetch(prior, omega)
+        t1 = clock()
+        r = tr.process(pkt, prior=prior, omega=omega, exposure_s=exposure)
+        t2 = clock()
+        print('PREFETCH', name, rep, code, time.ticks_diff(t1, t0), r.status,
+              len(r.matches), time.ticks_diff(t2, t1))
 from lodestar.firmware import starid
 for label, tol, vecs in B.BUDGET:
     gc.collect()
@@ -384,6 +398,10 @@ def stage_run(elf):
     out = {}
     for line in proc.stdout.splitlines():
         parts = line.split()
+        if parts and parts[0] == "PREFETCH":
+            out[("prefetch " + parts[1], int(parts[2]))] = {
+                "code": int(parts[3]), "prefetch": int(parts[4]), "status": int(parts[5]),
+                "matches": int(parts[6]), "call": int(parts[7])}
         if parts and parts[0] == "WORK":
             out[("work " + parts[1], 0)] = {"status": int(parts[2]), "work": int(parts[3]),
                                             "call": int(parts[4])}
@@ -410,7 +428,8 @@ def stage_class(name):
 
 def stage_report(results, labels):
     """Print the per-packet table and the per-class summary."""
-    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith("work ")},
+    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith(("work ",
+                                                                               "prefetch "))},
                    key=lambda n: (stage_class(n), n))
     repeats = max(k[1] for k in results[labels[0]]) + 1
     print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
@@ -433,6 +452,7 @@ def stage_report(results, labels):
                             str(results[lab][(name, 0)]["matches"]) for lab in labels)
         print(f"| {name} | " + " | ".join(cells) + " | " + " | ".join(stages) +
               f" | {status} |")
+    prefetch_report(results, labels, names)
     print("\n## Lost in space over the packets (every call), F401 ms (estimate)")
     print("| build | p50 | p95 | max |")
     print("|---|---|---|---|")
@@ -450,6 +470,36 @@ def stage_report(results, labels):
             if name.startswith("work "):
                 print(f"| {lab} | {name[5:]} | {row['status']} | {row['work']:,} | "
                       f"{ms(row['call']):.0f} | {ms(row['call']) / row['work'] * 1e6:.0f} |")
+
+
+def prefetch_report(results, labels, names):
+    """Print the tracking packets' calls with the flight loop's idle-time hook before each
+    (``StarTracker.prefetch``: the cone made beforehand, then a collection), first (the
+    cone made by that hook) / later, and the hook's own time, first (the cone's query) / later
+    (median: a collection); builds without the hook show none."""
+    print("\n## Tracking with the idle-time hook (`StarTracker.prefetch`) before each call, "
+          "F401 ms (estimate): first / later (median) call; the hook before them")
+    print("| packet | " + " | ".join(f"{lab} first / later; hook first / later" for lab in labels) +
+          " | status |")
+    print("|---|" + "---|" * (len(labels) + 1))
+    for name in names:
+        if stage_class(name) != "tracking":
+            continue
+        cells, status = [], "–"
+        for lab in labels:
+            rows = [row for (key, _r), row in sorted(results[lab].items())
+                    if key == "prefetch " + name]
+            if not rows:
+                cells.append("–")
+                continue
+            later = statistics.median(r["call"] for r in rows[1:]) if len(rows) > 1 else None
+            hook = statistics.median(r["prefetch"] for r in rows[1:]) if len(rows) > 1 else None
+            cells.append(f"**{ms(rows[0]['call']):.1f}** / " +
+                         ("–" if later is None else f"**{ms(later):.1f}**") +
+                         f"; {ms(rows[0]['prefetch']):.1f} / " +
+                         ("–" if hook is None else f"{ms(hook):.1f}"))
+            status = ", ".join(f"{r['code']}: {r['status']}/{r['matches']}" for r in rows)
+        print(f"| {name} | " + " | ".join(cells) + f" | {status} |")
 
 
 def stages(baseline, repeats, keep):

@@ -580,6 +580,24 @@ class StarTracker:
     def _track(self, vectors, prior, omega, dt, streaks):
         return self._tracker.track(vectors, self.database, prior, omega, dt, streaks=streaks)
 
+    def prefetch(self, prior=None, omega=None, dt=None):
+        """Idle-time work for the next frame, called by a flight loop after a frame with the
+        ``prior``, ``omega`` and ``dt`` it will pass to the next :meth:`process`: the
+        catalogue cone that frame's tracking would query (one bounded database query,
+        ``tracking.Tracker.prefetch``), made now unless the held cone covers it; ``prior``
+        None (the next frame is lost in space): the cone is dropped, its heap free for the
+        search.  No collection: one here (10 ms on the F401) costs every idle period more
+        than the frames' own save (``docs/mcu_board.md``).  Optional: a frame that comes
+        first queries its own cone, with the same result.  Never raises: a status
+        (``S.OK``; ``S.BAD_INPUT`` for a malformed prior, rate or interval;
+        ``S.OUT_OF_MEMORY`` or ``S.INTERNAL_ERROR``; a configuration failure's status)."""
+        if self.status != S.OK:
+            return self.status
+        if prior is None:
+            self._cone.clear()
+            return S.OK
+        return self._tracker.prefetch(self.database, prior, omega, dt)
+
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
         with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector

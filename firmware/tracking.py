@@ -170,7 +170,7 @@ def candidates(database, q, margin_rad, cone=None):
     ids = array("H", database.stars_in_cone(d, radius, vecs=found))
     vecs = array("f", found)
     found = None
-    where = {}
+    where = dict.fromkeys(ids)      # sized once (no rehash as it fills), then each slot set
     for i in range(len(ids)):
         where[ids[i]] = i
     cone.database, cone.centre, cone.radius = database, d, radius
@@ -516,6 +516,33 @@ class Tracker:
             self.database = self.b = self.weights = self.streaks = self.q_pred = None
             self.cone = cone
 
+    def prefetch(self, database, q_prior, omega=None, dt=None):
+        """Make now the cone that :meth:`track` of ``q_prior`` (propagated by ``omega``,
+        ``dt``) will use, when the held one does not cover it: the frame's one database
+        query (:func:`candidates`), moved into the flight loop's idle time after the frame
+        before.  Bounded (one cone query); the next frame checks coverage itself, so a frame
+        whose prior differs queries its own cone.  Never raises: ``S.OK``, ``S.BAD_INPUT``
+        (a malformed prior, rate or interval), else ``S.OUT_OF_MEMORY`` or
+        ``S.INTERNAL_ERROR`` with the cone emptied (the next frame then queries it)."""
+        try:
+            q = propagate(q_prior, omega, dt)
+            if q is None:
+                return S.BAD_INPUT
+            self.cone = candidates(database, q, self._reach(), self.cone)
+            return S.OK
+        except MemoryError:
+            status = S.OUT_OF_MEMORY
+        except Exception:   # a database read error or a bug must not reach the flight loop
+            status = S.INTERNAL_ERROR
+        if self.cone is not None:
+            self.cone.clear()
+        return status
+
+    def _reach(self):
+        """The margin (rad) of a frame's cone beyond the FOV: every attitude its fits may
+        reach (the search radius of the prior) plus a tolerance, on both sides."""
+        return 2.0 * self.search + 2.0 * self.tol
+
     def _fail(self, status, n_fov=0):
         return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
 
@@ -543,7 +570,7 @@ class Tracker:
 
         # one cone query serves every prediction below (the fitted attitudes stay within the
         # search radius of the prior)
-        self.cone = cone = candidates(database, q_pred, 2.0 * search + 2.0 * tol, self.cone)
+        self.cone = cone = candidates(database, q_pred, self._reach(), self.cone)
         # steady state: the prior is within the match tolerance, so match at it directly, in
         # the inertial frame: the observed stars turned back by the prior against the cone's
         # stars (sorted once per cone), the catalogue's density from the cone

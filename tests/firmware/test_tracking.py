@@ -250,6 +250,51 @@ def test_a_cone_is_not_shared_between_databases():
     assert other.reads > 0 and cone.database is other
 
 
+def test_a_prefetched_cone_serves_the_next_frame_without_a_query():
+    """``Tracker.prefetch`` makes the cone of the next frame (its prior propagated by the
+    rate) in the idle time before it: that frame then reads no star, and it solves as a
+    tracker that queried for itself; a second prefetch the held cone covers reads nothing."""
+    db = _CountingDatabase(sim_frames.flight_database())
+    rng = np.random.default_rng(23)
+    q = random_attitude(rng)
+    scene = centroid_scene(sim_frames.sim_camera(), q, rng, catalogue(), noise_px=0.3,
+                           max_stars=20)
+    omega, dt = [0.0, 0.0175, 0.0], 0.1
+    prior = (Rotation.from_rotvec(np.array(omega) * dt) * Rotation.from_quat(q)).as_quat()
+    prior, vectors = prior.tolist(), scene.vectors.tolist()
+    fresh = tracking.Tracker(TOL).track(vectors, db, prior, omega, dt)
+    tracker = tracking.Tracker(TOL, cone=tracking.Cone())
+    assert tracker.prefetch(db, prior, omega, dt) == S.OK and db.reads == 2
+    assert tracker.prefetch(db, prior, omega, dt) == S.OK and db.reads == 2
+    sol = tracker.track(vectors, db, prior, omega, dt)
+    assert db.reads == 2 and sol.status == fresh.status == S.OK
+    assert sol.q == fresh.q and sol.matches == fresh.matches
+
+
+def test_a_prefetch_never_raises():
+    class Broken:
+        fov_h = fov_v = 0.3
+        fov_diag = 0.4
+
+        def stars_in_cone(self, d, radius, out=None, vecs=None):
+            raise OSError("flash read error")
+
+    class Full(Broken):
+        def stars_in_cone(self, d, radius, out=None, vecs=None):
+            raise MemoryError
+
+    tracker = tracking.Tracker(TOL, cone=tracking.Cone())
+    db = sim_frames.flight_database()
+    assert tracker.prefetch(db, [0, 0, 0, 1]) == S.OK and tracker.cone.ids is not None
+    assert tracker.prefetch(Broken(), [0, 0, 0, 1]) == S.INTERNAL_ERROR
+    assert tracker.cone.ids is None                 # emptied: the next frame queries
+    assert tracker.prefetch(Full(), [0, 0, 0, 1]) == S.OUT_OF_MEMORY
+    assert tracker.prefetch(db, [0, 0, 0, 0]) == S.BAD_INPUT
+    assert tracker.prefetch(db, [0, 0, 0, 1], omega=[1, 0], dt=0.1) == S.BAD_INPUT
+    assert tracker.prefetch(db, [0, 0, 0, 1], omega=[0, 0, 0], dt="x") == S.BAD_INPUT
+    assert tracker.prefetch(db, object()) == S.BAD_INPUT
+
+
 def test_the_residual_is_computed_when_read():
     db = sim_frames.flight_database()
     rng = np.random.default_rng(5)
@@ -443,6 +488,23 @@ def test_pipeline_propagates_the_prior_with_the_gyro_rate():
                               dt=dt)
         assert res.status == S.OK and res.mode == "tracking", res
         assert attitude_error_deg(res.q, frame.q) < MAX_ERR_DEG
+
+
+def test_pipeline_prefetch_gives_the_frame_its_cone():
+    """``StarTracker.prefetch`` with the next frame's arguments: the frame then reads no
+    star and gives the result of a frame without it; None frees the cone."""
+    frame = sim_frames.frames()[0]
+    prior = perturbed(frame.q, 0.05, np.random.default_rng(29)).tolist()
+    want = sim_frames.tracker().process(frame.packet, prior=prior)
+    tracker = sim_frames.tracker()
+    db = tracker.database = _CountingDatabase(tracker.database)
+    assert tracker.prefetch(prior) == S.OK and db.reads == 1
+    res = tracker.process(frame.packet, prior=prior)
+    assert db.reads == 1 and res.status == S.OK and res.mode == "tracking"
+    assert res.q == want.q and res.matches == want.matches
+    assert tracker.prefetch(None) == S.OK and tracker._cone.ids is None
+    assert tracker.prefetch([0, 0, 0]) == S.BAD_INPUT
+    assert sim_frames.tracker(method="nonesuch").prefetch(prior) == S.BAD_INPUT
 
 
 def test_pipeline_falls_back_to_lost_in_space():
