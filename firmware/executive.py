@@ -88,7 +88,6 @@ from lodestar.contract import telemetry
 
 from . import link as _link
 from . import status as S
-from .settings import EXPOSURE_LENGTHEN_BELOW, EXPOSURE_TARGET
 
 BOOT = 0
 CONFIGURE = 1
@@ -184,27 +183,6 @@ _NO_Q = (NAN, NAN, NAN, NAN)
 """The quaternion of the records without an attitude (made once: no tuple per step)."""
 
 
-def choose_exposure(current_s, nominal_s, speed_px_s, streak_px, floor_s):
-    """The next frame's exposure (s), or None to keep ``current_s``: the rate-adaptive
-    policy.  ``speed_px_s``: how fast the field's fastest point moves on the sensor (px/s,
-    :meth:`Executive.streak_speed`); ``streak_px``: the longest streak allowed
-    (``Settings.exposure_streak_px``).  Beyond it the exposure is cut to
-    :data:`~lodestar.firmware.settings.EXPOSURE_TARGET` of it; below
-    :data:`~lodestar.firmware.settings.EXPOSURE_LENGTHEN_BELOW` of it it is lengthened to the
-    same target (the hysteresis), always within ``[floor_s, nominal_s]``; a change under 1 %
-    is none (no sensor write)."""
-    if not speed_px_s >= 0 or not current_s > 0 or not nominal_s > 0:
-        return None                           # NaN or no exposure known: keep it
-    streak = speed_px_s * current_s
-    if streak > streak_px or current_s > nominal_s or \
-            (streak < EXPOSURE_LENGTHEN_BELOW * streak_px and current_s < nominal_s):
-        t = EXPOSURE_TARGET * streak_px / speed_px_s if speed_px_s > 0 else nominal_s
-    else:
-        return None
-    t = min(max(t, floor_s), nominal_s)
-    return None if abs(t - current_s) <= 0.01 * current_s else t
-
-
 def _count(array_, index, n=1):
     value = array_[index] + n
     array_[index] = value if value < 0xFFFF else 0xFFFF
@@ -266,8 +244,6 @@ class Executive(object):
                                       # time tag (ms) and epoch (us, low 30 bits; or None)
         self.slot = 0                 # the star-database slot (kept across a reset)
         self.distrust = 0             # frames left to process without the gyro's rate
-        self.exposure_auto = True     # the rate-adaptive exposure (CMD_EXPOSURE: off; 0: on)
-        self.nominal_s = 0.0          # the exposure of sensor_settings (s; 0: unknown)
         self.sequence = 0
         self.reason = ""
         self.last_status = S.OK
@@ -523,13 +499,9 @@ class Executive(object):
             if self.sensor is None:
                 return S.BAD_INPUT
             if code == CMD_EXPOSURE:
-                if arg == 0 and type(arg) is int:
-                    self.exposure_auto = True
-                    return S.OK
                 settings = self._exposure_rows(arg)
                 if settings is None:
                     return S.BAD_INPUT
-                self.exposure_auto = False
             else:
                 settings = {"gain": arg}
             st, reason = self.sensor.configure(**settings)
@@ -539,7 +511,6 @@ class Executive(object):
                 return st
             self.sensor_settings.update(settings)
             self._read_timing()
-            self._nominal()
             return S.OK
         if code == CMD_SETTING:
             settings = getattr(self.tracker, "settings", None)
@@ -715,54 +686,6 @@ class Executive(object):
         settings.exposure_s = timing[1]
         self.frame_s = timing[2]
 
-    def _nominal(self):
-        """The exposure the sensor started with or the ground commanded (s): the policy's
-        longest (sensor_settings keep it, so a sensor restart returns to it)."""
-        timing = self._timing()
-        if timing is not None:
-            self.nominal_s = timing[1]
-
-    def streak_speed(self, omega):
-        """How fast (px/s) the field's fastest point moves at body rate ``omega`` (rad/s):
-        the roll times the farthest corner's radius plus the cross-boresight rate times the
-        focal length (the tracker's camera); None without a camera."""
-        cam = getattr(self.tracker, "camera", None)
-        if cam is None:
-            return None
-        dx = cam.cx if cam.cx > cam.width - 1 - cam.cx else cam.width - 1 - cam.cx
-        dy = cam.cy if cam.cy > cam.height - 1 - cam.cy else cam.height - 1 - cam.cy
-        f = cam.fx if cam.fx > cam.fy else cam.fy
-        return abs(omega[2]) * (dx * dx + dy * dy) ** 0.5 + \
-            (omega[0] * omega[0] + omega[1] * omega[1]) ** 0.5 * f
-
-    def _adapt_exposure(self):
-        """Choose the next frame's exposure from the gyro's newest rate
-        (:func:`choose_exposure`, ``Settings.exposure_streak_px`` and ``exposure_floor_s``)
-        and write it through the register path of ``CMD_EXPOSURE`` (``_exposure_rows``);
-        the tracker's settings follow the registers.  Off after a ``CMD_EXPOSURE`` of a
-        value (its ``0`` turns it on again) and with ``exposure_streak_px`` None.  A sensor
-        write that fails is counted (``sensor_fault``) and the exposure kept."""
-        settings = getattr(self.tracker, "settings", None)
-        bound = getattr(settings, "exposure_streak_px", None)
-        if not self.exposure_auto or self.sensor is None or bound is None or \
-                self.gyro is None:
-            return
-        omega = self._rate_at(0, self.clock.ticks_ms())
-        speed = None if omega is None else self.streak_speed(omega)
-        if speed is None:
-            return
-        t = choose_exposure(settings.exposure_s or 0.0, self.nominal_s, speed, bound,
-                            settings.exposure_floor_s)
-        rows = None if t is None else self._exposure_rows(t)
-        if rows is None:
-            return
-        st, reason = self.sensor.configure(**rows)
-        if st != S.OK:
-            _count(self.health, _H_SENSOR_FAULT)
-            self.reason = reason
-            return
-        self._read_timing()
-
     def _configure(self):
         if self.sensor is not None:
             _count(self.health, _H_SENSOR_INIT)
@@ -775,7 +698,6 @@ class Executive(object):
                 self._fault(LEVEL_SENSOR)
                 return
             self._read_timing()
-            self._nominal()
         # min_sum: the track's own budget while there is an attitude (a re-init keeps it)
         min_sum = self.min_sum if self.q is not None else self.registers.get("min_sum", 0)
         for name in self.registers:
@@ -874,7 +796,6 @@ class Executive(object):
         _count(self.health, _H_FRAMES)
         self.faults = 0
         self._solve(n, edge)
-        self._adapt_exposure()
 
     def _exposure_ms(self):
         """``(exposure ms, Settings.epoch_s)`` of the tracker's settings."""

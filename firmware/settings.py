@@ -47,20 +47,6 @@ Record budget).  Flux weighting makes the faint stars it leaves out worth little
 estcube2 frames tracked at rest (9 records instead of 54 at the median) the RMS errors are
 0.92 (cross-boresight) and 1.03 (roll) of every blob's, at 1 deg/s (9 instead of 29) 1.12
 and 1.13 (``benchmarks/bench_track_budget.py``)."""
-DEFAULT_EXPOSURE_STREAK_PX = 40.0
-"""Longest streak (px) the flight executive's exposure policy lets the field's fastest point
-draw (``exposure_streak_px``; None: the exposure stays the commanded one).  Once a streak is
-much longer than the PSF its per-pixel signal is set by the dwell time, not the exposure, so
-a shorter exposure at a high rate costs little per pixel and breaks the track less
-(``docs/campaigns.md``, Spin about the boresight: the exposures measured)."""
-DEFAULT_EXPOSURE_FLOOR_S = 0.025
-"""Shortest exposure (s) the policy chooses (``exposure_floor_s``); see
-:data:`DEFAULT_EXPOSURE_STREAK_PX`."""
-EXPOSURE_TARGET = 0.85
-"""The policy aims at this fraction of ``exposure_streak_px`` when it changes the exposure,
-and lengthens it again only below :data:`EXPOSURE_LENGTHEN_BELOW` of it: the hysteresis that
-keeps a rate's jitter (about 15 %) from rewriting the sensor every frame."""
-EXPOSURE_LENGTHEN_BELOW = 0.6
 
 
 # Checks of :data:`OPTIONS`: None for a good value, else what the value must be.
@@ -181,8 +167,6 @@ OPTIONS = (
     ("row_time_s",        0.0,                        _finite),
     ("epoch_s",           0.0,                        _finite),
     ("exposure_s",        None,                       _positive_or_none),
-    ("exposure_streak_px", DEFAULT_EXPOSURE_STREAK_PX, _positive_or_none),
-    ("exposure_floor_s",  DEFAULT_EXPOSURE_FLOOR_S,   _positive),
     ("velocity_km_s",     None,                       _velocity),
     ("method",            "pyramid",                  None),   # StarTracker: by the database
     ("flux_weighting",    True,                       None),
@@ -210,8 +194,6 @@ class Settings:
     ``flux_weighting``: weight stars by their flux.  ``budget``: lost-in-space pattern
     budget.  ``exposure_s``, ``row_time_s``: exposure and rolling-shutter line time, s (smear
     and rate compensation; ``process(exposure_s=...)`` overrides the exposure per frame).
-    ``exposure_streak_px``, ``exposure_floor_s``: the flight executive's exposure policy
-    (:func:`lodestar.firmware.executive.choose_exposure`; the pipeline does not read them).
     ``epoch_s``: the instant the attitude refers to, s after the start of row 0's exposure.
     ``track_search_deg``: error of the propagated prior tracking must absorb, deg.
     ``track_min_matches``, ``track_max_prob``: tracking acceptance.  ``track_stars``: the

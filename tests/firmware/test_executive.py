@@ -11,7 +11,7 @@ from pathlib import Path
 
 from lodestar import contract as C
 from lodestar.contract import telemetry
-from lodestar.firmware import camera, executive, settings
+from lodestar.firmware import executive
 from lodestar.firmware import link as _link
 from lodestar.firmware import status as S
 from tests.firmware import fakes
@@ -628,7 +628,7 @@ def test_link_codes_and_health_names_fit_the_record():
 
 
 _MP = r'''
-from lodestar.firmware import camera, executive, settings
+from lodestar.firmware import executive
 from lodestar.firmware import status as S
 import binascii
 SCRIPT = [fakes.OK_FRAME, fakes.OK_FRAME, fakes.CRC, fakes.CRC, fakes.CLOCK_LOST,
@@ -735,73 +735,3 @@ def test_executive_tracks_recorded_packets_with_the_real_tracker():
     assert exe.last_result.mode == "tracking" and t["matches"] >= 20
     assert link.writes[1] == ("min_sum", expected["min_sum"])
     db.close()
-
-
-def test_choose_exposure_bounds_the_streak_with_hysteresis():
-    """The policy's choice (``choose_exposure``): a streak beyond the bound is cut to the
-    target, clamped to the floor and the nominal; inside the hysteresis band nothing
-    changes; a slower rate lengthens it back; bad figures keep it."""
-    choose = executive.choose_exposure
-    target = settings.EXPOSURE_TARGET
-    # 40 px allowed, 1,000 px/s: 0.1 s draws 100 px -> 0.85 * 40 / 1000 s
-    assert math.isclose(choose(0.1, 0.1, 1000.0, 40.0, 0.01), target * 0.04)
-    assert choose(0.1, 0.1, 1e6, 40.0, 0.025) == 0.025                # the floor
-    assert choose(0.025, 0.1, 1e6, 40.0, 0.025) is None                # already there
-    t = target * 0.04
-    low = settings.EXPOSURE_LENGTHEN_BELOW
-    for speed in (1000.0, 1000.0 / target * 0.99, 1000.0 * low / target * 1.01):
-        assert choose(t, 0.1, speed, 40.0, 0.01) is None                # within the band
-    assert math.isclose(choose(t, 0.1, 500.0, 40.0, 0.01), target * 0.08)   # slower: longer
-    assert choose(t, 0.1, 0.0, 40.0, 0.01) == 0.1                      # at rest: nominal
-    assert choose(0.1, 0.1, 100.0, 40.0, 0.01) is None                 # 10 px: nominal kept
-    assert choose(0.2, 0.1, 0.0, 40.0, 0.01) == 0.1                    # never above nominal
-    for bad in (math.nan, -1.0):
-        assert choose(0.1, 0.1, bad, 40.0, 0.01) is None
-
-
-class TimedSensor(fakes.Sensor):
-    """A sensor whose timing follows the exposure rows written (the nominal 2743)."""
-
-    def __init__(self, clock):
-        super().__init__(clock)
-        self.rows = 2743
-
-    def configure(self, **written):
-        self.rows = written.get("exposure", self.rows)
-        return super().configure(**written)
-
-    def timing(self):
-        return S.OK, "", (self.row, self.rows * self.row, 0.09998)
-
-
-def test_the_exposure_follows_the_gyro_and_a_command_overrides_it():
-    """The executive's policy in the loop: a 30 deg/s roll shortens the next frame's
-    exposure through the sensor's registers (the tracker's settings follow), a steady rate
-    writes nothing more, rest restores the nominal; ``CMD_EXPOSURE`` fixes it, 0 frees it."""
-    w = [0.0, 0.0, math.radians(30.0)]
-    exe, clock, link, _sensor, tracker, _wdt, _ = build([fakes.OK_FRAME] * 12, gyro=w)
-    sensor = exe.sensor = TimedSensor(clock)
-    tracker.settings.exposure_streak_px = 40.0
-    tracker.settings.exposure_floor_s = 0.025
-    tracker.camera = camera.Camera(2592, 1944, 7272.7, 7272.7)
-    run(exe, 3)
-    radius = math.hypot(2591 / 2, 1943 / 2)
-    expected = settings.EXPOSURE_TARGET * 40.0 / (w[2] * radius)
-    assert sensor.configured == [{"exposure": round(expected / sensor.row)}]
-    assert math.isclose(tracker.settings.exposure_s, expected, rel_tol=1e-3)
-    w[2] *= 1.1                                                  # jitter: no write
-    run(exe, 2)
-    assert len(sensor.configured) == 1
-    w[2] = 0.0
-    run(exe, 1)
-    assert sensor.configured[-1] == {"exposure": 2743} and exe.nominal_s == 2743 * sensor.row
-    exe.command(executive.CMD_EXPOSURE, 0.05)
-    w[2] = math.radians(45.0)
-    run(exe, 2)
-    assert sensor.configured[-1] == {"exposure": round(0.05 / sensor.row)}
-    assert not exe.exposure_auto
-    exe.command(executive.CMD_EXPOSURE, 0)                       # the policy again
-    run(exe, 1)
-    fast = settings.EXPOSURE_TARGET * 40.0 / (w[2] * radius)     # below the commanded 0.05
-    assert exe.exposure_auto and sensor.configured[-1] == {"exposure": round(fast / sensor.row)}
-    assert "sensor_fault" not in health(exe)
