@@ -20,7 +20,7 @@ median reported roll sigma of the identified frames, largest ``OK`` error).
 The inputs of the solution's last attitude fit are captured
 (``StarTracker.attitude`` wrapped): per matched star its direction, its catalogue
 direction and its partly seen track (tangent and ``unseen`` half-track).  Against the true
-attitude at the epoch it prints, per ``--ksigma``:
+attitude at the epoch it prints, per configuration (exposure, registers, ksigma):
 
 * the statuses and the median reported roll sigma (arcsec);
 * per ``unseen`` class the along-track error (px): RMS and the largest excess over
