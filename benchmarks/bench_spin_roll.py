@@ -163,10 +163,16 @@ def oracle(stars, rms):
     return math.sqrt(0.5 * (p[0, 0] + p[1, 1])) * ARCSEC, math.sqrt(p[2, 2]) * ARCSEC
 
 
+def beyond(row):
+    """Whether a solved frame's error is beyond 5 of its own sigmas on an axis."""
+    (ex, ey, er), (sc, sr) = row["error"], row["sigma"]
+    return max(abs(ex), abs(ey)) > 5.0 * sc or abs(er) > 5.0 * sr
+
+
 def summary(key, rows):
     """One table row of a configuration ``(exposure, registers, ksigma)``: exposure ms,
     registers, ksigma, ``OK`` / ``IMPRECISE`` / other (the other statuses), wrong (``WRONG``
-    verdicts and ``OK`` frames beyond 180"), median reported roll sigma of the identified
+    verdicts and ``OK`` frames beyond 180" or beyond 5 sigma on an axis), median reported roll sigma of the identified
     frames, largest ``OK`` error (arcsec, total)."""
     ok = [r for r in rows if r["status"] == "OK"]
     imprecise = sum(r["status"] == "IMPRECISE" for r in rows)
@@ -175,7 +181,8 @@ def summary(key, rows):
         if r["status"] not in ("OK", "IMPRECISE", "WRONG"):
             other[r["status"]] = other.get(r["status"], 0) + 1
     errors = [math.sqrt(sum(e * e for e in r["error"])) for r in ok]
-    wrong = sum(r["status"] == "WRONG" for r in rows) + sum(e > LIMIT_ARCSEC for e in errors)
+    wrong = sum(r["status"] == "WRONG" for r in rows) + sum(
+        e > LIMIT_ARCSEC or beyond(r) for e, r in zip(errors, ok))
     sig = [r["sigma"][1] for r in rows if r["sigma"]]
     return (f"| {1e3 * key[0]:g} | {key[1]} | {key[2]:g} | {len(ok)} / {imprecise} / "
             f"{len(rows) - len(ok) - imprecise} | {wrong} | "
