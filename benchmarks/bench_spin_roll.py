@@ -172,8 +172,8 @@ def beyond(row):
 def summary(key, rows):
     """One table row of a configuration ``(exposure, registers, ksigma)``: exposure ms,
     registers, ksigma, ``OK`` / ``IMPRECISE`` / other (the other statuses), wrong (``WRONG``
-    verdicts and ``OK`` frames beyond 180" or beyond 5 sigma on an axis), median reported roll sigma of the identified
-    frames, largest ``OK`` error (arcsec, total)."""
+    verdicts and ``OK`` frames beyond 180" or beyond 5 sigma on an axis), median reported
+    roll sigma of the identified frames, largest ``OK`` error (arcsec, total)."""
     ok = [r for r in rows if r["status"] == "OK"]
     imprecise = sum(r["status"] == "IMPRECISE" for r in rows)
     other = {}
