@@ -1,16 +1,26 @@
 """What bounds the roll about the boresight in a fast spin: per star and per frame, on the
-rate campaign's frames solved by the flight loop.
+rate campaign's frames solved by the flight loop, at each exposure.
 
     .venv/bin/python benchmarks/bench_spin_roll.py [--rate 30] [--trials 50]
-        [--ksigma 3.0 2.5 2.0] [--margins 1.0 0.5] [--workers 1]
+        [--ksigma 3.0 2.5 2.0] [--exposures 0.1 0.05] [--registers follow fixed]
+        [--margins 1.0 0.5] [--summary] [--workers 1]
 
 Each trial is ``bench_rate_honesty.py``'s ``track`` solve (the rate campaign's frame about
 the boresight at ``--rate`` deg/s, estcube2 tuned, the gyro exact, the prior 0.1 s old),
-the frame detected at each ``--ksigma`` (the fixed threshold ``B + ceil(ksigma sigma)``;
-the tuned setting is 3.0).  The inputs of the solution's last attitude fit are captured
+rendered at each ``--exposures`` (s; the same attitude, rate and noise seed) and detected
+at each ``--ksigma`` (the fixed threshold ``B + ceil(ksigma sigma)``; the tuned setting is
+3.0) with the detector's registers of each ``--registers``: ``follow``, those of the
+frame's exposure (``ground.onboard.detector_config``: the background and the noise the
+dark current and sky give in that time), or ``fixed``, those of the flight exposure 0.1 s
+written once at configuration (what the executive writes; a shorter exposure then meets a
+threshold set over a higher background).  ``--summary``: the per-configuration table alone
+(statuses, wrong: beyond 5 sigma on an axis at the reported instant or beyond 180",
+median reported roll sigma of the identified frames, largest ``OK`` error).
+
+The inputs of the solution's last attitude fit are captured
 (``StarTracker.attitude`` wrapped): per matched star its direction, its catalogue
 direction and its partly seen track (tangent and ``unseen`` half-track).  Against the true
-attitude at the epoch it prints, per ``--ksigma``:
+attitude at the epoch it prints, per configuration (exposure, registers, ksigma):
 
 * the statuses and the median reported roll sigma (arcsec);
 * per ``unseen`` class the along-track error (px): RMS and the largest excess over
@@ -45,6 +55,8 @@ ACROSS_PX = 0.3
 """The oracle's across-track sigma (px): the measured 0.1-0.8 px RMS (docs/campaigns.md)."""
 LIMIT_ARCSEC = 180.0
 FRAME_PERIOD_S = 0.1
+FLIGHT_EXPOSURE_S = 0.1
+"""The exposure the flight registers are computed for (``lodestar.fly.twin.EXPOSURE_S``)."""
 
 _captured = {}
 
@@ -84,28 +96,36 @@ def stars_of(fit, q_true):
 
 
 def trial(task):
-    """One frame at each ksigma: ``{ksigma: {status, roll_sigma, cross_sigma, stars,
-    roll}}`` (``stars`` None when no fit was made)."""
-    rate, i, ksigmas = task
+    """One frame per exposure, detected at each ksigma and registers: ``{(exposure,
+    registers, ksigma): {status, blobs, sigma, error, stars, roll}}`` (``stars`` None when
+    no fit was made, ``error`` the ``OK`` frame's error in arcsec: x, y, roll)."""
+    rate, i, ksigmas, exposures, registers = task
     pipeline.StarTracker.attitude = _capture
     base = camera_settings("estcube2", "tuned")
-    frame = trials.Frame("estcube2", base, trials.trial_seed(0, "rate", "estcube2", i), rate,
-                         "roll")
     out = {}
-    for k in ksigmas:
-        settings = dict(base, ksigma=k)
-        det = detect_frame(frame.image, detector_config(frame.cam, settings))
-        _captured.clear()
-        v = frame.solve("pyramid", det=det, track=(FRAME_PERIOD_S, i))
-        sigma = v["sigma_arcsec"] or v.get("loose", {}).get("sigma_arcsec")
-        fit = _captured.get("fit")
-        row = {"status": v["status"], "blobs": len(det.blobs), "stars": None, "roll": None,
-               "sigma": sigma}
-        if fit is not None and fit[4] is not None and sigma is not None:
-            row["stars"], row["roll"] = stars_of(fit, list(trials.truth_at(
-                frame, v.get("t_epoch_s") or 0.0)))
-        out[k] = row
+    for exposure in exposures:
+        frame = trials.Frame("estcube2", dict(base, exposure_s=exposure),
+                             trials.trial_seed(0, "rate", "estcube2", i), rate, "roll")
+        for mode, k in ((m, k) for m in registers for k in ksigmas):
+            settings = dict(base, ksigma=k, exposure_s=exposure)
+            cfg = detector_config(frame.cam, settings, FLIGHT_EXPOSURE_S if mode == "fixed"
+                                  else exposure)
+            out[(exposure, mode, k)] = _solved(frame, detect_frame(frame.image, cfg), i)
     return out
+
+
+def _solved(frame, det, i):
+    """The tracking solve of ``det`` on ``frame`` with its captured last fit."""
+    _captured.clear()
+    v = frame.solve("pyramid", det=det, track=(FRAME_PERIOD_S, i))
+    sigma = v["sigma_arcsec"] or v.get("loose", {}).get("sigma_arcsec")
+    fit = _captured.get("fit")
+    row = {"status": v["status"], "blobs": len(det.blobs), "stars": None, "roll": None,
+           "sigma": sigma, "error": v["error_arcsec"]}
+    if fit is not None and fit[4] is not None and sigma is not None:
+        row["stars"], row["roll"] = stars_of(fit, list(trials.truth_at(
+            frame, v.get("t_epoch_s") or 0.0)))
+    return row
 
 
 def along_table(frames):
@@ -143,15 +163,43 @@ def oracle(stars, rms):
     return math.sqrt(0.5 * (p[0, 0] + p[1, 1])) * ARCSEC, math.sqrt(p[2, 2]) * ARCSEC
 
 
-def report(k, rows, margins):
-    """Print the analysis of one ksigma's frames."""
+def beyond(row):
+    """Whether a solved frame's error is beyond 5 of its own sigmas on an axis."""
+    (ex, ey, er), (sc, sr) = row["error"], row["sigma"]
+    return max(abs(ex), abs(ey)) > 5.0 * sc or abs(er) > 5.0 * sr
+
+
+def summary(key, rows):
+    """One table row of a configuration ``(exposure, registers, ksigma)``: exposure ms,
+    registers, ksigma, ``OK`` / ``IMPRECISE`` / other (the other statuses), wrong (``WRONG``
+    verdicts and ``OK`` frames beyond 180" or beyond 5 sigma on an axis), median reported
+    roll sigma of the identified frames, largest ``OK`` error (arcsec, total)."""
+    ok = [r for r in rows if r["status"] == "OK"]
+    imprecise = sum(r["status"] == "IMPRECISE" for r in rows)
+    other = {}
+    for r in rows:
+        if r["status"] not in ("OK", "IMPRECISE", "WRONG"):
+            other[r["status"]] = other.get(r["status"], 0) + 1
+    errors = [math.sqrt(sum(e * e for e in r["error"])) for r in ok]
+    wrong = sum(r["status"] == "WRONG" for r in rows) + sum(
+        e > LIMIT_ARCSEC or beyond(r) for e, r in zip(errors, ok))
+    sig = [r["sigma"][1] for r in rows if r["sigma"]]
+    return (f"| {1e3 * key[0]:g} | {key[1]} | {key[2]:g} | {len(ok)} / {imprecise} / "
+            f"{len(rows) - len(ok) - imprecise} | {wrong} | "
+            f"{statistics.median(sig) if sig else math.nan:.0f}\" | "
+            f"{max(errors) if errors else math.nan:.0f}\" | "
+            + ", ".join(f"{n} {s}" for s, n in sorted(other.items())) + " |")
+
+
+def report(key, rows, margins):
+    """Print the analysis of one configuration's frames."""
     statuses = {}
     for r in rows:
         statuses[r["status"]] = statuses.get(r["status"], 0) + 1
     frames = [r for r in rows if r["stars"]]
     sig = [r["sigma"][1] for r in frames]
-    print(f"\nksigma {k:g}: {len(rows)} frames, blobs {min(r['blobs'] for r in rows)}-"
-          f"{max(r['blobs'] for r in rows)}, " +
+    print(f"\n{1e3 * key[0]:g} ms, {key[1]} registers, ksigma {key[2]:g}: {len(rows)} "
+          f"frames, blobs {min(r['blobs'] for r in rows)}-{max(r['blobs'] for r in rows)}, " +
           ", ".join(f"{s} {n}" for s, n in sorted(statuses.items())))
     if not frames:
         return
@@ -181,15 +229,26 @@ def main():
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--trials", type=int, default=50)
     ap.add_argument("--ksigma", type=float, nargs="+", default=[3.0])
+    ap.add_argument("--exposures", type=float, nargs="+", default=[FLIGHT_EXPOSURE_S])
+    ap.add_argument("--registers", nargs="+", choices=("follow", "fixed"),
+                    default=["follow"])
     ap.add_argument("--margins", type=float, nargs="+", default=[1.0, 0.5])
+    ap.add_argument("--summary", action="store_true")
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args()
-    tasks = [(args.rate, i, args.ksigma) for i in range(args.trials)]
+    tasks = [(args.rate, i, args.ksigma, args.exposures, args.registers)
+             for i in range(args.trials)]
     with multiprocessing.Pool(args.workers) as pool:
         results = pool.map(trial, tasks)
     print(f"roll {args.rate:g} deg/s, {args.trials} trials, tracking with the gyro")
-    for k in args.ksigma:
-        report(k, [r[k] for r in results], args.margins)
+    keys = list(results[0])
+    if not args.summary:
+        for key in keys:
+            report(key, [r[key] for r in results], args.margins)
+    print("\n| exposure ms | registers | ksigma | OK / IMPRECISE / other | wrong | "
+          "median roll sigma | largest OK error | other |\n|---|---|---|---|---|---|---|---|")
+    for key in keys:
+        print(summary(key, [r[key] for r in results]))
 
 
 if __name__ == "__main__":
