@@ -194,7 +194,7 @@ def t_tail(nu):
 
 def tail_factor(nu):
     """How much a sigma scaled to the residuals' RMS grows so that :data:`BOUND_SIGMAS` of it
-    is the error's bound at the normal tail (``docs/firmware.md``, Covariance): the error
+    is the error's bound at the normal tail (``docs/firmware.md``, Attitude): the error
     over a scale estimated from ``nu`` residual degrees of freedom is Student-t distributed,
     whose tail is far heavier than its RMS says (4 stars with a gyro, ``nu`` 5: 4.9; 8
     stars, 1.7; 30 stars, 1.1).  The RMS-scaled sigma divides by ``max(nu - 2, 1)``; the
@@ -1259,14 +1259,14 @@ class StarTracker:
         return res
 
     def _thin(self, res):
-        """Whether the next frame is budgeted for :data:`WIDE_TRACK` times ``track_stars``:
-        a frame of the budget's few records (at most that many) whose solution ``res`` is
-        ``IMPRECISE``, or stays within :data:`THIN_SHARE` of ``max_error_arcsec`` of it
-        while already widened (more records than ``track_stars`` plus
-        :data:`TRACK_EXTRA_STARS`: the hysteresis that keeps it from flapping).  Few stars
-        give a loose bound (the Student-t tail of their residuals, :func:`tail_factor`); a
-        frame of many records is not widened, its precision is not the budget's
-        (``docs/firmware.md``, Record budget)."""
+        """Whether the next frame is budgeted for :data:`WIDE_TRACK` times ``track_stars``
+        (``docs/firmware.md``, Record budget): a frame of the budget's records (at most
+        ``track_stars`` plus :data:`TRACK_EXTRA_STARS`) whose solution ``res`` is
+        ``IMPRECISE``, or a widened one (at most :data:`WIDE_TRACK` times as many) whose
+        bound is still beyond :data:`THIN_SHARE` of ``max_error_arcsec`` (the hysteresis
+        that keeps it from flapping).  Few stars give a loose bound (the Student-t tail of
+        their residuals, :func:`tail_factor`); a frame of more records is not widened, its
+        precision is not the budget's."""
         limit = self.settings.max_error_arcsec
         k = self.track_stars
         if limit is None or k is None or res.n_records > WIDE_TRACK * k + TRACK_EXTRA_STARS:
