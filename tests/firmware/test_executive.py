@@ -509,6 +509,26 @@ def test_an_imprecise_attitude_is_never_adopted():
     assert exe.q == fakes.Q0 and ("min_sum", 2001) not in link.writes   # its budget unused
 
 
+def test_an_imprecise_frame_of_few_records_widens_the_record_budget():
+    """A coasted ``IMPRECISE`` frame whose tracker asks for more records (a lower
+    ``min_sum``: ``StarTracker._thin``, too few stars for the bound) gets them while the
+    executive coasts; a higher one is left unwritten (the test above: the track's budget
+    stays)."""
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 3,
+                                                            [S.OK, S.IMPRECISE, S.OK])
+    scripted = tracker.process
+
+    def process(packet, prior=None, omega=None, dt=None):
+        res = scripted(packet, prior, omega, dt)
+        if res.status == S.IMPRECISE:
+            res.min_sum = 500
+        return res
+
+    tracker.process = process
+    assert run(exe, 5)[2:5] == ["TRACK", "COAST", "TRACK"]
+    assert link.writes[2:] == [("min_sum", 1000), ("min_sum", 500), ("min_sum", 1002)]
+
+
 def test_an_imprecise_attitude_guides_the_next_frame_only_while_acquiring():
     """In ``ACQUIRE`` (no good attitude) an ``IMPRECISE`` frame's attitude is the next
     frame's prior, dated like an attitude (lost in space takes 0.7 s: 8 periods), and only
