@@ -104,7 +104,7 @@ MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
 
 
 @native
-def min_sum(stars, track_stars):
+def min_sum(stars, track_stars, wide=False):
     """The ``min_sum`` register value that budgets the next frame for ``track_stars`` to
     ``track_stars +`` :data:`TRACK_EXTRA_STARS` blobs, from this frame's ``stars``
     (:class:`lodestar.firmware.centroids.Star`), each blob's ``s0`` a star's flux (of a star
@@ -114,9 +114,11 @@ def min_sum(stars, track_stars):
     field, or a budget cut too deep), half the smallest: the next frames admit fainter
     blobs until ``track_stars`` are seen again (in a sparse field, every blob after a few
     frames).  0 (every blob) without stars or with ``track_stars`` None.  Integer
-    arithmetic: the same value in every float precision."""
+    arithmetic: the same value in every float precision.  ``wide``: the pair of that value
+    and the one for :data:`WIDE_TRACK` times ``track_stars`` (:meth:`StarTracker._thin`),
+    from one sort of the blobs."""
     if track_stars is None or not stars:
-        return 0
+        return (0, 0) if wide else 0
     levels = []
     for s in stars:
         v = s._v                        # (x, y, flux, ..., parts): a property is a call
@@ -127,6 +129,14 @@ def min_sum(stars, track_stars):
         else:
             levels.append(f)
     levels.sort()
+    if wide:
+        return _budget(levels, track_stars), _budget(levels, WIDE_TRACK * track_stars)
+    return _budget(levels, track_stars)
+
+
+@native
+def _budget(levels, track_stars):
+    """:func:`min_sum` of the blobs' sorted ``levels``."""
     n = len(levels)
     if n < track_stars:
         return levels[0] // 2
@@ -1230,8 +1240,7 @@ class StarTracker:
         if prior is None:               # a tracking frame's peak is low: no stage collections
             _collect()
         start = self._tick(timings, "centroids", start)
-        budget = min_sum(stars, self.track_stars)
-        wide = min_sum(stars, WIDE_TRACK * self.track_stars) if budget else 0
+        budget, wide = min_sum(stars, self.track_stars, True)
         vectors, used = self.directions(stars, w, exposure)
         streaks = self.streaks(stars, used, smear) if smear is not None else None
         smear = None                    # the memo goes before the identification's peak

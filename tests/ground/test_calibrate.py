@@ -183,7 +183,7 @@ def test_calibration_recovers_the_lohmann_lens(lohmann_calibration):
     # issue 33's 180" with their residuals' Student-t tail (IMPRECISE: named right, the
     # attitude loose); the calibration uses the matches either way
     statuses = [f["status"] for f in result.frames]
-    assert set(statuses) <= {"OK", "IMPRECISE"} and "OK" in statuses
+    assert set(statuses) <= {"OK", "IMPRECISE"} and statuses.count("OK") >= 2
     z, chi2 = _deviation(result.fit, calibrate.camera_params(lohmann_frames.truth_camera()))
     assert set(z) == set(calibrate.DEFAULT_FREE)
     assert max(abs(v) for v in z.values()) < 3.0, z
