@@ -12,7 +12,8 @@ registers give written into the tracker's settings, gateware registers written a
 back) -> ``ACQUIRE`` (lost in space) <-> ``TRACK`` (the last attitude as the prior) ->
 ``COAST`` (up to ``coast_frames`` bad frames in a row: the last good attitude is kept
 and carried on the gyro rate, ``process(prior=q, omega, dt)``, instead of dropping to lost
-in space) -> ``RECOVER`` -> ``SAFE``.  A frame: wait for ``irq`` (at most
+in space) -> ``RECOVER`` -> ``SAFE``.  A frame: the tracker's idle-time hook (its
+``prefetch``: the next frame's catalogue cone made before the wait), wait for ``irq`` (at most
 ``irq_timeout_ms``), read and check the status word, read the packet (the link checks
 length and CRC and resynchronises after a bad read), ``StarTracker.process``, write
 ``min_sum`` back (read back), emit the telemetry record, keep the attitude with its time
@@ -765,6 +766,7 @@ class Executive(object):
     def _frame(self):
         link = self.link
         clock = self.clock
+        self._prefetch()
         if not link.wait_irq(self.irq_timeout_ms, self._tick):
             _count(self.health, _H_IRQ_TIMEOUT)
             self.last_link = _link.IRQ_TIMEOUT
@@ -796,6 +798,33 @@ class Executive(object):
         _count(self.health, _H_FRAMES)
         self.faults = 0
         self._solve(n, edge)
+
+    def _prefetch(self):
+        """Before the wait: the tracker's idle-time hook (``StarTracker.prefetch``, when it
+        has one) with what the next frame will pass to ``process``: the prior (the last
+        attitude, else the guide; None drops the cone before a lost-in-space frame), the
+        gyro's latest rate (none while distrusted) and ``dt`` from the prior's time tag to
+        the next frame's epoch, estimated as the time since the tag, at least a frame
+        period (the frame checks its cone against its own prior: an error of the estimate
+        costs at most a query of its own).  Its status is not needed; a fault is ignored."""
+        hook = getattr(self.tracker, "prefetch", None)
+        if hook is None:
+            return
+        prior = self.q
+        p_time = self.q_time
+        if prior is None and self.guide is not None:
+            prior, p_time = self.guide[0], self.guide[1]
+        try:
+            if prior is None:
+                hook(None)
+                return
+            omega = None
+            if not self.distrust:
+                omega = self._rate_at(0, self.clock.ticks_ms())
+            dt = (self.time_ms() - p_time) / 1000.0
+            hook(prior, omega, dt if dt > self.frame_s else self.frame_s)
+        except Exception:
+            pass
 
     def _exposure_ms(self):
         """``(exposure ms, Settings.epoch_s)`` of the tracker's settings."""

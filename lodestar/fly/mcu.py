@@ -79,6 +79,11 @@ class TimedTracker:
     def reason(self):
         return self.tracker.reason
 
+    def prefetch(self, prior=None, omega=None, dt=None):
+        """The tracker's idle-time hook, no time spent: the tracking frames' model above is
+        of frames that query their own cone, so a cone made here is counted there."""
+        return self.tracker.prefetch(prior, omega, dt)
+
     def process(self, packet, prior=None, omega=None, dt=None):
         result = self.tracker.process(packet, prior=prior, omega=omega, dt=dt)
         ms = process_ms(result, prior, omega) + LOOP_MS

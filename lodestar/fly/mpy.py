@@ -89,6 +89,8 @@ class Timed:
         self.settings = tracker.settings
         self.status = tracker.status
         self.reason = tracker.reason
+    def prefetch(self, prior=None, omega=None, dt=None):
+        return self.tracker.prefetch(prior, omega, dt)
     def process(self, packet, prior=None, omega=None, dt=None):
         res = self.tracker.process(packet, prior=prior, omega=omega, dt=dt)
         moving = 0 if omega is None else sum([w * w for w in omega])

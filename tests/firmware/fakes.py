@@ -213,7 +213,13 @@ class Tracker(object):
         self.track_ms = track_ms
         self.stages = stages
         self.calls = []
+        self.prefetches = []
         self.t_epoch_s = 0.0
+
+    def prefetch(self, prior=None, omega=None, dt=None):
+        """The idle-time hook: its arguments kept in ``prefetches``."""
+        self.prefetches.append((prior, omega, dt))
+        return S.OK
 
     def process(self, packet, prior=None, omega=None, dt=None):
         self.calls.append((prior, omega, dt))

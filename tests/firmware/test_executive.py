@@ -552,6 +552,41 @@ def test_an_imprecise_attitude_guides_the_next_frame_only_while_acquiring():
     assert [c[0] for c in tracker2.calls] == [None, None]
 
 
+def test_the_idle_time_hook_gets_the_next_frames_prior_before_the_wait():
+    """Before each frame's wait the tracker's ``prefetch`` gets what that frame's ``process``
+    will: None while lost in space (the cone dropped for the search), then the attitude (or
+    the guide) with the gyro's rate (none while it is distrusted) and a ``dt`` of at least a
+    frame period from the attitude's time tag."""
+    outcomes = [S.IMPRECISE, S.OK, S.OK, S.RATE_CONTRADICTED, S.OK]
+    exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 5, outcomes)
+    run(exe, 7)
+    hooks = tracker.prefetches
+    assert len(hooks) == len(tracker.calls) == 5
+    assert hooks[0] == (None, None, None)
+    assert [h[0] for h in hooks[1:]] == [fakes.Q_IMPRECISE] + [fakes.Q0] * 3
+    assert [h[0] for h in hooks] == [c[0] for c in tracker.calls]
+    assert all(math.isclose(a, b, rel_tol=1e-6) for a, b in zip(hooks[2][1], (0.001, 0, 0)))
+    assert hooks[4][1] is None and tracker.calls[4][1] is None      # the gyro distrusted
+    for (_p, _w, dt), call in zip(hooks[1:], tracker.calls[1:]):
+        assert dt >= exe.frame_s and abs(dt - call[2]) < exe.frame_s    # an estimate
+    assert "internal" not in health(exe)
+
+
+def test_a_tracker_without_the_hook_or_with_a_failing_one_still_tracks():
+    """The hook is optional: a tracker without ``prefetch``, or whose ``prefetch`` raises,
+    tracks as before, with no fault counted."""
+    for broken in (False, True):
+        exe, clock, link, sensor, tracker, wdt, records = build([fakes.OK_FRAME] * 4)
+        if broken:
+            def prefetch(prior=None, omega=None, dt=None):
+                raise MemoryError
+            tracker.prefetch = prefetch
+        else:
+            tracker.prefetch = None
+        assert run(exe, 5) == ["CONFIGURE", "ACQUIRE", "TRACK", "TRACK", "TRACK"]
+        assert health(exe) == {"frames": 3, "ok": 3, "sensor_init": 1, "missed": 7}
+
+
 def test_gateware_of_another_build_is_safe_at_boot():
     exe, _clock, link, sensor, _tracker, _wdt, _records = build([fakes.OK_FRAME] * 3,
                                                                 build=fakes.BUILD ^ 1)
@@ -741,6 +776,14 @@ def test_executive_tracks_recorded_packets_with_the_real_tracker():
         def packet(self, n):
             return data
 
+    hooked = []
+    prefetch = tracker.prefetch
+
+    def hook(prior=None, omega=None, dt=None):
+        hooked.append((prior is None, prefetch(prior, omega, dt), tracker._cone.ids is None))
+        return hooked[-1][1]
+
+    tracker.prefetch = hook
     clock = fakes.Clock()
     link = RecordedLink(clock, [fakes.OK_FRAME] * 3)
     records = []
@@ -754,4 +797,6 @@ def test_executive_tracks_recorded_packets_with_the_real_tracker():
     assert rotation_angle(q, expected["q"]) * 206264.8 < 0.1        # float32 in the record
     assert exe.last_result.mode == "tracking" and t["matches"] >= 20
     assert link.writes[1] == ("min_sum", expected["min_sum"])
+    # the idle-time hook: the cone dropped before lost in space, made before each tracking
+    assert hooked == [(True, S.OK, True), (False, S.OK, False), (False, S.OK, False)]
     db.close()
