@@ -1,7 +1,8 @@
 """The flight firmware on its own instruction set: time, heap, stack and flash on MicroPython
 1.27 built for a Cortex-M4F with the STM32F401's memory map (``lodestar.regress.qemu``: the
 firmware, the estcube2 database and the regression packets frozen into flash, run on QEMU
-with ``-icount``), against a baseline revision built the same way in the same run.
+with ``-icount``), against a baseline revision built the same way in the same run (replaying
+its own regression set: the same scenes recorded in its packet format).
 
     .venv/bin/python benchmarks/bench_mcu.py [--baseline 4641f47] [--repeats 3]
     .venv/bin/python benchmarks/bench_mcu.py --lis 100 [--work DIR]
@@ -94,16 +95,36 @@ def frame_class(case):
     return "moving" if omega and any(omega) else "rest"
 
 
-def builds(manifest, db_files, baseline):
-    """The current and baseline flight images and the representation-A reference."""
+SET_PATH = "lodestar/regress/data/regression"
+"""The regression set's folder in a checkout."""
+
+
+def baseline_set(baseline, dest):
+    """The regression set as ``baseline`` recorded it, extracted into ``dest``: ``(folder,
+    manifest, database files, estcube2 Pyramid runs)``.  A baseline replays its own set:
+    today's packets carry a header its decoder refuses (the frame timestamp, packet version
+    2, came after ``4641f47``), and its set records the same scenes in its own format."""
+    dest.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", baseline, SET_PATH],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    folder = dest / SET_PATH
+    manifest = replay.load_set(folder)
+    runs = [(c, METHOD) for c in manifest["cases"] if c["camera"] == CAMERA]
+    return folder, manifest, replay.database_files(manifest), runs
+
+
+def builds(manifest, db_files, baseline, base):
+    """The current and baseline flight images (the baseline with its own set ``base``:
+    :func:`baseline_set`) and the representation-A reference."""
     cache = default_cache_dir()
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "baseline"
         subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-q", "--detach",
                         str(tree), baseline], check=True)
         try:
-            old = qemu.flight_build(manifest, replay.DEFAULT_SET, db_files, cache, REPO,
-                                    checkout=tree, name="bench-baseline")
+            old = qemu.flight_build(base[1], base[0], base[2], cache, REPO, checkout=tree,
+                                    name="bench-baseline")
         finally:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
                             str(tree)], check=True)
@@ -134,12 +155,12 @@ def _row_stats(values):
     return statistics.median(values), values[-1]
 
 
-def time_table(loops, runs, scale, read_ticks):
-    """Per class: F401 ms p50 / max of ``process`` on the baseline and now, the executive's
-    step (frames it solved; the build of the expectations, 80 KiB of heap) and the F-RAM
-    database (the frame from flash plus its reads through the F-RAM model, counted, times
-    ``read_ticks`` and their wire time at :data:`FRAM_SCK_HZ`); the slowest frame's stages
-    now."""
+def time_table(loops, runs, scale, read_ticks, base_runs):
+    """Per class: F401 ms p50 / max of ``process`` on the baseline (over its own set's
+    ``base_runs``) and now, the executive's step (frames it solved; the build of the
+    expectations, 80 KiB of heap) and the F-RAM database (the frame from flash plus its
+    reads through the F-RAM model, counted, times ``read_ticks`` and their wire time at
+    :data:`FRAM_SCK_HZ`); the slowest frame's stages now."""
     print("\n## Time on the Cortex-M4F build, F401 estimate (ms), estcube2, Pyramid")
     print("| class | frames | baseline p50 / max | now p50 / max | now through the executive "
           "p50 / max | now, database in F-RAM p50 / max | slowest frame's stages now |")
@@ -151,8 +172,10 @@ def time_table(loops, runs, scale, read_ticks):
         cells = []
         for name in ("baseline", "now", "executive", "fram"):
             times, results = loops[name]["times"], loops[name]["results"]
-            ok = [k for k in keys if k in times and results[k][0] is not None and
-                  results[k][0]["status"] == _expected(runs, k)]
+            own = base_runs if name == "baseline" else runs
+            mine = [(c["name"], m) for c, m in own if frame_class(c) == cls]
+            ok = [k for k in mine if k in times and results[k][0] is not None and
+                  results[k][0]["status"] == _expected(own, k)]
             got = [times[k]["step" if name == "executive" else "process"] for k in ok]
             if name == "fram":
                 io, now = loops[name]["io"], loops["now"]["times"]
@@ -160,8 +183,10 @@ def time_table(loops, runs, scale, read_ticks):
                        fram.wire_us(*io.get(k, (0, 0)), FRAM_SCK_HZ) / scale for k in ok]
             p50, top = _row_stats(got) if got else (None, None)
             text = "-" if p50 is None else f"{_ms(p50, scale):.0f} / {_ms(top, scale):.0f}"
-            if len(ok) < len(keys):
-                text += f" ({len(keys) - len(ok)} other status)"
+            if len(ok) < len(mine):
+                text += f" ({len(mine) - len(ok)} other status)"
+            elif len(mine) != len(keys):
+                text += f" ({len(mine)} frames)"
             cells.append(text)
         slow = max(keys, key=lambda k: loops["now"]["times"][k]["process"])
         stages = ", ".join(f"{s} {_ms(v, scale):.0f}" for s, v in
@@ -325,15 +350,15 @@ def budget_cases():
     return out
 
 
-def data_module(path, db, manifest, repeats):
+def data_module(path, db, manifest, set_dir, repeats):
     """Write the frozen data module: the database, the camera, the settings, the estcube2
-    packets with their inputs and the work-budget cases."""
+    packets of the set in ``set_dir`` with their inputs and the work-budget cases."""
     cam = manifest["cameras"]["estcube2"]
     cases = []
     for case in manifest["cases"]:
         if case["camera"] != "estcube2" or not case["name"].startswith("estcube2"):
             continue
-        packet = (replay.DEFAULT_SET / case["packet"]).read_bytes()
+        packet = (set_dir / case["packet"]).read_bytes()
         i = case["inputs"]
         omega = tuple(i["omega"]) if i.get("omega") is not None else None
         prior = tuple(i["prior"]) if i.get("prior") is not None else None
@@ -345,10 +370,10 @@ def data_module(path, db, manifest, repeats):
                     "\n".join(cases) + f"\n]\nBUDGET = {budget_cases()!r}\n")
 
 
-def stage_build(label, checkout, work, db, manifest, repeats, script, extra=()):
-    """Stage ``checkout``'s image (None: this installation's) with the data module and the
-    ``extra`` modules of :mod:`lodestar.regress` (this installation's), build it and return
-    a copy of its ``firmware.elf``."""
+def stage_build(label, checkout, work, db, manifest, set_dir, repeats, script, extra=()):
+    """Stage ``checkout``'s image (None: this installation's) with the data module (the set
+    ``manifest`` in ``set_dir``) and the ``extra`` modules of :mod:`lodestar.regress` (this
+    installation's), build it and return a copy of its ``firmware.elf``."""
     side = work / label
     image = unixport.stage_mcu_image(side / "image", checkout, native=True)
     for name in extra:
@@ -356,7 +381,7 @@ def stage_build(label, checkout, work, db, manifest, repeats, script, extra=()):
                         image / "lodestar" / "regress" / f"{name}.py")
     data = side / "data"
     data.mkdir(parents=True, exist_ok=True)
-    data_module(data / "lodestar_bench.py", db, manifest, repeats)
+    data_module(data / "lodestar_bench.py", db, manifest, set_dir, repeats)
     frozen = side / "manifest.py"
     frozen.write_text(f"package('lodestar', base_path={str(image)!r})\n"
                       f"module('lodestar_bench.py', base_path={str(data)!r})\n")
@@ -428,9 +453,9 @@ def stage_class(name):
 
 def stage_report(results, labels):
     """Print the per-packet table and the per-class summary."""
-    names = sorted({k[0] for k in results[labels[0]] if not k[0].startswith(("work ",
-                                                                               "prefetch "))},
-                   key=lambda n: (stage_class(n), n))
+    names = sorted({k[0] for lab in labels for k in results[lab]
+                    if not k[0].startswith(("work ", "prefetch "))},
+                   key=lambda n: (stage_class(n), n))       # each build's own set's packets
     repeats = max(k[1] for k in results[labels[0]]) + 1
     print("\n## Per packet, F401 ms (estimate): first call / later calls (median); stages of "
           "the last call, baseline → now")
@@ -440,16 +465,20 @@ def stage_report(results, labels):
     for name in names:
         cells = []
         for lab in labels:
-            rows = [results[lab][(name, r)] for r in range(repeats)]
+            rows = [results[lab][(name, r)] for r in range(repeats) if (name, r) in results[lab]]
+            if not rows:
+                cells.append("–")
+                continue
             later = statistics.median(r["call"] for r in rows[1:]) if repeats > 1 else None
             cells.append(f"{ms(rows[0]['call']):.1f} / " +
                          ("–" if later is None else f"{ms(later):.1f}"))
-        last = results[labels[-1]][(name, repeats - 1)]
-        base = results[labels[0]][(name, repeats - 1)]
+        last = results[labels[-1]].get((name, repeats - 1), {})
+        base = results[labels[0]].get((name, repeats - 1), {})
         stages = [(f"{ms(base[s]):.1f} → " if s in base else "") +
                   (f"{ms(last[s]):.1f}" if s in last else "–") for s in STAGES]
         status = " → ".join(str(results[lab][(name, 0)]["status"]) + "/" +
-                            str(results[lab][(name, 0)]["matches"]) for lab in labels)
+                            str(results[lab][(name, 0)]["matches"])
+                            if (name, 0) in results[lab] else "–" for lab in labels)
         print(f"| {name} | " + " | ".join(cells) + " | " + " | ".join(stages) +
               f" | {status} |")
     prefetch_report(results, labels, names)
@@ -517,9 +546,11 @@ def stages(baseline, repeats, keep):
                               "lodestar/__init__.py", "lodestar/contract", "firmware"],
                              capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+    base_set, base_manifest = baseline_set(baseline, work / "baseline-set")[:2]
     results = {}
-    for label, checkout in ((baseline, base), ("now", None)):
-        elf = stage_build(label, checkout, work, db, manifest, repeats, script)
+    for label, checkout, man, folder in ((baseline, base, base_manifest, base_set),
+                                         ("now", None, manifest, replay.DEFAULT_SET)):
+        elf = stage_build(label, checkout, work, db, man, folder, repeats, script)
         results[label] = stage_run(elf)
     stage_report(results, [baseline, "now"])
     if keep is None:
@@ -611,8 +642,8 @@ def lis(n, keep):
     labels = lis_frames(n, frames)
     print(f"\n{len(labels)} frames in {time.perf_counter() - t0:.0f} s")
     manifest = replay.load_set(replay.DEFAULT_SET)
-    elf = stage_build("lis", None, work, flight_database(), manifest, 1, script,
-                      extra=("semihost",))
+    elf = stage_build("lis", None, work, flight_database(), manifest, replay.DEFAULT_SET, 1,
+                      script, extra=("semihost",))
     proc = qemu.run(elf, LIS_SCRIPT.replace("BUFFER", str(unixport.FLIGHT_BUFFER)).replace(
         "lis_frames.bin", frames.name), files=[frames], timeout=6000, repo=REPO)
     if proc.returncode != 0 or "DONE" not in proc.stdout:
@@ -677,7 +708,9 @@ def main():
         print(f"F401 estimate = ticks x {cal['scale']:.3f} us")
         stages(args.baseline, args.repeats, args.work)
         return
-    old, new, reference = builds(manifest, db_files, args.baseline)
+    base_dir = Path(tempfile.mkdtemp(prefix="bench_mcu-set-"))
+    base = baseline_set(args.baseline, base_dir)
+    old, new, reference = builds(manifest, db_files, args.baseline, base)
     cal = qemu.calibrate(reference)
     SCALE[0] = cal["scale"]
     print(f"# bench_mcu: baseline {args.baseline} -> working tree; builds "
@@ -689,21 +722,24 @@ def main():
     runs = [(c, METHOD) for c in manifest["cases"] if c["camera"] == CAMERA]
     big = qemu.expectation_build(manifest, replay.DEFAULT_SET, db_files, default_cache_dir(),
                                  REPO)
-    loops = {"baseline": qemu.flight_loop(old, manifest, db_files, runs, timing=True),
+    base_runs = base[3]
+    loops = {"baseline": qemu.flight_loop(old, base[1], base[2], base_runs, timing=True),
              "now": qemu.flight_loop(new, manifest, db_files, runs, timing=True),
              "executive": qemu.flight_loop(big, manifest, db_files, runs, timing=True,
                                            executive=True, heap=BIG_HEAP),
              "fram": qemu.flight_loop(new, manifest, db_files, runs, timing=True,
                                       frozen=()),
              "peak": qemu.flight_loop(new, manifest, db_files, runs, peak=True)}
+    shutil.rmtree(base_dir, ignore_errors=True)
     for name, loop in loops.items():
-        bad = unixport.disagreements(loop, runs) if name != "executive" else []
+        own = base_runs if name == "baseline" else runs
+        bad = unixport.disagreements(loop, own) if name != "executive" else []
         print(f"{name}: {'finished' if loop['finished'] else 'DID NOT FINISH'}"
               f"{', differs: ' + str(bad) if bad else ''}")
     read_ticks = qemu.fram_read_ticks(new)
     print(f"F-RAM: a read costs {read_ticks:.3f} ticks more than from flash (the reader's "
           f"side), plus its wire time at {FRAM_SCK_HZ / 1e6:.0f} MHz")
-    time_table(loops, runs, cal["scale"], read_ticks)
+    time_table(loops, runs, cal["scale"], read_ticks, base_runs)
     memory_table(new, big, loops, runs, manifest, db_files)
     flash_table(new, db_files, manifest)
     print(f"\n(packet buffer {unixport.FLIGHT_BUFFER} B: {C.FLIGHT_RECORD_CAPACITY} records)")
