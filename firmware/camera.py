@@ -13,7 +13,7 @@ and MicroPython, single- or double-precision floats.
 
 import math
 
-from lodestar import contract as C
+from lodestar.contract import detection as C
 from lodestar.firmware import status as S
 from lodestar.firmware.geometry import EPS, finite, is_number, norm
 

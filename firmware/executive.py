@@ -84,7 +84,7 @@ except ImportError:         # CPython
     def const(value):
         return value
 
-from lodestar import contract as C
+from lodestar.contract import packet as C
 from lodestar.contract import telemetry
 
 from . import link as _link

@@ -35,7 +35,10 @@ except ImportError:         # CPython
     def const(value):
         return value
 
-from lodestar import contract as C
+from lodestar.contract import detection as D
+from lodestar.contract import link as C
+from lodestar.contract import packet as P
+from lodestar.contract.integers import field_offsets
 
 # result codes
 OK = 0
@@ -89,7 +92,7 @@ _ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
 def _specs(fields, names):
     """Fields ``names`` of a field table (``contract.field_offsets``), each as one small
     int: its bit offset from the MSB << 8 | its bits."""
-    table = C.field_offsets(fields)
+    table = field_offsets(fields)
     out = []
     for name in names:
         for field, at, bits in table:
@@ -148,17 +151,17 @@ class Link(object):
     is refused as ``LENGTH_BAD``); ``retries``: extra attempts of a register write whose
     read-back differs."""
 
-    def __init__(self, spi, cs, irq, clock, capacity=C.FLIGHT_RECORD_CAPACITY, retries=2):
+    def __init__(self, spi, cs, irq, clock, capacity=D.FLIGHT_RECORD_CAPACITY, retries=2):
         self.spi = spi
         self.cs = cs
         self.irq = irq
         self.clock = clock
-        self.capacity = max(0, min(int(capacity), C.MAX_RECORD_CAPACITY))
+        self.capacity = max(0, min(int(capacity), D.MAX_RECORD_CAPACITY))
         self.retries = retries
         self.counters = array("H", [0] * N_COUNTERS)
-        self.buf = bytearray(C.packet_bytes(self.capacity))
+        self.buf = bytearray(P.packet_bytes(self.capacity))
         self._mv = memoryview(self.buf)
-        self._head = self._mv[:C.HEADER_BYTES]
+        self._head = self._mv[:P.HEADER_BYTES]
         self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES))
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
@@ -171,7 +174,7 @@ class Link(object):
         self._v_write = self._views(C.WRITE_REG_BYTES)
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
         self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
-        self._crc = bytearray(C.CRC_BYTES)   # the CRC-32 computed, big endian (compared
+        self._crc = bytearray(P.CRC_BYTES)   # the CRC-32 computed, big endian (compared
                                              # byte by byte: no long ints built)
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
@@ -335,8 +338,8 @@ class Link(object):
         if not self._stream(head):
             self.resync()
             return BUS_ERROR, 0
-        if _field(head, 0, _H_MAGIC) != C.PACKET_MAGIC or \
-                _field(head, 0, _H_VERSION) != C.PACKET_VERSION:
+        if _field(head, 0, _H_MAGIC) != P.PACKET_MAGIC or \
+                _field(head, 0, _H_VERSION) != P.PACKET_VERSION:
             self.count(_C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
@@ -345,14 +348,14 @@ class Link(object):
             self.count(_C_LENGTH_BAD)
             self.resync()
             return LENGTH_BAD, 0
-        total = C.packet_bytes(n)
-        if not self._stream(self._mv[C.HEADER_BYTES:total]):
+        total = P.packet_bytes(n)
+        if not self._stream(self._mv[P.HEADER_BYTES:total]):
             self.resync()
             return BUS_ERROR, 0
-        body = total - C.CRC_BYTES
+        body = total - P.CRC_BYTES
         buf = self.buf
         crc = self._crc
-        struct.pack_into(">I", crc, 0, C.crc32(self._mv[:body]))
+        struct.pack_into(">I", crc, 0, P.crc32(self._mv[:body]))
         if crc[0] != buf[body] or crc[1] != buf[body + 1] or crc[2] != buf[body + 2] or \
                 crc[3] != buf[body + 3]:
             self.count(_C_PACKET_CRC)
@@ -387,7 +390,7 @@ class Link(object):
 
     def packet(self, n_records):
         """The packet of ``n_records`` records in the buffer, as a memoryview."""
-        return self._mv[:C.packet_bytes(n_records)]
+        return self._mv[:P.packet_bytes(n_records)]
 
     def resync(self):
         """Put the stream back at a packet start: FLUSH, then drain ``READ_STREAM`` while
@@ -395,7 +398,7 @@ class Link(object):
         status (its underruns are the drain's).  Returns ``OK`` or ``RESYNC_FAILED``."""
         self.count(_C_RESYNC)
         self.command(C.OP_FLUSH)
-        limit = C.packet_bytes(C.MAX_RECORD_CAPACITY)
+        limit = P.packet_bytes(D.MAX_RECORD_CAPACITY)
         drained = 0
         clock = self.clock
         scratch = self._mv[:min(DRAIN_CHUNK, len(self.buf))]

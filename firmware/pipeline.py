@@ -18,7 +18,8 @@ import math
 import sys
 from array import array
 
-from lodestar import contract as C
+from lodestar.contract import packet as C
+from lodestar.contract.detection import REGISTER_BY_NAME
 
 from . import attitude as _attitude
 from . import camera as _camera
@@ -99,7 +100,7 @@ of 8 records were ``IMPRECISE`` six in a row, with 16 each is ``OK``."""
 THIN_SHARE = 0.8
 """A widened frame stays widened while its bound exceeds this share of
 ``max_error_arcsec``."""
-MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
+MIN_SUM_MAX = (1 << REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
 

@@ -11,7 +11,7 @@ contract's magic and link version), ``WRITE_REG``/``READ_REG`` (a register file)
 ``FLUSH`` and ``SOFT_RESET`` (the queued packet dropped).  ``irq`` is high while a loaded
 packet has bytes left, as the gateware's."""
 
-from lodestar import contract as C
+from lodestar.contract import link as C
 
 _REPLY = 1 + C.TURNAROUND_BYTES
 

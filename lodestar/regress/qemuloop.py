@@ -26,7 +26,7 @@ import machine
 import micropython
 import regset
 
-from lodestar import contract as C
+from lodestar.contract import detection as C
 from lodestar.firmware import database as _database
 from lodestar.regress import mcu
 
