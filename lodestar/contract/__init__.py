@@ -11,13 +11,17 @@ firmware imports the submodules themselves; ``docs/mcu_board.md``, Heap and stac
 _SUBMODULES = ("packet", "detection", "integers", "link")
 """Where a name is looked for, in this order: the link last, so that reading the packet's and
 the detection's names does not import it (a name in two of them is the same object)."""
+_MODULES = ("detection", "integers", "link", "packet", "stardb", "telemetry")
+"""The package's submodules: a name of one is imported, never looked for in the others
+(MicroPython's ``from lodestar.contract import stardb`` asks :func:`__getattr__` first)."""
 
 
 def __getattr__(name):
-    """The public ``name`` of a submodule of :data:`_SUBMODULES`, kept in the package for
-    the next read, or the submodule ``name`` itself (MicroPython's ``from ... import``
-    asks here before it imports one); ``AttributeError`` if neither exists (PEP 562,
-    MicroPython's ``MICROPY_MODULE_GETATTR``)."""
+    """The submodule ``name`` (:data:`_MODULES`), or the public ``name`` of a submodule of
+    :data:`_SUBMODULES`, kept in the package for the next read; ``AttributeError`` if none
+    has it (PEP 562, MicroPython's ``MICROPY_MODULE_GETATTR``)."""
+    if name in _MODULES:
+        return __import__("lodestar.contract." + name, None, None, (name,))
     if name[:1] != "_":
         for sub in _SUBMODULES:
             module = __import__("lodestar.contract." + sub, None, None, (name,))
@@ -25,8 +29,4 @@ def __getattr__(name):
                 value = getattr(module, name)
                 globals()[name] = value
                 return value
-        try:
-            return __import__("lodestar.contract." + name, None, None, (name,))
-        except ImportError:
-            pass
     raise AttributeError(name)

@@ -3,6 +3,7 @@
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -42,3 +43,11 @@ def test_the_package_keeps_only_the_names_read():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split(None, 2)
     assert int(out[0]) < 20 and out[1] == "False" and out[2].strip() == "['MAX_WIDTH']"
+
+
+def test_every_submodule_is_listed():
+    """MicroPython imports a submodule through the package's ``__getattr__`` only when it is
+    in ``_MODULES`` (else ``from lodestar.contract import it`` fails before its first
+    import)."""
+    here = Path(C.__file__).parent
+    assert set(C._MODULES) == {p.stem for p in here.glob("*.py")} - {"__init__"}

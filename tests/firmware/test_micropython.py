@@ -349,12 +349,12 @@ def test_contract_names_and_import_threshold_under_micropython(micropython):
         "from lodestar.contract import REGISTER_BY_NAME, stardb\n"
         "import lodestar.firmware as F\n"
         "print('NAMES', n < 20, C.MAX_WIDTH, REGISTER_BY_NAME['mode'].address,\n"
-        "      stardb.METHOD_PYRAMID, 'MAX_HEIGHT' in C.__dict__)\n"
+        "      stardb.METHOD_PYRAMID, 'MAX_HEIGHT' in C.__dict__, 'link' in C.__dict__)\n"
         "print('THRESHOLD', gc.threshold() == F.IMPORT_GC_THRESHOLD)\n"
         "try:\n"
         "    C.NO_SUCH_NAME\n"
         "except AttributeError:\n"
         "    print('UNKNOWN AttributeError')\n")
     assert code == 0, out
-    assert f"NAMES True 4096 0 {stardb.METHOD_PYRAMID} False" in out, out
+    assert f"NAMES True 4096 0 {stardb.METHOD_PYRAMID} False False" in out, out
     assert "THRESHOLD True" in out and "UNKNOWN AttributeError" in out, out
