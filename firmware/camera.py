@@ -13,7 +13,7 @@ and MicroPython, single- or double-precision floats.
 
 import math
 
-from lodestar import contract as C
+from lodestar.contract import detection
 from lodestar.firmware import status as S
 from lodestar.firmware.geometry import EPS, finite, is_number, norm
 
@@ -95,8 +95,8 @@ class Camera(object):
 
     def __init__(self, width, height, fx, fy, cx=None, cy=None, k1=0.0, k2=0.0, k3=0.0,
                  p1=0.0, p2=0.0):
-        for name, value, limit in (("width", width, C.MAX_WIDTH),
-                                   ("height", height, C.MAX_HEIGHT)):
+        for name, value, limit in (("width", width, detection.MAX_WIDTH),
+                                   ("height", height, detection.MAX_HEIGHT)):
             if isinstance(value, bool) or not isinstance(value, int) or not \
                     1 <= value <= limit:
                 raise ValueError("{} must be an int in 1..{}, got {!r}".format(

@@ -84,8 +84,8 @@ except ImportError:         # CPython
     def const(value):
         return value
 
-from lodestar import contract as C
 from lodestar.contract import telemetry
+from lodestar.contract.packet import FRAME_LINE_ERROR, FRAME_TIMEOUT, FRAME_TRUNCATED, crc32
 
 from . import link as _link
 from . import status as S
@@ -154,7 +154,7 @@ the correlation of the gateware's microseconds with the MCU's ticks) and by the 
 edge less its read-out (the edge is polled every 1 ms, and the IRQ rises within a fraction
 of a millisecond after the last row): beyond it the edge is counted as a mismatch
 (``time_mismatch``) and the timestamp's date kept."""
-CUT_FLAGS = C.FRAME_TRUNCATED | C.FRAME_TIMEOUT | C.FRAME_LINE_ERROR
+CUT_FLAGS = FRAME_TRUNCATED | FRAME_TIMEOUT | FRAME_LINE_ERROR
 """Frame flags of a frame the sensor did not deliver whole: the gateware ended it itself (its
 stall timeout's dark rows, or the next frame's start), so its IRQ edge is not its first
 pixel plus the read-out and neither checks nor renews the timestamp's correlation."""
@@ -556,7 +556,7 @@ class Executive(object):
         q = self.q if self.q is not None else _NO_Q
         struct.pack_into(PRIOR_FORMAT, buf, 0, q[0], q[1], q[2], q[3], max(0, self.q_time),
                          self.slot, 0)
-        struct.pack_into(">I", buf, PRIOR_BYTES - 4, C.crc32(self._prior_body))
+        struct.pack_into(">I", buf, PRIOR_BYTES - 4, crc32(self._prior_body))
         try:
             self.store.write(buf)
         except Exception:
@@ -574,7 +574,7 @@ class Executive(object):
         if data is None or len(data) != PRIOR_BYTES:
             return
         x, y, z, w, t, slot, crc = struct.unpack(PRIOR_FORMAT, data)
-        if C.crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
+        if crc32(memoryview(data)[:PRIOR_BYTES - 4]) != crc:
             return
         self.slot = slot
         age = self.time_ms() - t
@@ -986,7 +986,7 @@ class Executive(object):
                          h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8], h[9], h[10],
                          h[11], h[12], h[13], h[14], h[15], h[16], h[17], h[18], h[19],
                          heap, 0)
-        struct.pack_into(">I", buf, telemetry.BYTES - 4, C.crc32(self._record_body))
+        struct.pack_into(">I", buf, telemetry.BYTES - 4, crc32(self._record_body))
         if self.telemetry is not None:
             try:
                 self.telemetry(buf)

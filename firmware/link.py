@@ -35,7 +35,17 @@ except ImportError:         # CPython
     def const(value):
         return value
 
-from lodestar import contract as C
+from lodestar.contract import link as _link
+from lodestar.contract.detection import FLIGHT_RECORD_CAPACITY, MAX_RECORD_CAPACITY
+from lodestar.contract.integers import field_offsets
+from lodestar.contract.packet import (
+    CRC_BYTES,
+    HEADER_BYTES,
+    PACKET_MAGIC,
+    PACKET_VERSION,
+    crc32,
+    packet_bytes,
+)
 
 # result codes
 OK = 0
@@ -80,16 +90,16 @@ COUNTER_NAMES = ("bus", "status_bad", "irq_timeout", "header_bad", "length_bad",
 N_COUNTERS = 17
 _COUNTER_MAX = const(0xFFFF)
 
-_REPLY = 1 + C.TURNAROUND_BYTES                # MISO bytes before a read's reply
-_STATUS_LEN = _REPLY + C.STATUS_BYTES
-_READ_LEN = C.READ_REG_BYTES
-_ID_LEN = C.ID_FIRST_REPLY + C.ID_BYTES
+_REPLY = 1 + _link.TURNAROUND_BYTES            # MISO bytes before a read's reply
+_STATUS_LEN = _REPLY + _link.STATUS_BYTES
+_READ_LEN = _link.READ_REG_BYTES
+_ID_LEN = _link.ID_FIRST_REPLY + _link.ID_BYTES
 
 
 def _specs(fields, names):
     """Fields ``names`` of a field table (``contract.field_offsets``), each as one small
     int: its bit offset from the MSB << 8 | its bits."""
-    table = C.field_offsets(fields)
+    table = field_offsets(fields)
     out = []
     for name in names:
         for field, at, bits in table:
@@ -98,10 +108,10 @@ def _specs(fields, names):
     return out
 
 
-_SPECS = array("l", _specs(C.HEADER_FIELDS, ("magic", "version", "frame_counter", "timestamp",
-                                            "height", "flags", "n_records")) +
-               _specs(C.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow",
-                                        "busy", "trained", "eye_width")))
+_SPECS = array("l", _specs(_link.HEADER_FIELDS, ("magic", "version", "frame_counter",
+                                                 "timestamp", "height", "flags", "n_records")) +
+               _specs(_link.STATUS_FIELDS, ("frame_counter", "errors", "underruns", "overflow",
+                                            "busy", "trained", "eye_width")))
 """The header's and the status word's fields the master reads (:func:`_specs`), indexed by
 the ``_H_*`` and ``_S_*`` constants: one array, where a dict of tuples per table kept 600
 bytes of heap on the MCU and a global per field 16 more each."""
@@ -148,18 +158,18 @@ class Link(object):
     is refused as ``LENGTH_BAD``); ``retries``: extra attempts of a register write whose
     read-back differs."""
 
-    def __init__(self, spi, cs, irq, clock, capacity=C.FLIGHT_RECORD_CAPACITY, retries=2):
+    def __init__(self, spi, cs, irq, clock, capacity=FLIGHT_RECORD_CAPACITY, retries=2):
         self.spi = spi
         self.cs = cs
         self.irq = irq
         self.clock = clock
-        self.capacity = max(0, min(int(capacity), C.MAX_RECORD_CAPACITY))
+        self.capacity = max(0, min(int(capacity), MAX_RECORD_CAPACITY))
         self.retries = retries
         self.counters = array("H", [0] * N_COUNTERS)
-        self.buf = bytearray(C.packet_bytes(self.capacity))
+        self.buf = bytearray(packet_bytes(self.capacity))
         self._mv = memoryview(self.buf)
-        self._head = self._mv[:C.HEADER_BYTES]
-        self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, C.WRITE_REG_BYTES))
+        self._head = self._mv[:HEADER_BYTES]
+        self._tx = bytearray(max(_STATUS_LEN, _READ_LEN, _ID_LEN, _link.WRITE_REG_BYTES))
         self._rx = bytearray(len(self._tx))
         self._txv = memoryview(self._tx)
         self._rxv = memoryview(self._rx)
@@ -168,10 +178,10 @@ class Link(object):
         self._v_status = self._views(_STATUS_LEN)
         self._v_read = self._views(_READ_LEN)
         self._v_id = self._views(_ID_LEN)
-        self._v_write = self._views(C.WRITE_REG_BYTES)
+        self._v_write = self._views(_link.WRITE_REG_BYTES)
         self._status_data = self._rxv[_REPLY:_STATUS_LEN]
-        self._stream_op = bytearray((C.OP_READ_STREAM,) + (0,) * C.TURNAROUND_BYTES)
-        self._crc = bytearray(C.CRC_BYTES)   # the CRC-32 computed, big endian (compared
+        self._stream_op = bytearray((_link.OP_READ_STREAM,) + (0,) * _link.TURNAROUND_BYTES)
+        self._crc = bytearray(CRC_BYTES)   # the CRC-32 computed, big endian (compared
                                              # byte by byte: no long ints built)
         # the last status word read (valid after read_status() == OK)
         self.frame_counter = None
@@ -264,15 +274,15 @@ class Link(object):
         them up.  Returns a code (``STATUS_BAD``: CRC-8 or turnaround wrong; the fields
         keep their old values)."""
         self._clear(_STATUS_LEN)
-        self._tx[0] = C.OP_READ_STATUS
+        self._tx[0] = _link.OP_READ_STATUS
         if not self._exchange(self._v_status):
             return BUS_ERROR
         rx = self._rx
         for i in range(_REPLY):
-            if rx[i] != C.FILLER:
+            if rx[i] != _link.FILLER:
                 self.count(_C_STATUS_BAD)
                 return STATUS_BAD
-        if C.crc8(self._status_data, C.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
+        if _link.crc8(self._status_data, _link.STATUS_DATA_BYTES) != rx[_STATUS_LEN - 1]:
             self.count(_C_STATUS_BAD)
             return STATUS_BAD
         previous = self.frame_counter
@@ -291,7 +301,7 @@ class Link(object):
             self.count(_C_UNDERRUNS, self.underruns)
         if self.overflow:
             self.count(_C_OVERFLOW)
-        if self.overflow & (1 << C.OVF_CLOCK_LOST):
+        if self.overflow & (1 << _link.OVF_CLOCK_LOST):
             self.count(_C_CLOCK_LOST)
         commanded = self._reset_sent
         self._reset_sent = False
@@ -308,7 +318,7 @@ class Link(object):
 
     def clock_lost(self):
         """The last status word's ``OVF_CLOCK_LOST`` flag."""
-        return bool(self.overflow & (1 << C.OVF_CLOCK_LOST))
+        return bool(self.overflow & (1 << _link.OVF_CLOCK_LOST))
 
     def _stream(self, view):
         """One ``READ_STREAM`` transaction that fills ``view``: True if the bus did not
@@ -335,8 +345,8 @@ class Link(object):
         if not self._stream(head):
             self.resync()
             return BUS_ERROR, 0
-        if _field(head, 0, _H_MAGIC) != C.PACKET_MAGIC or \
-                _field(head, 0, _H_VERSION) != C.PACKET_VERSION:
+        if _field(head, 0, _H_MAGIC) != PACKET_MAGIC or \
+                _field(head, 0, _H_VERSION) != PACKET_VERSION:
             self.count(_C_HEADER_BAD)
             self.resync()
             return HEADER_BAD, 0
@@ -345,14 +355,14 @@ class Link(object):
             self.count(_C_LENGTH_BAD)
             self.resync()
             return LENGTH_BAD, 0
-        total = C.packet_bytes(n)
-        if not self._stream(self._mv[C.HEADER_BYTES:total]):
+        total = packet_bytes(n)
+        if not self._stream(self._mv[HEADER_BYTES:total]):
             self.resync()
             return BUS_ERROR, 0
-        body = total - C.CRC_BYTES
+        body = total - CRC_BYTES
         buf = self.buf
         crc = self._crc
-        struct.pack_into(">I", crc, 0, C.crc32(self._mv[:body]))
+        struct.pack_into(">I", crc, 0, crc32(self._mv[:body]))
         if crc[0] != buf[body] or crc[1] != buf[body + 1] or crc[2] != buf[body + 2] or \
                 crc[3] != buf[body + 3]:
             self.count(_C_PACKET_CRC)
@@ -387,15 +397,15 @@ class Link(object):
 
     def packet(self, n_records):
         """The packet of ``n_records`` records in the buffer, as a memoryview."""
-        return self._mv[:C.packet_bytes(n_records)]
+        return self._mv[:packet_bytes(n_records)]
 
     def resync(self):
         """Put the stream back at a packet start: FLUSH, then drain ``READ_STREAM`` while
         ``irq`` is high (at most the longest packet and :data:`DRAIN_MS`), then read the
         status (its underruns are the drain's).  Returns ``OK`` or ``RESYNC_FAILED``."""
         self.count(_C_RESYNC)
-        self.command(C.OP_FLUSH)
-        limit = C.packet_bytes(C.MAX_RECORD_CAPACITY)
+        self.command(_link.OP_FLUSH)
+        limit = packet_bytes(MAX_RECORD_CAPACITY)
         drained = 0
         clock = self.clock
         scratch = self._mv[:min(DRAIN_CHUNK, len(self.buf))]
@@ -418,9 +428,9 @@ class Link(object):
     def command(self, opcode):
         """Send a keyed command (``OP_SOFT_RESET``, ``OP_FLUSH``): a code.  Its two bytes
         are made per command (rare: a resynchronisation or a reset), not kept."""
-        if opcode not in C.KEYED_OPCODES:
+        if opcode not in _link.KEYED_OPCODES:
             return BAD_ARGUMENT
-        data = C.keyed_command(opcode)
+        data = _link.keyed_command(opcode)
         try:
             self._select(True)
             try:
@@ -435,7 +445,7 @@ class Link(object):
     def soft_reset(self):
         """Reset the detector datapath (registers kept), then resynchronise: a code."""
         self._reset_sent = True
-        code = self.command(C.OP_SOFT_RESET)
+        code = self.command(_link.OP_SOFT_RESET)
         if code != OK:
             return code
         return self.resync()
@@ -443,14 +453,14 @@ class Link(object):
     def read_reg(self, address):
         """``(code, value)`` of the register at word ``address``."""
         self._clear(_READ_LEN)
-        self._tx[0] = C.OP_READ_REG
+        self._tx[0] = _link.OP_READ_REG
         self._tx[1] = address & 0xFF
         if not self._exchange(self._v_read):
             return BUS_ERROR, 0
         rx = self._rx
-        at = C.READ_REG_FIRST_REPLY
+        at = _link.READ_REG_FIRST_REPLY
         value = 0
-        for i in range(C.VALUE_BYTES):
+        for i in range(_link.VALUE_BYTES):
             value = (value << 8) | rx[at + i]
         return OK, value
 
@@ -458,16 +468,16 @@ class Link(object):
         """Write register ``name`` (``contract.REGISTERS``) and read it back, retrying
         ``retries`` times: a code (``VERIFY_FAILED`` if it never reads back ``value``;
         the gateware refuses values outside a register's limits, so those fail too)."""
-        reg = C.REGISTER_BY_NAME.get(name)
+        reg = _link.REGISTER_BY_NAME.get(name)
         if reg is None or not isinstance(value, int) or value < 0 or value >> reg.bits:
             return BAD_ARGUMENT
         code = VERIFY_FAILED
         for _attempt in range(1 + self.retries):
             tx = self._tx
-            tx[0] = C.OP_WRITE_REG
+            tx[0] = _link.OP_WRITE_REG
             tx[1] = reg.address
-            for i in range(C.VALUE_BYTES):
-                tx[2 + i] = (value >> (8 * (C.VALUE_BYTES - 1 - i))) & 0xFF
+            for i in range(_link.VALUE_BYTES):
+                tx[2 + i] = (value >> (8 * (_link.VALUE_BYTES - 1 - i))) & 0xFF
             if not self._exchange(self._v_write):
                 code = BUS_ERROR
                 continue
@@ -483,12 +493,12 @@ class Link(object):
         """Read the gateware ID word: a code (``ID_BAD`` without the magic or with another
         link version); ``ident`` = ``(link_version, build)``."""
         self._clear(_ID_LEN)
-        self._tx[0] = C.OP_READ_ID
+        self._tx[0] = _link.OP_READ_ID
         if not self._exchange(self._v_id):
             return BUS_ERROR
         rx = self._rx
-        at = C.ID_FIRST_REPLY
-        if ((rx[at] << 8) | rx[at + 1]) != C.ID_MAGIC or rx[at + 2] != C.LINK_VERSION:
+        at = _link.ID_FIRST_REPLY
+        if ((rx[at] << 8) | rx[at + 1]) != _link.ID_MAGIC or rx[at + 2] != _link.LINK_VERSION:
             self.ident = None
             return ID_BAD
         self.ident = (rx[at + 2], rx[at + 3])

@@ -18,7 +18,14 @@ import math
 import sys
 from array import array
 
-from lodestar import contract as C
+from lodestar.contract.detection import REGISTER_BY_NAME
+from lodestar.contract.packet import (
+    FRAME_LABEL_OVERFLOW,
+    FRAME_LINE_ERROR,
+    FRAME_RECORD_OVERFLOW,
+    FRAME_TIMEOUT,
+    FRAME_TRUNCATED,
+)
 
 from . import attitude as _attitude
 from . import camera as _camera
@@ -48,12 +55,12 @@ FLOOR_EVIDENCE = 1.92
 """Log-likelihood gain a floor share ``rho > 0`` must show over the photon model
 (``rho = 0``) to be taken: a likelihood-ratio test at 5 % (``chi2(1)`` 95 % point 3.84,
 halved)."""
-INCOMPLETE_FLAGS = ((C.FRAME_TRUNCATED, "FRAME_TRUNCATED"), (C.FRAME_TIMEOUT, "FRAME_TIMEOUT"),
-                    (C.FRAME_LINE_ERROR, "FRAME_LINE_ERROR"))
+INCOMPLETE_FLAGS = ((FRAME_TRUNCATED, "FRAME_TRUNCATED"), (FRAME_TIMEOUT, "FRAME_TIMEOUT"),
+                    (FRAME_LINE_ERROR, "FRAME_LINE_ERROR"))
 """Frame flags that make a frame ``FRAME_INCOMPLETE``: a blob cut by the frame's end has
 a partial record, and a line of the wrong length misplaces every later one."""
-LOST_FLAGS = ((C.FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW"),
-              (C.FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW"))
+LOST_FLAGS = ((FRAME_RECORD_OVERFLOW, "FRAME_RECORD_OVERFLOW"),
+              (FRAME_LABEL_OVERFLOW, "FRAME_LABEL_OVERFLOW"))
 """Frame flags noted in ``reason`` of a frame that is solved all the same: blobs were lost
 (``dropped_records``, ``dropped_labels``), the others are whole."""
 FOV_TOLERANCE = 0.02
@@ -99,7 +106,7 @@ of 8 records were ``IMPRECISE`` six in a row, with 16 each is ``OK``."""
 THIN_SHARE = 0.8
 """A widened frame stays widened while its bound exceeds this share of
 ``max_error_arcsec``."""
-MIN_SUM_MAX = (1 << C.REGISTER_BY_NAME["min_sum"].bits) - 1
+MIN_SUM_MAX = (1 << REGISTER_BY_NAME["min_sum"].bits) - 1
 """Largest value of the gateware's ``min_sum`` register."""
 
 

@@ -153,34 +153,36 @@ def _clock(x):
 
 
 OPTIONS = (
-    # name                default                     check (None: any value)
-    ("tolerance_px",      DEFAULT_TOLERANCE_PX,       _positive),
-    ("centroid_sigma_px", None,                       _positive_or_none),
-    ("min_sigma_px",      DEFAULT_MIN_SIGMA_PX,       _positive),
-    ("max_stars",         DEFAULT_MAX_STARS,          _star_count),
-    ("track_stars",       DEFAULT_TRACK_STARS,        _count_or_none),
-    ("max_work",          None,                       _count_or_none),
-    ("budget",            DEFAULT_BUDGET,             _budget),
-    ("max_smear_px",      DEFAULT_MAX_SMEAR_PX,       _positive),
-    ("max_error_arcsec",  DEFAULT_MAX_ERROR_ARCSEC,   _positive_or_none),
-    ("track_search_deg",  DEFAULT_TRACK_SEARCH_DEG,   _not_negative),
-    ("row_time_s",        0.0,                        _finite),
-    ("epoch_s",           0.0,                        _finite),
-    ("exposure_s",        None,                       _positive_or_none),
-    ("velocity_km_s",     None,                       _velocity),
-    ("method",            "pyramid",                  None),   # StarTracker: by the database
-    ("flux_weighting",    True,                       None),
-    ("track_min_matches", DEFAULT_MIN_MATCHES,        None),
-    ("track_max_prob",    DEFAULT_MAX_MISMATCH_PROB,  None),
-    ("fallback",          True,                       None),
-    ("drop_border",       True,                       None),
-    ("refine",            True,                       None),
-    ("extract_options",   None,                       _keywords(EXTRACT_OPTIONS)),
-    ("id_options",        None,                       _keywords(ID_OPTIONS)),
-    ("clock",             None,                       _clock),
+    # name               default                    check (None: any value)
+    "tolerance_px",      DEFAULT_TOLERANCE_PX,       _positive,
+    "centroid_sigma_px", None,                       _positive_or_none,
+    "min_sigma_px",      DEFAULT_MIN_SIGMA_PX,       _positive,
+    "max_stars",         DEFAULT_MAX_STARS,          _star_count,
+    "track_stars",       DEFAULT_TRACK_STARS,        _count_or_none,
+    "max_work",          None,                       _count_or_none,
+    "budget",            DEFAULT_BUDGET,             _budget,
+    "max_smear_px",      DEFAULT_MAX_SMEAR_PX,       _positive,
+    "max_error_arcsec",  DEFAULT_MAX_ERROR_ARCSEC,   _positive_or_none,
+    "track_search_deg",  DEFAULT_TRACK_SEARCH_DEG,   _not_negative,
+    "row_time_s",        0.0,                        _finite,
+    "epoch_s",           0.0,                        _finite,
+    "exposure_s",        None,                       _positive_or_none,
+    "velocity_km_s",     None,                       _velocity,
+    "method",            "pyramid",                  None,   # StarTracker: by the database
+    "flux_weighting",    True,                       None,
+    "track_min_matches", DEFAULT_MIN_MATCHES,        None,
+    "track_max_prob",    DEFAULT_MAX_MISMATCH_PROB,  None,
+    "fallback",          True,                       None,
+    "drop_border",       True,                       None,
+    "refine",            True,                       None,
+    "extract_options",   None,                       _keywords(EXTRACT_OPTIONS),
+    "id_options",        None,                       _keywords(ID_OPTIONS),
+    "clock",             None,                       _clock,
 )
-"""Every option of :class:`Settings`: ``(name, default, check)``, ``check(value)`` None for a
-good value, else what it must be; checked in this order (:meth:`Settings.check`)."""
+"""Every option of :class:`Settings`, three items each: ``name, default, check``,
+``check(value)`` None for a good value, else what it must be; checked in this order
+(:meth:`Settings.check`).  One flat tuple: a tuple per option would keep 24 more objects
+on the MCU's heap (about 600 bytes, ``docs/mcu_board.md``, Heap and stack)."""
 
 
 class Settings:
@@ -215,8 +217,8 @@ class Settings:
     """
 
     def __init__(self, **options):
-        for name, default, _check in OPTIONS:
-            setattr(self, name, options.pop(name, default))
+        for i in range(0, len(OPTIONS), 3):
+            setattr(self, OPTIONS[i], options.pop(OPTIONS[i], OPTIONS[i + 1]))
         if options:
             raise TypeError("unknown settings " + ", ".join(sorted(options)))
         if self.extract_options is None:
@@ -228,7 +230,8 @@ class Settings:
         """``(status, reason)``: ``(OK, "")``, or ``BAD_INPUT`` and what the first bad
         option of :data:`OPTIONS` must be.  The method is checked by the
         :class:`~lodestar.firmware.pipeline.StarTracker`, against its database."""
-        for name, _default, check in OPTIONS:
+        for i in range(0, len(OPTIONS), 3):
+            name, check = OPTIONS[i], OPTIONS[i + 2]
             must = None if check is None else check(getattr(self, name))
             if must is not None:
                 return S.BAD_INPUT, name + " must be " + must

@@ -11,16 +11,16 @@ contract's magic and link version), ``WRITE_REG``/``READ_REG`` (a register file)
 ``FLUSH`` and ``SOFT_RESET`` (the queued packet dropped).  ``irq`` is high while a loaded
 packet has bytes left, as the gateware's."""
 
-from lodestar import contract as C
+from lodestar.contract import link
 
-_REPLY = 1 + C.TURNAROUND_BYTES
+_REPLY = 1 + link.TURNAROUND_BYTES
 
 
 class LinkModel(object):
     """The bus (``write``, ``readinto``, ``write_readinto``), :attr:`cs` and :attr:`irq`."""
 
     def __init__(self, build=0):
-        self.ident = C.gateware_id(build)
+        self.ident = link.gateware_id(build)
         self.registers = {}
         self.packet = b""
         self.pos = 0
@@ -34,7 +34,7 @@ class LinkModel(object):
         """Queue ``packet`` (bytes-like) as the next frame's."""
         self.packet = packet
         self.pos = 0
-        self.frame_counter = (self.frame_counter + 1) & ((1 << C.FRAME_COUNTER_BITS) - 1)
+        self.frame_counter = (self.frame_counter + 1) & ((1 << link.FRAME_COUNTER_BITS) - 1)
 
     def pending(self):
         """Bytes of the loaded packet not read yet."""
@@ -42,15 +42,15 @@ class LinkModel(object):
 
     def write(self, buf):
         op = buf[0]
-        self.streaming = op == C.OP_READ_STREAM
-        if len(buf) >= C.KEYED_BYTES and op in C.KEYED_OPCODES:
+        self.streaming = op == link.OP_READ_STREAM
+        if len(buf) >= link.KEYED_BYTES and op in link.KEYED_OPCODES:
             self.pos = len(self.packet)              # FLUSH and SOFT_RESET drop the queue
 
     def readinto(self, buf, write=0):
         n = len(buf)
         if not self.streaming:
             for i in range(n):
-                buf[i] = C.FILLER
+                buf[i] = link.FILLER
             return
         left = len(self.packet) - self.pos
         take = n if n < left else left
@@ -58,34 +58,34 @@ class LinkModel(object):
             buf[:take] = self.packet[self.pos:self.pos + take]
             self.pos += take
         for i in range(take, n):
-            buf[i] = C.FILLER
+            buf[i] = link.FILLER
         self.underruns += n - take
 
     def write_readinto(self, out, into):
         op = out[0]
         self.streaming = False
         for i in range(len(into)):
-            into[i] = C.FILLER
-        if op == C.OP_READ_STATUS:
+            into[i] = link.FILLER
+        if op == link.OP_READ_STATUS:
             underruns = self.underruns if self.underruns < 255 else 255
             self.underruns = 0
-            word = C.encode_status({"frame_counter": self.frame_counter, "errors": 0,
+            word = link.encode_status({"frame_counter": self.frame_counter, "errors": 0,
                                     "underruns": underruns, "overflow": 0,
                                     "busy": 1 if self.pending() else 0})
             into[_REPLY:_REPLY + len(word)] = word
-        elif op == C.OP_READ_ID:
-            for i in range(C.ID_BYTES):
-                into[C.ID_FIRST_REPLY + i] = (self.ident >> (8 * (C.ID_BYTES - 1 - i))) & 0xFF
-        elif op == C.OP_WRITE_REG:
+        elif op == link.OP_READ_ID:
+            for i in range(link.ID_BYTES):
+                into[link.ID_FIRST_REPLY + i] = (self.ident >> (8 * (link.ID_BYTES - 1 - i))) & 0xFF
+        elif op == link.OP_WRITE_REG:
             value = 0
-            for i in range(C.VALUE_BYTES):
+            for i in range(link.VALUE_BYTES):
                 value = (value << 8) | out[2 + i]
             self.registers[out[1]] = value
-        elif op == C.OP_READ_REG:
+        elif op == link.OP_READ_REG:
             value = self.registers.get(out[1], 0)
-            for i in range(C.VALUE_BYTES):
-                into[C.READ_REG_FIRST_REPLY + i] = (value >> (8 * (C.VALUE_BYTES - 1 - i))) & \
-                    0xFF
+            for i in range(link.VALUE_BYTES):
+                shift = 8 * (link.VALUE_BYTES - 1 - i)
+                into[link.READ_REG_FIRST_REPLY + i] = (value >> shift) & 0xFF
 
 
 class _Pin(object):

@@ -26,7 +26,7 @@ import machine
 import micropython
 import regset
 
-from lodestar import contract as C
+from lodestar.contract import detection
 from lodestar.firmware import database as _database
 from lodestar.regress import mcu
 
@@ -160,7 +160,7 @@ def _executive(config, runs):
     if peak:
         gc.threshold(512)
     model = linkmodel.LinkModel()
-    lnk = _link.Link(model, model.cs, model.irq, time, capacity=C.FLIGHT_RECORD_CAPACITY)
+    lnk = _link.Link(model, model.cs, model.irq, time, capacity=detection.FLIGHT_RECORD_CAPACITY)
     replay = _Replay(time.ticks_us if timing else None)
     exe = executive.Executive(lnk, replay, time, mem_free=gc.mem_free, telemetry=len)
     for _ in range(4):

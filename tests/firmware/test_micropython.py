@@ -16,7 +16,7 @@ import pytest
 
 from lodestar import contract as C
 from lodestar import firmware
-from lodestar.contract import DetectionResult
+from lodestar.contract import DetectionResult, stardb
 from lodestar.firmware import camera, centroids, packet
 from lodestar.firmware import status as S
 from lodestar.golden import Detector, DetectorConfig
@@ -336,3 +336,25 @@ def test_no_layout_number_is_restated(name):
         if name == "status" and width in S.codes():
             continue                      # a status code that happens to equal a width
         assert not re.search(r"\b{}\b".format(width), source), (name, width)
+
+
+def test_contract_names_and_import_threshold_under_micropython(micropython):
+    """MicroPython resolves the contract package's names through its module ``__getattr__``
+    (``MICROPY_MODULE_GETATTR``), keeps only those read, and importing the firmware sets
+    the import-time collection threshold (``lodestar.firmware.IMPORT_GC_THRESHOLD``)."""
+    code, out = micropython(
+        "import gc\n"
+        "from lodestar import contract as C\n"
+        "n = len(C.__dict__)\n"
+        "from lodestar.contract import REGISTER_BY_NAME, stardb\n"
+        "import lodestar.firmware as F\n"
+        "print('NAMES', n < 20, C.MAX_WIDTH, REGISTER_BY_NAME['mode'].address,\n"
+        "      stardb.METHOD_PYRAMID, 'MAX_HEIGHT' in C.__dict__, 'link' in C.__dict__)\n"
+        "print('THRESHOLD', gc.threshold() == F.IMPORT_GC_THRESHOLD)\n"
+        "try:\n"
+        "    C.NO_SUCH_NAME\n"
+        "except AttributeError:\n"
+        "    print('UNKNOWN AttributeError')\n")
+    assert code == 0, out
+    assert f"NAMES True 4096 0 {stardb.METHOD_PYRAMID} False False" in out, out
+    assert "THRESHOLD True" in out and "UNKNOWN AttributeError" in out, out

@@ -72,15 +72,15 @@ def cortex_m4f(regression_set):
 
 @pytest.fixture(scope="session")
 def cortex_m4f_set(cortex_m4f, regression_set):
-    """The whole set, every method, in one QEMU run at the flight heap
-    (:data:`~lodestar.regress.qemu.FLIGHT_HEAP`: the build's heap less a ballast of the
+    """The whole set, every method, in one QEMU run at issue 29's 64 KiB
+    (:data:`~lodestar.regress.qemu.SET_HEAP`: the build's heap less a ballast of the
     difference held from the start; a few hundred bytes less than the flight build's own
     pool, whose allocation tables are smaller) with the flight packet buffer
     (:func:`lodestar.regress.qemu.flight_loop`)."""
     manifest, db_files = regression_set
     runs = [(case, method) for method in manifest["methods"] for case in manifest["cases"]]
     return qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
-                            ballast=qemu.EXPECTATION_HEAP - qemu.FLIGHT_HEAP)
+                            ballast=qemu.EXPECTATION_HEAP - qemu.SET_HEAP)
 
 
 @pytest.fixture(scope="session")
