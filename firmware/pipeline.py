@@ -311,11 +311,21 @@ def _fit(b, r, w, q0):
     return _attitude.quest(b, r, w) if q0 is None else _attitude.refine(q0, b, r, w)
 
 
+@native
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
-    catalogue vectors ``r`` under attitude ``q``."""
-    m = Q.matrix(q)
-    return [G.residual2(m, b[i], r[i]) for i in range(len(b))]
+    catalogue vectors ``r`` under attitude ``q`` (:func:`lodestar.firmware.geometry.residual2`'s
+    arithmetic, inline: it runs for every match of every fit)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = Q.matrix(q)
+    out = [0.0] * len(b)
+    for i in range(len(b)):
+        bv, rv = b[i], r[i]
+        r0, r1, r2 = rv[0], rv[1], rv[2]
+        dx = bv[0] - (m0 * r0 + m1 * r1 + m2 * r2)
+        dy = bv[1] - (m3 * r0 + m4 * r1 + m5 * r2)
+        dz = bv[2] - (m6 * r0 + m7 * r1 + m8 * r2)
+        out[i] = dx * dx + dy * dy + dz * dz
+    return out
 
 
 @native
@@ -431,6 +441,7 @@ class StarTracker:
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
         self._held_w = None             # in _fit: (star_ids, photon, tracked weights)
+        self._held_e2 = None            # in _fit: the last attitude()'s residuals (_outliers)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -523,29 +534,31 @@ class StarTracker:
         return now
 
     def _epoch_turn(self, omega, exposure_s):
-        """``turn(v, y)``: ``v`` seen on row ``y`` rotated back to the epoch (module
-        docstring, stage 3), or None without a rate."""
+        """``(ax, ay, az, rate, t0, row_time)``: a direction seen on row ``y`` is rotated
+        back to the epoch (module docstring, stage 3) by ``rate * (t0 + y * row_time -
+        epoch_s)`` rad about the unit axis ``a`` (:meth:`directions`); None without a
+        rate."""
         if omega is None:
             return None
         rate = G.norm(omega)
         if not rate > 0:
             return None
-        axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
         half = 0.5 * exposure_s if exposure_s is not None else 0.0
-        row_time = self.settings.row_time_s
-        epoch = self.settings.epoch_s
-
-        def turn(v, y):
-            return G.rotate_about(v, axis, rate * (half + y * row_time - epoch))
-        return turn
+        return (omega[0] / rate, omega[1] / rate, omega[2] / rate, rate, half,
+                self.settings.row_time_s)
 
     @native
     def directions(self, stars, omega=None, exposure_s=None):
         """Camera-frame unit vectors of ``stars`` (:class:`~lodestar.firmware.centroids.Star`)
         at the epoch: ``(vectors, used)`` with ``used`` the indices into ``stars`` of the
-        stars whose pixel the camera model inverts (the others are dropped)."""
+        stars whose pixel the camera model inverts (the others are dropped).  The turn to
+        the epoch is :func:`lodestar.firmware.geometry.rotate_about`'s arithmetic inline (no
+        two calls per star)."""
         cam = self.camera
         turn = self._epoch_turn(omega, exposure_s)
+        if turn is not None:
+            ax, ay, az, rate, half, row_time = turn
+            epoch = self.settings.epoch_s
         vectors = []
         used = []
         for i in range(len(stars)):
@@ -554,7 +567,14 @@ class StarTracker:
             if v is None:
                 continue
             if turn is not None:
-                v = turn(v, y)
+                angle = rate * (half + y * row_time - epoch)
+                c = math.cos(angle)
+                s = math.sin(angle)
+                vx, vy, vz = v
+                k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+                v = (vx * c + (ay * vz - az * vy) * s + ax * k,
+                     vy * c + (az * vx - ax * vz) * s + ay * k,
+                     vz * c + (ax * vy - ay * vx) * s + az * k)
             vectors.append(v)
             used.append(i)
         return vectors, used
@@ -708,6 +728,8 @@ class StarTracker:
             s = self.sigma_rad
             if s is None:
                 e2 = _residuals2(q, b, r)
+                if self._held_w is not None:    # within _fit: the screen's residuals
+                    self._held_e2 = (vectors, star_ids, q, e2)
                 total = 0.0
                 for i in range(n):
                     total += w[i] * e2[i]
@@ -852,7 +874,8 @@ class StarTracker:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
         finally:
-            self._held = self._held_w = self._last_fit = None   # no list of the frame outlives it
+            self._held = self._held_w = self._last_fit = self._held_e2 = None  # no list of
+            # the frame outlives it
 
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
@@ -928,11 +951,13 @@ class StarTracker:
         """Indices of the residual outliers among ``star_ids`` (weights ``w``) at attitude
         ``q``: :func:`lodestar.firmware.screen.residual_outliers` of each residual over its
         variance less the fit's share (``1 - h_i``, :func:`screen.leverages`)."""
-        m = Q.matrix(q)
         h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
-        r = self._catalogue(star_ids)
-        return _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
-                                          w[i] / max(1.0 - h[i], MIN_FREEDOM)
+        held = self._held_e2
+        if held is not None and held[0] is vectors and held[1] is star_ids and held[2] is q:
+            e2 = held[3]                # attitude()'s: the same residuals at the same q
+        else:
+            e2 = _residuals2(q, [vectors[o] for o, _s in star_ids], self._catalogue(star_ids))
+        return _screen.residual_outliers([e2[i] * w[i] / max(1.0 - h[i], MIN_FREEDOM)
                                           for i in range(len(star_ids))])
 
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
@@ -1339,12 +1364,14 @@ class StarTracker:
         known = {}
         smear_at = self.camera.smear_function(omega, exposure_s)
 
-        def smear(x, y):
-            key = (x, y)
-            if key in known:
-                return known[key]
+        @native
+        def smear(x, y):                # one lookup for a hit (a smear is never None
+            key = (x, y)                # in the memo: a None is computed again)
+            d = known.get(key)
+            if d is not None:
+                return d
             d = smear_at(x, y)
-            if len(known) < SMEAR_MEMO:
+            if d is not None and len(known) < SMEAR_MEMO:
                 known[key] = d
             return d
         return smear

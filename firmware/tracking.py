@@ -305,10 +305,11 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone
 
 
 @native
-def _to_inertial(vectors, q):
+def _to_inertial(vectors, q, m=None):
     """Camera-frame ``vectors`` turned into the inertial frame by attitude ``q``: ``A^T v``
-    (distances and in-region tests are the same in either frame)."""
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
+    (distances and in-region tests are the same in either frame); ``m``: ``matrix(q)``
+    when the caller has it."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q) if m is None else m
     out = []
     for v in vectors:
         x, y, z = v[0], v[1], v[2]
@@ -318,12 +319,13 @@ def _to_inertial(vectors, q):
 
 
 @native
-def _streaks_to_inertial(streaks, q):
+def _streaks_to_inertial(streaks, q, m=None):
     """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays),
-    each turned track made once (no list of turned tangents to extend: 0.5 KB a frame)."""
+    each turned track made once (no list of turned tangents to extend: 0.5 KB a frame);
+    ``m``: ``matrix(q)`` when the caller has it."""
     if streaks is None:
         return None
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)     # one matrix for every track
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q) if m is None else m   # one for every track
     out = []
     for st in streaks:
         if st is None:
@@ -575,9 +577,11 @@ class Tracker:
         # the inertial frame: the observed stars turned back by the prior against the cone's
         # stars (sorted once per cone), the catalogue's density from the cone
         self.slack = SLACK_TOL * tol
-        pairs, near = match_nearest(_to_inertial(b, q_pred), cone.stars, tol,
-                                    _streaks_to_inertial(streaks, q_pred), self.slack,
+        m = matrix(q_pred)              # one matrix turns the stars and their tracks
+        pairs, near = match_nearest(_to_inertial(b, q_pred, m), cone.stars, tol,
+                                    _streaks_to_inertial(streaks, q_pred, m), self.slack,
                                     order=cone.order)
+        m = None
         n_fov = len(cone.ids) * fov_solid_angle(database.fov_h, database.fov_v) / \
             cone.solid_angle
         if len(pairs) >= self.min_matches:
