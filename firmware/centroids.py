@@ -645,9 +645,10 @@ def _joined_pieces(stars, pieces, rejected):
 def _brightest_first(stars):
     """Sort ``stars`` in place by :func:`_sort_key`, computed once per star (MicroPython's
     ``sort(key=...)`` calls the key at every comparison)."""
-    keyed = []
+    keyed = [None] * len(stars)
     for i in range(len(stars)):
-        keyed.append(_sort_key(stars[i]) + (i,))    # tuples of numbers: no call to compare
+        v = stars[i]._v                 # _sort_key(stars[i]) + (i,), inline: tuples of
+        keyed[i] = (-v[2], v[10], i)    # numbers, no call to compare
     keyed.sort()
     old = stars[:]
     for i in range(len(keyed)):

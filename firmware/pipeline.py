@@ -907,8 +907,7 @@ class StarTracker:
         held = self._held
         if held is not None and held[0] is star_ids:
             return held[1]
-        db, cone = self.database, self._cone
-        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        r = self._cone.star_vectors(self.database, star_ids)
         self._held = (star_ids, r)
         return r
 
@@ -1241,8 +1240,10 @@ class StarTracker:
                 _note(res, "exposure_s ignored: not a positive number")
         beta = self._beta(velocity_km_s, res)
         cam = self.camera
-        smear = self._smear(w, exposure)
-        longest = _longest_smear(cam, smear) if smear is not None else 0.0
+        smear_at = self._smear_at(w, exposure)
+        smear = _memo(smear_at)
+        longest = _longest_smear(cam, smear_at) if smear_at is not None else 0.0
+        smear_at = None
         limit = self.settings.max_smear_px
         select = not longest <= limit        # some stars may smear beyond the limit
         max_stars = self.settings.max_stars
@@ -1356,25 +1357,18 @@ class StarTracker:
 
     def _smear(self, omega, exposure_s):
         """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
-        (:meth:`Camera.smear_function`), remembered per pixel for the first
-        :data:`SMEAR_MEMO` pixels (extraction, joining and streaks ask again); None without
+        (:meth:`_smear_at`), remembered per pixel for the first :data:`SMEAR_MEMO` pixels
+        (extraction, joining and streaks ask again); None without a non-zero rate or an
+        exposure."""
+        return _memo(self._smear_at(omega, exposure_s))
+
+    def _smear_at(self, omega, exposure_s):
+        """:meth:`Camera.smear_function` of ``omega`` and ``exposure_s``, not remembered (the
+        frame's corners, :func:`_longest_smear`, which no star asks for again); None without
         a non-zero rate or an exposure."""
         if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
             return None
-        known = {}
-        smear_at = self.camera.smear_function(omega, exposure_s)
-
-        @native
-        def smear(x, y):                # one lookup for a hit (a smear is never None
-            key = (x, y)                # in the memo: a None is computed again)
-            d = known.get(key)
-            if d is not None:
-                return d
-            d = smear_at(x, y)
-            if d is not None and len(known) < SMEAR_MEMO:
-                known[key] = d
-            return d
-        return smear
+        return self.camera.smear_function(omega, exposure_s)
 
     @native
     def _keep(self, stars, used):
@@ -1388,6 +1382,26 @@ class StarTracker:
             xy[2 * o] = v[0]
             xy[2 * o + 1] = v[1]
             fluxes[o] = v[2]
+
+
+def _memo(smear_at):
+    """``smear_at`` (``smear(x, y)``) remembered per pixel for the first :data:`SMEAR_MEMO`
+    pixels (:meth:`StarTracker._smear`); None for None."""
+    if smear_at is None:
+        return None
+    known = {}
+
+    @native
+    def smear(x, y):                    # one lookup for a hit (a smear is never None in
+        key = (x, y)                    # the memo: a None is computed again)
+        d = known.get(key)
+        if d is not None:
+            return d
+        d = smear_at(x, y)
+        if d is not None and len(known) < SMEAR_MEMO:
+            known[key] = d
+        return d
+    return smear
 
 
 def _aberration():

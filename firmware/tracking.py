@@ -147,6 +147,22 @@ class Cone:
         vecs = self.vecs
         return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
 
+    @native
+    def star_vectors(self, database, pairs):
+        """:meth:`star_vector` of each star of ``pairs`` (``[(observed index, star)]``), as
+        a list: one call for a fit's stars, not one per star."""
+        where, vecs = self.where, self.vecs
+        out = [None] * len(pairs)
+        for k in range(len(pairs)):
+            s = pairs[k][1]
+            i = where.get(s) if where is not None else None
+            if i is None:
+                out[k] = database.star_vector(s)
+            else:
+                j = 3 * i
+                out[k] = (vecs[j], vecs[j + 1], vecs[j + 2])
+        return out
+
 
 @native
 def candidates(database, q, margin_rad, cone=None):
@@ -290,9 +306,15 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone
     lim = chord_of_angle(tolerance_rad)
     near = []
     last, streak = -1, None
+    where = cone.where if cone is not None else None     # Cone.star_vector, inline
+    vecs = cone.vecs if cone is not None else None
     for o, s in candidates:
-        r0, r1, r2 = cone.star_vector(database, s) if cone is not None else \
-            database.star_vector(s)
+        i = where.get(s) if where is not None else None
+        if i is None:
+            r0, r1, r2 = database.star_vector(s)
+        else:
+            j = 3 * i
+            r0, r1, r2 = vecs[j], vecs[j + 1], vecs[j + 2]
         v = observed[o]
         dx = v[0] - (m0 * r0 + m1 * r1 + m2 * r2)
         dy = v[1] - (m3 * r0 + m4 * r1 + m5 * r2)
@@ -411,7 +433,7 @@ def fit(observed, database, pairs, q, weights=None, cone=None):
     if cone is None:
         r = [database.star_vector(s) for o, s in pairs]
     else:
-        r = [cone.star_vector(database, s) for o, s in pairs]
+        r = cone.star_vectors(database, pairs)
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
         return attitude.refine(q, b, r, w)
