@@ -74,6 +74,15 @@ TRACK_GC_THRESHOLD = 32768
 """The same in a tracking frame, whose live peak is a third of a lost-in-space one: fewer
 collections, about 30 % fewer instructions per frame (``docs/firmware.md``, Memory).  A
 fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
+HOOK_COLLECT_BYTES = 4096
+"""The idle-time hook (:meth:`StarTracker.prefetch`) collects when at least this much was
+allocated since the last collection, as :data:`TRACK_GC_THRESHOLD` counts it (every block,
+a grown list's old one included: the budgeted frame at 1 deg/s counts 31 KB against a net
+21 KB): the next tracking frame then starts its count at zero and stays under the
+threshold, and the collection it would have made (about 9 ms on the F401 on the flight
+heap) falls in the idle time instead (``docs/mcu_board.md``, Speed and heap of the
+tracking frames).  Small: a frame that collected near its end leaves a few KB counted,
+and a hook that let them pass would leave the next frame to collect again."""
 
 
 SMEAR_MEMO = 48
@@ -150,6 +159,22 @@ def _budget(levels, track_stars):
 def _collect():
     if COLLECT:
         gc.collect()
+
+
+def _collect_over(nbytes):
+    """Collect when at least ``nbytes`` were allocated since the last collection (MicroPython's
+    ``gc.threshold``: the next allocation collects once the count reaches it), then set the
+    tracking frame's threshold again; ``S.OK``, or ``S.OUT_OF_MEMORY``."""
+    if not COLLECT:
+        return S.OK
+    gc.threshold(nbytes)
+    try:
+        bytearray(1)                    # the allocation that collects, or not
+    except MemoryError:
+        return S.OUT_OF_MEMORY
+    finally:
+        gc.threshold(TRACK_GC_THRESHOLD)
+    return S.OK
 
 
 def _threshold(nbytes):
@@ -616,17 +641,21 @@ class StarTracker:
         catalogue cone that frame's tracking would query (one bounded database query,
         ``tracking.Tracker.prefetch``), made now unless the held cone covers it; ``prior``
         None (the next frame is lost in space): the cone is dropped, its heap free for the
-        search.  No collection: one here (10 ms on the F401) costs every idle period more
-        than the frames' own save (``docs/mcu_board.md``).  Optional: a frame that comes
-        first queries its own cone, with the same result.  Never raises: a status
-        (``S.OK``; ``S.BAD_INPUT`` for a malformed prior, rate or interval;
-        ``S.OUT_OF_MEMORY`` or ``S.INTERNAL_ERROR``; a configuration failure's status)."""
+        search.  Then, on MicroPython, a collection when :data:`HOOK_COLLECT_BYTES` were
+        allocated since the last one (the refill's garbage included): the tracking frame's
+        own collection, moved into the idle time.  Optional: a frame that comes first
+        queries its own cone, with the same result.  Never raises: a status (``S.OK``;
+        ``S.BAD_INPUT`` for a malformed prior, rate or interval; ``S.OUT_OF_MEMORY`` or
+        ``S.INTERNAL_ERROR``; a configuration failure's status)."""
         if self.status != S.OK:
             return self.status
         if prior is None:
             self._cone.clear()
             return S.OK
-        return self._tracker.prefetch(self.database, prior, omega, dt)
+        code = self._tracker.prefetch(self.database, prior, omega, dt)
+        if code != S.OK:
+            return code
+        return _collect_over(HOOK_COLLECT_BYTES)
 
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,

@@ -1170,6 +1170,26 @@ def test_collections_per_frame_kind(monkeypatch):
     assert calls == [track, lis, "collect", "collect"]
 
 
+def test_the_hook_collects_when_a_frame_would(monkeypatch):
+    """The idle-time hook asks MicroPython for a collection once HOOK_COLLECT_BYTES were
+    allocated since the last (gc.threshold lowered for one allocation), then sets the
+    tracking frame's threshold again; a lost-in-space next frame (no prior) and a failed
+    refill ask for none."""
+    frame = sim_frames.frames()[0]
+    tracker = sim_frames.tracker()
+    calls = []
+    monkeypatch.setattr(pipeline, "COLLECT", True)
+    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
+        "collect": staticmethod(lambda: calls.append("collect")),
+        "threshold": staticmethod(lambda n: calls.append(n))}))
+    assert tracker.prefetch(frame.q.tolist()) == S.OK
+    assert calls == [pipeline.HOOK_COLLECT_BYTES, pipeline.TRACK_GC_THRESHOLD]
+    assert tracker._cone.ids is not None
+    del calls[:]
+    assert tracker.prefetch(None) == S.OK and calls == []
+    assert tracker.prefetch([0, 0, 0, 0]) == S.BAD_INPUT and calls == []
+
+
 def test_directions_turn_each_star_as_rotate_about():
     # the turn to the epoch is inlined in directions(): the same arithmetic, the same bits
     tracker = sim_frames.tracker()
