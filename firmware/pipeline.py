@@ -65,7 +65,8 @@ before it and at the stage boundaries of :meth:`StarTracker.process` (after the 
 before the identification and before the attitude fit): on an MCU's small heap this keeps
 temporaries from fragmenting it, while a tracking frame's low peak needs no collection but
 the threshold's (about one per frame: it allocates about 30 KB; ``docs/firmware.md``,
-Memory); CPython's own collector needs no help."""
+Memory), which the idle-time hook makes before the frame (:data:`HOOK_COLLECT_BYTES`);
+CPython's own collector needs no help."""
 GC_THRESHOLD = 8192
 """Bytes allocated between two collections on MicroPython in a lost-in-space frame, whose
 search and fit peak high: collecting often keeps the heap from fragmenting
