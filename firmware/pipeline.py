@@ -228,6 +228,7 @@ def t_tail(nu):
     return z + u * (g1 + u * (g2 + u * (g3 + u * g4)))
 
 
+@native
 def tail_factor(nu):
     """How much a sigma scaled to the residuals' RMS grows so that :data:`BOUND_SIGMAS` of it
     is the error's bound at the normal tail (``docs/firmware.md``, Attitude): the error
@@ -242,6 +243,7 @@ def tail_factor(nu):
     return math.sqrt(max(nu - 2, 1) / nu) * t_tail(nu) / BOUND_SIGMAS
 
 
+@native
 def error_bound(sigma_cross, sigma_roll):
     """The :data:`BOUND_SIGMAS` bound (arcsec) on the total error of an attitude of 1-sigma
     ``sigma_cross`` (each axis across the boresight) and ``sigma_roll`` (arcsec),
@@ -249,6 +251,7 @@ def error_bound(sigma_cross, sigma_roll):
     return BOUND_SIGMAS * math.sqrt(2.0 * sigma_cross * sigma_cross + sigma_roll * sigma_roll)
 
 
+@native
 def precise(res, limit):
     """``IMPRECISE`` for the solution ``res`` whose :func:`error_bound` exceeds ``limit``
     (``Settings.max_error_arcsec``, arcsec; None: any), noted in ``reason``: an ``OK``
@@ -264,6 +267,7 @@ def precise(res, limit):
             BOUND_SIGMAS, bound, limit))
 
 
+@native
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike): when it is within the limit no
@@ -331,6 +335,7 @@ def _short_smears(stars, smear, limit, max_stars, rejected):
     return kept, math.sqrt(longest)
 
 
+@native
 def _fit(b, r, w, q0):
     """The attitude of pairs ``b``, ``r`` (weights ``w``, None: equal): refined from ``q0``,
     or by QUEST without one."""
@@ -391,6 +396,7 @@ class Result:
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
                  "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
+    @native
     def __init__(self, status, reason=""):
         self.status = status
         self.reason = reason
@@ -633,6 +639,7 @@ class StarTracker:
             out.append(streak)
         return out if found else None
 
+    @native
     def _track(self, vectors, prior, omega, dt, streaks):
         return self._tracker.track(vectors, self.database, prior, omega, dt, streaks=streaks)
 
@@ -658,6 +665,7 @@ class StarTracker:
             return code
         return _collect_over(HOOK_COLLECT_BYTES)
 
+    @native
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
         with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector
@@ -700,6 +708,7 @@ class StarTracker:
             out.append(f / median if G.is_number(f) and f > 0 else 1.0)
         return out
 
+    @native
     def noise_shares(self, b, r, photon, q0=None, fitted=False):
         """Relative centroid variances ``g_i = (1 - rho) / photon_i + rho`` of the stars
         with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
@@ -719,6 +728,7 @@ class StarTracker:
         rho = _floor_share(u, e2)
         return u if rho is None else [(1.0 - rho) * ui + rho for ui in u]
 
+    @native
     def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None,
                  fitted=False):
         """Weighted least-squares attitude of ``star_ids`` ``[(vector index, database star
@@ -792,6 +802,7 @@ class StarTracker:
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
+    @native
     def _beta(self, velocity_km_s, res):
         """``v / c`` (ICRS) of this frame's ``velocity_km_s``, else of the settings' (None:
         no aberration correction); a malformed one is ignored with a note."""
@@ -804,6 +815,7 @@ class StarTracker:
             return self.beta
         return b
 
+    @native
     def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
                        streaks, beta):
         res = result if result is not None else Result(S.OK)
@@ -894,6 +906,7 @@ class StarTracker:
         self._tick(timings, "attitude", start)
         return res
 
+    @native
     def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
         """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
         (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
@@ -907,6 +920,7 @@ class StarTracker:
             self._held = self._held_w = self._last_fit = self._held_e2 = None  # no list of
             # the frame outlives it
 
+    @native
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
         """:meth:`_fit`'s work."""
@@ -941,6 +955,7 @@ class StarTracker:
         self._held = (star_ids, r)
         return r
 
+    @native
     def _photon(self, star_ids, fluxes):
         """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights); within
         :meth:`_fit` computed once per list as :meth:`_catalogue`'s vectors are: the attitude
@@ -955,6 +970,7 @@ class StarTracker:
             self._held_w = (star_ids, w, None)
         return w
 
+    @native
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
         the final fit (its vectors and weights, kept by :meth:`_radial`; each residual over
@@ -976,6 +992,7 @@ class StarTracker:
                     drop.append(i)
         return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
 
+    @native
     def _outliers(self, vectors, star_ids, w, q):
         """Indices of the residual outliers among ``star_ids`` (weights ``w``) at attitude
         ``q``: :func:`lodestar.firmware.screen.residual_outliers` of each residual over its
@@ -989,6 +1006,7 @@ class StarTracker:
         return _screen.residual_outliers([e2[i] * w[i] / max(1.0 - h[i], MIN_FREEDOM)
                                           for i in range(len(star_ids))])
 
+    @native
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
         its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
@@ -1044,6 +1062,7 @@ class StarTracker:
         return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
             star_ids
 
+    @native
     def _contradicted(self, res, vectors, star_ids, w, omega, solved):
         """Whether the frame contradicts the gyro's ``omega`` (:meth:`_contradicts`), setting
         ``RATE_CONTRADICTED`` with the difference in ``reason``.  Not when the matches
@@ -1069,6 +1088,7 @@ class StarTracker:
               " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
         return True
 
+    @native
     def _contradicts(self, vectors, star_ids, w, omega, solved):
         """``(d, chi2)``, the frame's rate difference from the gyro's ``omega`` (rad/s;
         ``vectors`` turned to ``epoch_s`` by it) and its chi-square, when the matches
@@ -1111,6 +1131,7 @@ class StarTracker:
             return None
         return verdict
 
+    @native
     def _radial(self, res, vectors, star_ids, w, times, ref, solved):
         """``solved``, or when the matched stars' residuals show a radial pattern (a lens
         distortion or focal length the camera model lacks:
@@ -1157,6 +1178,7 @@ class StarTracker:
         cross, roll = _attitude.sigmas_cross_roll(p)
         return q, max(cross, solved[1]), max(roll, solved[2]), s
 
+    @native
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
         (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`,
@@ -1221,6 +1243,7 @@ class StarTracker:
 
     # ---- the flight entry point --------------------------------------------------------
 
+    @native
     def process(self, packet_bytes, prior=None, omega=None, dt=None, exposure_s=None,
                 velocity_km_s=None):
         """One frame: ``packet_bytes`` (an FPGA packet, ``lodestar.contract`` layout) ->
@@ -1237,6 +1260,7 @@ class StarTracker:
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
+    @native
     def _process(self, packet_bytes, prior, omega, dt, exposure_s, velocity_km_s):
         res = Result(S.OK)
         if self.status != S.OK:
@@ -1323,6 +1347,7 @@ class StarTracker:
         self._tick(timings, "total", first)
         return res
 
+    @native
     def _thin(self, res):
         """Whether the next frame is budgeted for :data:`WIDE_TRACK` times ``track_stars``
         (``docs/firmware.md``, Record budget): a frame of the budget's records (at most
@@ -1365,6 +1390,7 @@ class StarTracker:
         xy = self._xy
         return [half + xy[2 * o + 1] * row_time for o in range(n)]
 
+    @native
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
         size) for a frame that cannot be solved; note the lost blobs of one that can."""

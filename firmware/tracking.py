@@ -58,6 +58,7 @@ class TrackSolution(Solution):
     when first read (the flight pipeline never reads it: 2 ms of F401 time a frame saved),
     or None."""
 
+    @native
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
                  q_predicted=None, n_predicted=0, residual=None):
         Solution.__init__(self, status, q=q, matches=matches, probability=probability,
@@ -359,6 +360,7 @@ def _streaks_to_inertial(streaks, q, m=None):
     return out
 
 
+@native
 def _within(q, q0, angle):
     """True when the rotation from ``q0`` to ``q`` (unit quaternions) is at most ``angle``
     rad: the vector part of their quotient is ``sin(angle / 2)``."""
@@ -526,6 +528,7 @@ class Tracker:
         self.database = self.b = self.weights = self.streaks = self.q_pred = None
         self.slack = 0.0
 
+    @native
     def track(self, vectors, database, q_prior, omega=None, dt=None, weights=None,
               streaks=None):
         """:func:`track` of these arguments with this tracker's settings; never raises."""
@@ -567,6 +570,7 @@ class Tracker:
         reach (the search radius of the prior) plus a tolerance, on both sides."""
         return 2.0 * self.search + 2.0 * self.tol
 
+    @native
     def _fail(self, status, n_fov=0):
         return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
 
