@@ -650,7 +650,6 @@ def covariance(b, r, sigmas):
             [c02 / det, c12 / det, c22 / det]]
 
 
-@native
 def sigmas_cross_roll(P):
     """``(sigma_cross_boresight, sigma_roll)`` in rad from a body-frame covariance ``P``.
 

@@ -161,7 +161,6 @@ def chord(a, b):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@native
 def within_cone(centre, held, d, radius):
     """True when the cone of ``radius`` (rad) about unit vector ``d`` lies inside the held
     cone of radius ``held`` about ``centre``: ``angle(centre, d) + radius <= held``, tested

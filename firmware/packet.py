@@ -126,7 +126,6 @@ class _Header:
     """Attributes :func:`_read` sets, turned into the header dict."""
 
 
-@native
 def _unpack_header(data):
     """Header fields by name from the first ``contract.HEADER_BYTES`` of ``data``."""
     fields = _read(data, 0, _HEADER_PLAN, _Header())
@@ -153,7 +152,6 @@ def record(data, index, into=None):
 _MOMENT_LIMITS = {}
 
 
-@native
 def moment_limits(pixel_bits):
     """``contract.moment_max(pixel_bits)``, cached (pixel_bits already validated)."""
     limits = _MOMENT_LIMITS.get(pixel_bits)
@@ -163,7 +161,6 @@ def moment_limits(pixel_bits):
     return limits
 
 
-@native
 def framing_problem(data, header):
     """``(status, message)`` of the first failed framing check after the minimum length, or
     None: magic, version, length, CRC."""
@@ -201,7 +198,6 @@ def _overflow_problem(header, flag, flag_name, count_name):
     return None
 
 
-@native
 def header_problem(header):
     """What is wrong with a CRC-verified header (None if nothing)."""
     if header["mode"] >= len(C.MODE_NAMES):
@@ -311,7 +307,6 @@ def checked_records(data, header, into=None):
         yield into
 
 
-@native
 def _record_bounds(header, limits):
     """What :func:`_record_good` compares a record of the frame ``header`` describes with:
     ``(width, height, full scale, the limit of s0, the limits of the wide moments shifted
@@ -337,7 +332,6 @@ def _record_good(rec, limbs, bounds):
             limbs[12] <= l5)
 
 
-@native
 def check(data, records=True):
     """Check one packet without keeping its records: ``(status, header, reason)``; never
     raises on bad bytes.  The checks and results of :func:`decode`, one record on the heap at

@@ -78,9 +78,9 @@ fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
 HOOK_COLLECT_BYTES = 4096
 """The idle-time hook (:meth:`StarTracker.prefetch`) collects when at least this much was
 allocated since the last collection, as :data:`TRACK_GC_THRESHOLD` counts it (every block,
-a grown list's old one included: the budgeted frame at 1 deg/s counts 31 KB against a net
-21 KB): the next tracking frame then starts its count at zero and stays under the
-threshold, and the collection it would have made (about 9 ms on the F401 on the flight
+a freed one or a grown list's old one included: the budgeted frame at 1 deg/s counts 29 KB
+against a net 21 KB): the next tracking frame then starts its count at zero and stays under
+the threshold, and the collection it would have made (about 10 ms on the F401 on the flight
 heap) falls in the idle time instead (``docs/mcu_board.md``, Speed and heap of the
 tracking frames).  Small: a frame that collected near its end leaves a few KB counted,
 and a hook that let them pass would leave the next frame to collect again."""
@@ -665,7 +665,6 @@ class StarTracker:
             return code
         return _collect_over(HOOK_COLLECT_BYTES)
 
-    @native
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
         with ``fallback``) lost-in-space: ``(solution, mode)``.  ``streaks``: per vector
@@ -815,7 +814,6 @@ class StarTracker:
             return self.beta
         return b
 
-    @native
     def _solve_vectors(self, vectors, prior, omega, dt, fluxes, result, start, smear_px,
                        streaks, beta):
         res = result if result is not None else Result(S.OK)
@@ -1243,7 +1241,6 @@ class StarTracker:
 
     # ---- the flight entry point --------------------------------------------------------
 
-    @native
     def process(self, packet_bytes, prior=None, omega=None, dt=None, exposure_s=None,
                 velocity_km_s=None):
         """One frame: ``packet_bytes`` (an FPGA packet, ``lodestar.contract`` layout) ->
@@ -1260,7 +1257,6 @@ class StarTracker:
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
-    @native
     def _process(self, packet_bytes, prior, omega, dt, exposure_s, velocity_km_s):
         res = Result(S.OK)
         if self.status != S.OK:

@@ -29,7 +29,6 @@ ORTHONORMAL_TOLERANCE = max(1e-6, 64.0 * EPS)
 """Largest accepted ``|A^T A - I|`` element (and ``|det A - 1|``) in :func:`from_matrix`."""
 
 
-@native
 def _checked(q):
     """``q`` as 4 floats plus its squared norm; ``ValueError`` if not finite or zero."""
     if len(q) != 4:
@@ -43,7 +42,6 @@ def _checked(q):
     return x, y, z, w, n2
 
 
-@native
 def normalise(q):
     """Unit quaternion along ``q`` (a list ``[x, y, z, w]``).
 
@@ -55,7 +53,6 @@ def normalise(q):
     return [x / n, y / n, z / n, w / n]
 
 
-@native
 def canonical(q):
     """Unit quaternion of the same rotation with ``w >= 0`` (ties at ``w == 0`` keep the sign)."""
     q = normalise(q)
@@ -204,7 +201,6 @@ def from_axis_angle(axis, angle):
     return [u[0] * s, u[1] * s, u[2] * s, math.cos(h)]
 
 
-@native
 def from_rotation_vector(rotvec):
     """Unit quaternion of the rotation vector ``rotvec`` (axis times angle, rad); below
     1e-12 rad the first-order ``[rotvec / 2, 1]``."""

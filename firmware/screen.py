@@ -34,7 +34,6 @@ MIN_CONTRADICTIONS = 3
 make a match a brightness outlier."""
 
 
-@native
 def _median(values):
     v = sorted(values)
     k = len(v)
@@ -73,7 +72,6 @@ def leverages(vectors, w):
     return out
 
 
-@native
 def residual_outliers(chi2s):
     """Indices of the matches whose normalised squared residual ``chi2s[i]`` (``|e_i|^2``
     over the star's relative variance, any common scale) exceeds :data:`OUTLIER_CHI2` noise

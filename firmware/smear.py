@@ -394,7 +394,6 @@ def _scales(b, dts, w):
     return (math.sqrt(spread / total) if total > 0 else 0.0), rho2 / len(b)
 
 
-@native
 def _noise2(chi2, n, size, min_sigma_rad, sigma_rad):
     """The per-axis noise variance of a unit-weight star (rad^2): the residual ``chi2`` over
     ``2n - size - 2`` degrees of freedom (``docs/firmware.md``), or ``sigma_rad`` squared,
@@ -448,7 +447,6 @@ def fit(b, r, dts, w, q, rate, radial, min_sigma_rad=0.0, sigma_rad=None,
     return q, omega if rate else None, p, p_omega, math.sqrt(s2), c, p_c
 
 
-@native
 def rate_chi2_limit(n):
     """The :data:`RATE_CHI2` limit for a rate fitted to ``n`` stars (None below
     :data:`MIN_CHECK_STARS`)."""
@@ -492,14 +490,12 @@ def smear_bound_px(moments):
     return math.sqrt(12.0 * (median + STILL_ELONGATION_PX2))
 
 
-@native
 def _median(values):
     v = sorted(values)
     k = len(v)
     return v[k // 2] if k % 2 else 0.5 * (v[k // 2 - 1] + v[k // 2])
 
 
-@native
 def smear_vector(v, omega, scale):
     """The pixel displacement ``(dx, dy)`` over the exposure of a star at camera-frame unit
     vector ``v`` under the rate ``omega`` (rad/s): ``dv/dt = -omega x v`` through a pinhole
@@ -513,7 +509,6 @@ def smear_vector(v, omega, scale):
     return k * (dx * z - x * dz), k * (dy * z - y * dz)
 
 
-@native
 def visible(stars, d, scale):
     """Whether a rate difference ``d`` (rad/s) moves the median of ``stars`` (``(v,
     moments)`` pairs: camera-frame unit vector and ``(sigma_major, sigma_minor,
@@ -529,7 +524,6 @@ def visible(stars, d, scale):
     return _median(moved) > _median(width)
 
 
-@native
 def explains(m, u):
     """Whether the smear ``u`` (px over the exposure) explains a star's second moments ``m``
     (``(sigma_major, sigma_minor, orientation)``): a smear whose excess ``|u|^2 / 12`` is
@@ -542,7 +536,6 @@ def explains(m, u):
     return centroids.smear_consistent(m[0], m[1], m[2], u)
 
 
-@native
 def streak_votes(stars, gyro, frame, scale):
     """How many of ``stars`` (as :func:`visible`) have a streak (second moments) the rate
     ``frame`` explains and ``gyro`` does not (:func:`explains`), less how many the reverse:

@@ -73,7 +73,6 @@ class Solution:
     units spent (:data:`DEFAULT_MAX_WORK`).
     """
 
-    @native
     def __init__(self, status, q=None, matches=None, patterns_tried=0, probability=1.0,
                  hypotheses=0, star_ids=None, work=0):
         self.status = status

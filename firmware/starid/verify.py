@@ -70,7 +70,6 @@ def poisson_binomial_tail(ps, k):
     return out if out < 1.0 else 1.0
 
 
-@native
 def fov_solid_angle(fov_h, fov_v):
     """Solid angle (sr) of a rectangular pinhole FOV of full angles ``fov_h``, ``fov_v``."""
     return 4.0 * math.asin(math.sin(fov_h / 2) * math.sin(fov_v / 2))
@@ -350,7 +349,6 @@ def verify(observed, database, q, tolerance_rad, free_matches=2, streaks=None, s
     return Verification(pairs, n_fov, p, prob)
 
 
-@native
 def chance_agreement(n_fov, omega, tolerance_rad, n_observed, n_matched, streaks=None,
                      free_matches=2):
     """``(p_single, probability)``: the largest per-star chance-match probability and the
