@@ -1148,7 +1148,7 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
 
 def test_collections_per_frame_kind(monkeypatch):
     """On MicroPython a lost-in-space frame collects before the frame and at its three stage
-    boundaries at the 8 KiB threshold; a tracking frame only at its 32 KiB threshold; a
+    boundaries at the 8 KiB threshold; a tracking frame only at its 40 KiB threshold; a
     tracking frame that falls back collects before its search and its fit, back at 8 KiB."""
     frame = sim_frames.frames()[0]
     tracker = sim_frames.tracker()
