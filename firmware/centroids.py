@@ -77,6 +77,7 @@ class Star(object):
 
     __slots__ = ("_v", "unseen")
 
+    @native
     def __init__(self, x, y, flux, sigma_major, sigma_minor, elongation, orientation,
                  n, nsat, peak, index, parts=None):
         self._v = (x, y, flux, sigma_major, sigma_minor, elongation, orientation, n, nsat,
@@ -380,10 +381,13 @@ def join_fragments(stars, central, smear, across_px=DEFAULT_JOIN_ACROSS_PX):
     rank = [0] * n                      # position of each star in x order
     for k in range(n):
         rank[keys[k][1]] = k
+    smear_fn = smear if callable(smear) else None     # one test, not one per star
+    sm = smear
     for i in range(n):
         a = vs[i]
         ax, ay = a[0], a[1]
-        sm = smear(ax, ay) if callable(smear) else smear
+        if smear_fn is not None:
+            sm = smear_fn(ax, ay)
         if sm is None:
             continue
         dx, dy = sm[0], sm[1]
@@ -641,9 +645,10 @@ def _joined_pieces(stars, pieces, rejected):
 def _brightest_first(stars):
     """Sort ``stars`` in place by :func:`_sort_key`, computed once per star (MicroPython's
     ``sort(key=...)`` calls the key at every comparison)."""
-    keyed = []
+    keyed = [None] * len(stars)
     for i in range(len(stars)):
-        keyed.append(_sort_key(stars[i]) + (i,))    # tuples of numbers: no call to compare
+        v = stars[i]._v                 # _sort_key(stars[i]) + (i,), inline: tuples of
+        keyed[i] = (-v[2], v[10], i)    # numbers, no call to compare
     keyed.sort()
     old = stars[:]
     for i in range(len(keyed)):

@@ -72,15 +72,29 @@ before it and at the stage boundaries of :meth:`StarTracker.process` (after the 
 before the identification and before the attitude fit): on an MCU's small heap this keeps
 temporaries from fragmenting it, while a tracking frame's low peak needs no collection but
 the threshold's (about one per frame: it allocates about 30 KB; ``docs/firmware.md``,
-Memory); CPython's own collector needs no help."""
+Memory), which the idle-time hook makes before the frame (:data:`HOOK_COLLECT_BYTES`);
+CPython's own collector needs no help."""
 GC_THRESHOLD = 8192
 """Bytes allocated between two collections on MicroPython in a lost-in-space frame, whose
 search and fit peak high: collecting often keeps the heap from fragmenting
 (``docs/firmware.md``, Memory)."""
-TRACK_GC_THRESHOLD = 32768
+TRACK_GC_THRESHOLD = 40960
 """The same in a tracking frame, whose live peak is a third of a lost-in-space one: fewer
 collections, about 30 % fewer instructions per frame (``docs/firmware.md``, Memory).  A
-fallback to lost in space goes back to :data:`GC_THRESHOLD`."""
+fallback to lost in space goes back to :data:`GC_THRESHOLD`.  40 KiB (32 before): the
+budgeted frame at 1 deg/s counts 29 KB of allocations (net 21 KB), and after the hook's
+collection (:data:`HOOK_COLLECT_BYTES`) a frame of more records stays under it too; a
+heap that fills first collects then, as at any threshold (the executive loop's smallest
+heap over the set is unchanged, ``docs/mcu_board.md``)."""
+HOOK_COLLECT_BYTES = 4096
+"""The idle-time hook (:meth:`StarTracker.prefetch`) collects when at least this much was
+allocated since the last collection, as :data:`TRACK_GC_THRESHOLD` counts it (every block,
+a freed one or a grown list's old one included: the budgeted frame at 1 deg/s counts 29 KB
+against a net 21 KB): the next tracking frame then starts its count at zero and stays under
+the threshold, and the collection it would have made (about 10 ms on the F401 on the flight
+heap) falls in the idle time instead (``docs/mcu_board.md``, Speed and heap of the
+tracking frames).  Small: a frame that collected near its end leaves a few KB counted,
+and a hook that let them pass would leave the next frame to collect again."""
 
 
 SMEAR_MEMO = 48
@@ -159,6 +173,22 @@ def _collect():
         gc.collect()
 
 
+def _collect_over(nbytes):
+    """Collect when at least ``nbytes`` were allocated since the last collection (MicroPython's
+    ``gc.threshold``: the next allocation collects once the count reaches it), then set the
+    tracking frame's threshold again; ``S.OK``, or ``S.OUT_OF_MEMORY``."""
+    if not COLLECT:
+        return S.OK
+    gc.threshold(nbytes)
+    try:
+        bytearray(1)                    # the allocation that collects, or not
+    except MemoryError:
+        return S.OUT_OF_MEMORY
+    finally:
+        gc.threshold(TRACK_GC_THRESHOLD)
+    return S.OK
+
+
 def _threshold(nbytes):
     if COLLECT:
         gc.threshold(nbytes)
@@ -209,6 +239,7 @@ def t_tail(nu):
     return z + u * (g1 + u * (g2 + u * (g3 + u * g4)))
 
 
+@native
 def tail_factor(nu):
     """How much a sigma scaled to the residuals' RMS grows so that :data:`BOUND_SIGMAS` of it
     is the error's bound at the normal tail (``docs/firmware.md``, Attitude): the error
@@ -223,6 +254,7 @@ def tail_factor(nu):
     return math.sqrt(max(nu - 2, 1) / nu) * t_tail(nu) / BOUND_SIGMAS
 
 
+@native
 def error_bound(sigma_cross, sigma_roll):
     """The :data:`BOUND_SIGMAS` bound (arcsec) on the total error of an attitude of 1-sigma
     ``sigma_cross`` (each axis across the boresight) and ``sigma_roll`` (arcsec),
@@ -230,6 +262,7 @@ def error_bound(sigma_cross, sigma_roll):
     return BOUND_SIGMAS * math.sqrt(2.0 * sigma_cross * sigma_cross + sigma_roll * sigma_roll)
 
 
+@native
 def precise(res, limit):
     """``IMPRECISE`` for the solution ``res`` whose :func:`error_bound` exceeds ``limit``
     (``Settings.max_error_arcsec``, arcsec; None: any), noted in ``reason``: an ``OK``
@@ -245,6 +278,7 @@ def precise(res, limit):
             BOUND_SIGMAS, bound, limit))
 
 
+@native
 def _longest_smear(cam, smear):
     """Longest expected smear (px) over the frame's centre and corners (a roll smears the
     corners most, a cross-boresight rate everywhere alike): when it is within the limit no
@@ -312,17 +346,28 @@ def _short_smears(stars, smear, limit, max_stars, rejected):
     return kept, math.sqrt(longest)
 
 
+@native
 def _fit(b, r, w, q0):
     """The attitude of pairs ``b``, ``r`` (weights ``w``, None: equal): refined from ``q0``,
     or by QUEST without one."""
     return _attitude.quest(b, r, w) if q0 is None else _attitude.refine(q0, b, r, w)
 
 
+@native
 def _residuals2(q, b, r):
     """Squared residuals ``|b_i - A(q) r_i|^2`` (rad^2) of camera vectors ``b`` against
-    catalogue vectors ``r`` under attitude ``q``."""
-    m = Q.matrix(q)
-    return [G.residual2(m, b[i], r[i]) for i in range(len(b))]
+    catalogue vectors ``r`` under attitude ``q`` (:func:`lodestar.firmware.geometry.residual2`'s
+    arithmetic, inline: it runs for every match of every fit)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = Q.matrix(q)
+    out = [0.0] * len(b)
+    for i in range(len(b)):
+        bv, rv = b[i], r[i]
+        r0, r1, r2 = rv[0], rv[1], rv[2]
+        dx = bv[0] - (m0 * r0 + m1 * r1 + m2 * r2)
+        dy = bv[1] - (m3 * r0 + m4 * r1 + m5 * r2)
+        dz = bv[2] - (m6 * r0 + m7 * r1 + m8 * r2)
+        out[i] = dx * dx + dy * dy + dz * dz
+    return out
 
 
 @native
@@ -362,6 +407,7 @@ class Result:
                  "sigma_cross_arcsec", "sigma_roll_arcsec", "centroid_sigma_px",
                  "patterns_tried", "probability", "rejected", "timings", "min_sum")
 
+    @native
     def __init__(self, status, reason=""):
         self.status = status
         self.reason = reason
@@ -438,6 +484,7 @@ class StarTracker:
         self._mode = None               # the frame's mode, while it is fitted
         self._held = None               # _catalogue(): (star_ids, catalogue vectors)
         self._held_w = None             # in _fit: (star_ids, photon, tracked weights)
+        self._held_e2 = None            # in _fit: the last attitude()'s residuals (_outliers)
         self._lens_clean = False        # a radial check passed: tracking skips it
         _threshold(GC_THRESHOLD)
         try:
@@ -530,29 +577,31 @@ class StarTracker:
         return now
 
     def _epoch_turn(self, omega, exposure_s):
-        """``turn(v, y)``: ``v`` seen on row ``y`` rotated back to the epoch (module
-        docstring, stage 3), or None without a rate."""
+        """``(ax, ay, az, rate, t0, row_time)``: a direction seen on row ``y`` is rotated
+        back to the epoch (module docstring, stage 3) by ``rate * (t0 + y * row_time -
+        epoch_s)`` rad about the unit axis ``a`` (:meth:`directions`); None without a
+        rate."""
         if omega is None:
             return None
         rate = G.norm(omega)
         if not rate > 0:
             return None
-        axis = (omega[0] / rate, omega[1] / rate, omega[2] / rate)
         half = 0.5 * exposure_s if exposure_s is not None else 0.0
-        row_time = self.settings.row_time_s
-        epoch = self.settings.epoch_s
-
-        def turn(v, y):
-            return G.rotate_about(v, axis, rate * (half + y * row_time - epoch))
-        return turn
+        return (omega[0] / rate, omega[1] / rate, omega[2] / rate, rate, half,
+                self.settings.row_time_s)
 
     @native
     def directions(self, stars, omega=None, exposure_s=None):
         """Camera-frame unit vectors of ``stars`` (:class:`~lodestar.firmware.centroids.Star`)
         at the epoch: ``(vectors, used)`` with ``used`` the indices into ``stars`` of the
-        stars whose pixel the camera model inverts (the others are dropped)."""
+        stars whose pixel the camera model inverts (the others are dropped).  The turn to
+        the epoch is :func:`lodestar.firmware.geometry.rotate_about`'s arithmetic inline (no
+        two calls per star)."""
         cam = self.camera
         turn = self._epoch_turn(omega, exposure_s)
+        if turn is not None:
+            ax, ay, az, rate, half, row_time = turn
+            epoch = self.settings.epoch_s
         vectors = []
         used = []
         for i in range(len(stars)):
@@ -561,7 +610,14 @@ class StarTracker:
             if v is None:
                 continue
             if turn is not None:
-                v = turn(v, y)
+                angle = rate * (half + y * row_time - epoch)
+                c = math.cos(angle)
+                s = math.sin(angle)
+                vx, vy, vz = v
+                k = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+                v = (vx * c + (ay * vz - az * vy) * s + ax * k,
+                     vy * c + (az * vx - ax * vz) * s + ay * k,
+                     vz * c + (ax * vy - ay * vx) * s + az * k)
             vectors.append(v)
             used.append(i)
         return vectors, used
@@ -594,6 +650,7 @@ class StarTracker:
             out.append(streak)
         return out if found else None
 
+    @native
     def _track(self, vectors, prior, omega, dt, streaks):
         return self._tracker.track(vectors, self.database, prior, omega, dt, streaks=streaks)
 
@@ -603,17 +660,21 @@ class StarTracker:
         catalogue cone that frame's tracking would query (one bounded database query,
         ``tracking.Tracker.prefetch``), made now unless the held cone covers it; ``prior``
         None (the next frame is lost in space): the cone is dropped, its heap free for the
-        search.  No collection: one here (10 ms on the F401) costs every idle period more
-        than the frames' own save (``docs/mcu_board.md``).  Optional: a frame that comes
-        first queries its own cone, with the same result.  Never raises: a status
-        (``S.OK``; ``S.BAD_INPUT`` for a malformed prior, rate or interval;
-        ``S.OUT_OF_MEMORY`` or ``S.INTERNAL_ERROR``; a configuration failure's status)."""
+        search.  Then, on MicroPython, a collection when :data:`HOOK_COLLECT_BYTES` were
+        allocated since the last one (the refill's garbage included): the tracking frame's
+        own collection, moved into the idle time.  Optional: a frame that comes first
+        queries its own cone, with the same result.  Never raises: a status (``S.OK``;
+        ``S.BAD_INPUT`` for a malformed prior, rate or interval; ``S.OUT_OF_MEMORY`` or
+        ``S.INTERNAL_ERROR``; a configuration failure's status)."""
         if self.status != S.OK:
             return self.status
         if prior is None:
             self._cone.clear()
             return S.OK
-        return self._tracker.prefetch(self.database, prior, omega, dt)
+        code = self._tracker.prefetch(self.database, prior, omega, dt)
+        if code != S.OK:
+            return code
+        return _collect_over(HOOK_COLLECT_BYTES)
 
     def identify(self, vectors, prior=None, omega=None, dt=None, streaks=None):
         """Tracking from ``prior`` (propagated by ``omega``, ``dt``), else (or on failure,
@@ -657,6 +718,7 @@ class StarTracker:
             out.append(f / median if G.is_number(f) and f > 0 else 1.0)
         return out
 
+    @native
     def noise_shares(self, b, r, photon, q0=None, fitted=False):
         """Relative centroid variances ``g_i = (1 - rho) / photon_i + rho`` of the stars
         with unit vectors ``b`` (camera) and ``r`` (catalogue) and photon-model weights
@@ -676,6 +738,7 @@ class StarTracker:
         rho = _floor_share(u, e2)
         return u if rho is None else [(1.0 - rho) * ui + rho for ui in u]
 
+    @native
     def attitude(self, vectors, star_ids, fluxes=None, floor=True, streaks=None, q0=None,
                  fitted=False):
         """Weighted least-squares attitude of ``star_ids`` ``[(vector index, database star
@@ -715,6 +778,8 @@ class StarTracker:
             s = self.sigma_rad
             if s is None:
                 e2 = _residuals2(q, b, r)
+                if self._held_w is not None:    # within _fit: the screen's residuals
+                    self._held_e2 = (vectors, star_ids, q, e2)
                 total = 0.0
                 for i in range(n):
                     total += w[i] * e2[i]
@@ -747,6 +812,7 @@ class StarTracker:
         except Exception as exc:
             return Result(S.INTERNAL_ERROR, "internal error: " + repr(exc))
 
+    @native
     def _beta(self, velocity_km_s, res):
         """``v / c`` (ICRS) of this frame's ``velocity_km_s``, else of the settings' (None:
         no aberration correction); a malformed one is ignored with a note."""
@@ -849,6 +915,7 @@ class StarTracker:
         self._tick(timings, "attitude", start)
         return res
 
+    @native
     def _fit(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted, omega):
         """:meth:`attitude` and :meth:`_at_instant` of the matches, then the match screen
         (:mod:`lodestar.firmware.screen`): the matches it rejects are dropped, noted, and
@@ -859,8 +926,10 @@ class StarTracker:
             return self._fit_screened(res, vectors, star_ids, fluxes, floor, streaks, q0,
                                       fitted, omega)
         finally:
-            self._held = self._held_w = self._last_fit = None   # no list of the frame outlives it
+            self._held = self._held_w = self._last_fit = self._held_e2 = None  # no list of
+            # the frame outlives it
 
+    @native
     def _fit_screened(self, res, vectors, star_ids, fluxes, floor, streaks, q0, fitted,
                       omega):
         """:meth:`_fit`'s work."""
@@ -891,11 +960,11 @@ class StarTracker:
         held = self._held
         if held is not None and held[0] is star_ids:
             return held[1]
-        db, cone = self.database, self._cone
-        r = [cone.star_vector(db, s) for _o, s in star_ids]
+        r = self._cone.star_vectors(self.database, star_ids)
         self._held = (star_ids, r)
         return r
 
+    @native
     def _photon(self, star_ids, fluxes):
         """:meth:`weights` of the matched stars' ``fluxes`` (None: equal weights); within
         :meth:`_fit` computed once per list as :meth:`_catalogue`'s vectors are: the attitude
@@ -910,6 +979,7 @@ class StarTracker:
             self._held_w = (star_ids, w, None)
         return w
 
+    @native
     def _screened(self, star_ids, fluxes, q):
         """Indices of the matches :mod:`lodestar.firmware.screen` rejects: residual outliers of
         the final fit (its vectors and weights, kept by :meth:`_radial`; each residual over
@@ -931,17 +1001,21 @@ class StarTracker:
                     drop.append(i)
         return drop if len(star_ids) - len(drop) >= MIN_SCREENED_STARS else None
 
+    @native
     def _outliers(self, vectors, star_ids, w, q):
         """Indices of the residual outliers among ``star_ids`` (weights ``w``) at attitude
         ``q``: :func:`lodestar.firmware.screen.residual_outliers` of each residual over its
         variance less the fit's share (``1 - h_i``, :func:`screen.leverages`)."""
-        m = Q.matrix(q)
         h = _screen.leverages([vectors[o] for o, _s in star_ids], w)
-        r = self._catalogue(star_ids)
-        return _screen.residual_outliers([G.residual2(m, vectors[star_ids[i][0]], r[i]) *
-                                          w[i] / max(1.0 - h[i], MIN_FREEDOM)
+        held = self._held_e2
+        if held is not None and held[0] is vectors and held[1] is star_ids and held[2] is q:
+            e2 = held[3]                # attitude()'s: the same residuals at the same q
+        else:
+            e2 = _residuals2(q, [vectors[o] for o, _s in star_ids], self._catalogue(star_ids))
+        return _screen.residual_outliers([e2[i] * w[i] / max(1.0 - h[i], MIN_FREEDOM)
                                           for i in range(len(star_ids))])
 
+    @native
     def _at_instant(self, res, vectors, star_ids, fluxes, streaks, omega, solved):
         """The instant ``solved`` (``attitude``'s tuple) holds for, in ``res.t_epoch_s``, and
         its covariance made to cover the truth then (``docs/firmware.md``, Epoch and rate):
@@ -997,6 +1071,7 @@ class StarTracker:
         return self._radial(res, turned, star_ids, w, times, ref, (q, cross, roll, s)), \
             star_ids
 
+    @native
     def _contradicted(self, res, vectors, star_ids, w, omega, solved):
         """Whether the frame contradicts the gyro's ``omega`` (:meth:`_contradicts`), setting
         ``RATE_CONTRADICTED`` with the difference in ``reason``.  Not when the matches
@@ -1022,6 +1097,7 @@ class StarTracker:
               " deg/s, chi2 " + str(int(chi2)) + "): no attitude")
         return True
 
+    @native
     def _contradicts(self, vectors, star_ids, w, omega, solved):
         """``(d, chi2)``, the frame's rate difference from the gyro's ``omega`` (rad/s;
         ``vectors`` turned to ``epoch_s`` by it) and its chi-square, when the matches
@@ -1064,6 +1140,7 @@ class StarTracker:
             return None
         return verdict
 
+    @native
     def _radial(self, res, vectors, star_ids, w, times, ref, solved):
         """``solved``, or when the matched stars' residuals show a radial pattern (a lens
         distortion or focal length the camera model lacks:
@@ -1110,6 +1187,7 @@ class StarTracker:
         cross, roll = _attitude.sigmas_cross_roll(p)
         return q, max(cross, solved[1]), max(roll, solved[2]), s
 
+    @native
     def _rate_weights(self, star_ids, fluxes, streaks):
         """Relative weights of the matched stars for the rate fit: the photon model
         (:meth:`weights`) with each partly seen track's variance added (as :meth:`attitude`,
@@ -1223,8 +1301,10 @@ class StarTracker:
                 _note(res, "exposure_s ignored: not a positive number")
         beta = self._beta(velocity_km_s, res)
         cam = self.camera
-        smear = self._smear(w, exposure)
-        longest = _longest_smear(cam, smear) if smear is not None else 0.0
+        smear_at = self._smear_at(w, exposure)
+        smear = _memo(smear_at)
+        longest = _longest_smear(cam, smear_at) if smear_at is not None else 0.0
+        smear_at = None
         limit = self.settings.max_smear_px
         select = not longest <= limit        # some stars may smear beyond the limit
         max_stars = self.settings.max_stars
@@ -1274,6 +1354,7 @@ class StarTracker:
         self._tick(timings, "total", first)
         return res
 
+    @native
     def _thin(self, res):
         """Whether the next frame is budgeted for :data:`WIDE_TRACK` times ``track_stars``
         (``docs/firmware.md``, Record budget): a frame of the budget's records (at most
@@ -1316,6 +1397,7 @@ class StarTracker:
         xy = self._xy
         return [half + xy[2 * o + 1] * row_time for o in range(n)]
 
+    @native
     def _check_frame(self, header, res):
         """Set ``res`` to ``FRAME_INCOMPLETE`` or ``BAD_INPUT`` (a frame not of the camera's
         size) for a frame that cannot be solved; note the lost blobs of one that can."""
@@ -1338,23 +1420,18 @@ class StarTracker:
 
     def _smear(self, omega, exposure_s):
         """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
-        (:meth:`Camera.smear_function`), remembered per pixel for the first
-        :data:`SMEAR_MEMO` pixels (extraction, joining and streaks ask again); None without
+        (:meth:`_smear_at`), remembered per pixel for the first :data:`SMEAR_MEMO` pixels
+        (extraction, joining and streaks ask again); None without a non-zero rate or an
+        exposure."""
+        return _memo(self._smear_at(omega, exposure_s))
+
+    def _smear_at(self, omega, exposure_s):
+        """:meth:`Camera.smear_function` of ``omega`` and ``exposure_s``, not remembered (the
+        frame's corners, :func:`_longest_smear`, which no star asks for again); None without
         a non-zero rate or an exposure."""
         if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
             return None
-        known = {}
-        smear_at = self.camera.smear_function(omega, exposure_s)
-
-        def smear(x, y):
-            key = (x, y)
-            if key in known:
-                return known[key]
-            d = smear_at(x, y)
-            if len(known) < SMEAR_MEMO:
-                known[key] = d
-            return d
-        return smear
+        return self.camera.smear_function(omega, exposure_s)
 
     @native
     def _keep(self, stars, used):
@@ -1368,6 +1445,26 @@ class StarTracker:
             xy[2 * o] = v[0]
             xy[2 * o + 1] = v[1]
             fluxes[o] = v[2]
+
+
+def _memo(smear_at):
+    """``smear_at`` (``smear(x, y)``) remembered per pixel for the first :data:`SMEAR_MEMO`
+    pixels (:meth:`StarTracker._smear`); None for None."""
+    if smear_at is None:
+        return None
+    known = {}
+
+    @native
+    def smear(x, y):                    # one lookup for a hit (a smear is never None in
+        key = (x, y)                    # the memo: a None is computed again)
+        d = known.get(key)
+        if d is not None:
+            return d
+        d = smear_at(x, y)
+        if d is not None and len(known) < SMEAR_MEMO:
+            known[key] = d
+        return d
+    return smear
 
 
 def _aberration():

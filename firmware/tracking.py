@@ -58,6 +58,7 @@ class TrackSolution(Solution):
     when first read (the flight pipeline never reads it: 2 ms of F401 time a frame saved),
     or None."""
 
+    @native
     def __init__(self, status, q=None, matches=None, star_ids=None, probability=1.0,
                  q_predicted=None, n_predicted=0, residual=None):
         Solution.__init__(self, status, q=q, matches=matches, probability=probability,
@@ -146,6 +147,22 @@ class Cone:
             return database.star_vector(s)
         vecs = self.vecs
         return vecs[3 * i], vecs[3 * i + 1], vecs[3 * i + 2]
+
+    @native
+    def star_vectors(self, database, pairs):
+        """:meth:`star_vector` of each star of ``pairs`` (``[(observed index, star)]``), as
+        a list: one call for a fit's stars, not one per star."""
+        where, vecs = self.where, self.vecs
+        out = [None] * len(pairs)
+        for k in range(len(pairs)):
+            s = pairs[k][1]
+            i = where.get(s) if where is not None else None
+            if i is None:
+                out[k] = database.star_vector(s)
+            else:
+                j = 3 * i
+                out[k] = (vecs[j], vecs[j + 1], vecs[j + 2])
+        return out
 
 
 @native
@@ -290,9 +307,15 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone
     lim = chord_of_angle(tolerance_rad)
     near = []
     last, streak = -1, None
+    where = cone.where if cone is not None else None     # Cone.star_vector, inline
+    vecs = cone.vecs if cone is not None else None
     for o, s in candidates:
-        r0, r1, r2 = cone.star_vector(database, s) if cone is not None else \
-            database.star_vector(s)
+        i = where.get(s) if where is not None else None
+        if i is None:
+            r0, r1, r2 = database.star_vector(s)
+        else:
+            j = 3 * i
+            r0, r1, r2 = vecs[j], vecs[j + 1], vecs[j + 2]
         v = observed[o]
         dx = v[0] - (m0 * r0 + m1 * r1 + m2 * r2)
         dy = v[1] - (m3 * r0 + m4 * r1 + m5 * r2)
@@ -305,10 +328,11 @@ def confirm(observed, database, q, candidates, tolerance_rad, streaks=None, cone
 
 
 @native
-def _to_inertial(vectors, q):
+def _to_inertial(vectors, q, m=None):
     """Camera-frame ``vectors`` turned into the inertial frame by attitude ``q``: ``A^T v``
-    (distances and in-region tests are the same in either frame)."""
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)
+    (distances and in-region tests are the same in either frame); ``m``: ``matrix(q)``
+    when the caller has it."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q) if m is None else m
     out = []
     for v in vectors:
         x, y, z = v[0], v[1], v[2]
@@ -318,12 +342,13 @@ def _to_inertial(vectors, q):
 
 
 @native
-def _streaks_to_inertial(streaks, q):
+def _streaks_to_inertial(streaks, q, m=None):
     """``streaks`` with each track's tangent turned as :func:`_to_inertial` (None stays),
-    each turned track made once (no list of turned tangents to extend: 0.5 KB a frame)."""
+    each turned track made once (no list of turned tangents to extend: 0.5 KB a frame);
+    ``m``: ``matrix(q)`` when the caller has it."""
     if streaks is None:
         return None
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q)     # one matrix for every track
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = matrix(q) if m is None else m   # one for every track
     out = []
     for st in streaks:
         if st is None:
@@ -335,6 +360,7 @@ def _streaks_to_inertial(streaks, q):
     return out
 
 
+@native
 def _within(q, q0, angle):
     """True when the rotation from ``q0`` to ``q`` (unit quaternions) is at most ``angle``
     rad: the vector part of their quotient is ``sin(angle / 2)``."""
@@ -409,7 +435,7 @@ def fit(observed, database, pairs, q, weights=None, cone=None):
     if cone is None:
         r = [database.star_vector(s) for o, s in pairs]
     else:
-        r = [cone.star_vector(database, s) for o, s in pairs]
+        r = cone.star_vectors(database, pairs)
     w = None if weights is None else [weights[o] for o, s in pairs]
     try:
         return attitude.refine(q, b, r, w)
@@ -502,6 +528,7 @@ class Tracker:
         self.database = self.b = self.weights = self.streaks = self.q_pred = None
         self.slack = 0.0
 
+    @native
     def track(self, vectors, database, q_prior, omega=None, dt=None, weights=None,
               streaks=None):
         """:func:`track` of these arguments with this tracker's settings; never raises."""
@@ -543,6 +570,7 @@ class Tracker:
         reach (the search radius of the prior) plus a tolerance, on both sides."""
         return 2.0 * self.search + 2.0 * self.tol
 
+    @native
     def _fail(self, status, n_fov=0):
         return TrackSolution(status, q_predicted=self.q_pred, n_predicted=n_fov)
 
@@ -575,9 +603,11 @@ class Tracker:
         # the inertial frame: the observed stars turned back by the prior against the cone's
         # stars (sorted once per cone), the catalogue's density from the cone
         self.slack = SLACK_TOL * tol
-        pairs, near = match_nearest(_to_inertial(b, q_pred), cone.stars, tol,
-                                    _streaks_to_inertial(streaks, q_pred), self.slack,
+        m = matrix(q_pred)              # one matrix turns the stars and their tracks
+        pairs, near = match_nearest(_to_inertial(b, q_pred, m), cone.stars, tol,
+                                    _streaks_to_inertial(streaks, q_pred, m), self.slack,
                                     order=cone.order)
+        m = None
         n_fov = len(cone.ids) * fov_solid_angle(database.fov_h, database.fov_v) / \
             cone.solid_angle
         if len(pairs) >= self.min_matches:

@@ -23,7 +23,9 @@ from scipy.spatial.transform import Rotation
 from lodestar import contract as C
 from lodestar.contract import DetectionResult
 from lodestar.contract.stardb import METHODS
+from lodestar.firmware import geometry as G
 from lodestar.firmware import pipeline, settings, smear
+from lodestar.firmware import quaternion as Q
 from lodestar.firmware import status as S
 from lodestar.firmware.centroids import Star
 from lodestar.firmware.database import Database
@@ -1146,7 +1148,7 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
 
 def test_collections_per_frame_kind(monkeypatch):
     """On MicroPython a lost-in-space frame collects before the frame and at its three stage
-    boundaries at the 8 KiB threshold; a tracking frame only at its 32 KiB threshold; a
+    boundaries at the 8 KiB threshold; a tracking frame only at its 40 KiB threshold; a
     tracking frame that falls back collects before its search and its fit, back at 8 KiB."""
     frame = sim_frames.frames()[0]
     tracker = sim_frames.tracker()
@@ -1166,3 +1168,48 @@ def test_collections_per_frame_kind(monkeypatch):
     res = tracker.process(frame.packet, prior=far.tolist())
     assert res.status == S.OK and res.mode == "lost_in_space"
     assert calls == [track, lis, "collect", "collect"]
+
+
+def test_the_hook_collects_when_a_frame_would(monkeypatch):
+    """The idle-time hook asks MicroPython for a collection once HOOK_COLLECT_BYTES were
+    allocated since the last (gc.threshold lowered for one allocation), then sets the
+    tracking frame's threshold again; a lost-in-space next frame (no prior) and a failed
+    refill ask for none."""
+    frame = sim_frames.frames()[0]
+    tracker = sim_frames.tracker()
+    calls = []
+    monkeypatch.setattr(pipeline, "COLLECT", True)
+    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
+        "collect": staticmethod(lambda: calls.append("collect")),
+        "threshold": staticmethod(lambda n: calls.append(n))}))
+    assert tracker.prefetch(frame.q.tolist()) == S.OK
+    assert calls == [pipeline.HOOK_COLLECT_BYTES, pipeline.TRACK_GC_THRESHOLD]
+    assert tracker._cone.ids is not None
+    del calls[:]
+    assert tracker.prefetch(None) == S.OK and calls == []
+    assert tracker.prefetch([0, 0, 0, 0]) == S.BAD_INPUT and calls == []
+
+
+def test_directions_turn_each_star_as_rotate_about():
+    # the turn to the epoch is inlined in directions(): the same arithmetic, the same bits
+    tracker = sim_frames.tracker()
+    cam, st = tracker.camera, tracker.settings
+    omega, exposure = (0.01, -0.02, 0.005), 0.1
+    stars = [Star(100.5 + 300 * k, 50.25 + 200 * k, 1000, 2.0, 2.0, 1.0, 0.0, 9, 0, 50, k)
+             for k in range(5)]
+    vectors, used = tracker.directions(stars, omega, exposure)
+    rate = math.sqrt(sum(w * w for w in omega))
+    axis = tuple(w / rate for w in omega)
+    expected = [G.rotate_about(cam.pixel_to_vector(s.x, s.y), axis,
+                               rate * (0.5 * exposure + s.y * st.row_time_s - st.epoch_s))
+                for s in stars]
+    assert used == list(range(5)) and vectors == expected
+    assert tracker.directions(stars)[0] == [cam.pixel_to_vector(s.x, s.y) for s in stars]
+
+
+def test_residuals2_is_geometry_residual2_per_pair():
+    rng = np.random.default_rng(3)
+    b, r = _noisy_pairs(rng, [1e-4] * 6)
+    q = [float(c) for c in Rotation.random(random_state=rng).as_quat()]
+    m = Q.matrix(q)
+    assert pipeline._residuals2(q, b, r) == [G.residual2(m, b[i], r[i]) for i in range(6)]

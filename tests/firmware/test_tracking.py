@@ -552,3 +552,19 @@ def test_a_close_prior_is_matched_directly_a_far_one_coarsely(monkeypatch, off_d
         sol = tracking.track(scene.vectors.tolist(), db, prior.tolist(), tolerance_rad=TOL)
         assert sol.status == S.OK and correct(sol, q, scene.components)
     assert len(calls) == (5 if coarse else 0)
+
+
+def test_a_cones_star_vectors_are_its_star_vector_per_pair():
+    """``Cone.star_vectors`` reads a fit's catalogue vectors in one call: each is
+    ``star_vector``'s, held or (a star outside the cone, or an empty cone) read from the
+    database."""
+    db = sim_frames.flight_database()
+    q = random_attitude(np.random.default_rng(5))
+    cone = tracking.candidates(db, [float(c) for c in q], 0.01)
+    held = [int(s) for s in cone.ids[:4]]
+    outside = next(s for s in range(db.n_stars) if s not in cone.where)
+    pairs = [(k, s) for k, s in enumerate(held + [outside])]
+    assert cone.star_vectors(db, pairs) == [cone.star_vector(db, s) for _o, s in pairs]
+    assert cone.star_vectors(db, pairs)[-1] == db.star_vector(outside)
+    empty = tracking.Cone()
+    assert empty.star_vectors(db, pairs) == [db.star_vector(s) for _o, s in pairs]
