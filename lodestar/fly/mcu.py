@@ -7,6 +7,9 @@ frames as the flight loop would.  Every figure is an estimate (the docs carry ±
 - Tracking (with a prior): ``TRACK_BASE_MS + TRACK_PER_RECORD_MS x records``, the line through
   the budgeted frame (10 records, 73 ms) and the frame with every blob (50 records, 243 ms)
   of ``docs/firmware.md`` (tracking frame by frame).
+- The idle-time hook before each tracking frame's wait (``StarTracker.prefetch`` with a
+  prior): ``HOOK_MS``, its collection (the one a tracking frame would otherwise make; the
+  model above is of frames that query their own cone, so a refill is counted there).
 - The executive's step around ``process`` (status, packet, prior, telemetry, watchdog, the
   gyro ring and the ``min_sum`` write-back): ``LOOP_MS``, derived from the icount units
   measured on the Cortex-M4F build (:data:`STEP_UNITS`, ``docs/mcu_board.md``) with that
@@ -46,6 +49,10 @@ TRACK_BASE_MS = 30.5
 TRACK_PER_RECORD_MS = 4.25
 LOOP_MS = f401_ms(sum(STEP_UNITS.values()))
 """The executive's share of a frame (about 9.1 ms)."""
+HOOK_MS = 10.3
+"""The idle-time hook with a prior when its held cone covers the next frame: its collection
+(``benchmarks/bench_mcu.py --stages-only``, the hook's later calls, 10.2-10.5 ms;
+``docs/mcu_board.md``, Speed and heap of the tracking frames)."""
 
 
 def process_ms(result, prior, omega):
@@ -80,9 +87,11 @@ class TimedTracker:
         return self.tracker.reason
 
     def prefetch(self, prior=None, omega=None, dt=None):
-        """The tracker's idle-time hook, no time spent: the tracking frames' model above is
-        of frames that query their own cone, so a cone made here is counted there."""
-        return self.tracker.prefetch(prior, omega, dt)
+        """The tracker's idle-time hook, spending :data:`HOOK_MS` when given a prior."""
+        code = self.tracker.prefetch(prior, omega, dt)
+        if prior is not None:
+            self.advance(HOOK_MS)
+        return code
 
     def process(self, packet, prior=None, omega=None, dt=None):
         result = self.tracker.process(packet, prior=prior, omega=omega, dt=dt)

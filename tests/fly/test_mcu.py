@@ -20,6 +20,10 @@ class _Tracker:
     def process(self, packet, prior=None, omega=None, dt=None):
         return _Result()
 
+    def prefetch(self, prior=None, omega=None, dt=None):
+        self.hooked = (prior, omega, dt)
+        return 0
+
 
 def test_classes():
     assert mcu.process_ms(_Result(), None, None) == mcu.LIS_REST_MS
@@ -40,6 +44,16 @@ def test_timed_tracker_spends_the_time_and_a_hang_once():
     t.process(b"", prior=(0, 0, 0, 1))
     assert spent == [pytest.approx(73 + mcu.LOOP_MS + 3000, abs=0.5),
                      pytest.approx(73 + mcu.LOOP_MS, abs=0.5)]
+
+
+def test_the_hook_is_passed_on_and_spends_its_collection_with_a_prior():
+    spent = []
+    inner = _Tracker()
+    t = mcu.TimedTracker(inner, spent.append)
+    assert t.prefetch(None) == 0 and inner.hooked == (None, None, None) and spent == []
+    assert t.prefetch((0, 0, 0, 1), (0.0, 0.0, 0.01), 0.1) == 0
+    assert inner.hooked == ((0, 0, 0, 1), (0.0, 0.0, 0.01), 0.1)
+    assert spent == [mcu.HOOK_MS]
 
 
 def test_loop_ms_is_the_measured_step_and_min_sum():
