@@ -31,6 +31,16 @@ def _live():
     return None if _MEM_ALLOC is None else _MEM_ALLOC()
 
 
+def sample_peaks():
+    """Collect every 512 bytes allocated from now on, the firmware's own collections off
+    (``pipeline.COLLECT``: its frames would set their thresholds again): each collection
+    samples the live heap, so ``gc.live_peak()`` is a frame's peak to 512 bytes, however
+    few collections the firmware itself would make in it."""
+    from lodestar.firmware import pipeline
+    pipeline.COLLECT = False
+    gc.threshold(512)
+
+
 def _next_run(runs):
     """The next run of the open JSON-lines file ``runs``, decoded (a list); None at its end.
     Nothing of it stays referenced here, so a caller frees what it drops."""
@@ -157,7 +167,7 @@ def _flight(config, runs=None):
     where the runs come from (default :class:`FileRuns` of the config's ``runs``)."""
     peak, timing = config.get("peak"), config.get("timing")
     if peak:
-        gc.threshold(512)
+        sample_peaks()
     elif config.get("threshold"):
         gc.threshold(config["threshold"])
     buf = bytearray(config["buffer_bytes"])       # one packet buffer, reused (as the SPI loop's)

@@ -402,8 +402,11 @@ def fram_read_ticks(elf, reads=2000):
     the board's ``machine.SPI`` and ``Pin`` are C: an upper bound): a frame's F-RAM time is
     its buffer time plus its reads times this plus their wire time
     (:func:`lodestar.regress.fram.wire_us`)."""
-    script = f"""import time
+    script = f"""import gc
+import time
 from lodestar.firmware import database
+gc.threshold(-1)            # the import's threshold (firmware.IMPORT_GC_THRESHOLD) off:
+gc.collect()                # no collection falls in either loop
 class Bus:
     def write(self, b):
         pass

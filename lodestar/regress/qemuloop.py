@@ -158,7 +158,8 @@ def _executive(config, runs):
     from lodestar.regress import linkmodel
     peak, timing = config.get("peak"), config.get("timing")
     if peak:
-        gc.threshold(512)
+        from lodestar.regress.loop import sample_peaks
+        sample_peaks()
     model = linkmodel.LinkModel()
     lnk = _link.Link(model, model.cs, model.irq, time, capacity=detection.FLIGHT_RECORD_CAPACITY)
     replay = _Replay(time.ticks_us if timing else None)

@@ -312,9 +312,9 @@ def flight_loop(binary, manifest, set_dir, database_files, runs, heapsize, peak=
     a new tracker per run, only the current camera's database open and one packet buffer
     (sized for the longest packet, read into and passed as a ``memoryview``, as the flight
     SPI loop does).  ``peak``: also measure
-    each solve's live peak above the heap before it (``gc.threshold(512)``;
-    ``gc.live_peak()`` of MicroPython's ``build.sh``), which overrides the firmware's
-    collector setting.  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
+    each solve's live peak above the heap before it (``loop.sample_peaks``: a collection
+    every 512 bytes, the firmware's own collections off; ``gc.live_peak()`` of
+    MicroPython's ``build.sh``).  ``threshold``: a ``gc.threshold`` (bytes) the loop sets before its
     first run (None: the firmware's).
     ``timing``: also time each solve (``time.ticks_us``, the pipeline's stage ``timings``).
     ``buffer_bytes``: the packet buffer's size (:data:`FLIGHT_BUFFER` for the flight
