@@ -108,6 +108,29 @@ later frame whose cone lies inside it, so a tracker turning at 1 deg/s at 10 Hz 
 database about once in five frames (about 8 % more stars each frame to project)."""
 
 
+CONE_LEAD = 0.8
+"""How far ahead of the next frame's boresight, in :data:`CONE_REUSE_RAD`, the idle-time
+hook centres a cone it refills (:meth:`Tracker.prefetch`): the next frame lies 0.4 deg
+behind its centre, within the margin, and the boresight then moves about 0.9 deg before the
+cone stops covering it: at 1 deg/s across the boresight the hook refilled 3 times in 39
+frames instead of 6 (``tests/firmware/test_tracking.py``), each 12-24 ms of the F401's idle
+time plus its collection (``docs/mcu_board.md``)."""
+
+
+def _lead_s(omega):
+    """Seconds the boresight takes to move ``CONE_LEAD * CONE_REUSE_RAD`` at body rate
+    ``omega`` (rad/s, camera frame: its ``x, y`` turn the boresight); 0 without a rate
+    across it.  The boresight's inertial speed is constant at a constant body rate, so it
+    moves at most that far (its path curves under a roll)."""
+    if omega is None:
+        return 0.0
+    w = vector3(omega)
+    if w is None:
+        return 0.0
+    cross = math.sqrt(w[0] * w[0] + w[1] * w[1])
+    return CONE_LEAD * CONE_REUSE_RAD / cross if cross > 0 else 0.0
+
+
 class Cone:
     """The catalogue stars around a boresight (:func:`candidates`), kept between frames by a
     tracker: the ``database``, the query's ``centre`` (unit vector) and ``radius`` (rad),
@@ -547,15 +570,26 @@ class Tracker:
         """Make now the cone that :meth:`track` of ``q_prior`` (propagated by ``omega``,
         ``dt``) will use, when the held one does not cover it: the frame's one database
         query (:func:`candidates`), moved into the flight loop's idle time after the frame
-        before.  Bounded (one cone query); the next frame checks coverage itself, so a frame
-        whose prior differs queries its own cone.  Never raises: ``S.OK``, ``S.BAD_INPUT``
+        before.  A refill of a kept cone is centred :data:`CONE_LEAD` of its margin ahead of
+        that frame's boresight along its motion (:func:`_lead_s`), so it serves the frames
+        after it twice as long.  Bounded (one cone query); the next frame checks
+        coverage itself, so a frame whose prior differs queries its own cone.  Never
+        raises: ``S.OK``, ``S.BAD_INPUT``
         (a malformed prior, rate or interval), else ``S.OUT_OF_MEMORY`` or
         ``S.INTERNAL_ERROR`` with the cone emptied (the next frame then queries it)."""
         try:
             q = propagate(q_prior, omega, dt)
             if q is None:
                 return S.BAD_INPUT
-            self.cone = candidates(database, q, self._reach(), self.cone)
+            cone, reach = self.cone, self._reach()
+            lead = _lead_s(omega)
+            if cone is not None and lead > 0:
+                m = matrix(q)
+                if cone.covers(database, (m[6], m[7], m[8]), 0.5 * database.fov_diag + reach):
+                    return S.OK
+                cone.clear()                # refilled, centred ahead (candidates' margin)
+                q = propagate(q_prior, omega, dt + lead)
+            self.cone = candidates(database, q, reach, cone)
             return S.OK
         except MemoryError:
             status = S.OUT_OF_MEMORY
