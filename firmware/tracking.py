@@ -588,7 +588,7 @@ class Tracker:
                 if cone.covers(database, (m[6], m[7], m[8]), 0.5 * database.fov_diag + reach):
                     return S.OK
                 cone.clear()                # refilled, centred ahead (candidates' margin)
-                q = propagate(q_prior, omega, dt + lead)
+                q = propagate(q_prior, omega, lead if dt is None else dt + lead)
             self.cone = candidates(database, q, reach, cone)
             return S.OK
         except MemoryError:

@@ -301,6 +301,15 @@ def test_the_hook_refills_its_cone_ahead_of_the_motion():
     assert tracking.CONE_LEAD == 0.8
     assert _refills(0.8) == 4 and _refills(0.0) == 7
     assert tracking._lead_s(None) == tracking._lead_s((0, 0, 0.5)) == 0.0
+    # a rate without an interval (the prior is the frame's attitude): led from the prior
+    db = sim_frames.flight_database()
+    tracker = tracking.Tracker(TOL, cone=tracking.Cone())
+    q = random_attitude(np.random.default_rng(4)).tolist()
+    assert tracker.prefetch(db, q, (0.0, 0.01745, 0.0)) == S.OK
+    m = tracking.matrix(tracking.propagate(q))
+    assert tracker.cone.covers(db, (m[6], m[7], m[8]), 0.5 * db.fov_diag + tracker._reach())
+    assert not tracker.cone.covers(db, (m[6], m[7], m[8]),
+                                   0.5 * db.fov_diag + tracker._reach() + 0.002)   # led
     assert tracking._lead_s((0.01, 0, 0)) == pytest.approx(0.8 * 0.00873 / 0.01)
 
 
