@@ -98,7 +98,7 @@ and a hook that let them pass would leave the next frame to collect again."""
 
 
 SMEAR_MEMO = 48
-"""Pixels whose expected smear a moving frame remembers (:meth:`StarTracker._smear`); the
+"""Pixels whose expected smear a moving frame remembers (:func:`_memo`); the
 rest are computed again when asked (about 0.1 ms each on the F401).  A frame with a rate
 keeps every record's star for the joining of broken tracks, and the memo of a 100-record
 frame (its keys, values and a dictionary grown to 2 KiB in one block) took the heap of a
@@ -1418,17 +1418,11 @@ class StarTracker:
             res.reason = "frame is {}x{}, the camera {}x{}".format(
                 header["width"], header["height"], cam.width, cam.height)
 
-    def _smear(self, omega, exposure_s):
-        """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
-        (:meth:`_smear_at`), remembered per pixel for the first :data:`SMEAR_MEMO` pixels
-        (extraction, joining and streaks ask again); None without a non-zero rate or an
-        exposure."""
-        return _memo(self._smear_at(omega, exposure_s))
-
     def _smear_at(self, omega, exposure_s):
-        """:meth:`Camera.smear_function` of ``omega`` and ``exposure_s``, not remembered (the
-        frame's corners, :func:`_longest_smear`, which no star asks for again); None without
-        a non-zero rate or an exposure."""
+        """``smear(x, y)``: the expected smear (px) of a star at pixel ``(x, y)``
+        (:meth:`Camera.smear_function` of ``omega`` and ``exposure_s``), not remembered (the
+        frame's corners, :func:`_longest_smear`, which no star asks for again; the stars'
+        go through :func:`_memo`); None without a non-zero rate or an exposure."""
         if omega is None or exposure_s is None or not (omega[0] or omega[1] or omega[2]):
             return None
         return self.camera.smear_function(omega, exposure_s)
@@ -1448,8 +1442,8 @@ class StarTracker:
 
 
 def _memo(smear_at):
-    """``smear_at`` (``smear(x, y)``) remembered per pixel for the first :data:`SMEAR_MEMO`
-    pixels (:meth:`StarTracker._smear`); None for None."""
+    """``smear_at`` (:meth:`StarTracker._smear_at`) remembered per pixel for the first
+    :data:`SMEAR_MEMO` pixels (extraction, joining and streaks ask again); None for None."""
     if smear_at is None:
         return None
     known = {}

@@ -572,11 +572,11 @@ class Tracker:
         query (:func:`candidates`), moved into the flight loop's idle time after the frame
         before.  A refill of a kept cone is centred :data:`CONE_LEAD` of its margin ahead of
         that frame's boresight along its motion (:func:`_lead_s`), so it serves the frames
-        after it twice as long.  Bounded (one cone query); the next frame checks
-        coverage itself, so a frame whose prior differs queries its own cone.  Never
-        raises: ``S.OK``, ``S.BAD_INPUT``
-        (a malformed prior, rate or interval), else ``S.OUT_OF_MEMORY`` or
-        ``S.INTERNAL_ERROR`` with the cone emptied (the next frame then queries it)."""
+        after it twice as long.  Bounded (one cone query); the next frame checks coverage
+        itself, so a frame whose prior differs queries its own cone.  Never raises:
+        ``S.OK``, ``S.BAD_INPUT`` (a malformed prior, rate or interval), else
+        ``S.OUT_OF_MEMORY`` or ``S.INTERNAL_ERROR`` with the cone emptied (the next frame
+        then queries it)."""
         try:
             q = propagate(q_prior, omega, dt)
             if q is None:

@@ -70,8 +70,8 @@ class LinkModel(object):
             underruns = self.underruns if self.underruns < 255 else 255
             self.underruns = 0
             word = link.encode_status({"frame_counter": self.frame_counter, "errors": 0,
-                                    "underruns": underruns, "overflow": 0,
-                                    "busy": 1 if self.pending() else 0})
+                                       "underruns": underruns, "overflow": 0,
+                                       "busy": 1 if self.pending() else 0})
             into[_REPLY:_REPLY + len(word)] = word
         elif op == link.OP_READ_ID:
             for i in range(link.ID_BYTES):

@@ -547,7 +547,7 @@ def test_the_smear_memo_is_bounded_and_changes_no_value():
     tracker = sim_frames.tracker()
     omega, exposure = (0.01, -0.02, 0.005), 0.1
     smear_at = tracker.camera.smear_function(omega, exposure)
-    smear_fn = tracker._smear(omega, exposure)
+    smear_fn = pipeline._memo(tracker._smear_at(omega, exposure))
     memo = next(c.cell_contents for c in smear_fn.__closure__
                 if isinstance(c.cell_contents, dict))
     pixels = [(10.5 + 37 * k, 20.25 + 19 * k) for k in range(pipeline.SMEAR_MEMO + 20)]
@@ -555,7 +555,8 @@ def test_the_smear_memo_is_bounded_and_changes_no_value():
         for x, y in pixels:
             assert smear_fn(x, y) == smear_at(x, y)
     assert len(memo) == pipeline.SMEAR_MEMO
-    assert tracker._smear((0.0, 0.0, 0.0), exposure) is None
+    assert tracker._smear_at((0.0, 0.0, 0.0), exposure) is None
+    assert pipeline._memo(None) is None
 
 
 def _noisy_pairs(rng, sigmas):
@@ -1146,17 +1147,24 @@ def test_out_of_heap_is_its_own_status(monkeypatch):
     assert res.status == S.OUT_OF_MEMORY and res.q is None
 
 
+def _recorded_gc(monkeypatch):
+    """The pipeline's collector calls as on MicroPython, recorded in the list returned:
+    ``"collect"`` for a collection, the bytes of each ``gc.threshold``."""
+    calls = []
+    monkeypatch.setattr(pipeline, "COLLECT", True)
+    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
+        "collect": staticmethod(lambda: calls.append("collect")),
+        "threshold": staticmethod(lambda n: calls.append(n))}))
+    return calls
+
+
 def test_collections_per_frame_kind(monkeypatch):
     """On MicroPython a lost-in-space frame collects before the frame and at its three stage
     boundaries at the 8 KiB threshold; a tracking frame only at its 40 KiB threshold; a
     tracking frame that falls back collects before its search and its fit, back at 8 KiB."""
     frame = sim_frames.frames()[0]
     tracker = sim_frames.tracker()
-    calls = []
-    monkeypatch.setattr(pipeline, "COLLECT", True)
-    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
-        "collect": staticmethod(lambda: calls.append("collect")),
-        "threshold": staticmethod(lambda n: calls.append(n))}))
+    calls = _recorded_gc(monkeypatch)
     lis, track = pipeline.GC_THRESHOLD, pipeline.TRACK_GC_THRESHOLD
     assert tracker.process(frame.packet).status == S.OK
     assert calls == [lis, "collect", "collect", "collect", lis, "collect"]
@@ -1177,11 +1185,7 @@ def test_the_hook_collects_when_a_frame_would(monkeypatch):
     refill ask for none."""
     frame = sim_frames.frames()[0]
     tracker = sim_frames.tracker()
-    calls = []
-    monkeypatch.setattr(pipeline, "COLLECT", True)
-    monkeypatch.setattr(pipeline, "gc", type("GC", (), {
-        "collect": staticmethod(lambda: calls.append("collect")),
-        "threshold": staticmethod(lambda n: calls.append(n))}))
+    calls = _recorded_gc(monkeypatch)
     assert tracker.prefetch(frame.q.tolist()) == S.OK
     assert calls == [pipeline.HOOK_COLLECT_BYTES, pipeline.TRACK_GC_THRESHOLD]
     assert tracker._cone.ids is not None
