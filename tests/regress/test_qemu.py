@@ -75,9 +75,11 @@ def test_a_run_repeats_exactly(cortex_m4f, regression_set):
     """Under ``-icount`` the same image and script give the same run, whatever the host did
     while ``run-qemu.py`` fed the script (``qemu.clock_restart``): the guest's clock starts
     from zero at the script, and a tracking frame run twice has the same ticks per stage,
-    live heap peak, heap before it and stack high-water mark.  The peak is sampled every 512
-    bytes whatever the frame's own collector settings (``loop.sample_peaks``: a tracking frame
-    that collects nothing itself still has one)."""
+    heap before it and stack high-water mark.  A run that samples the live peak
+    (``loop.sample_peaks``: a collection every 512 bytes, whatever the frame's own collector
+    settings) has one for a tracking frame that collects nothing itself; its many
+    collections scan the C stack, whose stale words from the script's delivery differ from
+    run to run, so its ticks are not compared."""
     manifest, db_files = regression_set
     clock = "import time\nprint('T', time.ticks_us())\n"
     starts = [qemu.run(cortex_m4f, clock).stdout for _ in range(2)]
@@ -85,10 +87,12 @@ def test_a_run_repeats_exactly(cortex_m4f, regression_set):
     runs = [(case, "pyramid") for case in manifest["cases"]
             if case["name"] == "estcube2_tracking_steady"]
     loops = [qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
-                              peak=True, timing=True) for _ in range(2)]
+                              timing=True) for _ in range(2)]
     figures = [(loop["times"], loop["results"], loop["heap"], loop["stack"]) for loop in loops]
     assert loops[0]["finished"] and figures[0] == figures[1]
-    assert 1024 < loops[0]["results"]["estcube2_tracking_steady", "pyramid"][1] < 16384
+    peak = qemu.flight_loop(cortex_m4f, manifest, db_files, runs, heap=qemu.EXPECTATION_HEAP,
+                            peak=True)
+    assert 1024 < peak["results"]["estcube2_tracking_steady", "pyramid"][1] < 16384
 
 
 def test_databases_outside_flash_are_read_through_the_fram_model(cortex_m4f_set,
