@@ -44,14 +44,24 @@ restored after a reset).  A frame whose stars contradict the gyro's rate
 (``RATE_CONTRADICTED``) is counted and coasted over like a bad frame (the prior is kept:
 the stars matched, only the rate is in doubt), and the next :data:`DISTRUST_FRAMES` frames
 go without the gyro's rate (each fits its own).  An ``IMPRECISE`` frame (its attitude's
-5 sigma beyond ``Settings.max_error_arcsec``) has no attitude: coasted over, its attitude,
-kept in the result for diagnostics, never adopted (not reported, saved or coasted on).
-Without a good attitude (``ACQUIRE``) it guides the next frame only: that frame tracks from
+5 sigma beyond ``Settings.max_error_arcsec``) is not adopted on its own: it is fused (below),
+and without a good attitude (``ACQUIRE``) it guides the next frame: that frame tracks from
 it (``guide``; a tracking frame verifies its own identification and falls back to lost in
 space), a tenth of a lost-in-space frame's time, so a fast spin that solves only loosely
-is still read at the frame rate.  The watchdog (``feed()``;
-``machine.WDT`` on the MCU) is fed at every stage boundary and, through ``Settings.clock``,
-at every stage boundary inside ``process``.
+is still read at the frame rate.  Fused attitude: every verified frame (``OK`` or
+``IMPRECISE``, finite sigmas) updates ``fq``, the last one carried on the gyro to its epoch
+and combined per camera axis with the frame's: across the boresight (sigma cross) its
+variances grown by the declared gyro error (``gyro_bias_rad_s`` linearly,
+``gyro_noise_rad_s`` in quadrature, times ``dt``), about it (sigma roll) a two-state filter
+of the roll and its drift on the gyro (``f_drift``); an axis beyond the gate (``fuse_gate``,
+a chi-square) restarts it from the frame.  When its 5 sigma bound ``5 sqrt(2 sc^2 + sr^2)``
+is within ``Settings.max_error_arcsec`` it is adopted as the attitude (``adopted`` 2,
+``TRACK``; the record's sigmas are the fused ones, its status the frame's); an ``OK`` frame
+is adopted fused (never looser).  Dropped by ``RATE_CONTRADICTED``, a coast past
+``coast_frames``, a commanded acquire, a database change and a boot; restarted by a gap over
+``fuse_gap_s`` or a frame without the gyro's rate (``docs/mcu_board.md``).  The watchdog
+(``feed()``; ``machine.WDT`` on the MCU) is fed at every stage boundary and, through
+``Settings.clock``, at every stage boundary inside ``process``.
 
 Telemetry: one record of ``contract.telemetry.BYTES`` per step, packed into one
 preallocated buffer (its layout: :mod:`lodestar.contract.telemetry`) and handed to
@@ -89,6 +99,8 @@ from lodestar.contract.packet import FRAME_LINE_ERROR, FRAME_TIMEOUT, FRAME_TRUN
 
 from . import link as _link
 from . import status as S
+from .quaternion import from_rotation_vector, multiply
+from .tracking import propagate
 
 BOOT = 0
 CONFIGURE = 1
@@ -165,6 +177,26 @@ _STAMP_HALF = const(0x20000000)    # differences below 2**29 us (537 s) count fo
 DISTRUST_FRAMES = 10
 """Frames processed without the gyro's rate after one whose stars contradicted it
 (``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
+GYRO_BIAS_RAD_S = 8.7e-05
+"""Declared gyro bias per axis (rad/s; 0.005 deg/s, the twin's gyro model,
+``lodestar.fly.trajectory``): the fused attitude's process noise across the boresight (a
+bias is the same every frame, so its error adds to the carried sigma linearly, not in
+quadrature) and the starting sigma of the roll's drift about it."""
+GYRO_NOISE_RAD_S = 3.5e-05
+"""Declared white noise of one gyro sample per axis (rad/s; 0.002 deg/s): added in
+quadrature, times ``dt``."""
+GYRO_BIAS_WALK = 1.0e-05
+"""Declared random walk of the gyro's bias (rad/s per root second; 0.0006 deg/s in a second,
+an estimate for a MEMS rate sensor): how fast the fused roll's drift estimate may go
+stale."""
+FUSE_GATE = 16.0
+"""Largest chi-square, per axis, of the rotation between the fused attitude carried to a frame
+and the frame's own, against their combined variance (4 sigma): beyond it the fused estimate
+restarts from the frame (a wrong gyro or a wrong frame is never averaged in)."""
+FUSE_GAP_S = 1.0
+"""Longest time (s) the fused attitude is carried on the gyro to the next verified frame;
+beyond it the estimate restarts from the frame."""
+_ARCSEC = 206264.806    # arcsec per rad
 _PACE_MAX_MS = const(1000)
 """Longest wait between a failed attempt and the next (one frame period, capped)."""
 
@@ -198,12 +230,18 @@ class Executive(object):
     row before the next recovery level; ``max_prior_age_s``: oldest stored attitude used
     after a reset; ``build``: the gateware build byte this software expects
     (``contract.build_id`` of the board's configuration; None: not checked): a gateware of
-    another build puts the loop in ``SAFE`` at boot."""
+    another build puts the loop in ``SAFE`` at boot.  ``gyro_bias_rad_s``,
+    ``gyro_noise_rad_s``: the declared gyro error per axis (rad/s) that grows the fused
+    attitude's variances; ``fuse_gate``: the chi-square per axis beyond which a frame restarts
+    it; ``fuse_gap_s``: the longest time it is carried to the next frame (module
+    docstring)."""
 
     def __init__(self, link, tracker, clock, sensor=None, sensor_settings=None, registers=None,
                  watchdog=None, store=None, gyro=None, telemetry=None, now_ms=None,
                  mem_free=None, select_database=None, frame_s=0.1, irq_timeout_ms=250,
-                 coast_frames=5, recover_after=3, max_prior_age_s=10.0, build=None):
+                 coast_frames=5, recover_after=3, max_prior_age_s=10.0, build=None,
+                 gyro_bias_rad_s=GYRO_BIAS_RAD_S, gyro_noise_rad_s=GYRO_NOISE_RAD_S,
+                 gyro_bias_walk=GYRO_BIAS_WALK, fuse_gate=FUSE_GATE, fuse_gap_s=FUSE_GAP_S):
         self.link = link
         self.build = build
         self.tracker = tracker
@@ -223,6 +261,11 @@ class Executive(object):
         self.coast_frames = coast_frames
         self.recover_after = recover_after
         self.max_prior_age_s = max_prior_age_s
+        self.gyro_bias_rad_s = gyro_bias_rad_s
+        self.gyro_noise_rad_s = gyro_noise_rad_s
+        self.gyro_bias_walk = gyro_bias_walk
+        self.fuse_gate = fuse_gate
+        self.fuse_gap_s = fuse_gap_s
         self.health = array("H", [0] * N_HEALTH)
         self.record = bytearray(_RECORD_BYTES)
         self._record_body = memoryview(self.record)[:_RECORD_BYTES - 4]
@@ -243,6 +286,16 @@ class Executive(object):
         self.q_epoch_us = None        # its time tag on the FPGA's clock (us; None: unknown)
         self.guide = None             # without q: the last frame's IMPRECISE attitude, its
                                       # time tag (ms) and epoch (us, low 30 bits; or None)
+        self.fq = None                # the fused attitude (module docstring) or None
+        self.f_var = array("f", [0.0] * 5)   # its covariance: x, y cross, z roll (arcsec^2),
+                                             # roll with drift (arcsec^2/s), drift (arcsec^2/s^2)
+        self.f_drift = 0.0            # the roll's drift on the gyro (arcsec/s, camera z)
+        self.f_time = 0               # its time tag, spacecraft ms
+        self.f_epoch = None           # its time tag on the FPGA's clock (us, low 30 bits)
+        self.f_n = 0                  # frames fused since it (re)started
+        self.adopted = 0              # the last frame's attitude adopted: 0 none, 1 its
+                                      # own, 2 the fused one (``q_sigma`` then its sigmas)
+        self.q_sigma = array("f", [NAN, NAN])   # adopted fused: sigma cross, roll (arcsec)
         self.slot = 0                 # the star-database slot (kept across a reset)
         self.distrust = 0             # frames left to process without the gyro's rate
         self.sequence = 0
@@ -430,6 +483,7 @@ class Executive(object):
         """The timestamps before this one no longer date anything."""
         self._sync[0] = None
         self.q_epoch_us = None
+        self.f_epoch = None
         self.guide = None
 
     def _pace(self):
@@ -490,7 +544,7 @@ class Executive(object):
                 self.level = LEVEL_NONE
                 self.faults = 0
                 if arg == MODE_ACQUIRE:
-                    self.q = self.guide = None
+                    self.q = self.guide = self.fq = None
                 self._enter(CONFIGURE if self.state in (SAFE, BOOT) else ACQUIRE
                             if self.q is None else TRACK, "commanded")
             else:
@@ -524,7 +578,7 @@ class Executive(object):
             st = self._select(arg)
             if st != S.OK:
                 return st
-            self.q = self.guide = None
+            self.q = self.guide = self.fq = None
             self._save_prior()
             if self.state in (TRACK, COAST):
                 self._enter(ACQUIRE)
@@ -643,7 +697,7 @@ class Executive(object):
 
     def _boot(self):
         self.configured = False
-        self.guide = None
+        self.guide = self.fq = None
         self._load_prior()
         if self.slot and self._select(self.slot) != S.OK:    # the ground's choice, kept
             self.slot = 0
@@ -872,18 +926,31 @@ class Executive(object):
                 dt = (now_ms - int(age + 0.5) - p_time) / 1000.0
         self.feed()
         self.last_result = None          # the last frame's result is not held through this one
+        self.adopted = 0
         result = self.tracker.process(link.packet(n), prior=prior, omega=omega, dt=dt)
         self.feed()
         self.last_result = result
-        self.last_status = result.status
-        if result.q is not None:
+        status = self.last_status = result.status
+        fused = False
+        if result.q is not None and (status == S.OK or status == S.IMPRECISE):
             t_epoch = result.t_epoch_s if result.t_epoch_s is not None else epoch_s
-            tag = first + exposure_ms - 1000.0 * t_epoch     # ms before ticks
+            tag = now_ms - int(first + exposure_ms - 1000.0 * t_epoch + 0.5)   # its time tag
             before_us = int(1000.0 * (exposure_ms - 1000.0 * t_epoch) + 0.5)
-        if result.status == S.OK and result.q is not None:
-            _count(self.health, _H_OK)
-            self.q = result.q
-            self.q_time = now_ms - int(tag + 0.5)
+            epoch = None if stamp is None else (stamp - before_us) & _STAMP_MASK
+            fused = self._fuse(result, omega, epoch, tag)
+        elif status == S.RATE_CONTRADICTED:
+            self.fq = None                # the gyro that carries it is in doubt
+        if status == S.OK or (fused and self._fused_precise()):
+            if fused:
+                self._adopt_fused(result)
+            else:
+                self.q = result.q
+                self.adopted = 1
+            if status == S.OK:
+                _count(self.health, _H_OK)
+            else:
+                _count(self.health, _H_BAD)
+            self.q_time = tag
             self.q_counter = counter
             self.q_stamp = stamp
             self._tops = top
@@ -892,19 +959,126 @@ class Executive(object):
             self.level = LEVEL_NONE
             self._enter(TRACK)
             self._save_prior()
-            if result.min_sum != self.min_sum:
+            if status == S.OK and result.min_sum != self.min_sum:
                 self._write_min_sum(result.min_sum)
             return
-        if result.status == S.RATE_CONTRADICTED:
+        if status == S.RATE_CONTRADICTED:
             _count(self.health, _H_RATE_CONTRADICTED)
             self.distrust = DISTRUST_FRAMES
         self._bad_frame()
-        if result.status == S.IMPRECISE and self.q is not None and \
-                0 < result.min_sum < self.min_sum:
+        if status == S.IMPRECISE and self.q is not None and 0 < result.min_sum < self.min_sum:
             self._write_min_sum(result.min_sum)     # too few stars: the tracker widens it
-        if result.status == S.IMPRECISE and result.q is not None and self.q is None:
-            self.guide = (result.q, now_ms - int(tag + 0.5),
-                          None if stamp is None else (stamp - before_us) & _STAMP_MASK)
+        if status == S.IMPRECISE and result.q is not None and self.q is None:
+            self.guide = (self.fq if fused else result.q, tag, epoch)
+
+    def _fuse(self, result, omega, epoch, tag):
+        """Fold a verified frame's attitude into the fused estimate (:meth:`_combine`).
+        Restarts from the frame without an estimate, a rate, a ``dt`` within
+        ``fuse_gap_s``, or when an axis fails the gate (:data:`FUSE_GATE`).  False (the
+        estimate dropped) for a frame without finite sigmas or a bad number; never raises."""
+        try:
+            rc = result.sigma_cross_arcsec
+            rr = result.sigma_roll_arcsec
+            rc = rc * rc
+            rr = rr * rr
+            if not (0.0 < rc < 1e12 and 0.0 < rr < 1e12):
+                self.fq = None
+                return False
+            var = self.f_var
+            dt = self._fuse_dt(epoch, tag) if omega is not None else None
+            p = propagate(self.fq, omega, dt) if dt is not None else None
+            if p is None or not self._combine(p, result.q, var, dt, rc, rr):
+                self.fq = result.q
+                var[0] = var[1] = rc
+                var[2] = rr
+                var[3] = 0.0
+                b = self.gyro_bias_rad_s * _ARCSEC
+                var[4] = b * b
+                self.f_drift = 0.0
+                self.f_n = 1
+            self.f_time = tag
+            self.f_epoch = epoch
+            return True
+        except Exception:
+            self.fq = None
+            return False
+
+    def _fuse_dt(self, epoch, tag):
+        """Seconds from the fused attitude's time tag to a frame's (by the timestamps, else
+        the spacecraft ms); None without an estimate or beyond ``fuse_gap_s``."""
+        if self.fq is None:
+            return None
+        if epoch is not None and self.f_epoch is not None:
+            d = (epoch - self.f_epoch) & _STAMP_MASK
+            dt = d / 1e6 if d < _STAMP_HALF else None
+        else:
+            dt = (tag - self.f_time) / 1000.0
+        if dt is None or not 0.0 <= dt <= self.fuse_gap_s:
+            return None
+        return dt
+
+    def _combine(self, p, q, var, dt, rc, rr):
+        """``fq`` and ``var`` from the attitude ``p`` carried ``dt`` s on the gyro and the
+        frame's ``q`` (variances ``rc``, ``rc``, ``rr``): per camera axis the small rotation
+        between them weighted by information.  Across the boresight the carried variances
+        grow by the declared bias (linearly, a bias being the same every frame) and noise;
+        about it a Kalman filter of two states, the roll and its drift on the gyro (the
+        roll's bias, ``f_drift``: each frame's roll residual measures it, so the carried
+        roll no longer grows by the whole declared bias), the drift's variance growing by
+        :data:`GYRO_BIAS_WALK`.  False (nothing changed) when an axis fails the gate."""
+        drift = self.f_drift
+        p = multiply(from_rotation_vector((0.0, 0.0, drift * dt / _ARCSEC)), p)
+        d = multiply(q, (-p[0], -p[1], -p[2], p[3]))      # q = d (x) p, camera frame
+        s = 2.0 * _ARCSEC if d[3] >= 0.0 else -2.0 * _ARCSEC
+        bias = self.gyro_bias_rad_s * dt * _ARCSEC
+        noise = self.gyro_noise_rad_s * dt * _ARCSEC
+        noise = noise * noise
+        walk = self.gyro_bias_walk * _ARCSEC
+        gate = self.fuse_gate
+        e0 = s * d[0]
+        e1 = s * d[1]
+        e2 = s * d[2]
+        v0 = (var[0] ** 0.5 + bias) ** 2 + noise
+        v1 = (var[1] ** 0.5 + bias) ** 2 + noise
+        c2 = var[3] + dt * var[4]                         # the roll's, carried dt
+        v2 = var[2] + dt * (var[3] + c2) + noise
+        u2 = var[4] + walk * walk * dt
+        if not (e0 * e0 <= gate * (v0 + rc) and e1 * e1 <= gate * (v1 + rc) and
+                e2 * e2 <= gate * (v2 + rr)):
+            return False
+        g0 = v0 / (v0 + rc)
+        g1 = v1 / (v1 + rc)
+        g2 = v2 / (v2 + rr)
+        k2 = c2 / (v2 + rr)
+        self.fq = multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g1 * e1 / _ARCSEC,
+                                                 g2 * e2 / _ARCSEC)), p)
+        self.f_drift = drift + k2 * e2
+        var[0] = v0 * (1.0 - g0)
+        var[1] = v1 * (1.0 - g1)
+        var[2] = v2 * (1.0 - g2)
+        var[3] = c2 * (1.0 - g2)
+        var[4] = u2 - k2 * c2
+        self.f_n += 1
+        return True
+
+    def _fused_precise(self):
+        """True when the fused attitude's total 5 sigma bound ``5 sqrt(2 sc^2 + sr^2)`` is
+        within the tracker's ``max_error_arcsec`` (never without that setting)."""
+        try:
+            limit = self.tracker.settings.max_error_arcsec
+            var = self.f_var
+            return 25.0 * (var[0] + var[1] + var[2]) <= limit * limit
+        except Exception:
+            return False
+
+    def _adopt_fused(self, result):
+        """The fused attitude as the executive's (``q_sigma``: its sigmas); never looser than
+        the frame alone (a fusion only shrinks the variances, a restart is the frame)."""
+        var = self.f_var
+        self.q = self.fq
+        self.adopted = 2
+        self.q_sigma[0] = (0.5 * (var[0] + var[1])) ** 0.5
+        self.q_sigma[1] = var[2] ** 0.5
 
     def _epoch(self, stamp, top, before_us):
         """``q_epoch_us``: ``before_us`` before the first pixel stamped ``stamp`` (low 30 bits,
@@ -923,8 +1097,10 @@ class Executive(object):
 
     def _bad_frame(self):
         """A frame without an attitude: coast on the prior, then drop to lost in space with
-        every record admitted again."""
+        every record admitted again (and the fused estimate, which otherwise waits for the
+        next verified frame within ``fuse_gap_s``)."""
         _count(self.health, _H_BAD)
+        self.adopted = 0
         self.bad += 1
         if self.q is not None and self.bad <= self.coast_frames:
             _count(self.health, _H_COASTED)
@@ -933,7 +1109,7 @@ class Executive(object):
             return
         if self.q is not None:
             _count(self.health, _H_LOST)
-            self.q = None
+            self.q = self.fq = None
         if self.state in (TRACK, COAST):
             self._enter(ACQUIRE)
         if self.min_sum:
@@ -965,6 +1141,9 @@ class Executive(object):
                 sr = res.sigma_roll_arcsec
             matches = min(255, len(res.matches))
             n_records = min(0xFFFF, res.n_records)
+        if self.adopted == 2:               # the fused attitude's sigmas
+            sc = self.q_sigma[0]
+            sr = self.q_sigma[1]
         heap = self.heap_free
         if self.mem_free is not None and self.sequence % _HEAP_EVERY == 1:
             try:

@@ -134,7 +134,10 @@ while True:
            "status": None if r is None else r.status,
            "n_records": 0 if r is None else r.n_records,
            "mode": None if r is None else r.mode,
-           "q": None if (r is None or r.q is None) else list(r.q)}
+           "q": None if (r is None or r.q is None) else list(r.q),
+           "sigmas": None if r is None else [r.sigma_cross_arcsec, r.sigma_roll_arcsec],
+           "adopted": exe.adopted, "exe_q": None if exe.q is None else list(exe.q),
+           "q_sigma": list(exe.q_sigma) if exe.adopted == 2 else None}
     sys.stdout.write("D " + json.dumps(out) + "\n")
 '''
 
@@ -143,6 +146,7 @@ class _Result:
     def __init__(self, d):
         self.status, self.n_records, self.mode, self.q = (d["status"], d["n_records"],
                                                           d["mode"], d["q"])
+        self.sigma_cross_arcsec, self.sigma_roll_arcsec = d.get("sigmas") or (None, None)
 
 
 class _Link:
@@ -154,7 +158,8 @@ class _Link:
 class Remote:
     """The executive on MicroPython, seen from the twin with the attributes
     :class:`lodestar.fly.twin.Twin` reads of a local one (``state``, ``level``,
-    ``last_link``, ``reason``, ``health``, ``min_sum``, ``last_result``; ``link`` its
+    ``last_link``, ``reason``, ``health``, ``min_sum``, ``last_result``, the attitude it
+    reported: ``adopted``, ``q``, ``q_sigma``; ``link`` its
     counters and last frame counter), and ``command`` queued for the next step."""
 
     def __init__(self, binary, config, serve):
@@ -171,6 +176,7 @@ class Remote:
         self.health = [0] * executive.N_HEALTH
         self.min_sum = 0
         self.last_result = None
+        self.adopted, self.q, self.q_sigma = 0, None, [None, None]
         self.link = _Link()
         self.hang_ms = 0
 
@@ -195,6 +201,8 @@ class Remote:
         self.health, self.min_sum = d["health"], d["min_sum"]
         self.link.counters, self.link.last_frame_counter = d["counters"], d["counter"]
         self.last_result = _Result(d) if d["status"] is not None else None
+        self.adopted, self.q = d["adopted"], d["exe_q"]
+        self.q_sigma = d["q_sigma"] or [None, None]
         return self.state
 
     def process_ms(self, n_records, prior, moving):

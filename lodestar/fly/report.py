@@ -14,7 +14,12 @@ COLUMNS = ("index", "t_s", "status", "mode", "error_arcsec", "mcu_ms", "records"
            "frame", "solve", "level", "wrong")
 """CSV columns (``faults`` joined by ``+``; ``frame``: the sensor frame the packet came
 from; ``solve``: the pipeline's mode, ``lost_in_space`` or ``tracking``)."""
-JSON_KEYS = ("index", "t_s", "status", "mode", "error_arcsec", "mcu_ms", "records", "faults")
+JSON_KEYS = ("index", "t_s", "status", "mode", "error_arcsec", "mcu_ms", "records", "faults",
+             "reported", "reported_error_arcsec", "sigma_cross_arcsec", "sigma_roll_arcsec",
+             "beyond_5sigma", "beyond_180")
+"""Per step in the JSON: the frame's own (``error_arcsec`` of an ``OK`` frame) and the
+attitude the executive reported (``reported``: None, ``frame`` or ``fused``; its error per
+axis, its sigmas, and issue 33's wrong: ``beyond_5sigma``, ``beyond_180``)."""
 
 
 def document(rows, summary, engine, mcu, meta):
@@ -100,6 +105,10 @@ def summary_text(s, engine, mcu, meta):
              f"availability after the first {100 * s['availability_after_first']:.1f} %",
              f"  wrong         {s['wrong']} (> 60\"); error max {_fmt(s['max_error_arcsec'])}\", "
              f"RMS {_fmt(s['rms_error_arcsec'])}\"",
+             f"  reported      {s['reported']} ({s['reported_fused']} fused), availability "
+             f"after the first {100 * s['reported_availability_after_first']:.1f} %, "
+             f"beyond 5 sigma {s['reported_beyond_5sigma']}, beyond 180\" "
+             f"{s['reported_beyond_180']}, error max {_fmt(s['reported_max_error_arcsec'])}\"",
              f"  MCU           {s['mcu_ms_mean']:.1f} ms per step (F401 estimate), "
              f"watchdog gap max {s['watchdog_max_gap_ms']} ms, {s['reboots']} resets"]
     for name, rec in s["recovery"].items():

@@ -337,9 +337,12 @@ class Twin:
         row = {"index": 0, "t_s": round(w.now, 6), "status": "NO_FRAME",
                "mode": executive.STATE_NAMES[exe.state], "error_arcsec": None,
                "mcu_ms": round((w.busy - busy0) * 1000, 3), "records": 0, "faults": [],
-               "frame": None, "solve": None, "level": exe.level, "wrong": False}
+               "frame": None, "solve": None, "level": exe.level, "wrong": False,
+               "reported": None, "reported_error_arcsec": None, "sigma_cross_arcsec": None,
+               "sigma_roll_arcsec": None, "beyond_5sigma": False, "beyond_180": False}
         if exe.health[_FRAMES] != frames_before:
             self._judge(row, exe.last_result)
+            self._judge_reported(row)
         elif exe.last_link != _link.OK:
             row["status"] = _link.CODE_NAMES[exe.last_link]
         if self.watchdog.check():
@@ -359,6 +362,30 @@ class Twin:
             err = attitude_error_arcsec(result.q, truth["q"])["total"]
             row["error_arcsec"] = round(err, 3)
             row["wrong"] = err > self.wrong_arcsec
+
+    def _judge_reported(self, row):
+        """The attitude the executive adopted at this frame (``reported``: ``frame``, its own,
+        or ``fused``, through the gyro), judged at its time tag, the frame's epoch: its error
+        (x, y, roll and total, arcsec), the sigmas it reports, and whether it is wrong by
+        issue 33's definition (the truth beyond 5 sigma on an axis, ``beyond_5sigma``, or
+        beyond 180", ``beyond_180``) and by the twin's (> ``wrong_arcsec``, ``wrong``)."""
+        exe = self.exe
+        adopted = getattr(exe, "adopted", 0)
+        truth = self.world.truth_of(self.link.last_frame_counter)
+        if not adopted or exe.q is None or truth is None:
+            return
+        result = exe.last_result
+        sc, sr = (exe.q_sigma[0], exe.q_sigma[1]) if adopted == 2 else \
+            (result.sigma_cross_arcsec, result.sigma_roll_arcsec)
+        err = attitude_error_arcsec(list(exe.q), truth["q"])
+        row["reported"] = "fused" if adopted == 2 else "frame"
+        row["reported_error_arcsec"] = {k: round(err[k], 3) for k in ("x", "y", "roll", "total")}
+        row["sigma_cross_arcsec"] = None if sc is None else round(float(sc), 3)
+        row["sigma_roll_arcsec"] = None if sr is None else round(float(sr), 3)
+        row["beyond_5sigma"] = sc is None or sr is None or not (
+            abs(err["x"]) <= 5 * sc and abs(err["y"]) <= 5 * sc and abs(err["roll"]) <= 5 * sr)
+        row["beyond_180"] = err["total"] > 180.0
+        row["wrong"] = row["wrong"] or err["total"] > self.wrong_arcsec
 
     def close(self):
         """End the MicroPython MCU's process, if any, and remove the run's files."""
@@ -399,6 +426,7 @@ def summary(rows, twin):
         "tracking_solves": sum(r["solve"] == "tracking" for r in solved),
         "lost_in_space_solves": sum(r["solve"] == "lost_in_space" for r in solved),
         "max_error_arcsec": max(errors) if errors else None,
+        **_reported(rows),
         "rms_error_arcsec": math.sqrt(sum(e * e for e in errors) / len(errors))
         if errors else None,
         "recovery": faults.recovery(rows, twin.schedule),
@@ -407,3 +435,21 @@ def summary(rows, twin):
         "reboots": twin.reboots, "watchdog_max_gap_ms": round(twin.watchdog.max_gap_ms, 1),
         "mcu_ms_mean": sum(r["mcu_ms"] for r in rows) / len(rows) if rows else 0.0,
     }
+
+
+def _reported(rows):
+    """The attitudes the executive reported (its own or fused, ``Twin._judge_reported``):
+    how many, how many fused, their availability after the first (over the steps that read
+    or waited for a frame), the largest error and how many are wrong by issue 33's
+    definition (beyond 5 sigma on an axis, or beyond 180")."""
+    rep = [r for r in rows if r["reported"] is not None]
+    first = rep[0]["index"] if rep else None
+    after = [r for r in rows[first:] if r["frame"] is not None or r["status"] != "NO_FRAME"] \
+        if first is not None else []
+    return {"reported": len(rep), "reported_fused": sum(r["reported"] == "fused" for r in rep),
+            "reported_availability_after_first": (sum(r["reported"] is not None for r in after)
+                                                  / len(after) if after else 0.0),
+            "reported_max_error_arcsec": max((r["reported_error_arcsec"]["total"] for r in rep),
+                                             default=None),
+            "reported_beyond_5sigma": sum(r["beyond_5sigma"] for r in rep),
+            "reported_beyond_180": sum(r["beyond_180"] for r in rep)}

@@ -1,10 +1,14 @@
 """Scripted fakes of the executive's surroundings, in plain Python that MicroPython runs too
 (no f-strings, dataclasses or typing): a clock, a watchdog that records the longest gap
 between feeds, a link that plays a script of frames, a sensor, a tracker whose results and
-solve times are scripted, and a persistent store."""
+solve times are scripted (or verified results with sigmas, ``result``), and a persistent
+store."""
+
+import math
 
 from lodestar import contract as C
 from lodestar.firmware import link as _link
+from lodestar.firmware import quaternion
 from lodestar.firmware import status as S
 
 
@@ -197,6 +201,17 @@ Q0 = (0.0, 0.0, 0.6, 0.8)
 Q_IMPRECISE = (0.0, 0.6, 0.0, 0.8)
 
 
+def result(status, roll_arcsec=0.0, sigma_cross=20.0, sigma_roll=100.0, q=Q0):
+    """A verified frame's result: ``q`` turned by ``roll_arcsec`` about the boresight
+    (camera z) with its sigmas (arcsec): a ``Tracker`` outcome returned as it is."""
+    h = 0.5 * math.radians(roll_arcsec / 3600.0)
+    d = (0.0, 0.0, math.sin(h), math.cos(h))
+    res = Result(status, tuple(quaternion.multiply(d, q)), min_sum=0, t_epoch_s=0.0)
+    res.sigma_cross_arcsec = sigma_cross
+    res.sigma_roll_arcsec = sigma_roll
+    return res
+
+
 class Tracker(object):
     """``outcomes``: per frame a status (``S.OK`` gives ``Q0``) or ``"raise"``; past its end
     every frame solves.  A solve takes ``solve_ms`` (lost in space) or ``track_ms`` (with
@@ -232,6 +247,8 @@ class Tracker(object):
                 self.settings.clock()
         if outcome == "raise":
             raise ValueError("scripted")
+        if isinstance(outcome, Result):
+            return outcome
         if outcome == S.OK:
             return Result(S.OK, Q0, min_sum=1000 + k, t_epoch_s=self.t_epoch_s)
         res = Result(outcome)

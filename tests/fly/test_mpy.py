@@ -10,7 +10,8 @@ import pytest
 from lodestar.fly import twin
 from tests.fly.conftest import make_twin
 
-KEYS = ("status", "mode", "error_arcsec", "records", "frame", "solve", "mcu_ms")
+KEYS = ("status", "mode", "error_arcsec", "records", "frame", "solve", "mcu_ms", "reported",
+        "reported_error_arcsec", "sigma_cross_arcsec", "sigma_roll_arcsec")
 
 
 def test_remote_cpython_gives_the_in_process_steps(small_camera):
