@@ -231,10 +231,10 @@ class Executive(object):
     after a reset; ``build``: the gateware build byte this software expects
     (``contract.build_id`` of the board's configuration; None: not checked): a gateware of
     another build puts the loop in ``SAFE`` at boot.  ``gyro_bias_rad_s``,
-    ``gyro_noise_rad_s``: the declared gyro error per axis (rad/s) that grows the fused
-    attitude's variances; ``fuse_gate``: the chi-square per axis beyond which a frame restarts
-    it; ``fuse_gap_s``: the longest time it is carried to the next frame (module
-    docstring)."""
+    ``gyro_noise_rad_s``, ``gyro_bias_walk``: the declared gyro error per axis (rad/s; the
+    walk rad/s per root second) that grows the fused attitude's variances; ``fuse_gate``:
+    the chi-square per axis beyond which a frame restarts it; ``fuse_gap_s``: the longest
+    time it is carried to the next frame (module docstring)."""
 
     def __init__(self, link, tracker, clock, sensor=None, sensor_settings=None, registers=None,
                  watchdog=None, store=None, gyro=None, telemetry=None, now_ms=None,
