@@ -99,8 +99,7 @@ from lodestar.contract.packet import FRAME_LINE_ERROR, FRAME_TIMEOUT, FRAME_TRUN
 
 from . import link as _link
 from . import status as S
-from .quaternion import from_rotation_vector, multiply
-from .tracking import propagate
+from .quaternion import from_rotation_vector, multiply, unit_quaternion
 
 BOOT = 0
 CONFIGURE = 1
@@ -986,8 +985,7 @@ class Executive(object):
                 return False
             var = self.f_var
             dt = self._fuse_dt(epoch, tag) if omega is not None else None
-            p = propagate(self.fq, omega, dt) if dt is not None else None
-            if p is None or not self._combine(p, result.q, var, dt, rc, rr):
+            if dt is None or not self._combine(omega, result.q, var, dt, rc, rr):
                 self.fq = result.q
                 var[0] = var[1] = rc
                 var[2] = rr
@@ -1017,9 +1015,10 @@ class Executive(object):
             return None
         return dt
 
-    def _combine(self, p, q, var, dt, rc, rr):
-        """``fq`` and ``var`` from the attitude ``p`` carried ``dt`` s on the gyro and the
-        frame's ``q`` (variances ``rc``, ``rc``, ``rr``): per camera axis the small rotation
+    def _combine(self, omega, q, var, dt, rc, rr):
+        """``fq`` and ``var`` from ``fq`` carried ``dt`` s on the gyro's ``omega`` (rad/s,
+        camera frame: ``R(-omega dt)``, the prior's propagation, ``tracking.propagate``)
+        and the frame's ``q`` (variances ``rc``, ``rc``, ``rr``): per camera axis the small rotation
         between them weighted by information.  Across the boresight the carried variances
         grow by the declared bias (linearly, a bias being the same every frame) and noise;
         about it a Kalman filter of two states, the roll and its drift on the gyro (the
@@ -1027,7 +1026,8 @@ class Executive(object):
         roll no longer grows by the whole declared bias), the drift's variance growing by
         :data:`GYRO_BIAS_WALK`.  False (nothing changed) when an axis fails the gate."""
         drift = self.f_drift
-        p = multiply(from_rotation_vector((0.0, 0.0, drift * dt / _ARCSEC)), p)
+        p = multiply(from_rotation_vector((-omega[0] * dt, -omega[1] * dt,
+                                           (drift / _ARCSEC - omega[2]) * dt)), self.fq)
         d = multiply(q, (-p[0], -p[1], -p[2], p[3]))      # q = d (x) p, camera frame
         s = 2.0 * _ARCSEC if d[3] >= 0.0 else -2.0 * _ARCSEC
         bias = self.gyro_bias_rad_s * dt * _ARCSEC
@@ -1050,8 +1050,11 @@ class Executive(object):
         g1 = v1 / (v1 + rc)
         g2 = v2 / (v2 + rr)
         k2 = c2 / (v2 + rr)
-        self.fq = multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g1 * e1 / _ARCSEC,
-                                                 g2 * e2 / _ARCSEC)), p)
+        fq = unit_quaternion(multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g1 * e1 /
+                                                            _ARCSEC, g2 * e2 / _ARCSEC)), p))
+        if fq is None:
+            return False
+        self.fq = fq
         self.f_drift = drift + k2 * e2
         var[0] = v0 * (1.0 - g0)
         var[1] = v1 * (1.0 - g1)

@@ -21,12 +21,12 @@ import math
 
 from lodestar.regress import mcutime
 
-STEP_UNITS = {"step": 2350, "min_sum": 514}
+STEP_UNITS = {"step": 2854, "min_sum": 432}
 """icount units (``time.ticks_us`` under ``-icount shift=0``) of the executive on the
 Cortex-M4F build (``benchmarks/bench_executive.py``: its link reading a 10-record packet from
 the link model, whose own share is subtracted; ``docs/mcu_board.md``, the table of the link
 and executive): one step around a ``process`` that returns at once, the gyro ring's sample
-included, and ``min_sum`` written back."""
+and the fused attitude's update included, and ``min_sum`` written back."""
 REFERENCE_UNITS = {"bm_float": 11759, "bm_nqueens": 119831}
 """icount units of the two calibration calls (``mcutime.CALLS``) on the representation-A
 twin of the same build (``docs/mcu_board.md``): with ``mcutime.F401_US`` the F401's time per
@@ -48,7 +48,7 @@ MOVING_RAD_S = 0.0017
 TRACK_BASE_MS = 30.5
 TRACK_PER_RECORD_MS = 4.25
 LOOP_MS = f401_ms(sum(STEP_UNITS.values()))
-"""The executive's share of a frame (about 9.1 ms)."""
+"""The executive's share of a frame (about 10.4 ms)."""
 HOOK_MS = 10.3
 """The idle-time hook with a prior when its held cone covers the next frame: its collection
 (``benchmarks/bench_mcu.py --stages-only``, the hook's later calls, 10.2-10.5 ms;
