@@ -50,18 +50,18 @@ it (``guide``; a tracking frame verifies its own identification and falls back t
 space), a tenth of a lost-in-space frame's time, so a fast spin that solves only loosely
 is still read at the frame rate.  Fused attitude: every verified frame (``OK`` or
 ``IMPRECISE``, finite sigmas) updates ``fq``, the last one carried on the gyro to its epoch
-and combined per camera axis with the frame's: across the boresight (sigma cross) its
-variances grown by the declared gyro error (``gyro_bias_rad_s`` linearly,
-``gyro_noise_rad_s`` in quadrature, times ``dt``), about it (sigma roll) a two-state filter
-of the roll and its drift on the gyro (``f_drift``); an axis beyond the gate (``fuse_gate``,
-a chi-square) restarts it from the frame.  When its 5 sigma bound ``5 sqrt(2 sc^2 + sr^2)``
-is within ``Settings.max_error_arcsec`` it is adopted as the attitude (``adopted`` 2,
-``TRACK``; the record's sigmas are the fused ones, its status the frame's); an ``OK`` frame
-is adopted fused (never looser).  Dropped by ``RATE_CONTRADICTED``, a coast past
-``coast_frames``, a commanded acquire, a database change and a boot; restarted by a gap over
-``fuse_gap_s`` or a frame without the gyro's rate (``docs/mcu_board.md``).  The watchdog
-(``feed()``; ``machine.WDT`` on the MCU) is fed at every stage boundary and, through
-``Settings.clock``, at every stage boundary inside ``process``.
+and combined per camera axis with the frame's (sigma cross, sigma roll) by a Kalman filter
+of the carried error and its drift on the gyro (``f_drift``; the declared gyro error:
+``gyro_bias_rad_s``, ``gyro_noise_rad_s``, ``gyro_bias_walk``); an axis beyond the gate
+(``fuse_gate``, a chi-square) restarts it from the frame.  When its 5 sigma bound
+``5 sqrt(2 sc^2 + sr^2)`` is within ``Settings.max_error_arcsec`` it is adopted as the
+attitude (``adopted`` 2, ``TRACK``; the record's sigmas are the fused ones, its status the
+frame's); an ``OK`` frame is adopted fused (never looser).  Dropped by
+``RATE_CONTRADICTED``, a coast past ``coast_frames``, a commanded acquire, a database
+change and a boot; restarted by a gap over ``fuse_gap_s`` or a frame without the gyro's
+rate (``docs/mcu_board.md``).  The watchdog (``feed()``; ``machine.WDT`` on the MCU) is fed
+at every stage boundary and, through ``Settings.clock``, at every stage boundary inside
+``process``.
 
 Telemetry: one record of ``contract.telemetry.BYTES`` per step, packed into one
 preallocated buffer (its layout: :mod:`lodestar.contract.telemetry`) and handed to
@@ -85,6 +85,7 @@ modulo 2**32 without a long mask, so they make long ints only above 2**30).  Boa
 formats and measurements: ``docs/mcu_board.md``.
 """
 
+import math
 import struct
 from array import array
 
@@ -178,16 +179,15 @@ DISTRUST_FRAMES = 10
 (``RATE_CONTRADICTED``): the frame then fits its own rate; the gyro is tried again after."""
 GYRO_BIAS_RAD_S = 8.7e-05
 """Declared gyro bias per axis (rad/s; 0.005 deg/s, the twin's gyro model,
-``lodestar.fly.trajectory``): the fused attitude's process noise across the boresight (a
-bias is the same every frame, so its error adds to the carried sigma linearly, not in
-quadrature) and the starting sigma of the roll's drift about it."""
+``lodestar.fly.trajectory``): the starting sigma of the fused attitude's drift on the gyro,
+per axis."""
 GYRO_NOISE_RAD_S = 3.5e-05
 """Declared white noise of one gyro sample per axis (rad/s; 0.002 deg/s): added in
 quadrature, times ``dt``."""
 GYRO_BIAS_WALK = 1.0e-05
 """Declared random walk of the gyro's bias (rad/s per root second; 0.0006 deg/s in a second,
-an estimate for a MEMS rate sensor): how fast the fused roll's drift estimate may go
-stale."""
+an estimate for a MEMS rate sensor: a bias instability of about 0.004 deg/s over 100 s):
+how fast the fused attitude's drift estimate may go stale."""
 FUSE_GATE = 16.0
 """Largest chi-square, per axis, of the rotation between the fused attitude carried to a frame
 and the frame's own, against their combined variance (4 sigma): beyond it the fused estimate
@@ -286,9 +286,10 @@ class Executive(object):
         self.guide = None             # without q: the last frame's IMPRECISE attitude, its
                                       # time tag (ms) and epoch (us, low 30 bits; or None)
         self.fq = None                # the fused attitude (module docstring) or None
-        self.f_var = array("f", [0.0] * 5)   # its covariance: x, y cross, z roll (arcsec^2),
-                                             # roll with drift (arcsec^2/s), drift (arcsec^2/s^2)
-        self.f_drift = 0.0            # the roll's drift on the gyro (arcsec/s, camera z)
+        self.f_var = array("f", [0.0] * 7)   # its covariance (``_combine``): per cross axis
+        # the error (arcsec^2) and its drift (arcsec^2/s^2); roll, roll with its drift
+        # (arcsec^2/s), its drift; the cross error with its drift (complex: real, imaginary)
+        self.f_drift = array("f", [0.0] * 3)   # the drift on the gyro (arcsec/s, camera x y z)
         self.f_time = 0               # its time tag, spacecraft ms
         self.f_epoch = None           # its time tag on the FPGA's clock (us, low 30 bits)
         self.f_n = 0                  # frames fused since it (re)started
@@ -987,12 +988,13 @@ class Executive(object):
             dt = self._fuse_dt(epoch, tag) if omega is not None else None
             if dt is None or not self._combine(omega, result.q, var, dt, rc, rr):
                 self.fq = result.q
-                var[0] = var[1] = rc
-                var[2] = rr
-                var[3] = 0.0
                 b = self.gyro_bias_rad_s * _ARCSEC
-                var[4] = b * b
-                self.f_drift = 0.0
+                var[0] = rc
+                var[2] = rr
+                var[1] = var[4] = b * b
+                var[3] = var[5] = var[6] = 0.0
+                drift = self.f_drift
+                drift[0] = drift[1] = drift[2] = 0.0
                 self.f_n = 1
             self.f_time = tag
             self.f_epoch = epoch
@@ -1016,51 +1018,64 @@ class Executive(object):
         return dt
 
     def _combine(self, omega, q, var, dt, rc, rr):
-        """``fq`` and ``var`` from ``fq`` carried ``dt`` s on the gyro's ``omega`` (rad/s,
-        camera frame: ``R(-omega dt)``, the prior's propagation, ``tracking.propagate``)
-        and the frame's ``q`` (variances ``rc``, ``rc``, ``rr``): per camera axis the small rotation
-        between them weighted by information.  Across the boresight the carried variances
-        grow by the declared bias (linearly, a bias being the same every frame) and noise;
-        about it a Kalman filter of two states, the roll and its drift on the gyro (the
-        roll's bias, ``f_drift``: each frame's roll residual measures it, so the carried
-        roll no longer grows by the whole declared bias), the drift's variance growing by
-        :data:`GYRO_BIAS_WALK`.  False (nothing changed) when an axis fails the gate."""
+        """``fq`` and ``var`` from ``fq`` carried ``dt`` s on the gyro's ``omega`` less the
+        drift learnt (rad/s, camera frame: ``R(-omega dt)``, the prior's propagation,
+        ``tracking.propagate``) and the frame's ``q`` (variances ``rc`` per cross axis,
+        ``rr``): a Kalman filter of the carried attitude's error and its drift on the gyro
+        (``f_drift``, the gyro's bias as the frames show it), the drift's variance starting
+        at the declared bias squared and walking by :data:`GYRO_BIAS_WALK`.  About the
+        boresight two states, the roll and its drift; across it the same in the x-y plane,
+        isotropic (one variance per axis) and turned with the camera: a carried error
+        turns by ``-omega_z dt`` each step while the drift, the gyro's, stays in the body,
+        so their covariance is a complex number (``var[5]``, ``var[6]``).  False (nothing
+        changed) when an axis fails the gate."""
         drift = self.f_drift
-        p = multiply(from_rotation_vector((-omega[0] * dt, -omega[1] * dt,
-                                           (drift / _ARCSEC - omega[2]) * dt)), self.fq)
+        dx = drift[0]
+        dy = drift[1]
+        dz = drift[2]
+        p = multiply(from_rotation_vector(((dx / _ARCSEC - omega[0]) * dt,
+                                           (dy / _ARCSEC - omega[1]) * dt,
+                                           (dz / _ARCSEC - omega[2]) * dt)), self.fq)
         d = multiply(q, (-p[0], -p[1], -p[2], p[3]))      # q = d (x) p, camera frame
         s = 2.0 * _ARCSEC if d[3] >= 0.0 else -2.0 * _ARCSEC
-        bias = self.gyro_bias_rad_s * dt * _ARCSEC
         noise = self.gyro_noise_rad_s * dt * _ARCSEC
         noise = noise * noise
         walk = self.gyro_bias_walk * _ARCSEC
+        walk = walk * walk * dt
         gate = self.fuse_gate
         e0 = s * d[0]
         e1 = s * d[1]
         e2 = s * d[2]
-        v0 = (var[0] ** 0.5 + bias) ** 2 + noise
-        v1 = (var[1] ** 0.5 + bias) ** 2 + noise
-        c2 = var[3] + dt * var[4]                         # the roll's, carried dt
+        turn = omega[2] * dt                              # the carried error turns by -turn
+        cos = math.cos(turn)
+        sin = math.sin(turn)
+        cr = cos * var[5] + sin * var[6] + dt * var[1]    # the cross axes', carried dt
+        ci = cos * var[6] - sin * var[5]
+        v0 = var[0] + dt * (cos * var[5] + sin * var[6] + cr) + noise
+        c2 = var[3] + dt * var[4]                         # the roll's
         v2 = var[2] + dt * (var[3] + c2) + noise
-        u2 = var[4] + walk * walk * dt
-        if not (e0 * e0 <= gate * (v0 + rc) and e1 * e1 <= gate * (v1 + rc) and
+        if not (e0 * e0 <= gate * (v0 + rc) and e1 * e1 <= gate * (v0 + rc) and
                 e2 * e2 <= gate * (v2 + rr)):
             return False
-        g0 = v0 / (v0 + rc)
-        g1 = v1 / (v1 + rc)
-        g2 = v2 / (v2 + rr)
-        k2 = c2 / (v2 + rr)
-        fq = unit_quaternion(multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g1 * e1 /
+        s0 = v0 + rc
+        s2 = v2 + rr
+        g0 = v0 / s0
+        g2 = v2 / s2
+        fq = unit_quaternion(multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g0 * e1 /
                                                             _ARCSEC, g2 * e2 / _ARCSEC)), p))
         if fq is None:
             return False
         self.fq = fq
-        self.f_drift = drift + k2 * e2
-        var[0] = v0 * (1.0 - g0)
-        var[1] = v1 * (1.0 - g1)
-        var[2] = v2 * (1.0 - g2)
-        var[3] = c2 * (1.0 - g2)
-        var[4] = u2 - k2 * c2
+        drift[0] = dx + (cr * e0 + ci * e1) / s0          # conj(c) e / s
+        drift[1] = dy + (cr * e1 - ci * e0) / s0
+        drift[2] = dz + c2 * e2 / s2
+        var[0] = v0 * rc / s0
+        var[1] = var[1] + walk - (cr * cr + ci * ci) / s0
+        var[5] = cr * rc / s0
+        var[6] = ci * rc / s0
+        var[2] = v2 * rr / s2
+        var[4] = var[4] + walk - c2 * c2 / s2
+        var[3] = c2 * rr / s2
         self.f_n += 1
         return True
 
@@ -1070,7 +1085,7 @@ class Executive(object):
         try:
             limit = self.tracker.settings.max_error_arcsec
             var = self.f_var
-            return 25.0 * (var[0] + var[1] + var[2]) <= limit * limit
+            return 25.0 * (2.0 * var[0] + var[2]) <= limit * limit
         except Exception:
             return False
 
@@ -1080,7 +1095,7 @@ class Executive(object):
         var = self.f_var
         self.q = self.fq
         self.adopted = 2
-        self.q_sigma[0] = (0.5 * (var[0] + var[1])) ** 0.5
+        self.q_sigma[0] = var[0] ** 0.5
         self.q_sigma[1] = var[2] ** 0.5
 
     def _epoch(self, stamp, top, before_us):
