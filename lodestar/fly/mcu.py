@@ -21,7 +21,7 @@ import math
 
 from lodestar.regress import mcutime
 
-STEP_UNITS = {"step": 2854, "min_sum": 432}
+STEP_UNITS = {"step": 2837, "min_sum": 447}
 """icount units (``time.ticks_us`` under ``-icount shift=0``) of the executive on the
 Cortex-M4F build (``benchmarks/bench_executive.py``: its link reading a 10-record packet from
 the link model, whose own share is subtracted; ``docs/mcu_board.md``, the table of the link

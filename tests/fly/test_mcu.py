@@ -69,5 +69,5 @@ def test_loop_ms_is_the_measured_step_and_min_sum():
         assert mcu.f401_ms(mcu.STEP_UNITS[name]) == pytest.approx(float(ms), abs=0.05)
     ref = re.search(r"\(([\d,]+) and ([\d,]+) units: ", doc).groups()
     assert tuple(mcu.REFERENCE_UNITS.values()) == tuple(int(u.replace(",", "")) for u in ref)
-    assert mcu.LOOP_MS == pytest.approx(mcu.f401_ms(2854 + 432))
+    assert mcu.LOOP_MS == pytest.approx(mcu.f401_ms(2837 + 447))
     assert 10.3 < mcu.LOOP_MS < 10.5
