@@ -961,8 +961,6 @@ class Executive(object):
             self._save_prior()
             if status == S.OK and result.min_sum != self.min_sum:
                 self._write_min_sum(result.min_sum)
-            elif status == S.IMPRECISE and 0 < result.min_sum < self.min_sum:
-                self._write_min_sum(result.min_sum)     # adopted fused: widened, as below
             return
         if status == S.RATE_CONTRADICTED:
             _count(self.health, _H_RATE_CONTRADICTED)
