@@ -100,6 +100,7 @@ from lodestar.contract.packet import FRAME_LINE_ERROR, FRAME_TIMEOUT, FRAME_TRUN
 
 from . import link as _link
 from . import status as S
+from .geometry import RAD_TO_ARCSEC
 from .quaternion import from_rotation_vector, multiply, unit_quaternion
 
 BOOT = 0
@@ -195,7 +196,6 @@ restarts from the frame (a wrong gyro or a wrong frame is never averaged in)."""
 FUSE_GAP_S = 1.0
 """Longest time (s) the fused attitude is carried on the gyro to the next verified frame;
 beyond it the estimate restarts from the frame."""
-_ARCSEC = 206264.806    # arcsec per rad
 _PACE_MAX_MS = const(1000)
 """Longest wait between a failed attempt and the next (one frame period, capped)."""
 
@@ -988,7 +988,7 @@ class Executive(object):
             dt = self._fuse_dt(epoch, tag) if omega is not None else None
             if dt is None or not self._combine(omega, result.q, var, dt, rc, rr):
                 self.fq = result.q
-                b = self.gyro_bias_rad_s * _ARCSEC
+                b = self.gyro_bias_rad_s * RAD_TO_ARCSEC
                 var[0] = rc
                 var[2] = rr
                 var[1] = var[4] = b * b
@@ -1033,14 +1033,14 @@ class Executive(object):
         dx = drift[0]
         dy = drift[1]
         dz = drift[2]
-        p = multiply(from_rotation_vector(((dx / _ARCSEC - omega[0]) * dt,
-                                           (dy / _ARCSEC - omega[1]) * dt,
-                                           (dz / _ARCSEC - omega[2]) * dt)), self.fq)
+        p = multiply(from_rotation_vector(((dx / RAD_TO_ARCSEC - omega[0]) * dt,
+                                           (dy / RAD_TO_ARCSEC - omega[1]) * dt,
+                                           (dz / RAD_TO_ARCSEC - omega[2]) * dt)), self.fq)
         d = multiply(q, (-p[0], -p[1], -p[2], p[3]))      # q = d (x) p, camera frame
-        s = 2.0 * _ARCSEC if d[3] >= 0.0 else -2.0 * _ARCSEC
-        noise = self.gyro_noise_rad_s * dt * _ARCSEC
+        s = 2.0 * RAD_TO_ARCSEC if d[3] >= 0.0 else -2.0 * RAD_TO_ARCSEC
+        noise = self.gyro_noise_rad_s * dt * RAD_TO_ARCSEC
         noise = noise * noise
-        walk = self.gyro_bias_walk * _ARCSEC
+        walk = self.gyro_bias_walk * RAD_TO_ARCSEC
         walk = walk * walk * dt
         gate = self.fuse_gate
         e0 = s * d[0]
@@ -1059,10 +1059,9 @@ class Executive(object):
             return False
         s0 = v0 + rc
         s2 = v2 + rr
-        g0 = v0 / s0
-        g2 = v2 / s2
-        fq = unit_quaternion(multiply(from_rotation_vector((g0 * e0 / _ARCSEC, g0 * e1 /
-                                                            _ARCSEC, g2 * e2 / _ARCSEC)), p))
+        g0 = v0 / s0 / RAD_TO_ARCSEC                      # the gains, rad per arcsec
+        g2 = v2 / s2 / RAD_TO_ARCSEC
+        fq = unit_quaternion(multiply(from_rotation_vector((g0 * e0, g0 * e1, g2 * e2)), p))
         if fq is None:
             return False
         self.fq = fq

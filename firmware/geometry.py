@@ -23,6 +23,8 @@ EPS = _machine_epsilon()
 """Machine epsilon of this interpreter's float: 2.2e-16 for double, 1.2e-7 on MicroPython
 ports built with single-precision floats (tolerances scale with it)."""
 
+RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
+
 FLOAT_CODE = "f" if EPS > 1e-10 else "d"
 """``array`` typecode of this interpreter's float: buffers of computed values hold them
 unrounded (4 bytes each on a single-precision MCU, where a boxed float takes a 16-byte heap

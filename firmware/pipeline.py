@@ -37,10 +37,9 @@ from . import screen as _screen
 from . import smear as _smear
 from . import status as S
 from .emit import native
+from .geometry import RAD_TO_ARCSEC
 from .settings import Settings
 from .starid import verify
-
-RAD_TO_ARCSEC = 180.0 * 3600.0 / math.pi
 
 FLOOR_SHARES = (0.0, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0)
 """Candidate shares ``rho`` of the noise floor in a median-flux star's centroid variance

@@ -189,13 +189,14 @@ class Cone:
 
 
 @native
-def candidates(database, q, margin_rad, cone=None):
+def candidates(database, q, margin_rad, cone=None, ahead=None):
     """A :class:`Cone` of the catalogue stars within the FOV's half-diagonal plus
     ``margin_rad`` of the boresight of ``q``: the stars :func:`predict` can find at any
     attitude within ``margin_rad`` of ``q`` (one cone query, reused).  ``cone``: the
     :class:`Cone` to return when it covers them, else to refill (queried
-    :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns); None:
-    a new one."""
+    :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns),
+    centred on the boresight of ``ahead`` when given (within that margin of ``q``'s:
+    :meth:`Tracker.prefetch`); None: a new one."""
     m = matrix(q)
     d = (m[6], m[7], m[8])
     radius = 0.5 * database.fov_diag + margin_rad
@@ -206,6 +207,9 @@ def candidates(database, q, margin_rad, cone=None):
     else:
         cone.clear()                                # its heap is free for the new query
         radius += CONE_REUSE_RAD
+        if ahead is not None:
+            m = matrix(ahead)
+            d = (m[6], m[7], m[8])
     found = []                                     # filled by the same read as the ids
     ids = array("H", database.stars_in_cone(d, radius, vecs=found))
     vecs = array("f", found)
@@ -581,15 +585,10 @@ class Tracker:
             q = propagate(q_prior, omega, dt)
             if q is None:
                 return S.BAD_INPUT
-            cone, reach = self.cone, self._reach()
             lead = _lead_s(omega)
-            if cone is not None and lead > 0:
-                m = matrix(q)
-                if cone.covers(database, (m[6], m[7], m[8]), 0.5 * database.fov_diag + reach):
-                    return S.OK
-                cone.clear()                # refilled, centred ahead (candidates' margin)
-                q = propagate(q_prior, omega, lead if dt is None else dt + lead)
-            self.cone = candidates(database, q, reach, cone)
+            ahead = propagate(q_prior, omega, lead if dt is None else dt + lead) \
+                if lead > 0 else None
+            self.cone = candidates(database, q, self._reach(), self.cone, ahead)
             return S.OK
         except MemoryError:
             status = S.OUT_OF_MEMORY
