@@ -195,8 +195,9 @@ def candidates(database, q, margin_rad, cone=None, ahead=None):
     attitude within ``margin_rad`` of ``q`` (one cone query, reused).  ``cone``: the
     :class:`Cone` to return when it covers them, else to refill (queried
     :data:`CONE_REUSE_RAD` wider; a superset changes nothing :func:`predict` returns),
-    centred on the boresight of ``ahead`` when given (within that margin of ``q``'s:
-    :meth:`Tracker.prefetch`); None: a new one."""
+    centred on the boresight of ``propagate(*ahead)`` when ``ahead`` is given (within that
+    margin of ``q``'s: :meth:`Tracker.prefetch`; propagated only for a refill); None: a new
+    one."""
     m = matrix(q)
     d = (m[6], m[7], m[8])
     radius = 0.5 * database.fov_diag + margin_rad
@@ -208,7 +209,7 @@ def candidates(database, q, margin_rad, cone=None, ahead=None):
         cone.clear()                                # its heap is free for the new query
         radius += CONE_REUSE_RAD
         if ahead is not None:
-            m = matrix(ahead)
+            m = matrix(propagate(*ahead))
             d = (m[6], m[7], m[8])
     found = []                                     # filled by the same read as the ids
     ids = array("H", database.stars_in_cone(d, radius, vecs=found))
@@ -586,8 +587,7 @@ class Tracker:
             if q is None:
                 return S.BAD_INPUT
             lead = _lead_s(omega)
-            ahead = propagate(q_prior, omega, lead if dt is None else dt + lead) \
-                if lead > 0 else None
+            ahead = (q_prior, omega, lead if dt is None else dt + lead) if lead > 0 else None
             self.cone = candidates(database, q, self._reach(), self.cone, ahead)
             return S.OK
         except MemoryError:
